@@ -1,0 +1,1 @@
+"""The fishfarm controller process and its command line."""

@@ -1,0 +1,85 @@
+"""``fishfarm`` command line. Each command lives in its own module, imported only when run,
+so ``fishfarm demand`` does not pay for OpenCV and ``fishfarm survey`` does not load Zenoh."""
+from __future__ import annotations
+
+import importlib
+import os
+import sys
+
+import click
+
+from controller.errors import BadInput
+
+# command name -> "module:attribute" of a click command
+COMMANDS = {
+    "run": "controller.cli.run_cmd:run",
+    "sim": "controller.cli.sim_cmd:sim",
+    "calibrate": "controller.cli.calibrate_cmd:calibrate",
+    "triangulate": "controller.cli.triangulate_cmd:triangulate",
+    "survey": "controller.cli.survey_cmd:survey",
+    "demand": "controller.cli.demand_cmd:demand",
+    "track": "controller.cli.track_cmd:track",
+    "override": "controller.cli.override_cmd:override",
+    "status": "controller.cli.override_cmd:status",
+}
+
+
+class LazyGroup(click.Group):
+    def list_commands(self, ctx):
+        return sorted(name for name in COMMANDS if self._target(name) is not None)
+
+    def get_command(self, ctx, name):
+        return self._target(name)
+
+    @staticmethod
+    def _target(name):
+        spec = COMMANDS.get(name)
+        if spec is None:
+            return None
+        module, attr = spec.split(":")
+        try:
+            return getattr(importlib.import_module(module), attr)
+        except ModuleNotFoundError as exc:
+            if exc.name == module:  # not written yet
+                return None
+            raise
+
+
+@click.group(cls=LazyGroup, context_settings={"help_option_names": ["-h", "--help"]})
+def cli():
+    """Fish-farm automation controller."""
+
+
+def main(argv=None) -> int:
+    """Entry point. Bad input: one line on stderr, exit 2. Never a traceback for the user's mistake."""
+    try:
+        rv = cli.main(args=argv, prog_name="fishfarm", standalone_mode=False)
+        return rv if isinstance(rv, int) else 0
+    except click.exceptions.Exit as exc:
+        return exc.exit_code
+    except click.exceptions.Abort:
+        click.echo("fishfarm: aborted", err=True)
+        return 130
+    except click.ClickException as exc:
+        ctx = getattr(exc, "ctx", None)
+        cmd = f" {ctx.command_path.split(' ', 1)[-1]}" if ctx is not None and ctx.parent else ""
+        click.echo(f"fishfarm{cmd}: {exc.format_message()}", err=True)
+        return 2
+    except BadInput as exc:
+        click.echo(f"fishfarm: {exc}", err=True)
+        return 2
+    except KeyboardInterrupt:
+        return 130
+    except Exception as exc:  # a bug, not the user's fault: still one line unless asked
+        if os.environ.get("FISHFARM_DEBUG"):
+            raise
+        click.echo(f"fishfarm: internal error: {type(exc).__name__}: {exc}", err=True)
+        return 1
+
+
+def entry() -> None:
+    sys.exit(main())
+
+
+if __name__ == "__main__":
+    entry()

@@ -1,0 +1,169 @@
+"""farm.toml: load, validate, and say exactly what is wrong.
+
+Each component owns the model of its own section (Klipper's rule); this module assembles
+them and turns the first validation failure into one line: ``FILE: key.path: reason``.
+Device sections are validated by the model their kind and driver name in ``devices``.
+"""
+from __future__ import annotations
+
+import importlib
+import tomllib
+from pathlib import Path
+from typing import Any, Literal
+
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
+
+from controller.errors import BadInput
+
+DEVICE_KINDS = ("contacts", "rail", "dispenser")
+
+
+class Strict(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+
+class BusConfig(Strict):
+    mode: Literal["peer", "client", "router"] = "peer"
+    listen: list[str] = ["tcp/127.0.0.1:7447"]
+    connect: list[str] = []
+    config: str | None = Field(None, description="Zenoh JSON5 config file; overrides listen/connect")
+    publish_contacts: bool = True
+
+
+class StoreConfig(Strict):
+    path: str = "var/fishfarm.db"
+
+
+class TankConfig(Strict):
+    id: str = Field(pattern=r"^[A-Za-z0-9_-]{1,32}$")
+    species: str = "sparus_aurata"
+    stock: int = Field(gt=0)
+    mean_weight_g: float = Field(gt=0)
+    position_m: float = Field(ge=0)
+    sensors: list[str] = Field(min_length=1)
+    feeding_rate_pct: float | None = Field(None, gt=0, le=20,
+                                           description="% body weight a day; default from species")
+
+
+class FeedingConfig(Strict):
+    portion_g: float = Field(60.0, gt=0, description="largest portion served per demand")
+    min_portion_g: float = Field(5.0, gt=0, description="below this a ration remainder is not served")
+    food_box_m: float = Field(0.0, ge=0)
+    hopper_capacity_g: float = Field(8000.0, gt=0)
+    refill_below_g: float = Field(1500.0, ge=0)
+    auger_rate_g_s: float = Field(12.0, gt=0, description="first guess; learned from the load cell")
+    position_tolerance_m: float = Field(0.05, gt=0)
+    move_timeout_s: float = Field(120.0, gt=0)
+    dispense_timeout_s: float = Field(60.0, gt=0)
+    refill_timeout_s: float = Field(120.0, gt=0)
+    retry_backoff_s: list[float] = Field([5.0, 15.0, 60.0, 300.0], min_length=1)
+    demand_expiry_s: float = Field(600.0, gt=0, description="a demand not served by then is dropped")
+
+
+class Config(Strict):
+    site: str = Field("demo", pattern=r"^[A-Za-z0-9_-]{1,64}$")
+    utc_offset_h: float = Field(0.0, ge=-14, le=14, description="rations reset at local midnight")
+    bus: BusConfig = BusConfig()
+    store: StoreConfig = StoreConfig()
+    feeding: FeedingConfig = FeedingConfig()
+    demand: dict[str, Any] = {}
+    tanks: list[TankConfig] = Field(min_length=1)
+    devices: dict[str, dict[str, Any]] = {}
+    sim: dict[str, Any] = {}
+    path: str = "<config>"
+
+    @field_validator("tanks")
+    @classmethod
+    def _unique_tanks(cls, tanks):
+        seen: set[str] = set()
+        sensors: set[str] = set()
+        for i, tank in enumerate(tanks):
+            if tank.id in seen:
+                raise ValueError(f"tank id {tank.id!r} appears twice (tanks.{i})")
+            seen.add(tank.id)
+            for s in tank.sensors:
+                if s in sensors:
+                    raise ValueError(f"sensor {s!r} belongs to two tanks (tanks.{i})")
+                sensors.add(s)
+        return tanks
+
+    @model_validator(mode="after")
+    def _devices_known(self):
+        for name, section in self.devices.items():
+            if section.get("kind") not in DEVICE_KINDS:
+                raise ValueError(f"devices.{name}.kind must be one of {', '.join(DEVICE_KINDS)}")
+        return self
+
+    def tank(self, tank_id: str) -> TankConfig:
+        for t in self.tanks:
+            if t.id == tank_id:
+                return t
+        raise KeyError(tank_id)
+
+    def devices_of(self, kind: str) -> dict[str, dict[str, Any]]:
+        return {n: s for n, s in self.devices.items() if s.get("kind") == kind}
+
+
+def _loc(err: dict) -> str:
+    return ".".join(str(p) for p in err["loc"]) or "(top level)"
+
+
+def validate_section(model: type[BaseModel], data: Any, where: str, prefix: str = ""):
+    """Validate ``data`` against ``model``; on failure raise BadInput naming file, key and reason."""
+    try:
+        return model.model_validate(data)
+    except ValidationError as exc:
+        err = exc.errors()[0]
+        key = ".".join(p for p in (prefix, _loc(err)) if p)
+        msg = err["msg"]
+        if err["type"] == "extra_forbidden":
+            msg = "unknown key"
+        elif msg.startswith("Value error, "):
+            msg = msg[len("Value error, "):]
+        raise BadInput(where, key, msg) from None
+
+
+def device_model(kind: str, driver: str) -> type[BaseModel]:
+    """The section model of a device backend, looked up through its kind's BACKENDS table."""
+    module = importlib.import_module(f"devices.{kind}")
+    table = dict(module.BACKENDS)
+    if driver == "sim":
+        return importlib.import_module("devices.sim").SIM_SECTIONS[kind]
+    if driver not in table:
+        raise ValueError(f"driver must be one of sim, {', '.join(table)}")
+    mod, attr = table[driver].split(":")
+    return getattr(importlib.import_module(mod), attr).Config
+
+
+def load_config(path: str | Path) -> Config:
+    path = Path(path)
+    where = str(path)
+    try:
+        raw = tomllib.loads(path.read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        raise BadInput(where, None, "no such file") from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise BadInput(where, None, f"cannot read: {exc}") from None
+    except tomllib.TOMLDecodeError as exc:
+        raise BadInput(where, None, f"not valid TOML: {exc}") from None
+    if "tank" in raw and "tanks" not in raw:
+        raw["tanks"] = raw.pop("tank")
+    cfg = validate_section(Config, {**raw, "path": where}, where)
+    for name, section in cfg.devices.items():
+        prefix = f"devices.{name}"
+        try:
+            model = device_model(section["kind"], str(section.get("driver")))
+        except ValueError as exc:
+            raise BadInput(where, f"{prefix}.driver", str(exc)) from None
+        validate_section(model, section, where, prefix)
+    return cfg
+
+
+def load_toml(path: str | Path) -> dict:
+    """Any other TOML file of ours (species.toml), with the same one-line errors."""
+    try:
+        return tomllib.loads(Path(path).read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        raise BadInput(str(path), None, "no such file") from None
+    except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError) as exc:
+        raise BadInput(str(path), None, f"cannot read: {exc}") from None

@@ -1,0 +1,1 @@
+"""Device interfaces, one per kind, with real drivers and simulated twins side by side."""

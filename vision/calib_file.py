@@ -1,0 +1,113 @@
+"""CALIB.json: ``{"P1": 3x4, "P2": 3x4}`` plus optional K1, D1, K2, D2, R, T, image_size, rms_px.
+
+A file with only P1 and P2 is valid input to every command. When D1/D2 are present,
+pixel inputs are undistorted (with K1/K2) before any geometry.
+"""
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from controller.errors import BadInput
+
+
+@dataclass
+class StereoCalibration:
+    P1: np.ndarray                       # (3, 4) pixel <- world mm, camera 1 (left)
+    P2: np.ndarray                       # (3, 4) camera 2 (right)
+    K1: np.ndarray | None = None         # (3, 3)
+    D1: np.ndarray | None = None         # (k,) OpenCV distortion coefficients
+    K2: np.ndarray | None = None
+    D2: np.ndarray | None = None
+    R: np.ndarray | None = None          # (3, 3) camera 2 <- camera 1
+    T: np.ndarray | None = None          # (3,) mm
+    image_size: tuple[int, int] | None = None   # (width, height)
+    rms_px: float | None = None
+    extra: dict = field(default_factory=dict)   # report fields kept verbatim
+
+    @property
+    def has_distortion(self) -> bool:
+        return self.D1 is not None or self.D2 is not None
+
+    def to_json(self) -> dict:
+        out: dict = {"P1": self.P1.tolist(), "P2": self.P2.tolist()}
+        for name in ("K1", "D1", "K2", "D2", "R", "T"):
+            value = getattr(self, name)
+            if value is not None:
+                out[name] = np.asarray(value).tolist()
+        if self.image_size is not None:
+            out["image_size"] = list(self.image_size)
+        if self.rms_px is not None:
+            out["rms_px"] = float(self.rms_px)
+        out.update(self.extra)
+        return out
+
+
+_SHAPES = {"P1": (3, 4), "P2": (3, 4), "K1": (3, 3), "K2": (3, 3), "R": (3, 3), "T": (3,)}
+
+
+def _matrix(data: dict, name: str, where: str) -> np.ndarray | None:
+    if name not in data or data[name] is None:
+        return None
+    try:
+        m = np.asarray(data[name], dtype=float)
+    except (TypeError, ValueError):
+        raise BadInput(where, name, "not a numeric matrix") from None
+    if name in ("D1", "D2"):
+        m = m.reshape(-1)
+        if m.size not in (4, 5, 8, 12, 14):
+            raise BadInput(where, name, f"{m.size} distortion coefficients (expected 4, 5, 8, 12 or 14)")
+    elif name == "T":
+        m = m.reshape(-1)
+    if name in _SHAPES and m.shape != _SHAPES[name]:
+        raise BadInput(where, name, f"shape {list(m.shape)}, expected {list(_SHAPES[name])}")
+    if not np.all(np.isfinite(m)):
+        raise BadInput(where, name, "contains NaN or infinity")
+    return m
+
+
+def load_calibration(path: str | Path) -> StereoCalibration:
+    where = str(path)
+    try:
+        data = json.loads(Path(path).read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        raise BadInput(where, None, "no such file") from None
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise BadInput(where, None, f"not valid JSON: {exc}") from None
+    if not isinstance(data, dict):
+        raise BadInput(where, None, "expected a JSON object with P1 and P2")
+    for name in ("P1", "P2"):
+        if name not in data:
+            raise BadInput(where, name, "missing")
+    mats = {name: _matrix(data, name, where) for name in ("P1", "P2", "K1", "D1", "K2", "D2", "R", "T")}
+    for name in ("P1", "P2"):
+        if np.linalg.matrix_rank(mats[name][:, :3], tol=1e-9 * np.abs(mats[name]).max()) < 3:
+            raise BadInput(where, name, "singular: its left 3x3 block has rank < 3")
+    for d, k in (("D1", "K1"), ("D2", "K2")):
+        if mats[d] is not None and mats[k] is None:
+            raise BadInput(where, d, f"distortion given without {k}")
+    size = data.get("image_size")
+    if size is not None:
+        if (not isinstance(size, list) or len(size) != 2
+                or not all(isinstance(s, int) and s > 0 for s in size)):
+            raise BadInput(where, "image_size", "expected [width, height] in pixels")
+        size = (size[0], size[1])
+    rms = data.get("rms_px")
+    if rms is not None and not (isinstance(rms, (int, float)) and math.isfinite(rms)):
+        raise BadInput(where, "rms_px", "not a number")
+    known = set(_SHAPES) | {"D1", "D2", "image_size", "rms_px"}
+    extra = {k: v for k, v in data.items() if k not in known}
+    return StereoCalibration(image_size=size, rms_px=rms, extra=extra, **mats)
+
+
+def save_calibration(calib: StereoCalibration, path: str | Path) -> None:
+    path = Path(path)
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_text(json.dumps(calib.to_json(), indent=2) + "\n", encoding="utf-8")
+    except OSError as exc:
+        raise BadInput(str(path), None, f"cannot write: {exc}") from None
