@@ -25,15 +25,18 @@ COMMANDS = {
 
 
 class LazyGroup(click.Group):
+    """A group whose subcommands are ``name -> "module:attr"`` in ``table``, imported on use."""
+
+    table = COMMANDS
+
     def list_commands(self, ctx):
-        return sorted(name for name in COMMANDS if self._target(name) is not None)
+        return sorted(name for name in self.table if self._target(name) is not None)
 
     def get_command(self, ctx, name):
         return self._target(name)
 
-    @staticmethod
-    def _target(name):
-        spec = COMMANDS.get(name)
+    def _target(self, name):
+        spec = self.table.get(name)
         if spec is None:
             return None
         module, attr = spec.split(":")
