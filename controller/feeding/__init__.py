@@ -1,0 +1,1 @@
+"""Auto-demand feeding: rations, the rail robot's state machine, the dispense ledger."""

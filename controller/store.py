@@ -1,0 +1,259 @@
+"""The ledger: SQLite in WAL mode with synchronous=FULL, so a committed row survives a power cut.
+
+What it holds: validated demands, feed intents and their outcomes, daily rations, alarms.
+Exactly-once dispensing rests on one rule: a feed row is committed in phase ``intent``
+(with the dispenser's cycle counter read just before and a 16-bit tag) *before* the auger
+is told to start, and closed as ``done`` (grams from the load cell) or ``aborted`` after.
+``reconcile()`` decides an open intent from the dispenser's own counters after a restart.
+
+The schema is versioned with ``PRAGMA user_version``; ``MIGRATIONS[i]`` takes version i to i+1.
+"""
+from __future__ import annotations
+
+import sqlite3
+import threading
+import uuid
+from dataclasses import dataclass
+from pathlib import Path
+
+MIGRATIONS = [
+    """
+    CREATE TABLE demand (
+        id       INTEGER PRIMARY KEY,
+        tank     TEXT NOT NULL,
+        t        REAL NOT NULL,
+        rate_hz  REAL NOT NULL,
+        outcome  TEXT NOT NULL DEFAULT 'open',   -- open | served | expired | ration_reached
+        feed_id  TEXT
+    );
+    CREATE INDEX demand_tank_t ON demand (tank, t);
+    CREATE TABLE feed (
+        id           TEXT PRIMARY KEY,
+        seq          INTEGER NOT NULL UNIQUE,
+        tank         TEXT NOT NULL,
+        date         TEXT NOT NULL,             -- farm day the grams count against
+        t_intent     REAL NOT NULL,
+        target_g     REAL NOT NULL,
+        run_s        REAL NOT NULL,
+        tag          INTEGER NOT NULL,
+        cycles_before INTEGER NOT NULL,
+        phase        TEXT NOT NULL,             -- intent | done | aborted
+        grams        REAL,
+        t_closed     REAL,
+        note         TEXT,
+        source       TEXT NOT NULL,             -- demand | operator
+        demand_id    INTEGER,
+        published    TEXT                       -- last phase published on the bus
+    );
+    CREATE INDEX feed_tank_date ON feed (tank, date);
+    CREATE INDEX feed_phase ON feed (phase);
+    CREATE TABLE ration (
+        tank      TEXT NOT NULL,
+        date      TEXT NOT NULL,
+        grams     REAL NOT NULL,
+        pellet_mm REAL NOT NULL,
+        source    TEXT NOT NULL,                -- config | survey | operator
+        t         REAL NOT NULL,
+        PRIMARY KEY (tank, date)
+    );
+    CREATE TABLE alarm (
+        id       INTEGER PRIMARY KEY,
+        source   TEXT NOT NULL,
+        t        REAL NOT NULL,
+        severity TEXT NOT NULL,
+        text     TEXT NOT NULL,
+        active   INTEGER NOT NULL
+    );
+    CREATE INDEX alarm_source ON alarm (source, id);
+    """,
+]
+
+
+@dataclass(frozen=True)
+class Feed:
+    id: str
+    seq: int
+    tank: str
+    date: str
+    t_intent: float
+    target_g: float
+    run_s: float
+    tag: int
+    cycles_before: int
+    phase: str
+    grams: float | None
+    t_closed: float | None
+    note: str | None
+    source: str
+    demand_id: int | None
+    published: str | None
+
+
+@dataclass(frozen=True)
+class Reconciled:
+    feed: Feed
+    phase: str          # done | aborted | wait (the auger is still running)
+    grams: float | None
+    note: str
+
+
+def reconcile(feed: Feed, state) -> Reconciled:
+    """Decide an open intent from the dispenser's counters (``DispenserState``).
+
+    The device counts completed runs and remembers the tag and load-cell grams of the last
+    one. Our run happened iff the counter moved past ``cycles_before`` and the last tag is
+    ours; it never started iff the counter has not moved and the auger is still.
+    """
+    if state.running:
+        return Reconciled(feed, "wait", None, "auger still running")
+    moved = (state.cycles - feed.cycles_before) % 2**32
+    if moved == 0:
+        return Reconciled(feed, "aborted", None, "auger never started")
+    if state.last_tag == feed.tag and moved == 1:
+        note = "jammed; load cell grams" if state.jammed else "reconciled from dispenser counters"
+        return Reconciled(feed, "done", state.last_grams, note)
+    if state.last_tag == feed.tag:
+        # other runs happened before ours completed? impossible: ours is the last; count it.
+        return Reconciled(feed, "done", state.last_grams, f"reconciled; counter moved by {moved}")
+    return Reconciled(feed, "unknown", None,
+                      f"dispenser counter moved by {moved} but last tag {state.last_tag} is not ours")
+
+
+class Store:
+    """One SQLite connection, used from the controller's event loop thread (plus a lock for
+    the occasional call from another thread). Every write is its own committed transaction."""
+
+    def __init__(self, path: str | Path):
+        self.path = Path(path)
+        if str(path) != ":memory:":
+            self.path.parent.mkdir(parents=True, exist_ok=True)
+        self._lock = threading.RLock()
+        self.db = sqlite3.connect(str(path), isolation_level=None, check_same_thread=False)
+        self.db.row_factory = sqlite3.Row
+        self.db.execute("PRAGMA journal_mode=WAL")
+        self.db.execute("PRAGMA synchronous=FULL")
+        self.db.execute("PRAGMA busy_timeout=5000")
+        self._migrate()
+
+    # -- schema ---------------------------------------------------------------
+    def _migrate(self) -> None:
+        with self._lock:
+            version = self.db.execute("PRAGMA user_version").fetchone()[0]
+            if version > len(MIGRATIONS):
+                raise RuntimeError(f"{self.path}: schema version {version} is newer than this program "
+                                   f"({len(MIGRATIONS)})")
+            for i in range(version, len(MIGRATIONS)):
+                self.db.execute("BEGIN IMMEDIATE")
+                try:
+                    for statement in filter(str.strip, MIGRATIONS[i].split(";")):
+                        self.db.execute(statement)
+                    self.db.execute(f"PRAGMA user_version = {i + 1}")
+                    self.db.execute("COMMIT")
+                except BaseException:
+                    self.db.execute("ROLLBACK")
+                    raise
+
+    @property
+    def schema_version(self) -> int:
+        return self.db.execute("PRAGMA user_version").fetchone()[0]
+
+    def close(self) -> None:
+        with self._lock:
+            if self.db is not None:
+                self.db.close()
+                self.db = None
+
+    def _write(self, sql: str, args=()) -> sqlite3.Cursor:
+        with self._lock:
+            return self.db.execute(sql, args)
+
+    # -- demands --------------------------------------------------------------
+    def add_demand(self, tank: str, t: float, rate_hz: float) -> int:
+        return self._write("INSERT INTO demand (tank, t, rate_hz) VALUES (?, ?, ?)",
+                           (tank, t, rate_hz)).lastrowid
+
+    def close_demand(self, demand_id: int, outcome: str, feed_id: str | None = None) -> None:
+        self._write("UPDATE demand SET outcome = ?, feed_id = ? WHERE id = ?", (outcome, feed_id, demand_id))
+
+    def open_demands(self) -> list[sqlite3.Row]:
+        return self.db.execute("SELECT * FROM demand WHERE outcome = 'open' ORDER BY t").fetchall()
+
+    # -- feeds ----------------------------------------------------------------
+    def next_tag(self) -> tuple[int, int]:
+        """(seq, tag): seq counts every feed ever; the 16-bit tag cycles 1..65535."""
+        seq = (self.db.execute("SELECT COALESCE(MAX(seq), 0) FROM feed").fetchone()[0]) + 1
+        return seq, (seq - 1) % 65535 + 1
+
+    def add_intent(self, *, tank: str, date: str, t: float, target_g: float, run_s: float,
+                   cycles_before: int, source: str, demand_id: int | None = None) -> Feed:
+        with self._lock:
+            seq, tag = self.next_tag()
+            feed_id = uuid.uuid4().hex[:16]
+            self.db.execute(
+                "INSERT INTO feed (id, seq, tank, date, t_intent, target_g, run_s, tag, cycles_before, "
+                "phase, source, demand_id) VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, 'intent', ?, ?)",
+                (feed_id, seq, tank, date, t, target_g, run_s, tag, cycles_before, source, demand_id))
+            return self.feed(feed_id)
+
+    def close_feed(self, feed_id: str, phase: str, grams: float | None, t: float, note: str = "") -> Feed:
+        if phase not in ("done", "aborted"):
+            raise ValueError(phase)
+        with self._lock:
+            cur = self.db.execute(
+                "UPDATE feed SET phase = ?, grams = ?, t_closed = ?, note = ? WHERE id = ? AND phase = 'intent'",
+                (phase, grams, t, note, feed_id))
+            if cur.rowcount != 1:
+                raise RuntimeError(f"feed {feed_id} is not an open intent")
+            return self.feed(feed_id)
+
+    def mark_published(self, feed_id: str, phase: str) -> None:
+        self._write("UPDATE feed SET published = ? WHERE id = ?", (phase, feed_id))
+
+    def feed(self, feed_id: str) -> Feed:
+        row = self.db.execute("SELECT * FROM feed WHERE id = ?", (feed_id,)).fetchone()
+        return Feed(**dict(row))
+
+    def open_intents(self) -> list[Feed]:
+        return [Feed(**dict(r)) for r in
+                self.db.execute("SELECT * FROM feed WHERE phase = 'intent' ORDER BY seq")]
+
+    def unpublished(self) -> list[Feed]:
+        return [Feed(**dict(r)) for r in self.db.execute(
+            "SELECT * FROM feed WHERE published IS NULL OR published != phase ORDER BY seq")]
+
+    def fed_g(self, tank: str, date: str) -> float:
+        """Grams measured into ``tank`` on farm day ``date`` (done feeds only)."""
+        return self.db.execute("SELECT COALESCE(SUM(grams), 0) FROM feed WHERE tank = ? AND date = ? "
+                               "AND phase = 'done'", (tank, date)).fetchone()[0]
+
+    def committed_g(self, tank: str, date: str) -> float:
+        """Fed plus the targets of open intents: what the ration must still cover."""
+        return self.db.execute(
+            "SELECT COALESCE(SUM(CASE phase WHEN 'done' THEN grams ELSE target_g END), 0) FROM feed "
+            "WHERE tank = ? AND date = ? AND phase IN ('done', 'intent')", (tank, date)).fetchone()[0]
+
+    def total_fed_g(self) -> float:
+        return self.db.execute("SELECT COALESCE(SUM(grams), 0) FROM feed WHERE phase = 'done'").fetchone()[0]
+
+    def feeds(self) -> list[Feed]:
+        return [Feed(**dict(r)) for r in self.db.execute("SELECT * FROM feed ORDER BY seq")]
+
+    # -- rations --------------------------------------------------------------
+    def set_ration(self, tank: str, date: str, grams: float, pellet_mm: float, source: str, t: float) -> None:
+        self._write("INSERT INTO ration (tank, date, grams, pellet_mm, source, t) VALUES (?, ?, ?, ?, ?, ?) "
+                    "ON CONFLICT (tank, date) DO UPDATE SET grams = excluded.grams, "
+                    "pellet_mm = excluded.pellet_mm, source = excluded.source, t = excluded.t",
+                    (tank, date, grams, pellet_mm, source, t))
+
+    def ration(self, tank: str, date: str) -> sqlite3.Row | None:
+        return self.db.execute("SELECT * FROM ration WHERE tank = ? AND date = ?", (tank, date)).fetchone()
+
+    # -- alarms ---------------------------------------------------------------
+    def add_alarm(self, source: str, t: float, severity: str, text: str, active: bool) -> None:
+        self._write("INSERT INTO alarm (source, t, severity, text, active) VALUES (?, ?, ?, ?, ?)",
+                    (source, t, severity, text, int(active)))
+
+    def active_alarms(self) -> list[sqlite3.Row]:
+        return self.db.execute(
+            "SELECT a.* FROM alarm a JOIN (SELECT source, MAX(id) AS id FROM alarm GROUP BY source) l "
+            "ON a.id = l.id WHERE a.active = 1 ORDER BY a.t").fetchall()
