@@ -200,7 +200,8 @@ class Store:
             raise ValueError(phase)
         with self._lock:
             cur = self.db.execute(
-                "UPDATE feed SET phase = ?, grams = ?, t_closed = ?, note = ? WHERE id = ? AND phase = 'intent'",
+                "UPDATE feed SET phase = ?, grams = ?, t_closed = ?, note = ? "
+                "WHERE id = ? AND phase = 'intent'",
                 (phase, grams, t, note, feed_id))
             if cur.rowcount != 1:
                 raise RuntimeError(f"feed {feed_id} is not an open intent")

@@ -1,0 +1,30 @@
+"""``fishfarm triangulate --calib CALIB.json --pairs PAIRS.csv [--out OUT.csv]``
+
+Each pixel pair ``u1,v1,u2,v2`` becomes ``x_mm,y_mm,z_mm,residual_px`` by the least squares of the
+paper's eq. (6), in the calibration's world frame, one row per input row in order. Pixels are
+undistorted first when CALIB.json has D1/D2. Without --out the CSV goes to stdout.
+"""
+from __future__ import annotations
+
+import click
+import numpy as np
+
+from controller.cli.csvio import read_table, write_table
+
+PAIRS_HEADER = ("u1", "v1", "u2", "v2")
+OUT_HEADER = ("x_mm", "y_mm", "z_mm", "residual_px")
+
+
+@click.command()
+@click.option("--calib", "calib_path", required=True, metavar="CALIB.json", help="P1, P2 (and optional K, D)")
+@click.option("--pairs", "pairs_path", required=True, metavar="PAIRS.csv", help="matched pixels: u1,v1,u2,v2")
+@click.option("--out", "out_path", default=None, metavar="OUT.csv", help="output CSV (default: stdout)")
+def triangulate(calib_path: str, pairs_path: str, out_path: str | None) -> None:
+    """3-D points of matched pixel pairs, with the reprojection residual in pixels."""
+    from vision.calib_file import load_calibration
+    from vision.triangulation import triangulate_calibrated
+
+    calib = load_calibration(calib_path)
+    pairs = read_table(pairs_path, PAIRS_HEADER)
+    points, residual = triangulate_calibrated(calib, pairs[:, :2], pairs[:, 2:4])
+    write_table(out_path, OUT_HEADER, np.c_[points, residual])

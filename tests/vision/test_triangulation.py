@@ -1,0 +1,109 @@
+"""Triangulation by least squares of the paper's eq. (6), batched, with pixel residuals."""
+import time
+
+import numpy as np
+import pytest
+
+from devices.sim.stereo_rig import convergent_rig, random_points_in_grid_volume, two_plane_object
+from vision.triangulation import normalise_projection, project, triangulate, triangulate_calibrated
+
+RIG = convergent_rig()
+WORLD = random_points_in_grid_volume(two_plane_object(), 500, np.random.default_rng(9))
+
+
+def _eq6_reference(P1, P2, pts1, pts2):
+    """Eq. (6) written out row by row, solved with numpy's batched pseudo-inverse."""
+    rows, rhs = [], []
+    for P, pts in ((normalise_projection(P1), pts1), (normalise_projection(P2), pts2)):
+        for i, coord in ((0, pts[:, 0]), (1, pts[:, 1])):
+            a = P[i][None, :] - coord[:, None] * P[2][None, :]       # (N, 4)
+            rows.append(a[:, :3])
+            rhs.append(-a[:, 3])
+    A = np.stack(rows, axis=1)                                       # (N, 4, 3)
+    b = np.stack(rhs, axis=1)[:, :, None]
+    return (np.linalg.pinv(A) @ b)[:, :, 0]
+
+
+def test_noiseless_pairs_give_the_points_and_zero_residual():
+    p1, p2 = RIG.project(WORLD)
+    X, residual = triangulate(RIG.P1, RIG.P2, p1, p2)
+    np.testing.assert_allclose(X, WORLD, atol=1e-8)
+    assert residual.max() < 1e-8
+
+
+def test_solution_is_the_least_squares_of_equation_6():
+    rng = np.random.default_rng(1)
+    p1, p2 = RIG.project(WORLD, 2.0, rng)
+    X, _ = triangulate(RIG.P1, RIG.P2, p1, p2)
+    np.testing.assert_allclose(X, _eq6_reference(RIG.P1, RIG.P2, p1, p2), atol=1e-7)
+
+
+def test_residual_is_rms_reprojection_distance_over_both_images():
+    rng = np.random.default_rng(2)
+    p1, p2 = RIG.project(WORLD, 1.0, rng)
+    X, residual = triangulate(RIG.P1, RIG.P2, p1, p2)
+    d1 = np.linalg.norm(project(RIG.P1, X) - p1, axis=1)
+    d2 = np.linalg.norm(project(RIG.P2, X) - p2, axis=1)
+    np.testing.assert_allclose(residual, np.sqrt((d1 ** 2 + d2 ** 2) / 2), rtol=1e-10)
+    # one degree of freedom (along the epipolar line) of four is not absorbed by the 3-D point
+    assert np.sqrt(np.mean(residual ** 2)) == pytest.approx(np.sqrt(1 / 2), rel=0.15)
+
+
+def test_reweighting_moves_towards_pixel_least_squares():
+    rng = np.random.default_rng(3)
+    p1, p2 = RIG.project(WORLD, 1.0, rng)
+    _, r0 = triangulate(RIG.P1, RIG.P2, p1, p2, iterations=0)
+    _, r1 = triangulate(RIG.P1, RIG.P2, p1, p2, iterations=1)
+    assert np.sum(r1 ** 2) <= np.sum(r0 ** 2) * (1 + 1e-9)
+
+
+def test_world_origin_far_away_keeps_precision():
+    offset = np.array([5e6, 2e6, -1e6])                 # a grid surveyed in site coordinates, mm
+    shift = np.vstack([np.c_[np.eye(3), -offset], [0, 0, 0, 1]])
+    p1, p2 = RIG.project(WORLD)
+    X, residual = triangulate(RIG.P1 @ shift, RIG.P2 @ shift, p1, p2)
+    np.testing.assert_allclose(X - offset, WORLD, atol=1e-5)
+    assert residual.max() < 1e-6
+
+
+def test_distorted_pixels_are_undistorted_first():
+    D = np.array([-0.15, 0.08, 0.0, 0.0, 0.0])
+    rig = convergent_rig(distortion=D)
+    p1, p2 = rig.project(WORLD)
+    calib = rig.calibration()
+    X, residual = triangulate_calibrated(calib, p1, p2)
+    np.testing.assert_allclose(X, WORLD, atol=1e-3)
+    assert residual.max() < 1e-3
+    naive, _ = triangulate(calib.P1, calib.P2, p1, p2)
+    assert np.abs(naive - WORLD).max() > 1.0             # ignoring distortion costs millimetres
+
+
+def test_empty_and_mismatched_inputs():
+    X, residual = triangulate(RIG.P1, RIG.P2, np.empty((0, 2)), np.empty((0, 2)))
+    assert X.shape == (0, 3) and residual.shape == (0,)
+    with pytest.raises(ValueError, match="points"):
+        triangulate(RIG.P1, RIG.P2, np.zeros((3, 2)), np.zeros((2, 2)))
+
+
+def test_batched_solution_is_far_faster_than_a_loop_over_points():
+    """Throughput as a ratio (absolute rates are in bench/bench_stereo.py): per point, the batched
+    solution must beat solving eq. (6) point by point with numpy by a wide margin."""
+    world = random_points_in_grid_volume(two_plane_object(), 100_000, np.random.default_rng(0))
+    p1, p2 = RIG.project(world)
+    few = slice(0, 500)
+
+    def one_by_one():
+        for a, b in zip(p1[few], p2[few], strict=True):
+            _eq6_reference(RIG.P1, RIG.P2, a[None], b[None])
+
+    def per_point(fn, n):
+        times = []
+        for _ in range(3):
+            t0 = time.perf_counter()
+            fn()
+            times.append(time.perf_counter() - t0)
+        return np.median(times) / n
+
+    ours = per_point(lambda: triangulate(RIG.P1, RIG.P2, p1, p2), len(world))
+    looped = per_point(one_by_one, 500)
+    assert looped / ours > 20
