@@ -7,12 +7,18 @@ Interface: ``Dispenser``. Backends, chosen by ``driver`` through ``BACKENDS``:
 Exactly-once dispensing rests on the device's own counters: every auger run carries a
 ``tag`` chosen by the controller; the device counts completed runs and keeps the tag and
 load-cell grams of the last one, so after a restart the controller can tell whether an
-intent it wrote ran, is running, or never started.
+intent it wrote ran, is running, or never started: ``DispenserState.fate(tag)``.
+The whole state, counters included, is read in one request, so it is one consistent
+snapshot. Tags must differ from one run to the next (the device refuses a start whose tag
+is the running or the last run's), which makes ``run_auger`` idempotent per tag: calling
+it again with the tag the device is running or ran last starts nothing and returns normally
+(so a start resent after a lost reply, or by a restarted controller, never runs twice).
 """
 from __future__ import annotations
 
 import abc
 from dataclasses import dataclass
+from typing import Literal
 
 from devices.base import Device
 
@@ -28,6 +34,17 @@ class DispenserState:
     last_grams: float       # load-cell grams delivered by that run
     total_grams: float      # load-cell grams delivered since power-on
     resolution_g: float
+    run_tag: int = 0        # tag of the run in progress, 0 when the auger is idle
+
+    def fate(self, tag: int) -> Literal["running", "done", "not_started"]:
+        """What became of the run ``tag`` (an intent's tag), judged from this snapshot.
+
+        "done": it finished (completed, stopped or jammed) and ``last_grams`` is what it
+        delivered. Valid for the latest intent only, which is all a restart has to settle.
+        """
+        if self.running and self.run_tag == tag:
+            return "running"
+        return "done" if self.last_tag == tag else "not_started"
 
 
 class Dispenser(Device):
@@ -37,7 +54,10 @@ class Dispenser(Device):
         return await self._read()
 
     async def run_auger(self, run_s: float, tag: int) -> None:
-        """Start one auger run of ``run_s`` farm seconds, timed by the device itself."""
+        """Start one auger run of ``run_s`` farm seconds, timed by the device itself.
+
+        Returns once the device has accepted (or had already accepted) the run ``tag``;
+        follow it with ``read()``. DeviceFault when the auger is jammed or busy."""
         if not 0 < run_s <= 600:
             raise ValueError(f"{self.name}: auger run of {run_s} s is out of range")
         if not 0 < tag < 65536:

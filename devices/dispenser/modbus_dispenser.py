@@ -1,0 +1,191 @@
+"""The dispenser PLC over Modbus TCP, through pymodbus 3.16's ``AsyncModbusTcpClient``.
+
+Register map (holding registers; FC3 and FC4 read the same cells). Words are big-endian and
+32/64-bit values put the high word first. Grams travel as load-cell counts of RES_MG mg.
+
+  status block, read-only, 14 registers read in ONE request (one consistent snapshot):
+  100      STATE       bit0 running, bit1 jammed (latched until CLEAR_FAULT), bit2 refill gate open
+  101      RUN_TAG     tag of the run in progress, 0 when the auger is idle
+  102-103  HOPPER      uint32 counts: the load cell now
+  104-105  CYCLES      uint32: finished runs (completed, stopped or jammed) since power-on
+  106      LAST_TAG    tag of the last finished run
+  107-108  LAST_GRAMS  uint32 counts: load cell before that run minus after it
+  109-112  TOTAL       uint64 counts: sum of LAST_GRAMS since power-on
+  113      RES_MG      milligrams per count (100 = 0.1 g)
+  command block, read/write:
+  200-201  RUN_MS      uint32 farm milliseconds, 1..600000, timed by the device itself
+  202      TAG         1..65535, must differ from RUN_TAG and LAST_TAG
+  203      COMMAND     1 START (RUN_MS, TAG), 2 STOP, 3 CLEAR_FAULT, 4 GATE_OPEN, 5 GATE_CLOSE
+  A start is one FC16 write of 200-203, so its parameters and its trigger arrive together.
+
+Exception responses: 02 address outside the map, or a write to the status block; 03 RUN_MS or
+TAG out of range, TAG equal to RUN_TAG or LAST_TAG, unknown command; 04 START while jammed;
+06 START while running or with the gate open, GATE_OPEN while running.
+
+Errors: no connection -> LinkDown; no reply after ``retries`` resends -> DeviceTimeout (LinkDown
+if the connection went meanwhile); exception response -> DeviceRefused, a DeviceFault carrying
+``code``. The client does not reconnect in the background: the next call after a drop does, and
+a call that finds its (older) connection dead reconnects and sends once more before LinkDown.
+"""
+from __future__ import annotations
+
+import struct
+
+from pydantic import Field
+from pymodbus.client import AsyncModbusTcpClient
+from pymodbus.exceptions import ConnectionException, ModbusException, ModbusIOException
+
+from devices.base import Section
+from devices.dispenser import Dispenser, DispenserState
+from devices.errors import DeviceFault, DeviceTimeout, LinkDown, ProtocolError
+
+STATUS_ADDR, STATUS_FORMAT = 100, ">HHIIHIQH"   # STATE RUN_TAG HOPPER CYCLES LAST_TAG LAST TOTAL RES
+COMMAND_ADDR, COMMAND_FORMAT = 200, ">IHH"      # RUN_MS TAG COMMAND
+STATUS_REGS = struct.calcsize(STATUS_FORMAT) // 2
+COMMAND_REGS = struct.calcsize(COMMAND_FORMAT) // 2
+COMMAND_REG = COMMAND_ADDR + COMMAND_REGS - 1
+RUNNING, JAMMED, REFILLING = 1, 2, 4
+START, STOP, CLEAR_FAULT, GATE_OPEN, GATE_CLOSE = 1, 2, 3, 4, 5
+MAX_RUN_MS = 600_000
+ILLEGAL_ADDRESS, ILLEGAL_VALUE, DEVICE_FAILURE, DEVICE_BUSY = 2, 3, 4, 6
+MEANING = {
+    ILLEGAL_ADDRESS: "illegal address",
+    ILLEGAL_VALUE: "illegal value: run time or tag out of range, or tag already used by the last run",
+    DEVICE_FAILURE: "device failure; on a start: auger jammed, latched until clear_fault",
+    DEVICE_BUSY: "busy: auger running or refill gate open",
+}
+
+
+def to_registers(fmt: str, *values: int) -> list[int]:
+    raw = struct.pack(fmt, *values)
+    return list(struct.unpack(f">{len(raw) // 2}H", raw))
+
+
+def from_registers(fmt: str, registers: list[int]) -> tuple[int, ...]:
+    return struct.unpack(fmt, struct.pack(f">{len(registers)}H", *registers))
+
+
+def state_from_fields(fields: tuple[int, ...]) -> DispenserState:
+    """The status block's fields (in STATUS_FORMAT order) as the farm reads them."""
+    bits, run_tag, hopper, cycles, last_tag, last, total, res_mg = fields
+    return DispenserState(
+        hopper_g=hopper * res_mg / 1000, running=bool(bits & RUNNING), jammed=bool(bits & JAMMED),
+        refilling=bool(bits & REFILLING), cycles=cycles, last_tag=last_tag,
+        last_grams=last * res_mg / 1000, total_grams=total * res_mg / 1000,
+        resolution_g=res_mg / 1000, run_tag=run_tag)
+
+
+class DeviceRefused(DeviceFault):
+    """The dispenser answered with a Modbus exception response; ``code`` is its exception code."""
+
+    def __init__(self, device: str, what: str, code: int):
+        super().__init__(device, f"{what} refused: Modbus exception {code:#04x} "
+                                 f"({MEANING.get(code, 'device-specific')})")
+        self.code = code
+
+
+class Config(Section):
+    host: str = "127.0.0.1"
+    port: int = Field(502, ge=1, le=65535)
+    unit: int = Field(1, ge=0, le=247)
+    timeout_s: float = Field(1.0, gt=0, le=60, description="wall seconds to wait for one reply")
+    retries: int = Field(1, ge=0, le=10, description="resends of an unanswered request")
+
+
+class ModbusDispenser(Dispenser):
+    Config = Config
+
+    def __init__(self, name: str, config: Config, clock):
+        super().__init__(name, config, clock)
+        self._client: AsyncModbusTcpClient | None = None
+        self._in_flight = False
+
+    async def _open(self) -> None:
+        await self._connected()
+
+    async def _close(self) -> None:
+        if self._client is not None:
+            self._client.close()
+            self._client = None
+
+    async def _read(self) -> DispenserState:
+        reply = await self._request("read", lambda c: c.read_holding_registers(
+            STATUS_ADDR, count=STATUS_REGS, device_id=self.config.unit))
+        if len(reply.registers) != STATUS_REGS:
+            raise ProtocolError(self.name, f"status read returned {len(reply.registers)} registers")
+        return state_from_fields(from_registers(STATUS_FORMAT, reply.registers))
+
+    async def _run_auger(self, run_s: float, tag: int) -> None:
+        block = to_registers(COMMAND_FORMAT, max(1, round(run_s * 1000)), tag, START)
+        try:
+            await self._request(f"start of run {tag}", lambda c: c.write_registers(
+                COMMAND_ADDR, block, device_id=self.config.unit))
+        except DeviceRefused as exc:
+            # A start resent after a lost reply (by pymodbus or by a restarted controller) is
+            # refused as busy/duplicate; the run it asked for exists, so that is success.
+            if exc.code in (ILLEGAL_VALUE, DEVICE_BUSY) and (await self._read()).fate(tag) != "not_started":
+                return
+            raise
+
+    async def _stop(self) -> None:
+        await self._command("stop", STOP)
+
+    async def _set_refill(self, open_gate: bool) -> None:
+        await self._command("refill gate", GATE_OPEN if open_gate else GATE_CLOSE)
+
+    async def _clear_fault(self) -> None:
+        await self._command("clear fault", CLEAR_FAULT)
+
+    async def _command(self, what: str, command: int) -> None:
+        unit = self.config.unit
+        await self._request(what, lambda c: c.write_register(COMMAND_REG, command, device_id=unit))
+
+    async def _connected(self) -> AsyncModbusTcpClient:
+        cfg = self.config
+        if self._closed:
+            raise LinkDown(self.name, "dispenser link is closed")
+        if self._client is None:
+            # reconnect_delay=0: no background reconnect loop; the next call reconnects.
+            self._client = AsyncModbusTcpClient(
+                cfg.host, port=cfg.port, timeout=cfg.timeout_s, retries=cfg.retries,
+                reconnect_delay=0, name=self.name, trace_connect=self._link_changed)
+        if not self._client.connected and not await self._client.connect():
+            raise LinkDown(self.name, f"cannot connect to {cfg.host}:{cfg.port}")
+        return self._client
+
+    def _link_changed(self, connected: bool) -> None:
+        # pymodbus notices a dropped connection but lets the pending request run out its
+        # timeout (and resends); fail it at once instead, so a drop reads as LinkDown.
+        future = getattr(self._client.ctx, "response_future", None) if self._client else None
+        if not connected and self._in_flight and future is not None and not future.done():
+            future.set_exception(ConnectionException("connection lost"))
+
+    async def _request(self, what: str, send):
+        stale = self._client is not None and self._client.connected
+        try:
+            return await self._exchange(what, await self._connected(), send)
+        except LinkDown:
+            if not stale:
+                raise
+        # The connection predates this call and was found dead (PLCs close idle connections):
+        # reconnect and send once more. Every command here is idempotent (starts are, by tag).
+        return await self._exchange(what, await self._connected(), send)
+
+    async def _exchange(self, what: str, client: AsyncModbusTcpClient, send):
+        self._in_flight = True
+        try:
+            reply = await send(client)
+        except ConnectionException as exc:
+            raise LinkDown(self.name, f"{what}: connection lost ({exc})") from None
+        except ModbusIOException:
+            if not client.connected:
+                raise LinkDown(self.name, f"{what}: connection lost") from None
+            raise DeviceTimeout(self.name, f"{what}: no reply within {self.config.timeout_s} s "
+                                           f"({self.config.retries} resends)") from None
+        except ModbusException as exc:
+            raise ProtocolError(self.name, f"{what}: {exc}") from None
+        finally:
+            self._in_flight = False
+        if reply.isError():
+            raise DeviceRefused(self.name, what, reply.exception_code)
+        return reply
