@@ -248,7 +248,10 @@ class DispenserPhysics:
         p = self.params
         lo, hi = p.drift_bounds
         self.drift = min(hi, max(lo, self.drift * math.exp(self._rng.gauss(0.0, p.rate_drift))))
-        noise = min(1.5, max(0.5, 1.0 + self._rng.gauss(0.0, p.rate_noise)))
+        # pellets in a turning auger vary, but within bounds: an auger that sometimes threw out
+        # double its dose would be broken, not noisy. Three standard deviations either way.
+        spread = 3.0 * p.rate_noise
+        noise = min(1.0 + spread, max(1.0 - spread, 1.0 + self._rng.gauss(0.0, p.rate_noise)))
         return p.rate_g_s * self.drift * noise
 
     def _stall_at(self, t0: float, run_s: float) -> float | None:
