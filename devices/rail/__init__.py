@@ -24,6 +24,8 @@ class RailStatus:
     state: str          # "unhomed" | "homing" | "idle" | "moving" | "fault" | "estop"
     homed: bool
     fault_code: int = 0
+    at_target: bool = False     # idle at the last commanded target (or at home after homing)
+    at_limit: bool = False      # on the home switch or at the far soft limit
 
 
 class RailDrive(Device):
@@ -41,16 +43,18 @@ class RailDrive(Device):
         has gone silent for longer than its timeout (wall seconds)."""
         return self._status()
 
-    async def wait_until(self, predicate, timeout_s: float) -> RailStatus:
-        """Wait (farm seconds) until a status satisfies ``predicate``; DeviceTimeout otherwise."""
-        return await self._wait_until(predicate, timeout_s)
+    async def wait_until(self, predicate, timeout_s: float, *, stop_on_fault: bool = True) -> RailStatus:
+        """Wait (farm seconds) until a status satisfies ``predicate``; DeviceTimeout otherwise.
+        A status in "fault" or "estop" that does not satisfy it raises DeviceFault at once,
+        unless ``stop_on_fault`` is False (e.g. to watch the carriage come to rest after an e-stop)."""
+        return await self._wait_until(predicate, timeout_s, stop_on_fault)
 
     @abc.abstractmethod
     async def _command(self, what: str, arg: float | None = None) -> None: ...
     @abc.abstractmethod
     def _status(self) -> RailStatus | None: ...
     @abc.abstractmethod
-    async def _wait_until(self, predicate, timeout_s: float) -> RailStatus: ...
+    async def _wait_until(self, predicate, timeout_s: float, stop_on_fault: bool) -> RailStatus: ...
 
 
 BACKENDS = {

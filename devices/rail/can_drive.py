@@ -1,0 +1,360 @@
+"""The rail drive on CAN: the frames the motor controller speaks, and the driver that speaks them.
+
+python-can does the bus work (``can.Bus`` for any interface, ``can.Notifier`` feeding the asyncio
+loop); this module only knows the drive's frames. Standard 11-bit ids, a node id (1..127),
+little-endian (as CANopen), distances in 0.1 mm, speeds in mm/s:
+
+    0x200+node  command  controller -> drive   DLC 8: op u8, seq u8, target i32 (0.1 mm), speed u16 (mm/s)
+    0x180+node  status   drive -> controller   DLC 8: position i24 (0.1 mm), velocity i16 (mm/s),
+                                                      state|flags u8, fault u8, last accepted seq u8
+    0x280+node  reply    drive -> controller   DLC 3: seq u8, op u8, result u8 (0 accepted, else reason)
+
+The drive sends a status frame at once on every state change and as a heartbeat (wall period);
+an accepted command is answered by a status frame carrying its seq, then the reply, so when a
+command returns the driver's status already shows its effect.
+"""
+from __future__ import annotations
+
+import asyncio
+import logging
+import math
+import struct
+import time
+from dataclasses import dataclass
+from enum import IntEnum
+from typing import Any
+
+import can
+from pydantic import Field, model_validator
+
+from devices.base import Section
+from devices.errors import DeviceFault, DeviceTimeout, LinkDown
+from devices.rail import RailDrive, RailStatus
+
+log = logging.getLogger(__name__)
+
+COMMAND_BASE, STATUS_BASE, REPLY_BASE = 0x200, 0x180, 0x280
+STATES = ("unhomed", "homing", "idle", "moving", "fault", "estop")   # state code = index
+FLAG_HOMED, FLAG_AT_TARGET, FLAG_AT_LIMIT = 0x08, 0x10, 0x20          # high bits of the state byte
+_DMM = 10_000.0       # 0.1 mm per metre
+_MM = 1_000.0
+
+
+class Op(IntEnum):
+    HOME = 1
+    MOVE = 2
+    STOP = 3
+    ESTOP = 4
+    CLEAR_FAULT = 5
+
+
+class Reason(IntEnum):
+    """Result byte of a reply: why the drive refused a command."""
+
+    ACCEPTED = 0
+    NOT_HOMED = 1       # MOVE before HOME
+    IN_ESTOP = 2        # latched until CLEAR_FAULT
+    IN_FAULT = 3        # latched until CLEAR_FAULT
+    OUT_OF_RANGE = 4    # MOVE target beyond the soft limits
+    BUSY = 5            # MOVE while homing; CLEAR_FAULT while the carriage still rolls
+    BAD_COMMAND = 6     # unknown op or wrong length
+
+
+class Fault(IntEnum):
+    NONE = 0
+    STALL = 1           # carriage blocked: following error, the drive cut the current
+    OVERCURRENT = 2
+    OVERTEMP = 3
+    ENCODER = 4
+
+
+@dataclass(frozen=True, slots=True)
+class Command:
+    op: Op
+    seq: int
+    target_m: float = 0.0
+    speed_m_s: float = 0.0      # 0: the drive's own maximum
+
+    def to_message(self, node: int) -> can.Message:
+        data = struct.pack("<BBiH", self.op, self.seq, round(self.target_m * _DMM),
+                           round(self.speed_m_s * _MM))
+        return can.Message(arbitration_id=COMMAND_BASE + node, is_extended_id=False, data=data)
+
+    @classmethod
+    def from_bytes(cls, data: bytes) -> Command:
+        """Raises ValueError on a frame that is not a command (the drive answers BAD_COMMAND)."""
+        if len(data) != 8:
+            raise ValueError(f"command frame has {len(data)} bytes, not 8")
+        op, seq, target, speed = struct.unpack("<BBiH", bytes(data))
+        return cls(Op(op), seq, target / _DMM, speed / _MM)
+
+
+@dataclass(frozen=True, slots=True)
+class StatusFrame:
+    position_m: float
+    velocity_m_s: float
+    state: str
+    homed: bool
+    at_target: bool
+    at_limit: bool
+    fault_code: int
+    seq: int
+
+    def to_message(self, node: int) -> can.Message:
+        flags = ((FLAG_HOMED * self.homed) | (FLAG_AT_TARGET * self.at_target)
+                 | (FLAG_AT_LIMIT * self.at_limit))
+        data = (round(self.position_m * _DMM).to_bytes(3, "little", signed=True)
+                + struct.pack("<hBBB", round(self.velocity_m_s * _MM), STATES.index(self.state) | flags,
+                              self.fault_code, self.seq))
+        return can.Message(arbitration_id=STATUS_BASE + node, is_extended_id=False, data=data)
+
+    @classmethod
+    def from_bytes(cls, data: bytes) -> StatusFrame:
+        if len(data) != 8:
+            raise ValueError(f"status frame has {len(data)} bytes, not 8")
+        position = int.from_bytes(data[:3], "little", signed=True)
+        velocity, byte6, fault, seq = struct.unpack("<hBBB", bytes(data[3:]))
+        if byte6 & 0x07 >= len(STATES):
+            raise ValueError(f"status frame has unknown state code {byte6 & 0x07}")
+        return cls(position / _DMM, velocity / _MM, STATES[byte6 & 0x07], bool(byte6 & FLAG_HOMED),
+                   bool(byte6 & FLAG_AT_TARGET), bool(byte6 & FLAG_AT_LIMIT), fault, seq)
+
+
+@dataclass(frozen=True, slots=True)
+class Reply:
+    seq: int
+    op: int
+    reason: int
+
+    def to_message(self, node: int) -> can.Message:
+        return can.Message(arbitration_id=REPLY_BASE + node, is_extended_id=False,
+                           data=bytes((self.seq, self.op, self.reason)))
+
+
+class LinkNotifier(can.Notifier):
+    """can.Notifier whose reader ends quietly on a dead link, after telling the listeners.
+
+    python-can re-raises a read error from its reader thread (a traceback on stderr) and, when
+    it watches the bus's file descriptor from the loop, keeps calling a reader that fails on a
+    hung-up serial line on every loop turn. A dead line is an event the drive reports, not a crash.
+    """
+
+    def _rx_thread(self, bus: can.BusABC) -> None:
+        try:
+            super()._rx_thread(bus)
+        except Exception:  # noqa: BLE001 - already handed to the listeners' on_error
+            pass
+
+    def _on_message_available(self, bus: can.BusABC) -> None:
+        try:
+            super()._on_message_available(bus)
+        except Exception as exc:  # noqa: BLE001
+            for fd in self._readers:
+                if isinstance(fd, int):
+                    self._loop.remove_reader(fd)
+            self.exception = exc
+            self._on_error(exc)
+
+
+class _Inbox(can.Listener):
+    def __init__(self, drive: CanRailDrive, bus: can.BusABC):
+        self.drive, self.bus = drive, bus
+
+    def on_message_received(self, msg: can.Message) -> None:
+        self.drive._on_frame(msg)
+
+    def on_error(self, exc: Exception) -> None:
+        if self.bus is self.drive._bus:          # a late word from a bus already replaced is moot
+            self.drive._on_link_error(exc)
+
+
+# The bitrates an slcan adapter knows (its S0..S8 codes, and S9 for 83.3k).
+SLCAN_BITRATES = (10_000, 20_000, 50_000, 100_000, 125_000, 250_000, 500_000, 750_000, 1_000_000, 83_300)
+
+
+class Config(Section):
+    interface: str = Field("slcan", description='"virtual", "slcan" or any python-can interface')
+    channel: str = Field(description="serial port for slcan, channel name for virtual/socketcan")
+    bitrate: int = 500_000
+    node_id: int = Field(1, ge=1, le=127)
+    status_timeout_s: float = Field(0.5, gt=0, description="wall seconds without a status frame = silence")
+    command_timeout_s: float = Field(0.5, gt=0, description="wall seconds to wait for a reply")
+    move_speed_m_s: float = Field(0.0, ge=0, le=65.0, description="0: the drive's maximum")
+    sleep_after_open_s: float = Field(0.0, ge=0, description="slcan: 2 for adapters that reset on open")
+    options: dict[str, Any] = Field({}, description="further keyword arguments for can.Bus")
+
+    @model_validator(mode="after")
+    def _slcan_bitrate(self):
+        if self.interface == "slcan" and self.bitrate not in SLCAN_BITRATES:
+            raise ValueError(f"bitrate must be one of {', '.join(map(str, SLCAN_BITRATES))} for slcan")
+        return self
+
+
+def _why(reason: int) -> str:
+    try:
+        return Reason(reason).name
+    except ValueError:
+        return f"reason {reason}"
+
+
+class CanRailDrive(RailDrive):
+    Config = Config
+
+    def __init__(self, name: str, config: Config, clock: Any):
+        super().__init__(name, config, clock)
+        self._bus: can.BusABC | None = None
+        self._notifier: LinkNotifier | None = None
+        self._link_error: str | None = None
+        self._latest: RailStatus | None = None
+        self._last_rx = time.monotonic()       # wall: silence is a property of the link
+        self._changed = asyncio.Event()        # replaced after every status frame
+        self._pending: dict[int, tuple[Op, asyncio.Future]] = {}
+        self._seq = 0
+        self._relink = asyncio.Lock()
+
+    # --- link -----------------------------------------------------------------------------------
+    async def _open(self) -> None:
+        await self._connect()
+
+    async def _close(self) -> None:
+        self._drop_link("closed")
+
+    async def _connect(self) -> None:
+        cfg = self.config
+        node = cfg.node_id
+        kwargs = dict(cfg.options)
+        if cfg.interface == "slcan":
+            kwargs.setdefault("sleep_after_open", cfg.sleep_after_open_s)
+        filters = [{"can_id": base + node, "can_mask": 0x7FF, "extended": False}
+                   for base in (STATUS_BASE, REPLY_BASE)]
+        try:   # opening an slcan adapter blocks (serial open, setup commands): keep it off the loop
+            bus = await asyncio.to_thread(can.Bus, interface=cfg.interface, channel=cfg.channel,
+                                          bitrate=cfg.bitrate, can_filters=filters, **kwargs)
+        except (can.CanError, OSError, ValueError, TypeError, ImportError) as exc:
+            raise LinkDown(self.name, f"cannot open CAN {cfg.interface} {cfg.channel}: {exc}") from None
+        self._bus, self._link_error = bus, None
+        self._last_rx = time.monotonic()
+        self._latest = None
+        self._notifier = LinkNotifier(bus, [_Inbox(self, bus)], timeout=0.02, loop=asyncio.get_running_loop())
+
+    def _drop_link(self, why: str) -> None:
+        """Forget the bus: fail whoever waits for a reply, stop the reader, release the port."""
+        self._link_error = self._link_error or why
+        for _op, fut in self._pending.values():
+            if not fut.done():
+                fut.set_exception(LinkDown(self.name, f"CAN link down: {self._link_error}"))
+        self._pending.clear()
+        notifier, bus, self._notifier, self._bus = self._notifier, self._bus, None, None
+        if notifier is not None:
+            notifier.stop(timeout=0.5)
+        if bus is not None:
+            try:
+                bus.shutdown()
+            except (can.CanError, OSError) as exc:
+                # python-can's slcan writes "C" before closing its port: on a dead line that
+                # write fails and the port would stay open (one fd lost per link drop).
+                log.debug("%s: shutdown of a dead bus: %s", self.name, exc)
+                port = getattr(bus, "serialPortOrig", None)
+                if port is not None:
+                    port.close()
+        self._wake()
+
+    def _on_link_error(self, exc: Exception) -> None:
+        log.warning("%s: CAN link lost: %s", self.name, exc)
+        self._link_error = f"{type(exc).__name__}: {exc}"
+        self._drop_link(self._link_error)
+
+    # --- frames in ------------------------------------------------------------------------------
+    def _on_frame(self, msg: can.Message) -> None:
+        node = self.config.node_id
+        if msg.arbitration_id == STATUS_BASE + node:
+            try:
+                frame = StatusFrame.from_bytes(msg.data)
+            except ValueError as exc:
+                log.warning("%s: ignored status frame: %s", self.name, exc)
+                return
+            self._last_rx = time.monotonic()
+            self._latest = RailStatus(self.clock.now(), frame.position_m, frame.velocity_m_s, frame.state,
+                                      frame.homed, frame.fault_code, frame.at_target, frame.at_limit)
+            self._wake()
+        elif msg.arbitration_id == REPLY_BASE + node and len(msg.data) >= 3:
+            seq, reason = msg.data[0], msg.data[2]
+            op, fut = self._pending.pop(seq, (None, None))
+            if fut is None or fut.done():
+                return
+            if reason == Reason.ACCEPTED:
+                fut.set_result(None)
+            else:
+                fut.set_exception(DeviceFault(self.name, f"{op.name} rejected: {_why(reason)}"))
+
+    def _wake(self) -> None:
+        self._changed.set()
+        self._changed = asyncio.Event()
+
+    # --- the RailDrive interface ----------------------------------------------------------------
+    async def _command(self, what: str, arg: float | None = None) -> None:
+        op = {"home": Op.HOME, "move": Op.MOVE, "stop": Op.STOP, "estop": Op.ESTOP,
+              "clear": Op.CLEAR_FAULT}[what]
+        if op is Op.MOVE and not (arg is not None and math.isfinite(arg) and abs(arg) < 2e5):
+            raise ValueError(f"{self.name}: move_to({arg!r}) is not a rail position")
+        if self._bus is None:
+            if self._closed or not self._opened:
+                raise LinkDown(self.name, "not open")
+            async with self._relink:                # the last link died: try again (adapter replugged)
+                if self._bus is None:
+                    await self._connect()
+        self._seq = self._seq % 255 + 1             # 1..255; 0 means "none yet" in status frames
+        seq = self._seq
+        fut = asyncio.get_running_loop().create_future()
+        self._pending[seq] = (op, fut)
+        msg = Command(op, seq, arg or 0.0, self.config.move_speed_m_s).to_message(self.config.node_id)
+        try:
+            self._bus.send(msg, timeout=self.config.command_timeout_s)
+        except (can.CanError, OSError) as exc:
+            self._on_link_error(exc)
+            await asyncio.gather(fut, return_exceptions=True)
+            raise LinkDown(self.name, f"cannot send {op.name}: {exc}") from None
+        try:
+            await asyncio.wait_for(fut, self.config.command_timeout_s)
+        except TimeoutError:
+            self._pending.pop(seq, None)
+            raise DeviceTimeout(self.name, f"no reply to {op.name} (seq {seq}) in "
+                                f"{self.config.command_timeout_s} s") from None
+
+    def _silent_for(self) -> float:
+        return time.monotonic() - self._last_rx
+
+    def _status(self) -> RailStatus | None:
+        if self._link_error is not None and self._opened:
+            raise LinkDown(self.name, f"CAN link down: {self._link_error}")
+        if self._silent_for() > self.config.status_timeout_s:
+            raise DeviceTimeout(self.name, f"no status frame for {self._silent_for():.2f} s (CAN silence)")
+        return self._latest
+
+    async def _wait_until(self, predicate, timeout_s: float, stop_on_fault: bool = True) -> RailStatus:
+        deadline = self.clock.now() + timeout_s
+        since = time.monotonic()               # silence counts from our arrival at the earliest
+        limit = self.config.status_timeout_s
+        while True:
+            if self._link_error is not None:
+                raise LinkDown(self.name, f"CAN link down: {self._link_error}")
+            quiet = time.monotonic() - max(self._last_rx, since)
+            if quiet > limit:
+                raise DeviceTimeout(self.name, f"no status frame for {quiet:.2f} s (CAN silence)")
+            st = self._latest if self._silent_for() <= limit else None    # never judge a stale report
+            if st is not None and predicate(st):
+                return st
+            if stop_on_fault and st is not None and st.state in ("fault", "estop"):
+                raise DeviceFault(self.name, f"drive in {st.state} (fault code {st.fault_code})")
+            left = deadline - self.clock.now()
+            if left <= 0:
+                raise DeviceTimeout(self.name, f"condition not met in {timeout_s} s; last {st}")
+            # Wake on the next status frame; never sleep past the silence limit or the deadline.
+            # A ManualClock's wall() is 0: then only frames (and the silence limit) wake us.
+            nap = limit - quiet + 1e-3
+            if self.clock.wall(left) > 0:
+                nap = min(nap, self.clock.wall(left))
+            try:
+                await asyncio.wait_for(self._changed.wait(), max(nap, 1e-3))
+            except TimeoutError:
+                pass

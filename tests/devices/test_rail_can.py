@@ -1,0 +1,376 @@
+"""The CAN rail driver against the simulated motor controller, over python-can's virtual bus and
+over slcan on a real pseudo-terminal (python-can's own slcan interface on the driver side)."""
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import functools
+import uuid
+
+import can
+import pytest
+import serial
+from pydantic import ValidationError
+
+from devices.clock import ManualClock, ScaledClock
+from devices.errors import DeviceFault, DeviceTimeout, LinkDown
+from devices.rail.can_drive import (
+    COMMAND_BASE,
+    REPLY_BASE,
+    STATUS_BASE,
+    CanRailDrive,
+    Command,
+    Config,
+    Fault,
+    Op,
+    Reason,
+    StatusFrame,
+)
+from devices.sim.rail import SimRailMotor, SimRailParams
+from devices.sim.slcan_adapter import BusPort, SlcanAdapter
+
+SPEED = 20.0                 # farm seconds per wall second
+VMAX, ACCEL = 1.0, 0.5
+LINKS = ["virtual", "slcan"]
+FOREVER = 1e6                # farm seconds: wait_until bounded by silence or the test's own timeout
+
+
+def asynctest(fn):
+    @functools.wraps(fn)
+    def run(*args, **kwargs):
+        asyncio.run(asyncio.wait_for(fn(*args, **kwargs), 30))
+    return run
+
+
+def drive_config(channel: str, interface: str, node: int = 1, **kw) -> Config:
+    return Config(kind="rail", driver="can", interface=interface, channel=channel, node_id=node,
+                  status_timeout_s=0.25, command_timeout_s=0.25, **kw)
+
+
+@contextlib.asynccontextmanager
+async def rig(link: str, clock, node: int = 1, **params):
+    """A simulated drive on a frame port, and the real driver talking to it."""
+    motor = SimRailMotor(SimRailParams(**params), clock, node_id=node)
+    port = BusPort.virtual(f"rail-{uuid.uuid4().hex}") if link == "virtual" else SlcanAdapter()
+    await motor.start(port)
+    channel = port.bus.channel_id if link == "virtual" else port.port
+    drive = CanRailDrive("rail", drive_config(channel, link, node), clock)
+    await drive.open()
+    try:
+        await drive.wait_until(lambda s: True, FOREVER)       # first status frame
+        yield drive, motor, port
+    finally:
+        await drive.close()
+        await motor.stop()
+
+
+async def eventually(condition, wall_s: float = 5.0) -> None:
+    """Wait for something another party does on the loop (a pty read), bounded."""
+    loop = asyncio.get_running_loop()
+    deadline = loop.time() + wall_s
+    while not condition():
+        assert loop.time() < deadline, "condition not met in time"
+        await asyncio.sleep(0.002)
+
+
+async def homed(drive):
+    await drive.home()
+    return await drive.wait_until(lambda s: s.state == "idle", FOREVER)
+
+
+@pytest.mark.parametrize("link", LINKS)
+@asynctest
+async def test_homing_from_anywhere_zeroes_the_encoder(link):
+    clock = ScaledClock.starting(SPEED)
+    async with rig(link, clock, start_m=1.0) as (drive, motor, _):
+        first = drive.status()
+        assert (first.state, first.homed, first.position_m) == ("unhomed", False, 0.0)
+        t0 = clock.now()
+        await drive.home()
+        assert drive.status().state == "homing"           # the status frame precedes the reply
+        done = await drive.wait_until(lambda s: s.state == "idle", FOREVER)
+        expected = 0.2 / ACCEL + 1.0 / 0.2                # default homing speed 0.2 m/s
+        assert 1.0 <= (done.t - t0) / expected < 1.05
+        assert (done.homed, done.position_m, done.at_limit, done.at_target) == (True, 0.0, True, True)
+        assert motor.position() == 0.0
+
+
+@pytest.mark.parametrize("link", LINKS)
+@asynctest
+async def test_move_follows_the_trapezoid_in_farm_time(link):
+    clock = ScaledClock.starting(SPEED)
+    async with rig(link, clock) as (drive, _, _port):
+        await homed(drive)
+        seen = []
+
+        def arrived(st):
+            seen.append(st)
+            return st.state == "idle"
+
+        t0 = clock.now()
+        await drive.move_to(12.0)
+        end = await drive.wait_until(arrived, FOREVER)
+        expected = VMAX / ACCEL + 12.0 / VMAX
+        assert 1.0 <= (end.t - t0) / expected < 1.05
+        assert (end.position_m, end.velocity_m_s, end.at_target) == (12.0, 0.0, True)
+        moving = [s for s in seen if s.state == "moving"]
+        assert len(moving) > 10                           # heartbeats along the way
+        speeds = [s.velocity_m_s for s in moving]
+        assert max(speeds) == pytest.approx(VMAX, abs=1e-3)   # cruised at full speed, never beyond
+        assert all(b.position_m >= a.position_m for a, b in zip(moving, moving[1:], strict=False))
+
+
+@asynctest
+async def test_farm_time_is_exact_on_a_manual_clock():
+    clock = ManualClock()
+    async with rig("virtual", clock) as (drive, motor, _):
+        await homed(drive)
+        await drive.move_to(6.0)
+        total = VMAX / ACCEL + 6.0 / VMAX
+        clock.advance(total - 0.5)
+        late = await drive.wait_until(lambda s: s.t == clock.now(), FOREVER)
+        assert late.state == "moving"
+        assert late.position_m == pytest.approx(6.0 - 0.5 * ACCEL * 0.5**2, abs=1e-4)  # braking
+        clock.advance(0.5)
+        end = await drive.wait_until(lambda s: s.state == "idle", FOREVER)
+        assert end.position_m == 6.0 and motor.position() == 6.0
+
+
+@pytest.mark.parametrize("link", LINKS)
+@asynctest
+async def test_refused_commands_raise_device_fault_with_the_reason(link):
+    async with rig(link, ScaledClock.starting(SPEED), start_m=3.0) as (drive, _, _port):
+        with pytest.raises(DeviceFault, match="MOVE rejected: NOT_HOMED"):
+            await drive.move_to(5.0)
+        await drive.home()
+        with pytest.raises(DeviceFault, match="MOVE rejected: BUSY"):
+            await drive.move_to(5.0)
+        await drive.wait_until(lambda s: s.state == "idle", FOREVER)
+        with pytest.raises(DeviceFault, match="MOVE rejected: OUT_OF_RANGE"):
+            await drive.move_to(40.0)
+        with pytest.raises(ValueError):
+            await drive.move_to(float("nan"))
+        await drive.move_to(1.0)                          # still in working order
+        assert drive.status().state == "moving"
+
+
+@pytest.mark.parametrize("link", LINKS)
+@asynctest
+async def test_estop_in_travel_stops_at_once_latches_and_clears(link):
+    clock = ScaledClock.starting(SPEED)
+    async with rig(link, clock, estop_decel_m_s2=5.0) as (drive, motor, _):
+        await homed(drive)
+        await drive.move_to(15.0)
+        await drive.wait_until(lambda s: s.velocity_m_s > 0.95 * VMAX, FOREVER)
+        await drive.estop()
+        hit = drive.status()
+        assert hit.state == "estop"
+        with pytest.raises(DeviceFault, match="estop"):   # nobody waits for an arrival that won't come
+            await drive.wait_until(lambda s: s.state == "idle", FOREVER)
+        still = await drive.wait_until(lambda s: s.velocity_m_s == 0.0, FOREVER, stop_on_fault=False)
+        assert 0.0 <= still.position_m - hit.position_m <= hit.velocity_m_s**2 / (2 * 5.0) + 1e-4
+        for refused in (drive.move_to(3.0), drive.home()):
+            with pytest.raises(DeviceFault, match="IN_ESTOP"):
+                await refused
+        later = await drive.wait_until(lambda s: s.t > still.t + 2.0, FOREVER, stop_on_fault=False)
+        assert (later.state, later.position_m) == ("estop", still.position_m)
+        await drive.clear_fault()
+        assert (drive.status().state, drive.status().homed) == ("idle", True)
+        await drive.move_to(still.position_m + 1.0)
+        await drive.wait_until(lambda s: s.state == "idle" and s.at_target, FOREVER)
+        assert motor.position() == pytest.approx(still.position_m + 1.0)
+
+
+@asynctest
+async def test_drive_fault_reaches_the_driver_and_clears():
+    async with rig("virtual", ScaledClock.starting(SPEED)) as (drive, motor, _):
+        await homed(drive)
+        await drive.move_to(10.0)
+        await drive.wait_until(lambda s: s.position_m > 1.0, FOREVER)
+        motor.inject_stall()
+        with pytest.raises(DeviceFault, match=f"fault code {int(Fault.STALL)}"):
+            await drive.wait_until(lambda s: s.state == "idle", FOREVER)
+        assert drive.status().fault_code == Fault.STALL
+        with pytest.raises(DeviceFault, match="IN_FAULT"):
+            await drive.move_to(10.0)
+        await drive.clear_fault()
+        assert (drive.status().state, drive.status().fault_code) == ("idle", 0)
+
+
+@pytest.mark.parametrize("link", LINKS)
+@asynctest
+async def test_can_silence_is_a_timeout_and_recovers(link):
+    async with rig(link, ScaledClock.starting(SPEED)) as (drive, motor, _):
+        await homed(drive)
+        motor.silence()
+        with pytest.raises(DeviceTimeout, match="CAN silence"):
+            await drive.wait_until(lambda s: s.state == "moving", FOREVER)
+        with pytest.raises(DeviceTimeout, match="CAN silence"):
+            drive.status()
+        with pytest.raises(DeviceTimeout, match="no reply to MOVE"):
+            await drive.move_to(2.0)
+        assert motor.state == "idle"                      # the command never reached it
+        motor.resume()
+        back = await drive.wait_until(lambda s: True, FOREVER)
+        assert back.state == "idle" and drive.status() == back
+
+
+@asynctest
+async def test_unplugged_adapter_is_link_down_and_a_replug_reconnects(tmp_path):
+    clock = ScaledClock.starting(SPEED)
+    link = tmp_path / "ttyRAIL"                           # a stable name, as udev gives a USB adapter
+    first, second = SlcanAdapter(), SlcanAdapter()
+    motor, replugged = SimRailMotor(SimRailParams(), clock), SimRailMotor(SimRailParams(), clock)
+    await motor.start(first)
+    link.symlink_to(first.port)
+    drive = CanRailDrive("rail", drive_config(str(link), "slcan"), clock)
+    await drive.open()
+    try:
+        await homed(drive)
+        assert first.is_open                              # python-can sent O
+        await motor.stop()                                # unplug: the pty is gone
+        with pytest.raises(LinkDown, match="CAN link down"):
+            await drive.wait_until(lambda s: s.state == "moving", FOREVER)
+        with pytest.raises(LinkDown):
+            drive.status()
+        with pytest.raises(LinkDown, match="cannot open"):
+            await drive.move_to(3.0)                      # tries to reconnect: nothing there
+        await replugged.start(second)
+        link.unlink()
+        link.symlink_to(second.port)
+        await drive.home()                                # reconnects, then commands
+        st = await drive.wait_until(lambda s: s.homed, FOREVER)
+        assert st.state == "idle" and second.is_open
+    finally:
+        await drive.close()
+        await motor.stop()
+        await replugged.stop()
+
+
+@asynctest
+async def test_open_on_a_missing_port_is_link_down(tmp_path):
+    drive = CanRailDrive("rail", drive_config(str(tmp_path / "nothing"), "slcan"), ManualClock())
+    with pytest.raises(LinkDown, match="cannot open CAN slcan"):
+        await drive.open()
+    await drive.close()
+
+
+@pytest.mark.parametrize("link", LINKS)
+@asynctest
+async def test_close_twice_releases_the_bus(link):
+    async with rig(link, ScaledClock.starting(SPEED)) as (drive, _, port):
+        await drive.close()
+        await drive.close()
+        with pytest.raises(LinkDown):
+            await drive.home()
+        with pytest.raises(LinkDown):
+            drive.status()
+        if link == "slcan":
+            await eventually(lambda: not port.is_open)   # python-can closed the channel (C)
+        else:
+            assert len(can.interfaces.virtual.channels[port.bus.channel_id]) == 1   # only the drive's
+
+
+@asynctest
+async def test_nodes_share_a_bus_and_only_the_addressed_one_moves():
+    clock = ScaledClock.starting(SPEED)
+    channel = f"rail-{uuid.uuid4().hex}"
+    other = SimRailMotor(SimRailParams(), clock, node_id=1)
+    await other.start(BusPort.virtual(channel))
+    try:
+        mine = SimRailMotor(SimRailParams(), clock, node_id=2)
+        await mine.start(BusPort.virtual(channel))
+        drive = CanRailDrive("rail", drive_config(channel, "virtual", node=2), clock)
+        async with drive:
+            await homed(drive)
+            await drive.move_to(0.5)
+            await drive.wait_until(lambda s: s.at_target, FOREVER)
+        assert mine.position() == 0.5 and other.position() == 0.0 and other.state == "unhomed"
+        await mine.stop()
+    finally:
+        await other.stop()
+
+
+@asynctest
+async def test_malformed_command_frames_get_a_bad_command_reply():
+    clock = ScaledClock.starting(SPEED)
+    port = BusPort.virtual(f"rail-{uuid.uuid4().hex}")
+    motor = SimRailMotor(SimRailParams(), clock, node_id=3)
+    await motor.start(port)
+    probe = can.Bus(interface="virtual", channel=port.bus.channel_id,
+                    can_filters=[{"can_id": REPLY_BASE + 3, "can_mask": 0x7FF}])
+    try:
+        for data in (b"\x02\x09", b"\x63\x0a\0\0\0\0\0\0"):          # short MOVE; unknown op 0x63
+            probe.send(can.Message(arbitration_id=COMMAND_BASE + 3, is_extended_id=False, data=data))
+            reply = await asyncio.to_thread(probe.recv, 5.0)
+            assert bytes(reply.data) == bytes((data[1], data[0], Reason.BAD_COMMAND))
+        assert motor.state == "unhomed"
+    finally:
+        probe.shutdown()
+        await motor.stop()
+
+
+def test_frames_round_trip_and_bad_frames_are_refused():
+    st = StatusFrame(-838.5, -1.25, "estop", True, False, True, 7, 200)
+    msg = st.to_message(5)
+    assert msg.arbitration_id == STATUS_BASE + 5 and msg.dlc == 8 and not msg.is_extended_id
+    assert StatusFrame.from_bytes(msg.data) == st
+    cmd = Command(Op.MOVE, 9, 20.5004, 0.75)
+    data = cmd.to_message(5).data
+    assert bytes(data) == bytes([2, 9]) + (205004).to_bytes(4, "little") + (750).to_bytes(2, "little")
+    assert Command.from_bytes(data) == cmd
+    with pytest.raises(ValueError):
+        StatusFrame.from_bytes(bytes(msg.data[:7]))
+    with pytest.raises(ValueError):
+        StatusFrame.from_bytes(bytes(msg.data[:5]) + b"\x07\x00\x00")   # state code 7 does not exist
+
+
+def test_config_errors_name_the_field():
+    with pytest.raises(ValidationError, match="bitrate must be one of"):
+        drive_config("/dev/null", "slcan", bitrate=123_456)
+    with pytest.raises(ValidationError, match="node_id"):
+        drive_config("x", "virtual", node=0)
+    with pytest.raises(ValidationError, match="extra"):
+        Config(kind="rail", driver="can", channel="x", baud=9600)
+
+
+# --- the slcan adapter, spoken to byte by byte as any host would ------------------------------
+
+async def answer(ser: serial.Serial, line: bytes) -> bytes:
+    """Send a line; the adapter's answer ends in CR or BEL."""
+    def exchange():
+        ser.write(line + b"\r")
+        out = b""
+        while not out.endswith((b"\r", b"\a")):
+            byte = ser.read(1)
+            if not byte:
+                return out
+            out += byte
+        return out
+    return await asyncio.to_thread(exchange)
+
+
+@asynctest
+async def test_slcan_adapter_speaks_lawicel():
+    heard: list[can.Message] = []
+    adapter = SlcanAdapter()
+    await adapter.start(heard.append)
+    ser = serial.serial_for_url(adapter.port, timeout=2.0)
+    try:
+        expect = [(b"V", b"V1013\r"), (b"N", b"NSIM1\r"), (b"F", b"\a"), (b"S6", b"\r"), (b"S10", b"\a"),
+                  (b"", b"\r"), (b"t1230", b"\a"), (b"O", b"\r"), (b"O", b"\a"), (b"S4", b"\a"),
+                  (b"F", b"F00\r"), (b"t12320102", b"z\r"), (b"T1ABCDEF01FF", b"Z\r"), (b"r7FF0", b"z\r"),
+                  (b"t123201", b"\a"), (b"t12G0", b"\a"), (b"X", b"\a")]
+        for line, reply in expect:
+            assert await answer(ser, line) == reply, line
+        assert [(m.arbitration_id, m.is_extended_id, m.is_remote_frame, bytes(m.data)) for m in heard] == [
+            (0x123, False, False, b"\x01\x02"), (0x1ABCDEF0, True, False, b"\xff"), (0x7FF, False, True, b"")]
+        adapter.send(can.Message(arbitration_id=0x181, is_extended_id=False, data=b"\x0a\xff"))
+        assert await asyncio.to_thread(ser.read_until, b"\r") == b"t18120AFF\r"
+        assert await answer(ser, b"C") == b"\r"
+        adapter.send(can.Message(arbitration_id=0x181, is_extended_id=False, data=b"\x01"))
+        assert await answer(ser, b"L") == b"\r"           # nothing was forwarded while closed
+        assert await answer(ser, b"t1230") == b"\a"       # listen-only: no transmit
+    finally:
+        ser.close()
+        await adapter.stop()
