@@ -158,17 +158,21 @@ class FeedingRobot:
         state = await self.dispenser.read()
         if state.jammed:
             await self.dispenser.clear_fault()
-        status = await self._rail_status()
-        if status.state in ("fault", "estop"):
-            await self.rail.clear_fault()
+        await self._clear_rail()
         self.recover()
 
-    async def _home(self) -> None:
+    async def _clear_rail(self):
+        """Clear a latched drive fault or e-stop once the carriage has come to rest."""
         status = await self._rail_status()
         if status.state in ("fault", "estop"):
+            await self.rail.wait_until(lambda s: s.velocity_m_s == 0, 30.0, stop_on_fault=False)
             await self.rail.clear_fault()
-            status = await self.rail.wait_until(lambda s: s.state not in ("fault", "estop"),
-                                                self.feeding.move_timeout_s)
+            status = await self.rail.wait_until(lambda s: s.state not in ("fault", "estop"), 30.0,
+                                                stop_on_fault=False)
+        return status
+
+    async def _home(self) -> None:
+        status = await self._clear_rail()
         if not status.homed or status.state == "homing":
             if status.state != "homing":
                 await self.rail.home()

@@ -1,0 +1,228 @@
+"""The controller process: builds every part from the config and runs them on one event loop.
+
+Wiring only: components talk through their interfaces (devices/*, Bus, Store); nothing here
+reaches into hardware. Simulated devices (``driver = "sim"``) are served by a child
+``fishfarm sim`` process on the same timeline, and reached through the real drivers.
+"""
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import importlib
+import logging
+import signal
+
+from controller.alarms import Alarms
+from controller.bus import Bus
+from controller.config import Config, validate_section
+from controller.demand import Demand, DemandFilter, DemandParams, SensorFault, SensorRecovered
+from controller.feeding.rations import Rations, load_species
+from controller.feeding.robot import FeedingRobot, Job
+from controller.overrides import Overrides
+from controller.simproc import SimProcess
+from controller.store import Store
+from devices.errors import DeviceError
+
+log = logging.getLogger("fishfarm")
+
+HOUSEKEEPING_S = 5.0        # farm seconds between filter ticks and expiry checks
+STATE_EVERY_WALL_S = 1.0    # periodic state publication besides every change
+
+
+def build_device(name: str, section: dict, clock, where: str):
+    kind = section["kind"]
+    backends = importlib.import_module(f"devices.{kind}").BACKENDS
+    module, attr = backends[section["driver"]].split(":")
+    cls = getattr(importlib.import_module(module), attr)
+    return cls(name, validate_section(cls.Config, section, where, f"devices.{name}"), clock)
+
+
+class Controller:
+    def __init__(self, cfg: Config, clock, *, duration_s: float | None = None):
+        self.cfg, self.clock, self.duration_s = cfg, clock, duration_s
+        self.sensor_tank = {s: t.id for t in cfg.tanks for s in t.sensors}
+        self.sim: SimProcess | None = None
+        self.tasks: list[asyncio.Task] = []
+        self.stopping = asyncio.Event()
+        self.unknown_sensors: set[str] = set()
+
+    # -- life cycle -------------------------------------------------------------
+    async def start(self) -> None:
+        cfg = self.cfg
+        sections = dict(cfg.devices)
+        if any(s["driver"] == "sim" for s in sections.values()):
+            self.sim = SimProcess(cfg, self.clock)
+            sections.update(await self.sim.start())
+        self.bus = Bus(cfg.bus, cfg.site)
+        self.store = Store(cfg.store.path)
+        self.alarms = Alarms(self.store, self.bus.publish, self.clock)
+        self.rations = Rations(cfg, load_species(), self.store)
+        self.devices = {name: build_device(name, s, self.clock, cfg.path) for name, s in sections.items()}
+        self.contacts = self._one("contacts")
+        self.rail = self._one("rail")
+        self.dispenser = self._one("dispenser")
+        for device in self.devices.values():
+            await self._open(device)
+        self.filter = DemandFilter(validate_section(DemandParams, cfg.demand, cfg.path, "demand"),
+                                   {t.id: list(t.sensors) for t in cfg.tanks})
+        self.robot = FeedingRobot(cfg, self.clock, self.rail, self.dispenser, self.store, self.rations,
+                                  self.alarms, self.bus.publish)
+        self._requeue_open_demands()
+        self.overrides = Overrides(self)
+        self.overrides.declare(self.bus)
+        for loop in (self.robot.run, self._contacts_loop, self._housekeeping, self._state_loop):
+            self.tasks.append(asyncio.create_task(self._supervise(loop)))
+        log.info("controller for site %s up: %d tanks", cfg.site, len(cfg.tanks))
+
+    async def stop(self) -> None:
+        for task in self.tasks:
+            task.cancel()
+        await asyncio.gather(*self.tasks, return_exceptions=True)
+        for device in getattr(self, "devices", {}).values():
+            with contextlib.suppress(Exception):
+                await device.close()
+        if hasattr(self, "bus"):
+            self.bus.close()
+        if hasattr(self, "store"):
+            self.store.close()
+        if self.sim is not None:
+            await self.sim.stop()
+
+    async def run(self) -> None:
+        await self.start()
+        try:
+            wall = None if self.duration_s is None else self.clock.wall(self.duration_s)
+            with contextlib.suppress(TimeoutError):
+                await asyncio.wait_for(self.stopping.wait(), wall)
+        finally:
+            await self.stop()
+
+    async def _supervise(self, loop) -> None:
+        """Run a loop forever: a bug in one part is logged and alarmed, never the end of the process."""
+        name = loop.__name__.strip("_")
+        while True:
+            try:
+                await loop()
+            except asyncio.CancelledError:
+                raise
+            except Exception as exc:
+                log.exception("%s crashed; restarting it", name)
+                self.alarms.raise_(f"controller/{name}", f"internal error: {type(exc).__name__}: {exc}",
+                                   "critical")
+                await asyncio.sleep(1.0)
+
+    def _one(self, kind: str):
+        found = [d for d in self.devices.values() if d.kind == kind]
+        if len(found) != 1:
+            raise ValueError(f"the feeding robot needs exactly one {kind} device, config has {len(found)}")
+        return found[0]
+
+    async def _open(self, device) -> None:
+        """Open a device, retrying with back-off: a farm starts before every PLC is up."""
+        for delay in (0.2, 0.5, 1, 2, 5, 10):
+            try:
+                await device.open()
+                self.alarms.clear(f"device/{device.name}", "connected")
+                return
+            except DeviceError as exc:
+                self.alarms.raise_(f"device/{device.name}", f"cannot open: {exc.text}")
+                await asyncio.sleep(delay)
+        await device.open()
+
+    def _requeue_open_demands(self) -> None:
+        for row in self.store.open_demands():
+            self.robot.on_demand(Job(row["tank"], row["t"], row["id"]))
+
+    # -- loops ------------------------------------------------------------------
+    async def _contacts_loop(self) -> None:
+        publish = self.bus.publish if self.cfg.bus.publish_contacts else None
+        while True:
+            try:
+                batch = await self.contacts.read()
+                self.alarms.clear(f"device/{self.contacts.name}", "contacts back")
+            except DeviceError as exc:
+                self.alarms.raise_(f"device/{self.contacts.name}", exc.text)
+                await self._reopen(self.contacts)
+                continue
+            for contact in batch:
+                tank = self.sensor_tank.get(contact.sensor)
+                if tank is None:
+                    if contact.sensor not in self.unknown_sensors:
+                        self.unknown_sensors.add(contact.sensor)
+                        log.warning("contact from unknown sensor %r ignored", contact.sensor)
+                    continue
+                if publish is not None:
+                    publish(f"tank/{tank}/contact", {"t": self.clock.iso(contact.t), "sensor": contact.sensor})
+                for event in self.filter.on_contact(contact.t, tank, contact.sensor):
+                    self._on_filter_event(event)
+
+    async def _reopen(self, device) -> None:
+        with contextlib.suppress(Exception):
+            await device.close()
+        name, section = device.name, dict(device.config)
+        fresh = type(device)(name, type(device.config).model_validate(section), self.clock)
+        while True:
+            await asyncio.sleep(0.5)
+            try:
+                await fresh.open()
+                break
+            except DeviceError:
+                continue
+        self.devices[name] = fresh
+        self.contacts = fresh
+
+    def _on_filter_event(self, event) -> None:
+        if isinstance(event, Demand):
+            demand_id = self.store.add_demand(event.tank, event.t, event.rate_hz)
+            self.bus.publish(f"tank/{event.tank}/demand",
+                             {"t": self.clock.iso(event.t), "rate_hz": round(event.rate_hz, 3)}, reliable=True)
+            self.robot.on_demand(Job(event.tank, event.t, demand_id))
+        elif isinstance(event, SensorFault):
+            self.alarms.raise_(f"sensor/{event.sensor}", f"tank {event.tank}: sensor {event.sensor} {event.kind}")
+        elif isinstance(event, SensorRecovered):
+            self.alarms.clear(f"sensor/{event.sensor}", f"tank {event.tank}: sensor {event.sensor} recovered")
+
+    async def _housekeeping(self) -> None:
+        last_date = None
+        while True:
+            now = self.clock.now()
+            for event in self.filter.on_time(now):
+                self._on_filter_event(event)
+            date = self.rations.date(now)
+            if date != last_date:
+                last_date = date
+                for tank in self.cfg.tanks:
+                    self._publish_ration(tank.id)
+            await self.clock.asleep(HOUSEKEEPING_S)
+
+    def _publish_ration(self, tank_id: str) -> None:
+        r = self.rations.today(tank_id, self.clock.now())
+        self.bus.publish(f"tank/{tank_id}/ration", {"date": r.date, "grams": round(r.grams, 1),
+                                                    "fed_g": round(r.fed_g, 1), "pellet_mm": r.pellet_mm})
+
+    async def _state_loop(self) -> None:
+        while True:
+            self.bus.publish("feeder/state", self.robot.snapshot())
+            await asyncio.sleep(STATE_EVERY_WALL_S)
+
+    # -- what status and the console show ----------------------------------------
+    def status(self) -> dict:
+        now = self.clock.now()
+        tanks = {}
+        for tank in self.cfg.tanks:
+            r = self.rations.today(tank.id, now)
+            job = self.robot.pending.get(tank.id)
+            tanks[tank.id] = {"demand": job is not None,
+                              "demand_t": None if job is None else self.clock.iso(job.t),
+                              "fed_g": round(r.fed_g, 1), "ration_g": round(r.grams, 1),
+                              "pellet_mm": r.pellet_mm}
+        return {"t": self.clock.iso(now), "site": self.cfg.site, "feeder": self.robot.snapshot(),
+                "tanks": tanks,
+                "alarms": [{"source": a.source, "severity": a.severity, "text": a.text,
+                            "t": self.clock.iso(a.t)} for a in self.alarms.active.values()]}
+
+
+def install_signal_handlers(controller: Controller) -> None:
+    loop = asyncio.get_running_loop()
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        loop.add_signal_handler(sig, controller.stopping.set)

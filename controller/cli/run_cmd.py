@@ -1,0 +1,83 @@
+"""``fishfarm run``: the controller process."""
+from __future__ import annotations
+
+import asyncio
+import logging
+
+import click
+
+from controller.errors import BadInput
+
+
+class FarmTimeFormatter(logging.Formatter):
+    """Log lines stamped with farm time, which is what an operator compares with the ledger."""
+
+    def __init__(self, clock):
+        super().__init__("%(farmtime)s %(levelname)-7s %(name)s: %(message)s")
+        self.clock = clock
+
+    def format(self, record):
+        record.farmtime = self.clock.iso(self.clock.epoch_farm + (record.created - self.clock.epoch_wall)
+                                         * self.clock.speed)
+        return super().format(record)
+
+
+def setup_logging(clock, level: str) -> None:
+    handler = logging.StreamHandler()
+    handler.setFormatter(FarmTimeFormatter(clock))
+    root = logging.getLogger()
+    root.handlers[:] = [handler]
+    root.setLevel(level.upper())
+    for noisy in ("pymodbus", "can", "zenoh"):
+        logging.getLogger(noisy).setLevel(logging.WARNING if level.upper() != "DEBUG" else logging.INFO)
+
+
+@click.command()
+@click.option("--config", "config_path", default="config/farm.toml", show_default=True,
+              type=click.Path(dir_okay=False), help="farm.toml")
+@click.option("--duration", type=click.FloatRange(min=0, min_open=True), default=None,
+              help="stop after S farm seconds (default: run until stopped)")
+@click.option("--speed", type=click.FloatRange(min=0, min_open=True), default=1.0, show_default=True,
+              help="simulated time runs X times faster than real time (simulated devices only)")
+@click.option("--epoch-wall", type=float, default=None, hidden=True)
+@click.option("--epoch-farm", type=float, default=None, hidden=True)
+@click.option("--log-level", default="info", show_default=True,
+              type=click.Choice(["debug", "info", "warning", "error"], case_sensitive=False))
+@click.option("--no-console", is_flag=True, help="no live status table, even on a terminal")
+def run(config_path, duration, speed, epoch_wall, epoch_farm, log_level, no_console):
+    """The controller: demand filter, feeding robot, ledger, bus."""
+    from controller.app import Controller, install_signal_handlers
+    from controller.config import load_config
+    from devices.clock import ScaledClock
+
+    cfg = load_config(config_path)
+    all_sim = all(s["driver"] == "sim" for s in cfg.devices.values())
+    if speed != 1.0 and not all_sim and epoch_wall is None:
+        raise BadInput(config_path, "devices", "--speed needs every device simulated (driver = \"sim\")")
+    if epoch_wall is not None:
+        clock = ScaledClock(speed, epoch_wall, epoch_farm if epoch_farm is not None else epoch_wall)
+    else:
+        clock = ScaledClock.starting(speed) if speed != 1.0 else ScaledClock.real()
+    setup_logging(clock, log_level)
+
+    async def main():
+        controller = Controller(cfg, clock, duration_s=duration)
+        install_signal_handlers(controller)
+        console = None
+        if not no_console:
+            from controller.console import show
+            console = asyncio.create_task(_show_when_up(controller, show))
+        try:
+            await controller.run()
+        finally:
+            if console is not None:
+                console.cancel()
+
+    asyncio.run(main())
+    return 0
+
+
+async def _show_when_up(controller, show):
+    while not hasattr(controller, "overrides"):
+        await asyncio.sleep(0.1)
+    await show(controller.status)

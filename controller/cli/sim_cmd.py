@@ -1,0 +1,61 @@
+"""``fishfarm sim``: serve a config's simulated devices over their real protocols.
+
+Started by ``fishfarm run`` for devices marked ``driver = "sim"``, or by hand / by the
+hardware-in-loop tests, in which case the controller is pointed at the endpoints this
+writes and joins the same timeline with ``--epoch-wall/--epoch-farm/--speed``.
+"""
+from __future__ import annotations
+
+import asyncio
+import json
+import logging
+import os
+import signal
+from pathlib import Path
+
+import click
+
+
+@click.command()
+@click.option("--config", "config_path", default="config/farm.toml", show_default=True,
+              type=click.Path(dir_okay=False))
+@click.option("--endpoints", type=click.Path(dir_okay=False), required=True,
+              help="write the real-driver config section of every simulated device here (JSON)")
+@click.option("--truth", type=click.Path(dir_okay=False), default=None,
+              help="append the ground truth of the run here (JSON lines)")
+@click.option("--speed", type=click.FloatRange(min=0, min_open=True), default=1.0, show_default=True)
+@click.option("--epoch-wall", type=float, default=None, help="wall time at which farm time is --epoch-farm")
+@click.option("--epoch-farm", type=float, default=None)
+@click.option("--log-level", default="warning", show_default=True,
+              type=click.Choice(["debug", "info", "warning", "error"], case_sensitive=False))
+def sim(config_path, endpoints, truth, speed, epoch_wall, epoch_farm, log_level):
+    """Simulated farm: fish, contact hub, rail drive, dispenser."""
+    from controller.config import load_config
+    from devices.clock import ScaledClock
+    from devices.sim.truth import TruthLog
+    from devices.sim.world import SimFarm
+
+    logging.basicConfig(level=log_level.upper(), format="sim %(levelname)s %(name)s: %(message)s")
+    cfg = load_config(config_path)
+    if epoch_wall is None:
+        clock = ScaledClock.starting(speed, epoch_farm)
+    else:
+        clock = ScaledClock(speed, epoch_wall, epoch_farm if epoch_farm is not None else epoch_wall)
+
+    async def main():
+        farm = SimFarm(cfg, clock, TruthLog(truth) if truth else None)
+        stop = asyncio.Event()
+        loop = asyncio.get_running_loop()
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            loop.add_signal_handler(sig, stop.set)
+        try:
+            found = await farm.start()
+            tmp = Path(endpoints).with_suffix(".tmp")
+            tmp.write_text(json.dumps(found, indent=2))
+            os.replace(tmp, endpoints)            # readers never see half a file
+            await stop.wait()
+        finally:
+            await farm.stop()
+
+    asyncio.run(main())
+    return 0

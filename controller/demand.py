@@ -1,0 +1,404 @@
+"""Demand filter: tells hungry fish from turbulence and broken sensors, tank by tank.
+
+Pure, clock-free and incremental: ``on_contact(t, tank, sensor)`` for each rising edge (time
+order), ``on_time(t)`` every few farm seconds; both return events (``Demand``, ``SensorFault``,
+``SensorRecovered``). The controller and ``fishfarm demand`` (offline CSV replay) run this code.
+
+The model (DESIGN.md) and what follows from it
+----------------------------------------------
+fish demand 0.1–2 /s for 1–10 min; turbulence Poisson below 0.05 /s plus chatter bursts of
+3–20 /s lasting < 10 s; stuck sensors (a fixed high rate for minutes) and dead ones (silent while
+the tank's other sensors fire). A demand must come within 60 s of an episode's start, never
+outside one; false demands ~0 per tank-day over many days.
+
+*The statistic.* Time is cut into 5 s bins; a bin's value is the number of distinct 1 s slots
+holding a contact (0–5). Evidence is the sum over the last 60 s (12 bins), the whole time the
+deadline allows. Counting occupied seconds rather than contacts caps any short clump (a chatter
+burst of 200 contacts in 8 s counts at most 9), while losing little for fish (rate r fills
+1 - e^-r of the seconds: 95 % of the information at 0.1 /s, still ~0.86 /s at 2 /s).
+
+*Chatter.* A bin with ≥ chatter_hz × 5 = 15 contacts is not fish (fish stay ≤ 2 /s); it and its
+two neighbours count 0, so a burst of ≥ 3 /s leaves at most its sparse edges. Bursts at the slow
+end of the band (3 /s Poisson) cannot be told from 2 /s fish locally: only duration separates
+them (< 10 s against ≥ 1 min). Hence *persistence*: the densest 15 s of the window may add no
+more than ``spike_gain`` × what the other 45 s hold per 15 s, plus ``spike_allowance``. For
+steady fish the densest stretch is close to the mean and counts in full; a burst on a quiet tank
+adds almost nothing, whatever its rate.
+
+*The threshold.* Under turbulence alone, contacts at rate b upcross a sliding count k over a
+window W at the rate b·P[Poisson(bW) = k-1] per second (a Poisson arrival sees the window's
+stationary count; capping and the exclusions above only lower it). k is the least integer with
+86,400 × that ≤ ``false_alarms_per_day`` (default 1e-4: a false demand per tank every ~27 years).
+At the contract's worst turbulence, b = 0.05 /s, k = 18 occupied seconds in 60 s. b is not
+fixed: the tank's own background is estimated (exponential window of ``background_tau_s``, over
+bins outside demand, plus an upper confidence margin) and clipped to [floor, 4 × max]; a calm
+tank (0.01 /s) gets k = 10, a tank whose turbulence exceeds the contract is protected anyway.
+The estimate starts at ``turbulence_max_hz``, so a fresh filter is conservative.
+
+*What that buys, and the limit nobody can beat.* A Poisson fish episode at rate r gives about
+60(r + b)(1 - e^-r)/r occupied seconds by the 60 s deadline. With k = 18 (b = 0.05) detection
+within 60 s is near certain for r ≥ 0.45 /s, ~75 % at 0.3 /s, ~20 % at 0.2 /s; with k = 10
+(b = 0.01) near certain for r ≥ 0.3 /s. A Poisson episode at 0.1 /s has 6 contacts on average by
+60 s and ≤ 2 with probability 6 %, while 0.05 /s turbulence alone gives 3: no test separates
+them in 60 s with a false-alarm rate near 0. Slow episodes are caught later if they persist.
+Regular (periodic) fish are easier: no Poisson spread.
+
+*Episodes and repeats.* One demand when the score first reaches k (raised on the contact that
+made it, so its time is a contact of the episode); the tank is then "in demand" until the score
+falls below ``end_fraction`` × k. While in demand a new demand is raised at most every
+``repeat_s``, and only on fresh evidence: ``repeat_contacts`` contacts in distinct seconds, all
+after the repeat fell due, within ``repeat_span_s``. A repeat therefore needs the fish to be
+still asking at ≥ ~0.3 /s *now*; a turbulence contact after the episode's end cannot trigger it
+unless it falls among the last few contacts (probability ~ b·span/(r·repeat_s) per episode).
+
+*Faults.* Stuck: a sensor's own count is ≥ 0.9 × stuck_rate_hz × 5 in ≥ ``stuck_share`` of its
+5 s bins over ``stuck_window_s`` (fish at 2 /s exceed that in 21 % of bins, a 3 /s stuck sensor in
+~all; chatter lasts < 10 s). It is left out until it has had no fast bin for ``recover_s``.
+Dead: silent for ``dead_after_s`` while the tank's other healthy sensors were active in ≥
+``dead_active_bins`` bins since its last contact (a live sensor sharing even a fifth of the
+tank's contacts misses 30 active bins with probability < 1e-3); its next contact is a recovery.
+A tank with one sensor cannot tell a dead sensor from calm fish and never reports one.
+
+Performance: on_contact does O(1) work with no allocation on the common path (a contact in an
+already occupied second, or a tank far below threshold returns a shared empty tuple).
+"""
+from __future__ import annotations
+
+import bisect
+import math
+from dataclasses import dataclass
+
+from pydantic import BaseModel, ConfigDict, Field, model_validator
+
+_NONE: tuple = ()
+HEALTHY, STUCK, DEAD = 0, 1, 2
+DAY_S = 86400.0
+
+
+@dataclass(frozen=True, slots=True)
+class Demand:
+    tank: str
+    t: float
+    rate_hz: float
+
+
+@dataclass(frozen=True, slots=True)
+class SensorFault:
+    tank: str
+    sensor: str
+    t: float
+    kind: str           # "stuck" | "dead"
+
+
+@dataclass(frozen=True, slots=True)
+class SensorRecovered:
+    tank: str
+    sensor: str
+    t: float
+
+
+class DemandParams(BaseModel):
+    """farm.toml ``[demand]``. Times in farm seconds."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+    window_s: float = Field(60.0, ge=20, le=600, description="evidence window: the deadline")
+    bin_s: float = Field(5.0, gt=0, le=30)
+    slot_s: float = Field(1.0, gt=0, le=10, description="one contact per slot counts")
+    chatter_hz: float = Field(3.0, gt=0, description="a bin faster than this is chatter")
+    spike_gain: float = Field(2.0, ge=0)
+    spike_allowance: float = Field(1.0, ge=0)
+    false_alarms_per_day: float = Field(1e-4, gt=0, lt=10)
+    turbulence_max_hz: float = Field(0.05, gt=0, description="the contract's bound; starting estimate")
+    turbulence_floor_hz: float = Field(0.005, gt=0)
+    background_tau_s: float = Field(7200.0, gt=0)
+    min_contacts: int = Field(6, ge=2, description="never demand on fewer occupied slots")
+    end_fraction: float = Field(0.5, gt=0, le=1)
+    repeat_s: float = Field(120.0, gt=0)
+    repeat_contacts: int = Field(5, ge=1)
+    repeat_span_s: float = Field(15.0, gt=0)
+    stuck_rate_hz: float = Field(3.0, gt=0)
+    stuck_window_s: float = Field(120.0, gt=0)
+    stuck_share: float = Field(0.75, gt=0, le=1)
+    recover_s: float = Field(60.0, gt=0)
+    dead_after_s: float = Field(300.0, gt=0)
+    dead_active_bins: int = Field(30, ge=1)
+
+    @model_validator(mode="after")
+    def _shape(self):
+        if self.window_s / self.bin_s < 6:
+            raise ValueError("window_s must hold at least 6 bins of bin_s")
+        if self.slot_s > self.bin_s:
+            raise ValueError("slot_s must not exceed bin_s")
+        if self.turbulence_floor_hz > self.turbulence_max_hz:
+            raise ValueError("turbulence_floor_hz must not exceed turbulence_max_hz")
+        return self
+
+
+def threshold(b_hz: float, window_s: float, per_day: float, k_min: int) -> int:
+    """Least k ≥ k_min whose sliding-window upcrossing rate under Poisson(b) is ≤ per_day."""
+    mean = b_hz * window_s
+    k = k_min
+    while DAY_S * b_hz * math.exp((k - 1) * math.log(mean) - mean - math.lgamma(k)) > per_day:
+        k += 1
+    return k
+
+
+class _Sensor:
+    __slots__ = ("name", "n", "last", "mark", "state", "fast")
+
+    def __init__(self, name: str, t: float, mark: int):
+        self.name, self.n, self.last, self.mark, self.state, self.fast = name, 0, t, mark, HEALTHY, 0
+
+
+class _Tank:
+    __slots__ = ("name", "sensors", "bin_end", "slot", "cur", "raw", "excl", "excl_next", "vals",
+                 "raws", "head", "vsum", "rsum", "m_old", "p1", "p2", "k", "bg_n", "bg_t",
+                 "demanding", "last_raise", "fresh", "recent", "active", "cur_active")
+
+    def __init__(self, name: str, n_bins: int, k: int, bg_n: float, bg_t: float):
+        self.name = name
+        self.sensors: dict[str, _Sensor] = {}
+        self.bin_end = -math.inf
+        self.slot = -1
+        self.cur = self.raw = 0                     # current bin: occupied slots, contacts
+        self.excl = self.excl_next = False
+        self.vals = [0] * (n_bins - 1)              # complete bins in the window (ring)
+        self.raws = [0] * (n_bins - 1)
+        self.head = 0
+        self.vsum = self.rsum = self.m_old = self.p1 = self.p2 = 0
+        self.k, self.bg_n, self.bg_t = k, bg_n, bg_t
+        self.demanding, self.last_raise, self.fresh = False, -math.inf, 0
+        self.recent: list[float] = []
+        self.active = 0                             # bins with a healthy contact (dead-sensor test)
+        self.cur_active = False
+
+
+class DemandFilter:
+    """See the module docstring. ``tanks``: tank -> its sensors; None: learn them from contacts."""
+
+    def __init__(self, params: DemandParams | None = None, tanks: dict[str, list[str]] | None = None):
+        p = self.params = params or DemandParams()
+        self._bin, self._inv_slot = p.bin_s, 1.0 / p.slot_s
+        self._n = max(6, round(p.window_s / p.bin_s))
+        self._chatter = max(2, math.ceil(p.chatter_hz * p.bin_s))
+        self._stuck_n = max(2, math.floor(0.9 * p.stuck_rate_hz * p.bin_s))
+        self._stuck_bins = max(1, round(p.stuck_window_s / p.bin_s))
+        self._stuck_need = max(1, math.ceil(p.stuck_share * self._stuck_bins))
+        self._recover_mask = (1 << max(1, round(p.recover_s / p.bin_s))) - 1
+        self._alpha = math.exp(-p.bin_s / p.background_tau_s)
+        hi = 4.0 * p.turbulence_max_hz
+        self._b_grid = [p.turbulence_floor_hz * (hi / p.turbulence_floor_hz) ** (i / 63) for i in range(64)]
+        self._k_grid = [threshold(b, self._n * p.bin_s, p.false_alarms_per_day, p.min_contacts)
+                        for b in self._b_grid]
+        self._fixed = tanks is not None
+        self._tanks: dict[str, _Tank] = {}
+        self.ignored = 0                            # contacts from unknown tanks/sensors
+        self.unknown: set[tuple[str, str]] = set()
+        for tank, sensors in (tanks or {}).items():
+            ts = self._new_tank(tank)
+            for s in sensors:
+                ts.sensors[s] = _Sensor(s, -math.inf, 0)
+
+    # -- public -------------------------------------------------------------------------------
+    def on_contact(self, t: float, tank: str, sensor: str):
+        """One rising edge. Returns a sequence of events (usually the shared empty tuple)."""
+        ts = self._tanks.get(tank)
+        s = None if ts is None else ts.sensors.get(sensor)
+        if s is None:
+            s = self._unknown(t, tank, sensor)
+            if s is None:
+                return _NONE
+            ts = self._tanks[tank]
+        events = self._roll(ts, t) if t >= ts.bin_end else None
+        s.n += 1
+        s.last = t
+        if s.state:
+            if s.state == STUCK:
+                return events or _NONE
+            events = self._revive(ts, s, t, events)
+        s.mark = ts.active
+        ts.cur_active = True
+        ts.raw += 1
+        if ts.raw == self._chatter:
+            self._chatter_bin(ts)
+        slot = int(t * self._inv_slot)
+        if slot <= ts.slot:
+            return events or _NONE
+        ts.slot = slot
+        if not ts.excl:
+            ts.cur += 1
+        if ts.demanding or ts.vsum + ts.cur >= ts.k:
+            return self._decide(ts, t, events)
+        return events or _NONE
+
+    def on_time(self, t: float) -> list:
+        """Time has reached ``t``: close bins, end drained demands, judge silent sensors."""
+        events: list = []
+        for ts in self._tanks.values():
+            if t >= ts.bin_end:
+                events.extend(self._roll(ts, t) or ())
+        return events
+
+    def score(self, tank: str) -> tuple[float, int]:
+        """(evidence, threshold) of a tank now, for status displays and tests."""
+        ts = self._tanks[tank]
+        return self._score(ts), ts.k
+
+    def sensor_state(self, tank: str, sensor: str) -> str:
+        return ("healthy", "stuck", "dead")[self._tanks[tank].sensors[sensor].state]
+
+    # -- evidence -----------------------------------------------------------------------------
+    def _score(self, ts: _Tank) -> float:
+        total = ts.vsum + ts.cur
+        m = ts.p1 + ts.p2 + ts.cur
+        if ts.m_old > m:
+            m = ts.m_old
+        rest = total - m
+        allowed = self.params.spike_gain * rest * 3.0 / (self._n - 3) + self.params.spike_allowance
+        return rest + (m if m < allowed else allowed)
+
+    def _decide(self, ts: _Tank, t: float, events):
+        score = self._score(ts)
+        if not ts.demanding:
+            if score < ts.k:
+                return events or _NONE
+            ts.demanding, ts.last_raise, ts.fresh = True, t, 0
+            self._unlearn_window(ts)
+            return self._raise(ts, t, events)
+        if score < self.params.end_fraction * ts.k:
+            ts.demanding = False
+            return events or _NONE
+        p = self.params
+        if t - ts.last_raise >= p.repeat_s:
+            recent = ts.recent
+            if ts.fresh == 0:
+                recent.clear()
+            ts.fresh += 1
+            recent.append(t)
+            if len(recent) > p.repeat_contacts:
+                del recent[0]
+            if len(recent) == p.repeat_contacts and t - recent[0] <= p.repeat_span_s and score >= ts.k:
+                ts.last_raise, ts.fresh = t, 0
+                return self._raise(ts, t, events)
+        return events or _NONE
+
+    def _unlearn_window(self, ts: _Tank) -> None:
+        """The window that made a demand was the episode's start, not turbulence: take it back
+        out of the background estimate (decay over 60 s is < 1 % and is ignored)."""
+        clipped = sum(v if v < 2 else 2 for v in ts.vals)
+        ts.bg_n = max(0.0, ts.bg_n - clipped)
+        ts.bg_t = max(self._bin, ts.bg_t - self._bin * len(ts.vals))
+
+    def _raise(self, ts: _Tank, t: float, events):
+        rate = (ts.rsum + (0 if ts.excl else ts.raw)) / (self._n * self._bin)
+        out = list(events) if events else []
+        out.append(Demand(ts.name, t, rate))
+        return out
+
+    def _chatter_bin(self, ts: _Tank) -> None:
+        """This bin is too fast for fish: it and its neighbours count for nothing."""
+        ts.excl = ts.excl_next = True
+        ts.cur = 0
+        last = (ts.head - 1) % len(ts.vals)
+        ts.vsum -= ts.vals[last]
+        ts.rsum -= ts.raws[last]
+        ts.vals[last] = ts.raws[last] = ts.p1 = 0
+        ts.m_old = self._max3(ts)
+
+    def _max3(self, ts: _Tank) -> int:
+        vals, h, n = ts.vals, ts.head, len(ts.vals)
+        seq = vals[h:] + vals[:h]
+        return max(seq[i] + seq[i + 1] + seq[i + 2] for i in range(n - 2))
+
+    # -- time ---------------------------------------------------------------------------------
+    def _roll(self, ts: _Tank, t: float):
+        """Close the current bin and any empty ones up to the bin holding ``t``."""
+        if ts.bin_end == -math.inf:
+            ts.bin_end = (math.floor(t / self._bin) + 1) * self._bin
+            return None
+        steps = int((t - ts.bin_end) // self._bin) + 1
+        events = None
+        n = len(ts.vals)
+        events = self._judge_sensors(ts, ts.bin_end + (steps - 1) * self._bin, steps)
+        for _ in range(min(steps, n + 1)):
+            self._close_bin(ts)
+        if steps > n + 1:                           # a long silence: the window is empty
+            a = self._alpha ** (steps - (n + 1))
+            ts.bg_n *= a
+            ts.bg_t = ts.bg_t * a + self._bin * (1 - a) / (1 - self._alpha)
+        ts.bin_end += steps * self._bin
+        ts.k = self._k_grid[min(63, bisect.bisect_left(self._b_grid, self._background(ts)))]
+        if ts.demanding and self._score(ts) < self.params.end_fraction * ts.k:
+            ts.demanding = False
+        return events
+
+    def _close_bin(self, ts: _Tank) -> None:
+        v = 0 if ts.excl else ts.cur
+        r = 0 if ts.excl else ts.raw
+        h = ts.head
+        ts.vsum += v - ts.vals[h]
+        ts.rsum += r - ts.raws[h]
+        ts.vals[h], ts.raws[h] = v, r
+        ts.head = (h + 1) % len(ts.vals)
+        ts.p2, ts.p1 = ts.p1, v
+        ts.m_old = self._max3(ts)
+        if not ts.demanding:                        # background: bins outside demand, clipped at 2
+            ts.bg_n = ts.bg_n * self._alpha + (v if v < 2 else 2)   # (P = 0.7 % at 0.05 /s)
+            ts.bg_t = ts.bg_t * self._alpha + self._bin
+        if ts.cur_active:
+            ts.active += 1
+        ts.cur = ts.raw = 0
+        ts.cur_active = False
+        ts.excl, ts.excl_next = ts.excl_next, False
+
+    def _background(self, ts: _Tank) -> float:
+        n = ts.bg_n
+        b = (n + math.sqrt(n) + 1.0) / ts.bg_t
+        return max(self.params.turbulence_floor_hz, b)
+
+    # -- sensors ------------------------------------------------------------------------------
+    def _judge_sensors(self, ts: _Tank, t: float, bins: int):
+        """Stuck and dead tests when the current bin closes, followed by ``bins - 1`` empty ones."""
+        events = None
+        full = (1 << self._stuck_bins) - 1
+        shift = min(bins - 1, self._stuck_bins)
+        for s in ts.sensors.values():
+            s.fast = ((((s.fast << 1) | (s.n >= self._stuck_n)) << shift) & full)
+            s.n = 0
+            ev = None
+            if s.state == HEALTHY:
+                if s.fast.bit_count() >= self._stuck_need:
+                    s.state, ev = STUCK, SensorFault(ts.name, s.name, t, "stuck")
+                elif (len(ts.sensors) > 1 and t - s.last >= self.params.dead_after_s
+                      and ts.active - s.mark >= self.params.dead_active_bins):
+                    s.state, ev = DEAD, SensorFault(ts.name, s.name, t, "dead")
+            elif s.state == STUCK and not (s.fast & self._recover_mask):
+                s.state, ev = HEALTHY, SensorRecovered(ts.name, s.name, t)
+                s.mark = ts.active
+            if ev is not None:
+                events = events or []
+                events.append(ev)
+        return events
+
+    def _revive(self, ts: _Tank, s: _Sensor, t: float, events):
+        s.state = HEALTHY
+        out = list(events) if events else []
+        out.append(SensorRecovered(ts.name, s.name, t))
+        return out
+
+    def _unknown(self, t: float, tank: str, sensor: str):
+        if self._fixed:
+            self.ignored += 1
+            self.unknown.add((tank, sensor))
+            return None
+        ts = self._tanks.get(tank) or self._new_tank(tank)
+        s = ts.sensors[sensor] = _Sensor(sensor, t, ts.active)
+        return s
+
+    def _new_tank(self, tank: str) -> _Tank:
+        p = self.params
+        t0 = 900.0                                  # the prior: 15 min at the contract's bound
+        ts = _Tank(tank, self._n, 0, p.turbulence_max_hz * t0, t0)
+        ts.k = self._k_grid[min(63, bisect.bisect_left(self._b_grid, self._background(ts)))]
+        self._tanks[tank] = ts
+        return ts

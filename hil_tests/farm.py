@@ -1,0 +1,135 @@
+"""Hardware-in-loop harness: a simulated farm process and the real controller process.
+
+The simulator (``fishfarm sim``) serves the devices over their real protocols (contact hub
+on a pty, rail drive over slcan on a pty, dispenser as a Modbus TCP server) and writes the
+ground truth. The controller (``fishfarm run``) is configured with the *real* drivers
+pointed at those endpoints, exactly as on a farm, and shares the simulator's timeline
+through the clock epoch. The harness can SIGKILL and restart the controller at will.
+"""
+from __future__ import annotations
+
+import json
+import os
+import signal
+import socket
+import sqlite3
+import subprocess
+import sys
+import time
+import tomllib
+from pathlib import Path
+
+import tomli_w
+
+ROOT = Path(__file__).resolve().parents[1]
+FARM_START = 1_780_016_400.0          # 2026-05-29 01:00 UTC = local midnight (utc_offset_h = 1)
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def merge(base: dict, extra: dict) -> dict:
+    out = dict(base)
+    for key, value in extra.items():
+        out[key] = merge(out[key], value) if isinstance(value, dict) and isinstance(out.get(key), dict) else value
+    return out
+
+
+class HilFarm:
+    def __init__(self, workdir: Path, *, speed: float, overrides: dict | None = None,
+                 base_config: Path = ROOT / "config" / "farm.toml", farm_start: float = FARM_START):
+        self.dir = Path(workdir)
+        self.speed = speed
+        self.epoch_wall = time.time() + 1.0
+        self.epoch_farm = farm_start
+        base = tomllib.loads(base_config.read_text())
+        self.config = merge(base, overrides or {})
+        self.sim_proc: subprocess.Popen | None = None
+        self.ctl_proc: subprocess.Popen | None = None
+        self.restarts = 0
+        self.truth_path = self.dir / "truth.jsonl"
+        self.db_path = self.dir / "ledger.db"
+        self.zenoh_port = free_port()
+
+    # -- clock ----------------------------------------------------------------
+    def clock_args(self) -> list[str]:
+        return ["--speed", repr(self.speed), "--epoch-wall", repr(self.epoch_wall),
+                "--epoch-farm", repr(self.epoch_farm)]
+
+    def farm_now(self) -> float:
+        return self.epoch_farm + (time.time() - self.epoch_wall) * self.speed
+
+    def sleep_until_farm(self, t: float) -> None:
+        while (now := self.farm_now()) < t:
+            self.check_alive()
+            time.sleep(min(0.2, (t - now) / self.speed))
+
+    # -- processes ------------------------------------------------------------
+    def _spawn(self, args: list[str], log_name: str) -> subprocess.Popen:
+        log = open(self.dir / log_name, "ab")
+        env = {**os.environ, "PYTHONUNBUFFERED": "1"}
+        return subprocess.Popen([sys.executable, "-m", "controller.cli", *args], cwd=ROOT, stdout=log,
+                                stderr=subprocess.STDOUT, env=env)
+
+    def start_sim(self, timeout_s: float = 30.0) -> dict:
+        sim_cfg = self.dir / "sim.toml"
+        sim_cfg.write_text(tomli_w.dumps(self.config))
+        endpoints = self.dir / "endpoints.json"
+        self.sim_proc = self._spawn(["sim", "--config", str(sim_cfg), "--endpoints", str(endpoints),
+                                     "--truth", str(self.truth_path), *self.clock_args()], "sim.log")
+        deadline = time.time() + timeout_s
+        while not endpoints.exists():
+            if self.sim_proc.poll() is not None or time.time() > deadline:
+                raise RuntimeError(f"simulator did not start:\n{self.log('sim.log')}")
+            time.sleep(0.05)
+        self.endpoints = json.loads(endpoints.read_text())
+        ctl = dict(self.config)
+        ctl["devices"] = {name: self.endpoints[name] for name in self.config["devices"]}
+        ctl["bus"] = {"mode": "peer", "listen": [f"tcp/127.0.0.1:{self.zenoh_port}"], "connect": []}
+        ctl["store"] = {"path": str(self.db_path)}
+        ctl.pop("sim", None)
+        (self.dir / "controller.toml").write_text(tomli_w.dumps(ctl))
+        return self.endpoints
+
+    def start_controller(self) -> None:
+        self.ctl_proc = self._spawn(["run", "--config", str(self.dir / "controller.toml"), "--no-console",
+                                     *self.clock_args()], "controller.log")
+
+    def kill_controller(self, sig: int = signal.SIGKILL) -> None:
+        self.ctl_proc.send_signal(sig)
+        self.ctl_proc.wait(timeout=30)
+        self.restarts += 1
+
+    def check_alive(self) -> None:
+        for name, proc in (("sim", self.sim_proc), ("controller", self.ctl_proc)):
+            if proc is not None and proc.poll() is not None:
+                raise RuntimeError(f"{name} exited with {proc.returncode}:\n{self.log(name + '.log')}")
+
+    def stop(self) -> None:
+        for proc in (self.ctl_proc, self.sim_proc):
+            if proc is not None and proc.poll() is None:
+                proc.send_signal(signal.SIGTERM)
+                try:
+                    proc.wait(timeout=15)
+                except subprocess.TimeoutExpired:
+                    proc.kill()
+                    proc.wait()
+
+    def log(self, name: str, tail: int = 60) -> str:
+        path = self.dir / name
+        if not path.exists():
+            return ""
+        return "\n".join(path.read_text(errors="replace").splitlines()[-tail:])
+
+    # -- evidence -------------------------------------------------------------
+    def ledger(self) -> sqlite3.Connection:
+        db = sqlite3.connect(f"file:{self.db_path}?mode=ro", uri=True)
+        db.row_factory = sqlite3.Row
+        return db
+
+    def truth(self) -> list[dict]:
+        with open(self.truth_path, encoding="utf-8") as fh:
+            return [json.loads(line) for line in fh if line.strip()]

@@ -1,0 +1,232 @@
+import asyncio
+
+import pytest
+from rig import rig
+from transitions import Machine, MachineError
+
+from controller.feeding.robot import OVERSHOOT, STATES, TRANSITIONS
+
+
+def run(coro):
+    return asyncio.run(asyncio.wait_for(coro, 60))
+
+
+# -- the table itself --------------------------------------------------------------------------
+def test_every_transition_of_the_table_and_nothing_else():
+    for trigger, sources, dest in TRANSITIONS:
+        sources = STATES if sources == "*" else [sources] if isinstance(sources, str) else sources
+        for state in STATES:
+            model = type("M", (), {})()
+            Machine(model=model, states=STATES, transitions=TRANSITIONS, initial=state, auto_transitions=False)
+            if state in sources:
+                getattr(model, trigger)()
+                assert model.state == dest, (trigger, state)
+            else:
+                with pytest.raises(MachineError):
+                    getattr(model, trigger)()
+
+
+def test_estop_is_reachable_from_every_state():
+    assert ["estop", "*", "estop"] in TRANSITIONS
+    assert set(STATES) == {"idle", "homing", "moving", "dispensing", "refilling", "fault", "estop", "manual"}
+
+
+# -- serving demands ---------------------------------------------------------------------------
+def test_homes_then_serves_a_demand_into_the_right_tank(tmp_path):
+    async def main():
+        async with rig(tmp_path) as r:
+            await r.until(lambda: r.robot.state == "idle", what="homed")
+            demand = r.demand("T2")
+            await r.until(lambda: r.store.db.execute("SELECT outcome FROM demand WHERE id=?", (demand,))
+                          .fetchone()[0] == "served", what="demand served")
+            [feed] = r.store.feeds()
+            assert feed.phase == "done" and feed.tank == "T2" and feed.demand_id == demand
+            # the ledger holds the load cell's grams: the physical delivery within its resolution
+            assert feed.grams == pytest.approx(r.delivered["T2"], abs=0.1 + 1e-9)
+            assert set(r.delivered) == {"T2"}
+            phases = [p["phase"] for s, p in r.published.messages if s == "tank/T2/feed"]
+            assert phases == ["intent", "done"]
+            seq = r.published.states()
+            assert seq[seq.index("moving"):seq.index("moving") + 3] == ["moving", "dispensing", "idle"]
+    run(main())
+
+
+def test_portion_keeps_within_the_ration(tmp_path):
+    async def main():
+        async with rig(tmp_path, feeding={"portion_g": 60.0}) as r:
+            await r.until(lambda: r.robot.state == "idle")
+            r.rations.set("T1", r.clock.now(), 100.0, "operator")
+            for _ in range(4):
+                r.demand("T1")
+                await r.until(lambda: not r.robot.pending, what="demand closed")
+            ration = r.rations.today("T1", r.clock.now())
+            assert ration.fed_g <= ration.grams
+            assert r.delivered["T1"] <= ration.grams
+            outcomes = [row[0] for row in r.store.db.execute("SELECT outcome FROM demand ORDER BY id")]
+            assert outcomes[:2] == ["served", "served"] and outcomes[-1] == "ration_reached"
+    run(main())
+
+
+def test_refills_at_the_food_box_when_the_hopper_runs_low(tmp_path):
+    async def main():
+        async with rig(tmp_path, dispenser={"hopper_start_g": 30.0}) as r:
+            await r.until(lambda: r.robot.hopper_g is not None and r.robot.hopper_g > 7000, what="refilled")
+            assert "refilling" in r.published.states()
+            r.demand("T1")
+            await r.until(lambda: r.store.fed_g("T1", r.rations.date(r.clock.now())) > 0, what="fed")
+    run(main())
+
+
+def test_operator_portion_is_capped_by_the_ask(tmp_path):
+    from controller.feeding.robot import Job
+
+    async def main():
+        async with rig(tmp_path) as r:
+            await r.until(lambda: r.robot.state == "idle")
+            r.robot.on_demand(Job("T1", r.clock.now(), None, "operator", 20.0))
+            await r.until(lambda: r.store.feeds() and r.store.feeds()[-1].phase == "done")
+            feed = r.store.feeds()[-1]
+            assert feed.source == "operator" and feed.target_g == pytest.approx(20.0)
+    run(main())
+
+
+# -- faults ------------------------------------------------------------------------------------
+def test_jammed_auger_faults_alarms_and_recovers(tmp_path):
+    async def main():
+        async with rig(tmp_path) as r:
+            await r.until(lambda: r.robot.state == "idle")
+            r.sim.physics.inject_jam(0.4)
+            r.demand("T1")
+            await r.until(lambda: r.robot.state == "fault", what="fault")
+            assert "feeder" in r.alarms.active
+            [feed] = r.store.feeds()
+            assert feed.phase == "done" and feed.grams == pytest.approx(r.delivered["T1"], abs=0.1 + 1e-9)
+            assert feed.grams < 0.6 * feed.target_g
+            await r.until(lambda: r.robot.state == "idle", what="recovered after back-off")
+            assert "feeder" not in r.alarms.active
+            assert not (await r.dispenser.read()).jammed
+    run(main())
+
+
+def test_can_silence_faults_and_recovers(tmp_path):
+    async def main():
+        async with rig(tmp_path) as r:
+            await r.until(lambda: r.robot.state == "idle")
+            r.motor.silence()
+            r.demand("T2")
+            await r.until(lambda: r.robot.state == "fault", what="fault on CAN silence")
+            assert r.alarms.active["feeder"].text.startswith("fault: rail: ")
+            r.motor.resume()
+            await r.until(lambda: "T2" in r.delivered, farm_s=300, what="served after the bus came back")
+    run(main())
+
+
+def test_modbus_timeout_faults_and_recovers(tmp_path):
+    async def main():
+        async with rig(tmp_path) as r:
+            await r.until(lambda: r.robot.state == "idle")
+            r.sim.set_unresponsive(True)
+            r.demand("T1")
+            await r.until(lambda: r.robot.state == "fault", what="fault on Modbus timeout")
+            r.sim.set_unresponsive(False)
+            await r.until(lambda: r.store.fed_g("T1", r.rations.date(r.clock.now())) > 0, farm_s=300,
+                          what="served after the PLC answered again")
+            assert r.store.open_intents() == []
+    run(main())
+
+
+# -- e-stop ------------------------------------------------------------------------------------
+async def _reach(r, state):
+    if state == "homing":
+        await r.until(lambda: r.robot.state == "homing")
+    elif state == "idle":
+        await r.until(lambda: r.robot.state == "idle")
+    elif state in ("moving", "dispensing"):
+        await r.until(lambda: r.robot.state == "idle")
+        r.demand("T2")
+        await r.until(lambda: r.robot.state == state, what=state)
+    elif state == "refilling":
+        await r.until(lambda: r.robot.state == "refilling", what="refilling")
+    elif state == "fault":
+        await r.until(lambda: r.robot.state == "idle")
+        r.motor.silence()
+        r.demand("T2")
+        await r.until(lambda: r.robot.state == "fault")
+        r.motor.resume()
+    elif state == "manual":
+        await r.until(lambda: r.robot.state == "idle")
+        assert r.robot.set_manual(True) is None
+    elif state == "estop":
+        await r.until(lambda: r.robot.state == "idle")
+        await r.robot.emergency_stop("first")
+
+
+@pytest.mark.parametrize("state", ["homing", "idle", "moving", "dispensing", "refilling", "fault",
+                                   "manual", "estop"])
+def test_estop_from_every_state_stops_auger_and_drive(tmp_path, state):
+    async def main():
+        hopper = {"hopper_start_g": 100.0} if state == "refilling" else {}
+        speed = 20.0 if state in ("moving", "dispensing", "homing", "refilling") else 100.0
+        async with rig(tmp_path, speed=speed, dispenser=hopper, rail={"start_m": 6.0}) as r:
+            await _reach(r, state)
+            await r.robot.emergency_stop("test")
+            await r.robot.emergency_stop("twice is fine")
+            assert r.robot.state == "estop"
+            dispenser = await r.dispenser.read()
+            assert not dispenser.running and not dispenser.refilling or state == "refilling"
+            await r.rail.wait_until(lambda s: s.state == "estop" and s.velocity_m_s == 0, 30,
+                                    stop_on_fault=False)
+            assert r.motor.state == "estop"
+            assert r.alarms.active["estop"].severity == "critical"
+            # nothing moves while stopped
+            before = r.motor.position()
+            await asyncio.sleep(0.05)
+            assert r.motor.position() == before and r.robot.state == "estop"
+            # release: homes again, settles any open intent from the counters, serves again
+            assert r.robot.operator_reset() is None
+            await r.until(lambda: r.robot.state == "idle", farm_s=200, what="back to idle")
+            assert r.store.open_intents() == []
+            for feed in r.store.feeds():
+                assert feed.grams == pytest.approx(r.delivered.get(feed.tank, 0.0), abs=0.1 + 1e-9)
+    run(main())
+
+
+# -- restarts ----------------------------------------------------------------------------------
+def test_restart_settles_an_open_intent_without_repeating_it(tmp_path):
+    async def main():
+        async with rig(tmp_path) as r:
+            await r.until(lambda: r.robot.state == "idle")
+            r.demand("T1")
+            await r.until(lambda: r.store.open_intents() and (r.sim.physics.read().running), what="auger on")
+            r.task.cancel()                                   # the controller dies mid-run
+            await asyncio.gather(r.task, return_exceptions=True)
+            cycles = r.sim.physics.cycles
+            robot = r.new_robot()                             # a new process, same ledger
+            r.task = asyncio.create_task(robot.run())
+            r.robot = robot
+            await r.until(lambda: robot.state == "idle", what="idle after restart")
+            [feed] = r.store.feeds()
+            assert feed.phase == "done" and feed.grams == pytest.approx(r.delivered["T1"], abs=0.1 + 1e-9)
+            assert r.sim.physics.cycles == cycles + 1          # the one run, finished by the device
+    run(main())
+
+
+def test_restart_aborts_an_intent_whose_run_never_started(tmp_path):
+    async def main():
+        async with rig(tmp_path, run=False) as r:
+            state = await r.dispenser.read()
+            r.store.add_intent(tank="T1", date=r.rations.date(r.clock.now()), t=r.clock.now(), target_g=50,
+                               run_s=4, cycles_before=state.cycles, source="demand")
+            robot = r.new_robot()
+            r.robot = robot
+            r.task = asyncio.create_task(robot.run())
+            await r.until(lambda: robot.state == "idle")
+            [feed] = r.store.feeds()
+            assert feed.phase == "aborted" and r.sim.physics.cycles == state.cycles
+            assert r.delivered == {}
+    run(main())
+
+
+def test_overshoot_margin_covers_the_simulated_auger():
+    from devices.sim.dispenser import SimDispenserParams
+    assert 3 * SimDispenserParams().rate_noise < OVERSHOOT
