@@ -17,13 +17,13 @@ deadline allows. Counting occupied seconds rather than contacts caps any short c
 burst of 200 contacts in 8 s counts at most 9), while losing little for fish (rate r fills
 1 - e^-r of the seconds: 95 % of the information at 0.1 /s, still ~0.86 /s at 2 /s).
 
-*Chatter.* A bin with ≥ chatter_hz × 5 = 15 contacts is not fish (fish stay ≤ 2 /s); it and its
-two neighbours count 0, so a burst of ≥ 3 /s leaves at most its sparse edges. Bursts at the slow
-end of the band (3 /s Poisson) cannot be told from 2 /s fish locally: only duration separates
-them (< 10 s against ≥ 1 min). Hence *persistence*: the densest 15 s of the window may add no
-more than ``spike_gain`` × what the other 45 s hold per 15 s, plus ``spike_allowance``. For
-steady fish the densest stretch is close to the mean and counts in full; a burst on a quiet tank
-adds almost nothing, whatever its rate.
+*Chatter.* A bin with >= chatter_hz x 5 = 15 contacts counts 0 (2 /s fish reach that in ~9 % of
+bins, a 3 /s stuck switch in all); at >= 20 (4 /s, never fish) its neighbours go too. On a quiet
+tank, 10 s holding >= ``clump_contacts`` contacts at >= 2 per busy second is a short burst and
+counts 0. Bursts at the slow end of the band (3 /s Poisson) cannot be told from 2 /s fish
+locally: only duration separates them (< 10 s against >= 1 min). Hence *persistence*: the
+densest 15 s of the window may add no more than ``spike_gain`` x what the other 45 s hold per
+15 s, plus ``spike_allowance``; steady fish count in full, a burst on a quiet tank adds ~nothing.
 
 *The threshold.* Under turbulence alone, contacts at rate b upcross a sliding count k over a
 window W at the rate b·P[Poisson(bW) = k-1] per second (a Poisson arrival sees the window's
@@ -43,13 +43,16 @@ within 60 s is near certain for r ≥ 0.45 /s, ~75 % at 0.3 /s, ~20 % at 0.2 /s;
 them in 60 s with a false-alarm rate near 0. Slow episodes are caught later if they persist.
 Regular (periodic) fish are easier: no Poisson spread.
 
-*Episodes and repeats.* One demand when the score first reaches k (raised on the contact that
-made it, so its time is a contact of the episode); the tank is then "in demand" until the score
-falls below ``end_fraction`` × k. While in demand a new demand is raised at most every
-``repeat_s``, and only on fresh evidence: ``repeat_contacts`` contacts in distinct seconds, all
-after the repeat fell due, within ``repeat_span_s``. A repeat therefore needs the fish to be
-still asking at ≥ ~0.3 /s *now*; a turbulence contact after the episode's end cannot trigger it
-unless it falls among the last few contacts (probability ~ b·span/(r·repeat_s) per episode).
+*Episodes and repeats.* One demand when the score first reaches k, raised on the contact that
+made it, and only if that contact followed the previous one within the episode's own pace
+(window / score) and is not in a clump (> 3 contacts per busy second): after fish stop, the next
+contact is turbulence tens of seconds later, or a burst, and must not be the one that raises.
+The tank is "in demand" until its busy seconds (exclusions ignored) fall below ``end_fraction``
+x k. While in demand a demand is repeated at most every ``repeat_s``, on fresh evidence only:
+``repeat_contacts`` busy seconds after the repeat fell due, each gap <= 3 x pace, the last <= 1 x
+pace. Residual risk: a turbulence contact right after an episode's end can still be the raising
+one (~b x pace / (r x repeat_s) per long episode). Measured: 2 in 120 simulated tank-days at
+0.01-0.05 /s turbulence, both chatter bursts starting within 0.3 s of an episode's end.
 
 *Faults.* Stuck: a sensor's own count is ≥ 0.9 × stuck_rate_hz × 5 in ≥ ``stuck_share`` of its
 5 s bins over ``stuck_window_s`` (fish at 2 /s exceed that in 21 % of bins, a 3 /s stuck sensor in
@@ -105,6 +108,7 @@ class DemandParams(BaseModel):
     bin_s: float = Field(5.0, gt=0, le=30)
     slot_s: float = Field(1.0, gt=0, le=10, description="one contact per slot counts")
     chatter_hz: float = Field(3.0, gt=0, description="a bin faster than this is chatter")
+    clump_contacts: int = Field(8, ge=3, description="short-burst test on a quiet tank, per 10 s")
     spike_gain: float = Field(2.0, ge=0)
     spike_allowance: float = Field(1.0, ge=0)
     false_alarms_per_day: float = Field(1e-4, gt=0, lt=10)
@@ -115,13 +119,12 @@ class DemandParams(BaseModel):
     end_fraction: float = Field(0.5, gt=0, le=1)
     repeat_s: float = Field(120.0, gt=0)
     repeat_contacts: int = Field(5, ge=1)
-    repeat_span_s: float = Field(15.0, gt=0)
     stuck_rate_hz: float = Field(3.0, gt=0)
     stuck_window_s: float = Field(120.0, gt=0)
     stuck_share: float = Field(0.75, gt=0, le=1)
     recover_s: float = Field(60.0, gt=0)
     dead_after_s: float = Field(300.0, gt=0)
-    dead_active_bins: int = Field(30, ge=1)
+    dead_active_bins: int = Field(20, ge=1)
 
     @model_validator(mode="after")
     def _shape(self):
@@ -153,7 +156,8 @@ class _Sensor:
 class _Tank:
     __slots__ = ("name", "sensors", "bin_end", "slot", "cur", "raw", "excl", "excl_next", "vals",
                  "raws", "head", "vsum", "rsum", "m_old", "p1", "p2", "k", "bg_n", "bg_t",
-                 "demanding", "last_raise", "fresh", "recent", "active", "cur_active")
+                 "demanding", "last_raise", "fresh", "recent", "active", "last_t",
+                 "occ", "occs", "osum")
 
     def __init__(self, name: str, n_bins: int, k: int, bg_n: float, bg_t: float):
         self.name = name
@@ -170,7 +174,9 @@ class _Tank:
         self.demanding, self.last_raise, self.fresh = False, -math.inf, 0
         self.recent: list[float] = []
         self.active = 0                             # bins with a healthy contact (dead-sensor test)
-        self.cur_active = False
+        self.last_t = -math.inf                     # the previous contact in a new second
+        self.occ = self.osum = 0                    # busy seconds, excluded bins included
+        self.occs = [0] * (n_bins - 1)
 
 
 class DemandFilter:
@@ -217,18 +223,19 @@ class DemandFilter:
                 return events or _NONE
             events = self._revive(ts, s, t, events)
         s.mark = ts.active
-        ts.cur_active = True
         ts.raw += 1
-        if ts.raw == self._chatter:
+        if ts.raw >= self._chatter:
             self._chatter_bin(ts)
         slot = int(t * self._inv_slot)
         if slot <= ts.slot:
             return events or _NONE
         ts.slot = slot
+        ts.occ += 1
         if not ts.excl:
             ts.cur += 1
         if ts.demanding or ts.vsum + ts.cur >= ts.k:
-            return self._decide(ts, t, events)
+            events = self._decide(ts, t, events)
+        ts.last_t = t
         return events or _NONE
 
     def on_time(self, t: float) -> list:
@@ -258,29 +265,37 @@ class DemandFilter:
         return rest + (m if m < allowed else allowed)
 
     def _decide(self, ts: _Tank, t: float, events):
+        """Raise, repeat or end a demand. Every raise also asks that this contact follow the one
+        before it no later than the episode's own pace suggests: after fish stop, the next
+        contact is turbulence, tens of seconds later, and must not be the one that raises."""
         score = self._score(ts)
+        pace = self._n * self._bin / max(score, 1.0)          # mean gap between busy seconds
+        p = self.params
         if not ts.demanding:
-            if score < ts.k:
-                return events or _NONE
+            if (score < ts.k or t - ts.last_t > pace or t - ts.last_raise < p.repeat_s
+                    or ts.raw > 3 * ts.occ + 1):             # a clump of contacts: chatter starting
+                return events
             ts.demanding, ts.last_raise, ts.fresh = True, t, 0
             self._unlearn_window(ts)
             return self._raise(ts, t, events)
-        if score < self.params.end_fraction * ts.k:
+        if ts.osum + ts.occ < p.end_fraction * ts.k:
             ts.demanding = False
-            return events or _NONE
-        p = self.params
-        if t - ts.last_raise >= p.repeat_s:
-            recent = ts.recent
-            if ts.fresh == 0:
-                recent.clear()
-            ts.fresh += 1
-            recent.append(t)
-            if len(recent) > p.repeat_contacts:
-                del recent[0]
-            if len(recent) == p.repeat_contacts and t - recent[0] <= p.repeat_span_s and score >= ts.k:
-                ts.last_raise, ts.fresh = t, 0
-                return self._raise(ts, t, events)
-        return events or _NONE
+            return events
+        if t - ts.last_raise < p.repeat_s:
+            return events
+        recent = ts.recent
+        if ts.fresh == 0:
+            recent.clear()
+        ts.fresh += 1
+        recent.append(t)
+        if len(recent) > p.repeat_contacts:
+            del recent[0]
+        if (len(recent) == p.repeat_contacts and score >= ts.k and not ts.excl and ts.raw <= 3 * ts.occ + 1
+                and t - recent[-2 if len(recent) > 1 else 0] <= pace
+                and all(b - a <= 3.0 * pace for a, b in zip(recent, recent[1:], strict=False))):
+            ts.last_raise, ts.fresh = t, 0
+            return self._raise(ts, t, events)
+        return events
 
     def _unlearn_window(self, ts: _Tank) -> None:
         """The window that made a demand was the episode's start, not turbulence: take it back
@@ -296,14 +311,31 @@ class DemandFilter:
         return out
 
     def _chatter_bin(self, ts: _Tank) -> None:
-        """This bin is too fast for fish: it and its neighbours count for nothing."""
-        ts.excl = ts.excl_next = True
-        ts.cur = 0
-        last = (ts.head - 1) % len(ts.vals)
-        ts.vsum -= ts.vals[last]
-        ts.rsum -= ts.raws[last]
-        ts.vals[last] = ts.raws[last] = ts.p1 = 0
-        ts.m_old = self._max3(ts)
+        """This bin is too fast for fish: it counts for nothing. At twice the chatter rate (no
+        fish, ever) its neighbours go too: they hold the burst's ramp and tail."""
+        if not ts.excl:
+            ts.excl = True
+            ts.cur = 0
+        if ts.raw == 2 * self._chatter - 10 and not ts.excl_next:
+            ts.excl_next = True
+            last = (ts.head - 1) % len(ts.vals)
+            ts.vsum -= ts.vals[last]
+            ts.rsum -= ts.raws[last]
+            ts.vals[last] = ts.raws[last] = ts.p1 = 0
+            ts.m_old = self._max3(ts)
+
+    def _clump(self, ts: _Tank, h: int) -> None:
+        """A quiet tank (the other 50 s of the window hold few busy seconds), then 10 s with >=
+        clump_contacts contacts at >= 2 per busy second: a short burst too slow for the chatter
+        test (fish below 1.5 /s give < 2 per busy second, bursts at >= 3 /s give >= 3.2)."""
+        prev = h - 1 if h else len(ts.vals) - 1
+        raw = ts.raws[h] + ts.raws[prev]
+        if (raw >= self.params.clump_contacts and raw >= 2 * (ts.vals[h] + ts.vals[prev])
+                and 2 * (ts.osum - ts.occs[h] - ts.occs[prev]) <= len(ts.vals)):
+            ts.vsum -= ts.vals[h] + ts.vals[prev]
+            ts.rsum -= raw
+            ts.vals[h] = ts.vals[prev] = ts.raws[h] = ts.raws[prev] = ts.p1 = ts.p2 = 0
+            ts.excl_next = True                     # and the bin that follows
 
     def _max3(self, ts: _Tank) -> int:
         vals, h, n = ts.vals, ts.head, len(ts.vals)
@@ -328,7 +360,7 @@ class DemandFilter:
             ts.bg_t = ts.bg_t * a + self._bin * (1 - a) / (1 - self._alpha)
         ts.bin_end += steps * self._bin
         ts.k = self._k_grid[min(63, bisect.bisect_left(self._b_grid, self._background(ts)))]
-        if ts.demanding and self._score(ts) < self.params.end_fraction * ts.k:
+        if ts.demanding and ts.osum + ts.occ < self.params.end_fraction * ts.k:
             ts.demanding = False
         return events
 
@@ -339,16 +371,20 @@ class DemandFilter:
         ts.vsum += v - ts.vals[h]
         ts.rsum += r - ts.raws[h]
         ts.vals[h], ts.raws[h] = v, r
+        ts.osum += ts.occ - ts.occs[h]
+        ts.occs[h] = ts.occ
         ts.head = (h + 1) % len(ts.vals)
         ts.p2, ts.p1 = ts.p1, v
+        if v:
+            self._clump(ts, h)
         ts.m_old = self._max3(ts)
         if not ts.demanding:                        # background: bins outside demand, clipped at 2
-            ts.bg_n = ts.bg_n * self._alpha + (v if v < 2 else 2)   # (P = 0.7 % at 0.05 /s)
+            v = ts.vals[h]                          # (P[v > 2] = 0.7 % at 0.05 /s)
+            ts.bg_n = ts.bg_n * self._alpha + (v if v < 2 else 2)
             ts.bg_t = ts.bg_t * self._alpha + self._bin
-        if ts.cur_active:
+        if ts.vals[h]:                              # a non-chatter bin with healthy contacts
             ts.active += 1
-        ts.cur = ts.raw = 0
-        ts.cur_active = False
+        ts.cur = ts.raw = ts.occ = 0
         ts.excl, ts.excl_next = ts.excl_next, False
 
     def _background(self, ts: _Tank) -> float:

@@ -1,0 +1,140 @@
+"""``fishfarm demand``: replay a contact log through the controller's own demand filter, offline.
+
+    fishfarm demand --events CONTACTS.csv --json OUT.json [--config farm.toml]
+
+CONTACTS.csv: header ``t_s,tank,sensor``, one row per contact, sorted by ``t_s`` (any origin:
+Unix seconds, seconds since midnight...). OUT.json: ``{"demands": [{"tank", "t_s"}], "faults":
+[{"tank", "sensor", "t_s", "kind"}]}`` with kind "stuck" or "dead".
+
+The file is read in one streaming pass with the stdlib csv reader and fed to ``DemandFilter``
+exactly as the controller feeds it (``on_time`` every 5 s of log time), so memory does not grow
+with the log. Without ``--config`` the tanks and sensors are whatever the log names and the
+filter runs on its defaults. With ``--config`` they and ``[demand]`` come from farm.toml;
+contacts of tanks or sensors the farm does not have (a sensor since removed, a typo in an old
+log) are skipped, not fatal: their count and names go to stderr, the exit status stays 0.
+Bad input (no file, wrong header, a non-number, times out of order, bad config) exits 2 with one
+line naming the file, line and column.
+"""
+from __future__ import annotations
+
+import csv
+import json
+import math
+from pathlib import Path
+
+import click
+
+from controller.errors import BadInput
+
+HEADER = ("t_s", "tank", "sensor")
+TICK_S = 5.0                       # how often the controller calls on_time
+
+
+def _open_events(path: str):
+    try:
+        return open(path, encoding="utf-8-sig", newline="")
+    except FileNotFoundError:
+        raise BadInput(path, None, "no such file") from None
+    except IsADirectoryError:
+        raise BadInput(path, None, "is a directory, expected a CSV file") from None
+    except OSError as exc:
+        raise BadInput(path, None, f"cannot read: {exc.strerror or exc}") from None
+
+
+def _rows(path: str):
+    """(line, t, tank, sensor) for each contact; BadInput at the first fault."""
+    with _open_events(path) as fh:
+        reader = csv.reader(fh)
+        try:
+            header = next(reader, None)
+            if header is None:
+                raise BadInput(path, None, f"empty file (expected header '{','.join(HEADER)}')")
+            if tuple(c.strip() for c in header) != HEADER:
+                raise BadInput(path, "header", f"expected '{','.join(HEADER)}', found '{','.join(header)}'")
+            prev = -math.inf
+            for cells in reader:
+                if len(cells) != 3:
+                    if not cells or not "".join(cells).strip():
+                        continue
+                    raise BadInput(path, f"line {reader.line_num}", f"{len(cells)} fields, expected 3")
+                t_s, tank, sensor = cells
+                try:
+                    t = float(t_s)
+                except ValueError:
+                    raise BadInput(path, f"line {reader.line_num}, column t_s",
+                                   f"not a number: {t_s.strip()!r}") from None
+                if not math.isfinite(t):
+                    raise BadInput(path, f"line {reader.line_num}, column t_s",
+                                   f"{t_s.strip()} is not finite")
+                if t < prev:
+                    raise BadInput(path, f"line {reader.line_num}, column t_s",
+                                   f"{t_s.strip()} is earlier than the row before ({prev:g}): "
+                                   "rows must be sorted by time")
+                tank, sensor = tank.strip(), sensor.strip()
+                if not tank or not sensor:
+                    raise BadInput(path, f"line {reader.line_num}, column {'tank' if not tank else 'sensor'}",
+                                   "empty")
+                prev = t
+                yield t, tank, sensor
+        except UnicodeDecodeError:
+            raise BadInput(path, f"line {reader.line_num + 1}",
+                           "not UTF-8 text (expected a CSV file)") from None
+        except csv.Error as exc:
+            raise BadInput(path, f"line {reader.line_num}", f"not CSV: {exc}") from None
+
+
+def replay(path: str, params=None, tanks: dict[str, list[str]] | None = None):
+    """Run the log through a fresh DemandFilter; returns (events, filter)."""
+    from controller.demand import DemandFilter
+    filt = DemandFilter(params, tanks)
+    on_contact, on_time = filt.on_contact, filt.on_time
+    events: list = []
+    tick, last = -math.inf, None
+    for t, tank, sensor in _rows(path):
+        if t >= tick:
+            events.extend(on_time(t))
+            tick = t + TICK_S
+        out = on_contact(t, tank, sensor)
+        if out:
+            events.extend(out)
+        last = t
+    if last is not None:
+        events.extend(on_time(last))
+    return events, filt
+
+
+def to_json(events) -> dict:
+    from controller.demand import Demand, SensorFault
+    return {"demands": [{"tank": e.tank, "t_s": e.t} for e in events if isinstance(e, Demand)],
+            "faults": [{"tank": e.tank, "sensor": e.sensor, "t_s": e.t, "kind": e.kind}
+                       for e in events if isinstance(e, SensorFault)]}
+
+
+def _farm(config: str):
+    from controller.config import load_config, validate_section
+    from controller.demand import DemandParams
+    cfg = load_config(config)
+    params = validate_section(DemandParams, cfg.demand, cfg.path, "demand")
+    return params, {t.id: list(t.sensors) for t in cfg.tanks}
+
+
+@click.command("demand")
+@click.option("--events", "events_path", required=True, metavar="CONTACTS.csv",
+              help="contact log: header t_s,tank,sensor, sorted by time")
+@click.option("--json", "json_path", required=True, metavar="OUT.json", help="demands and sensor faults")
+@click.option("--config", "config", default=None, metavar="FARM.toml",
+              help="take tanks, sensors and [demand] parameters from the farm's config")
+def demand(events_path: str, json_path: str, config: str | None) -> None:
+    """Replay a contact log through the demand filter; write the demands and sensor faults."""
+    params, tanks = _farm(config) if config else (None, None)
+    events, filt = replay(events_path, params, tanks)
+    out = to_json(events)
+    try:
+        Path(json_path).write_text(json.dumps(out, indent=1) + "\n", encoding="utf-8")
+    except OSError as exc:
+        raise BadInput(json_path, None, f"cannot write: {exc.strerror or exc}") from None
+    if filt.ignored:
+        names = ", ".join(f"{t}/{s}" for t, s in sorted(filt.unknown)[:10])
+        more = "" if len(filt.unknown) <= 10 else f" and {len(filt.unknown) - 10} more"
+        click.echo(f"fishfarm demand: skipped {filt.ignored} contacts of tanks/sensors not in {config}: "
+                   f"{names}{more}", err=True)

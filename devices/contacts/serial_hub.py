@@ -1,0 +1,156 @@
+"""The contact hub on a serial line (pyserial): one ASCII line per contact, NMEA-style.
+
+Line protocol (hub -> controller; 8N1, default 115200 baud; the hub never listens)::
+
+    $C,<seq>,<sensor>,<t_ms>*HH\\r\\n     a contact (rising edge) of <sensor> at farm time t_ms
+    $H,<seq>,<t_ms>*HH\\r\\n              heartbeat, at least once a second, contacts or not
+
+- ``seq``: decimal 0..65535, +1 per line of either kind, wrapping; a jump means lines were lost
+  (counted in ``lost``, never fatal: the filter copes with a missing contact).
+- ``sensor``: 1–32 of ``A-Z a-z 0-9 _ -``.  ``t_ms``: the hub's clock, Unix milliseconds.
+- ``HH``: two upper-case hex digits, XOR of every byte between ``$`` and ``*`` (NMEA 0183).
+
+A line that does not parse or whose checksum is wrong is line noise: counted in ``malformed``
+and skipped. Silence means a dead line, not calm fish (the heartbeat says so): no valid line for
+``silence_timeout_s`` wall seconds raises LinkDown, as does the port vanishing (EIO/EOF on a
+pseudo-terminal whose other side is gone, a USB adapter unplugged). The port is read on the
+asyncio loop with ``add_reader`` (no thread): each readable event drains what the kernel holds.
+"""
+from __future__ import annotations
+
+import asyncio
+import errno
+import os
+import re
+from functools import reduce
+from operator import xor
+
+import serial
+from pydantic import Field
+
+from devices.base import Section
+from devices.contacts import Contact, ContactSensors
+from devices.errors import LinkDown
+
+LINE = re.compile(rb"\$(C,(\d{1,5}),([A-Za-z0-9_-]{1,32}),(\d{1,16})|H,(\d{1,5}),(\d{1,16}))\*([0-9A-F]{2})")
+MAX_LINE = 128
+
+
+def checksum(body: bytes) -> int:
+    return reduce(xor, body, 0)
+
+
+def contact_line(seq: int, sensor: str, t: float) -> bytes:
+    body = f"C,{seq % 65536},{sensor},{round(t * 1000)}".encode()
+    return b"$%s*%02X\r\n" % (body, checksum(body))
+
+
+def heartbeat_line(seq: int, t: float) -> bytes:
+    body = f"H,{seq % 65536},{round(t * 1000)}".encode()
+    return b"$%s*%02X\r\n" % (body, checksum(body))
+
+
+class Config(Section):
+    port: str = Field(description="/dev/ttyUSB0, or a pyserial URL")
+    baudrate: int = Field(115200, gt=0)
+    silence_timeout_s: float = Field(3.0, gt=0, description="wall seconds without a valid line")
+
+
+class SerialContactHub(ContactSensors):
+    Config = Config
+
+    def __init__(self, name: str, config: Config, clock):
+        super().__init__(name, config, clock)
+        self.malformed = 0                  # lines rejected (noise, bad checksum)
+        self.lost = 0                       # lines missing by sequence number
+        self.lines = 0                      # valid lines
+        self._ser: serial.Serial | None = None
+        self._fd = -1
+        self._partial = b""
+        self._batch: list[Contact] = []
+        self._error: str | None = None
+        self._seq: int | None = None
+        self._wake = asyncio.Event()
+        self._last_line = 0.0
+
+    async def _open(self) -> None:
+        try:
+            self._ser = serial.serial_for_url(self.config.port, baudrate=self.config.baudrate, timeout=0)
+            self._ser.reset_input_buffer()            # stale lines from before we listened
+        except (serial.SerialException, OSError, ValueError) as exc:
+            raise LinkDown(self.name, f"cannot open {self.config.port}: {exc}") from None
+        self._fd = self._ser.fileno()
+        loop = asyncio.get_running_loop()
+        loop.add_reader(self._fd, self._readable)
+        self._last_line = loop.time()
+
+    async def _close(self) -> None:
+        if self._fd >= 0:
+            asyncio.get_running_loop().remove_reader(self._fd)
+            self._fd = -1
+        if self._ser is not None:
+            self._ser.close()
+            self._ser = None
+
+    async def _read(self) -> list[Contact]:
+        loop = asyncio.get_running_loop()
+        timeout = self.config.silence_timeout_s
+        while not self._batch:
+            if self._error is not None:
+                raise LinkDown(self.name, self._error)
+            left = self._last_line + timeout - loop.time()
+            if left <= 0:
+                raise LinkDown(self.name, f"{self.config.port} silent for {timeout:g} s (no heartbeat)")
+            self._wake.clear()
+            try:
+                await asyncio.wait_for(self._wake.wait(), left)
+            except TimeoutError:
+                pass
+        out, self._batch = self._batch, []
+        return out
+
+    # -- on the loop, when the port has bytes -----------------------------------------------------
+    def _readable(self) -> None:
+        try:
+            data = os.read(self._fd, 65536)
+        except BlockingIOError:
+            return
+        except OSError as exc:
+            gone = exc.errno in (errno.EIO, errno.ENXIO, errno.EBADF, errno.ENODEV)
+            return self._down(f"{self.config.port}: {'port gone' if gone else exc.strerror}")
+        if not data:
+            return self._down(f"{self.config.port}: end of file (port gone)")
+        lines = (self._partial + data).split(b"\n")
+        self._partial = lines.pop()
+        if len(self._partial) > MAX_LINE:           # no newline for too long: noise
+            self._partial = b""
+            self.malformed += 1
+        if self._parse(lines):
+            self._last_line = asyncio.get_running_loop().time()
+            self._wake.set()
+
+    def _parse(self, lines: list[bytes]) -> bool:
+        good = False
+        batch = self._batch
+        for raw in lines:
+            m = LINE.fullmatch(raw.rstrip(b"\r"))
+            if m is None or int(m[7], 16) != checksum(m[1]):
+                if raw.strip():
+                    self.malformed += 1
+                continue
+            good = True
+            self.lines += 1
+            seq = int(m[2] or m[5])
+            if self._seq is not None:
+                self.lost += (seq - self._seq - 1) % 65536
+            self._seq = seq
+            if m[3] is not None:
+                batch.append(Contact(int(m[4]) / 1000.0, m[3].decode()))
+        return good
+
+    def _down(self, why: str) -> None:
+        self._error = why
+        if self._fd >= 0:
+            asyncio.get_running_loop().remove_reader(self._fd)
+            self._fd = -1
+        self._wake.set()

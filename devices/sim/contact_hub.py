@@ -1,0 +1,137 @@
+"""The simulated contact hub: the tanks' contacts as the hub's serial lines, on a pseudo-terminal.
+
+The controller opens ``hub.port`` (the pty's slave path) with the real ``serial`` driver
+(devices/contacts/serial_hub.py, whose docstring has the line protocol). Every ``period_s`` of
+wall time an asyncio task pulls ``contacts_until(clock.now())`` from each ``SimTank``, writes one
+line per contact, in time order across tanks, and a heartbeat every ``heartbeat_s``. Writes are
+batched and non-blocking: when the pty is full (no reader, or a reader too slow) whole lines are
+dropped and counted in ``dropped``; their sequence numbers are spent anyway, as a real hub's
+are, so the reader sees the loss. ``noise_per_s`` injects corrupt lines (bad checksum, torn
+or garbage bytes) to exercise the reader's rejection of line noise.
+
+The sim keeps its own handle on the slave open, so writes never fail with EIO while no reader
+is attached; ``stop()`` closes both ends, and a reader then sees the port vanish.
+"""
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import heapq
+import os
+import tty
+
+import numpy as np
+from pydantic import BaseModel, ConfigDict, Field
+
+from controller.config import validate_section
+from devices.contacts.serial_hub import contact_line, heartbeat_line
+
+MAX_PENDING = 1 << 16                   # bytes kept for a partial write before dropping lines
+
+
+class SimHubParams(BaseModel):
+    """farm.toml ``[sim.contacts]``. Wall-clock seconds: they are properties of the line."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+    period_s: float = Field(0.005, gt=0, le=1, description="how often the tanks are polled")
+    heartbeat_s: float = Field(0.25, gt=0, le=10)
+    noise_per_s: float = Field(0.0, ge=0, description="corrupt lines injected per second")
+    seed: int = 0
+
+
+class SimContactHub:
+    """``tanks``: objects with ``contacts_until(t) -> [(t, sensor)]`` (``SimTank``, ``Replay``)."""
+
+    def __init__(self, tanks, clock, params: SimHubParams | dict | None = None, truth=None, *,
+                 where: str = "farm.toml"):
+        if not isinstance(params, SimHubParams):
+            params = validate_section(SimHubParams, params or {}, where, "sim.contacts")
+        self.tanks = list(tanks)
+        self.clock = clock
+        self.truth = truth
+        self.period_s, self.heartbeat_s = params.period_s, params.heartbeat_s
+        self.noise_per_s = params.noise_per_s
+        self.rng = np.random.default_rng(params.seed)
+        self.sent = self.dropped = self.noise = 0
+        self.seq = 0
+        self._master = self._slave = -1
+        self._port = ""
+        self._pending = b""
+        self._task: asyncio.Task | None = None
+
+    @property
+    def port(self) -> str:
+        return self._port
+
+    async def start(self) -> None:
+        self._master, self._slave = os.openpty()
+        tty.setraw(self._slave)
+        os.set_blocking(self._master, False)
+        self._port = os.ttyname(self._slave)
+        self._task = asyncio.create_task(self._serve(), name="sim-contact-hub")
+
+    async def stop(self) -> None:
+        if self._task is not None:
+            self._task.cancel()
+            with contextlib.suppress(asyncio.CancelledError):
+                await self._task
+            self._task = None
+        for fd in (self._master, self._slave):
+            if fd >= 0:
+                os.close(fd)
+        self._master = self._slave = -1
+
+    async def _serve(self) -> None:
+        loop = asyncio.get_running_loop()
+        next_beat = 0.0
+        while True:
+            now = self.clock.now()
+            contacts = list(self._contacts(now))
+            beat = loop.time() >= next_beat
+            # noise rides on traffic, ahead of it: every corrupt line is followed by a valid one
+            lines = self._noise() if contacts or beat else []
+            lines += [contact_line(self._next_seq(), sensor, t) for t, sensor in contacts]
+            if beat:
+                lines.append(heartbeat_line(self._next_seq(), now))
+                next_beat = loop.time() + self.heartbeat_s
+            self._write(lines)
+            await asyncio.sleep(self.period_s)
+
+    def _contacts(self, now: float):
+        per_tank = [tank.contacts_until(now) for tank in self.tanks]
+        return heapq.merge(*per_tank) if len(per_tank) > 1 else per_tank[0] if per_tank else []
+
+    def _next_seq(self) -> int:
+        seq, self.seq = self.seq, (self.seq + 1) % 65536
+        return seq
+
+    def _noise(self) -> list[bytes]:
+        n = self.rng.poisson(self.noise_per_s * self.period_s) if self.noise_per_s else 0
+        out = []
+        for _ in range(n):
+            kind = self.rng.integers(3)
+            line = contact_line(self._next_seq(), "T1-a", self.clock.now())
+            if kind == 0:                       # a flipped bit: the checksum no longer matches
+                i = int(self.rng.integers(1, line.index(b"*")))
+                line = line[:i] + bytes([line[i] ^ 0x04]) + line[i + 1:]
+            elif kind == 1:                     # torn: the tail lost
+                line = line[: int(self.rng.integers(2, len(line) - 3))] + b"\r\n"
+            else:                               # garbage bytes
+                line = bytes(self.rng.integers(32, 127, 20, dtype=np.uint8)) + b"\r\n"
+            out.append(line)
+        self.noise += n
+        return out
+
+    def _write(self, lines: list[bytes]) -> None:
+        if len(self._pending) > MAX_PENDING:
+            self.dropped += len(lines)
+            lines = []
+        data = self._pending + b"".join(lines)
+        if not data:
+            return
+        try:
+            n = os.write(self._master, data)
+        except BlockingIOError:
+            n = 0
+        self._pending = data[n:]
+        self.sent += len(lines)

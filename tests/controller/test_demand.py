@@ -1,0 +1,208 @@
+"""The demand filter on generated streams of every case of the contact sensor model."""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from controller.config import validate_section
+from controller.demand import Demand, DemandFilter, DemandParams, SensorFault, SensorRecovered, threshold
+from controller.errors import BadInput
+from devices.sim import contact_streams as cs
+
+T0 = 1_780_000_000.0
+HOUR = 3600.0
+
+
+def replay(stream, params=None, tanks=None, tick=5.0, until=None):
+    """Feed a stream as the controller does: contacts in order, on_time every few seconds."""
+    f = DemandFilter(params, tanks)
+    events, nxt = [], -math.inf
+    for t, tank, sensor in stream.rows():
+        if t >= nxt:
+            events += f.on_time(t)
+            nxt = t + tick
+        events += f.on_contact(t, tank, sensor)
+    end = until if until is not None else (float(stream.t[-1]) if len(stream) else T0)
+    for t in np.arange(nxt, end, tick):
+        events += f.on_time(float(t))
+    return events, f
+
+
+def demands(events, tank=None):
+    return [e for e in events if isinstance(e, Demand) and (tank is None or e.tank == tank)]
+
+
+def check_episodes(stream, events):
+    """Every episode gets a demand within 60 s of its start; no demand falls outside one."""
+    ds = demands(events)
+    late = []
+    for ep in stream.episodes:
+        first = [d.t for d in ds if d.tank == ep.tank and ep.start <= d.t <= ep.end]
+        if not first or min(first) - ep.start > 60.0:
+            late.append(ep)
+    eps = stream.episodes
+    outside = [d for d in ds if not any(e.tank == d.tank and e.start <= d.t <= e.end for e in eps)]
+    return late, outside
+
+
+def test_threshold_follows_the_poisson_tail():
+    # the contract's worst turbulence needs 18 busy seconds in 60 s; calmer tanks need fewer
+    ks = [threshold(b, 60.0, 1e-4, 2) for b in (0.005, 0.01, 0.02, 0.05, 0.1)]
+    assert ks == sorted(ks) and ks[3] == 18
+    k = ks[3]
+    rate = 86400 * 0.05 * math.exp((k - 1) * math.log(3.0) - 3.0 - math.lgamma(k))
+    assert rate <= 1e-4 < 86400 * 0.05 * math.exp((k - 2) * math.log(3.0) - 3.0 - math.lgamma(k - 1))
+
+
+@pytest.mark.parametrize("turbulence_hz", [0.01, 0.05])
+def test_turbulence_and_chatter_alone_never_demand(turbulence_hz):
+    rng = np.random.default_rng(11)
+    days = [cs.tank_day(rng, "T1", ("a", "b"), T0 + d * 86400, episodes_per_day=1e-9,
+                        turbulence_hz=turbulence_hz, bursts_per_hour=6) for d in range(15)]
+    stream = cs.merge(*days)
+    assert len(stream.bursts) > 1500
+    events, _ = replay(stream)
+    assert demands(events) == []
+    assert [e for e in events if isinstance(e, SensorFault)] == []
+
+
+@pytest.mark.parametrize("pattern", ["poisson", "regular"])
+def test_every_episode_served_within_60s_and_none_outside(pattern):
+    # 40 tank-days at the contract's worst turbulence, with bursts, fish at 0.7-2 /s
+    rng = np.random.default_rng(7 if pattern == "poisson" else 8)
+    days = [cs.tank_day(rng, "T1", ("a", "b"), T0 + d * 86400, rate_hz=(0.7, 2.0), pattern=pattern,
+                        turbulence_hz=0.05, bursts_per_hour=4, episodes_per_day=10) for d in range(40)]
+    stream = cs.merge(*days)
+    assert len(stream.episodes) > 250
+    late, outside = check_episodes(stream, replay(stream)[0])
+    assert outside == []
+    # a chatter burst in an episode's first minute costs up to 15 s of evidence: rare lateness
+    assert len(late) <= 0.01 * len(stream.episodes)
+
+
+def test_without_bursts_every_episode_is_served_within_60s():
+    rng = np.random.default_rng(17)
+    days = [cs.tank_day(rng, "T1", ("a", "b"), T0 + d * 86400, rate_hz=(0.7, 2.0), pattern="mixed",
+                        turbulence_hz=0.05, bursts_per_hour=0, episodes_per_day=10) for d in range(20)]
+    stream = cs.merge(*days)
+    late, outside = check_episodes(stream, replay(stream)[0])
+    assert late == [] and outside == []
+
+
+def test_calm_tank_catches_slower_fish():
+    # a calm tank (0.01 /s) lowers its own threshold: 0.4-0.7 /s episodes within 60 s
+    rng = np.random.default_rng(5)
+    days = [cs.tank_day(rng, "T1", ("a",), T0 + d * 86400, rate_hz=(0.4, 0.7), turbulence_hz=0.01,
+                        bursts_per_hour=2, episodes_per_day=10) for d in range(20)]
+    stream = cs.merge(*days)
+    events, f = replay(stream)
+    late, outside = check_episodes(stream, events)
+    assert f.score("T1")[1] <= 12 and outside == []
+    assert len(late) <= 0.02 * len(stream.episodes)
+
+
+def test_several_tanks_are_independent():
+    rng = np.random.default_rng(3)
+    quiet = cs.turbulence(rng, "T2", ("T2-a",), T0, T0 + 2 * HOUR, 0.05)
+    busy = cs.merge(cs.turbulence(rng, "T1", ("T1-a", "T1-b"), T0, T0 + 2 * HOUR, 0.05),
+                    cs.fish_demand(rng, "T1", ("T1-a", "T1-b"), T0 + HOUR, 120, 1.0))
+    events, _ = replay(cs.merge(quiet, busy))
+    assert [d.tank for d in demands(events)] == ["T1"]
+    assert T0 + HOUR <= demands(events)[0].t <= T0 + HOUR + 60
+
+
+def test_sustained_demand_repeats_every_repeat_s_inside_the_episode():
+    rng = np.random.default_rng(4)
+    ep = cs.fish_demand(rng, "T1", ("a", "b"), T0 + HOUR, 600, 1.0)
+    stream = cs.merge(cs.turbulence(rng, "T1", ("a", "b"), T0, T0 + 2 * HOUR, 0.03), ep)
+    ds = [d.t for d in demands(replay(stream)[0])]
+    assert len(ds) >= 4
+    assert all(ep.episodes[0].start <= t <= ep.episodes[0].end for t in ds)
+    assert min(np.diff(ds)) >= DemandParams().repeat_s
+    assert all(0.3 < d.rate_hz < 1.6 for d in demands(replay(stream)[0]))
+
+
+def test_demand_time_is_a_contact_of_the_episode():
+    rng = np.random.default_rng(9)
+    ep = cs.fish_demand(rng, "T1", ("a",), T0 + HOUR, 90, 0.8)
+    stream = cs.merge(cs.turbulence(rng, "T1", ("a",), T0, T0 + 2 * HOUR, 0.02), ep)
+    (d,) = demands(replay(stream)[0])
+    fish = set(stream.t[stream.source == cs.FISH].tolist())
+    assert d.t in fish
+
+
+@pytest.mark.parametrize(("rate", "pattern"), [(5.0, "regular"), (3.0, "regular"), (8.0, "poisson")])
+def test_stuck_sensor_is_a_fault_not_a_demand_and_left_out(rate, pattern):
+    rng = np.random.default_rng(21)
+    sensors = ("a", "b")
+    stuck_at, stuck_end = T0 + HOUR, T0 + 2 * HOUR
+    fish = cs.fish_demand(rng, "T1", ("b",), T0 + 1.5 * HOUR, 120, 0.8)     # while a is stuck
+    stream = cs.merge(cs.turbulence(rng, "T1", sensors, T0, T0 + 3 * HOUR, 0.03), fish,
+                      cs.stuck_sensor(rng, "T1", "a", stuck_at, stuck_end, rate, pattern))
+    events, f = replay(stream)
+    faults = [e for e in events if isinstance(e, SensorFault)]
+    assert [(e.sensor, e.kind) for e in faults] == [("a", "stuck")]
+    assert stuck_at < faults[0].t < stuck_at + 180
+    ds = [d.t for d in demands(events)]
+    assert len(ds) == 1 and fish.episodes[0].start <= ds[0] <= fish.episodes[0].start + 60
+    rec = [e for e in events if isinstance(e, SensorRecovered)]
+    assert [e.sensor for e in rec] == ["a"] and stuck_end < rec[0].t < stuck_end + 180
+    assert f.sensor_state("T1", "a") == "healthy"
+
+
+def test_dead_sensor_is_a_fault_and_recovers_on_its_next_contact():
+    rng = np.random.default_rng(22)
+    sensors = ("a", "b")
+    day = cs.tank_day(rng, "T1", sensors, T0, 0.5, rate_hz=(0.7, 2.0), turbulence_hz=0.05,
+                      bursts_per_hour=2, episodes_per_day=24)
+    stream = cs.kill_sensor(day, "T1", "b", T0 + 2 * HOUR, T0 + 6 * HOUR)
+    events, _ = replay(stream)
+    faults = [e for e in events if isinstance(e, SensorFault)]
+    assert [(e.sensor, e.kind) for e in faults] == [("b", "dead")]
+    assert T0 + 2 * HOUR + DemandParams().dead_after_s <= faults[0].t < T0 + 4 * HOUR
+    (rec,) = [e for e in events if isinstance(e, SensorRecovered)]
+    assert rec.sensor == "b" and T0 + 6 * HOUR <= rec.t < T0 + 6 * HOUR + 600
+    late, outside = check_episodes(stream, events)
+    assert late == [] and outside == []
+
+
+def test_configured_sensor_that_never_fires_is_dead():
+    rng = np.random.default_rng(23)
+    stream = cs.merge(cs.turbulence(rng, "T1", ("a",), T0, T0 + 2 * HOUR, 0.05),
+                      cs.fish_demand(rng, "T1", ("a",), T0 + HOUR, 300, 1.0))
+    events, _ = replay(stream, tanks={"T1": ["a", "b"]})
+    assert [(e.sensor, e.kind) for e in events if isinstance(e, SensorFault)] == [("b", "dead")]
+
+
+def test_single_sensor_tank_never_reports_dead():
+    rng = np.random.default_rng(24)
+    stream = cs.turbulence(rng, "T1", ("a",), T0, T0 + 6 * HOUR, 0.001)
+    events, _ = replay(stream, until=T0 + 6 * HOUR)
+    assert events == []
+
+
+def test_unknown_tanks_and_sensors_are_ignored_and_counted():
+    f = DemandFilter(None, {"T1": ["a"]})
+    for i in range(50):
+        assert f.on_contact(T0 + i * 0.5, "T9", "x") == ()
+        assert f.on_contact(T0 + i * 0.5 + 0.1, "T1", "zz") == ()
+    assert f.ignored == 100 and f.unknown == {("T9", "x"), ("T1", "zz")}
+
+
+def test_params_come_from_the_demand_section_with_one_line_errors():
+    p = validate_section(DemandParams, {"repeat_s": 300}, "farm.toml", "demand")
+    assert p.repeat_s == 300
+    with pytest.raises(BadInput, match=r"farm.toml: demand.repeats: unknown key"):
+        validate_section(DemandParams, {"repeats": 3}, "farm.toml", "demand")
+    with pytest.raises(BadInput, match=r"farm.toml: demand.*window_s must hold"):
+        validate_section(DemandParams, {"window_s": 20, "bin_s": 5}, "farm.toml", "demand")
+
+
+def test_events_are_frozen_and_common_path_allocates_nothing():
+    f = DemandFilter()
+    assert f.on_contact(T0, "T1", "a") is f.on_contact(T0 + 0.1, "T1", "a")
+    d = Demand("T1", T0, 1.0)
+    with pytest.raises(AttributeError):
+        d.t = 0.0

@@ -1,0 +1,95 @@
+"""The simulated tank: hunger, episodes, eating, and the surroundings' contacts."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from pydantic import ValidationError
+
+from controller.config import TankConfig
+from devices.sim.fish import SimFishParams, SimTank
+from devices.sim.truth import TruthLog
+
+T0 = 1_780_000_000.0
+TANK = TankConfig(id="T1", stock=2400, mean_weight_g=18, position_m=3.0, sensors=["T1-a", "T1-b"])
+APPETITE = 2400 * 18 * 0.025 / 86400                    # g/s at 2.5 % a day
+
+
+def tank(seed=1, **kw):
+    truth = TruthLog(None)
+    return SimTank(TANK, SimFishParams(**kw), np.random.default_rng(seed), truth, T0), truth
+
+
+def kinds(truth, kind):
+    return [r for r in truth.records if r["kind"] == kind]
+
+
+def test_hunger_grows_until_the_fish_ask():
+    t, truth = tank(initial_hunger=0.0, turbulence_hz=0.0, bursts_per_hour=0.0)
+    assert t.contacts_until(T0 + 4000) == [] and not t.asking
+    t.contacts_until(T0 + 6000)
+    start = kinds(truth, "episode_start")[0]
+    assert start["t"] == pytest.approx(T0 + 60.0 / APPETITE, abs=0.01)
+    assert 0.4 <= start["rate_hz"] <= 2.0
+
+
+def test_feeding_ends_the_episode_and_the_contacts():
+    t, truth = tank(initial_hunger=1.0, turbulence_hz=0.0, bursts_per_hour=0.0, duration_s=(600, 600))
+    asking = t.contacts_until(T0 + 60)
+    assert t.asking and len(asking) > 10
+    t.feed(60.0, T0 + 60)
+    assert not t.asking and kinds(truth, "episode_end")[0]["why"] == "fed"
+    assert t.contacts_until(T0 + 600) == []
+    assert kinds(truth, "fed") == [{"kind": "fed", "t": round(T0 + 60, 4), "tank": "T1", "grams": 60.0}]
+
+
+def test_unfed_fish_give_up_then_ask_again():
+    t, truth = tank(initial_hunger=1.0, turbulence_hz=0.0, bursts_per_hour=0.0, duration_s=(100, 100),
+                    rest_s=900)
+    t.contacts_until(T0 + 1500)
+    ends, starts = kinds(truth, "episode_end"), kinds(truth, "episode_start")
+    assert ends[0]["why"] == "gave up" and ends[0]["t"] == pytest.approx(T0 + 100, abs=0.01)
+    assert starts[1]["t"] == pytest.approx(T0 + 1000, abs=0.01)
+
+
+def test_contact_rate_follows_the_episode_rate():
+    t, truth = tank(initial_hunger=1.0, turbulence_hz=0.0, bursts_per_hour=0.0, duration_s=(600, 600))
+    n = len(t.contacts_until(T0 + 600))
+    rate = kinds(truth, "episode_start")[0]["rate_hz"]
+    assert abs(n - 600 * rate) < 5 * np.sqrt(600 * rate)
+
+
+def test_same_seed_same_farm_whatever_the_step():
+    a, _ = tank(seed=4, bursts_per_hour=10.0, stuck_per_day=4.0, dead_per_day=4.0)
+    b, _ = tank(seed=4, bursts_per_hour=10.0, stuck_per_day=4.0, dead_per_day=4.0)
+    coarse = a.contacts_until(T0 + 7200)
+    fine = [c for k in range(1, 7201) for c in b.contacts_until(T0 + k)]
+    assert coarse == fine and len(coarse) > 500
+
+
+def test_turbulence_bursts_and_faults_are_logged():
+    t, truth = tank(seed=5, initial_hunger=0.0, bursts_per_hour=12.0, turbulence_hz=0.04,
+                    stuck_per_day=12.0, dead_per_day=12.0)
+    contacts = t.contacts_until(T0 + 86400 / 4)
+    assert len(kinds(truth, "burst")) > 40
+    faults = {r["fault"] for r in kinds(truth, "sensor_fault")}
+    assert faults == {"stuck", "dead"}
+    for r in kinds(truth, "sensor_fault"):
+        if r["fault"] == "dead":                         # a dead sensor says nothing, fish or not
+            a, b = r["t"] + 0.01, r["until"] - 0.01
+            assert not [c for c in contacts if c[1] == r["sensor"] and a < c[0] < b]
+
+
+def test_a_day_asks_for_about_the_ration_in_portions():
+    t, truth = tank(seed=6, turbulence_hz=0.0, bursts_per_hour=0.0)
+    step = 10.0
+    for k in range(int(86400 / step)):                    # the robot serves 60 g 30-40 s after asking
+        t.contacts_until(T0 + k * step)
+        if t.asking and kinds(truth, "episode_start")[-1]["t"] < T0 + k * step - 30:
+            t.feed(60.0, T0 + k * step)
+    eaten = sum(r["grams"] for r in kinds(truth, "fed"))
+    assert 0.8 * 1080 <= eaten <= 1.2 * 1080             # 2.5 % of 43.2 kg
+
+
+def test_params_are_strict():
+    with pytest.raises(ValidationError):
+        SimFishParams(rate=1.0)

@@ -1,0 +1,145 @@
+"""The contact hub's serial driver against the simulated hub, on a real pseudo-terminal."""
+from __future__ import annotations
+
+import asyncio
+import os
+import tty
+
+import numpy as np
+import pytest
+
+from controller.config import load_config
+from devices.clock import ManualClock, ScaledClock
+from devices.contacts.serial_hub import Config, SerialContactHub, checksum, contact_line, heartbeat_line
+from devices.errors import LinkDown
+from devices.sim import contact_streams as cs
+from devices.sim.contact_hub import SimContactHub
+from devices.sim.fish import SimFishParams, SimTank
+from devices.sim.truth import TruthLog
+
+
+def driver(port, clock, timeout=1.0):
+    return SerialContactHub("contacts", Config(kind="contacts", driver="serial", port=port,
+                                               silence_timeout_s=timeout), clock)
+
+
+async def read_n(dev, n, timeout=10.0):
+    got = []
+    while len(got) < n:
+        got += await asyncio.wait_for(dev.read(), timeout)
+    return got
+
+
+def stream(seed=1, t0=1000.0):
+    rng = np.random.default_rng(seed)
+    return cs.tank_day(rng, "T1", ("T1-a", "T1-b"), t0, days=0.02, turbulence_hz=0.3, bursts_per_hour=200)
+
+
+def test_line_format_is_nmea_style():
+    line = contact_line(7, "T1-a", 1780000000.1234)
+    assert line == b"$C,7,T1-a,1780000000123*%02X\r\n" % checksum(b"C,7,T1-a,1780000000123")
+    assert heartbeat_line(65537, 1.0).startswith(b"$H,1,1000*")
+
+
+def test_contacts_arrive_with_their_stamps_and_noise_is_counted():
+    async def main():
+        clock = ManualClock(t=1000.0)
+        st = stream()
+        hub = SimContactHub([cs.Replay(st)], clock, {"noise_per_s": 400, "seed": 3})
+        await hub.start()
+        dev = driver(hub.port, clock)
+        await dev.open()
+        got = []
+        for _ in range(40):                     # 50 s of farm time per step: bursts, not floods
+            clock.advance(50.0)
+            got += await dev.read() if len(got) < int(np.searchsorted(st.t, clock.now())) else []
+        got += await read_n(dev, len(st) - len(got))
+        await asyncio.sleep(0.05)
+        await hub.stop()
+        await dev.close()
+        return st, got, dev, hub
+    st, got, dev, hub = asyncio.run(main())
+    assert [c.sensor for c in got] == st.sensor.tolist()
+    assert np.array_equal([c.t for c in got], np.round(st.t * 1000) / 1000)
+    assert hub.noise > 0 and hub.dropped == 0
+    assert dev.malformed == hub.noise            # every corrupt line rejected, none let through
+    assert dev.lost == hub.noise                 # their sequence numbers are missing
+
+
+def test_silence_is_link_down_and_a_fresh_driver_reopens():
+    async def main():
+        master, slave = os.openpty()
+        tty.setraw(slave)
+        port = os.ttyname(slave)
+        clock = ManualClock()
+        dev = driver(port, clock, timeout=0.3)
+        await dev.open()
+        os.write(master, heartbeat_line(0, 1.0) + contact_line(1, "T1-a", 2.0))
+        (c,) = await read_n(dev, 1)
+        loop = asyncio.get_running_loop()
+        t = loop.time()
+        with pytest.raises(LinkDown, match="silent"):
+            await dev.read()
+        waited = loop.time() - t
+        await dev.close()
+        await dev.close()                                    # safe twice
+        again = driver(port, clock, timeout=0.3)
+        await again.open()
+        os.write(master, contact_line(2, "T1-b", 3.0) + contact_line(9, "T1-b", 4.0))
+        got = await read_n(again, 2)
+        await again.close()
+        os.close(master)
+        os.close(slave)
+        return c, waited, got, again.lost
+    c, waited, got, lost = asyncio.run(main())
+    assert (c.t, c.sensor) == (2.0, "T1-a")
+    assert 0.25 <= waited < 1.0
+    assert [x.t for x in got] == [3.0, 4.0] and lost == 6
+
+
+def test_port_vanishing_is_link_down():
+    async def main():
+        clock = ManualClock()
+        hub = SimContactHub([cs.Replay(stream(2))], clock)
+        await hub.start()
+        dev = driver(hub.port, clock, timeout=5.0)
+        await dev.open()
+        await hub.stop()
+        with pytest.raises(LinkDown, match="port gone|end of file"):
+            await asyncio.wait_for(dev.read(), 3)
+        await dev.close()
+    asyncio.run(main())
+
+
+def test_cannot_open_a_missing_port():
+    async def main():
+        with pytest.raises(LinkDown, match="cannot open"):
+            await driver("/dev/nonexistent-hub", ManualClock()).open()
+    asyncio.run(main())
+
+
+def test_sim_tanks_at_high_speed_reach_the_driver():
+    """The demo farm's tanks at 600x through the pty: every contact the tanks made arrives."""
+    async def main():
+        cfg = load_config("config/farm.toml")
+        clock = ScaledClock.starting(600.0, 1_780_000_000.0)
+        truth = TruthLog(None)
+        params = SimFishParams(bursts_per_hour=20.0, initial_hunger=1.0)
+        tanks = [SimTank(t, params, np.random.default_rng(i), truth) for i, t in enumerate(cfg.tanks)]
+        hub = SimContactHub(tanks, clock)
+        await hub.start()
+        dev = driver(hub.port, clock)
+        await dev.open()
+        got = []
+        loop = asyncio.get_running_loop()
+        end = loop.time() + 1.5
+        while loop.time() < end:
+            got += await dev.read()
+        await hub.stop()
+        await dev.close()
+        return got, hub, dev, truth
+    got, hub, dev, truth = asyncio.run(main())
+    assert hub.dropped == 0 and dev.lost == 0 and dev.malformed == 0
+    ts = [c.t for c in got]
+    assert ts == sorted(ts) and len(got) > 100
+    assert any(r["kind"] == "episode_start" for r in truth.records)
