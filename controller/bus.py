@@ -1,0 +1,402 @@
+"""The farm's Zenoh bus: one session per process, JSON payloads under ``farm/{site}/``.
+
+Zenoh runs its callbacks on its own threads; the controller's logic runs on one asyncio loop.
+Every handler here is an ``async def`` scheduled onto that loop with
+``asyncio.run_coroutine_threadsafe``, so a slow handler never holds a Zenoh thread, and the
+reply is sent from the loop when the handler finishes.
+
+Facts that shaped this module (eclipse-zenoh 1.10.2, see DESIGN.md):
+- multicast scouting reaches beyond loopback: it is forced off whatever the config says;
+- the default congestion control drops under load: ``reliable=True`` publishes with BLOCK;
+- a wrong password does not make a *peer* ``zenoh.open()`` raise (a client's does): it returns
+  a session with nobody in it, so clients check connectivity explicitly;
+- sessions with callback subscribers keep non-daemon threads alive: always ``close()``.
+"""
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import json
+import logging
+import re
+import socket
+import threading
+import time
+from collections.abc import Awaitable, Callable, Iterable, Mapping
+
+import zenoh
+
+from controller.config import BusConfig
+from controller.errors import BadInput
+
+log = logging.getLogger("fishfarm.bus")
+
+Handler = Callable[[dict], Awaitable[dict]]
+"""A queryable's handler: request payload (a JSON object) in, reply (a JSON object) out."""
+Listener = Callable[[str, dict], Awaitable[None]]
+"""A subscriber's handler: key suffix after ``farm/{site}/`` and the payload."""
+
+DEFAULT_CONNECT = "tcp/127.0.0.1:7447"
+_CHUNK = re.compile(r"^[^/*$#?]+$")  # one concrete key chunk: no wildcard, no selector syntax
+
+
+class BusUnreachable(Exception):
+    """A client could not reach (or was not admitted to) the Zenoh network. ``str()`` is one line."""
+
+
+# ---------------------------------------------------------------- payloads
+
+def encode(payload: dict) -> bytes:
+    """JSON, UTF-8. NaN/inf are refused: they are not JSON and other clients would choke on them."""
+    if not isinstance(payload, dict):
+        raise TypeError(f"bus payloads are JSON objects, not {type(payload).__name__}")
+    return json.dumps(payload, ensure_ascii=False, allow_nan=False, separators=(",", ":")).encode()
+
+
+def decode(data: zenoh.ZBytes | bytes | None) -> dict:
+    """A payload as a dict; no payload at all is ``{}``. Raises ValueError saying what is wrong."""
+    raw = bytes(data.to_bytes() if isinstance(data, zenoh.ZBytes) else data or b"")
+    if not raw.strip():
+        return {}
+    try:
+        value = json.loads(raw.decode("utf-8"), parse_constant=_no_constant)
+    except UnicodeDecodeError:
+        raise ValueError("payload is not UTF-8") from None
+    except json.JSONDecodeError as exc:
+        raise ValueError(f"payload is not JSON: {exc}") from None
+    if not isinstance(value, dict):
+        raise ValueError(f"payload must be a JSON object, got {type(value).__name__}")
+    return value
+
+
+def _no_constant(name: str):
+    raise json.JSONDecodeError(f"{name} is not JSON", name, 0)
+
+
+# ---------------------------------------------------------------- configs
+
+def session_config(cfg: BusConfig) -> zenoh.Config:
+    """The Zenoh config of the controller's session: cfg.config (a JSON5 file) wins over
+    mode/listen/connect; multicast scouting is off in every case."""
+    if cfg.config:
+        try:
+            zc = zenoh.Config.from_file(cfg.config)
+        except (zenoh.ZError, OSError, ValueError) as exc:
+            raise BadInput(cfg.config, None, f"not a usable Zenoh config: {_one_line(exc)}") from None
+    else:
+        zc = zenoh.Config()
+        # an explicit empty listen list keeps a peer from listening on every interface (its default)
+        for key, value in (("mode", cfg.mode), ("listen", cfg.listen), ("connect", cfg.connect)):
+            _set(zc, key if key == "mode" else f"{key}/endpoints", value, "[bus]", f"bus.{key}")
+    zc.insert_json5("scouting/multicast/enabled", "false")
+    return zc
+
+
+def client_config(connect: str, user: str | None = None, password: str | None = None,
+                  *, mode: str = "client", timeout_s: float = 2.0) -> zenoh.Config:
+    """A short-lived tool's session: connect to one endpoint, listen nowhere, scout nothing.
+    A malformed endpoint is BadInput naming --connect."""
+    zc = zenoh.Config()
+    settings = {"mode": mode, "connect/endpoints": [connect], "listen/endpoints": [],
+                "scouting/multicast/enabled": False, "scouting/gossip/enabled": False,
+                "transport/unicast/open_timeout": max(1, int(timeout_s * 1000))}
+    if user is not None or password is not None:
+        settings["transport/auth/usrpwd/user"] = user or ""
+        settings["transport/auth/usrpwd/password"] = password or ""
+    for key, value in settings.items():
+        _set(zc, key, value, "--connect", None)
+    return zc
+
+
+def _set(zc: zenoh.Config, key: str, value, where: str, field: str | None) -> None:
+    try:
+        zc.insert_json5(key, json.dumps(value))
+    except zenoh.ZError as exc:
+        raise BadInput(where, field, _one_line(exc)) from None
+
+
+def _one_line(exc: BaseException) -> str:
+    """Zenoh's message on one line, without the Rust source locations it appends."""
+    text = re.sub(r"\s+at /\S+:\d+\.?", "", " ".join(str(exc).split()))
+    quoted = re.search(r'msg: "(.*?)"', text)  # a JSON5 error wraps the message in a Rust struct
+    return ((quoted.group(1) if quoted else text).strip(" .!") or type(exc).__name__)[:300]
+
+
+def _why_unreachable(connect: str, user: str | None, detail: str) -> str:
+    """Tell 'nobody listens there' from 'a Zenoh node is there but would not admit us'."""
+    m = re.fullmatch(r"tcp/\[?([^\]]+?)\]?:(\d+)", connect)
+    if m is None:
+        return f"could not connect to {connect}: {detail}"
+    try:
+        socket.create_connection((m.group(1), int(m.group(2))), timeout=1.0).close()
+    except OSError as exc:
+        return f"could not connect to {connect}: {exc.strerror or exc} (is the controller running?)"
+    if user:
+        return f"{connect} refused the session: authentication failed for user {user!r}"
+    return f"{connect} refused the session (does it require --user/--password?)"
+
+
+# ---------------------------------------------------------------- the bus
+
+class Bus:
+    """One Zenoh session for the process, speaking the key space of DESIGN.md.
+
+    ``loop`` is the asyncio loop handlers run on; by default the loop running when
+    ``queryable``/``subscribe``/``overrides`` is called.
+    """
+
+    def __init__(self, cfg: BusConfig, site: str = "demo", *, loop: asyncio.AbstractEventLoop | None = None):
+        zc = session_config(cfg)
+        try:
+            session = zenoh.open(zc)
+        except zenoh.ZError as exc:
+            why = f"cannot open Zenoh session: {_one_line(exc)}"
+            raise BadInput(cfg.config or "[bus]", None, why) from None
+        self._start(session, zc, site, loop)
+
+    @classmethod
+    def client(cls, connect: str = DEFAULT_CONNECT, *, site: str = "demo", user: str | None = None,
+               password: str | None = None, timeout_s: float = 2.0, mode: str = "client",
+               loop: asyncio.AbstractEventLoop | None = None) -> Bus:
+        """A tool's bus (CLI, tests): connected to ``connect`` and checked to have reached somebody
+        within ``timeout_s``; otherwise BusUnreachable saying whether nobody answered or the
+        session was refused (authentication)."""
+        zc = client_config(connect, user, password, mode=mode, timeout_s=timeout_s)
+        try:
+            session = zenoh.open(zc)
+        except zenoh.ZError as exc:
+            raise BusUnreachable(_why_unreachable(connect, user, _one_line(exc))) from None
+        bus = cls.__new__(cls)
+        bus._start(session, zc, site, loop)
+        if not bus.wait_connected(timeout_s):
+            bus.close()
+            raise BusUnreachable(_why_unreachable(connect, user, f"nobody answered within {timeout_s:g} s"))
+        return bus
+
+    def _start(self, session: zenoh.Session, zc: zenoh.Config, site: str, loop) -> None:
+        if not _CHUNK.match(site):
+            raise ValueError(f"site {site!r} is not a plain key chunk")
+        self.session, self.zconfig, self.site = session, zc, site
+        self.prefix = f"farm/{site}/"
+        self._loop = loop
+        self._lock = threading.Lock()
+        self._publishers: dict[tuple[str, bool], zenoh.Publisher] = {}
+        self._declared: list = []  # subscribers and queryables, undeclared on close
+        self._closed = False
+
+    # ------------------------------------------------------------ keys and peers
+
+    def key(self, suffix: str) -> str:
+        return self.prefix + suffix.strip("/")
+
+    def _suffix(self, key: str) -> str:
+        return key[len(self.prefix):] if key.startswith(self.prefix) else key
+
+    def neighbours(self) -> list[str]:
+        """Zenoh ids of the routers and peers this session has a transport to."""
+        info = self.session.info
+        return [str(z) for z in (*info.routers_zid(), *info.peers_zid())]
+
+    def wait_connected(self, timeout_s: float) -> bool:
+        """True as soon as some router or peer is connected, False after ``timeout_s``."""
+        deadline = time.monotonic() + timeout_s
+        while not self.neighbours():
+            if time.monotonic() >= deadline:
+                return False
+            time.sleep(0.01)
+        return True
+
+    # ------------------------------------------------------------ publish
+
+    def publish(self, suffix: str, payload: dict, *, reliable: bool = False) -> None:
+        """Put ``payload`` on ``farm/{site}/{suffix}``. ``reliable``: ledger (feed) and alarm
+        events, which must not be dropped under load: blocks while the link's queue is full."""
+        self._publisher(suffix, reliable).put(encode(payload))
+
+    def matched(self, suffix: str, *, reliable: bool = False) -> bool:
+        """Whether some subscriber, here or remote, matches ``farm/{site}/{suffix}`` now."""
+        return self._publisher(suffix, reliable).matching_status
+
+    def _publisher(self, suffix: str, reliable: bool) -> zenoh.Publisher:
+        with self._lock:
+            if self._closed:
+                raise RuntimeError("bus is closed")
+            pub = self._publishers.get((suffix, reliable))
+            if pub is None:
+                qos = dict(congestion_control=zenoh.CongestionControl.BLOCK,
+                           reliability=zenoh.Reliability.RELIABLE, express=True) if reliable else {}
+                try:
+                    pub = self.session.declare_publisher(
+                        self.key(suffix), encoding=zenoh.Encoding.APPLICATION_JSON, **qos)
+                except zenoh.ZError as exc:
+                    raise ValueError(f"bad key suffix {suffix!r}: {_one_line(exc)}") from None
+                self._publishers[(suffix, reliable)] = pub
+            return pub
+
+    # ------------------------------------------------------------ queryables
+
+    def queryable(self, suffix: str, handler: Handler, *, lenient: bool = False) -> None:
+        """Answer gets on ``farm/{site}/{suffix}`` with ``await handler(payload)``.
+        A payload that is not a JSON object is refused (``{"ok": false, "error": ...}``) unless
+        ``lenient``, when the handler gets ``{}``. A handler exception is such a refusal too."""
+        self._serve(suffix, lambda _key: (handler, lenient))
+
+    def overrides(self, commands: Mapping[str, Handler], *, lenient: Iterable[str] = ("estop",)) -> None:
+        """Serve ``farm/{site}/override/*``: dispatch on the command name; an unknown command is
+        refused. Commands in ``lenient`` (estop) are never refused for their payload."""
+        forgiving = set(lenient)
+        table = dict(commands)
+
+        def resolve(suffix: str):
+            command = suffix.split("/", 1)[1]
+            if command not in table:
+                raise LookupError(f"unknown command {command!r}; known: {', '.join(sorted(table))}")
+            return table[command], command in forgiving
+        self._serve("override/*", resolve)
+
+    def _serve(self, suffix: str, resolve) -> None:
+        loop = self._handler_loop()
+        self._keep(self.session.declare_queryable(
+            self.key(suffix), lambda query: self._on_query(query, resolve, loop)))
+
+    def _on_query(self, query: zenoh.Query, resolve, loop: asyncio.AbstractEventLoop) -> None:
+        """On a Zenoh thread: parse, then hand the work to the loop. Never blocks, never raises."""
+        key = str(query.key_expr)
+        if not all(_CHUNK.match(c) for c in key.split("/")):
+            # a wildcard get (override/**) must not fire every command: nobody answers it
+            query.drop()
+            return
+        try:
+            handler, lenient = resolve(self._suffix(key))
+            payload = decode(query.payload)
+        except LookupError as exc:
+            return self._reply(query, {"ok": False, "error": str(exc)})
+        except ValueError as exc:
+            if not lenient:
+                return self._reply(query, {"ok": False, "error": str(exc)})
+            payload = {}
+        try:
+            future = asyncio.run_coroutine_threadsafe(_answer(handler, payload, key), loop)
+        except RuntimeError:  # the loop is closed: the controller is stopping
+            return self._reply(query, {"ok": False, "error": "controller is shutting down"})
+        future.add_done_callback(lambda f: self._reply(query, _outcome(f)))
+
+    def _reply(self, query: zenoh.Query, answer: dict) -> None:
+        try:
+            try:
+                data = encode(answer)
+            except (TypeError, ValueError) as exc:
+                data = encode({"ok": False, "error": f"reply is not JSON-serialisable: {exc}"})
+            query.reply(query.key_expr, data, encoding=zenoh.Encoding.APPLICATION_JSON)
+        except zenoh.ZError as exc:  # session closed or querier gone: nobody to tell
+            log.debug("reply to %s lost: %s", query.key_expr, _one_line(exc))
+        finally:
+            query.drop()  # finalises the query: the querier stops waiting now, not at its timeout
+
+    # ------------------------------------------------------------ subscribers
+
+    def subscribe(self, suffix: str, listener: Listener) -> None:
+        """``await listener(key_suffix, payload)`` on the loop for every sample on
+        ``farm/{site}/{suffix}`` (wildcards allowed). Malformed payloads are logged and skipped."""
+        loop = self._handler_loop()
+        self._keep(self.session.declare_subscriber(
+            self.key(suffix), lambda sample: self._on_sample(sample, listener, loop)))
+
+    def _on_sample(self, sample: zenoh.Sample, listener: Listener, loop) -> None:
+        if sample.kind != zenoh.SampleKind.PUT:
+            return
+        key = str(sample.key_expr)
+        try:
+            payload = decode(sample.payload)
+        except ValueError as exc:
+            log.warning("%s: %s (sample skipped)", key, exc)
+            return
+        with contextlib.suppress(RuntimeError):  # RuntimeError: the loop closed while stopping
+            asyncio.run_coroutine_threadsafe(_deliver(listener, self._suffix(key), payload), loop)
+
+    # ------------------------------------------------------------ queries (tools)
+
+    def query(self, suffix: str, payload: dict | None = None, *, timeout_s: float = 2.0) -> list[dict]:
+        """Blocking get on ``farm/{site}/{suffix}``: every reply as a dict (an error reply or an
+        unreadable one becomes ``{"ok": false, "error": ...}``). For tools and threads, not the loop."""
+        data = encode(payload) if payload is not None else None
+        replies = []
+        for reply in self.session.get(self.key(suffix), payload=data, timeout=timeout_s,
+                                      encoding=zenoh.Encoding.APPLICATION_JSON):
+            if reply.ok is None:
+                replies.append({"ok": False, "error": reply.err.payload.to_bytes().decode("utf-8", "ignore")})
+                continue
+            try:
+                replies.append(decode(reply.ok.payload))
+            except ValueError as exc:
+                replies.append({"ok": False, "error": f"unreadable reply: {exc}"})
+        return replies
+
+    # ------------------------------------------------------------ lifetime
+
+    def _handler_loop(self) -> asyncio.AbstractEventLoop:
+        if self._loop is None:
+            try:
+                self._loop = asyncio.get_running_loop()
+            except RuntimeError:
+                raise RuntimeError("Bus handlers need an asyncio loop: call from the loop or pass "
+                                   "Bus(..., loop=...)") from None
+        return self._loop
+
+    def _keep(self, entity) -> None:
+        with self._lock:
+            if self._closed:
+                entity.undeclare()
+                raise RuntimeError("bus is closed")
+            self._declared.append(entity)
+
+    def close(self) -> None:
+        """Undeclare everything and close the session. Safe to call twice."""
+        with self._lock:
+            if self._closed:
+                return
+            self._closed = True
+            declared = [*self._publishers.values(), *self._declared]
+            self._publishers.clear()
+            self._declared.clear()
+        for entity in declared:
+            with contextlib.suppress(zenoh.ZError):
+                entity.undeclare()
+        self.session.close()
+
+    @property
+    def closed(self) -> bool:
+        return self._closed
+
+    def __enter__(self) -> Bus:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+
+async def _answer(handler: Handler, payload: dict, key: str) -> dict:
+    """Run one handler; whatever goes wrong becomes a refusal the operator can read."""
+    try:
+        answer = await handler(payload)
+    except Exception as exc:
+        log.exception("handler for %s failed", key)
+        return {"ok": False, "error": f"{type(exc).__name__}: {exc}"}
+    if not isinstance(answer, dict):
+        return {"ok": False, "error": f"handler returned {type(answer).__name__}, not a JSON object"}
+    return answer
+
+
+def _outcome(future) -> dict:
+    if future.cancelled():
+        return {"ok": False, "error": "controller is shutting down"}
+    exc = future.exception()  # only BaseException gets here (_answer catches the rest)
+    return {"ok": False, "error": f"handler aborted: {exc!r}"} if exc else future.result()
+
+
+async def _deliver(listener: Listener, suffix: str, payload: dict) -> None:
+    try:
+        await listener(suffix, payload)
+    except Exception:
+        log.exception("listener for %s failed", suffix)
+

@@ -1,0 +1,182 @@
+"""``fishfarm override`` and ``fishfarm status``: an operator's tools, Zenoh clients of the controller.
+
+Exit status: 0 the controller accepted, 1 it refused (``"ok": false``), 2 bad input or no
+controller reachable (one line on stderr).
+"""
+from __future__ import annotations
+
+import getpass
+import json
+import math
+import os
+import re
+
+import click
+
+from controller.errors import BadInput
+
+DEFAULT_CONNECT = "tcp/127.0.0.1:7447"  # the demo config's listener (DESIGN.md)
+_NAME = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*$")
+_COMMAND = re.compile(r"^[a-z][a-z0-9_-]{0,63}$")
+_SITE = re.compile(r"^[A-Za-z0-9_-]{1,64}$")
+_RESERVED = {"operator": "--operator", "reason": "--reason"}
+
+
+def _connection_options(f):
+    """--connect/--user/--password/--site/--timeout, shared by both commands."""
+    for option in reversed([
+        click.option("--connect", default=DEFAULT_CONNECT, show_default=True, metavar="tcp/HOST:PORT",
+                     help="Zenoh endpoint of the controller (or its router)."),
+        click.option("--user", default=None, help="Zenoh user name (deployments with authentication)."),
+        click.option("--password", default=None, help="Zenoh password."),
+        click.option("--site", default="demo", show_default=True, help="farm site, as in farm.toml."),
+        click.option("--timeout", "timeout_s", default=2.0, show_default=True, type=click.FloatRange(0.1, 60),
+                     help="seconds to wait for the connection and for the reply."),
+    ]):
+        f = option(f)
+    return f
+
+
+def parse_args(args: tuple[str, ...] | list[str]) -> dict:
+    """``key=value`` words into a JSON object; values that read as numbers become numbers."""
+    fields: dict = {}
+    for word in args:
+        key, eq, text = word.partition("=")
+        if not eq or not _NAME.match(key):
+            raise BadInput("ARGS", word, "expected key=value with a plain key (letters, digits, _)")
+        if key in _RESERVED:
+            raise BadInput("ARGS", word, f"use {_RESERVED[key]} for {key}")
+        if key in fields:
+            raise BadInput("ARGS", word, f"{key} given twice")
+        fields[key] = _value(text)
+    return fields
+
+
+def _value(text: str):
+    """A number if the whole text is one (finite), else the text itself: tank=T1 stays a string."""
+    for kind in (int, float):
+        try:
+            number = kind(text)
+        except ValueError:
+            continue
+        if math.isfinite(number) and text.strip() == text and "_" not in text:
+            return number
+    return text
+
+
+def _login_name() -> str:
+    """$USER, else the login name from the password database (containers often lack $USER)."""
+    try:
+        return os.environ.get("USER") or getpass.getuser()
+    except (KeyError, OSError):
+        return "unknown"
+
+
+def _check(site: str, connect: str) -> None:
+    if not _SITE.match(site):
+        raise BadInput("--site", site, "letters, digits, _ and - only")
+    if not re.match(r"^[a-z0-9-]+/\S+$", connect):
+        raise BadInput("--connect", connect, "expected an endpoint like tcp/127.0.0.1:7447")
+
+
+def _ask(connect, user, password, site, timeout_s, suffix, payload) -> dict:
+    """One get through a fresh client session; the first reply, or BadInput if nobody answers."""
+    from controller.bus import Bus, BusUnreachable  # Zenoh only for the commands that need it
+
+    _check(site, connect)
+    try:
+        bus = Bus.client(connect, site=site, user=user, password=password, timeout_s=timeout_s)
+    except BusUnreachable as exc:
+        raise BadInput("--connect", None, str(exc)) from None
+    try:
+        replies = bus.query(suffix, payload, timeout_s=timeout_s)
+    finally:
+        bus.close()
+    if not replies:
+        raise BadInput(f"farm/{site}/{suffix}", None,
+                       f"no reply within {timeout_s:g} s (no controller serving this site, or not permitted)")
+    return replies[0]
+
+
+@click.command(context_settings={"ignore_unknown_options": False})
+@click.argument("command")
+@click.argument("args", nargs=-1)
+@click.option("--operator", default=_login_name, show_default="$USER",
+              help="who gives the command (logged by the controller).")
+@click.option("--reason", default=None, help="why (logged by the controller).")
+@_connection_options
+def override(command, args, operator, reason, connect, user, password, site, timeout_s):
+    """Send an operator command (estop, feed, pause, ...) to the controller.
+
+    ARGS are key=value fields of the command, e.g. `fishfarm override feed tank=T3 grams=40`.
+    Prints the controller's reply; exit 0 if accepted, 1 if refused, 2 on bad input or no answer.
+    """
+    if not _COMMAND.match(command):
+        raise BadInput("COMMAND", command, "lower-case letters, digits, _ and - only")
+    payload = {"operator": operator, **({"reason": reason} if reason else {}), **parse_args(args)}
+    reply = _ask(connect, user, password, site, timeout_s, f"override/{command}", payload)
+    click.echo(json.dumps(reply, ensure_ascii=False))
+    return 0 if reply.get("ok") is True else 1
+
+
+@click.command()
+@click.option("--json", "as_json", is_flag=True, help="print the snapshot as JSON.")
+@_connection_options
+def status(as_json, connect, user, password, site, timeout_s):
+    """Show the controller's state: tanks (demand, fed/ration), feeder, cleaner, alarms."""
+    snapshot = _ask(connect, user, password, site, timeout_s, "status", None)
+    if as_json:
+        click.echo(json.dumps(snapshot, ensure_ascii=False, indent=2))
+    else:
+        click.echo(render_status(snapshot))
+    return 0
+
+
+# ---------------------------------------------------------------- the readable table
+
+def _tanks(snapshot: dict) -> list[dict]:
+    tanks = snapshot.get("tanks") or []
+    if isinstance(tanks, dict):  # {"T1": {...}} as well as [{"tank": "T1", ...}]
+        tanks = [{"tank": k, **(v if isinstance(v, dict) else {})} for k, v in tanks.items()]
+    return [t for t in tanks if isinstance(t, dict)]
+
+
+def _num(value, unit: str = "") -> str:
+    if isinstance(value, bool) or not isinstance(value, int | float):
+        return "-"
+    return f"{value:.0f}{unit}" if abs(value) >= 10 else f"{value:.1f}{unit}"
+
+
+def _demand(tank: dict) -> str:
+    """'yes 0.40/s', 'yes' or '-', from demand as a flag, a rate, or {"rate_hz": ...}."""
+    demand, rate = tank.get("demand"), tank.get("rate_hz")
+    if isinstance(demand, dict):
+        demand, rate = True, demand.get("rate_hz", rate)
+    elif isinstance(demand, int | float) and not isinstance(demand, bool):
+        demand, rate = demand > 0, demand
+    if not demand:
+        return "-"
+    return f"yes {rate:.2f}/s" if isinstance(rate, int | float) and not isinstance(rate, bool) else "yes"
+
+
+def render_status(snapshot: dict) -> str:
+    """The status snapshot as text: one row per tank, then feeder, cleaner and active alarms.
+    Missing fields show as '-': the table never fails on a snapshot it does not fully know."""
+    rows = [("tank", "demand", "fed/ration g", "pellet")]
+    for t in _tanks(snapshot):
+        ration = t.get("ration_g", t.get("grams"))
+        rows.append((str(t.get("tank", t.get("id", "?"))), _demand(t),
+                     f"{_num(t.get('fed_g'))}/{_num(ration)}", _num(t.get("pellet_mm"), " mm")))
+    widths = [max(len(r[i]) for r in rows) for i in range(len(rows[0]))]
+    lines = [f"site {snapshot.get('site', '?')}  {snapshot.get('t', '')}".rstrip()]
+    lines += ["  ".join(cell.ljust(w) for cell, w in zip(r, widths, strict=True)).rstrip() for r in rows]
+    for name in ("feeder", "cleaner"):
+        part = snapshot.get(name)
+        if isinstance(part, dict):
+            extras = ", ".join(f"{k} {_num(v)}" for k, v in part.items()
+                               if k not in ("t", "state") and isinstance(v, int | float))
+            lines.append(f"{name}: {part.get('state', '-')}" + (f" ({extras})" if extras else ""))
+    alarms = [a for a in snapshot.get("alarms") or [] if isinstance(a, dict) and a.get("active", True)]
+    for a in alarms:
+        lines.append(f"ALARM {a.get('severity', '?')} {a.get('source', '')}: {a.get('text', '')}".rstrip())
+    return "\n".join(lines)

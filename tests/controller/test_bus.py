@@ -1,0 +1,327 @@
+"""controller.bus: two real Zenoh sessions on loopback (free ports, multicast scouting off)."""
+from __future__ import annotations
+
+import asyncio
+import json
+import os
+import queue
+import socket
+import threading
+import time
+
+import pytest
+import zenoh
+
+from controller.bus import Bus, BusUnreachable, decode, encode
+from controller.config import BusConfig
+from controller.errors import BadInput
+
+WAIT_S = 10.0  # upper bound on waiting for a condition; passing tests take milliseconds
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def wait_for(condition, timeout_s: float = WAIT_S) -> bool:
+    deadline = time.monotonic() + timeout_s
+    while not condition():
+        if time.monotonic() > deadline:
+            return False
+        time.sleep(0.005)
+    return True
+
+
+@pytest.fixture
+def loop():
+    """The controller's asyncio loop, on its own thread as in the real process."""
+    lp = asyncio.new_event_loop()
+    thread = threading.Thread(target=lp.run_forever, daemon=True)
+    thread.start()
+    yield lp
+    lp.call_soon_threadsafe(lp.stop)
+    thread.join(5)
+    lp.close()
+
+
+@pytest.fixture
+def pair(loop):
+    """(controller bus listening on a free port, tool bus connected to it as a client)."""
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    server = Bus(BusConfig(mode="peer", listen=[endpoint]), "t1", loop=loop)
+    client = Bus.client(endpoint, site="t1", timeout_s=WAIT_S, loop=loop)
+    yield server, client
+    client.close()
+    server.close()
+
+
+# ---------------------------------------------------------------- payload codec
+
+def test_codec_round_trip_and_refusals():
+    payload = {"t": "2024-05-01T06:00:00Z", "sensor": "T1-á", "grams": 12.5}
+    assert decode(encode(payload)) == payload
+    assert decode(None) == {} and decode(b"") == {}
+    for bad, why in [(b"{nope", "not JSON"), (b"[1, 2]", "JSON object"), (b"\xff\xfe", "UTF-8"),
+                     (b'{"x": NaN}', "not JSON")]:
+        with pytest.raises(ValueError, match=why):
+            decode(bad)
+    with pytest.raises(ValueError):
+        encode({"grams": float("nan")})
+
+
+# ---------------------------------------------------------------- publish / subscribe
+
+def open_route(server, suffix: str, probed: threading.Event, *, reliable: bool = False) -> None:
+    """Publish probes until the subscriber has one. Measured on zenoh 1.10.2: matching_status
+    turns true a moment before the publisher's route carries data (the first put after it is
+    lost, and thousands are under a flood), so 'matched' alone is not 'connected'."""
+    assert wait_for(lambda: server.matched(suffix, reliable=reliable))
+    deadline = time.monotonic() + WAIT_S
+    while not probed.is_set():
+        assert time.monotonic() < deadline, "no route to the subscriber"
+        server.publish(suffix, {"probe": True}, reliable=reliable)
+        probed.wait(0.01)
+
+
+def recorder(probed: threading.Event, into: queue.Queue):
+    async def listener(suffix, payload):
+        if payload.get("probe"):
+            probed.set()
+        else:
+            into.put((suffix, payload, threading.current_thread().name))
+    return listener
+
+
+def test_publish_reaches_subscriber_as_json(pair):
+    server, client = pair
+    probed, got = threading.Event(), queue.Queue()
+    client.subscribe("tank/*/contact", recorder(probed, got))
+    open_route(server, "tank/T1/contact", probed)
+    server.publish("tank/T1/contact", {"t": "2024-05-01T06:00:00Z", "sensor": "T1-á"})
+    suffix, payload, thread = got.get(timeout=WAIT_S)
+    assert suffix == "tank/T1/contact"
+    assert payload == {"t": "2024-05-01T06:00:00Z", "sensor": "T1-á"}
+    assert thread != threading.current_thread().name  # ran on the loop's thread, not here
+
+
+def test_malformed_sample_is_skipped_not_fatal(pair):
+    server, client = pair
+    probed, got = threading.Event(), queue.Queue()
+    client.subscribe("alarm/**", recorder(probed, got))
+    open_route(server, "alarm/x", probed)
+    server._publisher("alarm/x", False).put(b"{broken")
+    server.publish("alarm/x", {"n": 2})
+    assert got.get(timeout=WAIT_S)[1] == {"n": 2}
+    assert got.empty()
+
+
+def test_reliable_publish_delivers_every_message_in_order(pair):
+    server, client = pair
+    n = 10_000
+    probed, got = threading.Event(), queue.Queue()
+    client.subscribe("tank/T1/feed", recorder(probed, got))
+    open_route(server, "tank/T1/feed", probed, reliable=True)
+    for i in range(n):
+        server.publish("tank/T1/feed", {"i": i, "grams": 1.0, "phase": "done", "id": f"f{i}"}, reliable=True)
+    seen = [got.get(timeout=WAIT_S)[1]["i"] for _ in range(n)]
+    assert seen == list(range(n))
+
+
+def test_publishers_are_declared_once_per_key(pair):
+    server, _ = pair
+    for _ in range(3):
+        server.publish("feeder/state", {"state": "idle"})
+        server.publish("feeder/state", {"state": "idle"}, reliable=True)
+    assert len(server._publishers) == 2
+    reliable = server._publishers[("feeder/state", True)]
+    assert reliable.congestion_control == zenoh.CongestionControl.BLOCK
+    assert server._publishers[("feeder/state", False)].congestion_control == zenoh.CongestionControl.DROP
+
+
+# ---------------------------------------------------------------- queryables
+
+def test_queryable_runs_async_handler_and_replies(pair):
+    server, client = pair
+
+    async def status(payload):
+        await asyncio.sleep(0)
+        return {"ok": True, "echo": payload, "loop": asyncio.get_running_loop() is server._loop}
+    server.queryable("status", status)
+    assert client.query("status", {"operator": "ana"}) == [
+        {"ok": True, "echo": {"operator": "ana"}, "loop": True}]
+    assert client.query("status") == [{"ok": True, "echo": {}, "loop": True}]
+
+
+def test_slow_handler_does_not_hold_zenoh_threads(pair):
+    server, client = pair
+    release = threading.Event()
+
+    async def slow(payload):
+        await asyncio.get_running_loop().run_in_executor(None, release.wait, WAIT_S)
+        return {"ok": True, "slow": True}
+
+    async def fast(payload):
+        return {"ok": True}
+    server.queryable("override/slow", slow)
+    server.queryable("status", fast)
+    slow_reply: queue.Queue = queue.Queue()
+    threading.Thread(target=lambda: slow_reply.put(client.query("override/slow", timeout_s=WAIT_S))).start()
+    # several fast queries are answered while the slow one is still running
+    for _ in range(5):
+        assert client.query("status") == [{"ok": True}]
+    assert slow_reply.empty()
+    release.set()
+    assert slow_reply.get(timeout=WAIT_S) == [{"ok": True, "slow": True}]
+
+
+def test_malformed_query_payload_is_refused_without_calling_handler(pair):
+    server, client = pair
+    calls = []
+
+    async def feed(payload):
+        calls.append(payload)
+        return {"ok": True}
+    server.queryable("override/feed", feed)
+    for raw, why in [(b"{tank: T1", "not JSON"), (b'["T1"]', "JSON object"), (b"\xff", "UTF-8")]:
+        replies = [decode(r.ok.payload) for r in
+                   client.session.get(client.key("override/feed"), payload=raw, timeout=WAIT_S)]
+        assert len(replies) == 1 and replies[0]["ok"] is False and why in replies[0]["error"]
+    assert calls == []
+
+
+def test_lenient_queryable_takes_any_payload(pair):
+    server, client = pair
+    calls = []
+
+    async def estop(payload):
+        calls.append(payload)
+        return {"ok": True}
+    server.queryable("override/estop", estop, lenient=True)
+    replies = [decode(r.ok.payload) for r in
+               client.session.get(client.key("override/estop"), payload=b"STOP!!", timeout=WAIT_S)]
+    assert replies == [{"ok": True}] and calls == [{}]
+
+
+def test_handler_exception_becomes_refusal(pair):
+    server, client = pair
+
+    async def broken(payload):
+        raise KeyError("tank T9")
+
+    async def wrong_type(payload):
+        return ["not", "an", "object"]
+    server.queryable("override/broken", broken)
+    server.queryable("override/wrong", wrong_type)
+    [reply] = client.query("override/broken", {})
+    assert reply["ok"] is False and "KeyError" in reply["error"] and "T9" in reply["error"]
+    [reply] = client.query("override/wrong", {})
+    assert reply == {"ok": False, "error": "handler returned list, not a JSON object"}
+    assert client.query("status") == []  # nobody serves it: no reply, not an error
+
+
+def test_overrides_dispatch_refuse_unknown_and_ignore_wildcards(pair):
+    server, client = pair
+    calls = []
+
+    def command(name):
+        async def handler(payload):
+            calls.append((name, payload))
+            return {"ok": True, "command": name}
+        return handler
+    server.overrides({"estop": command("estop"), "feed": command("feed")})
+    assert client.query("override/feed", {"tank": "T1"}) == [{"ok": True, "command": "feed"}]
+    [reply] = client.query("override/fly", {})
+    assert reply["ok"] is False and "unknown command 'fly'" in reply["error"]
+    assert client.query("override/**", {}) == [] and client.query("override/*", {}) == []
+    assert calls == [("feed", {"tank": "T1"})]
+    raw = [decode(r.ok.payload) for r in
+           client.session.get(client.key("override/estop"), payload=b"oops", timeout=WAIT_S)]
+    assert raw == [{"ok": True, "command": "estop"}]
+
+
+def test_handlers_run_on_the_loop_they_were_declared_from():
+    """The controller declares from its running loop, without passing it in."""
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+
+    async def status(payload):
+        return {"ok": True, "same_loop": asyncio.get_running_loop() is declared_on}
+
+    async def main():
+        nonlocal declared_on
+        declared_on = asyncio.get_running_loop()
+        with Bus(BusConfig(mode="peer", listen=[endpoint]), "t1") as server:
+            server.queryable("status", status)
+            with Bus.client(endpoint, site="t1") as client:
+                return await asyncio.to_thread(client.query, "status")
+    declared_on = None
+    assert asyncio.run(main()) == [{"ok": True, "same_loop": True}]
+    with Bus(BusConfig(mode="peer", listen=[]), "t1") as bus:
+        with pytest.raises(RuntimeError, match="asyncio loop"):
+            bus.queryable("status", status)
+
+
+# ---------------------------------------------------------------- lifetime and config
+
+def test_close_twice_then_publish_refused(loop):
+    bus = Bus(BusConfig(mode="peer", listen=[f"tcp/127.0.0.1:{free_port()}"]), "t1", loop=loop)
+    bus.publish("feeder/state", {"state": "idle"})
+    bus.close()
+    bus.close()
+    assert bus.closed and bus.session.is_closed()
+    with pytest.raises(RuntimeError, match="closed"):
+        bus.publish("feeder/state", {"state": "idle"})
+
+
+def _udp_ports_of_this_process() -> set[int]:
+    """Local ports of the UDP sockets this process holds (multicast scouting binds 7446)."""
+    inodes = {os.readlink(f"/proc/self/fd/{fd}")[8:-1] for fd in os.listdir("/proc/self/fd")
+              if os.path.exists(f"/proc/self/fd/{fd}")
+              and os.readlink(f"/proc/self/fd/{fd}").startswith("socket:[")}
+    ports = set()
+    for table in ("/proc/self/net/udp", "/proc/self/net/udp6"):
+        with open(table) as f:
+            for line in f.readlines()[1:]:
+                cols = line.split()
+                if cols[9] in inodes:
+                    ports.add(int(cols[1].rsplit(":", 1)[1], 16))
+    return ports
+
+
+def test_multicast_scouting_is_off_even_if_the_file_turns_it_on(tmp_path):
+    port = free_port()
+    path = tmp_path / "z.json5"
+    path.write_text(json.dumps({"mode": "peer", "listen": {"endpoints": [f"tcp/127.0.0.1:{port}"]},
+                                "scouting": {"multicast": {"enabled": True}}}))
+    for cfg in (BusConfig(mode="peer", listen=[f"tcp/127.0.0.1:{free_port()}"]), BusConfig(config=str(path))):
+        with Bus(cfg, "t1") as bus:
+            assert bus.zconfig.get_json("scouting/multicast/enabled") == "false"
+            assert 7446 not in _udp_ports_of_this_process()
+
+
+def test_mode_and_endpoints_come_from_config():
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    with Bus(BusConfig(mode="router", listen=[endpoint]), "t1") as router:
+        assert json.loads(router.zconfig.get_json("mode")) == "router"
+        with Bus(BusConfig(mode="peer", listen=[], connect=[endpoint]), "t1") as peer:
+            assert wait_for(peer.neighbours)
+            assert str(router.session.zid()) in [str(z) for z in peer.session.info.routers_zid()]
+
+
+def test_bad_config_file_is_one_line_bad_input(tmp_path):
+    path = tmp_path / "bad.json5"
+    path.write_text("{ mode: 'peer', listen: ")
+    with pytest.raises(BadInput, match=r"bad\.json5: not a usable Zenoh config") as err:
+        Bus(BusConfig(config=str(path)), "t1")
+    assert "\n" not in str(err.value)
+    with pytest.raises(BadInput, match="missing.json5"):
+        Bus(BusConfig(config=str(tmp_path / "missing.json5")), "t1")
+
+
+def test_client_that_reaches_nobody_says_so():
+    port = free_port()  # nothing listens there
+    with pytest.raises(BusUnreachable, match=f"could not connect to tcp/127.0.0.1:{port}"):
+        Bus.client(f"tcp/127.0.0.1:{port}", timeout_s=1.0)
+    with pytest.raises(BusUnreachable, match="could not connect"):
+        Bus.client(f"tcp/127.0.0.1:{port}", timeout_s=0.3, mode="peer")

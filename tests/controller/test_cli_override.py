@@ -1,0 +1,167 @@
+"""``fishfarm override`` / ``fishfarm status``: the real console script, in a subprocess, against a
+queryable served by this test over Zenoh on a free loopback port."""
+from __future__ import annotations
+
+import asyncio
+import json
+import os
+import socket
+import subprocess
+import sys
+import threading
+from pathlib import Path
+
+import pytest
+
+from controller.bus import Bus
+from controller.cli.override_cmd import parse_args, render_status
+from controller.config import BusConfig
+from controller.errors import BadInput
+
+FISHFARM = str(Path(sys.executable).with_name("fishfarm"))
+SNAPSHOT = {
+    "t": "2024-05-01T06:00:00Z", "site": "demo",
+    "tanks": [
+        {"tank": "T1", "demand": True, "rate_hz": 0.4, "ration_g": 420.0, "fed_g": 120.0, "pellet_mm": 2.0},
+        {"tank": "T2", "demand": False, "ration_g": 380.0, "fed_g": 380.0, "pellet_mm": 3.0}],
+    "feeder": {"state": "dispensing", "position_m": 3.0, "hopper_g": 5200.0},
+    "alarms": [{"source": "sensor/T2-b", "severity": "warning", "text": "stuck", "active": True}],
+}
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+@pytest.fixture(scope="module")
+def controller():
+    """A stand-in controller: real Bus, real queryables; records what each command received."""
+    loop = asyncio.new_event_loop()
+    thread = threading.Thread(target=loop.run_forever, daemon=True)
+    thread.start()
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    bus = Bus(BusConfig(mode="peer", listen=[endpoint]), "demo", loop=loop)
+    received: list[tuple[str, dict]] = []
+
+    async def estop(payload):
+        received.append(("estop", payload))
+        return {"ok": True}
+
+    async def feed(payload):
+        received.append(("feed", payload))
+        return {"ok": False, "error": "feeder is in manual"}
+
+    async def status(payload):
+        return SNAPSHOT
+    bus.overrides({"estop": estop, "feed": feed})
+    bus.queryable("status", status, lenient=True)
+    yield endpoint, received
+    bus.close()
+    loop.call_soon_threadsafe(loop.stop)
+    thread.join(5)
+
+
+def fishfarm(*args, user="tester"):
+    env = {**os.environ, "USER": user}
+    return subprocess.run([FISHFARM, *args], capture_output=True, text=True, env=env, timeout=60)
+
+
+def one_line_error(proc) -> str:
+    assert proc.stdout == ""
+    assert "Traceback" not in proc.stderr and proc.stderr.count("\n") == 1, proc.stderr
+    return proc.stderr
+
+
+def test_estop_with_no_args_is_accepted(controller):
+    endpoint, received = controller
+    received.clear()
+    proc = fishfarm("override", "estop", "--connect", endpoint)
+    assert proc.returncode == 0, proc.stderr
+    assert json.loads(proc.stdout) == {"ok": True}
+    assert received == [("estop", {"operator": "tester"})]
+
+
+def test_refusal_exits_1_and_args_become_typed_fields(controller):
+    endpoint, received = controller
+    received.clear()
+    proc = fishfarm("override", "feed", "tank=T3", "grams=40", "rate=12.5", "--connect", endpoint,
+                    "--operator", "ana", "--reason", "fish look hungry")
+    assert proc.returncode == 1, proc.stderr
+    assert json.loads(proc.stdout) == {"ok": False, "error": "feeder is in manual"}
+    assert received == [("feed", {"operator": "ana", "reason": "fish look hungry",
+                                  "tank": "T3", "grams": 40, "rate": 12.5})]
+
+
+def test_unknown_command_is_refused_by_the_controller(controller):
+    endpoint, _ = controller
+    proc = fishfarm("override", "launch", "--connect", endpoint)
+    assert proc.returncode == 1
+    assert "unknown command 'launch'" in json.loads(proc.stdout)["error"]
+
+
+@pytest.mark.parametrize("args, names", [
+    (["override", "feed", "tank"], "tank"),
+    (["override", "feed", "tank=T1", "tank=T2"], "given twice"),
+    (["override", "feed", "operator=bob"], "--operator"),
+    (["override", "Feed/*"], "COMMAND"),
+    (["override", "estop", "--connect", "127.0.0.1:7447"], "--connect"),
+    (["status", "--site", "de mo"], "--site"),
+])
+def test_bad_input_exits_2_with_one_line(controller, args, names):
+    endpoint, received = controller
+    received.clear()
+    proc = fishfarm(*args, *([] if "--connect" in args else ["--connect", endpoint]))
+    assert proc.returncode == 2
+    assert names in one_line_error(proc)
+    assert received == []
+
+
+def test_nobody_listening_exits_2_saying_so():
+    port = free_port()
+    proc = fishfarm("override", "estop", "--connect", f"tcp/127.0.0.1:{port}", "--timeout", "0.5")
+    assert proc.returncode == 2
+    assert f"could not connect to tcp/127.0.0.1:{port}" in one_line_error(proc)
+
+
+def test_wrong_site_gets_no_reply_exit_2(controller):
+    endpoint, received = controller
+    received.clear()
+    proc = fishfarm("override", "estop", "--connect", endpoint, "--site", "elsewhere", "--timeout", "0.5")
+    assert proc.returncode == 2
+    assert "farm/elsewhere/override/estop: no reply" in one_line_error(proc)
+    assert received == []
+
+
+def test_status_json_and_table(controller):
+    endpoint, _ = controller
+    proc = fishfarm("status", "--json", "--connect", endpoint)
+    assert proc.returncode == 0, proc.stderr
+    assert json.loads(proc.stdout) == SNAPSHOT
+    proc = fishfarm("status", "--connect", endpoint)
+    assert proc.returncode == 0, proc.stderr
+    assert proc.stdout == render_status(SNAPSHOT) + "\n"
+
+
+def test_parse_args_types():
+    assert parse_args(["tank=T1", "grams=40", "g2=4.5", "n=-3", "e=1e3", "x=1_000", "y=nan", "z="]) == {
+        "tank": "T1", "grams": 40, "g2": 4.5, "n": -3, "e": 1000.0, "x": "1_000", "y": "nan", "z": ""}
+    assert parse_args(["reason_code=a=b"]) == {"reason_code": "a=b"}
+    for bad in (["=3"], ["1x=3"], ["a b=3"], ["reason=x"]):
+        with pytest.raises(BadInput):
+            parse_args(bad)
+
+
+def test_status_table_reads_the_snapshot():
+    text = render_status(SNAPSHOT)
+    lines = text.splitlines()
+    t1 = next(line for line in lines if line.startswith("T1"))
+    t2 = next(line for line in lines if line.startswith("T2"))
+    assert "yes 0.40/s" in t1 and "120/420" in t1 and "2.0 mm" in t1
+    assert "yes" not in t2 and "380/380" in t2
+    assert any(line.startswith("feeder: dispensing") and "hopper_g 5200" in line for line in lines)
+    assert any("ALARM warning sensor/T2-b: stuck" in line for line in lines)
+    # a snapshot it does not fully know still renders, with dashes
+    sparse = render_status({"tanks": {"T9": {"fed_g": 3}}, "feeder": "?"})
+    assert "T9" in sparse and "3.0/-" in sparse
