@@ -173,6 +173,8 @@ class Controller:
 
     def _on_filter_event(self, event) -> None:
         if isinstance(event, Demand):
+            log.info("demand from %s at %.1f contacts/s, heard %.1f s after", event.tank, event.rate_hz,
+                     self.clock.now() - event.t)
             demand_id = self.store.add_demand(event.tank, event.t, event.rate_hz)
             self.bus.publish(f"tank/{event.tank}/demand",
                              {"t": self.clock.iso(event.t), "rate_hz": round(event.rate_hz, 3)}, reliable=True)
@@ -186,7 +188,8 @@ class Controller:
         last_date = None
         while True:
             now = self.clock.now()
-            for event in self.filter.on_time(now):
+            heard = self.contacts.stream_t
+            for event in self.filter.on_time(now if heard is None else min(now, heard)):
                 self._on_filter_event(event)
             date = self.rations.date(now)
             if date != last_date:

@@ -58,6 +58,11 @@ class FeedingConfig(Strict):
     refill_timeout_s: float = Field(120.0, gt=0)
     retry_backoff_s: list[float] = Field([5.0, 15.0, 60.0, 300.0], min_length=1)
     demand_expiry_s: float = Field(600.0, gt=0, description="a demand not served by then is dropped")
+    serve_within_s: float = Field(60.0, gt=0, description="aim: auger start this soon after a demand")
+    plan_margin_s: float = Field(15.0, ge=0, description="planning keeps this much of the aim in hand "
+                                 "for what travel estimates miss (docking, talking to the devices)")
+    rail_speed_m_s: float = Field(1.0, gt=0, description="cruise speed, for planning the next stop")
+    rail_accel_m_s2: float = Field(0.5, gt=0, description="acceleration, for planning the next stop")
 
 
 class Config(Strict):

@@ -42,8 +42,7 @@ MIGRATIONS = [
         t_closed     REAL,
         note         TEXT,
         source       TEXT NOT NULL,             -- demand | operator
-        demand_id    INTEGER,
-        published    TEXT                       -- last phase published on the bus
+        demand_id    INTEGER
     );
     CREATE INDEX feed_tank_date ON feed (tank, date);
     CREATE INDEX feed_phase ON feed (phase);
@@ -86,7 +85,6 @@ class Feed:
     note: str | None
     source: str
     demand_id: int | None
-    published: str | None
 
 
 @dataclass(frozen=True)
@@ -195,20 +193,28 @@ class Store:
                 (feed_id, seq, tank, date, t, target_g, run_s, tag, cycles_before, source, demand_id))
             return self.feed(feed_id)
 
-    def close_feed(self, feed_id: str, phase: str, grams: float | None, t: float, note: str = "") -> Feed:
+    def close_feed(self, feed_id: str, phase: str, grams: float | None, t: float, note: str = "",
+                   served_demand: int | None = None) -> Feed:
+        """Close an intent; with ``served_demand``, mark that demand served in the same commit."""
         if phase not in ("done", "aborted"):
             raise ValueError(phase)
         with self._lock:
-            cur = self.db.execute(
-                "UPDATE feed SET phase = ?, grams = ?, t_closed = ?, note = ? "
-                "WHERE id = ? AND phase = 'intent'",
-                (phase, grams, t, note, feed_id))
-            if cur.rowcount != 1:
-                raise RuntimeError(f"feed {feed_id} is not an open intent")
+            self.db.execute("BEGIN IMMEDIATE")
+            try:
+                cur = self.db.execute(
+                    "UPDATE feed SET phase = ?, grams = ?, t_closed = ?, note = ? "
+                    "WHERE id = ? AND phase = 'intent'",
+                    (phase, grams, t, note, feed_id))
+                if cur.rowcount != 1:
+                    raise RuntimeError(f"feed {feed_id} is not an open intent")
+                if served_demand is not None:
+                    self.db.execute("UPDATE demand SET outcome = 'served', feed_id = ? WHERE id = ?",
+                                    (feed_id, served_demand))
+                self.db.execute("COMMIT")
+            except BaseException:
+                self.db.execute("ROLLBACK")
+                raise
             return self.feed(feed_id)
-
-    def mark_published(self, feed_id: str, phase: str) -> None:
-        self._write("UPDATE feed SET published = ? WHERE id = ?", (phase, feed_id))
 
     def feed(self, feed_id: str) -> Feed:
         row = self.db.execute("SELECT * FROM feed WHERE id = ?", (feed_id,)).fetchone()
@@ -217,10 +223,6 @@ class Store:
     def open_intents(self) -> list[Feed]:
         return [Feed(**dict(r)) for r in
                 self.db.execute("SELECT * FROM feed WHERE phase = 'intent' ORDER BY seq")]
-
-    def unpublished(self) -> list[Feed]:
-        return [Feed(**dict(r)) for r in self.db.execute(
-            "SELECT * FROM feed WHERE published IS NULL OR published != phase ORDER BY seq")]
 
     def fed_g(self, tank: str, date: str) -> float:
         """Grams measured into ``tank`` on farm day ``date`` (done feeds only)."""

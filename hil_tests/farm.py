@@ -34,7 +34,8 @@ def free_port() -> int:
 def merge(base: dict, extra: dict) -> dict:
     out = dict(base)
     for key, value in extra.items():
-        out[key] = merge(out[key], value) if isinstance(value, dict) and isinstance(out.get(key), dict) else value
+        both = isinstance(value, dict) and isinstance(out.get(key), dict)
+        out[key] = merge(out[key], value) if both else value
     return out
 
 
@@ -97,6 +98,18 @@ class HilFarm:
     def start_controller(self) -> None:
         self.ctl_proc = self._spawn(["run", "--config", str(self.dir / "controller.toml"), "--no-console",
                                      *self.clock_args()], "controller.log")
+
+    def wait_controller_up(self, timeout_s: float = 60.0) -> float:
+        """Wait until the controller says it is up; returns the farm time it was seen."""
+        deadline = time.time() + timeout_s
+        mark = self.restarts
+        while True:
+            self.check_alive()
+            if self.log("controller.log", tail=10_000).count("controller for site") > mark:
+                return self.farm_now()
+            if time.time() > deadline:
+                raise RuntimeError(f"controller did not come up:\n{self.log('controller.log')}")
+            time.sleep(0.02)
 
     def kill_controller(self, sig: int = signal.SIGKILL) -> None:
         self.ctl_proc.send_signal(sig)

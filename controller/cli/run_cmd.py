@@ -28,7 +28,7 @@ def setup_logging(clock, level: str) -> None:
     root = logging.getLogger()
     root.handlers[:] = [handler]
     root.setLevel(level.upper())
-    for noisy in ("pymodbus", "can", "zenoh"):
+    for noisy in ("pymodbus", "can", "zenoh", "transitions"):
         logging.getLogger(noisy).setLevel(logging.WARNING if level.upper() != "DEBUG" else logging.INFO)
 
 

@@ -15,6 +15,7 @@ from dataclasses import dataclass
 
 from transitions import Machine
 
+from controller.feeding.planner import Stop, next_stop
 from controller.store import reconcile
 from devices.errors import DeviceError, DeviceFault, DeviceTimeout
 
@@ -38,7 +39,7 @@ TRANSITIONS = [
     ["release_manual",   "manual",                   "homing"],
 ]
 OVERSHOOT = 0.15        # auger runs deliver within ±15 % of aim: portions leave that much room
-POLL_WALL_S = 0.002     # dispenser polling while a run ends
+POLL_WALL_S = 0.0005    # dispenser polling once a run should have ended
 
 
 @dataclass
@@ -172,6 +173,7 @@ class FeedingRobot:
         return status
 
     async def _home(self) -> None:
+        self.hopper_g = None                     # hands may have been on the hopper: look again
         status = await self._clear_rail()
         if not status.homed or status.state == "homing":
             if status.state != "homing":
@@ -184,24 +186,35 @@ class FeedingRobot:
     async def _idle(self) -> None:
         self._wake.clear()
         self._expire()
-        job = min(self.pending.values(), key=lambda j: j.t, default=None)
-        state = await self.dispenser.read()
-        self.hopper_g = state.hopper_g
+        job = await self._next_job()
+        if self.hopper_g is None:      # afterwards every run and refill leaves its reading here
+            self.hopper_g = (await self.dispenser.read()).hopper_g
         if job is not None:
             portion = self._portion(job)
             if portion <= 0:
                 self._finish(job, "ration_reached")
-            elif state.hopper_g < portion * (1 + OVERSHOOT):
+            elif self.hopper_g < portion * (1 + OVERSHOOT):
                 await self._refill()
             else:
                 await self._serve(job)
                 self.failures = 0
-        elif state.hopper_g < self.feeding.refill_below_g:
+        elif self.hopper_g < self.feeding.refill_below_g:
             await self._refill()
         else:
             await self._sleep_or_wake(30.0)
 
     # -- jobs -----------------------------------------------------------------
+    async def _next_job(self) -> Job | None:
+        if len(self.pending) <= 1:
+            return next(iter(self.pending.values()), None)
+        now, f = self.clock.now(), self.feeding
+        stops = {job.tank: Stop(job.tank, self.cfg.tank(job.tank).position_m, job.t,
+                                f.portion_g / self.rate_g_s) for job in self.pending.values()}
+        here = (await self._rail_status()).position_m
+        best = next_stop(list(stops.values()), here, now, deadline_s=f.serve_within_s - f.plan_margin_s,
+                         speed_m_s=f.rail_speed_m_s, accel_m_s2=f.rail_accel_m_s2)
+        return self.pending[best.tank]
+
     async def _serve(self, job: Job) -> None:
         self.go()
         await self._move_to(self.cfg.tank(job.tank).position_m)
@@ -215,6 +228,7 @@ class FeedingRobot:
 
     async def _dispense(self, job: Job, portion: float) -> None:
         state = await self.dispenser.read()
+        self.hopper_g = state.hopper_g
         if state.jammed or state.running:
             raise DeviceFault(self.dispenser.name, "jammed" if state.jammed else "auger already running")
         now = self.clock.now()
@@ -224,11 +238,11 @@ class FeedingRobot:
                                      demand_id=job.demand_id)
         self._publish_feed(feed)
         self.served.append((job.tank, job.t, now))
+        log.info("auger on for %s: %.1f g, %.1f s after the demand", job.tank, portion, now - job.t)
         await self.dispenser.run_auger(run_s, feed.tag)
-        await self.clock.asleep(run_s * 0.9)
+        await self.clock.asleep(run_s)          # the device times the run; look when it should be over
         state = await self._wait_run_end(feed, self.feeding.dispense_timeout_s)
-        if self._close(feed, state) == "done":
-            self._finish(job, "served", feed.id)
+        if self._close(feed, state, job) == "done":
             if not state.jammed and run_s > 1.0 and state.last_grams > 0:
                 self.rate_g_s = 0.7 * self.rate_g_s + 0.3 * state.last_grams / run_s
         if state.jammed:
@@ -267,10 +281,8 @@ class FeedingRobot:
         """Close every open intent from the dispenser's counters (after a restart, fault or e-stop)."""
         for feed in self.store.open_intents():
             state = await self._wait_run_end(feed, self.feeding.dispense_timeout_s)
-            phase = self._close(feed, state)
             job = self.pending.get(feed.tank)
-            if phase == "done" and job is not None and job.demand_id == feed.demand_id:
-                self._finish(job, "served", feed.id)
+            self._close(feed, state, job if job is not None and job.demand_id == feed.demand_id else None)
 
     async def _wait_run_end(self, feed, timeout_s: float):
         deadline = self.clock.now() + timeout_s
@@ -283,13 +295,17 @@ class FeedingRobot:
                 raise DeviceTimeout(self.dispenser.name, f"auger run {feed.tag} did not end")
             await asyncio.sleep(POLL_WALL_S)
 
-    def _close(self, feed, state) -> str:
+    def _close(self, feed, state, job: Job | None = None) -> str:
+        """Close ``feed`` from the dispenser's counters; a done feed also serves ``job``."""
         result = reconcile(feed, state)
         phase = "done" if result.phase == "done" else "aborted"
         if result.phase == "unknown":
             self.alarms.raise_("ledger", f"feed {feed.id} to {feed.tank}: outcome unknown: {result.note}",
                                "critical")
-        closed = self.store.close_feed(feed.id, phase, result.grams, self.clock.now(), result.note)
+        served = job.demand_id if job is not None and phase == "done" else None
+        closed = self.store.close_feed(feed.id, phase, result.grams, self.clock.now(), result.note, served)
+        if job is not None and phase == "done" and self.pending.get(job.tank) is job:
+            del self.pending[job.tank]
         self._publish_feed(closed)
         return phase
 
@@ -298,7 +314,6 @@ class FeedingRobot:
         self.publish(f"tank/{feed.tank}/feed", {"t": self.clock.iso(feed.t_closed or feed.t_intent),
                                                 "grams": round(grams or 0.0, 1), "phase": feed.phase,
                                                 "id": feed.id}, reliable=True)
-        self.store.mark_published(feed.id, feed.phase)
 
     # -- helpers --------------------------------------------------------------
     def _portion(self, job: Job) -> float:

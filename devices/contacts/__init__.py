@@ -35,6 +35,10 @@ class ContactSensors(Device):
         return await self._read()
 
     malformed: int = 0
+    stream_t: float | None = None
+    """Farm time up to which the hub has reported everything: its latest stamp (contact or
+    heartbeat; a hub sends in time order). Time-driven judgements (a dead sensor, a drained
+    demand) use this, not the local clock, so a line's latency never reorders the evidence."""
 
     @abc.abstractmethod
     async def _read(self) -> list[Contact]: ...

@@ -144,8 +144,11 @@ class SerialContactHub(ContactSensors):
             if self._seq is not None:
                 self.lost += (seq - self._seq - 1) % 65536
             self._seq = seq
+            t = int(m[4] or m[6]) / 1000.0
             if m[3] is not None:
-                batch.append(Contact(int(m[4]) / 1000.0, m[3].decode()))
+                batch.append(Contact(t, m[3].decode()))
+            if self.stream_t is None or t > self.stream_t:
+                self.stream_t = t
         return good
 
     def _down(self, why: str) -> None:

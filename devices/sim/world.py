@@ -42,7 +42,8 @@ class SimFarm:
         self.truth = truth or TruthLog(None)
         self.section = validate_section(SimSection, cfg.sim, cfg.path, "sim")
         self.rng = random.Random(self.section.seed)
-        self.devices = {kind: [(n, s) for n, s in cfg.devices.items() if s["kind"] == kind and s["driver"] == "sim"]
+        simulated = [(n, s) for n, s in cfg.devices.items() if s["driver"] == "sim"]
+        self.devices = {kind: [(n, s) for n, s in simulated if s["kind"] == kind]
                         for kind in ("contacts", "rail", "dispenser")}
         self.motor: SimRailMotor | None = None
         self.adapter: SlcanAdapter | None = None
@@ -98,12 +99,12 @@ class SimFarm:
                                "channel": self.adapter.port, "node_id": section.get("node_id", 1)}
         for name, section in self.devices["dispenser"][:1]:
             params = validate_section(SimDispenserParams, self.section.dispenser, where, "sim.dispenser")
-            self.dispenser = SimDispenser(params, self.clock, host=section.get("host", "127.0.0.1"),
-                                          port=section.get("port", 0), unit=section.get("unit", 1),
+            host, unit = section.get("host", "127.0.0.1"), section.get("unit", 1)
+            self.dispenser = SimDispenser(params, self.clock, host=host, port=section.get("port", 0), unit=unit,
                                           deliver=self.deliver, at_food_box=self.at_food_box, truth=self.truth)
             await self.dispenser.start()
-            endpoints[name] = {"kind": "dispenser", "driver": "modbus", "host": section.get("host", "127.0.0.1"),
-                               "port": self.dispenser.port, "unit": section.get("unit", 1)}
+            endpoints[name] = {"kind": "dispenser", "driver": "modbus", "host": host,
+                               "port": self.dispenser.port, "unit": unit}
         for name, _section in self.devices["contacts"]:
             endpoints[name] = await self._start_hub()
         return endpoints
