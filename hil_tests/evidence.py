@@ -6,6 +6,10 @@ from dataclasses import dataclass, field
 
 SERVE_WITHIN_S = 60.0
 RESOLUTION_G = 0.1
+# A fish that stops asking leaves no mark: a turbulence contact seconds after the last fish contact
+# looks like one more from the fish. Demands raised this soon after an episode's end are counted
+# apart (``late_demands``) rather than called feed on turbulence.
+AFTERGLOW_S = 10.0
 
 
 @dataclass
@@ -19,6 +23,7 @@ class Verdict:
     problems: list[str] = field(default_factory=list)
     detection_s: list[float] = field(default_factory=list)
     service_s: list[float] = field(default_factory=list)
+    late_demands: int = 0
 
     def detected_within(self, seconds: float) -> float:
         """Share of episodes whose demand was raised within ``seconds`` of their start."""
@@ -26,7 +31,8 @@ class Verdict:
 
     def summary(self) -> str:
         service = sorted(self.service_s) or [float("nan")]
-        return (f"{self.episodes} episodes, {self.demands} demands, {self.feeds} feeds, {self.runs} auger runs; "
+        return (f"{self.episodes} episodes, {self.demands} demands ({self.late_demands} within "
+                f"{AFTERGLOW_S:.0f} s after an episode's end), {self.feeds} feeds, {self.runs} auger runs; "
                 f"raised within 60 s: {self.detected_within(60):.1%}, within 120 s: "
                 f"{self.detected_within(120):.1%}; service p50 {service[len(service) // 2]:.1f} s, "
                 f"max {service[-1]:.1f} s; ledger {self.ledger_g:.1f} g, physical {self.physical_g:.1f} g")
@@ -39,7 +45,8 @@ class Verdict:
 def episodes_by_tank(truth: list[dict], end_t: float) -> dict[str, list[tuple[float, float]]]:
     """[(start, end)] per tank; an episode still open at the end of the run ends at ``end_t``."""
     open_, out = {}, defaultdict(list)
-    for rec in sorted((r for r in truth if r["kind"] in ("episode_start", "episode_end")), key=lambda r: r["t"]):
+    marks = [r for r in truth if r["kind"] in ("episode_start", "episode_end")]
+    for rec in sorted(marks, key=lambda r: r["t"]):
         if rec["kind"] == "episode_start":
             open_[rec["tank"]] = rec["t"]
         elif rec["tank"] in open_:
@@ -67,8 +74,12 @@ def judge(db, truth: list[dict], end_t: float) -> Verdict:
 
     # no demand, hence no feed, outside a fish-demand episode
     for d in demands:
-        if inside(d["t"], episodes.get(d["tank"], [])) is None:
-            v.fail(f"demand {d['id']} for {d['tank']} at {d['t']:.1f} lies outside every episode")
+        spans = episodes.get(d["tank"], [])
+        if inside(d["t"], spans) is None:
+            if inside(d["t"], spans, AFTERGLOW_S) is not None:
+                v.late_demands += 1
+            else:
+                v.fail(f"demand {d['id']} for {d['tank']} at {d['t']:.1f} lies outside every episode")
     # how long fish asked before the filter raised their demand (the filter's own contract is
     # measured here as a distribution; the unit tests of controller/demand.py pin it down)
     fed_at = defaultdict(list)

@@ -28,7 +28,7 @@ def test_a_farm_day_is_fed_on_demand_within_rations(tmp_path):
     verdict = judge(farm.ledger(), truth, end)
     report = verdict.summary()
     print(report)
-    assert not verdict.problems, report + "\n" + "\n".join(verdict.problems) + "\n" + farm.log("controller.log")
+    assert not verdict.problems, "\n".join([report, *verdict.problems, farm.log("controller.log")])
     assert verdict.feeds >= 100 and verdict.episodes >= 100, report
     # the filter's contract (a demand within 60 s of an episode's start) is a statistical one at
     # the slow end of the fish band; every episode is found, nearly all within the minute
