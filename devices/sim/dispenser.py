@@ -239,7 +239,7 @@ class DispenserPhysics:
         record = RunRecord(run.tag, run.t0, t, run.physical_g, grams * self._res_mg / 1000, jammed)
         self.runs.append(record)
         if self._truth is not None:
-            self._truth.write("auger_run", t, tag=run.tag, physical_g=run.physical_g,
+            self._truth.write("auger_run", t, t_start=round(run.t0, 4), tag=run.tag, physical_g=run.physical_g,
                               measured_g=record.measured_g, jammed=jammed)
             if jammed:
                 self._truth.write("jam", t, tag=run.tag)

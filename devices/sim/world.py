@@ -119,6 +119,7 @@ class SimFarm:
     async def stop(self) -> None:
         for hub in self.hubs:
             await hub.stop()
+            self.truth.write("contact_hub", self.clock.now(), sent=hub.sent, dropped=hub.dropped)
         if self.dispenser is not None:
             self.truth.write("dispenser_total", self.clock.now(), physical_g=self.dispenser.physical_total_g)
             await self.dispenser.stop()
