@@ -258,6 +258,8 @@ class FeedingRobot:
             deadline = self.clock.now() + self.feeding.refill_timeout_s
             while (state := await self.dispenser.read()).hopper_g < full:
                 self.hopper_g = state.hopper_g
+                if self.pending and state.hopper_g >= self.feeding.refill_below_g:
+                    break                      # enough for the fish waiting now; top up later
                 if self.clock.now() > deadline:
                     raise DeviceTimeout(self.dispenser.name,
                                         f"hopper not full after refill: {state.hopper_g:.0f} g")
