@@ -48,6 +48,9 @@ class HilFarm:
         self.epoch_farm = farm_start
         base = tomllib.loads(base_config.read_text())
         self.config = merge(base, overrides or {})
+        for section in self.config.get("devices", {}).values():
+            if section.get("kind") == "dispenser":
+                section["port"] = 0            # any free port: runs must not collide with the demo
         self.sim_proc: subprocess.Popen | None = None
         self.ctl_proc: subprocess.Popen | None = None
         self.restarts = 0
