@@ -15,6 +15,8 @@ import sys
 import tempfile
 from pathlib import Path
 
+from controller.errors import BadInput
+
 STARTUP_TIMEOUT_S = 30.0
 
 
@@ -43,8 +45,9 @@ class SimProcess:
         loop = asyncio.get_running_loop()
         deadline = loop.time() + STARTUP_TIMEOUT_S
         while not endpoints.exists():
-            if self.proc.poll() is not None:
-                raise RuntimeError(f"the farm simulator exited with status {self.proc.returncode}")
+            if self.proc.poll() is not None:       # it said why on stderr, in one line
+                raise BadInput(self.cfg.path, "devices",
+                               f"the simulated devices did not start (fishfarm sim exited {self.proc.returncode})")
             if loop.time() > deadline:
                 raise RuntimeError("the farm simulator did not start")
             await asyncio.sleep(0.05)

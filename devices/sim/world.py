@@ -13,6 +13,7 @@ from typing import Any
 from pydantic import BaseModel, ConfigDict, Field
 
 from controller.config import Config, validate_section
+from controller.errors import BadInput
 from devices.sim.dispenser import SimDispenser, SimDispenserParams
 from devices.sim.rail import SimRailMotor, SimRailParams
 from devices.sim.slcan_adapter import SlcanAdapter
@@ -102,7 +103,10 @@ class SimFarm:
             host, unit = section.get("host", "127.0.0.1"), section.get("unit", 1)
             self.dispenser = SimDispenser(params, self.clock, host=host, port=section.get("port", 0), unit=unit,
                                           deliver=self.deliver, at_food_box=self.at_food_box, truth=self.truth)
-            await self.dispenser.start()
+            try:
+                await self.dispenser.start()
+            except OSError as exc:
+                raise BadInput(where, f"devices.{name}.port", str(exc)) from None
             endpoints[name] = {"kind": "dispenser", "driver": "modbus", "host": host,
                                "port": self.dispenser.port, "unit": unit}
         for name, _section in self.devices["contacts"]:

@@ -1,0 +1,43 @@
+"""``fishfarm run`` and ``fishfarm sim`` refuse bad input with one line and exit 2."""
+import socket
+import subprocess
+import sys
+
+import pytest
+
+TANK = '[[tanks]]\nid = "A"\nstock = 10\nmean_weight_g = 5\nposition_m = 1\nsensors = ["A1"]\n'
+
+
+def fishfarm(*args, timeout=60):
+    return subprocess.run([sys.executable, "-m", "controller.cli", *args], capture_output=True, text=True,
+                          timeout=timeout)
+
+
+def test_missing_config(tmp_path):
+    r = fishfarm("run", "--config", str(tmp_path / "nope.toml"), "--no-console")
+    assert r.returncode == 2 and r.stderr.strip() == f"fishfarm: {tmp_path / 'nope.toml'}: no such file"
+
+
+def test_speed_needs_simulated_devices(tmp_path):
+    cfg = tmp_path / "farm.toml"
+    cfg.write_text(TANK + '[devices.d]\nkind = "dispenser"\ndriver = "modbus"\nport = 1502\n')
+    r = fishfarm("run", "--config", str(cfg), "--speed", "10", "--no-console")
+    assert r.returncode == 2 and "devices: --speed needs every device simulated" in r.stderr
+
+
+def test_busy_port_names_the_key(tmp_path):
+    with socket.socket() as busy:
+        busy.bind(("127.0.0.1", 0))
+        busy.listen()
+        port = busy.getsockname()[1]
+        cfg = tmp_path / "farm.toml"
+        cfg.write_text(TANK + f'[devices.d]\nkind = "dispenser"\ndriver = "sim"\nport = {port}\n')
+        r = fishfarm("sim", "--config", str(cfg), "--endpoints", str(tmp_path / "e.json"))
+    assert r.returncode == 2
+    assert f"fishfarm: {cfg}: devices.d.port: " in r.stderr and "Traceback" not in r.stderr
+
+
+@pytest.mark.parametrize("args", [["--speed", "0"], ["--duration", "-1"], ["--log-level", "loud"]])
+def test_bad_options(args):
+    r = fishfarm("run", *args)
+    assert r.returncode == 2 and len(r.stderr.strip().splitlines()) == 1
