@@ -39,9 +39,9 @@ class Overrides:
         self.c = controller
 
     def declare(self, bus) -> None:
-        bus.queryable("override/estop", self.estop, lenient=True)
-        for name in ("reset", "manual", "feed", "ration"):
-            bus.queryable(f"override/{name}", getattr(self, name))
+        # one queryable on override/*: an unknown command is refused with a reason, not left unanswered
+        bus.overrides({name: getattr(self, name) for name in ("estop", "reset", "manual", "feed", "ration")},
+                      lenient=("estop",))
         bus.queryable("status", self.status, lenient=True)
 
     async def status(self, payload) -> dict:
