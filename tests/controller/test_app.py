@@ -1,0 +1,77 @@
+"""The controller assembled in-process, its simulated devices in a child ``fishfarm sim``, driven by
+an operator over real Zenoh: status, refusals, an e-stop with an unreadable payload, a manual feed."""
+import asyncio
+import json
+import socket
+import tomllib
+
+import tomli_w
+
+from controller.app import Controller
+from controller.bus import Bus
+from controller.config import load_config
+from devices.clock import ScaledClock
+
+
+def free_port():
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def test_operator_drives_the_controller_over_zenoh(tmp_path):
+    port = free_port()
+    raw = tomllib.loads(open("config/farm.toml").read())
+    raw["bus"] = {"listen": [f"tcp/127.0.0.1:{port}"]}
+    raw["store"] = {"path": str(tmp_path / "ledger.db")}
+    (tmp_path / "farm.toml").write_text(tomli_w.dumps(raw))
+    cfg = load_config(tmp_path / "farm.toml")
+
+    async def main():
+        controller = Controller(cfg, ScaledClock.starting(50.0))
+        await controller.start()
+        client = Bus.client(f"tcp/127.0.0.1:{port}")
+
+        def ask(suffix, payload=None):
+            return asyncio.to_thread(client.query, suffix, payload)
+
+        async def until(predicate, what, wall_s=20.0):
+            for _ in range(int(wall_s / 0.01)):
+                if predicate():
+                    return
+                await asyncio.sleep(0.01)
+            raise AssertionError(f"timed out: {what}; feeder {controller.robot.state}")
+
+        try:
+            await until(lambda: controller.robot.state == "idle", "homed")
+            [status] = await ask("status")
+            assert sorted(status["tanks"]) == [f"T{i}" for i in range(1, 9)]
+            assert status["feeder"]["state"] == "idle"
+            [reply] = await ask("override/nope", {})
+            assert reply["ok"] is False and "unknown command" in reply["error"]
+            [reply] = await ask("override/feed", {"tank": "T9", "grams": 5})
+            assert reply == {"ok": False, "error": "tank: no tank 'T9'"}
+            [reply] = await ask("override/feed", {"tank": "T1", "grams": -5})
+            assert reply["ok"] is False and reply["error"].startswith("grams:")
+            # an e-stop is never refused, even when its payload cannot be read
+            replies = await asyncio.to_thread(
+                lambda: [json.loads(r.ok.payload.to_string()) for r in
+                         client.session.get("farm/demo/override/estop", payload=b"\xff{oops", timeout=2)])
+            assert replies == [{"ok": True}]
+            assert controller.robot.state == "estop" and "estop" in controller.alarms.active
+            [reply] = await ask("override/feed", {"tank": "T1", "grams": 20})
+            assert reply["ok"] is False and "estop" in reply["error"]
+            [reply] = await ask("override/reset", {"operator": "ana", "reason": "rail checked"})
+            assert reply == {"ok": True}
+            await until(lambda: controller.robot.state == "idle", "idle after reset")
+            [reply] = await ask("override/feed", {"tank": "T1", "grams": 20, "operator": "ana"})
+            assert reply == {"ok": True, "grams": 20.0}
+            await until(lambda: any(f.source == "operator" and f.phase == "done"
+                                    for f in controller.store.feeds()), "operator's portion dispensed")
+            feed = next(f for f in controller.store.feeds() if f.source == "operator")
+            assert feed.tank == "T1" and feed.target_g == 20.0 and 15.0 < feed.grams < 25.0
+        finally:
+            client.close()
+            await controller.stop()
+
+    asyncio.run(asyncio.wait_for(main(), 60))
