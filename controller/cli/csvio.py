@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import csv
 import io
+import math
 import os
 import sys
 from collections.abc import Sequence
@@ -37,6 +38,17 @@ def _check_header(where: str, line: str, header: Sequence[str]) -> None:
         raise BadInput(where, "header", f"expected '{','.join(header)}', found '{','.join(found)}'")
 
 
+def number(cell: str, where: str, lineno: int, column: str) -> float:
+    """A finite float from a CSV cell, or BadInput naming file, line and column."""
+    try:
+        value = float(cell)
+    except ValueError:
+        raise BadInput(where, f"line {lineno}, column {column}", f"not a number: {cell.strip()!r}") from None
+    if not math.isfinite(value):
+        raise BadInput(where, f"line {lineno}, column {column}", f"{cell.strip()} is not a finite number")
+    return value
+
+
 def _scan(where: str, lines: list[str], header: Sequence[str]) -> np.ndarray:
     """Slow path: parse line by line, raising at the first bad cell with its line and column."""
     rows = []
@@ -45,18 +57,7 @@ def _scan(where: str, lines: list[str], header: Sequence[str]) -> np.ndarray:
             continue
         if len(cells) != len(header):
             raise BadInput(where, f"line {lineno}", f"{len(cells)} fields, expected {len(header)}")
-        row = []
-        for name, cell in zip(header, cells, strict=True):
-            try:
-                value = float(cell)
-            except ValueError:
-                raise BadInput(where, f"line {lineno}, column {name}",
-                               f"not a number: {cell.strip()!r}") from None
-            if not np.isfinite(value):
-                raise BadInput(where, f"line {lineno}, column {name}",
-                               f"{cell.strip()} is not a finite number")
-            row.append(value)
-        rows.append(row)
+        rows.append([number(cell, where, lineno, name) for name, cell in zip(header, cells, strict=True)])
     return np.array(rows, dtype=float).reshape(-1, len(header))
 
 

@@ -24,6 +24,7 @@ from pathlib import Path
 
 import click
 
+from controller.cli.csvio import number
 from controller.errors import BadInput
 
 HEADER = ("t_s", "tank", "sensor")
@@ -58,14 +59,7 @@ def _rows(path: str):
                         continue
                     raise BadInput(path, f"line {reader.line_num}", f"{len(cells)} fields, expected 3")
                 t_s, tank, sensor = cells
-                try:
-                    t = float(t_s)
-                except ValueError:
-                    raise BadInput(path, f"line {reader.line_num}, column t_s",
-                                   f"not a number: {t_s.strip()!r}") from None
-                if not math.isfinite(t):
-                    raise BadInput(path, f"line {reader.line_num}, column t_s",
-                                   f"{t_s.strip()} is not finite")
+                t = number(t_s, path, reader.line_num, "t_s")
                 if t < prev:
                     raise BadInput(path, f"line {reader.line_num}, column t_s",
                                    f"{t_s.strip()} is earlier than the row before ({prev:g}): "

@@ -68,7 +68,7 @@ def test_config_takes_tanks_from_farm_toml_and_skips_strangers(log, tmp_path):
     ("t_s,tank,sensor\n5,T1,a\n4.5,T1,a\n", "line 3, column t_s: 4.5 is earlier"),
     ("t_s,tank,sensor\n5,T1,a,x\n", "line 2: 4 fields, expected 3"),
     ("t_s,tank,sensor\n5,,a\n", "line 2, column tank: empty"),
-    ("t_s,tank,sensor\nnan,T1,a\n", "line 2, column t_s: nan is not finite"),
+    ("t_s,tank,sensor\nnan,T1,a\n", "line 2, column t_s: nan is not a finite number"),
     ("", "empty file"),
 ])
 def test_bad_csv_is_one_line_exit_2(tmp_path, body, needle):
