@@ -4,7 +4,9 @@ Run: ``.venv/bin/python bench/bench_matching.py [--repeats 15]``; prints one JSO
 The pair is a textured plane rendered through the paper's convergent rig (devices/sim). Times are
 process CPU time (robust on a shared machine) and wall time, medians over the repeats, pinned to
 one CPU with OpenCV and BLAS on one thread. The headline configuration: 11x11 windows, +-1 px band,
-a working window of 130 mm in depth (~65 px along the line).
+a working window of 130 mm in depth (~65 px along the line). Beside it, ``whole_range_900_1400mm``:
+the same search over the rig's whole working range (~217 px along the line). ``goal_met`` needs
+both within ``goal_ms``.
 """
 from __future__ import annotations
 
@@ -78,14 +80,15 @@ def main() -> None:
     window = segments_by_range(rig.P1, rig.P2, pts1, near, near + WINDOW_MM)
     working = segments_by_range(rig.P1, rig.P2, pts1, 900.0, 1400.0)       # the rig's whole range
     head = run(sc, pts1, truth, F, window, args.repeats, patch=11, band_px=1.0)
+    whole = run(sc, pts1, truth, F, working, args.repeats, patch=11, band_px=1.0)
     out = {"benchmark": "matching", "points": len(pts1), "image": [1280, 960], "threads": 1,
-           "goal_ms": GOAL_MS, "goal_met": head["ms_cpu_median"] <= GOAL_MS, **head,
+           "goal_ms": GOAL_MS, "goal_met": max(head["ms_cpu_median"], whole["ms_cpu_median"]) <= GOAL_MS,
+           **head,
+           "whole_range_900_1400mm": whole,
            "variants": {
                "band_0": run(sc, pts1, truth, F, window, args.repeats, patch=11, band_px=0.0),
                "scales_3": run(sc, pts1, truth, F, window, args.repeats, patch=11, band_px=1.0,
-                               scales=(0.8, 1.0, 1.25)),
-               "range_900_1400mm": run(sc, pts1, truth, F, working, max(3, args.repeats // 3),
-                                       patch=11, band_px=1.0)}}
+                               scales=(0.8, 1.0, 1.25))}}
     print(json.dumps(out, indent=2))
 
 

@@ -272,3 +272,59 @@ def test_a_match_off_the_line_is_found_inside_the_band():
     assert np.median(errors(band, truth)[band.valid]) < 0.8 * np.median(errors(on_line, truth)[on_line.valid])
     assert no_prior.valid.mean() > 0.95 and np.median(np.abs(no_prior.line_px[no_prior.valid] - 0.7)) < 0.1
     assert np.median(errors(no_prior, truth)[no_prior.valid]) < 0.12
+
+
+def _exhaustive(img1, img2, pts, lo, hi, band, w):
+    """Every whole-pixel candidate (u + t, v + b), lo <= t <= hi, |b| <= band, of integer points on a
+    rectified pair scored by hand with the combined similarity; returns best score and position."""
+    win2 = np.lib.stride_tricks.sliding_window_view(img2.astype(float), (11, 11))
+    u, v = pts[:, 0].astype(int), pts[:, 1].astype(int)
+    t, b = np.arange(lo, hi + 1), np.arange(-band, band + 1)
+    cand = win2[(v[:, None, None] + b[:, None] - 5), (u[:, None, None] + t - 5)]     # (P, rows, cols, 11, 11)
+    tmpl = np.stack([img1[y - 5:y + 6, x - 5:x + 6] for x, y in zip(u, v, strict=True)]).astype(float)
+    z1 = tmpl - tmpl.mean(axis=(1, 2), keepdims=True)
+    z2 = cand - cand.mean(axis=(3, 4), keepdims=True)
+    ncc = np.einsum("pij,prcij->prc", z1, z2) / np.sqrt(
+        (z1**2).sum(axis=(1, 2))[:, None, None] * (z2**2).sum(axis=(3, 4)))
+    def ratio(a, c):
+        return np.minimum(a, c) / np.maximum(a, c)
+    mean = ratio(tmpl.mean(axis=(1, 2))[:, None, None], cand.mean(axis=(3, 4)))
+    contrast = ratio(tmpl.std(axis=(1, 2))[:, None, None], cand.std(axis=(3, 4)))
+    line = np.exp(-0.5 * b.astype(float) ** 2)[:, None]
+    score = (w.ncc * ncc + w.line * line + w.mean * mean + w.contrast * contrast) / (
+        w.ncc + w.line + w.mean + w.contrast)
+    r, c = np.divmod(score.reshape(len(pts), -1).argmax(axis=1), len(t))
+    return score.reshape(len(pts), -1).max(axis=1), np.c_[u + t[c], v + b[r]]
+
+
+def test_coarse_to_fine_scan_finds_the_best_candidate_of_an_exhaustive_search():
+    # the match sits 1 px below the line, on a band row the coarse pass (rows -2, 0, 2) skips; a weak
+    # line prior lets it win there
+    rng = np.random.default_rng(13)
+    tex = (40 + 180 * random_texture((160, 420), rng)).astype(np.float32)
+    img2 = (0.8 * np.roll(tex, (1, -25), axis=(0, 1)) + 20 + rng.normal(0, 3, tex.shape)).astype(np.float32)
+    pts1 = np.c_[rng.integers(80, 400, 60), rng.integers(12, 148, 60)].astype(float)
+    w = Weights(line=0.05)
+    r = match_points(tex, img2, pts1, ROWS_F, segments=segments_by_offset(pts1, ROWS_F, -60, 0), band_px=3,
+                     weights=w)
+    best, at = _exhaustive(tex, img2, pts1, -60, 0, 3, w)
+    assert np.allclose(r.score, best, atol=2e-4)                   # nothing better was skipped
+    assert np.all(np.abs(r.pts2 - at) <= 0.5 + 1e-6)                # it is the best's sub-pixel peak
+    assert np.mean(np.all(at == pts1 + [-25, 1], axis=1)) > 0.95 and r.valid.mean() > 0.95
+
+
+def test_a_point_is_matched_alike_whatever_points_are_matched_with_it(scene):
+    # points are scanned in chunks of like segment lengths: results must come back to their own rows
+    sc, pts1, truth, visible, segments, F = scene
+    rng = np.random.default_rng(14)
+    shrink = rng.choice([0.1, 0.4, 1.0], len(pts1))[:, None, None]
+    mixed = truth[:, None] + shrink * (segments - truth[:, None])          # still holding the truth
+    together = match_points(sc.img1, sc.img2, pts1, F, segments=mixed)
+    perm = rng.permutation(len(pts1))
+    shuffled = match_points(sc.img1, sc.img2, pts1[perm], F, segments=mixed[perm])
+    few = match_points(sc.img1, sc.img2, pts1[perm[:9]], F, segments=mixed[perm[:9]])
+    for other, rows in ((shuffled, perm), (few, perm[:9])):
+        assert np.array_equal(other.reason, together.reason[rows])
+        assert np.allclose(other.pts2, together.pts2[rows], atol=1e-4, equal_nan=True)
+        assert np.allclose(other.score, together.score[rows], atol=1e-5)
+    assert together.valid[visible].mean() > 0.9
