@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import asyncio
 import logging
-from collections import deque
 from dataclasses import dataclass
 
 from transitions import Machine
@@ -60,7 +59,6 @@ class FeedingRobot:
         self.rate_g_s = self.feeding.auger_rate_g_s
         self.hopper_g: float | None = None
         self.failures = 0
-        self.served: deque[tuple[str, float, float]] = deque(maxlen=10_000)  # (tank, demand t, auger start t)
         self._wake = asyncio.Event()
         self._action: asyncio.Task | None = None
         Machine(model=self, states=STATES, transitions=TRANSITIONS, initial="homing",
@@ -237,7 +235,6 @@ class FeedingRobot:
                                      run_s=run_s, cycles_before=state.cycles, source=job.source,
                                      demand_id=job.demand_id)
         self._publish_feed(feed)
-        self.served.append((job.tank, job.t, now))
         log.info("auger on for %s: %.1f g, %.1f s after the demand", job.tank, portion, now - job.t)
         await self.dispenser.run_auger(run_s, feed.tag)
         await self.clock.asleep(run_s)          # the device times the run; look when it should be over

@@ -1,8 +1,10 @@
 """Ground truth of a simulated run, one JSON object a line, for tests to judge the controller.
 
-Kinds written: ``episode_start``/``episode_end`` (tank, rate_hz), ``burst`` (tank, sensor,
-duration_s), ``sensor_fault`` (tank, sensor, fault), ``delivered`` (tank or null, grams),
-``jam``. Every record has ``t`` in farm seconds.
+Kinds written: ``episode_start``/``episode_end`` (tank, rate_hz, why), ``burst`` (tank, sensor,
+duration_s), ``sensor_fault`` (tank, sensor, fault, until), ``fed`` (tank, grams: what the fish
+got), ``delivered`` (tank or null, grams: what left the chute), ``auger_run`` (tag, t_start,
+physical_g, measured_g, jammed), ``jam`` (tag), and at the end ``contact_hub`` (sent, dropped) and
+``dispenser_total`` (physical_g). Every record has ``t`` in farm seconds.
 """
 from __future__ import annotations
 
