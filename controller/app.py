@@ -9,6 +9,7 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import importlib
+import itertools
 import logging
 import signal
 
@@ -27,6 +28,7 @@ log = logging.getLogger("fishfarm")
 
 HOUSEKEEPING_S = 5.0        # farm seconds between filter ticks and expiry checks
 STATE_EVERY_WALL_S = 1.0    # periodic state publication besides every change
+OPEN_BACKOFF_S = (0.2, 0.5, 1.0, 2.0, 5.0, 10.0)
 
 
 def build_device(name: str, section: dict, clock, where: str):
@@ -45,9 +47,13 @@ class Controller:
         self.tasks: list[asyncio.Task] = []
         self.stopping = asyncio.Event()
         self.unknown_sensors: set[str] = set()
+        self.robot: FeedingRobot | None = None
+        self.estop_before_start: str | None = None
 
     # -- life cycle -------------------------------------------------------------
     async def start(self) -> None:
+        """Bring the parts up. The bus and status come first, so operators can see (and e-stop) a
+        controller still waiting for a device; the robot starts once every device has opened."""
         cfg = self.cfg
         sections = dict(cfg.devices)
         if any(s["driver"] == "sim" for s in sections.values()):
@@ -57,22 +63,31 @@ class Controller:
         self.store = Store(cfg.store.path)
         self.alarms = Alarms(self.store, self.bus.publish, self.clock)
         self.rations = Rations(cfg, load_species(), self.store)
+        self.filter = DemandFilter(validate_section(DemandParams, cfg.demand, cfg.path, "demand"),
+                                   {t.id: list(t.sensors) for t in cfg.tanks})
         self.devices = {name: build_device(name, s, self.clock, cfg.path) for name, s in sections.items()}
         self.contacts = self._one("contacts")
         self.rail = self._one("rail")
         self.dispenser = self._one("dispenser")
-        for device in self.devices.values():
-            await self._open(device)
-        self.filter = DemandFilter(validate_section(DemandParams, cfg.demand, cfg.path, "demand"),
-                                   {t.id: list(t.sensors) for t in cfg.tanks})
-        self.robot = FeedingRobot(cfg, self.clock, self.rail, self.dispenser, self.store, self.rations,
-                                  self.alarms, self.bus.publish)
-        self._requeue_open_demands()
         self.overrides = Overrides(self)
         self.overrides.declare(self.bus)
+        await asyncio.gather(*(self._open(device) for device in self.devices.values()))
+        self.robot = FeedingRobot(cfg, self.clock, self.rail, self.dispenser, self.store, self.rations,
+                                  self.alarms, self.bus.publish)
+        if self.estop_before_start is not None:
+            await self.robot.emergency_stop(self.estop_before_start)
+        self._requeue_open_demands()
         for loop in (self.robot.run, self._contacts_loop, self._housekeeping, self._state_loop):
             self.tasks.append(asyncio.create_task(self._supervise(loop)))
         log.info("controller for site %s up: %d tanks", cfg.site, len(cfg.tanks))
+
+    async def emergency_stop(self, reason: str) -> None:
+        """E-stop wins from any state, even before the robot exists: it then starts stopped."""
+        if self.robot is None:
+            self.estop_before_start = reason
+            self.alarms.raise_("estop", f"emergency stop: {reason}", "critical")
+        else:
+            await self.robot.emergency_stop(reason)
 
     async def stop(self) -> None:
         for task in self.tasks:
@@ -89,12 +104,19 @@ class Controller:
             await self.sim.stop()
 
     async def run(self) -> None:
-        await self.start()
+        starting = asyncio.create_task(self.start())
+        stopping = asyncio.create_task(self.stopping.wait())
         try:
-            wall = None if self.duration_s is None else self.clock.wall(self.duration_s)
-            with contextlib.suppress(TimeoutError):
-                await asyncio.wait_for(self.stopping.wait(), wall)
+            await asyncio.wait({starting, stopping}, return_when=asyncio.FIRST_COMPLETED)
+            if starting.done():
+                starting.result()                     # a start-up fault surfaces here
+                wall = None if self.duration_s is None else self.clock.wall(self.duration_s)
+                with contextlib.suppress(TimeoutError):
+                    await asyncio.wait_for(stopping, wall)
         finally:
+            for task in (starting, stopping):
+                task.cancel()
+            await asyncio.gather(starting, stopping, return_exceptions=True)
             await self.stop()
 
     async def _supervise(self, loop) -> None:
@@ -118,16 +140,16 @@ class Controller:
         return found[0]
 
     async def _open(self, device) -> None:
-        """Open a device, retrying with back-off: a farm starts before every PLC is up."""
-        for delay in (0.2, 0.5, 1, 2, 5, 10):
+        """Open a device, retrying with back-off for as long as it takes: a farm's controller
+        often starts before every PLC is up. Lost and found are each alarmed once."""
+        for attempt in itertools.count():
             try:
                 await device.open()
                 self.alarms.clear(f"device/{device.name}", "connected")
                 return
             except DeviceError as exc:
                 self.alarms.raise_(f"device/{device.name}", f"cannot open: {exc.text}")
-                await asyncio.sleep(delay)
-        await device.open()
+                await asyncio.sleep(OPEN_BACKOFF_S[min(attempt, len(OPEN_BACKOFF_S) - 1)])
 
     def _requeue_open_demands(self) -> None:
         for row in self.store.open_demands():
@@ -212,14 +234,17 @@ class Controller:
     def status(self) -> dict:
         now = self.clock.now()
         tanks = {}
+        pending = self.robot.pending if self.robot is not None else {}
         for tank in self.cfg.tanks:
             r = self.rations.today(tank.id, now)
-            job = self.robot.pending.get(tank.id)
+            job = pending.get(tank.id)
             tanks[tank.id] = {"demand": job is not None,
                               "demand_t": None if job is None else self.clock.iso(job.t),
                               "fed_g": round(r.fed_g, 1), "ration_g": round(r.grams, 1),
                               "pellet_mm": r.pellet_mm}
-        return {"t": self.clock.iso(now), "site": self.cfg.site, "feeder": self.robot.snapshot(),
+        feeder = self.robot.snapshot() if self.robot is not None else {
+            "t": self.clock.iso(now), "state": "starting", "position_m": None, "hopper_g": None}
+        return {"t": self.clock.iso(now), "site": self.cfg.site, "feeder": feeder,
                 "tanks": tanks,
                 "alarms": [{"source": a.source, "severity": a.severity, "text": a.text,
                             "t": self.clock.iso(a.t)} for a in self.alarms.active.values()]}

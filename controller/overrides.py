@@ -14,6 +14,9 @@ from controller.feeding.robot import Job
 log = logging.getLogger("fishfarm.override")
 
 
+STARTING = {"ok": False, "error": "the controller is starting: waiting for its devices"}
+
+
 class _Command(BaseModel):
     model_config = ConfigDict(extra="forbid")
     operator: str = "unknown"
@@ -51,13 +54,15 @@ class Overrides:
         who = payload.get("operator", "unknown") if isinstance(payload, dict) else "unknown"
         why = payload.get("reason", "") if isinstance(payload, dict) else ""
         log.warning("e-stop by %s: %s", who, why)
-        await self.c.robot.emergency_stop(f"operator {who}" + (f": {why}" if why else ""))
+        await self.c.emergency_stop(f"operator {who}" + (f": {why}" if why else ""))
         return {"ok": True}
 
     async def reset(self, payload) -> dict:
         cmd = self._parse(_Command, payload)
         if isinstance(cmd, dict):
             return cmd
+        if self.c.robot is None:
+            return STARTING
         log.warning("reset by %s: %s", cmd.operator, cmd.reason)
         return self._result(self.c.robot.operator_reset())
 
@@ -65,6 +70,8 @@ class Overrides:
         cmd = self._parse(Manual, payload)
         if isinstance(cmd, dict):
             return cmd
+        if self.c.robot is None:
+            return STARTING
         log.warning("manual=%s by %s: %s", cmd.on, cmd.operator, cmd.reason)
         return self._result(self.c.robot.set_manual(cmd.on))
 
@@ -74,6 +81,8 @@ class Overrides:
             return cmd
         if cmd.tank not in self.c.sensor_tank.values():
             return {"ok": False, "error": f"tank: no tank {cmd.tank!r}"}
+        if self.c.robot is None:
+            return STARTING
         if self.c.robot.state in ("estop", "manual"):
             return {"ok": False, "error": f"feeder is in {self.c.robot.state}"}
         left = self.c.rations.today(cmd.tank, self.c.clock.now()).left_g

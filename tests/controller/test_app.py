@@ -75,3 +75,44 @@ def test_operator_drives_the_controller_over_zenoh(tmp_path):
             await controller.stop()
 
     asyncio.run(asyncio.wait_for(main(), 60))
+
+
+def test_waits_for_absent_devices_yet_answers_and_estops(tmp_path):
+    port, dead_port = free_port(), free_port()
+    raw = tomllib.loads(open("config/farm.toml").read())
+    raw["bus"] = {"listen": [f"tcp/127.0.0.1:{port}"]}
+    raw["store"] = {"path": str(tmp_path / "ledger.db")}
+    raw["devices"] = {
+        "contacts": {"kind": "contacts", "driver": "serial", "port": str(tmp_path / "no-hub")},
+        "rail": {"kind": "rail", "driver": "can", "interface": "slcan", "channel": str(tmp_path / "no-can")},
+        "dispenser": {"kind": "dispenser", "driver": "modbus", "port": dead_port, "timeout_s": 0.2},
+    }
+    raw.pop("sim")
+    (tmp_path / "farm.toml").write_text(tomli_w.dumps(raw))
+    controller = Controller(load_config(tmp_path / "farm.toml"), ScaledClock.real())
+
+    async def main():
+        running = asyncio.create_task(controller.run())
+        client = None
+        try:
+            for _ in range(500):
+                if getattr(controller, "overrides", None) is not None and len(controller.alarms.active) == 3:
+                    break
+                await asyncio.sleep(0.01)
+            client = Bus.client(f"tcp/127.0.0.1:{port}")
+            [status] = await asyncio.to_thread(client.query, "status")
+            assert status["feeder"]["state"] == "starting"
+            assert {a["source"] for a in status["alarms"]} == {"device/contacts", "device/rail",
+                                                                 "device/dispenser"}
+            [reply] = await asyncio.to_thread(client.query, "override/feed", {"tank": "T1", "grams": 10})
+            assert reply["ok"] is False and "starting" in reply["error"]
+            [reply] = await asyncio.to_thread(client.query, "override/estop", {})
+            assert reply == {"ok": True} and controller.estop_before_start is not None
+            assert not running.done()                       # still waiting, not dead
+        finally:
+            if client is not None:
+                client.close()
+            controller.stopping.set()
+            await asyncio.wait_for(running, 10)
+
+    asyncio.run(asyncio.wait_for(main(), 30))
