@@ -14,7 +14,8 @@ WARMUP_S = 120.0          # the filter needs its window of evidence before it ca
 
 @pytest.mark.hil
 def test_a_farm_day_is_fed_on_demand_within_rations(tmp_path):
-    farm = HilFarm(tmp_path, speed=SPEED)
+    # a stuck and a dead sensor every few days per tank: a couple of each over the farm's day
+    farm = HilFarm(tmp_path, speed=SPEED, overrides={"sim": {"fish": {"stuck_per_day": 0.3, "dead_per_day": 0.3}}})
     try:
         farm.start_sim()
         farm.start_controller()
@@ -25,7 +26,10 @@ def test_a_farm_day_is_fed_on_demand_within_rations(tmp_path):
     finally:
         farm.stop()
     truth = [r for r in farm.truth() if r["t"] >= up + WARMUP_S or r["kind"] == "auger_run"]
-    verdict = judge(farm.ledger(), truth, end)
+    with farm.ledger() as db:
+        verdict = judge(db, truth, end)
+        alarms = [dict(r) for r in db.execute("SELECT * FROM alarm WHERE source LIKE 'sensor/%' AND active = 1")]
+    faults = [r for r in farm.truth() if r["kind"] == "sensor_fault" and up < r["t"] < end - 600]
     report = verdict.summary()
     print(report)
     assert not verdict.problems, "\n".join([report, *verdict.problems, farm.log("controller.log")])
@@ -33,3 +37,12 @@ def test_a_farm_day_is_fed_on_demand_within_rations(tmp_path):
     # the filter's contract (a demand within 60 s of an episode's start) is a statistical one at
     # the slow end of the fish band; every episode is found, nearly all within the minute
     assert verdict.detected_within(60) >= 0.9 and verdict.detected_within(180) == 1.0, report
+    # a stuck sensor is always caught; any sensor alarm names a sensor that really failed, while it did
+    for fault in (f for f in faults if f["fault"] == "stuck"):
+        assert any(a["source"] == f"sensor/{fault['sensor']}" and "stuck" in a["text"]
+                   and fault["t"] <= a["t"] <= fault["until"] for a in alarms), (fault, alarms)
+    for alarm in alarms:
+        sensor = alarm["source"].removeprefix("sensor/")
+        assert any(f["sensor"] == sensor and f["t"] <= alarm["t"] <= f["until"] + 60 for f in faults), \
+            (alarm, faults)
+    print(f"{len(faults)} sensor faults, {len(alarms)} sensor alarms")
