@@ -1,10 +1,10 @@
 import asyncio
 
 import pytest
-from rig import rig
 from transitions import Machine, MachineError
 
 from controller.feeding.robot import OVERSHOOT, STATES, TRANSITIONS
+from tests.controller.feeding.rig import rig
 
 
 def run(coro):
