@@ -4,11 +4,18 @@ offline replay of a large generated CSV through ``fishfarm demand`` (the same fi
 Run: ``.venv/bin/python bench/bench_demand.py [--days 30] [--csv-days 30]``; prints one JSON
 object. The stream is 8 tanks x 2 sensors: fish episodes (0.1-2 /s), turbulence at 0.05 /s,
 chatter bursts 4 /h. Goal: >= 200,000 contacts/s through on_contact.
+
+``--table [--episodes 200]`` measures instead what the filter catches (the table of
+controller/demand.py): per fish pattern x turbulence x rate, the share of 2-minute episodes
+with a demand within 60 s of their start (turbulence and chatter bursts 4 /h all along, a tank
+with two sensors), and demands outside any episode. ``--null-days N`` counts false demands
+over N tank-days of turbulence and chatter bursts (6 /h) alone, at 0.01, 0.02 and 0.05 /s.
 """
 from __future__ import annotations
 
 import argparse
 import json
+import math
 import os
 import subprocess
 import sys
@@ -18,7 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
-from controller.demand import DemandFilter
+from controller.demand import Demand, DemandFilter
 from devices.sim import contact_streams as cs
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -65,11 +72,79 @@ def _has_taskset() -> bool:
     return which("taskset") is not None
 
 
+PATTERNS = {"poisson": ("poisson", 0.0), "regular j=0.1": ("regular", 0.1), "regular j=0.3": ("regular", 0.3),
+            "paced j=0.3": ("paced", 0.3)}
+RATES = (0.1, 0.15, 0.2, 0.25, 0.3, 0.45)
+
+
+def replay_demands(stream: cs.Stream) -> list[float]:
+    """Demand times, the filter fed as the controller feeds it (on_time every 5 s)."""
+    f, out, nxt = DemandFilter(), [], -math.inf
+    for t, tank, sensor in stream.rows():
+        if t >= nxt:
+            f.on_time(t)
+            nxt = t + 5.0
+        out += [e.t for e in f.on_contact(t, tank, sensor) if isinstance(e, Demand)]
+    return out
+
+
+def episode_cell(rate: float, turbulence_hz: float, pattern: str, jitter: float, episodes: int,
+                 seed: int) -> tuple[float, int]:
+    """(share of episodes with a demand within 60 s of the start, demands outside episodes)."""
+    rng = np.random.default_rng(seed)
+    t0 = 1.78e9                                     # an hour to learn the tank's turbulence first
+    starts = t0 + 3600 + np.cumsum(1200 + rng.exponential(300, episodes))
+    t1 = float(starts[-1]) + 1200
+    parts = [cs.turbulence(rng, "T1", ("a", "b"), t0, t1, turbulence_hz),
+             cs.chatter_bursts(rng, "T1", ("a", "b"), t0, t1, 4.0)]
+    parts += [cs.fish_demand(rng, "T1", ("a", "b"), a, 120.0, rate, pattern, jitter) for a in starts.tolist()]
+    stream = cs.merge(*parts)
+    ds = replay_demands(stream)
+    eps = stream.episodes
+    served = sum(any(e.start <= d <= e.start + 60 for d in ds) for e in eps)
+    return served / len(eps), sum(not any(e.start <= d <= e.end for e in eps) for d in ds)
+
+
+def detection_table(episodes: int) -> dict:
+    rows = {}
+    for name, (pattern, jitter) in PATTERNS.items():
+        for b in (0.01, 0.02, 0.05):
+            cells = [episode_cell(r, b, pattern, jitter, episodes, seed=int(r * 1000 + b * 1e4))
+                     for r in RATES]
+            rows[f"{name} b={b}"] = {"within_60s": [round(c[0], 2) for c in cells],
+                                      "outside": sum(c[1] for c in cells)}
+    return {"rates_hz": RATES, "episodes_per_cell": episodes, "rows": rows}
+
+
+def null_days(days: int) -> dict:
+    out = {}
+    for b in (0.01, 0.02, 0.05):
+        rng = np.random.default_rng(int(b * 1000))
+        false = 0
+        for d0 in range(0, days, 20):
+            stream = cs.merge(*[cs.tank_day(rng, "T1", ("a", "b"), 1.78e9 + d * 86400, episodes_per_day=1e-9,
+                                            turbulence_hz=b, bursts_per_hour=6) for d in range(d0, min(days, d0 + 20))])
+            false += len(replay_demands(stream))
+        out[f"b={b}"] = false
+    return {"tank_days_each": days, "false_demands": out}
+
+
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--days", type=float, default=2.0)
     ap.add_argument("--csv-days", type=float, default=2.0)
+    ap.add_argument("--table", action="store_true", help="the detection table instead of the speed")
+    ap.add_argument("--episodes", type=int, default=200)
+    ap.add_argument("--null-days", type=int, default=0)
     args = ap.parse_args()
+    if args.table or args.null_days:
+        report = {}
+        if args.table:
+            report["detection"] = detection_table(args.episodes)
+        if args.null_days:
+            report["null"] = null_days(args.null_days)
+        print(json.dumps(report))
+        return
     if hasattr(os, "sched_setaffinity"):
         os.sched_setaffinity(0, {min(os.sched_getaffinity(0))})       # one core
     report = {"filter": filter_rate(farm_stream(args.days)), "goal_contacts_per_s": 200_000,

@@ -35,13 +35,35 @@ bins outside demand, plus an upper confidence margin) and clipped to [floor, 4 �
 tank (0.01 /s) gets k = 10, a tank whose turbulence exceeds the contract is protected anyway.
 The estimate starts at ``turbulence_max_hz``, so a fresh filter is conservative.
 
-*What that buys, and the limit nobody can beat.* A Poisson fish episode at rate r gives about
-60(r + b)(1 - e^-r)/r occupied seconds by the 60 s deadline. With k = 18 (b = 0.05) detection
-within 60 s is near certain for r ≥ 0.45 /s, ~75 % at 0.3 /s, ~20 % at 0.2 /s; with k = 10
-(b = 0.01) near certain for r ≥ 0.3 /s. A Poisson episode at 0.1 /s has 6 contacts on average by
-60 s and ≤ 2 with probability 6 %, while 0.05 /s turbulence alone gives 3: no test separates
-them in 60 s with a false-alarm rate near 0. Slow episodes are caught later if they persist.
-Regular (periodic) fish are easier: no Poisson spread.
+*The beat.* Fish bumping at a steady pace are far from Poisson, which the count ignores. m
+cycles of a lattice of period P in ``beat_period_s`` (2–12 s), one contact each within ±δP of
+its point (δ = 0.15 and 0.35: tight and loose beats; turbulence in between ignored), ending at
+the latest contact, have surprise S = m·(-log 2δPb) under turbulence b. A union bound over all
+lattices (controller/demand_stats.py: the search, the bound and its simulation) gives λ for
+``beat_false_alarms_per_day`` (1e-4, half per δ) over the b·86,400 contacts of a day: ~24 at
+b = 0.05, ~21 at 0.01. Only single contacts count (a fish bump is one contact; two within
+``beat_single_s`` are a burst's), outside bins of > 4; a cycle whose window a dropped burst
+covered may pass empty. Raised on the contact that ends the beat, never repeated by it.
+
+*What that buys, and the limits.* Share of 2-minute episodes with a demand within 60 s
+(``bench/bench_demand.py --table``: 200 per cell, two sensors, bursts 4 /h; regular j: each
+contact moved by up to ±j of the period; paced j: each interval ±j):
+
+    rate /s                0.1   0.15  0.2   0.25  0.3   0.45
+    Poisson       b=0.01   0.00  0.09  0.34  0.71  0.90  0.98
+                  b=0.05   0.00  0.00  0.01  0.07  0.25  0.82
+    regular j=0.1 b=0.01   0.00  0.97  1.00  1.00  1.00  1.00
+                  b=0.02   0.00  0.75  0.99  1.00  1.00  1.00
+                  b=0.05   0.00  0.00  0.85  0.99  1.00  1.00
+    regular j=0.3 b=0.05   0.00  0.00  0.04  0.77  0.97  1.00
+    paced j=0.3   b=0.02   0.00  0.04  0.96  1.00  1.00  1.00
+                  b=0.05   0.00  0.00  0.07  0.79  0.98  1.00
+
+A Poisson episode at 0.1 /s has 6 contacts on average by 60 s and ≤ 2 with probability 6 %,
+while 0.05 /s turbulence alone gives 3: no test separates them in 60 s with a false-alarm rate
+near 0. Nor a beat at 0.1 /s (5 cycles: S ≤ 5 × 3.5 < λ even at b = 0.01), nor a loose beat at
+0.2 /s at b = 0.05 (11 × 1.7 < 24). Slow episodes are caught later by the count if they persist.
+No false demand in 2,900 simulated tank-days of turbulence (0.01-0.05 /s) and bursts (4-30 /h).
 
 *Episodes and repeats.* One demand when the score first reaches k, raised on the contact that
 made it, and only if that contact followed the previous one within the episode's own pace
@@ -50,9 +72,11 @@ contact is turbulence tens of seconds later, or a burst, and must not be the one
 The tank is "in demand" until its busy seconds (exclusions ignored) fall below ``end_fraction``
 x k. While in demand a demand is repeated at most every ``repeat_s``, on fresh evidence only:
 ``repeat_contacts`` busy seconds after the repeat fell due, each gap <= 3 x pace, the last <= 1 x
-pace. Residual risk: a turbulence contact right after an episode's end can still be the raising
-one (~b x pace / (r x repeat_s) per long episode). Measured: 2 in 120 simulated tank-days at
-0.01-0.05 /s turbulence, both chatter bursts starting within 0.3 s of an episode's end.
+pace, spanning >= half their share of the window (a burst's seconds come faster). Residual
+risk: a turbulence contact right after an episode's end can still be the raising one (~b x pace
+/ (r x repeat_s) per long episode). Over 3,200 simulated tank-days (8 episodes a day, 0.1-2 /s,
+1-10 min, Poisson, regular or paced, 0.02-0.05 /s, bursts 4 /h): 37 demands outside an episode
+(41 before the beat and the span rule), 32 of them repeats 0-36 s after an end, 1 a beat's.
 
 *Faults.* Stuck: a sensor's own count is ≥ 0.9 × stuck_rate_hz × 5 in ≥ ``stuck_share`` of its
 5 s bins over ``stuck_window_s`` (fish at 2 /s exceed that in 21 % of bins, a 3 /s stuck sensor in
@@ -63,7 +87,9 @@ tank's contacts misses 30 active bins with probability < 1e-3); its next contact
 A tank with one sensor cannot tell a dead sensor from calm fish and never reports one.
 
 Performance: on_contact does O(1) work with no allocation on the common path (a contact in an
-already occupied second, or a tank far below threshold returns a shared empty tuple).
+already occupied second, or a tank far below threshold returns a shared empty tuple); the beat
+search runs only on single contacts of a tank with enough of them, capped at
+``beat_search_nodes``.
 """
 from __future__ import annotations
 
@@ -73,9 +99,10 @@ from dataclasses import dataclass
 
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
+from controller.demand_stats import HEALTHY, STUCK, Beats, Sensor, SensorTests, beat_tests, threshold
+
+__all__ = ["Demand", "DemandFilter", "DemandParams", "SensorFault", "SensorRecovered", "threshold"]
 _NONE: tuple = ()
-HEALTHY, STUCK, DEAD = 0, 1, 2
-DAY_S = 86400.0
 
 
 @dataclass(frozen=True, slots=True)
@@ -125,6 +152,12 @@ class DemandParams(BaseModel):
     recover_s: float = Field(60.0, gt=0)
     dead_after_s: float = Field(300.0, gt=0)
     dead_active_bins: int = Field(20, ge=1)
+    beat_false_alarms_per_day: float = Field(1e-4, gt=0, lt=10)
+    beat_jitter: tuple[float, ...] = Field((0.15, 0.35), min_length=1, max_length=4,
+                                           description="beat tolerances, ± share of the period")
+    beat_period_s: tuple[float, float] = (2.0, 12.0)
+    beat_search_nodes: int = Field(30, ge=1)
+    beat_single_s: float = Field(0.5, ge=0, description="closer contacts are a burst's, not a beat's")
 
     @model_validator(mode="after")
     def _shape(self):
@@ -134,34 +167,22 @@ class DemandParams(BaseModel):
             raise ValueError("slot_s must not exceed bin_s")
         if self.turbulence_floor_hz > self.turbulence_max_hz:
             raise ValueError("turbulence_floor_hz must not exceed turbulence_max_hz")
+        if not all(0 < d <= 0.45 for d in self.beat_jitter):
+            raise ValueError("beat_jitter values must lie in (0, 0.45]")
+        if not 0 < self.beat_period_s[0] < self.beat_period_s[1]:
+            raise ValueError("beat_period_s must be (shortest, longest) > 0")
         return self
-
-
-def threshold(b_hz: float, window_s: float, per_day: float, k_min: int) -> int:
-    """Least k ≥ k_min whose sliding-window upcrossing rate under Poisson(b) is ≤ per_day."""
-    mean = b_hz * window_s
-    k = k_min
-    while DAY_S * b_hz * math.exp((k - 1) * math.log(mean) - mean - math.lgamma(k)) > per_day:
-        k += 1
-    return k
-
-
-class _Sensor:
-    __slots__ = ("name", "n", "last", "mark", "state", "fast")
-
-    def __init__(self, name: str, t: float, mark: int):
-        self.name, self.n, self.last, self.mark, self.state, self.fast = name, 0, t, mark, HEALTHY, 0
 
 
 class _Tank:
     __slots__ = ("name", "sensors", "bin_end", "slot", "cur", "raw", "excl", "excl_next", "vals",
                  "raws", "head", "vsum", "rsum", "m_old", "p1", "p2", "k", "bg_n", "bg_t",
                  "demanding", "last_raise", "fresh", "recent", "active", "last_t",
-                 "occ", "occs", "osum")
+                 "occ", "occs", "osum", "beats", "grid_i")
 
-    def __init__(self, name: str, n_bins: int, k: int, bg_n: float, bg_t: float):
+    def __init__(self, name: str, n_bins: int, k: int, bg_n: float, bg_t: float, beats: Beats):
         self.name = name
-        self.sensors: dict[str, _Sensor] = {}
+        self.sensors: dict[str, Sensor] = {}
         self.bin_end = -math.inf
         self.slot = -1
         self.cur = self.raw = 0                     # current bin: occupied slots, contacts
@@ -177,6 +198,7 @@ class _Tank:
         self.last_t = -math.inf                     # the previous contact in a new second
         self.occ = self.osum = 0                    # busy seconds, excluded bins included
         self.occs = [0] * (n_bins - 1)
+        self.beats, self.grid_i = beats, -1
 
 
 class DemandFilter:
@@ -187,15 +209,15 @@ class DemandFilter:
         self._bin, self._inv_slot = p.bin_s, 1.0 / p.slot_s
         self._n = max(6, round(p.window_s / p.bin_s))
         self._chatter = max(2, math.ceil(p.chatter_hz * p.bin_s))
-        self._stuck_n = max(2, math.floor(0.9 * p.stuck_rate_hz * p.bin_s))
-        self._stuck_bins = max(1, round(p.stuck_window_s / p.bin_s))
-        self._stuck_need = max(1, math.ceil(p.stuck_share * self._stuck_bins))
-        self._recover_mask = (1 << max(1, round(p.recover_s / p.bin_s))) - 1
+        self._faults = SensorTests(p)
         self._alpha = math.exp(-p.bin_s / p.background_tau_s)
         hi = 4.0 * p.turbulence_max_hz
         self._b_grid = [p.turbulence_floor_hz * (hi / p.turbulence_floor_hz) ** (i / 63) for i in range(64)]
-        self._k_grid = [threshold(b, self._n * p.bin_s, p.false_alarms_per_day, p.min_contacts)
-                        for b in self._b_grid]
+        self._window = self._n * p.bin_s
+        self._k_grid = [threshold(b, self._window, p.false_alarms_per_day, p.min_contacts) for b in self._b_grid]
+        self._beat_grid = [beat_tests(b, p.beat_jitter, p.beat_false_alarms_per_day, p.beat_period_s,
+                                      self._window) for b in self._b_grid]
+        self._beat_bin = math.ceil(p.bin_s / p.beat_period_s[0]) + 1   # more in a bin: a burst
         self._fixed = tanks is not None
         self._tanks: dict[str, _Tank] = {}
         self.ignored = 0                            # contacts from unknown tanks/sensors
@@ -203,7 +225,7 @@ class DemandFilter:
         for tank, sensors in (tanks or {}).items():
             ts = self._new_tank(tank)
             for s in sensors:
-                ts.sensors[s] = _Sensor(s, -math.inf, 0)
+                ts.sensors[s] = Sensor(s, -math.inf, 0)
 
     # -- public -------------------------------------------------------------------------------
     def on_contact(self, t: float, tank: str, sensor: str):
@@ -227,15 +249,17 @@ class DemandFilter:
         if ts.raw >= self._chatter:
             self._chatter_bin(ts)
         slot = int(t * self._inv_slot)
-        if slot <= ts.slot:
-            return events or _NONE
-        ts.slot = slot
-        ts.occ += 1
-        if not ts.excl:
-            ts.cur += 1
-        if ts.demanding or ts.vsum + ts.cur >= ts.k:
-            events = self._decide(ts, t, events)
-        ts.last_t = t
+        if slot > ts.slot:
+            ts.slot = slot
+            ts.occ += 1
+            if not ts.excl:
+                ts.cur += 1
+            if ts.demanding or ts.vsum + ts.cur >= ts.k:
+                events = self._decide(ts, t, events)
+            ts.last_t = t
+        if (ts.beats.contact(t, ts.raw, ts.excl) and not ts.demanding
+                and t - ts.last_raise >= self.params.repeat_s and ts.beats.found(t)):
+            events = self._start(ts, t, events)       # a beat: regular fish, see demand_stats
         return events or _NONE
 
     def on_time(self, t: float) -> list:
@@ -275,9 +299,7 @@ class DemandFilter:
             if (score < ts.k or t - ts.last_t > pace or t - ts.last_raise < p.repeat_s
                     or ts.raw > 3 * ts.occ + 1):             # a clump of contacts: chatter starting
                 return events
-            ts.demanding, ts.last_raise, ts.fresh = True, t, 0
-            self._unlearn_window(ts)
-            return self._raise(ts, t, events)
+            return self._start(ts, t, events)
         if ts.osum + ts.occ < p.end_fraction * ts.k:
             ts.demanding = False
             return events
@@ -292,10 +314,16 @@ class DemandFilter:
             del recent[0]
         if (len(recent) == p.repeat_contacts and score >= ts.k and not ts.excl and ts.raw <= 3 * ts.occ + 1
                 and t - recent[-2 if len(recent) > 1 else 0] <= pace
+                and t - recent[0] >= 0.5 * (len(recent) - 1) * pace      # not a burst's seconds
                 and all(b - a <= 3.0 * pace for a, b in zip(recent, recent[1:], strict=False))):
             ts.last_raise, ts.fresh = t, 0
             return self._raise(ts, t, events)
         return events
+
+    def _start(self, ts: _Tank, t: float, events):
+        ts.demanding, ts.last_raise, ts.fresh = True, t, 0
+        self._unlearn_window(ts)
+        return self._raise(ts, t, events)
 
     def _unlearn_window(self, ts: _Tank) -> None:
         """The window that made a demand was the episode's start, not turbulence: take it back
@@ -305,10 +333,8 @@ class DemandFilter:
         ts.bg_t = max(self._bin, ts.bg_t - self._bin * len(ts.vals))
 
     def _raise(self, ts: _Tank, t: float, events):
-        rate = (ts.rsum + (0 if ts.excl else ts.raw)) / (self._n * self._bin)
-        out = list(events) if events else []
-        out.append(Demand(ts.name, t, rate))
-        return out
+        rate = (ts.rsum + (0 if ts.excl else ts.raw)) / self._window
+        return [*(events or ()), Demand(ts.name, t, rate)]
 
     def _chatter_bin(self, ts: _Tank) -> None:
         """This bin is too fast for fish: it counts for nothing. At twice the chatter rate (no
@@ -323,6 +349,7 @@ class DemandFilter:
             ts.rsum -= ts.raws[last]
             ts.vals[last] = ts.raws[last] = ts.p1 = 0
             ts.m_old = self._max3(ts)
+            ts.beats.forget(ts.bin_end - 2 * self._bin, ts.bin_end)
 
     def _clump(self, ts: _Tank, h: int) -> None:
         """A quiet tank (the other 50 s of the window hold few busy seconds), then 10 s with >=
@@ -336,6 +363,7 @@ class DemandFilter:
             ts.rsum -= raw
             ts.vals[h] = ts.vals[prev] = ts.raws[h] = ts.raws[prev] = ts.p1 = ts.p2 = 0
             ts.excl_next = True                     # and the bin that follows
+            ts.beats.forget(ts.bin_end - 2 * self._bin, ts.bin_end)
 
     def _max3(self, ts: _Tank) -> int:
         vals, h, n = ts.vals, ts.head, len(ts.vals)
@@ -349,17 +377,25 @@ class DemandFilter:
             ts.bin_end = (math.floor(t / self._bin) + 1) * self._bin
             return None
         steps = int((t - ts.bin_end) // self._bin) + 1
-        events = None
         n = len(ts.vals)
-        events = self._judge_sensors(ts, ts.bin_end + (steps - 1) * self._bin, steps)
+        t_judged = ts.bin_end + (steps - 1) * self._bin          # stuck and dead sensor tests
+        judged = self._faults.judge(ts.sensors, ts.active, t_judged, steps)
+        events = [SensorRecovered(ts.name, s, t_judged) if kind is None else SensorFault(ts.name, s, t_judged, kind)
+                  for s, kind in judged] if judged else None
+        if ts.raw > self._beat_bin or (ts.excl and ts.raw):   # a bin too busy for a beat
+            ts.beats.forget(ts.bin_end - self._bin, ts.bin_end)
         for _ in range(min(steps, n + 1)):
             self._close_bin(ts)
+        ts.m_old = self._max3(ts) if ts.vsum else 0
         if steps > n + 1:                           # a long silence: the window is empty
             a = self._alpha ** (steps - (n + 1))
             ts.bg_n *= a
             ts.bg_t = ts.bg_t * a + self._bin * (1 - a) / (1 - self._alpha)
         ts.bin_end += steps * self._bin
-        ts.k = self._k_grid[min(63, bisect.bisect_left(self._b_grid, self._background(ts)))]
+        self._thresholds(ts)
+        beats, old = ts.beats, ts.bin_end - self._bin - self._window
+        if (beats.times and beats.times[0] < old) or beats.gaps:
+            beats.trim(old)
         if ts.demanding and ts.osum + ts.occ < self.params.end_fraction * ts.k:
             ts.demanding = False
         return events
@@ -377,7 +413,6 @@ class DemandFilter:
         ts.p2, ts.p1 = ts.p1, v
         if v:
             self._clump(ts, h)
-        ts.m_old = self._max3(ts)
         if not ts.demanding:                        # background: bins outside demand, clipped at 2
             v = ts.vals[h]                          # (P[v > 2] = 0.7 % at 0.05 /s)
             ts.bg_n = ts.bg_n * self._alpha + (v if v < 2 else 2)
@@ -393,34 +428,9 @@ class DemandFilter:
         return max(self.params.turbulence_floor_hz, b)
 
     # -- sensors ------------------------------------------------------------------------------
-    def _judge_sensors(self, ts: _Tank, t: float, bins: int):
-        """Stuck and dead tests when the current bin closes, followed by ``bins - 1`` empty ones."""
-        events = None
-        full = (1 << self._stuck_bins) - 1
-        shift = min(bins - 1, self._stuck_bins)
-        for s in ts.sensors.values():
-            s.fast = ((((s.fast << 1) | (s.n >= self._stuck_n)) << shift) & full)
-            s.n = 0
-            ev = None
-            if s.state == HEALTHY:
-                if s.fast.bit_count() >= self._stuck_need:
-                    s.state, ev = STUCK, SensorFault(ts.name, s.name, t, "stuck")
-                elif (len(ts.sensors) > 1 and t - s.last >= self.params.dead_after_s
-                      and ts.active - s.mark >= self.params.dead_active_bins):
-                    s.state, ev = DEAD, SensorFault(ts.name, s.name, t, "dead")
-            elif s.state == STUCK and not (s.fast & self._recover_mask):
-                s.state, ev = HEALTHY, SensorRecovered(ts.name, s.name, t)
-                s.mark = ts.active
-            if ev is not None:
-                events = events or []
-                events.append(ev)
-        return events
-
-    def _revive(self, ts: _Tank, s: _Sensor, t: float, events):
+    def _revive(self, ts: _Tank, s: Sensor, t: float, events):
         s.state = HEALTHY
-        out = list(events) if events else []
-        out.append(SensorRecovered(ts.name, s.name, t))
-        return out
+        return [*(events or ()), SensorRecovered(ts.name, s.name, t)]
 
     def _unknown(self, t: float, tank: str, sensor: str):
         if self._fixed:
@@ -428,13 +438,21 @@ class DemandFilter:
             self.unknown.add((tank, sensor))
             return None
         ts = self._tanks.get(tank) or self._new_tank(tank)
-        s = ts.sensors[sensor] = _Sensor(sensor, t, ts.active)
+        s = ts.sensors[sensor] = Sensor(sensor, t, ts.active)
         return s
 
     def _new_tank(self, tank: str) -> _Tank:
         p = self.params
         t0 = 900.0                                  # the prior: 15 min at the contract's bound
-        ts = _Tank(tank, self._n, 0, p.turbulence_max_hz * t0, t0)
-        ts.k = self._k_grid[min(63, bisect.bisect_left(self._b_grid, self._background(ts)))]
+        ts = _Tank(tank, self._n, 0, p.turbulence_max_hz * t0, t0,
+                   Beats(self._window, p.beat_single_s, p.beat_period_s[0], p.beat_search_nodes, self._beat_bin))
+        self._thresholds(ts)
         self._tanks[tank] = ts
         return ts
+
+    def _thresholds(self, ts: _Tank) -> None:
+        """Both tests' thresholds from the tank's turbulence, rounded up on the grid."""
+        i = min(63, bisect.bisect_left(self._b_grid, self._background(ts)))
+        if i != ts.grid_i:
+            ts.grid_i, ts.k = i, self._k_grid[i]
+            ts.beats.tests, ts.beats.least = self._beat_grid[i]

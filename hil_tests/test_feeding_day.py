@@ -14,8 +14,10 @@ WARMUP_S = 120.0          # the filter needs its window of evidence before it ca
 
 @pytest.mark.hil
 def test_a_farm_day_is_fed_on_demand_within_rations(tmp_path):
-    # a stuck and a dead sensor every few days per tank: a couple of each over the farm's day
-    farm = HilFarm(tmp_path, speed=SPEED, overrides={"sim": {"fish": {"stuck_per_day": 0.3, "dead_per_day": 0.3}}})
+    # a stuck and a dead sensor every few days per tank (a couple of each over the farm's day),
+    # and line noise on the contact hub's serial line
+    farm = HilFarm(tmp_path, speed=SPEED, overrides={"sim": {"fish": {"stuck_per_day": 0.3, "dead_per_day": 0.3},
+                                                             "contacts": {"noise_per_s": 5.0}}})
     try:
         farm.start_sim()
         farm.start_controller()

@@ -4,7 +4,8 @@ Pure functions of a numpy ``Generator``: the demand filter's tests and benchmark
 and ``SimTank`` (devices/sim/fish.py) draws its turbulence and faults from the same functions,
 so the simulator and the tests speak about the same physics.
 
-- fish demand:  sustained contacts at 0.1–2 /s for 1–10 min, Poisson or regular (jittered);
+- fish demand:  sustained contacts at 0.1–2 /s for 1–10 min, Poisson, regular (a jittered beat)
+                or paced (jittered intervals);
 - turbulence:   sparse Poisson contacts below 0.05 /s, and chatter bursts of 3–20 /s for < 10 s;
 - faults:       a stuck sensor (a fixed high rate, for minutes) and a dead one (silent for minutes).
 
@@ -112,14 +113,30 @@ def regular_times(rng: np.random.Generator, rate_hz: float, t0: float, t1: float
     return np.sort(t[(t >= t0) & (t < t1)])
 
 
+def paced_times(rng: np.random.Generator, rate_hz: float, t0: float, t1: float,
+                jitter: float = 0.1) -> np.ndarray:
+    """Contacts at a steady pace: each interval is 1/rate ± up to ``jitter`` of it (a renewal
+    process; unlike ``regular_times`` the phase wanders), the first at a random phase."""
+    period = 1.0 / rate_hz
+    n = int((t1 - t0) * rate_hz / (1.0 - jitter)) + 2
+    gaps = period * (1.0 + rng.uniform(-jitter, jitter, n))
+    t = t0 + rng.uniform(0, period) + np.concatenate(([0.0], np.cumsum(gaps[:-1])))
+    return t[t < t1]
+
+
+PATTERNS = {"regular": regular_times, "paced": paced_times}
+
+
 def fish_demand(rng, tank: str, sensors, start: float, duration_s: float, rate_hz: float,
-                pattern: str = "poisson") -> Stream:
-    """Hungry fish bumping the tank's sensors at ``rate_hz`` (whole tank) for ``duration_s``."""
+                pattern: str = "poisson", jitter: float = 0.1) -> Stream:
+    """Hungry fish bumping the tank's sensors at ``rate_hz`` (whole tank) for ``duration_s``:
+    "poisson", "regular" (a strict beat, each contact moved by up to ±jitter of the period) or
+    "paced" (each interval the period ±jitter)."""
     end = start + duration_s
     if pattern == "poisson":
         t = poisson_times(rng, rate_hz, start, end)
     else:
-        t = regular_times(rng, rate_hz, start, end)
+        t = PATTERNS[pattern](rng, rate_hz, start, end, jitter)
     s = _labelled(t, tank, sensors, rng, FISH)
     s.episodes.append(Episode(tank, start, end, rate_hz, pattern))
     return s
@@ -178,9 +195,10 @@ def episode_starts(rng, t0: float, t1: float, per_day: float, gap_s: float = 120
 def tank_day(rng: np.random.Generator, tank: str = "T1", sensors=("T1-a", "T1-b"), t0: float = 0.0,
              days: float = 1.0, *, episodes_per_day: float = 8.0, rate_hz=(0.1, 2.0),
              duration_s=(60.0, 600.0), pattern: str = "poisson", turbulence_hz: float = 0.05,
-             bursts_per_hour: float = 4.0) -> Stream:
+             bursts_per_hour: float = 4.0, jitter: float = 0.1) -> Stream:
     """A tank over ``days``: fish-demand episodes (rates log-uniform in ``rate_hz``), turbulence
-    all day long, chatter bursts. ``pattern``: "poisson", "regular" or "mixed"."""
+    all day long, chatter bursts. ``pattern``: "poisson", "regular", "paced" or "mixed" (poisson
+    or regular); ``jitter`` for the regular and paced ones."""
     t1 = t0 + days * 86400.0
     parts = [turbulence(rng, tank, sensors, t0, t1, turbulence_hz),
              chatter_bursts(rng, tank, sensors, t0, t1, bursts_per_hour)]
@@ -188,7 +206,7 @@ def tank_day(rng: np.random.Generator, tank: str = "T1", sensors=("T1-a", "T1-b"
     for start in episode_starts(rng, t0, t1, episodes_per_day, max_duration_s=duration_s[1]):
         kind = pattern if pattern != "mixed" else ("poisson", "regular")[rng.integers(0, 2)]
         parts.append(fish_demand(rng, tank, sensors, start, rng.uniform(*duration_s),
-                                 float(np.exp(rng.uniform(lo, hi))), kind))
+                                 float(np.exp(rng.uniform(lo, hi))), kind, jitter))
     return merge(*parts)
 
 
