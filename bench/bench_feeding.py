@@ -64,6 +64,8 @@ def latency() -> dict:
                           "WHERE f.phase = 'done' ORDER BY f.seq").fetchall()
     # the first feed includes the carriage's trip from the food box to the tank: leave it out
     lat_ms = [1000.0 * (starts[r["tag"]] - r["raised"]) for r in rows[1:] if r["tag"] in starts]
+    if not lat_ms:
+        return {"samples": 0, "goal_met": False, "error": "no demand was served at the parked robot"}
     return {"samples": len(lat_ms), "p50_ms": round(pct(lat_ms, 0.5), 1), "p99_ms": round(pct(lat_ms, 0.99), 1),
             "max_ms": round(max(lat_ms), 1), "goal_p99_ms": 50.0, "goal_met": pct(lat_ms, 0.99) <= 50.0}
 
@@ -112,8 +114,8 @@ def day() -> dict:
             "with_startup_wall_s": round(time.monotonic() - started, 1), "goal_wall_s": 60.0,
             "goal_met": day_wall <= 60.0 and not verdict.problems, "problems": verdict.problems[:5],
             "summary": verdict.summary(),
-            "service_p50_s": round(statistics.median(verdict.service_s), 1),
-            "service_max_s": round(max(verdict.service_s), 1)}
+            "service_p50_s": round(statistics.median(verdict.service_s), 1) if verdict.service_s else None,
+            "service_max_s": round(max(verdict.service_s), 1) if verdict.service_s else None}
 
 
 def main(argv: list[str]) -> None:

@@ -17,7 +17,8 @@ from controller.alarms import Alarms
 from controller.bus import Bus
 from controller.config import Config, validate_section
 from controller.demand import Demand, DemandFilter, DemandParams, SensorFault, SensorRecovered
-from controller.feeding.rations import Rations, load_species
+from controller.errors import BadInput
+from controller.feeding.rations import Rations, load_species, ration_payload
 from controller.feeding.robot import FeedingRobot, Job
 from controller.overrides import Overrides
 from controller.simproc import SimProcess
@@ -39,6 +40,19 @@ def build_device(name: str, section: dict, clock, where: str):
     return cls(name, validate_section(cls.Config, section, where, f"devices.{name}"), clock)
 
 
+def check_farm(cfg: Config, species: dict) -> None:
+    """What the sections cannot check alone: every tank's species is known, one device of each kind."""
+    for i, tank in enumerate(cfg.tanks):
+        if tank.species not in species:
+            raise BadInput(cfg.path, f"tanks.{i}.species",
+                           f"unknown species {tank.species!r} (known: {', '.join(sorted(species))})")
+    for kind in ("contacts", "rail", "dispenser"):
+        found = [name for name, s in cfg.devices.items() if s["kind"] == kind]
+        if len(found) != 1:
+            raise BadInput(cfg.path, "devices", f"the feeding robot needs exactly one {kind} device, "
+                                                f"found {len(found)}")
+
+
 class Controller:
     def __init__(self, cfg: Config, clock, *, duration_s: float | None = None):
         self.cfg, self.clock, self.duration_s = cfg, clock, duration_s
@@ -49,6 +63,8 @@ class Controller:
         self.unknown_sensors: set[str] = set()
         self.robot: FeedingRobot | None = None
         self.estop_before_start: str | None = None
+        self.species = load_species()
+        check_farm(cfg, self.species)
 
     # -- life cycle -------------------------------------------------------------
     async def start(self) -> None:
@@ -62,7 +78,7 @@ class Controller:
         self.bus = Bus(cfg.bus, cfg.site)
         self.store = Store(cfg.store.path)
         self.alarms = Alarms(self.store, self.bus.publish, self.clock)
-        self.rations = Rations(cfg, load_species(), self.store)
+        self.rations = Rations(cfg, self.species, self.store)
         self.filter = DemandFilter(validate_section(DemandParams, cfg.demand, cfg.path, "demand"),
                                    {t.id: list(t.sensors) for t in cfg.tanks})
         self.devices = {name: build_device(name, s, self.clock, cfg.path) for name, s in sections.items()}
@@ -134,10 +150,7 @@ class Controller:
                 await asyncio.sleep(1.0)
 
     def _one(self, kind: str):
-        found = [d for d in self.devices.values() if d.kind == kind]
-        if len(found) != 1:
-            raise ValueError(f"the feeding robot needs exactly one {kind} device, config has {len(found)}")
-        return found[0]
+        return next(d for d in self.devices.values() if d.kind == kind)
 
     async def _open(self, device) -> None:
         """Open a device, retrying with back-off for as long as it takes: a farm's controller
@@ -217,13 +230,11 @@ class Controller:
             if date != last_date:
                 last_date = date
                 for tank in self.cfg.tanks:
-                    self._publish_ration(tank.id)
+                    self.publish_ration(tank.id)
             await self.clock.asleep(HOUSEKEEPING_S)
 
-    def _publish_ration(self, tank_id: str) -> None:
-        r = self.rations.today(tank_id, self.clock.now())
-        self.bus.publish(f"tank/{tank_id}/ration", {"date": r.date, "grams": round(r.grams, 1),
-                                                    "fed_g": round(r.fed_g, 1), "pellet_mm": r.pellet_mm})
+    def publish_ration(self, tank_id: str) -> None:
+        self.bus.publish(f"tank/{tank_id}/ration", ration_payload(self.rations.today(tank_id, self.clock.now())))
 
     async def _state_loop(self) -> None:
         while True:

@@ -105,8 +105,6 @@ class Config(Strict):
                 return t
         raise KeyError(tank_id)
 
-    def devices_of(self, kind: str) -> dict[str, dict[str, Any]]:
-        return {n: s for n, s in self.devices.items() if s.get("kind") == kind}
 
 
 def _loc(err: dict) -> str:

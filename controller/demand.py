@@ -103,6 +103,7 @@ from controller.demand_stats import HEALTHY, STUCK, Beats, Sensor, SensorTests, 
 
 __all__ = ["Demand", "DemandFilter", "DemandParams", "SensorFault", "SensorRecovered", "threshold"]
 _NONE: tuple = ()
+FISH_MAX_HZ = 2.0       # the contract's fastest fish
 
 
 @dataclass(frozen=True, slots=True)
@@ -209,6 +210,7 @@ class DemandFilter:
         self._bin, self._inv_slot = p.bin_s, 1.0 / p.slot_s
         self._n = max(6, round(p.window_s / p.bin_s))
         self._chatter = max(2, math.ceil(p.chatter_hz * p.bin_s))
+        self._no_fish = max(self._chatter + 1, math.ceil(2 * FISH_MAX_HZ * p.bin_s))  # twice what fish do
         self._faults = SensorTests(p)
         self._alpha = math.exp(-p.bin_s / p.background_tau_s)
         hi = 4.0 * p.turbulence_max_hz
@@ -337,12 +339,12 @@ class DemandFilter:
         return [*(events or ()), Demand(ts.name, t, rate)]
 
     def _chatter_bin(self, ts: _Tank) -> None:
-        """This bin is too fast for fish: it counts for nothing. At twice the chatter rate (no
+        """This bin is too fast for fish: it counts for nothing. At twice the fastest fish (no
         fish, ever) its neighbours go too: they hold the burst's ramp and tail."""
         if not ts.excl:
             ts.excl = True
             ts.cur = 0
-        if ts.raw == 2 * self._chatter - 10 and not ts.excl_next:
+        if ts.raw == self._no_fish and not ts.excl_next:
             ts.excl_next = True
             last = (ts.head - 1) % len(ts.vals)
             ts.vsum -= ts.vals[last]

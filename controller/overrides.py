@@ -83,14 +83,17 @@ class Overrides:
             return {"ok": False, "error": f"tank: no tank {cmd.tank!r}"}
         if self.c.robot is None:
             return STARTING
-        if self.c.robot.state in ("estop", "manual"):
-            return {"ok": False, "error": f"feeder is in {self.c.robot.state}"}
-        left = self.c.rations.today(cmd.tank, self.c.clock.now()).left_g
-        if left <= 0:
+        robot = self.c.robot
+        if robot.state in ("estop", "manual"):
+            return {"ok": False, "error": f"feeder is in {robot.state}"}
+        if cmd.tank in robot.pending:
+            return {"ok": False, "error": f"tank {cmd.tank} already has a demand waiting: it is being served"}
+        grams = robot.dispensing.portion(cmd.tank, cmd.grams)
+        if grams <= 0:
             return {"ok": False, "error": f"tank {cmd.tank} has had its ration today"}
-        log.warning("feed %s %.0f g by %s: %s", cmd.tank, cmd.grams, cmd.operator, cmd.reason)
-        self.c.robot.on_demand(Job(cmd.tank, self.c.clock.now(), None, "operator", cmd.grams))
-        return {"ok": True, "grams": min(cmd.grams, left)}
+        log.warning("feed %s %.0f g by %s: %s", cmd.tank, grams, cmd.operator, cmd.reason)
+        robot.on_demand(Job(cmd.tank, self.c.clock.now(), None, "operator", grams))
+        return {"ok": True, "grams": round(grams, 1)}
 
     async def ration(self, payload) -> dict:
         cmd = self._parse(SetRation, payload)
@@ -100,7 +103,7 @@ class Overrides:
             return {"ok": False, "error": f"tank: no tank {cmd.tank!r}"}
         log.warning("ration %s = %.0f g by %s: %s", cmd.tank, cmd.grams, cmd.operator, cmd.reason)
         self.c.rations.set(cmd.tank, self.c.clock.now(), cmd.grams, "operator")
-        self.c._publish_ration(cmd.tank)
+        self.c.publish_ration(cmd.tank)
         return {"ok": True}
 
     @staticmethod

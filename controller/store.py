@@ -90,7 +90,7 @@ class Feed:
 @dataclass(frozen=True)
 class Reconciled:
     feed: Feed
-    phase: str          # done | aborted | wait (the auger is still running)
+    phase: str          # done | aborted | wait (the auger is still running) | unknown
     grams: float | None
     note: str
 
@@ -235,8 +235,13 @@ class Store:
             "SELECT COALESCE(SUM(CASE phase WHEN 'done' THEN grams ELSE target_g END), 0) FROM feed "
             "WHERE tank = ? AND date = ? AND phase IN ('done', 'intent')", (tank, date)).fetchone()[0]
 
-    def total_fed_g(self) -> float:
-        return self.db.execute("SELECT COALESCE(SUM(grams), 0) FROM feed WHERE phase = 'done'").fetchone()[0]
+    def learned_rate(self, note: str, last: int = 10) -> tuple[float | None, int]:
+        """(grams per run second, runs) over the last runs closed with ``note`` (runs that ended as
+        timed; partial or jammed runs would teach a wrong rate)."""
+        rows = self.db.execute("SELECT grams, run_s FROM feed WHERE phase = 'done' AND note = ? AND run_s > 1 "
+                               "ORDER BY seq DESC LIMIT ?", (note, last)).fetchall()
+        run_s = sum(r["run_s"] for r in rows)
+        return (sum(r["grams"] for r in rows) / run_s if run_s > 0 else None), len(rows)
 
     def feeds(self) -> list[Feed]:
         return [Feed(**dict(r)) for r in self.db.execute("SELECT * FROM feed ORDER BY seq")]

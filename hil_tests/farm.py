@@ -73,10 +73,10 @@ class HilFarm:
 
     # -- processes ------------------------------------------------------------
     def _spawn(self, args: list[str], log_name: str) -> subprocess.Popen:
-        log = open(self.dir / log_name, "ab")
         env = {**os.environ, "PYTHONUNBUFFERED": "1"}
-        return subprocess.Popen([sys.executable, "-m", "controller.cli", *args], cwd=ROOT, stdout=log,
-                                stderr=subprocess.STDOUT, env=env)
+        with open(self.dir / log_name, "ab") as log:     # the child keeps its own copy of the descriptor
+            return subprocess.Popen([sys.executable, "-m", "controller.cli", *args], cwd=ROOT, stdout=log,
+                                    stderr=subprocess.STDOUT, env=env)
 
     def start_sim(self, timeout_s: float = 30.0) -> dict:
         sim_cfg = self.dir / "sim.toml"

@@ -13,14 +13,16 @@ SPEED = 200.0
 KILLS = 20
 
 
-def wait_for_open_intent(farm: HilFarm, timeout_s: float = 60.0):
-    """Poll the ledger (read-only, beside the controller's WAL writer) for an open intent."""
+def wait_for_open_intent(farm: HilFarm, after_seq: int, timeout_s: float = 60.0):
+    """Poll the ledger (read-only, beside the controller's WAL writer) for a new open intent: not
+    one a previous kill left for the restarted controller to settle."""
     deadline = time.time() + timeout_s
     while time.time() < deadline:
         farm.check_alive()
         try:
             with farm.ledger() as db:
-                row = db.execute("SELECT id, run_s FROM feed WHERE phase = 'intent'").fetchone()
+                row = db.execute("SELECT seq, run_s FROM feed WHERE phase = 'intent' AND seq > ?",
+                                 (after_seq,)).fetchone()
         except sqlite3.OperationalError:       # the ledger does not exist yet
             row = None
         if row is not None:
@@ -38,8 +40,10 @@ def test_sigkill_while_dispensing_neither_loses_nor_repeats(tmp_path):
         farm.start_sim()
         farm.start_controller()
         farm.wait_controller_up()
+        last_seq = 0
         for _ in range(KILLS):
-            feed = wait_for_open_intent(farm)
+            feed = wait_for_open_intent(farm, last_seq)
+            last_seq = feed["seq"]
             # anywhere from just after the intent's commit to just after the auger stops
             time.sleep(rng.uniform(0.0, 1.2 * feed["run_s"] / SPEED))
             farm.kill_controller()

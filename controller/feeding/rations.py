@@ -58,6 +58,11 @@ class Ration:
         return max(0.0, self.grams - self.committed_g)
 
 
+def ration_payload(r: Ration) -> dict:
+    """``farm/{site}/tank/{tank}/ration``."""
+    return {"date": r.date, "grams": round(r.grams, 1), "fed_g": round(r.fed_g, 1), "pellet_mm": r.pellet_mm}
+
+
 class Rations:
     def __init__(self, cfg: Config, species: dict[str, Species], store):
         self.cfg = cfg

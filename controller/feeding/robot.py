@@ -1,10 +1,10 @@
 """The rail feeding robot: serves validated demands tank by tank, within each tank's ration.
 
 The legal moves are the table below (``transitions``); one supervisor task performs the
-action of the current state. An e-stop cancels that action, stops auger and drive at once,
-and wins from any state. Every dispense goes through the ledger (``controller.store``):
-intent committed before the auger starts, closed from the dispenser's own counters after,
-so neither a crash nor an e-stop can lose or repeat one.
+action of the current state. An e-stop stops auger and drive at once, cancels that action,
+and wins from any state — across restarts too: a controller that starts while the e-stop
+alarm stands, or finds the drive e-stopped (its own button), starts in ``estop``, and only an
+operator's reset releases it. Dispensing goes through the ledger (``dispensing.Dispensing``).
 """
 from __future__ import annotations
 
@@ -14,9 +14,9 @@ from dataclasses import dataclass
 
 from transitions import Machine
 
+from controller.feeding.dispensing import AugerJammed, Dispensing
 from controller.feeding.planner import Stop, next_stop
-from controller.store import reconcile
-from devices.errors import DeviceError, DeviceFault, DeviceTimeout
+from devices.errors import DeviceError, DeviceTimeout
 
 log = logging.getLogger("fishfarm.feeder")
 
@@ -37,8 +37,6 @@ TRANSITIONS = [
     ["take_manual",      ["idle", "fault"],          "manual"],
     ["release_manual",   "manual",                   "homing"],
 ]
-OVERSHOOT = 0.15        # auger runs deliver within ±15 % of aim: portions leave that much room
-POLL_WALL_S = 0.0005    # dispenser polling once a run should have ended
 
 
 @dataclass
@@ -50,19 +48,29 @@ class Job:
     grams: float | None = None   # operator's asked portion
 
 
+class DriveEstopped(DeviceError):
+    """The drive reports an e-stop nobody here commanded: its own button, or one before a restart."""
+
+
 class FeedingRobot:
     def __init__(self, cfg, clock, rail, dispenser, store, rations, alarms, publish):
         self.cfg, self.feeding = cfg, cfg.feeding
         self.clock, self.rail, self.dispenser = clock, rail, dispenser
         self.store, self.rations, self.alarms, self.publish = store, rations, alarms, publish
+        self.dispensing = Dispensing(cfg, clock, dispenser, store, rations, alarms, publish)
         self.pending: dict[str, Job] = {}
-        self.rate_g_s = self.feeding.auger_rate_g_s
-        self.hopper_g: float | None = None
         self.failures = 0
-        self._wake = asyncio.Event()
+        self._wake = asyncio.Event()          # a demand came, or an operator acted
+        self._operator = asyncio.Event()      # an operator acted: only this cuts a back-off short
+        self._estop_released = False
         self._action: asyncio.Task | None = None
-        Machine(model=self, states=STATES, transitions=TRANSITIONS, initial="homing",
+        initial = "estop" if "estop" in alarms.active else "homing"
+        Machine(model=self, states=STATES, transitions=TRANSITIONS, initial=initial,
                 auto_transitions=False, after_state_change="_state_changed")
+
+    @property
+    def hopper_g(self) -> float | None:
+        return self.dispensing.hopper_g
 
     # -- what the rest of the controller calls ---------------------------------
     def on_demand(self, job: Job) -> None:
@@ -74,13 +82,13 @@ class FeedingRobot:
         self._wake.set()
 
     async def emergency_stop(self, reason: str) -> None:
-        """Stop auger and drive now, from any state; safe to call twice."""
+        """Stop auger, refill gate and drive now, from any state; safe to call twice."""
+        stops = asyncio.gather(self._guarded(self.dispenser.stop()), self._guarded(self.rail.estop()),
+                               self._guarded(self.dispenser.set_refill(False)))
         first = self.state != "estop"
+        self._cancel_action()
         self.estop()
-        if self._action is not None and not self._action.done():
-            self._action.cancel()
-        results = await asyncio.gather(self._guarded(self.dispenser.stop()), self._guarded(self.rail.estop()))
-        for name, err in zip(("dispenser", "rail"), results, strict=True):
+        for name, err in zip(("auger", "drive", "refill gate"), await stops, strict=True):
             if err is not None:
                 log.error("e-stop: %s did not confirm: %s", name, err)
         if first:
@@ -89,23 +97,25 @@ class FeedingRobot:
     def operator_reset(self) -> str | None:
         """Release an e-stop or cut a fault's back-off short. Returns an error text or None."""
         if self.state == "estop":
+            self._estop_released = True
             self.reset()
             self.alarms.clear("estop", "e-stop released")
         elif self.state == "fault":
             self.failures = 0
         else:
             return f"nothing to reset in state {self.state}"
-        self._wake.set()
+        self._poke()
         return None
 
     def set_manual(self, on: bool) -> str | None:
         if on and self.state in ("idle", "fault"):
+            self._cancel_action()            # hands on: nothing of ours may move
             self.take_manual()
         elif not on and self.state == "manual":
             self.release_manual()
         elif on != (self.state == "manual"):
             return f"cannot {'take' if on else 'release'} manual control in state {self.state}"
-        self._wake.set()
+        self._poke()
         return None
 
     def snapshot(self) -> dict:
@@ -119,14 +129,19 @@ class FeedingRobot:
 
     # -- the supervisor ---------------------------------------------------------
     async def run(self) -> None:
-        while True:
-            self._action = asyncio.create_task(self._step())
-            await asyncio.wait({self._action})
-            if self._action.cancelled():
-                continue                      # an e-stop took over; the state says what next
-            exc = self._action.exception()
-            if exc is not None:
-                self._fault(exc)
+        try:
+            while True:
+                self._action = asyncio.create_task(self._step())
+                await asyncio.wait({self._action})
+                if self._action.cancelled():
+                    continue                  # an e-stop or the operator took over; the state says what next
+                exc = self._action.exception()
+                if exc is not None:
+                    self._fault(exc)
+        finally:                              # cancelled: our action must not outlive us
+            self._cancel_action()
+            if self._action is not None:
+                await asyncio.gather(self._action, return_exceptions=True)
 
     async def _step(self) -> None:
         if self.state == "homing":
@@ -136,10 +151,14 @@ class FeedingRobot:
         elif self.state == "fault":
             await self._recover()
         else:                                  # estop, manual: wait for the operator
-            await self._sleep_or_wake(3600.0)
+            await self._wait(self._operator, 3600.0)
 
     def _fault(self, exc: BaseException) -> None:
         if self.state in ("estop", "manual"):
+            return
+        if isinstance(exc, DriveEstopped):
+            self.estop()
+            self.alarms.raise_("estop", f"emergency stop: {exc.text}", "critical")
             return
         if not isinstance(exc, DeviceError):
             log.error("feeder: unexpected error", exc_info=exc)
@@ -150,56 +169,69 @@ class FeedingRobot:
 
     async def _recover(self) -> None:
         backoff = self.feeding.retry_backoff_s
-        delay = backoff[min(max(self.failures, 1) - 1, len(backoff) - 1)] if self.failures else 0.0
-        await self._sleep_or_wake(delay)
+        delay = backoff[min(self.failures, len(backoff)) - 1] if self.failures else 0.0
+        await self._wait(self._operator, delay)
         if self.state != "fault":
             return
-        state = await self.dispenser.read()
+        state = await self.dispensing.read()
         if state.jammed:
             await self.dispenser.clear_fault()
+        if state.refilling:
+            await self.dispenser.set_refill(False)
         await self._clear_rail()
         self.recover()
 
     async def _clear_rail(self):
-        """Clear a latched drive fault or e-stop once the carriage has come to rest."""
+        """Clear a latched drive fault once the carriage has come to rest; an e-stop only when an
+        operator has released it here."""
         status = await self._rail_status()
+        if status.state == "estop" and not self._estop_released:
+            raise DriveEstopped(self.rail.name, "the drive reports an e-stop")
         if status.state in ("fault", "estop"):
             await self.rail.wait_until(lambda s: s.velocity_m_s == 0, 30.0, stop_on_fault=False)
             await self.rail.clear_fault()
             status = await self.rail.wait_until(lambda s: s.state not in ("fault", "estop"), 30.0,
                                                 stop_on_fault=False)
+        self._estop_released = False
         return status
 
     async def _home(self) -> None:
-        self.hopper_g = None                     # hands may have been on the hopper: look again
+        self.dispensing.hopper_g = None          # hands may have been on the hopper: look again
         status = await self._clear_rail()
         if not status.homed or status.state == "homing":
             if status.state != "homing":
                 await self.rail.home()
             await self.rail.wait_until(lambda s: s.homed and s.state == "idle", self.feeding.move_timeout_s)
-        await self.settle_open_intents()
+        if (await self.dispensing.read()).refilling:   # a refill cut short by a crash or an e-stop
+            await self.dispenser.set_refill(False)
+        waiting = {job.demand_id: job for job in self.pending.values() if job.demand_id is not None}
+        for feed in await self.dispensing.settle(waiting):
+            if feed.demand_id in waiting:
+                self._served(waiting[feed.demand_id], feed)
         self.homed()
-        self.alarms.clear("feeder", "feeder back in service")
 
     async def _idle(self) -> None:
         self._wake.clear()
         self._expire()
         job = await self._next_job()
-        if self.hopper_g is None:      # afterwards every run and refill leaves its reading here
-            self.hopper_g = (await self.dispenser.read()).hopper_g
+        hopper = self.hopper_g if self.hopper_g is not None else (await self.dispensing.read()).hopper_g
         if job is not None:
-            portion = self._portion(job)
+            portion = self.dispensing.portion(job.tank, job.grams)
             if portion <= 0:
                 self._finish(job, "ration_reached")
-            elif self.hopper_g < portion * (1 + OVERSHOOT):
+            elif hopper < portion * (1 + self.dispensing.overshoot):
                 await self._refill()
             else:
                 await self._serve(job)
-                self.failures = 0
-        elif self.hopper_g < self.feeding.refill_below_g:
+        elif hopper < self.feeding.refill_below_g:
             await self._refill()
         else:
-            await self._sleep_or_wake(30.0)
+            await self._wait(self._wake, 30.0)
+
+    def _in_service(self) -> None:
+        """A job done: whatever failed before works again."""
+        self.failures = 0
+        self.alarms.clear("feeder", "feeder back in service")
 
     # -- jobs -----------------------------------------------------------------
     async def _next_job(self) -> Job | None:
@@ -207,7 +239,7 @@ class FeedingRobot:
             return next(iter(self.pending.values()), None)
         now, f = self.clock.now(), self.feeding
         stops = {job.tank: Stop(job.tank, self.cfg.tank(job.tank).position_m, job.t,
-                                f.portion_g / self.rate_g_s) for job in self.pending.values()}
+                                f.portion_g / self.dispensing.rate_g_s) for job in self.pending.values()}
         here = (await self._rail_status()).position_m
         best = next_stop(list(stops.values()), here, now, deadline_s=f.serve_within_s - f.plan_margin_s,
                          speed_m_s=f.rail_speed_m_s, accel_m_s2=f.rail_accel_m_s2)
@@ -217,33 +249,17 @@ class FeedingRobot:
         self.go()
         await self._move_to(self.cfg.tank(job.tank).position_m)
         self.arrive_tank()
-        portion = self._portion(job)          # the day may have turned while travelling
+        portion = self.dispensing.portion(job.tank, job.grams)   # the day may have turned on the way
         if portion > 0:
-            await self._dispense(job, portion)
+            try:
+                self._served(job, await self.dispensing.run(job.tank, portion, job.source, job.demand_id, job.t))
+            except AugerJammed as jam:        # part of a portion went in: the demand was served by it
+                self._served(job, jam.feed)
+                raise
         else:
             self._finish(job, "ration_reached")
         self.dispensed()
-
-    async def _dispense(self, job: Job, portion: float) -> None:
-        state = await self.dispenser.read()
-        self.hopper_g = state.hopper_g
-        if state.jammed or state.running:
-            raise DeviceFault(self.dispenser.name, "jammed" if state.jammed else "auger already running")
-        now = self.clock.now()
-        run_s = portion / self.rate_g_s
-        feed = self.store.add_intent(tank=job.tank, date=self.rations.date(now), t=now, target_g=portion,
-                                     run_s=run_s, cycles_before=state.cycles, source=job.source,
-                                     demand_id=job.demand_id)
-        self._publish_feed(feed)
-        log.info("auger on for %s: %.1f g, %.1f s after the demand", job.tank, portion, now - job.t)
-        await self.dispenser.run_auger(run_s, feed.tag)
-        await self.clock.asleep(run_s)          # the device times the run; look when it should be over
-        state = await self._wait_run_end(feed, self.feeding.dispense_timeout_s)
-        if self._close(feed, state, job) == "done":
-            if not state.jammed and run_s > 1.0 and state.last_grams > 0:
-                self.rate_g_s = 0.7 * self.rate_g_s + 0.3 * state.last_grams / run_s
-        if state.jammed:
-            raise DeviceFault(self.dispenser.name, "auger jammed")
+        self._in_service()
 
     async def _refill(self) -> None:
         self.go()
@@ -253,18 +269,17 @@ class FeedingRobot:
         await self.dispenser.set_refill(True)
         try:
             deadline = self.clock.now() + self.feeding.refill_timeout_s
-            while (state := await self.dispenser.read()).hopper_g < full:
-                self.hopper_g = state.hopper_g
+            while (state := await self.dispensing.read()).hopper_g < full:
                 if self.pending and state.hopper_g >= self.feeding.refill_below_g:
                     break                      # enough for the fish waiting now; top up later
                 if self.clock.now() > deadline:
                     raise DeviceTimeout(self.dispenser.name,
                                         f"hopper not full after refill: {state.hopper_g:.0f} g")
-                await asyncio.sleep(max(POLL_WALL_S, self.clock.wall(0.5)))
-            self.hopper_g = state.hopper_g
+                await asyncio.sleep(max(0.0005, self.clock.wall(0.5)))
         finally:
             await self.dispenser.set_refill(False)
         self.refilled()
+        self._in_service()
 
     async def _move_to(self, position_m: float) -> None:
         tol = self.feeding.position_tolerance_m
@@ -275,55 +290,16 @@ class FeedingRobot:
         await self.rail.wait_until(lambda s: s.state == "idle" and abs(s.position_m - position_m) <= tol,
                                    self.feeding.move_timeout_s)
 
-    # -- the ledger -----------------------------------------------------------
-    async def settle_open_intents(self) -> None:
-        """Close every open intent from the dispenser's counters (after a restart, fault or e-stop)."""
-        for feed in self.store.open_intents():
-            state = await self._wait_run_end(feed, self.feeding.dispense_timeout_s)
-            job = self.pending.get(feed.tank)
-            self._close(feed, state, job if job is not None and job.demand_id == feed.demand_id else None)
-
-    async def _wait_run_end(self, feed, timeout_s: float):
-        deadline = self.clock.now() + timeout_s
-        while True:
-            state = await self.dispenser.read()
-            self.hopper_g = state.hopper_g
-            if reconcile(feed, state).phase != "wait":
-                return state
-            if self.clock.now() > deadline:
-                raise DeviceTimeout(self.dispenser.name, f"auger run {feed.tag} did not end")
-            await asyncio.sleep(POLL_WALL_S)
-
-    def _close(self, feed, state, job: Job | None = None) -> str:
-        """Close ``feed`` from the dispenser's counters; a done feed also serves ``job``."""
-        result = reconcile(feed, state)
-        phase = "done" if result.phase == "done" else "aborted"
-        if result.phase == "unknown":
-            self.alarms.raise_("ledger", f"feed {feed.id} to {feed.tank}: outcome unknown: {result.note}",
-                               "critical")
-        served = job.demand_id if job is not None and phase == "done" else None
-        closed = self.store.close_feed(feed.id, phase, result.grams, self.clock.now(), result.note, served)
-        if job is not None and phase == "done" and self.pending.get(job.tank) is job:
-            del self.pending[job.tank]
-        self._publish_feed(closed)
-        return phase
-
-    def _publish_feed(self, feed) -> None:
-        grams = feed.grams if feed.phase == "done" else feed.target_g
-        self.publish(f"tank/{feed.tank}/feed", {"t": self.clock.iso(feed.t_closed or feed.t_intent),
-                                                "grams": round(grams or 0.0, 1), "phase": feed.phase,
-                                                "id": feed.id}, reliable=True)
-
     # -- helpers --------------------------------------------------------------
-    def _portion(self, job: Job) -> float:
-        portion = self.rations.portion(job.tank, self.clock.now(), OVERSHOOT)
-        return min(portion, job.grams) if job.grams is not None else portion
+    def _served(self, job: Job, feed) -> None:
+        if feed.phase == "done" and self.pending.get(job.tank) is job:
+            del self.pending[job.tank]
 
-    def _finish(self, job: Job, outcome: str, feed_id: str | None = None) -> None:
+    def _finish(self, job: Job, outcome: str) -> None:
         if self.pending.get(job.tank) is job:
             del self.pending[job.tank]
         if job.demand_id is not None:
-            self.store.close_demand(job.demand_id, outcome, feed_id)
+            self.store.close_demand(job.demand_id, outcome)
 
     def _expire(self) -> None:
         horizon = self.clock.now() - self.feeding.demand_expiry_s
@@ -337,21 +313,32 @@ class FeedingRobot:
             status = await self.rail.wait_until(lambda s: True, self.feeding.move_timeout_s)
         return status
 
-    async def _sleep_or_wake(self, farm_s: float) -> None:
+    def _poke(self) -> None:
+        self._operator.set()
+        self._wake.set()
+
+    async def _wait(self, event: asyncio.Event, farm_s: float) -> None:
         try:
-            await asyncio.wait_for(self._wake.wait(), timeout=self.clock.wall(farm_s))
+            await asyncio.wait_for(event.wait(), timeout=self.clock.wall(farm_s))
         except TimeoutError:
             pass
-        self._wake.clear()
+        event.clear()
+
+    def _cancel_action(self) -> None:
+        if self._action is not None and not self._action.done() and self._action is not asyncio.current_task():
+            self._action.cancel()
 
     @staticmethod
     async def _guarded(coro):
         try:
             await asyncio.wait_for(coro, timeout=1.0)
-        except Exception as exc:  # each stop is isolated: one failing must not skip the other
+        except Exception as exc:  # each stop is isolated: one failing must not skip the others
             return exc
         return None
 
     def _state_changed(self) -> None:
         log.info("feeder: %s", self.state)
-        self.publish("feeder/state", self.snapshot(), reliable=True)
+        try:                                  # news, not the record: never let it delay or stop a move
+            self.publish("feeder/state", self.snapshot())
+        except Exception as exc:
+            log.warning("feeder state not published: %s", exc)
