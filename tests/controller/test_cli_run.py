@@ -41,3 +41,19 @@ def test_busy_port_names_the_key(tmp_path):
 def test_bad_options(args):
     r = fishfarm("run", *args)
     assert r.returncode == 2 and len(r.stderr.strip().splitlines()) == 1
+
+
+def test_a_farm_without_a_contact_hub(tmp_path):
+    cfg = tmp_path / "farm.toml"
+    cfg.write_text(TANK)
+    r = fishfarm("run", "--config", str(cfg), "--no-console")
+    assert r.returncode == 2
+    assert r.stderr.strip() == f"fishfarm: {cfg}: devices: the feeding robot needs exactly one contacts device, found 0"
+
+
+def test_unknown_species(tmp_path):
+    cfg = tmp_path / "farm.toml"
+    cfg.write_text(TANK.replace('id = "A"', 'id = "A"\nspecies = "tuna"'))
+    r = fishfarm("run", "--config", str(cfg), "--no-console")
+    assert r.returncode == 2
+    assert r.stderr.strip().startswith(f"fishfarm: {cfg}: tanks.0.species: unknown species 'tuna'")
