@@ -2,6 +2,11 @@
 
 A file with only P1 and P2 is valid input to every command. When D1/D2 are present,
 pixel inputs are undistorted (with K1/K2) before any geometry.
+
+``load_calibration`` refuses what would make the geometry silently wrong, as BadInput naming the
+file and field: P1/P2 missing or null, not 3x4, not finite, singular, or with one camera centre
+(no baseline: nothing can be triangulated); K1/K2 singular or without the (0, 0, 1) last row
+that cv2.undistortPoints assumes.
 """
 from __future__ import annotations
 
@@ -13,6 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from controller.errors import BadInput
+from vision.triangulation import camera_centre
 
 
 @dataclass
@@ -70,6 +76,28 @@ def _matrix(data: dict, name: str, where: str) -> np.ndarray | None:
     return m
 
 
+def _check_invertible(m: np.ndarray, where: str, name: str, what: str) -> None:
+    scale = np.abs(m).max()
+    if scale == 0 or np.linalg.matrix_rank(m, tol=1e-9 * scale) < 3:
+        raise BadInput(where, name, f"singular: {what}")
+
+
+def _check_camera_matrix(K: np.ndarray, where: str, name: str) -> None:
+    """An intrinsic matrix must be invertible and end in (0, 0, 1): undistortion divides by it."""
+    _check_invertible(K, where, name, "not an invertible camera matrix")
+    if not np.allclose(K[2], [0.0, 0.0, 1.0], rtol=0.0, atol=1e-6):
+        raise BadInput(where, name, f"last row {K[2].tolist()}, expected [0, 0, 1]")
+
+
+def _check_baseline(P1: np.ndarray, P2: np.ndarray, where: str) -> None:
+    """Two views from one centre see every point along the same ray: no depth, only garbage."""
+    c1, c2 = camera_centre(P1), camera_centre(P2)
+    baseline = float(np.linalg.norm(c2 - c1))
+    if baseline <= 1e-6 * max(1.0, float(np.linalg.norm(c1)), float(np.linalg.norm(c2))):
+        raise BadInput(where, "P2", f"same camera centre as P1 ({np.round(c1, 3).tolist()}): no baseline, "
+                                    "nothing can be triangulated")
+
+
 def load_calibration(path: str | Path) -> StereoCalibration:
     where = str(path)
     try:
@@ -81,12 +109,15 @@ def load_calibration(path: str | Path) -> StereoCalibration:
     if not isinstance(data, dict):
         raise BadInput(where, None, "expected a JSON object with P1 and P2")
     for name in ("P1", "P2"):
-        if name not in data:
-            raise BadInput(where, name, "missing")
+        if data.get(name) is None:
+            raise BadInput(where, name, "missing" if name not in data else "missing (null)")
     mats = {name: _matrix(data, name, where) for name in ("P1", "P2", "K1", "D1", "K2", "D2", "R", "T")}
     for name in ("P1", "P2"):
-        if np.linalg.matrix_rank(mats[name][:, :3], tol=1e-9 * np.abs(mats[name]).max()) < 3:
-            raise BadInput(where, name, "singular: its left 3x3 block has rank < 3")
+        _check_invertible(mats[name][:, :3], where, name, "its left 3x3 block has rank < 3")
+    _check_baseline(mats["P1"], mats["P2"], where)
+    for name in ("K1", "K2"):
+        if mats[name] is not None:
+            _check_camera_matrix(mats[name], where, name)
     for d, k in (("D1", "K1"), ("D2", "K2")):
         if mats[d] is not None and mats[k] is None:
             raise BadInput(where, d, f"distortion given without {k}")

@@ -23,6 +23,7 @@ import numpy as np
 
 from vision.calib_file import StereoCalibration
 from vision.epipolar import fundamental_from_projections
+from vision.triangulation import undistort_pixels
 
 _SUBPIX = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 30, 0.01)
 _SOLVE = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 100, 1e-7)
@@ -74,10 +75,16 @@ def _spacing(corners: np.ndarray, pattern: tuple[int, int]) -> float:
                      np.linalg.norm(np.diff(grid, axis=1), axis=2).min()))
 
 
-def find_corners(img: np.ndarray, pattern: tuple[int, int]) -> np.ndarray | None:
-    """Sub-pixel inner corners (n, 2) float32 of a grey image (H, W), or None if not found."""
-    # FAST_CHECK: a view without any board is given up in ~0.05 s instead of ~0.5 s
-    flags = cv2.CALIB_CB_ADAPTIVE_THRESH | cv2.CALIB_CB_NORMALIZE_IMAGE | cv2.CALIB_CB_FAST_CHECK
+def find_corners(img: np.ndarray, pattern: tuple[int, int], *, fast_check: bool = True,
+                 subpix_half: int | None = None) -> np.ndarray | None:
+    """Sub-pixel inner corners (n, 2) float32 of a grey image (H, W), or None if not found.
+
+    ``fast_check`` gives up on a view without any board in ~0.05 s instead of ~0.5 s.
+    ``subpix_half``: cornerSubPix's half window; None sizes it from the board (see module docstring).
+    """
+    flags = cv2.CALIB_CB_ADAPTIVE_THRESH | cv2.CALIB_CB_NORMALIZE_IMAGE
+    if fast_check:
+        flags |= cv2.CALIB_CB_FAST_CHECK
     for scale in (1, 2):     # small boards are sometimes only found on an enlarged image
         big = img if scale == 1 else cv2.resize(img, None, fx=scale, fy=scale, interpolation=cv2.INTER_LINEAR)
         found, corners = cv2.findChessboardCorners(big, pattern, flags=flags)
@@ -87,7 +94,7 @@ def find_corners(img: np.ndarray, pattern: tuple[int, int]) -> np.ndarray | None
     else:
         return None
     # half window ~ 0.3 of the smallest corner spacing, 3..11 px: inside one square's neighbourhood
-    half = int(np.clip(0.3 * _spacing(corners, pattern), 3, 11))
+    half = int(np.clip(0.3 * _spacing(corners, pattern), 3, 11)) if subpix_half is None else subpix_half
     refined = cv2.cornerSubPix(img, corners.reshape(-1, 1, 2).astype(np.float32), (half, half), (-1, -1),
                                _SUBPIX)
     return refined.reshape(-1, 2)
@@ -104,8 +111,8 @@ def epipolar_error(corners1, corners2, K1, D1, K2, D2, F) -> float:
     """Mean epipolar error as OpenCV's stereo_calib sample computes it: corners undistorted with
     (K, D, P=K), then per corner |distance to its line from the other image| in image 2 plus the
     same in image 1, averaged over all corners. Lists of (n, 2) arrays, one per pair."""
-    x1 = _undistort(np.concatenate(corners1), K1, D1)
-    x2 = _undistort(np.concatenate(corners2), K2, D2)
+    x1 = undistort_pixels(np.concatenate(corners1), K1, D1)
+    x2 = undistort_pixels(np.concatenate(corners2), K2, D2)
     h1, h2 = np.c_[x1, np.ones(len(x1))], np.c_[x2, np.ones(len(x2))]
     l2, l1 = h1 @ F.T, h2 @ F              # line of x1 in image 2, of x2 in image 1
     d2 = np.abs(np.einsum("ij,ij->i", h2, l2)) / np.hypot(l2[:, 0], l2[:, 1])
@@ -113,19 +120,12 @@ def epipolar_error(corners1, corners2, K1, D1, K2, D2, F) -> float:
     return float(np.mean(d1 + d2))
 
 
-def _undistort(pts: np.ndarray, K, D) -> np.ndarray:
-    pts = np.asarray(pts, np.float64).reshape(-1, 1, 2)
-    if D is None:
-        return pts.reshape(-1, 2)
-    return cv2.undistortPoints(pts, K, D, P=K).reshape(-1, 2)
-
-
 def square_sizes(calib: StereoCalibration, corners1: np.ndarray, corners2: np.ndarray,
                  pattern: tuple[int, int]) -> np.ndarray:
     """3-D distances (mm) between neighbouring corners of one pair's board, triangulated with
     P1/P2 after undistortion: all horizontal then all vertical neighbours."""
-    x1 = _undistort(corners1, calib.K1, calib.D1)
-    x2 = _undistort(corners2, calib.K2, calib.D2)
+    x1 = undistort_pixels(corners1, calib.K1, calib.D1)
+    x2 = undistort_pixels(corners2, calib.K2, calib.D2)
     X = cv2.triangulatePoints(calib.P1, calib.P2, x1.T, x2.T)
     grid = (X[:3] / X[3]).T.reshape(pattern[1], pattern[0], 3)
     return np.concatenate([np.linalg.norm(np.diff(grid, axis=1), axis=2).ravel(),
@@ -206,7 +206,7 @@ def reference_stereo_calib(images1: list[np.ndarray], images2: list[np.ndarray],
     Returns rms_px, epipolar_px (its "average epipolar err"), baseline_squares, pairs used."""
     c1, c2 = [], []
     for a, b in zip(images1, images2, strict=True):
-        found = [_sample_corners(img, pattern) for img in (a, b)]
+        found = [find_corners(img, pattern, fast_check=False, subpix_half=11) for img in (a, b)]
         if found[0] is not None and found[1] is not None:
             c1.append(found[0])
             c2.append(found[1])
@@ -222,14 +222,3 @@ def reference_stereo_calib(images1: list[np.ndarray], images2: list[np.ndarray],
         criteria=(cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 100, 1e-5))
     return {"rms_px": float(rms), "epipolar_px": epipolar_error(c1, c2, K1, D1, K2, D2, F),
             "baseline_squares": float(np.linalg.norm(T)), "pairs": len(c1)}
-
-
-def _sample_corners(img: np.ndarray, pattern: tuple[int, int]) -> np.ndarray | None:
-    flags = cv2.CALIB_CB_ADAPTIVE_THRESH | cv2.CALIB_CB_NORMALIZE_IMAGE
-    for scale in (1, 2):
-        big = img if scale == 1 else cv2.resize(img, None, fx=scale, fy=scale, interpolation=cv2.INTER_LINEAR)
-        found, corners = cv2.findChessboardCorners(big, pattern, flags=flags)
-        if found:
-            corners = (corners.reshape(-1, 1, 2) / scale).astype(np.float32)
-            return cv2.cornerSubPix(img, corners, (11, 11), (-1, -1), _SUBPIX).reshape(-1, 2)
-    return None

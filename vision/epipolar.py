@@ -3,6 +3,9 @@
 Two constructions of the same lines: the fundamental matrix F (``fundamental_from_projections``,
 ``epipolar_lines``) and the paper's eqs. (3)-(4), Ayache's M21, which gives each line as the
 epipole e2 plus a direction (``epipoles``, ``paper_m21``, ``epipolar_directions``).
+
+Convention (both calibrators write it): P gives a positive third homogeneous coordinate (depth) for
+points in front of the camera, whatever the handedness of the world frame.
 """
 from __future__ import annotations
 
@@ -11,12 +14,20 @@ import numpy as np
 from vision.triangulation import camera_centre
 
 
+def _cross_matrix(e: np.ndarray) -> np.ndarray:
+    return np.array([[0, -e[2], e[1]], [e[2], 0, -e[0]], [-e[1], e[0], 0]])
+
+
+def _adjugate(T: np.ndarray) -> np.ndarray:
+    """adj(T) = det(T) T^-1 (3, 3) from the rows t1, t2, t3: columns t2 x t3, t3 x t1, t1 x t2."""
+    t1, t2, t3 = T
+    return np.column_stack([np.cross(t2, t3), np.cross(t3, t1), np.cross(t1, t2)])
+
+
 def fundamental_from_projections(P1: np.ndarray, P2: np.ndarray) -> np.ndarray:
-    """F (3, 3) with x2^T F x1 = 0, from P1, P2 (3, 4). Scaled to unit Frobenius norm."""
-    C1 = np.linalg.svd(P1)[2][-1]                # camera 1 centre, homogeneous (4,)
-    e2 = P2 @ C1                                 # epipole in image 2
-    ex = np.array([[0, -e2[2], e2[1]], [e2[2], 0, -e2[0]], [-e2[1], e2[0], 0]])
-    F = ex @ P2 @ np.linalg.pinv(P1)
+    """F (3, 3) with x2^T F x1 = 0, from P1, P2 (3, 4): [e2]x P2 P1^+. Scaled to unit Frobenius norm."""
+    e2 = epipoles(P1, P2)[1]
+    F = _cross_matrix(e2) @ P2 @ np.linalg.pinv(P1)
     return F / np.linalg.norm(F)
 
 
@@ -27,16 +38,28 @@ def epipolar_lines(F: np.ndarray, pts1: np.ndarray) -> np.ndarray:
     return lines / np.hypot(lines[:, 0], lines[:, 1])[:, None]
 
 
-def _cross_matrix(e: np.ndarray) -> np.ndarray:
-    return np.array([[0, -e[2], e[1]], [e[2], 0, -e[0]], [-e[1], e[0], 0]])
-
-
 def epipoles(P1: np.ndarray, P2: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Projective epipoles (3,) ``(U, V, S)``: e1 = image of camera 2's centre in image 1, e2 = image
     of camera 1's centre in image 2. Pixel position (U/S, V/S); S = 0 puts it at infinity."""
+    P1 = np.asarray(P1, float)
+    P2 = np.asarray(P2, float)
     C1 = np.append(camera_centre(P1), 1.0)
     C2 = np.append(camera_centre(P2), 1.0)
-    return np.asarray(P1, float) @ C2, np.asarray(P2, float) @ C1
+    return P1 @ C2, P2 @ C1
+
+
+def _m21_factors(P1: np.ndarray, P2: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """e2 (3,) and T2hat . adj(T1hat) (3, 3): the image in camera 2 of the vanishing point of the
+    line of sight of (u1, v1, 1). M21 is the first turned into a direction from e2 to the second."""
+    P1 = np.asarray(P1, float)
+    P2 = np.asarray(P2, float)
+    return epipoles(P1, P2)[1], P2[:, :3] @ _adjugate(P1[:, :3])
+
+
+def _towards(e2: np.ndarray) -> np.ndarray:
+    """[[S, 0, -U], [0, S, -V]] (2, 3): a homogeneous point x to S x3 (pixel(x) - pixel(e2))."""
+    U, V, S = e2
+    return np.array([[S, 0.0, -U], [0.0, S, -V]])
 
 
 def paper_m21(P1: np.ndarray, P2: np.ndarray) -> np.ndarray:
@@ -47,27 +70,28 @@ def paper_m21(P1: np.ndarray, P2: np.ndarray) -> np.ndarray:
     T2hat = P2[:, :3] and t_i the rows of P1[:, :3]. The last factor is adj(T1hat): it sends
     (u1, v1, 1) to the direction of its line of sight; T2hat images that direction's vanishing
     point, and the first factor turns "from e2 to the vanishing point" into a pixel direction.
-    Scaling P1 by a and P2 by b multiplies M21 by a^2 b^2 > 0: the directions do not depend on how
-    the matrices are scaled or signed.
+    Scaling P1 by a and P2 by b multiplies M21 by a^2 b^2 > 0, so M21 alone cannot tell which way
+    along the line is "farther": ``epipolar_directions`` adds that from the sign of P1.
     """
-    P1 = np.asarray(P1, float)
-    P2 = np.asarray(P2, float)
-    U, V, S = epipoles(P1, P2)[1]
-    t1, t2, t3 = P1[:, :3]
-    adj1 = np.column_stack([np.cross(t2, t3), np.cross(t3, t1), np.cross(t1, t2)])
-    return np.array([[S, 0.0, -U], [0.0, S, -V]]) @ P2[:, :3] @ adj1
+    e2, vanishing = _m21_factors(P1, P2)
+    return _towards(e2) @ vanishing
+
+
+def _unit_directions(m21: np.ndarray, P1: np.ndarray, pts1: np.ndarray) -> np.ndarray:
+    # adj(T1hat) = det(T1hat) T1hat^-1 and T1hat^-1 (u1, v1, 1) points to the front of camera 1 when
+    # P1 gives positive depths (our convention): the sign of det turns M21 m1 towards "farther",
+    # for a left-handed world frame (det < 0) as well as a right-handed one.
+    d = np.c_[pts1, np.ones(len(pts1))] @ m21.T
+    d *= np.sign(np.linalg.det(np.asarray(P1, float)[:, :3]))
+    return d / np.hypot(d[:, 0], d[:, 1])[:, None]
 
 
 def epipolar_directions(P1: np.ndarray, P2: np.ndarray, pts1: np.ndarray) -> np.ndarray:
     """Unit directions (N, 2) in image 2 of the epipolar lines of points (N, 2) of image 1, by
-    eq. (3), pointing the way the match moves as the point goes farther from camera 1.
-
-    Because adj(T1hat) = det(T1hat) T1hat^-1, M21 m1 points "farther" when det(T1hat) > 0 for the
-    P1 whose depths are positive, which holds for any right-handed world frame; we take that frame.
-    """
+    eq. (3), pointing the way the match moves as the point goes farther from camera 1. P1 must give
+    positive depths in front of camera 1 (P2's sign does not matter)."""
     pts1 = np.asarray(pts1, dtype=float).reshape(-1, 2)
-    d = np.c_[pts1, np.ones(len(pts1))] @ paper_m21(P1, P2).T
-    return d / np.hypot(d[:, 0], d[:, 1])[:, None]
+    return _unit_directions(paper_m21(P1, P2), P1, pts1)
 
 
 def epipolar_lines_m21(P1: np.ndarray, P2: np.ndarray, pts1: np.ndarray) -> np.ndarray:
@@ -77,18 +101,14 @@ def epipolar_lines_m21(P1: np.ndarray, P2: np.ndarray, pts1: np.ndarray) -> np.n
     +90 degrees, so compare with F's lines up to sign. When e2 is at infinity (parallel axes) the
     lines are anchored instead at the image of the line of sight's point at infinity.
     """
-    P1 = np.asarray(P1, float)
-    P2 = np.asarray(P2, float)
     pts1 = np.asarray(pts1, dtype=float).reshape(-1, 2)
-    direction = epipolar_directions(P1, P2, pts1)
+    e2, vanishing = _m21_factors(P1, P2)
+    direction = _unit_directions(_towards(e2) @ vanishing, P1, pts1)
     normal = np.c_[-direction[:, 1], direction[:, 0]]
-    e2 = epipoles(P1, P2)[1]
     if abs(e2[2]) > 1e-9 * np.hypot(e2[0], e2[1]):
         anchor = np.broadcast_to(e2, (len(pts1), 3))
     else:
-        t1, t2, t3 = P1[:, :3]
-        adj1 = np.column_stack([np.cross(t2, t3), np.cross(t3, t1), np.cross(t1, t2)])
-        anchor = np.c_[pts1, np.ones(len(pts1))] @ (P2[:, :3] @ adj1).T
+        anchor = np.c_[pts1, np.ones(len(pts1))] @ vanishing.T
     with np.errstate(divide="ignore", invalid="ignore"):
         c = -np.einsum("ij,ij->i", normal, anchor[:, :2]) / anchor[:, 2]
     return np.c_[normal, c]

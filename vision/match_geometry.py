@@ -9,6 +9,7 @@ import cv2
 import numpy as np
 
 from vision.epipolar import epipolar_lines
+from vision.triangulation import camera_centre
 
 _REMAP_ROWS = 32_000           # cv2.remap refuses maps of SHRT_MAX rows or more
 
@@ -56,15 +57,16 @@ def segments_by_offset(pts1: np.ndarray, F: np.ndarray, lo_px: float, hi_px: flo
 def segments_by_range(P1: np.ndarray, P2: np.ndarray, pts1: np.ndarray, near_mm: float | np.ndarray,
                       far_mm: float | np.ndarray) -> np.ndarray:
     """Search segments (N, 2, 2) in image 2: images of the points of pts1's lines of sight between
-    ``near_mm`` and ``far_mm`` (scalars or (N,)) from camera 1's centre: a rig's working distance."""
+    ``near_mm`` and ``far_mm`` (scalars or (N,)) from camera 1's centre: a rig's working distance.
+    P1 must give positive depths in front of camera 1, as both calibrators write it."""
     P1 = np.asarray(P1, dtype=float)
     P2 = np.asarray(P2, dtype=float)
     pts1 = np.asarray(pts1, dtype=float).reshape(-1, 2)
-    M1 = P1[:, :3]
-    centre = -np.linalg.solve(M1, P1[:, 3])
-    rays = np.linalg.solve(M1, np.c_[pts1, np.ones(len(pts1))].T).T
-    # X = C + lam * ray images to lam * (u, v, 1): it is in front of camera 1 when lam * det(M1) > 0
-    rays *= np.sign(np.linalg.det(M1)) / np.linalg.norm(rays, axis=1)[:, None]
+    centre = camera_centre(P1)
+    rays = np.linalg.solve(P1[:, :3], np.c_[pts1, np.ones(len(pts1))].T).T
+    # X = C + lam * ray images to lam * (u, v, 1): lam is its depth up to P1's positive scale, so
+    # lam > 0 is in front of camera 1 in a left-handed world frame as much as in a right-handed one
+    rays /= np.linalg.norm(rays, axis=1)[:, None]
     ends = []
     for dist in (near_mm, far_mm):
         dist = np.broadcast_to(np.asarray(dist, dtype=float), (len(pts1),))[:, None]

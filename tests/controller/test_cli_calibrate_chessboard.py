@@ -10,10 +10,12 @@ import numpy as np
 import pytest
 
 from devices.sim.stereo_scene import board_session, random_texture
+from tests.vision.shared_data import SHARED_DATA, needs_data, require
 from vision.calib_file import load_calibration
 
 REPO = Path(__file__).resolve().parents[2]
-DATA = REPO.parent / "shared" / "data" / "stereo-chessboard"
+DATA = SHARED_DATA / "stereo-chessboard"
+IMAGES = "real chessboard images"
 
 
 def fishfarm(*args: str) -> subprocess.CompletedProcess:
@@ -57,8 +59,9 @@ def test_rendered_boards_write_a_calibration_of_the_true_rig(rendered, tmp_path)
     assert calib.extra["pairs_used"] == 8 and calib.extra["square_mm"] == 25.0
 
 
-@pytest.mark.skipif(not DATA.is_dir(), reason=f"real chessboard images absent: {DATA}")
+@needs_data(DATA, IMAGES)            # skip when absent, unless CI / FISHFARM_REQUIRE_DATA: then fail
 def test_real_images(tmp_path):
+    require(DATA, IMAGES)
     out = tmp_path / "CALIB.json"
     run = fishfarm("--left", str(DATA / "left*.jpg"), "--right", str(DATA / "right*.jpg"), "--pattern", "9x6",
                    "--square-mm", "25", "--out", str(out))

@@ -63,6 +63,16 @@ def test_calibrate_writes_p1_p2_and_prints_the_validation_report(calibrated):
     assert f"camera 2 {report['rms_px'][1]:.3f} px" in text
     assert f"median {d['median']:.4f} %" in text and f"p95 {d['p95']:.4f} %" in text
     assert f"max {d['max']:.4f} %" in text
+    # the out-of-sample check: every point predicted by a calibration that never saw it
+    held = report["out_of_sample"]
+    assert held["folds"] == 10 and held["points"] == 100 and held["pairs"] == 4950
+    assert report["rms_px"][0] < held["rms_px"][0] < 2 * report["rms_px"][0]
+    e, hd = held["point_error_mm"], held["distance_error_pct"]
+    assert 0 < e["median"] < e["p95"] < e["max"] < 5
+    assert ("held-out check (10 folds, 100 points" in text and f"camera 1 {held['rms_px'][0]:.3f} px" in text)
+    assert f"point error median {e['median']:.3f} mm" in text and f"p95 {hd['p95']:.4f} %" in text
+    assert report["grid"]["thickness_ratio"] > 0.3 and "ratio 0.322" in text and "warning" not in text
+    assert load_calibration(out).extra["validation"]["out_of_sample"]["points"] == 100
 
 
 def test_triangulate_reconstructs_pairs_in_order(calibrated, tmp_path):
@@ -134,6 +144,10 @@ def _dlt_case(name):
         return "\n".join(good[:6]), ["5 points", "at least 6"]
     if name == "coplanar":
         return "\n".join(good[:51]), ["coplanar"]
+    if name == "thin":           # two layers of one plate 5 mm apart: 3-D only on paper
+        layers = np.vstack([WORLD[:50], WORLD[:50] + [0.0, 5.0, 0.0]])
+        text = [GRID_HEADER] + [",".join(f"{v:.4f}" for v in r) for r in _grid_rows(layers)]
+        return "\n".join(text), ["coplanar", "thickness 2.5 mm", "extent of 143.6 mm", "at least 0.05"]
     if name == "collinear":
         line = np.outer(np.linspace(0, 1, 10), [300.0, 200.0, 100.0])
         text = [GRID_HEADER] + [",".join(f"{v:.4f}" for v in r) for r in _grid_rows(line)]
@@ -151,7 +165,7 @@ def assert_one_line(result, *words):
 
 
 @pytest.mark.parametrize("case", ["empty", "header", "text_cell", "nan_cell", "short_row", "five_points",
-                                  "coplanar", "collinear"])
+                                  "coplanar", "thin", "collinear"])
 def test_bad_grid_exits_2_with_one_line_naming_file_and_fault(case, tmp_path):
     text, words = _dlt_case(case)
     grid = tmp_path / "GRID.csv"
@@ -187,10 +201,22 @@ def _calib_text(case):
         return json.dumps({"P1": P, "P2": singular.tolist()}), ["P2", "singular"]
     if case == "not_json":
         return "{P1: oops", ["not valid JSON"]
+    if case == "null_p1":
+        return json.dumps({"P1": None, "P2": RIG.P2.tolist()}), ["P1", "missing (null)"]
+    full = RIG.calibration().to_json() | {"D1": [-0.1, 0.05, 0.0, 0.0, 0.0]}
+    if case == "zero_k1":
+        return json.dumps(full | {"K1": np.zeros((3, 3)).tolist()}), ["K1", "singular"]
+    if case == "k1_last_row":
+        K = RIG.K1.copy()
+        K[2] = [0.0, 0.0, 2.0]
+        return json.dumps(full | {"K1": K.tolist()}), ["K1", "last row", "expected [0, 0, 1]"]
+    if case == "one_centre":
+        return json.dumps({"P1": P, "P2": (3 * RIG.P1).tolist()}), ["P2", "same camera centre", "no baseline"]
     raise KeyError(case)
 
 
-@pytest.mark.parametrize("case", ["no_p1", "singular", "not_json"])
+@pytest.mark.parametrize("case", ["no_p1", "singular", "not_json", "null_p1", "zero_k1", "k1_last_row",
+                                  "one_centre"])
 def test_bad_calibration_file(case, tmp_path):
     text, words = _calib_text(case)
     calib = tmp_path / "CALIB.json"

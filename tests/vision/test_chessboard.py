@@ -2,13 +2,12 @@
 through a rig whose geometry we know."""
 from __future__ import annotations
 
-from pathlib import Path
-
 import cv2
 import numpy as np
 import pytest
 
 from devices.sim.stereo_scene import board_session
+from tests.vision.shared_data import SHARED_DATA, data_status, needs_data, require
 from vision.chessboard import (
     NotEnoughPairs,
     calibrate_pairs,
@@ -20,15 +19,17 @@ from vision.chessboard import (
 )
 from vision.epipolar import fundamental_from_projections
 
-DATA = Path(__file__).resolve().parents[2].parent / "shared" / "data" / "stereo-chessboard"
+DATA = SHARED_DATA / "stereo-chessboard"
+IMAGES = "real chessboard images"
 PATTERN = (9, 6)
 SQUARE = 27.5          # the board's true size is unknown: calibrate with S, expect S back in 3-D
 
-real_data = pytest.mark.skipif(not DATA.is_dir(), reason=f"real chessboard images absent: {DATA}")
+real_data = needs_data(DATA, IMAGES)     # skip when absent, unless CI / FISHFARM_REQUIRE_DATA: then fail
 
 
 @pytest.fixture(scope="module")
 def real_images():
+    require(DATA, IMAGES)
     left = [cv2.imread(str(p), cv2.IMREAD_GRAYSCALE) for p in sorted(DATA.glob("left*.jpg"))]
     right = [cv2.imread(str(p), cv2.IMREAD_GRAYSCALE) for p in sorted(DATA.glob("right*.jpg"))]
     return left, right
@@ -103,6 +104,15 @@ def test_a_pair_with_bad_corners_is_rejected_as_outlier(real_images, real_corner
     assert not result.pairs[4].used and result.pairs[4].reason.startswith("outlier")
     assert sum(p.used for p in result.pairs) == 12 and len(result.corners1) == 12
     assert result.epipolar_px < 0.3
+
+
+@pytest.mark.parametrize("environ, expected", [
+    ({}, "skip"), ({"CI": "true"}, "fail"), ({"FISHFARM_REQUIRE_DATA": "1"}, "fail"), ({"CI": "0"}, "skip"),
+    ({"CI": "false", "FISHFARM_REQUIRE_DATA": ""}, "skip")])
+def test_missing_real_data_fails_in_ci_and_skips_elsewhere(tmp_path, environ, expected):
+    status, reason = data_status(tmp_path / "absent", environ)
+    assert status == expected and str(tmp_path / "absent") in reason
+    assert data_status(tmp_path, {"CI": "true"})[0] == "present"
 
 
 def test_epipolar_error_is_opencv_sum_of_both_distances():

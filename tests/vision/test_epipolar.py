@@ -9,6 +9,7 @@ from devices.sim.stereo_rig import (
     random_points_in_grid_volume,
     two_plane_object,
 )
+from vision.dlt import calibrate_camera
 from vision.epipolar import (
     epipolar_directions,
     epipolar_lines,
@@ -71,14 +72,33 @@ def test_m21_direction_points_the_way_the_match_moves_with_depth():
     np.testing.assert_allclose(np.einsum("ij,ij->i", motion, d), 1.0, atol=1e-9)
 
 
-def test_m21_does_not_depend_on_the_scale_or_sign_of_the_matrices():
+def test_m21_directions_depend_on_the_scale_of_the_matrices_only_through_p1s_depth_sign():
+    """Convention: P gives positive depth in front. Positive scale factors change nothing, nor does
+    P2's sign; negating P1 puts "in front" behind camera 1, so "farther" turns round."""
     M = paper_m21(RIG.P1, RIG.P2)
     p1, _ = RIG.project(POINTS)
     d = epipolar_directions(RIG.P1, RIG.P2, p1)
-    for a, b in ((-3.0, 1.0), (1.0, -0.01), (-2.0, -5.0)):
+    for a, b in ((3.0, 1.0), (1.0, 0.01), (2.0, 5.0), (0.5, -2.0)):
         np.testing.assert_allclose(epipolar_directions(a * RIG.P1, b * RIG.P2, p1), d, atol=1e-12)
+    np.testing.assert_allclose(epipolar_directions(-RIG.P1, RIG.P2, p1), -d, atol=1e-12)
     # M21 itself scales with |a|^2 |b|^2 only: a positive factor
     np.testing.assert_allclose(paper_m21(-2 * RIG.P1, -3 * RIG.P2), 36 * M, atol=1e-9 * 36 * np.abs(M).max())
+
+
+def test_m21_direction_in_a_left_handed_world():
+    """A grid surveyed z-down: the DLT writes P with positive depths and det(P[:, :3]) < 0. The
+    pixels are the same as in the right-handed frame, so must be the way "farther" goes."""
+    mirror = np.diag([1.0, 1.0, -1.0])
+    P1, P2 = (calibrate_camera(POINTS @ mirror, p) for p in RIG.project(POINTS))
+    assert np.linalg.det(P1[:, :3]) < 0
+    p1, _ = RIG.project(POINTS)
+    np.testing.assert_allclose(epipolar_directions(P1, P2, p1), epipolar_directions(RIG.P1, RIG.P2, p1),
+                               atol=1e-9)
+    # and the paper's lines through e2 are still the fundamental matrix's lines
+    lines_f = epipolar_lines(fundamental_from_projections(P1, P2), p1)
+    lines_m = epipolar_lines_m21(P1, P2, p1)
+    sign = np.sign(np.einsum("ij,ij->i", lines_f[:, :2], lines_m[:, :2]))[:, None]
+    np.testing.assert_allclose(lines_m * sign, lines_f, atol=1e-6)
 
 
 def test_epipolar_lines_keep_their_signature():

@@ -7,6 +7,7 @@ import pytest
 
 from devices.sim.stereo_rig import convergent_rig
 from devices.sim.stereo_scene import random_texture, stripes, textured_plane
+from vision.dlt import calibrate_camera
 from vision.epipolar import epipolar_lines, fundamental_from_projections
 from vision.matching import Reject, Weights, match_points, segments_by_offset, segments_by_range
 
@@ -88,6 +89,21 @@ def test_segments_by_range_bracket_the_true_depth(rig, scene):
     narrow = segments_by_range(rig.P1, rig.P2, pts1, 2000.0, 2500.0)     # far behind the plane
     r = match_points(sc.img1, sc.img2, pts1[:100], F, segments=narrow[:100])
     assert np.all(errors(r, truth[:100])[r.valid] > 5)
+
+
+def test_segments_by_range_in_a_left_handed_world(rig, scene):
+    """A grid surveyed z-down: the DLT writes P1, P2 with positive depths and det(P[:, :3]) < 0. The
+    search must still run in front of camera 1, on the same pixels as in the right-handed frame."""
+    sc, pts1, truth, _, segments, _ = scene
+    mirror = np.diag([1.0, 1.0, -1.0])
+    grid = rig.target + 300.0 * np.random.default_rng(8).uniform(-1, 1, (60, 3))
+    P1, P2 = (calibrate_camera(grid @ mirror, p) for p in rig.project(grid))
+    assert np.linalg.det(P1[:, :3]) < 0 and np.linalg.det(P2[:, :3]) < 0
+    left = segments_by_range(P1, P2, pts1, 900.0, 1400.0)
+    np.testing.assert_allclose(left, segments, atol=1e-6)
+    d = left[:, 1] - left[:, 0]
+    frac = np.einsum("ij,ij->i", truth - left[:, 0], d) / np.einsum("ij,ij->i", d, d)
+    assert np.all((frac > 0) & (frac < 1))
 
 
 def test_segments_by_offset_start_at_the_points_own_coordinates():
