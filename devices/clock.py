@@ -62,11 +62,23 @@ class ScaledClock:
 
 @dataclass
 class ManualClock:
-    """A clock that moves only when a test advances it. Sleepers wake when their time comes."""
+    """A clock that moves only when a test advances it. Sleepers wake when their time comes.
+
+    ``asyncio`` sleepers park on a future of their own loop; moving the clock (``advance()`` or
+    assigning ``t``, from any thread) resolves the due ones through ``call_soon_threadsafe``, so
+    an idle sleeper costs nothing.
+    """
 
     t: float = 1_780_000_000.0  # 2026-05-28, an arbitrary farm morning
     speed: float = float("inf")
     _cond: threading.Condition = field(default_factory=threading.Condition, repr=False)
+    _sleepers: list[tuple[float, asyncio.AbstractEventLoop, asyncio.Future]] = field(
+        default_factory=list, repr=False)
+
+    def __setattr__(self, name, value):
+        object.__setattr__(self, name, value)
+        if name == "t" and "_sleepers" in self.__dict__:
+            self._wake_due()
 
     def now(self) -> float:
         return self.t
@@ -77,21 +89,46 @@ class ManualClock:
     def advance(self, seconds: float) -> None:
         with self._cond:
             self.t += seconds
-            self._cond.notify_all()
 
     def sleep(self, farm_seconds: float) -> None:
-        until = self.t + farm_seconds
         with self._cond:
+            until = self.t + farm_seconds
             while self.t < until:
                 self._cond.wait(0.05)
 
     async def asleep(self, farm_seconds: float) -> None:
-        until = self.t + farm_seconds
-        while self.t < until:
-            await asyncio.sleep(0.0005)
+        loop = asyncio.get_running_loop()
+        with self._cond:
+            until = self.t + farm_seconds
+            if self.t >= until:
+                return
+            sleeper = (until, loop, loop.create_future())
+            self._sleepers.append(sleeper)
+        try:
+            await sleeper[2]
+        finally:
+            with self._cond:
+                if sleeper in self._sleepers:
+                    self._sleepers.remove(sleeper)
+
+    def _wake_due(self) -> None:
+        with self._cond:
+            self._cond.notify_all()
+            due = [s for s in self._sleepers if s[0] <= self.t]
+            self._sleepers[:] = [s for s in self._sleepers if s[0] > self.t]
+        for _until, loop, future in due:
+            try:
+                loop.call_soon_threadsafe(_resolve, future)
+            except RuntimeError:        # that loop is closed: its sleeper is gone with it
+                pass
 
     def iso(self, t: float | None = None) -> str:
         return iso(self.now() if t is None else t)
+
+
+def _resolve(future: asyncio.Future) -> None:
+    if not future.done():
+        future.set_result(None)
 
 
 def iso(t: float) -> str:

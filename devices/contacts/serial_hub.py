@@ -51,7 +51,8 @@ def heartbeat_line(seq: int, t: float) -> bytes:
 
 
 class Config(Section):
-    port: str = Field(description="/dev/ttyUSB0, or a pyserial URL")
+    port: str = Field(description="serial device (/dev/ttyUSB0, a pty), or a pyserial URL backed by a "
+                                  "file descriptor (socket://, hwgrep://); not loop:// or rfc2217://")
     baudrate: int = Field(115200, gt=0)
     silence_timeout_s: float = Field(3.0, gt=0, description="wall seconds without a valid line")
 
@@ -79,9 +80,19 @@ class SerialContactHub(ContactSensors):
             self._ser.reset_input_buffer()            # stale lines from before we listened
         except (serial.SerialException, OSError, ValueError) as exc:
             raise LinkDown(self.name, f"cannot open {self.config.port}: {exc}") from None
-        self._fd = self._ser.fileno()
+        # The port is watched by the loop (add_reader), so it needs a file descriptor: a device
+        # path or socket:// has one, loop:// and rfc2217:// do not. Device.open closes the port.
+        try:
+            fd = self._ser.fileno()
+        except (OSError, ValueError, AttributeError) as exc:
+            raise LinkDown(self.name, f"cannot use {self.config.port}: no file descriptor to watch "
+                                      f"({type(exc).__name__}: {exc})") from None
         loop = asyncio.get_running_loop()
-        loop.add_reader(self._fd, self._readable)
+        try:
+            loop.add_reader(fd, self._readable)
+        except (OSError, ValueError) as exc:
+            raise LinkDown(self.name, f"cannot watch {self.config.port}: {exc}") from None
+        self._fd = fd
         self._last_line = loop.time()
 
     async def _close(self) -> None:

@@ -20,7 +20,9 @@ Register map (holding registers; FC3 and FC4 read the same cells). Words are big
 
 Exception responses: 02 address outside the map, or a write to the status block; 03 RUN_MS or
 TAG out of range, TAG equal to RUN_TAG or LAST_TAG, unknown command; 04 START while jammed;
-06 START while running or with the gate open, GATE_OPEN while running.
+06 START while running or with the gate open, GATE_OPEN while running. A START's TAG is checked
+first, so a resent start is refused 03 whatever state its run left; the driver does not rely on
+that: any refused START whose tag the counters show running or done counts as accepted.
 
 Errors: no connection -> LinkDown; no reply after ``retries`` resends -> DeviceTimeout (LinkDown
 if the connection went meanwhile); exception response -> DeviceRefused, a DeviceFault carrying
@@ -120,10 +122,12 @@ class ModbusDispenser(Dispenser):
         try:
             await self._request(f"start of run {tag}", lambda c: c.write_registers(
                 COMMAND_ADDR, block, device_id=self.config.unit))
-        except DeviceRefused as exc:
+        except DeviceRefused:
             # A start resent after a lost reply (by pymodbus or by a restarted controller) is
-            # refused as busy/duplicate; the run it asked for exists, so that is success.
-            if exc.code in (ILLEGAL_VALUE, DEVICE_BUSY) and (await self._read()).fate(tag) != "not_started":
+            # refused, as a duplicate tag, as busy, or as jammed when that very run jammed; the
+            # code depends on the PLC's order of checks. If the run it asked for exists, that is
+            # success, whatever the code: the counters say so.
+            if (await self._read()).fate(tag) != "not_started":
                 return
             raise
 

@@ -3,7 +3,12 @@
 The controller opens ``hub.port`` (the pty's slave path) with the real ``serial`` driver
 (devices/contacts/serial_hub.py, whose docstring has the line protocol). Every ``period_s`` of
 wall time an asyncio task pulls ``contacts_until(clock.now())`` from each ``SimTank``, writes one
-line per contact, in time order across tanks, and a heartbeat every ``heartbeat_s``. Writes are
+line per contact, in time order across tanks, and a heartbeat. The line protocol promises a
+heartbeat at least once a *farm* second, so by default one goes out at the first poll after
+``heartbeat_farm_s`` (half a farm second) of farm time, or ``heartbeat_s`` (0.25 s) of wall
+time, whichever comes first: at 1x that is every 0.25 s, at 1440x every poll (the poll period
+is the floor), and under a ManualClock at the first poll after the test moves time (the wall
+rule keeps a frozen clock's line alive). An explicit ``heartbeat_s`` is the only rule. Writes are
 batched and non-blocking: when the pty is full (no reader, or a reader too slow) whole lines are
 dropped and counted in ``dropped``; their sequence numbers are spent anyway, as a real hub's
 are, so the reader sees the loss. ``noise_per_s`` injects corrupt lines (bad checksum, torn
@@ -17,6 +22,7 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import heapq
+import math
 import os
 import tty
 
@@ -27,6 +33,8 @@ from controller.config import validate_section
 from devices.contacts.serial_hub import contact_line, heartbeat_line
 
 MAX_PENDING = 1 << 16                   # bytes kept for a partial write before dropping lines
+HEARTBEAT_S = 0.25                      # wall: keeps the line alive whatever the farm clock does
+HEARTBEAT_FARM_S = 0.5                  # farm: beats land within a farm second despite poll jitter
 
 
 class SimHubParams(BaseModel):
@@ -35,7 +43,8 @@ class SimHubParams(BaseModel):
     model_config = ConfigDict(extra="forbid", frozen=True)
     period_s: float | None = Field(None, gt=0, le=1, description="how often the tanks are polled; "
                                    "default: 5 ms, shorter in fast simulation (a real hub sends at once)")
-    heartbeat_s: float = Field(0.25, gt=0, le=10)
+    heartbeat_s: float | None = Field(None, gt=0, le=10, description="wall seconds between heartbeats; "
+                                      "default: 0.25 s, and every half farm second in fast simulation")
     noise_per_s: float = Field(0.0, ge=0, description="corrupt lines injected per second")
     seed: int = 0
 
@@ -54,7 +63,9 @@ class SimContactHub:
         # second where the wall allows (at 2880x that is the 1 ms floor)
         default = min(0.005, max(0.001, 1.0 / getattr(clock, "speed", 1.0)))
         self.period_s = params.period_s if params.period_s is not None else default
-        self.heartbeat_s = params.heartbeat_s
+        explicit = params.heartbeat_s is not None
+        self.heartbeat_s = params.heartbeat_s if explicit else HEARTBEAT_S
+        self.heartbeat_farm_s = None if explicit else HEARTBEAT_FARM_S
         self.noise_per_s = params.noise_per_s
         self.rng = np.random.default_rng(params.seed)
         self.sent = self.dropped = self.noise = 0
@@ -88,17 +99,19 @@ class SimContactHub:
 
     async def _serve(self) -> None:
         loop = asyncio.get_running_loop()
-        next_beat = 0.0
+        next_beat = next_farm_beat = -math.inf
+        farm_s = self.heartbeat_farm_s
         while True:
             now = self.clock.now()
             contacts = list(self._contacts(now))
-            beat = loop.time() >= next_beat
+            beat = loop.time() >= next_beat or now >= next_farm_beat
             # noise rides on traffic, ahead of it: every corrupt line is followed by a valid one
             lines = self._noise() if contacts or beat else []
             lines += [contact_line(self._next_seq(), sensor, t) for t, sensor in contacts]
             if beat:
                 lines.append(heartbeat_line(self._next_seq(), now))
                 next_beat = loop.time() + self.heartbeat_s
+                next_farm_beat = math.inf if farm_s is None else now + farm_s
             self._write(lines)
             await asyncio.sleep(self.period_s)
 

@@ -3,14 +3,19 @@
 Motion is trapezoidal (accelerate, cruise, decelerate), planned as a few constant-acceleration
 phases from the carriage's position *and velocity* at the instant of a command, so a new target,
 a stop or an e-stop in mid-travel is exact. Position is a closed-form function of farm time, so
-it is right at any clock speed and between any two looks at it. The drive speaks the frames of
-devices/rail/can_drive.py through any frame port (a python-can bus, or the slcan adapter on a pty).
+it is right at any clock speed and between any two looks at it; the motor keeps its last
+``HISTORY`` profiles, so it is right for an instant before the latest command too (the simulated
+world credits food by where the carriage was when it fell, which it learns after the fact).
+The drive speaks the frames of devices/rail/can_drive.py through any frame port (a python-can
+bus, or the slcan adapter on a pty).
 """
 from __future__ import annotations
 
 import asyncio
 import logging
 import math
+from collections import deque
+from collections.abc import Iterable
 from dataclasses import dataclass
 from typing import Any
 
@@ -23,6 +28,8 @@ log = logging.getLogger(__name__)
 
 _AT = 5e-5            # m: "at" a position (half the 0.1 mm frame resolution)
 _MOTION = ("homing", "moving")
+HISTORY = 64          # profiles kept for looks into the past; the dispenser looks back at most
+                      # to its previous look (run end, a read, 0.1 s of wall while refilling)
 
 
 class SimRailParams(BaseModel):
@@ -70,6 +77,15 @@ class Profile:
     @classmethod
     def rest(cls, t: float, p: float) -> Profile:
         return cls((), t, p)
+
+    @property
+    def start(self) -> float:
+        """The command instant it was planned from."""
+        return self.phases[0].t0 if self.phases else self.t_end
+
+    def cuts(self) -> list[float]:
+        """Instants where the acceleration changes: between them the carriage goes one way."""
+        return [ph.t0 for ph in self.phases] + [self.t_end]
 
     def at(self, t: float) -> tuple[float, float]:
         if t >= self.t_end:
@@ -134,7 +150,7 @@ class SimRailMotor:
         self.params = params
         self.clock = clock
         self.node_id = node_id
-        self._profile = Profile.rest(clock.now(), params.start_m)
+        self._profiles: deque[Profile] = deque([Profile.rest(clock.now(), params.start_m)], maxlen=HISTORY)
         self._state = "unhomed"
         self._homed = False
         self._homing = False             # the profile under way ends on the home switch
@@ -149,12 +165,60 @@ class SimRailMotor:
         self._beat: asyncio.Task | None = None
 
     # --- physics --------------------------------------------------------------------------------
+    @property
+    def _profile(self) -> Profile:
+        return self._profiles[-1]
+
+    @_profile.setter
+    def _profile(self, profile: Profile) -> None:
+        self._profiles.append(profile)       # the old one stays right for the time before
+
+    def _profile_at(self, t: float) -> Profile:
+        """The profile the carriage followed at ``t``: the latest planned at or before it."""
+        profiles = tuple(self._profiles)     # a snapshot: the loop may plan a new one meanwhile
+        return next((p for p in reversed(profiles) if p.start <= t), profiles[0])
+
     def position(self, t: float | None = None) -> float:
         """Where the carriage truly is on the rail (m from the home switch) at farm time ``t``."""
-        return self._profile.at(self.clock.now() if t is None else t)[0]
+        t = self.clock.now() if t is None else t
+        return self._profile_at(t).at(t)[0]
 
     def velocity(self, t: float | None = None) -> float:
-        return self._profile.at(self.clock.now() if t is None else t)[1]
+        t = self.clock.now() if t is None else t
+        return self._profile_at(t).at(t)[1]
+
+    def travel(self, t_from: float, t_to: float, marks: Iterable[float] = ()) -> list[tuple[float, float, float]]:
+        """The carriage's path over farm time [t_from, t_to] as pieces ``(t_a, t_b, position at
+        the middle)``, cut wherever the motion changes and wherever the carriage passes one of
+        the rail positions ``marks``: within a piece it stays on one side of every mark, so what
+        happened over an interval (food falling, the hopper filling) splits exactly by place."""
+        if t_to <= t_from:
+            return []
+        marks = sorted(set(marks))
+        cuts = {t_from, t_to}
+        cuts.update(c for prof in tuple(self._profiles) for c in [prof.start, *prof.cuts()] if t_from < c < t_to)
+        cuts = sorted(cuts)
+        edges = []
+        for a, b in zip(cuts, cuts[1:], strict=False):
+            # between two cuts the carriage goes one way: each mark between its ends is passed once
+            pa, pb = self.position(a), self.position(b)
+            lo, hi = min(pa, pb), max(pa, pb)
+            edges.append(a)
+            edges += [self._passes(a, b, m) for m in (marks if pa <= pb else marks[::-1]) if lo < m < hi]
+        edges.append(t_to)
+        return [(a, b, self.position((a + b) / 2)) for a, b in zip(edges, edges[1:], strict=False) if b > a]
+
+    def _passes(self, a: float, b: float, mark: float) -> float:
+        """When the carriage, going one way over [a, b], passes ``mark`` (bisection to a ulp)."""
+        side = self.position(a) < mark
+        while True:
+            mid = (a + b) / 2
+            if not a < mid < b:
+                return b
+            if (self.position(mid) < mark) == side:
+                a = mid
+            else:
+                b = mid
 
     @property
     def state(self) -> str:
@@ -165,7 +229,7 @@ class SimRailMotor:
         """What the drive would say now: the encoder's view (offset until homed)."""
         t = self.clock.now() if t is None else t
         self._settle(t)
-        p, v = self._profile.at(t)
+        p, v = self._profile_at(t).at(t)
         at_target = (self._state == "idle" and self._target is not None and abs(p - self._target) < _AT)
         at_limit = p < _AT or p > self.params.rail_length_m - _AT
         return StatusFrame(p - self._offset, v, self._state, self._homed, at_target, at_limit,

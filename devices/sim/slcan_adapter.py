@@ -22,6 +22,8 @@ the drive behind the adapter sees the frames. What the adapter answers (CR = ok,
 
 Frames from the bus go to the host as ``tiiiLdd..CR`` (``T``/``r``/``R`` alike) while the
 channel is open; a full serial buffer drops them and sets the overrun flag, as an adapter does.
+Only whole frames are dropped: when the pty takes part of one, the rest is kept (``backlog``)
+and goes out first, as soon as the pty has room; anything new meanwhile is dropped whole.
 """
 from __future__ import annotations
 
@@ -81,6 +83,7 @@ class SlcanAdapter:
         self.bitrate_code: str | None = None
         self._master = self._slave = -1
         self._buf = bytearray()
+        self._backlog = b""               # the unsent tail of a frame or answer the pty took part of
         self._flags = 0
         self._receive: Receive | None = None
         self._loop: asyncio.AbstractEventLoop | None = None
@@ -100,10 +103,17 @@ class SlcanAdapter:
         """Unplug: the host's next read or write of the port fails (EIO)."""
         if self._master >= 0:
             self._loop.remove_reader(self._master)
+            self._loop.remove_writer(self._master)
             os.close(self._master)
             os.close(self._slave)
             self._master = self._slave = -1
+        self._backlog = b""
         self.is_open = False
+
+    @property
+    def backlog(self) -> int:
+        """Bytes of a partly written frame still waiting for room in the pty."""
+        return len(self._backlog)
 
     # --- bus -> host ----------------------------------------------------------------------------
     def send(self, msg: can.Message) -> None:
@@ -117,12 +127,31 @@ class SlcanAdapter:
         self._write((head + body).encode() + _OK)
 
     def _write(self, data: bytes) -> None:
-        try:
-            os.write(self._master, data)
-        except BlockingIOError:
+        if self._master < 0:
+            return
+        if self._backlog:
+            self._flush()
+        if self._backlog:
             self._flags |= _OVERRUN       # host not reading: drop, as a full adapter FIFO does
+            return
+        self._backlog = data
+        self._flush()
+
+    def _flush(self) -> None:
+        """Write the backlog, or as much as fits; watch for room while some is left."""
+        try:
+            n = os.write(self._master, self._backlog)
+        except BlockingIOError:
+            n = 0
         except OSError as exc:
             log.debug("slcan adapter %s: write failed: %s", self.port, exc)
+            n = len(self._backlog)
+        # a frame half written must be finished before anything else, or the host sees garbage
+        self._backlog = self._backlog[n:]
+        if self._backlog:
+            self._loop.add_writer(self._master, self._flush)
+        else:
+            self._loop.remove_writer(self._master)
 
     # --- host -> adapter ------------------------------------------------------------------------
     def _on_readable(self) -> None:

@@ -2,7 +2,10 @@
 
 Each simulated device serves its own protocol; the world only links their physics: food
 leaving the auger falls into the tank under the carriage (or on the floor between tanks),
-and the hopper refills only while the carriage stands at the food box.
+and the hopper refills only while the carriage stands at the food box. The dispenser reports
+what happened over an interval between its looks (at 1440x one auger run is a few ms of wall,
+and nothing looks in between); the world splits it by where the carriage was, from the rail's
+closed-form motion, at the instants the carriage passes a tank mouth's or the food box's edge.
 """
 from __future__ import annotations
 
@@ -52,6 +55,9 @@ class SimFarm:
         self.tanks = self._build_tanks()
         self.hubs: list = []
         self.tank_positions = sorted((t.position_m, t.id) for t in cfg.tanks)
+        box = cfg.feeding.food_box_m
+        self.edges = sorted({p + d for p, _ in self.tank_positions for d in (-TANK_MOUTH_M, TANK_MOUTH_M)}
+                            | {box - FOOD_BOX_M, box + FOOD_BOX_M})
         self.spilled_g = 0.0
 
     # -- physics links -----------------------------------------------------------
@@ -64,17 +70,34 @@ class SimFarm:
                 return tank_id
         return None
 
-    def deliver(self, grams: float, t: float) -> None:
-        """Food leaving the auger at farm time ``t`` (called under the dispenser's lock: no blocking)."""
-        tank = self.tank_under(self.carriage_m(t))
-        if tank is None:
-            self.spilled_g += grams
-        elif tank in self.tanks:
-            self.tanks[tank].feed(grams, t)
-        self.truth.write("delivered", t, tank=tank, grams=round(grams, 4))
+    def path(self, t_from: float, t_to: float) -> list[tuple[float, float, float]]:
+        """Pieces ``(t_a, t_b, position)`` of farm time [t_from, t_to], each within one place
+        (over one tank, between tanks, at the food box or not)."""
+        if self.motor is None or t_to <= t_from:
+            return [(t_from, t_to, self.carriage_m(t_to))]
+        return self.motor.travel(t_from, t_to, self.edges)
 
-    def at_food_box(self, t: float) -> bool:
-        return abs(self.carriage_m(t) - self.cfg.feeding.food_box_m) <= FOOD_BOX_M
+    def deliver(self, grams: float, t_from: float, t_to: float) -> None:
+        """Food that left the auger evenly over farm time [t_from, t_to], credited to the tanks
+        the chute was over (called under the dispenser's lock: no blocking). One ``delivered``
+        record per tank (tank null: spilled between tanks), stamped when the chute left it."""
+        span = t_to - t_from
+        where: dict[str | None, list[float]] = {}         # tank -> [grams, last instant over it]
+        for a, b, position in self.path(t_from, t_to):
+            share = where.setdefault(self.tank_under(position), [0.0, b])
+            share[0] += grams * (b - a) / span if span > 0 else grams
+            share[1] = b
+        for tank, (g, t) in sorted(where.items(), key=lambda item: item[1][1]):
+            if tank is None:
+                self.spilled_g += g
+            elif tank in self.tanks:
+                self.tanks[tank].feed(g, t)
+            self.truth.write("delivered", t, tank=tank, grams=round(g, 4))
+
+    def time_at_food_box(self, t_from: float, t_to: float) -> float:
+        """Farm seconds of [t_from, t_to] the carriage spent at the food box (the hopper fills)."""
+        box = self.cfg.feeding.food_box_m
+        return sum(b - a for a, b, position in self.path(t_from, t_to) if abs(position - box) <= FOOD_BOX_M)
 
     # -- life cycle ----------------------------------------------------------------
     def _build_tanks(self) -> dict:
@@ -102,7 +125,8 @@ class SimFarm:
             params = validate_section(SimDispenserParams, self.section.dispenser, where, "sim.dispenser")
             host, unit = section.get("host", "127.0.0.1"), section.get("unit", 1)
             self.dispenser = SimDispenser(params, self.clock, host=host, port=section.get("port", 0), unit=unit,
-                                          deliver=self.deliver, at_food_box=self.at_food_box, truth=self.truth)
+                                          deliver=self.deliver, at_food_box=self.time_at_food_box,
+                                          truth=self.truth)
             try:
                 await self.dispenser.start()
             except OSError as exc:

@@ -2,11 +2,13 @@
 from __future__ import annotations
 
 import asyncio
+import heapq
 import os
 import tty
 
 import numpy as np
 import pytest
+import serial
 
 from controller.config import load_config
 from devices.clock import ManualClock, ScaledClock
@@ -16,6 +18,8 @@ from devices.sim import contact_streams as cs
 from devices.sim.contact_hub import SimContactHub
 from devices.sim.fish import SimFishParams, SimTank
 from devices.sim.truth import TruthLog
+
+SILENCE_S = 0.3            # wall seconds without a line before the driver calls the link down
 
 
 def driver(port, clock, timeout=1.0):
@@ -72,18 +76,18 @@ def test_silence_is_link_down_and_a_fresh_driver_reopens():
         tty.setraw(slave)
         port = os.ttyname(slave)
         clock = ManualClock()
-        dev = driver(port, clock, timeout=0.3)
+        dev = driver(port, clock, timeout=SILENCE_S)
         await dev.open()
+        loop = asyncio.get_running_loop()
+        t = loop.time()                       # before the last line: silence counts from it
         os.write(master, heartbeat_line(0, 1.0) + contact_line(1, "T1-a", 2.0))
         (c,) = await read_n(dev, 1)
-        loop = asyncio.get_running_loop()
-        t = loop.time()
         with pytest.raises(LinkDown, match="silent"):
             await dev.read()
         waited = loop.time() - t
         await dev.close()
         await dev.close()                                    # safe twice
-        again = driver(port, clock, timeout=0.3)
+        again = driver(port, clock, timeout=SILENCE_S)
         await again.open()
         os.write(master, contact_line(2, "T1-b", 3.0) + contact_line(9, "T1-b", 4.0))
         got = await read_n(again, 2)
@@ -93,7 +97,7 @@ def test_silence_is_link_down_and_a_fresh_driver_reopens():
         return c, waited, got, again.lost
     c, waited, got, lost = asyncio.run(main())
     assert (c.t, c.sensor) == (2.0, "T1-a")
-    assert 0.25 <= waited < 1.0
+    assert SILENCE_S <= waited < 3 * SILENCE_S                # not before the timeout, nor long after
     assert [x.t for x in got] == [3.0, 4.0] and lost == 6
 
 
@@ -118,14 +122,62 @@ def test_cannot_open_a_missing_port():
     asyncio.run(main())
 
 
+def test_a_url_without_a_file_descriptor_is_link_down_and_the_port_is_released(monkeypatch):
+    opened = []
+
+    def spy(*args, **kwargs):
+        opened.append(real(*args, **kwargs))
+        return opened[-1]
+    real = serial.serial_for_url
+    monkeypatch.setattr(serial, "serial_for_url", spy)
+
+    async def main():
+        dev = driver("loop://", ManualClock())
+        with pytest.raises(LinkDown, match="loop://") as exc:
+            await dev.open()
+        await dev.close()
+        return exc.value
+    err = asyncio.run(main())
+    assert "file descriptor" in err.text
+    assert len(opened) == 1 and not opened[0].is_open         # released, not leaked
+
+
+class Polled:
+    """A tank that remembers the farm times the hub polled it at, so a twin can be replayed."""
+
+    def __init__(self, tank):
+        self.tank = tank
+        self.asked: list[float] = []
+
+    def contacts_until(self, t):
+        self.asked.append(t)
+        return self.tank.contacts_until(t)
+
+
+def demo_tanks(truth=None):
+    cfg = load_config("config/farm.toml")
+    params = SimFishParams(bursts_per_hour=20.0, initial_hunger=1.0)
+    return [SimTank(t, params, np.random.default_rng(i), truth) for i, t in enumerate(cfg.tanks)]
+
+
+async def read_past(dev, farm_t: float, got: list, wall_s: float = 10.0) -> None:
+    """Read until the driver has seen a line stamped after ``farm_t``: every line of the hub's
+    polls up to ``farm_t`` came before it on the line, so all their contacts are in ``got``."""
+    deadline = asyncio.get_running_loop().time() + wall_s
+    while dev.stream_t is None or dev.stream_t <= farm_t + 0.002:    # stamps are rounded to 1 ms
+        assert asyncio.get_running_loop().time() < deadline, "the hub's stream stopped"
+        try:
+            got += await asyncio.wait_for(dev.read(), 0.1)
+        except TimeoutError:
+            pass                                                     # heartbeats only: look again
+
+
 def test_sim_tanks_at_high_speed_reach_the_driver():
     """The demo farm's tanks at 600x through the pty: every contact the tanks made arrives."""
     async def main():
-        cfg = load_config("config/farm.toml")
         clock = ScaledClock.starting(600.0, 1_780_000_000.0)
         truth = TruthLog(None)
-        params = SimFishParams(bursts_per_hour=20.0, initial_hunger=1.0)
-        tanks = [SimTank(t, params, np.random.default_rng(i), truth) for i, t in enumerate(cfg.tanks)]
+        tanks = [Polled(t) for t in demo_tanks(truth)]
         hub = SimContactHub(tanks, clock)
         await hub.start()
         dev = driver(hub.port, clock)
@@ -135,11 +187,24 @@ def test_sim_tanks_at_high_speed_reach_the_driver():
         end = loop.time() + 1.5
         while loop.time() < end:
             got += await dev.read()
+        polls = len(tanks[0].asked)
+        await read_past(dev, tanks[0].asked[polls - 1], got)
         await hub.stop()
         await dev.close()
-        return got, hub, dev, truth
-    got, hub, dev, truth = asyncio.run(main())
+        return got, hub, dev, truth, tanks, polls
+    got, hub, dev, truth, tanks, polls = asyncio.run(main())
     assert hub.dropped == 0 and dev.lost == 0 and dev.malformed == 0
     ts = [c.t for c in got]
     assert ts == sorted(ts) and len(got) > 100
     assert any(r["kind"] == "episode_start" for r in truth.records)
+    # an identically seeded twin farm, polled at the same farm times, made exactly these contacts
+    twins = demo_tanks()
+    made, upto_window = [], 0
+    for i, t in enumerate(tanks[0].asked):
+        assert all(tank.asked[i] == t for tank in tanks)
+        made += [(round(tc * 1000) / 1000, sensor)
+                 for tc, sensor in heapq.merge(*(twin.contacts_until(t) for twin in twins))]
+        upto_window = len(made) if i == polls - 1 else upto_window
+    assert len({sensor for _, sensor in made[:upto_window]}) > 8        # most tanks spoke
+    assert len(got) >= upto_window
+    assert [(c.t, c.sensor) for c in got] == made[:len(got)]

@@ -154,8 +154,40 @@ def test_jam_is_latched_refuses_runs_and_clears():
     serve(body)
 
 
+def test_a_start_resent_after_its_run_jammed_is_not_an_error():
+    async def body(sim, dispenser, clock):
+        sim.inject_jam(at_fraction=0.5)
+        await dispenser.run_auger(4.0, tag=8)
+        assert (await idle(dispenser)).jammed
+        await dispenser.run_auger(4.0, tag=8)          # the reply was lost: the run did happen
+        state = await dispenser.read()
+        assert state.fate(8) == "done" and state.cycles == 1 and len(sim.physics.runs) == 1
+        with pytest.raises(DeviceRefused) as exc:      # a new run is refused: still jammed
+            await dispenser.run_auger(4.0, tag=9)
+        assert exc.value.code == 4
+    serve(body)
+
+
+def test_any_refusal_of_a_start_the_device_already_ran_is_success():
+    async def body(sim, dispenser, clock):
+        await dispenser.run_auger(2.0, tag=3)
+        await idle(dispenser)
+        for code in (3, 4, 6):                         # whatever a PLC answers to the resend
+            sim.inject_exception(code)
+            await dispenser.run_auger(2.0, tag=3)
+        sim.inject_exception(4)                        # but a refused new run is an error
+        with pytest.raises(DeviceRefused) as exc:
+            await dispenser.run_auger(2.0, tag=4)
+        assert exc.value.code == 4
+        assert (await dispenser.read()).cycles == 1
+    serve(body)
+
+
 def test_refill_only_at_the_food_box():
-    at_box = {"yes": False}
+    arrived = [float("inf")]                  # farm time the carriage reaches the food box
+
+    def at_box(t_from, t_to):                 # farm seconds of [t_from, t_to] at the box
+        return max(0.0, t_to - max(t_from, arrived[0]))
 
     async def body(sim, dispenser, clock):
         await dispenser.run_auger(100.0, tag=1)
@@ -171,14 +203,14 @@ def test_refill_only_at_the_food_box():
         with pytest.raises(DeviceRefused) as exc:
             await dispenser.run_auger(1.0, tag=2)                   # no run with the gate open
         assert exc.value.code == 6
-        at_box["yes"] = True
+        arrived[0] = clock.now()
         async def full():
             return (await dispenser.read()).hopper_g >= 8000.0
         await until(full, what="the hopper to fill")
         await dispenser.set_refill(False)
         state = await dispenser.read()
         assert not state.refilling and state.hopper_g == 8000.0 and state.cycles == 1
-    serve(body, at_food_box=lambda t: at_box["yes"])
+    serve(body, at_food_box=at_box)
 
 
 def test_unresponsive_device_times_out_then_recovers():

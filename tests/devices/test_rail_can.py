@@ -374,3 +374,43 @@ async def test_slcan_adapter_speaks_lawicel():
     finally:
         ser.close()
         await adapter.stop()
+
+
+@asynctest
+async def test_slcan_adapter_never_tears_a_frame_when_the_host_falls_behind():
+    """The host stops reading: the pty fills, whole frames are dropped (overrun), none torn."""
+    adapter = SlcanAdapter()
+    await adapter.start(lambda msg: None)
+    ser = serial.serial_for_url(adapter.port, timeout=0.05)
+    flood = can.Message(arbitration_id=0x181, is_extended_id=False, data=bytes(range(0x11, 0x19)))
+    marker = can.Message(arbitration_id=0x7FF, is_extended_id=False, data=b"")
+    try:
+        assert await answer(ser, b"O") == b"\r"
+        for _ in range(20_000):                        # ~440 kB: far more than a pty holds
+            adapter.send(flood)
+        seen = bytearray()
+        done = asyncio.Event()
+        loop = asyncio.get_running_loop()
+
+        def host():                                    # reads until the marker frame comes through
+            while b"t7FF0\r" not in seen:
+                seen.extend(ser.read(65536))
+            loop.call_soon_threadsafe(done.set)
+        reader = asyncio.create_task(asyncio.to_thread(host))
+        deadline = loop.time() + 10.0
+        while not done.is_set():                       # the bus goes on: a marker now and then
+            assert loop.time() < deadline, "the marker frame never reached the host"
+            adapter.send(marker)
+            await asyncio.sleep(0.002)
+        await reader
+        reply = await answer(ser, b"F")
+        while reply == b"t7FF0\r":                     # markers sent while the host was finishing
+            reply = await asyncio.to_thread(ser.read_until, b"\r")
+        assert reply == b"F08\r"                       # frames were dropped, and the host is told
+    finally:
+        ser.close()
+        await adapter.stop()
+    *frames, tail = bytes(seen[:seen.index(b"t7FF0\r") + 6]).split(b"\r")
+    assert tail == b"" and len(frames) > 10
+    torn = [f for f in frames if f not in (b"t18181112131415161718", b"t7FF0")]
+    assert torn == []

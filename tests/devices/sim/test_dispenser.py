@@ -15,11 +15,17 @@ from devices.sim.truth import TruthLog
 EXACT = dict(rate_noise=0.0, rate_drift=0.0)
 
 
-def machine(deliveries=None, at_box=lambda t: True, truth=None, **params):
+def machine(deliveries=None, at_box=None, truth=None, **params):
+    """``deliveries`` collects (grams, t_from, t_to); ``at_box(t_from, t_to)`` -> seconds at the box."""
     clock = ManualClock()
-    deliver = None if deliveries is None else (lambda grams, t: deliveries.append((grams, t)))
+    deliver = None if deliveries is None else (lambda grams, t_from, t_to: deliveries.append((grams, t_from, t_to)))
     physics = DispenserPhysics(SimDispenserParams(**params), clock, deliver, at_box, truth)
     return clock, physics
+
+
+def box_between(spell: list[float]):
+    """The carriage stands at the food box over farm time [spell[0], spell[1]] (mutable)."""
+    return lambda t_from, t_to: max(0.0, min(t_to, spell[1]) - max(t_from, spell[0]))
 
 
 def test_run_delivers_rate_times_time_continuously_and_counts_once():
@@ -37,8 +43,10 @@ def test_run_delivers_rate_times_time_continuously_and_counts_once():
     assert (done.cycles, done.last_tag) == (1, 7)
     assert done.last_grams == pytest.approx(50.0) and done.total_grams == pytest.approx(50.0)
     assert dp.physical_total_g == pytest.approx(50.0)
-    assert sum(g for g, _ in deliveries) == pytest.approx(50.0)
-    assert all(t0 < t <= t0 + 5.0 for _, t in deliveries)
+    assert sum(g for g, _, _ in deliveries) == pytest.approx(50.0)
+    # each delivery is the food of its own stretch of time, the stretches tile the run
+    assert [(a, b) for _, a, b in deliveries] == [(t0, t0 + 2.5), (t0 + 2.5, t0 + 5.0)]
+    assert all(g == pytest.approx(10.0 * (b - a)) for g, a, b in deliveries)
     clock.advance(100.0)
     assert dp.read().cycles == 1 and dp.physical_total_g == pytest.approx(50.0)
 
@@ -116,6 +124,21 @@ def test_jam_stalls_latches_refuses_and_clears():
     assert kinds.count("jam") == 2 and kinds.count("auger_run") == 2
 
 
+def test_a_resent_start_of_a_jammed_run_is_a_duplicate_not_a_jam():
+    clock, dp = machine(**EXACT)
+    dp.inject_jam(at_fraction=0.5)
+    dp.start_run(4.0, tag=5)
+    clock.advance(4.0)
+    assert dp.read().jammed and dp.read().fate(5) == "done"
+    with pytest.raises(Refused) as exc:
+        dp.start_run(4.0, tag=5)                                # the same start, resent
+    assert exc.value.reason == "value"
+    with pytest.raises(Refused) as exc:
+        dp.start_run(4.0, tag=6)                                # a new run
+    assert exc.value.reason == "jammed"
+    assert len(dp.runs) == 1
+
+
 def test_random_jams_follow_the_probability():
     clock, dp = machine(jam_probability=1.0, seed=9, **EXACT)
     for tag in range(1, 21):
@@ -133,7 +156,9 @@ def test_random_jams_follow_the_probability():
 
 
 def test_empty_hopper_delivers_nothing_more():
-    clock, dp = machine(rate_g_s=10.0, hopper_start_g=30.0, **EXACT)
+    deliveries = []
+    clock, dp = machine(deliveries, rate_g_s=10.0, hopper_start_g=30.0, **EXACT)
+    t0 = clock.now()
     dp.start_run(5.0, tag=1)
     clock.advance(4.0)
     state = dp.read()
@@ -141,23 +166,27 @@ def test_empty_hopper_delivers_nothing_more():
     clock.advance(1.0)
     state = dp.read()
     assert state.last_grams == pytest.approx(30.0) and dp.physical_total_g == pytest.approx(30.0)
+    assert deliveries == [(pytest.approx(30.0), t0, pytest.approx(t0 + 3.0))]   # it ran dry at 3 s
     dp.start_run(5.0, tag=2)
     clock.advance(5.0)
     assert dp.read().last_grams == 0.0 and dp.physical_total_g == pytest.approx(30.0)
 
 
-def test_refill_only_at_the_food_box_up_to_capacity():
-    at_box = {"yes": False}
-    clock, dp = machine(at_box=lambda t: at_box["yes"], hopper_start_g=1000.0, hopper_capacity_g=3000.0,
+def test_refill_only_for_the_time_at_the_food_box_up_to_capacity():
+    spell = [math.inf, math.inf]
+    clock, dp = machine(at_box=box_between(spell), hopper_start_g=1000.0, hopper_capacity_g=3000.0,
                         refill_rate_g_s=400.0, **EXACT)
     dp.set_gate(True)
     clock.advance(10.0)
     assert dp.read().hopper_g == 1000.0 and dp.read().refilling
-    at_box["yes"] = True
-    dp.update()
+    assert dp.next_event_t() is None                              # away from the box: no end in sight
+    spell[:] = [clock.now() + 4.0, clock.now() + 5.5]             # arrives and leaves between two looks
+    clock.advance(10.0)
+    assert dp.read().hopper_g == pytest.approx(1600.0)            # 1.5 s at the box, no more
+    spell[:] = [clock.now() + 1.0, math.inf]
     clock.advance(2.0)
-    assert dp.read().hopper_g == pytest.approx(1800.0)
-    assert dp.next_event_t() == pytest.approx(clock.now() + 3.0)
+    assert dp.read().hopper_g == pytest.approx(2000.0)
+    assert dp.next_event_t() == pytest.approx(clock.now() + 2.5)  # stays at the box: full then
     clock.advance(10.0)
     assert dp.read().hopper_g == pytest.approx(3000.0)
     assert dp.physical_total_g == 0.0                           # refills are not deliveries

@@ -243,3 +243,40 @@ def test_params_are_validated():
         SimRailParams(max_speed=2.0)
     with pytest.raises(ValidationError):
         SimRailParams(accel_m_s2=0)
+
+
+def test_position_in_the_past_follows_the_motion_planned_then():
+    """A look back over an interval that a later command cut (what the world does with food)."""
+    m, clock = homed_motor()
+    t0 = clock.now()
+    m.handle(cmd(Op.MOVE, seq=2, target=10.0))
+    clock.advance(5.0)
+    past = np.linspace(t0, t0 + 5.0, 51)
+    before = [m.position(t) for t in past]
+    m.handle(cmd(Op.MOVE, seq=3, target=2.0))             # turn back in mid-travel
+    clock.advance(3.0)
+    m.inject_stall()
+    assert [m.position(t) for t in past] == before
+    assert before[0] == 0.0 and before[-1] == pytest.approx(float(trapezoid(10.0, VMAX, ACCEL, np.array(5.0))))
+
+
+def test_travel_cuts_the_path_where_it_passes_the_marks():
+    m, clock = homed_motor()
+    t0 = clock.now()
+    m.handle(cmd(Op.MOVE, seq=2, target=4.0))
+    clock.advance(3.0)
+    m.handle(cmd(Op.MOVE, seq=3, target=1.0))             # at 2 m, 1 m/s: brakes to 3 m, then back
+    marks = [0.5, 2.0, 2.5, 9.0]
+    pieces = m.travel(t0 - 1.0, t0 + 30.0, marks)
+    assert pieces[0][0] == t0 - 1.0 and pieces[-1][1] == t0 + 30.0
+    assert all(a < b for a, b, _ in pieces)
+    assert all(b == c for (_, b, _), (c, _, _) in zip(pieces, pieces[1:], strict=False))    # they tile
+    passings = [b for (_, b, p), (_, _, q) in zip(pieces, pieces[1:], strict=False)
+                if any((p - x) * (q - x) < 0 for x in marks)]
+    crossed = [x for t in passings for x in marks if abs(m.position(t) - x) < 1e-6]
+    assert crossed == [0.5, 2.0, 2.5, 2.5, 2.0]           # out to 3 and back to 1: never 9
+    # within a piece the carriage stays on one side of every mark
+    for a, b, _ in pieces:
+        inside = np.array([m.position(t) for t in np.linspace(a, b, 21)[1:-1]])
+        assert all(np.all(inside <= x + 1e-9) or np.all(inside >= x - 1e-9) for x in marks)
+    assert m.travel(t0, t0, marks) == []

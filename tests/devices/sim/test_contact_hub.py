@@ -1,0 +1,75 @@
+"""The simulated contact hub's heartbeat, read raw from its pseudo-terminal."""
+from __future__ import annotations
+
+import asyncio
+import os
+import statistics
+
+from devices.clock import ManualClock, ScaledClock
+from devices.contacts.serial_hub import LINE
+from devices.sim.contact_hub import SimContactHub
+
+
+async def heartbeats(hub: SimContactHub, n: int, advance=None, wall_s: float = 5.0):
+    """Farm stamps and wall arrival times of the first ``n`` heartbeat lines the hub writes
+    (``advance()`` after each)."""
+    loop = asyncio.get_running_loop()
+    fd = os.open(hub.port, os.O_RDONLY | os.O_NONBLOCK | os.O_NOCTTY)
+    arrived = asyncio.Event()
+    loop.add_reader(fd, arrived.set)
+    stamps: list[float] = []
+    walls: list[float] = []
+    partial = b""
+    try:
+        while len(stamps) < n:
+            await asyncio.wait_for(arrived.wait(), wall_s)
+            arrived.clear()
+            try:
+                *lines, partial = (partial + os.read(fd, 65536)).split(b"\n")
+            except BlockingIOError:
+                continue
+            for line in lines:
+                m = LINE.fullmatch(line.rstrip(b"\r"))
+                if m is not None and m[5] is not None:
+                    stamps.append(int(m[6]) / 1000)
+                    walls.append(loop.time())
+                    if advance is not None:
+                        advance()
+    finally:
+        loop.remove_reader(fd)
+        os.close(fd)
+    return stamps[:n], walls[:n]
+
+
+def test_heartbeat_comes_at_least_once_a_farm_second_in_fast_simulation():
+    async def main():
+        clock = ScaledClock.starting(60.0, 1_780_000_000.0)       # 0.25 s of wall = 15 farm s
+        hub = SimContactHub([], clock)
+        await hub.start()
+        try:
+            return await heartbeats(hub, 15)
+        finally:
+            await hub.stop()
+    stamps, _ = asyncio.run(main())
+    gaps = [b - a for a, b in zip(stamps, stamps[1:], strict=False)]
+    assert statistics.median(gaps) <= 1.0 and all(g > 0 for g in gaps)
+
+
+def test_heartbeat_follows_a_manual_clock_and_an_explicit_period_is_honoured():
+    async def main(params, steps):
+        clock = ManualClock(t=1000.0)
+        hub = SimContactHub([], clock, params)
+        await hub.start()
+        try:
+            return hub, await heartbeats(hub, steps, advance=lambda: clock.advance(50.0))
+        finally:
+            await hub.stop()
+    # farm time jumps 50 s after every beat: the hub's next poll reports it, without waiting
+    # for its wall-clock heartbeat (which only keeps a frozen clock's line alive)
+    hub, (stamps, walls) = asyncio.run(main({}, 8))
+    assert stamps == [1000.0 + 50.0 * i for i in range(8)]
+    assert statistics.median(b - a for a, b in zip(walls, walls[1:], strict=False)) < hub.heartbeat_s / 4
+    # an explicit period is the only rule: beats every heartbeat_s of wall, farm time or not
+    hub, (stamps, walls) = asyncio.run(main({"heartbeat_s": 0.05}, 4))
+    assert hub.heartbeat_s == 0.05 and hub.heartbeat_farm_s is None
+    assert statistics.median(b - a for a, b in zip(walls, walls[1:], strict=False)) >= 0.05 * 0.9
