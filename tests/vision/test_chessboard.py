@@ -107,12 +107,12 @@ def test_a_pair_with_bad_corners_is_rejected_as_outlier(real_images, real_corner
 
 
 @pytest.mark.parametrize("environ, expected", [
-    ({}, "skip"), ({"CI": "true"}, "fail"), ({"FISHFARM_REQUIRE_DATA": "1"}, "fail"), ({"CI": "0"}, "skip"),
-    ({"CI": "false", "FISHFARM_REQUIRE_DATA": ""}, "skip")])
+    ({}, "skip"), ({"CI": "true"}, "skip"), ({"FISHFARM_REQUIRE_DATA": "1"}, "fail"),
+    ({"FISHFARM_REQUIRE_DATA": "0"}, "skip"), ({"CI": "false", "FISHFARM_REQUIRE_DATA": ""}, "skip")])
 def test_missing_real_data_fails_in_ci_and_skips_elsewhere(tmp_path, environ, expected):
     status, reason = data_status(tmp_path / "absent", environ)
     assert status == expected and str(tmp_path / "absent") in reason
-    assert data_status(tmp_path, {"CI": "true"})[0] == "present"
+    assert data_status(tmp_path, {"FISHFARM_REQUIRE_DATA": "1"})[0] == "present"
 
 
 def test_epipolar_error_is_opencv_sum_of_both_distances():
