@@ -14,7 +14,30 @@ from controller.feeding.robot import Job
 log = logging.getLogger("fishfarm.override")
 
 
-STARTING = {"ok": False, "error": "the controller is starting: waiting for its devices"}
+STARTING = "the controller is starting: waiting for its devices"
+
+
+class Refused(Exception):
+    """A command the controller will not carry out; its text is the reply's error."""
+
+
+def _parse(model, payload):
+    try:
+        return model.model_validate(payload if payload is not None else {})
+    except ValidationError as exc:
+        err = exc.errors()[0]
+        field = ".".join(str(p) for p in err["loc"]) or "payload"
+        raise Refused(f"{field}: {err['msg']}") from None
+
+
+def _answering(handler):
+    """A refusal becomes ``{"ok": false, "error": ...}``; everything else is the bus's business."""
+    async def answer(payload) -> dict:
+        try:
+            return await handler(payload)
+        except Refused as exc:
+            return {"ok": False, "error": str(exc)}
+    return answer
 
 
 class _Command(BaseModel):
@@ -43,8 +66,8 @@ class Overrides:
 
     def declare(self, bus) -> None:
         # one queryable on override/*: an unknown command is refused with a reason, not left unanswered
-        bus.overrides({name: getattr(self, name) for name in ("estop", "reset", "manual", "feed", "ration")},
-                      lenient=("estop",))
+        commands = ("estop", "reset", "manual", "feed", "ration")
+        bus.overrides({name: _answering(getattr(self, name)) for name in commands}, lenient=("estop",))
         bus.queryable("status", self.status, lenient=True)
 
     async def status(self, payload) -> dict:
@@ -58,62 +81,46 @@ class Overrides:
         return {"ok": True}
 
     async def reset(self, payload) -> dict:
-        cmd = self._parse(_Command, payload)
-        if isinstance(cmd, dict):
-            return cmd
-        if self.c.robot is None:
-            return STARTING
+        cmd, robot = _parse(_Command, payload), self._robot()
         log.warning("reset by %s: %s", cmd.operator, cmd.reason)
-        return self._result(self.c.robot.operator_reset())
+        return self._result(robot.operator_reset())
 
     async def manual(self, payload) -> dict:
-        cmd = self._parse(Manual, payload)
-        if isinstance(cmd, dict):
-            return cmd
-        if self.c.robot is None:
-            return STARTING
+        cmd, robot = _parse(Manual, payload), self._robot()
         log.warning("manual=%s by %s: %s", cmd.on, cmd.operator, cmd.reason)
-        return self._result(self.c.robot.set_manual(cmd.on))
+        return self._result(robot.set_manual(cmd.on))
 
     async def feed(self, payload) -> dict:
-        cmd = self._parse(Feed, payload)
-        if isinstance(cmd, dict):
-            return cmd
-        if cmd.tank not in self.c.sensor_tank.values():
-            return {"ok": False, "error": f"tank: no tank {cmd.tank!r}"}
-        if self.c.robot is None:
-            return STARTING
-        robot = self.c.robot
+        cmd = _parse(Feed, payload)
+        self._tank(cmd.tank)
+        robot = self._robot()
         if robot.state in ("estop", "manual"):
-            return {"ok": False, "error": f"feeder is in {robot.state}"}
+            raise Refused(f"feeder is in {robot.state}")
         if cmd.tank in robot.pending:
-            return {"ok": False, "error": f"tank {cmd.tank} already has a demand waiting: it is being served"}
+            raise Refused(f"tank {cmd.tank} already has a demand waiting: it is being served")
         grams = robot.dispensing.portion(cmd.tank, cmd.grams)
         if grams <= 0:
-            return {"ok": False, "error": f"tank {cmd.tank} has had its ration today"}
+            raise Refused(f"tank {cmd.tank} has had its ration today")
         log.warning("feed %s %.0f g by %s: %s", cmd.tank, grams, cmd.operator, cmd.reason)
         robot.on_demand(Job(cmd.tank, self.c.clock.now(), None, "operator", grams))
         return {"ok": True, "grams": round(grams, 1)}
 
     async def ration(self, payload) -> dict:
-        cmd = self._parse(SetRation, payload)
-        if isinstance(cmd, dict):
-            return cmd
-        if cmd.tank not in self.c.sensor_tank.values():
-            return {"ok": False, "error": f"tank: no tank {cmd.tank!r}"}
+        cmd = _parse(SetRation, payload)
+        self._tank(cmd.tank)
         log.warning("ration %s = %.0f g by %s: %s", cmd.tank, cmd.grams, cmd.operator, cmd.reason)
         self.c.rations.set(cmd.tank, self.c.clock.now(), cmd.grams, "operator")
         self.c.publish_ration(cmd.tank)
         return {"ok": True}
 
-    @staticmethod
-    def _parse(model, payload):
-        try:
-            return model.model_validate(payload if payload is not None else {})
-        except ValidationError as exc:
-            err = exc.errors()[0]
-            field = ".".join(str(p) for p in err["loc"]) or "payload"
-            return {"ok": False, "error": f"{field}: {err['msg']}"}
+    def _robot(self):
+        if self.c.robot is None:
+            raise Refused(STARTING)
+        return self.c.robot
+
+    def _tank(self, tank: str) -> None:
+        if tank not in self.c.sensor_tank.values():
+            raise Refused(f"tank: no tank {tank!r}")
 
     @staticmethod
     def _result(error: str | None) -> dict:
