@@ -1,14 +1,23 @@
 # The two commands a fresh machine needs: `make run` and `make test`.
-PY      ?= python3
+# Python >= 3.12: on 3.11 asyncio.wait_for swallows a cancel whose result lands in the same loop
+# turn (CPython gh-86296). The e-stop does not rest on cancellation, but shutdown is cleaner without
+# it. The first interpreter that runs and is new enough wins; pyenv's own versions are looked at too.
+PY      ?= $(or $(shell for p in python3.12 python3.13 $$HOME/.pyenv/versions/3.12*/bin/python3.12 \
+                  $$HOME/.pyenv/versions/3.13*/bin/python3.13; do \
+                  "$$p" -c 'import sys; sys.exit(sys.version_info < (3, 12))' 2>/dev/null && \
+                  { command -v "$$p"; break; }; done),python3)
+PYVER   := $(shell $(PY) -c 'import sys; print("%d.%d" % sys.version_info[:2])')
 VENV    := .venv
 BIN     := $(VENV)/bin
-STAMP   := $(VENV)/.installed
+STAMP   := $(VENV)/.installed-$(PYVER)
 CONFIG  ?= config/farm.toml
 ARGS    ?=
 
 .PHONY: run test bench lint clean
 
 $(STAMP): pyproject.toml
+	@if [ -x $(BIN)/python ] && [ "$$($(BIN)/python -c 'import sys; print("%d.%d" % sys.version_info[:2])')" != "$(PYVER)" ]; \
+	    then echo "rebuilding $(VENV) for Python $(PYVER)"; rm -rf $(VENV); fi
 	test -x $(BIN)/python || $(PY) -m venv $(VENV)
 	$(BIN)/python -m pip install --quiet --upgrade pip
 	$(BIN)/python -m pip install --quiet -e '.[dev]'
