@@ -325,3 +325,33 @@ def test_client_that_reaches_nobody_says_so():
         Bus.client(f"tcp/127.0.0.1:{port}", timeout_s=1.0)
     with pytest.raises(BusUnreachable, match="could not connect"):
         Bus.client(f"tcp/127.0.0.1:{port}", timeout_s=0.3, mode="peer")
+
+
+def test_duplicate_keys_are_refused_naming_the_key():
+    for raw, key in [(b'{"grams": 40, "grams": 1}', "grams"), (b'{"x": {"on": true, "on": false}}', "on"),
+                     (b'{"tank": "T1", "grams": 1, "tank": "T1"}', "tank")]:
+        with pytest.raises(ValueError, match=f"^{key}: duplicate key$"):
+            decode(raw)
+    # a hostile key is named on one bounded line
+    with pytest.raises(ValueError) as exc:
+        decode(('{"a\\nb' + "x" * 500 + '": 1, "a\\nb' + "x" * 500 + '": 2}').encode())
+    assert "\n" not in str(exc.value) and len(str(exc.value)) < 100
+
+
+def test_deep_nesting_is_a_value_error_not_a_recursion_error():
+    from controller.bus import MAX_DEPTH
+    for depth in (MAX_DEPTH + 1, 1_000, 100_000):
+        for open_, close in (("[", "]"), ('{"a":', "}")):
+            raw = ('{"estop":' + open_ * depth + "1" + close * depth + "}").encode()
+            with pytest.raises(ValueError, match="nested deeper"):
+                decode(raw)
+    ok = '{"a":' + "[" * (MAX_DEPTH - 1) + "]" * (MAX_DEPTH - 1) + "}"
+    assert decode(ok.encode()).keys() == {"a"}  # as deep as allowed: read
+    # brackets inside strings are text, not nesting
+    text = "[{" * 5_000 + '\\"' + "]" * 10
+    assert decode(json.dumps({"reason": text}).encode()) == {"reason": text}
+
+
+def test_huge_integer_is_a_value_error():
+    with pytest.raises(ValueError, match="not JSON"):
+        decode(b'{"grams": ' + b"9" * 5_000 + b"}")

@@ -1,0 +1,48 @@
+"""Text from outside (operators, payloads, devices) made safe for the log, the ledger and replies.
+
+A newline, a carriage return or an escape sequence in an operator's reason could forge a log line
+or repaint a terminal; a megabyte of it would travel in every ``status``. What reaches the log,
+the store or a reply is escaped and bounded here.
+"""
+from __future__ import annotations
+
+import re
+
+# C0 and C1 controls, DEL, Unicode line/paragraph separators and the bidirectional overrides
+# (text that displays in another order than it reads)
+CONTROL = re.compile("[\x00-\x1f\x7f-\x9f\u2028\u2029\u202a-\u202e\u2066-\u2069]")
+ELLIPSIS = "…"
+
+
+_NAMED = {"\n": "\\n", "\r": "\\r", "\t": "\\t"}
+
+
+def _escape(match: re.Match) -> str:
+    char = match.group()
+    if char in _NAMED:
+        return _NAMED[char]
+    code = ord(char)
+    return f"\\x{code:02x}" if code < 0x100 else f"\\u{code:04x}"
+
+
+def printable(text: object, limit: int) -> str:
+    """``text`` on one line of at most ``limit`` characters: controls escaped (``\\n``, ``\\x1b``),
+    the tail cut with an ellipsis. Anything not a string is shown by its ``repr``, bounded."""
+    if not isinstance(text, str):
+        text = _short_repr(text, limit)
+    if len(text) > 4 * limit:          # escaping at most quadruples a character: cut before the work
+        text = text[:4 * limit]
+    text = CONTROL.sub(_escape, text)
+    return text if len(text) <= limit else text[:max(limit - 1, 0)] + ELLIPSIS
+
+
+def _short_repr(value: object, limit: int) -> str:
+    try:
+        text = repr(value)
+    except Exception:  # a hostile __repr__ is no reason to lose the message
+        text = f"<{type(value).__name__}>"
+    return text[:4 * limit]
+
+
+def has_control(text: str) -> bool:
+    return CONTROL.search(text) is not None
