@@ -71,12 +71,12 @@ class Controller:
         """Bring the parts up. The bus and status come first, so operators can see (and e-stop) a
         controller still waiting for a device; the robot starts once every device has opened."""
         cfg = self.cfg
+        self.store = Store(cfg.store.path)     # first: an unusable ledger path is bad input, exit 2
         sections = dict(cfg.devices)
         if any(s["driver"] == "sim" for s in sections.values()):
             self.sim = SimProcess(cfg, self.clock)
             sections.update(await self.sim.start())
         self.bus = Bus(cfg.bus, cfg.site)
-        self.store = Store(cfg.store.path)
         self.alarms = Alarms(self.store, self.bus.publish, self.clock)
         self.rations = Rations(cfg, self.species, self.store)
         self.filter = DemandFilter(validate_section(DemandParams, cfg.demand, cfg.path, "demand"),

@@ -7,9 +7,10 @@ Device sections are validated by the model their kind and driver name in ``devic
 from __future__ import annotations
 
 import importlib
+import math
 import tomllib
 from pathlib import Path
-from typing import Any, Literal
+from typing import Annotated, Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
@@ -19,7 +20,12 @@ DEVICE_KINDS = ("contacts", "rail", "dispenser")
 
 
 class Strict(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    # inf/nan are refused here too (load_config refuses them in every section, models or not)
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
+
+
+DAY_S = 86_400.0
+SensorId = Annotated[str, Field(pattern=r"^[A-Za-z0-9_.-]{1,32}$")]  # a Zenoh key chunk: sensor/{id}
 
 
 class BusConfig(Strict):
@@ -37,32 +43,43 @@ class StoreConfig(Strict):
 class TankConfig(Strict):
     id: str = Field(pattern=r"^[A-Za-z0-9_-]{1,32}$")
     species: str = "sparus_aurata"
-    stock: int = Field(gt=0)
-    mean_weight_g: float = Field(gt=0)
-    position_m: float = Field(ge=0)
-    sensors: list[str] = Field(min_length=1)
+    stock: int = Field(gt=0, le=100_000_000)
+    mean_weight_g: float = Field(gt=0, le=1_000_000)
+    position_m: float = Field(ge=0, le=10_000, description="along the rail from home")
+    sensors: list[SensorId] = Field(min_length=1)
     feeding_rate_pct: float | None = Field(None, gt=0, le=20,
                                            description="% body weight a day; default from species")
 
 
 class FeedingConfig(Strict):
-    portion_g: float = Field(60.0, gt=0, description="largest portion served per demand")
-    min_portion_g: float = Field(5.0, gt=0, description="below this a ration remainder is not served")
-    food_box_m: float = Field(0.0, ge=0)
-    hopper_capacity_g: float = Field(8000.0, gt=0)
-    refill_below_g: float = Field(1500.0, ge=0)
-    auger_rate_g_s: float = Field(12.0, gt=0, description="first guess; learned from the load cell")
-    position_tolerance_m: float = Field(0.05, gt=0)
-    move_timeout_s: float = Field(120.0, gt=0)
-    dispense_timeout_s: float = Field(60.0, gt=0)
-    refill_timeout_s: float = Field(120.0, gt=0)
-    retry_backoff_s: list[float] = Field([5.0, 15.0, 60.0, 300.0], min_length=1)
-    demand_expiry_s: float = Field(600.0, gt=0, description="a demand not served by then is dropped")
-    serve_within_s: float = Field(60.0, gt=0, description="aim: auger start this soon after a demand")
-    plan_margin_s: float = Field(15.0, ge=0, description="planning keeps this much of the aim in hand "
+    portion_g: float = Field(60.0, gt=0, le=10_000, description="largest portion served per demand")
+    min_portion_g: float = Field(5.0, gt=0, le=10_000,
+                                 description="below this a ration remainder is not served")
+    food_box_m: float = Field(0.0, ge=0, le=10_000)
+    hopper_capacity_g: float = Field(8000.0, gt=0, le=10_000_000)
+    refill_below_g: float = Field(1500.0, ge=0, le=10_000_000)
+    auger_rate_g_s: float = Field(12.0, gt=0, le=10_000, description="first guess; learned from the load cell")
+    position_tolerance_m: float = Field(0.05, gt=0, le=10)
+    move_timeout_s: float = Field(120.0, gt=0, le=DAY_S)
+    dispense_timeout_s: float = Field(60.0, gt=0, le=DAY_S)
+    refill_timeout_s: float = Field(120.0, gt=0, le=DAY_S)
+    retry_backoff_s: list[Annotated[float, Field(ge=0, le=DAY_S)]] = Field([5.0, 15.0, 60.0, 300.0],
+                                                                          min_length=1, max_length=100)
+    demand_expiry_s: float = Field(600.0, gt=0, le=DAY_S, description="a demand not served by then is dropped")
+    serve_within_s: float = Field(60.0, gt=0, le=DAY_S, description="aim: auger start this soon after a demand")
+    plan_margin_s: float = Field(15.0, ge=0, le=DAY_S, description="planning keeps this much of the aim in hand "
                                  "for what travel estimates miss (docking, talking to the devices)")
-    rail_speed_m_s: float = Field(1.0, gt=0, description="cruise speed, for planning the next stop")
-    rail_accel_m_s2: float = Field(0.5, gt=0, description="acceleration, for planning the next stop")
+    rail_speed_m_s: float = Field(1.0, gt=0, le=100, description="cruise speed, for planning the next stop")
+    rail_accel_m_s2: float = Field(0.5, gt=0, le=100, description="acceleration, for planning the next stop")
+
+    @model_validator(mode="after")
+    def _portions_fit(self):
+        if self.min_portion_g > self.portion_g:
+            raise ValueError(f"min_portion_g ({self.min_portion_g:g}) is more than portion_g ({self.portion_g:g})")
+        if self.refill_below_g >= self.hopper_capacity_g:
+            raise ValueError(f"refill_below_g ({self.refill_below_g:g}) must be below hopper_capacity_g "
+                             f"({self.hopper_capacity_g:g})")
+        return self
 
 
 class Config(Strict):
@@ -151,6 +168,9 @@ def load_config(path: str | Path) -> Config:
         raise BadInput(where, None, f"not valid TOML: {exc}") from None
     if "tank" in raw and "tanks" not in raw:
         raw["tanks"] = raw.pop("tank")
+    for key, value in _numbers(raw):
+        if not math.isfinite(value):
+            raise BadInput(where, key, f"must be a finite number, not {value}")
     cfg = validate_section(Config, {**raw, "path": where}, where)
     for name, section in cfg.devices.items():
         prefix = f"devices.{name}"
@@ -162,11 +182,28 @@ def load_config(path: str | Path) -> Config:
     return cfg
 
 
+def _numbers(value, key: str = ""):
+    """(key.path, float) for every float in a parsed TOML document: TOML has inf and nan, and no
+    section of ours means either, whether or not a model checks that key."""
+    if isinstance(value, float):
+        yield key, value
+    elif isinstance(value, dict):
+        for k, v in value.items():
+            yield from _numbers(v, f"{key}.{k}" if key else str(k))
+    elif isinstance(value, list):
+        for i, v in enumerate(value):
+            yield from _numbers(v, f"{key}.{i}")
+
+
 def load_toml(path: str | Path) -> dict:
     """Any other TOML file of ours (species.toml), with the same one-line errors."""
     try:
-        return tomllib.loads(Path(path).read_text(encoding="utf-8"))
+        raw = tomllib.loads(Path(path).read_text(encoding="utf-8"))
     except FileNotFoundError:
         raise BadInput(str(path), None, "no such file") from None
     except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError) as exc:
         raise BadInput(str(path), None, f"cannot read: {exc}") from None
+    for key, value in _numbers(raw):
+        if not math.isfinite(value):
+            raise BadInput(str(path), key, f"must be a finite number, not {value}")
+    return raw

@@ -16,6 +16,8 @@ import uuid
 from dataclasses import dataclass
 from pathlib import Path
 
+from controller.errors import BadInput
+
 MIGRATIONS = [
     """
     CREATE TABLE demand (
@@ -123,15 +125,26 @@ class Store:
 
     def __init__(self, path: str | Path):
         self.path = Path(path)
-        if str(path) != ":memory:":
-            self.path.parent.mkdir(parents=True, exist_ok=True)
         self._lock = threading.RLock()
-        self.db = sqlite3.connect(str(path), isolation_level=None, check_same_thread=False)
-        self.db.row_factory = sqlite3.Row
-        self.db.execute("PRAGMA journal_mode=WAL")
-        self.db.execute("PRAGMA synchronous=FULL")
-        self.db.execute("PRAGMA busy_timeout=5000")
-        self._migrate()
+        self.db = None
+        try:
+            if str(path) != ":memory:":
+                self.path.parent.mkdir(parents=True, exist_ok=True)
+            self.db = sqlite3.connect(str(path), isolation_level=None, check_same_thread=False)
+            self.db.row_factory = sqlite3.Row
+            # WAL needs to write beside the file: an unwritable place fails here, at start, not mid-feed
+            if self.db.execute("PRAGMA journal_mode=WAL").fetchone()[0] != "wal" and str(path) != ":memory:":
+                raise sqlite3.OperationalError("cannot use write-ahead logging there")
+            self.db.execute("PRAGMA synchronous=FULL")
+            self.db.execute("PRAGMA busy_timeout=5000")
+            self._migrate()
+        except (OSError, sqlite3.Error) as exc:
+            self.close()
+            if isinstance(exc, FileExistsError):
+                why = f"{self.path.parent} is not a directory"
+            else:
+                why = exc.strerror if isinstance(exc, OSError) and exc.strerror else str(exc)
+            raise BadInput("store.path", str(path), f"cannot open the ledger: {why}") from None
 
     # -- schema ---------------------------------------------------------------
     def _migrate(self) -> None:

@@ -57,3 +57,22 @@ def test_unknown_species(tmp_path):
     r = fishfarm("run", "--config", str(cfg), "--no-console")
     assert r.returncode == 2
     assert r.stderr.strip().startswith(f"fishfarm: {cfg}: tanks.0.species: unknown species 'tuna'")
+
+
+DEVICES = "".join(f'[devices.{k}]\nkind = "{k}"\ndriver = "sim"\n' for k in ("contacts", "rail", "dispenser"))
+
+
+@pytest.mark.parametrize("store_path", ["{blocker}/fishfarm.db", "{blocker}/var/fishfarm.db", "{directory}"])
+def test_unusable_store_path_exits_2_naming_store_path(tmp_path, store_path):
+    """A ledger that cannot be created is the operator's to fix: one line naming store.path, before
+    any simulated device is started."""
+    (tmp_path / "blocker").write_text("a regular file, not a directory\n")
+    (tmp_path / "dir").mkdir()
+    path = store_path.format(blocker=tmp_path / "blocker", directory=tmp_path / "dir")
+    cfg = tmp_path / "farm.toml"
+    cfg.write_text(f'[store]\npath = "{path}"\n' + TANK + DEVICES)
+    r = fishfarm("run", "--config", str(cfg), "--no-console", "--duration", "1", timeout=30)
+    assert r.returncode == 2, r.stderr
+    lines = r.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith(f"fishfarm: store.path: {path}: cannot open the ledger")
+    assert "internal error" not in r.stderr

@@ -54,3 +54,48 @@ def test_bad_config_names_file_key_and_reason(tmp_path, text, where):
 def test_missing_file(tmp_path):
     with pytest.raises(BadInput, match="no such file"):
         load_config(tmp_path / "nope.toml")
+
+
+@pytest.mark.parametrize("text, key", [
+    (GOOD.replace("position_m = 1", "position_m = inf"), "tanks.0.position_m"),
+    (GOOD.replace("mean_weight_g = 5", "mean_weight_g = nan"), "tanks.0.mean_weight_g"),
+    ("utc_offset_h = -inf\n" + GOOD, "utc_offset_h"),
+    (GOOD + "[feeding]\nportion_g = inf\n", "feeding.portion_g"),
+    (GOOD + "[feeding]\nretry_backoff_s = [5.0, nan]\n", "feeding.retry_backoff_s.1"),
+    (GOOD + "[demand]\nwindow_s = inf\n", "demand.window_s"),
+    (GOOD + '[devices.d]\nkind = "dispenser"\ndriver = "modbus"\ntimeout_s = nan\n', "devices.d.timeout_s"),
+    (GOOD + "[sim]\nspeed = -inf\n", "sim.speed"),
+    (GOOD + "[sim.fish]\nx = [[1.0, inf]]\n", "sim.fish.x.0.1"),
+])
+def test_non_finite_numbers_are_refused_in_every_section(tmp_path, text, key):
+    p = write(tmp_path, text)
+    with pytest.raises(BadInput) as exc:
+        load_config(p)
+    assert str(exc.value).startswith(f"{p}: {key}: must be a finite number")
+
+
+@pytest.mark.parametrize("text, key", [
+    (GOOD.replace("position_m = 1", "position_m = 1e9"), "tanks.0.position_m: "),
+    (GOOD.replace("position_m = 1", "position_m = -0.5"), "tanks.0.position_m: "),
+    (GOOD.replace("stock = 10", "stock = 10_000_000_000"), "tanks.0.stock: "),
+    (GOOD.replace('"A1"', '"A/1"'), "tanks.0.sensors.0: "),
+    ("utc_offset_h = 15\n" + GOOD, "utc_offset_h: "),
+    (GOOD + "[feeding]\nportion_g = 1e300\n", "feeding.portion_g: "),
+    (GOOD + "[feeding]\nmove_timeout_s = 1e7\n", "feeding.move_timeout_s: "),
+    (GOOD + "[feeding]\nretry_backoff_s = [5.0, -1.0]\n", "feeding.retry_backoff_s.1: "),
+    (GOOD + "[feeding]\nportion_g = 4\nmin_portion_g = 5\n", "feeding: min_portion_g (5) is more than portion_g"),
+    (GOOD + "[feeding]\nrefill_below_g = 9000\n", "feeding: refill_below_g (9000) must be below"),
+])
+def test_numbers_out_of_range_are_refused_naming_the_key(tmp_path, text, key):
+    p = write(tmp_path, text)
+    with pytest.raises(BadInput) as exc:
+        load_config(p)
+    assert str(exc.value).startswith(f"{p}: {key}") and "\n" not in str(exc.value)
+
+
+def test_species_file_refuses_non_finite_numbers(tmp_path):
+    from controller.config import load_toml
+    p = tmp_path / "species.toml"
+    p.write_text("[sparus_aurata]\na = nan\n")
+    with pytest.raises(BadInput, match=r"sparus_aurata\.a: must be a finite number"):
+        load_toml(p)

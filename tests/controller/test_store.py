@@ -113,3 +113,13 @@ def test_ration_upsert(store):
     store.set_ration("T1", "2026-06-01", 800.0, 2.0, "operator", 2.0)
     row = store.ration("T1", "2026-06-01")
     assert (row["grams"], row["source"]) == (800.0, "operator")
+
+
+def test_unusable_path_is_bad_input_naming_store_path(tmp_path):
+    from controller.errors import BadInput
+    (tmp_path / "file").write_text("not a directory")
+    (tmp_path / "junk.db").write_bytes(b"this is not SQLite" * 100)
+    for path in (tmp_path / "file" / "x.db", tmp_path / "file" / "a" / "x.db", tmp_path, tmp_path / "junk.db"):
+        with pytest.raises(BadInput) as exc:
+            Store(path)
+        assert str(exc.value).startswith(f"store.path: {path}: cannot open the ledger: ")
