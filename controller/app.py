@@ -101,7 +101,7 @@ class Controller:
         """E-stop wins from any state, even before the robot exists: it then starts stopped."""
         if self.robot is None:
             self.estop_before_start = reason
-            self.alarms.raise_("estop", f"emergency stop: {reason}", "critical")
+            self.alarms.raise_("estop", f"emergency stop: {reason}", "critical", kind="latched")
         else:
             await self.robot.emergency_stop(reason)
 
@@ -146,7 +146,7 @@ class Controller:
             except Exception as exc:
                 log.exception("%s crashed; restarting it", name)
                 self.alarms.raise_(f"controller/{name}", f"internal error: {type(exc).__name__}: {exc}",
-                                   "critical")
+                                   "critical", kind="crashed")
                 await asyncio.sleep(1.0)
 
     def _one(self, kind: str):
@@ -161,7 +161,7 @@ class Controller:
                 self.alarms.clear(f"device/{device.name}", "connected")
                 return
             except DeviceError as exc:
-                self.alarms.raise_(f"device/{device.name}", f"cannot open: {exc.text}")
+                self.alarms.raise_(f"device/{device.name}", f"cannot open: {exc.text}", kind="unreachable")
                 await asyncio.sleep(OPEN_BACKOFF_S[min(attempt, len(OPEN_BACKOFF_S) - 1)])
 
     def _requeue_open_demands(self) -> None:
@@ -176,7 +176,7 @@ class Controller:
                 batch = await self.contacts.read()
                 self.alarms.clear(f"device/{self.contacts.name}", "contacts back")
             except DeviceError as exc:
-                self.alarms.raise_(f"device/{self.contacts.name}", exc.text)
+                self.alarms.raise_(f"device/{self.contacts.name}", exc.text, kind="unreachable")
                 await self._reopen(self.contacts)
                 continue
             for contact in batch:
@@ -215,7 +215,8 @@ class Controller:
                              {"t": self.clock.iso(event.t), "rate_hz": round(event.rate_hz, 3)}, reliable=True)
             self.robot.on_demand(Job(event.tank, event.t, demand_id))
         elif isinstance(event, SensorFault):
-            self.alarms.raise_(f"sensor/{event.sensor}", f"tank {event.tank}: sensor {event.sensor} {event.kind}")
+            self.alarms.raise_(f"sensor/{event.sensor}", f"tank {event.tank}: sensor {event.sensor} {event.kind}",
+                               kind=event.kind)
         elif isinstance(event, SensorRecovered):
             self.alarms.clear(f"sensor/{event.sensor}", f"tank {event.tank}: sensor {event.sensor} recovered")
 
@@ -257,8 +258,7 @@ class Controller:
             "t": self.clock.iso(now), "state": "starting", "position_m": None, "hopper_g": None}
         return {"t": self.clock.iso(now), "site": self.cfg.site, "feeder": feeder,
                 "tanks": tanks,
-                "alarms": [{"source": a.source, "severity": a.severity, "text": a.text,
-                            "t": self.clock.iso(a.t)} for a in self.alarms.active.values()]}
+                "alarms": self.alarms.listing()}
 
 
 def install_signal_handlers(controller: Controller) -> None:

@@ -67,6 +67,12 @@ MIGRATIONS = [
     );
     CREATE INDEX alarm_source ON alarm (source, id);
     """,
+    # 1 -> 2: an alarm is a condition, (source, kind); rows of version 1 are each source's one kind
+    """
+    ALTER TABLE alarm ADD COLUMN kind TEXT NOT NULL DEFAULT 'general';
+    DROP INDEX alarm_source;
+    CREATE INDEX alarm_source_kind ON alarm (source, kind, id);
+    """,
 ]
 
 
@@ -270,11 +276,17 @@ class Store:
         return self.db.execute("SELECT * FROM ration WHERE tank = ? AND date = ?", (tank, date)).fetchone()
 
     # -- alarms ---------------------------------------------------------------
-    def add_alarm(self, source: str, t: float, severity: str, text: str, active: bool) -> None:
-        self._write("INSERT INTO alarm (source, t, severity, text, active) VALUES (?, ?, ?, ?, ?)",
-                    (source, t, severity, text, int(active)))
+    def add_alarm(self, source: str, t: float, severity: str, text: str, active: bool,
+                  kind: str = "general") -> None:
+        """One row per change of an alarm: raised, severity changed, cleared (controller.alarms)."""
+        self._write("INSERT INTO alarm (source, kind, t, severity, text, active) VALUES (?, ?, ?, ?, ?, ?)",
+                    (source, kind, t, severity, text, int(active)))
 
     def active_alarms(self) -> list[sqlite3.Row]:
+        """The standing alarms: each (source, kind) whose latest row is active, oldest first."""
         return self.db.execute(
-            "SELECT a.* FROM alarm a JOIN (SELECT source, MAX(id) AS id FROM alarm GROUP BY source) l "
+            "SELECT a.* FROM alarm a JOIN (SELECT source, kind, MAX(id) AS id FROM alarm GROUP BY source, kind) l "
             "ON a.id = l.id WHERE a.active = 1 ORDER BY a.t").fetchall()
+
+    def alarms(self) -> list[sqlite3.Row]:
+        return self.db.execute("SELECT * FROM alarm ORDER BY id").fetchall()

@@ -106,7 +106,7 @@ class Dispensing:
         phase = "done" if result.phase == "done" else "aborted"
         if result.phase == "unknown":
             self.alarms.raise_("ledger", f"feed {feed.id} to {feed.tank}: outcome unknown: {result.note}",
-                               "critical")
+                               "critical", kind=f"unknown/{feed.id}")
         served = demand_id if phase == "done" else None
         closed = self.store.close_feed(feed.id, phase, result.grams, self.clock.now(),
                                        note if phase == "done" else result.note, served)

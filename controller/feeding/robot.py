@@ -92,7 +92,7 @@ class FeedingRobot:
             if err is not None:
                 log.error("e-stop: %s did not confirm: %s", name, err)
         if first:
-            self.alarms.raise_("estop", f"emergency stop: {reason}", "critical")
+            self.alarms.raise_("estop", f"emergency stop: {reason}", "critical", kind="latched")
 
     def operator_reset(self) -> str | None:
         """Release an e-stop or cut a fault's back-off short. Returns an error text or None."""
@@ -158,14 +158,14 @@ class FeedingRobot:
             return
         if isinstance(exc, DriveEstopped):
             self.estop()
-            self.alarms.raise_("estop", f"emergency stop: {exc.text}", "critical")
+            self.alarms.raise_("estop", f"emergency stop: {exc.text}", "critical", kind="latched")
             return
         if not isinstance(exc, DeviceError):
             log.error("feeder: unexpected error", exc_info=exc)
         if self.state != "fault":
             self.fail()
         self.failures += 1
-        self.alarms.raise_("feeder", f"fault: {exc}", "warning")
+        self.alarms.raise_("feeder", f"fault: {exc}", "warning", kind="fault")
 
     async def _recover(self) -> None:
         backoff = self.feeding.retry_backoff_s
