@@ -1,33 +1,98 @@
 """Operator overrides over Zenoh: ``farm/{site}/override/{command}`` queryables.
 
-Every payload may carry ``operator`` and ``reason``; each command validates its own fields.
+Every payload may carry ``operator`` and ``reason``; each command validates its own fields
+strictly: a field of the wrong JSON type (``grams=true``, ``grams="40"``, ``on="yes"``), a number
+that is not finite or out of range, an unknown field, a key given twice (refused by the bus's
+decoder) or text too long or holding control characters is refused with
+``{"ok": false, "error": "<field>: <why>"}`` and nothing is done. Nothing is coerced.
 ``estop`` is never refused: any payload, even an empty or unreadable one, stops the robot.
 """
 from __future__ import annotations
 
 import logging
+from typing import Annotated
 
-from pydantic import BaseModel, ConfigDict, Field, ValidationError
+from pydantic import AfterValidator, BaseModel, ConfigDict, Field, ValidationError, ValidationInfo, field_validator
 
 from controller.feeding.robot import Job
+from controller.text import has_control, printable
 
 log = logging.getLogger("fishfarm.override")
 
-
 STARTING = "the controller is starting: waiting for its devices"
+OPERATOR_MAX = 64
+REASON_MAX = 200
+RATION_MAX_G = 1_000_000.0     # a tonne a day for one tank: beyond that it is a typing error
+LOG_LINE_MAX = 1000
+
+
+class _OneLine(logging.Filter):
+    """Every line this module logs is one bounded line, whatever an operator's payload held (the
+    e-stop logs what it was given, unvalidated)."""
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        record.msg, record.args = printable(record.getMessage(), LOG_LINE_MAX), None
+        return True
+
+
+log.addFilter(_OneLine())
 
 
 class Refused(Exception):
     """A command the controller will not carry out; its text is the reply's error."""
 
 
-def _parse(model, payload):
+def _one_line(text: str) -> str:
+    if has_control(text):
+        raise ValueError("control characters (newline, carriage return, escape...) are not allowed")
+    return text
+
+
+Operator = Annotated[str, Field(min_length=1, max_length=OPERATOR_MAX), AfterValidator(_one_line)]
+Reason = Annotated[str, Field(max_length=REASON_MAX), AfterValidator(_one_line)]
+TankId = Annotated[str, Field(pattern=r"^[A-Za-z0-9_-]{1,32}$")]   # as farm.toml's tank ids
+
+_JSON_TYPE = {bool: "a boolean", str: "a string", dict: "an object", list: "an array", type(None): "null",
+              int: "a number", float: "a number"}
+_WANTED = {"float_type": "a number", "int_type": "an integer", "bool_type": "true or false",
+           "string_type": "a string"}
+
+
+def _why(err: dict) -> str:
+    """Pydantic's error as an operator reads it: what the field must be, never the value sent."""
+    kind, ctx = err["type"], err.get("ctx") or {}
+    if kind == "extra_forbidden":
+        return "unknown field"
+    if kind == "missing":
+        return "required"
+    if kind in _WANTED:
+        given = err.get("input")
+        if isinstance(given, int) and not isinstance(given, bool) and kind == "float_type":
+            return "out of range"                      # an integer too large for a float
+        return f"must be {_WANTED[kind]}, not {_JSON_TYPE.get(type(given), type(given).__name__)}"
+    if kind == "finite_number":
+        return "must be a finite number"
+    bound = {"greater_than_equal": ("at least", "ge"), "greater_than": ("more than", "gt"),
+             "less_than_equal": ("at most", "le"), "less_than": ("less than", "lt")}.get(kind)
+    if bound is not None:
+        return f"must be {bound[0]} {ctx.get(bound[1]):g}"
+    if kind == "string_too_long":
+        return f"longer than {ctx.get('max_length')} characters"
+    if kind == "string_too_short":
+        return "must not be empty"
+    if kind == "string_pattern_mismatch":
+        return "letters, digits, _ and - only (1 to 32)"
+    msg = err["msg"]
+    return msg[len("Value error, "):] if msg.startswith("Value error, ") else msg
+
+
+def _parse(model, payload, context: dict | None = None):
     try:
-        return model.model_validate(payload if payload is not None else {})
+        return model.model_validate(payload if payload is not None else {}, context=context)
     except ValidationError as exc:
         err = exc.errors()[0]
-        field = ".".join(str(p) for p in err["loc"]) or "payload"
-        raise Refused(f"{field}: {err['msg']}") from None
+        field = printable(".".join(str(p) for p in err["loc"]) or "payload", 64)
+        raise Refused(f"{field}: {_why(err)}") from None
 
 
 def _answering(handler):
@@ -41,9 +106,10 @@ def _answering(handler):
 
 
 class _Command(BaseModel):
-    model_config = ConfigDict(extra="forbid")
-    operator: str = "unknown"
-    reason: str = ""
+    # strict: JSON's true is no number and "40" no grams; ints are taken for floats (40 is 40.0)
+    model_config = ConfigDict(extra="forbid", strict=True, allow_inf_nan=False, frozen=True)
+    operator: Operator = "unknown"
+    reason: Reason = ""
 
 
 class Manual(_Command):
@@ -51,13 +117,25 @@ class Manual(_Command):
 
 
 class Feed(_Command):
-    tank: str
-    grams: float = Field(gt=0, le=5000)
+    tank: TankId
+    grams: float
+
+    @field_validator("grams")
+    @classmethod
+    def _one_portion(cls, grams: float, info: ValidationInfo) -> float:
+        """Between the smallest portion served and one portion: an ask outside is a mistake to
+        say, not a number to quietly clamp (1e-300 g would be a 1 ms auger run)."""
+        feeding = info.context["feeding"]
+        if grams < feeding.min_portion_g:
+            raise ValueError(f"less than feeding.min_portion_g ({feeding.min_portion_g:g} g)")
+        if grams > feeding.portion_g:
+            raise ValueError(f"more than one portion, feeding.portion_g ({feeding.portion_g:g} g)")
+        return grams
 
 
 class SetRation(_Command):
-    tank: str
-    grams: float = Field(ge=0, le=1_000_000)
+    tank: TankId
+    grams: float = Field(ge=0, le=RATION_MAX_G)
 
 
 class Overrides:
@@ -91,7 +169,7 @@ class Overrides:
         return self._result(robot.set_manual(cmd.on))
 
     async def feed(self, payload) -> dict:
-        cmd = _parse(Feed, payload)
+        cmd = _parse(Feed, payload, {"feeding": self.c.cfg.feeding})
         self._tank(cmd.tank)
         robot = self._robot()
         if robot.state in ("estop", "manual"):

@@ -8,9 +8,9 @@ from __future__ import annotations
 
 import re
 
-# C0 and C1 controls, DEL, Unicode line/paragraph separators and the bidirectional overrides
-# (text that displays in another order than it reads)
-CONTROL = re.compile("[\x00-\x1f\x7f-\x9f\u2028\u2029\u202a-\u202e\u2066-\u2069]")
+# C0 and C1 controls, DEL, Unicode line/paragraph separators, the bidirectional overrides (text
+# that displays in another order than it reads) and lone surrogates (JSON's "\ud800": no UTF-8)
+CONTROL = re.compile("[\x00-\x1f\x7f-\x9f\u2028\u2029\u202a-\u202e\u2066-\u2069\ud800-\udfff]")
 ELLIPSIS = "…"
 
 

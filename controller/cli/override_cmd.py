@@ -20,6 +20,7 @@ _NAME = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*$")
 _COMMAND = re.compile(r"^[a-z][a-z0-9_-]{0,63}$")
 _SITE = re.compile(r"^[A-Za-z0-9_-]{1,64}$")
 _RESERVED = {"operator": "--operator", "reason": "--reason"}
+_STRINGS = {"tank"}  # identifiers, whatever they look like: a tank may be called 12
 
 
 def _connection_options(f):
@@ -38,7 +39,8 @@ def _connection_options(f):
 
 
 def parse_args(args: tuple[str, ...] | list[str]) -> dict:
-    """``key=value`` words into a JSON object; values that read as numbers become numbers."""
+    """``key=value`` words into a JSON object: values that read as numbers become numbers,
+    ``true``/``false`` booleans, the rest strings; ``tank`` is always a string (``tank=12``)."""
     fields: dict = {}
     for word in args:
         key, eq, text = word.partition("=")
@@ -48,12 +50,15 @@ def parse_args(args: tuple[str, ...] | list[str]) -> dict:
             raise BadInput("ARGS", word, f"use {_RESERVED[key]} for {key}")
         if key in fields:
             raise BadInput("ARGS", word, f"{key} given twice")
-        fields[key] = _value(text)
+        fields[key] = text if key in _STRINGS else _value(text)
     return fields
 
 
 def _value(text: str):
-    """A number if the whole text is one (finite), else the text itself: tank=T1 stays a string."""
+    """A boolean or a number if the whole text is one (finite), else the text itself: tank=T1 stays
+    a string, and so does anything the controller should refuse as one (grams=abc, on=yes)."""
+    if text in ("true", "false"):
+        return text == "true"
     for kind in (int, float):
         try:
             number = kind(text)

@@ -157,6 +157,8 @@ def test_parse_args_types():
     assert parse_args(["tank=T1", "grams=40", "g2=4.5", "n=-3", "e=1e3", "x=1_000", "y=nan", "z="]) == {
         "tank": "T1", "grams": 40, "g2": 4.5, "n": -3, "e": 1000.0, "x": "1_000", "y": "nan", "z": ""}
     assert parse_args(["reason_code=a=b"]) == {"reason_code": "a=b"}
+    assert parse_args(["on=true", "off=false", "yes=yes", "t=True", "tank=12", "grams=12"]) == {
+        "on": True, "off": False, "yes": "yes", "t": "True", "tank": "12", "grams": 12}
     for bad in (["=3"], ["1x=3"], ["a b=3"], ["reason=x"]):
         with pytest.raises(BadInput):
             parse_args(bad)

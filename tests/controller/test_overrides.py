@@ -1,0 +1,301 @@
+"""Operator overrides, generated: payloads sent as raw JSON over a real Zenoh session to the real
+``Overrides`` on a real ``Bus``, with real rations on a real SQLite ledger. The robot is a recorder:
+whatever an override makes it do is written down, so "nothing acted on" is checked, not assumed.
+
+Each faulty payload is a valid one with exactly one field spoiled, as the issue lists the ways:
+wrong JSON type, non-finite, out of range, unknown, given twice, too long, control characters.
+The refusal must name that field; the robot and the ledger must not have moved."""
+from __future__ import annotations
+
+import asyncio
+import json
+import logging
+import socket
+import threading
+
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from controller.bus import Bus
+from controller.config import BusConfig, Config, FeedingConfig, TankConfig
+from controller.feeding.rations import Rations, load_species
+from controller.overrides import OPERATOR_MAX, RATION_MAX_G, REASON_MAX, Overrides
+from controller.store import Store
+from controller.text import has_control, printable
+from devices.clock import ManualClock
+
+FEEDING = FeedingConfig(portion_g=60.0, min_portion_g=5.0)
+TANKS = ("T1", "T2", "12")
+WAIT_S = 10.0
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+class Robot:
+    """What the real robot offers overrides, recording every call."""
+
+    def __init__(self):
+        self.state, self.pending, self.calls = "idle", {}, []
+        self.dispensing = self
+
+    def portion(self, tank, grams):
+        return grams
+
+    def on_demand(self, job):
+        self.calls.append(("on_demand", job.tank, job.grams, job.source))
+
+    def set_manual(self, on):
+        self.calls.append(("set_manual", on))
+
+    def operator_reset(self):
+        self.calls.append(("operator_reset",))
+
+
+class Farm:
+    """The controller as overrides see it: config, clock, robot, rations, tanks."""
+
+    def __init__(self, store):
+        tanks = [TankConfig(id=t, stock=2000, mean_weight_g=20, position_m=3.0 + i, sensors=[f"s{i}"])
+                 for i, t in enumerate(TANKS)]
+        self.cfg = Config(tanks=tanks, feeding=FEEDING, path="<test>")
+        self.clock = ManualClock()
+        self.robot = Robot()
+        self.store = store
+        self.rations = Rations(self.cfg, load_species(), store)
+        self.sensor_tank = {s: t.id for t in tanks for s in t.sensors}
+        self.published, self.estops = [], []
+
+    def publish_ration(self, tank):
+        self.published.append(tank)
+
+    async def emergency_stop(self, reason):
+        self.estops.append(reason)
+
+    def status(self):
+        return {"t": self.clock.iso()}
+
+    def acted(self) -> list:
+        rows = [tuple(r) for r in self.store.db.execute("SELECT * FROM ration")]
+        return [*self.robot.calls, *self.published, *self.estops, *rows]
+
+
+@pytest.fixture(scope="module")
+def served(tmp_path_factory):
+    loop = asyncio.new_event_loop()
+    thread = threading.Thread(target=loop.run_forever, daemon=True)
+    thread.start()
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    store = Store(tmp_path_factory.mktemp("ledger") / "ledger.db")
+    farm = Farm(store)
+    server = Bus(BusConfig(mode="peer", listen=[endpoint]), "demo", loop=loop)
+    Overrides(farm).declare(server)
+    client = Bus.client(endpoint, timeout_s=WAIT_S)
+    yield farm, client
+    client.close()
+    server.close()
+    store.close()
+    loop.call_soon_threadsafe(loop.stop)
+    thread.join(5)
+    loop.close()
+
+
+def ask(client, command: str, body: bytes) -> dict:
+    replies = [json.loads(r.ok.payload.to_bytes()) for r in
+               client.session.get(f"farm/demo/override/{command}", payload=body, timeout=WAIT_S)]
+    assert len(replies) == 1, replies
+    return replies[0]
+
+
+def as_json(pairs: list[tuple[str, str]]) -> bytes:
+    """An object from (key, raw JSON value) pairs, in order, repeats kept: the wire as sent."""
+    return ("{" + ",".join(f"{json.dumps(k)}:{v}" for k, v in pairs) + "}").encode()
+
+
+# ---------------------------------------------------------------- what is valid
+
+operators = st.text(st.characters(codec="utf-8", exclude_categories=("Cc", "Cs", "Zl", "Zp", "Cf")),
+                    min_size=1, max_size=OPERATOR_MAX)
+reasons = st.text(st.characters(codec="utf-8", exclude_categories=("Cc", "Cs", "Zl", "Zp", "Cf")),
+                  max_size=REASON_MAX)
+numbers_in = lambda lo, hi: st.one_of(st.floats(lo, hi), st.integers(int(lo) + 1, int(hi)))  # noqa: E731
+
+VALID = {  # command -> field -> strategy of a valid value
+    "feed": {"tank": st.sampled_from(TANKS), "grams": numbers_in(FEEDING.min_portion_g, FEEDING.portion_g)},
+    "ration": {"tank": st.sampled_from(TANKS), "grams": numbers_in(0, RATION_MAX_G)},
+    "manual": {"on": st.booleans()},
+    "reset": {},
+}
+OPTIONAL = {"operator": operators, "reason": reasons}
+KINDS = {"tank": "string", "operator": "string", "reason": "string", "grams": "number", "on": "boolean"}
+
+
+@st.composite
+def valid_payloads(draw, command):
+    pairs = {f: draw(s) for f, s in VALID[command].items()}
+    for field, strategy in OPTIONAL.items():
+        if draw(st.booleans()):
+            pairs[field] = draw(strategy)
+    return pairs
+
+
+# ---------------------------------------------------------------- ways to spoil one field
+
+json_values = st.recursive(st.none() | st.booleans() | st.integers() | st.floats(allow_nan=False, allow_infinity=False)
+                           | st.text(max_size=10), lambda inner: st.lists(inner, max_size=3)
+                           | st.dictionaries(st.text(max_size=5), inner, max_size=3), max_leaves=6)
+CONTROL = st.sampled_from(["\n", "\r", "\x1b", "\x00", "\x7f", "\x85", "\u2028", "\u202e"])
+
+
+def wrong_types(kind):
+    anything = json_values.filter(lambda v: not _is(kind, v))
+    if kind == "number":
+        numerals = st.floats(allow_nan=False, allow_infinity=False).map(repr) | st.integers().map(str)
+        return st.one_of(anything, numerals, st.booleans())
+    if kind == "boolean":
+        return st.one_of(anything, st.sampled_from(["yes", "true", "on", "1"]), st.integers(0, 1))
+    return st.one_of(anything, st.integers(), st.booleans())
+
+
+def _is(kind, v) -> bool:
+    return {"string": isinstance(v, str), "boolean": isinstance(v, bool),
+            "number": isinstance(v, int | float) and not isinstance(v, bool)}[kind]
+
+
+def _faults(kind: str) -> list[str]:
+    return ["wrong type", "duplicate", *{"number": ["non-finite", "out of range"],
+                                         "string": ["too long", "control character"]}.get(kind, [])]
+
+
+CASES = sorted({(command, field, fault) for command in VALID for field in [*VALID[command], *OPTIONAL]
+                for fault in _faults(KINDS[field])} | {(command, None, "unknown") for command in VALID},
+               key=str)
+"""Every (command, field, fault) the issue names; hypothesis draws them evenly."""
+
+
+@st.composite
+def spoilt_value(draw, command, field, fault):
+    """The raw JSON of ``field``'s value spoilt by ``fault``."""
+    kind = KINDS[field]
+    if fault == "wrong type":
+        return json.dumps(draw(wrong_types(kind)))
+    if fault == "non-finite":
+        return draw(st.sampled_from(["1e999", "-1e999", "1E400", "-0.1e500"]))
+    if fault == "out of range":
+        lo, hi = ((FEEDING.min_portion_g, FEEDING.portion_g) if command == "feed" else (0.0, RATION_MAX_G))
+        below = st.floats(max_value=lo, exclude_max=True, allow_nan=False, allow_infinity=False)
+        above = st.floats(min_value=hi, exclude_min=True, allow_nan=False, allow_infinity=False)
+        if command == "feed":
+            below = below | st.floats(0, lo, exclude_max=True) | st.just(1e-300)
+        huge = st.integers(min_value=10**309, max_value=10**400)
+        return json.dumps(draw(st.one_of(below, above, huge)))
+    cap = {"tank": 32, "operator": OPERATOR_MAX, "reason": REASON_MAX}[field]
+    if fault == "too long":
+        return json.dumps(draw(st.text(st.sampled_from("ab é"), min_size=cap + 1, max_size=cap + 300)))
+    text = draw(st.text(st.sampled_from("abT1"), max_size=cap - 1))
+    at = draw(st.integers(0, len(text)))
+    return json.dumps(text[:at] + draw(CONTROL) + text[at:])
+
+
+@st.composite
+def faulty(draw, command, field, fault):
+    """(field that must be named, raw body): a valid payload of ``command`` with one field spoilt."""
+    payload = draw(valid_payloads(command))
+    fields = [*VALID[command], *OPTIONAL]
+    if fault == "unknown":
+        field = draw(st.text(min_size=1, max_size=80).filter(lambda k: k not in fields))
+        value = json.dumps(draw(json_values))
+        named = printable(field, 64)
+    elif fault == "duplicate":
+        strategy = VALID[command].get(field, OPTIONAL.get(field))
+        payload.setdefault(field, draw(strategy))
+        value, named = json.dumps(draw(strategy)), field
+    else:
+        payload.pop(field, None)
+        value, named = draw(spoilt_value(command, field, fault)), field
+    pairs = [(k, json.dumps(v)) for k, v in payload.items()]
+    pairs.insert(draw(st.integers(0, len(pairs))), (field, value))
+    return named, as_json(pairs)
+
+
+@pytest.mark.parametrize("command, field, fault", CASES, ids=["-".join(map(str, c)) for c in CASES])
+@settings(max_examples=15, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture,
+                                                                 HealthCheck.too_slow])
+@given(data=st.data())
+def test_every_spoilt_field_is_refused_by_name_and_nothing_is_done(served, command, field, fault, data):
+    farm, client = served
+    named, body = data.draw(faulty(command, field, fault))
+    before = farm.acted()
+    reply = ask(client, command, body)
+    assert reply["ok"] is False, (body, reply)
+    assert reply["error"].startswith(f"{named}: "), (body, reply)
+    assert len(reply["error"]) < 200 and not has_control(reply["error"])
+    assert farm.acted() == before
+
+
+@settings(max_examples=200, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(data=st.data())
+def test_valid_payloads_are_taken_exactly_as_sent(served, data):
+    """The other half: strictness that refused everything would pass the test above."""
+    farm, client = served
+    command = data.draw(st.sampled_from(sorted(VALID)))
+    payload = data.draw(valid_payloads(command))
+    farm.robot.calls.clear()
+    farm.published.clear()
+    reply = ask(client, command, json.dumps(payload).encode())
+    assert reply["ok"] is True, (payload, reply)
+    expected = {"feed": [("on_demand", payload.get("tank"), float(payload.get("grams", 0)), "operator")],
+                "manual": [("set_manual", payload.get("on"))], "reset": [("operator_reset",)],
+                "ration": []}[command]
+    assert farm.robot.calls == expected
+    if command == "feed":
+        assert reply["grams"] == round(payload["grams"], 1)
+    if command == "ration":
+        assert farm.published == [payload["tank"]]
+        assert farm.rations.today(payload["tank"], farm.clock.now()).grams == payload["grams"]
+
+
+@pytest.mark.parametrize("command, payload, error", [
+    ("feed", {"tank": "T1", "grams": True}, "grams: must be a number, not a boolean"),
+    ("feed", {"tank": "T1", "grams": "40"}, "grams: must be a number, not a string"),
+    ("feed", {"tank": "T1", "grams": 1e-300}, "grams: less than feeding.min_portion_g (5 g)"),
+    ("feed", {"tank": "T1", "grams": 61}, "grams: more than one portion, feeding.portion_g (60 g)"),
+    ("ration", {"tank": "T1", "grams": True}, "grams: must be a number, not a boolean"),
+    ("ration", {"tank": "T1", "grams": -1}, "grams: must be at least 0"),
+    ("manual", {"on": "yes"}, "on: must be true or false, not a string"),
+    ("feed", {"tank": "T1", "grams": 40, "reason": "x" * 5_000_000}, "reason: longer than 200 characters"),
+    ("reset", {"reason": "ok\n2026-05-28T06:00:00Z WARNING fishfarm: all clear"},
+     "reason: control characters (newline, carriage return, escape...) are not allowed"),
+    ("feed", {"tank": "T9", "grams": 40}, "tank: no tank 'T9'"),
+])
+def test_the_issues_examples(served, command, payload, error):
+    farm, client = served
+    before = farm.acted()
+    assert ask(client, command, json.dumps(payload).encode()) == {"ok": False, "error": error}
+    assert farm.acted() == before
+
+
+def test_duplicate_and_non_finite_on_the_wire(served):
+    farm, client = served
+    before = farm.acted()
+    assert ask(client, "feed", b'{"tank": "T1", "grams": 40, "grams": 41}') == {
+        "ok": False, "error": "grams: duplicate key"}
+    assert ask(client, "ration", b'{"tank": "T1", "grams": 1e999}') == {
+        "ok": False, "error": "grams: must be a finite number"}
+    assert farm.acted() == before
+
+
+def test_override_log_lines_cannot_be_forged(served, caplog):
+    """The e-stop takes any payload, so what it logs is made one bounded line on the way out."""
+    farm, client = served
+    caplog.set_level(logging.WARNING, logger="fishfarm.override")
+    forged = "x\n2026-05-28T06:00:00Z INFO    fishfarm: e-stop released\x1b[2J" + "y" * 100_000
+    assert ask(client, "estop", json.dumps({"operator": "ana\rbob", "reason": forged}).encode()) == {"ok": True}
+    assert ask(client, "feed", json.dumps({"tank": "T2", "grams": 30, "operator": "ana"}).encode())["ok"]
+    lines = [r.getMessage() for r in caplog.records if r.name == "fishfarm.override"]
+    assert len(lines) == 2 and lines[0].startswith("e-stop by ana\\rbob: x\\n2026")
+    assert all(not has_control(line) and len(line) <= 1000 for line in lines)
