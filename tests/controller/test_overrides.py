@@ -17,6 +17,7 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
+from controller.alarms import TEXT_MAX, Alarms
 from controller.bus import Bus
 from controller.config import BusConfig, Config, FeedingConfig, TankConfig
 from controller.feeding.rations import Rations, load_species
@@ -69,15 +70,17 @@ class Farm:
         self.rations = Rations(self.cfg, load_species(), store)
         self.sensor_tank = {s: t.id for t in tanks for s in t.sensors}
         self.published, self.estops = [], []
+        self.alarms = Alarms(store, lambda *a, **k: None, self.clock)
 
     def publish_ration(self, tank):
         self.published.append(tank)
 
-    async def emergency_stop(self, reason):
+    async def emergency_stop(self, reason):       # as Controller.emergency_stop before the robot is up
         self.estops.append(reason)
+        self.alarms.raise_("estop", f"emergency stop: {reason}", "critical", kind="latched")
 
     def status(self):
-        return {"t": self.clock.iso()}
+        return {"t": self.clock.iso(), "alarms": self.alarms.listing()}
 
     def acted(self) -> list:
         rows = [tuple(r) for r in self.store.db.execute("SELECT * FROM ration")]
@@ -299,3 +302,14 @@ def test_override_log_lines_cannot_be_forged(served, caplog):
     lines = [r.getMessage() for r in caplog.records if r.name == "fishfarm.override"]
     assert len(lines) == 2 and lines[0].startswith("e-stop by ana\\rbob: x\\n2026")
     assert all(not has_control(line) and len(line) <= 1000 for line in lines)
+
+
+def test_a_five_megabyte_reason_does_not_travel_in_status(served):
+    farm, client = served
+    huge = "why " * 1_250_000
+    assert ask(client, "estop", json.dumps({"operator": "ana", "reason": huge}).encode()) == {"ok": True}
+    replies = list(client.session.get("farm/demo/status", timeout=WAIT_S))
+    assert len(replies) == 1 and len(replies[0].ok.payload.to_bytes()) < 2 * TEXT_MAX
+    [alarm] = json.loads(replies[0].ok.payload.to_bytes())["alarms"]
+    assert alarm["source"] == "estop" and alarm["text"].startswith("emergency stop: operator ana: why why")
+    assert max(len(r["text"]) for r in farm.store.alarms()) == TEXT_MAX
