@@ -92,8 +92,8 @@ class Alarms:
         """Raise ``(source, kind)``. Returns True when this is news: the alarm was not standing, or
         stood at another severity (then it is stored, published and logged); otherwise only its
         text is refreshed."""
-        if severity not in SEVERITIES:
-            raise ValueError(f"severity {severity!r}")
+        if severity not in SEVERITIES:   # raising an alarm never fails: a misspelt severity is loud
+            severity = "critical"
         text, now = printable(text, TEXT_MAX), self.clock.now()
         current = self.active.get((source, kind))
         if current is not None and current.severity == severity:
