@@ -16,7 +16,6 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
-import itertools
 import json
 import logging
 import re
@@ -29,7 +28,7 @@ import zenoh
 
 from controller.config import BusConfig
 from controller.errors import BadInput
-from controller.text import printable
+from controller.payload import parse_object
 
 log = logging.getLogger("fishfarm.bus")
 
@@ -55,68 +54,10 @@ def encode(payload: dict) -> bytes:
     return json.dumps(payload, ensure_ascii=False, allow_nan=False, separators=(",", ":")).encode()
 
 
-MAX_DEPTH = 32
-"""Deepest nesting a payload may have: ours are two levels deep; Python's parser recurses."""
-_STRINGS = re.compile(r'"[^"\\]*(?:\\.[^"\\]*)*"')
-_NOT_BRACKETS = re.compile(r"[^\[\]{}]+")
-_STEP = {"[": 1, "{": 1, "]": -1, "}": -1}
-
-
 def decode(data: zenoh.ZBytes | bytes | None) -> dict:
     """A payload as a dict; no payload at all is ``{}``. Raises ValueError saying what is wrong:
-    not UTF-8, not JSON, not an object, nested deeper than MAX_DEPTH, or a key given twice
-    (``"grams: duplicate key"``: JSON parsers disagree on which one wins, so neither does)."""
-    raw = bytes(data.to_bytes() if isinstance(data, zenoh.ZBytes) else data or b"")
-    if not raw.strip():
-        return {}
-    try:
-        text = raw.decode("utf-8")
-    except UnicodeDecodeError:
-        raise ValueError("payload is not UTF-8") from None
-    _check_depth(text)
-    try:
-        value = json.loads(text, parse_constant=_no_constant, object_pairs_hook=_unique_keys)
-    except json.JSONDecodeError as exc:
-        raise ValueError(f"payload is not JSON: {exc}") from None
-    except RecursionError:  # _check_depth should have caught it; never let it reach a Zenoh thread
-        raise ValueError(f"payload: nested deeper than {MAX_DEPTH} levels") from None
-    except _DuplicateKey as exc:
-        raise ValueError(str(exc)) from None
-    except ValueError as exc:  # e.g. an integer of more than 4,300 digits
-        raise ValueError(f"payload is not JSON: {exc}") from None
-    if not isinstance(value, dict):
-        raise ValueError(f"payload must be a JSON object, got {type(value).__name__}")
-    return value
-
-
-class _DuplicateKey(ValueError):
-    pass
-
-
-def _unique_keys(pairs: list[tuple[str, object]]) -> dict:
-    value = dict(pairs)
-    if len(value) != len(pairs):
-        seen: set[str] = set()
-        for key, _ in pairs:
-            if key in seen:
-                raise _DuplicateKey(f"{printable(key, 64)}: duplicate key")
-            seen.add(key)
-    return value
-
-
-def _check_depth(text: str) -> None:
-    """Refuse deep nesting before parsing: the parser recurses once per level, and a
-    RecursionError is no ValueError. Strings are cut out first (brackets in them do not count);
-    both passes are regular expressions, so a megabyte costs milliseconds, not a Python loop."""
-    if text.count("[") + text.count("{") <= MAX_DEPTH:
-        return
-    brackets = _NOT_BRACKETS.sub("", _STRINGS.sub("", text))
-    if max(itertools.accumulate(map(_STEP.__getitem__, brackets)), default=0) > MAX_DEPTH:
-        raise ValueError(f"payload: nested deeper than {MAX_DEPTH} levels")
-
-
-def _no_constant(name: str):
-    raise json.JSONDecodeError(f"{name} is not JSON", name, 0)
+    not UTF-8, not JSON, not an object, nested too deep, a key given twice (controller.payload)."""
+    return parse_object(bytes(data.to_bytes() if isinstance(data, zenoh.ZBytes) else data or b""))
 
 
 # ---------------------------------------------------------------- configs

@@ -339,7 +339,7 @@ def test_duplicate_keys_are_refused_naming_the_key():
 
 
 def test_deep_nesting_is_a_value_error_not_a_recursion_error():
-    from controller.bus import MAX_DEPTH
+    from controller.payload import MAX_DEPTH
     for depth in (MAX_DEPTH + 1, 1_000, 100_000):
         for open_, close in (("[", "]"), ('{"a":', "}")):
             raw = ('{"estop":' + open_ * depth + "1" + close * depth + "}").encode()
