@@ -14,6 +14,7 @@ import re
 import click
 
 from controller.errors import BadInput
+from controller.text import printable
 
 DEFAULT_CONNECT = "tcp/127.0.0.1:7447"  # the demo config's listener (DESIGN.md)
 _NAME = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*$")
@@ -184,4 +185,5 @@ def render_status(snapshot: dict) -> str:
     alarms = [a for a in snapshot.get("alarms") or [] if isinstance(a, dict) and a.get("active", True)]
     for a in alarms:
         lines.append(f"ALARM {a.get('severity', '?')} {a.get('source', '')}: {a.get('text', '')}".rstrip())
-    return "\n".join(lines)
+    # whatever answered may not be ours: no escape sequence reaches the operator's terminal
+    return "\n".join(printable(line, 1000) for line in lines)

@@ -169,3 +169,9 @@ def test_status_table_reads_the_snapshot():
     # a snapshot it does not fully know still renders, with dashes
     sparse = render_status({"tanks": {"T9": {"fed_g": 3}}, "feeder": "?"})
     assert "T9" in sparse and "3.0/-" in sparse
+
+
+def test_status_table_escapes_what_it_prints():
+    hostile = {**SNAPSHOT, "alarms": [{"source": "x\x1b[2J", "severity": "warning", "text": "a\nFORGED " + "y" * 5000}]}
+    table = render_status(hostile)
+    assert "\x1b" not in table and "\nFORGED" not in table and len(table.splitlines()[-1]) <= 1000
