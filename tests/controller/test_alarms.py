@@ -112,3 +112,56 @@ def test_a_version_1_ledger_keeps_its_standing_alarms(ledger):
     assert store.schema_version == len(MIGRATIONS)
     assert list(alarms.active) == [("estop", "general")]
     assert alarms.clear("estop", "released") and store.active_alarms() == []
+
+
+def test_over_zenoh_a_hundred_retries_are_one_message(ledger):
+    """The same through a real Bus to a subscriber on another session: the raise and the clear
+    arrive (reliable, in order), the 99 refreshes in between do not."""
+    import asyncio
+    import queue
+    import socket
+    import threading
+    import time
+
+    from controller.bus import Bus
+    from controller.config import BusConfig
+
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        endpoint = f"tcp/127.0.0.1:{s.getsockname()[1]}"
+    loop = asyncio.new_event_loop()
+    thread = threading.Thread(target=loop.run_forever, daemon=True)
+    thread.start()
+    server = Bus(BusConfig(mode="peer", listen=[endpoint]), "demo", loop=loop)
+    client = Bus.client(endpoint, timeout_s=10, loop=loop)
+    got, probed = queue.Queue(), threading.Event()
+
+    async def listener(suffix, payload):
+        if payload.get("probe"):
+            probed.set()
+        else:
+            got.put((suffix, payload))
+    try:
+        client.subscribe("alarm/**", listener)
+        deadline = time.monotonic() + 10
+        while not probed.is_set():          # a route carries data a moment after it matches
+            assert time.monotonic() < deadline, "no route to the subscriber"
+            server.publish("alarm/device/rail", {"probe": True}, reliable=True)
+            probed.wait(0.01)
+        store = Store(ledger)
+        alarms = Alarms(store, server.publish, ManualClock(T0))
+        for i in range(100):
+            alarms.raise_("device/rail", f"no status frame for {0.5 + i / 100:.2f} s", kind="unreachable")
+        alarms.clear("device/rail", "connected")
+        messages = []
+        while not messages or messages[-1][1]["active"]:
+            messages.append(got.get(timeout=10))
+        assert [(s, p["active"], p["text"]) for s, p in messages] == [
+            ("alarm/device/rail", True, "no status frame for 0.50 s"), ("alarm/device/rail", False, "connected")]
+        assert len(store.alarms()) == 2
+    finally:
+        client.close()
+        server.close()
+        loop.call_soon_threadsafe(loop.stop)
+        thread.join(5)
+        loop.close()
