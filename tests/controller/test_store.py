@@ -1,3 +1,4 @@
+import os
 import sqlite3
 
 import pytest
@@ -123,3 +124,17 @@ def test_unusable_path_is_bad_input_naming_store_path(tmp_path):
         with pytest.raises(BadInput) as exc:
             Store(path)
         assert str(exc.value).startswith(f"store.path: {path}: cannot open the ledger: ")
+
+
+@pytest.mark.skipif(os.geteuid() == 0, reason="root writes into read-only directories")
+def test_read_only_directory_is_bad_input_naming_store_path(tmp_path):
+    from controller.errors import BadInput
+    ro = tmp_path / "ro"
+    ro.mkdir()
+    ro.chmod(0o500)
+    try:
+        for path in (ro / "x.db", ro / "sub" / "x.db"):
+            with pytest.raises(BadInput, match=r"^store\.path: "):
+                Store(path)
+    finally:
+        ro.chmod(0o700)
