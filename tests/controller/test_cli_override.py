@@ -175,3 +175,13 @@ def test_status_table_escapes_what_it_prints():
     hostile = {**SNAPSHOT, "alarms": [{"source": "x\x1b[2J", "severity": "warning", "text": "a\nFORGED " + "y" * 5000}]}
     table = render_status(hostile)
     assert "\x1b" not in table and "\nFORGED" not in table and len(table.splitlines()[-1]) <= 1000
+
+
+def test_booleans_and_tank_ids_travel_typed(controller):
+    endpoint, received = controller
+    received.clear()
+    proc = fishfarm("override", "feed", "tank=12", "grams=40", "on=true", "off=false", "word=yes",
+                    "--connect", endpoint)
+    assert proc.returncode == 1, proc.stderr
+    assert received == [("feed", {"operator": "tester", "tank": "12", "grams": 40, "on": True, "off": False,
+                                  "word": "yes"})]
