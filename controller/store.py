@@ -163,7 +163,7 @@ def reconcile(feed: Feed, state, *, accepted: bool = False, hopper_tolerance_g: 
 def _hopper_hint(feed: Feed, state) -> str:
     if feed.hopper_before is None:
         return ""
-    return f"; load cell {feed.hopper_before - state.hopper_g:+.1f} g down since the intent"
+    return f"; load cell {feed.hopper_before - state.hopper_g:.1f} g down since the intent"
 
 
 def next_tag(last_tag: int | None, device_tags=()) -> int:
