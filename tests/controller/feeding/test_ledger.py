@@ -167,3 +167,32 @@ def test_counters_going_backwards_with_nothing_open_are_alarmed(tmp_path):
             assert "cycles 1 -> 0" in r.alarms.active[COUNTERS].text
             assert r.store.suspects() == [] and LEDGER not in r.alarms.active
     run(main())
+
+
+def test_status_lists_suspect_feeds(tmp_path):
+    import tomllib
+
+    import tomli_w
+
+    from controller.alarms import Alarms
+    from controller.app import Controller
+    from controller.config import load_config
+    from controller.feeding.rations import Rations
+    from devices.clock import ManualClock
+
+    raw = tomllib.loads(open("config/farm.toml").read())
+    raw["store"] = {"path": str(tmp_path / "ledger.db")}
+    (tmp_path / "farm.toml").write_text(tomli_w.dumps(raw))
+    c = Controller(load_config(tmp_path / "farm.toml"), ManualClock(1_780_000_000.0))
+    c.store = Store(c.cfg.store.path)
+    try:
+        c.alarms = Alarms(c.store, lambda *a, **k: None, c.clock)
+        c.rations = Rations(c.cfg, c.species, c.store)
+        assert "suspect" not in c.status()
+        f = c.store.add_intent(tank="T1", date=c.rations.date(c.clock.now()), t=c.clock.now(), target_g=44.0,
+                               run_s=4.0, cycles_before=3, source="demand")
+        c.store.mark_suspect(f.id, "dispenser counters went backwards")
+        [s] = c.status()["suspect"]
+        assert (s["id"], s["tank"], s["target_g"]) == (f.id, "T1", 44.0) and "backwards" in s["note"]
+    finally:
+        c.store.close()
