@@ -196,3 +196,29 @@ def test_status_lists_suspect_feeds(tmp_path):
         assert (s["id"], s["tank"], s["target_g"]) == (f.id, "T1", 44.0) and "backwards" in s["note"]
     finally:
         c.store.close()
+
+
+def test_the_simulated_dispenser_forgets_its_counters_on_a_power_cycle():
+    from devices.clock import ManualClock
+    from devices.sim.dispenser_physics import DispenserPhysics, SimDispenserParams
+    from devices.sim.truth import TruthLog
+
+    clock, truth = ManualClock(1_780_000_000.0), TruthLog(None)
+    dp = DispenserPhysics(SimDispenserParams(seed=1, rate_noise=0, rate_drift=0), clock, truth=truth)
+    dp.start_run(2.0, 7)
+    clock.advance(3.0)
+    dp.start_run(4.0, 8)
+    clock.advance(1.0)                        # run 8 half done when the power goes
+    before = dp.read()
+    assert (before.cycles, before.last_tag, before.run_tag) == (1, 7, 8)
+    dp.power_cycle()
+    after = dp.read()
+    assert (after.cycles, after.last_tag, after.run_tag, after.total_grams, after.running) == (0, 0, 0, 0.0, False)
+    assert after.hopper_g == pytest.approx(before.hopper_g, abs=0.1)   # the pellets stay in the hopper
+    cut = dp.runs[-1]
+    assert cut.power_cut and cut.tag == 8 and cut.physical_g == pytest.approx(11.0, rel=0.01)
+    assert [r["kind"] for r in truth.records][-2:] == ["auger_run", "dispenser_power_cycle"]
+    assert truth.records[-2]["measured_g"] is None and truth.records[-2]["power_cut"] is True
+    dp.start_run(1.0, 7)                      # the tag it forgot is accepted again
+    clock.advance(2.0)
+    assert dp.read().cycles == 1 and dp.read().last_tag == 7
