@@ -3,8 +3,8 @@ from hil_tests.evidence import Verdict, ledger_against_runs
 
 
 def feed(id_, tag, t, phase="done", grams=40.0, **kw):
-    return {"id": id_, "tag": tag, "tank": "T1", "t_intent": t, "phase": phase, "grams": grams,
-            "settled_by": None, **kw}
+    return {"id": id_, "seq": int(t * 1000), "tag": tag, "tank": "T1", "t_intent": t, "phase": phase,
+            "grams": grams, "settled_by": None, **kw}
 
 
 def run(tag, t, physical=40.03, measured=40.0, **kw):
@@ -61,7 +61,23 @@ def test_a_power_cut_run_must_be_held_as_suspect():
     assert judged([feed("d", 4, 40.0, phase="suspect", grams=None)], [cut]).problems == []
     v = judged([feed("d", 4, 40.0, phase="aborted", grams=None)], [cut])
     assert len(v.problems) == 1 and "does not know" in v.problems[0]
-    assert len(judged([feed("d", 4, 40.0, phase="intent", grams=None)], [cut]).problems) == 1
+    assert len(judged([feed("d", 4, 40.0, phase="intent", grams=None), feed("e", 5, 50.0, phase="aborted")],
+                      [cut]).problems) == 1
     # an operator's settlement is held to the physics within the resolution
     assert judged([feed("d", 4, 40.0, grams=17.2, settled_by="ana")], [cut]).problems == []
     assert len(judged([feed("d", 4, 40.0, grams=30.0, settled_by="ana")], [cut]).problems) == 1
+
+
+def test_a_run_that_started_long_after_its_intent_is_still_its_own():
+    # a loaded machine at 1440x: 0.2 s of wall between intent and START is 288 farm s
+    assert judged([feed("a", 1, 10.0)], [run(1, 300.0)]).problems == []
+    # ... but a run never belongs to an intent that came after it
+    assert len(judged([feed("a", 1, 10.0)], [run(1, 5.0)]).problems) == 2
+
+
+def test_only_the_latest_intent_may_be_open_at_the_end():
+    # the controller stopped during the last run: it settles that intent when it starts again
+    assert judged([feed("a", 1, 10.0), feed("b", 2, 20.0, phase="intent", grams=None)],
+                  [run(1, 10.0), run(2, 20.0)]).problems == []
+    v = judged([feed("a", 1, 10.0, phase="intent", grams=None), feed("b", 2, 20.0)], [run(1, 10.0), run(2, 20.0)])
+    assert len(v.problems) == 1 and "left open" in v.problems[0]
