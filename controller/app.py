@@ -256,9 +256,15 @@ class Controller:
                               "pellet_mm": r.pellet_mm}
         feeder = self.robot.snapshot() if self.robot is not None else {
             "t": self.clock.iso(now), "state": "starting", "position_m": None, "hopper_g": None}
-        return {"t": self.clock.iso(now), "site": self.cfg.site, "feeder": feeder,
-                "tanks": tanks,
-                "alarms": self.alarms.listing()}
+        out = {"t": self.clock.iso(now), "site": self.cfg.site, "feeder": feeder,
+               "tanks": tanks,
+               "alarms": self.alarms.listing()}
+        store = getattr(self, "store", None)
+        suspects = store.suspects() if store is not None and store.db is not None else []
+        if suspects:      # feeds of unknown outcome, held against the ration until settled
+            out["suspect"] = [{"id": f.id, "tank": f.tank, "date": f.date, "t": self.clock.iso(f.t_intent),
+                               "target_g": round(f.target_g, 1), "note": f.note} for f in suspects]
+        return out
 
 
 def install_signal_handlers(controller: Controller) -> None:

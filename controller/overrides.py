@@ -138,13 +138,19 @@ class SetRation(_Command):
     grams: float = Field(ge=0, le=RATION_MAX_G)
 
 
+class Settle(_Command):
+    """An operator's word on a suspect feed: the grams that went in (0 with a reason: none)."""
+    id: str = Field(min_length=1, max_length=64)
+    grams: float = Field(ge=0, le=5000)
+
+
 class Overrides:
     def __init__(self, controller):
         self.c = controller
 
     def declare(self, bus) -> None:
         # one queryable on override/*: an unknown command is refused with a reason, not left unanswered
-        commands = ("estop", "reset", "manual", "feed", "ration")
+        commands = ("estop", "reset", "manual", "feed", "ration", "settle")
         bus.overrides({name: _answering(getattr(self, name)) for name in commands}, lenient=("estop",))
         bus.queryable("status", self.status, lenient=True)
 
@@ -190,6 +196,17 @@ class Overrides:
         self.c.rations.set(cmd.tank, self.c.clock.now(), cmd.grams, "operator")
         self.c.publish_ration(cmd.tank)
         return {"ok": True}
+
+    async def settle(self, payload) -> dict:
+        cmd = _parse(Settle, payload)
+        if cmd.grams == 0 and not cmd.reason.strip():
+            raise Refused("reason: settling a feed with grams=0 (none went in) needs a reason")
+        robot = self._robot()
+        try:
+            feed = robot.dispensing.settle_suspect(cmd.id, cmd.grams, cmd.operator, cmd.reason)
+        except LookupError:
+            raise Refused(f"id: feed {cmd.id!r} is not suspect") from None
+        return {"ok": True, "phase": feed.phase}
 
     def _robot(self):
         if self.c.robot is None:

@@ -2,9 +2,12 @@
 
 What it holds: validated demands, feed intents and their outcomes, daily rations, alarms.
 Exactly-once dispensing rests on one rule: a feed row is committed in phase ``intent``
-(with the dispenser's cycle counter read just before and a 16-bit tag) *before* the auger
-is told to start, and closed as ``done`` (grams from the load cell) or ``aborted`` after.
-``reconcile()`` decides an open intent from the dispenser's own counters after a restart.
+(with the dispenser's cycle counter and load cell read just before and a 16-bit tag) *before*
+the auger is told to start, and closed as ``done`` (grams from the load cell) or ``aborted``
+after. ``reconcile()`` decides an open intent from the dispenser's own counters after a restart.
+An outcome the counters cannot tell (a power cut reset them, another tag ran) is never freed:
+the row becomes ``suspect``, its target still counted against the ration, until an operator
+settles it with the grams (``settle_suspect``).
 
 The schema is versioned with ``PRAGMA user_version``; ``MIGRATIONS[i]`` takes version i to i+1.
 """
@@ -73,7 +76,23 @@ MIGRATIONS = [
     DROP INDEX alarm_source;
     CREATE INDEX alarm_source_kind ON alarm (source, kind, id);
     """,
+    # 2 -> 3: the load cell before each intent (a run the counters lost still shows as food gone),
+    # who settled a suspect feed, and the dispenser counters last seen (counters going backwards
+    # mean a power cut or a new PLC). Phase gains ``suspect``.
+    """
+    ALTER TABLE feed ADD COLUMN hopper_before REAL;
+    ALTER TABLE feed ADD COLUMN settled_by TEXT;
+    CREATE TABLE counters (
+        device   TEXT PRIMARY KEY,
+        cycles   INTEGER NOT NULL,
+        total_g  REAL NOT NULL,
+        t        REAL NOT NULL
+    );
+    """,
 ]
+
+SUSPECT = "suspect"
+TAGS = 65535            # the device's tags are 1..65535; 0 means none
 
 
 @dataclass(frozen=True)
@@ -93,27 +112,51 @@ class Feed:
     note: str | None
     source: str
     demand_id: int | None
+    hopper_before: float | None = None     # load cell just before the intent (None: older rows)
+    settled_by: str | None = None          # operator who settled a suspect feed
 
 
 @dataclass(frozen=True)
 class Reconciled:
     feed: Feed
-    phase: str          # done | aborted | wait (the auger is still running) | unknown
+    phase: str          # done | aborted | wait (the auger is still running) | suspect
     grams: float | None
     note: str
 
 
-def reconcile(feed: Feed, state) -> Reconciled:
+def went_backwards(cycles_before: int, cycles_now: int) -> bool:
+    """The 32-bit run counter stepped back (a reset), as opposed to moving on or wrapping."""
+    return (cycles_now - cycles_before) % 2**32 >= 2**31
+
+
+def reconcile(feed: Feed, state, *, accepted: bool = False, hopper_tolerance_g: float | None = None
+              ) -> Reconciled:
     """Decide an open intent from the dispenser's counters (``DispenserState``).
 
     The device counts completed runs and remembers the tag and load-cell grams of the last
     one. Our run happened iff the counter moved past ``cycles_before`` and the last tag is
-    ours; it never started iff the counter has not moved and the auger is still.
+    ours; it never started iff the counter has not moved, the auger is still and the load cell
+    has not dropped since the intent. ``accepted``: the device acknowledged our START, so "never
+    started" cannot be true. Anything else is ``suspect``: food may have left, and nobody can
+    say how much from here. An ``aborted`` result for a START that may still be on the wire is
+    the caller's to confirm (see ``Dispensing._wait_run_end``).
     """
-    if state.running:
+    if state.running and state.run_tag == feed.tag:
         return Reconciled(feed, "wait", None, "auger still running")
+    if went_backwards(feed.cycles_before, state.cycles):
+        return Reconciled(feed, SUSPECT, None,
+                          f"dispenser counters went backwards (cycles {feed.cycles_before} -> {state.cycles}): "
+                          f"power cut or new PLC{_hopper_hint(feed, state)}")
+    if state.running:
+        return Reconciled(feed, "wait", None, f"auger running another run (tag {state.run_tag})")
     moved = (state.cycles - feed.cycles_before) % 2**32
     if moved == 0:
+        tolerance = hopper_tolerance_g if hopper_tolerance_g is not None else 1.5 * state.resolution_g
+        if feed.hopper_before is not None and feed.hopper_before - state.hopper_g > tolerance:
+            return Reconciled(feed, SUSPECT, None, "no run counted but the load cell dropped"
+                              + _hopper_hint(feed, state))
+        if accepted:
+            return Reconciled(feed, SUSPECT, None, "the dispenser accepted the start but counted no run")
         return Reconciled(feed, "aborted", None, "auger never started")
     if state.last_tag == feed.tag and moved == 1:
         note = "jammed; load cell grams" if state.jammed else "reconciled from dispenser counters"
@@ -121,8 +164,25 @@ def reconcile(feed: Feed, state) -> Reconciled:
     if state.last_tag == feed.tag:
         # other runs happened before ours completed? impossible: ours is the last; count it.
         return Reconciled(feed, "done", state.last_grams, f"reconciled; counter moved by {moved}")
-    return Reconciled(feed, "unknown", None,
+    return Reconciled(feed, SUSPECT, None,
                       f"dispenser counter moved by {moved} but last tag {state.last_tag} is not ours")
+
+
+def _hopper_hint(feed: Feed, state) -> str:
+    if feed.hopper_before is None:
+        return ""
+    return f"; load cell {feed.hopper_before - state.hopper_g:.1f} g down since the intent"
+
+
+def next_tag(last_tag: int | None, device_tags=()) -> int:
+    """The tag after ``last_tag`` (the ledger's latest) in 1..65535, wrapping 65535 -> 1, and
+    never one the device shows (its LAST_TAG or RUN_TAG, read just before): after a lost or
+    restored ledger, a tag the device remembers would be refused or, worse, taken as already run."""
+    taken = {t for t in device_tags if t}
+    tag = (last_tag or 0) % TAGS + 1
+    while tag in taken:
+        tag = tag % TAGS + 1
+    return tag
 
 
 class Store:
@@ -196,21 +256,63 @@ class Store:
         return self.db.execute("SELECT * FROM demand WHERE outcome = 'open' ORDER BY t").fetchall()
 
     # -- feeds ----------------------------------------------------------------
-    def next_tag(self) -> tuple[int, int]:
-        """(seq, tag): seq counts every feed ever; the 16-bit tag cycles 1..65535."""
-        seq = (self.db.execute("SELECT COALESCE(MAX(seq), 0) FROM feed").fetchone()[0]) + 1
-        return seq, (seq - 1) % 65535 + 1
+    def next_tag(self, device_tags=()) -> tuple[int, int]:
+        """(seq, tag): seq counts every feed ever; the tag follows the ledger's last one, skipping
+        what the device shows (``device_tags``: its LAST_TAG and RUN_TAG)."""
+        row = self.db.execute("SELECT seq, tag FROM feed ORDER BY seq DESC LIMIT 1").fetchone()
+        seq, last = (row["seq"], row["tag"]) if row is not None else (0, None)
+        return seq + 1, next_tag(last, device_tags)
 
     def add_intent(self, *, tank: str, date: str, t: float, target_g: float, run_s: float,
-                   cycles_before: int, source: str, demand_id: int | None = None) -> Feed:
+                   cycles_before: int, source: str, demand_id: int | None = None,
+                   hopper_before: float | None = None, device_tags=()) -> Feed:
         with self._lock:
-            seq, tag = self.next_tag()
+            seq, tag = self.next_tag(device_tags)
             feed_id = uuid.uuid4().hex[:16]
             self.db.execute(
                 "INSERT INTO feed (id, seq, tank, date, t_intent, target_g, run_s, tag, cycles_before, "
-                "phase, source, demand_id) VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, 'intent', ?, ?)",
-                (feed_id, seq, tank, date, t, target_g, run_s, tag, cycles_before, source, demand_id))
+                "phase, source, demand_id, hopper_before) VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, 'intent', ?, ?, ?)",
+                (feed_id, seq, tank, date, t, target_g, run_s, tag, cycles_before, source, demand_id,
+                 hopper_before))
             return self.feed(feed_id)
+
+    def mark_suspect(self, feed_id: str, note: str) -> Feed:
+        """An open intent whose outcome nobody can tell: kept against the ration, awaiting an operator."""
+        with self._lock:
+            cur = self.db.execute("UPDATE feed SET phase = 'suspect', note = ? WHERE id = ? AND phase = 'intent'",
+                                  (note, feed_id))
+            if cur.rowcount != 1:
+                raise RuntimeError(f"feed {feed_id} is not an open intent")
+            return self.feed(feed_id)
+
+    def settle_suspect(self, feed_id: str, grams: float, t: float, operator: str, reason: str) -> Feed:
+        """An operator's word on a suspect feed: ``grams`` > 0 went in (done), 0 none (aborted)."""
+        phase = "done" if grams > 0 else "aborted"
+        with self._lock:
+            row = self.db.execute("SELECT note FROM feed WHERE id = ?", (feed_id,)).fetchone()
+            cur = self.db.execute(
+                "UPDATE feed SET phase = ?, grams = ?, t_closed = ?, settled_by = ?, note = ? "
+                "WHERE id = ? AND phase = 'suspect'",
+                (phase, grams if grams > 0 else None, t, operator,
+                 f"settled by {operator}: {reason}" + (f" (was: {row['note']})" if row and row["note"] else ""),
+                 feed_id))
+            if cur.rowcount != 1:
+                raise LookupError(f"feed {feed_id} is not suspect")
+            return self.feed(feed_id)
+
+    def suspects(self) -> list[Feed]:
+        return [Feed(**dict(r)) for r in
+                self.db.execute("SELECT * FROM feed WHERE phase = 'suspect' ORDER BY seq")]
+
+    # -- dispenser counters last seen ---------------------------------------------
+    def counters_seen(self, device: str) -> tuple[int, float] | None:
+        row = self.db.execute("SELECT cycles, total_g FROM counters WHERE device = ?", (device,)).fetchone()
+        return None if row is None else (row["cycles"], row["total_g"])
+
+    def see_counters(self, device: str, cycles: int, total_g: float, t: float) -> None:
+        self._write("INSERT INTO counters (device, cycles, total_g, t) VALUES (?, ?, ?, ?) "
+                    "ON CONFLICT (device) DO UPDATE SET cycles = excluded.cycles, total_g = excluded.total_g, "
+                    "t = excluded.t", (device, cycles, total_g, t))
 
     def close_feed(self, feed_id: str, phase: str, grams: float | None, t: float, note: str = "",
                    served_demand: int | None = None) -> Feed:
@@ -249,10 +351,10 @@ class Store:
                                "AND phase = 'done'", (tank, date)).fetchone()[0]
 
     def committed_g(self, tank: str, date: str) -> float:
-        """Fed plus the targets of open intents: what the ration must still cover."""
+        """Fed plus the targets of open and suspect intents: what the ration must still cover."""
         return self.db.execute(
             "SELECT COALESCE(SUM(CASE phase WHEN 'done' THEN grams ELSE target_g END), 0) FROM feed "
-            "WHERE tank = ? AND date = ? AND phase IN ('done', 'intent')", (tank, date)).fetchone()[0]
+            "WHERE tank = ? AND date = ? AND phase IN ('done', 'intent', 'suspect')", (tank, date)).fetchone()[0]
 
     def learned_rate(self, note: str, last: int = 10) -> tuple[float | None, int]:
         """(grams per run second, runs) over the last runs closed with ``note`` (runs that ended as

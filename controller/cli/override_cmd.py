@@ -21,7 +21,7 @@ _NAME = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*$")
 _COMMAND = re.compile(r"^[a-z][a-z0-9_-]{0,63}$")
 _SITE = re.compile(r"^[A-Za-z0-9_-]{1,64}$")
 _RESERVED = {"operator": "--operator", "reason": "--reason"}
-_STRINGS = {"tank"}  # identifiers, whatever they look like: a tank may be called 12
+_STRINGS = {"tank", "id"}  # identifiers, whatever they look like: a tank may be called 12, a feed 0123
 
 
 def _connection_options(f):
@@ -41,7 +41,7 @@ def _connection_options(f):
 
 def parse_args(args: tuple[str, ...] | list[str]) -> dict:
     """``key=value`` words into a JSON object: values that read as numbers become numbers,
-    ``true``/``false`` booleans, the rest strings; ``tank`` is always a string (``tank=12``)."""
+    ``true``/``false`` booleans, the rest strings; ``tank`` and ``id`` are always strings (``tank=12``)."""
     fields: dict = {}
     for word in args:
         key, eq, text = word.partition("=")

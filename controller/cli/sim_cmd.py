@@ -29,7 +29,7 @@ import click
 @click.option("--log-level", default="warning", show_default=True,
               type=click.Choice(["debug", "info", "warning", "error"], case_sensitive=False))
 def sim(config_path, endpoints, truth, speed, epoch_wall, epoch_farm, log_level):
-    """Simulated farm: fish, contact hub, rail drive, dispenser."""
+    """Simulated farm: fish, contact hub, rail drive, dispenser. SIGUSR1 power-cycles the dispenser."""
     from controller.config import load_config
     from devices.clock import ScaledClock
     from devices.sim.truth import TruthLog
@@ -48,6 +48,8 @@ def sim(config_path, endpoints, truth, speed, epoch_wall, epoch_farm, log_level)
         loop = asyncio.get_running_loop()
         for sig in (signal.SIGINT, signal.SIGTERM):
             loop.add_signal_handler(sig, stop.set)
+        # SIGUSR1: the dispenser loses power and comes back (counters reset), as after a site power cut
+        loop.add_signal_handler(signal.SIGUSR1, lambda: farm.dispenser and farm.dispenser.power_cycle())
         try:
             found = await farm.start()
             tmp = Path(endpoints).with_suffix(".tmp")

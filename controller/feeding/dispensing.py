@@ -5,14 +5,20 @@ auger is told to start, and closed from the dispenser's own counters after — b
 started it, or, after a crash, an e-stop or a fault, by ``settle()``. The auger's delivery rate is
 learned from the load cell and remembered in the ledger, so a restart does not forget it; until a
 few runs have been measured the portion keeps a wider margin, since a guessed rate may be wrong.
+
+What the counters cannot tell is never freed: such an intent becomes ``suspect`` (still counted
+against the ration, alarmed under ``ledger``) until an operator settles it (``settle_suspect``).
+Every read checks the counters against those last seen: counters that went backwards (a power
+cut, a new PLC) are alarmed under ``dispenser_counters``.
 """
 from __future__ import annotations
 
 import asyncio
 import logging
+import math
 
 from controller.feeding.rations import ration_payload
-from controller.store import reconcile
+from controller.store import SUSPECT, reconcile, went_backwards
 from devices.errors import DeviceFault, DeviceTimeout
 
 log = logging.getLogger("fishfarm.feeder")
@@ -22,6 +28,9 @@ UNMEASURED = 0.5        # ... and this much while its rate is still a guess
 MEASURED_RUNS = 3       # runs before the learned rate is trusted
 POLL_WALL_S = 0.0005    # dispenser polling once a run should have ended
 MEASURED = "measured"   # note of a run that ended as timed: its grams teach the rate
+START_MARGIN_S = 5.0    # farm s past a run's planned end before "never started" is believed ...
+START_MARGIN_WALL_S = 0.25   # ... and at least this much wall time (a START still on the wire)
+LEDGER, COUNTERS = "ledger", "dispenser_counters"   # alarm sources
 
 
 class AugerJammed(DeviceFault):
@@ -40,6 +49,7 @@ class Dispensing:
         self.rate_g_s = rate if rate is not None else self.feeding.auger_rate_g_s
         self.measured_runs = runs
         self.hopper_g: float | None = None
+        self._seen = store.counters_seen(dispenser.name)     # (cycles, total_g) last seen
 
     @property
     def overshoot(self) -> float:
@@ -53,7 +63,23 @@ class Dispensing:
     async def read(self):
         state = await self.dispenser.read()
         self.hopper_g = state.hopper_g
+        self._check_counters(state)
         return state
+
+    def _check_counters(self, state) -> None:
+        """Counters only move forward while the device is powered: alarm when they did not."""
+        seen = (state.cycles, state.total_grams)
+        if self._seen == seen:
+            return
+        if self._seen is not None:
+            cycles, total = self._seen
+            if went_backwards(cycles, state.cycles) or state.total_grams < total - 1e-6:
+                self.alarms.raise_(COUNTERS, f"dispenser {self.dispenser.name} counters went backwards "
+                                   f"(cycles {cycles} -> {state.cycles}, total {total:.1f} g -> "
+                                   f"{state.total_grams:.1f} g): power cut or new PLC; open intents are "
+                                   "held as suspect", "critical")
+        self._seen = seen
+        self.store.see_counters(self.dispenser.name, state.cycles, state.total_grams, self.clock.now())
 
     async def run(self, tank: str, grams: float, source: str, demand_id: int | None, raised_t: float):
         """One portion into the tank under the chute. Returns the closed feed."""
@@ -66,13 +92,16 @@ class Dispensing:
         now = self.clock.now()
         run_s = grams / self.rate_g_s
         feed = self.store.add_intent(tank=tank, date=self.rations.date(now), t=now, target_g=grams, run_s=run_s,
-                                     cycles_before=state.cycles, source=source, demand_id=demand_id)
+                                     cycles_before=state.cycles, source=source, demand_id=demand_id,
+                                     hopper_before=state.hopper_g, device_tags=(state.last_tag, state.run_tag))
         self._publish_feed(feed)
         log.info("auger on for %s: %.1f g, %.1f s after the ask", tank, grams, now - raised_t)
         await self.dispenser.run_auger(run_s, feed.tag)
         await self.clock.asleep(run_s)            # the device times the run; look when it should be over
-        state = await self._wait_run_end(feed)
-        closed = self._close(feed, state, demand_id, MEASURED if not state.jammed else "")
+        state, result = await self._wait_run_end(feed, accepted=True)
+        closed = self._close(result, demand_id, MEASURED if not state.jammed else "")
+        if closed.phase == SUSPECT:
+            raise DeviceFault(self.dispenser.name, f"outcome of auger run {feed.tag} unknown: {result.note}")
         if closed.phase == "done" and not state.jammed and run_s > 1.0 and closed.grams > 0:
             self._learn(closed.grams / run_s)
         if state.jammed:
@@ -85,35 +114,69 @@ class Dispensing:
         closed = []
         for feed in self.store.open_intents():
             await self.clock.asleep(feed.t_intent + feed.run_s - self.clock.now())
-            state = await self._wait_run_end(feed)
+            _, result = await self._wait_run_end(feed, accepted=False)
             demand = feed.demand_id if feed.demand_id in serving else None
-            closed.append(self._close(feed, state, demand, "settled from the dispenser's counters"))
+            closed.append(self._close(result, demand, "settled from the dispenser's counters"))
         return closed
 
-    async def _wait_run_end(self, feed):
-        deadline = self.clock.now() + self.feeding.dispense_timeout_s
+    async def _wait_run_end(self, feed, *, accepted: bool):
+        """Poll until the counters decide ``feed``. Unless the device acknowledged our START
+        (``accepted``), "never started" is believed only once the run's planned end plus a margin
+        has passed with no sign of it: a START sent by a controller that died may still land."""
+        now = self.clock.now()
+        deadline = max(now, feed.t_intent + feed.run_s) + self.feeding.dispense_timeout_s
+        margin = START_MARGIN_S
+        if math.isfinite(self.clock.speed):
+            margin = max(margin, START_MARGIN_WALL_S * self.clock.speed)
+        believe_from = feed.t_intent + feed.run_s + margin
         poll = max(POLL_WALL_S, self.clock.wall(0.05))
         while True:
             state = await self.read()
-            if reconcile(feed, state).phase != "wait":
-                return state
+            result = reconcile(feed, state, accepted=accepted)
+            if result.phase not in ("wait", "aborted") or (result.phase == "aborted"
+                                                           and self.clock.now() >= believe_from):
+                return state, result
             if self.clock.now() > deadline:
                 raise DeviceTimeout(self.dispenser.name, f"auger run {feed.tag} did not end")
             await asyncio.sleep(poll)
 
-    def _close(self, feed, state, demand_id: int | None, note: str):
-        result = reconcile(feed, state)
-        phase = "done" if result.phase == "done" else "aborted"
-        if result.phase == "unknown":
-            self.alarms.raise_("ledger", f"feed {feed.id} to {feed.tank}: outcome unknown: {result.note}",
-                               "critical", kind=f"unknown/{feed.id}")
+    def _close(self, result, demand_id: int | None, note: str):
+        feed = result.feed
+        if result.phase == SUSPECT:
+            closed = self.store.mark_suspect(feed.id, result.note)
+            self._publish_feed(closed)
+            self._alarm_suspects()
+            return closed
+        phase = result.phase
         served = demand_id if phase == "done" else None
         closed = self.store.close_feed(feed.id, phase, result.grams, self.clock.now(),
                                        note if phase == "done" else result.note, served)
         self._publish_feed(closed)
         if phase == "done":
             self.publish_ration(feed.tank)
+            if COUNTERS in self.alarms.active:
+                self.alarms.clear(COUNTERS, "dispenser counters moving forward again")
         return closed
+
+    def settle_suspect(self, feed_id: str, grams: float, operator: str, reason: str):
+        """An operator's word on a suspect feed: ``grams`` went in (0: none). Returns the feed.
+        LookupError when ``feed_id`` is not a suspect feed."""
+        closed = self.store.settle_suspect(feed_id, grams, self.clock.now(), operator, reason)
+        log.warning("feed %s to %s settled by %s: %.1f g (%s)", feed_id, closed.tank, operator, grams, reason)
+        self._publish_feed(closed)
+        self.publish_ration(closed.tank)
+        self._alarm_suspects()
+        return closed
+
+    def _alarm_suspects(self) -> None:
+        suspects = self.store.suspects()
+        if not suspects:
+            self.alarms.clear(LEDGER, "no feed of unknown outcome left")
+            return
+        ids = ", ".join(f"{f.id} ({f.tank} {f.target_g:.0f} g)" for f in suspects[:10])
+        more = f" and {len(suspects) - 10} more" if len(suspects) > 10 else ""
+        self.alarms.raise_(LEDGER, f"{len(suspects)} feed(s) of unknown outcome held against the ration: "
+                           f"{ids}{more}; settle with `fishfarm override settle id=ID grams=G`", "critical")
 
     def _learn(self, rate: float) -> None:
         self.measured_runs += 1
@@ -121,10 +184,14 @@ class Dispensing:
         self.rate_g_s += weight * (rate - self.rate_g_s)
 
     def _publish_feed(self, feed) -> None:
+        # The contract's phases are intent | done | aborted: a suspect feed stays an intent (flagged)
+        # until an operator settles it.
         grams = feed.grams if feed.phase == "done" else feed.target_g
-        self.publish(f"tank/{feed.tank}/feed", {"t": self.clock.iso(feed.t_closed or feed.t_intent),
-                                                "grams": round(grams or 0.0, 1), "phase": feed.phase,
-                                                "id": feed.id}, reliable=True)
+        payload = {"t": self.clock.iso(feed.t_closed or feed.t_intent), "grams": round(grams or 0.0, 1),
+                   "phase": "intent" if feed.phase == SUSPECT else feed.phase, "id": feed.id}
+        if feed.phase == SUSPECT:
+            payload["suspect"] = True
+        self.publish(f"tank/{feed.tank}/feed", payload, reliable=True)
 
     def publish_ration(self, tank: str) -> None:
         ration = self.rations.today(tank, self.clock.now())

@@ -53,6 +53,18 @@ class SimDispenser:
         self._in_loop(self._tick)
 
     # -- fault injection -------------------------------------------------------------
+    def power_cycle(self) -> None:
+        """A site power cut and return: connections drop, the PLC's counters reset (see
+        ``DispenserPhysics.power_cycle``); it serves again at once on the same port."""
+        def cycle():
+            self.physics.power_cycle()
+            self._drop()
+            self._schedule()
+        if self._loop is None or not self._loop.is_running():
+            self.physics.power_cycle()
+        else:
+            self._in_loop(cycle)
+
     def set_unresponsive(self, on: bool) -> None:
         """Keep connections open but answer nothing (the client times out)."""
         self._unresponsive = on

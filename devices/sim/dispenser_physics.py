@@ -18,6 +18,10 @@ every look, so it is right at any clock speed and under a ManualClock:
   it did), so the simulated world can split it among the tanks the carriage passed over. Both
   callbacks are called with the dispenser's lock held: do not block in them. Grams also go to
   ``physical_total_g``, the exact float the HIL tests take as ground truth.
+- ``power_cycle()`` is a site power cut and return: a run in progress stops where it is (its food
+  is out, but the PLC never counts it: its RunRecord has ``power_cut`` and no load-cell grams),
+  the counters, tags and fault latch are reset as at power-on, the gate closes; the hopper keeps
+  its pellets;
 - the older callback forms are still accepted, told apart by how many arguments they take:
   ``deliver(grams, t)`` gets everything at the end of the interval, and ``at_food_box(t) -> bool``
   counts an interval as at the box when both its ends are (only right if looks are frequent).
@@ -98,8 +102,9 @@ class RunRecord:
     t_start: float
     t_end: float
     physical_g: float          # what really left the hopper
-    measured_g: float          # what the load cell says (LAST_GRAMS)
+    measured_g: float          # what the load cell says (LAST_GRAMS); 0 for a run cut by power
     jammed: bool
+    power_cut: bool = False    # the run ended by a power cut: the PLC never counted it
 
 
 def _positional(fn: Callable) -> int:
@@ -151,6 +156,7 @@ class DispenserPhysics:
         self.cycles = self.last_tag = self.last_counts = self.total_counts = 0
         self.physical_total_g = 0.0
         self.runs: list[RunRecord] = []
+        self.power_cycles = 0
 
     # -- commands (the PLC's) ---------------------------------------------------------
     def start_run(self, run_s: float, tag: int) -> None:
@@ -188,6 +194,24 @@ class DispenserPhysics:
             self._jammed = False
 
     # -- for the simulated world and tests ----------------------------------------------
+    def power_cycle(self) -> None:
+        """Power off and on: as after a site power cut, the PLC forgets everything it counted."""
+        with self._lock:
+            self._advance(self.clock.now())
+            run, self._run = self._run, None
+            if run is not None:
+                record = RunRecord(run.tag, run.t0, self._t, run.physical_g, 0.0, False, power_cut=True)
+                self.runs.append(record)
+                if self._truth is not None:
+                    self._truth.write("auger_run", self._t, t_start=round(run.t0, 4), tag=run.tag,
+                                      physical_g=run.physical_g, measured_g=None, jammed=False, power_cut=True)
+            self.cycles = self.last_tag = self.last_counts = self.total_counts = 0
+            self._gate = self._jammed = False
+            self._jam_next = None
+            self.power_cycles += 1
+            if self._truth is not None:
+                self._truth.write("dispenser_power_cycle", self._t, count=self.power_cycles)
+
     def inject_jam(self, at_fraction: float = 0.5) -> None:
         """Jam the run in progress now, or the next run at ``at_fraction`` of its time."""
         with self._lock:

@@ -1,9 +1,13 @@
 import os
+import signal
 import sqlite3
+import subprocess
+import sys
+import textwrap
 
 import pytest
 
-from controller.store import MIGRATIONS, Store, reconcile
+from controller.store import MIGRATIONS, Store, next_tag, reconcile
 from devices.dispenser import DispenserState
 
 
@@ -21,9 +25,9 @@ def store(tmp_path):
     s.close()
 
 
-def intent(store, tank="T1", cycles=10, target=50.0, date="2026-06-01"):
+def intent(store, tank="T1", cycles=10, target=50.0, date="2026-06-01", hopper=None, device_tags=()):
     return store.add_intent(tank=tank, date=date, t=100.0, target_g=target, run_s=4.0,
-                            cycles_before=cycles, source="demand")
+                            cycles_before=cycles, source="demand", hopper_before=hopper, device_tags=device_tags)
 
 
 def test_wal_and_full_sync(store):
@@ -41,10 +45,66 @@ def test_newer_schema_is_refused(tmp_path):
         Store(path)
 
 
+CHILD = textwrap.dedent("""
+    import sys
+    from controller.store import Store
+    store = Store(sys.argv[1])
+    n = 0
+    while True:
+        d = store.add_demand("T1", float(n), 0.5)
+        f = store.add_intent(tank="T1", date="2026-06-01", t=float(n), target_g=50.0, run_s=4.0,
+                             cycles_before=n, source="demand", demand_id=d)
+        # close and serve in one transaction: both or neither may survive a kill
+        store.close_feed(f.id, "done", 49.0, float(n), served_demand=d)
+        print(f.seq, flush=True)
+        n += 1
+""")
+
+
+def test_a_process_killed_mid_transaction_leaves_a_consistent_ledger(tmp_path):
+    """A real process commits intents in a loop (each fsynced) and is SIGKILLed at random points,
+    three times over the same file; every commit it reported survives, nothing half-written does."""
+    path = tmp_path / "l.db"
+    reported = 0
+    for round_, after in enumerate((40, 57, 83)):
+        child = subprocess.Popen([sys.executable, "-c", CHILD, str(path)], stdout=subprocess.PIPE, text=True,
+                                 cwd=os.path.dirname(os.path.dirname(os.path.dirname(__file__))))
+        lines = 0
+        for line in child.stdout:                 # committed: the child printed after COMMIT returned
+            reported = max(reported, int(line))
+            lines += 1
+            if lines >= after:
+                break
+        child.send_signal(signal.SIGKILL)         # mid-loop: most of its time is spent in a commit
+        child.wait(10)
+        child.stdout.close()
+        assert child.returncode == -signal.SIGKILL
+        s = Store(path)
+        try:
+            assert s.db.execute("PRAGMA integrity_check").fetchone()[0] == "ok"
+            seqs = [f.seq for f in s.feeds()]
+            assert seqs == list(range(1, len(seqs) + 1))          # no gap, no duplicate
+            assert reported <= len(seqs) <= reported + 1, (round_, reported, len(seqs))   # one in flight
+            demands = {r["id"]: r for r in s.db.execute("SELECT * FROM demand")}
+            for f in s.feeds():
+                d = demands[f.demand_id]
+                # the close and the serving are one transaction: both or neither
+                assert (f.phase == "done") == (d["outcome"] == "served"), (f, dict(d))
+                if f.phase == "done":
+                    assert d["feed_id"] == f.id and f.grams == 49.0
+            # each kill may leave one demand whose intent never committed and one intent never closed
+            orphans = set(demands) - {f.demand_id for f in s.feeds()}
+            assert len(orphans) <= round_ + 1 and all(demands[d]["outcome"] == "open" for d in orphans)
+            assert len(s.open_intents()) <= round_ + 1
+        finally:
+            s.close()
+    assert reported >= 40 + 57 + 83 - 3
+
+
 def test_intent_survives_reopen_and_closes_once(tmp_path):
     s = Store(tmp_path / "l.db")
     f = intent(s)
-    s.db.close()                       # as if the process died right after the commit
+    s.close()
     s = Store(tmp_path / "l.db")
     [open_] = s.open_intents()
     assert open_.id == f.id and open_.phase == "intent" and open_.cycles_before == 10
@@ -53,6 +113,27 @@ def test_intent_survives_reopen_and_closes_once(tmp_path):
         s.close_feed(f.id, "done", 49.3, 105.0)      # never twice
     assert s.fed_g("T1", "2026-06-01") == pytest.approx(49.3)
     assert s.open_intents() == []
+    s.close()
+
+
+def test_a_version_1_ledger_is_migrated_in_place(tmp_path):
+    path = tmp_path / "old.db"
+    db = sqlite3.connect(path)
+    db.executescript(MIGRATIONS[0])
+    db.execute("INSERT INTO feed (id, seq, tank, date, t_intent, target_g, run_s, tag, cycles_before, phase, "
+               "source) VALUES ('a', 7, 'T1', '2026-06-01', 1.0, 40.0, 3.0, 7, 5, 'intent', 'demand')")
+    db.execute("PRAGMA user_version = 1")
+    db.commit()
+    db.close()
+    s = Store(path)
+    try:
+        assert s.schema_version == len(MIGRATIONS) == 3
+        [f] = s.open_intents()
+        assert (f.id, f.tag, f.hopper_before, f.settled_by) == ("a", 7, None, None)
+        assert intent(s).tag == 8 and intent(s).seq == 9          # the sequence goes on
+        assert s.counters_seen("d") is None
+    finally:
+        s.close()
 
 
 def test_tags_are_distinct_and_16_bit(store):
@@ -91,9 +172,95 @@ def test_reconcile_counter_wraps(store):
     assert (r.phase, r.grams) == ("done", 12.0)
 
 
-def test_reconcile_someone_elses_run_is_unknown(store):
+def test_reconcile_someone_elses_run_is_suspect(store):
     f = intent(store, cycles=10)
-    assert reconcile(f, state(cycles=11, last_tag=(f.tag % 65535) + 1)).phase == "unknown"
+    r = reconcile(f, state(cycles=11, last_tag=(f.tag % 65535) + 1))
+    assert (r.phase, r.grams) == ("suspect", None)
+
+
+def test_reconcile_counters_gone_backwards_is_suspect(store):
+    f = intent(store, cycles=10, hopper=5000.0)
+    # a power cut reset the PLC: even a LAST_TAG of ours after the reset is not taken on trust
+    for s in (state(cycles=0, last_tag=0, hopper_g=4951.0), state(cycles=1, last_tag=f.tag, last_grams=49.0)):
+        r = reconcile(f, s)
+        assert (r.phase, r.grams) == ("suspect", None) and "backwards" in r.note
+    assert "49.0 g down" in reconcile(f, state(cycles=0, hopper_g=4951.0)).note
+
+
+def test_reconcile_food_gone_with_no_run_counted_is_suspect(store):
+    # counters reset from 0 to 0 cannot be seen in them: the load cell still can
+    f = intent(store, cycles=0, hopper=5000.0)
+    assert reconcile(f, state(cycles=0, hopper_g=4990.0)).phase == "suspect"
+    assert reconcile(f, state(cycles=0, hopper_g=4999.9)).phase == "aborted"    # one count of jitter
+    assert reconcile(f, state(cycles=0, hopper_g=5000.0)).phase == "aborted"
+
+
+def test_reconcile_an_accepted_start_with_no_run_is_suspect(store):
+    f = intent(store, cycles=10, hopper=5000.0)
+    assert reconcile(f, state(cycles=10), accepted=True).phase == "suspect"
+    assert reconcile(f, state(cycles=10, running=True, run_tag=f.tag), accepted=True).phase == "wait"
+
+
+def test_suspect_stays_against_the_ration_until_settled(store):
+    a, b, c = intent(store, target=40), intent(store, target=30), intent(store, target=20)
+    store.mark_suspect(a.id, "counters went backwards")
+    store.mark_suspect(b.id, "counters went backwards")
+    store.close_feed(c.id, "done", 21.0, 1.0)
+    with pytest.raises(RuntimeError):
+        store.close_feed(a.id, "aborted", None, 1.0)           # not an open intent any more
+    assert store.open_intents() == [] and [f.id for f in store.suspects()] == [a.id, b.id]
+    assert store.committed_g("T1", "2026-06-01") == pytest.approx(40 + 30 + 21)
+    assert store.fed_g("T1", "2026-06-01") == pytest.approx(21)
+    done = store.settle_suspect(a.id, 38.5, 2.0, "ana", "weighed the tank's leftovers")
+    assert (done.phase, done.grams, done.settled_by) == ("done", 38.5, "ana")
+    assert "weighed" in done.note and "backwards" in done.note
+    none = store.settle_suspect(b.id, 0, 2.0, "ana", "hopper was empty")
+    assert (none.phase, none.grams) == ("aborted", None)
+    assert store.committed_g("T1", "2026-06-01") == pytest.approx(38.5 + 21)
+    with pytest.raises(LookupError):
+        store.settle_suspect(a.id, 1.0, 3.0, "ana", "again")      # once only
+    with pytest.raises(LookupError):
+        store.settle_suspect("nope", 1.0, 3.0, "ana", "")
+
+
+def test_tags_follow_the_ledger_and_skip_what_the_device_shows(store):
+    assert [intent(store).tag for _ in range(3)] == [1, 2, 3]
+    assert intent(store, device_tags=(4, 0)).tag == 5
+    assert intent(store, device_tags=(6, 7)).tag == 8
+
+
+def test_tags_wrap_from_65535_to_1_skipping_0():
+    assert next_tag(65534) == 65535
+    assert next_tag(65535) == 1
+    assert next_tag(65535, (1, 0)) == 2
+    assert next_tag(65534, (65535, 1)) == 2
+    assert next_tag(None) == 1 and next_tag(0, (1,)) == 2
+
+
+def test_tags_wrap_in_the_ledger(store):
+    store.db.execute("INSERT INTO feed (id, seq, tank, date, t_intent, target_g, run_s, tag, cycles_before, "
+                     "phase, source) VALUES ('w', 70000, 'T1', 'd', 1, 1, 1, 65535, 0, 'done', 'demand')")
+    f = intent(store, device_tags=(65535, 0))
+    assert (f.seq, f.tag) == (70001, 1)
+    assert intent(store, device_tags=(1, 2)).tag == 3
+
+
+def test_a_lost_ledger_does_not_reuse_the_tag_the_device_remembers(tmp_path):
+    s = Store(tmp_path / "new.db")        # the old ledger is gone; the device last ran tag 1
+    try:
+        assert intent(s, device_tags=(1, 0)).tag == 2
+    finally:
+        s.close()
+
+
+def test_counters_seen_are_remembered(tmp_path):
+    s = Store(tmp_path / "c.db")
+    s.see_counters("dispenser", 12, 480.5, 1.0)
+    s.see_counters("dispenser", 13, 520.0, 2.0)
+    s.close()
+    s = Store(tmp_path / "c.db")
+    assert s.counters_seen("dispenser") == (13, 520.0)
+    s.close()
 
 
 def test_reconcile_jammed_run_counts_its_grams(store):

@@ -1,0 +1,83 @@
+"""The HIL evidence itself can fail: the ledger is judged run by run, every problem counted."""
+from hil_tests.evidence import Verdict, ledger_against_runs
+
+
+def feed(id_, tag, t, phase="done", grams=40.0, **kw):
+    return {"id": id_, "seq": int(t * 1000), "tag": tag, "tank": "T1", "t_intent": t, "phase": phase,
+            "grams": grams, "settled_by": None, **kw}
+
+
+def run(tag, t, physical=40.03, measured=40.0, **kw):
+    return {"kind": "auger_run", "tag": tag, "t_start": t + 0.5, "t": t + 4.0, "physical_g": physical,
+            "measured_g": measured, "jammed": False, **kw}
+
+
+def judged(feeds, runs):
+    v = Verdict()
+    ledger_against_runs(v, feeds, runs)
+    return v
+
+
+def test_a_clean_ledger_passes():
+    v = judged([feed("a", 1, 10.0), feed("b", 2, 20.0), feed("c", 3, 30.0, phase="aborted", grams=None)],
+               [run(1, 10.0), run(2, 20.0)])
+    assert v.problems == [] and v.runs_compared == 2
+
+
+def test_one_lost_run_plus_one_repeated_run_fail_though_the_totals_agree():
+    # tag 2's run went unrecorded, tag 1 ran twice: two rows, two runs, same grams in total
+    v = judged([feed("a", 1, 10.0), feed("b", 2, 20.0, phase="aborted", grams=None)],
+               [run(1, 10.0), run(1, 10.2), run(2, 20.0)])
+    assert abs(v.ledger_g - 40.0) < 1e-9
+    assert len(v.problems) == 2, v.problems
+    assert any("matches 2 auger runs" in p for p in v.problems)
+    assert any("booked without grams" in p for p in v.problems)
+
+
+def test_every_problem_is_counted_past_forty():
+    v = judged([], [run(t, 10.0 * t) for t in range(1, 101)])
+    assert len(v.problems) == 100 and all("has no ledger row" in p for p in v.problems)
+
+
+def test_a_done_row_without_a_physical_run_fails():
+    v = judged([feed("a", 1, 10.0), feed("b", 2, 20.0)], [run(1, 10.0)])
+    assert len(v.problems) == 1 and "never gave" in v.problems[0]
+
+
+def test_grams_beyond_the_load_cells_resolution_fail():
+    v = judged([feed("a", 1, 10.0, grams=40.0)], [run(1, 10.0, physical=40.25, measured=40.0)])
+    assert len(v.problems) == 2          # the load cell against physics, the ledger against physics
+
+
+def test_a_reused_tag_is_matched_by_time():
+    v = judged([feed("a", 7, 10.0), feed("b", 7, 500.0)], [run(7, 10.0), run(7, 500.0)])
+    assert v.problems == []
+    v = judged([feed("a", 7, 10.0), feed("b", 7, 500.0)], [run(7, 500.0)])
+    assert len(v.problems) == 1 and "feed a" in v.problems[0]
+
+
+def test_a_power_cut_run_must_be_held_as_suspect():
+    cut = run(4, 40.0, physical=17.2, measured=None, power_cut=True)
+    assert judged([feed("d", 4, 40.0, phase="suspect", grams=None)], [cut]).problems == []
+    v = judged([feed("d", 4, 40.0, phase="aborted", grams=None)], [cut])
+    assert len(v.problems) == 1 and "does not know" in v.problems[0]
+    assert len(judged([feed("d", 4, 40.0, phase="intent", grams=None), feed("e", 5, 50.0, phase="aborted")],
+                      [cut]).problems) == 1
+    # an operator's settlement is held to the physics within the resolution
+    assert judged([feed("d", 4, 40.0, grams=17.2, settled_by="ana")], [cut]).problems == []
+    assert len(judged([feed("d", 4, 40.0, grams=30.0, settled_by="ana")], [cut]).problems) == 1
+
+
+def test_a_run_that_started_long_after_its_intent_is_still_its_own():
+    # a loaded machine at 1440x: 0.2 s of wall between intent and START is 288 farm s
+    assert judged([feed("a", 1, 10.0)], [run(1, 300.0)]).problems == []
+    # ... but a run never belongs to an intent that came after it
+    assert len(judged([feed("a", 1, 10.0)], [run(1, 5.0)]).problems) == 2
+
+
+def test_only_the_latest_intent_may_be_open_at_the_end():
+    # the controller stopped during the last run: it settles that intent when it starts again
+    assert judged([feed("a", 1, 10.0), feed("b", 2, 20.0, phase="intent", grams=None)],
+                  [run(1, 10.0), run(2, 20.0)]).problems == []
+    v = judged([feed("a", 1, 10.0, phase="intent", grams=None), feed("b", 2, 20.0)], [run(1, 10.0), run(2, 20.0)])
+    assert len(v.problems) == 1 and "left open" in v.problems[0]
