@@ -45,20 +45,65 @@ def _one_row(text: str, style: str = ""):
     return Text(text, style=style, no_wrap=True, overflow="ellipsis")
 
 
-def render(status: dict):
-    """The whole live view: heading, one row per tank, one row per active alarm."""
+MAX_ALARM_ROWS = 5
+
+
+def render(status: dict, height: int | None = None):
+    """The whole live view: heading, one row per tank, one row per active alarm. Given the
+    terminal's ``height``, only the tank rows that fit are built (a rich table costs about a
+    millisecond a row to lay out), and a last row says how many more ``fishfarm status`` has."""
     from rich.console import Group
     from rich.table import Table
     table = Table()
     for col in ("tank", "demand", "fed today (g)", "ration (g)", "%", "pellet"):
         table.add_column(col, justify="right" if col != "tank" else "left", no_wrap=True)
-    for tank_id, tank in status["tanks"].items():
+    alarms = [_one_row(f"ALARM {a['severity']} {a['source']}: {a['text']}", "bold red")
+              for a in status["alarms"][:MAX_ALARM_ROWS]]
+    if len(status["alarms"]) > MAX_ALARM_ROWS:
+        alarms.append(_one_row(f"... {len(status['alarms']) - MAX_ALARM_ROWS} more alarms: fishfarm status",
+                               "bold red"))
+    tanks = list(status["tanks"].items())
+    shown = tanks
+    if height is not None:
+        room = height - 7 - len(alarms)    # heading 2, table 4 (borders, header), Live's cursor line 1
+        if len(tanks) > room:
+            shown = tanks[:max(1, room - 1)]
+    for tank_id, tank in shown:
         pct = 100.0 * tank["fed_g"] / tank["ration_g"] if tank["ration_g"] else 0.0
         table.add_row(tank_id, "[bold yellow]DEMAND[/]" if tank["demand"] else "-", f"{tank['fed_g']:.1f}",
                       f"{tank['ration_g']:.1f}", f"{pct:.0f}", f"{tank['pellet_mm']} mm")
+    more = [_one_row(f"... {len(tanks) - len(shown)} more tanks: fishfarm status")] if len(shown) < len(tanks) else []
     top, feeder = heading(status)
-    alarms = [_one_row(f"ALARM {a['severity']} {a['source']}: {a['text']}", "bold red") for a in status["alarms"]]
-    return Group(_one_row(top, "bold"), _one_row(feeder), table, *alarms)
+    return Group(_one_row(top, "bold"), _one_row(feeder), table, *more, *alarms)
+
+
+class Frame:
+    """A view laid out once, in a worker thread, then only replayed: a log line printed above the
+    live table redraws the table, and must not lay it out again on the event loop."""
+
+    def __init__(self, renderable):
+        self.renderable = renderable
+        self._lines: list | None = None
+        self._width: int | None = None
+
+    def lay_out(self, console) -> Frame:
+        self._lay_out(console, console.options)
+        return self
+
+    def _lay_out(self, console, options) -> None:
+        if self._lines is None or self._width != options.max_width:      # the terminal was resized
+            from rich.segment import Segment
+            lines = console.render_lines(self.renderable, options.update(height=None), pad=False)
+            self._lines = [list(Segment.simplify(line)) for line in lines]     # fewer pieces to replay
+            self._width = options.max_width
+
+    def __rich_console__(self, console, options):
+        from rich.segment import Segment
+        self._lay_out(console, options)
+        for i, line in enumerate(self._lines):
+            if i:
+                yield Segment.line()
+            yield from line
 
 
 class ConsoleLogHandler(logging.Handler):
@@ -122,18 +167,24 @@ class LiveStatus:
         self._stack = contextlib.ExitStack()
         self.live = None
 
+    def frame(self) -> Frame:
+        """The current status as a frame to lay out; ``get_status`` is called here, on the caller's thread."""
+        return Frame(render(self.get_status(), self.console.height))
+
     def __enter__(self):
         from rich.live import Live
-        # redrawn by update() on the event loop, not by a thread of its own: one writer, no tearing
-        self.live = Live(render(self.get_status()), console=self.console, auto_refresh=False, transient=False)
+        # redrawn by update() only, not by a thread of its own: frames change once a second
+        self.live = Live(self.frame().lay_out(self.console), console=self.console, auto_refresh=False,
+                         transient=False)
         with self._stack as stack:      # on leaving: the table's last frame first, then plain lines again
             stack.enter_context(logging_through(self.console))
             stack.enter_context(self.live)
             self._stack = stack.pop_all()
         return self
 
-    def update(self) -> None:
-        self.live.update(render(self.get_status()), refresh=True)
+    def update(self, frame: Frame | None = None) -> None:
+        """Show ``frame`` (laid out already, or here), or the current status."""
+        self.live.update((frame or self.frame()).lay_out(self.console), refresh=True)
 
     def __exit__(self, *exc):
         return self._stack.__exit__(*exc)
@@ -148,7 +199,7 @@ async def show(get_status, every_wall_s: float = 1.0, log_every_wall_s: float = 
         with LiveStatus(console, get_status) as live:
             while True:
                 await asyncio.sleep(every_wall_s)
-                live.update()
+                live.update(await asyncio.to_thread(live.frame().lay_out, console))
     else:
         while True:
             await asyncio.sleep(log_every_wall_s)

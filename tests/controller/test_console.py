@@ -10,18 +10,18 @@ import pytest
 from rich.console import Console
 
 from controller.cli.run_cmd import setup_logging
-from controller.console import LiveStatus, logging_through, render
+from controller.console import MAX_ALARM_ROWS, Frame, LiveStatus, logging_through, render
 from devices.clock import ScaledClock
 
 FARM_EPOCH = dt.datetime(2031, 3, 7, 6, 0, tzinfo=dt.UTC).timestamp()   # far from the wall: a stamp shows which
 ASK = "auger on for T6: 60.0 g, 16.3 s after the ask;" + " the carriage stood over T6 the whole run" * 3
 
 
-def farm_status(site="demo", alarms=()):
+def farm_status(site="demo", alarms=(), tanks=8):
     return {"t": "2031-03-07T06:00:00.000Z", "site": site,
             "feeder": {"state": "dispensing", "position_m": 10.5, "hopper_g": 5281.1},
             "tanks": {f"T{i}": {"demand": i == 3, "fed_g": 60.0 * i, "ration_g": 1123.2, "pellet_mm": 2.0}
-                      for i in range(1, 9)},
+                      for i in range(1, tanks + 1)},
             "alarms": list(alarms)}
 
 
@@ -73,9 +73,9 @@ def root_logger():
     root.setLevel(level)
 
 
-def view_lines(status, width):
+def view_lines(status, width, height=None):
     console = Console(width=width, record=True, file=io.StringIO())
-    console.print(render(status))
+    console.print(render(status, height))
     return console.export_text().rstrip("\n").split("\n")
 
 
@@ -92,6 +92,32 @@ def test_a_long_site_name_is_cut_not_wrapped():
     lines = view_lines(farm_status(site="s" * 64), 80)
     assert lines[0].startswith("fishfarm ssss") and lines[0].endswith("…") and len(lines[0]) == 80
     assert lines[1].startswith("feeder: ")
+
+
+@pytest.mark.parametrize("height", [30, 45])
+def test_a_farm_taller_than_the_terminal_shows_the_rows_that_fit_and_says_how_many_more(height):
+    alarms = [{"severity": "warning", "source": f"tank/T{i}", "text": "sensor stuck"} for i in range(7)]
+    lines = view_lines(farm_status(tanks=100, alarms=alarms), 80, height)
+    rows = [line for line in lines if line.startswith("│ T")]
+    assert len(lines) == height - 1                                   # Live keeps a line for its cursor
+    assert [r.split()[1] for r in rows] == [f"T{i}" for i in range(1, len(rows) + 1)]
+    assert lines[-MAX_ALARM_ROWS - 2:] == [f"... {100 - len(rows)} more tanks: fishfarm status"] + [
+        f"ALARM warning tank/T{i}: sensor stuck" for i in range(MAX_ALARM_ROWS)] + [
+        "... 2 more alarms: fishfarm status"]
+    assert view_lines(farm_status(tanks=20), 80, 45) == view_lines(farm_status(tanks=20), 80)   # room for all
+    assert len([line for line in view_lines(farm_status(tanks=100), 80, 5) if line.startswith("│ T")]) == 1
+
+
+def test_a_frame_is_laid_out_again_only_for_a_new_width():
+    frame = Frame(render(farm_status()))
+    wide = Console(width=160, file=io.StringIO())
+    assert frame.lay_out(wide) is frame
+    lines = frame._lines
+    frame.lay_out(wide)
+    assert frame._lines is lines
+    narrow = Console(width=40, record=True, file=io.StringIO())
+    narrow.print(frame)
+    assert max(len(line) for line in narrow.export_text().splitlines()) <= 40
 
 
 @pytest.mark.parametrize("width", [80, 160])
