@@ -30,7 +30,7 @@ run: $(STAMP)
 # unit tests sharing the two cores; the hardware-in-loop runs then get the machine to themselves,
 # since their farm clocks run a thousand times faster than the wall.
 test: $(STAMP)
-	$(BIN)/lint-imports
+	$(BIN)/lint-imports --no-logo --no-cache
 	$(BIN)/python -m pytest -q -n 2 tests
 	$(BIN)/python -m pytest -q hil_tests
 
