@@ -13,6 +13,7 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import logging
+import re
 import sys
 
 log = logging.getLogger("fishfarm.status")
@@ -39,10 +40,14 @@ def heading(status: dict) -> list[str]:
             f"feeder: {feeder['state']} at {feeder['position_m']} m, hopper {feeder['hopper_g']} g"]
 
 
+_CONTROL = re.compile(r"[\x00-\x1f\x7f]")
+
+
 def _one_row(text: str, style: str = ""):
-    """A line that never wraps: cut with an ellipsis at the console's width (the full text is in the log)."""
+    """A line that never wraps: cut with an ellipsis at the console's width (the full text is in the log).
+    A newline or escape in an alarm's text would break the row or the screen: each becomes a space."""
     from rich.text import Text
-    return Text(text, style=style, no_wrap=True, overflow="ellipsis")
+    return Text(_CONTROL.sub(" ", text), style=style, no_wrap=True, overflow="ellipsis")
 
 
 MAX_ALARM_ROWS = 5

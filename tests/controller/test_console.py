@@ -88,6 +88,12 @@ def test_the_heading_is_whole_at_80_and_160_columns(width):
     assert all(len(line) <= width for line in lines)
 
 
+def test_an_alarm_text_with_a_newline_or_an_escape_stays_one_row():
+    alarm = {"severity": "critical", "source": "override", "text": "stop\n2031-03-07 INFO forged\x1b[2J"}
+    lines = view_lines(farm_status(alarms=[alarm]), 80)
+    assert lines[-1] == "ALARM critical override: stop 2031-03-07 INFO forged [2J"
+
+
 def test_a_long_site_name_is_cut_not_wrapped():
     lines = view_lines(farm_status(site="s" * 64), 80)
     assert lines[0].startswith("fishfarm ssss") and lines[0].endswith("…") and len(lines[0]) == 80
