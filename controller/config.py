@@ -17,8 +17,6 @@ from controller.errors import BadInput
 from devices.sections import DEVICE_KINDS, validate_section
 from devices.sections import section_model as device_model
 
-__all__ = ["Config", "DEVICE_KINDS", "device_model", "load_config", "load_toml", "validate_section"]
-
 
 class Strict(BaseModel):
     model_config = ConfigDict(extra="forbid", frozen=True)
