@@ -26,9 +26,11 @@ $(STAMP): pyproject.toml
 run: $(STAMP)
 	$(BIN)/fishfarm run --config $(CONFIG) $(ARGS)
 
-# Unit tests share the two cores; the hardware-in-loop runs then get the machine to themselves,
+# The layers first (import-linter contracts in pyproject.toml: a broken one fails at once), then
+# unit tests sharing the two cores; the hardware-in-loop runs then get the machine to themselves,
 # since their farm clocks run a thousand times faster than the wall.
 test: $(STAMP)
+	$(BIN)/lint-imports --no-logo --no-cache
 	$(BIN)/python -m pytest -q -n 2 tests
 	$(BIN)/python -m pytest -q hil_tests
 

@@ -2,21 +2,21 @@
 
 Each component owns the model of its own section (Klipper's rule); this module assembles
 them and turns the first validation failure into one line: ``FILE: key.path: reason``.
-Device sections are validated by the model their kind and driver name in ``devices``.
+Device sections are validated by the model their kind and driver name in ``devices``
+(``devices.sections``, where ``validate_section`` lives too: devices/ must not import controller/).
 """
 from __future__ import annotations
 
-import importlib
 import math
 import tomllib
 from pathlib import Path
 from typing import Annotated, Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
+from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 
 from controller.errors import BadInput
-
-DEVICE_KINDS = ("contacts", "rail", "dispenser")
+from devices.sections import DEVICE_KINDS, validate_section
+from devices.sections import section_model as device_model
 
 
 class Strict(BaseModel):
@@ -122,37 +122,6 @@ class Config(Strict):
                 return t
         raise KeyError(tank_id)
 
-
-
-def _loc(err: dict) -> str:
-    return ".".join(str(p) for p in err["loc"]) or "(top level)"
-
-
-def validate_section(model: type[BaseModel], data: Any, where: str, prefix: str = ""):
-    """Validate ``data`` against ``model``; on failure raise BadInput naming file, key and reason."""
-    try:
-        return model.model_validate(data)
-    except ValidationError as exc:
-        err = exc.errors()[0]
-        key = ".".join(p for p in (prefix, _loc(err)) if p)
-        msg = err["msg"]
-        if err["type"] == "extra_forbidden":
-            msg = "unknown key"
-        elif msg.startswith("Value error, "):
-            msg = msg[len("Value error, "):]
-        raise BadInput(where, key, msg) from None
-
-
-def device_model(kind: str, driver: str) -> type[BaseModel]:
-    """The section model of a device backend, looked up through its kind's BACKENDS table."""
-    module = importlib.import_module(f"devices.{kind}")
-    table = dict(module.BACKENDS)
-    if driver == "sim":
-        return importlib.import_module("devices.sim").SIM_SECTIONS[kind]
-    if driver not in table:
-        raise ValueError(f"driver must be one of sim, {', '.join(table)}")
-    mod, attr = table[driver].split(":")
-    return getattr(importlib.import_module(mod), attr).Config
 
 
 def load_config(path: str | Path) -> Config:

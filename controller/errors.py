@@ -1,17 +1,10 @@
-"""Errors that reach the user as one line and exit status 2."""
+"""Errors that reach the user as one line and exit status 2.
+
+``BadInput`` is defined in devices/errors.py so that devices/ can raise it without importing
+controller/ (the layers in DESIGN.md); this is the name the controller's code uses.
+"""
 from __future__ import annotations
 
+from devices.errors import BadInput
 
-class BadInput(Exception):
-    """Input the user can fix: a file, a field, a value. ``str()`` is the one line they read.
-
-    Build it as ``BadInput(path, field, fault)`` so every message names where the fault is.
-    """
-
-    def __init__(self, where: str, field: str | None = None, fault: str | None = None):
-        parts = [str(where)]
-        if field:
-            parts.append(str(field))
-        if fault:
-            parts.append(str(fault))
-        super().__init__(": ".join(parts))
+__all__ = ["BadInput"]

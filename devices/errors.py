@@ -1,4 +1,9 @@
-"""Exceptions every backend of every device kind raises, real or simulated alike."""
+"""Exceptions every backend of every device kind raises, real or simulated alike, and ``BadInput``.
+
+``BadInput`` lives here, at the bottom of the layers, because a device's config section is
+validated by the device's own model (devices/sections.py) and faults there must reach the
+user exactly as the controller's own do; ``controller.errors`` re-exports it.
+"""
 from __future__ import annotations
 
 
@@ -25,3 +30,18 @@ class DeviceFault(DeviceError):
 
 class ProtocolError(DeviceError):
     """The device said something the protocol does not allow (malformed line, bad checksum)."""
+
+
+class BadInput(Exception):
+    """Input the user can fix: a file, a field, a value. ``str()`` is the one line they read.
+
+    Build it as ``BadInput(path, field, fault)`` so every message names where the fault is.
+    """
+
+    def __init__(self, where: str, field: str | None = None, fault: str | None = None):
+        parts = [str(where)]
+        if field:
+            parts.append(str(field))
+        if fault:
+            parts.append(str(fault))
+        super().__init__(": ".join(parts))

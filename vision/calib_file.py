@@ -1,24 +1,32 @@
-"""CALIB.json: ``{"P1": 3x4, "P2": 3x4}`` plus optional K1, D1, K2, D2, R, T, image_size, rms_px.
+"""CALIB.json's content: ``{"P1": 3x4, "P2": 3x4}`` plus optional K1, D1, K2, D2, R, T, image_size, rms_px.
 
-A file with only P1 and P2 is valid input to every command. When D1/D2 are present,
+A calibration with only P1 and P2 is valid input to every command. When D1/D2 are present,
 pixel inputs are undistorted (with K1/K2) before any geometry.
 
-``load_calibration`` refuses what would make the geometry silently wrong, as BadInput naming the
-file and field: P1/P2 missing or null, not 3x4, not finite, singular, or with one camera centre
-(no baseline: nothing can be triangulated); K1/K2 singular or without the (0, 0, 1) last row
-that cv2.undistortPoints assumes.
+Pure: the decoded JSON object in, ``StereoCalibration`` out, and back with ``to_json``; reading
+and writing the file is the command line's (controller/cli/calib_io.py). ``calibration_from_json``
+refuses what would make the geometry silently wrong, as ``CalibrationError`` naming the field:
+P1/P2 missing or null, not 3x4, not finite, singular, or with one camera centre (no baseline:
+nothing can be triangulated); K1/K2 singular or without the (0, 0, 1) last row that
+cv2.undistortPoints assumes.
 """
 from __future__ import annotations
 
-import json
 import math
 from dataclasses import dataclass, field
-from pathlib import Path
 
 import numpy as np
 
-from controller.errors import BadInput
 from vision.triangulation import camera_centre
+
+
+class CalibrationError(ValueError):
+    """A calibration that cannot be used: ``field`` (None: the whole object) and ``fault``."""
+
+    def __init__(self, field: str | None, fault: str):
+        super().__init__(f"{field}: {fault}" if field else fault)
+        self.field = field
+        self.fault = fault
 
 
 @dataclass
@@ -56,89 +64,74 @@ class StereoCalibration:
 _SHAPES = {"P1": (3, 4), "P2": (3, 4), "K1": (3, 3), "K2": (3, 3), "R": (3, 3), "T": (3,)}
 
 
-def _matrix(data: dict, name: str, where: str) -> np.ndarray | None:
+def _matrix(data: dict, name: str) -> np.ndarray | None:
     if name not in data or data[name] is None:
         return None
     try:
         m = np.asarray(data[name], dtype=float)
     except (TypeError, ValueError):
-        raise BadInput(where, name, "not a numeric matrix") from None
+        raise CalibrationError(name, "not a numeric matrix") from None
     if name in ("D1", "D2"):
         m = m.reshape(-1)
         if m.size not in (4, 5, 8, 12, 14):
-            raise BadInput(where, name, f"{m.size} distortion coefficients (expected 4, 5, 8, 12 or 14)")
+            raise CalibrationError(name, f"{m.size} distortion coefficients (expected 4, 5, 8, 12 or 14)")
     elif name == "T":
         m = m.reshape(-1)
     if name in _SHAPES and m.shape != _SHAPES[name]:
-        raise BadInput(where, name, f"shape {list(m.shape)}, expected {list(_SHAPES[name])}")
+        raise CalibrationError(name, f"shape {list(m.shape)}, expected {list(_SHAPES[name])}")
     if not np.all(np.isfinite(m)):
-        raise BadInput(where, name, "contains NaN or infinity")
+        raise CalibrationError(name, "contains NaN or infinity")
     return m
 
 
-def _check_invertible(m: np.ndarray, where: str, name: str, what: str) -> None:
+def _check_invertible(m: np.ndarray, name: str, what: str) -> None:
     scale = np.abs(m).max()
     if scale == 0 or np.linalg.matrix_rank(m, tol=1e-9 * scale) < 3:
-        raise BadInput(where, name, f"singular: {what}")
+        raise CalibrationError(name, f"singular: {what}")
 
 
-def _check_camera_matrix(K: np.ndarray, where: str, name: str) -> None:
+def _check_camera_matrix(K: np.ndarray, name: str) -> None:
     """An intrinsic matrix must be invertible and end in (0, 0, 1): undistortion divides by it."""
-    _check_invertible(K, where, name, "not an invertible camera matrix")
+    _check_invertible(K, name, "not an invertible camera matrix")
     if not np.allclose(K[2], [0.0, 0.0, 1.0], rtol=0.0, atol=1e-6):
-        raise BadInput(where, name, f"last row {K[2].tolist()}, expected [0, 0, 1]")
+        raise CalibrationError(name, f"last row {K[2].tolist()}, expected [0, 0, 1]")
 
 
-def _check_baseline(P1: np.ndarray, P2: np.ndarray, where: str) -> None:
+def _check_baseline(P1: np.ndarray, P2: np.ndarray) -> None:
     """Two views from one centre see every point along the same ray: no depth, only garbage."""
     c1, c2 = camera_centre(P1), camera_centre(P2)
     baseline = float(np.linalg.norm(c2 - c1))
     if baseline <= 1e-6 * max(1.0, float(np.linalg.norm(c1)), float(np.linalg.norm(c2))):
-        raise BadInput(where, "P2", f"same camera centre as P1 ({np.round(c1, 3).tolist()}): no baseline, "
-                                    "nothing can be triangulated")
+        raise CalibrationError("P2", f"same camera centre as P1 ({np.round(c1, 3).tolist()}): no baseline, "
+                                     "nothing can be triangulated")
 
 
-def load_calibration(path: str | Path) -> StereoCalibration:
-    where = str(path)
-    try:
-        data = json.loads(Path(path).read_text(encoding="utf-8"))
-    except FileNotFoundError:
-        raise BadInput(where, None, "no such file") from None
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise BadInput(where, None, f"not valid JSON: {exc}") from None
+def calibration_from_json(data: object) -> StereoCalibration:
+    """The calibration in a decoded CALIB.json object; CalibrationError at the first fault."""
     if not isinstance(data, dict):
-        raise BadInput(where, None, "expected a JSON object with P1 and P2")
+        raise CalibrationError(None, "expected a JSON object with P1 and P2")
     for name in ("P1", "P2"):
         if data.get(name) is None:
-            raise BadInput(where, name, "missing" if name not in data else "missing (null)")
-    mats = {name: _matrix(data, name, where) for name in ("P1", "P2", "K1", "D1", "K2", "D2", "R", "T")}
+            raise CalibrationError(name, "missing" if name not in data else "missing (null)")
+    mats = {name: _matrix(data, name) for name in ("P1", "P2", "K1", "D1", "K2", "D2", "R", "T")}
     for name in ("P1", "P2"):
-        _check_invertible(mats[name][:, :3], where, name, "its left 3x3 block has rank < 3")
-    _check_baseline(mats["P1"], mats["P2"], where)
+        _check_invertible(mats[name][:, :3], name, "its left 3x3 block has rank < 3")
+    _check_baseline(mats["P1"], mats["P2"])
     for name in ("K1", "K2"):
         if mats[name] is not None:
-            _check_camera_matrix(mats[name], where, name)
+            _check_camera_matrix(mats[name], name)
     for d, k in (("D1", "K1"), ("D2", "K2")):
         if mats[d] is not None and mats[k] is None:
-            raise BadInput(where, d, f"distortion given without {k}")
+            raise CalibrationError(d, f"distortion given without {k}")
     size = data.get("image_size")
     if size is not None:
         if (not isinstance(size, list) or len(size) != 2
                 or not all(isinstance(s, int) and s > 0 for s in size)):
-            raise BadInput(where, "image_size", "expected [width, height] in pixels")
+            raise CalibrationError("image_size", "expected [width, height] in pixels")
         size = (size[0], size[1])
     rms = data.get("rms_px")
     if rms is not None and not (isinstance(rms, (int, float)) and math.isfinite(rms)):
-        raise BadInput(where, "rms_px", "not a number")
+        raise CalibrationError("rms_px", "not a number")
     known = set(_SHAPES) | {"D1", "D2", "image_size", "rms_px"}
     extra = {k: v for k, v in data.items() if k not in known}
     return StereoCalibration(image_size=size, rms_px=rms, extra=extra, **mats)
-
-
-def save_calibration(calib: StereoCalibration, path: str | Path) -> None:
-    path = Path(path)
-    try:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        path.write_text(json.dumps(calib.to_json(), indent=2) + "\n", encoding="utf-8")
-    except OSError as exc:
-        raise BadInput(str(path), None, f"cannot write: {exc}") from None

@@ -96,7 +96,7 @@ def _report(result, lefts, rights, out: str) -> None:
 @click.option("--out", required=True, type=click.Path(dir_okay=False), help="CALIB.json to write.")
 def chessboard(left_glob, right_glob, pattern, square_mm, out):
     """Stereo calibration from pairs of chessboard views (pairs by sorted file name)."""
-    from vision.calib_file import save_calibration
+    from controller.cli.calib_io import save_calibration
     from vision.chessboard import NotEnoughPairs, calibrate_pairs, find_corners
 
     lefts, rights = _files(left_glob, "--left"), _files(right_glob, "--right")

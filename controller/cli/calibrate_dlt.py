@@ -30,7 +30,8 @@ GRID_HEADER = ("x_mm", "y_mm", "z_mm", "u1", "v1", "u2", "v2")
               help="stop at the paper's linear least squares (no reprojection-error refinement)")
 def dlt(points_path: str, out_path: str, report_path: str | None, linear_only: bool) -> None:
     """Calibrate both cameras from >= 6 non-coplanar grid points (Ayache's DLT)."""
-    from vision.calib_file import StereoCalibration, save_calibration
+    from controller.cli.calib_io import save_calibration
+    from vision.calib_file import StereoCalibration
     from vision.dlt import CalibrationInputError, calibrate_stereo
 
     grid = read_table(points_path, GRID_HEADER)

@@ -21,7 +21,7 @@ OUT_HEADER = ("x_mm", "y_mm", "z_mm", "residual_px")
 @click.option("--out", "out_path", default=None, metavar="OUT.csv", help="output CSV (default: stdout)")
 def triangulate(calib_path: str, pairs_path: str, out_path: str | None) -> None:
     """3-D points of matched pixel pairs, with the reprojection residual in pixels."""
-    from vision.calib_file import load_calibration
+    from controller.cli.calib_io import load_calibration
     from vision.triangulation import triangulate_calibrated
 
     calib = load_calibration(calib_path)

@@ -29,8 +29,8 @@ import tty
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
-from controller.config import validate_section
 from devices.contacts.serial_hub import contact_line, heartbeat_line
+from devices.sections import validate_section
 
 MAX_PENDING = 1 << 16                   # bytes kept for a partial write before dropping lines
 HEARTBEAT_S = 0.25                      # wall: keeps the line alive whatever the farm clock does

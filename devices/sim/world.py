@@ -15,8 +15,8 @@ from typing import Any
 
 from pydantic import BaseModel, ConfigDict, Field
 
-from controller.config import Config, validate_section
-from controller.errors import BadInput
+from devices.errors import BadInput
+from devices.sections import validate_section
 from devices.sim.dispenser import SimDispenser, SimDispenserParams
 from devices.sim.rail import SimRailMotor, SimRailParams
 from devices.sim.slcan_adapter import SlcanAdapter
@@ -41,7 +41,10 @@ class SimSection(BaseModel):
 
 
 class SimFarm:
-    def __init__(self, cfg: Config, clock, truth: TruthLog | None = None):
+    """``cfg``: the farm's validated config (controller.config.Config), read for its ``tanks``,
+    ``devices``, ``feeding.food_box_m``, ``sim`` and ``path``; devices/ does not import its model."""
+
+    def __init__(self, cfg: Any, clock, truth: TruthLog | None = None):
         self.cfg, self.clock = cfg, clock
         self.truth = truth or TruthLog(None)
         self.section = validate_section(SimSection, cfg.sim, cfg.path, "sim")

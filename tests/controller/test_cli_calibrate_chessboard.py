@@ -9,9 +9,9 @@ import cv2
 import numpy as np
 import pytest
 
+from controller.cli.calib_io import load_calibration
 from devices.sim.stereo_scene import board_session, random_texture
 from tests.vision.shared_data import SHARED_DATA, needs_data, require
-from vision.calib_file import load_calibration
 
 REPO = Path(__file__).resolve().parents[2]
 DATA = SHARED_DATA / "stereo-chessboard"

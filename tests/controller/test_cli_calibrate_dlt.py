@@ -7,13 +7,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from controller.cli.calib_io import load_calibration, save_calibration
 from devices.sim.stereo_rig import (
     convergent_rig,
     measure_grid,
     random_points_in_grid_volume,
     two_plane_object,
 )
-from vision.calib_file import load_calibration, save_calibration
 
 FISHFARM = str(Path(sys.executable).parent / "fishfarm")
 GRID_HEADER = "x_mm,y_mm,z_mm,u1,v1,u2,v2"

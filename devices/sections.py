@@ -1,0 +1,49 @@
+"""Config sections: each part validates its own section, and a fault is one line naming it.
+
+Shared by devices/ (a device's section, the simulated world's ``[sim.*]`` sections) and
+controller/ (farm.toml as a whole), so it lives at the bottom of the layers: devices/ never
+imports controller/. ``controller.config`` re-exports ``validate_section``.
+"""
+from __future__ import annotations
+
+import importlib
+from typing import Any
+
+from pydantic import BaseModel, ValidationError
+
+from devices.errors import BadInput
+
+DEVICE_KINDS = ("contacts", "rail", "dispenser")
+
+
+def _loc(err: dict) -> str:
+    return ".".join(str(p) for p in err["loc"])
+
+
+def validate_section(model: type[BaseModel], data: Any, where: str, prefix: str = ""):
+    """Validate ``data`` against ``model``; on failure raise BadInput naming file, key and reason."""
+    try:
+        return model.model_validate(data)
+    except ValidationError as exc:
+        err = exc.errors()[0]
+        key = ".".join(p for p in (prefix, _loc(err)) if p) or "(top level)"
+        msg = err["msg"]
+        if err["type"] == "extra_forbidden":
+            msg = "unknown key"
+        elif msg.startswith("Value error, "):
+            msg = msg[len("Value error, "):]
+        raise BadInput(where, key, msg) from None
+
+
+def section_model(kind: str, driver: str) -> type[BaseModel]:
+    """The section model of a device backend, looked up through its kind's BACKENDS table;
+    ``driver = "sim"`` is the simulated twin's section (devices/sim). ValueError names the choices."""
+    if kind not in DEVICE_KINDS:
+        raise ValueError(f"kind must be one of {', '.join(DEVICE_KINDS)}")
+    table = dict(importlib.import_module(f"devices.{kind}").BACKENDS)
+    if driver == "sim":
+        return importlib.import_module("devices.sim").SIM_SECTIONS[kind]
+    if driver not in table:
+        raise ValueError(f"driver must be one of sim, {', '.join(table)}")
+    mod, attr = table[driver].split(":")
+    return getattr(importlib.import_module(mod), attr).Config
