@@ -11,7 +11,10 @@ import contextlib
 import importlib
 import itertools
 import logging
+import os
 import signal
+import threading
+import time
 
 from controller.alarms import Alarms
 from controller.bus import Bus
@@ -30,6 +33,18 @@ log = logging.getLogger("fishfarm")
 HOUSEKEEPING_S = 5.0        # farm seconds between filter ticks and expiry checks
 STATE_EVERY_WALL_S = 1.0    # periodic state publication besides every change
 OPEN_BACKOFF_S = (0.2, 0.5, 1.0, 2.0, 5.0, 10.0)
+REOPEN_BACKOFF_S = (0.5, 1.0, 2.0, 5.0)
+SIM_WATCH_S = 0.5           # wall seconds between checks that the simulated devices' child lives
+
+# Stopping (wall seconds). Each step has its own deadline; together they stay well inside
+# HARD_STOP_S, after which the watchdog ends the process whatever it is doing.
+STOP_TASKS_S = 0.75         # for cancelled tasks to end; one that ignores its cancel is left behind
+SAFE_COMMAND_S = 0.5        # for each actuator to confirm auger off / gate closed / drive stopped
+CLOSE_DEVICE_S = 0.5
+CLOSE_BUS_S = 1.0
+SIM_STOP_S = 2.0            # SimProcess.stop's own SIGTERM-then-SIGKILL fits in this
+HARD_STOP_S = 4.5           # from the first signal to the process's end, at the very latest
+EXIT_STOP_OVERRUN = 70      # the watchdog cut a stop short (EX_SOFTWARE)
 
 
 def build_device(name: str, section: dict, clock, where: str):
@@ -63,6 +78,9 @@ class Controller:
         self.unknown_sensors: set[str] = set()
         self.robot: FeedingRobot | None = None
         self.estop_before_start: str | None = None
+        self.watchdog: StopWatchdog | None = None
+        self._starting: asyncio.Task | None = None
+        self._stopped = False
         self.species = load_species()
         check_farm(cfg, self.species)
 
@@ -78,6 +96,8 @@ class Controller:
         self.bus = Bus(cfg.bus, cfg.site)
         self.store = Store(cfg.store.path)
         self.alarms = Alarms(self.store, self.bus.publish, self.clock)
+        if self.sim is not None:
+            self.tasks.append(asyncio.create_task(self._watch_sim()))
         self.rations = Rations(cfg, self.species, self.store)
         self.filter = DemandFilter(validate_section(DemandParams, cfg.demand, cfg.path, "demand"),
                                    {t.id: list(t.sensors) for t in cfg.tanks})
@@ -88,6 +108,8 @@ class Controller:
         self.overrides = Overrides(self)
         self.overrides.declare(self.bus)
         await asyncio.gather(*(self._open(device) for device in self.devices.values()))
+        if self.stopping.is_set():                # stopped while waiting for a device: start nothing
+            return
         self.robot = FeedingRobot(cfg, self.clock, self.rail, self.dispenser, self.store, self.rations,
                                   self.alarms, self.bus.publish)
         if self.estop_before_start is not None:
@@ -106,63 +128,134 @@ class Controller:
             await self.robot.emergency_stop(reason)
 
     async def stop(self) -> None:
-        for task in self.tasks:
+        """Stop within STOP_BUDGET_S wall seconds whatever the parts do: each step has a deadline,
+        and a task that ignores its cancel is left behind, not waited for (on Python 3.11 a cancel
+        can be swallowed). Order: our tasks, actuators safe, devices closed, then the simulated
+        devices' child, the ledger and the bus."""
+        self.stopping.set()
+        if self.watchdog is not None:
+            self.watchdog.arm()
+        if self._stopped:
+            return
+        self._stopped = True
+        began = time.monotonic()
+        tasks = [t for t in (self._starting, *self.tasks) if t is not None]
+        for task in tasks:
             task.cancel()
-        await asyncio.gather(*self.tasks, return_exceptions=True)
-        for device in getattr(self, "devices", {}).values():
-            with contextlib.suppress(Exception):
-                await device.close()
-        if hasattr(self, "bus"):
-            self.bus.close()
+        await _ended(tasks, STOP_TASKS_S, "task")
+        devices = [d for d in getattr(self, "devices", {}).values() if d._opened and not d._closed]
+        await self._make_safe(devices)
+        await _ended([asyncio.ensure_future(d.close()) for d in devices], CLOSE_DEVICE_S, "device close")
+        sim = asyncio.ensure_future(self.sim.stop()) if self.sim is not None else None
         if hasattr(self, "store"):
-            self.store.close()
+            try:
+                self.store.close()
+            except Exception:
+                log.exception("ledger: closing failed")
+        if hasattr(self, "bus") and not await _in_thread(self.bus.close, CLOSE_BUS_S):
+            log.warning("bus: Zenoh session did not close in %g s; leaving it", CLOSE_BUS_S)
+        if sim is not None:
+            await _ended([sim], SIM_STOP_S, "simulated devices' stop")
+        log.info("controller stopped in %.2f s", time.monotonic() - began)
+
+    def begin_stop(self, why: str) -> None:
+        if not self.stopping.is_set():
+            log.info("%s: stopping (a second signal ends the process at once)", why)
+        self.stopping.set()
+
+    def kill_sim(self) -> None:
+        """From the watchdog's thread, just before the process ends: leave no simulator behind."""
         if self.sim is not None:
-            await self.sim.stop()
+            self.sim.kill()
+
+    async def _make_safe(self, devices) -> None:
+        """Auger off, refill gate closed, carriage stopped: each through its interface, each with
+        its own deadline, so a device that is gone costs SAFE_COMMAND_S and no more."""
+        commands = []
+        for device in devices:
+            if device.kind == "dispenser":
+                commands += [("auger stop", device.stop()), ("refill gate close", device.set_refill(False))]
+            elif device.kind == "rail":
+                commands.append(("drive stop", device.stop()))
+        if not commands:
+            return
+        tasks = {asyncio.ensure_future(cmd): what for what, cmd in commands}
+        done, _ = await asyncio.wait(tasks, timeout=SAFE_COMMAND_S)
+        for task, what in tasks.items():
+            if task not in done:
+                task.cancel()
+                log.warning("stopping: %s not confirmed in %g s", what, SAFE_COMMAND_S)
+            elif not task.cancelled() and task.exception() is not None:
+                log.warning("stopping: %s failed: %s", what, task.exception())
 
     async def run(self) -> None:
-        starting = asyncio.create_task(self.start())
+        self._starting = starting = asyncio.create_task(self.start())
         stopping = asyncio.create_task(self.stopping.wait())
         try:
             await asyncio.wait({starting, stopping}, return_when=asyncio.FIRST_COMPLETED)
-            if starting.done():
+            if starting.done() and not self.stopping.is_set():
                 starting.result()                     # a start-up fault surfaces here
                 wall = None if self.duration_s is None else self.clock.wall(self.duration_s)
-                with contextlib.suppress(TimeoutError):
-                    await asyncio.wait_for(stopping, wall)
+                await asyncio.wait({stopping}, timeout=wall)
         finally:
-            for task in (starting, stopping):
-                task.cancel()
-            await asyncio.gather(starting, stopping, return_exceptions=True)
+            stopping.cancel()
             await self.stop()
 
     async def _supervise(self, loop) -> None:
-        """Run a loop forever: a bug in one part is logged and alarmed, never the end of the process."""
+        """Run a loop until the controller stops: a bug in one part is logged and alarmed, never the
+        end of the process."""
         name = loop.__name__.strip("_")
-        while True:
+        while not self.stopping.is_set():
             try:
                 await loop()
             except asyncio.CancelledError:
                 raise
             except Exception as exc:
+                if self.stopping.is_set():
+                    return
                 log.exception("%s crashed; restarting it", name)
                 self.alarms.raise_(f"controller/{name}", f"internal error: {type(exc).__name__}: {exc}",
                                    "critical")
-                await asyncio.sleep(1.0)
+                await self._pause(1.0)
+
+    async def _pause(self, seconds: float) -> None:
+        """Sleep, cut short when the controller stops."""
+        waiter = asyncio.ensure_future(self.stopping.wait())
+        try:
+            await asyncio.wait({waiter}, timeout=seconds)
+        finally:
+            waiter.cancel()
 
     def _one(self, kind: str):
         return next(d for d in self.devices.values() if d.kind == kind)
 
     async def _open(self, device) -> None:
-        """Open a device, retrying with back-off for as long as it takes: a farm's controller
-        often starts before every PLC is up. Lost and found are each alarmed once."""
+        """Open a device, retrying with back-off until it opens or the controller stops: a farm's
+        controller often starts before every PLC is up. The loss is alarmed once (on the first
+        failure), the recovery once; the retries between are logged at debug level only."""
         for attempt in itertools.count():
+            if self.stopping.is_set():
+                return
             try:
                 await device.open()
-                self.alarms.clear(f"device/{device.name}", "connected")
+                if self.alarms.clear(f"device/{device.name}", "connected") and attempt:
+                    log.info("%s opened after %d attempts", device.name, attempt + 1)
                 return
             except DeviceError as exc:
-                self.alarms.raise_(f"device/{device.name}", f"cannot open: {exc.text}")
-                await asyncio.sleep(OPEN_BACKOFF_S[min(attempt, len(OPEN_BACKOFF_S) - 1)])
+                if attempt == 0:
+                    self.alarms.raise_(f"device/{device.name}", f"cannot open: {exc.text}")
+                else:
+                    log.debug("%s: open attempt %d failed: %s", device.name, attempt + 1, exc.text)
+                await self._pause(OPEN_BACKOFF_S[min(attempt, len(OPEN_BACKOFF_S) - 1)])
+
+    async def _watch_sim(self) -> None:
+        """The simulated devices' child exiting on its own is alarmed once, and reaped at once."""
+        while not self.stopping.is_set():
+            code = self.sim.poll()
+            if code is not None:
+                self.alarms.raise_("sim", f"simulated devices exited (code {code})", "critical")
+                return
+            await self._pause(SIM_WATCH_S)
 
     def _requeue_open_demands(self) -> None:
         for row in self.store.open_demands():
@@ -171,7 +264,7 @@ class Controller:
     # -- loops ------------------------------------------------------------------
     async def _contacts_loop(self) -> None:
         publish = self.bus.publish if self.cfg.bus.publish_contacts else None
-        while True:
+        while not self.stopping.is_set():
             try:
                 batch = await self.contacts.read()
                 self.alarms.clear(f"device/{self.contacts.name}", "contacts back")
@@ -192,19 +285,29 @@ class Controller:
                     self._on_filter_event(event)
 
     async def _reopen(self, device) -> None:
+        """Reconnect the contact hub with back-off until it answers or the controller stops. The
+        loss was alarmed by the caller and the first good read clears it; retries log at debug."""
         with contextlib.suppress(Exception):
-            await device.close()
+            await asyncio.wait_for(device.close(), CLOSE_DEVICE_S)
         name, section = device.name, dict(device.config)
-        fresh = type(device)(name, type(device.config).model_validate(section), self.clock)
-        while True:
-            await asyncio.sleep(0.5)
+        for attempt in itertools.count():
+            await self._pause(REOPEN_BACKOFF_S[min(attempt, len(REOPEN_BACKOFF_S) - 1)])
+            if self.stopping.is_set():
+                return
+            fresh = type(device)(name, type(device.config).model_validate(section), self.clock)
             try:
                 await fresh.open()
-                break
-            except DeviceError:
+            except DeviceError as exc:
+                log.debug("%s: reconnect attempt %d failed: %s", name, attempt + 1, exc.text)
                 continue
-        self.devices[name] = fresh
-        self.contacts = fresh
+            if self.stopping.is_set():                # stop() may have closed the devices meanwhile
+                with contextlib.suppress(Exception):
+                    await asyncio.wait_for(fresh.close(), CLOSE_DEVICE_S)
+                return
+            self.devices[name] = fresh
+            self.contacts = fresh
+            log.info("%s reconnected after %d attempt(s)", name, attempt + 1)
+            return
 
     def _on_filter_event(self, event) -> None:
         if isinstance(event, Demand):
@@ -221,7 +324,7 @@ class Controller:
 
     async def _housekeeping(self) -> None:
         last_date = None
-        while True:
+        while not self.stopping.is_set():
             now = self.clock.now()
             heard = self.contacts.stream_t
             for event in self.filter.on_time(now if heard is None else min(now, heard)):
@@ -237,7 +340,7 @@ class Controller:
         self.bus.publish(f"tank/{tank_id}/ration", ration_payload(self.rations.today(tank_id, self.clock.now())))
 
     async def _state_loop(self) -> None:
-        while True:
+        while not self.stopping.is_set():
             self.bus.publish("feeder/state", self.robot.snapshot())
             await asyncio.sleep(STATE_EVERY_WALL_S)
 
@@ -261,7 +364,85 @@ class Controller:
                             "t": self.clock.iso(a.t)} for a in self.alarms.active.values()]}
 
 
-def install_signal_handlers(controller: Controller) -> None:
+async def _ended(tasks, seconds: float, what: str) -> bool:
+    """Wait at most ``seconds`` for ``tasks``; cancel and leave behind those still running."""
+    if not tasks:
+        return True
+    done, pending = await asyncio.wait(tasks, timeout=seconds)
+    for task in done:
+        if not task.cancelled() and task.exception() is not None:
+            log.debug("stopping: %s ended with %r", what, task.exception())
+    for task in pending:
+        task.cancel()
+        log.warning("stopping: %s %s did not end in %g s; going on without it", what,
+                    getattr(task.get_coro(), "__qualname__", task.get_name()), seconds)
+    return not pending
+
+
+async def _in_thread(fn, seconds: float) -> bool:
+    """Run a blocking ``fn`` on a daemon thread for at most ``seconds``; True when it finished.
+    A daemon thread, so one that never returns cannot hold the process's exit either."""
     loop = asyncio.get_running_loop()
+    finished = loop.create_future()
+
+    def done(_=None):
+        if not finished.done():
+            finished.set_result(None)
+
+    def work():
+        try:
+            fn()
+        except Exception:
+            log.exception("stopping: %s failed", getattr(fn, "__qualname__", fn))
+        finally:
+            with contextlib.suppress(RuntimeError):       # the loop may be gone already
+                loop.call_soon_threadsafe(done)
+
+    threading.Thread(target=work, name="fishfarm-stop", daemon=True).start()
+    ready, _ = await asyncio.wait({finished}, timeout=seconds)
+    return bool(ready)
+
+
+class StopWatchdog:
+    """The last line of "stop means stop": once armed, a thread of its own ends the process after
+    ``budget_s`` wall seconds, however stuck the event loop is. Arming is one write to a pipe, safe
+    from a signal handler (no lock taken)."""
+
+    def __init__(self, budget_s: float = HARD_STOP_S, on_overrun=None):
+        self.budget_s, self.on_overrun = budget_s, on_overrun
+        self._r, self._w = os.pipe()
+        threading.Thread(target=self._watch, name="fishfarm-stop-watchdog", daemon=True).start()
+
+    def arm(self) -> None:
+        with contextlib.suppress(OSError):
+            os.write(self._w, b"!")
+
+    def _watch(self) -> None:
+        os.read(self._r, 1)
+        time.sleep(self.budget_s)
+        try:
+            if self.on_overrun is not None:
+                self.on_overrun()
+        finally:
+            os.write(2, b"fishfarm: stopping took longer than %g s: exiting at once (code %d)\n"
+                     % (self.budget_s, EXIT_STOP_OVERRUN))
+            os._exit(EXIT_STOP_OVERRUN)
+
+
+def install_signal_handlers(controller: Controller) -> None:
+    """SIGINT/SIGTERM stop the controller (actuators safe, ledger closed) within HARD_STOP_S; the
+    first one restores the default action, so a second one ends the process at once, whatever it
+    is doing. Plain ``signal.signal`` handlers run between any two bytecodes of the main thread,
+    even while the event loop is busy; they only take lock-free steps."""
+    loop = asyncio.get_running_loop()
+    controller.watchdog = StopWatchdog(HARD_STOP_S, controller.kill_sim)
+
+    def on_signal(signum, frame):
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            signal.signal(sig, signal.SIG_DFL)
+        controller.watchdog.arm()
+        with contextlib.suppress(RuntimeError):          # the loop has already closed
+            loop.call_soon_threadsafe(controller.begin_stop, signal.Signals(signum).name)
+
     for sig in (signal.SIGINT, signal.SIGTERM):
-        loop.add_signal_handler(sig, controller.stopping.set)
+        signal.signal(sig, on_signal)
