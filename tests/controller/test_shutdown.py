@@ -1,0 +1,81 @@
+"""Stop means stop: the real ``fishfarm run`` process, signalled in each phase of its life, ends
+within 5 s, leaves no simulator child behind (nor a zombie), closes its ledger cleanly and stops
+the auger it was running; a second signal ends it at once."""
+import json
+import signal
+
+import pytest
+
+from tests.controller.shutdown_rig import PHASES, RunningController, proc_state
+
+LIMIT_S = 5.0
+SIGNALS = {"SIGINT-to-group": signal.SIGINT, "SIGTERM": signal.SIGTERM}
+
+
+@pytest.fixture
+def controller(tmp_path, request):
+    phase = request.param
+    rc = RunningController(tmp_path, phase, speed=5.0)
+    yield rc
+    rc.kill()
+
+
+@pytest.mark.parametrize("sig", SIGNALS.values(), ids=SIGNALS.keys())
+@pytest.mark.parametrize("controller", PHASES, indirect=True)
+def test_a_signal_stops_the_controller_within_5_s(controller, sig):
+    controller.reach()
+    sent = controller.send(sig)
+    rc = controller.wait_exit(sent)
+    log = controller.log()
+    assert rc == 0, f"exit {rc}:\n{log[-3000:]}"
+    assert controller.exit_s < LIMIT_S, f"{controller.phase}: {controller.exit_s:.2f} s to stop:\n{log[-3000:]}"
+    assert "controller stopped in" in log                 # the orderly way, not the watchdog's
+    if controller.sim_pid is not None:
+        assert not controller.sim_alive(), f"simulator pid {controller.sim_pid} left behind"
+        assert "simulated devices stopped" in log or controller.phase == "sim_died"
+    if controller.phase != "starting" or controller.db.exists():     # starting: opened after the simulator
+        assert controller.ledger_clean() is None, controller.ledger_clean()
+    if controller.phase == "starting":
+        assert "controller for site" not in log           # it really was stopped while starting
+    if controller.phase == "feeding":
+        assert_auger_stopped_short(controller)
+
+
+def assert_auger_stopped_short(controller):
+    """The run in progress ended before the simulator did, well short of its aim: stopped by the
+    controller on its way out, not run to its end nor left turning when the simulator went."""
+    truth = [json.loads(line) for line in controller.truth.read_text().splitlines() if line.strip()]
+    runs = [r for r in truth if r["kind"] == "auger_run"]
+    assert runs, "the auger's run never ended: it was left turning when the simulator stopped"
+    assert runs[-1]["physical_g"] < 200.0, runs[-1]                 # aimed at 250 g
+
+
+@pytest.mark.parametrize("controller", ["silent_device"], indirect=True)
+def test_a_second_signal_ends_it_at_once(controller):
+    """The first stop waits for a hung PLC's confirmations (with a deadline); the second signal
+    does not wait for anything: the process ends by that signal, its simulator with it."""
+    controller.reach()
+    controller.send(signal.SIGTERM)
+    controller.wait_log(r"SIGTERM: stopping")
+    sent = controller.send(signal.SIGTERM)
+    rc = controller.wait_exit(sent)
+    assert rc == -signal.SIGTERM, f"exit {rc}:\n{controller.log()[-3000:]}"
+    assert "controller stopped in" not in controller.log()
+    assert controller.exit_s < 1.0
+    controller.proc = None
+    # PR_SET_PDEATHSIG: the simulator follows its parent, and init reaps it
+    for _ in range(500):
+        if not controller.sim_alive():
+            break
+        import time
+        time.sleep(0.01)
+    assert not controller.sim_alive(), f"simulator pid {controller.sim_pid} outlived its controller"
+
+
+@pytest.mark.parametrize("controller", ["sim_died"], indirect=True)
+def test_a_dead_simulator_is_reaped_and_alarmed_at_once(controller):
+    controller.reach()                          # waits for the alarm the controller raises
+    assert proc_state(controller.sim_pid) is None, "the dead simulator is a zombie under a live controller"
+    assert controller.proc.poll() is None
+    rc = controller.wait_exit(controller.send(signal.SIGTERM))
+    assert rc == 0 and controller.exit_s < LIMIT_S
