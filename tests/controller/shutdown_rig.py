@@ -132,6 +132,14 @@ class RunningController:
         self.sim_pid = int(SIM_PID.search(self.log())[1])
         self.sim_start = proc_start(self.sim_pid)
 
+    def wait_sim_gone(self, timeout_s: float = 5.0) -> bool:
+        deadline = time.monotonic() + timeout_s
+        while self.sim_alive():
+            if time.monotonic() > deadline:
+                return False
+            time.sleep(0.01)
+        return True
+
     def sim_alive(self) -> bool:
         """The simulator child still exists, running or as a zombie (same pid, same start time)."""
         return self.sim_pid is not None and self.sim_start is not None and proc_start(self.sim_pid) == self.sim_start
@@ -199,16 +207,16 @@ class RunningController:
             rc = self.proc.wait(timeout=timeout_s)
         except subprocess.TimeoutExpired:
             self.kill()
-            raise AssertionError(f"controller still alive {timeout_s} s after the signal:\n{self.log()[-3000:]}")
+            tail = self.log()[-3000:]
+            raise AssertionError(f"controller still alive {timeout_s} s after the signal:\n{tail}") from None
         self.exit_s = time.monotonic() - sent
         return rc
 
     def kill(self) -> None:
         """Leave nothing behind, whatever happened."""
         if self.proc is not None and self.proc.poll() is None:
-            with_group = self.proc.pid
             try:
-                os.killpg(with_group, signal.SIGKILL)
+                os.killpg(self.proc.pid, signal.SIGKILL)
             except ProcessLookupError:
                 pass
             self.proc.wait()
