@@ -93,6 +93,8 @@ class Controller:
         if any(s["driver"] == "sim" for s in sections.values()):
             self.sim = SimProcess(cfg, self.clock)
             sections.update(await self.sim.start())
+            if self.stopping.is_set():            # a start that ignored its cancel opens nothing more
+                return
         self.bus = Bus(cfg.bus, cfg.site)
         self.store = Store(cfg.store.path)
         self.alarms = Alarms(self.store, self.bus.publish, self.clock)
@@ -128,7 +130,7 @@ class Controller:
             await self.robot.emergency_stop(reason)
 
     async def stop(self) -> None:
-        """Stop within STOP_BUDGET_S wall seconds whatever the parts do: each step has a deadline,
+        """Stop within a few wall seconds whatever the parts do: each step has a deadline,
         and a task that ignores its cancel is left behind, not waited for (on Python 3.11 a cancel
         can be swallowed). Order: our tasks, actuators safe, devices closed, then the simulated
         devices' child, the ledger and the bus."""
@@ -143,7 +145,8 @@ class Controller:
         for task in tasks:
             task.cancel()
         await _ended(tasks, STOP_TASKS_S, "task")
-        devices = [d for d in getattr(self, "devices", {}).values() if d._opened and not d._closed]
+        devices = [d for d in getattr(self, "devices", {}).values()
+                   if getattr(d, "_opened", False) and not getattr(d, "_closed", True)]
         await self._make_safe(devices)
         await _ended([asyncio.ensure_future(d.close()) for d in devices], CLOSE_DEVICE_S, "device close")
         sim = asyncio.ensure_future(self.sim.stop()) if self.sim is not None else None

@@ -1,12 +1,21 @@
 """Stop means stop: the real ``fishfarm run`` process, signalled in each phase of its life, ends
 within 5 s, leaves no simulator child behind (nor a zombie), closes its ledger cleanly and stops
 the auger it was running; a second signal ends it at once."""
+import asyncio
 import json
+import logging
 import signal
+import tomllib
 
 import pytest
+import tomli_w
 
-from tests.controller.shutdown_rig import PHASES, RunningController, proc_state
+from controller import app
+from controller.alarms import Alarms
+from controller.config import load_config
+from controller.store import Store
+from devices.clock import ScaledClock
+from tests.controller.shutdown_rig import PHASES, ROOT, RunningController, free_port, proc_state
 
 LIMIT_S = 5.0
 SIGNALS = {"SIGINT-to-group": signal.SIGINT, "SIGTERM": signal.SIGTERM}
@@ -74,3 +83,69 @@ def test_a_dead_simulator_is_reaped_and_alarmed_at_once(controller):
     assert controller.proc.poll() is None
     rc = controller.wait_exit(controller.send(signal.SIGTERM))
     assert rc == 0 and controller.exit_s < LIMIT_S
+
+
+# -- retry loops, in-process: they end when the controller stops and alarm once -------------------
+
+def absent_farm(tmp_path):
+    raw = tomllib.loads((ROOT / "config" / "farm.toml").read_text())
+    raw.pop("sim")
+    raw["store"] = {"path": str(tmp_path / "ledger.db")}
+    raw["devices"] = {
+        "contacts": {"kind": "contacts", "driver": "serial", "port": str(tmp_path / "no-hub")},
+        "rail": {"kind": "rail", "driver": "can", "interface": "slcan", "channel": str(tmp_path / "no-can")},
+        "dispenser": {"kind": "dispenser", "driver": "modbus", "port": free_port(), "timeout_s": 0.1},
+    }
+    (tmp_path / "farm.toml").write_text(tomli_w.dumps(raw))
+    return load_config(tmp_path / "farm.toml")
+
+
+def in_process(tmp_path, monkeypatch):
+    monkeypatch.setattr(app, "OPEN_BACKOFF_S", (0.005,))
+    monkeypatch.setattr(app, "REOPEN_BACKOFF_S", (0.005,))
+    cfg = absent_farm(tmp_path)
+    controller = app.Controller(cfg, ScaledClock.real())
+    published = []
+    controller.store = Store(cfg.store.path)
+    controller.alarms = Alarms(controller.store, lambda key, payload, **kw: published.append(key), controller.clock)
+    controller.devices = {name: app.build_device(name, s, controller.clock, cfg.path)
+                          for name, s in cfg.devices.items()}
+    return controller, published
+
+
+def test_open_retries_alarm_once_and_end_when_stopping(tmp_path, monkeypatch, caplog):
+    controller, published = in_process(tmp_path, monkeypatch)
+    caplog.set_level(logging.DEBUG, "fishfarm")
+
+    async def main():
+        opening = [asyncio.create_task(controller._open(d)) for d in controller.devices.values()]
+        while sum("open attempt" in r.getMessage() for r in caplog.records) < 3 * 5:
+            await asyncio.sleep(0.01)
+        assert not any(t.done() for t in opening)
+        controller.stopping.set()
+        done, _ = await asyncio.wait(opening, timeout=1.0)       # not cancelled: they see the stop
+        assert len(done) == 3 and all(t.exception() is None for t in done)
+
+    asyncio.run(asyncio.wait_for(main(), 30))
+    controller.store.close()
+    assert sorted(published) == ["alarm/device/contacts", "alarm/device/dispenser", "alarm/device/rail"]
+
+
+def test_contact_hub_reconnect_ends_when_stopping_without_alarming_each_retry(tmp_path, monkeypatch, caplog):
+    controller, published = in_process(tmp_path, monkeypatch)
+    caplog.set_level(logging.DEBUG, "fishfarm")
+    hub = controller.devices["contacts"]
+
+    async def main():
+        reopening = asyncio.create_task(controller._reopen(hub))
+        while sum("reconnect attempt" in r.getMessage() for r in caplog.records) < 5:
+            await asyncio.sleep(0.01)
+        assert not reopening.done()
+        controller.stopping.set()
+        done, _ = await asyncio.wait({reopening}, timeout=1.0)
+        assert done and reopening.exception() is None
+
+    asyncio.run(asyncio.wait_for(main(), 30))
+    controller.store.close()
+    assert published == []                   # the loss is the reader's alarm, raised once; retries are quiet
+    assert controller.devices["contacts"] is hub   # nothing reopened
