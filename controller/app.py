@@ -25,7 +25,7 @@ from controller.feeding.rations import Rations, load_species, ration_payload
 from controller.feeding.robot import FeedingRobot, Job
 from controller.overrides import Overrides
 from controller.simproc import SimProcess
-from controller.store import Store
+from controller.store import Store, reconcile
 from devices.errors import DeviceError
 
 log = logging.getLogger("fishfarm")
@@ -40,6 +40,7 @@ SIM_WATCH_S = 0.5           # wall seconds between checks that the simulated dev
 # HARD_STOP_S, after which the watchdog ends the process whatever it is doing.
 STOP_TASKS_S = 0.75         # for cancelled tasks to end; one that ignores its cancel is left behind
 SAFE_COMMAND_S = 0.5        # for each actuator to confirm auger off / gate closed / drive stopped
+SETTLE_S = 0.5              # to book a run the stop cut short from the dispenser's counters
 CLOSE_DEVICE_S = 0.5
 CLOSE_BUS_S = 1.0
 SIM_STOP_S = 2.0            # SimProcess.stop's own SIGTERM-then-SIGKILL fits in this
@@ -148,6 +149,7 @@ class Controller:
         devices = [d for d in getattr(self, "devices", {}).values()
                    if getattr(d, "_opened", False) and not getattr(d, "_closed", True)]
         await self._make_safe(devices)
+        await _ended([asyncio.ensure_future(self._settle_stopped_run())], SETTLE_S, "settling the stopped run")
         await _ended([asyncio.ensure_future(d.close()) for d in devices], CLOSE_DEVICE_S, "device close")
         sim = asyncio.ensure_future(self.sim.stop()) if self.sim is not None else None
         if hasattr(self, "store"):
@@ -170,6 +172,20 @@ class Controller:
         """From the watchdog's thread, just before the process ends: leave no simulator behind."""
         if self.sim is not None:
             self.sim.kill()
+
+    async def _settle_stopped_run(self) -> None:
+        """A run the stop cut short is booked now from the dispenser's counters (the grams its load
+        cell saw leave), so a clean stop leaves no intent open. An outcome less certain than "done"
+        (the auger still turning, a START perhaps still on the wire) stays open for the next start."""
+        if self.robot is None or not hasattr(self, "store") or not self.store.open_intents():
+            return
+        state = await self.robot.dispensing.read()
+        waiting = {job.demand_id for job in self.robot.pending.values() if job.demand_id is not None}
+        for feed in self.store.open_intents():
+            if reconcile(feed, state).phase == "done":
+                closed = self.robot.dispensing._close(feed, state, feed.demand_id if feed.demand_id in waiting
+                                                      else None, "settled on the way out")
+                log.info("stopping: feed %s to %s booked at %.1f g", closed.id, closed.tank, closed.grams or 0.0)
 
     async def _make_safe(self, devices) -> None:
         """Auger off, refill gate closed, carriage stopped: each through its interface, each with

@@ -5,6 +5,7 @@ import asyncio
 import json
 import logging
 import signal
+import sqlite3
 import tomllib
 
 import pytest
@@ -57,6 +58,14 @@ def assert_auger_stopped_short(controller):
     runs = [r for r in truth if r["kind"] == "auger_run"]
     assert runs, "the auger's run never ended: it was left turning when the simulator stopped"
     assert runs[-1]["physical_g"] < 200.0, runs[-1]                 # aimed at 250 g
+    # ... and booked on the way out with what the load cell saw: a clean stop leaves no intent open
+    db = sqlite3.connect(f"file:{controller.db}?mode=ro", uri=True)
+    try:
+        feeds = db.execute("SELECT tag, phase, grams FROM feed").fetchall()
+    finally:
+        db.close()
+    assert [(tag, phase) for tag, phase, _ in feeds] == [(runs[-1]["tag"], "done")], feeds
+    assert feeds[0][2] == pytest.approx(runs[-1]["measured_g"], abs=0.05)
 
 
 @pytest.mark.parametrize("controller", ["silent_device"], indirect=True)
