@@ -141,27 +141,41 @@ class Controller:
         if self._stopped:
             return
         self._stopped = True
-        began = time.monotonic()
+        began = last = time.monotonic()
+        took = {}
+
+        def step(name):
+            nonlocal last
+            now = time.monotonic()
+            took[name], last = now - last, now
+
         tasks = [t for t in (self._starting, *self.tasks) if t is not None]
         for task in tasks:
             task.cancel()
         await _ended(tasks, STOP_TASKS_S, "task")
+        step("tasks")
         devices = [d for d in getattr(self, "devices", {}).values()
                    if getattr(d, "_opened", False) and not getattr(d, "_closed", True)]
         await self._make_safe(devices)
         await _ended([asyncio.ensure_future(self._settle_stopped_run())], SETTLE_S, "settling the stopped run")
+        step("actuators")
         await _ended([asyncio.ensure_future(d.close()) for d in devices], CLOSE_DEVICE_S, "device close")
+        step("devices")
         sim = asyncio.ensure_future(self.sim.stop()) if self.sim is not None else None
         if hasattr(self, "store"):
             try:
                 self.store.close()
             except Exception:
                 log.exception("ledger: closing failed")
+        step("ledger")
         if hasattr(self, "bus") and not await _in_thread(self.bus.close, CLOSE_BUS_S):
             log.warning("bus: Zenoh session did not close in %g s; leaving it", CLOSE_BUS_S)
+        step("bus")
         if sim is not None:
             await _ended([sim], SIM_STOP_S, "simulated devices' stop")
-        log.info("controller stopped in %.2f s", time.monotonic() - began)
+        step("sim")
+        log.info("controller stopped in %.2f s (%s)", time.monotonic() - began,
+                 ", ".join(f"{name} {s:.2f}" for name, s in took.items()))
 
     def begin_stop(self, why: str) -> None:
         if not self.stopping.is_set():
