@@ -11,11 +11,9 @@ import contextlib
 import importlib
 import itertools
 import logging
-import os
-import signal
-import threading
 import time
 
+from controller import shutdown
 from controller.alarms import Alarms
 from controller.bus import Bus
 from controller.config import Config, validate_section
@@ -24,6 +22,7 @@ from controller.errors import BadInput
 from controller.feeding.rations import Rations, load_species, ration_payload
 from controller.feeding.robot import FeedingRobot, Job
 from controller.overrides import Overrides
+from controller.shutdown import install_signal_handlers
 from controller.simproc import SimProcess
 from controller.store import Store, reconcile
 from devices.errors import DeviceError
@@ -36,16 +35,6 @@ OPEN_BACKOFF_S = (0.2, 0.5, 1.0, 2.0, 5.0, 10.0)
 REOPEN_BACKOFF_S = (0.5, 1.0, 2.0, 5.0)
 SIM_WATCH_S = 0.5           # wall seconds between checks that the simulated devices' child lives
 
-# Stopping (wall seconds). Each step has its own deadline; together they stay well inside
-# HARD_STOP_S, after which the watchdog ends the process whatever it is doing.
-STOP_TASKS_S = 0.75         # for cancelled tasks to end; one that ignores its cancel is left behind
-SAFE_COMMAND_S = 0.5        # for each actuator to confirm auger off / gate closed / drive stopped
-SETTLE_S = 0.5              # to book a run the stop cut short from the dispenser's counters
-CLOSE_DEVICE_S = 0.5
-CLOSE_BUS_S = 1.0
-SIM_STOP_S = 2.0            # SimProcess.stop's own SIGTERM-then-SIGKILL fits in this
-HARD_STOP_S = 4.5           # from the first signal to the process's end, at the very latest
-EXIT_STOP_OVERRUN = 70      # the watchdog cut a stop short (EX_SOFTWARE)
 
 
 def build_device(name: str, section: dict, clock, where: str):
@@ -79,7 +68,7 @@ class Controller:
         self.unknown_sensors: set[str] = set()
         self.robot: FeedingRobot | None = None
         self.estop_before_start: str | None = None
-        self.watchdog: StopWatchdog | None = None
+        self.watchdog: shutdown.StopWatchdog | None = None
         self._starting: asyncio.Task | None = None
         self._stopped = False
         self.species = load_species()
@@ -152,14 +141,16 @@ class Controller:
         tasks = [t for t in (self._starting, *self.tasks) if t is not None]
         for task in tasks:
             task.cancel()
-        await _ended(tasks, STOP_TASKS_S, "task")
+        await shutdown.ended(tasks, shutdown.STOP_TASKS_S, "task")
         step("tasks")
         devices = [d for d in getattr(self, "devices", {}).values()
                    if getattr(d, "_opened", False) and not getattr(d, "_closed", True)]
         await self._make_safe(devices)
-        await _ended([asyncio.ensure_future(self._settle_stopped_run())], SETTLE_S, "settling the stopped run")
+        settling = asyncio.ensure_future(self._settle_stopped_run())
+        await shutdown.ended([settling], shutdown.SETTLE_S, "settling the stopped run")
         step("actuators")
-        await _ended([asyncio.ensure_future(d.close()) for d in devices], CLOSE_DEVICE_S, "device close")
+        closing = [asyncio.ensure_future(d.close()) for d in devices]
+        await shutdown.ended(closing, shutdown.CLOSE_DEVICE_S, "device close")
         step("devices")
         sim = asyncio.ensure_future(self.sim.stop()) if self.sim is not None else None
         if hasattr(self, "store"):
@@ -168,11 +159,11 @@ class Controller:
             except Exception:
                 log.exception("ledger: closing failed")
         step("ledger")
-        if hasattr(self, "bus") and not await _in_thread(self.bus.close, CLOSE_BUS_S):
-            log.warning("bus: Zenoh session did not close in %g s; leaving it", CLOSE_BUS_S)
+        if hasattr(self, "bus") and not await shutdown.in_thread(self.bus.close, shutdown.CLOSE_BUS_S):
+            log.warning("bus: Zenoh session did not close in %g s; leaving it", shutdown.CLOSE_BUS_S)
         step("bus")
         if sim is not None:
-            await _ended([sim], SIM_STOP_S, "simulated devices' stop")
+            await shutdown.ended([sim], shutdown.SIM_STOP_S, "simulated devices' stop")
         step("sim")
         log.info("controller stopped in %.2f s (%s)", time.monotonic() - began,
                  ", ".join(f"{name} {s:.2f}" for name, s in took.items()))
@@ -213,11 +204,11 @@ class Controller:
         if not commands:
             return
         tasks = {asyncio.ensure_future(cmd): what for what, cmd in commands}
-        done, _ = await asyncio.wait(tasks, timeout=SAFE_COMMAND_S)
+        done, _ = await asyncio.wait(tasks, timeout=shutdown.SAFE_COMMAND_S)
         for task, what in tasks.items():
             if task not in done:
                 task.cancel()
-                log.warning("stopping: %s not confirmed in %g s", what, SAFE_COMMAND_S)
+                log.warning("stopping: %s not confirmed in %g s", what, shutdown.SAFE_COMMAND_S)
             elif not task.cancelled() and task.exception() is not None:
                 log.warning("stopping: %s failed: %s", what, task.exception())
 
@@ -321,7 +312,7 @@ class Controller:
         """Reconnect the contact hub with back-off until it answers or the controller stops. The
         loss was alarmed by the caller and the first good read clears it; retries log at debug."""
         with contextlib.suppress(Exception):
-            await asyncio.wait_for(device.close(), CLOSE_DEVICE_S)
+            await asyncio.wait_for(device.close(), shutdown.CLOSE_DEVICE_S)
         name, section = device.name, dict(device.config)
         for attempt in itertools.count():
             await self._pause(REOPEN_BACKOFF_S[min(attempt, len(REOPEN_BACKOFF_S) - 1)])
@@ -335,7 +326,7 @@ class Controller:
                 continue
             if self.stopping.is_set():                # stop() may have closed the devices meanwhile
                 with contextlib.suppress(Exception):
-                    await asyncio.wait_for(fresh.close(), CLOSE_DEVICE_S)
+                    await asyncio.wait_for(fresh.close(), shutdown.CLOSE_DEVICE_S)
                 return
             self.devices[name] = fresh
             self.contacts = fresh
@@ -397,85 +388,4 @@ class Controller:
                             "t": self.clock.iso(a.t)} for a in self.alarms.active.values()]}
 
 
-async def _ended(tasks, seconds: float, what: str) -> bool:
-    """Wait at most ``seconds`` for ``tasks``; cancel and leave behind those still running."""
-    if not tasks:
-        return True
-    done, pending = await asyncio.wait(tasks, timeout=seconds)
-    for task in done:
-        if not task.cancelled() and task.exception() is not None:
-            log.debug("stopping: %s ended with %r", what, task.exception())
-    for task in pending:
-        task.cancel()
-        log.warning("stopping: %s %s did not end in %g s; going on without it", what,
-                    getattr(task.get_coro(), "__qualname__", task.get_name()), seconds)
-    return not pending
-
-
-async def _in_thread(fn, seconds: float) -> bool:
-    """Run a blocking ``fn`` on a daemon thread for at most ``seconds``; True when it finished.
-    A daemon thread, so one that never returns cannot hold the process's exit either."""
-    loop = asyncio.get_running_loop()
-    finished = loop.create_future()
-
-    def done(_=None):
-        if not finished.done():
-            finished.set_result(None)
-
-    def work():
-        try:
-            fn()
-        except Exception:
-            log.exception("stopping: %s failed", getattr(fn, "__qualname__", fn))
-        finally:
-            with contextlib.suppress(RuntimeError):       # the loop may be gone already
-                loop.call_soon_threadsafe(done)
-
-    threading.Thread(target=work, name="fishfarm-stop", daemon=True).start()
-    ready, _ = await asyncio.wait({finished}, timeout=seconds)
-    return bool(ready)
-
-
-class StopWatchdog:
-    """The last line of "stop means stop": once armed, a thread of its own ends the process after
-    ``budget_s`` wall seconds, however stuck the event loop is. Arming is one write to a pipe, safe
-    from a signal handler (no lock taken)."""
-
-    def __init__(self, budget_s: float = HARD_STOP_S, on_overrun=None):
-        self.budget_s, self.on_overrun = budget_s, on_overrun
-        self._r, self._w = os.pipe()
-        threading.Thread(target=self._watch, name="fishfarm-stop-watchdog", daemon=True).start()
-
-    def arm(self) -> None:
-        with contextlib.suppress(OSError):
-            os.write(self._w, b"!")
-
-    def _watch(self) -> None:
-        os.read(self._r, 1)
-        time.sleep(self.budget_s)
-        try:
-            if self.on_overrun is not None:
-                self.on_overrun()
-        finally:
-            os.write(2, b"fishfarm: stopping took longer than %g s: exiting at once (code %d)\n"
-                     % (self.budget_s, EXIT_STOP_OVERRUN))
-            os._exit(EXIT_STOP_OVERRUN)
-
-
-def install_signal_handlers(controller: Controller) -> None:
-    """SIGINT/SIGTERM stop the controller (actuators safe, ledger closed) within HARD_STOP_S; the
-    first one restores the default action, so a second one ends the process at once, whatever it
-    is doing. Plain ``signal.signal`` handlers run between any two bytecodes of the main thread,
-    even while the event loop is busy; they only take lock-free steps."""
-    loop = asyncio.get_running_loop()
-    controller.watchdog = StopWatchdog(HARD_STOP_S, controller.kill_sim)
-
-    def on_signal(signum, frame):
-        for sig in (signal.SIGINT, signal.SIGTERM):
-            signal.signal(sig, signal.SIG_DFL)
-        controller.watchdog.arm()
-        with contextlib.suppress(RuntimeError):          # the loop has already closed
-            loop.call_soon_threadsafe(controller.begin_stop, signal.Signals(signum).name)
-
-    for sig in (signal.SIGINT, signal.SIGTERM):
-        signal.signal(sig, on_signal)
+__all__ = ["Controller", "build_device", "check_farm", "install_signal_handlers"]

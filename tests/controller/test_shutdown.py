@@ -6,12 +6,14 @@ import json
 import logging
 import signal
 import sqlite3
+import subprocess
+import sys
 import tomllib
 
 import pytest
 import tomli_w
 
-from controller import app
+from controller import app, shutdown
 from controller.alarms import Alarms
 from controller.config import load_config
 from controller.store import Store
@@ -158,3 +160,42 @@ def test_contact_hub_reconnect_ends_when_stopping_without_alarming_each_retry(tm
     controller.store.close()
     assert published == []                   # the loss is the reader's alarm, raised once; retries are quiet
     assert controller.devices["contacts"] is hub   # nothing reopened
+
+
+def test_stop_goes_on_without_a_task_that_ignores_its_cancel(tmp_path, monkeypatch):
+    """Cancellation is a courtesy: a task that swallows its cancel (as asyncio.wait_for could on
+    Python 3.11) is left behind, and the stop still closes the ledger."""
+    controller, _ = in_process(tmp_path, monkeypatch)
+    monkeypatch.setattr(shutdown, "STOP_TASKS_S", 0.05)
+    cancels = []
+    released = asyncio.Event()
+
+    async def stubborn():
+        while not released.is_set():
+            try:
+                await released.wait()
+            except asyncio.CancelledError:
+                cancels.append(1)              # swallowed
+
+    async def main():
+        task = asyncio.create_task(stubborn())
+        controller.tasks.append(task)
+        await asyncio.sleep(0)
+        try:
+            await asyncio.wait_for(controller.stop(), 30)
+            assert not task.done() and cancels          # cancelled, and carrying on regardless
+        finally:
+            released.set()                     # let it end, or asyncio.run would wait for it for ever
+            await task
+
+    asyncio.run(main())
+    assert controller.store.db is None                  # closed: the stop did not wait on the stubborn task
+
+
+def test_the_watchdog_ends_a_stop_that_overruns(tmp_path):
+    """Whatever holds the main thread, an armed watchdog ends the process with EXIT_STOP_OVERRUN."""
+    code = ("import time; from controller.shutdown import StopWatchdog; "
+            "w = StopWatchdog(0.1); w.arm(); time.sleep(600)")
+    r = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True, timeout=60)
+    assert r.returncode == shutdown.EXIT_STOP_OVERRUN
+    assert "stopping took longer than 0.1 s" in r.stderr
