@@ -12,6 +12,7 @@ import contextlib
 import logging
 import os
 import signal
+import socket
 import threading
 import time
 
@@ -98,9 +99,19 @@ def install_signal_handlers(controller) -> None:
     """SIGINT/SIGTERM stop the controller (actuators safe, ledger closed) within HARD_STOP_S; the
     first one restores the default action, so a second one ends the process at once, whatever it
     is doing. Plain ``signal.signal`` handlers run between any two bytecodes of the main thread,
-    even while the event loop is busy; they only take lock-free steps."""
+    even while the event loop is busy; they only take lock-free steps. A signal that lands on
+    another thread (Zenoh's) still wakes the loop: Python writes it to the wakeup socket."""
     loop = asyncio.get_running_loop()
     controller.watchdog = StopWatchdog(HARD_STOP_S, controller.kill_sim)
+    wake_r, wake_w = socket.socketpair()
+    for sock in (wake_r, wake_w):
+        sock.setblocking(False)
+    controller._signal_wakeup = (wake_r, wake_w)       # kept open for the process's lifetime
+
+    def drain() -> None:
+        with contextlib.suppress(OSError):
+            while wake_r.recv(64):
+                pass
 
     def on_signal(signum, frame):
         for sig in (signal.SIGINT, signal.SIGTERM):
@@ -109,5 +120,7 @@ def install_signal_handlers(controller) -> None:
         with contextlib.suppress(RuntimeError):          # the loop has already closed
             loop.call_soon_threadsafe(controller.begin_stop, signal.Signals(signum).name)
 
+    loop.add_reader(wake_r.fileno(), drain)
+    signal.set_wakeup_fd(wake_w.fileno(), warn_on_full_buffer=False)
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, on_signal)
