@@ -199,3 +199,18 @@ def test_the_watchdog_ends_a_stop_that_overruns(tmp_path):
     r = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True, timeout=60)
     assert r.returncode == shutdown.EXIT_STOP_OVERRUN
     assert "stopping took longer than 0.1 s" in r.stderr
+
+
+def test_the_hil_harness_fails_a_run_whose_controller_needs_sigkill(tmp_path, monkeypatch):
+    from hil_tests import farm as hil
+
+    monkeypatch.setattr(hil, "STOP_LIMIT_S", 0.3)
+    h = hil.HilFarm(tmp_path, speed=1.0)
+    deaf = ("import signal, time; signal.signal(signal.SIGTERM, signal.SIG_IGN); "
+            "print('ready', flush=True); time.sleep(60)")
+    h.ctl_proc = subprocess.Popen([sys.executable, "-c", deaf], stdout=subprocess.PIPE, text=True)
+    assert h.ctl_proc.stdout.readline().strip() == "ready"      # SIGTERM is ignored from here on
+    with pytest.raises(RuntimeError, match="the controller needed SIGKILL"):
+        h.stop()
+    assert h.ctl_proc.returncode == -signal.SIGKILL
+    h.ctl_proc.stdout.close()
