@@ -6,6 +6,7 @@ own log lines (it logs what it is doing), never by sleeping for luck.
 """
 from __future__ import annotations
 
+import contextlib
 import os
 import re
 import signal
@@ -140,6 +141,20 @@ class RunningController:
             time.sleep(0.01)
         return True
 
+    def leftovers(self) -> list[int]:
+        """Processes still running this farm's config (its simulator, say): none once it stopped."""
+        mark = str(self.config).encode()
+        found = []
+        for entry in os.listdir("/proc"):
+            if entry.isdigit():
+                try:
+                    with open(f"/proc/{entry}/cmdline", "rb") as fh:
+                        if mark in fh.read():
+                            found.append(int(entry))
+                except OSError:
+                    pass
+        return found
+
     def sim_alive(self) -> bool:
         """The simulator child still exists, running or as a zombie (same pid, same start time)."""
         return self.sim_pid is not None and self.sim_start is not None and proc_start(self.sim_pid) == self.sim_start
@@ -222,6 +237,9 @@ class RunningController:
             self.proc.wait()
         if self.sim_alive():
             os.kill(self.sim_pid, signal.SIGKILL)
+        for pid in self.leftovers():
+            with contextlib.suppress(OSError):
+                os.kill(pid, signal.SIGKILL)
         if self.silent is not None:
             self.silent.close()
 

@@ -42,6 +42,7 @@ def test_a_signal_stops_the_controller_within_5_s(controller, sig):
     assert rc == 0, f"exit {rc}:\n{log[-3000:]}"
     assert controller.exit_s < LIMIT_S, f"{controller.phase}: {controller.exit_s:.2f} s to stop:\n{log[-3000:]}"
     assert "controller stopped in" in log                 # the orderly way, not the watchdog's
+    assert controller.leftovers() == []                   # nothing started for this farm runs on
     if controller.sim_pid is not None:
         assert not controller.sim_alive(), f"simulator pid {controller.sim_pid} left behind"
         assert "simulated devices stopped" in log or controller.phase == "sim_died"
