@@ -52,8 +52,16 @@ def probe(rng: random.Random, sig: int) -> dict:
             code = rc.wait_exit(sent, timeout_s=GOAL_S)
         except AssertionError:                    # still alive at 5 s: SIGKILLed by wait_exit
             return {"s": None, "ok": False}
-        clean = rc.ledger_clean() is None or not rc.db.exists()
-        return {"s": rc.exit_s, "ok": code == 0 and clean and not rc.leftovers()}
+        # a signal in the interpreter's first moments, before anything was started, kills it outright
+        early = code == -sig and "fishfarm sim, pid" not in rc.log() and not rc.db.exists()
+        why = [f"exit {code}"] if code != 0 and not early else []
+        if rc.db.exists() and rc.ledger_clean() is not None:
+            why.append(rc.ledger_clean())
+        if rc.leftovers():
+            why.append(f"left behind: {rc.leftovers()}")
+        if why:
+            print(f"probe: {'; '.join(why)}\n{rc.log()[-2000:]}", file=sys.stderr)
+        return {"s": rc.exit_s, "ok": not why}
     finally:
         rc.kill()
 
