@@ -11,8 +11,9 @@ import contextlib
 import importlib
 import itertools
 import logging
-import signal
+import time
 
+from controller import shutdown
 from controller.alarms import Alarms
 from controller.bus import Bus
 from controller.config import Config, validate_section
@@ -21,8 +22,9 @@ from controller.errors import BadInput
 from controller.feeding.rations import Rations, load_species, ration_payload
 from controller.feeding.robot import FeedingRobot, Job
 from controller.overrides import Overrides
+from controller.shutdown import install_signal_handlers
 from controller.simproc import SimProcess
-from controller.store import Store
+from controller.store import Store, reconcile
 from devices.errors import DeviceError
 
 log = logging.getLogger("fishfarm")
@@ -30,6 +32,9 @@ log = logging.getLogger("fishfarm")
 HOUSEKEEPING_S = 5.0        # farm seconds between filter ticks and expiry checks
 STATE_EVERY_WALL_S = 1.0    # periodic state publication besides every change
 OPEN_BACKOFF_S = (0.2, 0.5, 1.0, 2.0, 5.0, 10.0)
+REOPEN_BACKOFF_S = (0.5, 1.0, 2.0, 5.0)
+SIM_WATCH_S = 0.5           # wall seconds between checks that the simulated devices' child lives
+
 
 
 def build_device(name: str, section: dict, clock, where: str):
@@ -63,6 +68,9 @@ class Controller:
         self.unknown_sensors: set[str] = set()
         self.robot: FeedingRobot | None = None
         self.estop_before_start: str | None = None
+        self.watchdog: shutdown.StopWatchdog | None = None
+        self._starting: asyncio.Task | None = None
+        self._stopped = False
         self.species = load_species()
         check_farm(cfg, self.species)
 
@@ -76,8 +84,12 @@ class Controller:
         if any(s["driver"] == "sim" for s in sections.values()):
             self.sim = SimProcess(cfg, self.clock)
             sections.update(await self.sim.start())
+            if self.stopping.is_set():            # a start that ignored its cancel opens nothing more
+                return
         self.bus = Bus(cfg.bus, cfg.site)
         self.alarms = Alarms(self.store, self.bus.publish, self.clock)
+        if self.sim is not None:
+            self.tasks.append(asyncio.create_task(self._watch_sim()))
         self.rations = Rations(cfg, self.species, self.store)
         self.filter = DemandFilter(validate_section(DemandParams, cfg.demand, cfg.path, "demand"),
                                    {t.id: list(t.sensors) for t in cfg.tanks})
@@ -88,6 +100,8 @@ class Controller:
         self.overrides = Overrides(self)
         self.overrides.declare(self.bus)
         await asyncio.gather(*(self._open(device) for device in self.devices.values()))
+        if self.stopping.is_set():                # stopped while waiting for a device: start nothing
+            return
         self.robot = FeedingRobot(cfg, self.clock, self.rail, self.dispenser, self.store, self.rations,
                                   self.alarms, self.bus.publish)
         if self.estop_before_start is not None:
@@ -106,63 +120,167 @@ class Controller:
             await self.robot.emergency_stop(reason)
 
     async def stop(self) -> None:
-        for task in self.tasks:
+        """Stop within a few wall seconds whatever the parts do: each step has a deadline,
+        and a task that ignores its cancel is left behind, not waited for (on Python 3.11 a cancel
+        can be swallowed). Order: our tasks, actuators safe, devices closed, then the simulated
+        devices' child, the ledger and the bus."""
+        self.stopping.set()
+        if self.watchdog is not None:
+            self.watchdog.arm()
+        if self._stopped:
+            return
+        self._stopped = True
+        began = last = time.monotonic()
+        took = {}
+
+        def step(name):
+            nonlocal last
+            now = time.monotonic()
+            took[name], last = now - last, now
+
+        tasks = [t for t in (self._starting, *self.tasks) if t is not None]
+        for task in tasks:
             task.cancel()
-        await asyncio.gather(*self.tasks, return_exceptions=True)
-        for device in getattr(self, "devices", {}).values():
-            with contextlib.suppress(Exception):
-                await device.close()
-        if hasattr(self, "bus"):
-            self.bus.close()
+        await shutdown.ended(tasks, shutdown.STOP_TASKS_S, "task")
+        step("tasks")
+        devices = [d for d in getattr(self, "devices", {}).values()
+                   if getattr(d, "_opened", False) and not getattr(d, "_closed", True)]
+        await self._make_safe(devices)
+        settling = asyncio.ensure_future(self._settle_stopped_run())
+        await shutdown.ended([settling], shutdown.SETTLE_S, "settling the stopped run")
+        step("actuators")
+        closing = [asyncio.ensure_future(d.close()) for d in devices]
+        await shutdown.ended(closing, shutdown.CLOSE_DEVICE_S, "device close")
+        step("devices")
+        sim = asyncio.ensure_future(self.sim.stop()) if self.sim is not None else None
         if hasattr(self, "store"):
-            self.store.close()
+            try:
+                self.store.close()
+            except Exception:
+                log.exception("ledger: closing failed")
+        step("ledger")
+        if hasattr(self, "bus") and not await shutdown.in_thread(self.bus.close, shutdown.CLOSE_BUS_S):
+            log.warning("bus: Zenoh session did not close in %g s; leaving it", shutdown.CLOSE_BUS_S)
+        step("bus")
+        if sim is not None:
+            await shutdown.ended([sim], shutdown.SIM_STOP_S, "simulated devices' stop")
+        step("sim")
+        log.info("controller stopped in %.2f s (%s)", time.monotonic() - began,
+                 ", ".join(f"{name} {s:.2f}" for name, s in took.items()))
+
+    def begin_stop(self, why: str) -> None:
+        if not self.stopping.is_set():
+            log.info("%s: stopping (a second signal ends the process at once)", why)
+        self.stopping.set()
+
+    def kill_sim(self) -> None:
+        """From the watchdog's thread, just before the process ends: leave no simulator behind."""
         if self.sim is not None:
-            await self.sim.stop()
+            self.sim.kill()
+
+    async def _settle_stopped_run(self) -> None:
+        """A run the stop cut short is booked now from the dispenser's counters (the grams its load
+        cell saw leave), so a clean stop leaves no intent open. An outcome less certain than "done"
+        (the auger still turning, a START perhaps still on the wire) stays open for the next start."""
+        if self.robot is None or not hasattr(self, "store") or not self.store.open_intents():
+            return
+        state = await self.robot.dispensing.read()
+        waiting = {job.demand_id for job in self.robot.pending.values() if job.demand_id is not None}
+        for feed in self.store.open_intents():
+            result = reconcile(feed, state)
+            if result.phase == "done":
+                closed = self.robot.dispensing._close(result, feed.demand_id if feed.demand_id in waiting
+                                                      else None, "settled on the way out")
+                log.info("stopping: feed %s to %s booked at %.1f g", closed.id, closed.tank, closed.grams or 0.0)
+
+    async def _make_safe(self, devices) -> None:
+        """Auger off, refill gate closed, carriage stopped: each through its interface, each with
+        its own deadline, so a device that is gone costs SAFE_COMMAND_S and no more."""
+        commands = []
+        for device in devices:
+            if device.kind == "dispenser":
+                commands += [("auger stop", device.stop()), ("refill gate close", device.set_refill(False))]
+            elif device.kind == "rail":
+                commands.append(("drive stop", device.stop()))
+        if not commands:
+            return
+        tasks = {asyncio.ensure_future(cmd): what for what, cmd in commands}
+        done, _ = await asyncio.wait(tasks, timeout=shutdown.SAFE_COMMAND_S)
+        for task, what in tasks.items():
+            if task not in done:
+                task.cancel()
+                log.warning("stopping: %s not confirmed in %g s", what, shutdown.SAFE_COMMAND_S)
+            elif not task.cancelled() and task.exception() is not None:
+                log.warning("stopping: %s failed: %s", what, task.exception())
 
     async def run(self) -> None:
-        starting = asyncio.create_task(self.start())
+        self._starting = starting = asyncio.create_task(self.start())
         stopping = asyncio.create_task(self.stopping.wait())
         try:
             await asyncio.wait({starting, stopping}, return_when=asyncio.FIRST_COMPLETED)
-            if starting.done():
+            if starting.done() and not self.stopping.is_set():
                 starting.result()                     # a start-up fault surfaces here
                 wall = None if self.duration_s is None else self.clock.wall(self.duration_s)
-                with contextlib.suppress(TimeoutError):
-                    await asyncio.wait_for(stopping, wall)
+                await asyncio.wait({stopping}, timeout=wall)
         finally:
-            for task in (starting, stopping):
-                task.cancel()
-            await asyncio.gather(starting, stopping, return_exceptions=True)
+            stopping.cancel()
             await self.stop()
 
     async def _supervise(self, loop) -> None:
-        """Run a loop forever: a bug in one part is logged and alarmed, never the end of the process."""
+        """Run a loop until the controller stops: a bug in one part is logged and alarmed, never the
+        end of the process."""
         name = loop.__name__.strip("_")
-        while True:
+        while not self.stopping.is_set():
             try:
                 await loop()
             except asyncio.CancelledError:
                 raise
             except Exception as exc:
+                if self.stopping.is_set():
+                    return
                 log.exception("%s crashed; restarting it", name)
                 self.alarms.raise_(f"controller/{name}", f"internal error: {type(exc).__name__}: {exc}",
                                    "critical", kind="crashed")
-                await asyncio.sleep(1.0)
+                await self._pause(1.0)
+
+    async def _pause(self, seconds: float) -> None:
+        """Sleep, cut short when the controller stops."""
+        waiter = asyncio.ensure_future(self.stopping.wait())
+        try:
+            await asyncio.wait({waiter}, timeout=seconds)
+        finally:
+            waiter.cancel()
 
     def _one(self, kind: str):
         return next(d for d in self.devices.values() if d.kind == kind)
 
     async def _open(self, device) -> None:
-        """Open a device, retrying with back-off for as long as it takes: a farm's controller
-        often starts before every PLC is up. Lost and found are each alarmed once."""
+        """Open a device, retrying with back-off until it opens or the controller stops: a farm's
+        controller often starts before every PLC is up. The loss is alarmed once (on the first
+        failure), the recovery once; the retries between are logged at debug level only."""
         for attempt in itertools.count():
+            if self.stopping.is_set():
+                return
             try:
                 await device.open()
-                self.alarms.clear(f"device/{device.name}", "connected")
+                if self.alarms.clear(f"device/{device.name}", "connected") and attempt:
+                    log.info("%s opened after %d attempts", device.name, attempt + 1)
                 return
             except DeviceError as exc:
-                self.alarms.raise_(f"device/{device.name}", f"cannot open: {exc.text}", kind="unreachable")
-                await asyncio.sleep(OPEN_BACKOFF_S[min(attempt, len(OPEN_BACKOFF_S) - 1)])
+                if attempt == 0:
+                    self.alarms.raise_(f"device/{device.name}", f"cannot open: {exc.text}", kind="unreachable")
+                else:
+                    log.debug("%s: open attempt %d failed: %s", device.name, attempt + 1, exc.text)
+                await self._pause(OPEN_BACKOFF_S[min(attempt, len(OPEN_BACKOFF_S) - 1)])
+
+    async def _watch_sim(self) -> None:
+        """The simulated devices' child exiting on its own is alarmed once, and reaped at once."""
+        while not self.stopping.is_set():
+            code = self.sim.poll()
+            if code is not None:
+                self.alarms.raise_("sim", f"simulated devices exited (code {code})", "critical", kind="exited")
+                return
+            await self._pause(SIM_WATCH_S)
 
     def _requeue_open_demands(self) -> None:
         for row in self.store.open_demands():
@@ -171,7 +289,7 @@ class Controller:
     # -- loops ------------------------------------------------------------------
     async def _contacts_loop(self) -> None:
         publish = self.bus.publish if self.cfg.bus.publish_contacts else None
-        while True:
+        while not self.stopping.is_set():
             try:
                 batch = await self.contacts.read()
                 self.alarms.clear(f"device/{self.contacts.name}", "contacts back")
@@ -192,19 +310,29 @@ class Controller:
                     self._on_filter_event(event)
 
     async def _reopen(self, device) -> None:
+        """Reconnect the contact hub with back-off until it answers or the controller stops. The
+        loss was alarmed by the caller and the first good read clears it; retries log at debug."""
         with contextlib.suppress(Exception):
-            await device.close()
+            await asyncio.wait_for(device.close(), shutdown.CLOSE_DEVICE_S)
         name, section = device.name, dict(device.config)
-        fresh = type(device)(name, type(device.config).model_validate(section), self.clock)
-        while True:
-            await asyncio.sleep(0.5)
+        for attempt in itertools.count():
+            await self._pause(REOPEN_BACKOFF_S[min(attempt, len(REOPEN_BACKOFF_S) - 1)])
+            if self.stopping.is_set():
+                return
+            fresh = type(device)(name, type(device.config).model_validate(section), self.clock)
             try:
                 await fresh.open()
-                break
-            except DeviceError:
+            except DeviceError as exc:
+                log.debug("%s: reconnect attempt %d failed: %s", name, attempt + 1, exc.text)
                 continue
-        self.devices[name] = fresh
-        self.contacts = fresh
+            if self.stopping.is_set():                # stop() may have closed the devices meanwhile
+                with contextlib.suppress(Exception):
+                    await asyncio.wait_for(fresh.close(), shutdown.CLOSE_DEVICE_S)
+                return
+            self.devices[name] = fresh
+            self.contacts = fresh
+            log.info("%s reconnected after %d attempt(s)", name, attempt + 1)
+            return
 
     def _on_filter_event(self, event) -> None:
         if isinstance(event, Demand):
@@ -222,7 +350,7 @@ class Controller:
 
     async def _housekeeping(self) -> None:
         last_date = None
-        while True:
+        while not self.stopping.is_set():
             now = self.clock.now()
             heard = self.contacts.stream_t
             for event in self.filter.on_time(now if heard is None else min(now, heard)):
@@ -238,7 +366,7 @@ class Controller:
         self.bus.publish(f"tank/{tank_id}/ration", ration_payload(self.rations.today(tank_id, self.clock.now())))
 
     async def _state_loop(self) -> None:
-        while True:
+        while not self.stopping.is_set():
             self.bus.publish("feeder/state", self.robot.snapshot())
             await asyncio.sleep(STATE_EVERY_WALL_S)
 
@@ -267,7 +395,4 @@ class Controller:
         return out
 
 
-def install_signal_handlers(controller: Controller) -> None:
-    loop = asyncio.get_running_loop()
-    for sig in (signal.SIGINT, signal.SIGTERM):
-        loop.add_signal_handler(sig, controller.stopping.set)
+__all__ = ["Controller", "build_device", "check_farm", "install_signal_handlers"]

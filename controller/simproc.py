@@ -1,13 +1,16 @@
 """The child process that serves a config's simulated devices (``fishfarm sim``).
 
-It shares the controller's timeline (same epoch and speed) and dies with the controller
-(PR_SET_PDEATHSIG), so a killed controller never leaves a farm simulator behind.
+It shares the controller's timeline (same epoch and speed). It runs in a session of its own, so
+a terminal's Ctrl-C reaches the controller only: the controller puts its actuators safe first,
+then stops the child (SIGTERM, then SIGKILL) and reaps it. It dies with the controller
+(PR_SET_PDEATHSIG), so even a SIGKILLed controller never leaves a farm simulator behind.
 """
 from __future__ import annotations
 
 import asyncio
 import ctypes
 import json
+import logging
 import os
 import signal
 import subprocess
@@ -17,14 +20,22 @@ from pathlib import Path
 
 from controller.errors import BadInput
 
+log = logging.getLogger("fishfarm.sim")
+
 STARTUP_TIMEOUT_S = 30.0
+TERM_WAIT_S = 1.5           # wall seconds for the simulator to end on SIGTERM before SIGKILL
+KILL_WAIT_S = 0.4
 
 
-def _die_with_parent() -> None:
-    try:
-        ctypes.CDLL("libc.so.6", use_errno=True).prctl(1, signal.SIGTERM)  # PR_SET_PDEATHSIG
-    except OSError:
-        pass
+def _dying_with(parent: int):
+    def die_with_parent() -> None:          # in the child, between fork and exec
+        try:
+            ctypes.CDLL("libc.so.6", use_errno=True).prctl(1, signal.SIGTERM)  # PR_SET_PDEATHSIG
+        except OSError:
+            pass
+        if os.getppid() != parent:          # the parent died before the prctl took: follow it now
+            os._exit(1)
+    return die_with_parent
 
 
 class SimProcess:
@@ -41,7 +52,8 @@ class SimProcess:
         truth = os.environ.get("FISHFARM_SIM_TRUTH")
         if truth:
             args += ["--truth", truth]
-        self.proc = subprocess.Popen(args, preexec_fn=_die_with_parent)
+        self.proc = subprocess.Popen(args, start_new_session=True, preexec_fn=_dying_with(os.getpid()))
+        log.info("simulated devices: fishfarm sim, pid %d", self.proc.pid)
         loop = asyncio.get_running_loop()
         deadline = loop.time() + STARTUP_TIMEOUT_S
         while not endpoints.exists():
@@ -53,11 +65,44 @@ class SimProcess:
             await asyncio.sleep(0.05)
         return json.loads(endpoints.read_text())
 
-    async def stop(self) -> None:
-        if self.proc is not None and self.proc.poll() is None:
-            self.proc.terminate()
+    @property
+    def pid(self) -> int | None:
+        return None if self.proc is None else self.proc.pid
+
+    def poll(self) -> int | None:
+        """The child's exit code once it has exited (and reaped: no zombie), else None."""
+        return None if self.proc is None else self.proc.poll()
+
+    def kill(self) -> None:
+        """SIGKILL, no waiting: for a process that is about to end itself."""
+        if self.proc is not None and self.proc.returncode is None:
             try:
-                await asyncio.to_thread(self.proc.wait, 5)
-            except subprocess.TimeoutExpired:
                 self.proc.kill()
-        self._dir.cleanup()
+            except OSError:
+                pass
+
+    async def stop(self) -> None:
+        """SIGTERM, SIGKILL after TERM_WAIT_S, reaped; at most TERM_WAIT_S + KILL_WAIT_S."""
+        try:
+            if self.proc is not None and self.proc.poll() is None:
+                self.proc.terminate()
+                if not await self._ended(TERM_WAIT_S):
+                    log.warning("fishfarm sim (pid %d) ignored SIGTERM for %g s: killing it",
+                                self.proc.pid, TERM_WAIT_S)
+                    self.proc.kill()
+                    if not await self._ended(KILL_WAIT_S):
+                        log.error("fishfarm sim (pid %d) survived SIGKILL for %g s", self.proc.pid, KILL_WAIT_S)
+            if self.proc is not None and self.proc.returncode is not None:
+                log.info("simulated devices stopped (exit %d)", self.proc.returncode)
+        finally:
+            self._dir.cleanup()
+
+    async def _ended(self, wall_s: float) -> bool:
+        # polled, not proc.wait() on a thread: a thread blocked in wait() would outlive a stop
+        loop = asyncio.get_running_loop()
+        deadline = loop.time() + wall_s
+        while self.proc.poll() is None:
+            if loop.time() >= deadline:
+                return False
+            await asyncio.sleep(0.02)
+        return True

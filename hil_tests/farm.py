@@ -23,6 +23,7 @@ import tomli_w
 
 ROOT = Path(__file__).resolve().parents[1]
 FARM_START = 1_780_016_400.0          # 2026-05-29 01:00 UTC = local midnight (utc_offset_h = 1)
+STOP_LIMIT_S = 10.0                   # the controller ends within 5 s of SIGTERM; slack for a loaded machine
 
 
 def free_port() -> int:
@@ -54,6 +55,7 @@ class HilFarm:
         self.sim_proc: subprocess.Popen | None = None
         self.ctl_proc: subprocess.Popen | None = None
         self.restarts = 0
+        self.stop_s: float | None = None       # wall seconds the controller took to stop on SIGTERM
         self.truth_path = self.dir / "truth.jsonl"
         self.db_path = self.dir / "ledger.db"
         self.zenoh_port = free_port()
@@ -125,14 +127,32 @@ class HilFarm:
                 raise RuntimeError(f"{name} exited with {proc.returncode}:\n{self.log(name + '.log')}")
 
     def stop(self) -> None:
-        for proc in (self.ctl_proc, self.sim_proc):
-            if proc is not None and proc.poll() is None:
-                proc.send_signal(signal.SIGTERM)
-                try:
-                    proc.wait(timeout=15)
-                except subprocess.TimeoutExpired:
-                    proc.kill()
-                    proc.wait()
+        """SIGTERM the controller, then the simulator. The run fails when the controller does not
+        end by itself within STOP_LIMIT_S (it is then SIGKILLed) or ends with anything but 0 (70:
+        its own watchdog had to cut the stop short): stop means stop, in every HIL run."""
+        problem = None
+        if self.ctl_proc is not None and self.ctl_proc.poll() is None:
+            sent = time.monotonic()
+            self.ctl_proc.send_signal(signal.SIGTERM)
+            try:
+                rc = self.ctl_proc.wait(timeout=STOP_LIMIT_S)
+            except subprocess.TimeoutExpired:
+                self.ctl_proc.kill()
+                self.ctl_proc.wait()
+                problem = f"the controller needed SIGKILL: still running {STOP_LIMIT_S:g} s after SIGTERM"
+            else:
+                self.stop_s = time.monotonic() - sent
+                if rc != 0:
+                    problem = f"the controller exited {rc} on SIGTERM, after {self.stop_s:.2f} s"
+        if self.sim_proc is not None and self.sim_proc.poll() is None:
+            self.sim_proc.send_signal(signal.SIGTERM)
+            try:
+                self.sim_proc.wait(timeout=15)
+            except subprocess.TimeoutExpired:
+                self.sim_proc.kill()
+                self.sim_proc.wait()
+        if problem is not None:
+            raise RuntimeError(f"{problem}:\n{self.log('controller.log')}")
 
     def log(self, name: str, tail: int = 60) -> str:
         path = self.dir / name

@@ -73,8 +73,27 @@ def run(config_path, duration, speed, epoch_wall, epoch_farm, log_level, no_cons
             if console is not None:
                 console.cancel()
 
-    asyncio.run(main())
+    _run_to_the_end(main())
     return 0
+
+
+def _run_to_the_end(main, leftovers_s: float = 0.5) -> None:
+    """asyncio.run, except that tasks still running at the end (one that ignored its cancel) are
+    cancelled and given ``leftovers_s``, not waited for without end: a stop must end the process."""
+    loop = asyncio.new_event_loop()
+    try:
+        asyncio.set_event_loop(loop)
+        loop.run_until_complete(main)
+    finally:
+        try:
+            left = [t for t in asyncio.all_tasks(loop) if not t.done()]
+            for task in left:
+                task.cancel()
+            if left:
+                loop.run_until_complete(asyncio.wait(left, timeout=leftovers_s))
+        finally:
+            asyncio.set_event_loop(None)
+            loop.close()
 
 
 async def _show_when_up(controller, show):

@@ -113,10 +113,13 @@ class SerialContactHub(ContactSensors):
             if left <= 0:
                 raise LinkDown(self.name, f"{self.config.port} silent for {timeout:g} s (no heartbeat)")
             self._wake.clear()
+            # asyncio.wait, not wait_for: on Python 3.11 wait_for swallows a cancel that lands in
+            # the same loop turn as the wake-up (gh-86296), and a stopping controller hangs on it
+            waiter = asyncio.ensure_future(self._wake.wait())
             try:
-                await asyncio.wait_for(self._wake.wait(), left)
-            except TimeoutError:
-                pass
+                await asyncio.wait({waiter}, timeout=left)
+            finally:
+                waiter.cancel()
         out, self._batch = self._batch, []
         return out
 

@@ -1,0 +1,217 @@
+"""Stop means stop: the real ``fishfarm run`` process, signalled in each phase of its life, ends
+within 5 s, leaves no simulator child behind (nor a zombie), closes its ledger cleanly and stops
+the auger it was running; a second signal ends it at once."""
+import asyncio
+import json
+import logging
+import signal
+import sqlite3
+import subprocess
+import sys
+import tomllib
+
+import pytest
+import tomli_w
+
+from controller import app, shutdown
+from controller.alarms import Alarms
+from controller.config import load_config
+from controller.store import Store
+from devices.clock import ScaledClock
+from tests.controller.shutdown_rig import PHASES, ROOT, RunningController, free_port, proc_state
+
+LIMIT_S = 5.0
+SIGNALS = {"SIGINT-to-group": signal.SIGINT, "SIGTERM": signal.SIGTERM}
+
+
+@pytest.fixture
+def controller(tmp_path, request):
+    phase = request.param
+    rc = RunningController(tmp_path, phase, speed=5.0)
+    yield rc
+    rc.kill()
+
+
+@pytest.mark.parametrize("sig", SIGNALS.values(), ids=SIGNALS.keys())
+@pytest.mark.parametrize("controller", PHASES, indirect=True)
+def test_a_signal_stops_the_controller_within_5_s(controller, sig):
+    controller.reach()
+    sent = controller.send(sig)
+    rc = controller.wait_exit(sent)
+    log = controller.log()
+    assert rc == 0, f"exit {rc}:\n{log[-3000:]}"
+    assert controller.exit_s < LIMIT_S, f"{controller.phase}: {controller.exit_s:.2f} s to stop:\n{log[-3000:]}"
+    assert "controller stopped in" in log                 # the orderly way, not the watchdog's
+    assert controller.leftovers() == []                   # nothing started for this farm runs on
+    if controller.sim_pid is not None:
+        assert not controller.sim_alive(), f"simulator pid {controller.sim_pid} left behind"
+        assert "simulated devices stopped" in log or controller.phase == "sim_died"
+    if controller.phase != "starting" or controller.db.exists():     # starting: opened after the simulator
+        assert controller.ledger_clean() is None, controller.ledger_clean()
+    if controller.phase == "starting":
+        assert "controller for site" not in log           # it really was stopped while starting
+    if controller.phase == "feeding":
+        assert_auger_stopped_short(controller)
+
+
+def assert_auger_stopped_short(controller):
+    """The run in progress ended before the simulator did, well short of its aim: stopped by the
+    controller on its way out, not run to its end nor left turning when the simulator went."""
+    truth = [json.loads(line) for line in controller.truth.read_text().splitlines() if line.strip()]
+    runs = [r for r in truth if r["kind"] == "auger_run"]
+    assert runs, "the auger's run never ended: it was left turning when the simulator stopped"
+    assert runs[-1]["physical_g"] < 200.0, runs[-1]                 # aimed at 250 g
+    # ... and booked on the way out with what the load cell saw: a clean stop leaves no intent open
+    db = sqlite3.connect(f"file:{controller.db}?mode=ro", uri=True)
+    try:
+        feeds = db.execute("SELECT tag, phase, grams FROM feed").fetchall()
+    finally:
+        db.close()
+    assert [(tag, phase) for tag, phase, _ in feeds] == [(runs[-1]["tag"], "done")], feeds
+    assert feeds[0][2] == pytest.approx(runs[-1]["measured_g"], abs=0.05)
+
+
+@pytest.mark.parametrize("controller", ["silent_device"], indirect=True)
+def test_a_second_signal_ends_it_at_once(controller):
+    """The first stop waits for a hung PLC's confirmations (with a deadline); the second signal
+    does not wait for anything: the process ends by that signal, its simulator with it."""
+    controller.reach()
+    controller.send(signal.SIGTERM)
+    controller.wait_log(r"SIGTERM: stopping")
+    sent = controller.send(signal.SIGTERM)
+    rc = controller.wait_exit(sent)
+    assert rc == -signal.SIGTERM, f"exit {rc}:\n{controller.log()[-3000:]}"
+    assert "controller stopped in" not in controller.log()
+    assert controller.exit_s < 1.0
+    controller.proc = None
+    # PR_SET_PDEATHSIG: the simulator follows its parent, and init reaps it
+    assert controller.wait_sim_gone(), f"simulator pid {controller.sim_pid} outlived its controller"
+
+
+@pytest.mark.parametrize("controller", ["sim_died"], indirect=True)
+def test_a_dead_simulator_is_reaped_and_alarmed_at_once(controller):
+    controller.reach()                          # waits for the alarm the controller raises
+    assert proc_state(controller.sim_pid) is None, "the dead simulator is a zombie under a live controller"
+    assert controller.proc.poll() is None
+    rc = controller.wait_exit(controller.send(signal.SIGTERM))
+    assert rc == 0 and controller.exit_s < LIMIT_S
+
+
+# -- retry loops, in-process: they end when the controller stops and alarm once -------------------
+
+def absent_farm(tmp_path):
+    raw = tomllib.loads((ROOT / "config" / "farm.toml").read_text())
+    raw.pop("sim")
+    raw["store"] = {"path": str(tmp_path / "ledger.db")}
+    raw["devices"] = {
+        "contacts": {"kind": "contacts", "driver": "serial", "port": str(tmp_path / "no-hub")},
+        "rail": {"kind": "rail", "driver": "can", "interface": "slcan", "channel": str(tmp_path / "no-can")},
+        "dispenser": {"kind": "dispenser", "driver": "modbus", "port": free_port(), "timeout_s": 0.1},
+    }
+    (tmp_path / "farm.toml").write_text(tomli_w.dumps(raw))
+    return load_config(tmp_path / "farm.toml")
+
+
+def in_process(tmp_path, monkeypatch):
+    monkeypatch.setattr(app, "OPEN_BACKOFF_S", (0.005,))
+    monkeypatch.setattr(app, "REOPEN_BACKOFF_S", (0.005,))
+    cfg = absent_farm(tmp_path)
+    controller = app.Controller(cfg, ScaledClock.real())
+    published = []
+    controller.store = Store(cfg.store.path)
+    controller.alarms = Alarms(controller.store, lambda key, payload, **kw: published.append(key), controller.clock)
+    controller.devices = {name: app.build_device(name, s, controller.clock, cfg.path)
+                          for name, s in cfg.devices.items()}
+    return controller, published
+
+
+def test_open_retries_alarm_once_and_end_when_stopping(tmp_path, monkeypatch, caplog):
+    controller, published = in_process(tmp_path, monkeypatch)
+    caplog.set_level(logging.DEBUG, "fishfarm")
+
+    async def main():
+        opening = [asyncio.create_task(controller._open(d)) for d in controller.devices.values()]
+        while sum("open attempt" in r.getMessage() for r in caplog.records) < 3 * 5:
+            await asyncio.sleep(0.01)
+        assert not any(t.done() for t in opening)
+        controller.stopping.set()
+        done, _ = await asyncio.wait(opening, timeout=1.0)       # not cancelled: they see the stop
+        assert len(done) == 3 and all(t.exception() is None for t in done)
+
+    asyncio.run(asyncio.wait_for(main(), 30))
+    controller.store.close()
+    assert sorted(published) == ["alarm/device/contacts", "alarm/device/dispenser", "alarm/device/rail"]
+
+
+def test_contact_hub_reconnect_ends_when_stopping_without_alarming_each_retry(tmp_path, monkeypatch, caplog):
+    controller, published = in_process(tmp_path, monkeypatch)
+    caplog.set_level(logging.DEBUG, "fishfarm")
+    hub = controller.devices["contacts"]
+
+    async def main():
+        reopening = asyncio.create_task(controller._reopen(hub))
+        while sum("reconnect attempt" in r.getMessage() for r in caplog.records) < 5:
+            await asyncio.sleep(0.01)
+        assert not reopening.done()
+        controller.stopping.set()
+        done, _ = await asyncio.wait({reopening}, timeout=1.0)
+        assert done and reopening.exception() is None
+
+    asyncio.run(asyncio.wait_for(main(), 30))
+    controller.store.close()
+    assert published == []                   # the loss is the reader's alarm, raised once; retries are quiet
+    assert controller.devices["contacts"] is hub   # nothing reopened
+
+
+def test_stop_goes_on_without_a_task_that_ignores_its_cancel(tmp_path, monkeypatch):
+    """Cancellation is a courtesy: a task that swallows its cancel (as asyncio.wait_for could on
+    Python 3.11) is left behind, and the stop still closes the ledger."""
+    controller, _ = in_process(tmp_path, monkeypatch)
+    monkeypatch.setattr(shutdown, "STOP_TASKS_S", 0.05)
+    cancels = []
+    released = asyncio.Event()
+
+    async def stubborn():
+        while not released.is_set():
+            try:
+                await released.wait()
+            except asyncio.CancelledError:
+                cancels.append(1)              # swallowed
+
+    async def main():
+        task = asyncio.create_task(stubborn())
+        controller.tasks.append(task)
+        await asyncio.sleep(0)
+        try:
+            await asyncio.wait_for(controller.stop(), 30)
+            assert not task.done() and cancels          # cancelled, and carrying on regardless
+        finally:
+            released.set()                     # let it end, or asyncio.run would wait for it for ever
+            await task
+
+    asyncio.run(main())
+    assert controller.store.db is None                  # closed: the stop did not wait on the stubborn task
+
+
+def test_the_watchdog_ends_a_stop_that_overruns(tmp_path):
+    """Whatever holds the main thread, an armed watchdog ends the process with EXIT_STOP_OVERRUN."""
+    code = ("import time; from controller.shutdown import StopWatchdog; "
+            "w = StopWatchdog(0.1); w.arm(); time.sleep(600)")
+    r = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True, timeout=60)
+    assert r.returncode == shutdown.EXIT_STOP_OVERRUN
+    assert "stopping took longer than 0.1 s" in r.stderr
+
+
+def test_the_hil_harness_fails_a_run_whose_controller_needs_sigkill(tmp_path, monkeypatch):
+    from hil_tests import farm as hil
+
+    monkeypatch.setattr(hil, "STOP_LIMIT_S", 0.3)
+    h = hil.HilFarm(tmp_path, speed=1.0)
+    deaf = ("import signal, time; signal.signal(signal.SIGTERM, signal.SIG_IGN); "
+            "print('ready', flush=True); time.sleep(60)")
+    h.ctl_proc = subprocess.Popen([sys.executable, "-c", deaf], stdout=subprocess.PIPE, text=True)
+    assert h.ctl_proc.stdout.readline().strip() == "ready"      # SIGTERM is ignored from here on
+    with pytest.raises(RuntimeError, match="the controller needed SIGKILL"):
+        h.stop()
+    assert h.ctl_proc.returncode == -signal.SIGKILL
+    h.ctl_proc.stdout.close()
