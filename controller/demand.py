@@ -99,9 +99,11 @@ from dataclasses import dataclass
 
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
-from controller.demand_stats import HEALTHY, STUCK, Beats, Sensor, SensorTests, beat_tests, threshold
+from controller.demand_stats import (HEALTHY, STUCK, Beats, Sensor, SensorTests, beat_tests, caught_within, rate_for,
+                                     threshold)
 
-__all__ = ["Demand", "DemandFilter", "DemandParams", "SensorFault", "SensorRecovered", "threshold"]
+__all__ = ["Demand", "DemandFilter", "DemandParams", "SensorFault", "SensorRecovered", "SlowFishUndetectable",
+           "threshold"]
 _NONE: tuple = ()
 FISH_MAX_HZ = 2.0       # the contract's fastest fish
 
@@ -122,6 +124,14 @@ class SensorFault:
 
 
 @dataclass(frozen=True, slots=True)
+class SlowFishUndetectable:
+    """The tank's measured turbulence hides its slowest fish: raised once per tank."""
+    tank: str
+    t: float
+    note: str
+
+
+@dataclass(frozen=True, slots=True)
 class SensorRecovered:
     tank: str
     sensor: str
@@ -137,13 +147,13 @@ class DemandParams(BaseModel):
     slot_s: float = Field(1.0, gt=0, le=10, description="one contact per slot counts")
     chatter_hz: float = Field(3.0, gt=0, description="a bin faster than this is chatter")
     clump_contacts: int = Field(8, ge=3, description="short-burst test on a quiet tank, per 10 s")
-    spike_gain: float = Field(2.0, ge=0)
-    spike_allowance: float = Field(1.0, ge=0)
-    false_alarms_per_day: float = Field(1e-4, gt=0, lt=10)
+    spike_gain: float = Field(3.0, ge=0)
+    spike_allowance: float = Field(2.0, ge=0)
+    false_alarms_per_day: float = Field(1.0, gt=0, lt=10, description="the count's Poisson-tail budget")
     turbulence_max_hz: float = Field(0.05, gt=0, description="the contract's bound; starting estimate")
     turbulence_floor_hz: float = Field(0.005, gt=0)
     background_tau_s: float = Field(7200.0, gt=0)
-    min_contacts: int = Field(6, ge=2, description="never demand on fewer occupied slots")
+    min_contacts: int = Field(4, ge=2, description="never demand on fewer occupied slots")
     end_fraction: float = Field(0.5, gt=0, le=1)
     repeat_s: float = Field(120.0, gt=0)
     repeat_contacts: int = Field(5, ge=1)
@@ -153,12 +163,15 @@ class DemandParams(BaseModel):
     recover_s: float = Field(60.0, gt=0)
     dead_after_s: float = Field(300.0, gt=0)
     dead_active_bins: int = Field(20, ge=1)
-    beat_false_alarms_per_day: float = Field(1e-4, gt=0, lt=10)
+    beat_false_alarms_per_day: float = Field(0.1, gt=0, lt=10)
     beat_jitter: tuple[float, ...] = Field((0.15, 0.35), min_length=1, max_length=4,
                                            description="beat tolerances, ± share of the period")
     beat_period_s: tuple[float, float] = (2.0, 12.0)
     beat_search_nodes: int = Field(30, ge=1)
     beat_single_s: float = Field(0.5, ge=0, description="closer contacts are a burst's, not a beat's")
+    slow_fish_hz: float = Field(0.1, gt=0, description="the slowest fish the tank must serve")
+    slow_fish_recall: float = Field(0.5, gt=0, lt=1, description="below this, say they are undetectable")
+    learn_s: float = Field(3600.0, ge=0, description="measure this long before judging a tank")
 
     @model_validator(mode="after")
     def _shape(self):
@@ -179,7 +192,7 @@ class _Tank:
     __slots__ = ("name", "sensors", "bin_end", "slot", "cur", "raw", "excl", "excl_next", "vals",
                  "raws", "head", "vsum", "rsum", "m_old", "p1", "p2", "k", "bg_n", "bg_t",
                  "demanding", "last_raise", "fresh", "recent", "active", "last_t",
-                 "occ", "occs", "osum", "beats", "grid_i")
+                 "occ", "occs", "osum", "beats", "grid_i", "told")
 
     def __init__(self, name: str, n_bins: int, k: int, bg_n: float, bg_t: float, beats: Beats):
         self.name = name
@@ -200,6 +213,7 @@ class _Tank:
         self.occ = self.osum = 0                    # busy seconds, excluded bins included
         self.occs = [0] * (n_bins - 1)
         self.beats, self.grid_i = beats, -1
+        self.told = False                           # slow fish said undetectable
 
 
 class DemandFilter:
@@ -216,6 +230,7 @@ class DemandFilter:
         hi = 4.0 * p.turbulence_max_hz
         self._b_grid = [p.turbulence_floor_hz * (hi / p.turbulence_floor_hz) ** (i / 63) for i in range(64)]
         self._window = self._n * p.bin_s
+        self._span = (self._n - 1) * p.bin_s            # the complete bins of a window
         self._k_grid = [threshold(b, self._window, p.false_alarms_per_day, p.min_contacts) for b in self._b_grid]
         self._beat_grid = [beat_tests(b, p.beat_jitter, p.beat_false_alarms_per_day, p.beat_period_s,
                                       self._window) for b in self._b_grid]
@@ -277,6 +292,24 @@ class DemandFilter:
         ts = self._tanks[tank]
         return self._score(ts), ts.k
 
+    def slow_fish(self, tank: str) -> str | None:
+        """A note when the tank's measured turbulence makes its slowest fish (``slow_fish_hz``,
+        Poisson) more likely missed than served within the window, else None (see *Slow fish*)."""
+        ts = self._tanks[tank]
+        if ts.bg_t * self._bin < self.params.learn_s + 900.0:
+            return None                             # still measuring (the prior is the worst case)
+        p = self.params
+        recall = caught_within(p.slow_fish_hz, ts.k, self._window)
+        if recall >= p.slow_fish_recall:
+            return None
+        return (f"turbulence {self._background(ts):.3f}/s: fish at {p.slow_fish_hz:g}/s served within "
+                f"{self._window:.0f} s only {recall:.0%} of the time; at 99 % from "
+                f"{rate_for(0.99, ts.k, self._window):.2f}/s")
+
+    @property
+    def tanks(self):
+        return self._tanks.keys()
+
     def sensor_state(self, tank: str, sensor: str) -> str:
         return ("healthy", "stuck", "dead")[self._tanks[tank].sensors[sensor].state]
 
@@ -298,7 +331,7 @@ class DemandFilter:
         pace = self._n * self._bin / max(score, 1.0)          # mean gap between busy seconds
         p = self.params
         if not ts.demanding:
-            if (score < ts.k or t - ts.last_t > pace or t - ts.last_raise < p.repeat_s
+            if (score < ts.k or t - ts.last_t > 3.0 * pace or t - ts.last_raise < p.repeat_s
                     or ts.raw > 3 * ts.occ + 1):             # a clump of contacts: chatter starting
                 return events
             return self._start(ts, t, events)
@@ -328,11 +361,9 @@ class DemandFilter:
         return self._raise(ts, t, events)
 
     def _unlearn_window(self, ts: _Tank) -> None:
-        """The window that made a demand was the episode's start, not turbulence: take it back
-        out of the background estimate (decay over 60 s is < 1 % and is ignored)."""
-        clipped = sum(v if v < 2 else 2 for v in ts.vals)
-        ts.bg_n = max(0.0, ts.bg_n - clipped)
-        ts.bg_t = max(self._bin, ts.bg_t - self._bin * len(ts.vals))
+        """The window that made a demand was the episode's start, not turbulence: take its
+        (non-empty) spans back out of the background estimate."""
+        ts.bg_t = max(ts.bg_n + 1.0, ts.bg_t - len(ts.vals))
 
     def _raise(self, ts: _Tank, t: float, events):
         rate = (ts.rsum + (0 if ts.excl else ts.raw)) / self._window
@@ -389,12 +420,17 @@ class DemandFilter:
         for _ in range(min(steps, n + 1)):
             self._close_bin(ts)
         ts.m_old = self._max3(ts) if ts.vsum else 0
-        if steps > n + 1:                           # a long silence: the window is empty
+        if steps > n + 1:                           # a long silence: every span was empty
             a = self._alpha ** (steps - (n + 1))
-            ts.bg_n *= a
-            ts.bg_t = ts.bg_t * a + self._bin * (1 - a) / (1 - self._alpha)
+            ts.bg_n = ts.bg_n * a + (1 - a) / (1 - self._alpha)
+            ts.bg_t = ts.bg_t * a + (1 - a) / (1 - self._alpha)
         ts.bin_end += steps * self._bin
         self._thresholds(ts)
+        if not ts.told and ts.bg_t * self._bin >= self.params.learn_s + 900.0:
+            note = self.slow_fish(ts.name)
+            if note is not None:
+                ts.told = True
+                events = [*(events or ()), SlowFishUndetectable(ts.name, ts.bin_end, note)]
         beats, old = ts.beats, ts.bin_end - self._bin - self._window
         if (beats.times and beats.times[0] < old) or beats.gaps:
             beats.trim(old)
@@ -415,19 +451,21 @@ class DemandFilter:
         ts.p2, ts.p1 = ts.p1, v
         if v:
             self._clump(ts, h)
-        if not ts.demanding:                        # background: bins outside demand, clipped at 2
-            v = ts.vals[h]                          # (P[v > 2] = 0.7 % at 0.05 /s)
-            ts.bg_n = ts.bg_n * self._alpha + (v if v < 2 else 2)
-            ts.bg_t = ts.bg_t * self._alpha + self._bin
+        if not ts.demanding:                        # background: is the span of the window empty?
+            ts.bg_n = ts.bg_n * self._alpha + (ts.vsum == 0)
+            ts.bg_t = ts.bg_t * self._alpha + 1.0
         if ts.vals[h]:                              # a non-chatter bin with healthy contacts
             ts.active += 1
         ts.cur = ts.raw = ts.occ = 0
         ts.excl, ts.excl_next = ts.excl_next, False
 
     def _background(self, ts: _Tank) -> float:
-        n = ts.bg_n
-        b = (n + math.sqrt(n) + 1.0) / ts.bg_t
-        return max(self.params.turbulence_floor_hz, b)
+        """From the share of empty spans (the window's complete bins): e^(-b·span) under Poisson
+        turbulence, its lower confidence bound (one s.d., spans a window apart independent)."""
+        share, n_eff = ts.bg_n / ts.bg_t, max(1.0, ts.bg_t / len(ts.vals))
+        lo = share - math.sqrt(share * (1.0 - share) / n_eff) - 0.5 / n_eff
+        b = -math.log(max(lo, 1e-9)) / self._span
+        return min(max(self.params.turbulence_floor_hz, b), self._b_grid[-1])
 
     # -- sensors ------------------------------------------------------------------------------
     def _revive(self, ts: _Tank, s: Sensor, t: float, events):
@@ -445,8 +483,8 @@ class DemandFilter:
 
     def _new_tank(self, tank: str) -> _Tank:
         p = self.params
-        t0 = 900.0                                  # the prior: 15 min at the contract's bound
-        ts = _Tank(tank, self._n, 0, p.turbulence_max_hz * t0, t0,
+        t0 = 900.0 / p.bin_s                        # the prior: 15 min at the contract's bound
+        ts = _Tank(tank, self._n, 0, t0 * math.exp(-p.turbulence_max_hz * self._span), t0,
                    Beats(self._window, p.beat_single_s, p.beat_period_s[0], p.beat_search_nodes, self._beat_bin))
         self._thresholds(ts)
         self._tanks[tank] = ts

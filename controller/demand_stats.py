@@ -48,6 +48,26 @@ def threshold(b_hz: float, window_s: float, per_day: float, k_min: int) -> int:
     return k
 
 
+def caught_within(rate_hz: float, k: int, window_s: float) -> float:
+    """P[a Poisson episode at ``rate_hz`` holds >= k contacts in the window from its first]:
+    1 + Poisson(rate × window) >= k (turbulence's own contacts ignored: a lower bound)."""
+    mean = rate_hz * window_s
+    term = cdf = math.exp(-mean)
+    for i in range(1, k - 1):
+        term *= mean / i
+        cdf += term
+    return 1.0 - cdf if k > 1 else 1.0
+
+
+def rate_for(recall: float, k: int, window_s: float) -> float:
+    """The slowest Poisson rate whose episodes reach k contacts in the window with ``recall``."""
+    lo, hi = 0.0, 10.0
+    for _ in range(40):
+        mid = 0.5 * (lo + hi)
+        lo, hi = (mid, hi) if caught_within(mid, k, window_s) < recall else (lo, mid)
+    return hi
+
+
 def chain_volume(m: int, jitter: float) -> float:
     """K_m: the volume of m-point chains within ±δP of some lattice through a fixed point, for
     all periods up to P, in units of (2δP)^m. Monte Carlo gives 13.2, 34.7, 66.6, 160 (m = 4, 8,
