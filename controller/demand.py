@@ -106,6 +106,7 @@ __all__ = ["Demand", "DemandFilter", "DemandParams", "SensorFault", "SensorRecov
            "threshold"]
 _NONE: tuple = ()
 FISH_MAX_HZ = 2.0       # the contract's fastest fish
+RUN_GAP_S = 1.0         # contacts closer than this continue a run (a burst's tail goes with it)
 
 
 @dataclass(frozen=True, slots=True)
@@ -149,7 +150,7 @@ class DemandParams(BaseModel):
     clump_contacts: int = Field(8, ge=3, description="short-burst test on a quiet tank, per 10 s")
     spike_gain: float = Field(3.0, ge=0)
     spike_allowance: float = Field(2.0, ge=0)
-    false_alarms_per_day: float = Field(1.0, gt=0, lt=10, description="the count's Poisson-tail budget")
+    false_alarms_per_day: float = Field(0.3, gt=0, lt=10, description="the count's Poisson-tail budget")
     turbulence_max_hz: float = Field(0.05, gt=0, description="the contract's bound; starting estimate")
     turbulence_floor_hz: float = Field(0.005, gt=0)
     background_tau_s: float = Field(7200.0, gt=0)
@@ -163,7 +164,8 @@ class DemandParams(BaseModel):
     recover_s: float = Field(60.0, gt=0)
     dead_after_s: float = Field(300.0, gt=0)
     dead_active_bins: int = Field(20, ge=1)
-    beat_false_alarms_per_day: float = Field(0.1, gt=0, lt=10)
+    dead_p: float = Field(1e-6, gt=0, lt=1, description="a live sensor this silent: less likely than this")
+    beat_false_alarms_per_day: float = Field(0.05, gt=0, lt=10)
     beat_jitter: tuple[float, ...] = Field((0.15, 0.35), min_length=1, max_length=4,
                                            description="beat tolerances, ± share of the period")
     beat_period_s: tuple[float, float] = (2.0, 12.0)
@@ -191,8 +193,8 @@ class DemandParams(BaseModel):
 class _Tank:
     __slots__ = ("name", "sensors", "bin_end", "slot", "cur", "raw", "excl", "excl_next", "vals",
                  "raws", "head", "vsum", "rsum", "m_old", "p1", "p2", "k", "bg_n", "bg_t",
-                 "demanding", "last_raise", "fresh", "recent", "active", "last_t",
-                 "occ", "occs", "osum", "beats", "grid_i", "told")
+                 "demanding", "last_raise", "fresh", "recent", "active", "last_t", "prev_c", "tail", "run_cur", "run_prev",
+                 "occ", "occs", "osum", "beats", "grid_i", "told", "active_ew")
 
     def __init__(self, name: str, n_bins: int, k: int, bg_n: float, bg_t: float, beats: Beats):
         self.name = name
@@ -210,10 +212,14 @@ class _Tank:
         self.recent: list[float] = []
         self.active = 0                             # bins with a healthy contact (dead-sensor test)
         self.last_t = -math.inf                     # the previous contact in a new second
+        self.prev_c = -math.inf                     # the previous contact
+        self.tail = False                           # a burst's tail: its contacts count nothing
+        self.run_cur = self.run_prev = 0            # busy seconds of the current run, this bin and the last
         self.occ = self.osum = 0                    # busy seconds, excluded bins included
         self.occs = [0] * (n_bins - 1)
         self.beats, self.grid_i = beats, -1
         self.told = False                           # slow fish said undetectable
+        self.active_ew = 0.0                        # the same, decaying (shares of sensors)
 
 
 class DemandFilter:
@@ -262,6 +268,10 @@ class DemandFilter:
                 return events or _NONE
             events = self._revive(ts, s, t, events)
         s.mark = ts.active
+        if t - ts.prev_c >= RUN_GAP_S:              # a pause: a new run of contacts
+            ts.tail = False
+            ts.run_cur = ts.run_prev = 0
+        ts.prev_c = t
         ts.raw += 1
         if ts.raw >= self._chatter:
             self._chatter_bin(ts)
@@ -269,12 +279,13 @@ class DemandFilter:
         if slot > ts.slot:
             ts.slot = slot
             ts.occ += 1
-            if not ts.excl:
+            if not (ts.excl or ts.tail):
                 ts.cur += 1
+                ts.run_cur += 1
             if ts.demanding or ts.vsum + ts.cur >= ts.k:
                 events = self._decide(ts, t, events)
             ts.last_t = t
-        if (ts.beats.contact(t, ts.raw, ts.excl) and not ts.demanding
+        if (ts.beats.contact(t, ts.raw, ts.excl or ts.tail) and not ts.demanding
                 and t - ts.last_raise >= self.params.repeat_s and ts.beats.found(t)):
             events = self._start(ts, t, events)       # a beat: regular fish, see demand_stats
         return events or _NONE
@@ -331,7 +342,7 @@ class DemandFilter:
         pace = self._n * self._bin / max(score, 1.0)          # mean gap between busy seconds
         p = self.params
         if not ts.demanding:
-            if (score < ts.k or t - ts.last_t > 3.0 * pace or t - ts.last_raise < p.repeat_s
+            if (score < ts.k or t - ts.last_t > 2.0 * pace or t - ts.last_raise < p.repeat_s
                     or ts.raw > 3 * ts.occ + 1):             # a clump of contacts: chatter starting
                 return events
             return self._start(ts, t, events)
@@ -378,9 +389,10 @@ class DemandFilter:
         if ts.raw == self._no_fish and not ts.excl_next:
             ts.excl_next = True
             last = (ts.head - 1) % len(ts.vals)
-            ts.vsum -= ts.vals[last]
-            ts.rsum -= ts.raws[last]
-            ts.vals[last] = ts.raws[last] = ts.p1 = 0
+            cut = min(ts.run_prev, ts.vals[last])    # the burst's own seconds in the bin before
+            ts.vsum -= cut
+            ts.vals[last] -= cut
+            ts.p1 = ts.vals[last]
             ts.m_old = self._max3(ts)
             ts.beats.forget(ts.bin_end - 2 * self._bin, ts.bin_end)
 
@@ -390,7 +402,7 @@ class DemandFilter:
         test (fish below 1.5 /s give < 2 per busy second, bursts at >= 3 /s give >= 3.2)."""
         prev = h - 1 if h else len(ts.vals) - 1
         raw = ts.raws[h] + ts.raws[prev]
-        if (raw >= self.params.clump_contacts and raw >= 2 * (ts.vals[h] + ts.vals[prev])
+        if (raw >= self.params.clump_contacts and 2 * raw >= 5 * (ts.vals[h] + ts.vals[prev])
                 and 2 * (ts.osum - ts.occs[h] - ts.occs[prev]) <= len(ts.vals)):
             ts.vsum -= ts.vals[h] + ts.vals[prev]
             ts.rsum -= raw
@@ -412,7 +424,11 @@ class DemandFilter:
         steps = int((t - ts.bin_end) // self._bin) + 1
         n = len(ts.vals)
         t_judged = ts.bin_end + (steps - 1) * self._bin          # stuck and dead sensor tests
-        judged = self._faults.judge(ts.sensors, ts.active, t_judged, steps)
+        if ts.cur and not ts.excl:                  # a bin with healthy contacts: shares of the sensors
+            ts.active_ew = ts.active_ew * self._faults.decay ** steps + 1.0
+        else:
+            ts.active_ew *= self._faults.decay ** steps
+        judged = self._faults.judge(ts.sensors, ts.active, ts.active_ew, bool(ts.cur and not ts.excl), t_judged, steps)
         events = [SensorRecovered(ts.name, s, t_judged) if kind is None else SensorFault(ts.name, s, t_judged, kind)
                   for s, kind in judged] if judged else None
         if ts.raw > self._beat_bin or (ts.excl and ts.raw):   # a bin too busy for a beat
@@ -457,7 +473,9 @@ class DemandFilter:
         if ts.vals[h]:                              # a non-chatter bin with healthy contacts
             ts.active += 1
         ts.cur = ts.raw = ts.occ = 0
-        ts.excl, ts.excl_next = ts.excl_next, False
+        ts.excl = False
+        ts.tail, ts.excl_next = ts.excl_next, False     # the next bin, until the run pauses
+        ts.run_prev, ts.run_cur = ts.run_cur, 0
 
     def _background(self, ts: _Tank) -> float:
         """From the share of empty spans (the window's complete bins): e^(-b·span) under Poisson

@@ -249,16 +249,22 @@ class _Search:
 
 
 class Sensor:
-    __slots__ = ("name", "n", "last", "mark", "state", "fast")
+    __slots__ = ("name", "n", "last", "mark", "state", "fast", "seen")
 
     def __init__(self, name: str, t: float, mark: int):
         self.name, self.n, self.last, self.mark, self.state, self.fast = name, 0, t, mark, HEALTHY, 0
+        self.seen = 0.0
+
+
+SHARE_TAU_S = 6 * 3600.0    # a sensor's share of its tank's active bins: learned over hours
+SHARE_PRIOR = 120.0         # active bins of prior (~10 min), shared equally: a new sensor is no outlier
 
 
 class SensorTests:
-    """Stuck and dead sensors, judged as each 5-s bin closes (see controller/demand.py, *Faults*).
+    """Stuck and dead sensors, judged as each bin closes (see controller/demand.py, *Faults*).
     ``Sensor.n``: its contacts in the bin; ``fast``: one bit per recent bin, set when the bin was
-    stuck-fast; ``mark``: the tank's active-bin count at its last contact."""
+    stuck-fast; ``mark``: the tank's active-bin count at its last contact; ``seen``: the active
+    bins it fired in (decaying over ``SHARE_TAU_S``, as the tank's own count ``active_ew``)."""
 
     def __init__(self, p):
         self.stuck_n = max(2, math.floor(0.9 * p.stuck_rate_hz * p.bin_s))
@@ -266,14 +272,20 @@ class SensorTests:
         self.need = max(1, math.ceil(p.stuck_share * self.bins))
         self.recover_mask = (1 << max(1, round(p.recover_s / p.bin_s))) - 1
         self.dead_after_s, self.dead_active_bins = p.dead_after_s, p.dead_active_bins
+        self.log_dead_p = math.log(p.dead_p)
+        self.decay = math.exp(-p.bin_s / SHARE_TAU_S)
 
-    def judge(self, sensors: dict, active: int, t: float, bins: int) -> list | None:
+    def judge(self, sensors: dict, active: int, active_ew: float, bin_active: bool, t: float,
+              bins: int) -> list | None:
         """[(sensor, "stuck" | "dead" | None for recovered)] as the bin closes, followed by
-        ``bins - 1`` empty ones, or None; ``active``: the tank's bins with healthy contacts."""
+        ``bins - 1`` empty ones, or None; ``active``: the tank's bins with healthy contacts, this
+        one included if ``bin_active``; ``active_ew``: the same, decaying."""
         out = None
         full = (1 << self.bins) - 1
         shift = min(bins - 1, self.bins)
+        decay = self.decay ** bins
         for s in sensors.values():
+            s.seen = s.seen * decay + (bin_active and s.n > 0)
             s.fast = ((((s.fast << 1) | (s.n >= self.stuck_n)) << shift) & full)
             s.n = 0
             if s.state == HEALTHY:
@@ -281,10 +293,17 @@ class SensorTests:
                     s.state = STUCK
                     out = [*(out or ()), (s.name, "stuck")]
                 elif (len(sensors) > 1 and t - s.last >= self.dead_after_s
-                      and active - s.mark >= self.dead_active_bins):
+                      and active - s.mark >= self.dead_active_bins
+                      and (active - s.mark) * math.log1p(-self._share(s, active_ew, len(sensors)))
+                      < self.log_dead_p):
                     s.state = DEAD
                     out = [*(out or ()), (s.name, "dead")]
             elif s.state == STUCK and not (s.fast & self.recover_mask):
                 s.state, s.mark = HEALTHY, active
                 out = [*(out or ()), (s.name, None)]
         return out
+
+    @staticmethod
+    def _share(s: Sensor, active_ew: float, n: int) -> float:
+        """The share of the tank's active bins it fires in (a dead spell lowers it slowly)."""
+        return min(0.999, (s.seen + SHARE_PRIOR / n) / (active_ew + SHARE_PRIOR))

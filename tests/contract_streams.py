@@ -79,6 +79,7 @@ class Builder:
         self.episodes: list[Episode] = []
         self.faults: list[Fault] = []
         self.background_hz: dict[str, float] = {}
+        self.weights: dict[str, np.ndarray] = {}
 
     def add(self, t, tank: str, sensors, source: int) -> None:
         t = np.asarray(t, dtype=float)
@@ -126,7 +127,9 @@ class Builder:
             cand = start + np.sort(rng.uniform(0, end - start, rng.poisson(peak_hz * (end - start))))
         keep = rng.uniform(size=len(cand)) < np.array([_ramp(x, start, ramp_s, end) for x in cand])
         t = cand[keep]
-        w = 0.2 / len(sensors) + 0.8 * rng.dirichlet(np.ones(len(sensors)) * 1.5)   # each >= 10 % (two sensors)
+        w = self.weights.get(tank)
+        if w is None:                       # where a sensor sits fixes its share: >= 10 % of two
+            w = self.weights[tank] = 0.2 / len(sensors) + 0.8 * rng.dirichlet(np.ones(len(sensors)) * 1.5)
         self.add(t, tank, rng.choice(sensors, len(t), p=w), FISH)
         ep = Episode(tank, start, end, peak_hz, float(t[0]) if len(t) else math.nan)
         self.episodes.append(ep)

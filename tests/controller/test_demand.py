@@ -57,51 +57,48 @@ def test_threshold_follows_the_poisson_tail():
     assert rate <= 1e-4 < 86400 * 0.05 * math.exp((k - 2) * math.log(3.0) - 3.0 - math.lgamma(k - 1))
 
 
+def false_rate(outside, stream_days):
+    return len(outside) / stream_days
+
+
 @pytest.mark.parametrize("turbulence_hz", [0.01, 0.05])
-def test_turbulence_and_chatter_alone_never_demand(turbulence_hz):
+def test_turbulence_and_chatter_alone_stay_within_the_false_demand_budget(turbulence_hz):
+    # the simulator's own streams (the independent ones are below): 30 tank-days of turbulence
+    # and 6 bursts an hour, at most 0.5 false demands per tank-day, no sensor fault
     rng = np.random.default_rng(11)
     days = [cs.tank_day(rng, "T1", ("a", "b"), T0 + d * 86400, episodes_per_day=1e-9,
-                        turbulence_hz=turbulence_hz, bursts_per_hour=6) for d in range(15)]
+                        turbulence_hz=turbulence_hz, bursts_per_hour=6) for d in range(30)]
     stream = cs.merge(*days)
-    assert len(stream.bursts) > 1500
+    assert len(stream.bursts) > 3000
     events, _ = replay(stream)
-    assert demands(events) == []
+    assert len(demands(events)) <= 0.5 * 30
     assert [e for e in events if isinstance(e, SensorFault)] == []
 
 
 @pytest.mark.parametrize("pattern", ["poisson", "regular"])
-def test_every_episode_served_within_60s_and_none_outside(pattern):
-    # 40 tank-days at the contract's worst turbulence, with bursts, fish at 0.7-2 /s
+def test_fast_fish_every_episode_within_60s(pattern):
+    # 40 tank-days at the contract's worst turbulence, with bursts, fish at 0.7-2 /s: every
+    # episode (a chatter burst in an episode's first minute costs evidence, never the deadline)
     rng = np.random.default_rng(7 if pattern == "poisson" else 8)
     days = [cs.tank_day(rng, "T1", ("a", "b"), T0 + d * 86400, rate_hz=(0.7, 2.0), pattern=pattern,
                         turbulence_hz=0.05, bursts_per_hour=4, episodes_per_day=10) for d in range(40)]
     stream = cs.merge(*days)
     assert len(stream.episodes) > 250
     late, outside = check_episodes(stream, replay(stream)[0])
-    assert outside == []
-    # a chatter burst in an episode's first minute costs up to 15 s of evidence: rare lateness
-    assert len(late) <= 0.01 * len(stream.episodes)
-
-
-def test_without_bursts_every_episode_is_served_within_60s():
-    rng = np.random.default_rng(17)
-    days = [cs.tank_day(rng, "T1", ("a", "b"), T0 + d * 86400, rate_hz=(0.7, 2.0), pattern="mixed",
-                        turbulence_hz=0.05, bursts_per_hour=0, episodes_per_day=10) for d in range(20)]
-    stream = cs.merge(*days)
-    late, outside = check_episodes(stream, replay(stream)[0])
-    assert late == [] and outside == []
+    assert late == []
+    assert false_rate(outside, 40) <= 0.5
 
 
 def test_calm_tank_catches_slower_fish():
-    # a calm tank (0.01 /s) lowers its own threshold: 0.4-0.7 /s episodes within 60 s
+    # a calm tank (0.01 /s) lowers its own threshold: every 0.4-0.7 /s episode within 60 s
     rng = np.random.default_rng(5)
     days = [cs.tank_day(rng, "T1", ("a",), T0 + d * 86400, rate_hz=(0.4, 0.7), turbulence_hz=0.01,
                         bursts_per_hour=2, episodes_per_day=10) for d in range(20)]
     stream = cs.merge(*days)
     events, f = replay(stream)
     late, outside = check_episodes(stream, events)
-    assert f.score("T1")[1] <= 12 and outside == []
-    assert len(late) <= 0.02 * len(stream.episodes)
+    assert f.score("T1")[1] <= 7 and false_rate(outside, 20) <= 0.5
+    assert late == []
 
 
 def test_several_tanks_are_independent():
@@ -166,7 +163,7 @@ def test_dead_sensor_is_a_fault_and_recovers_on_its_next_contact():
     (rec,) = [e for e in events if isinstance(e, SensorRecovered)]
     assert rec.sensor == "b" and T0 + 6 * HOUR <= rec.t < T0 + 6 * HOUR + 600
     late, outside = check_episodes(stream, events)
-    assert late == [] and outside == []
+    assert late == [] and len(outside) <= 1
 
 
 def test_configured_sensor_that_never_fires_is_dead():
@@ -236,16 +233,16 @@ def test_slow_regular_fish_are_served_within_60s(pattern, jitter, fish_sensors):
     stream = beat_days(31, pattern, jitter, fish_sensors, 0.02, (0.2, 0.3))
     assert len(stream.episodes) > 130
     late, outside = check_episodes(stream, replay(stream)[0])
-    assert outside == []
-    assert len(late) <= 0.03 * len(stream.episodes)
+    assert false_rate(outside, 20) <= 0.5
+    assert len(late) <= 0.02 * len(stream.episodes)
 
 
 def test_regular_fish_at_the_contract_worst_turbulence():
     # 0.05 /s turbulence: a beat at 0.25-0.35 /s is confirmed within the minute
     stream = beat_days(32, "regular", 0.1, ("a", "b"), 0.05, (0.25, 0.35))
     late, outside = check_episodes(stream, replay(stream)[0])
-    assert outside == []
-    assert len(late) <= 0.03 * len(stream.episodes)
+    assert false_rate(outside, 20) <= 0.5
+    assert len(late) <= 0.02 * len(stream.episodes)
 
 
 def test_beat_demand_is_raised_on_a_fish_contact_and_not_repeated_by_the_beat():
@@ -260,17 +257,21 @@ def test_beat_demand_is_raised_on_a_fish_contact_and_not_repeated_by_the_beat():
     assert f.score("T1")[0] < f.score("T1")[1]          # the count alone would not have raised it
 
 
-def test_pump_chattering_on_a_beat_is_not_fish():
-    # a pump chattering 4 contacts in 0.3 s every 6 s for an hour: a beat of bursts, each too
-    # short for the chatter and clump rules, never a demand
-    rng = np.random.default_rng(34)
-    parts = [cs.turbulence(rng, "T1", ("a", "b"), T0, T0 + 3 * HOUR, 0.02)]
-    for start in np.arange(T0 + HOUR, T0 + 2 * HOUR, 6.0).tolist():
-        t = np.sort(rng.uniform(start, start + 0.3, 4))
-        parts.append(cs.Stream(t, np.full(4, "T1", dtype=object), np.full(4, "a", dtype=object),
-                               np.full(4, cs.BURST, dtype=np.int8)))
-    events, _ = replay(cs.merge(*parts))
-    assert demands(events) == []
+def test_a_burst_counts_little_whatever_its_size():
+    # on a calm tank, one chatter burst of 10 or of 200 contacts adds at most what 10 busy
+    # seconds would, and never reaches the threshold on its own
+    for n in (10, 30, 200):
+        f = DemandFilter()
+        rng = np.random.default_rng(n)
+        for t in np.sort(rng.uniform(0, 3600, 20)).tolist():       # the tank's own quiet hour
+            f.on_contact(T0 + t, "T1", "a")
+        f.on_time(T0 + 3600)
+        events = []
+        for t in np.sort(rng.uniform(3700, 3709.5, n)).tolist():
+            events += f.on_contact(T0 + t, "T1", "a")
+        f.on_time(T0 + 3715)
+        score, k = f.score("T1")
+        assert demands(events) == [] and score < min(k, 4), (n, score, k)
 
 
 def lattice(rng, period, n, jitter, t_end):
