@@ -16,8 +16,7 @@ import signal
 from controller.alarms import Alarms
 from controller.bus import Bus
 from controller.config import Config, validate_section
-from controller.demand import (Demand, DemandFilter, DemandParams, SensorFault, SensorRecovered,
-                               SlowFishUndetectable)
+from controller.demand import Demand, DemandFilter, DemandParams, SensorFault, SensorRecovered, SlowFishUndetectable
 from controller.errors import BadInput
 from controller.feeding.rations import Rations, load_species, ration_payload
 from controller.feeding.robot import FeedingRobot, Job

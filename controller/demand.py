@@ -99,8 +99,17 @@ from dataclasses import dataclass
 
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
-from controller.demand_stats import (HEALTHY, STUCK, Beats, Sensor, SensorTests, beat_tests, caught_within, rate_for,
-                                     threshold)
+from controller.demand_stats import (
+    HEALTHY,
+    STUCK,
+    Beats,
+    Sensor,
+    SensorTests,
+    beat_tests,
+    caught_within,
+    rate_for,
+    threshold,
+)
 
 __all__ = ["Demand", "DemandFilter", "DemandParams", "SensorFault", "SensorRecovered", "SlowFishUndetectable",
            "threshold"]
@@ -148,9 +157,9 @@ class DemandParams(BaseModel):
     slot_s: float = Field(1.0, gt=0, le=10, description="one contact per slot counts")
     chatter_hz: float = Field(3.0, gt=0, description="a bin faster than this is chatter")
     clump_contacts: int = Field(8, ge=3, description="short-burst test on a quiet tank, per 10 s")
-    spike_gain: float = Field(3.0, ge=0)
-    spike_allowance: float = Field(2.0, ge=0)
-    false_alarms_per_day: float = Field(0.3, gt=0, lt=10, description="the count's Poisson-tail budget")
+    spike_gain: float = Field(2.0, ge=0)
+    spike_allowance: float = Field(1.0, ge=0)
+    false_alarms_per_day: float = Field(1.0, gt=0, lt=10, description="the count's nominal Poisson-tail budget")
     turbulence_max_hz: float = Field(0.05, gt=0, description="the contract's bound; starting estimate")
     turbulence_floor_hz: float = Field(0.005, gt=0)
     background_tau_s: float = Field(7200.0, gt=0)
@@ -193,7 +202,8 @@ class DemandParams(BaseModel):
 class _Tank:
     __slots__ = ("name", "sensors", "bin_end", "slot", "cur", "raw", "excl", "excl_next", "vals",
                  "raws", "head", "vsum", "rsum", "m_old", "p1", "p2", "k", "bg_n", "bg_t",
-                 "demanding", "last_raise", "fresh", "recent", "active", "last_t", "prev_c", "tail", "run_cur", "run_prev",
+                 "demanding", "last_raise", "fresh", "recent", "active", "last_t", "prev_c", "tail",
+                 "run_cur", "run_prev",
                  "occ", "occs", "osum", "beats", "grid_i", "told", "active_ew")
 
     def __init__(self, name: str, n_bins: int, k: int, bg_n: float, bg_t: float, beats: Beats):
@@ -428,7 +438,8 @@ class DemandFilter:
             ts.active_ew = ts.active_ew * self._faults.decay ** steps + 1.0
         else:
             ts.active_ew *= self._faults.decay ** steps
-        judged = self._faults.judge(ts.sensors, ts.active, ts.active_ew, bool(ts.cur and not ts.excl), t_judged, steps)
+        judged = self._faults.judge(ts.sensors, ts.active, ts.active_ew, bool(ts.cur and not ts.excl),
+                                    t_judged, steps)
         events = [SensorRecovered(ts.name, s, t_judged) if kind is None else SensorFault(ts.name, s, t_judged, kind)
                   for s, kind in judged] if judged else None
         if ts.raw > self._beat_bin or (ts.excl and ts.raw):   # a bin too busy for a beat

@@ -36,15 +36,40 @@ def test_a_farm_day_is_fed_on_demand_within_rations(tmp_path):
     print(report)
     assert not verdict.problems, "\n".join([report, *verdict.problems, farm.log("controller.log")])
     assert verdict.feeds >= 100 and verdict.episodes >= 100, report
-    # the filter's contract (a demand within 60 s of an episode's start) is a statistical one at
-    # the slow end of the fish band; every episode is found, nearly all within the minute
-    assert verdict.detected_within(60) >= 0.9 and verdict.detected_within(180) == 1.0, report
+    # the contract: every episode demanded within 60 s of its start, for the fish the sim makes
+    # (paced, the whole 0.1-2 /s band, calm tanks; Poisson fish at the slow end are a documented
+    # limit, measured in bench/bench_demand.py)
+    assert verdict.detected_within(60) == 1.0, report
+    rates = [r["rate_hz"] for r in truth if r["kind"] == "episode_start"]
+    assert min(rates) <= 0.15 and max(rates) >= 1.2, sorted(rates)
     # a stuck sensor is always caught; any sensor alarm names a sensor that really failed, while it did
     for fault in (f for f in faults if f["fault"] == "stuck"):
         assert any(a["source"] == f"sensor/{fault['sensor']}" and "stuck" in a["text"]
                    and fault["t"] <= a["t"] <= fault["until"] for a in alarms), (fault, alarms)
+    # a dead sensor is caught once the tank's other sensor has fired enough to tell (~100 fish
+    # contacts while it was dead)
+    spans = _spans(truth, end)
+    for fault in (f for f in faults if f["fault"] == "dead"):
+        heard = sum(max(0.0, min(fault["until"], b) - max(fault["t"], a)) * rate / 2
+                    for tank, a, b, rate in spans if tank == fault["tank"])
+        if heard >= 100:
+            assert any(a["source"] == f"sensor/{fault['sensor']}" and "dead" in a["text"]
+                       and fault["t"] <= a["t"] <= fault["until"] + 60 for a in alarms), (fault, alarms)
     for alarm in alarms:
         sensor = alarm["source"].removeprefix("sensor/")
         assert any(f["sensor"] == sensor and f["t"] <= alarm["t"] <= f["until"] + 60 for f in faults), \
             (alarm, faults)
     print(f"{len(faults)} sensor faults, {len(alarms)} sensor alarms")
+
+
+def _spans(truth: list[dict], end_t: float) -> list[tuple[str, float, float, float]]:
+    """(tank, start, end, rate) of every fish episode."""
+    open_, out = {}, []
+    for r in sorted((r for r in truth if r["kind"] in ("episode_start", "episode_end")), key=lambda r: r["t"]):
+        if r["kind"] == "episode_start":
+            open_[r["tank"]] = r
+        elif r["tank"] in open_:
+            start = open_.pop(r["tank"])
+            out.append((r["tank"], start["t"], r["t"], start["rate_hz"]))
+    out += [(tank, r["t"], end_t, r["rate_hz"]) for tank, r in open_.items()]
+    return out

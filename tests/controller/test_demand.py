@@ -7,10 +7,19 @@ import numpy as np
 import pytest
 
 from controller.config import validate_section
-from controller.demand import Demand, DemandFilter, DemandParams, SensorFault, SensorRecovered, threshold
-from controller.demand_stats import beat_chain, beat_tail, beat_threshold
+from controller.demand import (
+    Demand,
+    DemandFilter,
+    DemandParams,
+    SensorFault,
+    SensorRecovered,
+    SlowFishUndetectable,
+    threshold,
+)
+from controller.demand_stats import beat_chain, beat_tail, beat_threshold, caught_within, rate_for
 from controller.errors import BadInput
 from devices.sim import contact_streams as cs
+from tests import contract_streams as contract
 
 T0 = 1_780_000_000.0
 HOUR = 3600.0
@@ -334,3 +343,91 @@ def test_beat_threshold_spends_the_budget():
     assert lam == sorted(lam)                           # more turbulence, more contacts to test
     q = 1e-4 / (2 * 86400 * 0.05)
     assert beat_tail(lam[2], 0.15, 0.05, 2.0, 12.0) <= q < beat_tail(lam[2] - 0.01, 0.15, 0.05, 2.0, 12.0)
+
+
+# -- the independent generator (tests/contract_streams.py): the contract's words, not the filter's
+
+def run_farm(farm, params=None):
+    """Replay a generated farm as the controller does; (score, filter, events)."""
+    f = DemandFilter(params)
+    events, nxt = [], -math.inf
+    for t, tank, sensor in farm.rows():
+        if t >= nxt:
+            events += f.on_time(t)
+            nxt = t + 5.0
+        events += f.on_contact(t, tank, sensor)
+    ds = [(e.tank, e.t) for e in events if isinstance(e, Demand)]
+    faults = [(e.tank, e.sensor, e.kind, e.t) for e in events if isinstance(e, SensorFault)]
+    return contract.score(farm, ds, faults), f, events
+
+
+def test_every_episode_within_60s():
+    # 8 tanks, 8 tank-days: ramps up and down, contacts split over 2-3 sensors, Poisson and
+    # paced fish, a chatter burst just before a third of the episodes, waves across tanks. Fish
+    # peaking at 0.4-2 /s: EVERY episode gets a demand within 60 s of its first contact
+    farm = contract.every(seed=5, days=8)
+    assert len(farm.episodes) > 250
+    sc, _, _ = run_farm(farm)
+    assert [(e.tank, e.first, e.peak_hz) for e in sc.missed] == []
+    assert sc.false_per_tank_day <= 0.5 and sc.wrong_faults == 0
+
+
+# recall within 60 s of the first contact the filter must reach per case, and the ideal bound it
+# is measured against (contract.oracle_recall: a detector that knows the background exactly and
+# removes every burst, at 0.5 false demands per tank-day). Below ~0.25 /s Poisson fish cannot be
+# caught at 0.99 within 60 s by any detector at that false-demand rate: see controller/demand.py.
+CASE_GOALS = {
+    "band": 0.88, "slow_0.10": 0.40, "slow_0.15": 0.78, "slow_0.20": 0.90, "slow_0.30": 0.98,
+    "fast_2.0": 0.99, "paced_0.10": 0.45, "ramped": 0.80, "burst_before": 0.90, "wave": 0.90,
+    "split_sensors": 0.90, "busy_0.02": 0.82, "stuck": 0.90, "dead": 0.90,
+}
+
+
+@pytest.mark.parametrize("name", list(contract.CASES))
+def test_named_case_scores(name):
+    farm = contract.case(name, seed=3, days=4)
+    sc, _, _ = run_farm(farm)
+    assert sc.episodes >= 100
+    assert sc.recall >= CASE_GOALS[name], sc.as_dict()
+    # near the ideal bound: within 0.25 at the slow end (where a tank's estimated background,
+    # its 5-s bins and its burst rules cost a contact or two), within 0.1 elsewhere
+    slack = 0.25 if name in ("slow_0.10", "paced_0.10", "slow_0.15") else 0.1
+    assert sc.recall >= contract.oracle_recall(farm) - slack, sc.as_dict()
+    assert sc.false_per_tank_day <= 0.75, sc.as_dict()        # 4 tank-days: the long test is below
+    assert sc.faults_found == sc.faults and sc.wrong_faults == 0, sc.as_dict()
+
+
+def test_false_demands_per_tank_day_over_long_streams():
+    # 120 tank-days of what tanks show without fish: background 0.002-0.02 /s, chatter bursts
+    # 3 /h on each tank, waves 2 /h hitting 3-6 tanks at once
+    farm = contract.null_days(seed=6, days=120)
+    sc, _, events = run_farm(farm)
+    assert len(farm) > 500_000
+    assert sc.false_per_tank_day <= 0.5, sc.as_dict()
+    assert [e for e in events if isinstance(e, SensorFault)] == []
+
+
+def test_the_slow_end_bound_is_the_poisson_tail():
+    # 60 s after the first contact of a 0.1 /s Poisson episode hold 1 + Poisson(6) contacts
+    for k in (3, 5, 8, 9):
+        expected = 1.0 - sum(math.exp(-6.0) * 6.0 ** i / math.factorial(i) for i in range(k - 1))
+        assert caught_within(0.1, k, 60.0) == pytest.approx(expected, rel=1e-9)
+    assert rate_for(0.99, 8, 60.0) == pytest.approx(0.2428, abs=1e-3)
+    # and the generator's slow episodes follow it: the oracle at a known background
+    farm = contract.case("slow_0.10", seed=4, days=4)
+    ks = {t: contract.poisson_threshold(b) for t, b in farm.background_hz.items()}
+    analytic = np.mean([caught_within(0.1, ks[e.tank], 60.0) for e in farm.episodes])
+    assert abs(contract.oracle_recall(farm) - analytic) < 0.12
+
+
+def test_a_tank_too_turbulent_for_its_slowest_fish_says_so_once():
+    rng = np.random.default_rng(41)
+    busy = cs.merge(cs.turbulence(rng, "T1", ("a", "b"), T0, T0 + 86400, 0.05),
+                    cs.chatter_bursts(rng, "T1", ("a", "b"), T0, T0 + 86400, 2.0))
+    calm = cs.turbulence(rng, "T2", ("a", "b"), T0, T0 + 86400, 0.003)
+    events, f = replay(cs.merge(busy, calm), until=T0 + 86400)
+    told = [e for e in events if isinstance(e, SlowFishUndetectable)]
+    assert [e.tank for e in told] == ["T1"]                   # once, however long it stays so
+    assert T0 + DemandParams().learn_s <= told[0].t < T0 + 3 * 3600
+    assert "0.1/s" in told[0].note and f.slow_fish("T1") is not None
+    assert f.slow_fish("T2") is None
