@@ -1,5 +1,6 @@
 """A simulated farm day: the real controller process against simulated devices over Zenoh,
 Modbus TCP, slcan on a pty and serial on a pty, at high speed."""
+import math
 import os
 
 import pytest
@@ -31,15 +32,35 @@ def test_a_farm_day_is_fed_on_demand_within_rations(tmp_path):
     with farm.ledger() as db:
         verdict = judge(db, truth, end)
         alarms = [dict(r) for r in db.execute("SELECT * FROM alarm WHERE source LIKE 'sensor/%' AND active = 1")]
+        raised = [(r["tank"], r["t"]) for r in db.execute("SELECT tank, t FROM demand")]
     faults = [r for r in farm.truth() if r["kind"] == "sensor_fault" and up < r["t"] < end - 600]
+    late, faulty = [], []
+    for tank, a, b, rate in _spans(truth, end):
+        if any(k == tank and a <= t <= min(b, a + 60) for k, t in raised) or b - a < 60:
+            continue
+        first = min((t - a for k, t in raised if k == tank and a <= t <= b), default=float("inf"))
+        before = max((t for k, t in raised if k == tank and t < a), default=-math.inf)
+        text = (f"{tank} asked at {a:.1f} ({rate:.3f}/s, {b - a:.0f} s): first demand after {first:.1f} s,"
+                f" the one before {a - before:.0f} s earlier")
+        # a faulty sensor takes its share of the fish's contacts with it: not the filter's to find
+        hit = any(f["tank"] == tank and f["t"] - 60 <= b and a <= f["until"] for f in faults)
+        (faulty if hit else late).append(text)
     report = verdict.summary()
     print(report)
-    assert not verdict.problems, "\n".join([report, *verdict.problems, farm.log("controller.log")])
+    assert not verdict.problems, "\n".join([report, *verdict.problems, *verdict.false_demands,
+                                             farm.log("controller.log")[-4000:]])
     assert verdict.feeds >= 100 and verdict.episodes >= 100, report
+    # demands outside every episode: within the filter's budget, 0.5 a tank-day
+    tanks = {r["tank"] for r in truth if r["kind"] == "episode_start"}
+    assert len(verdict.false_demands) <= 0.5 * len(tanks), "\n".join([report, *verdict.false_demands])
     # the contract: every episode demanded within 60 s of its start, for the fish the sim makes
     # (paced, the whole 0.1-2 /s band, calm tanks; Poisson fish at the slow end are a documented
     # limit, measured in bench/bench_demand.py)
-    assert verdict.detected_within(60) == 1.0, report
+    # with every sensor healthy, 100 %; an episode that a stuck or dead sensor overlaps lost part
+    # of its contacts (slow fish: below the threshold) and is held to 180 s
+    assert late == [], "\n".join([report, *late])
+    assert verdict.detected_within(180) == 1.0, "\n".join([report, *faulty])
+    print(f"late with a faulty sensor: {faulty}")
     rates = [r["rate_hz"] for r in truth if r["kind"] == "episode_start"]
     assert min(rates) <= 0.15 and max(rates) >= 1.2, sorted(rates)
     # a stuck sensor is always caught; any sensor alarm names a sensor that really failed, while it did
