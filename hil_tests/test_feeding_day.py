@@ -5,12 +5,14 @@ import os
 
 import pytest
 
+from controller.demand import DemandParams
 from hil_tests.evidence import judge
 from hil_tests.farm import HilFarm
 
 DAY_S = 86_400.0
 SPEED = float(os.environ.get("FISHFARM_HIL_SPEED", "1440"))   # a farm day in a minute of wall time
 WARMUP_S = 120.0          # the filter needs its window of evidence before it can judge
+LEARN_S = DemandParams().learn_s    # ... and an hour to measure each tank's turbulence
 
 
 @pytest.mark.hil
@@ -42,9 +44,10 @@ def test_a_farm_day_is_fed_on_demand_within_rations(tmp_path):
         before = max((t for k, t in raised if k == tank and t < a), default=-math.inf)
         text = (f"{tank} asked at {a:.1f} ({rate:.3f}/s, {b - a:.0f} s): first demand after {first:.1f} s,"
                 f" the one before {a - before:.0f} s earlier")
-        # a faulty sensor takes its share of the fish's contacts with it: not the filter's to find
+        # a faulty sensor takes its share of the fish's contacts with it, and in its first hour
+        # the filter is still measuring the tank (it starts at the contract's worst turbulence)
         hit = any(f["tank"] == tank and f["t"] - 60 <= b and a <= f["until"] for f in faults)
-        (faulty if hit else late).append(text)
+        (faulty if hit or a < up + LEARN_S else late).append(text)
     report = verdict.summary()
     print(report)
     assert not verdict.problems, "\n".join([report, *verdict.problems, *verdict.false_demands,
@@ -56,11 +59,10 @@ def test_a_farm_day_is_fed_on_demand_within_rations(tmp_path):
     # the contract: every episode demanded within 60 s of its start, for the fish the sim makes
     # (paced, the whole 0.1-2 /s band, calm tanks; Poisson fish at the slow end are a documented
     # limit, measured in bench/bench_demand.py)
-    # with every sensor healthy, 100 %; an episode that a stuck or dead sensor overlaps lost part
-    # of its contacts (slow fish: below the threshold) and is held to 180 s
+    # with every sensor healthy and the tank measured, 100 %; the rest (above) are held to 180 s
     assert late == [], "\n".join([report, *late])
     assert verdict.detected_within(180) == 1.0, "\n".join([report, *faulty])
-    print(f"late with a faulty sensor: {faulty}")
+    print(f"late while measuring or with a faulty sensor: {faulty}")
     rates = [r["rate_hz"] for r in truth if r["kind"] == "episode_start"]
     assert min(rates) <= 0.15 and max(rates) >= 1.2, sorted(rates)
     # a stuck sensor is always caught; any sensor alarm names a sensor that really failed, while it did
