@@ -47,8 +47,9 @@ burst of 200 contacts in 8 s counts at most 9), while losing little for fish (ra
 bins, a 3 /s stuck switch in all); at >= 20 (4 /s, never fish) the burst's own busy seconds in the
 bin before go too (those since its run began: contacts < ``RUN_GAP_S`` apart), and in the bin
 after, its contacts until the run pauses. On a quiet tank, 10 s holding >= ``clump_contacts``
-contacts at >= 2.5 per busy second is a short burst and counts 0. Bursts at the slow end of the band (3 /s Poisson) cannot be told from 2 /s fish
-locally: only duration separates them (< 10 s against >= 1 min). Hence *persistence*: the
+contacts at >= 2.5 per busy second is a short burst and counts 0. Bursts at the slow end of
+their band (3 /s Poisson) cannot be told from 2 /s fish locally: only duration separates them
+(< 10 s against >= 1 min). Hence *persistence*: the
 densest 15 s of the window may add no more than ``spike_gain`` x what the other 45 s hold per
 15 s, plus ``spike_allowance``; steady fish count in full, a burst on a quiet tank adds ~nothing.
 

@@ -2,7 +2,9 @@
 the count and the beat, and the stuck and dead sensor tests.
 
 *Count.* ``threshold``: the least number of busy seconds in the window whose upcrossing rate
-under Poisson turbulence alone stays below the false-demand budget.
+under Poisson turbulence alone stays below the false-demand budget. ``caught_within`` and
+``rate_for``: what such a count can catch of Poisson fish within the window from their first
+contact, at a given threshold (the slow-fish limit, controller/demand.py *Slow fish*).
 
 *Beat.* ``beat_chain``: is the contact at ``x0`` the latest of a *beat*, contacts one in each of
 m + 1 consecutive cycles of a lattice ``φ - i·P`` (P in the period band), each within ±δ·P of
@@ -23,7 +25,8 @@ periods P <= B feasible is b^m × their volume, K_m·(2δB)^m: a box of 2δP per
 the phase and period the chain may choose (``chain_volume``; K_m ~ (m+1)^1.7/δ by Monte Carlo).
 S >= λ needs P_hi <= P_m = e^(-λ/m)/2δb, so ``beat_tail`` = Σ_m K_m·min(e^-λ, (2δbB)^m) bounds
 the chance that turbulence ends a chain of S >= λ, and ``beat_threshold`` solves it for the
-per-contact share of the budget: λ ~ 24 at b = 0.05, ~21 at b = 0.01. Checked by simulation:
+per-contact share of the budget: λ ~ 18 at b = 0.05, ~14 at b = 0.01 (0.05 a day; ~24 and ~21 at
+1e-4). Checked by simulation:
 over 8,000 days of Poisson contacts at 0.05 /s (δ = 0.15, P to 12 s) chains reached S >= 16,
 18, 20, 22 after 180, 31, 4, 2 distinct clusters of contacts, where the bound allows 1,026,
 174, 32, 5; in the filter (bursts, clumps, estimated turbulence) with the beat's budget raised
