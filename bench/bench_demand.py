@@ -1,9 +1,15 @@
-"""Demand filter benchmark: contacts/s through ``DemandFilter.on_contact`` on one core, and the
-offline replay of a large generated CSV through ``fishfarm demand`` (the same filter).
+"""Demand filter benchmark: what it catches on the independent contract streams, and its speed.
 
-Run: ``.venv/bin/python bench/bench_demand.py [--days 30] [--csv-days 30]``; prints one JSON
-object. The stream is 8 tanks x 2 sensors: fish episodes (0.1-2 /s), turbulence at 0.05 /s,
-chatter bursts 4 /h. Goal: >= 200,000 contacts/s through on_contact.
+Run: ``.venv/bin/python bench/bench_demand.py [--case-days 12] [--null-days 120]``; prints one
+JSON object:
+- ``cases``: per named hard case of tests/contract_streams.py (written from DESIGN.md's contact
+  model, independently of the filter and of devices/sim/contact_streams.py): recall within 60 s
+  of each episode's first contact, latency p50/p95, false demands per tank-day, faults found, and
+  ``bound``: the ideal detector's recall (contract.oracle_recall) on the same stream;
+- ``null``: false demands per tank-day over ``--null-days`` of background, bursts and waves;
+- ``filter``: contacts/s through ``DemandFilter.on_contact`` on one core (goal >= 200,000), on
+  the simulator's farm stream (8 tanks x 2 sensors, fish 0.1-2 /s, turbulence 0.05 /s, bursts
+  4 /h); ``cli_replay``: the same through ``fishfarm demand`` on a CSV.
 
 ``--table [--episodes 200]`` measures instead what the filter catches (the table of
 controller/demand.py): per fish pattern x turbulence x rate, the share of 2-minute episodes
@@ -25,10 +31,37 @@ from pathlib import Path
 
 import numpy as np
 
-from controller.demand import Demand, DemandFilter
+from controller.demand import Demand, DemandFilter, SensorFault
 from devices.sim import contact_streams as cs
 
 ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+from tests import contract_streams as contract  # noqa: E402  (the independent generator)
+
+
+def run_contract(farm) -> contract.Score:
+    f, ds, faults, nxt = DemandFilter(), [], [], -math.inf
+    for t, tank, sensor in farm.rows():
+        events = f.on_time(t) if t >= nxt else ()
+        if t >= nxt:
+            nxt = t + 5.0
+        for e in (*events, *f.on_contact(t, tank, sensor)):
+            if isinstance(e, Demand):
+                ds.append((e.tank, e.t))
+            elif isinstance(e, SensorFault):
+                faults.append((e.tank, e.sensor, e.kind, e.t))
+    return contract.score(farm, ds, faults)
+
+
+def contract_cases(days: float, null_days: float, seed: int = 2) -> dict:
+    cases = {}
+    for name in (*contract.CASES, "every"):
+        farm = contract.case(name, seed=seed, days=days)
+        cases[name] = {**run_contract(farm).as_dict(), "bound": round(contract.oracle_recall(farm), 4)}
+    null = run_contract(contract.null_days(seed, null_days)).as_dict()
+    return {"case_tank_days": days, "cases": cases,
+            "null": {"tank_days": null_days, "false_demands": null["false_demands"],
+                     "false_per_tank_day": null["false_per_tank_day"], "wrong_faults": null["wrong_faults"]}}
 
 
 def farm_stream(days: float, seed: int = 1) -> cs.Stream:
@@ -135,7 +168,10 @@ def main() -> None:
     ap.add_argument("--csv-days", type=float, default=2.0)
     ap.add_argument("--table", action="store_true", help="the detection table instead of the speed")
     ap.add_argument("--episodes", type=int, default=200)
-    ap.add_argument("--null-days", type=int, default=0)
+    ap.add_argument("--null-days", type=int, default=0, help="with --table: the simulator's null streams")
+    ap.add_argument("--case-days", type=float, default=12.0)
+    ap.add_argument("--contract-null-days", type=float, default=120.0)
+    ap.add_argument("--speed-only", action="store_true")
     args = ap.parse_args()
     if args.table or args.null_days:
         report = {}
@@ -150,6 +186,8 @@ def main() -> None:
     report = {"filter": filter_rate(farm_stream(args.days)), "goal_contacts_per_s": 200_000,
               "cli_replay": cli_rate(args.csv_days)}
     report["goal_met"] = report["filter"]["contacts_per_s"] >= 200_000
+    if not args.speed_only:
+        report["contract"] = contract_cases(args.case_days, args.contract_null_days)
     print(json.dumps(report))
 
 

@@ -17,7 +17,7 @@ from controller import shutdown
 from controller.alarms import Alarms
 from controller.bus import Bus
 from controller.config import Config, validate_section
-from controller.demand import Demand, DemandFilter, DemandParams, SensorFault, SensorRecovered
+from controller.demand import Demand, DemandFilter, DemandParams, SensorFault, SensorRecovered, SlowFishUndetectable
 from controller.errors import BadInput
 from controller.feeding.rations import Rations, load_species, ration_payload
 from controller.feeding.robot import FeedingRobot, Job
@@ -349,6 +349,8 @@ class Controller:
                                kind=event.kind)
         elif isinstance(event, SensorRecovered):
             self.alarms.clear(f"sensor/{event.sensor}", f"tank {event.tank}: sensor {event.sensor} recovered")
+        elif isinstance(event, SlowFishUndetectable):     # once per tank: the filter tells it once
+            self.alarms.raise_(f"demand/{event.tank}", f"tank {event.tank}: slow fish undetectable: {event.note}")
 
     async def _housekeeping(self) -> None:
         last_date = None
@@ -384,6 +386,9 @@ class Controller:
                               "demand_t": None if job is None else self.clock.iso(job.t),
                               "fed_g": round(r.fed_g, 1), "ration_g": round(r.grams, 1),
                               "pellet_mm": r.pellet_mm}
+            note = self.filter.slow_fish(tank.id) if tank.id in self.filter.tanks else None
+            if note is not None:
+                tanks[tank.id]["slow_fish"] = note
         feeder = self.robot.snapshot() if self.robot is not None else {
             "t": self.clock.iso(now), "state": "starting", "position_m": None, "hopper_g": None}
         out = {"t": self.clock.iso(now), "site": self.cfg.site, "feeder": feeder,

@@ -2,7 +2,9 @@
 the count and the beat, and the stuck and dead sensor tests.
 
 *Count.* ``threshold``: the least number of busy seconds in the window whose upcrossing rate
-under Poisson turbulence alone stays below the false-demand budget.
+under Poisson turbulence alone stays below the false-demand budget. ``caught_within`` and
+``rate_for``: what such a count can catch of Poisson fish within the window from their first
+contact, at a given threshold (the slow-fish limit, controller/demand.py *Slow fish*).
 
 *Beat.* ``beat_chain``: is the contact at ``x0`` the latest of a *beat*, contacts one in each of
 m + 1 consecutive cycles of a lattice ``φ - i·P`` (P in the period band), each within ±δ·P of
@@ -23,7 +25,8 @@ periods P <= B feasible is b^m × their volume, K_m·(2δB)^m: a box of 2δP per
 the phase and period the chain may choose (``chain_volume``; K_m ~ (m+1)^1.7/δ by Monte Carlo).
 S >= λ needs P_hi <= P_m = e^(-λ/m)/2δb, so ``beat_tail`` = Σ_m K_m·min(e^-λ, (2δbB)^m) bounds
 the chance that turbulence ends a chain of S >= λ, and ``beat_threshold`` solves it for the
-per-contact share of the budget: λ ~ 24 at b = 0.05, ~21 at b = 0.01. Checked by simulation:
+per-contact share of the budget: λ ~ 18 at b = 0.05, ~14 at b = 0.01 (0.05 a day; ~24 and ~21 at
+1e-4). Checked by simulation:
 over 8,000 days of Poisson contacts at 0.05 /s (δ = 0.15, P to 12 s) chains reached S >= 16,
 18, 20, 22 after 180, 31, 4, 2 distinct clusters of contacts, where the bound allows 1,026,
 174, 32, 5; in the filter (bursts, clumps, estimated turbulence) with the beat's budget raised
@@ -46,6 +49,26 @@ def threshold(b_hz: float, window_s: float, per_day: float, k_min: int) -> int:
     while DAY_S * b_hz * math.exp((k - 1) * math.log(mean) - mean - math.lgamma(k)) > per_day:
         k += 1
     return k
+
+
+def caught_within(rate_hz: float, k: int, window_s: float) -> float:
+    """P[a Poisson episode at ``rate_hz`` holds >= k contacts in the window from its first]:
+    1 + Poisson(rate × window) >= k (turbulence's own contacts ignored: a lower bound)."""
+    mean = rate_hz * window_s
+    term = cdf = math.exp(-mean)
+    for i in range(1, k - 1):
+        term *= mean / i
+        cdf += term
+    return 1.0 - cdf if k > 1 else 1.0
+
+
+def rate_for(recall: float, k: int, window_s: float) -> float:
+    """The slowest Poisson rate whose episodes reach k contacts in the window with ``recall``."""
+    lo, hi = 0.0, 10.0
+    for _ in range(40):
+        mid = 0.5 * (lo + hi)
+        lo, hi = (mid, hi) if caught_within(mid, k, window_s) < recall else (lo, mid)
+    return hi
 
 
 def chain_volume(m: int, jitter: float) -> float:
@@ -229,16 +252,22 @@ class _Search:
 
 
 class Sensor:
-    __slots__ = ("name", "n", "last", "mark", "state", "fast")
+    __slots__ = ("name", "n", "last", "mark", "state", "fast", "seen")
 
     def __init__(self, name: str, t: float, mark: int):
         self.name, self.n, self.last, self.mark, self.state, self.fast = name, 0, t, mark, HEALTHY, 0
+        self.seen = 0.0
+
+
+SHARE_TAU_S = 6 * 3600.0    # a sensor's share of its tank's active bins: learned over hours
+SHARE_PRIOR = 120.0         # active bins of prior (~10 min), shared equally: a new sensor is no outlier
 
 
 class SensorTests:
-    """Stuck and dead sensors, judged as each 5-s bin closes (see controller/demand.py, *Faults*).
+    """Stuck and dead sensors, judged as each bin closes (see controller/demand.py, *Faults*).
     ``Sensor.n``: its contacts in the bin; ``fast``: one bit per recent bin, set when the bin was
-    stuck-fast; ``mark``: the tank's active-bin count at its last contact."""
+    stuck-fast; ``mark``: the tank's active-bin count at its last contact; ``seen``: the active
+    bins it fired in (decaying over ``SHARE_TAU_S``, as the tank's own count ``active_ew``)."""
 
     def __init__(self, p):
         self.stuck_n = max(2, math.floor(0.9 * p.stuck_rate_hz * p.bin_s))
@@ -246,14 +275,20 @@ class SensorTests:
         self.need = max(1, math.ceil(p.stuck_share * self.bins))
         self.recover_mask = (1 << max(1, round(p.recover_s / p.bin_s))) - 1
         self.dead_after_s, self.dead_active_bins = p.dead_after_s, p.dead_active_bins
+        self.log_dead_p = math.log(p.dead_p)
+        self.decay = math.exp(-p.bin_s / SHARE_TAU_S)
 
-    def judge(self, sensors: dict, active: int, t: float, bins: int) -> list | None:
+    def judge(self, sensors: dict, active: int, active_ew: float, bin_active: bool, t: float,
+              bins: int) -> list | None:
         """[(sensor, "stuck" | "dead" | None for recovered)] as the bin closes, followed by
-        ``bins - 1`` empty ones, or None; ``active``: the tank's bins with healthy contacts."""
+        ``bins - 1`` empty ones, or None; ``active``: the tank's bins with healthy contacts, this
+        one included if ``bin_active``; ``active_ew``: the same, decaying."""
         out = None
         full = (1 << self.bins) - 1
         shift = min(bins - 1, self.bins)
+        decay = self.decay ** bins
         for s in sensors.values():
+            s.seen = s.seen * decay + (bin_active and s.n > 0)
             s.fast = ((((s.fast << 1) | (s.n >= self.stuck_n)) << shift) & full)
             s.n = 0
             if s.state == HEALTHY:
@@ -261,10 +296,17 @@ class SensorTests:
                     s.state = STUCK
                     out = [*(out or ()), (s.name, "stuck")]
                 elif (len(sensors) > 1 and t - s.last >= self.dead_after_s
-                      and active - s.mark >= self.dead_active_bins):
+                      and active - s.mark >= self.dead_active_bins
+                      and (active - s.mark) * math.log1p(-self._share(s, active_ew, len(sensors)))
+                      < self.log_dead_p):
                     s.state = DEAD
                     out = [*(out or ()), (s.name, "dead")]
             elif s.state == STUCK and not (s.fast & self.recover_mask):
                 s.state, s.mark = HEALTHY, active
                 out = [*(out or ()), (s.name, None)]
         return out
+
+    @staticmethod
+    def _share(s: Sensor, active_ew: float, n: int) -> float:
+        """The share of the tank's active bins it fires in (a dead spell lowers it slowly)."""
+        return min(0.999, (s.seen + SHARE_PRIOR / n) / (active_ew + SHARE_PRIOR))

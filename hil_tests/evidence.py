@@ -39,6 +39,7 @@ class Verdict:
     runs_compared: int = 0         # physical runs matched against the ledger, one by one
     suspect: int = 0               # ledger rows whose outcome was unknowable (held, alarmed)
     power_cut_runs: int = 0        # physical runs a dispenser power cut ended uncounted
+    false_demands: list[str] = field(default_factory=list)
 
     def detected_within(self, seconds: float) -> float:
         """Share of episodes whose demand was raised within ``seconds`` of their start."""
@@ -94,8 +95,8 @@ def judge(db, truth: list[dict], end_t: float) -> Verdict:
         if inside(d["t"], spans) is None:
             if inside(d["t"], spans, AFTERGLOW_S) is not None:
                 v.late_demands += 1
-            else:
-                v.fail(f"demand {d['id']} for {d['tank']} at {d['t']:.1f} lies outside every episode")
+            else:       # the filter's budget (<= 0.5 a tank-day) is the caller's to judge
+                v.false_demands.append(f"demand {d['id']} for {d['tank']} at {d['t']:.1f} lies outside every episode")
     # how long fish asked before the filter raised their demand (the filter's own contract is
     # measured here as a distribution; the unit tests of controller/demand.py pin it down)
     fed_at = defaultdict(list)

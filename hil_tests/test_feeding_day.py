@@ -1,15 +1,18 @@
 """A simulated farm day: the real controller process against simulated devices over Zenoh,
 Modbus TCP, slcan on a pty and serial on a pty, at high speed."""
+import math
 import os
 
 import pytest
 
+from controller.demand import DemandParams
 from hil_tests.evidence import judge
 from hil_tests.farm import HilFarm
 
 DAY_S = 86_400.0
 SPEED = float(os.environ.get("FISHFARM_HIL_SPEED", "1440"))   # a farm day in a minute of wall time
 WARMUP_S = 120.0          # the filter needs its window of evidence before it can judge
+LEARN_S = DemandParams().learn_s    # ... and an hour to measure each tank's turbulence
 
 
 @pytest.mark.hil
@@ -31,20 +34,65 @@ def test_a_farm_day_is_fed_on_demand_within_rations(tmp_path):
     with farm.ledger() as db:
         verdict = judge(db, truth, end)
         alarms = [dict(r) for r in db.execute("SELECT * FROM alarm WHERE source LIKE 'sensor/%' AND active = 1")]
+        raised = [(r["tank"], r["t"]) for r in db.execute("SELECT tank, t FROM demand")]
     faults = [r for r in farm.truth() if r["kind"] == "sensor_fault" and up < r["t"] < end - 600]
+    late, faulty = [], []
+    for tank, a, b, rate in _spans(truth, end):
+        if any(k == tank and a <= t <= min(b, a + 60) for k, t in raised) or b - a < 60:
+            continue
+        first = min((t - a for k, t in raised if k == tank and a <= t <= b), default=float("inf"))
+        before = max((t for k, t in raised if k == tank and t < a), default=-math.inf)
+        text = (f"{tank} asked at {a:.1f} ({rate:.3f}/s, {b - a:.0f} s): first demand after {first:.1f} s,"
+                f" the one before {a - before:.0f} s earlier")
+        # a faulty sensor takes its share of the fish's contacts with it, and in its first hour
+        # the filter is still measuring the tank (it starts at the contract's worst turbulence)
+        hit = any(f["tank"] == tank and f["t"] - 60 <= b and a <= f["until"] for f in faults)
+        (faulty if hit or a < up + LEARN_S else late).append(text)
     report = verdict.summary()
     print(report)
-    assert not verdict.problems, "\n".join([report, *verdict.problems, farm.log("controller.log")])
+    assert not verdict.problems, "\n".join([report, *verdict.problems, *verdict.false_demands,
+                                             farm.log("controller.log")[-4000:]])
     assert verdict.feeds >= 100 and verdict.episodes >= 100, report
-    # the filter's contract (a demand within 60 s of an episode's start) is a statistical one at
-    # the slow end of the fish band; every episode is found, nearly all within the minute
-    assert verdict.detected_within(60) >= 0.9 and verdict.detected_within(180) == 1.0, report
+    # demands outside every episode: within the filter's budget, 0.5 a tank-day
+    tanks = {r["tank"] for r in truth if r["kind"] == "episode_start"}
+    assert len(verdict.false_demands) <= 0.5 * len(tanks), "\n".join([report, *verdict.false_demands])
+    # the contract: every episode demanded within 60 s of its start, for the fish the sim makes
+    # (paced, the whole 0.1-2 /s band, calm tanks; Poisson fish at the slow end are a documented
+    # limit, measured in bench/bench_demand.py)
+    # with every sensor healthy and the tank measured, 100 %; the rest (above) are held to 180 s
+    assert late == [], "\n".join([report, *late])
+    assert verdict.detected_within(180) == 1.0, "\n".join([report, *faulty])
+    print(f"late while measuring or with a faulty sensor: {faulty}")
+    rates = [r["rate_hz"] for r in truth if r["kind"] == "episode_start"]
+    assert min(rates) <= 0.15 and max(rates) >= 1.2, sorted(rates)
     # a stuck sensor is always caught; any sensor alarm names a sensor that really failed, while it did
     for fault in (f for f in faults if f["fault"] == "stuck"):
         assert any(a["source"] == f"sensor/{fault['sensor']}" and "stuck" in a["text"]
                    and fault["t"] <= a["t"] <= fault["until"] for a in alarms), (fault, alarms)
+    # a dead sensor is caught once the tank's other sensor has fired enough to tell (~100 fish
+    # contacts while it was dead)
+    spans = _spans(truth, end)
+    for fault in (f for f in faults if f["fault"] == "dead"):
+        heard = sum(max(0.0, min(fault["until"], b) - max(fault["t"], a)) * rate / 2
+                    for tank, a, b, rate in spans if tank == fault["tank"])
+        if heard >= 100:
+            assert any(a["source"] == f"sensor/{fault['sensor']}" and "dead" in a["text"]
+                       and fault["t"] <= a["t"] <= fault["until"] + 60 for a in alarms), (fault, alarms)
     for alarm in alarms:
         sensor = alarm["source"].removeprefix("sensor/")
         assert any(f["sensor"] == sensor and f["t"] <= alarm["t"] <= f["until"] + 60 for f in faults), \
             (alarm, faults)
     print(f"{len(faults)} sensor faults, {len(alarms)} sensor alarms")
+
+
+def _spans(truth: list[dict], end_t: float) -> list[tuple[str, float, float, float]]:
+    """(tank, start, end, rate) of every fish episode."""
+    open_, out = {}, []
+    for r in sorted((r for r in truth if r["kind"] in ("episode_start", "episode_end")), key=lambda r: r["t"]):
+        if r["kind"] == "episode_start":
+            open_[r["tank"]] = r
+        elif r["tank"] in open_:
+            start = open_.pop(r["tank"])
+            out.append((r["tank"], start["t"], r["t"], start["rate_hz"]))
+    out += [(tank, r["t"], end_t, r["rate_hz"]) for tank, r in open_.items()]
+    return out

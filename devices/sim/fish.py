@@ -2,10 +2,12 @@
 
 Hunger (grams the fish would eat) grows at ``appetite = biomass × ration_pct_day / 100`` per day
 since the last meal. When it reaches ``hunger_threshold_g`` (about one portion) the fish start
-asking: an *episode* of contacts at a rate drawn in ``rate_hz`` (Poisson, spread over the
-tank's sensors). Food delivered with ``feed(grams, t)`` lowers hunger; the episode ends when the
-fish have eaten enough (hunger below ``sated_fraction`` × threshold) or when they give up
-(after a duration drawn in ``duration_s``, then a ``rest_s`` pause before asking again).
+asking: an *episode* of contacts at a rate drawn in ``rate_hz`` (log-uniform), spread over the
+tank's sensors: ``paced`` (the default) is a school bumping at a steady pace, the first contact
+as the episode starts and each interval the mean ± ``pace_jitter``; ``poisson`` is memoryless.
+Food delivered with ``feed(grams, t)`` lowers hunger; the episode ends when the fish have eaten
+enough (hunger below ``sated_fraction`` × threshold) or when they give up (after a duration
+drawn in ``duration_s``, then a ``rest_s`` pause before asking again).
 
 Around the fish: sparse turbulence and chatter bursts, stuck and dead sensors, from
 devices/sim/contact_streams.py, generated in fixed 10-minute chunks of farm time from their own
@@ -13,14 +15,16 @@ random stream, so a run is the same for a seed whatever the caller's step.
 
 Defaults make the demo farm ask for about its daily ration (2.5 % of biomass) in ~60 g
 portions: T1 (2,400 fish × 18 g) needs 1,080 g a day, i.e. an episode every ~80 min once fed.
-Fish rates default to 0.4–2 /s: the contract's model allows 0.1 /s, which no filter can
-confirm within 60 s against 0.05 /s turbulence (see controller/demand.py); set ``rate_hz`` to
-[0.1, 2.0] to study that.
+Fish span the contract's whole band, 0.1–2 /s, over calm tanks (0.005 /s). Poisson fish at
+0.1 /s cannot all be served within 60 s at any useful false-demand rate, and 0.02 /s of
+turbulence hides them more often than not (controller/demand.py, *Slow fish*): set
+``pattern = "poisson"`` or raise ``turbulence_hz`` to study that.
 """
 from __future__ import annotations
 
 import bisect
 import math
+from typing import Literal
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
@@ -38,10 +42,12 @@ class SimFishParams(BaseModel):
     hunger_threshold_g: float = Field(60.0, gt=0, description="hunger that starts an episode")
     initial_hunger: float = Field(0.5, ge=0, le=2, description="hunger at start, × threshold")
     sated_fraction: float = Field(0.25, ge=0, lt=1)
-    rate_hz: tuple[float, float] = (0.4, 2.0)
+    rate_hz: tuple[float, float] = (0.1, 2.0)
+    pattern: Literal["paced", "poisson"] = "paced"
+    pace_jitter: float = Field(0.2, ge=0, lt=1, description="paced: each interval the mean ± this share")
     duration_s: tuple[float, float] = (60.0, 600.0)
     rest_s: float = Field(900.0, ge=0, description="pause after giving up before asking again")
-    turbulence_hz: float = Field(0.02, ge=0)
+    turbulence_hz: float = Field(0.005, ge=0)
     bursts_per_hour: float = Field(2.0, ge=0)
     stuck_per_day: float = Field(0.0, ge=0)
     dead_per_day: float = Field(0.0, ge=0)
@@ -126,7 +132,7 @@ class SimTank:
         lo, hi = np.log(self.p.rate_hz[0]), np.log(self.p.rate_hz[1])
         self.rate_hz = float(np.exp(self.rng.uniform(lo, hi)))
         self._give_up = t + float(self.rng.uniform(*self.p.duration_s))
-        self._next_fish = t + float(self.rng.exponential(1.0 / self.rate_hz))
+        self._next_fish = t if self.p.pattern == "paced" else t + self._interval()
         if self.truth is not None:
             self.truth.write("episode_start", t, tank=self.id, rate_hz=round(self.rate_hz, 4))
 
@@ -141,7 +147,12 @@ class SimTank:
         while self._next_fish < until:
             t = self._next_fish
             self._emit(t, self.sensors[int(self.rng.integers(n))] if n > 1 else self.sensors[0])
-            self._next_fish = t + float(self.rng.exponential(1.0 / self.rate_hz))
+            self._next_fish = t + self._interval()
+
+    def _interval(self) -> float:
+        if self.p.pattern == "paced":
+            return float(self.rng.uniform(1.0 - self.p.pace_jitter, 1.0 + self.p.pace_jitter)) / self.rate_hz
+        return float(self.rng.exponential(1.0 / self.rate_hz))
 
     def _emit(self, t: float, sensor: str) -> None:
         for who, a, b in self._dead:

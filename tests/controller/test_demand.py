@@ -7,10 +7,19 @@ import numpy as np
 import pytest
 
 from controller.config import validate_section
-from controller.demand import Demand, DemandFilter, DemandParams, SensorFault, SensorRecovered, threshold
-from controller.demand_stats import beat_chain, beat_tail, beat_threshold
+from controller.demand import (
+    Demand,
+    DemandFilter,
+    DemandParams,
+    SensorFault,
+    SensorRecovered,
+    SlowFishUndetectable,
+    threshold,
+)
+from controller.demand_stats import beat_chain, beat_tail, beat_threshold, caught_within, rate_for
 from controller.errors import BadInput
 from devices.sim import contact_streams as cs
+from tests import contract_streams as contract
 
 T0 = 1_780_000_000.0
 HOUR = 3600.0
@@ -57,51 +66,48 @@ def test_threshold_follows_the_poisson_tail():
     assert rate <= 1e-4 < 86400 * 0.05 * math.exp((k - 2) * math.log(3.0) - 3.0 - math.lgamma(k - 1))
 
 
+def false_rate(outside, stream_days):
+    return len(outside) / stream_days
+
+
 @pytest.mark.parametrize("turbulence_hz", [0.01, 0.05])
-def test_turbulence_and_chatter_alone_never_demand(turbulence_hz):
+def test_turbulence_and_chatter_alone_stay_within_the_false_demand_budget(turbulence_hz):
+    # the simulator's own streams (the independent ones are below): 30 tank-days of turbulence
+    # and 6 bursts an hour, at most 0.5 false demands per tank-day, no sensor fault
     rng = np.random.default_rng(11)
     days = [cs.tank_day(rng, "T1", ("a", "b"), T0 + d * 86400, episodes_per_day=1e-9,
-                        turbulence_hz=turbulence_hz, bursts_per_hour=6) for d in range(15)]
+                        turbulence_hz=turbulence_hz, bursts_per_hour=6) for d in range(30)]
     stream = cs.merge(*days)
-    assert len(stream.bursts) > 1500
+    assert len(stream.bursts) > 3000
     events, _ = replay(stream)
-    assert demands(events) == []
+    assert len(demands(events)) <= 0.5 * 30
     assert [e for e in events if isinstance(e, SensorFault)] == []
 
 
 @pytest.mark.parametrize("pattern", ["poisson", "regular"])
-def test_every_episode_served_within_60s_and_none_outside(pattern):
-    # 40 tank-days at the contract's worst turbulence, with bursts, fish at 0.7-2 /s
+def test_fast_fish_every_episode_within_60s(pattern):
+    # 40 tank-days at the contract's worst turbulence, with bursts, fish at 0.7-2 /s: every
+    # episode (a chatter burst in an episode's first minute costs evidence, never the deadline)
     rng = np.random.default_rng(7 if pattern == "poisson" else 8)
     days = [cs.tank_day(rng, "T1", ("a", "b"), T0 + d * 86400, rate_hz=(0.7, 2.0), pattern=pattern,
                         turbulence_hz=0.05, bursts_per_hour=4, episodes_per_day=10) for d in range(40)]
     stream = cs.merge(*days)
     assert len(stream.episodes) > 250
     late, outside = check_episodes(stream, replay(stream)[0])
-    assert outside == []
-    # a chatter burst in an episode's first minute costs up to 15 s of evidence: rare lateness
-    assert len(late) <= 0.01 * len(stream.episodes)
-
-
-def test_without_bursts_every_episode_is_served_within_60s():
-    rng = np.random.default_rng(17)
-    days = [cs.tank_day(rng, "T1", ("a", "b"), T0 + d * 86400, rate_hz=(0.7, 2.0), pattern="mixed",
-                        turbulence_hz=0.05, bursts_per_hour=0, episodes_per_day=10) for d in range(20)]
-    stream = cs.merge(*days)
-    late, outside = check_episodes(stream, replay(stream)[0])
-    assert late == [] and outside == []
+    assert late == []
+    assert false_rate(outside, 40) <= 0.5
 
 
 def test_calm_tank_catches_slower_fish():
-    # a calm tank (0.01 /s) lowers its own threshold: 0.4-0.7 /s episodes within 60 s
+    # a calm tank (0.01 /s) lowers its own threshold: every 0.4-0.7 /s episode within 60 s
     rng = np.random.default_rng(5)
     days = [cs.tank_day(rng, "T1", ("a",), T0 + d * 86400, rate_hz=(0.4, 0.7), turbulence_hz=0.01,
                         bursts_per_hour=2, episodes_per_day=10) for d in range(20)]
     stream = cs.merge(*days)
     events, f = replay(stream)
     late, outside = check_episodes(stream, events)
-    assert f.score("T1")[1] <= 12 and outside == []
-    assert len(late) <= 0.02 * len(stream.episodes)
+    assert f.score("T1")[1] <= 7 and false_rate(outside, 20) <= 0.5
+    assert late == []
 
 
 def test_several_tanks_are_independent():
@@ -166,7 +172,7 @@ def test_dead_sensor_is_a_fault_and_recovers_on_its_next_contact():
     (rec,) = [e for e in events if isinstance(e, SensorRecovered)]
     assert rec.sensor == "b" and T0 + 6 * HOUR <= rec.t < T0 + 6 * HOUR + 600
     late, outside = check_episodes(stream, events)
-    assert late == [] and outside == []
+    assert late == [] and len(outside) <= 1
 
 
 def test_configured_sensor_that_never_fires_is_dead():
@@ -236,16 +242,16 @@ def test_slow_regular_fish_are_served_within_60s(pattern, jitter, fish_sensors):
     stream = beat_days(31, pattern, jitter, fish_sensors, 0.02, (0.2, 0.3))
     assert len(stream.episodes) > 130
     late, outside = check_episodes(stream, replay(stream)[0])
-    assert outside == []
-    assert len(late) <= 0.03 * len(stream.episodes)
+    assert false_rate(outside, 20) <= 0.5
+    assert len(late) <= 0.02 * len(stream.episodes)
 
 
 def test_regular_fish_at_the_contract_worst_turbulence():
     # 0.05 /s turbulence: a beat at 0.25-0.35 /s is confirmed within the minute
     stream = beat_days(32, "regular", 0.1, ("a", "b"), 0.05, (0.25, 0.35))
     late, outside = check_episodes(stream, replay(stream)[0])
-    assert outside == []
-    assert len(late) <= 0.03 * len(stream.episodes)
+    assert false_rate(outside, 20) <= 0.5
+    assert len(late) <= 0.02 * len(stream.episodes)
 
 
 def test_beat_demand_is_raised_on_a_fish_contact_and_not_repeated_by_the_beat():
@@ -260,17 +266,21 @@ def test_beat_demand_is_raised_on_a_fish_contact_and_not_repeated_by_the_beat():
     assert f.score("T1")[0] < f.score("T1")[1]          # the count alone would not have raised it
 
 
-def test_pump_chattering_on_a_beat_is_not_fish():
-    # a pump chattering 4 contacts in 0.3 s every 6 s for an hour: a beat of bursts, each too
-    # short for the chatter and clump rules, never a demand
-    rng = np.random.default_rng(34)
-    parts = [cs.turbulence(rng, "T1", ("a", "b"), T0, T0 + 3 * HOUR, 0.02)]
-    for start in np.arange(T0 + HOUR, T0 + 2 * HOUR, 6.0).tolist():
-        t = np.sort(rng.uniform(start, start + 0.3, 4))
-        parts.append(cs.Stream(t, np.full(4, "T1", dtype=object), np.full(4, "a", dtype=object),
-                               np.full(4, cs.BURST, dtype=np.int8)))
-    events, _ = replay(cs.merge(*parts))
-    assert demands(events) == []
+def test_a_burst_counts_little_whatever_its_size():
+    # on a calm tank, one chatter burst of 10 or of 200 contacts adds at most what 10 busy
+    # seconds would, and never reaches the threshold on its own
+    for n in (10, 30, 200):
+        f = DemandFilter()
+        rng = np.random.default_rng(n)
+        for t in np.sort(rng.uniform(0, 3600, 20)).tolist():       # the tank's own quiet hour
+            f.on_contact(T0 + t, "T1", "a")
+        f.on_time(T0 + 3600)
+        events = []
+        for t in np.sort(rng.uniform(3700, 3709.5, n)).tolist():
+            events += f.on_contact(T0 + t, "T1", "a")
+        f.on_time(T0 + 3715)
+        score, k = f.score("T1")
+        assert demands(events) == [] and score < min(k, 4), (n, score, k)
 
 
 def lattice(rng, period, n, jitter, t_end):
@@ -333,3 +343,91 @@ def test_beat_threshold_spends_the_budget():
     assert lam == sorted(lam)                           # more turbulence, more contacts to test
     q = 1e-4 / (2 * 86400 * 0.05)
     assert beat_tail(lam[2], 0.15, 0.05, 2.0, 12.0) <= q < beat_tail(lam[2] - 0.01, 0.15, 0.05, 2.0, 12.0)
+
+
+# -- the independent generator (tests/contract_streams.py): the contract's words, not the filter's
+
+def run_farm(farm, params=None):
+    """Replay a generated farm as the controller does; (score, filter, events)."""
+    f = DemandFilter(params)
+    events, nxt = [], -math.inf
+    for t, tank, sensor in farm.rows():
+        if t >= nxt:
+            events += f.on_time(t)
+            nxt = t + 5.0
+        events += f.on_contact(t, tank, sensor)
+    ds = [(e.tank, e.t) for e in events if isinstance(e, Demand)]
+    faults = [(e.tank, e.sensor, e.kind, e.t) for e in events if isinstance(e, SensorFault)]
+    return contract.score(farm, ds, faults), f, events
+
+
+def test_every_episode_within_60s():
+    # 8 tanks, 8 tank-days: ramps up and down, contacts split over 2-3 sensors, Poisson and
+    # paced fish, a chatter burst just before a third of the episodes, waves across tanks. Fish
+    # peaking at 0.4-2 /s: EVERY episode gets a demand within 60 s of its first contact
+    farm = contract.every(seed=5, days=8)
+    assert len(farm.episodes) > 250
+    sc, _, _ = run_farm(farm)
+    assert [(e.tank, e.first, e.peak_hz) for e in sc.missed] == []
+    assert sc.false_per_tank_day <= 0.5 and sc.wrong_faults == 0
+
+
+# recall within 60 s of the first contact the filter must reach per case, and the ideal bound it
+# is measured against (contract.oracle_recall: a detector that knows the background exactly and
+# removes every burst, at 0.5 false demands per tank-day). Below ~0.25 /s Poisson fish cannot be
+# caught at 0.99 within 60 s by any detector at that false-demand rate: see controller/demand.py.
+CASE_GOALS = {
+    "band": 0.88, "slow_0.10": 0.40, "slow_0.15": 0.78, "slow_0.20": 0.90, "slow_0.30": 0.98,
+    "fast_2.0": 0.99, "paced_0.10": 0.45, "ramped": 0.80, "burst_before": 0.90, "wave": 0.90,
+    "split_sensors": 0.90, "busy_0.02": 0.82, "stuck": 0.90, "dead": 0.90,
+}
+
+
+@pytest.mark.parametrize("name", list(contract.CASES))
+def test_named_case_scores(name):
+    farm = contract.case(name, seed=3, days=4)
+    sc, _, _ = run_farm(farm)
+    assert sc.episodes >= 100
+    assert sc.recall >= CASE_GOALS[name], sc.as_dict()
+    # near the ideal bound: within 0.25 at the slow end (where a tank's estimated background,
+    # its 5-s bins and its burst rules cost a contact or two), within 0.1 elsewhere
+    slack = 0.25 if name in ("slow_0.10", "paced_0.10", "slow_0.15") else 0.1
+    assert sc.recall >= contract.oracle_recall(farm) - slack, sc.as_dict()
+    assert sc.false_per_tank_day <= 0.75, sc.as_dict()        # 4 tank-days: the long test is below
+    assert sc.faults_found == sc.faults and sc.wrong_faults == 0, sc.as_dict()
+
+
+def test_false_demands_per_tank_day_over_long_streams():
+    # 120 tank-days of what tanks show without fish: background 0.002-0.02 /s, chatter bursts
+    # 3 /h on each tank, waves 2 /h hitting 3-6 tanks at once
+    farm = contract.null_days(seed=6, days=120)
+    sc, _, events = run_farm(farm)
+    assert len(farm) > 500_000
+    assert sc.false_per_tank_day <= 0.5, sc.as_dict()
+    assert [e for e in events if isinstance(e, SensorFault)] == []
+
+
+def test_the_slow_end_bound_is_the_poisson_tail():
+    # 60 s after the first contact of a 0.1 /s Poisson episode hold 1 + Poisson(6) contacts
+    for k in (3, 5, 8, 9):
+        expected = 1.0 - sum(math.exp(-6.0) * 6.0 ** i / math.factorial(i) for i in range(k - 1))
+        assert caught_within(0.1, k, 60.0) == pytest.approx(expected, rel=1e-9)
+    assert rate_for(0.99, 8, 60.0) == pytest.approx(0.2428, abs=1e-3)
+    # and the generator's slow episodes follow it: the oracle at a known background
+    farm = contract.case("slow_0.10", seed=4, days=4)
+    ks = {t: contract.poisson_threshold(b) for t, b in farm.background_hz.items()}
+    analytic = np.mean([caught_within(0.1, ks[e.tank], 60.0) for e in farm.episodes])
+    assert abs(contract.oracle_recall(farm) - analytic) < 0.12
+
+
+def test_a_tank_too_turbulent_for_its_slowest_fish_says_so_once():
+    rng = np.random.default_rng(41)
+    busy = cs.merge(cs.turbulence(rng, "T1", ("a", "b"), T0, T0 + 86400, 0.05),
+                    cs.chatter_bursts(rng, "T1", ("a", "b"), T0, T0 + 86400, 2.0))
+    calm = cs.turbulence(rng, "T2", ("a", "b"), T0, T0 + 86400, 0.003)
+    events, f = replay(cs.merge(busy, calm), until=T0 + 86400)
+    told = [e for e in events if isinstance(e, SlowFishUndetectable)]
+    assert [e.tank for e in told] == ["T1"]                   # once, however long it stays so
+    assert T0 + DemandParams().learn_s <= told[0].t < T0 + 3 * 3600
+    assert "0.1/s" in told[0].note and f.slow_fish("T1") is not None
+    assert f.slow_fish("T2") is None
