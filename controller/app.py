@@ -386,7 +386,8 @@ class Controller:
                               "demand_t": None if job is None else self.clock.iso(job.t),
                               "fed_g": round(r.fed_g, 1), "ration_g": round(r.grams, 1),
                               "pellet_mm": r.pellet_mm}
-            note = self.filter.slow_fish(tank.id) if tank.id in self.filter.tanks else None
+            demand = getattr(self, "filter", None)     # absent while the controller starts
+            note = demand.slow_fish(tank.id) if demand is not None and tank.id in demand.tanks else None
             if note is not None:
                 tanks[tank.id]["slow_fish"] = note
         feeder = self.robot.snapshot() if self.robot is not None else {
