@@ -18,6 +18,7 @@ from controller.bus import Bus
 from controller.config import Config, validate_section
 from controller.demand import Demand, DemandFilter, DemandParams, SensorFault, SensorRecovered
 from controller.errors import BadInput
+from controller.feeding.estop import EstopLane
 from controller.feeding.rations import Rations, load_species, ration_payload
 from controller.feeding.robot import FeedingRobot, Job
 from controller.overrides import Overrides
@@ -62,6 +63,7 @@ class Controller:
         self.stopping = asyncio.Event()
         self.unknown_sensors: set[str] = set()
         self.robot: FeedingRobot | None = None
+        self.lane: EstopLane | None = None
         self.estop_before_start: str | None = None
         self.species = load_species()
         check_farm(cfg, self.species)
@@ -85,11 +87,12 @@ class Controller:
         self.contacts = self._one("contacts")
         self.rail = self._one("rail")
         self.dispenser = self._one("dispenser")
+        self.lane = EstopLane(self.rail, self.dispenser)    # live before any device is open
         self.overrides = Overrides(self)
         self.overrides.declare(self.bus)
         await asyncio.gather(*(self._open(device) for device in self.devices.values()))
         self.robot = FeedingRobot(cfg, self.clock, self.rail, self.dispenser, self.store, self.rations,
-                                  self.alarms, self.bus.publish)
+                                  self.alarms, self.bus.publish, lane=self.lane)
         if self.estop_before_start is not None:
             await self.robot.emergency_stop(self.estop_before_start)
         self._requeue_open_demands()
@@ -97,18 +100,30 @@ class Controller:
             self.tasks.append(asyncio.create_task(self._supervise(loop)))
         log.info("controller for site %s up: %d tanks", cfg.site, len(cfg.tanks))
 
-    async def emergency_stop(self, reason: str) -> None:
-        """E-stop wins from any state, even before the robot exists: it then starts stopped."""
+    def trip_estop(self, reason: str = "operator e-stop") -> None:
+        """From any thread (the Zenoh thread that got the query): latch the devices now, before
+        the loop hears of it. ``emergency_stop`` follows on the loop."""
+        if self.lane is not None:
+            self.lane.trip(reason)
+
+    async def emergency_stop(self, reason: str) -> bool:
+        """E-stop wins from any state, even before the robot exists: it then starts stopped.
+        True once the devices confirmed their latches."""
         if self.robot is None:
             self.estop_before_start = reason
             self.alarms.raise_("estop", f"emergency stop: {reason}", "critical")
-        else:
-            await self.robot.emergency_stop(reason)
+            if self.lane is None:
+                return False
+            done, _ = await asyncio.wait({asyncio.wrap_future(self.lane.trip(reason))}, timeout=1.0)
+            return bool(done)
+        return await self.robot.emergency_stop(reason)
 
     async def stop(self) -> None:
         for task in self.tasks:
             task.cancel()
         await asyncio.gather(*self.tasks, return_exceptions=True)
+        if self.lane is not None:
+            self.lane.close()
         for device in getattr(self, "devices", {}).values():
             with contextlib.suppress(Exception):
                 await device.close()

@@ -11,6 +11,7 @@ from __future__ import annotations
 import asyncio
 import logging
 
+from controller.feeding.estop import Halted
 from controller.feeding.rations import ration_payload
 from controller.store import reconcile
 from devices.errors import DeviceFault, DeviceTimeout
@@ -40,6 +41,7 @@ class Dispensing:
         self.rate_g_s = rate if rate is not None else self.feeding.auger_rate_g_s
         self.measured_runs = runs
         self.hopper_g: float | None = None
+        self.halted = lambda: False             # the e-stop's token: the robot sets its own here
 
     @property
     def overshoot(self) -> float:
@@ -63,11 +65,13 @@ class Dispensing:
             state = await self.read()
         if state.jammed or state.running:
             raise DeviceFault(self.dispenser.name, "jammed" if state.jammed else "auger already running")
+        self._check_token("intent")
         now = self.clock.now()
         run_s = grams / self.rate_g_s
         feed = self.store.add_intent(tank=tank, date=self.rations.date(now), t=now, target_g=grams, run_s=run_s,
                                      cycles_before=state.cycles, source=source, demand_id=demand_id)
         self._publish_feed(feed)
+        self._check_token("START")                # right before it, nothing awaited between
         log.info("auger on for %s: %.1f g, %.1f s after the ask", tank, grams, now - raised_t)
         await self.dispenser.run_auger(run_s, feed.tag)
         await self.clock.asleep(run_s)            # the device times the run; look when it should be over
@@ -78,6 +82,12 @@ class Dispensing:
         if state.jammed:
             raise AugerJammed(self.dispenser.name, "auger jammed", closed)
         return closed
+
+    def _check_token(self, step: str) -> None:
+        """An e-stop tripped (on any thread) stops a dispense before its next step; an intent
+        already committed is settled from the counters after the reset (it never started)."""
+        if self.halted():
+            raise Halted(f"e-stop tripped: {step} not done")
 
     async def settle(self, serving: dict[int, object]) -> list:
         """Close every open intent from the dispenser's counters; ``serving`` maps demand ids still
