@@ -77,7 +77,7 @@ class Dispensing:
         await self.clock.asleep(run_s)            # the device times the run; look when it should be over
         state = await self._wait_run_end(feed)
         closed = self._close(feed, state, demand_id, MEASURED if not state.jammed else "")
-        if closed.phase == "done" and not state.jammed and run_s > 1.0 and closed.grams > 0:
+        if closed.phase == "done" and not state.jammed and run_s > 1.0 and closed.grams > 0 and not self.halted():
             self._learn(closed.grams / run_s)
         if state.jammed:
             raise AugerJammed(self.dispenser.name, "auger jammed", closed)
