@@ -2,8 +2,10 @@
 
 A safety relay, not a task: ``trip()`` may be called from any thread (the Zenoh thread that
 received the ``estop`` query calls it before even parsing the payload). It sets the stop token
-(``tripped``) first, synchronously — every actuator command of the robot checks it — then wakes
-the lane's own thread, which
+(``tripped``) first, synchronously — every actuator command of the robot checks it — sends the
+first ESTOPs from the calling thread itself unless it runs an event loop (the drive's frame, then the dispenser's exchange:
+the caller's thread is held for about one Modbus round trip, ``estop_timeout_s`` at worst), then
+wakes the lane's own thread, which
 
 - sends the drive's ESTOP frame straight onto the bus (``RailDrive.trip_estop``) and watches for a
   status frame in "estop" (noted on the CAN reader thread, not the loop);
@@ -20,8 +22,10 @@ device just reset.
 """
 from __future__ import annotations
 
+import asyncio
 import concurrent.futures
 import logging
+import sys
 import threading
 import time
 from collections.abc import Callable
@@ -33,6 +37,24 @@ log = logging.getLogger("fishfarm.estop")
 Report = Callable[[str, str | None], None]
 """``report(device, None)`` when ``device`` confirmed its latch, ``report(device, why)`` when it
 has not within the bound. Called on the lane's thread: hand it on, do not block."""
+
+
+GIL_SWITCH_S = 0.0005
+
+
+def prefer_estop_threads() -> None:
+    """The Zenoh thread that takes the estop query and the lane's thread each need the GIL; with
+    CPython's default 5 ms switch interval a busy loop (a status flood) holds them off that long
+    at every hand-over. The controller asks for a switch every 0.5 ms instead."""
+    sys.setswitchinterval(min(sys.getswitchinterval(), GIL_SWITCH_S))
+
+
+def _on_a_loop() -> bool:
+    try:
+        asyncio.get_running_loop()
+    except RuntimeError:
+        return False
+    return True
 
 
 class Halted(Exception):
@@ -69,16 +91,23 @@ class EstopLane:
         """Stop everything now, from any thread; safe to call again. The future is done (True)
         once both devices have confirmed their latches; it is never failed."""
         with self._flag:
-            if not self._tripped:
+            first = not self._tripped
+            if first:
                 self._tripped = True               # the token first: nothing may start from here on
                 self._gen += 1
                 self.reason = reason
                 if self._confirmed.done():
                     self._confirmed = concurrent.futures.Future()
-            confirmed = self._confirmed
+            confirmed, gen = self._confirmed, self._gen
             if not self._closed and (self._thread is None or not self._thread.is_alive()):
                 self._thread = threading.Thread(target=self._run, name="estop-lane", daemon=True)
                 self._thread.start()
+        if first and threading.current_thread() is not self._thread and not _on_a_loop():
+            # the first ESTOPs go out from the caller's thread, now: waking the lane's thread first
+            # would add a scheduling hop (and a GIL hand-over) before anything reaches a device.
+            # Not from an event loop's thread: blocking I/O there would stall the loop.
+            self._send(gen, self.rail.trip_estop, {}, "drive")
+            self._send(gen, self.dispenser.trip_estop, {}, "dispenser")
         self._wake.set()
         return confirmed
 
