@@ -3,17 +3,18 @@
 A safety relay, not a task: ``trip()`` may be called from any thread (the Zenoh thread that
 received the ``estop`` query calls it before even parsing the payload). It sets the stop token
 (``tripped``) first, synchronously — every actuator command of the robot checks it — sends the
-first ESTOPs from the calling thread itself unless it runs an event loop (the drive's frame, then the dispenser's exchange:
-the caller's thread is held for about one Modbus round trip, ``estop_timeout_s`` at worst), then
-wakes the lane's own thread, which
+first ESTOPs from the calling thread itself unless it runs an event loop (the drive's frame, then
+the dispenser's exchange: the caller's thread is held for about one Modbus round trip,
+``estop_timeout_s`` at worst), then wakes the lane's own thread, which
 
 - sends the drive's ESTOP frame straight onto the bus (``RailDrive.trip_estop``) and watches for a
   status frame in "estop" (noted on the CAN reader thread, not the loop);
 - writes the dispenser's ESTOP over the dispenser's e-stop connection and reads STATE back
   (``Dispenser.trip_estop``), until bit3 shows the latch;
-- retries each every ``retry_s`` (backing off to 1 s) until it confirms, reports an unconfirmed device after
-  ``confirm_within_s`` (the robot raises the ``estop`` alarm with it) and keeps retrying; once
-  both confirmed it looks again every ``recheck_s`` (a power-cycled PLC loses its latch).
+- retries each every ``retry_s`` (backing off to 1 s) until it confirms, reports a device still
+  unconfirmed after ``confirm_within_s`` (the robot raises the ``estop`` alarm with it) and keeps
+  retrying; once both confirmed it looks again every ``recheck_s`` (a power-cycled PLC loses its
+  latch).
 
 The event loop is never waited for: news goes to it with ``call_soon_threadsafe``. ``release()``
 (an operator's reset) stops the lane before the robot resets the latches; it waits for at most

@@ -22,9 +22,9 @@ frame there before handing it to the loop, so the lane's confirmation never wait
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import logging
 import math
-import contextlib
 import struct
 import threading
 import time
