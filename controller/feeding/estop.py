@@ -79,6 +79,7 @@ class EstopLane:
         self._thread: threading.Thread | None = None
         self._confirmed: concurrent.futures.Future = concurrent.futures.Future()
         self._reports: list[Report] = []
+        self._first: tuple | None = None           # (gen, drive sent at, dispenser state) from trip()
 
     @property
     def tripped(self) -> bool:
@@ -107,8 +108,10 @@ class EstopLane:
             # the first ESTOPs go out from the caller's thread, now: waking the lane's thread first
             # would add a scheduling hop (and a GIL hand-over) before anything reaches a device.
             # Not from an event loop's thread: blocking I/O there would stall the loop.
-            self._send(gen, self.rail.trip_estop, {}, "drive")
-            self._send(gen, self.dispenser.trip_estop, {}, "dispenser")
+            stamp = time.monotonic()
+            drive = self._send(gen, self.rail.trip_estop, {}, "drive")
+            state = self._send(gen, self.dispenser.trip_estop, {}, "dispenser")
+            self._first = (gen, stamp if drive else None, state)   # the lane goes on from here
         self._wake.set()
         return confirmed
 
@@ -143,6 +146,13 @@ class EstopLane:
         started = time.monotonic()
         pending = set(self.DEVICES)
         sent_at: float | None = None
+        first, self._first = self._first, None
+        if first is not None and first[0] == gen:     # what trip() sent from its caller's thread
+            sent_at = first[1]
+            if sent_at is not None and self.rail.estop_seen_since(sent_at):
+                pending.discard("drive")
+            if getattr(first[2], "estop", False):
+                pending.discard("dispenser")
         told: set[str] = set()
         why: dict[str, str] = {}
         delay = self.retry_s

@@ -184,3 +184,35 @@ def test_unconfirmed_latch_is_reported_retried_and_release_stops_the_sends():
     time.sleep(0.1)
     assert dispenser.calls == calls                             # and stops once released
     lane.close()
+
+
+class _Recording:
+    """A drive and a dispenser that latch at once and note which thread reached them."""
+
+    def __init__(self):
+        self.threads = []
+
+    def trip_estop(self):
+        import threading
+        self.threads.append(threading.current_thread())
+        from devices.dispenser import DispenserState
+        return DispenserState(0, False, False, False, 0, 0, 0, 0, 0.1, estop=True)
+
+    def estop_seen_since(self, t):
+        return bool(self.threads)
+
+
+def test_trip_from_a_thread_without_a_loop_reaches_both_devices_before_it_returns():
+    """The Zenoh thread's path: the first ESTOPs leave from the caller, no hop to the lane's thread."""
+    import threading
+    rail, dispenser = _Recording(), _Recording()
+    lane = EstopLane(rail, dispenser)
+    done = []
+    caller = threading.Thread(target=lambda: done.append((lane.trip("zenoh"), list(rail.threads),
+                                                          list(dispenser.threads))))
+    caller.start()
+    caller.join(5)
+    confirmed, drive_threads, dispenser_threads = done[0]
+    assert drive_threads == [caller] and dispenser_threads == [caller]
+    assert confirmed.result(timeout=2.0) is True
+    lane.close()
