@@ -3,7 +3,7 @@ and slcan on a pty).
 
 The controller runs 100 tanks (farm clock ``BENCH_ESTOP_SPEED`` x the wall, so the robot is busy
 travelling, dispensing and refilling); meanwhile a client floods ``status`` queries and a Zenoh
-subscriber on ``farm/**`` stalls (its callback blocks for good, in a process of its own). The
+subscriber on ``farm/**`` stalls (its callback blocks for good); each in a process of its own. The
 bench sends ``BENCH_ESTOP_N`` e-stops (payloads cycling through empty, JSON, 1,000-level nested
 JSON and bytes that are not JSON), each followed by a reset once the robot is stopped, and
 measures, for each:
@@ -28,7 +28,8 @@ import threading
 import time
 from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
 
 from controller.bus import Bus  # noqa: E402
 from hil_tests.farm import HilFarm  # noqa: E402
@@ -87,11 +88,19 @@ class Truth:
             time.sleep(0.005)
 
 
-def flood(endpoint: str, site: str, stop: threading.Event, counts: list[int]) -> None:
-    with Bus.client(endpoint, site=site, timeout_s=5.0) as bus:
-        while not stop.is_set():
-            bus.query("status", timeout_s=2.0)
-            counts[0] += 1
+FLOODER = """
+import sys, time
+sys.path.insert(0, %r)
+from controller.bus import Bus
+count, until = 0, time.monotonic() + float(sys.argv[1])
+with Bus.client(%r, site=%r, timeout_s=5.0) as bus:
+    print("flooding", flush=True)
+    while time.monotonic() < until and not sys.stdin.closed:
+        bus.query("status", timeout_s=2.0)
+        count += 1
+        if count %% 100 == 0:
+            print(count, flush=True)
+"""
 
 
 def feeder_state(bus: Bus) -> str | None:
@@ -120,8 +129,12 @@ def main() -> dict:
         staller = subprocess.Popen([sys.executable, "-c", STALLER % endpoint, "3600"], stdout=subprocess.PIPE,
                                    text=True)
         assert staller.stdout.readline().strip() == "stalling"
-        flooder = threading.Thread(target=flood, args=(endpoint, site, stop, counts), daemon=True)
-        flooder.start()
+        # the flood comes from a process of its own, so it never competes with the e-stop's sender
+        flooder = subprocess.Popen([sys.executable, "-c", FLOODER % (str(ROOT), endpoint, site), "3600"],
+                                   stdout=subprocess.PIPE, text=True)
+        assert flooder.stdout.readline().strip() == "flooding"
+        threading.Thread(target=lambda: [counts.__setitem__(0, int(n)) for n in flooder.stdout],
+                         daemon=True).start()
         truth = Truth(farm.truth_path)
         with Bus.client(endpoint, site=site, timeout_s=5.0) as bus:
             time.sleep(3.0)                                   # the robot gets going
@@ -153,7 +166,8 @@ def main() -> dict:
     finally:
         stop.set()
         if flooder is not None:
-            flooder.join(10)
+            flooder.kill()
+            flooder.wait()
         if staller is not None:
             staller.kill()
             staller.wait()
