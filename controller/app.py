@@ -102,7 +102,6 @@ class Controller:
             self.tasks.append(asyncio.create_task(self._supervise(loop)))
         # what start-up built lives as long as the process: out of the collector's sight, a full
         # collection (which holds the GIL, so the e-stop's threads too) takes ~1 ms, not ~70
-        gc.collect()
         gc.freeze()
         log.info("controller for site %s up: %d tanks", cfg.site, len(cfg.tanks))
 

@@ -249,6 +249,10 @@ class CanRailDrive(RailDrive):
         kwargs = dict(cfg.options)
         if cfg.interface == "slcan":
             kwargs.setdefault("sleep_after_open", cfg.sleep_after_open_s)
+            # python-can's slcan reads byte by byte, each read waiting up to the serial timeout
+            # (1 ms by default): the reader thread would wake (and take the GIL) 1000 times a
+            # second on an idle line. A read returns as soon as a byte comes, whatever this is.
+            kwargs.setdefault("timeout", 0.02)
         filters = [{"can_id": base + node, "can_mask": 0x7FF, "extended": False}
                    for base in (STATUS_BASE, REPLY_BASE)]
         try:   # opening an slcan adapter blocks (serial open, setup commands): keep it off the loop
