@@ -19,7 +19,7 @@ from controller.bus import Bus
 from controller.config import Config, validate_section
 from controller.demand import Demand, DemandFilter, DemandParams, SensorFault, SensorRecovered
 from controller.errors import BadInput
-from controller.feeding.estop import EstopLane, prefer_estop_threads
+from controller.feeding.estop import EstopLane
 from controller.feeding.rations import Rations, load_species, ration_payload
 from controller.feeding.robot import FeedingRobot, Job
 from controller.overrides import Overrides
@@ -89,7 +89,6 @@ class Controller:
         self.rail = self._one("rail")
         self.dispenser = self._one("dispenser")
         self.lane = EstopLane(self.rail, self.dispenser)    # live before any device is open
-        prefer_estop_threads()
         self.overrides = Overrides(self)
         self.overrides.declare(self.bus)
         await asyncio.gather(*(self._open(device) for device in self.devices.values()))

@@ -26,7 +26,6 @@ from __future__ import annotations
 import asyncio
 import concurrent.futures
 import logging
-import sys
 import threading
 import time
 from collections.abc import Callable
@@ -38,16 +37,6 @@ log = logging.getLogger("fishfarm.estop")
 Report = Callable[[str, str | None], None]
 """``report(device, None)`` when ``device`` confirmed its latch, ``report(device, why)`` when it
 has not within the bound. Called on the lane's thread: hand it on, do not block."""
-
-
-GIL_SWITCH_S = 0.0005
-
-
-def prefer_estop_threads() -> None:
-    """The Zenoh thread that takes the estop query and the lane's thread each need the GIL; with
-    CPython's default 5 ms switch interval a busy loop (a status flood) holds them off that long
-    at every hand-over. The controller asks for a switch every 0.5 ms instead."""
-    sys.setswitchinterval(min(sys.getswitchinterval(), GIL_SWITCH_S))
 
 
 def _on_a_loop() -> bool:
