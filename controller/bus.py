@@ -3,7 +3,13 @@
 Zenoh runs its callbacks on its own threads; the controller's logic runs on one asyncio loop.
 Every handler here is an ``async def`` scheduled onto that loop with
 ``asyncio.run_coroutine_threadsafe``, so a slow handler never holds a Zenoh thread, and the
-reply is sent from the loop when the handler finishes.
+reply is sent from the loop when the handler finishes. An ``urgent`` override (estop) also runs
+a plain function on the Zenoh thread itself, first, before the payload is even parsed: it acts
+whatever the payload and however busy the loop is. Every query gets a reply.
+
+Reliable publishes (``CongestionControl.BLOCK``) block while a subscriber's link is full, so
+they never run on the caller's thread: a publisher thread sends them in order (order kept for
+every key). ``close()`` gives it ``DRAIN_S`` to finish.
 
 Facts that shaped this module (eclipse-zenoh 1.10.2, see DESIGN.md):
 - multicast scouting reaches beyond loopback: it is forced off whatever the config says;
@@ -18,6 +24,7 @@ import asyncio
 import contextlib
 import json
 import logging
+import queue
 import re
 import socket
 import threading
@@ -38,6 +45,8 @@ Listener = Callable[[str, dict], Awaitable[None]]
 """A subscriber's handler: key suffix after ``farm/{site}/`` and the payload."""
 
 DEFAULT_CONNECT = "tcp/127.0.0.1:7447"
+DRAIN_S = 2.0            # wall seconds close() waits for queued reliable publishes
+QUEUE_MAX = 100_000      # reliable publishes waiting; past that they are dropped (and logged once)
 _CHUNK = re.compile(r"^[^/*$#?]+$")  # one concrete key chunk: no wildcard, no selector syntax
 
 
@@ -170,6 +179,10 @@ class Bus:
         self._publishers: dict[tuple[str, bool], zenoh.Publisher] = {}
         self._declared: list = []  # subscribers and queryables, undeclared on close
         self._closed = False
+        self._outbox: queue.Queue = queue.Queue(QUEUE_MAX)
+        self._overflowed = False
+        self._sender = threading.Thread(target=self._send_reliable, name="bus-publisher", daemon=True)
+        self._sender.start()
 
     # ------------------------------------------------------------ keys and peers
 
@@ -197,8 +210,42 @@ class Bus:
 
     def publish(self, suffix: str, payload: dict, *, reliable: bool = False) -> None:
         """Put ``payload`` on ``farm/{site}/{suffix}``. ``reliable``: ledger (feed) and alarm
-        events, which must not be dropped under load: blocks while the link's queue is full."""
-        self._publisher(suffix, reliable).put(encode(payload))
+        events, which must not be dropped under load: queued for the publisher thread, which
+        blocks while the link's queue is full; the caller never does."""
+        publisher, data = self._publisher(suffix, reliable), encode(payload)
+        if not reliable:
+            publisher.put(data)
+            return
+        try:
+            self._outbox.put_nowait((publisher, data))
+        except queue.Full:
+            if not self._overflowed:
+                self._overflowed = True
+                log.error("reliable publishes back up (a subscriber stalls?): dropping %s and later ones "
+                          "while the queue is full", suffix)
+
+    def flush(self, timeout_s: float = DRAIN_S) -> bool:
+        """Wait until every queued reliable publish has been handed to Zenoh; False on timeout."""
+        done = threading.Event()
+        try:
+            self._outbox.put((None, done), timeout=timeout_s)
+        except queue.Full:
+            return False
+        return done.wait(timeout_s)
+
+    def _send_reliable(self) -> None:
+        while True:
+            publisher, data = self._outbox.get()
+            if publisher is None:
+                if data is None:
+                    return                  # close(): everything before it was sent
+                data.set()                  # a flush() marker
+                continue
+            try:
+                publisher.put(data)
+                self._overflowed = False
+            except zenoh.ZError as exc:     # undeclared under us (closing): nobody to tell
+                log.debug("reliable publish lost: %s", _one_line(exc))
 
     def matched(self, suffix: str, *, reliable: bool = False) -> bool:
         """Whether some subscriber, here or remote, matches ``farm/{site}/{suffix}`` now."""
@@ -226,19 +273,22 @@ class Bus:
         """Answer gets on ``farm/{site}/{suffix}`` with ``await handler(payload)``.
         A payload that is not a JSON object is refused (``{"ok": false, "error": ...}``) unless
         ``lenient``, when the handler gets ``{}``. A handler exception is such a refusal too."""
-        self._serve(suffix, lambda _key: (handler, lenient))
+        self._serve(suffix, lambda _key: (handler, lenient, None))
 
-    def overrides(self, commands: Mapping[str, Handler], *, lenient: Iterable[str] = ("estop",)) -> None:
+    def overrides(self, commands: Mapping[str, Handler], *, lenient: Iterable[str] = ("estop",),
+                  urgent: Mapping[str, Callable[[], None]] | None = None) -> None:
         """Serve ``farm/{site}/override/*``: dispatch on the command name; an unknown command is
-        refused. Commands in ``lenient`` (estop) are never refused for their payload."""
+        refused. Commands in ``lenient`` (estop) are never refused for their payload; those in
+        ``urgent`` first call their function on the Zenoh thread, before anything else."""
         forgiving = set(lenient)
         table = dict(commands)
+        now = dict(urgent or {})
 
         def resolve(suffix: str):
             command = suffix.split("/", 1)[1]
             if command not in table:
                 raise LookupError(f"unknown command {command!r}; known: {', '.join(sorted(table))}")
-            return table[command], command in forgiving
+            return table[command], command in forgiving, now.get(command)
         self._serve("override/*", resolve)
 
     def _serve(self, suffix: str, resolve) -> None:
@@ -247,25 +297,44 @@ class Bus:
             self.key(suffix), lambda query: self._on_query(query, resolve, loop)))
 
     def _on_query(self, query: zenoh.Query, resolve, loop: asyncio.AbstractEventLoop) -> None:
-        """On a Zenoh thread: parse, then hand the work to the loop. Never blocks, never raises."""
+        """On a Zenoh thread: act (urgent), parse, then hand the work to the loop. Never blocks,
+        never raises, and every concrete query gets a reply."""
         key = str(query.key_expr)
         if not all(_CHUNK.match(c) for c in key.split("/")):
             # a wildcard get (override/**) must not fire every command: nobody answers it
             query.drop()
             return
         try:
-            handler, lenient = resolve(self._suffix(key))
-            payload = decode(query.payload)
+            self._dispatch(query, key, resolve, loop)
+        except BaseException as exc:  # noqa: BLE001 - a Zenoh thread must not die, the querier must hear
+            self._reply(query, {"ok": False, "error": f"internal error: {type(exc).__name__}"})
+            if not isinstance(exc, Exception):
+                raise
+
+    def _dispatch(self, query: zenoh.Query, key: str, resolve, loop) -> None:
+        try:
+            handler, lenient, *urgent = resolve(self._suffix(key))
         except LookupError as exc:
             return self._reply(query, {"ok": False, "error": str(exc)})
-        except ValueError as exc:
+        acted = False
+        if urgent and urgent[0] is not None:
+            try:
+                urgent[0]()
+                acted = True
+            except Exception:
+                log.exception("urgent action for %s failed", key)
+        try:
+            payload = decode(query.payload)
+        except Exception as exc:  # noqa: BLE001 - ValueError, or whatever a hostile payload raises
             if not lenient:
-                return self._reply(query, {"ok": False, "error": str(exc)})
+                return self._reply(query, {"ok": False, "error": str(exc) if isinstance(exc, ValueError)
+                                           else f"unreadable payload ({type(exc).__name__})"})
             payload = {}
         try:
             future = asyncio.run_coroutine_threadsafe(_answer(handler, payload, key), loop)
         except RuntimeError:  # the loop is closed: the controller is stopping
-            return self._reply(query, {"ok": False, "error": "controller is shutting down"})
+            error = "controller is shutting down" + (" (acted on already)" if acted else "")
+            return self._reply(query, {"ok": acted, "error": error} if not acted else {"ok": True, "note": error})
         future.add_done_callback(lambda f: self._reply(query, _outcome(f)))
 
     def _reply(self, query: zenoh.Query, answer: dict) -> None:
@@ -343,6 +412,12 @@ class Bus:
             if self._closed:
                 return
             self._closed = True
+        try:       # queued reliable publishes go out first, for DRAIN_S at most
+            self._outbox.put((None, None), timeout=DRAIN_S)
+        except queue.Full:
+            pass
+        self._sender.join(DRAIN_S)
+        with self._lock:
             declared = [*self._publishers.values(), *self._declared]
             self._publishers.clear()
             self._declared.clear()

@@ -151,18 +151,29 @@ class Overrides:
     def declare(self, bus) -> None:
         # one queryable on override/*: an unknown command is refused with a reason, not left unanswered
         commands = ("estop", "reset", "manual", "feed", "ration", "settle")
-        bus.overrides({name: _answering(getattr(self, name)) for name in commands}, lenient=("estop",))
+        # estop also trips the latches on the Zenoh thread itself, before the payload is parsed
+        bus.overrides({name: _answering(getattr(self, name)) for name in commands}, lenient=("estop",),
+                      urgent={"estop": lambda: self.c.trip_estop("operator e-stop")})
         bus.queryable("status", self.status, lenient=True)
 
     async def status(self, payload) -> dict:
         return self.c.status()
 
     async def estop(self, payload) -> dict:
-        who = payload.get("operator", "unknown") if isinstance(payload, dict) else "unknown"
-        why = payload.get("reason", "") if isinstance(payload, dict) else ""
-        log.warning("e-stop by %s: %s", who, why)
-        await self.c.emergency_stop(f"operator {who}" + (f": {why}" if why else ""))
-        return {"ok": True}
+        """Any payload stops: fields of the wrong type are ignored, never a refusal. The reply
+        comes once both devices confirmed their latches (``confirmed`` false: not within 2 s)."""
+        who = why = None
+        if isinstance(payload, dict):
+            who, why = payload.get("operator"), payload.get("reason")
+        who = who if isinstance(who, str) else "unknown"
+        why = why if isinstance(why, str) else ""
+        log.warning("e-stop by %r: %r", who[:100], why[:200])
+        try:
+            confirmed = await self.c.emergency_stop(f"operator {who[:100]}" + (f": {why[:200]}" if why else ""))
+        except Exception:   # the latches were set on the Zenoh thread already: say so, not "refused"
+            log.exception("e-stop bookkeeping failed")
+            confirmed = False
+        return {"ok": True, "confirmed": bool(confirmed)}
 
     async def reset(self, payload) -> dict:
         cmd, robot = _parse(_Command, payload), self._robot()

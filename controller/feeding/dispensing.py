@@ -17,6 +17,7 @@ import asyncio
 import logging
 import math
 
+from controller.feeding.estop import Halted
 from controller.feeding.rations import ration_payload
 from controller.store import SUSPECT, reconcile, went_backwards
 from devices.errors import DeviceFault, DeviceTimeout
@@ -50,6 +51,7 @@ class Dispensing:
         self.measured_runs = runs
         self.hopper_g: float | None = None
         self._seen = store.counters_seen(dispenser.name)     # (cycles, total_g) last seen
+        self.halted = lambda: False             # the e-stop's token: the robot sets its own here
 
     @property
     def overshoot(self) -> float:
@@ -89,12 +91,14 @@ class Dispensing:
             state = await self.read()
         if state.jammed or state.running:
             raise DeviceFault(self.dispenser.name, "jammed" if state.jammed else "auger already running")
+        self._check_token("intent")
         now = self.clock.now()
         run_s = grams / self.rate_g_s
         feed = self.store.add_intent(tank=tank, date=self.rations.date(now), t=now, target_g=grams, run_s=run_s,
                                      cycles_before=state.cycles, source=source, demand_id=demand_id,
                                      hopper_before=state.hopper_g, device_tags=(state.last_tag, state.run_tag))
         self._publish_feed(feed)
+        self._check_token("START")                # right before it, nothing awaited between
         log.info("auger on for %s: %.1f g, %.1f s after the ask", tank, grams, now - raised_t)
         await self.dispenser.run_auger(run_s, feed.tag)
         await self.clock.asleep(run_s)            # the device times the run; look when it should be over
@@ -102,11 +106,18 @@ class Dispensing:
         closed = self._close(result, demand_id, MEASURED if not state.jammed else "")
         if closed.phase == SUSPECT:
             raise DeviceFault(self.dispenser.name, f"outcome of auger run {feed.tag} unknown: {result.note}")
-        if closed.phase == "done" and not state.jammed and run_s > 1.0 and closed.grams > 0:
+        if closed.phase == "done" and not state.jammed and run_s > 1.0 and closed.grams > 0 \
+                and not self.halted():
             self._learn(closed.grams / run_s)
         if state.jammed:
             raise AugerJammed(self.dispenser.name, "auger jammed", closed)
         return closed
+
+    def _check_token(self, step: str) -> None:
+        """An e-stop tripped (on any thread) stops a dispense before its next step; an intent
+        already committed is settled from the counters after the reset (it never started)."""
+        if self.halted():
+            raise Halted(f"e-stop tripped: {step} not done")
 
     async def settle(self, serving: dict[int, object]) -> list:
         """Close every open intent from the dispenser's counters; ``serving`` maps demand ids still

@@ -1,10 +1,16 @@
 """The rail feeding robot: serves validated demands tank by tank, within each tank's ration.
 
 The legal moves are the table below (``transitions``); one supervisor task performs the
-action of the current state. An e-stop stops auger and drive at once, cancels that action,
-and wins from any state — across restarts too: a controller that starts while the e-stop
-alarm stands, or finds the drive e-stopped (its own button), starts in ``estop``, and only an
-operator's reset releases it. Dispensing goes through the ledger (``dispensing.Dispensing``).
+action of the current state. An e-stop wins from any state — across restarts too: a
+controller that starts while the e-stop alarm stands, or finds the drive or the dispenser
+e-stopped (their own buttons), starts in ``estop``, and only an operator's reset releases it.
+Dispensing goes through the ledger (``dispensing.Dispensing``).
+
+The e-stop is the devices' own latches, set by the e-stop lane (``estop.EstopLane``) on a thread
+of its own, and a stop token the lane sets before anything else: every actuator command here
+(HOME, MOVE, gate open, START) checks the token first and is not sent while it is set; a START
+that slips past the check is refused by the latched device. Cancelling the running action is a
+courtesy that saves a wasted wait, never what stops the robot.
 """
 from __future__ import annotations
 
@@ -15,6 +21,7 @@ from dataclasses import dataclass
 from transitions import Machine
 
 from controller.feeding.dispensing import AugerJammed, Dispensing
+from controller.feeding.estop import EstopLane, Halted
 from controller.feeding.planner import Stop, next_stop
 from devices.errors import DeviceError, DeviceTimeout
 
@@ -48,16 +55,24 @@ class Job:
     grams: float | None = None   # operator's asked portion
 
 
+CONFIRM_WAIT_S = 1.0    # wall seconds an e-stop's caller waits for both latches to confirm
+
+
 class DriveEstopped(DeviceError):
-    """The drive reports an e-stop nobody here commanded: its own button, or one before a restart."""
+    """A device reports an e-stop nobody here commanded: its own button, or one before a restart."""
 
 
 class FeedingRobot:
-    def __init__(self, cfg, clock, rail, dispenser, store, rations, alarms, publish):
+    def __init__(self, cfg, clock, rail, dispenser, store, rations, alarms, publish, lane: EstopLane | None = None):
         self.cfg, self.feeding = cfg, cfg.feeding
         self.clock, self.rail, self.dispenser = clock, rail, dispenser
         self.store, self.rations, self.alarms, self.publish = store, rations, alarms, publish
+        self.lane = lane if lane is not None else EstopLane(rail, dispenser)
+        self._loop = asyncio.get_running_loop()
+        self.lane.listen(self._lane_report)
+        self._unconfirmed: dict[str, str] = {}
         self.dispensing = Dispensing(cfg, clock, dispenser, store, rations, alarms, publish)
+        self.dispensing.halted = lambda: self.lane.tripped
         self.pending: dict[str, Job] = {}
         self.failures = 0
         self._wake = asyncio.Event()          # a demand came, or an operator acted
@@ -67,6 +82,8 @@ class FeedingRobot:
         initial = "estop" if "estop" in alarms.active else "homing"
         Machine(model=self, states=STATES, transitions=TRANSITIONS, initial=initial,
                 auto_transitions=False, after_state_change="_state_changed")
+        if initial == "estop":                # the latches may be gone (a power cut): set them again
+            self.lane.trip(alarms.active["estop"].text)
 
     @property
     def hopper_g(self) -> float | None:
@@ -81,22 +98,49 @@ class FeedingRobot:
         self.pending[job.tank] = job
         self._wake.set()
 
-    async def emergency_stop(self, reason: str) -> None:
-        """Stop auger, refill gate and drive now, from any state; safe to call twice."""
-        stops = asyncio.gather(self._guarded(self.dispenser.stop()), self._guarded(self.rail.estop()),
-                               self._guarded(self.dispenser.set_refill(False)))
-        first = self.state != "estop"
+    async def emergency_stop(self, reason: str) -> bool:
+        """Latch auger, refill gate and drive stopped now, from any state; safe to call twice.
+        True once both devices have confirmed their latches (waits ``CONFIRM_WAIT_S`` at most;
+        the lane keeps retrying after that, and the ``estop`` alarm says which did not)."""
+        confirmed = self.lane.trip(reason)   # token and latches first; the rest is bookkeeping
+        self._stopped(reason)
+        done, _ = await asyncio.wait({asyncio.wrap_future(confirmed)}, timeout=CONFIRM_WAIT_S)
+        return bool(done)
+
+    def _stopped(self, reason: str) -> None:
+        """The robot's side of an e-stop already tripped: state, courtesy cancel, alarm."""
         self._cancel_action()
-        self.estop()
-        for name, err in zip(("auger", "drive", "refill gate"), await stops, strict=True):
-            if err is not None:
-                log.error("e-stop: %s did not confirm: %s", name, err)
-        if first:
-            self.alarms.raise_("estop", f"emergency stop: {reason}", "critical", kind="latched")
+        if self.state != "estop":
+            self.estop()
+            self.alarms.raise_("estop", self._estop_text(reason), "critical", kind="latched")
+
+    def _estop_text(self, reason: str) -> str:
+        text = reason if reason.startswith("emergency stop") else f"emergency stop: {reason}"
+        if self._unconfirmed:
+            text += "; not confirmed by " + ", ".join(f"{d} ({w})" for d, w in sorted(self._unconfirmed.items()))
+        return text
+
+    def _lane_report(self, device: str, why: str | None) -> None:
+        """From the lane's thread: a latch unconfirmed past the bound, or confirmed after all."""
+        def on_loop():
+            if why is None:
+                self._unconfirmed.pop(device, None)
+                log.warning("e-stop: %s confirmed its latch", device)
+            else:
+                self._unconfirmed[device] = why
+                log.error("e-stop: %s has not confirmed its latch: %s (retrying)", device, why)
+            if self.lane.tripped and "estop" in self.alarms.active:
+                self.alarms.raise_("estop", self._estop_text(self.lane.reason or "e-stop"), "critical", kind="latched")
+        try:
+            self._loop.call_soon_threadsafe(on_loop)
+        except RuntimeError:                  # the loop is closed: the process is ending
+            pass
 
     def operator_reset(self) -> str | None:
         """Release an e-stop or cut a fault's back-off short. Returns an error text or None."""
         if self.state == "estop":
+            self.lane.release()               # no ESTOP in flight once this returns
+            self._unconfirmed.clear()
             self._estop_released = True
             self.reset()
             self.alarms.clear("estop", "e-stop released")
@@ -136,8 +180,10 @@ class FeedingRobot:
                 if self._action.cancelled():
                     continue                  # an e-stop or the operator took over; the state says what next
                 exc = self._action.exception()
-                if exc is not None:
+                if exc is not None and not isinstance(exc, Halted):
                     self._fault(exc)
+                if self.lane.tripped and self.state != "estop":
+                    self._stopped(self.lane.reason or "e-stop")   # the loop hears of it late
         finally:                              # cancelled: our action must not outlive us
             self._cancel_action()
             if self._action is not None:
@@ -154,11 +200,11 @@ class FeedingRobot:
             await self._wait(self._operator, 3600.0)
 
     def _fault(self, exc: BaseException) -> None:
-        if self.state in ("estop", "manual"):
-            return
+        if self.state in ("estop", "manual") or self.lane.tripped:
+            return                            # an e-stop explains it: run() puts us in estop
         if isinstance(exc, DriveEstopped):
-            self.estop()
-            self.alarms.raise_("estop", f"emergency stop: {exc.text}", "critical", kind="latched")
+            self.lane.trip(exc.text)          # latch the other device too
+            self._stopped(exc.text)
             return
         if not isinstance(exc, DeviceError):
             log.error("feeder: unexpected error", exc_info=exc)
@@ -182,13 +228,19 @@ class FeedingRobot:
         self.recover()
 
     async def _clear_rail(self):
-        """Clear a latched drive fault once the carriage has come to rest; an e-stop only when an
-        operator has released it here."""
+        """Clear a latched drive fault once the carriage has come to rest; an e-stop (the drive's
+        or the dispenser's) only when an operator has released it here."""
+        if (await self.dispensing.read()).estop:
+            if not self._estop_released:
+                raise DriveEstopped(self.dispenser.name, "the dispenser reports an e-stop")
+            self._halt_if_tripped()
+            await self.dispenser.reset_estop()
         status = await self._rail_status()
         if status.state == "estop" and not self._estop_released:
             raise DriveEstopped(self.rail.name, "the drive reports an e-stop")
         if status.state in ("fault", "estop"):
             await self.rail.wait_until(lambda s: s.velocity_m_s == 0, 30.0, stop_on_fault=False)
+            self._halt_if_tripped()
             await self.rail.clear_fault()
             status = await self.rail.wait_until(lambda s: s.state not in ("fault", "estop"), 30.0,
                                                 stop_on_fault=False)
@@ -200,6 +252,7 @@ class FeedingRobot:
         status = await self._clear_rail()
         if not status.homed or status.state == "homing":
             if status.state != "homing":
+                self._halt_if_tripped()
                 await self.rail.home()
             await self.rail.wait_until(lambda s: s.homed and s.state == "idle", self.feeding.move_timeout_s)
         if (await self.dispensing.read()).refilling:   # a refill cut short by a crash or an e-stop
@@ -266,6 +319,7 @@ class FeedingRobot:
         await self._move_to(self.feeding.food_box_m)
         self.arrive_box()
         full = self.feeding.hopper_capacity_g * 0.98
+        self._halt_if_tripped()
         await self.dispenser.set_refill(True)
         try:
             deadline = self.clock.now() + self.feeding.refill_timeout_s
@@ -286,11 +340,17 @@ class FeedingRobot:
         status = await self._rail_status()
         if status.state == "idle" and abs(status.position_m - position_m) <= tol:
             return
+        self._halt_if_tripped()
         await self.rail.move_to(position_m)
         await self.rail.wait_until(lambda s: s.state == "idle" and abs(s.position_m - position_m) <= tol,
                                    self.feeding.move_timeout_s)
 
     # -- helpers --------------------------------------------------------------
+    def _halt_if_tripped(self) -> None:
+        """Before every actuator command: the e-stop's token, checked with nothing awaited after."""
+        if self.lane.tripped:
+            raise Halted("e-stop tripped: command not sent")
+
     def _served(self, job: Job, feed) -> None:
         if feed.phase == "done" and self.pending.get(job.tank) is job:
             del self.pending[job.tank]
@@ -327,14 +387,6 @@ class FeedingRobot:
     def _cancel_action(self) -> None:
         if self._action is not None and not self._action.done() and self._action is not asyncio.current_task():
             self._action.cancel()
-
-    @staticmethod
-    async def _guarded(coro):
-        try:
-            await asyncio.wait_for(coro, timeout=1.0)
-        except Exception as exc:  # each stop is isolated: one failing must not skip the others
-            return exc
-        return None
 
     def _state_changed(self) -> None:
         log.info("feeder: %s", self.state)

@@ -13,6 +13,10 @@ snapshot. Tags must differ from one run to the next (the device refuses a start 
 is the running or the last run's), which makes ``run_auger`` idempotent per tag: calling
 it again with the tag the device is running or ran last starts nothing and returns normally
 (so a start resent after a lost reply, or by a restarted controller, never runs twice).
+
+E-stop: the device holds a latch (``trip_estop``) that stops the auger, closes the refill gate and
+refuses every START and GATE_OPEN until ``reset_estop``. ``trip_estop`` is synchronous and goes
+over a path of its own that no queued request can delay; call it from any thread but the loop's.
 """
 from __future__ import annotations
 
@@ -35,6 +39,7 @@ class DispenserState:
     total_grams: float      # load-cell grams delivered since power-on
     resolution_g: float
     run_tag: int = 0        # tag of the run in progress, 0 when the auger is idle
+    estop: bool = False     # the device's e-stop latch is set: it refuses START and GATE_OPEN
 
     def fate(self, tag: int) -> Literal["running", "done", "not_started"]:
         """What became of the run ``tag`` (an intent's tag), judged from this snapshot.
@@ -67,6 +72,12 @@ class Dispenser(Device):
     async def stop(self) -> None: await self._stop()
     async def set_refill(self, open_gate: bool) -> None: await self._set_refill(open_gate)
     async def clear_fault(self) -> None: await self._clear_fault()
+    async def reset_estop(self) -> None: await self._reset_estop()
+
+    def trip_estop(self) -> DispenserState:
+        """Set the e-stop latch now and read the state back (``estop`` True: confirmed). Blocks
+        the calling thread for at most about ``estop_timeout_s``; DeviceError when unreachable."""
+        return self._trip_estop()
 
     @abc.abstractmethod
     async def _read(self) -> DispenserState: ...
@@ -78,6 +89,10 @@ class Dispenser(Device):
     async def _set_refill(self, open_gate: bool) -> None: ...
     @abc.abstractmethod
     async def _clear_fault(self) -> None: ...
+    @abc.abstractmethod
+    async def _reset_estop(self) -> None: ...
+    @abc.abstractmethod
+    def _trip_estop(self) -> DispenserState: ...
 
 
 BACKENDS = {

@@ -4,7 +4,8 @@ Register map (holding registers; FC3 and FC4 read the same cells). Words are big
 32/64-bit values put the high word first. Grams travel as load-cell counts of RES_MG mg.
 
   status block, read-only, 14 registers read in ONE request (one consistent snapshot):
-  100      STATE       bit0 running, bit1 jammed (latched until CLEAR_FAULT), bit2 refill gate open
+  100      STATE       bit0 running, bit1 jammed (latched until CLEAR_FAULT), bit2 refill gate open,
+                       bit3 e-stop latched (until ESTOP_RESET)
   101      RUN_TAG     tag of the run in progress, 0 when the auger is idle
   102-103  HOPPER      uint32 counts: the load cell now
   104-105  CYCLES      uint32: finished runs (completed, stopped or jammed) since power-on
@@ -15,14 +16,22 @@ Register map (holding registers; FC3 and FC4 read the same cells). Words are big
   command block, read/write:
   200-201  RUN_MS      uint32 farm milliseconds, 1..600000, timed by the device itself
   202      TAG         1..65535, must differ from RUN_TAG and LAST_TAG
-  203      COMMAND     1 START (RUN_MS, TAG), 2 STOP, 3 CLEAR_FAULT, 4 GATE_OPEN, 5 GATE_CLOSE
+  203      COMMAND     1 START (RUN_MS, TAG), 2 STOP, 3 CLEAR_FAULT, 4 GATE_OPEN, 5 GATE_CLOSE,
+                       6 ESTOP (auger off, gate closed, latch set), 7 ESTOP_RESET (latch released)
   A start is one FC16 write of 200-203, so its parameters and its trigger arrive together.
 
 Exception responses: 02 address outside the map, or a write to the status block; 03 RUN_MS or
-TAG out of range, TAG equal to RUN_TAG or LAST_TAG, unknown command; 04 START while jammed;
-06 START while running or with the gate open, GATE_OPEN while running. A START's TAG is checked
+TAG out of range, TAG equal to RUN_TAG or LAST_TAG, unknown command; 04 START or GATE_OPEN while the e-stop is
+latched (checked before anything else), START while jammed; 06 START while running or with the
+gate open, GATE_OPEN while running. ESTOP and ESTOP_RESET are never refused; ESTOP repeated is
+harmless. Only ESTOP_RESET releases the latch (CLEAR_FAULT does not). A START's TAG is checked
 first, so a resent start is refused 03 whatever state its run left; the driver does not rely on
 that: any refused START whose tag the counters show running or done counts as accepted.
+
+The e-stop has a priority lane: ``trip_estop()`` writes ESTOP and reads STATE back over a second
+connection of its own (pymodbus's synchronous client, made for the calling thread, ``retries`` 0,
+``estop_timeout_s``), which no queued request of the main connection can delay. It blocks the
+calling thread, so call it from a thread of its own, never from the event loop.
 
 Errors: no connection -> LinkDown; no reply after ``retries`` resends -> DeviceTimeout (LinkDown
 if the connection went meanwhile); exception response -> DeviceRefused, a DeviceFault carrying
@@ -31,10 +40,12 @@ a call that finds its (older) connection dead reconnects and sends once more bef
 """
 from __future__ import annotations
 
+import asyncio
 import struct
+import threading
 
 from pydantic import Field
-from pymodbus.client import AsyncModbusTcpClient
+from pymodbus.client import AsyncModbusTcpClient, ModbusTcpClient
 from pymodbus.exceptions import ConnectionException, ModbusException, ModbusIOException
 
 from devices.base import Section
@@ -46,14 +57,15 @@ COMMAND_ADDR, COMMAND_FORMAT = 200, ">IHH"      # RUN_MS TAG COMMAND
 STATUS_REGS = struct.calcsize(STATUS_FORMAT) // 2
 COMMAND_REGS = struct.calcsize(COMMAND_FORMAT) // 2
 COMMAND_REG = COMMAND_ADDR + COMMAND_REGS - 1
-RUNNING, JAMMED, REFILLING = 1, 2, 4
-START, STOP, CLEAR_FAULT, GATE_OPEN, GATE_CLOSE = 1, 2, 3, 4, 5
+RUNNING, JAMMED, REFILLING, ESTOP_LATCHED = 1, 2, 4, 8
+START, STOP, CLEAR_FAULT, GATE_OPEN, GATE_CLOSE, ESTOP, ESTOP_RESET = 1, 2, 3, 4, 5, 6, 7
 MAX_RUN_MS = 600_000
 ILLEGAL_ADDRESS, ILLEGAL_VALUE, DEVICE_FAILURE, DEVICE_BUSY = 2, 3, 4, 6
 MEANING = {
     ILLEGAL_ADDRESS: "illegal address",
     ILLEGAL_VALUE: "illegal value: run time or tag out of range, or tag already used by the last run",
-    DEVICE_FAILURE: "device failure; on a start: auger jammed, latched until clear_fault",
+    DEVICE_FAILURE: "device failure: e-stop latched (until estop_reset), or on a start: auger jammed "
+                    "(latched until clear_fault)",
     DEVICE_BUSY: "busy: auger running or refill gate open",
 }
 
@@ -74,7 +86,7 @@ def state_from_fields(fields: tuple[int, ...]) -> DispenserState:
         hopper_g=hopper * res_mg / 1000, running=bool(bits & RUNNING), jammed=bool(bits & JAMMED),
         refilling=bool(bits & REFILLING), cycles=cycles, last_tag=last_tag,
         last_grams=last * res_mg / 1000, total_grams=total * res_mg / 1000,
-        resolution_g=res_mg / 1000, run_tag=run_tag)
+        resolution_g=res_mg / 1000, run_tag=run_tag, estop=bool(bits & ESTOP_LATCHED))
 
 
 class DeviceRefused(DeviceFault):
@@ -92,6 +104,7 @@ class Config(Section):
     unit: int = Field(1, ge=0, le=247)
     timeout_s: float = Field(1.0, gt=0, le=60, description="wall seconds to wait for one reply")
     retries: int = Field(1, ge=0, le=10, description="resends of an unanswered request")
+    estop_timeout_s: float = Field(0.1, gt=0, le=10, description="wall seconds for one e-stop exchange")
 
 
 class ModbusDispenser(Dispenser):
@@ -101,14 +114,67 @@ class ModbusDispenser(Dispenser):
         super().__init__(name, config, clock)
         self._client: AsyncModbusTcpClient | None = None
         self._in_flight = False
+        self._lane: ModbusTcpClient | None = None        # the e-stop's own connection
+        self._lane_lock = threading.Lock()
 
     async def _open(self) -> None:
         await self._connected()
+        # warm the e-stop connection now, so a trip does not pay for a connect (best effort: a
+        # trip connects again if this one failed or was closed by the PLC)
+        await asyncio.to_thread(self._lane_client)
 
     async def _close(self) -> None:
         if self._client is not None:
             self._client.close()
             self._client = None
+        lane, self._lane = self._lane, None
+        if lane is not None:
+            lane.close()
+
+    # -- the e-stop lane (any thread but the loop's) ------------------------------------------
+    def _trip_estop(self) -> DispenserState:
+        with self._lane_lock:
+            client = self._lane_client()
+            if client is None:
+                raise LinkDown(self.name, f"e-stop: cannot connect to {self.config.host}:{self.config.port}")
+            try:
+                for attempt in (0, 1):   # a connection the PLC closed while idle is found dead once
+                    try:
+                        reply = client.write_register(COMMAND_REG, ESTOP, device_id=self.config.unit)
+                        break
+                    except (ConnectionException, OSError):
+                        client.close()
+                        if attempt or not client.connect():
+                            raise
+                if reply.isError():
+                    raise DeviceRefused(self.name, "e-stop", reply.exception_code)
+                reply = client.read_holding_registers(STATUS_ADDR, count=STATUS_REGS,
+                                                      device_id=self.config.unit)
+            except (ConnectionException, OSError) as exc:
+                client.close()
+                raise LinkDown(self.name, f"e-stop: connection lost ({exc})") from None
+            except ModbusIOException:
+                client.close()       # a late answer must not be read as the next one's
+                raise DeviceTimeout(self.name, f"e-stop: no reply within {self.config.estop_timeout_s} s") from None
+            except ModbusException as exc:
+                client.close()
+                raise ProtocolError(self.name, f"e-stop: {exc}") from None
+            if reply.isError():
+                raise DeviceRefused(self.name, "e-stop status read", reply.exception_code)
+            if len(reply.registers) != STATUS_REGS:
+                raise ProtocolError(self.name, f"status read returned {len(reply.registers)} registers")
+            return state_from_fields(from_registers(STATUS_FORMAT, reply.registers))
+
+    def _lane_client(self) -> ModbusTcpClient | None:
+        """The e-stop connection, connected; None when the dispenser cannot be reached."""
+        if self._closed:
+            return None
+        if self._lane is None:
+            cfg = self.config
+            self._lane = ModbusTcpClient(cfg.host, port=cfg.port, timeout=cfg.estop_timeout_s, retries=0,
+                                         reconnect_delay=0, name=f"{self.name}-estop")
+        lane = self._lane
+        return lane if lane.connected or lane.connect() else None
 
     async def _read(self) -> DispenserState:
         reply = await self._request("read", lambda c: c.read_holding_registers(
@@ -139,6 +205,9 @@ class ModbusDispenser(Dispenser):
 
     async def _clear_fault(self) -> None:
         await self._command("clear fault", CLEAR_FAULT)
+
+    async def _reset_estop(self) -> None:
+        await self._command("e-stop reset", ESTOP_RESET)
 
     async def _command(self, what: str, command: int) -> None:
         unit = self.config.unit

@@ -38,6 +38,16 @@ class RailDrive(Device):
     async def estop(self) -> None: await self._command("estop")
     async def clear_fault(self) -> None: await self._command("clear")
 
+    def trip_estop(self) -> None:
+        """The e-stop lane: send ESTOP now from the calling thread (any thread), waiting for no
+        reply and for nothing queued; LinkDown when the link is gone."""
+        raise NotImplementedError
+
+    def estop_seen_since(self, t: float) -> bool:
+        """Whether the drive has reported "estop" since ``t`` (``time.monotonic()``); callable
+        from any thread, answered without the event loop."""
+        raise NotImplementedError
+
     def status(self) -> RailStatus | None:
         """Latest status, or None before the first report. Raises DeviceTimeout when the drive
         has gone silent for longer than its timeout (wall seconds)."""

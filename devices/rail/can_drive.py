@@ -12,13 +12,21 @@ little-endian (as CANopen), distances in 0.1 mm, speeds in mm/s:
 The drive sends a status frame at once on every state change and as a heartbeat (wall period);
 an accepted command is answered by a status frame carrying its seq, then the reply, so when a
 command returns the driver's status already shows its effect.
+
+E-stop lane: ``trip_estop()`` sends ESTOP with seq 0 (nobody waits for its reply) straight onto
+the bus from the calling thread, under the lock every send takes, so no queued request delays
+it; ``estop_seen_since(t)`` says whether a status frame in "estop" has arrived since ``t``
+(``time.monotonic``). Frames are read on python-can's reader thread, which notes each status
+frame there before handing it to the loop, so the lane's confirmation never waits for the loop.
 """
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import logging
 import math
 import struct
+import threading
 import time
 from dataclasses import dataclass
 from enum import IntEnum
@@ -156,14 +164,28 @@ class LinkNotifier(can.Notifier):
             self._on_error(exc)
 
 
+class _ReaderEnds(Exception):
+    """Raised from the reader thread's error handler: a dead link ends the reader."""
+
+
 class _Inbox(can.Listener):
-    def __init__(self, drive: CanRailDrive, bus: can.BusABC):
-        self.drive, self.bus = drive, bus
+    """Runs on the reader thread: notes status frames for the e-stop lane, hands everything to
+    the loop (in arrival order) for the rest."""
+
+    def __init__(self, drive: CanRailDrive, bus: can.BusABC, loop: asyncio.AbstractEventLoop):
+        self.drive, self.bus, self.loop = drive, bus, loop
 
     def on_message_received(self, msg: can.Message) -> None:
-        self.drive._on_frame(msg)
+        self.drive._note_frame(msg)
+        with contextlib.suppress(RuntimeError):  # the loop closed: the driver is gone
+            self.loop.call_soon_threadsafe(self.drive._on_frame, msg)
 
     def on_error(self, exc: Exception) -> None:
+        with contextlib.suppress(RuntimeError):
+            self.loop.call_soon_threadsafe(self._lost, exc)
+        raise _ReaderEnds from exc               # a reader on a dead line would spin on its errors
+
+    def _lost(self, exc: Exception) -> None:
         if self.bus is self.drive._bus:          # a late word from a bus already replaced is moot
             self.drive._on_link_error(exc)
 
@@ -211,6 +233,8 @@ class CanRailDrive(RailDrive):
         self._pending: dict[int, tuple[Op, asyncio.Future]] = {}
         self._seq = 0
         self._relink = asyncio.Lock()
+        self._send_lock = threading.Lock()     # the loop and the e-stop lane both send
+        self._seen_estop_at = -math.inf        # monotonic: last status frame in "estop" (reader thread)
 
     # --- link -----------------------------------------------------------------------------------
     async def _open(self) -> None:
@@ -225,6 +249,10 @@ class CanRailDrive(RailDrive):
         kwargs = dict(cfg.options)
         if cfg.interface == "slcan":
             kwargs.setdefault("sleep_after_open", cfg.sleep_after_open_s)
+            # python-can's slcan reads byte by byte, each read waiting up to the serial timeout
+            # (1 ms by default): the reader thread would wake (and take the GIL) 1000 times a
+            # second on an idle line. A read returns as soon as a byte comes, whatever this is.
+            kwargs.setdefault("timeout", 0.02)
         filters = [{"can_id": base + node, "can_mask": 0x7FF, "extended": False}
                    for base in (STATUS_BASE, REPLY_BASE)]
         try:   # opening an slcan adapter blocks (serial open, setup commands): keep it off the loop
@@ -235,7 +263,9 @@ class CanRailDrive(RailDrive):
         self._bus, self._link_error = bus, None
         self._last_rx = time.monotonic()
         self._latest = None
-        self._notifier = LinkNotifier(bus, [_Inbox(self, bus)], timeout=0.02, loop=asyncio.get_running_loop())
+        # no loop for the notifier: its reader thread reads every bus (never the loop's add_reader),
+        # so status frames are seen by the e-stop lane even while the loop is busy
+        self._notifier = LinkNotifier(bus, [_Inbox(self, bus, asyncio.get_running_loop())], timeout=0.02)
 
     def _drop_link(self, why: str) -> None:
         """Forget the bus: fail whoever waits for a reply, stop the reader, release the port."""
@@ -263,6 +293,29 @@ class CanRailDrive(RailDrive):
         log.warning("%s: CAN link lost: %s", self.name, exc)
         self._link_error = f"{type(exc).__name__}: {exc}"
         self._drop_link(self._link_error)
+
+    # --- the e-stop lane (any thread) --------------------------------------------------------
+    def trip_estop(self) -> None:
+        """Send ESTOP now, from the calling thread; LinkDown when the bus is gone. Confirm with
+        ``estop_seen_since``: the drive reports "estop" in its next status frame."""
+        bus = self._bus
+        if bus is None:
+            raise LinkDown(self.name, f"e-stop not sent: CAN link down ({self._link_error or 'not open'})")
+        msg = Command(Op.ESTOP, 0).to_message(self.config.node_id)
+        try:
+            with self._send_lock:
+                bus.send(msg, timeout=self.config.command_timeout_s)
+        except (can.CanError, OSError, AttributeError) as exc:   # AttributeError: closed under us
+            raise LinkDown(self.name, f"e-stop not sent: {exc}") from None
+
+    def estop_seen_since(self, t: float) -> bool:
+        """A status frame in "estop" arrived at or after ``t`` (``time.monotonic()``)."""
+        return self._seen_estop_at >= t
+
+    def _note_frame(self, msg: can.Message) -> None:
+        if msg.arbitration_id == STATUS_BASE + self.config.node_id and len(msg.data) == 8:
+            if msg.data[5] & 0x07 == STATES.index("estop"):
+                self._seen_estop_at = time.monotonic()
 
     # --- frames in ------------------------------------------------------------------------------
     def _on_frame(self, msg: can.Message) -> None:
@@ -309,7 +362,8 @@ class CanRailDrive(RailDrive):
         self._pending[seq] = (op, fut)
         msg = Command(op, seq, arg or 0.0, self.config.move_speed_m_s).to_message(self.config.node_id)
         try:
-            self._bus.send(msg, timeout=self.config.command_timeout_s)
+            with self._send_lock:
+                self._bus.send(msg, timeout=self.config.command_timeout_s)
         except (can.CanError, OSError) as exc:
             self._on_link_error(exc)
             await asyncio.gather(fut, return_exceptions=True)

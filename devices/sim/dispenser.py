@@ -23,7 +23,8 @@ from devices.sim.dispenser_physics import DispenserPhysics, Refused, RunRecord, 
 __all__ = ["DispenserPhysics", "Refused", "RunRecord", "SimDispenser", "SimDispenserParams"]
 
 REFILL_TICK_S = 0.1   # wall seconds between looks while the gate is open (keeps intervals short)
-REFUSAL_CODE = {"value": reg.ILLEGAL_VALUE, "jammed": reg.DEVICE_FAILURE, "busy": reg.DEVICE_BUSY}
+REFUSAL_CODE = {"value": reg.ILLEGAL_VALUE, "jammed": reg.DEVICE_FAILURE, "busy": reg.DEVICE_BUSY,
+                "estop": reg.DEVICE_FAILURE}
 
 
 class SimDispenser:
@@ -169,7 +170,8 @@ class SimDispenser:
         physics = self.physics
         actions = {reg.START: lambda: physics.start_run(run_ms / 1000, tag), reg.STOP: physics.stop_auger,
                    reg.CLEAR_FAULT: physics.clear_fault, reg.GATE_OPEN: lambda: physics.set_gate(True),
-                   reg.GATE_CLOSE: lambda: physics.set_gate(False)}
+                   reg.GATE_CLOSE: lambda: physics.set_gate(False), reg.ESTOP: physics.estop,
+                   reg.ESTOP_RESET: physics.estop_reset}
         try:
             if command not in actions:
                 raise Refused("value", f"unknown command {command}")

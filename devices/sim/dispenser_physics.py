@@ -11,6 +11,10 @@ every look, so it is right at any clock speed and under a ManualClock:
   the carriage spends at the food box: ``at_food_box(t_from, t_to)`` says how many farm seconds
   of the interval between two looks that was (the PLC in devices/sim/dispenser.py also looks
   every 0.1 s wall while the gate is open);
+- an e-stop (``estop``) stops the auger where it is, closes the refill gate and latches: while
+  latched the PLC refuses START and GATE_OPEN (``Refused("estop")``) until ``estop_reset``; a
+  repeated e-stop changes nothing. The instant the latch is set is kept in ``estops`` (farm time,
+  and wall time for benchmarks) and written to the truth log as ``estop``;
 - the load cell is the hopper content rounded to the resolution, no other noise; a run's
   grams are the load cell before minus after it;
 - every gram that leaves goes to ``deliver(grams, t_from, t_to)``: it left evenly over farm time
@@ -32,6 +36,7 @@ import inspect
 import math
 import random
 import threading
+import time
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Literal
@@ -76,7 +81,7 @@ class SimDispenserParams(BaseModel):
 class Refused(Exception):
     """The PLC refuses a command; ``reason`` picks the Modbus exception code."""
 
-    def __init__(self, reason: Literal["value", "jammed", "busy"], text: str):
+    def __init__(self, reason: Literal["value", "jammed", "busy", "estop"], text: str):
         super().__init__(text)
         self.reason = reason
 
@@ -150,7 +155,8 @@ class DispenserPhysics:
         self._t = clock.now()
         self._hopper = params.hopper_start_g
         self._run: _Run | None = None
-        self._gate = self._jammed = False
+        self._gate = self._jammed = self._estop = False
+        self.estops: list[tuple[float, float]] = []     # (farm t, wall time.time()) each latch was set
         self._jam_next: float | None = None
         self.drift = 1.0
         self.cycles = self.last_tag = self.last_counts = self.total_counts = 0
@@ -162,6 +168,8 @@ class DispenserPhysics:
     def start_run(self, run_s: float, tag: int) -> None:
         with self._lock:
             self._advance(self.clock.now())
+            if self._estop:             # before anything else: a latched e-stop refuses every start
+                raise Refused("estop", "e-stop latched: reset it first")
             # the tag first: a resent start is a duplicate whatever its run left behind (a jam)
             if not 0 < tag < 65536 or tag in (self.last_tag, self._run.tag if self._run else 0):
                 raise Refused("value", f"tag {tag} out of range or same as the running or last run's")
@@ -184,6 +192,8 @@ class DispenserPhysics:
     def set_gate(self, open_gate: bool) -> None:
         with self._lock:
             self._advance(self.clock.now())
+            if open_gate and self._estop:
+                raise Refused("estop", "e-stop latched: reset it first")
             if open_gate and self._run is not None:
                 raise Refused("busy", "auger running")
             self._gate = open_gate
@@ -192,6 +202,29 @@ class DispenserPhysics:
         with self._lock:
             self._advance(self.clock.now())
             self._jammed = False
+
+    def estop(self) -> None:
+        """Auger off where it is, gate closed, latch set: the PLC's own e-stop relay."""
+        with self._lock:
+            wall = time.time()
+            self._advance(self.clock.now())
+            if self._run is not None:
+                self._finish(self._t, jammed=False)
+            self._gate = False
+            if not self._estop:
+                self._estop = True
+                self.estops.append((self._t, wall))
+                if self._truth is not None:
+                    self._truth.write("estop", self._t, device="dispenser", wall=wall)
+
+    def estop_reset(self) -> None:
+        with self._lock:
+            self._advance(self.clock.now())
+            self._estop = False
+
+    @property
+    def estop_latched(self) -> bool:
+        return self._estop
 
     # -- for the simulated world and tests ----------------------------------------------
     def power_cycle(self) -> None:
@@ -235,7 +268,7 @@ class DispenserPhysics:
         with self._lock:
             self._advance(self.clock.now())
             bits = ((reg.RUNNING if self._run else 0) | (reg.JAMMED if self._jammed else 0)
-                    | (reg.REFILLING if self._gate else 0))
+                    | (reg.REFILLING if self._gate else 0) | (reg.ESTOP_LATCHED if self._estop else 0))
             return (bits, self._run.tag if self._run else 0, self._counts(self._hopper), self.cycles,
                     self.last_tag, self.last_counts, self.total_counts, self._res_mg)
 

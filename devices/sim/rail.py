@@ -7,13 +7,16 @@ it is right at any clock speed and between any two looks at it; the motor keeps 
 ``HISTORY`` profiles, so it is right for an instant before the latest command too (the simulated
 world credits food by where the carriage was when it fell, which it learns after the fact).
 The drive speaks the frames of devices/rail/can_drive.py through any frame port (a python-can
-bus, or the slcan adapter on a pty).
+bus, or the slcan adapter on a pty). ESTOP latches: HOME and MOVE are refused IN_ESTOP until
+CLEAR_FAULT (with the carriage at rest); each time the latch is set is kept in ``estops`` (farm
+time, wall ``time.time()``) and written to the truth log as ``estop``.
 """
 from __future__ import annotations
 
 import asyncio
 import logging
 import math
+import time
 from collections import deque
 from collections.abc import Iterable
 from dataclasses import dataclass
@@ -146,8 +149,10 @@ class SimRailMotor:
     every accepted command, and every ``heartbeat_s`` wall seconds.
     """
 
-    def __init__(self, params: SimRailParams, clock: Any, node_id: int = 1):
+    def __init__(self, params: SimRailParams, clock: Any, node_id: int = 1, truth=None):
         self.params = params
+        self.truth = truth
+        self.estops: list[tuple[float, float]] = []
         self.clock = clock
         self.node_id = node_id
         self._profiles: deque[Profile] = deque([Profile.rest(clock.now(), params.start_m)], maxlen=HISTORY)
@@ -270,6 +275,8 @@ class SimRailMotor:
         p, v = self._profile.at(t)
         pr = self.params
         if cmd.op is Op.ESTOP:
+            if self._state != "estop":
+                self._latched(t)
             self._enter("estop", plan_stop(t, p, v, pr.estop_decel_m_s2), Fault.NONE)
         elif cmd.op is Op.STOP:
             if self._state in _MOTION:
@@ -295,6 +302,12 @@ class SimRailMotor:
             self._profile = plan_move(t, p, v, cmd.target_m, speed, pr.accel_m_s2)
         self._settle(t)                  # a move to where it stands is over at once
         return Reason.ACCEPTED
+
+    def _latched(self, t: float) -> None:
+        wall = time.time()
+        self.estops.append((t, wall))
+        if self.truth is not None:
+            self.truth.write("estop", t, device="rail", wall=wall)
 
     def _enter(self, state: str, profile: Profile, fault: int) -> None:
         self._state, self._profile, self._fault, self._homing = state, profile, Fault(fault), False

@@ -119,7 +119,7 @@ class SimFarm:
         where = self.cfg.path
         for name, section in self.devices["rail"][:1]:
             params = validate_section(SimRailParams, self.section.rail, where, "sim.rail")
-            self.motor = SimRailMotor(params, self.clock, node_id=section.get("node_id", 1))
+            self.motor = SimRailMotor(params, self.clock, node_id=section.get("node_id", 1), truth=self.truth)
             self.adapter = SlcanAdapter()
             await self.motor.start(self.adapter)
             endpoints[name] = {"kind": "rail", "driver": "can", "interface": "slcan",

@@ -57,7 +57,7 @@ def test_operator_drives_the_controller_over_zenoh(tmp_path):
             replies = await asyncio.to_thread(
                 lambda: [json.loads(r.ok.payload.to_string()) for r in
                          client.session.get("farm/demo/override/estop", payload=b"\xff{oops", timeout=2)])
-            assert replies == [{"ok": True}]
+            assert replies == [{"ok": True, "confirmed": True}]
             assert controller.robot.state == "estop" and "estop" in controller.alarms.active
             [reply] = await ask("override/feed", {"tank": "T1", "grams": 20})
             assert reply["ok"] is False and "estop" in reply["error"]
@@ -107,7 +107,8 @@ def test_waits_for_absent_devices_yet_answers_and_estops(tmp_path):
             [reply] = await asyncio.to_thread(client.query, "override/feed", {"tank": "T1", "grams": 10})
             assert reply["ok"] is False and "starting" in reply["error"]
             [reply] = await asyncio.to_thread(client.query, "override/estop", {})
-            assert reply == {"ok": True} and controller.estop_before_start is not None
+            # no device to latch: the stop is recorded, the reply says the latches are unconfirmed
+            assert reply == {"ok": True, "confirmed": False} and controller.estop_before_start is not None
             assert not running.done()                       # still waiting, not dead
         finally:
             if client is not None:

@@ -355,3 +355,93 @@ def test_deep_nesting_is_a_value_error_not_a_recursion_error():
 def test_huge_integer_is_a_value_error():
     with pytest.raises(ValueError, match="not JSON"):
         decode(b'{"grams": ' + b"9" * 5_000 + b"}")
+
+
+# ---------------------------------------------------------------- the e-stop path and stalls
+
+HOSTILE = {
+    "nested_1000": b"[" * 1000 + b"]" * 1000,                       # RecursionError in json.loads
+    "nested_object": b'{"a":' * 1000 + b"1" + b"}" * 1000,
+    "nested_deep": b'{"a":' * 100_000 + b"1" + b"}" * 100_000,         # past any recursion limit
+    "garbage": bytes(range(256)),
+    "not_utf8": b"\xff{oops",
+    "empty": b"",
+    "array": b"[1, 2]",
+    "nan": b'{"reason": NaN}',
+}
+
+
+@pytest.mark.parametrize("name", sorted(HOSTILE))
+def test_estop_acts_first_and_replies_on_any_payload(pair, loop, name):
+    server, client = pair
+    tripped, handled = threading.Event(), []
+    release = threading.Event()
+
+    async def estop(payload):
+        handled.append(payload)
+        return {"ok": True}
+
+    async def busy():               # the loop is blocked: the urgent action must not need it
+        release.wait(WAIT_S)
+    server.overrides({"estop": estop, "feed": estop}, urgent={"estop": tripped.set})
+    blocker = asyncio.run_coroutine_threadsafe(busy(), loop)
+    try:
+        replies = []
+        getter = threading.Thread(target=lambda: replies.extend(
+            decode(r.ok.payload) for r in
+            client.session.get(client.key("override/estop"), payload=HOSTILE[name], timeout=WAIT_S)))
+        getter.start()
+        assert tripped.wait(WAIT_S) and not handled        # acted on the Zenoh thread, loop still blocked
+    finally:
+        release.set()
+    getter.join(WAIT_S)
+    blocker.result(WAIT_S)
+    try:
+        expected = decode(HOSTILE[name])
+    except ValueError:
+        expected = {}                                       # an unreadable payload is an empty one
+    assert replies == [{"ok": True}] and handled == [expected]
+
+
+def test_a_command_refused_for_its_payload_does_not_trip_and_still_gets_a_reply(pair):
+    server, client = pair
+    tripped = threading.Event()
+
+    async def feed(payload):
+        return {"ok": True}
+    server.overrides({"estop": feed, "feed": feed}, urgent={"estop": tripped.set})
+    raw = [decode(r.ok.payload) for r in
+           client.session.get(client.key("override/feed"), payload=HOSTILE["nested_deep"], timeout=WAIT_S)]
+    assert len(raw) == 1 and raw[0]["ok"] is False and "nested deeper" in raw[0]["error"]
+    assert not tripped.is_set()
+
+
+def test_decode_turns_deep_nesting_into_a_value_error():
+    with pytest.raises(ValueError, match="nested deeper"):
+        decode(HOSTILE["nested_deep"])
+
+
+def test_a_stalled_subscriber_never_blocks_a_reliable_publish(loop):
+    """A subscriber whose callback blocks fills its link; the publishing thread goes on at once
+    and the samples arrive, in order, once it recovers."""
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    server = Bus(BusConfig(mode="peer", listen=[endpoint]), "t1", loop=loop)
+    stalled = Bus.client(endpoint, site="t1", timeout_s=WAIT_S, mode="peer", loop=loop)
+    release, got = threading.Event(), []
+    stalled.session.declare_subscriber(stalled.key("alarm/x"),
+                                       lambda s: (release.wait(WAIT_S), got.append(decode(s.payload)["i"])))
+    try:
+        assert wait_for(lambda: server.matched("alarm/x", reliable=True))
+        n = 3000
+        blob = "x" * 2000
+        started = time.monotonic()
+        for i in range(n):
+            server.publish("alarm/x", {"i": i, "text": blob}, reliable=True)
+        assert time.monotonic() - started < 2.0          # ~6 MB queued behind a stall, never waited for
+        release.set()
+        assert server.flush(WAIT_S)
+        assert wait_for(lambda: len(got) == n) and got == list(range(n))
+    finally:
+        release.set()
+        stalled.close()
+        server.close()

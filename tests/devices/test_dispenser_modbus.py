@@ -318,3 +318,47 @@ def test_config_errors_name_the_field():
         with pytest.raises(BadInput) as exc:
             validate_section(Config, {**good, **bad}, "farm.toml", "devices.dispenser")
         assert str(exc.value).startswith(f"farm.toml: devices.dispenser.{field}:")
+
+
+def test_estop_latch_over_its_own_connection_refuses_start_and_gate_until_reset():
+    async def body(sim, dispenser, clock):
+        await dispenser.run_auger(300.0, tag=1)
+        state = await asyncio.to_thread(dispenser.trip_estop)     # the lane's thread, not the loop
+        assert state.estop and not state.running and not state.refilling
+        assert sim.physics.estop_latched and (state.cycles, state.last_tag) == (1, 1)
+        # a START after the e-stop is refused by the device itself, over the main connection
+        with pytest.raises(DeviceRefused) as exc:
+            await dispenser.run_auger(5.0, tag=2)
+        assert exc.value.code == 4 and "e-stop" in str(exc.value)
+        with pytest.raises(DeviceRefused) as exc:
+            await dispenser.set_refill(True)
+        assert exc.value.code == 4
+        await dispenser.clear_fault()                              # not a reset
+        assert (await dispenser.read()).estop and len(sim.physics.runs) == 1
+        assert (await asyncio.to_thread(dispenser.trip_estop)).estop   # twice is fine
+        await dispenser.reset_estop()
+        assert not (await dispenser.read()).estop
+        await dispenser.run_auger(5.0, tag=2)
+        assert (await idle(dispenser)).last_tag == 2
+    serve(body)
+
+
+def test_estop_lane_reconnects_after_the_plc_dropped_it_and_fails_fast_when_it_is_gone():
+    async def body(sim, dispenser, clock):
+        sim.drop_connections()                                     # PLCs close idle connections
+        assert (await asyncio.to_thread(dispenser.trip_estop)).estop
+        await dispenser.reset_estop()
+        sim.set_unresponsive(True)
+        started = time.monotonic()
+        with pytest.raises(DeviceTimeout):
+            await asyncio.to_thread(dispenser.trip_estop)
+        assert time.monotonic() - started < 2.0
+        sim.set_unresponsive(False)
+        assert (await asyncio.to_thread(dispenser.trip_estop)).estop
+        await sim.stop()
+        with pytest.raises(LinkDown):
+            await asyncio.to_thread(dispenser.trip_estop)
+        await dispenser.close()
+        with pytest.raises(LinkDown):                              # closed: nothing to trip
+            await asyncio.to_thread(dispenser.trip_estop)
+    serve(body)

@@ -414,3 +414,58 @@ async def test_slcan_adapter_never_tears_a_frame_when_the_host_falls_behind():
     assert tail == b"" and len(frames) > 10
     torn = [f for f in frames if f not in (b"t18181112131415161718", b"t7FF0")]
     assert torn == []
+
+
+@pytest.mark.parametrize("link", LINKS)
+@asynctest
+async def test_estop_lane_sends_and_confirms_while_the_loop_is_blocked(link):
+    """The drive on a loop of its own (another thread), the driver's loop blocked throughout:
+    the e-stop goes out and its confirmation comes back all the same."""
+    import threading
+    import time
+    clock = ScaledClock.starting(SPEED)
+    motor = SimRailMotor(SimRailParams(), clock)
+    ready, done = threading.Event(), threading.Event()
+    box = {}
+
+    def serve():
+        async def main():
+            port = BusPort.virtual(box["channel"]) if link == "virtual" else SlcanAdapter()
+            await motor.start(port)
+            box["port"] = port
+            ready.set()
+            while not done.is_set():
+                await asyncio.sleep(0.01)
+            await motor.stop()
+        asyncio.run(main())
+
+    box["channel"] = f"rail-{uuid.uuid4().hex}"
+    thread = threading.Thread(target=serve, daemon=True)
+    thread.start()
+    assert ready.wait(5)
+    channel = box["channel"] if link == "virtual" else box["port"].port
+    drive = CanRailDrive("rail", drive_config(channel, link), clock)
+    await drive.open()
+    try:
+        await homed(drive)
+        await drive.move_to(15.0)
+        await drive.wait_until(lambda s: s.state == "moving", FOREVER)
+        sent = time.monotonic()
+        assert not drive.estop_seen_since(sent)
+        drive.trip_estop()                           # no await: the loop is ours, and stays blocked
+        while not drive.estop_seen_since(sent):
+            assert time.monotonic() - sent < 1.0, "no estop status frame without the loop"
+            time.sleep(0.001)
+        assert motor.state == "estop" and len(motor.estops) == 1
+        drive.trip_estop()                           # again: the latch holds, nothing new
+        await drive.wait_until(lambda s: s.velocity_m_s == 0.0, FOREVER, stop_on_fault=False)
+        for refused in (drive.move_to(3.0), drive.home()):
+            with pytest.raises(DeviceFault, match="IN_ESTOP"):
+                await refused
+        assert len(motor.estops) == 1 and drive.status().state == "estop"
+    finally:
+        await drive.close()
+        done.set()
+        thread.join(5)
+    with pytest.raises(LinkDown):
+        drive.trip_estop()

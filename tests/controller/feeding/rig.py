@@ -37,9 +37,12 @@ class Recorder:
 
     def __init__(self):
         self.messages: list[tuple[str, dict]] = []
+        self.hook = None            # hook(suffix, payload): a test's tripwire
 
     def __call__(self, suffix, payload, reliable=False):
         self.messages.append((suffix, payload))
+        if self.hook is not None:
+            self.hook(suffix, payload)
 
     def states(self) -> list[str]:
         return [p["state"] for s, p in self.messages if s == "feeder/state"]
@@ -68,7 +71,7 @@ class Rig:
         tank = next((t.id for t in self.cfg.tanks if abs(t.position_m - pos) < 0.3), None)
         self.delivered[tank] = self.delivered.get(tank, 0.0) + grams
 
-    async def start(self, run: bool = True):
+    async def start(self, run: bool = True, wrap=None):
         await self.motor.start(BusPort.virtual(self.channel))
         await self.sim.start()
         self.rail = CanRailDrive("rail", RailConfig(kind="rail", driver="can", interface="virtual",
@@ -78,6 +81,8 @@ class Rig:
                                          self.clock)
         await self.rail.open()
         await self.dispenser.open()
+        if wrap is not None:                  # a test double around the real driver
+            self.dispenser = wrap(self.dispenser)
         self.robot = self.new_robot()
         self.task = asyncio.create_task(self.robot.run()) if run else None
 
@@ -110,9 +115,9 @@ class Rig:
 
 
 @asynccontextmanager
-async def rig(tmp_path, *, speed=100.0, dispenser=None, rail=None, feeding=None, run=True):
+async def rig(tmp_path, *, speed=100.0, dispenser=None, rail=None, feeding=None, run=True, wrap=None):
     r = Rig(tmp_path, speed, dispenser or {}, rail or {}, feeding or {})
-    await r.start(run)
+    await r.start(run, wrap)
     try:
         yield r
     finally:

@@ -237,3 +237,44 @@ def test_params_from_farm_toml_give_one_line_errors():
             validate_section(SimDispenserParams, data, "farm.toml", "sim.dispenser")
         assert str(exc.value).startswith("farm.toml: sim.dispenser") and text in str(exc.value)
         assert "\n" not in str(exc.value)
+
+
+def test_estop_stops_the_run_closes_the_gate_and_latches_until_reset():
+    truth = TruthLog(None)
+    clock, dp = machine(truth=truth, rate_g_s=10.0, **EXACT)
+    dp.start_run(10.0, tag=1)
+    clock.advance(2.0)
+    dp.estop()
+    state = dp.read()
+    assert state.estop and not state.running and not state.refilling
+    assert (state.cycles, state.last_tag) == (1, 1) and state.last_grams == pytest.approx(20.0)
+    # the device itself refuses every start and every gate opening, whatever the tag or state
+    for tag in (2, 3, 1):
+        with pytest.raises(Refused) as exc:
+            dp.start_run(1.0, tag)
+        assert exc.value.reason == "estop"
+    with pytest.raises(Refused) as exc:
+        dp.set_gate(True)
+    assert exc.value.reason == "estop"
+    dp.set_gate(False)                       # closing, stopping and clearing stay allowed
+    dp.stop_auger()
+    dp.clear_fault()                         # CLEAR_FAULT is not a reset of the e-stop
+    dp.estop()                               # a repeated e-stop changes nothing
+    clock.advance(5.0)
+    assert dp.read().estop and dp.read().cycles == 1 and dp.physical_total_g == pytest.approx(20.0)
+    assert [r["kind"] for r in truth.records].count("estop") == 1 and len(dp.estops) == 1
+    dp.estop_reset()
+    assert not dp.read().estop
+    dp.start_run(1.0, tag=2)
+    dp.set_gate(False)
+    assert dp.read().running
+
+
+def test_estop_with_the_gate_open_closes_it_and_keeps_it_closed():
+    clock, dp = machine(at_box=lambda a, b: b - a, hopper_start_g=100.0)
+    dp.set_gate(True)
+    clock.advance(1.0)
+    dp.estop()
+    level = dp.hopper_g
+    clock.advance(10.0)
+    assert not dp.read().refilling and dp.hopper_g == level

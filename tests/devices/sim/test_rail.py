@@ -280,3 +280,19 @@ def test_travel_cuts_the_path_where_it_passes_the_marks():
         inside = np.array([m.position(t) for t in np.linspace(a, b, 21)[1:-1]])
         assert all(np.all(inside <= x + 1e-9) or np.all(inside >= x - 1e-9) for x in marks)
     assert m.travel(t0, t0, marks) == []
+
+
+def test_each_estop_latch_is_recorded_once_with_its_instant():
+    from devices.sim.truth import TruthLog
+    m, clock = homed_motor()
+    m.truth = TruthLog(None)
+    m.handle(cmd(Op.MOVE, target=10.0))
+    clock.advance(3.0)
+    t = clock.now()
+    for seq in (0, 7, 0):                      # the lane's seq 0 and a repeat: one latch
+        assert m.handle(cmd(Op.ESTOP, seq=seq)) is Reason.ACCEPTED
+    assert [e[0] for e in m.estops] == [t] and [r["kind"] for r in m.truth.records] == ["estop"]
+    clock.advance(10.0)
+    assert m.handle(cmd(Op.MOVE, target=3.0)) is Reason.IN_ESTOP
+    assert m.handle(cmd(Op.CLEAR_FAULT, seq=8)) is Reason.ACCEPTED
+    assert m.handle(cmd(Op.ESTOP, seq=9)) is Reason.ACCEPTED and len(m.estops) == 2

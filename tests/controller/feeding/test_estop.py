@@ -1,0 +1,218 @@
+"""The e-stop is the devices' latches plus a stop token, never a cancellation.
+
+An e-stop is tripped at each awaited step of a dispense, the instant the device's reply has come
+back (in the same loop turn, before the robot's code resumes): with the action cancelled in that
+same turn, and with no cancellation at all (the worst case: a cancel swallowed, or a loop that
+has not heard yet). In every case the auger never starts after the e-stop — checked at the
+simulated PLC, over real Modbus — and the ledger still matches what left the hopper.
+"""
+from __future__ import annotations
+
+import asyncio
+import time
+
+import pytest
+
+from controller.feeding.estop import EstopLane
+from tests.controller.feeding.rig import rig
+
+
+def run(coro):
+    return asyncio.run(asyncio.wait_for(coro, 60))
+
+
+class Tripwire:
+    """The real dispenser driver, with ``hook(call, robot)`` run the moment a call's reply is back."""
+
+    def __init__(self, real):
+        self.real = real
+        self.hook = None
+
+    def __getattr__(self, name):
+        return getattr(self.real, name)
+
+    async def read(self):
+        state = await self.real.read()
+        if self.hook is not None:
+            self.hook("read")
+        return state
+
+    async def run_auger(self, run_s, tag):
+        await self.real.run_auger(run_s, tag)
+        if self.hook is not None:
+            self.hook("run_auger")
+
+
+STEPS = ["before_intent", "between_intent_and_start", "while_running", "reading_counters"]
+
+
+@pytest.mark.parametrize("cancel", ["cancelled_same_turn", "never_cancelled"])
+@pytest.mark.parametrize("step", STEPS)
+def test_estop_at_each_step_of_a_dispense_never_lets_the_auger_start_after_it(tmp_path, step, cancel):
+    async def main():
+        async with rig(tmp_path, wrap=Tripwire) as r:
+            await r.until(lambda: r.robot.state == "idle", what="homed")
+            tripped = []
+
+            def trip():
+                if tripped:
+                    return
+                tripped.append(r.sim.physics.clock.now())
+                r.robot.lane.trip("test")                      # what the Zenoh thread does
+                if cancel == "cancelled_same_turn":
+                    asyncio.current_task().cancel()            # lands with the reply, same turn
+                    asyncio.get_running_loop().create_task(r.robot.emergency_stop("test"))
+
+            def on_call(call):
+                if r.robot.state != "dispensing":
+                    return
+                intent = bool(r.store.open_intents())
+                if (step == "before_intent" and call == "read" and not intent
+                        or step == "while_running" and call == "run_auger"
+                        or step == "reading_counters" and call == "read" and intent):
+                    trip()
+
+            def on_publish(suffix, payload):
+                if step == "between_intent_and_start" and suffix.endswith("/feed") and payload["phase"] == "intent":
+                    trip()
+
+            r.dispenser.hook = on_call
+            r.published.hook = on_publish
+            runs_before = len(r.sim.physics.runs)
+            r.demand("T2")
+            await r.until(lambda: r.robot.state == "estop", what="estop")
+            await r.until(lambda: r.robot.lane._confirmed.done(), what="latches confirmed")
+            assert tripped
+            latched_t = r.sim.physics.estops[0][0]
+            await r.clock.asleep(10.0)                          # long past any portion's run time
+            physics = r.sim.physics
+            assert physics.estop_latched and not physics.read().running and r.motor.state == "estop"
+            # the auger never started after the e-stop: every run began before the latch
+            assert all(run.t_start <= latched_t for run in physics.runs)
+            if step in ("before_intent", "between_intent_and_start"):
+                assert len(physics.runs) == runs_before and r.delivered.get("T2", 0.0) == 0.0
+            else:
+                assert len(physics.runs) == runs_before + 1 and physics.runs[-1].t_end <= latched_t + 1e-9
+            # released: the latches are reset, the open intent settled from the counters, and the
+            # ledger matches what left the hopper, run by run
+            assert r.robot.operator_reset() is None
+            await r.until(lambda: r.robot.state == "idle", farm_s=200, what="back to idle")
+            assert not physics.estop_latched and r.store.open_intents() == []
+            fed = sum(f.grams or 0.0 for f in r.store.feeds() if f.phase == "done")
+            assert fed == pytest.approx(r.delivered.get("T2", 0.0), abs=0.1 + 1e-9)
+            served = r.demand("T1")                              # and it serves again
+            await r.until(lambda: r.store.db.execute("SELECT outcome FROM demand WHERE id=?", (served,))
+                          .fetchone()[0] == "served", what="served after the reset")
+    run(main())
+
+
+def test_a_start_sent_after_the_latch_is_refused_by_the_device(tmp_path):
+    """Past every check (a bug, or a START already queued): the PLC itself refuses it."""
+    async def main():
+        async with rig(tmp_path, run=False) as r:
+            await asyncio.to_thread(r.dispenser.trip_estop)
+            with pytest.raises(Exception, match="e-stop"):
+                await r.dispenser.run_auger(5.0, tag=77)
+            assert r.sim.physics.runs == [] and not r.sim.physics.read().running
+    run(main())
+
+
+def test_estop_while_the_loop_is_blocked_latches_both_devices(tmp_path):
+    """The lane needs no loop: with the robot's loop blocked, both latches are set and confirmed.
+    (The simulated devices run on a thread of their own here.)"""
+    async def main():
+        async with rig(tmp_path) as r:
+            await r.until(lambda: r.robot.state == "idle", what="homed")
+            # serve the simulated PLC from its own thread, so a blocked loop does not silence it
+            await r.sim.stop()
+            r.sim.start_thread()
+            try:
+                dispenser = type(r.dispenser)("dispenser", r.dispenser.config.model_copy(
+                    update={"port": r.sim.port}), r.clock)
+                await dispenser.open()
+                lane = EstopLane(_DeafRail(), dispenser)
+                done = lane.trip("blocked loop")
+                started = time.monotonic()
+                assert done.result(timeout=2.0) is True                # the loop never ran meanwhile
+                assert time.monotonic() - started < 1.0 and r.sim.physics.estop_latched
+                lane.close()
+                await dispenser.close()
+            finally:
+                r.sim.stop_thread()
+    run(main())
+
+
+class _DeafRail:
+    """A drive that confirms at once (the CAN side is tested in tests/devices/test_rail_can.py)."""
+
+    def trip_estop(self):
+        self.sent = time.monotonic()
+
+    def estop_seen_since(self, t):
+        return True
+
+
+class _Unreachable:
+    name = "dispenser"
+
+    def __init__(self):
+        self.calls = 0
+
+    def trip_estop(self):
+        from devices.errors import LinkDown
+        self.calls += 1
+        raise LinkDown("dispenser", "cannot connect")
+
+
+def test_unconfirmed_latch_is_reported_retried_and_release_stops_the_sends():
+    reports = []
+    rail, dispenser = _DeafRail(), _Unreachable()
+    lane = EstopLane(rail, dispenser, confirm_within_s=0.05, retry_s=0.005)
+    lane.listen(lambda device, why: reports.append((device, why)))
+    done = lane.trip("test")
+    assert lane.tripped
+    deadline = time.monotonic() + 2.0
+    while not reports and time.monotonic() < deadline:
+        time.sleep(0.005)
+    assert reports == [("dispenser", "cannot connect")] and not done.done()
+    calls = dispenser.calls
+    time.sleep(0.1)
+    assert dispenser.calls > calls                              # it keeps trying
+    lane.release()
+    assert not lane.tripped
+    calls = dispenser.calls
+    time.sleep(0.1)
+    assert dispenser.calls == calls                             # and stops once released
+    lane.close()
+
+
+class _Recording:
+    """A drive and a dispenser that latch at once and note which thread reached them."""
+
+    def __init__(self):
+        self.threads = []
+
+    def trip_estop(self):
+        import threading
+        self.threads.append(threading.current_thread())
+        from devices.dispenser import DispenserState
+        return DispenserState(0, False, False, False, 0, 0, 0, 0, 0.1, estop=True)
+
+    def estop_seen_since(self, t):
+        return bool(self.threads)
+
+
+def test_trip_from_a_thread_without_a_loop_reaches_both_devices_before_it_returns():
+    """The Zenoh thread's path: the first ESTOPs leave from the caller, no hop to the lane's thread."""
+    import threading
+    rail, dispenser = _Recording(), _Recording()
+    lane = EstopLane(rail, dispenser)
+    done = []
+    caller = threading.Thread(target=lambda: done.append((lane.trip("zenoh"), list(rail.threads),
+                                                          list(dispenser.threads))))
+    caller.start()
+    caller.join(5)
+    confirmed, drive_threads, dispenser_threads = done[0]
+    assert drive_threads == [caller] and dispenser_threads == [caller]
+    assert confirmed.result(timeout=2.0) is True
+    lane.close()
