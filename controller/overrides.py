@@ -167,7 +167,7 @@ class Overrides:
             who, why = payload.get("operator"), payload.get("reason")
         who = who if isinstance(who, str) else "unknown"
         why = why if isinstance(why, str) else ""
-        log.warning("e-stop by %r: %r", who[:100], why[:200])
+        log.warning("e-stop by %s: %s", who[:100], why[:200])   # the log filter escapes them
         try:
             confirmed = await self.c.emergency_stop(f"operator {who[:100]}" + (f": {why[:200]}" if why else ""))
         except Exception:   # the latches were set on the Zenoh thread already: say so, not "refused"

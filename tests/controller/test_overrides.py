@@ -69,15 +69,19 @@ class Farm:
         self.store = store
         self.rations = Rations(self.cfg, load_species(), store)
         self.sensor_tank = {s: t.id for t in tanks for s in t.sensors}
-        self.published, self.estops = [], []
+        self.published, self.estops, self.tripped = [], [], []
         self.alarms = Alarms(store, lambda *a, **k: None, self.clock)
 
     def publish_ration(self, tank):
         self.published.append(tank)
 
+    def trip_estop(self, reason="operator e-stop"):     # from the Zenoh thread, before the payload is read
+        self.tripped.append(reason)
+
     async def emergency_stop(self, reason):       # as Controller.emergency_stop before the robot is up
         self.estops.append(reason)
         self.alarms.raise_("estop", f"emergency stop: {reason}", "critical", kind="latched")
+        return True                               # both latches confirmed
 
     def status(self):
         return {"t": self.clock.iso(), "alarms": self.alarms.listing()}
@@ -297,7 +301,8 @@ def test_override_log_lines_cannot_be_forged(served, caplog):
     farm, client = served
     caplog.set_level(logging.WARNING, logger="fishfarm.override")
     forged = "x\n2026-05-28T06:00:00Z INFO    fishfarm: e-stop released\x1b[2J" + "y" * 100_000
-    assert ask(client, "estop", json.dumps({"operator": "ana\rbob", "reason": forged}).encode()) == {"ok": True}
+    reply = ask(client, "estop", json.dumps({"operator": "ana\rbob", "reason": forged}).encode())
+    assert reply == {"ok": True, "confirmed": True}
     assert ask(client, "feed", json.dumps({"tank": "T2", "grams": 30, "operator": "ana"}).encode())["ok"]
     lines = [r.getMessage() for r in caplog.records if r.name == "fishfarm.override"]
     assert len(lines) == 2 and lines[0].startswith("e-stop by ana\\rbob: x\\n2026")
@@ -307,9 +312,10 @@ def test_override_log_lines_cannot_be_forged(served, caplog):
 def test_a_five_megabyte_reason_does_not_travel_in_status(served):
     farm, client = served
     huge = "why " * 1_250_000
-    assert ask(client, "estop", json.dumps({"operator": "ana", "reason": huge}).encode()) == {"ok": True}
+    reply = ask(client, "estop", json.dumps({"operator": "ana", "reason": huge}).encode())
+    assert reply == {"ok": True, "confirmed": True}
     replies = list(client.session.get("farm/demo/status", timeout=WAIT_S))
     assert len(replies) == 1 and len(replies[0].ok.payload.to_bytes()) < 2 * TEXT_MAX
     [alarm] = json.loads(replies[0].ok.payload.to_bytes())["alarms"]
     assert alarm["source"] == "estop" and alarm["text"].startswith("emergency stop: operator ana: why why")
-    assert max(len(r["text"]) for r in farm.store.alarms()) == TEXT_MAX
+    assert max(len(r["text"]) for r in farm.store.alarms()) <= TEXT_MAX
