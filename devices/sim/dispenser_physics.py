@@ -182,6 +182,8 @@ class DispenserPhysics:
             t0 = self._t
             self._run = _Run(tag, t0, t0 + run_s, self._next_rate(), self._stall_at(t0, run_s),
                              self._counts(self._hopper))
+            if self._truth is not None:
+                self._truth.write("auger_start", t0, tag=tag, run_s=run_s)
 
     def stop_auger(self) -> None:
         with self._lock:

@@ -2,7 +2,8 @@
 
 Kinds written: ``episode_start``/``episode_end`` (tank, rate_hz, why), ``burst`` (tank, sensor,
 duration_s), ``sensor_fault`` (tank, sensor, fault, until), ``fed`` (tank, grams: what the fish
-got), ``delivered`` (tank or null, grams: what left the chute over that tank, or between tanks;
+got), ``auger_start`` (tag, run_s: a START the PLC accepted),
+``delivered`` (tank or null, grams: what left the chute over that tank, or between tanks;
 one record per place the chute passed between two looks at the dispenser, ``t`` when it left
 that place), ``auger_run`` (tag, t_start, physical_g, measured_g, jammed; ``power_cut`` and measured_g null
 for a run a power cut ended uncounted), ``jam`` (tag), ``dispenser_power_cycle`` (count), and at

@@ -194,17 +194,11 @@ class RunningController:
         assert reply.get("ok"), reply
 
     def wait_auger_running(self, timeout_s: float = 30.0) -> None:
-        """Until the ledger holds an open intent: the START is then on its way or running."""
+        """Until the simulated PLC has accepted a START: the auger turns. (An open intent is not
+        enough: a stop between the intent and its START rightly leaves the auger still.)"""
         deadline = time.monotonic() + timeout_s
-        while True:
-            db = sqlite3.connect(f"file:{self.db}?mode=ro", uri=True)
-            try:
-                n = db.execute("SELECT COUNT(*) FROM feed WHERE phase = 'intent'").fetchone()[0]
-            finally:
-                db.close()
-            if n:
-                return
-            assert time.monotonic() < deadline, f"no intent in {timeout_s} s:\n{self.log()[-3000:]}"
+        while not (self.truth.exists() and '"auger_start"' in self.truth.read_text()):
+            assert time.monotonic() < deadline, f"no auger run in {timeout_s} s:\n{self.log()[-3000:]}"
             time.sleep(0.01)
 
     def send(self, sig: int) -> float:
