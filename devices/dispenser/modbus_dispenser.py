@@ -114,6 +114,7 @@ class ModbusDispenser(Dispenser):
         super().__init__(name, config, clock)
         self._client: AsyncModbusTcpClient | None = None
         self._in_flight = False
+        self._seen: DispenserState | None = None     # the last status read: counters to compare
         self._lane: ModbusTcpClient | None = None        # the e-stop's own connection
         self._lane_lock = threading.Lock()
 
@@ -181,13 +182,15 @@ class ModbusDispenser(Dispenser):
             STATUS_ADDR, count=STATUS_REGS, device_id=self.config.unit))
         if len(reply.registers) != STATUS_REGS:
             raise ProtocolError(self.name, f"status read returned {len(reply.registers)} registers")
-        return state_from_fields(from_registers(STATUS_FORMAT, reply.registers))
+        state = state_from_fields(from_registers(STATUS_FORMAT, reply.registers))
+        self._seen = state
+        return state
 
     async def _run_auger(self, run_s: float, tag: int) -> None:
         block = to_registers(COMMAND_FORMAT, max(1, round(run_s * 1000)), tag, START)
         try:
             await self._request(f"start of run {tag}", lambda c: c.write_registers(
-                COMMAND_ADDR, block, device_id=self.config.unit))
+                COMMAND_ADDR, block, device_id=self.config.unit), before_resend=self._may_resend_start(tag))
         except DeviceRefused:
             # A start resent after a lost reply (by pymodbus or by a restarted controller) is
             # refused, as a duplicate tag, as busy, or as jammed when that very run jammed; the
@@ -233,7 +236,28 @@ class ModbusDispenser(Dispenser):
         if not connected and self._in_flight and future is not None and not future.done():
             future.set_exception(ConnectionException("connection lost"))
 
-    async def _request(self, what: str, send):
+    def _may_resend_start(self, tag: int):
+        """Before a START goes out again on a new connection: the PLC behind it may have restarted
+        (a power cut mid-request drops the connection too) and forgotten the tag, so it would run
+        the portion twice. Resend only when its counters are where they were before the first try."""
+        before = self._seen
+
+        async def check(client) -> bool:
+            reply = await self._exchange("status before resending a start", client, lambda c:
+                                         c.read_holding_registers(STATUS_ADDR, count=STATUS_REGS,
+                                                                  device_id=self.config.unit))
+            now = state_from_fields(from_registers(STATUS_FORMAT, reply.registers))
+            self._seen = now
+            if now.fate(tag) != "not_started":
+                return False                      # it got there the first time: nothing to resend
+            lighter = before is not None and before.hopper_g - now.hopper_g > 1.5 * now.resolution_g
+            if before is None or now.cycles < before.cycles or now.total_grams < before.total_grams or lighter:
+                raise DeviceFault(self.name, f"start of run {tag}: the dispenser restarted (counters reset "
+                                             f"or food gone uncounted) while it was sent; not sent again")
+            return True
+        return check
+
+    async def _request(self, what: str, send, before_resend=None):
         stale = self._client is not None and self._client.connected
         try:
             return await self._exchange(what, await self._connected(), send)
@@ -241,8 +265,12 @@ class ModbusDispenser(Dispenser):
             if not stale:
                 raise
         # The connection predates this call and was found dead (PLCs close idle connections):
-        # reconnect and send once more. Every command here is idempotent (starts are, by tag).
-        return await self._exchange(what, await self._connected(), send)
+        # reconnect and send once more. Every command here is idempotent (starts are, by tag,
+        # unless the PLC restarted meanwhile: ``before_resend`` looks first).
+        client = await self._connected()
+        if before_resend is not None and not await before_resend(client):
+            return None
+        return await self._exchange(what, client, send)
 
     async def _exchange(self, what: str, client: AsyncModbusTcpClient, send):
         self._in_flight = True

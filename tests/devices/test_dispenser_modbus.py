@@ -16,13 +16,16 @@ from controller.errors import BadInput
 from devices.clock import ScaledClock
 from devices.dispenser.modbus_dispenser import (
     COMMAND_ADDR,
+    COMMAND_REG,
     STATUS_ADDR,
     Config,
     DeviceRefused,
     ModbusDispenser,
 )
+from devices.dispenser.modbus_dispenser import START as START_CMD
 from devices.errors import DeviceFault, DeviceTimeout, LinkDown
 from devices.sim.dispenser import SimDispenser, SimDispenserParams
+from devices.sim.truth import TruthLog
 
 SPEED = 100.0
 NOISY = SimDispenserParams(rate_g_s=11.0, rate_noise=0.04, rate_drift=0.0, seed=4)
@@ -361,4 +364,56 @@ def test_estop_lane_reconnects_after_the_plc_dropped_it_and_fails_fast_when_it_i
         await dispenser.close()
         with pytest.raises(LinkDown):                              # closed: nothing to trip
             await asyncio.to_thread(dispenser.trip_estop)
+    serve(body)
+
+
+def _lose_the_reply_to_start(sim, *, restart: bool):
+    """The PLC's answer to the next START never arrives: the connection drops under it, after the
+    PLC ran the START and then lost power (``restart``), or before it read the request at all."""
+    command = sim._command
+
+    def on_command(start, address, registers, values):
+        if address + len(values) > COMMAND_REG and values[-1] == START_CMD:
+            sim._command = command
+            if not restart:
+                sim._drop()
+                return None
+            answer = command(start, address, registers, values)
+            sim.power_cycle()                 # counters reset, connections dropped: no reply
+            return answer
+        return command(start, address, registers, values)
+    sim._command = on_command
+
+
+def _starts(truth, tag: int) -> int:
+    return sum(r["kind"] == "auger_start" and r["tag"] == tag for r in truth.records)
+
+
+def test_a_start_is_not_resent_to_a_plc_that_restarted_under_it():
+    """A power cut between the PLC taking a START and its reply: a resend on the new connection
+    would find a PLC that forgot the tag and run the portion twice. The driver looks first."""
+    async def body(sim, dispenser, clock):
+        sim.physics._truth = truth
+        await dispenser.run_auger(0.5, 1)
+        await until(lambda: idle(dispenser), what="first run done")
+        await dispenser.read()                                     # the counters the controller saw
+        _lose_the_reply_to_start(sim, restart=True)
+        with pytest.raises(DeviceFault, match="restarted"):
+            await dispenser.run_auger(3.0, 2)
+        assert _starts(truth, 2) == 1                              # the cut run, and no second one
+        assert not (await dispenser.read()).running
+    truth = TruthLog(None)
+    serve(body)
+
+
+def test_a_start_whose_request_was_lost_with_its_connection_is_sent_again_and_runs_once():
+    async def body(sim, dispenser, clock):
+        sim.physics._truth = truth
+        await dispenser.read()
+        _lose_the_reply_to_start(sim, restart=False)
+        await dispenser.run_auger(0.5, 7)
+        await until(lambda: idle(dispenser), what="run done")
+        state = await dispenser.read()
+        assert state.last_tag == 7 and state.cycles == 1 and _starts(truth, 7) == 1
+    truth = TruthLog(None)
     serve(body)
