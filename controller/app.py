@@ -71,6 +71,7 @@ class Controller:
         self.robot: FeedingRobot | None = None
         self.lane: EstopLane | None = None
         self.estop_before_start: str | None = None
+        self._unconfirmed: dict[str, str] = {}    # latches not confirmed before the robot exists
         self.watchdog: shutdown.StopWatchdog | None = None
         self._starting: asyncio.Task | None = None
         self._stopped = False
@@ -100,7 +101,9 @@ class Controller:
         self.contacts = self._one("contacts")
         self.rail = self._one("rail")
         self.dispenser = self._one("dispenser")
+        self._loop = asyncio.get_running_loop()
         self.lane = EstopLane(self.rail, self.dispenser)    # live before any device is open
+        self.lane.listen(self._lane_report_before_start)
         self.overrides = Overrides(self)
         self.overrides.declare(self.bus)
         await asyncio.gather(*(self._open(device) for device in self.devices.values()))
@@ -108,6 +111,7 @@ class Controller:
             return
         self.robot = FeedingRobot(cfg, self.clock, self.rail, self.dispenser, self.store, self.rations,
                                   self.alarms, self.bus.publish, lane=self.lane)
+        self.robot._unconfirmed.update(self._unconfirmed)   # the lane does not tell twice
         if self.estop_before_start is not None:
             await self.robot.emergency_stop(self.estop_before_start)
         self._requeue_open_demands()
@@ -124,12 +128,37 @@ class Controller:
         if self.lane is not None:
             self.lane.trip(reason)
 
+    def _lane_report_before_start(self, device: str, why: str | None) -> None:
+        """From the lane's thread, until the robot exists (then its own listener speaks): the
+        ``estop`` alarm names a device whose latch is not confirmed, as the robot's does."""
+        def on_loop():
+            if self.robot is not None:
+                return
+            if why is None:
+                self._unconfirmed.pop(device, None)
+                log.warning("e-stop: %s confirmed its latch", device)
+            else:
+                self._unconfirmed[device] = why
+                log.error("e-stop: %s has not confirmed its latch: %s (retrying)", device, why)
+            if self.estop_before_start is not None:
+                self.alarms.raise_("estop", self._estop_text(self.estop_before_start), "critical", kind="latched")
+        try:
+            self._loop.call_soon_threadsafe(on_loop)
+        except RuntimeError:                  # the loop is closed: the process is ending
+            pass
+
+    def _estop_text(self, reason: str) -> str:
+        text = f"emergency stop: {reason}"
+        if self._unconfirmed:
+            text += "; not confirmed by " + ", ".join(f"{d} ({w})" for d, w in sorted(self._unconfirmed.items()))
+        return text
+
     async def emergency_stop(self, reason: str) -> bool:
         """E-stop wins from any state, even before the robot exists: it then starts stopped.
         True once the devices confirmed their latches."""
         if self.robot is None:
             self.estop_before_start = reason
-            self.alarms.raise_("estop", f"emergency stop: {reason}", "critical", kind="latched")
+            self.alarms.raise_("estop", self._estop_text(reason), "critical", kind="latched")
             if self.lane is None:
                 return False
             done, _ = await asyncio.wait({asyncio.wrap_future(self.lane.trip(reason))}, timeout=1.0)

@@ -109,6 +109,14 @@ def test_waits_for_absent_devices_yet_answers_and_estops(tmp_path):
             [reply] = await asyncio.to_thread(client.query, "override/estop", {})
             # no device to latch: the stop is recorded, the reply says the latches are unconfirmed
             assert reply == {"ok": True, "confirmed": False} and controller.estop_before_start is not None
+            # the alarm names the devices whose latches are not confirmed, as it does once feeding
+            for _ in range(300):
+                [status] = await asyncio.to_thread(client.query, "status")
+                [estop] = [a for a in status["alarms"] if a["source"] == "estop"]
+                if "not confirmed by" in estop["text"]:
+                    break
+                await asyncio.sleep(0.01)
+            assert "dispenser (" in estop["text"] and "drive (" in estop["text"], estop["text"]
             assert not running.done()                       # still waiting, not dead
         finally:
             if client is not None:
