@@ -30,6 +30,9 @@ def setup_logging(clock, level: str) -> None:
     root.setLevel(level.upper())
     for noisy in ("pymodbus", "can", "zenoh", "transitions"):
         logging.getLogger(noisy).setLevel(logging.WARNING if level.upper() != "DEBUG" else logging.INFO)
+    # pymodbus logs every failed reconnect at ERROR (with a hex dump of the last frames): the
+    # driver alarms the loss once and the recovery once; the retries between are debug lines
+    logging.getLogger("pymodbus").setLevel(logging.CRITICAL if level.upper() != "DEBUG" else logging.DEBUG)
 
 
 @click.command()

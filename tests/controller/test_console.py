@@ -166,3 +166,22 @@ def test_without_a_terminal_logging_stays_plain(root_logger):
         assert taken == [] and root_logger.handlers == [to_file]
         logging.getLogger("fishfarm").warning("plain")
     assert to_file.stream.getvalue() == "plain\n"
+
+
+@pytest.mark.parametrize("level, shown", [("info", False), ("debug", True)])
+def test_a_modbus_reconnect_retry_is_a_debug_line_not_an_error(level, shown, root_logger, monkeypatch):
+    """pymodbus logs each failed connect at ERROR: the dispenser's absence is alarmed once by the
+    controller, so its retries show only at debug level."""
+    from pymodbus.logging import Log
+
+    err = io.StringIO()
+    monkeypatch.setattr("sys.stderr", err)
+    saved = logging.getLogger("pymodbus").level
+    try:
+        setup_logging(ScaledClock(60.0, time.time(), FARM_EPOCH), level)
+        Log.error("Connection to (127.0.0.1, 1) failed: [Errno 111] Connection refused")
+        Log.warning("Failed to connect [Errno 111] Connect call failed")
+    finally:
+        logging.getLogger("pymodbus").setLevel(saved)
+    assert ("Connection refused" in err.getvalue()) is shown, err.getvalue()
+    assert ("Failed to connect" in err.getvalue()) is shown, err.getvalue()
