@@ -8,9 +8,12 @@ from __future__ import annotations
 
 import re
 
-# C0 and C1 controls, DEL, Unicode line/paragraph separators, the bidirectional overrides (text
-# that displays in another order than it reads) and lone surrogates (JSON's "\ud800": no UTF-8)
-CONTROL = re.compile("[\x00-\x1f\x7f-\x9f\u2028\u2029\u202a-\u202e\u2066-\u2069\ud800-\udfff]")
+# C0 and C1 controls, DEL, Unicode line/paragraph separators, the bidirectional overrides and
+# marks (text that displays in another order than it reads), the invisible ones (zero-width
+# space and joiners, word joiner, BOM: an operator "\u200b" shows as nobody) and lone
+# surrogates (JSON's "\ud800": no UTF-8)
+CONTROL = re.compile("[\x00-\x1f\x7f-\x9f\u061c\u200b-\u200f\u2028\u2029\u202a-\u202e\u2060\u2066-\u2069"
+                     "\ufeff\ud800-\udfff]")
 ELLIPSIS = "…"
 
 

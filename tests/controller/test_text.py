@@ -17,3 +17,12 @@ def test_printable_takes_anything():
     for _ in range(100_000):
         deep = [deep]
     assert len(printable(deep, 30)) <= 30
+
+
+def test_invisible_characters_count_as_control_characters():
+    """An operator named "\u200b" (zero-width space) or a reason with a right-to-left mark reads as
+    something else than it is: refused as a control character, escaped where it is shown."""
+    for char in "\u200b\u200c\u200d\u200e\u200f\u061c\u2060\ufeff":
+        assert has_control(f"ana{char}"), repr(char)
+        assert printable(char, 10) == f"\\u{ord(char):04x}"
+    assert not has_control("Ana Pérez, 水産")
