@@ -16,7 +16,7 @@ import time
 
 from controller import shutdown
 from controller.alarms import Alarms
-from controller.bus import Bus
+from controller.bus import Bus, session_config
 from controller.config import Config, validate_section
 from controller.demand import Demand, DemandFilter, DemandParams, SensorFault, SensorRecovered, SlowFishUndetectable
 from controller.errors import BadInput
@@ -28,6 +28,7 @@ from controller.shutdown import install_signal_handlers
 from controller.simproc import SimProcess
 from controller.store import Store, reconcile
 from devices.errors import DeviceError
+from devices.sim.world import SimSection
 
 log = logging.getLogger("fishfarm")
 
@@ -77,6 +78,12 @@ class Controller:
         self._stopped = False
         self.species = load_species()
         check_farm(cfg, self.species)
+        # every section is checked before anything starts: a bad key is one line and exit 2, not a
+        # simulator started and stopped around it
+        self.demand_params = validate_section(DemandParams, cfg.demand, cfg.path, "demand")
+        session_config(cfg.bus)
+        if any(s["driver"] == "sim" for s in cfg.devices.values()):
+            validate_section(SimSection, cfg.sim, cfg.path, "sim")
 
     # -- life cycle -------------------------------------------------------------
     async def start(self) -> None:
@@ -95,7 +102,7 @@ class Controller:
         if self.sim is not None:
             self.tasks.append(asyncio.create_task(self._watch_sim()))
         self.rations = Rations(cfg, self.species, self.store)
-        self.filter = DemandFilter(validate_section(DemandParams, cfg.demand, cfg.path, "demand"),
+        self.filter = DemandFilter(self.demand_params,
                                    {t.id: list(t.sensors) for t in cfg.tanks})
         self.devices = {name: build_device(name, s, self.clock, cfg.path) for name, s in sections.items()}
         self.contacts = self._one("contacts")

@@ -76,3 +76,15 @@ def test_unusable_store_path_exits_2_naming_store_path(tmp_path, store_path):
     lines = r.stderr.strip().splitlines()
     assert len(lines) == 1 and lines[0].startswith(f"fishfarm: store.path: {path}: cannot open the ledger")
     assert "internal error" not in r.stderr
+
+
+@pytest.mark.parametrize("section, key", [("[demand]\nwindow = 60\n", "demand.window"),
+                                          ("[sim]\nsed = 1\n", "sim.sed"),
+                                          ('[bus]\nlisten = ["nonsense"]\n', "bus.listen")])
+def test_a_bad_key_in_any_section_is_one_line_before_the_simulator_starts(tmp_path, section, key):
+    cfg = tmp_path / "farm.toml"
+    cfg.write_text(TANK + DEVICES + section)
+    r = fishfarm("run", "--config", str(cfg), "--no-console", "--duration", "1", timeout=30)
+    assert r.returncode == 2, r.stderr
+    lines = r.stderr.strip().splitlines()
+    assert len(lines) == 1 and f"{key}:" in lines[0], lines
