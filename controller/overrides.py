@@ -135,7 +135,8 @@ class Feed(_Command):
 
 class SetRation(_Command):
     tank: TankId
-    grams: float = Field(ge=0, le=RATION_MAX_G)
+    # -0.0 is within 0.. and would be a ration of "-0 g" in the log, the ledger and the topic
+    grams: Annotated[float, Field(ge=0, le=RATION_MAX_G), AfterValidator(lambda g: g + 0.0)]
 
 
 class Settle(_Command):

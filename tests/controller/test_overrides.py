@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import asyncio
 import json
+import math
 import logging
 import socket
 import threading
@@ -319,3 +320,12 @@ def test_a_five_megabyte_reason_does_not_travel_in_status(served):
     [alarm] = json.loads(replies[0].ok.payload.to_bytes())["alarms"]
     assert alarm["source"] == "estop" and alarm["text"].startswith("emergency stop: operator ana: why why")
     assert max(len(r["text"]) for r in farm.store.alarms()) <= TEXT_MAX
+
+
+def test_a_ration_of_minus_zero_is_zero(served, caplog):
+    farm, client = served
+    with caplog.at_level(logging.WARNING, logger="fishfarm.override"):
+        assert ask(client, "ration", b'{"tank": "T1", "grams": -0.0}') == {"ok": True}
+    grams = farm.rations.today("T1", farm.clock.now()).grams
+    assert grams == 0 and math.copysign(1.0, grams) == 1.0
+    assert "ration T1 = 0 g" in caplog.text and "-0" not in caplog.text
