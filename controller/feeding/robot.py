@@ -249,8 +249,9 @@ class FeedingRobot:
 
     async def _home(self) -> None:
         self.dispensing.hopper_g = None          # hands may have been on the hopper: look again
+        released = self._estop_released          # hands may have been on the carriage too: home it
         status = await self._clear_rail()
-        if not status.homed or status.state == "homing":
+        if released or not status.homed or status.state == "homing":
             if status.state != "homing":
                 self._halt_if_tripped()
                 await self.rail.home()

@@ -181,9 +181,17 @@ def test_estop_from_every_state_stops_auger_and_drive(tmp_path, state):
             await r.clock.asleep(5.0)
             assert r.motor.position() == before and r.robot.state == "estop"
             assert r.sim.physics.read().hopper_g == hopper
-            # release: homes again, settles any open intent from the counters, serves again
+            # release: homes again (the carriage may have been moved by hand), settles any open
+            # intent from the counters, serves again
+            homes, home = [], r.rail.home
+
+            async def homing():
+                homes.append(r.motor.position())
+                await home()
+            r.rail.home = homing
             assert r.robot.operator_reset() is None
             await r.until(lambda: r.robot.state == "idle", farm_s=200, what="back to idle")
+            assert len(homes) == 1 and r.motor.report().homed
             assert r.store.open_intents() == []
             for feed in r.store.feeds():
                 assert feed.grams == pytest.approx(r.delivered.get(feed.tank, 0.0), abs=0.1 + 1e-9)
