@@ -97,6 +97,9 @@ class Controller:
             sections.update(await self.sim.start())
             if self.stopping.is_set():            # a start that ignored its cancel opens nothing more
                 return
+            for name, section in cfg.devices.items():
+                if section["driver"] == "sim":    # a simulator we just started is a new PLC: its
+                    self.store.forget_counters(name)   # counters start at zero, not "backwards"
         self.bus = Bus(cfg.bus, cfg.site)
         self.alarms = Alarms(self.store, self.bus.publish, self.clock)
         if self.sim is not None:

@@ -309,6 +309,10 @@ class Store:
         row = self.db.execute("SELECT cycles, total_g FROM counters WHERE device = ?", (device,)).fetchone()
         return None if row is None else (row["cycles"], row["total_g"])
 
+    def forget_counters(self, device: str) -> None:
+        """A device known to be new (a simulator this process started): nothing to compare with."""
+        self._write("DELETE FROM counters WHERE device = ?", (device,))
+
     def see_counters(self, device: str, cycles: int, total_g: float, t: float) -> None:
         self._write("INSERT INTO counters (device, cycles, total_g, t) VALUES (?, ?, ?, ?) "
                     "ON CONFLICT (device) DO UPDATE SET cycles = excluded.cycles, total_g = excluded.total_g, "

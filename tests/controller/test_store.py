@@ -305,3 +305,14 @@ def test_read_only_directory_is_bad_input_naming_store_path(tmp_path):
                 Store(path)
     finally:
         ro.chmod(0o700)
+
+
+def test_forgotten_counters_are_not_compared(tmp_path):
+    s = Store(tmp_path / "l.db")
+    try:
+        s.see_counters("dispenser", 12, 340.5, 1.0)
+        s.see_counters("other", 3, 10.0, 1.0)
+        s.forget_counters("dispenser")
+        assert s.counters_seen("dispenser") is None and s.counters_seen("other") == (3, 10.0)
+    finally:
+        s.close()
