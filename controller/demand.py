@@ -45,8 +45,9 @@ burst of 200 contacts in 8 s counts at most 9), while losing little for fish (ra
 
 *Runs.* Bursts are collapsed to one event: a run is contacts each < ``RUN_GAP_S`` (1 s) after
 the one before; for its first ``BURST_S`` (10 s, the contract's longest burst) a run counts at
-most ``run_cap`` (1) busy second, after that every busy second again (fish pacing at 2 /s form
-one long run; a burst never lasts 10 s). Slow fish lose little (at 0.15 /s a contact follows
+most max(``run_cap`` (1), k / 4) busy seconds, after that every busy second again (fish pacing
+at 2 /s form one long run; a burst never lasts 10 s; on a turbulent tank, k >= 8, fast Poisson
+fish need their runs' seconds, and a burst is a smaller share of k). Slow fish lose little (at 0.15 /s a contact follows
 the one before within 1 s 14 % of the time), a 3–20 /s burst counts ~1–2 whatever its size,
 so a burst plus a minute's turbulence rarely reaches the threshold: the false demands this
 saves pay for the lower threshold below (``false_alarms_per_day`` 1.5, was 1).
