@@ -80,7 +80,10 @@ def inside(t: float, spans: list[tuple[float, float]], slack: float = 0.0) -> tu
     return None
 
 
-def judge(db, truth: list[dict], end_t: float) -> Verdict:
+def judge(db, truth: list[dict], end_t: float, since: float | None = None) -> Verdict:
+    """``since``: the end of the warm-up (the caller's truth starts there too). A demand raised
+    before it, on contacts heard while the controller was still coming up, waits for the rail's
+    homing and is not held to the 60 s service; every demand after it is."""
     v = Verdict()
     episodes = episodes_by_tank(truth, end_t)
     v.episodes = sum(map(len, episodes.values()))
@@ -114,6 +117,8 @@ def judge(db, truth: list[dict], end_t: float) -> Verdict:
     # every raise served within 60 s, unless the ration was reached
     for f in feeds:
         if f["demand_id"] is not None and f["phase"] != "aborted":
+            if since is not None and demand_t[f["demand_id"]] < since:
+                continue
             wait = f["t_intent"] - demand_t[f["demand_id"]]
             v.service_s.append(wait)
             if wait > SERVE_WITHIN_S:
