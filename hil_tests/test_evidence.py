@@ -1,5 +1,5 @@
 """The HIL evidence itself can fail: the ledger is judged run by run, every problem counted."""
-from hil_tests.evidence import Verdict, ledger_against_runs
+from hil_tests.evidence import Verdict, ledger_against_runs, service_against_demands
 
 
 def feed(id_, tag, t, phase="done", grams=40.0, **kw):
@@ -81,3 +81,18 @@ def test_only_the_latest_intent_may_be_open_at_the_end():
                   [run(1, 10.0), run(2, 20.0)]).problems == []
     v = judged([feed("a", 1, 10.0, phase="intent", grams=None), feed("b", 2, 20.0)], [run(1, 10.0), run(2, 20.0)])
     assert len(v.problems) == 1 and "left open" in v.problems[0]
+
+
+def test_late_service_is_a_queue_only_behind_other_tanks():
+    demand_t = {1: 0.0, 2: 1.0, 3: 2.0, 4: 500.0, 5: 900.0}
+    feeds = [feed("a", 1, 12.0, demand_id=1), feed("b", 2, 35.0, demand_id=2),
+             feed("c", 3, 64.0, demand_id=3),            # behind a and b: the robot never idled
+             feed("d", 4, 575.0, demand_id=4),           # 75 s with nothing else served: a lapse
+             feed("e", 5, 905.0, demand_id=5)]
+    v = Verdict()
+    service_against_demands(v, feeds, demand_t)
+    assert len(v.queued) == 1 and "feed c" in v.queued[0]
+    assert len(v.problems) == 1 and "feed d" in v.problems[0]
+    v = Verdict()
+    service_against_demands(v, feeds, demand_t, since=600.0)   # the warm-up's raises are not judged
+    assert v.queued == [] and v.problems == [] and v.service_s == [5.0]

@@ -53,6 +53,9 @@ def test_a_farm_day_is_fed_on_demand_within_rations(tmp_path):
     assert not verdict.problems, "\n".join([report, *verdict.problems, *verdict.false_demands,
                                              farm.log("controller.log")[-4000:]])
     assert verdict.feeds >= 100 and verdict.episodes >= 100, report
+    # demands that come together from tanks across the rail can outrun one robot: such waits are
+    # counted, each under 120 s with the robot busy serving others the whole time, and rare
+    assert len(verdict.queued) <= max(2, verdict.feeds // 50), "\n".join([report, *verdict.queued])
     # demands outside every episode: within the filter's budget, 0.5 a tank-day
     tanks = {r["tank"] for r in truth if r["kind"] == "episode_start"}
     assert len(verdict.false_demands) <= 0.5 * len(tanks), "\n".join([report, *verdict.false_demands])
