@@ -20,7 +20,7 @@ from controller.bus import Bus, session_config
 from controller.config import Config, validate_section
 from controller.demand import Demand, DemandFilter, DemandParams, SensorFault, SensorRecovered, SlowFishUndetectable
 from controller.errors import BadInput
-from controller.feeding.estop import EstopLane
+from controller.feeding.estop import EstopLane, log_latch
 from controller.feeding.rations import Rations, load_species, ration_payload
 from controller.feeding.robot import FeedingRobot, Job
 from controller.overrides import Overrides
@@ -72,7 +72,6 @@ class Controller:
         self.robot: FeedingRobot | None = None
         self.lane: EstopLane | None = None
         self.estop_before_start: str | None = None
-        self._unconfirmed: dict[str, str] = {}    # latches not confirmed before the robot exists
         self.watchdog: shutdown.StopWatchdog | None = None
         self._starting: asyncio.Task | None = None
         self._stopped = False
@@ -121,7 +120,6 @@ class Controller:
             return
         self.robot = FeedingRobot(cfg, self.clock, self.rail, self.dispenser, self.store, self.rations,
                                   self.alarms, self.bus.publish, lane=self.lane)
-        self.robot._unconfirmed.update(self._unconfirmed)   # the lane does not tell twice
         if self.estop_before_start is not None:
             await self.robot.emergency_stop(self.estop_before_start)
         self._requeue_open_demands()
@@ -144,31 +142,20 @@ class Controller:
         def on_loop():
             if self.robot is not None:
                 return
-            if why is None:
-                self._unconfirmed.pop(device, None)
-                log.warning("e-stop: %s confirmed its latch", device)
-            else:
-                self._unconfirmed[device] = why
-                log.error("e-stop: %s has not confirmed its latch: %s (retrying)", device, why)
+            log_latch(device, why)
             if self.estop_before_start is not None:
-                self.alarms.raise_("estop", self._estop_text(self.estop_before_start), "critical", kind="latched")
-        try:
+                self.alarms.raise_("estop", self.lane.alarm_text(self.estop_before_start), "critical",
+                                   kind="latched")
+        with contextlib.suppress(RuntimeError):     # the loop is closed: the process is ending
             self._loop.call_soon_threadsafe(on_loop)
-        except RuntimeError:                  # the loop is closed: the process is ending
-            pass
-
-    def _estop_text(self, reason: str) -> str:
-        text = f"emergency stop: {reason}"
-        if self._unconfirmed:
-            text += "; not confirmed by " + ", ".join(f"{d} ({w})" for d, w in sorted(self._unconfirmed.items()))
-        return text
 
     async def emergency_stop(self, reason: str) -> bool:
         """E-stop wins from any state, even before the robot exists: it then starts stopped.
         True once the devices confirmed their latches."""
         if self.robot is None:
             self.estop_before_start = reason
-            self.alarms.raise_("estop", self._estop_text(reason), "critical", kind="latched")
+            text = self.lane.alarm_text(reason) if self.lane is not None else f"emergency stop: {reason}"
+            self.alarms.raise_("estop", text, "critical", kind="latched")
             if self.lane is None:
                 return False
             done, _ = await asyncio.wait({asyncio.wrap_future(self.lane.trip(reason))}, timeout=1.0)

@@ -47,6 +47,14 @@ def _on_a_loop() -> bool:
     return True
 
 
+def log_latch(device: str, why: str | None) -> None:
+    """What the lane reported of ``device``'s latch, in the log (on the loop)."""
+    if why is None:
+        log.warning("e-stop: %s confirmed its latch", device)
+    else:
+        log.error("e-stop: %s has not confirmed its latch: %s (retrying)", device, why)
+
+
 class Halted(Exception):
     """An actuator command was not sent: the e-stop is tripped."""
 
@@ -68,6 +76,7 @@ class EstopLane:
         self._thread: threading.Thread | None = None
         self._confirmed: concurrent.futures.Future = concurrent.futures.Future()
         self._reports: list[Report] = []
+        self.unconfirmed: dict[str, str] = {}      # device -> why its latch is not confirmed
         self._first: tuple | None = None           # (gen, drive sent at, dispenser state) from trip()
 
     @property
@@ -77,6 +86,14 @@ class EstopLane:
 
     def listen(self, report: Report) -> None:
         self._reports.append(report)
+
+    def alarm_text(self, reason: str) -> str:
+        """The ``estop`` alarm's text: the reason, and the devices not confirmed yet."""
+        text = reason if reason.startswith("emergency stop") else f"emergency stop: {reason}"
+        unconfirmed = sorted(dict(self.unconfirmed).items())
+        if unconfirmed:
+            text += "; not confirmed by " + ", ".join(f"{d} ({w})" for d, w in unconfirmed)
+        return text
 
     def trip(self, reason: str) -> concurrent.futures.Future:
         """Stop everything now, from any thread; safe to call again. The future is done (True)
@@ -110,6 +127,7 @@ class EstopLane:
             self._tripped = False
             self._gen += 1
             self.reason = None
+            self.unconfirmed.clear()
         self._wake.set()
 
     def close(self) -> None:
@@ -200,6 +218,10 @@ class EstopLane:
             time.sleep(0.0002)
 
     def _tell(self, device: str, why: str | None) -> None:
+        if why is None:
+            self.unconfirmed.pop(device, None)
+        else:
+            self.unconfirmed[device] = why
         for report in self._reports:
             try:
                 report(device, why)

@@ -15,13 +15,14 @@ courtesy that saves a wasted wait, never what stops the robot.
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import logging
 from dataclasses import dataclass
 
 from transitions import Machine
 
 from controller.feeding.dispensing import AugerJammed, Dispensing
-from controller.feeding.estop import EstopLane, Halted
+from controller.feeding.estop import EstopLane, Halted, log_latch
 from controller.feeding.planner import Stop, next_stop
 from devices.errors import DeviceError, DeviceTimeout
 
@@ -70,7 +71,6 @@ class FeedingRobot:
         self.lane = lane if lane is not None else EstopLane(rail, dispenser)
         self._loop = asyncio.get_running_loop()
         self.lane.listen(self._lane_report)
-        self._unconfirmed: dict[str, str] = {}
         self.dispensing = Dispensing(cfg, clock, dispenser, store, rations, alarms, publish)
         self.dispensing.halted = lambda: self.lane.tripped
         self.pending: dict[str, Job] = {}
@@ -112,35 +112,22 @@ class FeedingRobot:
         self._cancel_action()
         if self.state != "estop":
             self.estop()
-            self.alarms.raise_("estop", self._estop_text(reason), "critical", kind="latched")
-
-    def _estop_text(self, reason: str) -> str:
-        text = reason if reason.startswith("emergency stop") else f"emergency stop: {reason}"
-        if self._unconfirmed:
-            text += "; not confirmed by " + ", ".join(f"{d} ({w})" for d, w in sorted(self._unconfirmed.items()))
-        return text
+            self.alarms.raise_("estop", self.lane.alarm_text(reason), "critical", kind="latched")
 
     def _lane_report(self, device: str, why: str | None) -> None:
         """From the lane's thread: a latch unconfirmed past the bound, or confirmed after all."""
         def on_loop():
-            if why is None:
-                self._unconfirmed.pop(device, None)
-                log.warning("e-stop: %s confirmed its latch", device)
-            else:
-                self._unconfirmed[device] = why
-                log.error("e-stop: %s has not confirmed its latch: %s (retrying)", device, why)
+            log_latch(device, why)
             if self.lane.tripped and "estop" in self.alarms.active:
-                self.alarms.raise_("estop", self._estop_text(self.lane.reason or "e-stop"), "critical", kind="latched")
-        try:
+                self.alarms.raise_("estop", self.lane.alarm_text(self.lane.reason or "e-stop"), "critical",
+                                   kind="latched")
+        with contextlib.suppress(RuntimeError):     # the loop is closed: the process is ending
             self._loop.call_soon_threadsafe(on_loop)
-        except RuntimeError:                  # the loop is closed: the process is ending
-            pass
 
     def operator_reset(self) -> str | None:
         """Release an e-stop or cut a fault's back-off short. Returns an error text or None."""
         if self.state == "estop":
             self.lane.release()               # no ESTOP in flight once this returns
-            self._unconfirmed.clear()
             self._estop_released = True
             self.reset()
             self.alarms.clear("estop", "e-stop released")
