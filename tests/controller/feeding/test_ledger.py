@@ -32,6 +32,15 @@ async def restart(r):
     r.task = asyncio.create_task(r.robot.run())
 
 
+async def feed_once_then_die(r):
+    """One demand of T1 served, then the controller's task killed."""
+    await r.until(lambda: r.robot.state == "idle")
+    r.demand("T1")
+    await r.until(lambda: not r.robot.pending, what="first run")
+    r.task.cancel()
+    await asyncio.gather(r.task, return_exceptions=True)
+
+
 def feed_messages(r, tank="T1"):
     return [p for s, p in r.published.messages if s == f"tank/{tank}/feed"]
 
@@ -112,12 +121,8 @@ def test_a_restart_after_a_power_cut_never_books_food_as_aborted(tmp_path, when)
 def test_a_lost_ledger_does_not_reuse_the_tag_the_dispenser_remembers(tmp_path):
     async def main():
         async with rig(tmp_path) as r:
-            await r.until(lambda: r.robot.state == "idle")
-            r.demand("T1")
-            await r.until(lambda: not r.robot.pending, what="first run")
+            await feed_once_then_die(r)
             assert r.sim.physics.last_tag == 1
-            r.task.cancel()
-            await asyncio.gather(r.task, return_exceptions=True)
             r.store.close()
             r.store = Store(tmp_path / "restored.db")         # the ledger is lost: a new one
             r.alarms.store = r.rations.store = r.store
@@ -156,11 +161,7 @@ def test_a_start_still_on_the_wire_at_restart_is_settled_as_run(tmp_path):
 def test_counters_going_backwards_with_nothing_open_are_alarmed(tmp_path):
     async def main():
         async with rig(tmp_path) as r:
-            await r.until(lambda: r.robot.state == "idle")
-            r.demand("T1")
-            await r.until(lambda: not r.robot.pending, what="first run")
-            r.task.cancel()
-            await asyncio.gather(r.task, return_exceptions=True)
+            await feed_once_then_die(r)
             r.sim.power_cycle()
             await restart(r)                         # a new process: the ledger remembers the counters
             await r.until(lambda: COUNTERS in r.alarms.active, what="counters alarm")
