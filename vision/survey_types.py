@@ -1,0 +1,65 @@
+"""What a weight survey measures, shared by the detectors (underwater, surface), the stereo
+association, the tracker and the survey entry. Pure data: numpy arrays and dataclasses.
+
+Frames: world millimetres in the calibration's frame (CALIB.json), pixels in OpenCV's convention
+(u column, v row, integer coordinates at pixel centres). Index 0 of a (2, 2) pixel array is the
+left image (camera 1, P1), index 1 the right (camera 2, P2).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Literal
+
+import numpy as np
+
+Setup = Literal["underwater", "surface"]
+
+
+@dataclass(frozen=True)
+class LengthWeight:
+    """W = a * L^b, L fork length in cm, W in g (the paper's section 4.3)."""
+
+    a: float
+    b: float
+
+    def weight_g(self, length_cm: np.ndarray | float) -> np.ndarray | float:
+        return self.a * np.power(length_cm, self.b)
+
+
+@dataclass(frozen=True)
+class FishGeometry:
+    """The species' shape as the 3-D association checks it (config/species.toml)."""
+
+    min_length_cm: float = 3.0          # plausible fork lengths
+    max_length_cm: float = 80.0
+    max_tilt_deg: float = 35.0          # body axis against the water surface
+    depth_to_length: float = 0.38       # body depth / fork length (sea bream ~0.38; salmon ~0.25)
+
+
+@dataclass(frozen=True)
+class SurveySetup:
+    """How a pair is processed: the setup, the paper's illumination references (eqs. 11-12) and
+    the species geometry. ``up_world``: the water surface's normal in the calibration's world
+    frame; None = the left camera's image-up direction (cameras mounted level)."""
+
+    setup: Setup = "underwater"
+    mi_ref: float = 120.0
+    c_ref: float = 130.0
+    geometry: FishGeometry = field(default_factory=FishGeometry)
+    up_world: tuple[float, float, float] | None = None
+
+
+@dataclass
+class FishMeasurement:
+    """One fish measured in one stereo pair."""
+
+    snout_mm: np.ndarray                # (3,) world mm, snout tip
+    fork_mm: np.ndarray                 # (3,) world mm, innermost point of the caudal fork
+    snout_px: np.ndarray                # (2, 2) [[u1, v1], [u2, v2]]
+    fork_px: np.ndarray                 # (2, 2)
+    score: float                        # 0..1: how far the measurement can be trusted
+    quality: dict[str, float] = field(default_factory=dict)   # the terms behind ``score``
+
+    @property
+    def length_cm(self) -> float:
+        return float(np.linalg.norm(np.asarray(self.snout_mm) - np.asarray(self.fork_mm)) / 10.0)
