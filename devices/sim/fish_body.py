@@ -38,6 +38,7 @@ class FishMesh:
     belly: np.ndarray
     along: np.ndarray
     length_mm: float
+    fork_vertex: int = 0           # index of the vertex at the fork notch (L, 0, 0)
 
 
 def build_mesh(sp: Species, length_mm: float, shape_jitter: np.ndarray | None = None) -> FishMesh:
@@ -88,7 +89,8 @@ def build_mesh(sp: Species, length_mm: float, shape_jitter: np.ndarray | None = 
     verts = np.vstack(verts + [fv])
     belly = np.concatenate(belly + [np.full(len(fv), 0.5)])
     along = np.concatenate(along + [np.clip(fv[:, 0] / x_end, 0, 1)])
-    return FishMesh(verts, body, np.vstack(fin_faces), belly, along, L)
+    fork = int(np.argmin(np.linalg.norm(verts - [L, 0.0, 0.0], axis=1)))
+    return FishMesh(verts, body, np.vstack(fin_faces), belly, along, L, fork)
 
 
 def _outward(verts: np.ndarray, faces: np.ndarray) -> np.ndarray:

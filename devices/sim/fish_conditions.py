@@ -60,6 +60,9 @@ UNDERWATER = {
     "net_bgr": lambda r, c: [float(v) for v in r.uniform(0.2, 0.6) * r.uniform(0.8, 1.2, 3) * 255],
     "reef_bgr": lambda r, c: [float(v) for v in r.uniform([0.2, 0.35, 0.35], [0.5, 0.7, 0.8]) * 255],
     "bubbles": lambda r, c: int(r.integers(0, 60)) if r.random() < 0.7 else 0,
+    "fish_gain": lambda r, c: _log_uniform(r, 0.6, 2.2),    # fish darker .. brighter than the water
+    "shade": lambda r, c: float(r.uniform(0.05, 0.35)),      # darkening of the water under a fish
+    "shade_drop": lambda r, c: float(r.uniform(0.6, 1.5)),   # how far under it, in body depths
     "focus_mm": lambda r, c: float(r.uniform(900, 1400)),
     "blur_gain": lambda r, c: float(r.uniform(0.3, 1.8)),
     "noise_sd": lambda r, c: float(r.uniform(1.0, 4.0)),
@@ -89,6 +92,8 @@ SURFACE = {
     "glare_strength": lambda r, c: float(r.uniform(0.2, 0.9)),
     "sheen": lambda r, c: float(r.uniform(0.0, 0.12)),
     "bubbles": lambda r, c: int(r.integers(0, 15)) if r.random() < 0.3 else 0,
+    "fish_gain": lambda r, c: float(r.uniform(0.5, 1.3)),
+    "shade": lambda r, c: float(r.uniform(0.1, 0.5)),        # shadows on the tank floor
     "focus_mm": lambda r, c: 1200.0,
     "blur_gain": lambda r, c: float(r.uniform(0.2, 1.0)),
     "noise_sd": lambda r, c: float(r.uniform(1.0, 3.0)),

@@ -9,8 +9,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from devices.sim.fish_render import Light, draw_disc, draw_fish, project
-from devices.sim.fish_water import add_noise, surface_background, surface_reflections, underwater_background
+from devices.sim.fish_render import Light, draw_disc, draw_fish, draw_shade, project
+from devices.sim.fish_water import add_noise, sparkle_texture, surface_background, surface_reflections, underwater_background
 
 HIDE_PX = 2                        # a point this close to a nearer fish's outline counts as hidden
 FULLY_VISIBLE_HIDDEN = 0.10
@@ -26,13 +26,51 @@ def scene_light(rig, cond: dict) -> Light:
     return Light(d / np.linalg.norm(d), colour, cond["ambient"], 1e12, z_ref=0.0, shininess=20.0)
 
 
-def _draw_camera(rng, rig, cam, posed, proj, bubbles, bubble_px, cond, textures, light):
-    background = underwater_background if cond["setup"] == "underwater" else surface_background
-    frame, veil = background(rig, cam, cond, textures)
+def _shade_points(rig, cond, posed) -> list[tuple[np.ndarray, np.ndarray]]:
+    """Per fish, the pixels (left, right) of its shade: underwater the darker water under it (its
+    body dropped by about its depth), surface its shadow on the tank floor from each lamp."""
+    out = []
+    for p in posed:
+        body = p.verts[np.unique(p.body)][::3]
+        if cond["setup"] == "underwater":
+            depth = np.ptp(body[:, 2])
+            drop = body - [0.0, 0.0, cond["shade_drop"] * depth]
+            out.append(project(rig, drop))
+        else:
+            floor = -cond["floor_depth_mm"]
+            pts = []
+            for lamp in cond["lamps"]:
+                lamp = np.asarray(lamp, float)
+                t = (floor - lamp[2]) / (body[:, 2] - lamp[2])
+                pts.append(lamp + (body - lamp) * t[:, None])
+            out.append(project(rig, np.vstack(pts)) if len(cond["lamps"]) == 1 else
+                       [project(rig, q) for q in pts])
+    return out
+
+
+def _background(rig, cam, cond, textures):
+    key = ("_bg", cam)
+    if key not in textures:                       # static for a clip: drawn once
+        draw = underwater_background if cond["setup"] == "underwater" else surface_background
+        textures[key] = draw(rig, cam, cond, textures)
+    frame, veil = textures[key]
+    return frame.copy(), veil
+
+
+def _draw_camera(rng, rig, cam, posed, proj, shades, bubbles, bubble_px, cond, textures, light):
+    frame, veil = _background(rig, cam, cond, textures)
     w, h = rig.image_size
     ranks = np.full((h, w), -1, np.int16)
     c = rig.centres[cam]
     focal = (rig.K1 if cam == 0 else rig.K2)[0, 0]
+    for sh, p in zip(shades, proj, strict=True):
+        extent = float(np.linalg.norm(np.ptp(p[cam], axis=0)))
+        pieces = sh if isinstance(sh, list) else [sh]
+        for piece in pieces:
+            draw_shade(frame, piece[cam], cond["shade"] / len(pieces), max(0.06 * extent, 1.0))
+    if "_sparkle" not in textures:
+        textures["_sparkle"] = sparkle_texture(rng, (h, w))
+    sparkle = textures["_sparkle"]
     objects = [(float(np.linalg.norm(p.verts.mean(axis=0) - c)), 0, i) for i, p in enumerate(posed)]
     objects += [(float(np.linalg.norm(b[:3] - c)), 1, j) for j, b in enumerate(bubbles)]
     objects.sort(key=lambda o: -o[0])
@@ -42,7 +80,7 @@ def _draw_camera(rng, rig, cam, posed, proj, bubbles, bubble_px, cond, textures,
         if kind == 0:
             rank_of[i] = len(rank_of)
             drawn[i] = draw_fish(frame, ranks, rank_of[i], posed[i], proj[i][cam], c, light, veil,
-                                 cond["visibility_mm"], blur)
+                                 cond["visibility_mm"], blur, sparkle)
         else:
             u, v = bubble_px[cam][i]
             if not (-20 < u < w + 20 and -20 < v < h + 20):
@@ -54,7 +92,7 @@ def _draw_camera(rng, rig, cam, posed, proj, bubbles, bubble_px, cond, textures,
                       col, 0.8 * trans + 0.1)
     if cond["setup"] == "surface":
         surface_reflections(frame, rig, cam, cond, textures["ripples"])
-    return add_noise(frame, cond["noise_sd"], rng), ranks, rank_of, drawn
+    return add_noise(frame, cond["noise_sd"], rng, textures), ranks, rank_of, drawn
 
 
 def _covered(ranks: np.ndarray, px: np.ndarray, rank: int) -> bool:
@@ -69,11 +107,15 @@ def render_pair(rng, rig, fishes, bubbles, cond, textures, masks: bool = False):
     int array holding the index (in ``fishes``) of the fish seen at each pixel, -1 for none."""
     light = scene_light(rig, cond)
     posed = [f.posed() for f in fishes]
+    for p in posed:
+        p.gain *= cond["fish_gain"]
     proj = [project(rig, p.verts) for p in posed]
+    shades = _shade_points(rig, cond, posed)
     bubble_px = project(rig, bubbles[:, :3])
     images, ranks, rank_of, drawn = [], [], [], []
     for cam in (0, 1):
-        img, rk, ro, dr = _draw_camera(rng, rig, cam, posed, proj, bubbles, bubble_px, cond, textures, light)
+        img, rk, ro, dr = _draw_camera(rng, rig, cam, posed, proj, shades, bubbles, bubble_px, cond,
+                                       textures, light)
         images.append(img)
         ranks.append(rk)
         rank_of.append(ro)

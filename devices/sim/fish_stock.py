@@ -35,6 +35,9 @@ class Fish:
     turn_rad_s: float = 0.0
     beat_phase: float = 0.0
     bend_amp: float = 0.0          # curvature amplitude of the tail beat, 1/mm
+    gain: float = 1.0              # brightness of this fish under the scene's light
+    scales: float = 30.0           # rows of the scale lattice along the body
+    scale_contrast: float = 0.08
 
     def rotation(self) -> np.ndarray:
         return pose_matrix(self.heading, self.pitch, self.roll)
@@ -50,7 +53,8 @@ class Fish:
 
     def posed(self) -> Posed:
         return Posed(self._place(self.mesh.verts), self.mesh.body, self.mesh.fins, self.albedo,
-                     np.asarray(self.species.fin, float), self.glint, self.fin_alpha)
+                     np.asarray(self.species.fin, float), self.glint, self.fin_alpha,
+                     self.mesh.fork_vertex, self.gain, self.scales, self.scale_contrast)
 
     def segment_radius(self) -> tuple[np.ndarray, np.ndarray, float]:
         s, f = self.snout_fork()
@@ -69,7 +73,8 @@ def make_fish(rng: np.random.Generator, fid: int, sp: Species, length_mm: float,
     glint = np.where(rng.random(len(mesh.body)) < 0.35, rng.uniform(0.3, 1.4, len(mesh.body)), 0.0)
     glint *= 255.0 * rng.uniform(0.3, 1.0)
     return Fish(fid, sp, length_mm, float(weight), mesh, albedo, glint, float(rng.uniform(0.35, 0.75)),
-                np.zeros(3), 0.0, 0.0, 0.0, 0.0)
+                np.zeros(3), 0.0, 0.0, 0.0, 0.0, gain=float(np.exp(rng.normal(0, 0.15))),
+                scales=float(rng.uniform(25, 40)), scale_contrast=float(rng.uniform(0.03, 0.12)))
 
 
 def _skin(rng: np.random.Generator, sp: Species, mesh: FishMesh) -> np.ndarray:

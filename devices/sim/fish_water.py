@@ -57,8 +57,8 @@ def underwater_background(rig, cam: int, cond: dict, rng_tex: dict) -> tuple[np.
     K, R = (rig.K1, rig.R1) if cam == 0 else (rig.K2, rig.R2)
     P = rig.P1 if cam == 0 else rig.P2
     e = ray_elevation(K, R, rig.image_size)
-    bright = cond["water_brightness"] * np.exp(cond["gradient"] * 3.0 * e)
-    veil = np.asarray(cond["water_bgr"], np.float32)[None, None, :] * bright[..., None]
+    bright = (cond["water_brightness"] * np.exp(cond["gradient"] * 3.0 * e)).astype(np.float32)
+    veil = cv2.merge([bright * np.float32(c) for c in cond["water_bgr"]])
     frame = veil.copy()
     clutter = cond["clutter"]
     if clutter in ("net", "reef"):
@@ -155,8 +155,25 @@ def ripple_texture(rng: np.random.Generator, size: int = 768) -> np.ndarray:
     return np.clip((t - 0.45) / 0.55, 0, 1).astype(np.float32)
 
 
-def add_noise(frame: np.ndarray, sigma: float, rng: np.random.Generator) -> np.ndarray:
-    """uint8 image: ``frame`` plus Gaussian sensor noise, clipped and quantised."""
-    noise = rng.standard_normal(frame.shape[:2], dtype=np.float32) * np.float32(sigma)
-    out = frame + noise[..., None]
-    return np.clip(out + 0.5, 0, 255).astype(np.uint8)
+def sparkle_texture(rng: np.random.Generator, shape: tuple[int, int]) -> np.ndarray:
+    """(H, W) float32 0..1: sparse soft dots where a glinting scale catches the light."""
+    dots = (rng.random(shape, dtype=np.float32) < 0.03).astype(np.float32)
+    dots = cv2.GaussianBlur(dots, (0, 0), 0.8)
+    return dots / dots.max()
+
+
+def add_noise(frame: np.ndarray, sigma: float, rng: np.random.Generator, cache: dict | None = None) -> np.ndarray:
+    """uint8 image: ``frame`` plus Gaussian sensor noise (independent per channel), clipped and
+    rounded. With ``cache`` the noise is cut at a random offset from a bank drawn once (video)."""
+    h, w = frame.shape[:2]
+    bank = None if cache is None else cache.get("_noise")
+    if bank is None:
+        cv2.setRNGSeed(int(rng.integers(1 << 31)))
+        bank = np.empty((h + 61, w + 67, 3), np.float32)
+        cv2.randn(bank, 0.0, float(sigma))
+        if cache is not None:
+            cache["_noise"] = bank
+    oy, ox = int(rng.integers(0, 62)), int(rng.integers(0, 68))
+    out = cv2.add(frame, bank[oy:oy + h, ox:ox + w])
+    cv2.threshold(out, 0, 0, cv2.THRESH_TOZERO, dst=out)
+    return cv2.convertScaleAbs(out)
