@@ -9,8 +9,14 @@ from __future__ import annotations
 
 import numpy as np
 
-from devices.sim.fish_render import Light, draw_disc, draw_fish, draw_shade, project
-from devices.sim.fish_water import add_noise, sparkle_texture, surface_background, surface_reflections, underwater_background
+from devices.sim.fish_render import SHADE_Q, Light, draw_disc, add_shade, apply_shade, draw_fish, project
+from devices.sim.fish_water import (
+    add_noise,
+    sparkle_texture,
+    surface_background,
+    surface_reflections,
+    underwater_background,
+)
 
 HIDE_PX = 2                        # a point this close to a nearer fish's outline counts as hidden
 FULLY_VISIBLE_HIDDEN = 0.10
@@ -63,11 +69,14 @@ def _draw_camera(rng, rig, cam, posed, proj, shades, bubbles, bubble_px, cond, t
     ranks = np.full((h, w), -1, np.int16)
     c = rig.centres[cam]
     focal = (rig.K1 if cam == 0 else rig.K2)[0, 0]
-    for sh, p in zip(shades, proj, strict=True):
-        extent = float(np.linalg.norm(np.ptp(p[cam], axis=0)))
-        pieces = sh if isinstance(sh, list) else [sh]
-        for piece in pieces:
-            draw_shade(frame, piece[cam], cond["shade"] / len(pieces), max(0.06 * extent, 1.0))
+    if shades and cond["shade"] > 0:
+        shade_map = np.zeros(((h + SHADE_Q - 1) // SHADE_Q, (w + SHADE_Q - 1) // SHADE_Q), np.float32)
+        for sh, p in zip(shades, proj, strict=True):
+            extent = float(np.linalg.norm(np.ptp(p[cam], axis=0)))
+            pieces = sh if isinstance(sh, list) else [sh]
+            for piece in pieces:
+                add_shade(shade_map, piece[cam], cond["shade"] / len(pieces), max(0.06 * extent, 1.0))
+        apply_shade(frame, shade_map)
     if "_sparkle" not in textures:
         textures["_sparkle"] = sparkle_texture(rng, (h, w))
     sparkle = textures["_sparkle"]

@@ -83,7 +83,7 @@ def face_colours(p: Posed, cam_centre: np.ndarray, light: Light) -> tuple[np.nda
     return visible, colour * depth_light[:, None], spec
 
 
-def _fill_groups(img: np.ndarray, tri: np.ndarray, values: np.ndarray, levels: int = 48) -> None:
+def _fill_groups(img: np.ndarray, tri: np.ndarray, values: np.ndarray, levels: int = 32) -> None:
     """Fill triangles (n, 3, 2) fixed-point int32 into ``img`` in groups of equal quantised value
     (``values`` (n, channels) in 0..255-ish; one fillPoly call per group, not per triangle)."""
     q = np.clip(np.rint(values * (levels / 255.0)), 0, 4 * levels).astype(np.int64)
@@ -107,13 +107,19 @@ class Drawn:
     inside: bool                   # every vertex projects inside the frame
 
 
-def _body_coords(shape, origin, snout, fork):
-    """Per patch pixel: position along the snout->fork axis and across it, in fork lengths."""
-    ys, xs = np.mgrid[0:shape[0], 0:shape[1]].astype(np.float32)
-    ax = (fork - snout).astype(np.float32)
+def _wave(shape, origin, snout, fork, k_along: float, k_across: float) -> np.ndarray:
+    """cos(2 pi (k_along * a + k_across * b)) over the patch, a and b the position along and
+    across the snout->fork axis in fork lengths; built from 1-D factors (cos(x + y) =
+    cos x cos y - sin x sin y), not a cosine per pixel."""
+    ax = np.asarray(fork, float) - np.asarray(snout, float)
     n2 = float(ax @ ax) + 1e-6
-    dx, dy = xs + np.float32(origin[0] - snout[0]), ys + np.float32(origin[1] - snout[1])
-    return (dx * ax[0] + dy * ax[1]) / n2, (dy * ax[0] - dx * ax[1]) / n2
+    gx = 2 * np.pi * (k_along * ax[0] - k_across * ax[1]) / n2      # phase per pixel along x
+    gy = 2 * np.pi * (k_along * ax[1] + k_across * ax[0]) / n2
+    x = (np.arange(shape[1]) + origin[0] - snout[0]) * gx
+    y = (np.arange(shape[0]) + origin[1] - snout[1]) * gy
+    cx, sx = np.cos(x).astype(np.float32), np.sin(x).astype(np.float32)
+    cy, sy = np.cos(y).astype(np.float32), np.sin(y).astype(np.float32)
+    return np.outer(cy, cx) - np.outer(sy, sx)
 
 
 def draw_fish(frame: np.ndarray, ranks: np.ndarray, rank: int, p: Posed, px: np.ndarray,
@@ -143,56 +149,69 @@ def draw_fish(frame: np.ndarray, ranks: np.ndarray, rank: int, p: Posed, px: np.
     _fill_groups(colour, body_tri, colours[visible])
     lit = spec[visible] > 2.0
     if lit.any():
-        _fill_groups(glint, body_tri[lit], spec[visible][lit][:, None], levels=24)
-    along, across = _body_coords((ph, pw), (cx0, cy0), px[0], px[p.fork_vertex])
-    length_px = float(np.linalg.norm(px[p.fork_vertex] - px[0]))
+        _fill_groups(glint, body_tri[lit], spec[visible][lit][:, None], levels=12)
+    snout_px, fork_px = px[0], px[p.fork_vertex]
+    length_px = float(np.linalg.norm(fork_px - snout_px))
     bodyf = body.astype(np.float32) * np.float32(1 / 255)
-    # smooth the facets (normalised convolution inside the body, so the outline stays sharp)
-    sig = float(np.clip(length_px / 90.0, 0.6, 4.0))
-    num = cv2.GaussianBlur(colour, (0, 0), sig)
-    den = cv2.GaussianBlur(bodyf, (0, 0), sig)
-    colour = num / np.maximum(den, 1e-3)[..., None]
-    # scales: a diamond lattice fixed to the body (about ``p.scales`` rows along the fish)
-    k = np.float32(2 * np.pi * p.scales)
-    lattice = np.cos(k * (along + across)) * np.cos(k * (along - across))
-    colour *= (1.0 + p.scale_contrast * lattice)[..., None]
-    colour += (glint * sparkle[cy0:cy1, cx0:cx1])[..., None]
+    # smooth the facets (normalised convolution inside the body, so the outline stays sharp) and
+    # lay a diamond lattice of scales fixed to the body (``p.scales`` rows along the fish)
+    k = 2 * int(np.clip(length_px / 45.0, 1, 5)) + 1
+    colour = cv2.stackBlur(colour, (k, k))
+    den = cv2.stackBlur(bodyf, (k, k))
+    origin = (cx0, cy0)
+    lattice = (_wave((ph, pw), origin, snout_px, fork_px, 2 * p.scales, 0.0)
+               + _wave((ph, pw), origin, snout_px, fork_px, 0.0, 2 * p.scales))
+    factor = (1.0 + np.float32(0.5 * p.scale_contrast) * lattice) / np.maximum(den, np.float32(1e-3))
+    colour *= factor[..., None]
+    if lit.any():
+        colour += (glint * sparkle[cy0:cy1, cx0:cx1])[..., None]
     fin_col = (p.fin_albedo * light.colour * (light.ambient + 0.5 * (1 - light.ambient))
                * light.at(p.verts[:, 2].mean()) * p.gain).astype(np.float32)
-    rays = 1.0 + 0.18 * np.cos(np.float32(2 * np.pi * 45) * across)          # fin rays along the fin
     is_fin = (fin > 0) & (body == 0)
-    colour[is_fin] = fin_col * rays[is_fin][:, None]
+    if is_fin.any():
+        rays = 1.0 + 0.18 * _wave((ph, pw), origin, snout_px, fork_px, 0.0, 45.0)[is_fin]  # fin rays
+        colour[is_fin] = fin_col * rays[:, None]
     alpha = np.maximum(bodyf, is_fin * np.float32(p.fin_alpha))
     rng_mm = float(np.linalg.norm(p.verts.mean(axis=0) - cam_centre))
-    trans = np.float32(np.exp(-rng_mm / visibility_mm))
+    trans = float(np.exp(-rng_mm / visibility_mm))
     sl = np.s_[cy0:cy1, cx0:cx1]
-    colour = colour * trans + veil[sl] * (1 - trans)
+    colour = cv2.addWeighted(colour, trans, veil[sl], 1.0 - trans, 0.0)
     alpha = cv2.GaussianBlur(alpha, (0, 0), max(blur_px, 0.45))    # a soft edge even in focus
     if blur_px > 0.5:
         colour = cv2.GaussianBlur(colour, (0, 0), blur_px)
-    frame[sl] += (colour - frame[sl]) * alpha[..., None]
+    frame[sl] = cv2.blendLinear(colour, frame[sl], alpha, 1.0 - alpha)
     covered = (body > 0) | (fin > 0)
     ranks[sl][covered] = rank
     return Drawn(int(np.count_nonzero(covered)), inside)
 
 
-def draw_shade(frame: np.ndarray, px: np.ndarray, strength: float, soft_px: float) -> None:
-    """Darken the frame under the convex outline of points ``px`` (a fish's shade or shadow)."""
-    h, w = frame.shape[:2]
-    hull = cv2.convexHull(px.astype(np.float32)).reshape(-1, 2)
-    pad = int(3 * soft_px) + 2
+SHADE_Q = 4                        # shades are soft: drawn at a quarter of the resolution
+
+
+def add_shade(shade_map: np.ndarray, px: np.ndarray, strength: float, soft_px: float) -> None:
+    """Add to ``shade_map`` (H/4, W/4) the soft convex outline of points ``px`` (full-res pixels):
+    a fish's shade in the water under it, or its shadow on the tank floor."""
+    h, w = shade_map.shape
+    hull = cv2.convexHull(px.astype(np.float32)).reshape(-1, 2) / SHADE_Q
+    soft = max(soft_px / SHADE_Q, 0.5)
+    pad = int(3 * soft) + 2
     x0, y0 = np.floor(hull.min(axis=0)).astype(int) - pad
     x1, y1 = np.ceil(hull.max(axis=0)).astype(int) + pad
     cx0, cy0, cx1, cy1 = max(x0, 0), max(y0, 0), min(x1, w), min(y1, h)
     if cx0 >= cx1 or cy0 >= cy1:
         return
-    q = 4                                         # soft: drawn at a quarter of the resolution
-    small = np.zeros(((cy1 - cy0) // q + 1, (cx1 - cx0) // q + 1), np.float32)
-    pts = np.rint((hull - [cx0, cy0]) / q * _ONE).astype(np.int32)
-    cv2.fillPoly(small, [pts], 1.0, lineType=cv2.LINE_8, shift=SHIFT)
-    small = cv2.GaussianBlur(small, (0, 0), max(soft_px / q, 0.5))
-    shade = cv2.resize(small, (small.shape[1] * q, small.shape[0] * q))[:cy1 - cy0, :cx1 - cx0]
-    frame[cy0:cy1, cx0:cx1] *= (1.0 - strength * shade)[..., None]
+    small = np.zeros((y1 - y0, x1 - x0), np.float32)
+    pts = np.rint((hull - [x0, y0]) * _ONE).astype(np.int32)
+    cv2.fillPoly(small, [pts], float(strength), lineType=cv2.LINE_8, shift=SHIFT)
+    small = cv2.GaussianBlur(small, (0, 0), soft)
+    shade_map[cy0:cy1, cx0:cx1] += small[cy0 - y0:cy1 - y0, cx0 - x0:cx1 - x0]
+
+
+def apply_shade(frame: np.ndarray, shade_map: np.ndarray) -> None:
+    """Darken ``frame`` by the accumulated shades (1 - shade, at least 0.2 of the light left)."""
+    h, w = frame.shape[:2]
+    keep = cv2.resize(1.0 - np.minimum(shade_map, 0.8), (w, h), interpolation=cv2.INTER_LINEAR)
+    frame *= keep[..., None]
 
 
 def draw_disc(frame: np.ndarray, ranks: np.ndarray | None, rank: int, centre: np.ndarray, radius: float,
