@@ -18,7 +18,7 @@ from devices.sim.fish_species import Species
 N_ALONG, N_AROUND = 36, 18
 
 
-def _profile(u: np.ndarray, at: float, end: float, p: float = 0.62) -> np.ndarray:
+def _profile(u: np.ndarray, at: float, end: float, p: float = 0.75) -> np.ndarray:
     """Depth or width profile along the body, 0 at the snout, 1 at its maximum, ``end`` at u = 1."""
     q = p * (1 - at) / at                           # puts the maximum of u^p (1-u)^q at ``at``
     f = np.power(u, p) * np.power(1 - u, q)
@@ -49,7 +49,7 @@ def build_mesh(sp: Species, length_mm: float, shape_jitter: np.ndarray | None = 
     x_end = sp.body_end * L
     u = np.linspace(0, 1, N_ALONG + 1)[1:] ** 1.4                   # denser at the head
     depth = sp.depth * jd * L * _profile(u, sp.depth_at, sp.peduncle)
-    width = 0.5 * sp.width * jw * L * _profile(u, sp.depth_at * 0.9, 0.25, 0.55)
+    width = 0.5 * sp.width * jw * L * _profile(u, sp.depth_at * 0.9, 0.25, 0.65)
     up = depth * sp.dorsal_share
     down = depth * (1 - sp.dorsal_share)
     th = np.linspace(0, 2 * np.pi, N_AROUND, endpoint=False)       # 0 = dorsal, pi = ventral
@@ -61,16 +61,7 @@ def build_mesh(sp: Species, length_mm: float, shape_jitter: np.ndarray | None = 
     verts = [np.zeros((1, 3)), ring]
     belly = [np.array([0.5]), np.broadcast_to((1 - c[None]) / 2, z.shape).ravel()]
     along = [np.array([0.0]), np.broadcast_to(u[:, None], z.shape).ravel()]
-    # body faces: a fan at the snout, quads between rings
-    j = np.arange(N_AROUND)
-    jn = (j + 1) % N_AROUND
-    faces = [np.c_[np.zeros(N_AROUND, int), 1 + jn, 1 + j]]
-    for i in range(N_ALONG - 1):
-        a, b = 1 + i * N_AROUND, 1 + (i + 1) * N_AROUND
-        faces += [np.c_[a + j, a + jn, b + j], np.c_[a + jn, b + jn, b + j]]
-    body = np.vstack(faces)
-    ring_all = np.vstack([np.zeros((1, 3)), ring])
-    body = _outward(ring_all, body)
+    body = _BODY_FACES
     base = 1 + N_ALONG * N_AROUND
     # fins: closed outlines in the x-z mid-plane, fanned from an inner point
     outlines = [_caudal_outline(sp, L, up[-1], down[-1], jf)]
@@ -93,6 +84,25 @@ def build_mesh(sp: Species, length_mm: float, shape_jitter: np.ndarray | None = 
     return FishMesh(verts, body, np.vstack(fin_faces), belly, along, L, fork)
 
 
+def _body_faces() -> np.ndarray:
+    """Body triangles (same for every fish): a fan at the snout, two per quad between rings,
+    wound so their normals point out of the body (the ring runs dorsal -> right -> ventral)."""
+    j = np.arange(N_AROUND)
+    jn = (j + 1) % N_AROUND
+    faces = [np.stack([np.zeros(N_AROUND, int), 1 + jn, 1 + j], 1)]
+    i = np.arange(N_ALONG - 1)[:, None]
+    a, b = 1 + i * N_AROUND, 1 + (i + 1) * N_AROUND
+    faces.append(np.stack([a + j, a + jn, b + j], -1).reshape(-1, 3))
+    faces.append(np.stack([a + jn, b + jn, b + j], -1).reshape(-1, 3))
+    faces = np.vstack(faces)
+    # orientation from a reference ellipsoid-like body (the parameterisation fixes it for all)
+    u = np.linspace(0, 1, N_ALONG + 1)[1:]
+    th = np.linspace(0, 2 * np.pi, N_AROUND, endpoint=False)
+    r = np.sin(np.pi * np.sqrt(u))[:, None]
+    ring = np.stack([np.broadcast_to(u[:, None], (N_ALONG, N_AROUND)), 0.3 * r * np.sin(th), r * np.cos(th)], -1)
+    return _outward(np.vstack([np.zeros((1, 3)), ring.reshape(-1, 3)]), faces)
+
+
 def _outward(verts: np.ndarray, faces: np.ndarray) -> np.ndarray:
     """Faces wound so their normals point away from the snout-fork axis (for back-face culling)."""
     a, b, c = (verts[faces[:, k]] for k in range(3))
@@ -104,6 +114,9 @@ def _outward(verts: np.ndarray, faces: np.ndarray) -> np.ndarray:
     faces = faces.copy()
     faces[flip] = faces[flip][:, ::-1]
     return faces
+
+
+_BODY_FACES = _body_faces()
 
 
 def _caudal_outline(sp: Species, L: float, top: float, bottom: float, jf: float):
@@ -147,7 +160,7 @@ def bend(points: np.ndarray, curvature: float) -> np.ndarray:
     x, y, z = points.T
     a = curvature * x
     cx, cy = np.sin(a) / curvature, (1 - np.cos(a)) / curvature
-    return np.c_[cx - y * np.sin(a), cy + y * np.cos(a), z]
+    return np.stack([cx - y * np.sin(a), cy + y * np.cos(a), z], axis=1)
 
 
 def pose_matrix(heading_rad: float, pitch_rad: float, roll_rad: float) -> np.ndarray:

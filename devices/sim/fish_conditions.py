@@ -54,7 +54,7 @@ UNDERWATER = {
     "sun_tilt_deg": lambda r, c: float(r.uniform(0, 30)),
     "sun_azimuth_deg": lambda r, c: float(r.uniform(0, 360)),
     "light_attenuation_mm": lambda r, c: float(r.uniform(1500, 6000)),
-    "ambient": lambda r, c: float(r.uniform(0.25, 0.5)),
+    "ambient": lambda r, c: float(r.uniform(0.45, 0.8)),    # underwater light is diffuse
     "clutter": lambda r, c: str(r.choice(["none", "net", "reef"], p=[0.4, 0.3, 0.3])),
     "clutter_range_mm": lambda r, c: float(r.uniform(2300, 3500)),
     "net_bgr": lambda r, c: [float(v) for v in r.uniform(0.2, 0.6) * r.uniform(0.8, 1.2, 3) * 255],
@@ -83,13 +83,13 @@ SURFACE = {
     "bend": lambda r, c: float(r.uniform(0.0, 0.06)),
     "visibility_mm": lambda r, c: _log_uniform(r, 3000, 15000),
     "water_bgr": lambda r, c: [float(v) for v in r.uniform([90, 100, 80], [150, 150, 120])],
-    "floor_bgr": lambda r, c: [float(v) for v in r.uniform([120, 120, 100], [230, 220, 210])],
+    "floor_bgr": lambda r, c: _floor_bgr(r),
     "floor_texture": lambda r, c: float(r.uniform(0.05, 0.5)),
     "lamps": lambda r, c: _lamps(r),
     "light_bgr": lambda r, c: [float(v) for v in r.uniform([200, 210, 210], [255, 255, 255])],
     "ambient": lambda r, c: float(r.uniform(0.3, 0.5)),
-    "glare_px": lambda r, c: float(r.uniform(25, 90)),
-    "glare_strength": lambda r, c: float(r.uniform(0.2, 0.9)),
+    "glare_px": lambda r, c: float(r.uniform(150, 450)),     # spread of the ripples' glitter
+    "glare_strength": lambda r, c: float(r.uniform(0.3, 1.0)),
     "sheen": lambda r, c: float(r.uniform(0.0, 0.12)),
     "bubbles": lambda r, c: int(r.integers(0, 15)) if r.random() < 0.3 else 0,
     "fish_gain": lambda r, c: float(r.uniform(0.5, 1.3)),
@@ -101,12 +101,19 @@ SURFACE = {
 }
 
 
+def _floor_bgr(rng) -> list[float]:
+    """A tank floor: grey, blue, green or beige painted or fibreglass, a little worn."""
+    base = [(190, 190, 190), (200, 160, 110), (140, 170, 120), (160, 190, 205), (110, 110, 110)]
+    col = np.asarray(base[int(rng.integers(len(base)))], float) * rng.uniform(0.8, 1.15, 3)
+    return [float(v) for v in np.clip(col, 40, 240)]
+
+
 def _lamps(rng) -> list[list[float]]:
     """One or two lamps ~1.5 m from the tank centre, ~45 deg above the water."""
     out = []
     for _ in range(int(rng.integers(1, 3))):
-        az, el = rng.uniform(0, 2 * np.pi), np.radians(rng.uniform(38, 52))
-        d = rng.uniform(1200, 2000)
+        az, el = rng.uniform(0, 2 * np.pi), np.radians(rng.uniform(38, 55))
+        d = rng.uniform(800, 1800)
         out.append([float(d * np.cos(el) * np.cos(az)), float(d * np.cos(el) * np.sin(az)), float(d * np.sin(el))])
     return out
 
@@ -127,19 +134,26 @@ def _draw(rng, table: dict, n_fish, given: dict, setup: str) -> dict:
     return cond
 
 
+def _texture_size(rig) -> int:
+    """Texture side in texels: enough detail for the image (planes repeat mirrored beyond it)."""
+    return int(np.clip(0.4 * max(rig.image_size), 160, 640))
+
+
 def underwater_conditions(rng, rig, n_fish, given: dict) -> tuple[dict, dict]:
     cond = _draw(rng, UNDERWATER, n_fish, given, "underwater")
     textures = {}
+    n = _texture_size(rig)
     if cond["clutter"] == "net":
-        textures["net"] = net_texture(rng, mesh_mm=float(rng.uniform(20, 45)), texel_mm=4.0, size=1024)
+        textures["net"] = net_texture(rng, mesh_mm=float(rng.uniform(20, 45)), texel_mm=4.0, size=n)
     elif cond["clutter"] == "reef":
-        textures["reef"] = random_texture((768, 768), rng, (1.5, 5.0, 16.0, 40.0))
+        textures["reef"] = random_texture((n, n), rng, (1.5, 5.0, 16.0, 40.0))
     return cond, textures
 
 
 def surface_conditions(rng, rig, n_fish, given: dict) -> tuple[dict, dict]:
     cond = _draw(rng, SURFACE, n_fish, given, "surface")
-    floor = random_texture((640, 640), rng, (2.0, 8.0, 30.0))
+    n = _texture_size(rig)
+    floor = random_texture((n, n), rng, (2.0, 8.0, 30.0))
     textures = {"floor": (0.5 + cond["floor_texture"] * (floor - 0.5)).astype(np.float32),
-                "ripples": ripple_texture(rng, 640)}
+                "ripples": ripple_texture(rng, n)}
     return cond, textures

@@ -63,11 +63,16 @@ def read_truth(directory: str | Path) -> list[dict]:
     return out
 
 
-def write_set(directory: str | Path, setup: str, count: int, seed: int, **conditions) -> list[dict]:
-    """``count`` independent scenes (scene k drawn from seed ``seed`` + k) written to ``directory``."""
-    from devices.sim.fish_scene import surface_scene, underwater_scene
+def write_set(directory: str | Path, setup: str, count: int, seed: int,
+              image_size: tuple[int, int] = (1280, 960), **conditions) -> list[dict]:
+    """``count`` independent scenes (scene k drawn from seed ``seed`` + k) written to ``directory``;
+    the rig's focal length scales with the image width (1400 px at 1280)."""
+    from devices.sim.fish_scene import surface_rig, surface_scene, underwater_rig, underwater_scene
     make = {"underwater": underwater_scene, "surface": surface_scene}[setup]
-    return [write_scene(make(np.random.default_rng(seed + k), **conditions), directory, k) for k in range(count)]
+    rig = {"underwater": underwater_rig, "surface": surface_rig}[setup](
+        image_size=image_size, focal_px=1400.0 * image_size[0] / 1280)
+    return [write_scene(make(np.random.default_rng(seed + k), rig=rig, **conditions), directory, k)
+            for k in range(count)]
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -79,9 +84,16 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--count", type=int, default=10)
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--species")
+    ap.add_argument("--image-size", default="1280x960", help="WIDTHxHEIGHT")
     a = ap.parse_args(argv)
+    try:
+        size = tuple(int(v) for v in a.image_size.lower().split("x"))
+        if len(size) != 2 or min(size) < 16:
+            raise ValueError
+    except ValueError:
+        ap.error(f"--image-size: {a.image_size!r} is not WIDTHxHEIGHT")
     cond = {"species": a.species} if a.species else {}
-    recs = write_set(a.out, a.setup, a.count, a.seed, **cond)
+    recs = write_set(a.out, a.setup, a.count, a.seed, image_size=size, **cond)
     print(json.dumps({"pairs": len(recs), "fish": sum(len(r["fish"]) for r in recs), "dir": str(a.out)}))
     return 0
 

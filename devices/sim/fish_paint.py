@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from devices.sim.fish_render import SHADE_Q, Light, draw_disc, add_shade, apply_shade, draw_fish, project
+from devices.sim.fish_render import SHADE_Q, Light, add_shade, apply_shade, draw_disc, draw_fish, project
 from devices.sim.fish_water import (
     add_noise,
     sparkle_texture,
@@ -100,7 +100,7 @@ def _draw_camera(rng, rig, cam, posed, proj, shades, bubbles, bubble_px, cond, t
             draw_disc(frame, None, 0, np.array([u, v]), focal * bubbles[i, 3] / dist + blur,
                       col, 0.8 * trans + 0.1)
     if cond["setup"] == "surface":
-        surface_reflections(frame, rig, cam, cond, textures["ripples"])
+        surface_reflections(frame, rig, cam, cond, textures)
     return add_noise(frame, cond["noise_sd"], rng, textures), ranks, rank_of, drawn
 
 

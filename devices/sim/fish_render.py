@@ -92,11 +92,11 @@ def _fill_groups(img: np.ndarray, tri: np.ndarray, values: np.ndarray, levels: i
         key = key * 256 + q[:, k]
     order = np.argsort(key, kind="stable")
     keys, starts = np.unique(key[order], return_index=True)
-    bounds = np.r_[starts, len(order)]
+    bounds = np.append(starts, len(order))
     for g in range(len(keys)):
         sel = order[bounds[g]:bounds[g + 1]]
         col = tuple(float(v) for v in q[sel[0]] * (255.0 / levels))
-        cv2.fillPoly(img, list(tri[sel]), col, lineType=cv2.LINE_8, shift=SHIFT)
+        cv2.fillPoly(img, tri[sel], col, lineType=cv2.LINE_8, shift=SHIFT)
 
 
 @dataclass
@@ -143,9 +143,9 @@ def draw_fish(frame: np.ndarray, ranks: np.ndarray, rank: int, p: Posed, px: np.
     glint = np.zeros((ph, pw), np.float32)
     body = np.zeros((ph, pw), np.uint8)
     fin = np.zeros((ph, pw), np.uint8)
-    cv2.fillPoly(fin, list(fixed[p.fins]), 255, lineType=cv2.LINE_8, shift=SHIFT)
+    cv2.fillPoly(fin, fixed[p.fins], 255, lineType=cv2.LINE_8, shift=SHIFT)
     body_tri = fixed[p.body[visible]]
-    cv2.fillPoly(body, list(body_tri), 255, lineType=cv2.LINE_8, shift=SHIFT)
+    cv2.fillPoly(body, body_tri, 255, lineType=cv2.LINE_8, shift=SHIFT)
     _fill_groups(colour, body_tri, colours[visible])
     lit = spec[visible] > 2.0
     if lit.any():
@@ -169,7 +169,7 @@ def draw_fish(frame: np.ndarray, ranks: np.ndarray, rank: int, p: Posed, px: np.
                * light.at(p.verts[:, 2].mean()) * p.gain).astype(np.float32)
     is_fin = (fin > 0) & (body == 0)
     if is_fin.any():
-        rays = 1.0 + 0.18 * _wave((ph, pw), origin, snout_px, fork_px, 0.0, 45.0)[is_fin]  # fin rays
+        rays = 1.0 + 0.1 * _wave((ph, pw), origin, snout_px, fork_px, 0.0, 30.0)[is_fin]  # fin rays
         colour[is_fin] = fin_col * rays[:, None]
     alpha = np.maximum(bodyf, is_fin * np.float32(p.fin_alpha))
     rng_mm = float(np.linalg.norm(p.verts.mean(axis=0) - cam_centre))
@@ -225,8 +225,8 @@ def draw_disc(frame: np.ndarray, ranks: np.ndarray | None, rank: int, centre: np
     cx0, cy0, cx1, cy1 = max(x0, 0), max(y0, 0), min(x1, w), min(y1, h)
     if cx0 >= cx1 or cy0 >= cy1:
         return
-    yy, xx = np.mgrid[cy0:cy1, cx0:cx1].astype(np.float32)
-    d = np.hypot(xx - centre[0], yy - centre[1])
+    yy, xx = np.ogrid[cy0:cy1, cx0:cx1]
+    d = np.hypot(xx - centre[0], yy - centre[1]).astype(np.float32)
     a = np.clip(r + 0.5 - d, 0, 1) * alpha
     rim = np.clip(1 - np.abs(d - r * 0.7) / max(r * 0.5, 0.7), 0, 1)       # bright rim, clearer core
     shade = (0.55 + 0.45 * rim)[..., None]

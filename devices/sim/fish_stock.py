@@ -74,7 +74,7 @@ def make_fish(rng: np.random.Generator, fid: int, sp: Species, length_mm: float,
     glint *= 255.0 * rng.uniform(0.3, 1.0)
     return Fish(fid, sp, length_mm, float(weight), mesh, albedo, glint, float(rng.uniform(0.35, 0.75)),
                 np.zeros(3), 0.0, 0.0, 0.0, 0.0, gain=float(np.exp(rng.normal(0, 0.15))),
-                scales=float(rng.uniform(25, 40)), scale_contrast=float(rng.uniform(0.03, 0.12)))
+                scales=float(rng.uniform(25, 40)), scale_contrast=float(rng.uniform(0.02, 0.08)))
 
 
 def _skin(rng: np.random.Generator, sp: Species, mesh: FishMesh) -> np.ndarray:

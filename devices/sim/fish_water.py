@@ -14,13 +14,17 @@ import numpy as np
 from devices.sim.stereo_scene import random_texture
 
 
-def ray_elevation(K: np.ndarray, R: np.ndarray, image_size: tuple[int, int], step: int = 8) -> np.ndarray:
-    """(H, W) float32: sine of the elevation of each pixel's viewing ray (world z up)."""
+def water_brightness(K: np.ndarray, R: np.ndarray, image_size: tuple[int, int], level: float,
+                     gradient: float, step: int = 8) -> np.ndarray:
+    """(H, W) float32: radiance of the water along each pixel's ray, ``level`` looking level and
+    exp(3 * gradient * sin(elevation)) times that looking up or down (world z up). Smooth, so
+    computed on a coarse grid and interpolated."""
     w, h = image_size
     u, v = np.meshgrid(np.arange(0, w + step, step, dtype=float), np.arange(0, h + step, step, dtype=float))
     rays = np.stack([u, v, np.ones_like(u)], -1) @ np.linalg.inv(K).T @ R
-    e = (rays[..., 2] / np.linalg.norm(rays, axis=-1)).astype(np.float32)
-    full = cv2.resize(e, (e.shape[1] * step, e.shape[0] * step), interpolation=cv2.INTER_LINEAR)
+    e = rays[..., 2] / np.linalg.norm(rays, axis=-1)
+    b = (level * np.exp(3.0 * gradient * e)).astype(np.float32)
+    full = cv2.resize(b, (b.shape[1] * step, b.shape[0] * step), interpolation=cv2.INTER_LINEAR)
     return full[:h, :w]
 
 
@@ -56,8 +60,7 @@ def underwater_background(rig, cam: int, cond: dict, rng_tex: dict) -> tuple[np.
     """(frame, veil) float32 (H, W, 3) BGR 0..255 for camera ``cam`` (0 left, 1 right)."""
     K, R = (rig.K1, rig.R1) if cam == 0 else (rig.K2, rig.R2)
     P = rig.P1 if cam == 0 else rig.P2
-    e = ray_elevation(K, R, rig.image_size)
-    bright = (cond["water_brightness"] * np.exp(cond["gradient"] * 3.0 * e)).astype(np.float32)
+    bright = water_brightness(K, R, rig.image_size, cond["water_brightness"], cond["gradient"])
     veil = cv2.merge([bright * np.float32(c) for c in cond["water_bgr"]])
     frame = veil.copy()
     clutter = cond["clutter"]
@@ -127,26 +130,31 @@ def lamp_irradiance(rig, cam: int, cond: dict, z: float) -> np.ndarray:
     return (0.35 + 0.65 * full[:h, :w]).astype(np.float32)
 
 
-def surface_reflections(frame: np.ndarray, rig, cam: int, cond: dict, ripples: np.ndarray) -> None:
-    """Add the lamps' specular images on the rippled water surface (z = 0) to ``frame``."""
-    P = rig.P1 if cam == 0 else rig.P2
-    w, h = rig.image_size
-    texel = 1.5
-    half = ripples.shape[0] * texel / 2
-    rip, cover = warp_plane(ripples, P, [-half, -half, 0.0], [1.0, 0, 0], [0, 1.0, 0], texel, rig.image_size)
-    glare = np.zeros((h, w), np.float32)
-    for lamp in cond["lamps"]:
-        mirror = np.array([lamp[0], lamp[1], -lamp[2]], float)
-        px = P @ np.r_[mirror, 1.0]
-        if px[2] <= 0:
-            continue
-        u, v = px[:2] / px[2]
-        yy, xx = np.ogrid[:h, :w]
-        spread = cond["glare_px"]
-        glare += np.exp(-((xx - u) ** 2 + (yy - v) ** 2) / (2 * spread ** 2)).astype(np.float32)
-    spec = cond["glare_strength"] * glare * (0.3 + 1.4 * rip ** 3) * cover
-    spec += cond["sheen"] * rip * cover
-    frame += spec[..., None] * 255.0
+def surface_reflections(frame: np.ndarray, rig, cam: int, cond: dict, textures: dict) -> None:
+    """Add the lamps' glitter on the rippled water surface (z = 0) to ``frame``: brightest around
+    each lamp's mirror image in this camera, spread over the ripples' range of slopes, plus a faint
+    sheen of the room everywhere. Ripples are frozen over a clip (drawn once per camera)."""
+    key = ("_glitter", cam)
+    if key not in textures:
+        P = rig.P1 if cam == 0 else rig.P2
+        w, h = rig.image_size
+        ripples = textures["ripples"]
+        texel = 1.5
+        half = ripples.shape[0] * texel / 2
+        rip, cover = warp_plane(ripples, P, [-half, -half, 0.0], [1.0, 0, 0], [0, 1.0, 0], texel, rig.image_size)
+        step = 8
+        yy, xx = np.mgrid[0:h + step:step, 0:w + step:step].astype(np.float32)
+        glare = np.zeros(xx.shape, np.float32)
+        for lamp in cond["lamps"]:
+            px = P @ np.r_[lamp[0], lamp[1], -lamp[2], 1.0]
+            if px[2] <= 0:
+                continue
+            u, v = px[:2] / px[2]
+            glare += np.exp(-((xx - u) ** 2 + (yy - v) ** 2) / (2 * cond["glare_px"] ** 2))
+        glare = cv2.resize(glare, (glare.shape[1] * step, glare.shape[0] * step))[:h, :w]
+        spec = cond["glare_strength"] * glare * (0.15 + 1.7 * rip ** 3) + cond["sheen"] * rip
+        textures[key] = (spec * cover * 255.0).astype(np.float32)
+    frame += textures[key][..., None]
 
 
 def ripple_texture(rng: np.random.Generator, size: int = 768) -> np.ndarray:

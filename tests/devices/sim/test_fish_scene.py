@@ -30,7 +30,7 @@ def _lone(rng, rig, fishes_spec, **given):
 def test_truth_pixels_are_the_rig_projection_and_length_is_the_3d_distance(make):
     rig = underwater_rig(**SMALL) if make is underwater_scene else surface_rig(**SMALL)
     for seed in range(3):
-        scene = make(np.random.default_rng(seed), rig=rig)
+        scene = make(np.random.default_rng(seed), rig=rig, n_fish=6)
         assert isinstance(scene, SurveyScene) and scene.left.shape == (480, 640, 3) and scene.left.dtype == np.uint8
         assert scene.fish, "a default scene holds fish"
         for f in scene.fish:

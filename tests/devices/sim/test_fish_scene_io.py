@@ -31,6 +31,6 @@ def test_written_pairs_truth_and_calibration_read_back(tmp_path):
 
 
 def test_command_writes_a_set(tmp_path, capsys):
-    assert main([str(tmp_path), "--count", "1", "--setup", "surface", "--seed", "3"]) == 0
+    assert main([str(tmp_path), "--count", "1", "--setup", "surface", "--seed", "3", "--image-size", "320x240"]) == 0
     out = json.loads(capsys.readouterr().out)
-    assert out["pairs"] == 1 and (tmp_path / "000_L.png").exists() and (tmp_path / "000_R.png").exists()
+    assert out["pairs"] == 1 and cv2.imread(str(tmp_path / "000_L.png")).shape == (240, 320, 3)
