@@ -7,9 +7,10 @@ drawn pixels a nearer fish covers.
 """
 from __future__ import annotations
 
+import cv2
 import numpy as np
 
-from devices.sim.fish_render import SHADE_Q, Light, add_shade, apply_shade, draw_disc, draw_fish, project
+from devices.sim.fish_render import SHADE_Q, Light, add_shade, draw_disc, draw_fish, project, shaded
 from devices.sim.fish_water import (
     add_noise,
     sparkle_texture,
@@ -59,14 +60,13 @@ def _background(rig, cam, cond, textures):
     if key not in textures:                       # static for a clip: drawn once
         draw = underwater_background if cond["setup"] == "underwater" else surface_background
         textures[key] = draw(rig, cam, cond, textures)
-    frame, veil = textures[key]
-    return frame.copy(), veil
+    return textures[key]
 
 
 def _draw_camera(rng, rig, cam, posed, proj, shades, bubbles, bubble_px, cond, textures, light):
-    frame, veil = _background(rig, cam, cond, textures)
+    background, veil = _background(rig, cam, cond, textures)
     w, h = rig.image_size
-    ranks = np.full((h, w), -1, np.int16)
+    ranks = np.zeros((h, w), np.uint8)            # draw order + 1 of the fish seen, 0: none
     c = rig.centres[cam]
     focal = (rig.K1 if cam == 0 else rig.K2)[0, 0]
     if shades and cond["shade"] > 0:
@@ -76,7 +76,9 @@ def _draw_camera(rng, rig, cam, posed, proj, shades, bubbles, bubble_px, cond, t
             pieces = sh if isinstance(sh, list) else [sh]
             for piece in pieces:
                 add_shade(shade_map, piece[cam], cond["shade"] / len(pieces), max(0.06 * extent, 1.0))
-        apply_shade(frame, shade_map)
+        frame = shaded(background, shade_map)
+    else:
+        frame = background.copy()
     if "_sparkle" not in textures:
         textures["_sparkle"] = sparkle_texture(rng, (h, w))
     sparkle = textures["_sparkle"]
@@ -88,7 +90,7 @@ def _draw_camera(rng, rig, cam, posed, proj, shades, bubbles, bubble_px, cond, t
         blur = cond["blur_gain"] * abs(dist - cond["focus_mm"]) / dist
         if kind == 0:
             rank_of[i] = len(rank_of)
-            drawn[i] = draw_fish(frame, ranks, rank_of[i], posed[i], proj[i][cam], c, light, veil,
+            drawn[i] = draw_fish(frame, ranks, rank_of[i] + 1, posed[i], proj[i][cam], c, light, veil,
                                  cond["visibility_mm"], blur, sparkle)
         else:
             u, v = bubble_px[cam][i]
@@ -105,15 +107,18 @@ def _draw_camera(rng, rig, cam, posed, proj, shades, bubbles, bubble_px, cond, t
 
 
 def _covered(ranks: np.ndarray, px: np.ndarray, rank: int) -> bool:
+    """A fish drawn after the one of draw order ``rank`` covers a pixel within HIDE_PX of px."""
     h, w = ranks.shape
     u, v = int(round(px[0])), int(round(px[1]))
     win = ranks[max(v - HIDE_PX, 0):min(v + HIDE_PX + 1, h), max(u - HIDE_PX, 0):min(u + HIDE_PX + 1, w)]
-    return bool(win.size and np.any(win > rank))
+    return bool(win.size and np.any(win > rank + 1))
 
 
 def render_pair(rng, rig, fishes, bubbles, cond, textures, masks: bool = False):
     """(left, right, truth dicts) for the scene's fish; with ``masks`` also, per camera, a (H, W)
     int array holding the index (in ``fishes``) of the fish seen at each pixel, -1 for none."""
+    if len(fishes) > 254:
+        raise ValueError(f"n_fish: {len(fishes)} fish in one scene; at most 254")
     light = scene_light(rig, cond)
     posed = [f.posed() for f in fishes]
     for p in posed:
@@ -129,7 +134,7 @@ def render_pair(rng, rig, fishes, bubbles, cond, textures, masks: bool = False):
         ranks.append(rk)
         rank_of.append(ro)
         drawn.append(dr)
-    counts = [np.bincount(rk.ravel().astype(np.int64) + 1, minlength=len(fishes) + 1)[1:] for rk in ranks]
+    counts = [cv2.calcHist([rk], [0], None, [256], [0, 256]).ravel()[1:] for rk in ranks]
     w, h = rig.image_size
     truths = []
     for i, f in enumerate(fishes):
@@ -141,7 +146,7 @@ def render_pair(rng, rig, fishes, bubbles, cond, textures, masks: bool = False):
         hidden, whole, clear = [], True, True
         for cam, p in ((0, p1), (1, p2)):
             d = drawn[cam][i]
-            seen = counts[cam][rank_of[cam][i]] if rank_of[cam][i] < len(counts[cam]) else 0
+            seen = counts[cam][rank_of[cam][i]]
             hidden.append(1.0 - seen / d.pixels if d.pixels else 1.0)
             whole = whole and d.inside and d.pixels > 0
             if inside:
@@ -157,9 +162,9 @@ def render_pair(rng, rig, fishes, bubbles, cond, textures, masks: bool = False):
     if masks:
         seen = []
         for cam in (0, 1):
-            lut = np.full(len(fishes) + 1, -1, np.int64)
+            lut = np.full(256, -1, np.int64)
             for i, r in rank_of[cam].items():
                 lut[r + 1] = i
-            seen.append(lut[ranks[cam].astype(np.int64) + 1])
+            seen.append(lut[ranks[cam]])
         return images[0], images[1], truths, seen
     return images[0], images[1], truths

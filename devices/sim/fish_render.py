@@ -83,7 +83,7 @@ def face_colours(p: Posed, cam_centre: np.ndarray, light: Light) -> tuple[np.nda
     return visible, colour * depth_light[:, None], spec
 
 
-def _fill_groups(img: np.ndarray, tri: np.ndarray, values: np.ndarray, levels: int = 32) -> None:
+def _fill_groups(img: np.ndarray, tri: np.ndarray, values: np.ndarray, levels: int = 20) -> None:
     """Fill triangles (n, 3, 2) fixed-point int32 into ``img`` in groups of equal quantised value
     (``values`` (n, channels) in 0..255-ish; one fillPoly call per group, not per triangle)."""
     q = np.clip(np.rint(values * (levels / 255.0)), 0, 4 * levels).astype(np.int64)
@@ -207,11 +207,13 @@ def add_shade(shade_map: np.ndarray, px: np.ndarray, strength: float, soft_px: f
     shade_map[cy0:cy1, cx0:cx1] += small[cy0 - y0:cy1 - y0, cx0 - x0:cx1 - x0]
 
 
-def apply_shade(frame: np.ndarray, shade_map: np.ndarray) -> None:
-    """Darken ``frame`` by the accumulated shades (1 - shade, at least 0.2 of the light left)."""
-    h, w = frame.shape[:2]
-    keep = cv2.resize(1.0 - np.minimum(shade_map, 0.8), (w, h), interpolation=cv2.INTER_LINEAR)
-    frame *= keep[..., None]
+def shaded(background: np.ndarray, shade_map: np.ndarray) -> np.ndarray:
+    """A new frame: ``background`` darkened by the accumulated shades (at least 0.2 of the light
+    left), in one pass (the copy every frame needs anyway)."""
+    h, w = background.shape[:2]
+    keep = cv2.resize(1.0 - np.minimum(shade_map, 0.8), (shade_map.shape[1] * SHADE_Q, shade_map.shape[0] * SHADE_Q),
+                      interpolation=cv2.INTER_LINEAR)[:h, :w]
+    return np.multiply(background, keep[..., None])
 
 
 def draw_disc(frame: np.ndarray, ranks: np.ndarray | None, rank: int, centre: np.ndarray, radius: float,
