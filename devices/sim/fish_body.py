@@ -18,7 +18,7 @@ from devices.sim.fish_species import Species
 N_ALONG, N_AROUND = 36, 18
 
 
-def _profile(u: np.ndarray, at: float, end: float, p: float = 0.75) -> np.ndarray:
+def _profile(u: np.ndarray, at: float, end: float, p: float = 0.66) -> np.ndarray:
     """Depth or width profile along the body, 0 at the snout, 1 at its maximum, ``end`` at u = 1."""
     q = p * (1 - at) / at                           # puts the maximum of u^p (1-u)^q at ``at``
     f = np.power(u, p) * np.power(1 - u, q)

@@ -26,6 +26,11 @@ def _log_uniform(rng, lo, hi):
     return float(np.exp(rng.uniform(np.log(lo), np.log(hi))))
 
 
+def _jpeg(rng, c):
+    """None (lossless) for 60 % of scenes, else a JPEG quality 60..95."""
+    return int(rng.integers(60, 96)) if rng.random() < 0.4 else None
+
+
 def _water_bgr(rng, c):
     green = rng.uniform(0.0, 1.0)                     # 0 blue ocean .. 1 green coastal water
     return [float(rng.uniform(0.8, 1.0) - 0.25 * green), float(rng.uniform(0.75, 0.95)),
@@ -66,6 +71,10 @@ UNDERWATER = {
     "focus_mm": lambda r, c: float(r.uniform(900, 1400)),
     "blur_gain": lambda r, c: float(r.uniform(0.3, 1.8)),
     "noise_sd": lambda r, c: float(r.uniform(1.0, 4.0)),
+    "particles": lambda r, c: int(r.integers(50, 600)) if r.random() < 0.6 else 0,   # marine snow
+    "vignette": lambda r, c: float(r.uniform(0.0, 0.4)),
+    "camera_gain": lambda r, c: [1.0, float(np.exp(r.normal(0, 0.04)))],   # left, right
+    "jpeg_quality": _jpeg,
     "speed_bl_s": lambda r, c: [0.5, 1.5],
 }
 
@@ -97,6 +106,9 @@ SURFACE = {
     "focus_mm": lambda r, c: 1200.0,
     "blur_gain": lambda r, c: float(r.uniform(0.2, 1.0)),
     "noise_sd": lambda r, c: float(r.uniform(1.0, 3.0)),
+    "vignette": lambda r, c: float(r.uniform(0.0, 0.3)),
+    "camera_gain": lambda r, c: [1.0, float(np.exp(r.normal(0, 0.04)))],
+    "jpeg_quality": _jpeg,
     "speed_bl_s": lambda r, c: [0.5, 1.5],
 }
 

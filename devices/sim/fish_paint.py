@@ -12,7 +12,8 @@ import numpy as np
 
 from devices.sim.fish_render import SHADE_Q, Light, add_shade, draw_disc, draw_fish, project, shaded
 from devices.sim.fish_water import (
-    add_noise,
+    draw_particles,
+    finish,
     sparkle_texture,
     surface_background,
     surface_reflections,
@@ -103,7 +104,23 @@ def _draw_camera(rng, rig, cam, posed, proj, shades, bubbles, bubble_px, cond, t
                       col, 0.8 * trans + 0.1)
     if cond["setup"] == "surface":
         surface_reflections(frame, rig, cam, cond, textures)
-    return add_noise(frame, cond["noise_sd"], rng, textures), ranks, rank_of, drawn
+    elif cond["particles"]:
+        if "_snow" not in textures:
+            textures["_snow"] = _snow(rng, rig, cond)
+        snow = textures["_snow"]
+        draw_particles(frame, project(rig, snow)[cam], np.linalg.norm(snow - c, axis=1), veil,
+                       cond["visibility_mm"])
+    return finish(frame, cam, cond, rng, textures), ranks, rank_of, drawn
+
+
+def _snow(rng, rig, cond) -> np.ndarray:
+    """World points of the marine snow in front of the rig (0.2-3 m), fixed for a clip."""
+    n = int(cond["particles"])
+    w, h = rig.image_size
+    uv = rng.uniform([-0.1 * w, -0.1 * h], [1.1 * w, 1.1 * h], (n, 2))
+    rays = np.c_[uv, np.ones(n)] @ np.linalg.inv(rig.K1).T @ rig.R1
+    rays /= np.linalg.norm(rays, axis=1, keepdims=True)
+    return rig.centres[0] + rays * rng.uniform(200, 3000, (n, 1))
 
 
 def _covered(ranks: np.ndarray, px: np.ndarray, rank: int) -> bool:

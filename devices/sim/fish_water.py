@@ -185,3 +185,37 @@ def add_noise(frame: np.ndarray, sigma: float, rng: np.random.Generator, cache: 
     out = cv2.add(frame, bank[oy:oy + h, ox:ox + w])
     cv2.threshold(out, 0, 0, cv2.THRESH_TOZERO, dst=out)
     return cv2.convertScaleAbs(out)
+
+
+def finish(frame: np.ndarray, cam: int, cond: dict, rng: np.random.Generator, cache: dict) -> np.ndarray:
+    """The camera's own part: lens vignetting and this camera's gain (the two cameras of a rig
+    never quite match), Gaussian sensor noise, 8 bits, and JPEG compression when the scene has a
+    ``jpeg_quality`` (video and stills from real rigs are compressed)."""
+    h, w = frame.shape[:2]
+    key = ("_vignette", cam)
+    if key not in cache:
+        yy, xx = np.ogrid[:h, :w]
+        cy, cx = (h - 1) / 2, (w - 1) / 2
+        r2 = ((xx - cx) ** 2 + (yy - cy) ** 2) / (cx ** 2 + cy ** 2)
+        v = ((1.0 - cond["vignette"] * r2) * cond["camera_gain"][cam]).astype(np.float32)
+        cache[key] = cv2.merge([v, v, v])
+    out = add_noise(cv2.multiply(frame, cache[key]), cond["noise_sd"], rng, cache)
+    q = cond.get("jpeg_quality")
+    if q:
+        ok, buf = cv2.imencode(".jpg", out, [cv2.IMWRITE_JPEG_QUALITY, int(q)])
+        out = cv2.imdecode(buf, cv2.IMREAD_COLOR)
+    return out
+
+
+def draw_particles(frame: np.ndarray, px: np.ndarray, dist: np.ndarray, veil: np.ndarray,
+                   visibility_mm: float) -> None:
+    """Marine snow: faint specks (organic particles lit by the downwelling light), a pixel or two."""
+    h, w = frame.shape[:2]
+    u, v = np.rint(px[:, 0]).astype(int), np.rint(px[:, 1]).astype(int)
+    ok = (u >= 0) & (u < w) & (v >= 0) & (v < h) & (dist > 0)
+    if not ok.any():
+        return
+    layer = np.zeros((h, w), np.float32)
+    np.add.at(layer, (v[ok], u[ok]), (0.25 + 0.5 * np.exp(-dist[ok] / visibility_mm)).astype(np.float32))
+    layer = cv2.GaussianBlur(layer, (0, 0), 0.7) * np.float32(4.0)
+    frame += (np.minimum(layer, 1.0)[..., None] * (veil * 0.8 + 40.0))
