@@ -9,6 +9,7 @@ from devices.sim.fish_species import SPECIES
 from devices.sim.fish_stock import make_fish
 
 SMALL = dict(image_size=(640, 480), focal_px=700.0)
+TINY = dict(image_size=(320, 240), focal_px=350.0)     # same view, quicker
 
 
 def _lone(rng, rig, fishes_spec, **given):
@@ -28,10 +29,10 @@ def _lone(rng, rig, fishes_spec, **given):
 
 @pytest.mark.parametrize("make", [underwater_scene, surface_scene])
 def test_truth_pixels_are_the_rig_projection_and_length_is_the_3d_distance(make):
-    rig = underwater_rig(**SMALL) if make is underwater_scene else surface_rig(**SMALL)
+    rig = underwater_rig(**TINY) if make is underwater_scene else surface_rig(**TINY)
     for seed in range(3):
         scene = make(np.random.default_rng(seed), rig=rig, n_fish=6)
-        assert isinstance(scene, SurveyScene) and scene.left.shape == (480, 640, 3) and scene.left.dtype == np.uint8
+        assert isinstance(scene, SurveyScene) and scene.left.shape == (240, 320, 3) and scene.left.dtype == np.uint8
         assert scene.fish, "a default scene holds fish"
         for f in scene.fish:
             p1, p2 = rig.project(np.array([f.snout_mm, f.fork_mm]))
@@ -98,7 +99,7 @@ def test_fish_behind_a_nearer_one_is_hidden_and_the_nearer_one_is_not():
 
 
 def test_same_seed_same_scene_other_seed_other_scene():
-    rig = underwater_rig(**SMALL)
+    rig = underwater_rig(**TINY)
     a, b = (underwater_scene(np.random.default_rng(7), rig=rig) for _ in range(2))
     c = underwater_scene(np.random.default_rng(8), rig=rig)
     assert np.array_equal(a.left, b.left) and np.array_equal(a.right, b.right)
@@ -108,7 +109,7 @@ def test_same_seed_same_scene_other_seed_other_scene():
 
 
 def test_conditions_drawn_per_scene_reported_and_checked():
-    rig = underwater_rig(**SMALL)
+    rig = underwater_rig(**TINY)
     scenes = [underwater_scene(np.random.default_rng(s), rig=rig, n_fish=2) for s in range(3)]
     assert all(len(s.fish) <= 2 for s in scenes)
     assert len({s.conditions["visibility_mm"] for s in scenes}) == 3
@@ -117,11 +118,11 @@ def test_conditions_drawn_per_scene_reported_and_checked():
     with pytest.raises(ValueError, match="turbidty"):
         underwater_scene(np.random.default_rng(0), rig=rig, turbidty=3)
     with pytest.raises(ValueError, match="species"):
-        surface_scene(np.random.default_rng(0), rig=surface_rig(**SMALL), species="carp")
+        surface_scene(np.random.default_rng(0), rig=surface_rig(**TINY), species="carp")
 
 
 def test_swim_keeps_ids_and_moves_fish_smoothly():
-    rig = underwater_rig(**SMALL)
+    rig = underwater_rig(**TINY)
     fps = 10.0
     frames = list(swim(np.random.default_rng(4), "underwater", 1.0, fps, rig=rig, n_fish=4, bubbles=0))
     assert len(frames) == 10
