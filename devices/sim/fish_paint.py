@@ -39,7 +39,7 @@ def _shade_points(rig, cond, posed) -> list[tuple[np.ndarray, np.ndarray]]:
     body dropped by about its depth), surface its shadow on the tank floor from each lamp."""
     out = []
     for p in posed:
-        body = p.verts[np.unique(p.body)][::3]
+        body = p.verts[:p.fins.min():3]            # body vertices come first, fin vertices after
         if cond["setup"] == "underwater":
             depth = np.ptp(body[:, 2])
             drop = body - [0.0, 0.0, cond["shade_drop"] * depth]

@@ -40,7 +40,7 @@ class Posed:
     verts: np.ndarray              # (N, 3) world mm
     body: np.ndarray               # (M, 3) outward-wound body faces
     fins: np.ndarray               # (K, 3) fin faces (two-sided)
-    albedo: np.ndarray             # (N, 3) BGR
+    albedo: np.ndarray             # (M, 3) BGR per body face
     fin_albedo: np.ndarray         # (3,) BGR
     glint: np.ndarray              # (M,) specular strength per body face (scales catch light)
     fin_alpha: float               # fin opacity 0..1
@@ -48,6 +48,7 @@ class Posed:
     gain: float = 1.0              # this fish's brightness (silvery fish flash, dark ones absorb)
     scales: float = 30.0           # scale rows along the body (diamond lattice)
     scale_contrast: float = 0.08
+    surface: tuple | None = None   # per-face normals, centroids, lit colour, light (set on first use)
 
 
 @dataclass
@@ -64,39 +65,52 @@ class Light:
         return np.exp(np.minimum((np.minimum(z, 0.0) - self.z_ref) / self.attenuation_mm, 1.0))
 
 
+def _unit_rows(v: np.ndarray) -> np.ndarray:
+    return v / (np.sqrt(np.einsum("ij,ij->i", v, v))[:, None] + 1e-12)
+
+
+def _surface(p: Posed, light: Light) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """(normals, centroids, lit colour, light level) of the body faces: the same for both cameras,
+    so worked out once per fish and frame."""
+    if p.surface is None:
+        a, b, c = (p.verts[p.body[:, k]] for k in range(3))
+        e1, e2 = b - a, c - a
+        n = np.stack([e1[:, 1] * e2[:, 2] - e1[:, 2] * e2[:, 1], e1[:, 2] * e2[:, 0] - e1[:, 0] * e2[:, 2],
+                      e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0]], axis=1)
+        n = _unit_rows(n)
+        centroid = (a + b + c) * (1 / 3)
+        level = light.at(centroid[:, 2]) * p.gain
+        diffuse = np.maximum(n @ light.direction, 0.0)
+        colour = p.albedo * ((light.ambient + (1 - light.ambient) * diffuse) * level)[:, None] * light.colour
+        p.surface = (n, centroid, colour, level)
+    return p.surface
+
+
 def face_colours(p: Posed, cam_centre: np.ndarray, light: Light) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(visible (M,), diffuse BGR (M, 3), specular (M,)) of each body face seen from ``cam_centre``."""
-    a, b, c = (p.verts[p.body[:, k]] for k in range(3))
-    n = np.cross(b - a, c - a)
-    n /= np.linalg.norm(n, axis=1, keepdims=True) + 1e-12
-    centroid = (a + b + c) / 3
-    view = cam_centre - centroid
-    view /= np.linalg.norm(view, axis=1, keepdims=True)
+    n, centroid, colour, level = _surface(p, light)
+    view = _unit_rows(cam_centre - centroid)
     visible = np.einsum("ij,ij->i", n, view) > 0
-    diffuse = np.clip(n @ light.direction, 0, None)
-    depth_light = light.at(centroid[:, 2]) * p.gain
-    h = view + light.direction
-    h /= np.linalg.norm(h, axis=1, keepdims=True)
-    spec = np.clip(np.einsum("ij,ij->i", n, h), 0, None) ** light.shininess * p.glint * depth_light
-    albedo = p.albedo[p.body].mean(axis=1)
-    colour = albedo * (light.ambient + (1 - light.ambient) * diffuse)[:, None] * light.colour
-    return visible, colour * depth_light[:, None], spec
+    h = _unit_rows(view + light.direction)
+    spec = np.maximum(np.einsum("ij,ij->i", n, h), 0.0) ** light.shininess * p.glint * level
+    return visible, colour, spec
 
 
-def _fill_groups(img: np.ndarray, tri: np.ndarray, values: np.ndarray, levels: int = 20) -> None:
+def _fill_groups(img: np.ndarray, tri: np.ndarray, values: np.ndarray, levels: int = 20, floor: int = 1) -> None:
     """Fill triangles (n, 3, 2) fixed-point int32 into ``img`` in groups of equal quantised value
-    (``values`` (n, channels) in 0..255-ish; one fillPoly call per group, not per triangle)."""
-    q = np.clip(np.rint(values * (levels / 255.0)), 0, 4 * levels).astype(np.int64)
+    (``values`` (n, channels) in 0..255-ish; one fillPoly call per group, not per triangle).
+    With ``floor`` 1 every filled value is at least one step above 0, so ``img > 0`` is the area."""
+    q = np.clip(np.rint(values * (levels / 255.0)), floor, 4 * levels).astype(np.int64)
     key = np.zeros(len(q), np.int64)
     for k in range(q.shape[1]):
         key = key * 256 + q[:, k]
     order = np.argsort(key, kind="stable")
-    keys, starts = np.unique(key[order], return_index=True)
-    bounds = np.append(starts, len(order))
-    for g in range(len(keys)):
-        sel = order[bounds[g]:bounds[g + 1]]
-        col = tuple(float(v) for v in q[sel[0]] * (255.0 / levels))
-        cv2.fillPoly(img, tri[sel], col, lineType=cv2.LINE_8, shift=SHIFT)
+    key, q, tri = key[order], q[order], tri[order]
+    starts = np.flatnonzero(np.diff(key)) + 1
+    bounds = np.concatenate([[0], starts, [len(key)]])
+    for a, b in zip(bounds[:-1], bounds[1:], strict=True):
+        col = tuple(float(v) for v in q[a] * (255.0 / levels))
+        cv2.fillPoly(img, tri[a:b], col, lineType=cv2.LINE_8, shift=SHIFT)
 
 
 @dataclass
@@ -141,15 +155,16 @@ def draw_fish(frame: np.ndarray, ranks: np.ndarray, rank: int, p: Posed, px: np.
     visible, colours, spec = face_colours(p, cam_centre, light)
     colour = np.zeros((ph, pw, 3), np.float32)
     glint = np.zeros((ph, pw), np.float32)
-    body = np.zeros((ph, pw), np.uint8)
     fin = np.zeros((ph, pw), np.uint8)
     cv2.fillPoly(fin, fixed[p.fins], 255, lineType=cv2.LINE_8, shift=SHIFT)
     body_tri = fixed[p.body[visible]]
-    cv2.fillPoly(body, body_tri, 255, lineType=cv2.LINE_8, shift=SHIFT)
-    _fill_groups(colour, body_tri, colours[visible])
+    size_px = float(np.linalg.norm(px[p.fork_vertex] - px[0]))
+    if len(body_tri):     # small fish: coarser shading steps (smoothed over afterwards anyway)
+        _fill_groups(colour, body_tri, colours[visible], levels=int(np.clip(size_px / 12, 8, 20)))
+    body = (colour[..., 0] > 0).view(np.uint8) * np.uint8(255)
     lit = spec[visible] > 2.0
     if lit.any():
-        _fill_groups(glint, body_tri[lit], spec[visible][lit][:, None], levels=12)
+        _fill_groups(glint, body_tri[lit], spec[visible][lit][:, None], levels=12, floor=0)
     snout_px, fork_px = px[0], px[p.fork_vertex]
     length_px = float(np.linalg.norm(fork_px - snout_px))
     bodyf = body.astype(np.float32) * np.float32(1 / 255)

@@ -23,7 +23,7 @@ class Fish:
     length_mm: float               # fork length along the (unbent) body
     weight_g: float
     mesh: FishMesh
-    albedo: np.ndarray             # (N, 3) per vertex
+    face_albedo: np.ndarray        # (M, 3) BGR per body face
     glint: np.ndarray              # (M,) per body face
     fin_alpha: float
     centre: np.ndarray             # (3,) world mm, mid-body on the axis
@@ -52,7 +52,7 @@ class Fish:
         return pts[0], pts[1]
 
     def posed(self) -> Posed:
-        return Posed(self._place(self.mesh.verts), self.mesh.body, self.mesh.fins, self.albedo,
+        return Posed(self._place(self.mesh.verts), self.mesh.body, self.mesh.fins, self.face_albedo,
                      np.asarray(self.species.fin, float), self.glint, self.fin_alpha,
                      self.mesh.fork_vertex, self.gain, self.scales, self.scale_contrast)
 
@@ -69,7 +69,7 @@ def make_fish(rng: np.random.Generator, fid: int, sp: Species, length_mm: float,
     L_cm = length_mm / 10.0
     k = np.exp(rng.normal(-0.5 * weight_scatter ** 2, weight_scatter)) if weight_scatter > 0 else 1.0
     weight = sp.a * L_cm ** sp.b * k
-    albedo = _skin(rng, sp, mesh)
+    albedo = _skin(rng, sp, mesh)[mesh.body].mean(axis=1)
     glint = np.where(rng.random(len(mesh.body)) < 0.35, rng.uniform(0.3, 1.4, len(mesh.body)), 0.0)
     glint *= 255.0 * rng.uniform(0.3, 1.0)
     return Fish(fid, sp, length_mm, float(weight), mesh, albedo, glint, float(rng.uniform(0.35, 0.75)),
