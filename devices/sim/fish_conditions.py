@@ -63,7 +63,7 @@ UNDERWATER = {
     "clutter": lambda r, c: str(r.choice(["none", "net", "reef"], p=[0.4, 0.3, 0.3])),
     "clutter_range_mm": lambda r, c: float(r.uniform(2300, 3500)),
     "net_bgr": lambda r, c: [float(v) for v in r.uniform(0.2, 0.6) * r.uniform(0.8, 1.2, 3) * 255],
-    "reef_bgr": lambda r, c: [float(v) for v in r.uniform([0.2, 0.35, 0.35], [0.5, 0.7, 0.8]) * 255],
+    "reef_bgr": lambda r, c: [float(v) for v in r.uniform([0.25, 0.3, 0.3], [0.45, 0.55, 0.6]) * 255],
     "bubbles": lambda r, c: int(r.integers(0, 60)) if r.random() < 0.7 else 0,
     "fish_gain": lambda r, c: _log_uniform(r, 0.6, 2.2),    # fish darker .. brighter than the water
     "shade": lambda r, c: float(r.uniform(0.05, 0.35)),      # darkening of the water under a fish

@@ -71,7 +71,7 @@ def underwater_background(rig, cam: int, cond: dict, rng_tex: dict) -> tuple[np.
         forward /= np.linalg.norm(forward)
         side = np.array([forward[1], -forward[0], 0.0])
         dist = cond["clutter_range_mm"]
-        texel = 4.0 if clutter == "net" else 6.0
+        texel = 4.0 if clutter == "net" else 9.0
         tex = rng_tex[clutter]
         half = tex.shape[0] * texel / 2
         base = (rig.centres[0] + rig.centres[1]) / 2 + forward * dist
@@ -84,7 +84,10 @@ def underwater_background(rig, cam: int, cond: dict, rng_tex: dict) -> tuple[np.
             a = (img * cover * trans)[..., None]
             frame = frame + (col - frame) * a
         else:
-            col = veil * (np.asarray(cond["reef_bgr"], np.float32) / 128.0) * (0.4 + 0.9 * img[..., None])
+            # rock lit by the water's light, sharp-edged boulders and dark crevices
+            rock = np.clip((img - 0.5) * 2.5 + 0.5, 0.0, 1.0)[..., None]
+            albedo = np.asarray(cond["reef_bgr"], np.float32) / 255.0
+            col = (albedo * (0.25 + 1.5 * rock)) * (bright[..., None] * 1.4)
             a = (cover * trans)[..., None]
             frame = frame + (col - frame) * a
     return frame.astype(np.float32), veil.astype(np.float32)
