@@ -43,7 +43,7 @@ UNDERWATER = {
     "mean_length_cm": lambda r, c: float(r.uniform(*SPECIES[c["species"]].mean_length_cm)),
     "length_cv": lambda r, c: float(r.uniform(0.10, 0.15)),
     "weight_scatter": lambda r, c: 0.05,               # sd of log condition factor
-    "n_fish": lambda r, c: int(r.integers(3, 15)),
+    "n_fish": lambda r, c: int(r.integers(3, 21)),
     "range_mm": lambda r, c: [600.0, 2000.0],
     "frame_margin": lambda r, c: 0.15,                 # fish centres placed this far beyond the edges
     "yaw_sd_deg": lambda r, c: float(r.uniform(12, 30)),   # heading off side-on
@@ -58,6 +58,8 @@ UNDERWATER = {
     "light_bgr": lambda r, c: [float(v) for v in r.uniform([200, 200, 110], [255, 250, 190])],
     "sun_tilt_deg": lambda r, c: float(r.uniform(0, 30)),
     "sun_azimuth_deg": lambda r, c: float(r.uniform(0, 360)),
+    "sun_rays": lambda r, c: float(r.uniform(0.1, 0.6)) if r.random() < 0.5 else 0.0,   # light shafts
+    "_rays_seed": lambda r, c: int(r.integers(1 << 30)),
     "light_attenuation_mm": lambda r, c: float(r.uniform(1500, 6000)),
     "ambient": lambda r, c: float(r.uniform(0.45, 0.8)),    # underwater light is diffuse
     "clutter": lambda r, c: str(r.choice(["none", "net", "reef"], p=[0.4, 0.3, 0.3])),
@@ -83,7 +85,7 @@ SURFACE = {
     "mean_length_cm": lambda r, c: float(r.uniform(*SPECIES[c["species"]].nursery_length_cm)),
     "length_cv": lambda r, c: float(r.uniform(0.10, 0.15)),
     "weight_scatter": lambda r, c: 0.05,
-    "n_fish": lambda r, c: int(r.integers(5, 21)),
+    "n_fish": lambda r, c: int(r.integers(5, 31)),
     "floor_depth_mm": lambda r, c: float(r.uniform(400, 700)),
     "swim_depth_mm": lambda r, c: [40.0, c["floor_depth_mm"] - 80.0],
     "frame_margin": lambda r, c: 0.15,

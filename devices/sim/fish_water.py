@@ -28,6 +28,27 @@ def water_brightness(K: np.ndarray, R: np.ndarray, image_size: tuple[int, int], 
     return full[:h, :w]
 
 
+def sun_rays(K: np.ndarray, R: np.ndarray, image_size: tuple[int, int], strength: float,
+             azimuth_deg: float, seed: int, step: int = 8) -> np.ndarray:
+    """(H, W) float32 gain around 1: shafts of sunlight through the water, brighter bands that
+    fan out downwards. A function of each ray's world direction, so both cameras see the same
+    shafts from their own viewpoints."""
+    w, h = image_size
+    u, v = np.meshgrid(np.arange(0, w + step, step, dtype=float), np.arange(0, h + step, step, dtype=float))
+    rays = np.stack([u, v, np.ones_like(u)], -1) @ np.linalg.inv(K).T @ R
+    rays /= np.linalg.norm(rays, axis=-1, keepdims=True)
+    az = np.arctan2(rays[..., 1], rays[..., 0]) - np.radians(azimuth_deg)
+    tilt = az + 0.6 * rays[..., 2]                  # shafts lean with the sun
+    rng = np.random.default_rng(seed)
+    g = np.zeros_like(tilt)
+    for f in rng.uniform(6, 30, 5):                 # a few shafts per radian of view
+        g += np.cos(f * tilt + rng.uniform(0, 2 * np.pi))
+    g = np.maximum(g / 5, 0) ** 2 * (0.6 + 0.4 * np.clip(rays[..., 2] + 0.5, 0, 1))
+    out = (1.0 + strength * g / (g.max() + 1e-9)).astype(np.float32)
+    full = cv2.resize(out, (out.shape[1] * step, out.shape[0] * step), interpolation=cv2.INTER_LINEAR)
+    return full[:h, :w]
+
+
 def plane_homography(P: np.ndarray, origin: np.ndarray, e1: np.ndarray, e2: np.ndarray,
                      texel_mm: float) -> np.ndarray:
     """Texel (col, row) of a texture on the plane origin + col*texel*e1 + row*texel*e2 -> pixel."""
@@ -61,6 +82,8 @@ def underwater_background(rig, cam: int, cond: dict, rng_tex: dict) -> tuple[np.
     K, R = (rig.K1, rig.R1) if cam == 0 else (rig.K2, rig.R2)
     P = rig.P1 if cam == 0 else rig.P2
     bright = water_brightness(K, R, rig.image_size, cond["water_brightness"], cond["gradient"])
+    if cond["sun_rays"] > 0:
+        bright *= sun_rays(K, R, rig.image_size, cond["sun_rays"], cond["sun_azimuth_deg"], cond["_rays_seed"])
     veil = cv2.merge([bright * np.float32(c) for c in cond["water_bgr"]])
     frame = veil.copy()
     clutter = cond["clutter"]
