@@ -1,4 +1,5 @@
 """The simulated stereo camera: truth is exact, fish appear where the truth says, flags are right."""
+import cv2
 import numpy as np
 import pytest
 
@@ -160,3 +161,32 @@ def test_swim_keeps_ids_and_moves_fish_smoothly():
                 assert f.id not in seen_ids and f.id >= max(before), "a new fish gets a new id"
         seen_ids |= set(before)
     assert set(f.id for f in frames[0].fish) & set(f.id for f in frames[-1].fish)
+
+
+def test_surface_fish_seen_from_above_at_its_truth_pixels_with_its_shadow_elsewhere():
+    from devices.sim.fish_conditions import surface_conditions
+    rig = surface_rig(**SMALL)
+    rng = np.random.default_rng(9)
+    cond, tex = surface_conditions(rng, rig, 1, dict(bubbles=0, jpeg_quality=None, glare_strength=0.0, sheen=0.0,
+                                                     lamps=[[0.0, -1000.0, 1000.0]], shade=0.5))
+    f = make_fish(rng, 0, SPECIES["sparus_aurata"], 120.0, 0.05)
+    f.centre, f.heading = np.array([0.0, 0.0, -150.0]), 0.3
+    seed = int(rng.integers(1 << 30))
+    left, right, truths, seen = render_pair(np.random.default_rng(seed), rig, [f], np.zeros((0, 4)), cond, tex,
+                                            masks=True)
+    eleft, _, _ = render_pair(np.random.default_rng(seed), rig, [], np.zeros((0, 4)), cond, tex)
+    t = truths[0]
+    assert t["measurable"] and t["fully_visible"]
+    assert abs(t["snout_mm"][2] - t["fork_mm"][2]) < 1.0           # level fish: both ends at one depth
+    s, fk = t["snout_px"][0], t["fork_px"][0]
+    mid = np.rint((s + fk) / 2).astype(int)
+    assert seen[0][mid[1], mid[0]] == 0
+    win = np.s_[mid[1] - 1:mid[1] + 2, mid[0] - 1:mid[0] + 2]
+    assert np.abs(left[win].astype(float).mean((0, 1)) - eleft[win].astype(float).mean((0, 1))).max() > 10
+    # the lamp stands towards -y: the shadow falls towards +y on the floor, i.e. up the image
+    # (image-up is world +y), away from the fish itself
+    shadow = eleft.astype(float).sum(2) - left.astype(float).sum(2)
+    shadow[seen[0] >= 0] = 0
+    v, u = np.unravel_index(np.argmax(cv2.GaussianBlur(shadow, (0, 0), 3)), shadow.shape)
+    assert v < mid[1] - 20
+    assert shadow[max(v - 3, 0):v + 4, max(u - 3, 0):u + 4].mean() > 10
