@@ -173,7 +173,7 @@ def render_pair(rng, rig, fishes, bubbles, cond, textures, masks: bool = False):
             length_cm=float(np.linalg.norm(snout - fork) / 10.0), weight_g=f.weight_g,
             snout_px=np.array([p1[0], p2[0]]), fork_px=np.array([p1[1], p2[1]]),
             measurable=bool(inside and clear),
-            fully_visible=bool(whole and max(hidden) < FULLY_VISIBLE_HIDDEN),
+            fully_visible=bool(inside and clear and whole and max(hidden) < FULLY_VISIBLE_HIDDEN),
             model_weight_g=float(f.species.a * (f.length_mm / 10.0) ** f.species.b),
             hidden=(float(hidden[0]), float(hidden[1]))))
     if masks:

@@ -190,3 +190,16 @@ def test_surface_fish_seen_from_above_at_its_truth_pixels_with_its_shadow_elsewh
     v, u = np.unravel_index(np.argmax(cv2.GaussianBlur(shadow, (0, 0), 3)), shadow.shape)
     assert v < mid[1] - 20
     assert shadow[max(v - 3, 0):v + 4, max(u - 3, 0):u + 4].mean() > 10
+
+
+def test_flags_are_consistent_over_many_scenes():
+    rig = underwater_rig(**TINY)
+    seen_cut = seen_whole = 0
+    for seed in range(8):
+        for f in underwater_scene(np.random.default_rng(100 + seed), rig=rig).fish:
+            inside = all(np.all((p >= 0) & (p <= [319, 239])) for p in (f.snout_px, f.fork_px))
+            assert f.measurable <= inside and f.fully_visible <= f.measurable
+            assert f.fully_visible <= (max(f.hidden) < 0.1)
+            seen_cut += not inside
+            seen_whole += f.fully_visible
+    assert seen_cut and seen_whole            # scenes hold both fish cut by the frame and whole ones
