@@ -74,6 +74,7 @@ UNDERWATER = {
     "blur_gain": lambda r, c: float(r.uniform(0.3, 1.8)),
     "noise_sd": lambda r, c: float(r.uniform(1.0, 4.0)),
     "particles": lambda r, c: int(r.integers(50, 600)) if r.random() < 0.6 else 0,   # marine snow
+    "_snow_seed": lambda r, c: int(r.integers(1 << 30)),
     "vignette": lambda r, c: float(r.uniform(0.0, 0.4)),
     "camera_gain": lambda r, c: [1.0, float(np.exp(r.normal(0, 0.04)))],   # left, right
     "jpeg_quality": _jpeg,

@@ -12,8 +12,8 @@ import numpy as np
 
 from devices.sim.fish_render import SHADE_Q, Light, add_shade, draw_disc, draw_fish, project, shaded
 from devices.sim.fish_water import (
-    draw_particles,
     finish,
+    particle_layer,
     sparkle_texture,
     surface_background,
     surface_reflections,
@@ -105,16 +105,20 @@ def _draw_camera(rng, rig, cam, posed, proj, shades, bubbles, bubble_px, cond, t
     if cond["setup"] == "surface":
         surface_reflections(frame, rig, cam, cond, textures)
     elif cond["particles"]:
-        if "_snow" not in textures:
-            textures["_snow"] = _snow(rng, rig, cond)
-        snow = textures["_snow"]
-        draw_particles(frame, project(rig, snow)[cam], np.linalg.norm(snow - c, axis=1), veil,
-                       cond["visibility_mm"])
+        key = ("_snow", cam)
+        if key not in textures:                   # the snow hangs still over a clip
+            snow = _snow(rng, rig, cond)
+            textures[key] = particle_layer((h, w), project(rig, snow)[cam], np.linalg.norm(snow - c, axis=1),
+                                           veil, cond["visibility_mm"])
+        idx, add = textures[key]
+        frame[idx] += add
     return finish(frame, cam, cond, rng, textures), ranks, rank_of, drawn
 
 
 def _snow(rng, rig, cond) -> np.ndarray:
-    """World points of the marine snow in front of the rig (0.2-3 m), fixed for a clip."""
+    """World points of the marine snow in front of the rig (0.2-3 m), fixed for a clip (the same
+    points for both cameras: drawn from a generator seeded by the scene)."""
+    rng = np.random.default_rng(cond["_snow_seed"])
     n = int(cond["particles"])
     w, h = rig.image_size
     uv = rng.uniform([-0.1 * w, -0.1 * h], [1.1 * w, 1.1 * h], (n, 2))

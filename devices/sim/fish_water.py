@@ -233,15 +233,15 @@ def finish(frame: np.ndarray, cam: int, cond: dict, rng: np.random.Generator, ca
     return out
 
 
-def draw_particles(frame: np.ndarray, px: np.ndarray, dist: np.ndarray, veil: np.ndarray,
-                   visibility_mm: float) -> None:
-    """Marine snow: faint specks (organic particles lit by the downwelling light), a pixel or two."""
-    h, w = frame.shape[:2]
+def particle_layer(shape: tuple[int, int], px: np.ndarray, dist: np.ndarray, veil: np.ndarray,
+                   visibility_mm: float) -> tuple[tuple[np.ndarray, np.ndarray], np.ndarray]:
+    """Marine snow (organic specks lit by the downwelling light, a pixel or two each) as sparse
+    (rows, cols), BGR values to add: drawn once, added to each frame cheaply."""
+    h, w = shape
     u, v = np.rint(px[:, 0]).astype(int), np.rint(px[:, 1]).astype(int)
     ok = (u >= 0) & (u < w) & (v >= 0) & (v < h) & (dist > 0)
-    if not ok.any():
-        return
     layer = np.zeros((h, w), np.float32)
     np.add.at(layer, (v[ok], u[ok]), (0.25 + 0.5 * np.exp(-dist[ok] / visibility_mm)).astype(np.float32))
-    layer = cv2.GaussianBlur(layer, (0, 0), 0.7) * np.float32(4.0)
-    frame += (np.minimum(layer, 1.0)[..., None] * (veil * 0.8 + 40.0))
+    layer = np.minimum(cv2.GaussianBlur(layer, (0, 0), 0.7) * np.float32(4.0), 1.0)
+    idx = np.nonzero(layer > 0.02)
+    return idx, layer[idx][:, None] * (veil[idx] * 0.8 + 40.0)
