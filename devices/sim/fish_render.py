@@ -136,6 +136,38 @@ def _wave(shape, origin, snout, fork, k_along: float, k_across: float) -> np.nda
     return np.outer(cy, cx) - np.outer(sy, sx)
 
 
+def _body_shading(shape: tuple[int, int], tri: np.ndarray, colours: np.ndarray, spec: np.ndarray,
+                  length_px: float) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+    """(colour (h, w, 3), body mask (h, w) uint8 255, glint (h, w) or None) of the visible body
+    triangles ``tri`` (fixed point). The flat facets are smoothed by normalised convolution inside
+    the body, so the outline stays sharp; a big fish's shading is worked out at half resolution
+    (it is smooth) while its outline is drawn at full resolution."""
+    ph, pw = shape
+    q = 2 if length_px > 240 else 1
+    sh = ((ph + q - 1) // q, (pw + q - 1) // q)
+    tq = tri if q == 1 else tri // q
+    colour = np.zeros(sh + (3,), np.float32)
+    if len(tq):     # small fish: coarser shading steps (smoothed over afterwards anyway)
+        _fill_groups(colour, tq, colours, levels=int(np.clip(length_px / 12, 8, 20)))
+    inside = (colour[..., 0] > 0).astype(np.float32)
+    k = 2 * int(np.clip(length_px / (45.0 * q), 1, 5)) + 1
+    colour = cv2.stackBlur(colour, (k, k)) / np.maximum(cv2.stackBlur(inside, (k, k)), np.float32(1e-3))[..., None]
+    lit = spec > 2.0
+    glint = None
+    if lit.any():
+        glint = np.zeros(sh, np.float32)
+        _fill_groups(glint, tq[lit], spec[lit][:, None], levels=12, floor=0)
+    if q == 1:
+        return colour, (inside > 0).view(np.uint8) * np.uint8(255), glint
+    full = (sh[1] * q, sh[0] * q)
+    colour = cv2.resize(colour, full, interpolation=cv2.INTER_LINEAR)[:ph, :pw]
+    if glint is not None:
+        glint = cv2.resize(glint, full, interpolation=cv2.INTER_NEAREST)[:ph, :pw]
+    body = np.zeros((ph, pw), np.uint8)
+    cv2.fillPoly(body, tri, 255, lineType=cv2.LINE_8, shift=SHIFT)
+    return colour, body, glint
+
+
 def draw_fish(frame: np.ndarray, ranks: np.ndarray, rank: int, p: Posed, px: np.ndarray,
               cam_centre: np.ndarray, light: Light, veil: np.ndarray, visibility_mm: float,
               blur_px: float, sparkle: np.ndarray) -> Drawn:
@@ -153,32 +185,19 @@ def draw_fish(frame: np.ndarray, ranks: np.ndarray, rank: int, p: Posed, px: np.
     pw, ph = cx1 - cx0, cy1 - cy0
     fixed = np.rint((px - [cx0, cy0]) * _ONE).astype(np.int32)
     visible, colours, spec = face_colours(p, cam_centre, light)
-    colour = np.zeros((ph, pw, 3), np.float32)
-    glint = np.zeros((ph, pw), np.float32)
     fin = np.zeros((ph, pw), np.uint8)
     cv2.fillPoly(fin, fixed[p.fins], 255, lineType=cv2.LINE_8, shift=SHIFT)
-    body_tri = fixed[p.body[visible]]
-    size_px = float(np.linalg.norm(px[p.fork_vertex] - px[0]))
-    if len(body_tri):     # small fish: coarser shading steps (smoothed over afterwards anyway)
-        _fill_groups(colour, body_tri, colours[visible], levels=int(np.clip(size_px / 12, 8, 20)))
-    body = (colour[..., 0] > 0).view(np.uint8) * np.uint8(255)
-    lit = spec[visible] > 2.0
-    if lit.any():
-        _fill_groups(glint, body_tri[lit], spec[visible][lit][:, None], levels=12, floor=0)
     snout_px, fork_px = px[0], px[p.fork_vertex]
     length_px = float(np.linalg.norm(fork_px - snout_px))
+    colour, body, glint = _body_shading((ph, pw), fixed[p.body[visible]], colours[visible], spec[visible],
+                                        length_px)
     bodyf = body.astype(np.float32) * np.float32(1 / 255)
-    # smooth the facets (normalised convolution inside the body, so the outline stays sharp) and
-    # lay a diamond lattice of scales fixed to the body (``p.scales`` rows along the fish)
-    k = 2 * int(np.clip(length_px / 45.0, 1, 5)) + 1
-    colour = cv2.stackBlur(colour, (k, k))
-    den = cv2.stackBlur(bodyf, (k, k))
+    # a diamond lattice of scales fixed to the body (``p.scales`` rows along the fish)
     origin = (cx0, cy0)
     lattice = (_wave((ph, pw), origin, snout_px, fork_px, 2 * p.scales, 0.0)
                + _wave((ph, pw), origin, snout_px, fork_px, 0.0, 2 * p.scales))
-    factor = (1.0 + np.float32(0.5 * p.scale_contrast) * lattice) / np.maximum(den, np.float32(1e-3))
-    colour *= factor[..., None]
-    if lit.any():
+    colour *= (1.0 + np.float32(0.5 * p.scale_contrast) * lattice)[..., None]
+    if glint is not None:
         colour += (glint * sparkle[cy0:cy1, cx0:cx1])[..., None]
     fin_col = (p.fin_albedo * light.colour * (light.ambient + 0.5 * (1 - light.ambient))
                * light.at(p.verts[:, 2].mean()) * p.gain).astype(np.float32)
