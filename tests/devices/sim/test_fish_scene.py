@@ -143,10 +143,11 @@ def test_conditions_drawn_per_scene_reported_and_checked():
         surface_scene(np.random.default_rng(0), rig=surface_rig(**TINY), species="carp")
 
 
-def test_swim_keeps_ids_and_moves_fish_smoothly():
-    rig = underwater_rig(**TINY)
+@pytest.mark.parametrize("setup", ["underwater", "surface"])
+def test_swim_keeps_ids_and_moves_fish_smoothly(setup):
+    rig = underwater_rig(**TINY) if setup == "underwater" else surface_rig(**TINY)
     fps = 10.0
-    frames = list(swim(np.random.default_rng(4), "underwater", 1.0, fps, rig=rig, n_fish=4, bubbles=0))
+    frames = list(swim(np.random.default_rng(4), setup, 1.0, fps, rig=rig, n_fish=4, bubbles=0))
     assert len(frames) == 10
     seen_ids: set[int] = set()
     for prev, cur in zip(frames, frames[1:], strict=False):
@@ -158,7 +159,7 @@ def test_swim_keeps_ids_and_moves_fish_smoothly():
                 assert 0 < step <= 1.5 * 10 * f.length_cm / fps * 1.3 + 5
                 assert abs(f.length_cm - before[f.id].length_cm) < 0.02 * f.length_cm
             else:
-                assert f.id not in seen_ids and f.id >= max(before), "a new fish gets a new id"
+                assert f.id not in seen_ids and f.id > max(before), "a new fish gets a new id"
         seen_ids |= set(before)
     assert set(f.id for f in frames[0].fish) & set(f.id for f in frames[-1].fish)
 
@@ -203,3 +204,19 @@ def test_flags_are_consistent_over_many_scenes():
             seen_cut += not inside
             seen_whole += f.fully_visible
     assert seen_cut and seen_whole            # scenes hold both fish cut by the frame and whole ones
+
+
+def test_swimming_fish_leave_the_view_and_new_ones_enter_from_the_sides():
+    rig = underwater_rig(**TINY)
+    frames = list(swim(np.random.default_rng(6), "underwater", 8.0, 4.0, rig=rig, n_fish=3, bubbles=0,
+                       particles=0))
+    first = {f.id for f in frames[0].fish}
+    later = set().union(*({f.id for f in fr.fish} for fr in frames[1:]))
+    assert first - {f.id for f in frames[-1].fish}, "some fish left"
+    newcomers = later - first
+    assert newcomers, "new fish came in"
+    for fid in newcomers:
+        k = next(i for i, fr in enumerate(frames) if fid in {f.id for f in fr.fish})
+        f = next(f for f in frames[k].fish if f.id == fid)
+        u = (f.snout_px[0, 0] + f.fork_px[0, 0]) / 2
+        assert u < 0.25 * 320 or u > 0.75 * 320, "a newcomer appears at a side of the view"
