@@ -80,9 +80,9 @@ def _draw_camera(rng, rig, cam, posed, proj, shades, bubbles, bubble_px, cond, t
         frame = shaded(background, shade_map)
     else:
         frame = background.copy()
-    if "_sparkle" not in textures:
-        textures["_sparkle"] = sparkle_texture(rng, (h, w))
-    sparkle = textures["_sparkle"]
+    if ("_sparkle", cam) not in textures:       # per camera: glints are not a shared pattern
+        textures[("_sparkle", cam)] = sparkle_texture(rng, (h, w))
+    sparkle = textures[("_sparkle", cam)]
     objects = [(float(np.linalg.norm(p.verts.mean(axis=0) - c)), 0, i) for i, p in enumerate(posed)]
     objects += [(float(np.linalg.norm(b[:3] - c)), 1, j) for j, b in enumerate(bubbles)]
     objects.sort(key=lambda o: -o[0])

@@ -196,17 +196,20 @@ def sparkle_texture(rng: np.random.Generator, shape: tuple[int, int]) -> np.ndar
     return dots / dots.max()
 
 
-def add_noise(frame: np.ndarray, sigma: float, rng: np.random.Generator, cache: dict | None = None) -> np.ndarray:
+def add_noise(frame: np.ndarray, sigma: float, rng: np.random.Generator, cache: dict | None = None,
+              key: object = "_noise") -> np.ndarray:
     """uint8 image: ``frame`` plus Gaussian sensor noise (independent per channel), clipped and
-    rounded. With ``cache`` the noise is cut at a random offset from a bank drawn once (video)."""
+    rounded. With ``cache`` the noise is cut at a random offset from a bank drawn once (video);
+    each camera needs its own ``key``: shifted copies of one bank in the two images would give a
+    stereo matcher a false match at the shift."""
     h, w = frame.shape[:2]
-    bank = None if cache is None else cache.get("_noise")
+    bank = None if cache is None else cache.get(key)
     if bank is None:
         cv2.setRNGSeed(int(rng.integers(1 << 31)))
         bank = np.empty((h + 61, w + 67, 3), np.float32)
         cv2.randn(bank, 0.0, float(sigma))
         if cache is not None:
-            cache["_noise"] = bank
+            cache[key] = bank
     oy, ox = int(rng.integers(0, 62)), int(rng.integers(0, 68))
     out = cv2.add(frame, bank[oy:oy + h, ox:ox + w])
     cv2.threshold(out, 0, 0, cv2.THRESH_TOZERO, dst=out)
@@ -225,7 +228,7 @@ def finish(frame: np.ndarray, cam: int, cond: dict, rng: np.random.Generator, ca
         r2 = ((xx - cx) ** 2 + (yy - cy) ** 2) / (cx ** 2 + cy ** 2)
         v = ((1.0 - cond["vignette"] * r2) * cond["camera_gain"][cam]).astype(np.float32)
         cache[key] = cv2.merge([v, v, v])
-    out = add_noise(cv2.multiply(frame, cache[key]), cond["noise_sd"], rng, cache)
+    out = add_noise(cv2.multiply(frame, cache[key]), cond["noise_sd"], rng, cache, ("_noise", cam))
     q = cond.get("jpeg_quality")
     if q:
         ok, buf = cv2.imencode(".jpg", out, [cv2.IMWRITE_JPEG_QUALITY, int(q)])
