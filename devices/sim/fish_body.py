@@ -41,9 +41,12 @@ class FishMesh:
     fork_vertex: int = 0           # index of the vertex at the fork notch (L, 0, 0)
 
 
-def build_mesh(sp: Species, length_mm: float, shape_jitter: np.ndarray | None = None) -> FishMesh:
+def build_mesh(sp: Species, length_mm: float, shape_jitter: np.ndarray | None = None,
+               fork_scale: float = 1.0, wear: float = 0.0, rng: np.random.Generator | None = None) -> FishMesh:
     """Mesh of one fish of fork length ``length_mm``. ``shape_jitter`` (3,) scales depth, width and
-    fin size of this individual (1 = the species' outline)."""
+    fin size of this individual (1 = the species' outline); ``fork_scale`` the depth of its fork;
+    ``wear`` (0..1, needs ``rng``) frays the caudal fin's trailing edge as fin erosion does in
+    farmed fish, at most half way to the notch, which stays the innermost point."""
     jd, jw, jf = (1.0, 1.0, 1.0) if shape_jitter is None else shape_jitter
     L = length_mm
     x_end = sp.body_end * L
@@ -64,7 +67,7 @@ def build_mesh(sp: Species, length_mm: float, shape_jitter: np.ndarray | None = 
     body = _BODY_FACES
     base = 1 + N_ALONG * N_AROUND
     # fins: closed outlines in the x-z mid-plane, fanned from an inner point
-    outlines = [_caudal_outline(sp, L, up[-1], down[-1], jf)]
+    outlines = [_caudal_outline(sp, L, up[-1], down[-1], jf, fork_scale, wear, rng)]
     for (start, stop, height), sign, prof in ((sp.dorsal_fin, 1, up), (sp.anal_fin, -1, down)):
         outlines.append(_median_fin_outline(u, prof, start, stop, height * jf * L, sign, x_end))
     fin_faces, fin_verts = [], []
@@ -119,11 +122,12 @@ def _outward(verts: np.ndarray, faces: np.ndarray) -> np.ndarray:
 _BODY_FACES = _body_faces()
 
 
-def _caudal_outline(sp: Species, L: float, top: float, bottom: float, jf: float):
+def _caudal_outline(sp: Species, L: float, top: float, bottom: float, jf: float, fork_scale: float = 1.0,
+                    wear: float = 0.0, rng: np.random.Generator | None = None):
     """(x, z) outline of the forked caudal fin, from the peduncle's top round to its bottom, and
     the fan centre. The trailing edge runs lobe tip -> notch (L, 0) -> lobe tip, concave."""
     x0 = sp.body_end * L
-    tip_x = L + (sp.lobe_tip - 1.0) * L * jf
+    tip_x = L + (sp.lobe_tip - 1.0) * L * jf * fork_scale
     span = sp.lobe_span * L * jf
     t = np.linspace(0, 1, 8)
     # leading (outer) edge: peduncle corner to the tip, bulging outwards
@@ -134,6 +138,12 @@ def _caudal_outline(sp: Species, L: float, top: float, bottom: float, jf: float)
     trail_z = span * (1 - t[1:]) ** 1.3
     upper = np.c_[np.r_[lead_x, trail_x], np.r_[lead_z, trail_z]]
     lower = upper[::-1][1:] * [1, -1]
+    if wear > 0 and rng is not None:
+        n = len(t) - 1                                # trailing-edge points before the notch
+        for part, idx in ((upper, np.arange(len(t) - 1, len(t) - 1 + n - 1)), (lower, np.arange(1, n))):
+            from_notch = np.abs(part[idx, 1]) / max(span, 1e-9)
+            bite = wear * rng.uniform(0, 1, len(idx)) * 0.35 * (tip_x - x0) * from_notch
+            part[idx, 0] = np.maximum(part[idx, 0] - bite, L + 0.5 * (part[idx, 0] - L))
     lower[:, 1] *= bottom / top if top > 0 else 1.0
     outline = np.vstack([upper, lower])
     centre = np.array([x0 - 0.02 * L, 0.0])

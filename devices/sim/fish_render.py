@@ -49,6 +49,8 @@ class Posed:
     scales: float = 30.0           # scale rows along the body (diamond lattice)
     scale_contrast: float = 0.08
     surface: tuple | None = None   # per-face normals, centroids, lit colour, light (set on first use)
+    fin_rays: float = 30.0         # rays across the fins per fork length
+    ray_contrast: float = 0.1
 
 
 @dataclass
@@ -209,7 +211,7 @@ def draw_fish(frame: np.ndarray, ranks: np.ndarray, rank: int, p: Posed, px: np.
                * light.at(p.verts[:, 2].mean()) * p.gain).astype(np.float32)
     is_fin = (fin > 0) & (body == 0)
     if is_fin.any():
-        rays = 1.0 + 0.1 * _wave((ph, pw), origin, snout_px, fork_px, 0.0, 30.0)[is_fin]  # fin rays
+        rays = 1.0 + p.ray_contrast * _wave((ph, pw), origin, snout_px, fork_px, 0.0, p.fin_rays)[is_fin]
         colour[is_fin] = fin_col * rays[:, None]
     alpha = np.maximum(bodyf, is_fin * np.float32(p.fin_alpha))
     rng_mm = float(np.linalg.norm(p.verts.mean(axis=0) - cam_centre))
