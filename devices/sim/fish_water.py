@@ -84,36 +84,42 @@ def underwater_background(rig, cam: int, cond: dict, rng_tex: dict) -> tuple[np.
     bright = water_brightness(K, R, rig.image_size, cond["water_brightness"], cond["gradient"])
     if cond["sun_rays"] > 0:
         bright *= sun_rays(K, R, rig.image_size, cond["sun_rays"], cond["sun_azimuth_deg"], cond["_rays_seed"])
-    veil = cv2.merge([bright * np.float32(c) for c in cond["water_bgr"]])
-    frame = veil.copy()
+    bright = np.ascontiguousarray(bright, dtype=np.float32)
+    veil = cv2.multiply(_bgr(bright), _scalar(cond["water_bgr"]))
     clutter = cond["clutter"]
-    if clutter in ("net", "reef"):
-        centre = np.asarray(rig.target, float)
-        forward = centre - (rig.centres[0] + rig.centres[1]) / 2
-        forward[2] = 0.0
-        forward /= np.linalg.norm(forward)
-        side = np.array([forward[1], -forward[0], 0.0])
-        dist = cond["clutter_range_mm"]
-        texel = 4.0 if clutter == "net" else 9.0
-        tex = rng_tex[clutter]
-        half = tex.shape[0] * texel / 2
-        base = (rig.centres[0] + rig.centres[1]) / 2 + forward * dist
-        e1, e2 = side, np.array([0.0, 0.0, -1.0])      # a net wall or a rock face behind the fish
-        origin = base - half * e1 - half * e2
-        img, cover = warp_plane(tex, P, origin, e1, e2, texel, rig.image_size)
-        trans = float(np.exp(-dist / cond["visibility_mm"]))
-        if clutter == "net":
-            col = veil * (np.asarray(cond["net_bgr"], np.float32) / 128.0)
-            a = (img * cover * trans)[..., None]
-            frame = frame + (col - frame) * a
-        else:
-            # rock lit by the water's light, sharp-edged boulders and dark crevices
-            rock = np.clip((img - 0.5) * 2.5 + 0.5, 0.0, 1.0)[..., None]
-            albedo = np.asarray(cond["reef_bgr"], np.float32) / 255.0
-            col = (albedo * (0.25 + 1.5 * rock)) * (bright[..., None] * 1.4)
-            a = (cover * trans)[..., None]
-            frame = frame + (col - frame) * a
-    return frame.astype(np.float32), veil.astype(np.float32)
+    if clutter not in ("net", "reef"):
+        return veil.copy(), veil
+    centre = np.asarray(rig.target, float)
+    forward = centre - (rig.centres[0] + rig.centres[1]) / 2
+    forward[2] = 0.0
+    forward /= np.linalg.norm(forward)
+    side = np.array([forward[1], -forward[0], 0.0])
+    dist = cond["clutter_range_mm"]
+    texel = 4.0 if clutter == "net" else 9.0
+    tex = rng_tex[clutter]
+    half = tex.shape[0] * texel / 2
+    base = (rig.centres[0] + rig.centres[1]) / 2 + forward * dist
+    e1, e2 = side, np.array([0.0, 0.0, -1.0])      # a net wall or a rock face behind the fish
+    origin = base - half * e1 - half * e2
+    img, cover = warp_plane(tex, P, origin, e1, e2, texel, rig.image_size)
+    trans = np.float32(np.exp(-dist / cond["visibility_mm"]))
+    if clutter == "net":
+        col = cv2.multiply(veil, _scalar(np.asarray(cond["net_bgr"]) / 128.0))
+        a = img * cover * trans
+    else:       # rock lit by the water's light: boulders and dark crevices
+        rock = np.clip((img - 0.5) * 2.5 + 0.5, 0.0, 1.0)
+        col = cv2.multiply(_bgr((0.25 + 1.5 * rock) * bright * np.float32(1.4)),
+                           _scalar(np.asarray(cond["reef_bgr"]) / 255.0))
+        a = cover * trans
+    return cv2.blendLinear(col, veil, a, 1.0 - a), veil
+
+
+def _bgr(grey: np.ndarray) -> np.ndarray:
+    return cv2.cvtColor(np.ascontiguousarray(grey, dtype=np.float32), cv2.COLOR_GRAY2BGR)
+
+
+def _scalar(bgr) -> tuple[float, float, float, float]:
+    return tuple(float(v) for v in bgr) + (0.0,)
 
 
 def surface_background(rig, cam: int, cond: dict, rng_tex: dict) -> tuple[np.ndarray, np.ndarray]:
