@@ -26,6 +26,10 @@ def project(rig, world: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         if len(world) == 0:
             out.append(np.zeros((0, 2)))
             continue
+        if D is None or not np.any(D):            # pinhole: the same numbers, without OpenCV's overhead
+            cam = world @ (K @ R).T + K @ np.asarray(t, float)
+            out.append(cam[:, :2] / cam[:, 2:3])
+            continue
         dist = np.zeros(5) if D is None else np.asarray(D, dtype=float)
         px = cv2.projectPoints(world.reshape(-1, 1, 3), cv2.Rodrigues(np.asarray(R, float))[0],
                                np.asarray(t, dtype=float), K, dist)[0]
