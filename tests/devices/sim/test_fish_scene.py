@@ -3,11 +3,11 @@ import cv2
 import numpy as np
 import pytest
 
+from devices.sim.fish_body import build_mesh
 from devices.sim.fish_conditions import underwater_conditions
 from devices.sim.fish_paint import render_pair
 from devices.sim.fish_scene import SurveyScene, surface_rig, surface_scene, swim, underwater_rig, underwater_scene
 from devices.sim.fish_species import SPECIES
-from devices.sim.fish_body import build_mesh
 from devices.sim.fish_stock import make_fish
 
 SMALL = dict(image_size=(640, 480), focal_px=700.0)
