@@ -245,3 +245,18 @@ def test_worn_or_shallow_caudal_fins_keep_the_fork_notch_innermost():
             assert np.sum(np.all(np.isclose(trailing, [L, 0.0]), axis=1)) == 1
             mesh = build_mesh(sp, L, None, fork_scale=0.7, wear=1.0, rng=np.random.default_rng(seed))
             np.testing.assert_allclose(mesh.verts[mesh.fork_vertex], [L, 0.0, 0.0])
+
+
+def test_the_two_cameras_sensor_noise_is_independent():
+    """Shifted copies of one noise pattern in both images would hand a stereo matcher a false
+    match at the shift: the noise residuals of an empty, flat scene must not correlate at any
+    shift."""
+    rig = underwater_rig(**TINY)
+    sc = underwater_scene(np.random.default_rng(2), rig=rig, n_fish=0, clutter="none", bubbles=0, particles=0,
+                          sun_rays=0.0, jpeg_quality=None, noise_sd=4.0)
+    res = [g - cv2.GaussianBlur(g, (0, 0), 3) for g in
+           (cv2.cvtColor(im, cv2.COLOR_BGR2GRAY).astype(np.float32) for im in (sc.left, sc.right))]
+    patch = res[0][80:160, 100:220]
+    ncc = cv2.matchTemplate(res[1], patch, cv2.TM_CCOEFF_NORMED)
+    assert ncc.max() < 0.3
+    assert cv2.matchTemplate(res[0], patch, cv2.TM_CCOEFF_NORMED).max() > 0.99     # the probe can see a match
