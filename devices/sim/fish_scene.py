@@ -7,14 +7,17 @@ each view sees each fish in its own perspective and nearer fish hide farther one
 3-D snout tip and fork notch, their pixels by ``rig.project``, and flags read off the drawn masks.
 
 Underwater (``underwater_scene``): a horizontal convergent rig at 1.5 m depth; blue-green water
-brighter upwards, light falling with depth, turbidity (fish fade towards the water colour with
-range), defocus, bubbles, a net or reef behind some scenes, sensor noise.
-Surface (``surface_scene``): cameras 1 m above a nursery tank looking down, lamps at ~45 deg, the
-tank floor below, lamp glare and ripple sparkle on the water surface over the fish.
+brighter upwards, light falling with depth, sun shafts, turbidity (fish fade towards the water
+colour with range), defocus, shades under the fish, bubbles, marine snow, a net or reef behind
+some scenes. Surface (``surface_scene``): cameras 1 m above a nursery tank looking down, lamps at
+~45 deg, the tank floor with the fish's shadows below, lamp glitter on the rippled water over the
+fish. Both: vignetting, unequal camera gains, sensor noise, JPEG in some scenes (fish_water).
+Conditions: fish_conditions; fish: fish_species, fish_body, fish_stock; where they swim:
+fish_placement; drawing: fish_render, fish_paint; files: fish_io.
 Ignored: refraction (at the housing port underwater, at the water surface for the surface rig:
 horizontal lengths at one depth are kept to first order, only their apparent depth changes, and
 the truth is stated in the unrefracted frame the rig's calibration describes), motion blur,
-rolling shutter, caustics, colour cast per camera, lens distortion unless the rig carries it.
+rolling shutter, caustics, moving ripples, lens distortion unless the rig carries it.
 """
 from __future__ import annotations
 
