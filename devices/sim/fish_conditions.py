@@ -119,7 +119,7 @@ SURFACE = {
 def _floor_bgr(rng) -> list[float]:
     """A tank floor: grey, blue, green or beige painted or fibreglass, a little worn."""
     base = [(190, 190, 190), (200, 160, 110), (140, 170, 120), (160, 190, 205), (110, 110, 110)]
-    col = np.asarray(base[int(rng.integers(len(base)))], float) * rng.uniform(0.8, 1.15, 3)
+    col = np.asarray(base[int(rng.integers(len(base)))], float) * rng.uniform(0.8, 1.15) * rng.uniform(0.95, 1.05, 3)
     return [float(v) for v in np.clip(col, 40, 240)]
 
 

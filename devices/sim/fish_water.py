@@ -171,7 +171,7 @@ def surface_reflections(frame: np.ndarray, rig, cam: int, cond: dict, textures: 
         P = rig.P1 if cam == 0 else rig.P2
         w, h = rig.image_size
         ripples = textures["ripples"]
-        texel = 1.5
+        texel = 2.5
         half = ripples.shape[0] * texel / 2
         rip, cover = warp_plane(ripples, P, [-half, -half, 0.0], [1.0, 0, 0], [0, 1.0, 0], texel, rig.image_size)
         step = 8
