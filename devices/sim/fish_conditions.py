@@ -140,6 +140,11 @@ def _draw(rng, table: dict, n_fish, given: dict, setup: str) -> dict:
                          f"known: {', '.join(table)}")
     if n_fish is not None:
         given = {**given, "n_fish": int(n_fish)}
+    if given.get("clutter", "none") not in ("none", "net", "reef"):
+        raise ValueError(f"{setup} scene: clutter {given['clutter']!r} is not one of none, net, reef")
+    bad = [k for k in ("n_fish", "bubbles", "particles") if k in given and int(given[k]) < 0]
+    if bad:
+        raise ValueError(f"{setup} scene: {bad[0]} must be >= 0, got {given[bad[0]]}")
     if "species" in given and given["species"] not in SPECIES:
         raise ValueError(f"{setup} scene: unknown species {given['species']!r}; known: {', '.join(SPECIES)}")
     cond = {"setup": setup}

@@ -148,6 +148,10 @@ def test_conditions_drawn_per_scene_reported_and_checked():
     assert fixed.conditions["clutter"] == "net" and all(f.species == "salmo_salar" for f in fixed.fish)
     with pytest.raises(ValueError, match="turbidty"):
         underwater_scene(np.random.default_rng(0), rig=rig, turbidty=3)
+    with pytest.raises(ValueError, match="clutter"):
+        underwater_scene(np.random.default_rng(0), rig=rig, clutter="kelp")
+    with pytest.raises(ValueError, match="n_fish"):
+        underwater_scene(np.random.default_rng(0), rig=rig, n_fish=-1)
     with pytest.raises(ValueError, match="species"):
         surface_scene(np.random.default_rng(0), rig=surface_rig(**TINY), species="carp")
 
