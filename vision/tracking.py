@@ -31,6 +31,7 @@ mean of its sightings' scores) are what a survey filters on.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from functools import lru_cache
 
 import numpy as np
 from filterpy.common import Q_continuous_white_noise
@@ -45,6 +46,14 @@ TENTATIVE_MISSED = 2           # misses a younger track survives (most are false
 _INADMISSIBLE = 1e9
 _H = np.zeros((3, 6))
 _H[0, 0] = _H[1, 2] = _H[2, 4] = 1.0
+
+
+@lru_cache(maxsize=64)
+def _motion(dt: float) -> tuple[np.ndarray, np.ndarray]:
+    """Constant-velocity transition over ``dt`` s and its process noise for unit spectral density."""
+    F = np.eye(6)
+    F[0, 1] = F[2, 3] = F[4, 5] = dt
+    return F, Q_continuous_white_noise(dim=2, dt=dt, spectral_density=1.0, block_size=3)
 
 
 def robust_length_cm(lengths_cm: np.ndarray, weights: np.ndarray | None = None, trim: float = 0.25) -> float:
@@ -97,6 +106,7 @@ class _Open:
         self.at_frame = frame                    # frame the filter's state refers to
         self.heading = heading
         self.frames, self.lengths_mm, self.scores = [frame], [length_mm], [score]
+        self.ref_mm = length_mm
         self.missed = 0
 
     @property
@@ -104,7 +114,16 @@ class _Open:
         return self.frames[-1]
 
     def reference_length_mm(self) -> float:
-        return float(np.median(self.lengths_mm))
+        """The median of the sightings' lengths, kept up to date by ``add``."""
+        return self.ref_mm
+
+    def add(self, frame: int, heading: np.ndarray, length_mm: float, score: float) -> None:
+        self.heading = heading
+        self.frames.append(frame)
+        self.lengths_mm.append(length_mm)
+        self.scores.append(float(score))
+        self.ref_mm = float(np.median(self.lengths_mm))
+        self.missed = 0
 
     def close(self) -> Track:
         lengths_cm = np.asarray(self.lengths_mm) / 10.0
@@ -223,11 +242,9 @@ class FishTracker:
         dt = (frame - track.at_frame) / self.fps
         if dt <= 0:
             return
-        F = np.eye(6)
-        F[0, 1] = F[2, 3] = F[4, 5] = dt
+        F, Q1 = _motion(dt)
         q = (self.manoeuvre * track.reference_length_mm()) ** 2
-        Q = Q_continuous_white_noise(dim=2, dt=dt, spectral_density=q, block_size=3)
-        track.kf.predict(F=F, Q=Q)
+        track.kf.predict(F=F, Q=Q1 * q)
         track.at_frame = frame
 
     def _costs(self, track: _Open, frame: int, seen: list) -> np.ndarray:
@@ -255,8 +272,4 @@ class FishTracker:
     def _extend(self, track: _Open, frame: int, seen: tuple, score: float) -> None:
         mid, heading, length = seen
         track.kf.update(mid)
-        track.heading = heading
-        track.frames.append(frame)
-        track.lengths_mm.append(length)
-        track.scores.append(float(score))
-        track.missed = 0
+        track.add(frame, heading, length, score)
