@@ -23,7 +23,7 @@ from typing import Literal
 
 import numpy as np
 
-from vision.calib_file import CalibrationError, StereoCalibration, calibration_from_json
+from vision.calib_file import CalibrationError, StereoCalibration, _check_camera_matrix, calibration_from_json
 
 UNITS_MM = {"mm": 1.0, "cm": 10.0, "m": 1000.0, "in": 25.4}
 PixelOrigin = Literal["zero", "corner", "one"]
@@ -114,6 +114,8 @@ def from_opencv(K1: np.ndarray, D1: np.ndarray | None, K2: np.ndarray, D2: np.nd
         if not np.all(np.isfinite(a)):
             raise CalibrationError(name, "contains NaN or infinity")
         arrays[name] = a
+    for name in ("K1", "K2"):                 # before P1/P2, which a bad K makes singular
+        _check_camera_matrix(arrays[name], name)
     _check_rotation(arrays["R"])
     T_mm = arrays["T"] * mm_per_unit
     P1 = arrays["K1"] @ np.c_[np.eye(3), np.zeros(3)]

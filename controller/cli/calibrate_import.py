@@ -101,10 +101,14 @@ def _numbers_table(path: str, text: str) -> list[list[float]]:
     return rows
 
 
+def _strip_row_index(rows: list[list[float]]) -> list[list[float]]:
+    """Rows without R's row index 1..11 (write.table with unquoted row names) before two columns."""
+    if len(rows) == 11 and {len(r) for r in rows} == {3} and [r[0] for r in rows] == list(range(1, 12)):
+        return [r[1:] for r in rows]
+    return rows
+
+
 def _dlt_table(path: str, rows: list[list[float]]) -> np.ndarray:
-    widths = {len(r) for r in rows}
-    if len(rows) == 11 and widths == {3} and [r[0] for r in rows] == list(range(1, 12)):
-        rows = [r[1:] for r in rows]                  # R's write.table row index 1..11
     table = np.array(rows, dtype=float) if len({len(r) for r in rows}) == 1 else None
     if table is not None and table.shape == (2, 11):
         table = table.T
@@ -172,7 +176,7 @@ def _opencv_fields(paths: list[str]) -> tuple[dict, dict]:
             raise BadInput(path, None, "no such file")
         try:
             fs = cv2.FileStorage(path, cv2.FILE_STORAGE_READ)
-        except cv2.error:
+        except Exception:         # cv2.error, or SystemError wrapping it, on a malformed file
             fs = None
         if fs is None or not fs.isOpened():
             raise BadInput(path, None, "not an OpenCV FileStorage file (YAML or XML)")
@@ -280,7 +284,7 @@ def import_(inputs, out, fmt, units, image_size, pixel_origin, y_up):
                 pixel = ci.pixel_transform(pixel_origin, y_up, height)
                 calib = ci.from_projections(P1, P2, mm_per_unit=mm, pixel=pixel, image_size=size, extra=extra)
             else:
-                rows = _numbers_table(first, text)
+                rows = _strip_row_index(_numbers_table(first, text))
                 pixel = ci.pixel_transform(pixel_origin, y_up, height)
                 n = sum(len(r) for r in rows)
                 if kind == "table":
