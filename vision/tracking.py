@@ -1,8 +1,10 @@
 """The same fish seen in many frames of a video, counted once: tracks in 3-D.
 
 Each track follows the midpoint of its fish's snout-fork axis with a constant-velocity Kalman filter
-(filterpy; state x, vx, y, vy, z, vz in mm and mm/s). Time comes from frame numbers and ``fps``, so
-frames may be skipped (``--every N``, dropped frames) and the filter predicts across the gap.
+(filterpy; state x, vx, y, vy, z, vz in mm and mm/s; continuous white-noise acceleration scaled by
+the fish's length, so a prediction's uncertainty depends on the time elapsed, not on how it is cut
+into frames). Time comes from frame numbers and ``fps``, so frames may be skipped (``--every N``,
+dropped frames) and the filter predicts across the gap.
 
 A frame's fish are paired with the open tracks by one global assignment
 (scipy's ``linear_sum_assignment``) on a cost that sums three chi-square-like terms, each also a gate:
@@ -17,16 +19,21 @@ A frame's fish are paired with the open tracks by one global assignment
   the track's last one over a tolerance that grows with the time since the track was last seen
   (fish turn); gated at three tolerances. Two fish crossing head-on or at right angles cannot swap.
 
-Unmatched fish start tracks; a track not seen in ``max_missed`` consecutive frames given to
-``update`` is closed (counted in updates, not video frames, so ``--every N`` does not shorten its
-life in sightings). A track's ``length_cm`` is the score-weighted interquartile mean of its
+Tracks with CONFIRMED (3) sightings are matched first, then younger ones with the fish left over:
+a track started by a false detection next to a fish cannot take that fish from its own track.
+Unmatched fish start tracks. A confirmed track not seen in ``max_missed`` consecutive frames given
+to ``update`` is closed (counted in updates, not video frames, so ``--every N`` does not shorten its
+life in sightings); a younger one after TENTATIVE_MISSED. A fish that leaves the view for longer
+comes back as a new track: re-joining by length and place was tried and joined different fish of
+one stock more often than it re-joined one fish. A track's ``length_cm`` is the score-weighted interquartile mean of its
 sightings' lengths (``robust_length_cm``): measurement errors are small noise plus a few wild lengths
 from a misplaced snout or fork, and a bending fish reads short; the middle half's mean ignores up
 to a quarter of wild values on either side while keeping most of the mean's efficiency for the
 noise (a median would throw more of it away).
 
 A track of one or two sightings may be a false detection: ``Track.count`` and ``Track.score`` (the
-mean of its sightings' scores) are what a survey filters on.
+mean of its sightings' scores) are what a survey filters on (``count >= CONFIRMED`` is what the
+tests count as a fish).
 """
 from __future__ import annotations
 
