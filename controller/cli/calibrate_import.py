@@ -29,6 +29,7 @@ from controller.errors import BadInput
 from vision.calib_import import UNITS_MM
 
 FORMATS = ("auto", "opencv", "stereomorph", "p34")
+PLAUSIBLE_BASELINE_MM = (20.0, 3000.0)     # outside: most likely a wrong --units (warned, not refused)
 # CALIB.json field -> names other tools give it (compared without case, "_" and "-")
 OPENCV_NAMES = {
     "K1": ("K1", "M1", "cameraMatrix1", "camera_matrix1", "cameraMatrixL", "cameraMatrixLeft",
@@ -223,6 +224,9 @@ def _report(calib, fmt: str, paths, out: str) -> None:
     baseline = float(np.linalg.norm(camera_centre(calib.P1) - camera_centre(calib.P2)))
     click.echo(f"read {', '.join(paths)} as {fmt}")
     click.echo(f"baseline: {baseline:.1f} mm")
+    if not PLAUSIBLE_BASELINE_MM[0] <= baseline <= PLAUSIBLE_BASELINE_MM[1]:
+        click.echo(f"warning: a stereo rig is seldom {baseline:.1f} mm wide: is the file in --units "
+                   f"{'m or cm' if baseline < PLAUSIBLE_BASELINE_MM[0] else 'mm or cm'}?", err=True)
     for cam in (1, 2):
         u, v = principal_point(calib, cam)
         click.echo(f"camera {cam}: principal point ({u:.1f}, {v:.1f}) px")

@@ -87,7 +87,7 @@ def test_opencv_files_of_each_naming(tmp_path, ext, names, size):
     out = tmp_path / "CALIB.json"
     code, stdout, err = run("--in", str(src), "--out", str(out))
     assert code == 0, err
-    assert "as opencv" in stdout and "baseline: 400.0 mm" in stdout
+    assert "as opencv" in stdout and "baseline: 400.0 mm" in stdout and err == ""
     calib = load_calibration(out)
     assert calib.image_size == (None if size is None else (1280, 960))
     np.testing.assert_allclose(calib.T, T, atol=1e-9)
@@ -103,8 +103,8 @@ def test_opencv_translation_in_the_boards_unit(tmp_path, units):
     out = tmp_path / "CALIB.json"
     assert run("--in", str(src), "--out", str(out), "--units", units)[0] == 0
     assert_reconstructs(out, CAMERA1)
-    code, _, _ = run("--in", str(src), "--out", str(tmp_path / "wrong.json"))       # mm assumed: wrong scale
-    assert code == 0
+    code, _, err = run("--in", str(src), "--out", str(tmp_path / "wrong.json"))     # mm assumed: wrong scale
+    assert code == 0 and ("warning: a stereo rig is seldom 0.4 mm wide" in err) == (units == "m")
     assert np.linalg.norm(load_calibration(tmp_path / "wrong.json").T) == pytest.approx(400.0 * per_mm)
 
 
