@@ -237,7 +237,7 @@ class FishTracker:
             return set()
         cost = np.vstack([self._costs(track, frame, [seen[i] for i in candidates]) for track in tracks])
         matched = set()
-        for r, c in zip(*linear_sum_assignment(cost)):
+        for r, c in zip(*linear_sum_assignment(cost), strict=True):
             if cost[r, c] < _INADMISSIBLE:
                 i = candidates[c]
                 self._extend(tracks[r], frame, seen[i], fish[i].score)

@@ -95,7 +95,7 @@ def _numbers_table(path: str, text: str) -> list[list[float]]:
             continue                                   # a header
         if values[0] is None or (tokens[0][0] in "\"'"):
             tokens, values = tokens[1:], values[1:]    # a row name
-        bad = [t for t, v in zip(tokens, values) if v is None or not np.isfinite(v)]
+        bad = [t for t, v in zip(tokens, values, strict=True) if v is None or not np.isfinite(v)]
         if bad:
             raise BadInput(path, f"line {lineno}", f"{bad[0]!r} is not a finite number")
         rows.append(values)

@@ -135,10 +135,10 @@ class Score:
 def run(swim: Swim, **kw) -> tuple[list[Track], Score]:
     tracker = FishTracker(FPS, **kw)
     sightings: dict[int, list[int]] = {}
-    for frame, seen, truth in zip(swim.frames, swim.seen, swim.truth):
+    for frame, seen, truth in zip(swim.frames, swim.seen, swim.truth, strict=True):
         ids = tracker.update(frame, seen)
         assert len(ids) == len(seen) and len(set(ids)) == len(ids)       # one track per fish per frame
-        for tid, who in zip(ids, truth):
+        for tid, who in zip(ids, truth, strict=True):
             sightings.setdefault(tid, []).append(who)
     tracks = tracker.finish()
     assert sorted(t.id for t in tracks) == sorted(sightings)
@@ -379,7 +379,7 @@ def test_renderer_swims_count_each_fish_in_view_once(setup, seed):
     splits = 0
     for who, ts in by_fish.items():
         ts.sort(key=lambda t: t.frames[0])
-        for a, b in zip(ts, ts[1:]):
+        for a, b in zip(ts, ts[1:], strict=False):
             frames = [f for f in visible[who] if a.frames[-1] <= f <= b.frames[0]]
             splits += len(frames) < 2 or int(np.diff(frames).max()) <= 15
     assert splits <= 0.05 * score.fish, (splits, score.fish, score.counted_twice)
