@@ -135,3 +135,38 @@ def calibration_from_json(data: object) -> StereoCalibration:
     known = set(_SHAPES) | {"D1", "D2", "image_size", "rms_px"}
     extra = {k: v for k, v in data.items() if k not in known}
     return StereoCalibration(image_size=size, rms_px=rms, extra=extra, **mats)
+
+
+def principal_point(calib: StereoCalibration, camera: int) -> np.ndarray:
+    """Camera 1's or 2's principal point (u, v) in pixels: from K when given, else from P (where
+    its principal axis, the third row's direction, meets the image)."""
+    K = calib.K1 if camera == 1 else calib.K2
+    if K is not None:
+        return np.asarray(K, dtype=float)[:2, 2] / K[2, 2]
+    M = np.asarray(calib.P1 if camera == 1 else calib.P2, dtype=float)[:, :3]
+    x = M @ M[2]
+    return x[:2] / x[2]
+
+
+def check_image_size(calib: StereoCalibration, size: tuple[int, int]) -> None:
+    """Refuse frames of ``size`` (width, height) the calibration was not made for.
+
+    With ``image_size`` the sizes must be equal: pixels of another resolution (or a crop) are not
+    the calibration's pixels. Without it (a file of only P1 and P2, a DLT import), the frames are
+    accepted when both principal points lie inside them: any real camera's does, so a principal
+    point outside means a calibration for bigger (or other) images. CalibrationError names
+    ``image_size``, or ``P1``/``P2`` (``K1``/``K2`` when present) for a principal point outside.
+    """
+    width, height = int(size[0]), int(size[1])
+    if calib.image_size is not None:
+        if tuple(calib.image_size) != (width, height):
+            cw, ch = calib.image_size
+            raise CalibrationError("image_size", f"calibration made for {cw}x{ch} images, "
+                                                 f"the frames are {width}x{height}")
+        return
+    for camera in (1, 2):
+        u, v = principal_point(calib, camera)
+        if not (0.0 <= u <= width - 1 and 0.0 <= v <= height - 1):
+            name = f"K{camera}" if (calib.K1 if camera == 1 else calib.K2) is not None else f"P{camera}"
+            raise CalibrationError(name, f"principal point ({u:.0f}, {v:.0f}) outside the {width}x{height} "
+                                         "frames: a calibration for other images (it has no image_size)")

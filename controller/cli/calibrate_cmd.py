@@ -1,4 +1,4 @@
-"""``fishfarm calibrate dlt|chessboard``: each method in its own module."""
+"""``fishfarm calibrate dlt|chessboard|import``: each method in its own module."""
 from __future__ import annotations
 
 import click
@@ -10,9 +10,10 @@ class _Methods(LazyGroup):
     table = {
         "dlt": "controller.cli.calibrate_dlt:dlt",
         "chessboard": "controller.cli.calibrate_chessboard:chessboard",
+        "import": "controller.cli.calibrate_import:import_",
     }
 
 
 @click.group(cls=_Methods)
 def calibrate():
-    """Calibrate the stereo rig: from a measured grid (DLT) or a printed chessboard."""
+    """Calibrate the stereo rig: from a measured grid (DLT) or a printed chessboard, or import one."""

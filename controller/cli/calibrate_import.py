@@ -1,0 +1,312 @@
+"""``fishfarm calibrate import``: a stereo calibration made by another tool, into CALIB.json.
+
+    fishfarm calibrate import --in FILE [--in FILE2] --out CALIB.json [--format auto|opencv|stereomorph|p34]
+        [--units mm|cm|m|in] [--image-size WxH] [--pixel-origin zero|corner|one] [--y-up]
+
+Formats (``auto`` decides from the content):
+- opencv: cv2.FileStorage YAML or XML from stereoCalibrate; several files are merged (OpenCV's
+  stereo_calib sample writes intrinsics.yml and extrinsics.yml). Names are matched without case:
+  K1 M1 cameraMatrix1 camera_matrix1 ...; D1 distCoeffs1 ...; R; T; image_width + image_height or
+  imageSize / image_size [w, h]. Rectified P1/P2 in such files are ignored: they are for rectified
+  images, not the camera's own pixels.
+- stereomorph: 11 DLT coefficients per camera, one column per camera (StereoMorph's cal_coeffs),
+  with or without a header row and row names, separated by spaces, tabs, commas or semicolons;
+  2 rows of 11 are read as one row per camera.
+- p34: two 3x4 matrices, P1 then P2 row by row (24 numbers, any separators); or JSON with P1, P2
+  (and image_size; other fields are ignored).
+Bad input exits 2 with one line naming the file, the field and the fault (controller.errors.BadInput).
+"""
+from __future__ import annotations
+
+import json
+import re
+from pathlib import Path
+
+import click
+import numpy as np
+
+from controller.errors import BadInput
+from vision.calib_import import UNITS_MM
+
+FORMATS = ("auto", "opencv", "stereomorph", "p34")
+PLAUSIBLE_BASELINE_MM = (20.0, 3000.0)     # outside: most likely a wrong --units (warned, not refused)
+# CALIB.json field -> names other tools give it (compared without case, "_" and "-")
+OPENCV_NAMES = {
+    "K1": ("K1", "M1", "cameraMatrix1", "camera_matrix1", "cameraMatrixL", "cameraMatrixLeft",
+           "left_camera_matrix", "leftCameraMatrix", "mtxL", "mtx1", "KL", "K_left"),
+    "D1": ("D1", "distCoeffs1", "dist_coeffs1", "distortion1", "distCoeffsL", "distCoeffsLeft",
+           "left_distortion", "leftDistCoeffs", "distL", "dist1", "DL", "D_left"),
+    "K2": ("K2", "M2", "cameraMatrix2", "camera_matrix2", "cameraMatrixR", "cameraMatrixRight",
+           "right_camera_matrix", "rightCameraMatrix", "mtxR", "mtx2", "KR", "K_right"),
+    "D2": ("D2", "distCoeffs2", "dist_coeffs2", "distortion2", "distCoeffsR", "distCoeffsRight",
+           "right_distortion", "rightDistCoeffs", "distR", "dist2", "DR", "D_right"),
+    "R": ("R", "rotation", "R_stereo", "stereo_R"),
+    "T": ("T", "translation", "T_stereo", "stereo_T"),
+    "image_size": ("imageSize", "image_size", "img_size", "size"),
+    "image_width": ("image_width", "imageWidth", "width"),
+    "image_height": ("image_height", "imageHeight", "height"),
+}
+
+
+def _key(name: str) -> str:
+    return re.sub(r"[_\-]", "", name).lower()
+
+
+def _size_option(ctx, param, value):
+    if value is None:
+        return None
+    m = re.fullmatch(r"\s*(\d+)\s*[xX]\s*(\d+)\s*", value)
+    if not m or min(int(m[1]), int(m[2])) < 1:
+        raise click.BadParameter(f"{value!r}: expected WIDTHxHEIGHT in pixels (e.g. 1280x960)")
+    return int(m[1]), int(m[2])
+
+
+def _read_text(path: str) -> str:
+    try:
+        return Path(path).read_text(encoding="utf-8-sig")
+    except FileNotFoundError:
+        raise BadInput(path, None, "no such file") from None
+    except UnicodeDecodeError:
+        raise BadInput(path, None, "not a text file") from None
+    except OSError as exc:
+        raise BadInput(path, None, f"cannot read: {exc.strerror or exc}") from None
+
+
+def _number(token: str) -> float | None:
+    try:
+        value = float(token.strip("\"'"))
+    except ValueError:
+        return None
+    return value
+
+
+def _numbers_table(path: str, text: str) -> list[list[float]]:
+    """Rows of numbers: '#' comments and blank lines skipped, a header (no number in it) skipped,
+    a leading row name (quoted, or a word, or R's row index before two columns) dropped."""
+    rows = []
+    for lineno, line in enumerate(text.splitlines(), 1):
+        tokens = [t for t in re.split(r"[\s,;]+", line.split("#", 1)[0].strip()) if t]
+        if not tokens:
+            continue
+        values = [_number(t) for t in tokens]
+        if all(v is None for v in values):
+            if rows:
+                raise BadInput(path, f"line {lineno}", f"no number in {line.strip()[:40]!r} after the data began")
+            continue                                   # a header
+        if values[0] is None or (tokens[0][0] in "\"'"):
+            tokens, values = tokens[1:], values[1:]    # a row name
+        bad = [t for t, v in zip(tokens, values, strict=True) if v is None or not np.isfinite(v)]
+        if bad:
+            raise BadInput(path, f"line {lineno}", f"{bad[0]!r} is not a finite number")
+        rows.append(values)
+    return rows
+
+
+def _strip_row_index(rows: list[list[float]]) -> list[list[float]]:
+    """Rows without R's row index 1..11 (write.table with unquoted row names) before two columns."""
+    if len(rows) == 11 and {len(r) for r in rows} == {3} and [r[0] for r in rows] == list(range(1, 12)):
+        return [r[1:] for r in rows]
+    return rows
+
+
+def _dlt_table(path: str, rows: list[list[float]]) -> np.ndarray:
+    table = np.array(rows, dtype=float) if len({len(r) for r in rows}) == 1 else None
+    if table is not None and table.shape == (2, 11):
+        table = table.T
+    if table is None or table.shape != (11, 2):
+        shape = "ragged rows" if table is None else f"{table.shape[0]} rows x {table.shape[1]} columns"
+        raise BadInput(path, "coefficients", f"{shape}: expected 11 DLT coefficients x 2 cameras "
+                                             "(one column per camera)")
+    return table
+
+
+def _p34_text(path: str, rows: list[list[float]]) -> tuple[np.ndarray, np.ndarray]:
+    values = np.array([v for r in rows for v in r], dtype=float)
+    if values.size != 24:
+        raise BadInput(path, "P1, P2", f"{values.size} numbers: expected 24 (two 3x4 matrices, P1 then P2)")
+    return values[:12].reshape(3, 4), values[12:].reshape(3, 4)
+
+
+def _p34_json(path: str, text: str):
+    try:
+        data = json.loads(text)
+    except json.JSONDecodeError as exc:
+        raise BadInput(path, None, f"not valid JSON: {exc}") from None
+    if not isinstance(data, dict):
+        raise BadInput(path, None, "expected a JSON object with P1 and P2")
+    mats = []
+    for name in ("P1", "P2"):
+        if data.get(name) is None:
+            raise BadInput(path, name, "missing")
+        try:
+            mats.append(np.asarray(data[name], dtype=float))
+        except (TypeError, ValueError):
+            raise BadInput(path, name, "not a numeric 3x4 matrix") from None
+    size = data.get("image_size")
+    if size is not None and not (isinstance(size, list) and len(size) == 2
+                                 and all(isinstance(s, int) and s > 0 for s in size)):
+        raise BadInput(path, "image_size", "expected [width, height] in pixels")
+    return mats[0], mats[1], None if size is None else tuple(size)
+
+
+def _node_array(node) -> np.ndarray | None:
+    """A matrix node (!!opencv-matrix / type_id="opencv-matrix"), a list of numbers or a number."""
+    if node.isSeq():
+        items = [node.at(i) for i in range(node.size())]
+        if not all(i.isReal() or i.isInt() for i in items):
+            return None
+        return np.array([i.real() for i in items], dtype=float)
+    if node.isReal() or node.isInt():
+        return np.array(node.real(), dtype=float)
+    if node.isMap():
+        try:
+            mat = node.mat()
+        except Exception:         # cv2.error on a map that is not a matrix
+            return None
+        return None if mat is None else np.asarray(mat, dtype=float)
+    return None
+
+
+def _opencv_fields(paths: list[str]) -> tuple[dict, dict]:
+    """CALIB field -> array from one or more FileStorage files; and which file gave each."""
+    import cv2
+
+    found, source = {}, {}
+    for path in paths:
+        if not Path(path).is_file():
+            raise BadInput(path, None, "no such file")
+        try:
+            fs = cv2.FileStorage(path, cv2.FILE_STORAGE_READ)
+        except Exception:         # cv2.error, or SystemError wrapping it, on a malformed file
+            fs = None
+        if fs is None or not fs.isOpened():
+            raise BadInput(path, None, "not an OpenCV FileStorage file (YAML or XML)")
+        try:
+            keys = {_key(k): k for k in fs.root().keys()}
+            for field, names in OPENCV_NAMES.items():
+                key = next((keys[_key(n)] for n in names if _key(n) in keys), None)
+                if key is None or field in found:
+                    continue
+                value = _node_array(fs.getNode(key))
+                if value is None:
+                    raise BadInput(path, key, "not a matrix or a list of numbers")
+                found[field], source[field] = value, f"{path}: {key}"
+        finally:
+            fs.release()
+    return found, source
+
+
+def _opencv_size(found: dict, source: dict):
+    if "image_size" in found:
+        size = found["image_size"].reshape(-1)
+        if size.size != 2:
+            raise BadInput(source["image_size"], None, f"{size.size} values, expected [width, height]")
+        return int(size[0]), int(size[1])
+    if "image_width" in found and "image_height" in found:
+        return int(found["image_width"].reshape(-1)[0]), int(found["image_height"].reshape(-1)[0])
+    return None
+
+
+def _detect(path: str, text: str | None) -> str:
+    suffix = Path(path).suffix.lower()
+    head = (text or "").lstrip()[:64]
+    if suffix in (".yml", ".yaml", ".xml") or head.startswith(("%YAML", "<?xml", "<opencv_storage")):
+        return "opencv"
+    if suffix == ".json" or head.startswith("{"):
+        return "p34"
+    return "table"
+
+
+def _report(calib, fmt: str, paths, out: str) -> None:
+    from vision.calib_file import principal_point
+    from vision.triangulation import camera_centre
+
+    baseline = float(np.linalg.norm(camera_centre(calib.P1) - camera_centre(calib.P2)))
+    click.echo(f"read {', '.join(paths)} as {fmt}")
+    click.echo(f"baseline: {baseline:.1f} mm")
+    if not PLAUSIBLE_BASELINE_MM[0] <= baseline <= PLAUSIBLE_BASELINE_MM[1]:
+        click.echo(f"warning: a stereo rig is seldom {baseline:.1f} mm wide: is the file in --units "
+                   f"{'m or cm' if baseline < PLAUSIBLE_BASELINE_MM[0] else 'mm or cm'}?", err=True)
+    for cam in (1, 2):
+        u, v = principal_point(calib, cam)
+        click.echo(f"camera {cam}: principal point ({u:.1f}, {v:.1f}) px")
+    size = "not given (surveys accept frames that contain both principal points)" if calib.image_size is None \
+        else f"{calib.image_size[0]}x{calib.image_size[1]}"
+    click.echo(f"image size: {size}")
+    click.echo(f"distortion: {'D1/D2 kept' if calib.has_distortion else 'none'}")
+    click.echo(f"wrote {out}")
+
+
+@click.command("import")
+@click.option("--in", "inputs", multiple=True, required=True, metavar="FILE",
+              help="Calibration file; repeat for OpenCV files split in two (intrinsics + extrinsics).")
+@click.option("--out", required=True, type=click.Path(dir_okay=False), metavar="CALIB.json")
+@click.option("--format", "fmt", type=click.Choice(FORMATS), default="auto", show_default=True)
+@click.option("--units", type=click.Choice(list(UNITS_MM)), default="mm", show_default=True,
+              help="World unit of the file: OpenCV's T (the board's square unit), DLT and 3x4 worlds.")
+@click.option("--image-size", callback=_size_option, metavar="WxH",
+              help="Frame size the calibration was made for (overrides the file's).")
+@click.option("--pixel-origin", type=click.Choice(["zero", "corner", "one"]), default="zero", show_default=True,
+              help="stereomorph/p34: top-left pixel centre at (0,0) as OpenCV, (0.5,0.5), or (1,1).")
+@click.option("--y-up", is_flag=True, help="stereomorph/p34: v grows upwards (needs the image size).")
+def import_(inputs, out, fmt, units, image_size, pixel_origin, y_up):
+    """Import a stereo calibration from OpenCV, StereoMorph (DLT-11) or a plain 3x4 pair."""
+    from controller.cli.calib_io import save_calibration
+    from vision import calib_import as ci
+    from vision.calib_file import CalibrationError
+
+    paths = list(inputs)
+    first = paths[0]
+    text = None if fmt == "opencv" or Path(first).suffix.lower() in (".yml", ".yaml", ".xml") \
+        else _read_text(first)
+    kind = _detect(first, text) if fmt == "auto" else fmt
+    if kind != "opencv" and len(paths) > 1:
+        raise BadInput(paths[1], "--in", "only OpenCV files may be given in parts")
+    if kind == "opencv" and (pixel_origin != "zero" or y_up):
+        raise BadInput(first, "--pixel-origin/--y-up", "OpenCV files are in OpenCV's pixel convention already")
+    mm = UNITS_MM[units]
+    extra = {"method": "import", "format": kind if kind != "table" else "auto", "source": [Path(p).name for p in paths],
+             "units": units}
+    where = first
+    try:
+        if kind == "opencv":
+            found, source = _opencv_fields(paths)
+            missing = [f for f in ("K1", "K2", "R", "T") if f not in found]
+            if missing:
+                raise BadInput(", ".join(paths), missing[0],
+                               f"missing (looked for {', '.join(OPENCV_NAMES[missing[0]][:4])}, ...)")
+            size = image_size or _opencv_size(found, source)
+            where = " + ".join(paths)
+            calib = ci.from_opencv(found["K1"], found.get("D1"), found["K2"], found.get("D2"), found["R"],
+                                   found["T"], mm_per_unit=mm, image_size=size, extra=extra)
+        else:
+            height = image_size[1] if image_size else None
+            if kind == "p34" and text.lstrip().startswith("{"):
+                P1, P2, size = _p34_json(first, text)
+                size = image_size or size
+                height = size[1] if size else None
+                pixel = ci.pixel_transform(pixel_origin, y_up, height)
+                calib = ci.from_projections(P1, P2, mm_per_unit=mm, pixel=pixel, image_size=size, extra=extra)
+            else:
+                rows = _strip_row_index(_numbers_table(first, text))
+                pixel = ci.pixel_transform(pixel_origin, y_up, height)
+                n = sum(len(r) for r in rows)
+                if kind == "table":
+                    kind = {22: "stereomorph", 24: "p34"}.get(n)
+                    if kind is None:
+                        raise BadInput(first, None, f"{n} numbers: expected 22 (DLT-11 x 2 cameras, StereoMorph) "
+                                                    "or 24 (two 3x4 matrices); give --format")
+                    extra["format"] = kind
+                if kind == "stereomorph":
+                    calib = ci.from_dlt11(_dlt_table(first, rows), mm_per_unit=mm, pixel=pixel,
+                                          image_size=image_size, extra=extra)
+                else:
+                    P1, P2 = _p34_text(first, rows)
+                    calib = ci.from_projections(P1, P2, mm_per_unit=mm, pixel=pixel, image_size=image_size,
+                                                extra=extra)
+    except CalibrationError as exc:
+        if exc.field == "image_size" and y_up:
+            raise BadInput(where, "--y-up", "needs the image height: give --image-size WxH") from None
+        raise BadInput(where, exc.field, exc.fault) from None
+    save_calibration(calib, out)
+    _report(calib, extra["format"], paths, out)

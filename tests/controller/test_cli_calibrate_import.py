@@ -1,0 +1,239 @@
+"""``fishfarm calibrate import``: files written here as each tool writes them, read back into
+CALIB.json, checked by triangulating a known rig's pixels; and bad files, one line, exit 2."""
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+from controller.cli import main
+from controller.cli.calib_io import load_calibration
+from devices.sim.stereo_rig import convergent_rig
+from vision.triangulation import triangulate_calibrated
+
+REPO = Path(__file__).resolve().parents[2]
+RIG = convergent_rig(distortion=np.array([-0.1, 0.04, 0.0008, -0.0004, 0.0]))
+R = RIG.R2 @ RIG.R1.T
+T = RIG.t2 - R @ RIG.t1                                   # mm
+WORLD = np.random.default_rng(2).uniform([0, 0, 0], [400, 400, 250], (40, 3))
+PLAIN = convergent_rig()                                  # no distortion: for the DLT and 3x4 files
+
+
+def run(*args: str) -> tuple[int, str, str]:
+    """The command in-process, as ``fishfarm calibrate import ARGS``: exit code, stdout, stderr."""
+    import contextlib
+    import io
+
+    out, err = io.StringIO(), io.StringIO()
+    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+        code = main(["calibrate", "import", *args])
+    return code, out.getvalue(), err.getvalue()
+
+
+def assert_bad(args, *words):
+    code, _, err = run(*args)
+    assert code == 2, err
+    lines = err.strip().splitlines()
+    assert len(lines) == 1 and "Traceback" not in err, err
+    for word in words:
+        assert word in lines[0], lines[0]
+
+
+def write_opencv(path: Path, names: dict[str, str], *, units_per_mm: float = 1.0, size: str = "wh",
+                 rectified: bool = False) -> None:
+    fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_WRITE)
+    for field, value in (("K1", RIG.K1), ("D1", RIG.D1.reshape(1, 5)), ("K2", RIG.K2),
+                         ("D2", RIG.D2.reshape(1, 5)), ("R", R), ("T", (T * units_per_mm).reshape(3, 1))):
+        if field in names:
+            fs.write(names[field], value)
+    if size == "wh":
+        fs.write("image_width", 1280)
+        fs.write("image_height", 960)
+    elif size == "seq":
+        fs.startWriteStruct("imageSize", cv2.FileNode_SEQ)
+        for v in (1280, 960):
+            fs.write("", v)
+        fs.endWriteStruct()
+    if rectified:               # stereoRectify's outputs: must not be taken for the camera's P1/P2
+        fs.write("P1", np.eye(3, 4) * 7)
+        fs.write("P2", np.eye(3, 4) * 9)
+    fs.release()
+
+
+def assert_reconstructs(out: Path, world_mm: np.ndarray, rig=RIG, atol=0.05) -> None:
+    calib = load_calibration(out)
+    p1, p2 = rig.project(WORLD)
+    X, _ = triangulate_calibrated(calib, p1, p2)
+    np.testing.assert_allclose(X, world_mm, atol=atol)
+
+
+CAMERA1 = WORLD @ RIG.R1.T + RIG.t1                        # OpenCV's world: camera 1's frame, mm
+M_NAMES = {"K1": "M1", "D1": "D1", "K2": "M2", "D2": "D2", "R": "R", "T": "T"}
+K_NAMES = {"K1": "K1", "D1": "D1", "K2": "K2", "D2": "D2", "R": "R", "T": "T"}
+LONG_NAMES = {"K1": "cameraMatrix1", "D1": "distCoeffs1", "K2": "cameraMatrix2", "D2": "distCoeffs2",
+              "R": "R", "T": "T"}
+
+
+@pytest.mark.parametrize("ext", ["yml", "xml"])
+@pytest.mark.parametrize("names,size", [(M_NAMES, "wh"), (K_NAMES, "seq"), (LONG_NAMES, None)])
+def test_opencv_files_of_each_naming(tmp_path, ext, names, size):
+    src = tmp_path / f"stereo.{ext}"
+    write_opencv(src, names, size=size, rectified=True)
+    out = tmp_path / "CALIB.json"
+    code, stdout, err = run("--in", str(src), "--out", str(out))
+    assert code == 0, err
+    assert "as opencv" in stdout and "baseline: 400.0 mm" in stdout and err == ""
+    calib = load_calibration(out)
+    assert calib.image_size == (None if size is None else (1280, 960))
+    np.testing.assert_allclose(calib.T, T, atol=1e-9)
+    assert calib.extra["method"] == "import" and calib.extra["units"] == "mm"
+    assert_reconstructs(out, CAMERA1)
+
+
+@pytest.mark.parametrize("units", ["cm", "m"])
+def test_opencv_translation_in_the_boards_unit(tmp_path, units):
+    per_mm = {"cm": 0.1, "m": 0.001}[units]
+    src = tmp_path / "stereo.yaml"
+    write_opencv(src, M_NAMES, units_per_mm=per_mm)
+    out = tmp_path / "CALIB.json"
+    assert run("--in", str(src), "--out", str(out), "--units", units)[0] == 0
+    assert_reconstructs(out, CAMERA1)
+    code, _, err = run("--in", str(src), "--out", str(tmp_path / "wrong.json"))     # mm assumed: wrong scale
+    assert code == 0 and ("warning: a stereo rig is seldom 0.4 mm wide" in err) == (units == "m")
+    assert np.linalg.norm(load_calibration(tmp_path / "wrong.json").T) == pytest.approx(400.0 * per_mm)
+
+
+def test_opencv_intrinsics_and_extrinsics_in_two_files(tmp_path):
+    """OpenCV's stereo_calib sample: intrinsics.yml (M1 D1 M2 D2) and extrinsics.yml (R T R1 R2 P1 P2 Q)."""
+    intr, extr = tmp_path / "intrinsics.yml", tmp_path / "extrinsics.yml"
+    write_opencv(intr, {k: M_NAMES[k] for k in ("K1", "D1", "K2", "D2")}, size=None)
+    write_opencv(extr, {"R": "R", "T": "T"}, size=None, rectified=True)
+    out = tmp_path / "CALIB.json"
+    code, _, err = run("--in", str(intr), "--in", str(extr), "--out", str(out), "--image-size", "1280x960")
+    assert code == 0, err
+    assert load_calibration(out).image_size == (1280, 960)
+    assert_reconstructs(out, CAMERA1)
+    assert_bad(["--in", str(intr), "--out", str(out)], "intrinsics.yml", "R", "missing")
+
+
+def _dlt_columns(units_per_mm: float = 1.0, pixel_shift: float = 0.0) -> np.ndarray:
+    """StereoMorph's cal_coeffs: 11 rows x 2 cameras, the world in its unit, pixels shifted."""
+    to_unit = np.diag([1 / units_per_mm] * 3 + [1.0])
+    shift = np.array([[1.0, 0, pixel_shift], [0, 1.0, pixel_shift], [0, 0, 1.0]])
+    cols = []
+    for P in (PLAIN.P1, PLAIN.P2):
+        Q = shift @ P @ to_unit
+        cols.append((Q / Q[2, 3]).reshape(-1)[:11])
+    return np.array(cols).T
+
+
+def _write_table(path: Path, table: np.ndarray, style: str) -> None:
+    if style == "tabs":                       # as StereoMorph's example cal_coeffs.txt
+        text = "\n".join("\t".join(f"{v:.10g}" for v in row) for row in table)
+    elif style == "r-write.table":            # R's write.table(cal.coeff): quoted header and row names
+        text = '"V1" "V2"\n' + "\n".join(f'"{i + 1}" {a:.12g} {b:.12g}' for i, (a, b) in enumerate(table))
+    elif style == "csv-header":
+        text = "cam1,cam2\n" + "\n".join(f"{a:.12g},{b:.12g}" for a, b in table)
+    elif style == "row-index":
+        text = "\n".join(f"{i + 1} {a:.12g} {b:.12g}" for i, (a, b) in enumerate(table))
+    else:                                     # one row per camera
+        text = "\n".join(" ".join(f"{v:.12g}" for v in col) for col in table.T)
+    path.write_text(text + "\n", encoding="utf-8")
+
+
+@pytest.mark.parametrize("style", ["tabs", "r-write.table", "csv-header", "row-index", "transposed"])
+def test_stereomorph_dlt_coefficients(tmp_path, style):
+    src = tmp_path / "cal_coeffs.txt"
+    _write_table(src, _dlt_columns(units_per_mm=0.1), style)            # calibrated in cm
+    out = tmp_path / "CALIB.json"
+    code, stdout, err = run("--in", str(src), "--out", str(out), "--units", "cm")
+    assert code == 0, err
+    assert "as stereomorph" in stdout
+    assert_reconstructs(out, WORLD, rig=PLAIN, atol=1e-4)
+
+
+def test_stereomorph_one_based_pixels(tmp_path):
+    src = tmp_path / "cal_coeffs.txt"
+    _write_table(src, _dlt_columns(pixel_shift=1.0), "tabs")
+    out = tmp_path / "CALIB.json"
+    assert run("--in", str(src), "--out", str(out), "--format", "stereomorph", "--pixel-origin", "one")[0] == 0
+    assert_reconstructs(out, WORLD, rig=PLAIN, atol=1e-4)
+
+
+@pytest.mark.parametrize("style", ["text", "json"])
+def test_plain_3x4_pair(tmp_path, style):
+    if style == "text":
+        src = tmp_path / "P.txt"
+        src.write_text("# P1\n" + "\n".join(", ".join(f"{v:.15g}" for v in row) for row in PLAIN.P1)
+                       + "\n# P2\n" + "\n".join(" ".join(f"{v:.15g}" for v in row) for row in PLAIN.P2) + "\n")
+    else:
+        src = tmp_path / "P.json"
+        src.write_text(json.dumps({"P1": PLAIN.P1.tolist(), "P2": PLAIN.P2.tolist(), "image_size": [1280, 960]}))
+    out = tmp_path / "CALIB.json"
+    code, stdout, err = run("--in", str(src), "--out", str(out))
+    assert code == 0, err
+    assert "as p34" in stdout
+    assert load_calibration(out).image_size == (None if style == "text" else (1280, 960))
+    assert_reconstructs(out, WORLD, rig=PLAIN, atol=1e-6)
+
+
+# -- bad input -----------------------------------------------------------------------------------
+
+def test_bad_files_exit_2_naming_file_field_and_fault(tmp_path):
+    out = str(tmp_path / "CALIB.json")
+    missing = str(tmp_path / "none.yml")
+    assert_bad(["--in", missing, "--out", out], "none.yml", "no such file")
+    garbage = tmp_path / "garbage.yml"
+    garbage.write_text("this: [is: not\n")
+    assert_bad(["--in", str(garbage), "--out", out], "garbage.yml", "not an OpenCV FileStorage")
+    no_r = tmp_path / "no_r.yml"
+    write_opencv(no_r, {k: v for k, v in M_NAMES.items() if k != "R"})
+    assert_bad(["--in", str(no_r), "--out", out], "no_r.yml", "R: missing")
+    short = tmp_path / "short.txt"
+    _write_table(short, _dlt_columns()[:10], "tabs")
+    assert_bad(["--in", str(short), "--out", out], "short.txt", "20 numbers")
+    assert_bad(["--in", str(short), "--out", out, "--format", "stereomorph"], "short.txt", "coefficients",
+               "10 rows x 2 columns")
+    word = tmp_path / "word.txt"
+    word.write_text("1 2\n3 x4\n")
+    assert_bad(["--in", str(word), "--out", out], "word.txt", "line 2", "'x4'")
+    nan = tmp_path / "nan.txt"
+    _write_table(nan, np.where(np.arange(22).reshape(11, 2) == 5, np.nan, _dlt_columns()), "tabs")
+    assert_bad(["--in", str(nan), "--out", out], "nan.txt", "line 3", "not a finite number")
+    no_p2 = tmp_path / "p.json"
+    no_p2.write_text(json.dumps({"P1": PLAIN.P1.tolist()}))
+    assert_bad(["--in", str(no_p2), "--out", out], "p.json", "P2", "missing")
+    same = tmp_path / "same.json"
+    same.write_text(json.dumps({"P1": PLAIN.P1.tolist(), "P2": PLAIN.P1.tolist()}))
+    assert_bad(["--in", str(same), "--out", out], "same.json", "P2", "no baseline")
+    good = tmp_path / "cal.txt"
+    _write_table(good, _dlt_columns(), "tabs")
+    assert_bad(["--in", str(good), "--out", out, "--y-up"], "cal.txt", "--y-up", "--image-size")
+    assert_bad(["--in", str(good), "--in", str(good), "--out", out], "cal.txt", "--in", "only OpenCV")
+    yml = tmp_path / "ok.yml"
+    write_opencv(yml, M_NAMES)
+    assert_bad(["--in", str(yml), "--out", out, "--pixel-origin", "one"], "ok.yml", "pixel convention")
+    assert_bad(["--in", str(good), "--out", out, "--image-size", "12x"], "--image-size", "WIDTHxHEIGHT")
+    assert not Path(out).exists()                                    # nothing written on bad input
+
+
+def test_a_reflected_rotation_is_refused(tmp_path):
+    src = tmp_path / "flip.yml"
+    fs = cv2.FileStorage(str(src), cv2.FILE_STORAGE_WRITE)
+    for name, value in (("M1", RIG.K1), ("M2", RIG.K2), ("R", R @ np.diag([1.0, 1.0, -1.0])), ("T", T)):
+        fs.write(name, value)
+    fs.release()
+    assert_bad(["--in", str(src), "--out", str(tmp_path / "c.json")], "flip.yml", "R", "not a rotation")
+
+
+def test_the_installed_command_exits_2_with_one_line(tmp_path):
+    run_ = subprocess.run([sys.executable, "-c", "from controller.cli import entry; entry()", "calibrate",
+                           "import", "--in", str(tmp_path / "absent.txt"), "--out", str(tmp_path / "c.json")],
+                          cwd=REPO, capture_output=True, text=True, timeout=120)
+    assert run_.returncode == 2
+    assert run_.stderr.strip() == f"fishfarm: {tmp_path / 'absent.txt'}: no such file"

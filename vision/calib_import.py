@@ -1,0 +1,124 @@
+"""Stereo calibrations made by other tools, as a StereoCalibration (CALIB.json): the maths only.
+
+Reading the files is the command line's (controller/cli/calibrate_import.py); here arrays come in.
+
+- OpenCV (``stereoCalibrate``): K1 D1 K2 D2 R T with camera 2 <- camera 1 ``x2 = R x1 + T``. The
+  world is camera 1's frame: P1 = K1 [I | 0], P2 = K2 [R | T] (as ``fishfarm calibrate chessboard``
+  writes). T is in the board's square unit; ``mm_per_unit`` turns it into mm.
+- DLT-11 (StereoMorph, Hedrick's DLTdv and other DLT tools): per camera
+  u = (L1 x + L2 y + L3 z + L4) / (L9 x + L10 y + L11 z + 1), v = (L5 x + L6 y + L7 z + L8) / (same),
+  i.e. P = [[L1 L2 L3 L4], [L5 L6 L7 L8], [L9 L10 L11 1]] (L12 = 1) in the tool's world unit.
+- A plain pair of 3x4 matrices, pixel <- world unit.
+
+Pixels: CALIB.json uses OpenCV's convention (origin at the top-left pixel's centre, u right, v
+down). ``pixel_transform`` maps another tool's convention onto it (origin at the top-left pixel's
+corner, 1-based pixel indices, v up); P_opencv = A @ P_tool.
+
+Every result goes through ``calibration_from_json``, so an import meets the same checks as any
+CALIB.json (shapes, finite, invertible, a baseline); faults are CalibrationError naming the field.
+"""
+from __future__ import annotations
+
+from typing import Literal
+
+import numpy as np
+
+from vision.calib_file import CalibrationError, StereoCalibration, _check_camera_matrix, calibration_from_json
+
+UNITS_MM = {"mm": 1.0, "cm": 10.0, "m": 1000.0, "in": 25.4}
+PixelOrigin = Literal["zero", "corner", "one"]
+# where the tool puts the top-left pixel's centre, in its own coordinates
+_ORIGIN_OFFSET = {"zero": 0.0, "corner": 0.5, "one": 1.0}
+
+
+def dlt11_to_projection(coeffs: np.ndarray, name: str = "P") -> np.ndarray:
+    """The 3x4 perspective matrix of 11 DLT coefficients (L12 = 1)."""
+    L = np.asarray(coeffs, dtype=float).reshape(-1)
+    if L.size != 11:
+        raise CalibrationError(name, f"{L.size} DLT coefficients, expected 11")
+    return np.append(L, 1.0).reshape(3, 4)
+
+
+def pixel_transform(origin: PixelOrigin = "zero", y_up: bool = False, height: int | None = None) -> np.ndarray:
+    """3x3 A with (u, v, 1)_opencv = A (u, v, 1)_tool. ``origin``: where the tool's coordinates put
+    the top-left pixel's centre: "zero" (0, 0) as OpenCV; "corner" (0.5, 0.5), coordinates measured
+    from the image's corner; "one" (1, 1), 1-based pixel indices (R, MATLAB). ``y_up``: the tool's v
+    grows upwards from the bottom row, which needs the image ``height``."""
+    if origin not in _ORIGIN_OFFSET:
+        raise ValueError(f"pixel origin {origin!r}: expected one of {sorted(_ORIGIN_OFFSET)}")
+    d = _ORIGIN_OFFSET[origin]
+    A = np.array([[1.0, 0.0, -d], [0.0, 1.0, -d], [0.0, 0.0, 1.0]])
+    if y_up:
+        if height is None:
+            raise CalibrationError("image_size", "needed to turn a v-up pixel convention into OpenCV's")
+        A = np.array([[1.0, 0.0, 0.0], [0.0, -1.0, height - 1.0], [0.0, 0.0, 1.0]]) @ A
+    return A
+
+
+def world_to_mm(P: np.ndarray, mm_per_unit: float) -> np.ndarray:
+    """P (pixel <- world in the tool's unit) as pixel <- world mm."""
+    if not (np.isfinite(mm_per_unit) and mm_per_unit > 0):
+        raise ValueError(f"mm per unit {mm_per_unit}: expected > 0")
+    return np.asarray(P, dtype=float) @ np.diag([1.0 / mm_per_unit] * 3 + [1.0])
+
+
+def _checked(data: dict) -> StereoCalibration:
+    return calibration_from_json({k: v.tolist() if isinstance(v, np.ndarray) else v for k, v in data.items()
+                                  if v is not None})
+
+
+def _size(image_size) -> list[int] | None:
+    return None if image_size is None else [int(image_size[0]), int(image_size[1])]
+
+
+def from_projections(P1: np.ndarray, P2: np.ndarray, *, mm_per_unit: float = 1.0,
+                     pixel: np.ndarray | None = None, image_size: tuple[int, int] | None = None,
+                     extra: dict | None = None) -> StereoCalibration:
+    """A calibration of two 3x4 matrices (pixel <- world unit), in mm and OpenCV's pixels."""
+    A = np.eye(3) if pixel is None else pixel
+    mats = {}
+    for name, P in (("P1", P1), ("P2", P2)):
+        P = np.asarray(P, dtype=float)
+        if P.shape != (3, 4):
+            raise CalibrationError(name, f"shape {list(P.shape)}, expected [3, 4]")
+        mats[name] = A @ world_to_mm(P, mm_per_unit)
+    return _checked({**mats, "image_size": _size(image_size), **(extra or {})})
+
+
+def from_dlt11(coeffs: np.ndarray, *, mm_per_unit: float = 1.0, pixel: np.ndarray | None = None,
+               image_size: tuple[int, int] | None = None, extra: dict | None = None) -> StereoCalibration:
+    """A calibration of an (11, 2) table of DLT coefficients, one column per camera (left, right)."""
+    table = np.asarray(coeffs, dtype=float)
+    if table.shape != (11, 2):
+        raise CalibrationError("coefficients", f"shape {list(table.shape)}, expected 11 rows x 2 cameras")
+    return from_projections(dlt11_to_projection(table[:, 0], "P1"), dlt11_to_projection(table[:, 1], "P2"),
+                            mm_per_unit=mm_per_unit, pixel=pixel, image_size=image_size, extra=extra)
+
+
+def _check_rotation(R: np.ndarray) -> None:
+    if not np.allclose(R @ R.T, np.eye(3), atol=1e-4) or np.linalg.det(R) < 0:
+        raise CalibrationError("R", "not a rotation matrix (R R^T != I or det(R) < 0)")
+
+
+def from_opencv(K1: np.ndarray, D1: np.ndarray | None, K2: np.ndarray, D2: np.ndarray | None,
+                R: np.ndarray, T: np.ndarray, *, mm_per_unit: float = 1.0,
+                image_size: tuple[int, int] | None = None, extra: dict | None = None) -> StereoCalibration:
+    """OpenCV's stereo calibration: P1 = K1 [I | 0], P2 = K2 [R | T mm], world = camera 1's frame."""
+    arrays = {"K1": K1, "K2": K2, "R": R, "T": T}
+    shapes = {"K1": (3, 3), "K2": (3, 3), "R": (3, 3), "T": (3,)}
+    for name, value in arrays.items():
+        a = np.asarray(value, dtype=float)
+        a = a.reshape(-1) if name == "T" else a
+        if a.shape != shapes[name]:
+            raise CalibrationError(name, f"shape {list(np.shape(value))}, expected {list(shapes[name])}")
+        if not np.all(np.isfinite(a)):
+            raise CalibrationError(name, "contains NaN or infinity")
+        arrays[name] = a
+    for name in ("K1", "K2"):                 # before P1/P2, which a bad K makes singular
+        _check_camera_matrix(arrays[name], name)
+    _check_rotation(arrays["R"])
+    T_mm = arrays["T"] * mm_per_unit
+    P1 = arrays["K1"] @ np.c_[np.eye(3), np.zeros(3)]
+    P2 = arrays["K2"] @ np.c_[arrays["R"], T_mm]
+    return _checked({"P1": P1, "P2": P2, "K1": arrays["K1"], "D1": D1, "K2": arrays["K2"], "D2": D2,
+                     "R": arrays["R"], "T": T_mm, "image_size": _size(image_size), **(extra or {})})
