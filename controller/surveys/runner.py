@@ -65,6 +65,7 @@ class PairWork:
         self.calib, self.setup, self.measure = calib, setup, resolve(measure)
 
     def __call__(self, job: PairJob) -> PairResult:
+        c0 = time.process_time()
         t0 = time.perf_counter()
         left, right, warning = read_pair(job)
         timings = {"read": job.read_s + time.perf_counter() - t0}
@@ -72,6 +73,7 @@ class PairWork:
         t1 = time.perf_counter()
         fish = self.measure(left, right, self.calib, self.setup, timings)
         timings["measure"] = time.perf_counter() - t1
+        timings["cpu"] = time.process_time() - c0        # this worker's CPU for the pair: robust to load
         return PairResult(job.frame, job.where, fish, timings, warning)
 
 
