@@ -50,11 +50,12 @@ def _source(pairs, rgs, directory, video, rg_video, every, max_frames):
 
 
 class _Progress:
-    """A rich progress bar on a terminal; silence in a pipe or a log. Warnings once each."""
+    """A rich progress bar on a terminal; silence in a pipe or a log. The first warning is printed,
+    the others counted (an RG video with a faint blue channel would say it on every frame)."""
 
     def __init__(self, total: int | None):
         self.bar = None
-        self.warned: set[str] = set()
+        self.warnings = 0
         if sys.stderr.isatty():
             from rich.console import Console
             from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
@@ -63,15 +64,23 @@ class _Progress:
             self.task = self.bar.add_task("pairs", total=total)
             self.bar.start()
 
+    def _say(self, text: str) -> None:
+        if self.bar:
+            self.bar.console.print(text, markup=False, highlight=False, soft_wrap=True)  # names may hold [ ]
+        else:
+            click.echo(text, err=True)
+
     def __call__(self, result) -> None:
-        if result.warning and result.warning.split(":")[-1] not in self.warned:
-            self.warned.add(result.warning.split(":")[-1])
-            (self.bar.console.print if self.bar else lambda s: click.echo(s, err=True))(
-                f"fishfarm survey: warning: {result.warning}")
+        if result.warning:
+            self.warnings += 1
+            if self.warnings == 1:
+                self._say(f"fishfarm survey: warning: {result.warning}")
         if self.bar:
             self.bar.advance(self.task)
 
     def stop(self) -> None:
+        if self.warnings > 1:
+            self._say(f"fishfarm survey: warning: the same for {self.warnings - 1} more pairs")
         if self.bar:
             self.bar.stop()
 

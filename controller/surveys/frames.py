@@ -36,6 +36,7 @@ class PairJob:
     left: np.ndarray | None = None          # already decoded (video)
     right: np.ndarray | None = None
     read_s: float = 0.0                     # seconds the parent spent decoding it
+    shared: tuple | None = None             # (file, offset, left shape, right shape): arrays in a shared map
 
 
 @dataclass

@@ -142,3 +142,39 @@ def test_without_the_pipeline_merged_it_says_so_in_one_line(farm, tmp_path):
         assert r.returncode == 1 and "vision.underwater" in r.stderr and len(r.stderr.strip().splitlines()) == 1
     else:
         assert r.returncode == 0, r.stderr
+
+
+def test_a_progress_bar_on_a_terminal_none_in_a_pipe_and_a_faint_blue_channel_warned_once(farm, tmp_path):
+    import pty
+    d, _ = farm
+    frames = []
+    for i in range(3):
+        img = cv2.imread(str(d / f"rg{i}.png"))
+        img[..., 0] = 40                                  # blue bleeding in, as from a JPEG grabber
+        cv2.imwrite(str(tmp_path / f"[b]{i}.png"), img)   # brackets: not rich markup
+        frames += ["--rg", tmp_path / f"[b]{i}.png"]
+    args = common(d, *frames, "--json", tmp_path / "o.json")
+    r = run(*args)
+    assert r.returncode == 0, r.stderr
+    lines = r.stderr.strip().splitlines()
+    assert lines[0] == (f"fishfarm survey: warning: {tmp_path}/[b]0.png: blue channel not empty (mean level 40): "
+                        "is this an RG frame? using red = left, green = right")
+    assert lines[1] == "fishfarm survey: warning: the same for 2 more pairs" and len(lines) == 3
+    master, slave = pty.openpty()
+    env = {**os.environ, "PYTHONPATH": str(ROOT), "COLUMNS": "100"}
+    p = subprocess.run([FISHFARM, "survey", *map(str, args), "--measure", DOTS], stdout=subprocess.DEVNULL,
+                       stderr=slave, env=env, timeout=120)
+    os.close(slave)
+    out = b""
+    while True:
+        try:
+            chunk = os.read(master, 65536)
+        except OSError:
+            break
+        if not chunk:
+            break
+        out += chunk
+    os.close(master)
+    assert p.returncode == 0
+    text = out.decode(errors="replace")
+    assert "survey" in text and "3/3" in text and f"{tmp_path}/[b]0.png: blue channel" in text

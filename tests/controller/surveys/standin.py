@@ -54,7 +54,8 @@ def slow_by_level(left, right, calib, setup, timings=None):
     level = int(left.reshape(-1)[0])
     time.sleep(0.002 * (40 - level % 40))
     z = np.zeros(3)
-    return [FishMeasurement(z, np.array([10.0 * level, 0, 0]), np.zeros((2, 2)), np.zeros((2, 2)), 1.0)]
+    return [FishMeasurement(z, np.array([10.0 * level, 0, 0]), np.zeros((2, 2)), np.zeros((2, 2)), 1.0,
+                            quality={"shared_memory": float(isinstance(left, np.memmap))})]
 
 
 def draw_fish(rig, fish_mm: list[tuple[np.ndarray, np.ndarray]], colour: bool = False):

@@ -65,8 +65,11 @@ def test_results_come_back_in_frame_order_from_a_pool(tmp_path):
     # frames with a low level take longest: a pool finishes them out of order
     from controller.surveys.frames import PairJob
     levels = [5, 39, 1, 20, 38, 2, 30, 3]
-    jobs = (PairJob(i * 2, f"p{i}", left=np.full((4, 4), lv, np.uint8), right=np.full((4, 4), lv, np.uint8))
-            for i, lv in enumerate(levels))
+    # decoded frames go to the workers through shared memory; one larger than the first frame's
+    # slot goes by pipe instead, and colour and grey frames mix
+    sizes = [(4, 4), (4, 4), (9, 7), (4, 4), (2, 2, 3), (4, 4), (4, 4), (4, 4)]
+    jobs = (PairJob(i * 2, f"p{i}", left=np.full(sz, lv, np.uint8), right=np.full(sz, lv, np.uint8))
+            for i, (lv, sz) in enumerate(zip(levels, sizes, strict=True)))
     calib = convergent_rig().calibration()
     calib.image_size = None                     # a CALIB.json with only P1, P2 fits frames of any size
     summary = run_survey(Source(jobs, None), calib, options(f"{STANDIN}:slow_by_level", workers=2),
@@ -74,6 +77,7 @@ def test_results_come_back_in_frame_order_from_a_pool(tmp_path):
     doc = json.loads((tmp_path / "o.json").read_text())
     assert [f["frame"] for f in doc["fish"]] == [0, 2, 4, 6, 8, 10, 12, 14]
     assert [f["length_cm"] for f in doc["fish"]] == pytest.approx(levels)
+    assert [f["quality"]["shared_memory"] for f in doc["fish"]] == [1, 1, 0, 1, 1, 1, 1, 1]
     assert summary["frames"] == 8
 
 
