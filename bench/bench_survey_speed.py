@@ -13,7 +13,7 @@ prints one JSON object. Figures:
   forkserver, workers) at 10 %, 50 % and 100 % of it, and the parent's peak RSS.
 ``pipeline`` says what measured each pair: vision.survey.measure_pair once vision.underwater is
 merged, else the stand-in (bench/survey_standin.py: the plan's 70 ms per pair of one core, spent
-in OpenCV, plus a dot reader) — the integrator reruns this with the real pipeline.
+in OpenCV, then four fixed fish) — the integrator reruns this with the real pipeline.
 """
 from __future__ import annotations
 
@@ -195,7 +195,7 @@ def main() -> None:
         base = baseline_ms(paths[:10])
         runs = [stills(paths, calib, measure, w, r, f"{tmp}/s.json")
                 for w, r in ((1, "worker"), (2, "worker"), (2, "parent"))]
-        harness = stills(paths, calib, "bench.survey_standin:dots", 2, "worker", f"{tmp}/d.json")
+        harness = stills(paths, calib, "bench.survey_standin:constant", 2, "worker", f"{tmp}/d.json")
         best = max(runs, key=lambda r: r["pairs_per_s"])
         for r in runs:
             r["ratio_to_baseline"] = round(1e3 / r["pairs_per_s"] / base, 3)
@@ -213,18 +213,18 @@ def main() -> None:
             g = [cv2.cvtColor(x, cv2.COLOR_BGR2GRAY) for x in (left, right)]
             return np.dstack([np.zeros_like(g[0]), g[1], g[0]])
         write_video(f"{tmp}/RG.mp4", (rg(i) for i in range(args.long_frames)))
-        long = cli_run(tmp, calib_path, ["--rg-video", f"{tmp}/RG.mp4"], "bench.survey_standin:dots",
+        long = cli_run(tmp, calib_path, ["--rg-video", f"{tmp}/RG.mp4"], "bench.survey_standin:constant",
                        args.long_frames)
 
     print(json.dumps({
         "pipeline": what, "image_size": list(rig.image_size), "cores": os.cpu_count(),
         "load_avg_before": [round(x, 2) for x in load], "load_avg_after": [round(x, 2) for x in os.getloadavg()],
         "baseline_ms_per_pair": round(base, 1),
-        "stills": runs, "harness_only_dots_2_workers": harness,
+        "stills": runs, "harness_only_2_workers": harness,
         "best_pairs_per_s": best["pairs_per_s"], "best_ratio_to_baseline": best["ratio_to_baseline"],
         "goal_ratio": 0.16, "goal_met": best["ratio_to_baseline"] <= 0.16,
         "video_60s": video,
-        "long_clip": {"frames": args.long_frames, "source": "one RG mp4, dots stand-in, 2 workers, the CLI", **long},
+        "long_clip": {"frames": args.long_frames, "source": "one RG mp4, constant stand-in (4 fish a pair), 2 workers, the CLI", **long},
         "parent_peak_rss_mb": round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024, 1),
     }))
 
