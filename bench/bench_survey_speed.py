@@ -21,7 +21,7 @@ import os
 import sys
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-sys.path.insert(0, ROOT)            # bench.survey_standin, tests.controller.surveys.standin
+sys.path.insert(0, ROOT)            # bench.survey_standin, tests.controller.surveys.standin (scenes)
 
 import argparse  # noqa: E402
 import json  # noqa: E402
@@ -47,7 +47,7 @@ def pipeline() -> tuple[str, str]:
         import vision.underwater  # noqa: F401
         return "vision.survey:measure_pair", "vision.survey.measure_pair"
     except ModuleNotFoundError:
-        return "bench.survey_standin:budget", f"stand-in: {os.environ.get('STANDIN_MS', '70')} ms CPU + dots"
+        return "bench.survey_standin:budget", f"stand-in: {os.environ.get('STANDIN_MS', '70')} ms CPU + 4 fixed fish"
 
 
 def scenes(n: int, rng: np.random.Generator):
@@ -224,7 +224,8 @@ def main() -> None:
         "best_pairs_per_s": best["pairs_per_s"], "best_ratio_to_baseline": best["ratio_to_baseline"],
         "goal_ratio": 0.16, "goal_met": best["ratio_to_baseline"] <= 0.16,
         "video_60s": video,
-        "long_clip": {"frames": args.long_frames, "source": "one RG mp4, constant stand-in (4 fish a pair), 2 workers, the CLI", **long},
+        "long_clip": {"frames": args.long_frames, "source": "one RG mp4, 4 fixed fish a pair, 2 workers, the CLI",
+                      **long},
         "parent_peak_rss_mb": round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024, 1),
     }))
 
