@@ -92,6 +92,7 @@ class Config(Strict):
     tanks: list[TankConfig] = Field(min_length=1)
     devices: dict[str, dict[str, Any]] = {}
     sim: dict[str, Any] = {}
+    stocks: dict[str, dict[str, Any]] = {}     # weight surveys' a, b per stock: controller/surveys/species.py
     path: str = "<config>"
 
     @field_validator("tanks")

@@ -27,7 +27,9 @@ class Species(BaseModel):
     name: str
     a: float = Field(gt=0, description="W = a * L^b, L fork length cm, W g")
     b: float = Field(gt=0)
+    source: str | None = Field(None, description="where a, b come from")
     feeding: list[FeedingRow] = Field(min_length=1)
+    survey: dict = Field({}, description="body shape for weight surveys: controller/surveys/species.py checks it")
 
     def row(self, mean_weight_g: float) -> FeedingRow:
         for row in self.feeding:

@@ -1,0 +1,140 @@
+"""``fishfarm survey``: fish lengths and weights from stereo pairs, and the survey's statistics.
+
+    fishfarm survey --calib CALIB.json --species sparus_aurata --setup underwater|surface
+                    (--pair L R ... | --rg FRAME ... | --dir DIR | --video L R | --rg-video F)
+                    --json OUT.json [--plot HIST.png] [--csv FISH.csv] [--config farm.toml --stock NAME]
+                    [--up x,y,z] [--every N] [--max-frames M] [--workers N] [--seed S]
+
+Pairs are measured by vision.survey.measure_pair in one worker process per core; OUT.json is
+the contract of DESIGN.md plus optional fields (README, "Weight surveys"). Bad input exits 2
+with one line naming the file and the fault; an empty survey (no fish) is a result, count 0.
+"""
+from __future__ import annotations
+
+import math
+import sys
+
+import click
+
+from controller.errors import BadInput
+
+
+def _up(text: str | None) -> tuple[float, float, float] | None:
+    if text is None:
+        return None
+    try:
+        v = [float(x) for x in text.split(",")]
+    except ValueError:
+        raise BadInput("--up", None, f"expected three numbers x,y,z, got {text!r}") from None
+    norm = math.sqrt(sum(x * x for x in v)) if len(v) == 3 and all(map(math.isfinite, v)) else 0.0
+    if len(v) != 3 or norm == 0:
+        raise BadInput("--up", None, f"expected a non-zero finite vector x,y,z, got {text!r}")
+    return (v[0] / norm, v[1] / norm, v[2] / norm)
+
+
+def _source(pairs, rgs, directory, video, rg_video, every, max_frames):
+    from controller.surveys import frames
+    given = [name for name, v in (("--pair", pairs), ("--rg", rgs), ("--dir", directory), ("--video", video),
+                                  ("--rg-video", rg_video)) if v]
+    if len(given) != 1:
+        got = f" (got {', '.join(given)})" if given else ""
+        raise click.UsageError("give exactly one input: --pair L R (repeatable), --rg FRAME (repeatable), "
+                               f"--dir DIR, --video L R or --rg-video F{got}")
+    if pairs:
+        return frames.still_source([tuple(p) for p in pairs], every, max_frames)
+    if rgs:
+        return frames.still_source([(p,) for p in rgs], every, max_frames)
+    if directory:
+        return frames.still_source(frames.directory_items(directory), every, max_frames)
+    return frames.video_source(tuple(video) if video else (rg_video,), every, max_frames)
+
+
+class _Progress:
+    """A rich progress bar on a terminal; silence in a pipe or a log. The first warning is printed,
+    the others counted (an RG video with a faint blue channel would say it on every frame)."""
+
+    def __init__(self, total: int | None):
+        self.bar = None
+        self.warnings = 0
+        if sys.stderr.isatty():
+            from rich.console import Console
+            from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
+            self.bar = Progress(TextColumn("survey"), BarColumn(), MofNCompleteColumn(), TimeRemainingColumn(),
+                                console=Console(stderr=True), transient=True)
+            self.task = self.bar.add_task("pairs", total=total)
+            self.bar.start()
+
+    def _say(self, text: str) -> None:
+        if self.bar:
+            self.bar.console.print(text, markup=False, highlight=False, soft_wrap=True)  # names may hold [ ]
+        else:
+            click.echo(text, err=True)
+
+    def __call__(self, result) -> None:
+        if result.warning:
+            self.warnings += 1
+            if self.warnings == 1:
+                self._say(f"fishfarm survey: warning: {result.warning}")
+        if self.bar:
+            self.bar.advance(self.task)
+
+    def stop(self) -> None:
+        if self.warnings > 1:
+            self._say(f"fishfarm survey: warning: the same for {self.warnings - 1} more pairs")
+        if self.bar:
+            self.bar.stop()
+
+
+@click.command()
+@click.option("--calib", "calib_path", required=True, metavar="CALIB.json", help="the stereo rig's calibration")
+@click.option("--species", required=True, help="a species of config/species.toml, e.g. sparus_aurata")
+@click.option("--setup", required=True, type=click.Choice(["underwater", "surface"]))
+@click.option("--pair", "pairs", nargs=2, multiple=True, metavar="LEFT RIGHT", help="a stereo pair (repeatable)")
+@click.option("--rg", "rgs", multiple=True, metavar="FRAME", help="an RG frame: left in red, right in green")
+@click.option("--dir", "directory", metavar="DIR", help="*_L.*/*_R.* pairs or *.png RG frames, sorted")
+@click.option("--video", nargs=2, metavar="LEFT RIGHT", default=None, help="two synchronised video files")
+@click.option("--rg-video", metavar="FILE", help="one RG video")
+@click.option("--every", type=click.IntRange(min=1), default=1, show_default=True, help="survey every N-th frame")
+@click.option("--max-frames", type=click.IntRange(min=1), default=None, help="survey at most M pairs")
+@click.option("--json", "json_path", required=True, metavar="OUT.json")
+@click.option("--plot", "plot_path", metavar="HIST.png", help="weight and length histograms (PNG)")
+@click.option("--csv", "csv_path", metavar="FISH.csv", help="every fish, units in the headers")
+@click.option("--config", "config_path", metavar="farm.toml", help="farm config holding [stocks.NAME]")
+@click.option("--stock", help="use this stock's a, b (farm.toml [stocks.NAME]) instead of the species'")
+@click.option("--up", "up", metavar="x,y,z", help="water-surface normal in the calibration's frame")
+@click.option("--workers", type=click.IntRange(min=1), default=None, help="processes (default: cores)")
+@click.option("--seed", type=int, default=1, show_default=True, help="seed of the bootstrap interval")
+@click.option("--measure", default=None, hidden=True, help="module:function measuring a pair (tests)")
+def survey(calib_path, species, setup, pairs, rgs, directory, video, rg_video, every, max_frames, json_path,
+           plot_path, csv_path, config_path, stock, up, workers, seed, measure):
+    """Fish lengths and weights from stereo pairs, with the survey's statistics."""
+    from controller.cli.calib_io import load_calibration
+    from controller.surveys.runner import MEASURE
+    from controller.surveys.species import survey_species, with_stock
+    from controller.surveys.survey import SurveyOptions, run_survey
+
+    sp = survey_species(species)
+    if stock:
+        sp = with_stock(sp, config_path or "config/farm.toml", stock)
+    elif config_path:
+        raise click.UsageError("--config is read for --stock NAME only: give --stock too")
+    calib = load_calibration(calib_path)
+    up_world = _up(up)
+    source = _source(pairs, rgs, directory, video, rg_video, every, max_frames)
+    if plot_path:
+        from controller.surveys.outputs import check_writable
+        check_writable(plot_path, "the plot")
+    progress = _Progress(source.total)
+    opts = SurveyOptions(sp.setup(setup, up_world), sp, workers=workers, seed=seed,
+                         measure=measure or MEASURE, on_pair=progress)
+    try:
+        summary = run_survey(source, calib, opts, json_path, csv_path)
+    finally:
+        progress.stop()
+    if plot_path:
+        from controller.surveys.plot import plot_survey
+        plot_survey(summary, plot_path)
+    w = summary["weight_g"]
+    mean = "n/a" if w["mean"] is None else f"{w['mean']:.1f} g"
+    ci = "" if not w["ci"] else f" (95 % CI {w['ci'][0]:.1f}-{w['ci'][1]:.1f})"
+    click.echo(f"{summary['count']} fish in {summary['frames']} pairs: mean weight {mean}{ci}", err=True)

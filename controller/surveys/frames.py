@@ -1,0 +1,221 @@
+"""Where a survey's stereo pairs come from: image files (``--pair``, ``--rg``, ``--dir``) or video
+(two synchronised files, or one RG video). Every source is an iterator of ``PairJob``: constant
+memory whatever the length of the footage (a video is decoded one frame at a time).
+
+Still images are named, not loaded, by their job (``paths``): the worker that measures the pair
+reads it (``read_pair``), so reading runs on every core. Video is decoded in order by the parent
+and the job carries the arrays. ``frame`` is the contract's: the pair's position among the
+arguments, in sorted order with ``--dir``, or the frame number in the video (``--every N`` keeps
+the original numbers: 0, N, 2N, ...).
+
+Faults are ``BadInput`` naming the file: missing, unreadable or empty images, left and right of
+different sizes, a directory without pairs, a video that cannot be opened or ends early.
+"""
+from __future__ import annotations
+
+import re
+import time
+from collections.abc import Iterator
+from dataclasses import dataclass
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from controller.errors import BadInput
+
+IMAGE_SUFFIXES = {".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff"}
+BLUE_EMPTY_MAX = 16.0           # mean blue level an RG frame may carry (JPEG bleed, sensor offset)
+
+
+@dataclass
+class PairJob:
+    frame: int
+    where: str                              # names the input in messages
+    paths: tuple[str, ...] = ()             # (left, right) files, or (rg,) one RG frame
+    left: np.ndarray | None = None          # already decoded (video)
+    right: np.ndarray | None = None
+    read_s: float = 0.0                     # seconds the parent spent decoding it
+    shared: tuple | None = None             # (file, offset, left shape, right shape): arrays in a shared map
+
+
+@dataclass
+class Source:
+    jobs: Iterator[PairJob]
+    total: int | None                       # pairs to expect (progress bar), None when unknown
+    fps: float | None = None                # video: frames are a sequence, fish are tracked
+    warnings: list[str] | None = None
+
+
+# ---- reading one pair ------------------------------------------------------------------------
+
+def _imread(path: str, flags: int = cv2.IMREAD_ANYCOLOR) -> np.ndarray:
+    p = Path(path)
+    if not p.exists():
+        raise BadInput(path, None, "no such file")
+    if p.is_dir():
+        raise BadInput(path, None, "is a directory, expected an image")
+    if p.stat().st_size == 0:
+        raise BadInput(path, None, "empty file")
+    img = cv2.imread(path, flags)
+    if img is None or img.size == 0:
+        raise BadInput(path, None, "not a readable image (PNG or JPEG expected)")
+    return img
+
+
+def split_rg(img: np.ndarray, where: str) -> tuple[np.ndarray, np.ndarray, str | None]:
+    """(left = red, right = green, warning or None) of an RG frame (BGR as OpenCV decodes it).
+
+    A blue channel that is not empty is accepted with a warning: JPEG and some grabbers bleed
+    into it, and refusing a whole survey for that helps no one; but a frame whose three channels
+    are equal is a grey picture, not an RG frame, and left = right would measure nothing."""
+    if img.ndim != 3 or img.shape[2] < 3:
+        raise BadInput(where, None, "grey image: an RG frame is colour, left view in red, right in green")
+    blue, green, red = img[..., 0], img[..., 1], img[..., 2]
+    if np.array_equal(red, green) and np.array_equal(green, blue):
+        raise BadInput(where, None, "red, green and blue are the same picture: not an RG frame")
+    level = float(cv2.mean(blue)[0])
+    warn = (f"{where}: blue channel not empty (mean level {level:.0f}): is this an RG frame? "
+            "using red = left, green = right") if level > BLUE_EMPTY_MAX else None
+    return np.ascontiguousarray(red), np.ascontiguousarray(green), warn
+
+
+def check_same_size(left: np.ndarray, right: np.ndarray, left_name: str, right_name: str) -> None:
+    if left.shape[:2] != right.shape[:2]:
+        (h1, w1), (h2, w2) = left.shape[:2], right.shape[:2]
+        raise BadInput(right_name, None, f"{w2}x{h2} pixels, but the left image {left_name} is {w1}x{h1}")
+
+
+def read_pair(job: PairJob) -> tuple[np.ndarray, np.ndarray, str | None]:
+    """(left, right, warning) of a job, decoding its files if it names them."""
+    if job.left is not None:
+        return job.left, job.right, None
+    if len(job.paths) == 1:
+        return split_rg(_imread(job.paths[0], cv2.IMREAD_COLOR), job.paths[0])
+    left, right = _imread(job.paths[0]), _imread(job.paths[1])
+    check_same_size(left, right, job.paths[0], job.paths[1])
+    return left, right, None
+
+
+# ---- still images ----------------------------------------------------------------------------
+
+def _exists(path: str) -> None:
+    p = Path(path)
+    if not p.exists():
+        raise BadInput(path, None, "no such file")
+    if p.is_dir():
+        raise BadInput(path, None, "is a directory, expected an image")
+
+
+def _select(n: int, every: int, max_frames: int | None) -> list[int]:
+    idx = list(range(0, n, every))
+    return idx[:max_frames] if max_frames is not None else idx
+
+
+def still_source(items: list[tuple[str, ...]], every: int = 1, max_frames: int | None = None) -> Source:
+    """``items``: (left, right) pairs or (rg,) frames, in the order that defines ``frame``.
+    Every file is checked to exist before any is measured (a typo fails at once, not at the end)."""
+    for item in items:
+        for path in item:
+            _exists(path)
+    chosen = _select(len(items), every, max_frames)
+    jobs = (PairJob(i, " + ".join(items[i]), paths=tuple(items[i])) for i in chosen)
+    return Source(jobs, len(chosen))
+
+
+_SIDE = re.compile(r"^(?P<stem>.*)_(?P<side>[LR])$")
+
+
+def directory_items(directory: str) -> list[tuple[str, ...]]:
+    """``*_L.*`` / ``*_R.*`` pairs in sorted order, or else every ``*.png`` as an RG frame."""
+    d = Path(directory)
+    if not d.exists():
+        raise BadInput(directory, None, "no such directory")
+    if not d.is_dir():
+        raise BadInput(directory, None, "not a directory")
+    files = sorted(p for p in d.iterdir() if p.is_file() and p.suffix.lower() in IMAGE_SUFFIXES)
+    sides: dict[str, dict[str, Path]] = {}
+    for p in files:
+        m = _SIDE.match(p.stem)
+        if m:
+            sides.setdefault(m["stem"], {})[m["side"]] = p
+    if sides:
+        items = []
+        for stem in sorted(sides):
+            got = sides[stem]
+            for have, lack in (("L", "R"), ("R", "L")):
+                if lack not in got:
+                    raise BadInput(str(got[have]), None, f"no {'right' if lack == 'R' else 'left'} image "
+                                                         f"({stem}_{lack}.*) beside it")
+            items.append((str(got["L"]), str(got["R"])))
+        return items
+    rg = [(str(p),) for p in files if p.suffix.lower() == ".png"]
+    if not rg:
+        raise BadInput(directory, None, "no pairs (*_L.* with *_R.*) and no *.png RG frames")
+    return rg
+
+
+# ---- video -----------------------------------------------------------------------------------
+
+def _open_video(path: str) -> cv2.VideoCapture:
+    _exists(path)
+    cap = cv2.VideoCapture(path)
+    if not cap.isOpened():
+        raise BadInput(path, None, "cannot open as a video")
+    return cap
+
+
+def _frame_count(cap: cv2.VideoCapture) -> int | None:
+    n = int(cap.get(cv2.CAP_PROP_FRAME_COUNT) or 0)
+    return n if n > 0 else None
+
+
+def video_source(paths: tuple[str, ...], every: int = 1, max_frames: int | None = None) -> Source:
+    """Two synchronised videos (left, right) or one RG video (a 1-tuple), decoded in order."""
+    caps = [_open_video(p) for p in paths]
+    fps = float(caps[0].get(cv2.CAP_PROP_FPS) or 0.0) or 25.0
+    counts = [_frame_count(c) for c in caps]
+    known = [c for c in counts if c is not None]
+    total = None
+    if len(known) == len(caps):
+        total = -(-min(known) // every)
+        if max_frames is not None:
+            total = min(total, max_frames)
+    return Source(_video_jobs(caps, paths, every, max_frames), total, fps)
+
+
+def _video_jobs(caps: list[cv2.VideoCapture], paths: tuple[str, ...], every: int,
+                max_frames: int | None) -> Iterator[PairJob]:
+    name = " + ".join(paths)
+    i = done = 0
+    try:
+        while max_frames is None or done < max_frames:
+            t0 = time.perf_counter()
+            keep = i % every == 0
+            # grab() skips the colour conversion of frames --every leaves out
+            got = [c.read()[1] if keep else (True if c.grab() else None) for c in caps]
+            ended = [g is None or g is False for g in got]
+            if all(ended):
+                if i == 0:
+                    raise BadInput(paths[0], None, "no frames")
+                if max_frames is not None:
+                    raise BadInput(name, "--max-frames", f"the video ends after {i} frames ({done} pairs), "
+                                                         f"before --max-frames {max_frames}")
+                return
+            if any(ended):
+                short = paths[ended.index(True)]
+                other = paths[ended.index(False)]
+                raise BadInput(short, None, f"ends at frame {i}, but {other} goes on: the videos are not "
+                                            "the same length (not synchronised?)")
+            if keep:
+                if len(caps) == 1:
+                    left, right, _ = split_rg(got[0], f"{paths[0]} frame {i}")
+                else:
+                    left, right = got
+                    check_same_size(left, right, paths[0], paths[1])
+                yield PairJob(i, f"{name} frame {i}", left=left, right=right, read_s=time.perf_counter() - t0)
+                done += 1
+            i += 1
+    finally:
+        for c in caps:
+            c.release()

@@ -1,0 +1,115 @@
+"""A survey's files: OUT.json (the contract), FISH.csv (every fish, units in the headers) and the
+histogram page (``--plot``).
+
+The fish list of a long video does not stay in memory: entries are spooled to a temporary file
+as they come and copied into OUT.json at the end, which is written beside its final name and
+renamed into place (a reader never sees half a file). Every output is opened before the first
+pair is measured, so an unwritable path fails at once, not after an hour of footage.
+"""
+from __future__ import annotations
+
+import json
+import math
+import os
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+from controller.errors import BadInput
+from vision.survey_types import FishMeasurement
+
+CSV_HEADER = ("frame", "track", "length_cm", "weight_g", "condition_k", "score",
+              "snout_x_mm", "snout_y_mm", "snout_z_mm", "fork_x_mm", "fork_y_mm", "fork_z_mm",
+              "snout_u1_px", "snout_v1_px", "snout_u2_px", "snout_v2_px",
+              "fork_u1_px", "fork_v1_px", "fork_u2_px", "fork_v2_px")
+
+
+def _finite(x: float, digits: int) -> float | None:
+    x = float(x)
+    return round(x, digits) if math.isfinite(x) else None
+
+
+def _vec(v, digits: int = 2) -> list:
+    return [_finite(x, digits) for x in np.asarray(v, dtype=float).reshape(-1)]
+
+
+def fish_entry(frame: int, track: int, fish: FishMeasurement, weight_g: float) -> dict:
+    """One ``fish`` element of OUT.json: the contract's fields, then the optional ones."""
+    length = fish.length_cm
+    return {"frame": int(frame), "length_cm": _finite(length, 3), "weight_g": _finite(weight_g, 2),
+            "snout_mm": _vec(fish.snout_mm), "fork_mm": _vec(fish.fork_mm), "score": _finite(fish.score, 4),
+            "track": int(track),
+            "condition_k": _finite(100.0 * weight_g / length ** 3, 4) if length > 0 else None,
+            "snout_px": [_vec(r) for r in np.asarray(fish.snout_px, dtype=float).reshape(2, 2)],
+            "fork_px": [_vec(r) for r in np.asarray(fish.fork_px, dtype=float).reshape(2, 2)],
+            "quality": {str(k): _finite(v, 4) for k, v in fish.quality.items()}}
+
+
+def _writable(path: str, what: str):
+    try:
+        Path(path).parent.mkdir(parents=True, exist_ok=True)
+        return open(path, "w", encoding="utf-8", newline="")
+    except OSError as exc:
+        raise BadInput(path, None, f"cannot write {what}: {exc.strerror or exc}") from None
+
+
+class SurveyFiles:
+    """OUT.json (+ FISH.csv) of one survey, written as fish come and finished by ``close``."""
+
+    def __init__(self, json_path: str, csv_path: str | None = None):
+        self.json_path = json_path
+        self._tmp_path = f"{json_path}.part"
+        self._out = _writable(self._tmp_path, "OUT.json")
+        self._spool = tempfile.TemporaryFile("w+", encoding="utf-8")
+        self.entries = 0
+        self._csv = _writable(csv_path, "the CSV") if csv_path else None
+        if self._csv:
+            self._csv.write(",".join(CSV_HEADER) + "\n")
+
+    def add(self, entry: dict) -> None:
+        self._spool.write(json.dumps(entry, allow_nan=False) + "\n")
+        self.entries += 1
+        if self._csv:
+            row = [entry["frame"], entry["track"], entry["length_cm"], entry["weight_g"], entry["condition_k"],
+                   entry["score"], *entry["snout_mm"], *entry["fork_mm"],
+                   *entry["snout_px"][0], *entry["snout_px"][1], *entry["fork_px"][0], *entry["fork_px"][1]]
+            self._csv.write(",".join("" if v is None else str(v) for v in row) + "\n")
+
+    def finish(self, head: dict, tail: dict) -> None:
+        """OUT.json = ``head`` fields, the spooled ``fish`` list, then ``tail`` fields."""
+        out = self._out
+        out.write("{" + json.dumps(head, allow_nan=False)[1:-1] + ',\n "fish": [')
+        self._spool.seek(0)
+        for i, line in enumerate(self._spool):
+            out.write(("\n  " if i == 0 else ",\n  ") + line.rstrip("\n"))
+        out.write("\n ],\n " + json.dumps(tail, allow_nan=False, indent=1)[1:].lstrip() + "\n")
+        out.close()
+        os.replace(self._tmp_path, self.json_path)
+        self.close()
+
+    def close(self) -> None:
+        """Safe to call twice; a survey that failed leaves no OUT.json behind (nor a .part)."""
+        self._spool.close()
+        if self._csv and not self._csv.closed:
+            self._csv.close()
+        if not self._out.closed:
+            self._out.close()
+            Path(self._tmp_path).unlink(missing_ok=True)
+
+
+def check_writable(path: str, what: str) -> None:
+    """Fail before the survey, not after it, on an output that cannot be written."""
+    existed = Path(path).exists()
+    _writable_append(path, what)
+    if not existed:
+        Path(path).unlink(missing_ok=True)
+
+
+def _writable_append(path: str, what: str) -> None:
+    try:
+        Path(path).parent.mkdir(parents=True, exist_ok=True)
+        with open(path, "a", encoding="utf-8"):
+            pass
+    except OSError as exc:
+        raise BadInput(path, None, f"cannot write {what}: {exc.strerror or exc}") from None

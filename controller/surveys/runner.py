@@ -1,0 +1,190 @@
+"""Measure a source's pairs on every core, results back in frame order.
+
+Each worker process runs OpenCV on one thread (``cv2.setNumThreads(1)``): with one pair per core
+the pairs are the parallelism, and OpenCV's own threads would only fight over the same cores.
+At most ``2 x workers`` pairs are in flight, so memory stays flat whatever the length of the
+footage; results are yielded strictly in frame order (the tracker needs them in order).
+
+``measure`` is the per-pair function, ``vision.survey.measure_pair`` unless a test or a caller
+hands another with the same signature (a "module:function" string or a top-level function: it
+travels to the workers by name).
+"""
+from __future__ import annotations
+
+import importlib
+import math
+import multiprocessing
+import os
+import tempfile
+import time
+from collections import deque
+from collections.abc import Callable, Iterable, Iterator
+from concurrent.futures import ProcessPoolExecutor
+from dataclasses import dataclass, field
+
+import cv2
+import numpy as np
+
+from controller.errors import BadInput
+from controller.surveys.frames import PairJob, read_pair
+from vision.calib_file import StereoCalibration
+from vision.survey_types import FishMeasurement, SurveySetup
+
+MEASURE = "vision.survey:measure_pair"
+Measure = Callable[..., list[FishMeasurement]]
+
+
+@dataclass
+class PairResult:
+    frame: int
+    where: str
+    fish: list[FishMeasurement]
+    timings: dict[str, float] = field(default_factory=dict)   # seconds per stage, "read" included
+    warning: str | None = None
+
+
+def resolve(measure: str | Measure) -> Measure:
+    if callable(measure):
+        return measure
+    module, _, attr = measure.partition(":")
+    return getattr(importlib.import_module(module), attr)
+
+
+def check_frame_size(calib: StereoCalibration, image, where: str) -> None:
+    """A calibration made for one image size does not fit frames of another (its pixels would be
+    measured with the wrong camera matrices). The one place the survey checks it."""
+    if calib.image_size is None:
+        return
+    h, w = image.shape[:2]
+    if (w, h) != tuple(calib.image_size):
+        cw, ch = calib.image_size
+        raise BadInput(where, None, f"{w}x{h} pixels, but the calibration's image_size is {cw}x{ch}")
+
+
+class PairWork:
+    """What a worker does with one job: read it (if it names files), check it, measure it."""
+
+    def __init__(self, calib: StereoCalibration, setup: SurveySetup, measure: str | Measure):
+        self.calib, self.setup, self.measure = calib, setup, resolve(measure)
+
+    def __call__(self, job: PairJob) -> PairResult:
+        c0 = time.process_time()
+        t0 = time.perf_counter()
+        left, right, warning = read_pair(job)
+        timings = {"read": job.read_s + time.perf_counter() - t0}
+        check_frame_size(self.calib, left, job.paths[0] if job.paths else job.where)
+        t1 = time.perf_counter()
+        fish = self.measure(left, right, self.calib, self.setup, timings)
+        timings["measure"] = time.perf_counter() - t1
+        timings["cpu"] = time.process_time() - c0        # this worker's CPU for the pair: robust to load
+        return PairResult(job.frame, job.where, fish, timings, warning)
+
+
+class FrameRing:
+    """Decoded frames handed to the workers through a file in /dev/shm (shared memory) instead of
+    the pool's pipe: pickling a 1280x960 colour pair through a pipe costs ~10 ms of CPU, a copy
+    into the map ~1 ms. Slot k % slots holds job k; with at most ``slots`` jobs in flight and
+    results taken in order, a slot is free again when its next job comes."""
+
+    def __init__(self, slots: int):
+        self.slots = slots
+        self.k = 0
+        self.file = None
+        self.map = None
+
+    def _open(self, slot_bytes: int) -> None:
+        where = "/dev/shm" if os.path.isdir("/dev/shm") else None
+        self.file = tempfile.NamedTemporaryFile(prefix="fishfarm-survey-", dir=where)
+        self.file.truncate(self.slots * slot_bytes)
+        self.map = np.memmap(self.file.name, np.uint8, "r+", shape=(self.slots, slot_bytes))
+
+    def put(self, job: PairJob) -> PairJob:
+        left, right = np.ascontiguousarray(job.left), np.ascontiguousarray(job.right)
+        size = left.nbytes + right.nbytes
+        if self.map is None:
+            self._open(size)
+        if size > self.map.shape[1] or left.dtype != np.uint8 or right.dtype != np.uint8:
+            return job                                       # a frame that does not fit: by pipe
+        slot = self.k % self.slots
+        self.k += 1
+        row = self.map[slot]
+        row[:left.nbytes] = left.reshape(-1)
+        row[left.nbytes:size] = right.reshape(-1)
+        return PairJob(job.frame, job.where, job.paths, read_s=job.read_s,
+                       shared=(self.file.name, slot * self.map.shape[1], left.shape, right.shape))
+
+    def close(self) -> None:
+        if self.file is not None:
+            self.map = None
+            self.file.close()
+
+
+_work: PairWork | None = None
+_maps: dict[str, np.memmap] = {}
+
+
+def _init_worker(calib, setup, measure) -> None:
+    global _work
+    cv2.setNumThreads(1)
+    _work = PairWork(calib, setup, measure)
+
+
+def _run(job: PairJob) -> PairResult:
+    if job.shared is not None:
+        path, offset, lshape, rshape = job.shared
+        if path not in _maps:
+            _maps.clear()
+            _maps[path] = np.memmap(path, np.uint8, "c")      # copy-on-write: a detector may scribble
+        m = _maps[path]
+        nl, nr = math.prod(lshape), math.prod(rshape)
+        job.left = m[offset:offset + nl].reshape(lshape)
+        job.right = m[offset + nl:offset + nl + nr].reshape(rshape)
+    return _work(job)
+
+
+def _read_in_parent(job: PairJob) -> PairJob:
+    t0 = time.perf_counter()
+    left, right, _ = read_pair(job)
+    job.left, job.right = left, right
+    job.read_s = time.perf_counter() - t0
+    return job
+
+
+def default_workers() -> int:
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except AttributeError:          # not Linux
+        return max(1, os.cpu_count() or 1)
+
+
+def measure_all(jobs: Iterable[PairJob], calib: StereoCalibration, setup: SurveySetup, *,
+                measure: str | Measure = MEASURE, workers: int | None = None,
+                read_in: str = "worker") -> Iterator[PairResult]:
+    """Every job measured, in order. ``workers`` 1 runs in this process (no pool);
+    ``read_in="parent"`` decodes image files here and ships the arrays (the benchmark compares)."""
+    workers = workers or default_workers()
+    if read_in == "parent":
+        jobs = (_read_in_parent(j) if j.left is None else j for j in jobs)
+    if workers == 1:
+        work = PairWork(calib, setup, measure)
+        yield from (work(job) for job in jobs)
+        return
+    # forkserver: workers start from a clean interpreter, not a fork of one holding threads
+    # (the progress bar's) and OpenCV's thread pool
+    ctx = multiprocessing.get_context("forkserver")
+    pool = ProcessPoolExecutor(workers, mp_context=ctx, initializer=_init_worker,
+                               initargs=(calib, setup, measure))
+    pending: deque = deque()
+    ring = FrameRing(2 * workers)
+    try:
+        for job in jobs:
+            pending.append(pool.submit(_run, ring.put(job) if job.left is not None else job))
+            if len(pending) >= 2 * workers:
+                yield pending.popleft().result()
+        while pending:
+            yield pending.popleft().result()
+    finally:
+        for f in pending:
+            f.cancel()
+        pool.shutdown(wait=True, cancel_futures=True)
+        ring.close()

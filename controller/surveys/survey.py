@@ -1,0 +1,107 @@
+"""One weight survey end to end: a frame source in, OUT.json (and FISH.csv) out. The library entry
+of ``fishfarm survey`` (the benchmark calls it too).
+
+Weights are W = a L^b with the species' (or the stock's) coefficients. The statistics use one
+entry per fish in independent stills, and one per track in video: a fish lingering in front of
+the cameras for 50 frames counts once, at the robust mean of its sightings' lengths
+(vision.tracking.FishTracker). The ``fish`` list stays per frame, each entry with its ``track``.
+"""
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from controller.surveys.frames import Source
+from controller.surveys.outputs import SurveyFiles, fish_entry
+from controller.surveys.runner import MEASURE, Measure, PairResult, measure_all
+from controller.surveys.species import SurveySpecies
+from vision.calib_file import StereoCalibration
+from vision.survey_stats import summarise
+from vision.survey_types import SurveySetup
+
+
+@dataclass
+class SurveyOptions:
+    setup: SurveySetup
+    species: SurveySpecies
+    workers: int | None = None
+    seed: int = 1
+    measure: str | Measure = MEASURE
+    read_in: str = "worker"
+    on_pair: Callable[[PairResult], None] | None = None       # progress, warnings
+    extra: dict = field(default_factory=dict)                  # more optional OUT.json fields
+
+
+class _Tracks:
+    """Track ids for a video's fish; without vision.tracking (or for stills) each fish is its own."""
+
+    def __init__(self, fps: float | None):
+        self.tracker = None
+        self.lengths: list[float] = []
+        if fps is not None:
+            try:
+                from vision.tracking import FishTracker
+            except ModuleNotFoundError as exc:
+                if exc.name != "vision.tracking":
+                    raise
+            else:
+                self.tracker = FishTracker(fps)
+
+    @property
+    def per(self) -> str:
+        return "track" if self.tracker is not None else "fish"
+
+    def update(self, frame: int, fish: list) -> list[int]:
+        if self.tracker is not None:
+            return [int(i) for i in self.tracker.update(frame, fish)]
+        first = len(self.lengths)
+        self.lengths.extend(f.length_cm for f in fish)
+        return list(range(first, first + len(fish)))
+
+    def lengths_cm(self) -> np.ndarray:
+        if self.tracker is not None:
+            return np.array([t.length_cm for t in self.tracker.finish()], dtype=float)
+        return np.asarray(self.lengths, dtype=float)
+
+
+def run_survey(source: Source, calib: StereoCalibration, opts: SurveyOptions,
+               json_path: str, csv_path: str | None = None) -> dict:
+    """Measure every pair of ``source``, write OUT.json (and FISH.csv); return the summary
+    (OUT.json without its ``fish`` list)."""
+    files = SurveyFiles(json_path, csv_path)
+    weight = opts.species.weight
+    tracks = _Tracks(source.fps)
+    stage_s: dict[str, float] = {}
+    frames = 0
+    started = time.perf_counter()
+    try:
+        for result in measure_all(source.jobs, calib, opts.setup, measure=opts.measure,
+                                  workers=opts.workers, read_in=opts.read_in):
+            frames += 1
+            for stage, s in result.timings.items():
+                stage_s[stage] = stage_s.get(stage, 0.0) + s
+            ids = tracks.update(result.frame, result.fish)
+            for fish, track in zip(result.fish, ids, strict=True):
+                files.add(fish_entry(result.frame, track, fish, float(weight.weight_g(fish.length_cm))))
+            if opts.on_pair:
+                opts.on_pair(result)
+        wall = time.perf_counter() - started
+        lengths = tracks.lengths_cm()
+        lengths = lengths[np.isfinite(lengths) & (lengths > 0)]
+        stats = summarise(lengths, weight.weight_g(lengths), rng=np.random.default_rng(opts.seed))
+        head = {"species": opts.species.key, "setup": opts.setup.setup, "frames": frames}
+        tail = {"count": stats["count"], "length_cm": stats["length_cm"], "weight_g": stats["weight_g"],
+                "condition_k": stats["condition_k"], "precision": stats["precision"],
+                "statistics_per": tracks.per, "fish_entries": files.entries,
+                "species_name": opts.species.name, "coefficients": opts.species.coefficients(),
+                "seed": opts.seed,
+                "stage_ms": {k: round(1e3 * v / frames, 3) for k, v in sorted(stage_s.items())} if frames else {},
+                "wall_s": round(wall, 3), "pairs_per_s": round(frames / wall, 2) if wall > 0 and frames else None,
+                **opts.extra}
+        files.finish(head, tail)
+    finally:
+        files.close()
+    return {**head, **tail}

@@ -1,0 +1,146 @@
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+from controller.errors import BadInput
+from controller.surveys.frames import directory_items, read_pair, split_rg, still_source, video_source
+
+
+def grey(h=48, w=64, level=0):
+    img = np.full((h, w), level, np.uint8)
+    img[::7, ::5] = 200           # some texture so codecs keep a picture
+    return img
+
+
+def write(path: Path, img) -> str:
+    assert cv2.imwrite(str(path), img)
+    return str(path)
+
+
+def test_stills_keep_argument_order_and_every_n_keeps_frame_numbers(tmp_path):
+    items = [(write(tmp_path / f"{i}_L.png", grey(level=i)), write(tmp_path / f"{i}_R.png", grey(level=i)))
+             for i in range(7)]
+    src = still_source(items, every=3)
+    jobs = list(src.jobs)
+    assert src.total == 3 and [j.frame for j in jobs] == [0, 3, 6]
+    left, right, warn = read_pair(jobs[1])
+    assert left[1, 1] == 3 and warn is None and left.shape == (48, 64)
+    assert [j.frame for j in still_source(items, every=2, max_frames=2).jobs] == [0, 2]
+
+
+def test_a_missing_file_fails_before_anything_is_read(tmp_path):
+    a = write(tmp_path / "a.png", grey())
+    with pytest.raises(BadInput, match=r"nope.png: no such file"):
+        still_source([(a, a), (a, str(tmp_path / "nope.png"))])
+
+
+@pytest.mark.parametrize("content, fault", [(b"", "empty file"), (b"not an image", "not a readable image")])
+def test_unreadable_or_empty_images_are_named(tmp_path, content, fault):
+    a = write(tmp_path / "a.png", grey())
+    bad = tmp_path / "b.png"
+    bad.write_bytes(content)
+    job = next(still_source([(a, str(bad))]).jobs)
+    with pytest.raises(BadInput, match=rf"b.png: {fault}"):
+        read_pair(job)
+
+
+def test_left_and_right_of_different_sizes(tmp_path):
+    a, b = write(tmp_path / "a.png", grey()), write(tmp_path / "b.png", grey(50, 64))
+    with pytest.raises(BadInput, match=r"b.png: 64x50 pixels, but the left image .*a.png is 64x48"):
+        read_pair(next(still_source([(a, b)]).jobs))
+
+
+def test_colour_and_grey_pairs_are_read_as_they_are(tmp_path):
+    c = write(tmp_path / "c.png", cv2.cvtColor(grey(), cv2.COLOR_GRAY2BGR))
+    left, right, _ = read_pair(next(still_source([(c, c)]).jobs))
+    assert left.shape == (48, 64, 3) and left.dtype == np.uint8
+
+
+def test_rg_frame_left_is_red_right_is_green_and_blue_is_checked(tmp_path):
+    img = np.zeros((48, 64, 3), np.uint8)
+    img[..., 2], img[..., 1] = grey(level=10), grey(level=90)        # BGR: red = 2, green = 1
+    left, right, warn = read_pair(next(still_source([(write(tmp_path / "rg.png", img),)]).jobs))
+    assert left[1, 1] == 10 and right[1, 1] == 90 and warn is None
+    img[..., 0] = 120
+    _, _, warn = split_rg(img, "x.png")
+    assert warn.startswith("x.png: blue channel not empty (mean level 120)")
+    with pytest.raises(BadInput, match="grey image"):
+        split_rg(grey(), "g.png")
+    with pytest.raises(BadInput, match="not an RG frame"):
+        split_rg(cv2.cvtColor(grey(), cv2.COLOR_GRAY2BGR), "g.png")
+
+
+def test_directory_pairs_in_sorted_order_else_png_rg_frames(tmp_path):
+    for stem in ("b", "a", "c10", "c09"):
+        write(tmp_path / f"{stem}_R.png", grey())
+        write(tmp_path / f"{stem}_L.jpg", grey())
+    items = directory_items(str(tmp_path))
+    assert [Path(left).name for left, _ in items] == ["a_L.jpg", "b_L.jpg", "c09_L.jpg", "c10_L.jpg"]
+    assert all(Path(r).name == Path(left).name.replace("_L.jpg", "_R.png") for left, r in items)
+    write(tmp_path / "d_L.png", grey())
+    with pytest.raises(BadInput, match=r"d_L.png: no right image \(d_R.\*\) beside it"):
+        directory_items(str(tmp_path))
+    rg = tmp_path / "rg"
+    rg.mkdir()
+    (rg / "notes.txt").write_text("x")
+    with pytest.raises(BadInput, match=r"rg: no pairs .* and no \*.png RG frames"):
+        directory_items(str(rg))
+    for i in (2, 1):
+        write(rg / f"f{i}.png", np.zeros((8, 8, 3), np.uint8))
+    assert [Path(p).name for (p,) in directory_items(str(rg))] == ["f1.png", "f2.png"]
+    with pytest.raises(BadInput, match="no such directory"):
+        directory_items(str(tmp_path / "none"))
+
+
+def make_video(path: Path, frames: int, size=(64, 48), rg=False) -> str:
+    out = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"MJPG"), 25.0, size)
+    assert out.isOpened()
+    for i in range(frames):
+        img = np.zeros((size[1], size[0], 3), np.uint8)
+        img[:, :, 2 if rg else 1] = 8 * i        # frame number readable back from the picture
+        img[:, :, 1 if rg else 2] = 100
+        out.write(img)
+    out.release()
+    return str(path)
+
+
+def level(img) -> int:
+    return int(round(float(np.median(img))))
+
+
+def test_two_videos_read_in_order_every_n_max_m(tmp_path):
+    a, b = make_video(tmp_path / "l.avi", 20), make_video(tmp_path / "r.avi", 20)
+    src = video_source((a, b), every=3, max_frames=5)
+    assert src.fps == pytest.approx(25.0) and src.total == 5
+    jobs = list(src.jobs)
+    assert [j.frame for j in jobs] == [0, 3, 6, 9, 12]
+    assert [level(j.left[..., 1]) for j in jobs] == pytest.approx([0, 24, 48, 72, 96], abs=3)
+    assert all(j.right.shape == (48, 64, 3) for j in jobs)
+    assert [j.frame for j in video_source((a, b), every=7).jobs] == [0, 7, 14]
+
+
+def test_rg_video_is_split_into_left_red_and_right_green(tmp_path):
+    jobs = list(video_source((make_video(tmp_path / "rg.avi", 4, rg=True),)).jobs)
+    assert len(jobs) == 4 and jobs[2].left.ndim == 2
+    assert level(jobs[2].left) == pytest.approx(16, abs=3) and level(jobs[2].right) == pytest.approx(100, abs=3)
+
+
+def test_a_video_that_ends_early_is_named(tmp_path):
+    a, b = make_video(tmp_path / "long.avi", 12), make_video(tmp_path / "short.avi", 8)
+    with pytest.raises(BadInput, match=r"short.avi: ends at frame 8, but .*long.avi goes on"):
+        list(video_source((a, b)).jobs)
+    rg = make_video(tmp_path / "rg.avi", 12, rg=True)
+    with pytest.raises(BadInput, match=r"rg.avi: --max-frames: the video ends after 12 frames \(6 pairs\), "
+                                       r"before --max-frames 7"):
+        list(video_source((rg,), every=2, max_frames=7).jobs)
+
+
+def test_missing_or_unopenable_video(tmp_path):
+    with pytest.raises(BadInput, match=r"none.avi: no such file"):
+        video_source((str(tmp_path / "none.avi"),))
+    junk = tmp_path / "junk.avi"
+    junk.write_bytes(b"\0" * 100)
+    with pytest.raises(BadInput, match=r"junk.avi: (cannot open as a video|no frames)"):
+        list(video_source((str(junk),)).jobs)

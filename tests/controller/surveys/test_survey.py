@@ -1,0 +1,149 @@
+"""The survey library entry with stand-ins for the per-pair pipeline (tests/controller/surveys/standin.py)."""
+import json
+import sys
+import types
+
+import cv2
+import numpy as np
+import pytest
+
+from controller.errors import BadInput
+from controller.surveys.frames import Source, still_source, video_source
+from controller.surveys.species import survey_species
+from controller.surveys.survey import SurveyOptions, run_survey
+from devices.sim.stereo_rig import convergent_rig
+from tests.controller.surveys import standin
+
+STANDIN = "tests.controller.surveys.standin"
+
+
+def options(measure, workers=1, species="sparus_aurata", **kw):
+    sp = survey_species(species)
+    return SurveyOptions(sp.setup("underwater", (0.0, 0.0, 1.0)), sp, workers=workers, measure=measure, **kw)
+
+
+def stills(tmp_path, rig, rng, counts, colour=False):
+    items, truth = [], []
+    for i, n in enumerate(counts):
+        fish = standin.random_fish(rig, rng, n)
+        left, right = standin.draw_fish(rig, fish, colour)
+        items.append((str(tmp_path / f"{i}_L.png"), str(tmp_path / f"{i}_R.png")))
+        cv2.imwrite(items[-1][0], left)
+        cv2.imwrite(items[-1][1], right)
+        truth.append(sorted(np.linalg.norm(s - f) / 10 for s, f in fish))
+    return items, truth
+
+
+@pytest.mark.parametrize("workers", [1, 2])
+def test_true_projected_fish_come_out_at_their_length_and_weight(tmp_path, workers):
+    rig = convergent_rig()
+    items, truth = stills(tmp_path, rig, np.random.default_rng(5), [3, 0, 2, 4], colour=workers == 2)
+    out = tmp_path / "out.json"
+    summary = run_survey(still_source(items), rig.calibration(), options(f"{STANDIN}:dots", workers),
+                         str(out), str(tmp_path / "fish.csv"))
+    doc = json.loads(out.read_text())
+    assert doc["frames"] == 4 and doc["count"] == 9 == len(doc["fish"]) and doc["statistics_per"] == "fish"
+    assert set(doc) >= {"species", "setup", "frames", "fish", "count", "length_cm", "weight_g"}
+    for frame, lengths in enumerate(truth):
+        got = sorted(f["length_cm"] for f in doc["fish"] if f["frame"] == frame)
+        assert got == pytest.approx(lengths, rel=0.01)
+    for f in doc["fish"]:
+        assert f["weight_g"] == pytest.approx(0.02263 * f["length_cm"] ** 3.032, rel=1e-3)
+        assert f["condition_k"] == pytest.approx(100 * f["weight_g"] / f["length_cm"] ** 3, rel=1e-3)
+        assert np.linalg.norm(np.subtract(f["snout_mm"], f["fork_mm"])) / 10 == pytest.approx(f["length_cm"], abs=2e-3)
+        assert f["quality"]["residual_px"] < 1
+    assert len({f["track"] for f in doc["fish"]}) == 9
+    assert doc["weight_g"]["mean"] == pytest.approx(np.mean([f["weight_g"] for f in doc["fish"]]), rel=1e-4)
+    assert doc["coefficients"]["a"] == 0.02263 and set(doc["stage_ms"]) >= {"read", "measure", "dots"}
+    assert summary["count"] == 9
+    rows = (tmp_path / "fish.csv").read_text().splitlines()
+    assert rows[0].startswith("frame,track,length_cm,weight_g,condition_k,score,snout_x_mm") and len(rows) == 10
+    assert float(rows[1].split(",")[2]) == doc["fish"][0]["length_cm"]
+
+
+def test_results_come_back_in_frame_order_from_a_pool(tmp_path):
+    # frames with a low level take longest: a pool finishes them out of order
+    from controller.surveys.frames import PairJob
+    levels = [5, 39, 1, 20, 38, 2, 30, 3]
+    # decoded frames go to the workers through shared memory; one larger than the first frame's
+    # slot goes by pipe instead, and colour and grey frames mix
+    sizes = [(4, 4), (4, 4), (9, 7), (4, 4), (2, 2, 3), (4, 4), (4, 4), (4, 4)]
+    jobs = (PairJob(i * 2, f"p{i}", left=np.full(sz, lv, np.uint8), right=np.full(sz, lv, np.uint8))
+            for i, (lv, sz) in enumerate(zip(levels, sizes, strict=True)))
+    calib = convergent_rig().calibration()
+    calib.image_size = None                     # a CALIB.json with only P1, P2 fits frames of any size
+    summary = run_survey(Source(jobs, None), calib, options(f"{STANDIN}:slow_by_level", workers=2),
+                         str(tmp_path / "o.json"))
+    doc = json.loads((tmp_path / "o.json").read_text())
+    assert [f["frame"] for f in doc["fish"]] == [0, 2, 4, 6, 8, 10, 12, 14]
+    assert [f["length_cm"] for f in doc["fish"]] == pytest.approx(levels)
+    assert [f["quality"]["shared_memory"] for f in doc["fish"]] == [1, 1, 0, 1, 1, 1, 1, 1]
+    assert summary["frames"] == 8
+
+
+def test_an_empty_survey_is_count_zero(tmp_path):
+    rig = convergent_rig()
+    items, _ = stills(tmp_path, rig, np.random.default_rng(1), [0, 0])
+    run_survey(still_source(items), rig.calibration(), options(f"{STANDIN}:no_fish"), str(tmp_path / "o.json"))
+    doc = json.loads((tmp_path / "o.json").read_text())
+    assert doc["count"] == 0 and doc["fish"] == [] and doc["frames"] == 2
+    assert doc["weight_g"]["mean"] is None and doc["weight_g"]["histogram"] == {"edges": [], "counts": []}
+
+
+def test_a_bad_image_in_a_worker_fails_the_survey_by_name_and_leaves_no_output(tmp_path):
+    rig = convergent_rig()
+    items, _ = stills(tmp_path, rig, np.random.default_rng(1), [1, 1, 1])
+    (tmp_path / "1_R.png").write_bytes(b"garbage")
+    with pytest.raises(BadInput, match=r"1_R.png: not a readable image"):
+        run_survey(still_source(items), rig.calibration(), options(f"{STANDIN}:dots", workers=2),
+                   str(tmp_path / "o.json"))
+    assert not list(tmp_path.glob("o.json*"))
+
+
+def test_a_calibration_for_other_frames_is_refused_by_name(tmp_path):
+    rig = convergent_rig(image_size=(640, 480))
+    items, _ = stills(tmp_path, rig, np.random.default_rng(1), [1])
+    calib = convergent_rig().calibration()            # 1280x960
+    with pytest.raises(BadInput, match=r"0_L.png: 640x480 pixels, but the calibration's image_size is 1280x960"):
+        run_survey(still_source(items), calib, options(f"{STANDIN}:dots"), str(tmp_path / "o.json"))
+
+
+def test_video_statistics_use_one_entry_per_track(tmp_path, monkeypatch):
+    """With vision.tracking present, a fish seen in many frames counts once, at its track's length."""
+    class Track:
+        def __init__(self, i, lengths):
+            self.id, self.length_cm = i, float(np.median(lengths))
+
+    class FishTracker:
+        def __init__(self, fps):
+            assert fps == pytest.approx(25.0)
+            self.seen = {}
+
+        def update(self, frame, fish):
+            ids = list(range(len(fish)))        # the stand-in's fish keep their order: same fish, same id
+            for i, f in zip(ids, fish, strict=True):
+                self.seen.setdefault(i, []).append(f.length_cm)
+            return ids
+
+        def finish(self):
+            return [Track(i, v) for i, v in self.seen.items()]
+
+    monkeypatch.setitem(sys.modules, "vision.tracking", types.SimpleNamespace(FishTracker=FishTracker))
+    rig = convergent_rig()
+    fish = standin.random_fish(rig, np.random.default_rng(3), 2)
+    left, right = standin.draw_fish(rig, fish, colour=True)
+    paths = []
+    for side, img in (("l", left), ("r", right)):
+        out = cv2.VideoWriter(str(tmp_path / f"{side}.avi"), cv2.VideoWriter_fourcc(*"MJPG"), 25.0, rig.image_size)
+        for _ in range(6):
+            out.write(img)
+        out.release()
+        paths.append(str(tmp_path / f"{side}.avi"))
+    summary = run_survey(video_source(tuple(paths)), rig.calibration(), options(f"{STANDIN}:dots"),
+                         str(tmp_path / "o.json"))
+    doc = json.loads((tmp_path / "o.json").read_text())
+    assert len(doc["fish"]) == 12 and doc["count"] == 2 == summary["count"]
+    assert doc["statistics_per"] == "track" and {f["track"] for f in doc["fish"]} == {0, 1}
+    truth = sorted(np.linalg.norm(s - f) / 10 for s, f in fish)
+    assert sorted(doc["length_cm"]["histogram"]["edges"])[0] <= truth[0]
+    assert doc["length_cm"]["mean"] == pytest.approx(np.mean(truth), rel=0.02)   # MJPG blurs the dots a little
