@@ -45,6 +45,7 @@ class Source:
     total: int | None                       # pairs to expect (progress bar), None when unknown
     fps: float | None = None                # video: frames are a sequence, fish are tracked
     warnings: list[str] | None = None
+    every: int = 1                          # video: one frame surveyed in ``every``
 
 
 # ---- reading one pair ------------------------------------------------------------------------
@@ -181,7 +182,7 @@ def video_source(paths: tuple[str, ...], every: int = 1, max_frames: int | None 
         total = -(-min(known) // every)
         if max_frames is not None:
             total = min(total, max_frames)
-    return Source(_video_jobs(caps, paths, every, max_frames), total, fps)
+    return Source(_video_jobs(caps, paths, every, max_frames), total, fps, every=every)
 
 
 def _video_jobs(caps: list[cv2.VideoCapture], paths: tuple[str, ...], every: int,

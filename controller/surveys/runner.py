@@ -27,7 +27,7 @@ import numpy as np
 
 from controller.errors import BadInput
 from controller.surveys.frames import PairJob, read_pair
-from vision.calib_file import StereoCalibration
+from vision.calib_file import CalibrationError, StereoCalibration, check_image_size
 from vision.survey_types import FishMeasurement, SurveySetup
 
 MEASURE = "vision.survey:measure_pair"
@@ -53,12 +53,11 @@ def resolve(measure: str | Measure) -> Measure:
 def check_frame_size(calib: StereoCalibration, image, where: str) -> None:
     """A calibration made for one image size does not fit frames of another (its pixels would be
     measured with the wrong camera matrices). The one place the survey checks it."""
-    if calib.image_size is None:
-        return
     h, w = image.shape[:2]
-    if (w, h) != tuple(calib.image_size):
-        cw, ch = calib.image_size
-        raise BadInput(where, None, f"{w}x{h} pixels, but the calibration's image_size is {cw}x{ch}")
+    try:
+        check_image_size(calib, (w, h))
+    except CalibrationError as exc:
+        raise BadInput(where, None, f"does not fit the calibration: {exc}") from None
 
 
 class PairWork:

@@ -35,12 +35,23 @@ class SurveyOptions:
     extra: dict = field(default_factory=dict)                  # more optional OUT.json fields
 
 
-class _Tracks:
-    """Track ids for a video's fish; without vision.tracking (or for stills) each fish is its own."""
+# A fish in view for 0.6 s or more is seen this often at 5 surveyed frames a second; below that
+# rate a real fish may be seen once or twice, and every track counts.
+CONFIRMING_RATE = 5.0
 
-    def __init__(self, fps: float | None):
+
+class _Tracks:
+    """Track ids for a video's fish; without vision.tracking (or for stills) each fish is its own.
+
+    In video a track of fewer than CONFIRMED sightings is most likely a false detection (a real
+    fish lingers): the statistics leave such tracks out when frames are surveyed at
+    CONFIRMING_RATE a second or more."""
+
+    def __init__(self, fps: float | None, every: int = 1):
         self.tracker = None
         self.lengths: list[float] = []
+        self.min_sightings = 1
+        self.tracks_seen = 0
         if fps is not None:
             try:
                 from vision.tracking import FishTracker
@@ -48,7 +59,10 @@ class _Tracks:
                 if exc.name != "vision.tracking":
                     raise
             else:
+                from vision import tracking
                 self.tracker = FishTracker(fps)
+                confirmed = getattr(tracking, "CONFIRMED", 1)
+                self.min_sightings = confirmed if fps / max(every, 1) >= CONFIRMING_RATE else 1
 
     @property
     def per(self) -> str:
@@ -63,7 +77,10 @@ class _Tracks:
 
     def lengths_cm(self) -> np.ndarray:
         if self.tracker is not None:
-            return np.array([t.length_cm for t in self.tracker.finish()], dtype=float)
+            tracks = self.tracker.finish()
+            self.tracks_seen = len(tracks)
+            return np.array([t.length_cm for t in tracks if len(t.frames) >= self.min_sightings], dtype=float)
+        self.tracks_seen = len(self.lengths)
         return np.asarray(self.lengths, dtype=float)
 
 
@@ -73,7 +90,7 @@ def run_survey(source: Source, calib: StereoCalibration, opts: SurveyOptions,
     (OUT.json without its ``fish`` list)."""
     files = SurveyFiles(json_path, csv_path)
     weight = opts.species.weight
-    tracks = _Tracks(source.fps)
+    tracks = _Tracks(source.fps, source.every)
     stage_s: dict[str, float] = {}
     frames = 0
     started = time.perf_counter()
@@ -96,6 +113,7 @@ def run_survey(source: Source, calib: StereoCalibration, opts: SurveyOptions,
         tail = {"count": stats["count"], "length_cm": stats["length_cm"], "weight_g": stats["weight_g"],
                 "condition_k": stats["condition_k"], "precision": stats["precision"],
                 "statistics_per": tracks.per, "fish_entries": files.entries,
+                "tracks": {"seen": tracks.tracks_seen, "min_sightings": tracks.min_sightings},
                 "species_name": opts.species.name, "coefficients": opts.species.coefficients(),
                 "seed": opts.seed,
                 "stage_ms": {k: round(1e3 * v / frames, 3) for k, v in sorted(stage_s.items())} if frames else {},

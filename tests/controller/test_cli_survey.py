@@ -118,7 +118,7 @@ def test_calibration_made_for_another_image_size(farm, tmp_path):
     (tmp_path / "c.json").write_text(json.dumps(calib))
     r = run("--calib", tmp_path / "c.json", "--species", "sparus_aurata", "--setup", "underwater",
             "--rg", d / "rg0.png", "--json", tmp_path / "x.json")
-    one_line_exit_2(r, "rg0.png", "1280x960 pixels, but the calibration's image_size is 1920x1080")
+    one_line_exit_2(r, "rg0.png", "image_size: calibration made for 1920x1080 images, the frames are 1280x960")
 
 
 def test_missing_files_and_empty_directories(farm, tmp_path):

@@ -70,7 +70,7 @@ def test_results_come_back_in_frame_order_from_a_pool(tmp_path):
     sizes = [(4, 4), (4, 4), (9, 7), (4, 4), (2, 2, 3), (4, 4), (4, 4), (4, 4)]
     jobs = (PairJob(i * 2, f"p{i}", left=np.full(sz, lv, np.uint8), right=np.full(sz, lv, np.uint8))
             for i, (lv, sz) in enumerate(zip(levels, sizes, strict=True)))
-    calib = convergent_rig().calibration()
+    calib = convergent_rig(image_size=(2, 2)).calibration()   # principal points inside every frame
     calib.image_size = None                     # a CALIB.json with only P1, P2 fits frames of any size
     summary = run_survey(Source(jobs, None), calib, options(f"{STANDIN}:slow_by_level", workers=2),
                          str(tmp_path / "o.json"))
@@ -104,7 +104,8 @@ def test_a_calibration_for_other_frames_is_refused_by_name(tmp_path):
     rig = convergent_rig(image_size=(640, 480))
     items, _ = stills(tmp_path, rig, np.random.default_rng(1), [1])
     calib = convergent_rig().calibration()            # 1280x960
-    with pytest.raises(BadInput, match=r"0_L.png: 640x480 pixels, but the calibration's image_size is 1280x960"):
+    with pytest.raises(BadInput, match=r"0_L.png: does not fit the calibration: image_size: calibration made for 1280x960 "
+                                         r"images, the frames are 640x480"):
         run_survey(still_source(items), calib, options(f"{STANDIN}:dots"), str(tmp_path / "o.json"))
 
 
@@ -112,7 +113,7 @@ def test_video_statistics_use_one_entry_per_track(tmp_path, monkeypatch):
     """With vision.tracking present, a fish seen in many frames counts once, at its track's length."""
     class Track:
         def __init__(self, i, lengths):
-            self.id, self.length_cm = i, float(np.median(lengths))
+            self.id, self.length_cm, self.frames = i, float(np.median(lengths)), list(range(len(lengths)))
 
     class FishTracker:
         def __init__(self, fps):
