@@ -3,8 +3,8 @@ with its own fish's snout in 3-D by the species geometry, incoherent lengths dro
 quality score per fish from what the measurement rests on.
 
 Forks are detected in both images, so matching is epipolar pairing of detections: a right fork is a
-candidate for a left one when it lies within ``band_px`` of the left fork's epipolar line, has the
-same polarity, a similar axis angle and fin span; the evidence is the zero-mean NCC of the two
+candidate for a left one when it lies within ``band_px`` of the left fork's epipolar line, has a
+similar axis angle and fin span; the evidence is the zero-mean NCC of the two
 forks' neighbourhoods, each sampled in its own frame (axis, span), so the views' different scale
 and roll cost nothing. Pairs are taken best first, each fork at most once.
 
@@ -58,10 +58,11 @@ def camera_frame(P: np.ndarray) -> tuple[float, np.ndarray]:
 
 
 def _patches(v: View) -> np.ndarray:
-    """Zero-mean unit vectors (N, PATCH^2) of each fork's neighbourhood in its own frame, fish up."""
+    """Zero-mean unit vectors (N, PATCH^2 C) of each fork's neighbourhood in its own frame."""
     f = v.fins
     t = np.linspace(-0.5, 0.5, PATCH)
-    out = np.full((len(f), PATCH * PATCH), np.nan, np.float32)
+    C = v.pyr[0].shape[2] if v.pyr[0].ndim == 3 else 1
+    out = np.full((len(f), PATCH * PATCH * C), np.nan, np.float32)
     step = f.span_px / PATCH
     lev = np.clip(np.floor(np.log2(np.maximum(step, 1.0))).astype(int), 0, len(v.pyr) - 1)
     axes = np.c_[np.cos(f.angle), np.sin(f.angle)]
@@ -70,7 +71,7 @@ def _patches(v: View) -> np.ndarray:
         s = 2.0 ** -k
         off = t[None] * (f.span_px[idx] * s)[:, None]
         p = sample_frames(v.pyr[k], (f.xy[idx] + 0.5) * s - 0.5, axes[idx], off, off)
-        out[idx] = (p * f.polarity[idx, None, None]).reshape(len(idx), -1)
+        out[idx] = p.reshape(len(idx), -1)
     out -= np.nanmean(out, axis=1, keepdims=True) if len(out) else 0
     out /= np.maximum(np.linalg.norm(np.nan_to_num(out), axis=1, keepdims=True), 1e-6)
     return np.nan_to_num(out)
@@ -97,7 +98,6 @@ def match_forks(calib: StereoCalibration, left: View, right: View, band_px: floa
     ratio = left.fins.span_px[:, None] / right.fins.span_px[None]
     ncc = _patches(left) @ _patches(right).T
     ok = ((dist <= band_px) & (dang <= np.radians(max_angle_deg)) & (ncc >= min_ncc)
-          & (left.fins.polarity[:, None] == right.fins.polarity[None])
           & (ratio <= max_span_ratio) & (ratio >= 1 / max_span_ratio))
     score = np.where(ok, ncc - 0.1 * dist / band_px, -np.inf)
     pi, pj = [], []

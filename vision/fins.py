@@ -53,24 +53,30 @@ class Fins:
         return Fins(np.zeros((0, 2)), z, z.copy(), z.copy(), z.copy())
 
 
-def fork_mask(size: int, angle: float, span: float, notch_deg: float = 60.0, oversample: int = 8) -> np.ndarray:
-    """Anti-aliased mask (size, size) float32 of a forked tail: 1 fish, 0 water. Its innermost fork
-    point at the window centre, the body towards ``angle`` (rad, image u right v down), the lobes'
-    tips ``span`` px apart and their inner edges ``notch_deg`` off the axis (90 = no fork)."""
-    h = span / 2
-    a = np.radians(notch_deg)
-    lobe = h / np.sin(a)                                   # inner edge, vertex to tip
-    tip = np.array([-lobe * np.cos(a), h])
-    # fish frame: x towards the head, y across; one lobe, mirrored
-    half = [(0.0, 0.0), tuple(tip), (tip[0] + 0.25 * h, h * 1.02), (0.45 * h, 0.42 * h), (2.0 * h, 0.45 * h)]
-    pts = np.array(half + [(x, -y) for x, y in reversed(half)], dtype=float)
+def fork_mask(size: int, angle: float, length: float, notch: float = 0.08, fin_level: float = 0.6,
+              oversample: int = 8) -> np.ndarray:
+    """Anti-aliased picture (size, size) float32 of a fish's tail end: 1 body (caudal peduncle
+    widening into the body), ``fin_level`` fin (fins are thin and let the water through), 0 water.
+    The innermost fork point at the window centre, the head towards ``angle`` (rad, image u right,
+    v down); ``length``: fork length in px (the window shows its last ~45 %); ``notch``: fork depth
+    (lobe tips behind the innermost point) / length. Proportions: a generic farmed fish (peduncle
+    ~0.1 of the length deep, fin span ~0.3)."""
+    ped, span = 0.05, SPAN_OF_FL / 2
+    body = [(0.12, ped), (0.2, ped * 1.4), (0.4, ped * 2.8), (0.4, -ped * 2.8), (0.2, -ped * 1.4), (0.12, -ped)]
+    fin = [(0.14, ped * 0.9), (-notch, span), (-notch + 0.03, span * 0.9), (0.0, 0.0),
+           (-notch + 0.03, -span * 0.9), (-notch, -span), (0.14, -ped * 0.9)]
     c, s = np.cos(angle), np.sin(angle)
-    rot = pts @ np.array([[c, s], [-s, c]])
+    rot = np.array([[c, s], [-s, c]])
     centre = (size - 1) / 2
-    big = np.zeros((size * oversample, size * oversample), np.uint8)
-    poly = np.round(((rot + centre + 0.5) * oversample - 0.5) * 16).astype(np.int32)
-    cv2.fillPoly(big, [poly], 255, lineType=cv2.LINE_AA, shift=4)
-    return cv2.resize(big, (size, size), interpolation=cv2.INTER_AREA).astype(np.float32) / 255.0
+    big = np.zeros((size * oversample, size * oversample), np.float32)
+    for poly, value in ((fin, fin_level), (body, 1.0)):
+        p = (np.array(poly) * length) @ rot
+        q = np.round(((p + centre + 0.5) * oversample - 0.5) * 16).astype(np.int32)
+        cv2.fillPoly(big, [q], value, lineType=cv2.LINE_AA, shift=4)
+    return cv2.resize(big, (size, size), interpolation=cv2.INTER_AREA)
+
+
+WINDOW_OF_FL = 0.45         # a template window shows this share of the fork length
 
 
 def emboss(img: np.ndarray) -> np.ndarray:
@@ -87,10 +93,12 @@ class Bank:
     size: int
     basis: np.ndarray       # (k, size*size) orthonormal: the templates' principal components
     coef: np.ndarray        # (T, k): vectors ~ coef @ basis
+    highpass: bool = True   # templates (and the image) emboss-filtered
 
 
 def template_bank(n_angles: int = 16, spans: tuple[float, ...] = (0.72, 1.0),
-                  notches: tuple[float, ...] = (50.0, 65.0), size: int = TEMPLATE_PX, energy: float = 0.97) -> Bank:
+                  notches: tuple[float, ...] = (0.04, 0.1), size: int = TEMPLATE_PX, energy: float = 0.97,
+                  highpass: bool = True) -> Bank:
     """Templates over ``n_angles`` full-turn angles, fin spans (fractions of ``size``) and notch
     angles; each emboss-filtered, zero-mean and unit-norm. The bank is scored through its principal
     components holding ``energy`` of it (steerable in effect: a rotated template is a mix of a few
@@ -100,16 +108,18 @@ def template_bank(n_angles: int = 16, spans: tuple[float, ...] = (0.72, 1.0),
         ang = 2 * np.pi * k / n_angles
         for f in spans:
             for notch in notches:
-                t = emboss(fork_mask(size + 2, ang, f * size, notch))[1:-1, 1:-1].ravel()
+                length = f * size / WINDOW_OF_FL
+                m = fork_mask(size + 2, ang, length, notch)
+                t = (emboss(m) if highpass else m)[1:-1, 1:-1].ravel()
                 t = t - t.mean()
                 vecs.append(t / np.linalg.norm(t))
                 angles.append(ang)
-                sp.append(f * size)
+                sp.append(SPAN_OF_FL * length)
     vecs = np.array(vecs, np.float32)
     _, sv, vt = np.linalg.svd(vecs, full_matrices=False)
     k = int(np.searchsorted(np.cumsum(sv ** 2) / np.sum(sv ** 2), energy)) + 1
     basis = vt[:k].astype(np.float32)
-    return Bank(vecs, np.array(angles), np.array(sp), size, basis, (vecs @ basis.T).astype(np.float32))
+    return Bank(vecs, np.array(angles), np.array(sp), size, basis, (vecs @ basis.T).astype(np.float32), highpass)
 
 
 _BANK: Bank | None = None
@@ -129,7 +139,7 @@ def _grid_scores(f: np.ndarray, bank: Bank, stride: int, keep: float, min_energy
     energy = cv2.boxFilter(f * f, -1, (bank.size, bank.size), normalize=True)
     grid = energy[h:-h:stride, h:-h:stride] if energy.shape[0] > 2 * h and energy.shape[1] > 2 * h else None
     if grid is None or grid.size == 0:
-        return (np.zeros(0, int),) * 2 + (np.zeros(0),) * 2 + (np.zeros(0, int),)
+        return (np.zeros(0, int),) * 2 + (np.zeros(0),) * 2 + (np.zeros(0, int), np.zeros(0), np.zeros(0, int))
     flat = grid.ravel()
     sample = flat[:: max(1, flat.size // 4096)]
     thr = max(float(np.partition(sample, int((1.0 - keep) * (sample.size - 1)))[int((1.0 - keep) * (sample.size - 1))]),
@@ -143,9 +153,13 @@ def _grid_scores(f: np.ndarray, bank: Bank, stride: int, keep: float, min_energy
     norm = np.sqrt(np.maximum(energy[ys, xs] - mean * mean, 0) * n)
     # templates are zero-mean, so the window's mean drops out of the products
     ncc = ((win @ bank.basis.T) @ bank.coef.T) / np.maximum(norm, 1e-6)[:, None]
-    best = np.abs(ncc).argmax(axis=1)
-    signed = ncc[np.arange(len(ys)), best]
-    return ys, xs, np.abs(signed), signed, best
+    a = np.abs(ncc)
+    best = a.argmax(axis=1)
+    rows = np.arange(len(ys))
+    # the best template at least 60 degrees away: a second guess of the axis, for locate to test
+    apart = np.abs(np.angle(np.exp(1j * (bank.angle[None] - bank.angle[best][:, None])))) >= np.radians(60)
+    other = np.where(apart, a, -1.0).argmax(axis=1)
+    return ys, xs, a[rows, best], ncc[rows, best], best, ncc[rows, other], other
 
 
 def _peaks(shape, stride, ys, xs, score, radius_cells: int, thr: float) -> np.ndarray:
@@ -160,9 +174,8 @@ def _peaks(shape, stride, ys, xs, score, radius_cells: int, thr: float) -> np.nd
 
 def level_scales(width: int, min_fish_frac: float, n_levels: int, size: int = TEMPLATE_PX) -> list[float]:
     """Scale factors of the pyramid levels: at level 0 a fish ``min_fish_frac`` of the image width
-    long has a fin span of ~0.8 template."""
-    fin_span_px = SPAN_OF_FL * min_fish_frac * width
-    s0 = min(1.0, 0.8 * size / fin_span_px)
+    long fills the smaller templates."""
+    s0 = min(1.0, 0.72 * size / WINDOW_OF_FL / (min_fish_frac * width))
     return [s0 / 2 ** k for k in range(n_levels)]
 
 
@@ -185,49 +198,60 @@ def working_levels(pyr: list[np.ndarray], prep, min_fish_frac: float = 0.08, n_l
     return out
 
 
-def detect_fins(levels: list[tuple[float, float, np.ndarray]], *, threshold: float = 0.5, keep: float = 0.2,
-                stride: int = 2, max_fins: int = 40, bank: Bank | None = None) -> Fins:
+def detect_fins(levels: list[tuple[float, float, np.ndarray]], *, threshold: float = 0.5, keep: float = 0.12,
+                stride: int = 3, max_fins: int = 40, bank: Bank | None = None, second_guess: bool = True) -> Fins:
     """Fork candidates (coarse: level-pixel accuracy) on the working levels (``working_levels``).
 
     ``threshold``: least |NCC|. ``keep``: fraction of grid points, by local emboss energy, whose
-    templates are scored."""
+    templates are scored. ``second_guess``: each peak also comes with the best template at least
+    60 degrees off the first (after the first ones): a fin's axis is the weakest part of eq. (13)."""
     bank = bank or default_bank()
     out = []
     for sx, sy, img in levels:
-        f = emboss(img)
+        f = emboss(img) if bank.highpass else img
         noise = float(np.median(np.abs(f))) + 1e-3
-        ys, xs, sc, signed, best = _grid_scores(f, bank, stride, keep, min_energy=(2.0 * noise) ** 2)
+        ys, xs, sc, signed, best, signed2, best2 = _grid_scores(f, bank, stride, keep, (2.0 * noise) ** 2)
         pk = _peaks(f.shape, stride, ys, xs, sc, max(1, bank.size // (2 * stride)), threshold)
         pk = pk[np.argsort(-sc[pk], kind="stable")[: 2 * max_fins]]
         xy = np.c_[(xs[pk] + 0.5) * sx - 0.5, (ys[pk] + 0.5) * sy - 0.5]
-        out.append(Fins(xy, bank.angle[best[pk]], bank.span[best[pk]] * sx, sc[pk], np.sign(signed[pk])))
+        out.append((Fins(xy, bank.angle[best[pk]], bank.span[best[pk]] * sx, sc[pk], np.sign(signed[pk])),
+                    Fins(xy, bank.angle[best2[pk]], bank.span[best2[pk]] * sx, np.abs(signed2[pk]),
+                         np.sign(signed2[pk]))))
     if not out:
         return Fins.empty()
-    fins = Fins(*(np.concatenate([getattr(o, k) for o in out]) for k in ("xy", "angle", "span_px", "score",
-                                                                          "polarity")))
-    return suppress(fins, max_fins)
+    first, second = (concat([o[k] for o in out]) for k in (0, 1))
+    keep_idx = suppress(first, max_fins)
+    if not second_guess:
+        return first.take(keep_idx)
+    return concat([first.take(keep_idx), second.take(keep_idx)])
 
 
-def suppress(fins: Fins, max_fins: int) -> Fins:
-    """Non-maximum suppression across levels: a candidate within half the span of a better one
-    goes; at most ``max_fins`` remain, best first."""
+def concat(parts: list[Fins]) -> Fins:
+    return Fins(*(np.concatenate([getattr(o, k) for o in parts]) for k in ("xy", "angle", "span_px", "score",
+                                                                           "polarity")))
+
+
+def suppress(fins: Fins, max_fins: int, reach_of_span: float = 0.5) -> np.ndarray:
+    """Non-maximum suppression across levels: indices of the candidates kept, best first; one
+    within ``reach_of_span`` of the larger span of a better one goes; at most ``max_fins`` remain."""
     order = np.argsort(-fins.score, kind="stable")
     fins = fins.take(order)
     d = np.linalg.norm(fins.xy[:, None] - fins.xy[None], axis=2)
-    reach = 0.5 * np.maximum(fins.span_px[:, None], fins.span_px[None])
+    reach = reach_of_span * np.maximum(fins.span_px[:, None], fins.span_px[None])
     close = np.triu(d < reach, k=1)
     keep = np.ones(len(fins), bool)
     for i in range(len(fins)):                     # a few dozen candidates
         if keep[i]:
             keep[np.flatnonzero(close[i])] = False
-    return fins.take(np.flatnonzero(keep)[:max_fins])
+    return order[np.flatnonzero(keep)[:max_fins]]
 
 
 def sample_frames(img: np.ndarray, centres: np.ndarray, axes: np.ndarray, xs: np.ndarray,
                   ys: np.ndarray) -> np.ndarray:
     """Bilinear samples (N, ny, nx) of img in each candidate's own frame: the point centre + x axis
     + y normal, with normal = axis turned +90 degrees (image coordinates). ``xs``/``ys``: (nx,) and
-    (ny,) offsets shared by all, or (N, nx) / (N, ny) per candidate. Outside the image: NaN."""
+    (ny,) offsets shared by all, or (N, nx) / (N, ny) per candidate. Outside the image: NaN. A
+    colour image gives (N, ny, nx, C)."""
     centres = np.asarray(centres, float).reshape(-1, 2)
     axes = np.asarray(axes, float).reshape(-1, 2)
     N = len(centres)
@@ -235,13 +259,14 @@ def sample_frames(img: np.ndarray, centres: np.ndarray, axes: np.ndarray, xs: np
     ys = np.broadcast_to(np.asarray(ys, float), (N, np.shape(ys)[-1]))
     ny, nx = ys.shape[1], xs.shape[1]
     if N == 0:
-        return np.zeros((0, ny, nx), np.float32)
+        return np.zeros((0, ny, nx) + np.shape(img)[2:], np.float32)
     normal = np.c_[-axes[:, 1], axes[:, 0]]
     maps = []
     for k in range(2):
         m = (centres[:, k, None, None] + xs[:, None, :] * axes[:, k, None, None]
              + ys[:, :, None] * normal[:, k, None, None])
         maps.append(m.reshape(N * ny, nx).astype(np.float32))
-    out = cv2.remap(np.asarray(img, np.float32), maps[0], maps[1], cv2.INTER_LINEAR,
-                    borderMode=cv2.BORDER_CONSTANT, borderValue=np.nan)
-    return out.reshape(N, ny, nx)
+    img = np.asarray(img, np.float32)
+    out = cv2.remap(img, maps[0], maps[1], cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT,
+                    borderValue=(np.nan,) * 4)
+    return out.reshape((N, ny, nx) + img.shape[2:])

@@ -31,15 +31,17 @@ class Forks:
 
     fins: Fins              # refined xy, angle; polarity from the measured levels
     ok: np.ndarray          # (N,) bool
-    fish_level: np.ndarray  # (N,) grey level ahead of the fork
-    water_level: np.ndarray # (N,) grey level behind it
+    fish_level: np.ndarray  # (N, C) colour (grey: C = 1) ahead of the fork
+    water_level: np.ndarray # (N, C) colour behind it
     arm_rms: np.ndarray     # (N,) RMS residual of the arm fits, in fin spans
+    contrast: np.ndarray    # (N,) |fish - water| colour distance
 
 
-def pyramid(grey: np.ndarray, levels: int = 4) -> list[np.ndarray]:
-    out = [np.asarray(grey, np.float32)]
+def pyramid(img: np.ndarray, levels: int = 5) -> list[np.ndarray]:
+    """Gaussian pyramid (float32; grey or colour) of a uint8 image."""
+    out = [np.asarray(img, np.float32)]
     for _ in range(levels - 1):
-        if min(out[-1].shape) < 16:
+        if min(out[-1].shape[:2]) < 16:
             break
         out.append(cv2.pyrDown(out[-1]))
     return out
@@ -66,30 +68,59 @@ def _line_fit(y: np.ndarray, x: np.ndarray, w: np.ndarray):
     return a, b, rms
 
 
-def locate_forks(pyr: list[np.ndarray], fins: Fins, min_contrast: float = 6.0, min_slope: float = 0.25) -> Forks:
+POWERS = np.array([0.6, 0.7, 0.8, 0.9, 1.0, 1.2, 1.5, 2.0])
+
+
+def _apex(y: np.ndarray, x: np.ndarray, w: np.ndarray, y0: np.ndarray, xmax: np.ndarray) -> np.ndarray:
+    """Innermost point x0 of notch edges x = x0 - c |y - y0|^p (N,), the power p that fits best:
+    1 is a V, 2 a rounded U, < 1 a fork whose edges close into a slit that blur hides (the edge
+    runs parallel to the axis at the apex). Rows next to the apex are already left out of ``w``;
+    the apex may not lie more than 0.1 span ahead of the deepest crossing seen."""
+    r = np.abs(y - y0[:, None])[:, None, :] ** POWERS[None, :, None]          # (N, P, rows)
+    wf = w.astype(float)[:, None, :]
+    sw = wf.sum(axis=2)
+    mr = (wf * r).sum(axis=2) / np.maximum(sw, 1e-9)
+    mx = (wf * x[:, None, :]).sum(axis=2) / np.maximum(sw, 1e-9)
+    dr = r - mr[..., None]
+    slope = (wf * dr * (x[:, None, :] - mx[..., None])).sum(axis=2) / np.maximum((wf * dr * dr).sum(axis=2), 1e-12)
+    x0 = mx - slope * mr
+    res = (wf * (x[:, None, :] - x0[..., None] - slope[..., None] * r) ** 2).sum(axis=2)
+    best = res.argmin(axis=1)
+    apex = x0[np.arange(len(x0)), best]
+    return np.clip(apex, xmax - 0.02, xmax + 0.1)
+
+
+def locate_forks(pyr: list[np.ndarray], fins: Fins, min_contrast: float = 5.0, min_slope: float = 0.12) -> Forks:
     """Re-measure every candidate's innermost fork point and axis on the image pyramid."""
     N = len(fins)
     if N == 0:
         z = np.zeros(0)
-        return Forks(fins, np.zeros(0, bool), z, z.copy(), z.copy())
+        C = pyr[0].shape[2] if pyr[0].ndim == 3 else 1
+        return Forks(fins, np.zeros(0, bool), np.zeros((0, C)), np.zeros((0, C)), z, z.copy())
     t = np.linspace(-0.6, 0.6, int(1.2 * SAMPLES) + 1)              # in spans
     S = fins.span_px
     g = S / SAMPLES
     axes = np.c_[np.cos(fins.angle), np.sin(fins.angle)]
-    P = np.full((N, len(t), len(t)), np.nan, np.float32)
+    C = pyr[0].shape[2] if pyr[0].ndim == 3 else 1
+    P = np.full((N, len(t), len(t), C), np.nan, np.float32)
     lev = np.clip(np.floor(np.log2(np.maximum(g, 1.0))).astype(int), 0, len(pyr) - 1)
     for k in np.unique(lev):
         idx = np.flatnonzero(lev == k)
         f = 2.0 ** -k
         off = t[None] * (S[idx] * f)[:, None]
-        P[idx] = sample_frames(pyr[k], (fins.xy[idx] + 0.5) * f - 0.5, axes[idx], off, off)
+        P[idx] = sample_frames(pyr[k], (fins.xy[idx] + 0.5) * f - 0.5, axes[idx], off, off).reshape(
+            len(idx), len(t), len(t), C)
     ahead = (t >= 0.1) & (t <= 0.35)
     behind = t <= -0.35
     near = np.abs(t) <= 0.1
-    fish = nan_median(P[:, near][:, :, ahead])
-    water = nan_median(P[:, near][:, :, behind])
-    sign = np.sign(fish - water)
-    s = (P - 0.5 * (fish + water)[:, None, None]) * sign[:, None, None]     # fish > 0
+    fish = np.stack([nan_median(P[:, near][:, :, ahead, c]) for c in range(C)], axis=1)      # (N, C)
+    water = np.stack([nan_median(P[:, near][:, :, behind, c]) for c in range(C)], axis=1)
+    diff = fish - water
+    contrast = np.linalg.norm(diff, axis=1)
+    # each sample's position between the water's colour (-0.5) and the fish's (+0.5)
+    unit = diff / np.maximum(contrast, 1e-6)[:, None] ** 2
+    s = np.einsum("nyxc,nc->nyx", P - water[:, None, None], unit) - 0.5       # fish > 0
+    sign = np.sign(diff.sum(axis=1))
     inside = s >= 0
     first = inside.argmax(axis=2)                                          # (N, rows)
     has = inside.any(axis=2) & (first > 0) & ~np.isnan(s).any(axis=2)
@@ -116,8 +147,8 @@ def locate_forks(pyr: list[np.ndarray], fins: Fins, min_contrast: float = 6.0, m
         yv = (a2 - a1) / (b1 - b2)
         xv = a1 + b1 * yv
     xmax = xb.max(axis=1)
-    xv = np.minimum(xv, xmax + 2.0 / SAMPLES)
-    ok = (np.abs(fish - water) >= min_contrast) & enough & v_shape & np.isfinite(xv) & (np.abs(yv) < 0.45)
+    xv = _apex(np.broadcast_to(t, xb.shape), xbf, up | dn, np.where(np.isfinite(yv), yv, y0), xmax)
+    ok = (contrast >= min_contrast) & enough & v_shape & np.isfinite(xv) & (np.abs(yv) < 0.45)
     # bisector of the arms, pointing back into the notch; the axis is its opposite
     d1 = np.c_[b1, np.ones(N)] / np.hypot(b1, 1)[:, None]
     d2 = np.c_[-b2, -np.ones(N)] / np.hypot(b2, 1)[:, None]
@@ -129,4 +160,4 @@ def locate_forks(pyr: list[np.ndarray], fins: Fins, min_contrast: float = 6.0, m
     ok &= np.all(np.isfinite(xy), axis=1)
     out = Fins(np.where(ok[:, None], xy, fins.xy), np.where(ok, np.arctan2(new_axis[:, 1], new_axis[:, 0]), fins.angle),
                S, fins.score, np.where(ok, sign, fins.polarity))
-    return Forks(out, ok, fish, water, np.maximum(r1, r2))
+    return Forks(out, ok, fish, water, np.maximum(r1, r2), contrast)

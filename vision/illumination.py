@@ -87,3 +87,32 @@ def preprocess(img: np.ndarray, mi_ref: float, c_ref: float, sigma_px: float = 1
                contrast: Contrast = "percentile") -> np.ndarray:
     """Noise reduction then row compensation: the paper's pre-processing of one frame."""
     return compensate_rows(denoise(to_grey(img), sigma_px), mi_ref, c_ref, contrast)
+
+
+def water_background(img: np.ndarray, reach: float = 0.25) -> np.ndarray:
+    """The water's colour behind each pixel (float32, same shape): a median over a window
+    ``reach`` of the image width, taken on a reduced copy (cheap, O(1) per pixel) and scaled back.
+    Fish smaller than about half the window leave it unchanged."""
+    h, w = img.shape[:2]
+    small_w = max(16, int(round(4 / reach)) * 5)              # the window spans ~5 px of the copy
+    small_h = max(8, int(round(small_w * h / w)))
+    small = cv2.resize(img, (small_w, small_h), interpolation=cv2.INTER_AREA)
+    small = np.clip(small, 0, 255).astype(np.uint8)
+    k = max(3, (int(round(reach * small_w)) // 2) * 2 + 1)
+    bg = cv2.medianBlur(small, min(k, 255))
+    return cv2.resize(bg, (w, h), interpolation=cv2.INTER_LINEAR).astype(np.float32)
+
+
+def water_distance(img: np.ndarray, mi_ref: float, c_ref: float, contrast: Contrast = "percentile",
+                   sigma_px: float = 1.0) -> np.ndarray:
+    """How unlike the water each pixel is (float32, >= 0): noise reduction, eq. (12) on each colour
+    channel, then the colour distance from the water behind the pixel (``water_background``). Fish
+    come out bright whether they are darker or brighter than the water, whatever its colour.
+
+    A row's median is not the water where a fish fills half the row (a near fish does): the
+    background is a 2-D median instead, over a quarter of the frame."""
+    img = denoise(img, sigma_px)
+    chans = [img] if img.ndim == 2 else [img[..., k] for k in range(img.shape[2])]
+    comp = np.dstack([compensate_rows(ch, mi_ref, c_ref, contrast) for ch in chans])
+    diff = comp - water_background(comp).reshape(comp.shape)
+    return np.sqrt((diff * diff).sum(axis=2))

@@ -50,16 +50,19 @@ def find_snouts(pyr: list[np.ndarray], xy: np.ndarray, angle: np.ndarray, half_b
     xs = u[None] * hi[:, None]                                       # from the fork to hi
     step = hi / SAMPLES
     ys = np.linspace(-1.0, 1.0, ACROSS)[None] * np.asarray(half_band_px, float)[:, None]
-    prof = np.full((N, SAMPLES + 1), np.nan, np.float32)
+    fish_level = np.asarray(fish_level, float).reshape(N, -1)
+    water_level = np.asarray(water_level, float).reshape(N, -1)
+    C = fish_level.shape[1]
+    prof = np.full((N, SAMPLES + 1, C), np.nan, np.float32)
     lev = np.clip(np.floor(np.log2(np.maximum(step, 1.0))).astype(int), 0, len(pyr) - 1)
     for lv in np.unique(lev):
         idx = np.flatnonzero(lev == lv)
         f = 2.0 ** -lv
         band = sample_frames(pyr[lv], (xy[idx] + 0.5) * f - 0.5, axes[idx], xs[idx] * f, ys[idx] * f)
-        prof[idx] = np.median(band, axis=1)
-    mid = 0.5 * (fish_level + water_level)
-    scale = np.maximum(np.abs(fish_level - water_level), 1e-6) * np.sign(fish_level - water_level)
-    s = (prof - mid[:, None]) / scale[:, None]                      # fish ~ +0.5, water ~ -0.5
+        prof[idx] = np.median(band.reshape(len(idx), ACROSS, SAMPLES + 1, C), axis=1)
+    # unlike the water by more than half the fin's own contrast: fish (> 0)
+    contrast = np.maximum(np.linalg.norm(fish_level - water_level, axis=1), 1e-6)
+    s = np.linalg.norm(prof - water_level[:, None], axis=2) / contrast[:, None] - 0.5
     inside = np.isfinite(s)
     fishy = np.where(inside, s > 0, False).astype(float)
     watery = np.where(inside, s < 0, False).astype(float)           # off the image: maybe more fish
@@ -85,9 +88,20 @@ def find_snouts(pyr: list[np.ndarray], xy: np.ndarray, angle: np.ndarray, half_b
         pos = _crossing(s, best)
         dist[:, j] = np.where(good, pos * step, np.nan)
         strength[:, j] = np.where(good, val, 0.0)
-        block = np.abs(i[None] - best[:, None]) <= m[:, None]
+        block = np.abs(i[None] - best[:, None]) <= 2 * m[:, None]
         work[block] = -1.0
     pts = xy[:, None] + dist[..., None] * axes[:, None]
+    # the tip itself, off the fin's axis when that is a few degrees off
+    flat = pts.reshape(-1, 2)
+    has = np.isfinite(flat[:, 0])
+    if has.any():
+        L = np.broadcast_to(np.nan_to_num(dist), (N, k)).reshape(-1)[has]
+        rep = np.repeat(np.arange(N), k)[has]
+        tips, _ = refine_tips(pyr, flat[has], angle[rep], L, water_level[rep], contrast[rep])
+        flat = flat.copy()
+        flat[has] = tips
+        pts = flat.reshape(N, k, 2)
+        dist = np.where(np.isfinite(dist), np.linalg.norm(pts - xy[:, None], axis=2), np.nan)
     return Snouts(dist, pts, strength)
 
 
@@ -105,3 +119,62 @@ def _crossing(s: np.ndarray, best: np.ndarray) -> np.ndarray:
     with np.errstate(invalid="ignore", divide="ignore"):
         frac = aa / (aa - bb)
     return np.where(has, ja + frac, best.astype(float))
+
+
+def refine_tips(pyr: list[np.ndarray], tips: np.ndarray, angle: np.ndarray, length_px: np.ndarray,
+                water: np.ndarray, contrast: np.ndarray, samples: int = 33) -> tuple[np.ndarray, np.ndarray]:
+    """The snout tip near each candidate (M, 2): the front-most point of the body outline, found
+    across the axis as well as along it (a fin's axis is a few degrees off, which would put a
+    point on the axis ~5 % of the length to the side of the tip). Each row across the axis is
+    scanned from the water ahead back to its first fish sample; a parabola through the rows near
+    the front-most crossing gives the tip (sub-sample). Returns the tips and whether each was
+    found (else the candidate is returned unchanged)."""
+    M = len(tips)
+    if M == 0:
+        return tips, np.zeros(0, bool)
+    u = np.linspace(-1.0, 1.0, samples)
+    along = u[None] * (0.06 * length_px)[:, None]
+    across = u[None] * (0.1 * length_px)[:, None]
+    step = 0.12 * length_px / (samples - 1)
+    axes = np.c_[np.cos(angle), np.sin(angle)]
+    C = pyr[0].shape[2] if pyr[0].ndim == 3 else 1
+    win = np.full((M, samples, samples, C), np.nan, np.float32)
+    lev = np.clip(np.floor(np.log2(np.maximum(step, 1.0))).astype(int), 0, len(pyr) - 1)
+    for lv in np.unique(lev):
+        idx = np.flatnonzero(lev == lv)
+        f = 2.0 ** -lv
+        win[idx] = sample_frames(pyr[lv], (tips[idx] + 0.5) * f - 0.5, axes[idx], along[idx] * f,
+                                 across[idx] * f).reshape(len(idx), samples, samples, C)
+    water = np.asarray(water, float).reshape(M, 1, 1, -1)
+    s = np.linalg.norm(win - water, axis=3) / np.maximum(contrast, 1e-6)[:, None, None] - 0.5
+    rev = s[:, :, ::-1]                                       # from the front backwards
+    fishy = rev >= 0
+    first = fishy.argmax(axis=2)
+    has = fishy.any(axis=2) & (first > 0) & ~np.isnan(rev).any(axis=2)
+    j = np.clip(first, 1, samples - 1)
+    a = np.take_along_axis(rev, (j - 1)[..., None], axis=2)[..., 0]
+    b = np.take_along_axis(rev, j[..., None], axis=2)[..., 0]
+    with np.errstate(invalid="ignore", divide="ignore"):
+        pos = (samples - 1 - (j - 1)) - (-a) / (b - a)        # index along u, front crossing
+    x = np.where(has, -1.0 + 2.0 * pos / (samples - 1), -np.inf)   # in units of the along half-range
+    best = x.argmax(axis=1)
+    yb = u[best]
+    w = has & (np.abs(u[None] - yb[:, None]) <= 0.35)
+    xs = np.where(w, x, 0.0)
+    # weighted least squares x = c0 + c1 y + c2 y^2 per candidate
+    Y = np.stack([np.ones_like(u), u, u * u], axis=1)                  # (rows, 3)
+    A = np.einsum("mr,ri,rj->mij", w.astype(float), Y, Y)
+    bvec = np.einsum("mr,ri,mr->mi", w.astype(float), Y, xs)
+    ok = (w.sum(axis=1) >= 5) & (np.abs(np.linalg.det(A)) > 1e-9)
+    coef = np.zeros((M, 3))
+    if ok.any():
+        coef[ok] = np.linalg.solve(A[ok], bvec[ok][..., None])[..., 0]
+    c0, c1, c2 = coef.T
+    with np.errstate(invalid="ignore", divide="ignore"):
+        yv = np.where(c2 < 0, -c1 / (2 * c2), yb)
+    yv = np.clip(yv, yb - 0.35, yb + 0.35)
+    xv = c0 + c1 * yv + c2 * yv * yv
+    ok &= np.isfinite(xv) & (np.abs(xv) <= 1.0)
+    normal = np.c_[-axes[:, 1], axes[:, 0]]
+    out = tips + (xv * 0.06 * length_px)[:, None] * axes + (yv * 0.1 * length_px)[:, None] * normal
+    return np.where(ok[:, None], out, tips), ok

@@ -18,13 +18,17 @@ from __future__ import annotations
 import time
 from dataclasses import dataclass
 
+import cv2
 import numpy as np
 
 from vision.association import View, camera_frame, match_forks, pair_snouts, snout_search_range
 from vision.calib_file import StereoCalibration
-from vision.fins import SPAN_OF_FL, detect_fins, working_levels
+
+
+from vision.bodies import body_ends, fish_mask
+from vision.fins import SPAN_OF_FL, Fins, concat, suppress
 from vision.fork import locate_forks, pyramid
-from vision.illumination import compensate_rows, denoise, to_grey
+from vision.illumination import water_distance
 from vision.snout import find_snouts
 from vision.survey_types import FishMeasurement, SurveySetup
 from vision.triangulation import triangulate_calibrated
@@ -33,8 +37,8 @@ from vision.triangulation import triangulate_calibrated
 @dataclass(frozen=True)
 class Params:
     min_fish_frac: float = 0.08     # shortest fish looked for, as a fraction of the image width
-    n_levels: int = 3               # pyramid levels of the bank (each doubles the longest fish)
-    fin_threshold: float = 0.45     # least |NCC| of a fin template
+    work_width: int = 400           # width of the working image bodies are found on
+    mask_k: float = 4.0             # fish: water distance above median + k MAD
     max_fins: int = 40              # per image
     band_px: float = 3.0            # epipolar band for fork pairing
     max_residual_px: float = 2.5    # snout triangulation
@@ -53,30 +57,43 @@ class _Clock:
         self.t = now
 
 
-def _view(grey: np.ndarray, setup: SurveySetup, p: Params, clock: _Clock) -> View:
-    def prep(img):
-        return compensate_rows(denoise(img, 1.0), setup.mi_ref, setup.c_ref)
-
-    pyr = pyramid(grey)
-    levels = working_levels(pyr, prep, p.min_fish_frac, p.n_levels)
+def _view(img: np.ndarray, setup: SurveySetup, p: Params, clock: _Clock) -> View:
+    img = np.asarray(img)
+    H, W = img.shape[:2]
+    pyr = pyramid(img)
+    k = min(int(np.floor(np.log2(W / p.work_width))), len(pyr) - 1) if W > p.work_width else 0
+    scale = p.work_width / W if W > p.work_width else 1.0
+    src = pyr[k]
+    small = src if src.shape[1] == round(W * scale) else cv2.resize(
+        src, (round(W * scale), round(H * scale)), interpolation=cv2.INTER_AREA)
+    dist = water_distance(small, setup.mi_ref, setup.c_ref)
     clock.lap("illumination")
-    fins = detect_fins(levels, threshold=p.fin_threshold, max_fins=p.max_fins)
+    sx, sy = W / small.shape[1], H / small.shape[0]
+    ends, length = body_ends(fish_mask(dist, p.mask_k), sx, sy, p.min_fish_frac * small.shape[1])
+    # the end of a region is the lobe tips, or the fin base when the fin is too faint to be in it
+    hyps = concat([_shifted(ends, length, off) for off in (0.06, -0.08)])
     clock.lap("fins")
-    forks = locate_forks(pyr, fins)
+    forks = locate_forks(pyr, hyps)
+    forks = locate_forks(pyr, forks.fins.take(np.flatnonzero(forks.ok)))        # again, from the fork
     ok = np.flatnonzero(forks.ok)
+    ok = ok[suppress(forks.fins.take(ok), p.max_fins, 0.1)]
     clock.lap("fork")
     return View(pyr, forks.fins.take(ok), forks.fish_level[ok], forks.water_level[ok], forks.arm_rms[ok])
+
+
+def _shifted(fins: Fins, length: np.ndarray, frac: float) -> Fins:
+    axes = np.c_[np.cos(fins.angle), np.sin(fins.angle)]
+    return Fins(fins.xy + (frac * length)[:, None] * axes, fins.angle, fins.span_px, fins.score, fins.polarity)
 
 
 def measure_underwater(left: np.ndarray, right: np.ndarray, calib: StereoCalibration, setup: SurveySetup,
                        timings: dict[str, float] | None = None, params: Params = Params()) -> list[FishMeasurement]:
     """Fish measured in one underwater pair (grey or BGR uint8, any size); [] when there are none."""
     clock = _Clock(timings)
-    g1, g2 = to_grey(left), to_grey(right)
-    if g1.size == 0 or min(g1.shape) < 32:
+    if left.size == 0 or min(left.shape[:2]) < 32:
         return []
-    v1 = _view(g1, setup, params, clock)
-    v2 = _view(g2, setup, params, clock)
+    v1 = _view(left, setup, params, clock)
+    v2 = _view(right, setup, params, clock)
     pairs = match_forks(calib, v1, v2, params.band_px)
     if len(pairs.i) == 0:
         clock.lap("stereo")
@@ -99,7 +116,7 @@ def measure_underwater(left: np.ndarray, right: np.ndarray, calib: StereoCalibra
                      geo.max_tilt_deg, up, params.max_residual_px)
     keep = ch.ok & np.all(np.isfinite(fork_mm), axis=1) & (fork_res <= params.band_px)
     out = _measurements(np.flatnonzero(keep), pairs, f1, f2, v1, v2, fork_mm, fork_res, ch, calib, geo, params,
-                        g1.shape[1])
+                        left.shape[1])
     clock.lap("associate")
     return out
 
