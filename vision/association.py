@@ -94,12 +94,14 @@ def match_forks(calib: StereoCalibration, left: View, right: View, band_px: floa
     p1, p2 = undistorted(calib, left.fins.xy, 1), undistorted(calib, right.fins.xy, 2)
     lines = epipolar_lines(F, p1)
     dist = np.abs(lines[:, :2] @ p2.T + lines[:, 2:])                               # (n1, n2)
+    # a fork is located to ~1 % of the fish's length in each image: the band grows with the fin
+    band = band_px + 0.07 * np.minimum(left.fins.span_px[:, None], right.fins.span_px[None])
     dang = np.abs(np.angle(np.exp(1j * (left.fins.angle[:, None] - right.fins.angle[None]))))
     ratio = left.fins.span_px[:, None] / right.fins.span_px[None]
     ncc = _patches(left) @ _patches(right).T
-    ok = ((dist <= band_px) & (dang <= np.radians(max_angle_deg)) & (ncc >= min_ncc)
+    ok = ((dist <= band) & (dang <= np.radians(max_angle_deg)) & (ncc >= min_ncc)
           & (ratio <= max_span_ratio) & (ratio >= 1 / max_span_ratio))
-    score = np.where(ok, ncc - 0.1 * dist / band_px, -np.inf)
+    score = np.where(ok, ncc - 0.1 * dist / band, -np.inf)
     pi, pj = [], []
     for _ in range(min(n1, n2)):                     # greedy, best first; a few dozen forks
         k = int(score.argmax())
@@ -152,9 +154,13 @@ class SnoutChoice:
 
 def pair_snouts(calib: StereoCalibration, fork_mm: np.ndarray, px1: np.ndarray, s1: np.ndarray,
                 px2: np.ndarray, s2: np.ndarray, min_len_mm: float, max_len_mm: float, max_tilt: float,
-                up: np.ndarray, max_residual_px: float = 2.5) -> SnoutChoice:
+                up: np.ndarray, max_residual_px: float | np.ndarray = 2.5,
+                expected_mm: np.ndarray | None = None) -> SnoutChoice:
     """The best combination of snout candidates (N, K, 2) / strengths (N, K) of both images per fish:
-    strongest in both, smallest epipolar residual, within the species' length and tilt."""
+    strongest in both, within the epipolar residual, the species' length and tilt, and nearest the
+    length the fin's size suggests (``expected_mm``, (N,), +-30 %). A fish swims along the rig's
+    baseline more often than not, so its axis lies along the epipolar lines and the residual cannot
+    tell one snout candidate on it from another: strength and size decide, the residual only gates."""
     N, K = s1.shape[:2]
     a = np.broadcast_to(px1[:, :, None], (N, K, K, 2)).reshape(-1, 2)
     b = np.broadcast_to(px2[:, None, :], (N, K, K, 2)).reshape(-1, 2)
@@ -168,9 +174,14 @@ def pair_snouts(calib: StereoCalibration, fork_mm: np.ndarray, px1: np.ndarray, 
     length = np.linalg.norm(axis, axis=-1)
     tilt = tilt_deg(axis, up)
     strength = np.minimum(s1[:, :, None], s2[:, None, :])
-    good = (has.reshape(N, K, K) & (res <= max_residual_px) & (length >= min_len_mm)
+    gate = np.broadcast_to(np.asarray(max_residual_px, float), (N,))[:, None, None]
+    good = (has.reshape(N, K, K) & (res <= gate) & (length >= min_len_mm)
             & (length <= max_len_mm) & (tilt <= max_tilt))
-    merit = np.where(good, strength * np.exp(-(res / max_residual_px) ** 2), -1.0).reshape(N, -1)
+    prior = 1.0
+    if expected_mm is not None:
+        with np.errstate(invalid="ignore", divide="ignore"):
+            prior = np.exp(-(np.log(length / expected_mm[:, None, None]) / 0.3) ** 2)
+    merit = np.where(good, s1[:, :, None] * s2[:, None, :] * prior, -1.0).reshape(N, -1)
     best = merit.argmax(axis=1)
     bi, bj = np.divmod(best, K)
     rows = np.arange(N)

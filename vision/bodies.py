@@ -18,8 +18,8 @@ import numpy as np
 from vision.fins import SPAN_OF_FL, Fins
 
 
-def fish_mask(dist: np.ndarray, k: float = 3.0) -> np.ndarray:
-    """uint8 mask of pixels unlike the water: the distance above Otsu's threshold of the frame
+def fish_masks(dist: np.ndarray, ks: tuple[float, ...] = (3.0,)) -> list[np.ndarray]:
+    """uint8 masks (one per k) of pixels unlike the water: the distance above Otsu's threshold of the frame
     (water and fish are its two modes) and above median + k * 1.4826 MAD (a frame of water alone
     has one mode: Otsu would split its noise)."""
     flat = dist[:: 2, :: 2].ravel()
@@ -28,8 +28,11 @@ def fish_mask(dist: np.ndarray, k: float = 3.0) -> np.ndarray:
     top = max(float(np.quantile(flat, 0.999)), 1e-3)
     q = np.clip(dist * (255.0 / top), 0, 255).astype(np.uint8)
     otsu, _ = cv2.threshold(q, 0, 255, cv2.THRESH_BINARY + cv2.THRESH_OTSU)
-    mask = (dist > max(otsu * top / 255.0, med + k * max(mad, 1e-3))).astype(np.uint8)
-    return cv2.morphologyEx(mask, cv2.MORPH_OPEN, np.ones((3, 3), np.uint8))
+    out = []
+    for k in ks:
+        mask = (dist > max(otsu * top / 255.0, med + k * max(mad, 1e-3))).astype(np.uint8)
+        out.append(cv2.morphologyEx(mask, cv2.MORPH_OPEN, np.ones((3, 3), np.uint8)))
+    return out
 
 
 def body_ends(mask: np.ndarray, sx: float, sy: float, min_len_px: float, min_elong: float = 1.8,

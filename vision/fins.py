@@ -266,7 +266,15 @@ def sample_frames(img: np.ndarray, centres: np.ndarray, axes: np.ndarray, xs: np
         m = (centres[:, k, None, None] + xs[:, None, :] * axes[:, k, None, None]
              + ys[:, :, None] * normal[:, k, None, None])
         maps.append(m.reshape(N * ny, nx).astype(np.float32))
-    img = np.asarray(img, np.float32)
-    out = cv2.remap(img, maps[0], maps[1], cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT,
-                    borderValue=(np.nan,) * 4)
+    img = np.asarray(img)
+    if img.dtype == np.uint8:        # remap of uint8 is ~3x faster; values keep 1/2 grey level
+        out = cv2.remap(img, maps[0], maps[1], cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+        out = out.astype(np.float32)
+        h, w = img.shape[:2]
+        off = (maps[0] < 0) | (maps[0] > w - 1) | (maps[1] < 0) | (maps[1] > h - 1)
+        out[off] = np.nan
+    else:
+        img = img.astype(np.float32, copy=False)
+        out = cv2.remap(img, maps[0], maps[1], cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT,
+                        borderValue=(np.nan,) * 4)
     return out.reshape((N, ny, nx) + img.shape[2:])

@@ -25,6 +25,7 @@ from vision.fins import Fins, sample_frames
 SAMPLES = 40            # grid steps per fin span
 
 
+
 @dataclass
 class Forks:
     """Located forks (rows align with the input candidates; ``ok`` says which are forks)."""
@@ -38,8 +39,8 @@ class Forks:
 
 
 def pyramid(img: np.ndarray, levels: int = 5) -> list[np.ndarray]:
-    """Gaussian pyramid (float32; grey or colour) of a uint8 image."""
-    out = [np.asarray(img, np.float32)]
+    """Gaussian pyramid (grey or colour, the image's own dtype: uint8 is fastest to sample)."""
+    out = [np.asarray(img)]
     for _ in range(levels - 1):
         if min(out[-1].shape[:2]) < 16:
             break
@@ -149,6 +150,7 @@ def locate_forks(pyr: list[np.ndarray], fins: Fins, min_contrast: float = 5.0, m
     xmax = xb.max(axis=1)
     xv = _apex(np.broadcast_to(t, xb.shape), xbf, up | dn, np.where(np.isfinite(yv), yv, y0), xmax)
     ok = (contrast >= min_contrast) & enough & v_shape & np.isfinite(xv) & (np.abs(yv) < 0.45)
+
     # bisector of the arms, pointing back into the notch; the axis is its opposite
     d1 = np.c_[b1, np.ones(N)] / np.hypot(b1, 1)[:, None]
     d2 = np.c_[-b2, -np.ones(N)] / np.hypot(b2, 1)[:, None]

@@ -26,7 +26,7 @@ import numpy as np
 
 Contrast = Literal["percentile", "range"]
 
-_SAMPLE = 256          # columns per row used for percentiles
+_SAMPLE = 96           # columns per row used for percentiles
 
 
 def to_grey(img: np.ndarray) -> np.ndarray:

@@ -21,6 +21,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from vision.fins import sample_frames
+from vision.fork import nan_median
 
 SAMPLES = 240           # profile samples over the search range
 ACROSS = 5              # rows across the axis, averaged
@@ -145,8 +146,17 @@ def refine_tips(pyr: list[np.ndarray], tips: np.ndarray, angle: np.ndarray, leng
         f = 2.0 ** -lv
         win[idx] = sample_frames(pyr[lv], (tips[idx] + 0.5) * f - 0.5, axes[idx], along[idx] * f,
                                  across[idx] * f).reshape(len(idx), samples, samples, C)
-    water = np.asarray(water, float).reshape(M, 1, 1, -1)
-    s = np.linalg.norm(win - water, axis=3) / np.maximum(contrast, 1e-6)[:, None, None] - 0.5
+    # local levels: the water ahead of the tip, the head behind it (the notch's water can be
+    # another colour: light changes with depth along a tilted fish)
+    front = u > 0.6
+    back = u < -0.5
+    mid = np.abs(u) <= 0.3
+    ahead = np.stack([nan_median(win[:, :, front, c]) for c in range(C)], axis=1)        # (M, C)
+    head = np.stack([nan_median(win[:, mid][:, :, back, c]) for c in range(C)], axis=1)
+    water = np.where(np.isfinite(ahead), ahead, np.asarray(water, float).reshape(M, -1))
+    contrast = np.linalg.norm(head - water, axis=1)
+    contrast = np.where(np.isfinite(contrast), contrast, 0.0)
+    s = np.linalg.norm(win - water[:, None, None], axis=3) / np.maximum(contrast, 1e-6)[:, None, None] - 0.5
     rev = s[:, :, ::-1]                                       # from the front backwards
     fishy = rev >= 0
     first = fishy.argmax(axis=2)
@@ -174,7 +184,7 @@ def refine_tips(pyr: list[np.ndarray], tips: np.ndarray, angle: np.ndarray, leng
         yv = np.where(c2 < 0, -c1 / (2 * c2), yb)
     yv = np.clip(yv, yb - 0.35, yb + 0.35)
     xv = c0 + c1 * yv + c2 * yv * yv
-    ok &= np.isfinite(xv) & (np.abs(xv) <= 1.0)
+    ok &= np.isfinite(xv) & (np.abs(xv) <= 1.0) & (contrast >= 3.0)
     normal = np.c_[-axes[:, 1], axes[:, 0]]
     out = tips + (xv * 0.06 * length_px)[:, None] * axes + (yv * 0.1 * length_px)[:, None] * normal
     return np.where(ok[:, None], out, tips), ok

@@ -25,7 +25,7 @@ from vision.association import View, camera_frame, match_forks, pair_snouts, sno
 from vision.calib_file import StereoCalibration
 
 
-from vision.bodies import body_ends, fish_mask
+from vision.bodies import body_ends, fish_masks
 from vision.fins import SPAN_OF_FL, Fins, concat, suppress
 from vision.fork import locate_forks, pyramid
 from vision.illumination import water_distance
@@ -37,8 +37,8 @@ from vision.triangulation import triangulate_calibrated
 @dataclass(frozen=True)
 class Params:
     min_fish_frac: float = 0.08     # shortest fish looked for, as a fraction of the image width
-    work_width: int = 400           # width of the working image bodies are found on
-    mask_k: float = 4.0             # fish: water distance above median + k MAD
+    work_width: int = 320           # width of the working image bodies are found on
+    mask_k: tuple[float, ...] = (2.0, 5.0)   # fish: water distance above median + k MAD (and Otsu's)
     max_fins: int = 40              # per image
     band_px: float = 3.0            # epipolar band for fork pairing
     max_residual_px: float = 2.5    # snout triangulation
@@ -69,9 +69,12 @@ def _view(img: np.ndarray, setup: SurveySetup, p: Params, clock: _Clock) -> View
     dist = water_distance(small, setup.mi_ref, setup.c_ref)
     clock.lap("illumination")
     sx, sy = W / small.shape[1], H / small.shape[0]
-    ends, length = body_ends(fish_mask(dist, p.mask_k), sx, sy, p.min_fish_frac * small.shape[1])
-    # the end of a region is the lobe tips, or the fin base when the fin is too faint to be in it
-    hyps = concat([_shifted(ends, length, off) for off in (0.06, -0.08)])
+    # two thresholds: a low one finds faint fish, a high one splits fish that touch at the low one
+    found = [body_ends(m, sx, sy, p.min_fish_frac * small.shape[1]) for m in fish_masks(dist, p.mask_k)]
+    ends, length = concat([f[0] for f in found]), np.concatenate([f[1] for f in found])
+    # a region's end is the caudal peduncle when the fin is too faint to be in it (the region is
+    # then ~0.87 of the fork length), or the lobe tips when it is not
+    hyps = concat([_shifted(ends, length, off) for off in (-0.13, -0.06, 0.03)])
     clock.lap("fins")
     forks = locate_forks(pyr, hyps)
     forks = locate_forks(pyr, forks.fins.take(np.flatnonzero(forks.ok)))        # again, from the fork
@@ -83,7 +86,8 @@ def _view(img: np.ndarray, setup: SurveySetup, p: Params, clock: _Clock) -> View
 
 def _shifted(fins: Fins, length: np.ndarray, frac: float) -> Fins:
     axes = np.c_[np.cos(fins.angle), np.sin(fins.angle)]
-    return Fins(fins.xy + (frac * length)[:, None] * axes, fins.angle, fins.span_px, fins.score, fins.polarity)
+    return Fins(fins.xy + (frac * length)[:, None] * axes, fins.angle, 1.15 * fins.span_px, fins.score,
+                fins.polarity)
 
 
 def measure_underwater(left: np.ndarray, right: np.ndarray, calib: StereoCalibration, setup: SurveySetup,
@@ -112,9 +116,13 @@ def measure_underwater(left: np.ndarray, right: np.ndarray, calib: StereoCalibra
     clock.lap("snout")
     up = np.asarray(setup.up_world if setup.up_world is not None else camera_frame(calib.P1)[1], float)
     up = up / np.linalg.norm(up)
+    f_px, _ = camera_frame(calib.P1)
+    depth = np.linalg.norm(fork_mm - (-np.linalg.solve(calib.P1[:, :3], calib.P1[:, 3])), axis=1)
+    expected = f1.span_px * depth / f_px / SPAN_OF_FL             # the fin's size in mm, as a length
+    gate = params.max_residual_px + 0.01 * f1.span_px / SPAN_OF_FL
     ch = pair_snouts(calib, fork_mm, sn[0].xy, sn[0].strength, sn[1].xy, sn[1].strength, lo_mm, hi_mm,
-                     geo.max_tilt_deg, up, params.max_residual_px)
-    keep = ch.ok & np.all(np.isfinite(fork_mm), axis=1) & (fork_res <= params.band_px)
+                     geo.max_tilt_deg, up, gate, expected)
+    keep = ch.ok & np.all(np.isfinite(fork_mm), axis=1) & (fork_res <= gate)
     out = _measurements(np.flatnonzero(keep), pairs, f1, f2, v1, v2, fork_mm, fork_res, ch, calib, geo, params,
                         left.shape[1])
     clock.lap("associate")
