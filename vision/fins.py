@@ -278,3 +278,32 @@ def sample_frames(img: np.ndarray, centres: np.ndarray, axes: np.ndarray, xs: np
         out = cv2.remap(img, maps[0], maps[1], cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT,
                         borderValue=(np.nan,) * 4)
     return out.reshape((N, ny, nx) + img.shape[2:])
+
+
+def fin_scores(pyr: list[np.ndarray], fins: Fins, bank: Bank | None = None) -> np.ndarray:
+    """Eq. (13) where a fork has been located: the best |NCC| (N,) of the bank's templates with the
+    fin's own angle, on the emboss-filtered neighbourhood sampled in the fin's frame at the
+    templates' scale (the fin's span sets it). 1 = a textbook forked tail."""
+    bank = bank or default_bank()
+    N = len(fins)
+    if N == 0:
+        return np.zeros(0)
+    n = bank.size + 2
+    upright = np.abs(np.angle(np.exp(1j * bank.angle))) < 1e-6            # templates at angle 0
+    vecs, spans = bank.vectors[upright], bank.span[upright]
+    # one window per fin at the larger template's scale: its span fills the same share of it
+    px = fins.span_px / spans.max()                                         # image px per template px
+    t = (np.arange(n) - (n - 1) / 2)[None] * px[:, None]
+    lev = np.clip(np.floor(np.log2(np.maximum(px, 1.0))).astype(int), 0, len(pyr) - 1)
+    win = np.full((N, n, n), np.nan, np.float32)
+    axes = np.c_[np.cos(fins.angle), np.sin(fins.angle)]
+    for k in np.unique(lev):
+        idx = np.flatnonzero(lev == k)
+        f = 2.0 ** -k
+        w = sample_frames(pyr[k], (fins.xy[idx] + 0.5) * f - 0.5, axes[idx], t[idx] * f, t[idx] * f)
+        win[idx] = w.mean(axis=3) if w.ndim == 4 else w
+    win = np.nan_to_num(win, nan=float(np.nanmean(win)) if np.isfinite(win).any() else 0.0)
+    e = np.stack([emboss(w)[1:-1, 1:-1].ravel() for w in win]) if bank.highpass else win[:, 1:-1, 1:-1].reshape(N, -1)
+    e = e - e.mean(axis=1, keepdims=True)
+    ncc = (e @ vecs.T) / np.maximum(np.linalg.norm(e, axis=1), 1e-6)[:, None]
+    return np.abs(ncc).max(axis=1)

@@ -26,6 +26,8 @@ SAMPLES = 40            # grid steps per fin span
 
 
 
+
+
 @dataclass
 class Forks:
     """Located forks (rows align with the input candidates; ``ok`` says which are forks)."""
@@ -69,26 +71,50 @@ def _line_fit(y: np.ndarray, x: np.ndarray, w: np.ndarray):
     return a, b, rms
 
 
-POWERS = np.array([0.6, 0.7, 0.8, 0.9, 1.0, 1.2, 1.5, 2.0])
+POWERS = np.array([0.75, 1.0, 1.5])
+PREFER_V = np.where(POWERS == 1.0, 1.0, 2.0)      # another power must halve the misfit of a V
+
+
+def _fit_powers(r: np.ndarray, x: np.ndarray, wf: np.ndarray):
+    """Weighted least squares x = x0 + slope r for every power's r (N, P, rows): x0, slope, rms."""
+    sw = np.maximum(wf.sum(axis=2), 1e-9)
+    mr = (wf * r).sum(axis=2) / sw
+    mx = (wf * x).sum(axis=2) / sw
+    dr = r - mr[..., None]
+    slope = (wf * dr * (x - mx[..., None])).sum(axis=2) / np.maximum((wf * dr * dr).sum(axis=2), 1e-12)
+    x0 = mx - slope * mr
+    res = x - x0[..., None] - slope[..., None] * r
+    return x0, slope, res
 
 
 def _apex(y: np.ndarray, x: np.ndarray, w: np.ndarray, y0: np.ndarray, xmax: np.ndarray) -> np.ndarray:
     """Innermost point x0 of notch edges x = x0 - c |y - y0|^p (N,), the power p that fits best:
     1 is a V, 2 a rounded U, < 1 a fork whose edges close into a slit that blur hides (the edge
     runs parallel to the axis at the apex). Rows next to the apex are already left out of ``w``;
-    the apex may not lie more than 0.1 span ahead of the deepest crossing seen."""
+    rows whose crossing misses the fitted curve by more than 3x the median miss (a ragged fin
+    ray, a glint) are dropped and the fit repeated. The apex may not lie more than 0.1 span
+    ahead of the deepest crossing seen, nor 0.02 behind it."""
     r = np.abs(y - y0[:, None])[:, None, :] ** POWERS[None, :, None]          # (N, P, rows)
-    wf = w.astype(float)[:, None, :]
-    sw = wf.sum(axis=2)
-    mr = (wf * r).sum(axis=2) / np.maximum(sw, 1e-9)
-    mx = (wf * x[:, None, :]).sum(axis=2) / np.maximum(sw, 1e-9)
-    dr = r - mr[..., None]
-    slope = (wf * dr * (x[:, None, :] - mx[..., None])).sum(axis=2) / np.maximum((wf * dr * dr).sum(axis=2), 1e-12)
-    x0 = mx - slope * mr
-    res = (wf * (x[:, None, :] - x0[..., None] - slope[..., None] * r) ** 2).sum(axis=2)
-    best = res.argmin(axis=1)
+    xx = np.broadcast_to(x[:, None, :], r.shape)
+    wf = np.broadcast_to(w.astype(float)[:, None, :], r.shape)
+    for _ in range(2):
+        x0, slope, res = _fit_powers(r, xx, wf)
+        miss = np.abs(res)
+        med = _masked_median(miss, wf > 0)
+        wf = (w[:, None, :] & (miss <= 3 * med[..., None] + 1e-4)).astype(float)
+    x0, slope, res = _fit_powers(r, xx, wf)
+    err = (wf * res * res).sum(axis=2) / np.maximum(wf.sum(axis=2), 1)
+    best = (err * PREFER_V).argmin(axis=1)
     apex = x0[np.arange(len(x0)), best]
     return np.clip(apex, xmax - 0.02, xmax + 0.1)
+
+
+def _masked_median(a: np.ndarray, m: np.ndarray) -> np.ndarray:
+    """Median of a over its last axis where m, per leading index (NaN-free sort trick)."""
+    v = np.sort(np.where(m, a, np.inf), axis=-1)
+    n = m.sum(axis=-1)
+    idx = np.maximum(n - 1, 0) // 2
+    return np.where(n > 0, np.take_along_axis(v, idx[..., None], axis=-1)[..., 0], 0.0)
 
 
 def locate_forks(pyr: list[np.ndarray], fins: Fins, min_contrast: float = 5.0, min_slope: float = 0.12) -> Forks:
@@ -132,7 +158,8 @@ def locate_forks(pyr: list[np.ndarray], fins: Fins, min_contrast: float = 5.0, m
         xb = t[j - 1] + (t[1] - t[0]) * (-s0) / (s1 - s0)                   # crossing, in spans
     rows = np.abs(t) <= 0.45
     xb = np.where(has & rows[None], xb, -np.inf)
-    apex = xb.argmax(axis=1)
+    # the apex is near the candidate: rows far out can pass beside the fin and meet the body
+    apex = np.where(np.abs(t) <= 0.12, xb, -np.inf).argmax(axis=1)
     y0 = t[apex]
     dy = t[None] - y0[:, None]
     valid = np.isfinite(xb)
@@ -147,9 +174,11 @@ def locate_forks(pyr: list[np.ndarray], fins: Fins, min_contrast: float = 5.0, m
     with np.errstate(invalid="ignore", divide="ignore"):
         yv = (a2 - a1) / (b1 - b2)
         xv = a1 + b1 * yv
-    xmax = xb.max(axis=1)
+    xmax = xb[np.arange(N), apex]
+
     xv = _apex(np.broadcast_to(t, xb.shape), xbf, up | dn, np.where(np.isfinite(yv), yv, y0), xmax)
     ok = (contrast >= min_contrast) & enough & v_shape & np.isfinite(xv) & (np.abs(yv) < 0.45)
+
 
     # bisector of the arms, pointing back into the notch; the axis is its opposite
     d1 = np.c_[b1, np.ones(N)] / np.hypot(b1, 1)[:, None]

@@ -67,16 +67,19 @@ def row_stats(img: np.ndarray, contrast: Contrast = "percentile",
 
 
 def compensate_rows(img: np.ndarray, mi_ref: float, c_ref: float, contrast: Contrast = "percentile",
-                    min_contrast: float = 2.0, clip: bool = True) -> np.ndarray:
+                    min_contrast: float = 2.0, clip: bool = True, max_gain: float | None = None) -> np.ndarray:
     """Eq. (12) applied to every row: float32 image with each row's mean mi_ref and contrast c_ref.
 
     ``min_contrast``: the least C_r a gain is computed from (guards C_r = 0). ``clip`` keeps the
-    result a grey level in [0, 255], as the paper's transformed image."""
+    result a grey level in [0, 255], as the paper's transformed image. ``max_gain`` caps C_ref/C_r:
+    a row of open water has only sensor noise for contrast, and eq. (12) as written stretches that
+    noise to full contrast."""
     img = np.asarray(img, dtype=np.float32)
     if img.size == 0:
         return img.copy()
     mi, c = row_stats(img, contrast)
-    gain = np.float32(c_ref) / np.maximum(c, np.float32(max(min_contrast, 1e-6)))
+    floor = max(min_contrast, 1e-6, c_ref / max_gain if max_gain else 0.0)
+    gain = np.float32(c_ref) / np.maximum(c, np.float32(floor))
     out = (img - mi[:, None]) * gain[:, None] + np.float32(mi_ref)
     if clip:
         np.clip(out, 0.0, 255.0, out=out)
@@ -89,7 +92,7 @@ def preprocess(img: np.ndarray, mi_ref: float, c_ref: float, sigma_px: float = 1
     return compensate_rows(denoise(to_grey(img), sigma_px), mi_ref, c_ref, contrast)
 
 
-def water_background(img: np.ndarray, reach: float = 0.25) -> np.ndarray:
+def water_background(img: np.ndarray, reach: float = 0.5) -> np.ndarray:
     """The water's colour behind each pixel (float32, same shape): a median over a window
     ``reach`` of the image width, taken on a reduced copy (cheap, O(1) per pixel) and scaled back.
     Fish smaller than about half the window leave it unchanged."""
@@ -104,15 +107,16 @@ def water_background(img: np.ndarray, reach: float = 0.25) -> np.ndarray:
 
 
 def water_distance(img: np.ndarray, mi_ref: float, c_ref: float, contrast: Contrast = "percentile",
-                   sigma_px: float = 1.0) -> np.ndarray:
+                   sigma_px: float = 1.0, max_gain: float = 3.0) -> np.ndarray:
     """How unlike the water each pixel is (float32, >= 0): noise reduction, eq. (12) on each colour
     channel, then the colour distance from the water behind the pixel (``water_background``). Fish
     come out bright whether they are darker or brighter than the water, whatever its colour.
 
     A row's median is not the water where a fish fills half the row (a near fish does): the
-    background is a 2-D median instead, over a quarter of the frame."""
+    background is a 2-D median instead, over half the frame's width (eq. 12 has already taken
+    the vertical gradient out, so it only has to follow slow changes across)."""
     img = denoise(img, sigma_px)
     chans = [img] if img.ndim == 2 else [img[..., k] for k in range(img.shape[2])]
-    comp = np.dstack([compensate_rows(ch, mi_ref, c_ref, contrast) for ch in chans])
+    comp = np.dstack([compensate_rows(ch, mi_ref, c_ref, contrast, max_gain=max_gain) for ch in chans])
     diff = comp - water_background(comp).reshape(comp.shape)
     return np.sqrt((diff * diff).sum(axis=2))

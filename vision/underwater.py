@@ -26,7 +26,7 @@ from vision.calib_file import StereoCalibration
 
 
 from vision.bodies import body_ends, fish_masks
-from vision.fins import SPAN_OF_FL, Fins, concat, suppress
+from vision.fins import SPAN_OF_FL, Fins, concat, fin_scores, suppress
 from vision.fork import locate_forks, pyramid
 from vision.illumination import water_distance
 from vision.snout import find_snouts
@@ -80,8 +80,10 @@ def _view(img: np.ndarray, setup: SurveySetup, p: Params, clock: _Clock) -> View
     forks = locate_forks(pyr, forks.fins.take(np.flatnonzero(forks.ok)))        # again, from the fork
     ok = np.flatnonzero(forks.ok)
     ok = ok[suppress(forks.fins.take(ok), p.max_fins, 0.1)]
+    fins = forks.fins.take(ok)
+    fins.score = fin_scores(pyr, fins)                    # eq. (13), where the forks are
     clock.lap("fork")
-    return View(pyr, forks.fins.take(ok), forks.fish_level[ok], forks.water_level[ok], forks.arm_rms[ok])
+    return View(pyr, fins, forks.fish_level[ok], forks.water_level[ok], forks.arm_rms[ok])
 
 
 def _shifted(fins: Fins, length: np.ndarray, frac: float) -> Fins:
@@ -138,6 +140,7 @@ def _measurements(rows, pairs, f1, f2, v1, v2, fork_mm, fork_res, ch, calib, geo
     len_px = 0.5 * (np.linalg.norm(ch.px1 - f1.xy, axis=1) + np.linalg.norm(ch.px2 - f2.xy, axis=1))
     terms = {
         "t_stereo": np.clip((pairs.ncc - 0.4) / 0.5, 0, 1),
+        "t_fin": np.clip((np.minimum(f1.score, f2.score) - 0.3) / 0.4, 0, 1),
         "t_fork_residual": np.exp(-(fork_res / 1.5) ** 2),
         "t_snout_residual": np.exp(-(ch.residual_px / 1.5) ** 2),
         "t_snout_edge": np.clip(ch.strength, 0, 1),
