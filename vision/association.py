@@ -51,6 +51,7 @@ class ForkPairs:
 def camera_frame(P: np.ndarray) -> tuple[float, np.ndarray]:
     """Focal length (px) of a camera and the world direction of its image-up."""
     K, R, _, _, _, _, _ = cv2.decomposeProjectionMatrix(np.asarray(P, float))
+    K = K / K[2, 2]
     signs = np.sign(np.diag(K))
     signs[signs == 0] = 1
     K, R = K * signs, (R.T * signs).T            # K with a positive diagonal
@@ -72,9 +73,10 @@ def _patches(v: View) -> np.ndarray:
         off = t[None] * (f.span_px[idx] * s)[:, None]
         p = sample_frames(v.pyr[k], (f.xy[idx] + 0.5) * s - 0.5, axes[idx], off, off)
         out[idx] = p.reshape(len(idx), -1)
-    out -= np.nanmean(out, axis=1, keepdims=True) if len(out) else 0
-    out /= np.maximum(np.linalg.norm(np.nan_to_num(out), axis=1, keepdims=True), 1e-6)
-    return np.nan_to_num(out)
+    out = np.nan_to_num(out)                 # a neighbourhood cut by the frame: its missing part counts as 0
+    out -= out.mean(axis=1, keepdims=True)
+    out /= np.maximum(np.linalg.norm(out, axis=1, keepdims=True), 1e-6)
+    return out
 
 
 def undistorted(calib: StereoCalibration, pts: np.ndarray, cam: int) -> np.ndarray:
@@ -155,12 +157,14 @@ class SnoutChoice:
 def pair_snouts(calib: StereoCalibration, fork_mm: np.ndarray, px1: np.ndarray, s1: np.ndarray,
                 px2: np.ndarray, s2: np.ndarray, min_len_mm: float, max_len_mm: float, max_tilt: float,
                 up: np.ndarray, max_residual_px: float | np.ndarray = 2.5,
-                expected_mm: np.ndarray | None = None) -> SnoutChoice:
+                expected_mm: np.ndarray | None = None, ncc: np.ndarray | None = None,
+                min_ncc: float = 0.3) -> SnoutChoice:
     """The best combination of snout candidates (N, K, 2) / strengths (N, K) of both images per fish:
     strongest in both, within the epipolar residual, the species' length and tilt, and nearest the
     length the fin's size suggests (``expected_mm``, (N,), +-30 %). A fish swims along the rig's
     baseline more often than not, so its axis lies along the epipolar lines and the residual cannot
-    tell one snout candidate on it from another: strength and size decide, the residual only gates."""
+    tell one snout candidate on it from another: the two views' patches (``ncc`` (N, K, K), zero-mean
+    NCC), strength and size decide, the residual only gates."""
     N, K = s1.shape[:2]
     a = np.broadcast_to(px1[:, :, None], (N, K, K, 2)).reshape(-1, 2)
     b = np.broadcast_to(px2[:, None, :], (N, K, K, 2)).reshape(-1, 2)
@@ -181,10 +185,42 @@ def pair_snouts(calib: StereoCalibration, fork_mm: np.ndarray, px1: np.ndarray, 
     if expected_mm is not None:
         with np.errstate(invalid="ignore", divide="ignore"):
             prior = np.exp(-(np.log(length / expected_mm[:, None, None]) / 0.3) ** 2)
-    merit = np.where(good, s1[:, :, None] * s2[:, None, :] * prior, -1.0).reshape(N, -1)
+    alike = 1.0 if ncc is None else np.clip(ncc, 0.0, 1.0) ** 2
+    if ncc is not None:
+        good &= ncc >= min_ncc
+    merit = np.where(good, s1[:, :, None] * s2[:, None, :] * prior * alike, -1.0).reshape(N, -1)
     best = merit.argmax(axis=1)
     bi, bj = np.divmod(best, K)
     rows = np.arange(N)
     pick = (rows, bi, bj)
     return SnoutChoice(px1[rows, bi], px2[rows, bj], X[pick], res[pick], length[pick], tilt[pick],
                        strength[pick], merit[rows, best] >= 0)
+
+
+def patch_ncc(pyr1: list[np.ndarray], pyr2: list[np.ndarray], pts1: np.ndarray, pts2: np.ndarray,
+              angle1: np.ndarray, angle2: np.ndarray, size_px: np.ndarray, n: int = 11) -> np.ndarray:
+    """Zero-mean NCC (N, K, K) between every left and right point (N, K, 2) of a fish, each patch
+    sampled in its own image's fish frame (``angle``, (N,)), ``size_px`` (N,) wide: the same
+    structure seen by both cameras correlates, two points along the same epipolar line do not."""
+    N, K = pts1.shape[:2]
+    t = np.linspace(-0.5, 0.5, n)[None] * np.repeat(np.asarray(size_px, float), K)[:, None]
+    vecs = []
+    for pyr, pts, ang in ((pyr1, pts1, angle1), (pyr2, pts2, angle2)):
+        flat = np.nan_to_num(pts.reshape(-1, 2), nan=-1e4)
+        a = np.repeat(ang, K)
+        axes = np.c_[np.cos(a), np.sin(a)]
+        step = np.repeat(np.asarray(size_px, float), K) / n
+        lev = np.clip(np.floor(np.log2(np.maximum(step, 1.0))).astype(int), 0, len(pyr) - 1)
+        C = pyr[0].shape[2] if pyr[0].ndim == 3 else 1
+        v = np.full((len(flat), n * n * C), np.nan, np.float32)
+        for k in np.unique(lev):
+            idx = np.flatnonzero(lev == k)
+            f = 2.0 ** -k
+            v[idx] = sample_frames(pyr[k], (flat[idx] + 0.5) * f - 0.5, axes[idx], t[idx] * f, t[idx] * f).reshape(len(idx), -1)
+        bad = np.isnan(v).any(axis=1)
+        v[bad] = 0.0
+        v = v - v.mean(axis=1, keepdims=True)
+        v /= np.maximum(np.linalg.norm(v, axis=1, keepdims=True), 1e-6)
+        v[bad] = 0.0
+        vecs.append(v.reshape(N, K, -1))
+    return np.einsum("nkc,nlc->nkl", vecs[0], vecs[1])

@@ -21,7 +21,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from vision.association import View, camera_frame, match_forks, pair_snouts, snout_search_range
+from vision.association import View, camera_frame, match_forks, pair_snouts, patch_ncc, snout_search_range
 from vision.calib_file import StereoCalibration
 
 
@@ -122,8 +122,9 @@ def measure_underwater(left: np.ndarray, right: np.ndarray, calib: StereoCalibra
     depth = np.linalg.norm(fork_mm - (-np.linalg.solve(calib.P1[:, :3], calib.P1[:, 3])), axis=1)
     expected = f1.span_px * depth / f_px / SPAN_OF_FL             # the fin's size in mm, as a length
     gate = params.max_residual_px + 0.01 * f1.span_px / SPAN_OF_FL
+    alike = patch_ncc(v1.pyr, v2.pyr, sn[0].xy, sn[1].xy, f1.angle, f2.angle, 0.5 * f1.span_px)
     ch = pair_snouts(calib, fork_mm, sn[0].xy, sn[0].strength, sn[1].xy, sn[1].strength, lo_mm, hi_mm,
-                     geo.max_tilt_deg, up, gate, expected)
+                     geo.max_tilt_deg, up, gate, expected, alike)
     keep = ch.ok & np.all(np.isfinite(fork_mm), axis=1) & (fork_res <= gate)
     out = _measurements(np.flatnonzero(keep), pairs, f1, f2, v1, v2, fork_mm, fork_res, ch, calib, geo, params,
                         left.shape[1])
