@@ -168,9 +168,9 @@ def main() -> None:
         "baseline_ms_median": round(base, 2), "ratio": round(pipeline / base, 3),
         "load": os.getloadavg()[0],
     }
-    out["goals_met"] = {k: (out[k] is not None and (abs(out[k]) <= g if k in ("weight_mape_pct",
-                         "mean_weight_error_pct", "ratio") else out[k] >= g)) for k, g in GOALS.items()}
-    print(json.dumps(out))
+    out["goals_met"] = {k: bool(out[k] is not None and (abs(out[k]) <= g if k in ("weight_mape_pct",
+                        "mean_weight_error_pct", "ratio") else out[k] >= g)) for k, g in GOALS.items()}
+    print(json.dumps(out, default=float))
 
 
 if __name__ == "__main__":

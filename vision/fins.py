@@ -1,21 +1,21 @@
-"""Caudal-fin detection (paper section 4.2.1): emboss high-pass filter, a bank of fork templates over
-angles and scales (eq. 13), local maxima above a threshold; then the fork's innermost point
-located at full resolution (``vision.fork``).
+"""Caudal fins (paper section 4.2.1): the emboss high-pass filter and a bank of fork templates over
+angles and scales (eq. 13), evaluated where forks can be; shared frame sampling.
 
-Eq. (13) is f_o(x, y) = max_i sum template_i . f*(x + xt, y + yt) over the emboss-filtered,
-illumination-compensated image f*. Here each template is a forked tail drawn at one angle and size
-(``fork_mask``) and passed through the same emboss kernel, so it matches the transitions a fork
-leaves in the filtered image (a matched filter). The sum is normalised (zero-mean NCC): a fin in
-dim water scores as high as one in sunlit water, and a threshold means the same everywhere. Its
-sign is the fin's polarity (darker or brighter than the water), so the bank serves both.
+Eq. (13) is f_o(x, y) = max_i sum template_i . f*(x + xt, y + yt) over the emboss-filtered image f*.
+Each template here is a fish's tail end drawn at one angle, size and fork depth (``fork_mask``:
+peduncle, half-transparent fin, notch) and passed through the same emboss kernel, so it matches the
+transitions a fork leaves in the filtered image (a matched filter). The sum is normalised (zero-mean
+NCC): a fin in dim water scores as high as one in sunlit water. The bank is scored through its
+principal components (a rotated template is a mix of a few fixed filters).
 
-Speed. Fins are looked for on a pyramid of reduced images (``levels``): level 0 is the image
-scaled so that the smallest fish the survey reports (``min_fish_frac`` of the image width) has a
-fin span of about a template's size, each next level halves it, so the same 15 px templates cover
-fish 8x larger; everything scales with the image, not with 1280x960. The bank is not run over the
-whole image: edges are where a fork can be, so only grid points (every ``stride`` px) whose
-local emboss energy is in the image's top part are scored, all templates at once as one matrix
-product of their windows. Peaks of the score over the grid are the candidates.
+Where the bank runs. Over a whole frame (every pixel of a pyramid level, 16 angles x 2 sizes x
+2 notches) it ranks the true fork of a fully visible rendered fish among its 80 best peaks for fewer
+than a third of the fish (25 scenes, bench/bench_survey_underwater.py's renderer): a faint fin
+beside the body's strong edges, reef texture and other fish is a weak pattern on its own. So forks
+are proposed from the bodies (``vision.bodies``), located on the image (``vision.fork``), and the
+bank is evaluated there, at the located fork's own angle and scale (``fin_scores``): a measure of
+how fork-like the point is, one term of the fish's score. That is also cheaper than any pyramid
+scan: a few dozen windows per image.
 """
 from __future__ import annotations
 
@@ -132,101 +132,9 @@ def default_bank() -> Bank:
     return _BANK
 
 
-def _grid_scores(f: np.ndarray, bank: Bank, stride: int, keep: float, min_energy: float):
-    """NCC of every template at grid points of the embossed level image f whose local energy is in
-    the top ``keep`` fraction. Returns (ys, xs, best |ncc|, signed ncc, template index)."""
-    h = bank.size // 2
-    energy = cv2.boxFilter(f * f, -1, (bank.size, bank.size), normalize=True)
-    grid = energy[h:-h:stride, h:-h:stride] if energy.shape[0] > 2 * h and energy.shape[1] > 2 * h else None
-    if grid is None or grid.size == 0:
-        return (np.zeros(0, int),) * 2 + (np.zeros(0),) * 2 + (np.zeros(0, int), np.zeros(0), np.zeros(0, int))
-    flat = grid.ravel()
-    sample = flat[:: max(1, flat.size // 4096)]
-    thr = max(float(np.partition(sample, int((1.0 - keep) * (sample.size - 1)))[int((1.0 - keep) * (sample.size - 1))]),
-              min_energy)
-    gy, gx = np.nonzero(grid >= thr)
-    ys, xs = gy * stride + h, gx * stride + h
-    win = np.lib.stride_tricks.sliding_window_view(f, (bank.size, bank.size))[ys - h, xs - h]
-    win = win.reshape(len(ys), -1)
-    mean = cv2.boxFilter(f, -1, (bank.size, bank.size), normalize=True)[ys, xs]
-    n = bank.size * bank.size
-    norm = np.sqrt(np.maximum(energy[ys, xs] - mean * mean, 0) * n)
-    # templates are zero-mean, so the window's mean drops out of the products
-    ncc = ((win @ bank.basis.T) @ bank.coef.T) / np.maximum(norm, 1e-6)[:, None]
-    a = np.abs(ncc)
-    best = a.argmax(axis=1)
-    rows = np.arange(len(ys))
-    # the best template at least 60 degrees away: a second guess of the axis, for locate to test
-    apart = np.abs(np.angle(np.exp(1j * (bank.angle[None] - bank.angle[best][:, None])))) >= np.radians(60)
-    other = np.where(apart, a, -1.0).argmax(axis=1)
-    return ys, xs, a[rows, best], ncc[rows, best], best, ncc[rows, other], other
-
-
-def _peaks(shape, stride, ys, xs, score, radius_cells: int, thr: float) -> np.ndarray:
-    """Indices of grid points that are local maxima of ``score`` within ``radius_cells`` and >= thr."""
-    g = np.zeros(((shape[0] + stride - 1) // stride + 1, (shape[1] + stride - 1) // stride + 1), np.float32)
-    gy, gx = ys // stride, xs // stride
-    g[gy, gx] = score
-    k = 2 * radius_cells + 1
-    mx = cv2.dilate(g, np.ones((k, k), np.uint8))
-    return np.flatnonzero((score >= thr) & (score >= mx[gy, gx]))
-
-
-def level_scales(width: int, min_fish_frac: float, n_levels: int, size: int = TEMPLATE_PX) -> list[float]:
-    """Scale factors of the pyramid levels: at level 0 a fish ``min_fish_frac`` of the image width
-    long fills the smaller templates."""
-    s0 = min(1.0, 0.72 * size / WINDOW_OF_FL / (min_fish_frac * width))
-    return [s0 / 2 ** k for k in range(n_levels)]
-
-
-def working_levels(pyr: list[np.ndarray], prep, min_fish_frac: float = 0.08, n_levels: int = 3,
-                   size: int = TEMPLATE_PX) -> list[tuple[float, float, np.ndarray]]:
-    """The images the bank runs on: (x scale, y scale, pre-processed level image) per level, each
-    resized from the Gaussian pyramid ``pyr`` of the grey image (its level just above, so the
-    resize needs no anti-aliasing of its own). ``prep(img) -> float32`` is applied to each (noise
-    reduction and row compensation)."""
-    H, W = pyr[0].shape[:2]
-    out = []
-    for s in level_scales(W, min_fish_frac, n_levels, size):
-        dims = (max(int(round(W * s)), 1), max(int(round(H * s)), 1))
-        if min(dims) < 2 * size:
-            break
-        k = min(int(np.floor(np.log2(1.0 / s))), len(pyr) - 1)
-        src = pyr[k]
-        small = src if src.shape[1] == dims[0] else cv2.resize(src, dims, interpolation=cv2.INTER_LINEAR)
-        out.append((W / dims[0], H / dims[1], prep(small)))
-    return out
-
-
-def detect_fins(levels: list[tuple[float, float, np.ndarray]], *, threshold: float = 0.5, keep: float = 0.12,
-                stride: int = 3, max_fins: int = 40, bank: Bank | None = None, second_guess: bool = True) -> Fins:
-    """Fork candidates (coarse: level-pixel accuracy) on the working levels (``working_levels``).
-
-    ``threshold``: least |NCC|. ``keep``: fraction of grid points, by local emboss energy, whose
-    templates are scored. ``second_guess``: each peak also comes with the best template at least
-    60 degrees off the first (after the first ones): a fin's axis is the weakest part of eq. (13)."""
-    bank = bank or default_bank()
-    out = []
-    for sx, sy, img in levels:
-        f = emboss(img) if bank.highpass else img
-        noise = float(np.median(np.abs(f))) + 1e-3
-        ys, xs, sc, signed, best, signed2, best2 = _grid_scores(f, bank, stride, keep, (2.0 * noise) ** 2)
-        pk = _peaks(f.shape, stride, ys, xs, sc, max(1, bank.size // (2 * stride)), threshold)
-        pk = pk[np.argsort(-sc[pk], kind="stable")[: 2 * max_fins]]
-        xy = np.c_[(xs[pk] + 0.5) * sx - 0.5, (ys[pk] + 0.5) * sy - 0.5]
-        out.append((Fins(xy, bank.angle[best[pk]], bank.span[best[pk]] * sx, sc[pk], np.sign(signed[pk])),
-                    Fins(xy, bank.angle[best2[pk]], bank.span[best2[pk]] * sx, np.abs(signed2[pk]),
-                         np.sign(signed2[pk]))))
-    if not out:
-        return Fins.empty()
-    first, second = (concat([o[k] for o in out]) for k in (0, 1))
-    keep_idx = suppress(first, max_fins)
-    if not second_guess:
-        return first.take(keep_idx)
-    return concat([first.take(keep_idx), second.take(keep_idx)])
-
-
 def concat(parts: list[Fins]) -> Fins:
+    if not parts:
+        return Fins.empty()
     return Fins(*(np.concatenate([getattr(o, k) for o in parts]) for k in ("xy", "angle", "span_px", "score",
                                                                            "polarity")))
 

@@ -187,7 +187,8 @@ def locate_forks(pyr: list[np.ndarray], fins: Fins, min_contrast: float = 5.0, m
     back /= np.maximum(np.linalg.norm(back, axis=1), 1e-9)[:, None]
     normal = np.c_[-axes[:, 1], axes[:, 0]]
     new_axis = -(back[:, :1] * axes + back[:, 1:] * normal)
-    xy = fins.xy + (xv * S)[:, None] * axes + (yv * S)[:, None] * normal
+    with np.errstate(invalid="ignore"):
+        xy = fins.xy + (xv * S)[:, None] * axes + (yv * S)[:, None] * normal
     ok &= np.all(np.isfinite(xy), axis=1)
     out = Fins(np.where(ok[:, None], xy, fins.xy), np.where(ok, np.arctan2(new_axis[:, 1], new_axis[:, 0]), fins.angle),
                S, fins.score, np.where(ok, sign, fins.polarity))

@@ -23,6 +23,7 @@ from typing import Literal
 
 import cv2
 import numpy as np
+from scipy.ndimage import median_filter
 
 Contrast = Literal["percentile", "range"]
 
@@ -67,17 +68,24 @@ def row_stats(img: np.ndarray, contrast: Contrast = "percentile",
 
 
 def compensate_rows(img: np.ndarray, mi_ref: float, c_ref: float, contrast: Contrast = "percentile",
-                    min_contrast: float = 2.0, clip: bool = True, max_gain: float | None = None) -> np.ndarray:
+                    min_contrast: float = 2.0, clip: bool = True, max_gain: float | None = None,
+                    smooth_rows: float = 0.0) -> np.ndarray:
     """Eq. (12) applied to every row: float32 image with each row's mean mi_ref and contrast c_ref.
 
     ``min_contrast``: the least C_r a gain is computed from (guards C_r = 0). ``clip`` keeps the
     result a grey level in [0, 255], as the paper's transformed image. ``max_gain`` caps C_ref/C_r:
     a row of open water has only sensor noise for contrast, and eq. (12) as written stretches that
-    noise to full contrast."""
+    noise to full contrast. ``smooth_rows`` (fraction of the height, 0 = the paper's): MI_r and C_r
+    are replaced by their running median over that many rows. Sunlight changes smoothly with
+    depth; a near fish filling part of a few rows does not, and per-row statistics turn it into a
+    band across the whole frame."""
     img = np.asarray(img, dtype=np.float32)
     if img.size == 0:
         return img.copy()
     mi, c = row_stats(img, contrast)
+    if smooth_rows > 0:
+        k = max(3, int(round(smooth_rows * img.shape[0])) // 2 * 2 + 1)
+        mi, c = (median_filter(v, size=k, mode="nearest") for v in (mi, c))
     floor = max(min_contrast, 1e-6, c_ref / max_gain if max_gain else 0.0)
     gain = np.float32(c_ref) / np.maximum(c, np.float32(floor))
     out = (img - mi[:, None]) * gain[:, None] + np.float32(mi_ref)
@@ -117,6 +125,7 @@ def water_distance(img: np.ndarray, mi_ref: float, c_ref: float, contrast: Contr
     the vertical gradient out, so it only has to follow slow changes across)."""
     img = denoise(img, sigma_px)
     chans = [img] if img.ndim == 2 else [img[..., k] for k in range(img.shape[2])]
-    comp = np.dstack([compensate_rows(ch, mi_ref, c_ref, contrast, max_gain=max_gain) for ch in chans])
+    comp = np.dstack([compensate_rows(ch, mi_ref, c_ref, contrast, max_gain=max_gain, smooth_rows=0.15)
+                      for ch in chans])
     diff = comp - water_background(comp).reshape(comp.shape)
     return np.sqrt((diff * diff).sum(axis=2))

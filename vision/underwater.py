@@ -43,6 +43,7 @@ class Params:
     band_px: float = 3.0            # epipolar band for fork pairing
     max_residual_px: float = 2.5    # snout triangulation
     good_length_px: float = 250.0   # fish this long in the image score 1 on size (x image width / 1280)
+    min_score: float = 0.05         # post-filter: a fish whose measurement rests on nothing is dropped
 
 
 class _Clock:
@@ -154,6 +155,7 @@ def _measurements(rows, pairs, f1, f2, v1, v2, fork_mm, fork_res, ch, calib, geo
            "tilt_deg": ch.tilt_deg, "range_mm": rng_mm, "length_px": len_px,
            "fin_ncc": np.minimum(f1.score, f2.score), "snout_edge": ch.strength}
     fish = []
+    rows = rows[score[rows] >= p.min_score]
     for r in _unique_snouts(rows, ch, score):
         q = {k: float(v[r]) for k, v in raw.items()} | {k: float(v[r]) for k, v in terms.items()}
         fish.append(FishMeasurement(snout_mm=ch.mm[r].copy(), fork_mm=fork_mm[r].copy(),
