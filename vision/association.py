@@ -23,6 +23,7 @@ import numpy as np
 
 from vision.calib_file import StereoCalibration
 from vision.fins import Fins, sample_frames
+from vision.match_geometry import segments_by_range
 from vision.triangulation import normalise_projection, triangulate_calibrated, undistort_pixels
 from vision.epipolar import epipolar_lines, fundamental_from_projections
 
@@ -58,9 +59,9 @@ def camera_frame(P: np.ndarray) -> tuple[float, np.ndarray]:
     return float(0.5 * (abs(K[0, 0]) + abs(K[1, 1]))), -R[1] / np.linalg.norm(R[1])
 
 
-def _patches(v: View) -> np.ndarray:
+def _patches(v: View, f: Fins | None = None) -> np.ndarray:
     """Zero-mean unit vectors (N, PATCH^2 C) of each fork's neighbourhood in its own frame."""
-    f = v.fins
+    f = v.fins if f is None else f
     t = np.linspace(-0.5, 0.5, PATCH)
     C = v.pyr[0].shape[2] if v.pyr[0].ndim == 3 else 1
     out = np.full((len(f), PATCH * PATCH * C), np.nan, np.float32)
@@ -224,3 +225,26 @@ def patch_ncc(pyr1: list[np.ndarray], pyr2: list[np.ndarray], pts1: np.ndarray, 
         v[bad] = 0.0
         vecs.append(v.reshape(N, K, -1))
     return np.einsum("nkc,nlc->nkl", vecs[0], vecs[1])
+
+
+def transfer_forks(P_src: np.ndarray, P_dst: np.ndarray, src: View, dst: View, idx: np.ndarray,
+                   near_mm: float, far_mm: float, steps: int = 96) -> Fins:
+    """Where forks ``idx`` of one image should be in the other: along each one's epipolar line
+    (between ``near_mm`` and ``far_mm`` from the source camera), the position whose neighbourhood,
+    sampled in the fork's frame, correlates best with the fork's own. A fin seen faintly in one
+    view is then located where the other view says it is instead of being looked for blind.
+    Returns hypotheses (angle and span from the source) for ``vision.fork.locate_forks``."""
+    f = src.fins.take(idx)
+    n = len(f)
+    if n == 0:
+        return Fins.empty()
+    seg = segments_by_range(P_src, P_dst, f.xy, near_mm, far_mm)                 # (n, 2, 2)
+    u = np.linspace(0.0, 1.0, steps)
+    pts = seg[:, :1] + u[None, :, None] * (seg[:, 1:] - seg[:, :1])              # (n, steps, 2)
+    h, w = dst.pyr[0].shape[:2]
+    cand = Fins(pts.reshape(-1, 2), np.repeat(f.angle, steps), np.repeat(f.span_px, steps),
+                np.ones(n * steps), np.ones(n * steps))
+    ncc = (_patches(dst, cand).reshape(n, steps, -1) * _patches(src, f)[:, None]).sum(axis=2)
+    inside = np.all((pts >= 0) & (pts <= [w - 1, h - 1]), axis=2)
+    best = np.where(inside, ncc, -np.inf).argmax(axis=1)
+    return Fins(pts[np.arange(n), best], f.angle.copy(), f.span_px.copy(), ncc[np.arange(n), best], f.polarity.copy())

@@ -36,14 +36,56 @@ class Snouts:
     strength: np.ndarray    # (N, K) 0..1
 
 
+FAN_DEG = np.arange(-20.0, 20.1, 4.0)
+
+
 def find_snouts(pyr: list[np.ndarray], xy: np.ndarray, angle: np.ndarray, half_band_px: np.ndarray,
                 fish_level: np.ndarray, water_level: np.ndarray, lo_px: np.ndarray, hi_px: np.ndarray,
-                k: int = 3, min_strength: float = 0.35) -> Snouts:
-    """Snout candidates along each fork's axis between ``lo_px`` and ``hi_px`` from it."""
+                k: int = 3, min_strength: float = 0.35, fan_deg: np.ndarray = FAN_DEG) -> Snouts:
+    """Snout candidates ahead of each fork between ``lo_px`` and ``hi_px`` from it.
+
+    A fin's axis is good to ~10 degrees (a flexible fin, a bent body): profiles are taken over a
+    fan of directions around it (``fan_deg``) and the one reaching farthest through fish to water
+    is kept (the snout is the body's farthest point from the fork); ``refine_tips`` then finds
+    the tip across it."""
+    N = len(xy)
+    A = len(fan_deg)
+    if N == 0:
+        return Snouts(np.full((0, k), np.nan), np.full((0, k, 2), np.nan), np.zeros((0, k)))
+    rep = np.repeat(np.arange(N), A)
+    fan = np.repeat(np.asarray(angle, float), A) + np.tile(np.radians(fan_deg), N)
+    fish_level = np.asarray(fish_level, float).reshape(N, -1)
+    water_level = np.asarray(water_level, float).reshape(N, -1)
+    dist, strength, contrast = _along(pyr, xy[rep], fan, np.asarray(half_band_px, float)[rep], fish_level[rep],
+                                      water_level[rep], np.asarray(lo_px, float)[rep], np.asarray(hi_px, float)[rep],
+                                      k, min_strength)
+    d0 = np.where(np.isfinite(dist[:, 0]), dist[:, 0], -np.inf).reshape(N, A)
+    s0 = strength[:, 0].reshape(N, A)
+    best = np.where(s0 >= 0.9 * s0.max(axis=1, keepdims=True), d0, -np.inf).argmax(axis=1)
+    pick = np.arange(N) * A + best
+    dist, strength, contrast, angle = dist[pick], strength[pick], contrast[pick], fan[pick]
+    axes = np.c_[np.cos(angle), np.sin(angle)]
+    pts = xy[:, None] + dist[..., None] * axes[:, None]
+    # the tip itself, off the axis by up to half the fan's step
+    flat = pts.reshape(-1, 2)
+    has = np.isfinite(flat[:, 0])
+    if has.any():
+        L = np.broadcast_to(np.nan_to_num(dist), (N, k)).reshape(-1)[has]
+        r = np.repeat(np.arange(N), k)[has]
+        tips, found = refine_tips(pyr, flat[has], angle[r], L, water_level[r], contrast[r])
+        flat = flat.copy()
+        flat[has] = np.where(found[:, None], tips, np.nan)       # no tip there: a side of the body
+        pts = flat.reshape(N, k, 2)
+        strength = np.where(np.isfinite(pts[..., 0]), strength, 0.0)
+        dist = np.where(np.isfinite(dist), np.linalg.norm(pts - xy[:, None], axis=2), np.nan)
+    return Snouts(dist, pts, strength)
+
+
+def _along(pyr, xy, angle, half_band_px, fish_level, water_level, lo_px, hi_px, k, min_strength):
+    """Candidate distances (N, k) and strengths (N, k) on each row's own straight profile, and the
+    fin's contrast (N,)."""
     N = len(xy)
     dist = np.full((N, k), np.nan)
-    if N == 0:
-        return Snouts(dist, np.full((0, k, 2), np.nan), np.zeros((0, k)))
     axes = np.c_[np.cos(angle), np.sin(angle)]
     lo = np.maximum(np.asarray(lo_px, float), 1.0)
     hi = np.maximum(np.asarray(hi_px, float), lo + 2.0)
@@ -91,19 +133,7 @@ def find_snouts(pyr: list[np.ndarray], xy: np.ndarray, angle: np.ndarray, half_b
         strength[:, j] = np.where(good, val, 0.0)
         block = np.abs(i[None] - best[:, None]) <= 2 * m[:, None]
         work[block] = -1.0
-    pts = xy[:, None] + dist[..., None] * axes[:, None]
-    # the tip itself, off the fin's axis when that is a few degrees off
-    flat = pts.reshape(-1, 2)
-    has = np.isfinite(flat[:, 0])
-    if has.any():
-        L = np.broadcast_to(np.nan_to_num(dist), (N, k)).reshape(-1)[has]
-        rep = np.repeat(np.arange(N), k)[has]
-        tips, _ = refine_tips(pyr, flat[has], angle[rep], L, water_level[rep], contrast[rep])
-        flat = flat.copy()
-        flat[has] = tips
-        pts = flat.reshape(N, k, 2)
-        dist = np.where(np.isfinite(dist), np.linalg.norm(pts - xy[:, None], axis=2), np.nan)
-    return Snouts(dist, pts, strength)
+    return dist, strength, contrast
 
 
 def _crossing(s: np.ndarray, best: np.ndarray) -> np.ndarray:
@@ -184,7 +214,9 @@ def refine_tips(pyr: list[np.ndarray], tips: np.ndarray, angle: np.ndarray, leng
         yv = np.where(c2 < 0, -c1 / (2 * c2), yb)
     yv = np.clip(yv, yb - 0.35, yb + 0.35)
     xv = c0 + c1 * yv + c2 * yv * yv
-    ok &= np.isfinite(xv) & (np.abs(xv) <= 1.0) & (contrast >= 3.0)
+    # a tip is a cap: curving back on both sides, its front row inside the window (a slanted side
+    # of the body has its front-most row at the window's edge)
+    ok &= np.isfinite(xv) & (np.abs(xv) <= 1.0) & (contrast >= 3.0) & (c2 < 0) & (np.abs(yb) < 0.85)
     normal = np.c_[-axes[:, 1], axes[:, 0]]
     out = tips + (xv * 0.06 * length_px)[:, None] * axes + (yv * 0.1 * length_px)[:, None] * normal
     return np.where(ok[:, None], out, tips), ok

@@ -21,7 +21,8 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from vision.association import View, camera_frame, match_forks, pair_snouts, patch_ncc, snout_search_range
+from vision.association import (View, camera_frame, match_forks, pair_snouts, patch_ncc, snout_search_range,
+                                transfer_forks)
 from vision.calib_file import StereoCalibration
 
 
@@ -44,6 +45,9 @@ class Params:
     max_residual_px: float = 2.5    # snout triangulation
     good_length_px: float = 250.0   # fish this long in the image score 1 on size (x image width / 1280)
     min_score: float = 0.05         # post-filter: a fish whose measurement rests on nothing is dropped
+    transfer: bool = True           # a fork found in one image only is looked for along its epipolar line
+    near_mm: float = 300.0          # working range of the rig for that search (from the camera)
+    far_mm: float = 4000.0
 
 
 class _Clock:
@@ -87,6 +91,28 @@ def _view(img: np.ndarray, setup: SurveySetup, p: Params, clock: _Clock) -> View
     return View(pyr, fins, forks.fish_level[ok], forks.water_level[ok], forks.arm_rms[ok])
 
 
+def _transfer(calib, v1: View, v2: View, pairs, p: Params) -> tuple[View, View]:
+    """Forks located in one image only: look for each in the other along its epipolar line
+    (``association.transfer_forks``), locate it there, and add what is found to that view."""
+    views = [v1, v2]
+    for src, dst, Ps, Pd, used in ((0, 1, calib.P1, calib.P2, pairs.i), (1, 0, calib.P2, calib.P1, pairs.j)):
+        lone = np.setdiff1d(np.arange(len(views[src].fins)), used)
+        if len(lone) == 0:
+            continue
+        hyp = transfer_forks(Ps, Pd, views[src], views[dst], lone, p.near_mm, p.far_mm)
+        v = views[dst]
+        forks = locate_forks(v.pyr, hyp)
+        forks = locate_forks(v.pyr, forks.fins.take(np.flatnonzero(forks.ok)))
+        ok = np.flatnonzero(forks.ok)
+        if len(ok) == 0:
+            continue
+        new = forks.fins.take(ok)
+        new.score = fin_scores(v.pyr, new)
+        views[dst] = View(v.pyr, concat([v.fins, new]), np.vstack([v.fish_level, forks.fish_level[ok]]),
+                          np.vstack([v.water_level, forks.water_level[ok]]), np.r_[v.arm_rms, forks.arm_rms[ok]])
+    return views[0], views[1]
+
+
 def _shifted(fins: Fins, length: np.ndarray, frac: float) -> Fins:
     axes = np.c_[np.cos(fins.angle), np.sin(fins.angle)]
     return Fins(fins.xy + (frac * length)[:, None] * axes, fins.angle, 1.15 * fins.span_px, fins.score,
@@ -102,6 +128,9 @@ def measure_underwater(left: np.ndarray, right: np.ndarray, calib: StereoCalibra
     v1 = _view(left, setup, params, clock)
     v2 = _view(right, setup, params, clock)
     pairs = match_forks(calib, v1, v2, params.band_px)
+    if params.transfer:
+        v1, v2 = _transfer(calib, v1, v2, pairs, params)
+        pairs = match_forks(calib, v1, v2, params.band_px)
     if len(pairs.i) == 0:
         clock.lap("stereo")
         return []
