@@ -64,6 +64,10 @@ def find_snouts(pyr: list[np.ndarray], xy: np.ndarray, angle: np.ndarray, half_b
     best = np.where(s0 >= 0.9 * s0.max(axis=1, keepdims=True), d0, -np.inf).argmax(axis=1)
     pick = np.arange(N) * A + best
     dist, strength, contrast, angle = dist[pick], strength[pick], contrast[pick], fan[pick]
+    # the reach peaking at the fan's edge is a side of the body (or a fish leaving the frame)
+    edge = (best == 0) | (best == A - 1)
+    dist[edge] = np.nan
+    strength[edge] = 0.0
     axes = np.c_[np.cos(angle), np.sin(angle)]
     pts = xy[:, None] + dist[..., None] * axes[:, None]
     # the tip itself, off the axis by up to half the fan's step
@@ -74,9 +78,11 @@ def find_snouts(pyr: list[np.ndarray], xy: np.ndarray, angle: np.ndarray, half_b
         r = np.repeat(np.arange(N), k)[has]
         tips, found = refine_tips(pyr, flat[has], angle[r], L, water_level[r], contrast[r])
         flat = flat.copy()
-        flat[has] = np.where(found[:, None], tips, np.nan)       # no tip there: a side of the body
+        flat[has] = tips                          # where no cap is seen, the profile's own end stays
         pts = flat.reshape(N, k, 2)
-        strength = np.where(np.isfinite(pts[..., 0]), strength, 0.0)
+        weak = np.zeros(N * k, bool)
+        weak[np.flatnonzero(has)[~found]] = True
+        strength = np.where(weak.reshape(N, k), 0.5 * strength, strength)
         dist = np.where(np.isfinite(dist), np.linalg.norm(pts - xy[:, None], axis=2), np.nan)
     return Snouts(dist, pts, strength)
 
@@ -197,7 +203,7 @@ def refine_tips(pyr: list[np.ndarray], tips: np.ndarray, angle: np.ndarray, leng
     with np.errstate(invalid="ignore", divide="ignore"):
         pos = (samples - 1 - (j - 1)) - (-a) / (b - a)        # index along u, front crossing
     x = np.where(has, -1.0 + 2.0 * pos / (samples - 1), -np.inf)   # in units of the along half-range
-    best = x.argmax(axis=1)
+    best = np.where(np.abs(u)[None] <= 0.5, x, -np.inf).argmax(axis=1)     # near the axis: the fan is 4 deg fine
     yb = u[best]
     w = has & (np.abs(u[None] - yb[:, None]) <= 0.35)
     xs = np.where(w, x, 0.0)
