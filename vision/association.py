@@ -247,4 +247,5 @@ def transfer_forks(P_src: np.ndarray, P_dst: np.ndarray, src: View, dst: View, i
     ncc = (_patches(dst, cand).reshape(n, steps, -1) * _patches(src, f)[:, None]).sum(axis=2)
     inside = np.all((pts >= 0) & (pts <= [w - 1, h - 1]), axis=2)
     best = np.where(inside, ncc, -np.inf).argmax(axis=1)
-    return Fins(pts[np.arange(n), best], f.angle.copy(), f.span_px.copy(), ncc[np.arange(n), best], f.polarity.copy())
+    return Fins(pts[np.arange(n), best], f.angle.copy(), f.span_px.copy(), ncc[np.arange(n), best], f.polarity.copy(),
+                None if f.body is None else f.body.copy())

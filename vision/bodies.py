@@ -70,5 +70,6 @@ def body_ends(mask: np.ndarray, sx: float, sy: float, min_len_px: float, min_elo
     if not xy:
         return Fins.empty(), np.zeros(0)
     length = np.array(length)
-    fins = Fins(np.array(xy), np.array(ang), SPAN_OF_FL * length, np.ones(len(xy)), np.ones(len(xy)))
+    ang = np.array(ang)
+    fins = Fins(np.array(xy), ang, SPAN_OF_FL * length, np.ones(len(xy)), np.ones(len(xy)), ang.copy())
     return fins, length

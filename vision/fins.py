@@ -40,12 +40,20 @@ class Fins:
     span_px: np.ndarray     # (N,) fin span (height of the tail) in px
     score: np.ndarray       # (N,) |NCC| of the best template, 0..1
     polarity: np.ndarray    # (N,) +1 fish brighter than the water, -1 darker
+    body: np.ndarray | None = None   # (N,) rad, the body's own axis where its region gave one (NaN: not)
+
+    def body_angle(self) -> np.ndarray:
+        """The body's axis where known, else the fin's."""
+        if self.body is None:
+            return self.angle
+        return np.where(np.isfinite(self.body), self.body, self.angle)
 
     def __len__(self) -> int:
         return len(self.xy)
 
     def take(self, idx) -> Fins:
-        return Fins(self.xy[idx], self.angle[idx], self.span_px[idx], self.score[idx], self.polarity[idx])
+        return Fins(self.xy[idx], self.angle[idx], self.span_px[idx], self.score[idx], self.polarity[idx],
+                    None if self.body is None else self.body[idx])
 
     @staticmethod
     def empty() -> Fins:
@@ -135,8 +143,11 @@ def default_bank() -> Bank:
 def concat(parts: list[Fins]) -> Fins:
     if not parts:
         return Fins.empty()
+    body = None
+    if any(o.body is not None for o in parts):
+        body = np.concatenate([np.full(len(o), np.nan) if o.body is None else o.body for o in parts])
     return Fins(*(np.concatenate([getattr(o, k) for o in parts]) for k in ("xy", "angle", "span_px", "score",
-                                                                           "polarity")))
+                                                                           "polarity")), body)
 
 
 def suppress(fins: Fins, max_fins: int, reach_of_span: float = 0.5) -> np.ndarray:

@@ -191,5 +191,5 @@ def locate_forks(pyr: list[np.ndarray], fins: Fins, min_contrast: float = 5.0, m
         xy = fins.xy + (xv * S)[:, None] * axes + (yv * S)[:, None] * normal
     ok &= np.all(np.isfinite(xy), axis=1)
     out = Fins(np.where(ok[:, None], xy, fins.xy), np.where(ok, np.arctan2(new_axis[:, 1], new_axis[:, 0]), fins.angle),
-               S, fins.score, np.where(ok, sign, fins.polarity))
+               S, fins.score, np.where(ok, sign, fins.polarity), fins.body)
     return Forks(out, ok, fish, water, np.maximum(r1, r2), contrast)

@@ -36,7 +36,7 @@ class Snouts:
     strength: np.ndarray    # (N, K) 0..1
 
 
-FAN_DEG = np.arange(-20.0, 20.1, 4.0)
+FAN_DEG = np.arange(-12.0, 12.1, 2.0)
 
 
 def find_snouts(pyr: list[np.ndarray], xy: np.ndarray, angle: np.ndarray, half_band_px: np.ndarray,

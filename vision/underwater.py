@@ -40,7 +40,7 @@ class Params:
     min_fish_frac: float = 0.08     # shortest fish looked for, as a fraction of the image width
     work_width: int = 320           # width of the working image bodies are found on
     mask_k: tuple[float, ...] = (2.0, 5.0)   # fish: water distance above median + k MAD (and Otsu's)
-    max_fins: int = 40              # per image
+    max_fins: int = 60              # per image
     band_px: float = 3.0            # epipolar band for fork pairing
     max_residual_px: float = 2.5    # snout triangulation
     good_length_px: float = 250.0   # fish this long in the image score 1 on size (x image width / 1280)
@@ -84,9 +84,10 @@ def _view(img: np.ndarray, setup: SurveySetup, p: Params, clock: _Clock) -> View
     forks = locate_forks(pyr, hyps)
     forks = locate_forks(pyr, forks.fins.take(np.flatnonzero(forks.ok)))        # again, from the fork
     ok = np.flatnonzero(forks.ok)
-    ok = ok[suppress(forks.fins.take(ok), p.max_fins, 0.1)]
-    fins = forks.fins.take(ok)
-    fins.score = fin_scores(pyr, fins)                    # eq. (13), where the forks are
+    located = forks.fins.take(ok)
+    located.score = fin_scores(pyr, located)              # eq. (13), where the forks are
+    keep = suppress(located, p.max_fins, 0.1)             # the same fork from several hypotheses: the best
+    ok, fins = ok[keep], located.take(keep)
     clock.lap("fork")
     return View(pyr, fins, forks.fish_level[ok], forks.water_level[ok], forks.arm_rms[ok])
 
@@ -116,7 +117,7 @@ def _transfer(calib, v1: View, v2: View, pairs, p: Params) -> tuple[View, View]:
 def _shifted(fins: Fins, length: np.ndarray, frac: float) -> Fins:
     axes = np.c_[np.cos(fins.angle), np.sin(fins.angle)]
     return Fins(fins.xy + (frac * length)[:, None] * axes, fins.angle, 1.15 * fins.span_px, fins.score,
-                fins.polarity)
+                fins.polarity, fins.body)
 
 
 def measure_underwater(left: np.ndarray, right: np.ndarray, calib: StereoCalibration, setup: SurveySetup,
@@ -143,7 +144,7 @@ def measure_underwater(left: np.ndarray, right: np.ndarray, calib: StereoCalibra
     scale21 = f2.span_px / f1.span_px
     sn = []
     for v, f, idx, lo, hi in ((v1, f1, pairs.i, lo1, hi1), (v2, f2, pairs.j, lo1 * scale21, hi1 * scale21)):
-        sn.append(find_snouts(v.pyr, f.xy, f.angle, 0.08 * f.span_px, v.fish_level[idx], v.water_level[idx],
+        sn.append(find_snouts(v.pyr, f.xy, f.body_angle(), 0.08 * f.span_px, v.fish_level[idx], v.water_level[idx],
                               lo, hi))
     clock.lap("snout")
     up = np.asarray(setup.up_world if setup.up_world is not None else camera_frame(calib.P1)[1], float)
@@ -157,13 +158,13 @@ def measure_underwater(left: np.ndarray, right: np.ndarray, calib: StereoCalibra
                      geo.max_tilt_deg, up, gate, expected, alike)
     keep = ch.ok & np.all(np.isfinite(fork_mm), axis=1) & (fork_res <= gate)
     out = _measurements(np.flatnonzero(keep), pairs, f1, f2, v1, v2, fork_mm, fork_res, ch, calib, geo, params,
-                        left.shape[1])
+                        left.shape[1], expected)
     clock.lap("associate")
     return out
 
 
 def _measurements(rows, pairs, f1, f2, v1, v2, fork_mm, fork_res, ch, calib, geo, p: Params,
-                  width: int) -> list[FishMeasurement]:
+                  width: int, expected: np.ndarray) -> list[FishMeasurement]:
     if len(rows) == 0:
         return []
     c1 = -np.linalg.solve(calib.P1[:, :3], calib.P1[:, 3])
@@ -178,11 +179,15 @@ def _measurements(rows, pairs, f1, f2, v1, v2, fork_mm, fork_res, ch, calib, geo
         "t_tilt": np.clip(1 - (ch.tilt_deg / geo.max_tilt_deg) ** 2, 0, 1),
         "t_size": np.clip(len_px / (p.good_length_px * width / 1280.0), 0, 1),
         "t_fork_shape": np.exp(-(np.maximum(v1.arm_rms[pairs.i], v2.arm_rms[pairs.j]) / 0.03) ** 2),
+        # the length against the body's region it was found from: a snout taken past the real one
+        # (into a fish ahead) or short of it (a shade across the head) disagrees
+        # (whether the faint fin is part of that region or not moves it by ~20 %: no penalty there)
+        "t_body": np.exp(-(np.maximum(np.abs(np.log(np.maximum(ch.length_mm, 1e-6) / expected)) - 0.2, 0) / 0.15) ** 2),
     }
     score = np.prod(np.stack(list(terms.values())), axis=0)
     raw = {"stereo_ncc": pairs.ncc, "fork_residual_px": fork_res, "snout_residual_px": ch.residual_px,
            "tilt_deg": ch.tilt_deg, "range_mm": rng_mm, "length_px": len_px,
-           "fin_ncc": np.minimum(f1.score, f2.score), "snout_edge": ch.strength}
+           "fin_ncc": np.minimum(f1.score, f2.score), "snout_edge": ch.strength, "body_length_mm": expected}
     fish = []
     rows = rows[score[rows] >= p.min_score]
     for r in _unique_snouts(rows, ch, score):
