@@ -12,7 +12,8 @@ within ``TOL`` (3 %) of that fish's true fork length across camera 1's line of s
 report). Depth is where stereo is weakest (at 1.7 m, 1 px of disparity is 5 mm, 2.5 % of a 20 cm
 fish) and where an end's error matters least to a side-on fish's length (second order): a report
 of the right fish whose fork lies 6 % of the length too deep still has its length within ~0.5 %.
-The strict figures (each end within 3 % in every direction) are printed beside (``*_strict``). Recall: correct reports over the fully visible fish (a fish hidden more
+The strict figures (each end within 3 % in every direction) are printed beside (``*_strict``).
+Recall: correct reports over the fully visible fish (a fish hidden more
 than 10 % or cut by the frame need not be found, though finding one is not wrong). Precision:
 correct over all reports. Weight: W = a L^b with the true species' a, b; the per-fish MAPE is
 against a L^b of the true fork length (``model_weight_g``: the measurement's error, not the
@@ -24,7 +25,8 @@ true fish within tolerance get the error to the nearest true fish's length, or 1
 length error of the top-scored 80 % vs all.
 
 Speed: process CPU time per pair (single thread: OpenCV and BLAS pinned to one), median (stages:
-the pipeline's own wall-clock ``timings``, inflated when the machine is loaded), beside the issue's baseline timed in the same run on the same pairs: reading a PNG pair and a
+the pipeline's own wall-clock ``timings``, inflated when the machine is loaded), beside the issue's
+baseline timed in the same run on the same pairs: reading a PNG pair and a
 full-frame bank of 12 rotated 15x15 templates (cv2.matchTemplate) on both images; ``ratio`` =
 pipeline / baseline (goal <= 0.16). Reading is excluded from the pipeline (its budget says so).
 """
@@ -57,7 +59,7 @@ GOALS = {"recall": 0.8, "precision": 0.95, "weight_mape_pct": 3.0, "mean_weight_
 def baseline_s(left: np.ndarray, right: np.ndarray, folder: Path) -> float:
     """CPU seconds to read a PNG pair and run 12 rotated 15x15 templates over both full frames."""
     paths = [folder / "l.png", folder / "r.png"]
-    for p, img in zip(paths, (left, right)):
+    for p, img in zip(paths, (left, right), strict=True):
         cv2.imwrite(str(p), img)
     base = np.zeros((15, 15), np.float32)
     cv2.line(base, (7, 0), (7, 14), 1.0, 2)

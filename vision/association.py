@@ -22,10 +22,10 @@ import cv2
 import numpy as np
 
 from vision.calib_file import StereoCalibration
+from vision.epipolar import epipolar_lines, fundamental_from_projections
 from vision.fins import Fins, sample_frames
 from vision.match_geometry import segments_by_range
 from vision.triangulation import normalise_projection, triangulate_calibrated, undistort_pixels
-from vision.epipolar import epipolar_lines, fundamental_from_projections
 
 PATCH = 15
 
@@ -217,7 +217,8 @@ def patch_ncc(pyr1: list[np.ndarray], pyr2: list[np.ndarray], pts1: np.ndarray, 
         for k in np.unique(lev):
             idx = np.flatnonzero(lev == k)
             f = 2.0 ** -k
-            v[idx] = sample_frames(pyr[k], (flat[idx] + 0.5) * f - 0.5, axes[idx], t[idx] * f, t[idx] * f).reshape(len(idx), -1)
+            w = sample_frames(pyr[k], (flat[idx] + 0.5) * f - 0.5, axes[idx], t[idx] * f, t[idx] * f)
+            v[idx] = w.reshape(len(idx), -1)
         bad = np.isnan(v).any(axis=1)
         v[bad] = 0.0
         v = v - v.mean(axis=1, keepdims=True)

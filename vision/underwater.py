@@ -21,12 +21,17 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from vision.association import (View, camera_frame, match_forks, pair_snouts, patch_ncc, snout_search_range,
-                                transfer_forks)
-from vision.calib_file import StereoCalibration
-
-
+from vision.association import (
+    View,
+    camera_frame,
+    match_forks,
+    pair_snouts,
+    patch_ncc,
+    snout_search_range,
+    transfer_forks,
+)
 from vision.bodies import body_ends, fish_masks
+from vision.calib_file import StereoCalibration
 from vision.fins import SPAN_OF_FL, Fins, concat, fin_scores, suppress
 from vision.fork import locate_forks, pyramid
 from vision.illumination import water_distance

@@ -89,8 +89,8 @@ def underwater_pair(rng: np.random.Generator, rig, n_fish: int = 4, lengths_mm=(
         fish.append((dist, outline, snout, fork, rng.uniform(20, 100) if rng.random() < 0.6 else rng.uniform(170, 240)))
     fish.sort(key=lambda f: -f[0])
     truths = []
-    for dist, outline, snout, fork, value in fish:
-        for img, px in zip(imgs, rig.project(outline)):
+    for _, outline, snout, fork, value in fish:
+        for img, px in zip(imgs, rig.project(outline), strict=True):
             draw_polygon(img, px, value)
         p1, p2 = rig.project(np.array([snout, fork]))
         truths.append((snout, fork, np.array([p1[0], p2[0]]), np.array([p1[1], p2[1]])))

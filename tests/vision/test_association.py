@@ -96,10 +96,11 @@ def test_forks_pair_with_their_own_fish_across_the_pair(rig):
         span = 0.3 * np.linalg.norm(d, axis=1)
         junk = rng.uniform([100, 100], [1180, 860], (4, 2))
         xy = np.vstack([fork, junk])
-        fins = Fins(xy, np.r_[angle, rng.uniform(-3, 3, 4)], np.r_[span, rng.uniform(40, 120, 4)], np.ones(7), np.ones(7))
+        fins = Fins(xy, np.r_[angle, rng.uniform(-3, 3, 4)], np.r_[span, rng.uniform(40, 120, 4)], np.ones(7),
+                    np.ones(7))
         views.append(View(pyramid(img), fins, np.zeros((7, 1)), np.zeros((7, 1)), np.zeros(7)))
     pairs = match_forks(rig.calibration(), *views)
-    got = {(int(i), int(j)) for i, j in zip(pairs.i, pairs.j)}
+    got = {(int(i), int(j)) for i, j in zip(pairs.i, pairs.j, strict=True)}
     for k in range(3):
         assert (k, k) in got
     assert all(i == j for i, j in got if i < 3 or j < 3)

@@ -71,7 +71,8 @@ def test_forks_located_to_a_fraction_of_a_percent_of_the_length(seed):
     rng = np.random.default_rng(seed)
     img = scene(rng, FISH)
     pyr = pyramid(img)
-    xy = np.array([f[0] for f in FISH], float) + rng.uniform(-0.03, 0.03, (4, 2)) * np.array([f[2] for f in FISH])[:, None]
+    lengths = np.array([f[2] for f in FISH], float)
+    xy = np.array([f[0] for f in FISH], float) + rng.uniform(-0.03, 0.03, (4, 2)) * lengths[:, None]
     angle = np.array([f[1] for f in FISH]) + rng.choice([-1, 1], 4) * np.radians(10)
     span = 0.3 * np.array([f[2] for f in FISH], float)
     forks = locate_forks(pyr, Fins(xy, angle, span, np.ones(4), np.ones(4)))

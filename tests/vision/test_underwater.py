@@ -103,4 +103,4 @@ def test_image_up_is_the_default_surface_normal():
     a = run(rig_of(), [1])[0][0]
     b = run(rig_of(), [1], setup=SurveySetup())[0][0]
     assert len(a) == len(b)
-    assert all(np.allclose(x.snout_mm, y.snout_mm) for x, y in zip(a, b))
+    assert all(np.allclose(x.snout_mm, y.snout_mm) for x, y in zip(a, b, strict=True))
