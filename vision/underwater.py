@@ -84,7 +84,7 @@ def _view(img: np.ndarray, setup: SurveySetup, p: Params, clock: _Clock) -> View
     ends, length = concat([f[0] for f in found]), np.concatenate([f[1] for f in found])
     # a region's end is the caudal peduncle when the fin is too faint to be in it (the region is
     # then ~0.87 of the fork length), or the lobe tips when it is not
-    hyps = concat([_shifted(ends, length, off) for off in (-0.13, -0.06, 0.03)])
+    hyps = concat([_shifted(ends, length, off) for off in (-0.17, -0.12, -0.07, -0.02, 0.03)])
     clock.lap("fins")
     forks = locate_forks(pyr, hyps)
     forks = locate_forks(pyr, forks.fins.take(np.flatnonzero(forks.ok)))        # again, from the fork
