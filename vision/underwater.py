@@ -1,10 +1,11 @@
 """The underwater per-pair pipeline (paper section 4): pre-processing, caudal-fin detection, fork
 location, stereo pairing, snouts, 3-D association, post-filters and a quality score per fish.
 
-Stages (``timings`` keys): ``illumination`` (grey, working pyramid, noise reduction, row
-compensation), ``fins`` (emboss and template bank), ``fork`` (full-resolution fork points),
-``stereo`` (fork pairing and triangulation), ``snout`` (edge profiles along each axis),
-``associate`` (snout pairing in 3-D, filters, score).
+Stages (``timings`` keys): ``illumination`` (pyramid, noise reduction, row compensation, water
+distance), ``fins`` (fish regions, fork hypotheses at their ends), ``fork`` (forks located at full
+resolution, eq. 13 scored there), ``stereo`` (fork pairing, forks seen in one image looked for
+along their epipolar line in the other, triangulation), ``snout`` (profiles and tips), ``associate``
+(snout pairing in 3-D, filters, score).
 
 The score (0..1) is the product of terms, each 1 when that part of the measurement is as good as it
 gets and falling towards 0 as it becomes doubtful; ``FishMeasurement.quality`` holds the raw
