@@ -18,10 +18,15 @@ import numpy as np
 from vision.fins import SPAN_OF_FL, Fins
 
 
-def fish_masks(dist: np.ndarray, ks: tuple[float, ...] = (3.0,)) -> list[np.ndarray]:
-    """uint8 masks (one per k) of pixels unlike the water: the distance above Otsu's threshold of the frame
-    (water and fish are its two modes) and above median + k * 1.4826 MAD (a frame of water alone
-    has one mode: Otsu would split its noise)."""
+
+def fish_masks(dist: np.ndarray, ks: tuple[float, ...] = (3.0,), otsu_share: float = 1.0) -> list[np.ndarray]:
+    """uint8 masks (one per k) of pixels unlike the water: the distance above median + k * 1.4826 MAD
+    of the frame and above ``otsu_share`` of Otsu's threshold (water and fish are the frame's two
+    modes; a frame of water alone has one, and Otsu would split its noise); the higher k splits
+    fish that touch at the lower one. Measured on 60 rendered scenes (110 fully visible fish, 77 of
+    them before a reef or net, where the water distance is high in patches everywhere): half of
+    Otsu's threshold leaves fewer fish without a region end near their fork (32 instead of 41) but
+    its many more regions end in fewer measured fish (10 instead of 15)."""
     flat = dist[:: 2, :: 2].ravel()
     med = float(np.median(flat))
     mad = float(np.median(np.abs(flat - med))) * 1.4826
@@ -30,7 +35,7 @@ def fish_masks(dist: np.ndarray, ks: tuple[float, ...] = (3.0,)) -> list[np.ndar
     otsu, _ = cv2.threshold(q, 0, 255, cv2.THRESH_BINARY + cv2.THRESH_OTSU)
     out = []
     for k in ks:
-        mask = (dist > max(otsu * top / 255.0, med + k * max(mad, 1e-3))).astype(np.uint8)
+        mask = (dist > max(otsu_share * otsu * top / 255.0, med + k * max(mad, 1e-3))).astype(np.uint8)
         out.append(cv2.morphologyEx(mask, cv2.MORPH_OPEN, np.ones((3, 3), np.uint8)))
     return out
 

@@ -45,7 +45,8 @@ from vision.triangulation import triangulate_calibrated
 class Params:
     min_fish_frac: float = 0.08     # shortest fish looked for, as a fraction of the image width
     work_width: int = 320           # width of the working image bodies are found on
-    mask_k: tuple[float, ...] = (2.0, 5.0)   # fish: water distance above median + k MAD (and Otsu's)
+    mask_k: tuple[float, ...] = (2.0, 5.0)   # fish: water distance above median + k MAD
+    otsu_share: float = 1.0         # ... and above this share of Otsu's threshold
     max_fins: int = 60              # per image
     band_px: float = 3.0            # epipolar band for fork pairing
     max_residual_px: float = 2.5    # snout triangulation
@@ -81,7 +82,7 @@ def _view(img: np.ndarray, setup: SurveySetup, p: Params, clock: _Clock) -> View
     clock.lap("illumination")
     sx, sy = W / small.shape[1], H / small.shape[0]
     # two thresholds: a low one finds faint fish, a high one splits fish that touch at the low one
-    found = [body_ends(m, sx, sy, p.min_fish_frac * small.shape[1]) for m in fish_masks(dist, p.mask_k)]
+    found = [body_ends(m, sx, sy, p.min_fish_frac * small.shape[1]) for m in fish_masks(dist, p.mask_k, p.otsu_share)]
     ends, length = concat([f[0] for f in found]), np.concatenate([f[1] for f in found])
     # a region's end is the caudal peduncle when the fin is too faint to be in it (the region is
     # then ~0.87 of the fork length), or the lobe tips when it is not
