@@ -250,3 +250,34 @@ def transfer_forks(P_src: np.ndarray, P_dst: np.ndarray, src: View, dst: View, i
     best = np.where(inside, ncc, -np.inf).argmax(axis=1)
     return Fins(pts[np.arange(n), best], f.angle.copy(), f.span_px.copy(), ncc[np.arange(n), best], f.polarity.copy(),
                 None if f.body is None else f.body.copy())
+
+
+def transfer_snouts(P1: np.ndarray, P2: np.ndarray, left: View, right: View, px1: np.ndarray,
+                    angle1: np.ndarray, angle2: np.ndarray, size_px: np.ndarray, near_mm: np.ndarray,
+                    far_mm: np.ndarray, steps: int = 48) -> tuple[np.ndarray, np.ndarray]:
+    """Where each left snout candidate (N, K, 2) is in the right image: along its epipolar line,
+    between ``near_mm`` and ``far_mm`` (N,) from camera 1, the position whose neighbourhood
+    (``size_px`` (N,) wide, in each image's fish frame) correlates best with the left one's.
+    Returns positions (N, K, 2) (NaN where the left has none) and their NCC (N, K)."""
+    N, K = px1.shape[:2]
+    out = np.full((N, K, 2), np.nan)
+    score = np.zeros((N, K))
+    has = np.all(np.isfinite(px1), axis=2)
+    if not has.any():
+        return out, score
+    n_idx, k_idx = np.nonzero(has)
+    pts = px1[n_idx, k_idx]
+    seg = segments_by_range(P1, P2, pts, near_mm[n_idx], far_mm[n_idx])
+    u = np.linspace(0.0, 1.0, steps)
+    cand = seg[:, :1] + u[None, :, None] * (seg[:, 1:] - seg[:, :1])                # (M, steps, 2)
+    M = len(pts)
+    src = Fins(pts, angle1[n_idx], size_px[n_idx], np.ones(M), np.ones(M))
+    dst = Fins(cand.reshape(-1, 2), np.repeat(angle2[n_idx], steps), np.repeat(size_px[n_idx], steps),
+               np.ones(M * steps), np.ones(M * steps))
+    ncc = (_patches(right, dst).reshape(M, steps, -1) * _patches(left, src)[:, None]).sum(axis=2)
+    h, w = right.pyr[0].shape[:2]
+    inside = np.all((cand >= 0) & (cand <= [w - 1, h - 1]), axis=2)
+    best = np.where(inside, ncc, -np.inf).argmax(axis=1)
+    out[n_idx, k_idx] = cand[np.arange(M), best]
+    score[n_idx, k_idx] = np.maximum(ncc[np.arange(M), best], 0.0)
+    return out, score

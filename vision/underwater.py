@@ -30,13 +30,14 @@ from vision.association import (
     patch_ncc,
     snout_search_range,
     transfer_forks,
+    transfer_snouts,
 )
 from vision.bodies import body_ends, fish_masks
 from vision.calib_file import StereoCalibration
 from vision.fins import SPAN_OF_FL, Fins, concat, fin_scores, suppress
 from vision.fork import locate_forks, pyramid
 from vision.illumination import water_distance
-from vision.snout import find_snouts
+from vision.snout import find_snouts, refine_tips
 from vision.survey_types import FishMeasurement, SurveySetup
 from vision.triangulation import triangulate_calibrated
 
@@ -51,7 +52,7 @@ class Params:
     band_px: float = 3.0            # epipolar band for fork pairing
     max_residual_px: float = 2.5    # snout triangulation
     good_length_px: float = 250.0   # fish this long in the image score 1 on size (x image width / 1280)
-    min_score: float = 0.05         # post-filter: a fish whose measurement rests on nothing is dropped
+    min_score: float = 0.12         # post-filter: a fish whose measurement rests on little is dropped
     transfer: bool = True           # a fork found in one image only is looked for along its epipolar line
     near_mm: float = 300.0          # working range of the rig for that search (from the camera)
     far_mm: float = 4000.0
@@ -121,6 +122,24 @@ def _transfer(calib, v1: View, v2: View, pairs, p: Params) -> tuple[View, View]:
     return views[0], views[1]
 
 
+def _tips(v: View, f: Fins, pts: np.ndarray, idx: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The snout tip near each point (N, K, 2) in view v, for the forks f (rows of v ``idx``)."""
+    N, K = pts.shape[:2]
+    flat = pts.reshape(-1, 2)
+    has = np.all(np.isfinite(flat), axis=1)
+    found = np.zeros(N * K, bool)
+    if has.any():
+        r = np.repeat(np.arange(N), K)[has]
+        dist = np.linalg.norm(flat[has] - f.xy[r], axis=1)
+        water = v.water_level[idx][r]
+        contrast = np.linalg.norm(v.fish_level[idx][r] - water, axis=1)
+        tips, ok = refine_tips(v.pyr, flat[has], f.body_angle()[r], dist, water, contrast)
+        flat = flat.copy()
+        flat[has] = tips
+        found[np.flatnonzero(has)] = ok
+    return flat.reshape(N, K, 2), found.reshape(N, K)
+
+
 def _shifted(fins: Fins, length: np.ndarray, frac: float) -> Fins:
     axes = np.c_[np.cos(fins.angle), np.sin(fins.angle)]
     return Fins(fins.xy + (frac * length)[:, None] * axes, fins.angle, 1.15 * fins.span_px, fins.score,
@@ -160,18 +179,34 @@ def measure_underwater(left: np.ndarray, right: np.ndarray, calib: StereoCalibra
     depth = np.linalg.norm(fork_mm - (-np.linalg.solve(calib.P1[:, :3], calib.P1[:, 3])), axis=1)
     expected = f1.span_px * depth / f_px / SPAN_OF_FL             # the fin's size in mm, as a length
     gate = params.max_residual_px + 0.01 * f1.span_px / SPAN_OF_FL
-    alike = patch_ncc(v1.pyr, v2.pyr, sn[0].xy, sn[1].xy, f1.angle, f2.angle, 0.5 * f1.span_px)
-    ch = pair_snouts(calib, fork_mm, sn[0].xy, sn[0].strength, sn[1].xy, sn[1].strength, lo_mm, hi_mm,
-                     geo.max_tilt_deg, up, gate, expected, alike)
+    px1, s1, px2, s2 = sn[0].xy, sn[0].strength, sn[1].xy, sn[1].strength
+    if params.transfer:
+        # each left candidate also looked for along its epipolar line in the right image, within the
+        # species' reach of the fork: a snout the right profile missed is still paired
+        t2, tn = transfer_snouts(calib.P1, calib.P2, v1, v2, px1, f1.body_angle(), f2.body_angle(),
+                                 0.5 * f1.span_px, np.maximum(depth - 0.8 * expected, 1.0), depth + 0.8 * expected)
+        t2, found = _tips(v2, f2, t2, pairs.j)
+        px1, s1 = np.concatenate([px1, px1], axis=1), np.concatenate([s1, s1], axis=1)
+        px2 = np.concatenate([px2, t2], axis=1)
+        s2 = np.concatenate([s2, np.where(found, 0.9, 0.45) * s1[:, : t2.shape[1]] * (tn > 0)], axis=1)
+    alike = patch_ncc(v1.pyr, v2.pyr, px1, px2, f1.angle, f2.angle, 0.5 * f1.span_px)
+    ch = pair_snouts(calib, fork_mm, px1, s1, px2, s2, lo_mm, hi_mm, geo.max_tilt_deg, up, gate, expected, alike)
+    # a right snout taken along the left one's epipolar line triangulates with no residual by
+    # construction: its evidence is the views' likeness, not the residual
+    view = np.ones(len(fork_mm))
+    if params.transfer:
+        same = np.all(np.abs(ch.px2[:, None] - t2) < 1e-9, axis=2)                      # (N, K)
+        moved = same.any(axis=1)
+        view = np.where(moved, np.clip((np.where(same, tn, 0).max(axis=1) - 0.5) / 0.4, 0, 1), 1.0)
     keep = ch.ok & np.all(np.isfinite(fork_mm), axis=1) & (fork_res <= gate)
     out = _measurements(np.flatnonzero(keep), pairs, f1, f2, v1, v2, fork_mm, fork_res, ch, calib, geo, params,
-                        left.shape[1], expected)
+                        left.shape[1], expected, view)
     clock.lap("associate")
     return out
 
 
 def _measurements(rows, pairs, f1, f2, v1, v2, fork_mm, fork_res, ch, calib, geo, p: Params,
-                  width: int, expected: np.ndarray) -> list[FishMeasurement]:
+                  width: int, expected: np.ndarray, view: np.ndarray) -> list[FishMeasurement]:
     if len(rows) == 0:
         return []
     c1 = -np.linalg.solve(calib.P1[:, :3], calib.P1[:, 3])
@@ -189,6 +224,7 @@ def _measurements(rows, pairs, f1, f2, v1, v2, fork_mm, fork_res, ch, calib, geo
         # the length against the body's region it was found from: a snout taken past the real one
         # (into a fish ahead) or short of it (a shade across the head) disagrees
         # (whether the faint fin is part of that region or not moves it by ~20 %: no penalty there)
+        "t_snout_view": view,
         "t_body": np.exp(-(np.maximum(np.abs(np.log(np.maximum(ch.length_mm, 1e-6) / expected)) - 0.2, 0) / 0.15) ** 2),
     }
     score = np.prod(np.stack(list(terms.values())), axis=0)
