@@ -70,6 +70,18 @@ class _Clock:
         self.t = now
 
 
+def _channels(img: np.ndarray) -> np.ndarray:
+    """Grey (H, W) or colour (H, W, 3): an alpha channel dropped, a single channel squeezed."""
+    img = np.asarray(img)
+    if img.ndim == 3 and img.shape[2] == 1:
+        return img[..., 0]
+    if img.ndim == 3 and img.shape[2] == 4:
+        return np.ascontiguousarray(img[..., :3])
+    if img.ndim not in (2, 3):
+        raise ValueError(f"expected a grey (H, W) or colour (H, W, 3) image, got shape {img.shape}")
+    return img
+
+
 def _view(img: np.ndarray, setup: SurveySetup, p: Params, clock: _Clock) -> View:
     img = np.asarray(img)
     H, W = img.shape[:2]
@@ -150,6 +162,7 @@ def measure_underwater(left: np.ndarray, right: np.ndarray, calib: StereoCalibra
                        timings: dict[str, float] | None = None, params: Params = Params()) -> list[FishMeasurement]:
     """Fish measured in one underwater pair (grey or BGR uint8, any size); [] when there are none."""
     clock = _Clock(timings)
+    left, right = _channels(left), _channels(right)
     if left.size == 0 or min(left.shape[:2]) < 32:
         return []
     v1 = _view(left, setup, params, clock)

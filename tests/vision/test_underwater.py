@@ -82,6 +82,9 @@ def test_open_water_gives_no_fish():
     assert measure_pair(blank, blank, rig.calibration(), SETUP) == []
     tiny = np.zeros((8, 8), np.uint8)
     assert measure_pair(tiny, tiny, rig.calibration(), SETUP) == []
+    bgra = np.dstack([imgs[0]] * 3 + [np.full_like(imgs[0], 255)])
+    assert measure_pair(bgra, bgra, rig.calibration(), SETUP) == []
+    assert measure_pair(imgs[0][..., None], imgs[1][..., None], rig.calibration(), SETUP) == []
 
 
 def test_colour_input_and_another_image_size():
