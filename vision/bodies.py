@@ -18,7 +18,6 @@ import numpy as np
 from vision.fins import SPAN_OF_FL, Fins
 
 
-
 def fish_masks(dist: np.ndarray, ks: tuple[float, ...] = (3.0,), otsu_share: float = 1.0) -> list[np.ndarray]:
     """uint8 masks (one per k) of pixels unlike the water: the distance above median + k * 1.4826 MAD
     of the frame and above ``otsu_share`` of Otsu's threshold (water and fish are the frame's two
