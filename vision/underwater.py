@@ -195,13 +195,14 @@ def measure_underwater(left: np.ndarray, right: np.ndarray, calib: StereoCalibra
     px1, s1, px2, s2 = sn[0].xy, sn[0].strength, sn[1].xy, sn[1].strength
     if params.transfer:
         # each left candidate also looked for along its epipolar line in the right image, within the
+        # (kept only where a tip is seen there: a point on a line is no snout by itself)
         # species' reach of the fork: a snout the right profile missed is still paired
         t2, tn = transfer_snouts(calib.P1, calib.P2, v1, v2, px1, f1.body_angle(), f2.body_angle(),
                                  0.5 * f1.span_px, np.maximum(depth - 0.8 * expected, 1.0), depth + 0.8 * expected)
         t2, found = _tips(v2, f2, t2, pairs.j)
         px1, s1 = np.concatenate([px1, px1], axis=1), np.concatenate([s1, s1], axis=1)
         px2 = np.concatenate([px2, t2], axis=1)
-        s2 = np.concatenate([s2, np.where(found, 0.9, 0.45) * s1[:, : t2.shape[1]] * (tn > 0)], axis=1)
+        s2 = np.concatenate([s2, np.where(found, 0.9, 0.0) * s1[:, : t2.shape[1]] * (tn > 0)], axis=1)
     alike = patch_ncc(v1.pyr, v2.pyr, px1, px2, f1.angle, f2.angle, 0.5 * f1.span_px)
     ch = pair_snouts(calib, fork_mm, px1, s1, px2, s2, lo_mm, hi_mm, geo.max_tilt_deg, up, gate, expected, alike)
     # a right snout taken along the left one's epipolar line triangulates with no residual by
