@@ -1,0 +1,125 @@
+"""Caudal fins: the emboss template bank (eq. 13), frame sampling, and the fork's innermost point
+located at full resolution on fish drawn from the contract's words (a body with a forked caudal fin)."""
+from __future__ import annotations
+
+import cv2
+import numpy as np
+import pytest
+
+from tests.vision.fish_drawing import draw_fish_2d, water
+from vision.bodies import body_ends, fish_masks
+from vision.fins import EMBOSS, Fins, fin_scores, fork_mask, sample_frames, template_bank
+from vision.fork import locate_forks, pyramid
+from vision.illumination import water_distance
+
+
+def test_emboss_is_a_high_pass():
+    assert EMBOSS.sum() == 0                       # flat regions (the illumination) give nothing
+
+
+@pytest.mark.parametrize("angle", [0.0, 1.0, np.pi, -2.0])
+def test_fork_mask_has_the_body_ahead_and_water_in_the_notch(angle):
+    m = fork_mask(61, angle, 120.0, notch=0.1)
+    c = 30
+    ax = np.array([np.cos(angle), np.sin(angle)])
+    at = lambda d: m[int(round(c + d * ax[1])), int(round(c + d * ax[0]))]   # noqa: E731
+    assert at(20) > 0.9                            # peduncle ahead
+    assert at(-8) < 0.1                            # notch behind the innermost point
+    assert 0.3 < m[c + 1, c + 1] + m[c, c] < 1.7   # the innermost point is on the fin's edge
+
+
+def test_bank_templates_are_zero_mean_unit_and_kept_by_their_basis():
+    bank = template_bank(n_angles=8)
+    assert np.allclose(bank.vectors.mean(axis=1), 0, atol=1e-5)
+    assert np.allclose(np.linalg.norm(bank.vectors, axis=1), 1, atol=1e-5)
+    approx = bank.coef @ bank.basis
+    kept = (approx * bank.vectors).sum(axis=1)
+    assert kept.min() > 0.9
+    assert len(bank.basis) < len(bank.vectors)
+
+
+def test_sample_frames_turns_and_marks_the_outside():
+    ramp = np.tile(np.arange(100, dtype=np.float32), (80, 1))        # value = u
+    out = sample_frames(ramp, np.array([[50.0, 40.0]]), np.array([[0.0, 1.0]]), np.array([-2.0, 0, 2.0]),
+                        np.array([-3.0, 0, 3.0]))
+    assert out.shape == (1, 3, 3)
+    # axis points down (+v): the normal points to -u, so rows across go 53, 50, 47
+    assert np.allclose(out[0, :, 1], [53, 50, 47])
+    assert np.isnan(sample_frames(ramp, np.array([[99.0, 40.0]]), np.array([[1.0, 0.0]]), np.array([5.0]),
+                                  np.array([0.0])))[0, 0, 0]
+    u8 = sample_frames(ramp.astype(np.uint8), np.array([[10.0, 10.0]]), np.array([[1.0, 0.0]]), np.array([0.5]),
+                       np.array([0.0]))
+    assert abs(u8[0, 0, 0] - 10.5) <= 0.5
+
+
+def scene(rng, fish, size=(960, 1280)):
+    img = water(*size, rng)
+    for xy, angle, length, value in fish:
+        draw_fish_2d(img, xy, angle, length, value)
+    return np.clip(img, 0, 255).astype(np.uint8)
+
+
+FISH = [((300, 300), 0.1, 300, 40.0), ((900, 620), np.pi + 0.2, 200, 230.0), ((1050, 230), 2.9, 380, 90.0),
+        ((250, 760), -0.3, 160, 200.0)]
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_forks_located_to_a_fraction_of_a_percent_of_the_length(seed):
+    """Start each fish's search a few percent of its length and ~10 degrees off (what the body or
+    the bank gives); every fork must come back within 1 % of the length (what a 3 % weight needs),
+    both polarities."""
+    rng = np.random.default_rng(seed)
+    img = scene(rng, FISH)
+    pyr = pyramid(img)
+    lengths = np.array([f[2] for f in FISH], float)
+    xy = np.array([f[0] for f in FISH], float) + rng.uniform(-0.03, 0.03, (4, 2)) * lengths[:, None]
+    angle = np.array([f[1] for f in FISH]) + rng.choice([-1, 1], 4) * np.radians(10)
+    span = 0.3 * np.array([f[2] for f in FISH], float)
+    forks = locate_forks(pyr, Fins(xy, angle, span, np.ones(4), np.ones(4)))
+    forks = locate_forks(pyr, forks.fins)
+    assert forks.ok.all()
+    for k, (true_xy, true_angle, length, _) in enumerate(FISH):
+        assert np.linalg.norm(forks.fins.xy[k] - true_xy) < 0.01 * length
+        assert abs(np.angle(np.exp(1j * (forks.fins.angle[k] - true_angle)))) < np.radians(4)
+
+
+def test_no_fork_on_a_straight_edge_or_a_snout():
+    rng = np.random.default_rng(3)
+    img = water(400, 400, rng)
+    img[:, 200:] -= 80                                             # a straight edge
+    snout = draw_fish_2d(img, (60, 330), 0.0, 250, 230.0)          # a snout tip at (310, 330)
+    img = np.clip(img, 0, 255).astype(np.uint8)
+    cands = Fins(np.array([[200.0, 100.0], snout]), np.array([0.0, np.pi]), np.array([75.0, 75.0]),
+                 np.ones(2), np.ones(2))
+    assert not locate_forks(pyramid(img), cands).ok.any()
+
+
+def test_bank_scores_forks_above_snouts_and_edges():
+    """Eq. (13) where candidates are: the bank (emboss + fork templates at the fin's angle and
+    scale) scores each drawn fork well above the same fish's snout end and a straight edge."""
+    rng = np.random.default_rng(4)
+    img = scene(rng, FISH)
+    img[:, 1200:] = 0                                           # a straight edge
+    pyr = pyramid(img)
+    xy = np.array([f[0] for f in FISH], float)
+    angle = np.array([f[1] for f in FISH])
+    span = 0.3 * np.array([f[2] for f in FISH], float)
+    forks = fin_scores(pyr, Fins(xy, angle, span, np.ones(4), np.ones(4)))
+    snouts = fin_scores(pyr, Fins(xy + (np.array([f[2] for f in FISH]) * [np.cos(angle), np.sin(angle)]).T,
+                                  angle + np.pi, span, np.ones(4), np.ones(4)))
+    edge = fin_scores(pyr, Fins(np.array([[1200.0, 480.0]]), np.array([0.0]), np.array([80.0]), np.ones(1), np.ones(1)))
+    assert forks.min() > 0.5
+    assert forks.min() > snouts.max() + 0.1
+    assert forks.min() > edge.max() + 0.1
+
+
+def test_body_ends_give_both_ends_of_each_fish_with_its_axis():
+    rng = np.random.default_rng(5)
+    img = scene(rng, FISH)
+    small = cv2.resize(img, (320, 240), interpolation=cv2.INTER_AREA)
+    ends, length = body_ends(fish_masks(water_distance(small, 120, 130), (2.0,))[0], 4.0, 4.0, 20)
+    for xy, angle, L, _ in FISH:
+        k = np.linalg.norm(ends.xy - xy, axis=1).argmin()
+        assert np.linalg.norm(ends.xy[k] - xy) < 0.2 * L
+        assert 0.75 * L < length[k] < 1.2 * L
+        assert abs(np.angle(np.exp(1j * (ends.angle[k] - angle)))) < np.radians(10)

@@ -1,0 +1,195 @@
+"""The fork's innermost point, located at full resolution near a fin candidate.
+
+A candidate from the template bank is good to a pixel of its pyramid level and ~11 degrees of angle;
+fork length must be ~1 % accurate, so each candidate is re-measured on the image itself (or the
+pyramid level whose pixel matches the fin's size, so big fins cost no more than small ones).
+
+In the candidate's own frame (x towards the head, y across) the notch is water between two inner
+lobe edges meeting at the innermost point. Fish and water levels are the medians just ahead of the
+candidate (the caudal peduncle) and behind it on the axis (always water, between or past the
+lobes); each row across the axis is scanned from the back for its first crossing of the mid level
+(sub-pixel, linear). Those crossings trace a V: the two inner edges. A straight line is fitted to
+each arm (the rows next to the apex are left out: blur rounds the apex off and pulls it back), and
+their intersection is the innermost point; the bisector of the arms is the fin's axis. No V (a
+straight edge, a convex corner, a flat patch) means no fork: the candidate is dropped.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from vision.fins import Fins, sample_frames
+
+SAMPLES = 40            # grid steps per fin span
+
+
+
+
+
+@dataclass
+class Forks:
+    """Located forks (rows align with the input candidates; ``ok`` says which are forks)."""
+
+    fins: Fins              # refined xy, angle; polarity from the measured levels
+    ok: np.ndarray          # (N,) bool
+    fish_level: np.ndarray  # (N, C) colour (grey: C = 1) ahead of the fork
+    water_level: np.ndarray # (N, C) colour behind it
+    arm_rms: np.ndarray     # (N,) RMS residual of the arm fits, in fin spans
+    contrast: np.ndarray    # (N,) |fish - water| colour distance
+
+
+def pyramid(img: np.ndarray, levels: int = 5) -> list[np.ndarray]:
+    """Gaussian pyramid (grey or colour, the image's own dtype: uint8 is fastest to sample)."""
+    out = [np.asarray(img)]
+    for _ in range(levels - 1):
+        if min(out[-1].shape[:2]) < 16:
+            break
+        out.append(cv2.pyrDown(out[-1]))
+    return out
+
+
+def nan_median(a: np.ndarray) -> np.ndarray:
+    """Median over all but the first axis, ignoring NaN (NaN where all are); np.nanmedian's masked
+    arrays cost ~100x more."""
+    a = np.sort(a.reshape(len(a), -1), axis=1)                     # NaN sort last
+    n = (~np.isnan(a)).sum(axis=1)
+    return np.where(n > 0, a[np.arange(len(a)), np.maximum(n - 1, 0) // 2], np.nan)
+
+
+def _line_fit(y: np.ndarray, x: np.ndarray, w: np.ndarray):
+    """Weighted least-squares x = a + b y per row (N, M) -> a, b, rms."""
+    sw = w.sum(axis=1)
+    my = (w * y).sum(axis=1) / np.maximum(sw, 1e-9)
+    mx = (w * x).sum(axis=1) / np.maximum(sw, 1e-9)
+    dy = y - my[:, None]
+    b = (w * dy * (x - mx[:, None])).sum(axis=1) / np.maximum((w * dy * dy).sum(axis=1), 1e-9)
+    a = mx - b * my
+    res = x - (a[:, None] + b[:, None] * y)
+    rms = np.sqrt((w * res * res).sum(axis=1) / np.maximum(sw, 1e-9))
+    return a, b, rms
+
+
+POWERS = np.array([0.75, 1.0, 1.5])
+PREFER_V = np.where(POWERS == 1.0, 1.0, 2.0)      # another power must halve the misfit of a V
+
+
+def _fit_powers(r: np.ndarray, x: np.ndarray, wf: np.ndarray):
+    """Weighted least squares x = x0 + slope r for every power's r (N, P, rows): x0, slope, rms."""
+    sw = np.maximum(wf.sum(axis=2), 1e-9)
+    mr = (wf * r).sum(axis=2) / sw
+    mx = (wf * x).sum(axis=2) / sw
+    dr = r - mr[..., None]
+    slope = (wf * dr * (x - mx[..., None])).sum(axis=2) / np.maximum((wf * dr * dr).sum(axis=2), 1e-12)
+    x0 = mx - slope * mr
+    res = x - x0[..., None] - slope[..., None] * r
+    return x0, slope, res
+
+
+def _apex(y: np.ndarray, x: np.ndarray, w: np.ndarray, y0: np.ndarray, xmax: np.ndarray) -> np.ndarray:
+    """Innermost point x0 of notch edges x = x0 - c |y - y0|^p (N,), the power p that fits best:
+    1 is a V, 2 a rounded U, < 1 a fork whose edges close into a slit that blur hides (the edge
+    runs parallel to the axis at the apex). Rows next to the apex are already left out of ``w``;
+    rows whose crossing misses the fitted curve by more than 3x the median miss (a ragged fin
+    ray, a glint) are dropped and the fit repeated. The apex may not lie more than 0.1 span
+    ahead of the deepest crossing seen, nor 0.02 behind it."""
+    r = np.abs(y - y0[:, None])[:, None, :] ** POWERS[None, :, None]          # (N, P, rows)
+    xx = np.broadcast_to(x[:, None, :], r.shape)
+    wf = np.broadcast_to(w.astype(float)[:, None, :], r.shape)
+    for _ in range(2):
+        x0, slope, res = _fit_powers(r, xx, wf)
+        miss = np.abs(res)
+        med = _masked_median(miss, wf > 0)
+        wf = (w[:, None, :] & (miss <= 3 * med[..., None] + 1e-4)).astype(float)
+    x0, slope, res = _fit_powers(r, xx, wf)
+    err = (wf * res * res).sum(axis=2) / np.maximum(wf.sum(axis=2), 1)
+    best = (err * PREFER_V).argmin(axis=1)
+    apex = x0[np.arange(len(x0)), best]
+    return np.clip(apex, xmax - 0.02, xmax + 0.1)
+
+
+def _masked_median(a: np.ndarray, m: np.ndarray) -> np.ndarray:
+    """Median of a over its last axis where m, per leading index (NaN-free sort trick)."""
+    v = np.sort(np.where(m, a, np.inf), axis=-1)
+    n = m.sum(axis=-1)
+    idx = np.maximum(n - 1, 0) // 2
+    return np.where(n > 0, np.take_along_axis(v, idx[..., None], axis=-1)[..., 0], 0.0)
+
+
+def locate_forks(pyr: list[np.ndarray], fins: Fins, min_contrast: float = 5.0, min_slope: float = 0.12) -> Forks:
+    """Re-measure every candidate's innermost fork point and axis on the image pyramid."""
+    N = len(fins)
+    if N == 0:
+        z = np.zeros(0)
+        C = pyr[0].shape[2] if pyr[0].ndim == 3 else 1
+        return Forks(fins, np.zeros(0, bool), np.zeros((0, C)), np.zeros((0, C)), z, z.copy())
+    t = np.linspace(-0.6, 0.6, int(1.2 * SAMPLES) + 1)              # in spans
+    S = fins.span_px
+    g = S / SAMPLES
+    axes = np.c_[np.cos(fins.angle), np.sin(fins.angle)]
+    C = pyr[0].shape[2] if pyr[0].ndim == 3 else 1
+    P = np.full((N, len(t), len(t), C), np.nan, np.float32)
+    lev = np.clip(np.floor(np.log2(np.maximum(g, 1.0))).astype(int), 0, len(pyr) - 1)
+    for k in np.unique(lev):
+        idx = np.flatnonzero(lev == k)
+        f = 2.0 ** -k
+        off = t[None] * (S[idx] * f)[:, None]
+        P[idx] = sample_frames(pyr[k], (fins.xy[idx] + 0.5) * f - 0.5, axes[idx], off, off).reshape(
+            len(idx), len(t), len(t), C)
+    ahead = (t >= 0.1) & (t <= 0.35)
+    behind = t <= -0.35
+    near = np.abs(t) <= 0.1
+    fish = np.stack([nan_median(P[:, near][:, :, ahead, c]) for c in range(C)], axis=1)      # (N, C)
+    water = np.stack([nan_median(P[:, near][:, :, behind, c]) for c in range(C)], axis=1)
+    diff = fish - water
+    contrast = np.linalg.norm(diff, axis=1)
+    # each sample's position between the water's colour (-0.5) and the fish's (+0.5)
+    unit = diff / np.maximum(contrast, 1e-6)[:, None] ** 2
+    s = np.einsum("nyxc,nc->nyx", P - water[:, None, None], unit) - 0.5       # fish > 0
+    sign = np.sign(diff.sum(axis=1))
+    inside = s >= 0
+    first = inside.argmax(axis=2)                                          # (N, rows)
+    has = inside.any(axis=2) & (first > 0) & ~np.isnan(s).any(axis=2)
+    j = np.clip(first, 1, len(t) - 1)
+    s0 = np.take_along_axis(s, (j - 1)[..., None], axis=2)[..., 0]
+    s1 = np.take_along_axis(s, j[..., None], axis=2)[..., 0]
+    with np.errstate(invalid="ignore", divide="ignore"):
+        xb = t[j - 1] + (t[1] - t[0]) * (-s0) / (s1 - s0)                   # crossing, in spans
+    rows = np.abs(t) <= 0.45
+    xb = np.where(has & rows[None], xb, -np.inf)
+    # the apex is near the candidate: rows far out can pass beside the fin and meet the body
+    apex = np.where(np.abs(t) <= 0.12, xb, -np.inf).argmax(axis=1)
+    y0 = t[apex]
+    dy = t[None] - y0[:, None]
+    valid = np.isfinite(xb)
+    xbf = np.where(valid, xb, 0.0)
+    gap = 2.5 / SAMPLES
+    up = valid & (dy > gap) & (dy <= 0.25)
+    dn = valid & (dy < -gap) & (dy >= -0.25)
+    a1, b1, r1 = _line_fit(np.broadcast_to(t, xb.shape), xbf, up.astype(float))
+    a2, b2, r2 = _line_fit(np.broadcast_to(t, xb.shape), xbf, dn.astype(float))
+    enough = (up.sum(axis=1) >= 3) & (dn.sum(axis=1) >= 3)
+    v_shape = (b1 < -min_slope) & (b2 > min_slope)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        yv = (a2 - a1) / (b1 - b2)
+        xv = a1 + b1 * yv
+    xmax = xb[np.arange(N), apex]
+
+    xv = _apex(np.broadcast_to(t, xb.shape), xbf, up | dn, np.where(np.isfinite(yv), yv, y0), xmax)
+    ok = (contrast >= min_contrast) & enough & v_shape & np.isfinite(xv) & (np.abs(yv) < 0.45)
+
+
+    # bisector of the arms, pointing back into the notch; the axis is its opposite
+    d1 = np.c_[b1, np.ones(N)] / np.hypot(b1, 1)[:, None]
+    d2 = np.c_[-b2, -np.ones(N)] / np.hypot(b2, 1)[:, None]
+    back = d1 + d2
+    back /= np.maximum(np.linalg.norm(back, axis=1), 1e-9)[:, None]
+    normal = np.c_[-axes[:, 1], axes[:, 0]]
+    new_axis = -(back[:, :1] * axes + back[:, 1:] * normal)
+    with np.errstate(invalid="ignore"):
+        xy = fins.xy + (xv * S)[:, None] * axes + (yv * S)[:, None] * normal
+    ok &= np.all(np.isfinite(xy), axis=1)
+    out = Fins(np.where(ok[:, None], xy, fins.xy), np.where(ok, np.arctan2(new_axis[:, 1], new_axis[:, 0]), fins.angle),
+               S, fins.score, np.where(ok, sign, fins.polarity), fins.body)
+    return Forks(out, ok, fish, water, np.maximum(r1, r2), contrast)

@@ -1,0 +1,265 @@
+"""The underwater per-pair pipeline (paper section 4): pre-processing, caudal-fin detection, fork
+location, stereo pairing, snouts, 3-D association, post-filters and a quality score per fish.
+
+Stages (``timings`` keys): ``illumination`` (pyramid, noise reduction, row compensation, water
+distance), ``fins`` (fish regions, fork hypotheses at their ends), ``fork`` (forks located at full
+resolution, eq. 13 scored there), ``stereo`` (fork pairing, forks seen in one image looked for
+along their epipolar line in the other, triangulation), ``snout`` (profiles and tips), ``associate``
+(snout pairing in 3-D, filters, score).
+
+The score (0..1) is the product of terms, each 1 when that part of the measurement is as good as it
+gets and falling towards 0 as it becomes doubtful; ``FishMeasurement.quality`` holds the raw
+figures and the terms. Misplaced points show up as weak stereo evidence (NCC), epipolar residuals
+(a snout or fork matched to the wrong structure does not triangulate cleanly), a weak snout edge,
+an axis tilted towards the species' limit, or a fish too small in the image for pixel errors to
+stay small against its length.
+"""
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from vision.association import (
+    View,
+    camera_frame,
+    match_forks,
+    pair_snouts,
+    patch_ncc,
+    snout_search_range,
+    transfer_forks,
+    transfer_snouts,
+)
+from vision.bodies import body_ends, fish_masks
+from vision.calib_file import StereoCalibration
+from vision.fins import SPAN_OF_FL, Fins, concat, fin_scores, suppress
+from vision.fork import locate_forks, pyramid
+from vision.illumination import water_distance
+from vision.snout import find_snouts, refine_tips
+from vision.survey_types import FishMeasurement, SurveySetup
+from vision.triangulation import triangulate_calibrated
+
+
+@dataclass(frozen=True)
+class Params:
+    min_fish_frac: float = 0.08     # shortest fish looked for, as a fraction of the image width
+    work_width: int = 320           # width of the working image bodies are found on
+    mask_k: tuple[float, ...] = (2.0, 5.0)   # fish: water distance above median + k MAD
+    otsu_share: float = 1.0         # ... and above this share of Otsu's threshold
+    max_fins: int = 60              # per image
+    band_px: float = 3.0            # epipolar band for fork pairing
+    max_residual_px: float = 2.5    # snout triangulation
+    good_length_px: float = 250.0   # fish this long in the image score 1 on size (x image width / 1280)
+    min_score: float = 0.12         # post-filter: a fish whose measurement rests on little is dropped
+    transfer: bool = True           # a fork found in one image only is looked for along its epipolar line
+    near_mm: float = 300.0          # working range of the rig for that search (from the camera)
+    far_mm: float = 4000.0
+
+
+class _Clock:
+    def __init__(self, timings: dict[str, float] | None):
+        self.timings = timings
+        self.t = time.perf_counter()
+
+    def lap(self, stage: str) -> None:
+        now = time.perf_counter()
+        if self.timings is not None:
+            self.timings[stage] = self.timings.get(stage, 0.0) + now - self.t
+        self.t = now
+
+
+def _channels(img: np.ndarray) -> np.ndarray:
+    """Grey (H, W) or colour (H, W, 3): an alpha channel dropped, a single channel squeezed."""
+    img = np.asarray(img)
+    if img.ndim == 3 and img.shape[2] == 1:
+        return img[..., 0]
+    if img.ndim == 3 and img.shape[2] == 4:
+        return np.ascontiguousarray(img[..., :3])
+    if img.ndim not in (2, 3):
+        raise ValueError(f"expected a grey (H, W) or colour (H, W, 3) image, got shape {img.shape}")
+    return img
+
+
+def _view(img: np.ndarray, setup: SurveySetup, p: Params, clock: _Clock) -> View:
+    img = np.asarray(img)
+    H, W = img.shape[:2]
+    pyr = pyramid(img)
+    k = min(int(np.floor(np.log2(W / p.work_width))), len(pyr) - 1) if W > p.work_width else 0
+    scale = p.work_width / W if W > p.work_width else 1.0
+    src = pyr[k]
+    small = src if src.shape[1] == round(W * scale) else cv2.resize(
+        src, (round(W * scale), round(H * scale)), interpolation=cv2.INTER_AREA)
+    dist = water_distance(small, setup.mi_ref, setup.c_ref)
+    clock.lap("illumination")
+    sx, sy = W / small.shape[1], H / small.shape[0]
+    # two thresholds: a low one finds faint fish, a high one splits fish that touch at the low one
+    found = [body_ends(m, sx, sy, p.min_fish_frac * small.shape[1]) for m in fish_masks(dist, p.mask_k, p.otsu_share)]
+    ends, length = concat([f[0] for f in found]), np.concatenate([f[1] for f in found])
+    # a region's end is the caudal peduncle when the fin is too faint to be in it (the region is
+    # then ~0.87 of the fork length), or the lobe tips when it is not
+    hyps = concat([_shifted(ends, length, off) for off in (-0.17, -0.12, -0.07, -0.02, 0.03)])
+    clock.lap("fins")
+    forks = locate_forks(pyr, hyps)
+    forks = locate_forks(pyr, forks.fins.take(np.flatnonzero(forks.ok)))        # again, from the fork
+    ok = np.flatnonzero(forks.ok)
+    located = forks.fins.take(ok)
+    located.score = fin_scores(pyr, located)              # eq. (13), where the forks are
+    keep = suppress(located, p.max_fins, 0.1)             # the same fork from several hypotheses: the best
+    ok, fins = ok[keep], located.take(keep)
+    clock.lap("fork")
+    return View(pyr, fins, forks.fish_level[ok], forks.water_level[ok], forks.arm_rms[ok])
+
+
+def _transfer(calib, v1: View, v2: View, pairs, p: Params) -> tuple[View, View]:
+    """Forks located in one image only: look for each in the other along its epipolar line
+    (``association.transfer_forks``), locate it there, and add what is found to that view."""
+    views = [v1, v2]
+    for src, dst, Ps, Pd, used in ((0, 1, calib.P1, calib.P2, pairs.i), (1, 0, calib.P2, calib.P1, pairs.j)):
+        lone = np.setdiff1d(np.arange(len(views[src].fins)), used)
+        if len(lone) == 0:
+            continue
+        hyp = transfer_forks(Ps, Pd, views[src], views[dst], lone, p.near_mm, p.far_mm)
+        v = views[dst]
+        forks = locate_forks(v.pyr, hyp)
+        forks = locate_forks(v.pyr, forks.fins.take(np.flatnonzero(forks.ok)))
+        ok = np.flatnonzero(forks.ok)
+        if len(ok) == 0:
+            continue
+        new = forks.fins.take(ok)
+        new.score = fin_scores(v.pyr, new)
+        views[dst] = View(v.pyr, concat([v.fins, new]), np.vstack([v.fish_level, forks.fish_level[ok]]),
+                          np.vstack([v.water_level, forks.water_level[ok]]), np.r_[v.arm_rms, forks.arm_rms[ok]])
+    return views[0], views[1]
+
+
+def _tips(v: View, f: Fins, pts: np.ndarray, idx: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The snout tip near each point (N, K, 2) in view v, for the forks f (rows of v ``idx``)."""
+    N, K = pts.shape[:2]
+    flat = pts.reshape(-1, 2)
+    has = np.all(np.isfinite(flat), axis=1)
+    found = np.zeros(N * K, bool)
+    if has.any():
+        r = np.repeat(np.arange(N), K)[has]
+        dist = np.linalg.norm(flat[has] - f.xy[r], axis=1)
+        water = v.water_level[idx][r]
+        contrast = np.linalg.norm(v.fish_level[idx][r] - water, axis=1)
+        tips, ok = refine_tips(v.pyr, flat[has], f.body_angle()[r], dist, water, contrast)
+        flat = flat.copy()
+        flat[has] = tips
+        found[np.flatnonzero(has)] = ok
+    return flat.reshape(N, K, 2), found.reshape(N, K)
+
+
+def _shifted(fins: Fins, length: np.ndarray, frac: float) -> Fins:
+    axes = np.c_[np.cos(fins.angle), np.sin(fins.angle)]
+    return Fins(fins.xy + (frac * length)[:, None] * axes, fins.angle, 1.15 * fins.span_px, fins.score,
+                fins.polarity, fins.body)
+
+
+def measure_underwater(left: np.ndarray, right: np.ndarray, calib: StereoCalibration, setup: SurveySetup,
+                       timings: dict[str, float] | None = None, params: Params = Params()) -> list[FishMeasurement]:
+    """Fish measured in one underwater pair (grey or BGR uint8, any size); [] when there are none."""
+    clock = _Clock(timings)
+    left, right = _channels(left), _channels(right)
+    if left.size == 0 or min(left.shape[:2]) < 32:
+        return []
+    v1 = _view(left, setup, params, clock)
+    v2 = _view(right, setup, params, clock)
+    pairs = match_forks(calib, v1, v2, params.band_px)
+    if params.transfer:
+        v1, v2 = _transfer(calib, v1, v2, pairs, params)
+        pairs = match_forks(calib, v1, v2, params.band_px)
+    if len(pairs.i) == 0:
+        clock.lap("stereo")
+        return []
+    f1, f2 = v1.fins.take(pairs.i), v2.fins.take(pairs.j)
+    fork_mm, fork_res = triangulate_calibrated(calib, f1.xy, f2.xy)
+    clock.lap("stereo")
+    geo = setup.geometry
+    lo_mm, hi_mm = 10 * geo.min_length_cm, 10 * geo.max_length_cm
+    lo1, hi1 = snout_search_range(calib, fork_mm, f1.span_px, lo_mm, hi_mm, SPAN_OF_FL)
+    scale21 = f2.span_px / f1.span_px
+    sn = []
+    for v, f, idx, lo, hi in ((v1, f1, pairs.i, lo1, hi1), (v2, f2, pairs.j, lo1 * scale21, hi1 * scale21)):
+        sn.append(find_snouts(v.pyr, f.xy, f.body_angle(), 0.08 * f.span_px, v.fish_level[idx], v.water_level[idx],
+                              lo, hi))
+    clock.lap("snout")
+    up = np.asarray(setup.up_world if setup.up_world is not None else camera_frame(calib.P1)[1], float)
+    up = up / np.linalg.norm(up)
+    f_px, _ = camera_frame(calib.P1)
+    depth = np.linalg.norm(fork_mm - (-np.linalg.solve(calib.P1[:, :3], calib.P1[:, 3])), axis=1)
+    expected = f1.span_px * depth / f_px / SPAN_OF_FL             # the fin's size in mm, as a length
+    gate = params.max_residual_px + 0.01 * f1.span_px / SPAN_OF_FL
+    px1, s1, px2, s2 = sn[0].xy, sn[0].strength, sn[1].xy, sn[1].strength
+    if params.transfer:
+        # each left candidate also looked for along its epipolar line in the right image, within the
+        # (kept only where a tip is seen there: a point on a line is no snout by itself)
+        # species' reach of the fork: a snout the right profile missed is still paired
+        t2, tn = transfer_snouts(calib.P1, calib.P2, v1, v2, px1, f1.body_angle(), f2.body_angle(),
+                                 0.5 * f1.span_px, np.maximum(depth - 0.8 * expected, 1.0), depth + 0.8 * expected)
+        t2, found = _tips(v2, f2, t2, pairs.j)
+        px1, s1 = np.concatenate([px1, px1], axis=1), np.concatenate([s1, s1], axis=1)
+        px2 = np.concatenate([px2, t2], axis=1)
+        s2 = np.concatenate([s2, np.where(found, 0.9, 0.0) * s1[:, : t2.shape[1]] * (tn > 0)], axis=1)
+    alike = patch_ncc(v1.pyr, v2.pyr, px1, px2, f1.angle, f2.angle, 0.5 * f1.span_px)
+    ch = pair_snouts(calib, fork_mm, px1, s1, px2, s2, lo_mm, hi_mm, geo.max_tilt_deg, up, gate, expected, alike)
+    # a right snout taken along the left one's epipolar line triangulates with no residual by
+    # construction: its evidence is the views' likeness, not the residual
+    view = np.ones(len(fork_mm))
+    if params.transfer:
+        same = np.all(np.abs(ch.px2[:, None] - t2) < 1e-9, axis=2)                      # (N, K)
+        moved = same.any(axis=1)
+        view = np.where(moved, np.clip((np.where(same, tn, 0).max(axis=1) - 0.5) / 0.4, 0, 1), 1.0)
+    keep = ch.ok & np.all(np.isfinite(fork_mm), axis=1) & (fork_res <= gate)
+    out = _measurements(np.flatnonzero(keep), pairs, f1, f2, v1, v2, fork_mm, fork_res, ch, calib, geo, params,
+                        left.shape[1], expected, view)
+    clock.lap("associate")
+    return out
+
+
+def _measurements(rows, pairs, f1, f2, v1, v2, fork_mm, fork_res, ch, calib, geo, p: Params,
+                  width: int, expected: np.ndarray, view: np.ndarray) -> list[FishMeasurement]:
+    if len(rows) == 0:
+        return []
+    c1 = -np.linalg.solve(calib.P1[:, :3], calib.P1[:, 3])
+    rng_mm = np.linalg.norm(fork_mm - c1, axis=1)
+    len_px = 0.5 * (np.linalg.norm(ch.px1 - f1.xy, axis=1) + np.linalg.norm(ch.px2 - f2.xy, axis=1))
+    terms = {
+        "t_stereo": np.clip((pairs.ncc - 0.4) / 0.5, 0, 1),
+        "t_fin": np.clip((np.minimum(f1.score, f2.score) - 0.3) / 0.4, 0, 1),
+        "t_fork_residual": np.exp(-(fork_res / 1.5) ** 2),
+        "t_snout_residual": np.exp(-(ch.residual_px / 1.5) ** 2),
+        "t_snout_edge": np.clip(ch.strength, 0, 1),
+        "t_tilt": np.clip(1 - (ch.tilt_deg / geo.max_tilt_deg) ** 2, 0, 1),
+        "t_size": np.clip(len_px / (p.good_length_px * width / 1280.0), 0, 1),
+        "t_fork_shape": np.exp(-(np.maximum(v1.arm_rms[pairs.i], v2.arm_rms[pairs.j]) / 0.03) ** 2),
+        # the length against the body's region it was found from: a snout taken past the real one
+        # (into a fish ahead) or short of it (a shade across the head) disagrees
+        # (whether the faint fin is part of that region or not moves it by ~20 %: no penalty there)
+        "t_snout_view": view,
+        "t_body": np.exp(-(np.maximum(np.abs(np.log(np.maximum(ch.length_mm, 1e-6) / expected)) - 0.2, 0) / 0.15) ** 2),
+    }
+    score = np.prod(np.stack(list(terms.values())), axis=0)
+    raw = {"stereo_ncc": pairs.ncc, "fork_residual_px": fork_res, "snout_residual_px": ch.residual_px,
+           "tilt_deg": ch.tilt_deg, "range_mm": rng_mm, "length_px": len_px,
+           "fin_ncc": np.minimum(f1.score, f2.score), "snout_edge": ch.strength, "body_length_mm": expected}
+    fish = []
+    rows = rows[score[rows] >= p.min_score]
+    for r in _unique_snouts(rows, ch, score):
+        q = {k: float(v[r]) for k, v in raw.items()} | {k: float(v[r]) for k, v in terms.items()}
+        fish.append(FishMeasurement(snout_mm=ch.mm[r].copy(), fork_mm=fork_mm[r].copy(),
+                                    snout_px=np.array([ch.px1[r], ch.px2[r]]),
+                                    fork_px=np.array([f1.xy[r], f2.xy[r]]), score=float(score[r]), quality=q))
+    return fish
+
+
+def _unique_snouts(rows: np.ndarray, ch, score: np.ndarray) -> list[int]:
+    """Two forks claiming one snout (within 3 % of the length): the better-scored keeps it."""
+    rows = rows[np.argsort(-score[rows], kind="stable")]
+    taken: list[int] = []
+    for r in rows:                                   # a few dozen fish at most
+        if all(np.linalg.norm(ch.mm[r] - ch.mm[t]) > 0.03 * ch.length_mm[r] for t in taken):
+            taken.append(int(r))
+    return taken
