@@ -1,0 +1,151 @@
+"""Fish regions seen from above, by region growing from seeds (the paper's section 4.2, Fig. 6).
+
+On the working level's contrast map (vision.surface_prep): *seeds* are pixels clearly darker than
+the floor (``seed_sigma`` noise levels and ``min_seed`` of the floor's brightness); a region grows
+from them over connected pixels above a lower level (hysteresis: one connected-components pass,
+regions without a seed dropped). Each region is then redrawn at full resolution in its own window:
+its boundary is where the contrast falls to a fraction (``edge_level``) of the fish's own peak
+contrast, so a pale fish and a dark one are cut at the same place of their edge blur, whatever the
+lamps do to the floor. Holes (a lamp's reflection on a fish's back) are filled; a reflection
+*across* a fish's edge bites it, which the shape checks and the score see.
+
+Touching fish: a region whose silhouette is too wide for one fish is split by a watershed on its
+distance transform (markers: its distinct thick cores).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from vision.surface_prep import Contrast
+
+
+@dataclass(frozen=True)
+class RegionParams:
+    seed_sigma: float = 8.0        # seeds: contrast above this many noise levels ...
+    min_seed: float = 0.12         # ... and above this fraction of the floor
+    grow_sigma: float = 4.0        # growing: above this many noise levels ...
+    min_grow: float = 0.05         # ... and this fraction
+    edge_level: float = 0.4        # full-res boundary: this fraction of the region's peak contrast
+    min_length_frac: float = 0.025  # fish length in px >= this x image diagonal
+    max_length_frac: float = 0.6
+    min_elongation: float = 2.2    # length / mean width of a single fish seen from above
+    border_px: int = 2             # a region this close to the frame edge is cut by it
+
+
+@dataclass
+class Region:
+    """One candidate fish at full resolution: its outer contour and mask in a window."""
+
+    contour: np.ndarray       # (N, 2) float64 full-res pixels (u, v), closed, outer
+    mask: np.ndarray          # (h, w) uint8 0/1, its window
+    origin: np.ndarray        # (2,) window's top-left (u, v)
+    peak: float               # its peak contrast
+    glare: float              # fraction of its boundary next to pixels brighter than the floor
+
+
+def _grow(c: Contrast, p: RegionParams):
+    """Hysteresis regions at the working level: labels and stats of the kept ones."""
+    seed_t = max(p.seed_sigma * c.noise, p.min_seed)
+    grow_t = max(p.grow_sigma * c.noise, p.min_grow)
+    weak = (c.work > grow_t).astype(np.uint8)
+    n, labels, stats, _ = cv2.connectedComponentsWithStats(weak, connectivity=8)
+    seeded = np.bincount(labels[c.work > seed_t], minlength=n) > 0
+    seeded[0] = False
+    return labels, stats, np.flatnonzero(seeded)
+
+
+def _fill(mask: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
+    """The largest outer contour of a 0/1 mask, and the mask with it filled (holes closed)."""
+    contours, _ = cv2.findContours(mask, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
+    if not contours:
+        return mask, None
+    best = max(contours, key=cv2.contourArea)
+    out = np.zeros_like(mask)
+    cv2.drawContours(out, [best], -1, 1, thickness=cv2.FILLED)
+    return out, best.reshape(-1, 2)
+
+
+def _split(mask: np.ndarray, min_width: float) -> list[np.ndarray]:
+    """Touching fish: watershed on the distance transform from its distinct thick cores."""
+    dist = cv2.distanceTransform(mask, cv2.DIST_L2, 5)
+    top = float(dist.max())
+    if top <= 0:
+        return [mask]
+    cores = (dist > 0.6 * top).astype(np.uint8)
+    n, markers = cv2.connectedComponents(cores)
+    if n <= 2:
+        return [mask]
+    markers = markers.astype(np.int32)
+    markers[mask == 0] = n            # the outside is its own basin
+    relief = cv2.cvtColor(np.uint8(255 - np.clip(dist / top * 255, 0, 255)), cv2.COLOR_GRAY2BGR)
+    cv2.watershed(relief, markers)
+    parts = [((markers == k) & (mask > 0)).astype(np.uint8) for k in range(1, n)]
+    return [m for m in parts if m.sum() > min_width * min_width]
+
+
+def find_regions(c: Contrast, p: RegionParams = RegionParams()) -> list[Region]:
+    """Candidate fish regions of one image (see module docstring)."""
+    labels, stats, keep = _grow(c, p)
+    H, W = c.full.shape
+    diag = float(np.hypot(H, W))
+    min_len, max_len = p.min_length_frac * diag, p.max_length_frac * diag
+    s = c.scale
+    out: list[Region] = []
+    for k in keep:
+        x, y, w, h, area = stats[k]
+        if max(w, h) * s < 0.5 * min_len or min(w, h) * s > max_len:
+            continue
+        m = int(np.ceil(0.2 * max(w, h) * s + 4))
+        u0, v0 = max(int(x * s) - m, 0), max(int(y * s) - m, 0)
+        u1, v1 = min(int((x + w) * s) + m, W), min(int((y + h) * s) + m, H)
+        floor = c.floor_full[v0:v1, u0:u1]
+        con = 1.0 - c.full[v0:v1, u0:u1].astype(np.float32) / floor
+        lab = labels[y:y + h, x:x + w] == k
+        core = cv2.resize(lab.astype(np.uint8), (int(w * s), int(h * s)), interpolation=cv2.INTER_NEAREST)
+        seed = np.zeros_like(con, dtype=np.uint8)
+        cu, cv_ = int(x * s) - u0, int(y * s) - v0
+        seed[cv_:cv_ + core.shape[0], cu:cu + core.shape[1]] = core[:seed.shape[0] - cv_, :seed.shape[1] - cu]
+        vals = con[seed > 0]
+        if vals.size < 8:
+            continue
+        peak = float(np.percentile(vals, 90))
+        edge = (con > p.edge_level * peak).astype(np.uint8)
+        n, lab2 = cv2.connectedComponents(edge, connectivity=8)
+        overlap = np.bincount(lab2[seed > 0], minlength=n)
+        overlap[0] = 0
+        if overlap.max() == 0:
+            continue
+        mask = (lab2 == int(overlap.argmax())).astype(np.uint8)
+        mask, _ = _fill(mask)
+        bright = (c.full[v0:v1, u0:u1].astype(np.float32) > 1.15 * floor).astype(np.uint8)
+        for part in _split_if_wide(mask, p):
+            part, contour = _fill(part)
+            if contour is None or len(contour) < 8:
+                continue
+            touches = (contour[:, 0].min() + u0 < p.border_px or contour[:, 1].min() + v0 < p.border_px
+                       or contour[:, 0].max() + u0 > W - 1 - p.border_px
+                       or contour[:, 1].max() + v0 > H - 1 - p.border_px)
+            if touches:
+                continue
+            ring = cv2.dilate(part, np.ones((3, 3), np.uint8)) - part
+            glare = float((ring & bright).sum() / max(ring.sum(), 1))
+            out.append(Region(contour.astype(np.float64) + (u0, v0), part, np.array([u0, v0], float), peak, glare))
+    return out
+
+
+def _split_if_wide(mask: np.ndarray, p: RegionParams) -> list[np.ndarray]:
+    """One fish, or the fish a too-wide silhouette holds (watershed)."""
+    area = float(mask.sum())
+    if area == 0:
+        return []
+    ys, xs = np.nonzero(mask)
+    cov = np.cov(np.vstack([xs, ys]).astype(np.float64))
+    lam = np.linalg.eigvalsh(cov)
+    length = 4.0 * np.sqrt(max(lam[1], 1e-9))          # a uniform bar of length L has var L^2/12
+    width = area / max(length, 1.0)
+    if length / max(width, 1.0) >= p.min_elongation:
+        return [mask]
+    return _split(mask, min_width=3.0)
