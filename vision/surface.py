@@ -34,8 +34,9 @@ from vision.epipolar import fundamental_from_projections
 from vision.surface_prep import contrast_map
 from vision.surface_regions import RegionParams, find_regions
 from vision.surface_shape import Fish2D, analyse
+from vision.surface_stereo import candidate_pairs, refine
 from vision.survey_types import FishMeasurement, SurveySetup
-from vision.triangulation import triangulate_calibrated, undistort_pixels
+from vision.triangulation import triangulate_calibrated
 
 MIN_SCORE = 0.05        # below this a "fish" is noise: not reported
 
@@ -46,15 +47,17 @@ def _tick(timings, stage, t0):
     return time.perf_counter()
 
 
-def detect_fish(img: np.ndarray, params: RegionParams = RegionParams()) -> list[Fish2D]:
+DEFAULT_PARAMS = RegionParams()
+
+
+def _fish_in(c, params: RegionParams) -> list[Fish2D]:
+    found = (analyse(r) for r in find_regions(c, params))
+    return [f for f in found if f is not None and f.elongation >= params.min_elongation]
+
+
+def detect_fish(img: np.ndarray, params: RegionParams = DEFAULT_PARAMS) -> list[Fish2D]:
     """Fish found in one image seen from above: front, rear and intermediate points of each."""
-    c = contrast_map(img)
-    out = []
-    for r in find_regions(c, params):
-        f = analyse(r)
-        if f is not None and f.elongation >= params.min_elongation:
-            out.append(f)
-    return out
+    return _fish_in(contrast_map(img), params)
 
 
 def up_direction(calib: StereoCalibration, setup: SurveySetup) -> np.ndarray:
@@ -69,64 +72,26 @@ def up_direction(calib: StereoCalibration, setup: SurveySetup) -> np.ndarray:
     return -view / np.linalg.norm(view)
 
 
-def _line_dist(F: np.ndarray, p1: np.ndarray, p2: np.ndarray) -> np.ndarray:
-    """Distance (N, M) of right points p2 (M, 2) to the epipolar lines of left points p1 (N, 2)."""
-    lines = np.c_[p1, np.ones(len(p1))] @ F.T
-    lines /= np.maximum(np.linalg.norm(lines[:, :2], axis=1, keepdims=True), 1e-12)
-    return np.abs(lines[:, :2] @ p2.T + lines[:, 2:])
-
-
-def _undist(calib, pts, which):
-    if not calib.has_distortion:
-        return pts
-    K, D = (calib.K1, calib.D1) if which == 1 else (calib.K2, calib.D2)
-    return undistort_pixels(pts, K, D)
-
-
-def _pairs(calib, F, fl: list[Fish2D], fr: list[Fish2D]):
-    """Candidate pairings (i, j, swapped, epipolar distance / band), best first."""
-    if not fl or not fr:
-        return []
-    sl = _undist(calib, np.array([f.snout for f in fl]), 1)
-    kl = _undist(calib, np.array([f.fork for f in fl]), 1)
-    sr = _undist(calib, np.array([f.snout for f in fr]), 2)
-    kr = _undist(calib, np.array([f.fork for f in fr]), 2)
-    size = np.array([f.length_px for f in fl])[:, None]
-    band = 2.0 + 0.04 * size
-    same = np.maximum(_line_dist(F, sl, sr), _line_dist(F, kl, kr)) / band
-    swap = np.maximum(_line_dist(F, sl, kr), _line_dist(F, kl, sr)) / band
-    out = []
-    for cost, swapped in ((same, False), (swap, True)):
-        i, j = np.nonzero(cost < 1.0)
-        out += [(int(a), int(b), swapped, float(cost[a, b])) for a, b in zip(i, j)]
-    return sorted(out, key=lambda x: x[3])
-
-
-def _orient(a: Fish2D, b: Fish2D, swapped: bool) -> tuple[np.ndarray, np.ndarray, float]:
-    """Snout and fork pixels (2, 2) of a left/right pair after settling which end is the head, and
-    the confidence of that decision."""
+def _orient(a: Fish2D, b: Fish2D, swapped: bool):
+    """Left and right points (2 + K, 2) [snout, fork, intermediate...] of a pair after settling which
+    end is the head, and the confidence of that decision."""
+    pa = np.vstack([a.snout, a.fork, a.mid])
+    pb = np.vstack([b.snout, b.fork, b.mid])
+    flip = np.r_[1, 0, np.arange(len(b.mid) + 1, 1, -1)]       # the other end is the head
     if not swapped:
-        conf = 1 - (1 - a.head_conf) * (1 - b.head_conf)
-        return np.array([a.snout, b.snout]), np.array([a.fork, b.fork]), conf
-    if a.head_conf >= b.head_conf:            # right view flipped
-        return np.array([a.snout, b.fork]), np.array([a.fork, b.snout]), a.head_conf - b.head_conf
-    return np.array([a.fork, b.snout]), np.array([a.snout, b.fork]), b.head_conf - a.head_conf
+        return pa, pb, 1 - (1 - a.head_conf) * (1 - b.head_conf)
+    if a.head_conf >= b.head_conf:
+        return pa, pb[flip], a.head_conf - b.head_conf
+    return pa[flip], pb, b.head_conf - a.head_conf
 
 
-def _measure(calib, setup: SurveySetup, up, a: Fish2D, b: Fish2D, swapped: bool) -> FishMeasurement | None:
-    snout_px, fork_px, head = _orient(a, b, swapped)
-    mid_r = b.mid if not swapped else b.mid[::-1]
-    if swapped and a.head_conf < b.head_conf:
-        mid_l, mid_r = a.mid[::-1], b.mid
-    else:
-        mid_l = a.mid
-    pts1 = np.vstack([snout_px[0], fork_px[0], mid_l])
-    pts2 = np.vstack([snout_px[1], fork_px[1], mid_r])
+def _solid(calib, setup: SurveySetup, up, pts1, pts2):
+    """Triangulated points and residuals, the snout-fork axis, its length and tilt; None when the
+    species geometry rules the pairing out."""
     X, res = triangulate_calibrated(calib, pts1, pts2)
     if not np.all(np.isfinite(X)):
         return None
-    S, K, M = X[0], X[1], X[2:]
-    axis = S - K
+    axis = X[0] - X[1]
     length_mm = float(np.linalg.norm(axis))
     g = setup.geometry
     if not (10 * g.min_length_cm <= length_mm <= 10 * g.max_length_cm):
@@ -134,8 +99,14 @@ def _measure(calib, setup: SurveySetup, up, a: Fish2D, b: Fish2D, swapped: bool)
     tilt = float(np.degrees(np.arcsin(min(abs(axis @ up) / length_mm, 1.0))))
     if tilt > g.max_tilt_deg:
         return None
-    chain = np.vstack([S, M, K])
-    body_mm = float(np.linalg.norm(np.diff(chain, axis=0), axis=1).sum())
+    return X, res, length_mm, tilt
+
+
+def _measure(setup: SurveySetup, a: Fish2D, b: Fish2D, pts1, pts2, head, solid, ncc) -> FishMeasurement:
+    X, res, length_mm, tilt = solid
+    S, K, M = X[0], X[1], X[2:]
+    g = setup.geometry
+    body_mm = float(np.linalg.norm(np.diff(np.vstack([S, M, K]), axis=0), axis=1).sum())
     straight = length_mm / max(body_mm, 1e-9)
     epi = float(np.sqrt(np.mean(res[:2] ** 2)))
     views = min(a.length_px, b.length_px) / max(a.length_px, b.length_px)
@@ -146,19 +117,21 @@ def _measure(calib, setup: SurveySetup, up, a: Fish2D, b: Fish2D, swapped: bool)
         "q_head": float(0.5 + 0.5 * np.clip(head, 0, 1)),
         "q_fork": 1.0 if (a.fork_depth > 0 and b.fork_depth > 0) else (0.8 if a.fork_depth + b.fork_depth > 0 else 0.6),
         "q_glare": float(np.clip(1 - 2 * max(a.glare, b.glare), 0, 1)),
-        "q_views": float(np.clip((views - 0.7) / 0.3, 0, 1)),
+        "q_views": float(np.clip((views - 0.6) / 0.3, 0, 1)),
+        "q_match": float(np.clip(np.nan_to_num(ncc, nan=0.6).min(), 0.5, 1.0)) * 2 - 1,
     }
     score = float(np.prod(list(q.values())))
     q.update({"epipolar_px": epi, "mid_epipolar_px": float(np.sqrt(np.mean(res[2:] ** 2))), "tilt_deg": tilt,
               "body_mm": body_mm, "straightness": straight, "head_conf": float(head),
-              "fork_depth": float(min(a.fork_depth, b.fork_depth)), "range_mm": float(np.linalg.norm(
-                  (S + K) / 2 - _centre(calib))), "length_px": a.length_px, "head_swapped": float(swapped)})
-    return FishMeasurement(S, K, snout_px, fork_px, score, q)
+              "ncc_snout": float(np.nan_to_num(ncc[0])), "ncc_fork": float(np.nan_to_num(ncc[1])),
+              "fork_depth": float(min(a.fork_depth, b.fork_depth)), "length_px": a.length_px})
+    return FishMeasurement(S, K, np.array([pts1[0], pts2[0]]), np.array([pts1[1], pts2[1]]), score, q)
 
 
-def _centre(calib) -> np.ndarray:
-    P = np.asarray(calib.P1, float)
-    return -np.linalg.solve(P[:, :3], P[:, 3])
+def _patch(fish: list[Fish2D]) -> int:
+    """Correlation window side: about an eighth of the typical fish length, odd, 9..25 px."""
+    n = int(np.clip(0.12 * np.median([f.length_px for f in fish]), 9, 25))
+    return n | 1
 
 
 def measure_surface(left: np.ndarray, right: np.ndarray, calib: StereoCalibration, setup: SurveySetup,
@@ -168,21 +141,34 @@ def measure_surface(left: np.ndarray, right: np.ndarray, calib: StereoCalibratio
     t0 = time.perf_counter()
     cl, cr = contrast_map(left), contrast_map(right)
     t0 = _tick(timings, "prep", t0)
-    params = RegionParams()
-    fl = [f for f in (analyse(r) for r in find_regions(cl, params)) if f and f.elongation >= params.min_elongation]
-    fr = [f for f in (analyse(r) for r in find_regions(cr, params)) if f and f.elongation >= params.min_elongation]
+    fl, fr = _fish_in(cl, DEFAULT_PARAMS), _fish_in(cr, DEFAULT_PARAMS)
     t0 = _tick(timings, "detect", t0)
     F = fundamental_from_projections(np.asarray(calib.P1, float), np.asarray(calib.P2, float))
     up = up_direction(calib, setup)
-    used_l, used_r, out = set(), set(), []
-    for i, j, swapped, _ in _pairs(calib, F, fl, fr):
+    used_l, used_r, pairs = set(), set(), []
+    for i, j, swapped, _ in candidate_pairs(calib, F, fl, fr):
         if i in used_l or j in used_r:
             continue
-        m = _measure(calib, setup, up, fl[i], fr[j], swapped)
-        if m is None or m.score < MIN_SCORE:
+        pts1, pts2, head = _orient(fl[i], fr[j], swapped)
+        if _solid(calib, setup, up, pts1, pts2) is None:
             continue
         used_l.add(i)
         used_r.add(j)
-        out.append(m)
+        pairs.append((fl[i], fr[j], pts1, pts2, head))
+    if not pairs:
+        _tick(timings, "stereo", t0)
+        return []
+    # snout and fork only: a window on the midline slides along a body lying along the epipolar line
+    ends2, ncc = refine(cl.full, cr.full, calib, F, np.vstack([p[2][:2] for p in pairs]),
+                        np.vstack([p[3][:2] for p in pairs]), _patch(fl))
+    out = []
+    for k, (a, b, pts1, pts2, head) in enumerate(pairs):
+        pts2 = np.vstack([ends2[2 * k:2 * k + 2], pts2[2:]])
+        solid = _solid(calib, setup, up, pts1, pts2)
+        if solid is None:
+            continue
+        m = _measure(setup, a, b, pts1, pts2, head, solid, ncc[2 * k:2 * k + 2])
+        if m.score >= MIN_SCORE:
+            out.append(m)
     _tick(timings, "stereo", t0)
     return out

@@ -68,13 +68,26 @@ def _fill(mask: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
     return out, best.reshape(-1, 2)
 
 
-def _split(mask: np.ndarray, min_width: float) -> list[np.ndarray]:
-    """Touching fish: watershed on the distance transform from its distinct thick cores."""
+def _elongation(mask: np.ndarray) -> float:
+    """Length / mean width of a region (length from the spread of its pixels along its axis)."""
+    area = float(mask.sum())
+    ys, xs = np.nonzero(mask)
+    if area < 10:
+        return 0.0
+    lam = np.linalg.eigvalsh(np.cov(np.vstack([xs, ys]).astype(np.float64)))
+    length = 4.0 * np.sqrt(max(lam[1], 1e-9))          # a uniform bar of length L has sd L / 3.46
+    return length * length / area
+
+
+def _separate(mask: np.ndarray, min_elongation: float) -> list[np.ndarray]:
+    """Touching fish: a watershed on the distance transform from the region's distinct thick cores
+    (each fish's widest part; a fish less than ~0.7 as wide as its neighbour is not split off), if a
+    neck narrower than the cores joins them. Kept only if every sizeable part is fish-shaped; else one region."""
     dist = cv2.distanceTransform(mask, cv2.DIST_L2, 5)
     top = float(dist.max())
-    if top <= 0:
+    if top < 2:
         return [mask]
-    cores = (dist > 0.6 * top).astype(np.uint8)
+    cores = (dist > 0.7 * top).astype(np.uint8)
     n, markers = cv2.connectedComponents(cores)
     if n <= 2:
         return [mask]
@@ -82,8 +95,64 @@ def _split(mask: np.ndarray, min_width: float) -> list[np.ndarray]:
     markers[mask == 0] = n            # the outside is its own basin
     relief = cv2.cvtColor(np.uint8(255 - np.clip(dist / top * 255, 0, 255)), cv2.COLOR_GRAY2BGR)
     cv2.watershed(relief, markers)
-    parts = [((markers == k) & (mask > 0)).astype(np.uint8) for k in range(1, n)]
-    return [m for m in parts if m.sum() > min_width * min_width]
+    neck = dist[(markers == -1) & (mask > 0)]
+    peaks = [float(dist[markers == j].max(initial=0)) for j in range(1, n)]
+    if neck.size and neck.max() > 0.75 * min(peaks):
+        return [mask]                 # no neck between the cores: one fish with a broken plateau
+    area = float(mask.sum())
+    parts = [((markers == j) & (mask > 0)).astype(np.uint8) for j in range(1, n)]
+    parts = [_trim(m) for m in parts]
+    parts = [m for m in parts if m.sum() > 0.1 * area]
+    if len(parts) < 2 or any(_elongation(m) < min_elongation for m in parts):
+        return [mask]
+    return parts
+
+
+def _cut_at_waist(mask: np.ndarray, min_elongation: float, slices: int = 24) -> list[np.ndarray]:
+    """Fish touching end to end (a snout against a tail): the width profile along the axis has a
+    waist in its middle quarter narrower than 0.4 of the widest slice on *both* sides of it; the region
+    is cut across the axis there if both pieces are fish-shaped. (One fish's narrowest part, the
+    caudal peduncle, lies in its last quarter, and its tail alone is not fish-shaped.)"""
+    ys, xs = np.nonzero(mask)
+    if len(xs) < 40:
+        return [mask]
+    pts = np.c_[xs, ys].astype(np.float64)
+    c = pts.mean(axis=0)
+    e = np.linalg.eigh(np.cov((pts - c).T))[1][:, 1]
+    s = (pts - c) @ e
+    lo, hi = s.min(), s.max()
+    k = np.clip(((s - lo) / max(hi - lo, 1e-9) * slices).astype(int), 0, slices - 1)
+    width = np.bincount(k, minlength=slices).astype(float)
+    inner = np.arange(int(0.38 * slices), int(np.ceil(0.62 * slices)))
+    j = int(inner[np.argmin(width[inner])])
+    if not (width[j] < 0.4 * width[:j].max() and width[j] < 0.4 * width[j + 1:].max()):
+        return [mask]
+    cut = lo + (j + 0.5) * (hi - lo) / slices
+    parts = []
+    for side in (s < cut, s >= cut):
+        m = np.zeros_like(mask)
+        m[ys[side], xs[side]] = 1
+        n, lab, stats, _ = cv2.connectedComponentsWithStats(m, connectivity=8)
+        if n > 1:
+            parts.append((lab == 1 + int(np.argmax(stats[1:, cv2.CC_STAT_AREA]))).astype(np.uint8))
+    if len(parts) < 2 or any(_elongation(m) < min_elongation for m in parts):
+        return [mask]
+    return parts
+
+
+def _trim(part: np.ndarray) -> np.ndarray:
+    """A watershed part without the thin strip of its neighbour's flank that the flood can take
+    along the contact: an opening finds the part's own body, the part is kept within reach of it
+    (so its snout tip, thinner than the opening, stays)."""
+    r = max(2, int(0.25 * cv2.distanceTransform(part, cv2.DIST_L2, 3).max()))
+    disk = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1, 2 * r + 1))
+    body = cv2.morphologyEx(part, cv2.MORPH_OPEN, disk)
+    reach = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 3, 2 * r + 3))
+    kept = part & cv2.dilate(body, reach)
+    n, lab, stats, _ = cv2.connectedComponentsWithStats(kept, connectivity=8)
+    if n <= 1:
+        return kept
+    return (lab == 1 + int(np.argmax(stats[1:, cv2.CC_STAT_AREA]))).astype(np.uint8)
 
 
 def find_regions(c: Contrast, p: RegionParams = RegionParams()) -> list[Region]:
@@ -121,7 +190,7 @@ def find_regions(c: Contrast, p: RegionParams = RegionParams()) -> list[Region]:
         mask = (lab2 == int(overlap.argmax())).astype(np.uint8)
         mask, _ = _fill(mask)
         bright = (c.full[v0:v1, u0:u1].astype(np.float32) > 1.15 * floor).astype(np.uint8)
-        for part in _split_if_wide(mask, p):
+        for part in (q for w in _separate(mask, p.min_elongation) for q in _cut_at_waist(w, p.min_elongation)):
             part, contour = _fill(part)
             if contour is None or len(contour) < 8:
                 continue
@@ -134,18 +203,3 @@ def find_regions(c: Contrast, p: RegionParams = RegionParams()) -> list[Region]:
             glare = float((ring & bright).sum() / max(ring.sum(), 1))
             out.append(Region(contour.astype(np.float64) + (u0, v0), part, np.array([u0, v0], float), peak, glare))
     return out
-
-
-def _split_if_wide(mask: np.ndarray, p: RegionParams) -> list[np.ndarray]:
-    """One fish, or the fish a too-wide silhouette holds (watershed)."""
-    area = float(mask.sum())
-    if area == 0:
-        return []
-    ys, xs = np.nonzero(mask)
-    cov = np.cov(np.vstack([xs, ys]).astype(np.float64))
-    lam = np.linalg.eigvalsh(cov)
-    length = 4.0 * np.sqrt(max(lam[1], 1e-9))          # a uniform bar of length L has var L^2/12
-    width = area / max(length, 1.0)
-    if length / max(width, 1.0) >= p.min_elongation:
-        return [mask]
-    return _split(mask, min_width=3.0)

@@ -97,7 +97,7 @@ def stereo_tank(rng: np.random.Generator, fish: list[dict], rig: StereoRig | Non
     truths = []
     for f in fish:
         pts, s, k = world_fish(**f)
-        for img, poly in zip(imgs, rig.project(pts)):
+        for img, poly in zip(imgs, rig.project(pts), strict=False):
             draw(img, poly, darkness=f.get("darkness", 0.45))
         ps, pk = rig.project(np.vstack([s, k]))
         truths.append((s, k, np.array([ps[0], pk[0]]), np.array([ps[1], pk[1]])))
