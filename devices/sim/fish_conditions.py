@@ -1,0 +1,140 @@
+"""Scene conditions of the simulated stereo camera, drawn per scene from the caller's generator.
+
+Every name below can be given as a keyword to ``underwater_scene`` / ``surface_scene`` / ``swim``
+to fix it; the rest are drawn, so a benchmark sweeping seeds sees varied water, light, stock and
+clutter. Unknown names raise ValueError naming them. A scene reports what it drew
+(``SurveyScene.conditions``).
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from devices.sim.fish_species import SPECIES
+from devices.sim.fish_water import net_texture, ripple_texture
+from devices.sim.stereo_scene import random_texture
+
+_SPECIES_ODDS = {"sparus_aurata": 0.4, "dicentrarchus_labrax": 0.15, "salmo_salar": 0.15,
+                 "oncorhynchus_mykiss": 0.15, "oreochromis_niloticus": 0.15}
+
+
+def _species(rng, c):
+    names = list(_SPECIES_ODDS)
+    return str(rng.choice(names, p=list(_SPECIES_ODDS.values())))
+
+
+def _log_uniform(rng, lo, hi):
+    return float(np.exp(rng.uniform(np.log(lo), np.log(hi))))
+
+
+def _water_bgr(rng, c):
+    green = rng.uniform(0.0, 1.0)                     # 0 blue ocean .. 1 green coastal water
+    return [float(rng.uniform(0.8, 1.0) - 0.25 * green), float(rng.uniform(0.75, 0.95)),
+            float(rng.uniform(0.2, 0.45) + 0.1 * green)]
+
+
+# name -> drawer(rng, conditions so far); order matters where one depends on another
+UNDERWATER = {
+    "species": _species,
+    "mean_length_cm": lambda r, c: float(r.uniform(*SPECIES[c["species"]].mean_length_cm)),
+    "length_cv": lambda r, c: float(r.uniform(0.10, 0.15)),
+    "weight_scatter": lambda r, c: 0.05,               # sd of log condition factor
+    "n_fish": lambda r, c: int(r.integers(3, 15)),
+    "range_mm": lambda r, c: [600.0, 2000.0],
+    "frame_margin": lambda r, c: 0.15,                 # fish centres placed this far beyond the edges
+    "yaw_sd_deg": lambda r, c: float(r.uniform(12, 30)),   # heading off side-on
+    "max_yaw_deg": lambda r, c: 60.0,
+    "max_pitch_deg": lambda r, c: 20.0,
+    "max_roll_deg": lambda r, c: 20.0,
+    "bend": lambda r, c: float(r.uniform(0.0, 0.05)),   # sd of the tail's sideways offset / L
+    "visibility_mm": lambda r, c: _log_uniform(r, 2500, 12000),
+    "gradient": lambda r, c: float(r.uniform(0.25, 0.9)),
+    "water_brightness": lambda r, c: float(r.uniform(70, 140)),
+    "water_bgr": _water_bgr,
+    "light_bgr": lambda r, c: [float(v) for v in r.uniform([200, 200, 110], [255, 250, 190])],
+    "sun_tilt_deg": lambda r, c: float(r.uniform(0, 30)),
+    "sun_azimuth_deg": lambda r, c: float(r.uniform(0, 360)),
+    "light_attenuation_mm": lambda r, c: float(r.uniform(1500, 6000)),
+    "ambient": lambda r, c: float(r.uniform(0.25, 0.5)),
+    "clutter": lambda r, c: str(r.choice(["none", "net", "reef"], p=[0.4, 0.3, 0.3])),
+    "clutter_range_mm": lambda r, c: float(r.uniform(2300, 3500)),
+    "net_bgr": lambda r, c: [float(v) for v in r.uniform(0.2, 0.6) * r.uniform(0.8, 1.2, 3) * 255],
+    "reef_bgr": lambda r, c: [float(v) for v in r.uniform([0.2, 0.35, 0.35], [0.5, 0.7, 0.8]) * 255],
+    "bubbles": lambda r, c: int(r.integers(0, 60)) if r.random() < 0.7 else 0,
+    "focus_mm": lambda r, c: float(r.uniform(900, 1400)),
+    "blur_gain": lambda r, c: float(r.uniform(0.3, 1.8)),
+    "noise_sd": lambda r, c: float(r.uniform(1.0, 4.0)),
+    "speed_bl_s": lambda r, c: [0.5, 1.5],
+}
+
+SURFACE = {
+    "species": _species,
+    "mean_length_cm": lambda r, c: float(r.uniform(*SPECIES[c["species"]].nursery_length_cm)),
+    "length_cv": lambda r, c: float(r.uniform(0.10, 0.15)),
+    "weight_scatter": lambda r, c: 0.05,
+    "n_fish": lambda r, c: int(r.integers(5, 21)),
+    "floor_depth_mm": lambda r, c: float(r.uniform(400, 700)),
+    "swim_depth_mm": lambda r, c: [40.0, c["floor_depth_mm"] - 80.0],
+    "frame_margin": lambda r, c: 0.15,
+    "max_pitch_deg": lambda r, c: 12.0,
+    "max_roll_deg": lambda r, c: 12.0,
+    "bend": lambda r, c: float(r.uniform(0.0, 0.06)),
+    "visibility_mm": lambda r, c: _log_uniform(r, 3000, 15000),
+    "water_bgr": lambda r, c: [float(v) for v in r.uniform([90, 100, 80], [150, 150, 120])],
+    "floor_bgr": lambda r, c: [float(v) for v in r.uniform([120, 120, 100], [230, 220, 210])],
+    "floor_texture": lambda r, c: float(r.uniform(0.05, 0.5)),
+    "lamps": lambda r, c: _lamps(r),
+    "light_bgr": lambda r, c: [float(v) for v in r.uniform([200, 210, 210], [255, 255, 255])],
+    "ambient": lambda r, c: float(r.uniform(0.3, 0.5)),
+    "glare_px": lambda r, c: float(r.uniform(25, 90)),
+    "glare_strength": lambda r, c: float(r.uniform(0.2, 0.9)),
+    "sheen": lambda r, c: float(r.uniform(0.0, 0.12)),
+    "bubbles": lambda r, c: int(r.integers(0, 15)) if r.random() < 0.3 else 0,
+    "focus_mm": lambda r, c: 1200.0,
+    "blur_gain": lambda r, c: float(r.uniform(0.2, 1.0)),
+    "noise_sd": lambda r, c: float(r.uniform(1.0, 3.0)),
+    "speed_bl_s": lambda r, c: [0.5, 1.5],
+}
+
+
+def _lamps(rng) -> list[list[float]]:
+    """One or two lamps ~1.5 m from the tank centre, ~45 deg above the water."""
+    out = []
+    for _ in range(int(rng.integers(1, 3))):
+        az, el = rng.uniform(0, 2 * np.pi), np.radians(rng.uniform(38, 52))
+        d = rng.uniform(1200, 2000)
+        out.append([float(d * np.cos(el) * np.cos(az)), float(d * np.cos(el) * np.sin(az)), float(d * np.sin(el))])
+    return out
+
+
+def _draw(rng, table: dict, n_fish, given: dict, setup: str) -> dict:
+    unknown = sorted(set(given) - set(table))
+    if unknown:
+        raise ValueError(f"{setup} scene: unknown condition(s) {', '.join(unknown)}; "
+                         f"known: {', '.join(table)}")
+    if n_fish is not None:
+        given = {**given, "n_fish": int(n_fish)}
+    if "species" in given and given["species"] not in SPECIES:
+        raise ValueError(f"{setup} scene: unknown species {given['species']!r}; known: {', '.join(SPECIES)}")
+    cond = {"setup": setup}
+    for name, drawer in table.items():
+        value = drawer(rng, cond)           # always drawn, so a given value keeps the others' draws
+        cond[name] = given.get(name, value)
+    return cond
+
+
+def underwater_conditions(rng, rig, n_fish, given: dict) -> tuple[dict, dict]:
+    cond = _draw(rng, UNDERWATER, n_fish, given, "underwater")
+    textures = {}
+    if cond["clutter"] == "net":
+        textures["net"] = net_texture(rng, mesh_mm=float(rng.uniform(20, 45)), texel_mm=4.0, size=1024)
+    elif cond["clutter"] == "reef":
+        textures["reef"] = random_texture((768, 768), rng, (1.5, 5.0, 16.0, 40.0))
+    return cond, textures
+
+
+def surface_conditions(rng, rig, n_fish, given: dict) -> tuple[dict, dict]:
+    cond = _draw(rng, SURFACE, n_fish, given, "surface")
+    floor = random_texture((640, 640), rng, (2.0, 8.0, 30.0))
+    textures = {"floor": (0.5 + cond["floor_texture"] * (floor - 0.5)).astype(np.float32),
+                "ripples": ripple_texture(rng, 640)}
+    return cond, textures
