@@ -34,10 +34,11 @@ from vision.epipolar import fundamental_from_projections
 from vision.surface_prep import contrast_map
 from vision.surface_regions import RegionParams, find_regions
 from vision.surface_shape import Fish2D, analyse
-from vision.surface_stereo import candidate_pairs, refine
+from vision.surface_stereo import candidate_pairs, on_right_body, refine
 from vision.survey_types import FishMeasurement, SurveySetup
-from vision.triangulation import triangulate_calibrated
+from vision.triangulation import camera_centre, project, triangulate_calibrated, undistort_pixels
 
+BODY_LINE = False
 MIN_SCORE = 0.05        # below this a "fish" is noise: not reported
 
 
@@ -50,14 +51,24 @@ def _tick(timings, stage, t0):
 DEFAULT_PARAMS = RegionParams()
 
 
-def _fish_in(c, params: RegionParams) -> list[Fish2D]:
-    found = (analyse(r) for r in find_regions(c, params))
-    return [f for f in found if f is not None and f.elongation >= params.min_elongation]
+def _fish_in(c, params: RegionParams, base_ratio: float | None) -> list[Fish2D]:
+    found = (analyse(r, base_ratio) for r in find_regions(c, params))
+    found = [f for f in found if f is not None and f.elongation >= params.min_slender]
+    # one fish seen as two regions (a dark body and a light one, under a glint): keep the longer
+    found.sort(key=lambda f: -f.length_px)
+    kept: list[Fish2D] = []
+    for f in found:
+        if not any(min(np.linalg.norm(f.snout - g.snout), np.linalg.norm(f.snout - g.fork)) < 0.15 * g.length_px
+                   and min(np.linalg.norm(f.fork - g.fork), np.linalg.norm(f.fork - g.snout)) < 0.15 * g.length_px
+                   for g in kept):
+            kept.append(f)
+    return kept
 
 
-def detect_fish(img: np.ndarray, params: RegionParams = DEFAULT_PARAMS) -> list[Fish2D]:
+def detect_fish(img: np.ndarray, params: RegionParams = DEFAULT_PARAMS,
+                base_ratio: float | None = None) -> list[Fish2D]:
     """Fish found in one image seen from above: front, rear and intermediate points of each."""
-    return _fish_in(contrast_map(img), params)
+    return _fish_in(contrast_map(img), params, base_ratio)
 
 
 def up_direction(calib: StereoCalibration, setup: SurveySetup) -> np.ndarray:
@@ -85,12 +96,39 @@ def _orient(a: Fish2D, b: Fish2D, swapped: bool):
     return pa[flip], pb, b.head_conf - a.head_conf
 
 
-def _solid(calib, setup: SurveySetup, up, pts1, pts2):
-    """Triangulated points and residuals, the snout-fork axis, its length and tilt; None when the
-    species geometry rules the pairing out."""
+def _on_body(calib, X: np.ndarray, fork_px: np.ndarray) -> np.ndarray:
+    """The fork in 3-D where the left camera's ray through its pixel passes closest to the body's
+    axis (the line fitted through the snout and the midline points). The fork is rarely a feature
+    both views see as one point (it is placed from the fin base, or on a translucent fin), so its
+    own disparity is the least trustworthy number of the fish; the body fixes its depth instead."""
+    body = np.vstack([X[0], X[2:]])
+    c = body.mean(axis=0)
+    d = np.linalg.svd(body - c)[2][0]
+    px = fork_px.reshape(1, 2)
+    if calib.has_distortion:
+        px = undistort_pixels(px, calib.K1, calib.D1)
+    P = np.asarray(calib.P1, float)
+    o = camera_centre(P)
+    v = np.linalg.solve(P[:, :3], np.r_[px[0], 1.0])
+    v /= np.linalg.norm(v)
+    w0 = o - c
+    a, b, e = v @ v, v @ d, d @ d
+    den = a * e - b * b
+    if den < 1e-9:
+        return X[1]
+    lam = (b * (d @ w0) - e * (v @ w0)) / den
+    return o + lam * v
+
+
+def _solid(calib, setup: SurveySetup, up, pts1, pts2, seen: bool = False):
+    """Triangulated points and residuals (the fork settled on the body's axis, its right pixel
+    reprojected), the snout-fork axis, its length and tilt; None when the species geometry rules
+    the pairing out."""
     X, res = triangulate_calibrated(calib, pts1, pts2)
     if not np.all(np.isfinite(X)):
         return None
+    if not seen and BODY_LINE:
+        X[1] = _on_body(calib, X, pts1[1])
     axis = X[0] - X[1]
     length_mm = float(np.linalg.norm(axis))
     g = setup.geometry
@@ -102,7 +140,7 @@ def _solid(calib, setup: SurveySetup, up, pts1, pts2):
     return X, res, length_mm, tilt
 
 
-def _measure(setup: SurveySetup, a: Fish2D, b: Fish2D, pts1, pts2, head, solid, ncc) -> FishMeasurement:
+def _measure(calib, setup: SurveySetup, a: Fish2D, b: Fish2D, pts1, pts2, head, solid, ncc) -> FishMeasurement:
     X, res, length_mm, tilt = solid
     S, K, M = X[0], X[1], X[2:]
     g = setup.geometry
@@ -125,7 +163,10 @@ def _measure(setup: SurveySetup, a: Fish2D, b: Fish2D, pts1, pts2, head, solid, 
               "body_mm": body_mm, "straightness": straight, "head_conf": float(head),
               "ncc_snout": float(np.nan_to_num(ncc[0])), "ncc_fork": float(np.nan_to_num(ncc[1])),
               "fork_depth": float(min(a.fork_depth, b.fork_depth)), "length_px": a.length_px})
-    return FishMeasurement(S, K, np.array([pts1[0], pts2[0]]), np.array([pts1[1], pts2[1]]), score, q)
+    fork2 = project(np.asarray(calib.P2, float), K[None])[0]
+    if calib.has_distortion or (a.fork_seen and b.fork_seen):     # seen: its own pixel; distorted: the image's
+        fork2 = pts2[1]
+    return FishMeasurement(S, K, np.array([pts1[0], pts2[0]]), np.array([pts1[1], fork2]), score, q)
 
 
 def _patch(fish: list[Fish2D]) -> int:
@@ -141,7 +182,8 @@ def measure_surface(left: np.ndarray, right: np.ndarray, calib: StereoCalibratio
     t0 = time.perf_counter()
     cl, cr = contrast_map(left), contrast_map(right)
     t0 = _tick(timings, "prep", t0)
-    fl, fr = _fish_in(cl, DEFAULT_PARAMS), _fish_in(cr, DEFAULT_PARAMS)
+    ratio = setup.geometry.fin_base_to_fork
+    fl, fr = _fish_in(cl, DEFAULT_PARAMS, ratio), _fish_in(cr, DEFAULT_PARAMS, ratio)
     t0 = _tick(timings, "detect", t0)
     F = fundamental_from_projections(np.asarray(calib.P1, float), np.asarray(calib.P2, float))
     up = up_direction(calib, setup)
@@ -150,7 +192,7 @@ def measure_surface(left: np.ndarray, right: np.ndarray, calib: StereoCalibratio
         if i in used_l or j in used_r:
             continue
         pts1, pts2, head = _orient(fl[i], fr[j], swapped)
-        if _solid(calib, setup, up, pts1, pts2) is None:
+        if _solid(calib, setup, up, pts1, pts2, fl[i].fork_seen and fr[j].fork_seen) is None:
             continue
         used_l.add(i)
         used_r.add(j)
@@ -164,10 +206,13 @@ def measure_surface(left: np.ndarray, right: np.ndarray, calib: StereoCalibratio
     out = []
     for k, (a, b, pts1, pts2, head) in enumerate(pairs):
         pts2 = np.vstack([ends2[2 * k:2 * k + 2], pts2[2:]])
-        solid = _solid(calib, setup, up, pts1, pts2)
+        if not (a.fork_seen and b.fork_seen):        # midline and fork: where the body crosses the line
+            poly = np.vstack([pts2[0], pts2[2:], pts2[1]])
+            pts2[1:] = on_right_body(F, pts1[1:], poly, pts2[1:])
+        solid = _solid(calib, setup, up, pts1, pts2, a.fork_seen and b.fork_seen)
         if solid is None:
             continue
-        m = _measure(setup, a, b, pts1, pts2, head, solid, ncc[2 * k:2 * k + 2])
+        m = _measure(calib, setup, a, b, pts1, pts2, head, solid, ncc[2 * k:2 * k + 2])
         if m.score >= MIN_SCORE:
             out.append(m)
     _tick(timings, "stereo", t0)

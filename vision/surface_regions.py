@@ -29,9 +29,13 @@ class RegionParams:
     grow_sigma: float = 4.0        # growing: above this many noise levels ...
     min_grow: float = 0.05         # ... and this fraction
     edge_level: float = 0.4        # full-res boundary: this fraction of the region's peak contrast
+    fin_level: float = 0.2         # pale fins joined down to this fraction
     min_length_frac: float = 0.025  # fish length in px >= this x image diagonal
     max_length_frac: float = 0.6
-    min_elongation: float = 2.2    # length / mean width of a single fish seen from above
+    min_elongation: float = 2.2    # split pieces: (4 sd along the axis)^2 / area, a loose bound
+    min_slender: float = 3.5       # a fish: length^2 / area (fish from above ~6-11; an ellipse of
+                                   # axes a > b: 4a / (pi b), so a lamp's reflection 3x longer than wide fails)
+    glare_level: int = 245         # a light region this bright (median) is a reflection, not a fish
     border_px: int = 2             # a region this close to the frame edge is cut by it
 
 
@@ -43,16 +47,21 @@ class Region:
     mask: np.ndarray          # (h, w) uint8 0/1, its window
     origin: np.ndarray        # (2,) window's top-left (u, v)
     peak: float               # its peak contrast
-    glare: float              # fraction of its boundary next to pixels brighter than the floor
+    glare: float              # fraction of its boundary next to glare (saturated, or brighter than the floor)
+    outline: np.ndarray       # (M, 2) full-res outline with the pale fins (caudal fin) joined
+    polarity: float           # +1 darker than the floor, -1 lighter
+    whole: np.ndarray         # (h, w) uint8 0/1, the outline's filled mask, same window
+    con: np.ndarray           # (h, w) float32 contrast (of its polarity) in the window
 
 
-def _grow(c: Contrast, p: RegionParams):
-    """Hysteresis regions at the working level: labels and stats of the kept ones."""
+def _grow(c: Contrast, p: RegionParams, sign: float):
+    """Hysteresis regions at the working level, of one polarity: labels and stats of the kept ones."""
     seed_t = max(p.seed_sigma * c.noise, p.min_seed)
     grow_t = max(p.grow_sigma * c.noise, p.min_grow)
-    weak = (c.work > grow_t).astype(np.uint8)
+    work = c.work if sign > 0 else -c.work
+    weak = (work > grow_t).astype(np.uint8)
     n, labels, stats, _ = cv2.connectedComponentsWithStats(weak, connectivity=8)
-    seeded = np.bincount(labels[c.work > seed_t], minlength=n) > 0
+    seeded = np.bincount(labels[work > seed_t], minlength=n) > 0
     seeded[0] = False
     return labels, stats, np.flatnonzero(seeded)
 
@@ -155,9 +164,27 @@ def _trim(part: np.ndarray) -> np.ndarray:
     return (lab == 1 + int(np.argmax(stats[1:, cv2.CC_STAT_AREA]))).astype(np.uint8)
 
 
+def _silhouette(con: np.ndarray, part: np.ndarray, level: float) -> tuple[np.ndarray, np.ndarray | None]:
+    """The body part with the pale fins joined to it (contrast above ``level``, within a quarter of
+    the body's length of it): the caudal fin is translucent, fainter than the body."""
+    ys, xs = np.nonzero(part)
+    reach = int(np.ceil(0.25 * max(np.ptp(xs), np.ptp(ys)))) | 1
+    near = cv2.dilate(part, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * reach + 1, 2 * reach + 1)))
+    low = ((con > level) & (near > 0)).astype(np.uint8) | part
+    n, lab = cv2.connectedComponents(low, connectivity=8)
+    own = np.bincount(lab[part > 0], minlength=n)
+    own[0] = 0
+    return _fill((lab == int(own.argmax())).astype(np.uint8))
+
+
 def find_regions(c: Contrast, p: RegionParams = RegionParams()) -> list[Region]:
-    """Candidate fish regions of one image (see module docstring)."""
-    labels, stats, keep = _grow(c, p)
+    """Candidate fish regions of one image (see module docstring): fish darker than the floor, then
+    fish lighter than it (a pale fish over a dark floor)."""
+    return _regions(c, p, 1.0) + _regions(c, p, -1.0)
+
+
+def _regions(c: Contrast, p: RegionParams, sign: float) -> list[Region]:
+    labels, stats, keep = _grow(c, p, sign)
     H, W = c.full.shape
     diag = float(np.hypot(H, W))
     min_len, max_len = p.min_length_frac * diag, p.max_length_frac * diag
@@ -167,18 +194,19 @@ def find_regions(c: Contrast, p: RegionParams = RegionParams()) -> list[Region]:
         x, y, w, h, area = stats[k]
         if max(w, h) * s < 0.5 * min_len or min(w, h) * s > max_len:
             continue
-        m = int(np.ceil(0.2 * max(w, h) * s + 4))
+        m = int(np.ceil(0.3 * max(w, h) * s + 4))
         u0, v0 = max(int(x * s) - m, 0), max(int(y * s) - m, 0)
         u1, v1 = min(int((x + w) * s) + m, W), min(int((y + h) * s) + m, H)
         floor = c.floor_full[v0:v1, u0:u1]
-        con = 1.0 - c.full[v0:v1, u0:u1].astype(np.float32) / floor
+        img = c.full[v0:v1, u0:u1].astype(np.float32)
+        con = sign * (1.0 - img / floor)
         lab = labels[y:y + h, x:x + w] == k
         core = cv2.resize(lab.astype(np.uint8), (int(w * s), int(h * s)), interpolation=cv2.INTER_NEAREST)
         seed = np.zeros_like(con, dtype=np.uint8)
         cu, cv_ = int(x * s) - u0, int(y * s) - v0
         seed[cv_:cv_ + core.shape[0], cu:cu + core.shape[1]] = core[:seed.shape[0] - cv_, :seed.shape[1] - cu]
         vals = con[seed > 0]
-        if vals.size < 8:
+        if vals.size < 8 or (sign < 0 and np.median(img[seed > 0]) >= p.glare_level):
             continue
         peak = float(np.percentile(vals, 90))
         edge = (con > p.edge_level * peak).astype(np.uint8)
@@ -189,17 +217,23 @@ def find_regions(c: Contrast, p: RegionParams = RegionParams()) -> list[Region]:
             continue
         mask = (lab2 == int(overlap.argmax())).astype(np.uint8)
         mask, _ = _fill(mask)
-        bright = (c.full[v0:v1, u0:u1].astype(np.float32) > 1.15 * floor).astype(np.uint8)
+        glaring = ((img >= 250) | ((img > 1.15 * floor) & (sign > 0))).astype(np.uint8)
         for part in (q for w in _separate(mask, p.min_elongation) for q in _cut_at_waist(w, p.min_elongation)):
             part, contour = _fill(part)
             if contour is None or len(contour) < 8:
                 continue
-            touches = (contour[:, 0].min() + u0 < p.border_px or contour[:, 1].min() + v0 < p.border_px
-                       or contour[:, 0].max() + u0 > W - 1 - p.border_px
-                       or contour[:, 1].max() + v0 > H - 1 - p.border_px)
-            if touches:
+            whole, outline = _silhouette(con, part, p.fin_level * peak)
+            if _touches(outline, (u0, v0), (W, H), p.border_px):
                 continue
             ring = cv2.dilate(part, np.ones((3, 3), np.uint8)) - part
-            glare = float((ring & bright).sum() / max(ring.sum(), 1))
-            out.append(Region(contour.astype(np.float64) + (u0, v0), part, np.array([u0, v0], float), peak, glare))
+            glare = float((ring & glaring).sum() / max(ring.sum(), 1))
+            origin = np.array([u0, v0], float)
+            out.append(Region(contour.astype(np.float64) + origin, part, origin, peak, glare,
+                              outline.astype(np.float64) + origin, sign, whole, con))
     return out
+
+
+def _touches(contour: np.ndarray, origin, size, border: int) -> bool:
+    u, v = contour[:, 0] + origin[0], contour[:, 1] + origin[1]
+    return bool(u.min() < border or v.min() < border or u.max() > size[0] - 1 - border
+                or v.max() > size[1] - 1 - border)

