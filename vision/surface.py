@@ -17,11 +17,15 @@ over a tank look down, so the image-up of the underwater default would lie in th
 
 Score (0..1), the product of the terms kept in ``quality``: epipolar residual of snout and fork
 (``q_epipolar``), axis tilt against the surface (``q_tilt``), straightness of the body through the
-intermediate points (``q_straight``; a fish bent sideways has a fork length shorter than its body),
-head/tail confidence (``q_head``), the caudal fork found as a notch in both views (``q_fork``), the
+intermediate points in the left view (``q_straight``; a fish bent sideways has a fork length
+shorter than its body),
+head/tail confidence (``q_head``), the caudal fork found as a notch in both views (``q_fork``: 1; in
+neither, placed from the fin base: 0.8; in one only: 0.6), the right view's own fork against the
+place the left fork's epipolar line gives it (``q_fork_views``, Gaussian in 3 % of the length), the
 outline free of lamp reflections (``q_glare``), and left/right agreement of the apparent length
 (``q_views``). Fork length is the straight 3-D snout-fork distance (the contract); the length along
-the body through the intermediate points is kept as ``body_mm``.
+the body through the intermediate points (the 3-D length scaled by the view's bend) is kept as
+``body_mm``.
 """
 from __future__ import annotations
 
@@ -140,20 +144,25 @@ def _solid(calib, setup: SurveySetup, up, pts1, pts2, seen: bool = False):
     return X, res, length_mm, tilt
 
 
-def _measure(calib, setup: SurveySetup, a: Fish2D, b: Fish2D, pts1, pts2, head, solid, ncc) -> FishMeasurement:
+def _measure(calib, setup: SurveySetup, a: Fish2D, b: Fish2D, pts1, pts2, head, solid, ncc,
+             fork_gap: float) -> FishMeasurement:
     X, res, length_mm, tilt = solid
-    S, K, M = X[0], X[1], X[2:]
+    S, K = X[0], X[1]
     g = setup.geometry
-    body_mm = float(np.linalg.norm(np.diff(np.vstack([S, M, K]), axis=0), axis=1).sum())
-    straight = length_mm / max(body_mm, 1e-9)
+    # bend from the left view (the midline points' depths are the noisiest numbers of the fish)
+    chain = np.vstack([pts1[0], pts1[2:], pts1[1]])
+    along = np.linalg.norm(np.diff(chain, axis=0), axis=1).sum()
+    straight = float(np.linalg.norm(pts1[0] - pts1[1]) / max(along, 1e-9))
+    body_mm = length_mm / max(straight, 1e-9)
     epi = float(np.sqrt(np.mean(res[:2] ** 2)))
     views = min(a.length_px, b.length_px) / max(a.length_px, b.length_px)
     q = {
         "q_epipolar": float(np.exp(-(epi / (0.75 + 0.005 * a.length_px)) ** 2)),
-        "q_tilt": float(np.clip(1 - (tilt / g.max_tilt_deg) ** 2, 0, 1)),
+        "q_tilt": float(np.exp(-(tilt / (g.max_tilt_deg / 2.5)) ** 2)),     # fish swim level
         "q_straight": float(np.clip((straight - 0.9) / 0.1, 0, 1)) ** 0.5,
         "q_head": float(0.5 + 0.5 * np.clip(head, 0, 1)),
-        "q_fork": 1.0 if (a.fork_depth > 0 and b.fork_depth > 0) else (0.8 if a.fork_depth + b.fork_depth > 0 else 0.6),
+        "q_fork": 1.0 if a.fork_seen and b.fork_seen else (0.6 if a.fork_seen or b.fork_seen else 0.8),
+        "q_fork_views": float(np.exp(-(fork_gap / 0.03) ** 2)),
         "q_glare": float(np.clip(1 - 2 * max(a.glare, b.glare), 0, 1)),
         "q_views": float(np.clip((views - 0.6) / 0.3, 0, 1)),
         "q_match": float(np.clip(np.nan_to_num(ncc, nan=0.6).min(), 0.5, 1.0)) * 2 - 1,
@@ -162,7 +171,8 @@ def _measure(calib, setup: SurveySetup, a: Fish2D, b: Fish2D, pts1, pts2, head, 
     q.update({"epipolar_px": epi, "mid_epipolar_px": float(np.sqrt(np.mean(res[2:] ** 2))), "tilt_deg": tilt,
               "body_mm": body_mm, "straightness": straight, "head_conf": float(head),
               "ncc_snout": float(np.nan_to_num(ncc[0])), "ncc_fork": float(np.nan_to_num(ncc[1])),
-              "fork_depth": float(min(a.fork_depth, b.fork_depth)), "length_px": a.length_px})
+              "fork_depth": float(min(a.fork_depth, b.fork_depth)), "length_px": a.length_px,
+              "fork_gap": fork_gap})
     fork2 = project(np.asarray(calib.P2, float), K[None])[0]
     if calib.has_distortion or (a.fork_seen and b.fork_seen):     # seen: its own pixel; distorted: the image's
         fork2 = pts2[1]
@@ -205,6 +215,7 @@ def measure_surface(left: np.ndarray, right: np.ndarray, calib: StereoCalibratio
                         np.vstack([p[3][:2] for p in pairs]), _patch(fl))
     out = []
     for k, (a, b, pts1, pts2, head) in enumerate(pairs):
+        own = pts2[1].copy()                          # the right view's own fork
         pts2 = np.vstack([ends2[2 * k:2 * k + 2], pts2[2:]])
         if not (a.fork_seen and b.fork_seen):        # midline and fork: where the body crosses the line
             poly = np.vstack([pts2[0], pts2[2:], pts2[1]])
@@ -212,7 +223,8 @@ def measure_surface(left: np.ndarray, right: np.ndarray, calib: StereoCalibratio
         solid = _solid(calib, setup, up, pts1, pts2, a.fork_seen and b.fork_seen)
         if solid is None:
             continue
-        m = _measure(calib, setup, a, b, pts1, pts2, head, solid, ncc[2 * k:2 * k + 2])
+        m = _measure(calib, setup, a, b, pts1, pts2, head, solid, ncc[2 * k:2 * k + 2],
+                     float(np.linalg.norm(own - pts2[1]) / max(b.length_px, 1.0)))
         if m.score >= MIN_SCORE:
             out.append(m)
     _tick(timings, "stereo", t0)

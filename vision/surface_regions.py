@@ -169,8 +169,8 @@ def _silhouette(con: np.ndarray, part: np.ndarray, level: float) -> tuple[np.nda
     the body's length of it): the caudal fin is translucent, fainter than the body."""
     ys, xs = np.nonzero(part)
     reach = int(np.ceil(0.25 * max(np.ptp(xs), np.ptp(ys)))) | 1
-    near = cv2.dilate(part, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * reach + 1, 2 * reach + 1)))
-    low = ((con > level) & (near > 0)).astype(np.uint8) | part
+    near = cv2.distanceTransform(1 - part, cv2.DIST_L2, 3) <= reach
+    low = ((con > level) & near).astype(np.uint8) | part
     n, lab = cv2.connectedComponents(low, connectivity=8)
     own = np.bincount(lab[part > 0], minlength=n)
     own[0] = 0

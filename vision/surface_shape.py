@@ -142,6 +142,25 @@ def _fork(snout, base, tip, notch, base_ratio: float | None, tail: np.ndarray) -
     return est if est is not None else tip
 
 
+def _on_fin(r: Region, point: np.ndarray, tail: np.ndarray, reach: float) -> np.ndarray:
+    """A point placed on the caudal fin moved across the tail onto the fin's ridge, where the fin
+    shows as a faint line (seen edge-on from above): the ridge is what both views see, the
+    extrapolated point is not. Unchanged when no ridge stands out within +-``reach`` px."""
+    side = np.array([-tail[1], tail[0]])
+    across = np.arange(-np.ceil(reach), np.ceil(reach) + 1)
+    along = np.arange(-2.0, 3.0)
+    grid = point - r.origin + along[:, None, None] * tail + across[None, :, None] * side
+    prof = cv2.remap(r.con, grid[..., 0].astype(np.float32), grid[..., 1].astype(np.float32),
+                     cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE).mean(axis=0)
+    j = int(np.argmax(prof))
+    edge = np.r_[prof[:2], prof[-2:]].mean()
+    if not (0 < j < len(prof) - 1) or prof[j] - edge < 0.1 * r.peak:
+        return point
+    den = prof[j - 1] - 2 * prof[j] + prof[j + 1]
+    off = 0.5 * (prof[j - 1] - prof[j + 1]) / den if den < 0 else 0.0
+    return point + (across[j] + float(np.clip(off, -0.5, 0.5))) * side
+
+
 def analyse(r: Region, base_ratio: float | None = None) -> Fish2D | None:
     """Front/rear/intermediate points of one region; None if it is not fish-shaped. ``base_ratio``:
     the species' caudal fin base / fork length (``FishGeometry.fin_base_to_fork``)."""
@@ -196,6 +215,8 @@ def analyse(r: Region, base_ratio: float | None = None) -> Fish2D | None:
     tip = _extreme(r.outline, tail_dir)
     notch = fork_i if fork_d > 0 else None
     fork = _fork(snout, base, tip, notch, base_ratio, tail_dir)
+    if notch is None or not np.array_equal(fork, notch):
+        fork = _on_fin(r, fork, tail_dir, 0.06 * np.linalg.norm(fork - snout))
     fr = np.linspace(0, 1, N_MID + 2)[1:-1]
     s_f = (snout - centre) @ e + fr * ((base - centre) @ e - (snout - centre) @ e)
     t_f = np.interp(s_f, centres, tmid)

@@ -6,7 +6,17 @@ import cv2
 import numpy as np
 import pytest
 
-from tests.vision.test_surface_drawing import draw, finish, floor, outline, place, reflection, stereo_tank, top_rig
+from tests.vision.test_surface_drawing import (
+    draw,
+    edge_on,
+    finish,
+    floor,
+    outline,
+    place,
+    reflection,
+    stereo_tank,
+    top_rig,
+)
 from vision.surface import detect_fish, measure_surface, up_direction
 from vision.survey import measure_pair
 from vision.survey_types import FishGeometry, SurveySetup
@@ -53,6 +63,26 @@ def test_head_decided_by_taper_when_the_tail_is_not_forked():
     assert f.snout[0] < f.fork[0] and np.linalg.norm(f.snout - snout) < 0.02 * L
 
 
+@pytest.mark.parametrize("heading_deg", [20, 110, 200, 290])
+def test_edge_on_fin_fork_placed_from_the_fin_base_by_the_species_ratio(heading_deg):
+    rng = np.random.default_rng(heading_deg)
+    L, snout, h = 140.0, np.array([600.0, 450.0]), np.radians(heading_deg)
+    img = floor(rng=rng)
+    body, fin = edge_on(L)
+    draw(img, place(body, snout, h))
+    line = np.zeros(img.shape, np.uint8)
+    ends = np.round(place(fin, snout, h)).astype(int)
+    cv2.line(line, tuple(ends[0]), tuple(ends[1]), 255, 2, cv2.LINE_AA)
+    img *= 1 - 0.25 * line.astype(np.float32) / 255                   # translucent, paler than the body
+    img = finish(img)
+    fork = snout + L * np.array([np.cos(h), np.sin(h)])
+    f, = detect_fish(img, base_ratio=0.87)
+    assert np.linalg.norm(f.snout - snout) < 0.02 * L
+    assert np.linalg.norm(f.fork - fork) < 0.03 * L and not f.fork_seen
+    g, = detect_fish(img)                                     # no ratio: the rear end of the fin
+    assert np.linalg.norm(g.fork - (snout + 1.12 * L * np.array([np.cos(h), np.sin(h)]))) < 0.04 * L
+
+
 def test_sizes_pale_and_dark_fish_under_the_lamp_gradient():
     rng = np.random.default_rng(5)
     fish = [((150, 150), 0.2, 60, 0.3), ((700, 200), 2.0, 220, 0.6), ((300, 700), -0.4, 120, 0.25),
@@ -62,6 +92,16 @@ def test_sizes_pale_and_dark_fish_under_the_lamp_gradient():
     for snout, _h, L, _ in fish:
         f = _nearest(found, np.asarray(snout, float))
         assert abs(f.length_px - L) < 0.03 * L + 1.0         # a pixel of blur on the 60 px fish
+
+
+def test_pale_fish_over_a_dark_floor():
+    rng = np.random.default_rng(6)
+    img = floor(rng=rng, gradient=(70, 40))
+    snout, L = np.array([300.0, 600.0]), 130.0
+    draw(img, place(outline(L), snout, -0.7), darkness=-1.2)           # 2.2x the floor's brightness
+    f, = detect_fish(finish(img))
+    fork = snout + L * np.array([np.cos(-0.7), np.sin(-0.7)])
+    assert np.linalg.norm(f.snout - snout) < 0.02 * L and np.linalg.norm(f.fork - fork) < 0.03 * L
 
 
 def test_fish_cut_by_the_frame_edge_and_reflections_alone_are_not_reported():

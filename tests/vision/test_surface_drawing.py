@@ -24,6 +24,21 @@ def outline(length: float, width_frac: float = 0.22, lobe: float = 0.17, n: int 
     return np.vstack([top, tail, top[::-1] * [1, -1]])
 
 
+def edge_on(length: float, width_frac: float = 0.18, base: float = 0.87, tip: float = 1.12,
+            n: int = 40) -> tuple[np.ndarray, np.ndarray]:
+    """A fish seen from above with its caudal fin standing edge-on, as fish from above mostly are: the
+    body's outline (M, 2) up to the fin base (x = ``base`` x length), and the fin as a thin line
+    (2, 2) from the base to the lobe tips at ``tip`` x length; the fork (x = length) lies on it,
+    unseen."""
+    L = length
+    x = np.linspace(0, base * L, n)
+    half = 0.5 * width_frac * L * np.sin(np.pi * np.clip(x / (base * L * 1.05), 0, 1) ** 0.7)
+    half = np.maximum(half, np.minimum(0.03 * L, x))
+    top = np.c_[x, half]
+    body = np.vstack([top, top[::-1] * [1, -1]])
+    return body, np.array([[base * L, 0.0], [tip * L, 0.0]])
+
+
 def place(shape: np.ndarray, snout: np.ndarray, heading: float) -> np.ndarray:
     """Fish coordinates to image pixels: snout at ``snout``, body pointing from the snout towards
     the tail at angle ``heading`` (radians, image axes)."""
