@@ -91,7 +91,7 @@ def run(scenes: int, seed: int, ratio: bool = True) -> dict:
     visible = reported = correct = swapped = correct_img = 0
     scores, len_err, w_err, w_err_scatter, stage_ms, total_ms = [], [], [], [], {}, []
     survey_est, survey_true, scene_mean_err = [], [], []
-    wrong_lengths = []
+    wrong_lengths, kept = [], []     # (score, correct, correct in the images) per report
     for k in range(scenes):
         sc = surface_scene(np.random.default_rng(seed + k))
         calib = sc.rig.calibration()
@@ -117,7 +117,9 @@ def run(scenes: int, seed: int, ratio: bool = True) -> dict:
             true_len = np.linalg.norm(t.snout_mm - t.fork_mm) / 10
             scores.append(m.score)
             len_err.append(m.length_cm / true_len - 1)
-            if kind != "swapped" and _in_images(m, t) and i not in hit_img:
+            in_img = kind != "swapped" and _in_images(m, t)
+            kept.append((m.score, kind == "ok" and i not in hit, in_img and i not in hit_img))
+            if in_img and i not in hit_img:
                 correct_img += 1
                 hit_img.add(i)
             if kind == "ok":
@@ -145,6 +147,14 @@ def run(scenes: int, seed: int, ratio: bool = True) -> dict:
                                      "median_abs_len_err_pct": round(100 * float(np.median(np.abs(len_err[sel]))), 2),
                                      "share_over_5pct": round(float(np.mean(np.abs(len_err[sel]) > 0.05)), 3)}
     med = {k: round(float(np.median(v)), 1) for k, v in stage_ms.items()}
+    kept_arr = np.array(kept, dtype=float).reshape(-1, 3)
+    at = {}
+    for cut in (0.2, 0.3, 0.4):
+        sel = kept_arr[kept_arr[:, 0] >= cut]
+        n = max(len(sel), 1)
+        at[f"score_ge_{cut}"] = {"reported": len(sel), "precision": round(float(sel[:, 1].sum()) / n, 3),
+                                 "precision_image": round(float(sel[:, 2].sum()) / n, 3),
+                                 "recall_image": round(float(sel[:, 2].sum()) / max(visible, 1), 3)}
     return {
         "scenes": scenes, "seed": seed, "fully_visible_fish": visible, "reported": reported,
         "recall": round(correct / max(visible, 1), 3), "precision": round(correct / max(reported, 1), 3),
@@ -159,6 +169,7 @@ def run(scenes: int, seed: int, ratio: bool = True) -> dict:
         "survey_mean_weight_err_pct": _pct(np.mean(survey_est) / np.mean(survey_true) - 1) if survey_est else None,
         "scene_mean_weight_abs_err_pct_median": _pct(np.median(np.abs(scene_mean_err))) if scene_mean_err else None,
         "score_vs_error": {"spearman_score_abs_len_err": round(_spearman(scores, np.abs(len_err)), 3), **by_q},
+        "operating_points": at,
         "wrong_length_errors": wrong_lengths[:20],
         "ms_per_pair_median": med, "ms_per_pair_total_median": round(float(np.median(total_ms)), 1),
         "load": os.getloadavg()[0],

@@ -2,12 +2,13 @@
 
 The body axis is the principal axis of the region's pixels; the midline is the mean lateral position
 of the pixels in slices across it (so a moderately bent fish keeps a midline on its body). Which end
-is the head is decided by shape, two cues weighed together:
+is the head is decided by shape, three cues weighed together:
 
   * the caudal fork: a notch (convexity defect of the outline) at one end, between two lobes on
     either side of the midline, deeper than a few per cent of the length;
   * the taper: a fish is widest about a third of its length behind the snout and narrows to the
-    caudal peduncle, so the band 15-45 % from the head end is wider than the same band from the tail.
+    caudal peduncle, so the band 15-45 % from the head end is wider than the same band from the tail;
+  * the caudal fin: paler than the body, it runs on past the body's end at the tail only.
 
 The front point is the snout tip: the outline's extreme along the local head direction (the midline's
 direction near the head). The rear point is the innermost point of the caudal fork: the notch's
@@ -191,7 +192,9 @@ def analyse(r: Region, base_ratio: float | None = None) -> Fish2D | None:
     band = slice(int(0.15 * N_SLICES), int(0.45 * N_SLICES) + 1)
     w_lo, w_hi = width[band].mean(), width[::-1][band].mean()
     taper = (w_hi - w_lo) / max(w_hi + w_lo, 1e-9)
-    evidence = 6.0 * taper + 25.0 * (d_lo - d_hi)
+    s_o = (r.outline - centre) @ e            # the pale caudal fin runs on past the body's tail end
+    fin = (float(lo - s_o.min()) - float(s_o.max() - hi)) / L
+    evidence = 6.0 * taper + 25.0 * (d_lo - d_hi) + 20.0 * fin
     head_hi = evidence >= 0
     head_conf = float(np.tanh(abs(evidence)))
     # local directions at both ends from the midline
