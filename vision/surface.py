@@ -100,14 +100,16 @@ def _orient(a: Fish2D, b: Fish2D, swapped: bool):
     return pa[flip], pb, b.head_conf - a.head_conf
 
 
-def _on_body(calib, X: np.ndarray, fork_px: np.ndarray) -> np.ndarray:
+def _on_body(calib, S: np.ndarray, C: np.ndarray, fork_px: np.ndarray) -> np.ndarray:
     """The fork in 3-D where the left camera's ray through its pixel passes closest to the body's
-    axis (the line fitted through the snout and the midline points). The fork is rarely a feature
-    both views see as one point (it is placed from the fin base, or on a translucent fin), so its
-    own disparity is the least trustworthy number of the fish; the body fixes its depth instead."""
-    body = np.vstack([X[0], X[2:]])
-    c = body.mean(axis=0)
-    d = np.linalg.svd(body - c)[2][0]
+    axis, the line from the snout ``S`` through the body's centroid ``C``. The fork is rarely a
+    feature both views see as one point (it is placed from the fin base, or on a translucent fin),
+    so its own disparity is the least trustworthy number of the fish; the snout (matched by
+    correlation) and the centroid (of hundreds of pixels in each view) fix its depth instead."""
+    d = C - S
+    if np.linalg.norm(d) < 1e-9:
+        return S
+    d = d / np.linalg.norm(d)
     px = fork_px.reshape(1, 2)
     if calib.has_distortion:
         px = undistort_pixels(px, calib.K1, calib.D1)
@@ -115,24 +117,26 @@ def _on_body(calib, X: np.ndarray, fork_px: np.ndarray) -> np.ndarray:
     o = camera_centre(P)
     v = np.linalg.solve(P[:, :3], np.r_[px[0], 1.0])
     v /= np.linalg.norm(v)
-    w0 = o - c
-    a, b, e = v @ v, v @ d, d @ d
-    den = a * e - b * b
+    w0 = o - S
+    b = v @ d
+    den = 1.0 - b * b
     if den < 1e-9:
-        return X[1]
-    lam = (b * (d @ w0) - e * (v @ w0)) / den
+        return S
+    lam = (b * (d @ w0) - (v @ w0)) / den
     return o + lam * v
 
 
-def _solid(calib, setup: SurveySetup, up, pts1, pts2, seen: bool = False):
+def _solid(calib, setup: SurveySetup, up, pts1, pts2, seen: bool = False, centres=None):
     """Triangulated points and residuals (the fork settled on the body's axis, its right pixel
     reprojected), the snout-fork axis, its length and tilt; None when the species geometry rules
     the pairing out."""
     X, res = triangulate_calibrated(calib, pts1, pts2)
     if not np.all(np.isfinite(X)):
         return None
-    if not seen and BODY_LINE:
-        X[1] = _on_body(calib, X, pts1[1])
+    if not seen and centres is not None and BODY_LINE:
+        C = triangulate_calibrated(calib, centres[0][None], centres[1][None])[0][0]
+        if np.all(np.isfinite(C)):
+            X[1] = _on_body(calib, X[0], C, pts1[1])
     axis = X[0] - X[1]
     length_mm = float(np.linalg.norm(axis))
     g = setup.geometry
@@ -202,7 +206,8 @@ def measure_surface(left: np.ndarray, right: np.ndarray, calib: StereoCalibratio
         if i in used_l or j in used_r:
             continue
         pts1, pts2, head = _orient(fl[i], fr[j], swapped)
-        if _solid(calib, setup, up, pts1, pts2, fl[i].fork_seen and fr[j].fork_seen) is None:
+        if _solid(calib, setup, up, pts1, pts2, fl[i].fork_seen and fr[j].fork_seen,
+                  (fl[i].centre, fr[j].centre)) is None:
             continue
         used_l.add(i)
         used_r.add(j)
@@ -220,7 +225,7 @@ def measure_surface(left: np.ndarray, right: np.ndarray, calib: StereoCalibratio
         if not (a.fork_seen and b.fork_seen):        # midline and fork: where the body crosses the line
             poly = np.vstack([pts2[0], pts2[2:], pts2[1]])
             pts2[1:] = on_right_body(F, pts1[1:], poly, pts2[1:])
-        solid = _solid(calib, setup, up, pts1, pts2, a.fork_seen and b.fork_seen)
+        solid = _solid(calib, setup, up, pts1, pts2, a.fork_seen and b.fork_seen, (a.centre, b.centre))
         if solid is None:
             continue
         m = _measure(calib, setup, a, b, pts1, pts2, head, solid, ncc[2 * k:2 * k + 2],

@@ -55,15 +55,21 @@ class Region:
 
 
 def _grow(c: Contrast, p: RegionParams, sign: float):
-    """Hysteresis regions at the working level, of one polarity: labels and stats of the kept ones."""
+    """Hysteresis regions of one polarity: labels and stats of the kept ones, and their scale (full
+    pixels per label pixel). Thresholds are taken at the working level; the masks are then pooled
+    2x2 (a pixel is set if any of its four is) so the connected components run on a quarter of the
+    pixels: regions are redrawn at full resolution anyway."""
     seed_t = max(p.seed_sigma * c.noise, p.min_seed)
     grow_t = max(p.grow_sigma * c.noise, p.min_grow)
     work = c.work if sign > 0 else -c.work
-    weak = (work > grow_t).astype(np.uint8)
+    h, w = (work.shape[0] // 2) * 2, (work.shape[1] // 2) * 2
+    def pool(mask):
+        return mask[:h, :w].reshape(h // 2, 2, w // 2, 2).any(axis=(1, 3)).astype(np.uint8)
+    weak, strong = pool(work > grow_t), pool(work > seed_t)
     n, labels, stats, _ = cv2.connectedComponentsWithStats(weak, connectivity=8)
-    seeded = np.bincount(labels[work > seed_t], minlength=n) > 0
+    seeded = np.bincount(labels[strong > 0], minlength=n) > 0
     seeded[0] = False
-    return labels, stats, np.flatnonzero(seeded)
+    return labels, stats, np.flatnonzero(seeded), 2 * c.scale
 
 
 def _fill(mask: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
@@ -184,11 +190,10 @@ def find_regions(c: Contrast, p: RegionParams = RegionParams()) -> list[Region]:
 
 
 def _regions(c: Contrast, p: RegionParams, sign: float) -> list[Region]:
-    labels, stats, keep = _grow(c, p, sign)
+    labels, stats, keep, s = _grow(c, p, sign)
     H, W = c.full.shape
     diag = float(np.hypot(H, W))
     min_len, max_len = p.min_length_frac * diag, p.max_length_frac * diag
-    s = c.scale
     out: list[Region] = []
     for k in keep:
         x, y, w, h, area = stats[k]

@@ -41,6 +41,7 @@ class Fish2D:
     tip: np.ndarray | None = None     # (2,) px, the rear end with the pale caudal fin
     notch: np.ndarray | None = None   # (2,) px, the fork notch when one is seen
     fork_seen: bool = False           # ``fork`` is the notch seen (not placed from the fin base)
+    centre: np.ndarray | None = None  # (2,) px, centroid of the body's pixels
 
 
 N_SLICES = 24
@@ -226,4 +227,4 @@ def analyse(r: Region, base_ratio: float | None = None) -> Fish2D | None:
     mid = centre + s_f[:, None] * e + t_f[:, None] * n
     return Fish2D(snout, fork, mid, float(np.linalg.norm(snout - fork)), float(width.max()), head_conf,
                   fork_d, float(elong), r.glare, r.peak, base, tip, notch,
-                  bool(notch is not None and np.array_equal(fork, notch)))
+                  bool(notch is not None and np.array_equal(fork, notch)), centre)
