@@ -44,6 +44,7 @@ from vision.triangulation import camera_centre, project, triangulate_calibrated,
 
 BODY_LINE = False
 MIN_SCORE = 0.05        # below this a "fish" is noise: not reported
+MIN_SIDE_PX = 32        # an image smaller than this either way holds no measurable fish
 
 
 def _tick(timings, stage, t0):
@@ -72,6 +73,8 @@ def _fish_in(c, params: RegionParams, base_ratio: float | None) -> list[Fish2D]:
 def detect_fish(img: np.ndarray, params: RegionParams = DEFAULT_PARAMS,
                 base_ratio: float | None = None) -> list[Fish2D]:
     """Fish found in one image seen from above: front, rear and intermediate points of each."""
+    if min(np.shape(img)[:2]) < MIN_SIDE_PX:
+        return []
     return _fish_in(contrast_map(img), params, base_ratio)
 
 
@@ -194,6 +197,8 @@ def measure_surface(left: np.ndarray, right: np.ndarray, calib: StereoCalibratio
     """Fish measured in one pair seen from above (see module docstring). Never raises on a frame
     without fish: returns []."""
     t0 = time.perf_counter()
+    if min(np.shape(left)[:2] + np.shape(right)[:2]) < MIN_SIDE_PX:
+        return []
     cl, cr = contrast_map(left), contrast_map(right)
     t0 = _tick(timings, "prep", t0)
     ratio = setup.geometry.fin_base_to_fork

@@ -199,3 +199,13 @@ def test_two_fish_on_one_epipolar_band_are_not_crossed():
     left, right, rig, truths = stereo_tank(np.random.default_rng(15), fish)
     found = measure_surface(left, right, rig.calibration(), SETUP)
     assert sorted(round(m.length_cm) for m in found) == [11, 13]
+
+
+@pytest.mark.parametrize("shape", [(1, 1), (8, 8), (5, 300), (32, 32), (33, 47, 3), (480, 640)])
+def test_frames_without_fish_of_any_size_give_no_fish(shape):
+    rng = np.random.default_rng(16)
+    calib = top_rig().calibration()
+    for img in (np.zeros(shape, np.uint8), np.full(shape, 255, np.uint8),
+                rng.integers(0, 256, shape).astype(np.uint8),
+                ((rng.random(shape) < 0.01) * 255).astype(np.uint8)):
+        assert measure_surface(img, img.copy(), calib, SETUP) == []
