@@ -40,9 +40,8 @@ from vision.surface_regions import RegionParams, find_regions
 from vision.surface_shape import Fish2D, analyse
 from vision.surface_stereo import candidate_pairs, on_right_body, refine
 from vision.survey_types import FishMeasurement, SurveySetup
-from vision.triangulation import camera_centre, project, triangulate_calibrated, undistort_pixels
+from vision.triangulation import triangulate_calibrated
 
-BODY_LINE = False
 MIN_SCORE = 0.05        # below this a "fish" is noise: not reported
 MIN_SIDE_PX = 32        # an image smaller than this either way holds no measurable fish
 
@@ -103,43 +102,12 @@ def _orient(a: Fish2D, b: Fish2D, swapped: bool):
     return pa[flip], pb, b.head_conf - a.head_conf
 
 
-def _on_body(calib, S: np.ndarray, C: np.ndarray, fork_px: np.ndarray) -> np.ndarray:
-    """The fork in 3-D where the left camera's ray through its pixel passes closest to the body's
-    axis, the line from the snout ``S`` through the body's centroid ``C``. The fork is rarely a
-    feature both views see as one point (it is placed from the fin base, or on a translucent fin),
-    so its own disparity is the least trustworthy number of the fish; the snout (matched by
-    correlation) and the centroid (of hundreds of pixels in each view) fix its depth instead."""
-    d = C - S
-    if np.linalg.norm(d) < 1e-9:
-        return S
-    d = d / np.linalg.norm(d)
-    px = fork_px.reshape(1, 2)
-    if calib.has_distortion:
-        px = undistort_pixels(px, calib.K1, calib.D1)
-    P = np.asarray(calib.P1, float)
-    o = camera_centre(P)
-    v = np.linalg.solve(P[:, :3], np.r_[px[0], 1.0])
-    v /= np.linalg.norm(v)
-    w0 = o - S
-    b = v @ d
-    den = 1.0 - b * b
-    if den < 1e-9:
-        return S
-    lam = (b * (d @ w0) - (v @ w0)) / den
-    return o + lam * v
-
-
-def _solid(calib, setup: SurveySetup, up, pts1, pts2, seen: bool = False, centres=None):
-    """Triangulated points and residuals (the fork settled on the body's axis, its right pixel
-    reprojected), the snout-fork axis, its length and tilt; None when the species geometry rules
-    the pairing out."""
+def _solid(calib, setup: SurveySetup, up, pts1, pts2):
+    """Triangulated points and residuals, the snout-fork axis, its length and tilt; None when the
+    species geometry rules the pairing out."""
     X, res = triangulate_calibrated(calib, pts1, pts2)
     if not np.all(np.isfinite(X)):
         return None
-    if not seen and centres is not None and BODY_LINE:
-        C = triangulate_calibrated(calib, centres[0][None], centres[1][None])[0][0]
-        if np.all(np.isfinite(C)):
-            X[1] = _on_body(calib, X[0], C, pts1[1])
     axis = X[0] - X[1]
     length_mm = float(np.linalg.norm(axis))
     g = setup.geometry
@@ -151,7 +119,7 @@ def _solid(calib, setup: SurveySetup, up, pts1, pts2, seen: bool = False, centre
     return X, res, length_mm, tilt
 
 
-def _measure(calib, setup: SurveySetup, a: Fish2D, b: Fish2D, pts1, pts2, head, solid, ncc,
+def _measure(setup: SurveySetup, a: Fish2D, b: Fish2D, pts1, pts2, head, solid, ncc,
              fork_gap: float) -> FishMeasurement:
     X, res, length_mm, tilt = solid
     S, K = X[0], X[1]
@@ -180,10 +148,7 @@ def _measure(calib, setup: SurveySetup, a: Fish2D, b: Fish2D, pts1, pts2, head, 
               "ncc_snout": float(np.nan_to_num(ncc[0])), "ncc_fork": float(np.nan_to_num(ncc[1])),
               "fork_depth": float(min(a.fork_depth, b.fork_depth)), "length_px": a.length_px,
               "fork_gap": fork_gap})
-    fork2 = project(np.asarray(calib.P2, float), K[None])[0]
-    if calib.has_distortion or (a.fork_seen and b.fork_seen):     # seen: its own pixel; distorted: the image's
-        fork2 = pts2[1]
-    return FishMeasurement(S, K, np.array([pts1[0], pts2[0]]), np.array([pts1[1], fork2]), score, q)
+    return FishMeasurement(S, K, np.array([pts1[0], pts2[0]]), np.array([pts1[1], pts2[1]]), score, q)
 
 
 def _patch(fish: list[Fish2D]) -> int:
@@ -211,8 +176,7 @@ def measure_surface(left: np.ndarray, right: np.ndarray, calib: StereoCalibratio
         if i in used_l or j in used_r:
             continue
         pts1, pts2, head = _orient(fl[i], fr[j], swapped)
-        if _solid(calib, setup, up, pts1, pts2, fl[i].fork_seen and fr[j].fork_seen,
-                  (fl[i].centre, fr[j].centre)) is None:
+        if _solid(calib, setup, up, pts1, pts2) is None:
             continue
         used_l.add(i)
         used_r.add(j)
@@ -230,10 +194,10 @@ def measure_surface(left: np.ndarray, right: np.ndarray, calib: StereoCalibratio
         if not (a.fork_seen and b.fork_seen):        # midline and fork: where the body crosses the line
             poly = np.vstack([pts2[0], pts2[2:], pts2[1]])
             pts2[1:] = on_right_body(F, pts1[1:], poly, pts2[1:])
-        solid = _solid(calib, setup, up, pts1, pts2, a.fork_seen and b.fork_seen, (a.centre, b.centre))
+        solid = _solid(calib, setup, up, pts1, pts2)
         if solid is None:
             continue
-        m = _measure(calib, setup, a, b, pts1, pts2, head, solid, ncc[2 * k:2 * k + 2],
+        m = _measure(setup, a, b, pts1, pts2, head, solid, ncc[2 * k:2 * k + 2],
                      float(np.linalg.norm(own - pts2[1]) / max(b.length_px, 1.0)))
         if m.score >= MIN_SCORE:
             out.append(m)

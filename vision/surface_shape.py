@@ -46,7 +46,6 @@ class Fish2D:
 
 N_SLICES = 24
 N_MID = 5
-FIN_WAY = False
 
 
 def _ends_defects(contour: np.ndarray, s: np.ndarray, t_rel: np.ndarray, L: float, lo: float, hi: float):
@@ -101,11 +100,12 @@ def _extreme(contour: np.ndarray, direction: np.ndarray) -> np.ndarray:
 
 
 def _fin_base(r: Region, snout: np.ndarray, tail: np.ndarray, level: float = 0.16) -> np.ndarray:
-    """The caudal fin's base: going from the snout towards the tail, the last place where the
+    """The caudal fin's base by mass: going from the snout towards the tail, the last place where the
     fish's contrast summed across the body (its "mass" per pixel of length) is still ``level`` of
-    the body's most. The caudal peduncle keeps about a quarter of the widest slice's mass; a fin
-    seen edge-on from above, thin and translucent, a few per cent; so the fall is sharp whatever
-    threshold drew the outline, and whether or not the fin was dark enough to join it."""
+    the body's most (a peduncle keeps ~15-25 % of the widest slice's mass, a fin seen edge-on less).
+    Used as a check on the outline's own end, which runs on along a caudal fin dark enough to pass
+    the outline's level (the outline's end alone, measured on renders, was the better estimate
+    otherwise)."""
     ys, xs = np.nonzero(r.whole)
     w = np.clip(r.con[ys, xs], 0, None)
     rel = np.c_[xs, ys] + r.origin - snout
@@ -130,15 +130,13 @@ def _fin_base(r: Region, snout: np.ndarray, tail: np.ndarray, level: float = 0.1
 def _fork(snout, base, tip, notch, base_ratio: float | None, tail: np.ndarray) -> np.ndarray:
     """The fork point from what the view shows. A notch seen in the fin is the fork, unless the
     species' fin-base ratio puts the fork more than 4 % of the length away from it (a bite out of
-    the outline, not the fork). Without a notch: on from the fin base by the species' ratio, along
-    the fin when it shows (base -> tip: a bent fish's tail points its own way) else along the
-    body's direction at the tail; without a ratio, the rear end of the fin (fork length = total)."""
+    the outline, not the fork). Without a notch: on from the fin base by the species' ratio along
+    the body's direction at the tail (the faint fin's own direction, tried, was noisier); without
+    a ratio, the rear end of the fin (fork length = total)."""
     est = None
     if base_ratio is not None:
         run = np.linalg.norm(base - snout) * (1 / base_ratio - 1)
-        fin = tip - base
-        way = fin / np.linalg.norm(fin) if FIN_WAY and np.linalg.norm(fin) > max(0.5 * run, 2.0) else tail
-        est = base + run * way
+        est = base + run * tail
     if notch is not None and (est is None or np.linalg.norm(notch - est) < 0.04 * np.linalg.norm(est - snout)):
         return notch
     return est if est is not None else tip
