@@ -21,7 +21,7 @@ intermediate points in the left view (``q_straight``; a fish bent sideways has a
 shorter than its body),
 head/tail confidence (``q_head``), the caudal fork found as a notch in both views (``q_fork``: 1; in
 neither, placed from the fin base: 0.8; in one only: 0.6), the right view's own fork against the
-place the left fork's epipolar line gives it (``q_fork_views``, Gaussian in 3 % of the length), the
+place the left fork's epipolar line gives it (``q_fork_views``, Gaussian in 6 % of the length), the
 outline free of lamp reflections (``q_glare``), and left/right agreement of the apparent length
 (``q_views``). Fork length is the straight 3-D snout-fork distance (the contract); the length along
 the body through the intermediate points (the 3-D length scaled by the view's bend) is kept as
@@ -137,7 +137,7 @@ def _measure(setup: SurveySetup, a: Fish2D, b: Fish2D, pts1, pts2, head, solid, 
         "q_straight": float(np.clip((straight - 0.9) / 0.1, 0, 1)) ** 0.5,
         "q_head": float(0.5 + 0.5 * np.clip(head, 0, 1)),
         "q_fork": 1.0 if a.fork_seen and b.fork_seen else (0.6 if a.fork_seen or b.fork_seen else 0.8),
-        "q_fork_views": float(np.exp(-(fork_gap / 0.03) ** 2)),
+        "q_fork_views": float(np.exp(-(fork_gap / 0.06) ** 2)),
         "q_glare": float(np.clip(1 - 2 * max(a.glare, b.glare), 0, 1)),
         "q_views": float(np.clip((views - 0.6) / 0.3, 0, 1)),
         "q_match": float(np.clip(np.nan_to_num(ncc, nan=0.6).min(), 0.5, 1.0)) * 2 - 1,
