@@ -120,7 +120,8 @@ def run(scenes: int, seed: int, ratio: bool = True) -> dict:
             scores.append(m.score)
             len_err.append(m.length_cm / true_len - 1)
             in_img = kind != "swapped" and _in_images(m, t)
-            kept.append((m.score, kind == "ok" and i not in hit, in_img and i not in hit_img))
+            kept.append((m.score, kind == "ok" and i not in hit, in_img and i not in hit_img, k,
+                         w, w / t.model_weight_g - 1))
             if in_img and i not in hit_img:
                 correct_img += 1
                 hit_img.add(i)
@@ -149,14 +150,18 @@ def run(scenes: int, seed: int, ratio: bool = True) -> dict:
                                      "median_abs_len_err_pct": round(100 * float(np.median(np.abs(len_err[sel]))), 2),
                                      "share_over_5pct": round(float(np.mean(np.abs(len_err[sel]) > 0.05)), 3)}
     med = {k: round(float(np.median(v)), 1) for k, v in stage_ms.items()}
-    kept_arr = np.array(kept, dtype=float).reshape(-1, 3)
+    kept_arr = np.array(kept, dtype=float).reshape(-1, 6)
+    true_mean = float(np.mean(survey_true)) if survey_true else float("nan")
     at = {}
     for cut in (0.2, 0.3, 0.4):
         sel = kept_arr[kept_arr[:, 0] >= cut]
         n = max(len(sel), 1)
         at[f"score_ge_{cut}"] = {"reported": len(sel), "precision": round(float(sel[:, 1].sum()) / n, 3),
                                  "precision_image": round(float(sel[:, 2].sum()) / n, 3),
-                                 "recall_image": round(float(sel[:, 2].sum()) / max(visible, 1), 3)}
+                                 "recall_image": round(float(sel[:, 2].sum()) / max(visible, 1), 3),
+                                 "weight_mape_pct": _pct(np.mean(np.abs(sel[:, 5]))) if len(sel) else None,
+                                 "survey_mean_weight_err_pct": _pct(np.mean(sel[:, 4]) / true_mean - 1)
+                                 if len(sel) else None}
     return {
         "scenes": scenes, "seed": seed, "fully_visible_fish": visible, "reported": reported,
         "recall": round(correct / max(visible, 1), 3), "precision": round(correct / max(reported, 1), 3),
