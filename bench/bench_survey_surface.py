@@ -86,12 +86,26 @@ def _spearman(a, b):
     return float(np.corrcoef(ra, rb)[0, 1])
 
 
+def _baseline_ms(left, right) -> float:
+    """The issue's yardstick, timed here in the same process: a full-frame bank of 12 rotated
+    15x15 templates (cv2.matchTemplate) on both images of a pair (reading excluded)."""
+    tmpl = np.zeros((15, 15), np.float32)
+    tmpl[7, :] = 1.0
+    bank = [cv2.warpAffine(tmpl, cv2.getRotationMatrix2D((7, 7), 15 * k, 1.0), (15, 15)) for k in range(12)]
+    grey = [cv2.cvtColor(im, cv2.COLOR_BGR2GRAY).astype(np.float32) for im in (left, right)]
+    t0 = time.process_time()
+    for g in grey:
+        for t in bank:
+            cv2.matchTemplate(g, t, cv2.TM_CCORR)
+    return 1000 * (time.process_time() - t0)
+
+
 def run(scenes: int, seed: int, ratio: bool = True) -> dict:
     cv2.setNumThreads(1)
     visible = reported = correct = swapped = correct_img = 0
     scores, len_err, w_err, w_err_scatter, stage_ms, total_ms = [], [], [], [], {}, []
     w_err_all = []
-    survey_est, survey_true, scene_mean_err = [], [], []
+    survey_est, survey_true, scene_mean_err, base_ms = [], [], [], []
     wrong_lengths, kept = [], []     # (score, correct, correct in the images) per report
     for k in range(scenes):
         sc = surface_scene(np.random.default_rng(seed + k))
@@ -103,6 +117,7 @@ def run(scenes: int, seed: int, ratio: bool = True) -> dict:
         t0 = time.process_time()
         found = measure_pair(sc.left, sc.right, calib, setup, timings)
         total_ms.append(1000 * (time.process_time() - t0))
+        base_ms.append(_baseline_ms(sc.left, sc.right))
         for name, s in timings.items():
             stage_ms.setdefault(name, []).append(1000 * s)
         vis = [t for t in sc.fish if t.fully_visible]
@@ -180,6 +195,8 @@ def run(scenes: int, seed: int, ratio: bool = True) -> dict:
         "operating_points": at,
         "wrong_length_errors": wrong_lengths[:20],
         "ms_per_pair_median": med, "ms_per_pair_total_median": round(float(np.median(total_ms)), 1),
+        "baseline_template_bank_ms_median": round(float(np.median(base_ms)), 1),
+        "ratio_to_baseline": round(float(np.median(total_ms) / np.median(base_ms)), 3),
         "load": os.getloadavg()[0],
     }
 

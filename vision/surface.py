@@ -102,21 +102,24 @@ def _orient(a: Fish2D, b: Fish2D, swapped: bool):
     return pa[flip], pb, b.head_conf - a.head_conf
 
 
-def _solid(calib, setup: SurveySetup, up, pts1, pts2):
-    """Triangulated points and residuals, the snout-fork axis, its length and tilt; None when the
-    species geometry rules the pairing out."""
-    X, res = triangulate_calibrated(calib, pts1, pts2)
-    if not np.all(np.isfinite(X)):
-        return None
-    axis = X[0] - X[1]
-    length_mm = float(np.linalg.norm(axis))
+def _solids(calib, setup: SurveySetup, up, sets: list[tuple[np.ndarray, np.ndarray]]):
+    """For each (pts1, pts2) of one fish: its triangulated points and residuals, snout-fork length
+    and tilt, or None when the species geometry rules the pairing out. One triangulation call for
+    all the fish (its set-up costs more than a fish's points)."""
+    if not sets:
+        return []
+    X, res = triangulate_calibrated(calib, np.vstack([a for a, _ in sets]), np.vstack([b for _, b in sets]))
     g = setup.geometry
-    if not (10 * g.min_length_cm <= length_mm <= 10 * g.max_length_cm):
-        return None
-    tilt = float(np.degrees(np.arcsin(min(abs(axis @ up) / length_mm, 1.0))))
-    if tilt > g.max_tilt_deg:
-        return None
-    return X, res, length_mm, tilt
+    out, k = [], 0
+    for a, _ in sets:
+        Xi, ri = X[k:k + len(a)], res[k:k + len(a)]
+        k += len(a)
+        axis = Xi[0] - Xi[1]
+        length_mm = float(np.linalg.norm(axis))
+        ok = np.all(np.isfinite(Xi)) and 10 * g.min_length_cm <= length_mm <= 10 * g.max_length_cm
+        tilt = float(np.degrees(np.arcsin(min(abs(axis @ up) / length_mm, 1.0)))) if ok else 90.0
+        out.append((Xi, ri, length_mm, tilt) if ok and tilt <= g.max_tilt_deg else None)
+    return out
 
 
 def _measure(setup: SurveySetup, a: Fish2D, b: Fish2D, pts1, pts2, head, solid, ncc,
@@ -171,12 +174,11 @@ def measure_surface(left: np.ndarray, right: np.ndarray, calib: StereoCalibratio
     t0 = _tick(timings, "detect", t0)
     F = fundamental_from_projections(np.asarray(calib.P1, float), np.asarray(calib.P2, float))
     up = up_direction(calib, setup)
+    cands = [(i, j, _orient(fl[i], fr[j], swapped)) for i, j, swapped, _ in candidate_pairs(calib, F, fl, fr)]
     used_l, used_r, pairs = set(), set(), []
-    for i, j, swapped, _ in candidate_pairs(calib, F, fl, fr):
-        if i in used_l or j in used_r:
-            continue
-        pts1, pts2, head = _orient(fl[i], fr[j], swapped)
-        if _solid(calib, setup, up, pts1, pts2) is None:
+    for (i, j, (pts1, pts2, head)), solid in zip(cands, _solids(calib, setup, up, [c[2][:2] for c in cands]),
+                                                 strict=True):
+        if i in used_l or j in used_r or solid is None:
             continue
         used_l.add(i)
         used_r.add(j)
@@ -187,18 +189,21 @@ def measure_surface(left: np.ndarray, right: np.ndarray, calib: StereoCalibratio
     # snout and fork only: a window on the midline slides along a body lying along the epipolar line
     ends2, ncc = refine(cl.full, cr.full, calib, F, np.vstack([p[2][:2] for p in pairs]),
                         np.vstack([p[3][:2] for p in pairs]), _patch(fl))
-    out = []
-    for k, (a, b, pts1, pts2, head) in enumerate(pairs):
+    sets, gaps = [], []
+    for k, (a, b, pts1, pts2, _) in enumerate(pairs):
         own = pts2[1].copy()                          # the right view's own fork
         pts2 = np.vstack([ends2[2 * k:2 * k + 2], pts2[2:]])
         if not (a.fork_seen and b.fork_seen):        # midline and fork: where the body crosses the line
             poly = np.vstack([pts2[0], pts2[2:], pts2[1]])
             pts2[1:] = on_right_body(F, pts1[1:], poly, pts2[1:])
-        solid = _solid(calib, setup, up, pts1, pts2)
+        sets.append((pts1, pts2))
+        gaps.append(float(np.linalg.norm(own - pts2[1]) / max(b.length_px, 1.0)))
+    out = []
+    for k, ((a, b, _, _, head), (pts1, pts2), solid) in enumerate(zip(pairs, sets, _solids(calib, setup, up, sets),
+                                                                      strict=True)):
         if solid is None:
             continue
-        m = _measure(setup, a, b, pts1, pts2, head, solid, ncc[2 * k:2 * k + 2],
-                     float(np.linalg.norm(own - pts2[1]) / max(b.length_px, 1.0)))
+        m = _measure(setup, a, b, pts1, pts2, head, solid, ncc[2 * k:2 * k + 2], gaps[k])
         if m.score >= MIN_SCORE:
             out.append(m)
     _tick(timings, "stereo", t0)

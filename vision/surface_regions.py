@@ -62,9 +62,9 @@ def _grow(c: Contrast, p: RegionParams, sign: float):
     seed_t = max(p.seed_sigma * c.noise, p.min_seed)
     grow_t = max(p.grow_sigma * c.noise, p.min_grow)
     work = c.work if sign > 0 else -c.work
-    h, w = (work.shape[0] // 2) * 2, (work.shape[1] // 2) * 2
-    def pool(mask):
-        return mask[:h, :w].reshape(h // 2, 2, w // 2, 2).any(axis=(1, 3)).astype(np.uint8)
+    size = (work.shape[1] // 2, work.shape[0] // 2)
+    def pool(mask):                 # 0/255 averaged over 2x2: non-zero where any of the four is set
+        return (cv2.resize(mask.view(np.uint8) * np.uint8(255), size, interpolation=cv2.INTER_AREA) > 0).view(np.uint8)
     weak, strong = pool(work > grow_t), pool(work > seed_t)
     n, labels, stats, _ = cv2.connectedComponentsWithStats(weak, connectivity=8)
     seeded = np.bincount(labels[strong > 0], minlength=n) > 0
