@@ -1,16 +1,17 @@
-"""Pre-processing for the surface setup (nursery tanks seen from above): noise reduction, the paper's
-per-row illumination compensation (eqs. 11-12) and a flat field, giving a *contrast map*: how much
-darker than the tank floor under it each pixel is, as a fraction of the floor's brightness.
+"""Pre-processing for the surface setup (nursery tanks seen from above): noise reduction and
+illumination compensation by a flat field, giving a *contrast map*: how much darker than the tank
+floor under it each pixel is, as a fraction of the floor's brightness.
 
-Why a flat field besides eqs. 11-12: lamps at ~45 deg light a tank from one side, so the floor's
-brightness falls off along a direction that need not be the image rows, and eq. 12's per-row
-contrast stretch would amplify whatever a row holds (a bright lamp reflection on one row stretches
-nothing, an empty row is stretched to full contrast). The floor is instead estimated where fish are
-not: on a coarse copy of the image (1/8 linear scale or so), an opening removes bright structures
-narrower than the kernel (surface reflections of the lamps) and a closing then removes dark ones
-(fish); what is left, smoothed and scaled back, is the floor under the fish. Dividing by it cancels
-any smooth illumination field, multiplicative like light is. Eqs. 11-12 are kept (``compensate_rows``)
-for callers that want the paper's transform; the integrator may replace it by vision/illumination.py.
+Why a flat field rather than the paper's per-row compensation (eqs. 11-12, vision/illumination.py):
+eqs. 11-12 model sunlight falling off with depth in front of a horizontal underwater camera, row by
+row. Lamps at ~45 deg light a tank from one side, so the floor's brightness falls off along a
+direction that need not be the image rows, and eq. 12's per-row contrast stretch would amplify
+whatever a row holds (a row crossing a lamp's reflection is squeezed, an empty row stretched).
+The floor is instead estimated where fish are not: on a coarse copy of the image (1/8 linear scale
+or so), an opening removes bright structures narrower than the kernel (surface reflections of the
+lamps) and a closing then removes dark ones (fish); what is left, smoothed and scaled back, is the
+floor under the fish. Dividing by it cancels
+any smooth illumination field, multiplicative like light is.
 
 Everything scales with the image: the working level is chosen from the image width, and the
 background kernel from the coarse image's size.
@@ -32,15 +33,6 @@ def grey(img: np.ndarray) -> np.ndarray:
     if img.dtype != np.uint8:
         img = np.clip(img, 0, 255).astype(np.uint8)
     return np.ascontiguousarray(img)
-
-
-def compensate_rows(img: np.ndarray, mi_ref: float, c_ref: float) -> np.ndarray:
-    """The paper's eq. 12 on every row at once: f* = C_ref / C_r (f - MI_r) + MI_ref, with MI_r the
-    row mean and C_r its max - min (eq. 11). float32 out, not clipped."""
-    f = np.asarray(img, dtype=np.float32)
-    mi = f.mean(axis=1, keepdims=True)
-    c = f.max(axis=1, keepdims=True) - f.min(axis=1, keepdims=True)
-    return (c_ref / np.maximum(c, 1.0)) * (f - mi) + mi_ref
 
 
 @dataclass
