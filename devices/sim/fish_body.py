@@ -18,7 +18,7 @@ from devices.sim.fish_species import Species
 N_ALONG, N_AROUND = 36, 18
 
 
-def _profile(u: np.ndarray, at: float, end: float, p: float = 0.62) -> np.ndarray:
+def _profile(u: np.ndarray, at: float, end: float, p: float = 0.66) -> np.ndarray:
     """Depth or width profile along the body, 0 at the snout, 1 at its maximum, ``end`` at u = 1."""
     q = p * (1 - at) / at                           # puts the maximum of u^p (1-u)^q at ``at``
     f = np.power(u, p) * np.power(1 - u, q)
@@ -38,17 +38,21 @@ class FishMesh:
     belly: np.ndarray
     along: np.ndarray
     length_mm: float
+    fork_vertex: int = 0           # index of the vertex at the fork notch (L, 0, 0)
 
 
-def build_mesh(sp: Species, length_mm: float, shape_jitter: np.ndarray | None = None) -> FishMesh:
+def build_mesh(sp: Species, length_mm: float, shape_jitter: np.ndarray | None = None,
+               fork_scale: float = 1.0, wear: float = 0.0, rng: np.random.Generator | None = None) -> FishMesh:
     """Mesh of one fish of fork length ``length_mm``. ``shape_jitter`` (3,) scales depth, width and
-    fin size of this individual (1 = the species' outline)."""
+    fin size of this individual (1 = the species' outline); ``fork_scale`` the depth of its fork;
+    ``wear`` (0..1, needs ``rng``) frays the caudal fin's trailing edge as fin erosion does in
+    farmed fish, at most half way to the notch, which stays the innermost point."""
     jd, jw, jf = (1.0, 1.0, 1.0) if shape_jitter is None else shape_jitter
     L = length_mm
     x_end = sp.body_end * L
     u = np.linspace(0, 1, N_ALONG + 1)[1:] ** 1.4                   # denser at the head
     depth = sp.depth * jd * L * _profile(u, sp.depth_at, sp.peduncle)
-    width = 0.5 * sp.width * jw * L * _profile(u, sp.depth_at * 0.9, 0.25, 0.55)
+    width = 0.5 * sp.width * jw * L * _profile(u, sp.depth_at * 0.9, 0.25, 0.65)
     up = depth * sp.dorsal_share
     down = depth * (1 - sp.dorsal_share)
     th = np.linspace(0, 2 * np.pi, N_AROUND, endpoint=False)       # 0 = dorsal, pi = ventral
@@ -60,19 +64,10 @@ def build_mesh(sp: Species, length_mm: float, shape_jitter: np.ndarray | None = 
     verts = [np.zeros((1, 3)), ring]
     belly = [np.array([0.5]), np.broadcast_to((1 - c[None]) / 2, z.shape).ravel()]
     along = [np.array([0.0]), np.broadcast_to(u[:, None], z.shape).ravel()]
-    # body faces: a fan at the snout, quads between rings
-    j = np.arange(N_AROUND)
-    jn = (j + 1) % N_AROUND
-    faces = [np.c_[np.zeros(N_AROUND, int), 1 + jn, 1 + j]]
-    for i in range(N_ALONG - 1):
-        a, b = 1 + i * N_AROUND, 1 + (i + 1) * N_AROUND
-        faces += [np.c_[a + j, a + jn, b + j], np.c_[a + jn, b + jn, b + j]]
-    body = np.vstack(faces)
-    ring_all = np.vstack([np.zeros((1, 3)), ring])
-    body = _outward(ring_all, body)
+    body = _BODY_FACES
     base = 1 + N_ALONG * N_AROUND
     # fins: closed outlines in the x-z mid-plane, fanned from an inner point
-    outlines = [_caudal_outline(sp, L, up[-1], down[-1], jf)]
+    outlines = [_caudal_outline(sp, L, up[-1], down[-1], jf, fork_scale, wear, rng)]
     for (start, stop, height), sign, prof in ((sp.dorsal_fin, 1, up), (sp.anal_fin, -1, down)):
         outlines.append(_median_fin_outline(u, prof, start, stop, height * jf * L, sign, x_end))
     fin_faces, fin_verts = [], []
@@ -88,7 +83,27 @@ def build_mesh(sp: Species, length_mm: float, shape_jitter: np.ndarray | None = 
     verts = np.vstack(verts + [fv])
     belly = np.concatenate(belly + [np.full(len(fv), 0.5)])
     along = np.concatenate(along + [np.clip(fv[:, 0] / x_end, 0, 1)])
-    return FishMesh(verts, body, np.vstack(fin_faces), belly, along, L)
+    fork = int(np.argmin(np.linalg.norm(verts - [L, 0.0, 0.0], axis=1)))
+    return FishMesh(verts, body, np.vstack(fin_faces), belly, along, L, fork)
+
+
+def _body_faces() -> np.ndarray:
+    """Body triangles (same for every fish): a fan at the snout, two per quad between rings,
+    wound so their normals point out of the body (the ring runs dorsal -> right -> ventral)."""
+    j = np.arange(N_AROUND)
+    jn = (j + 1) % N_AROUND
+    faces = [np.stack([np.zeros(N_AROUND, int), 1 + jn, 1 + j], 1)]
+    i = np.arange(N_ALONG - 1)[:, None]
+    a, b = 1 + i * N_AROUND, 1 + (i + 1) * N_AROUND
+    faces.append(np.stack([a + j, a + jn, b + j], -1).reshape(-1, 3))
+    faces.append(np.stack([a + jn, b + jn, b + j], -1).reshape(-1, 3))
+    faces = np.vstack(faces)
+    # orientation from a reference ellipsoid-like body (the parameterisation fixes it for all)
+    u = np.linspace(0, 1, N_ALONG + 1)[1:]
+    th = np.linspace(0, 2 * np.pi, N_AROUND, endpoint=False)
+    r = np.sin(np.pi * np.sqrt(u))[:, None]
+    ring = np.stack([np.broadcast_to(u[:, None], (N_ALONG, N_AROUND)), 0.3 * r * np.sin(th), r * np.cos(th)], -1)
+    return _outward(np.vstack([np.zeros((1, 3)), ring.reshape(-1, 3)]), faces)
 
 
 def _outward(verts: np.ndarray, faces: np.ndarray) -> np.ndarray:
@@ -104,11 +119,15 @@ def _outward(verts: np.ndarray, faces: np.ndarray) -> np.ndarray:
     return faces
 
 
-def _caudal_outline(sp: Species, L: float, top: float, bottom: float, jf: float):
+_BODY_FACES = _body_faces()
+
+
+def _caudal_outline(sp: Species, L: float, top: float, bottom: float, jf: float, fork_scale: float = 1.0,
+                    wear: float = 0.0, rng: np.random.Generator | None = None):
     """(x, z) outline of the forked caudal fin, from the peduncle's top round to its bottom, and
     the fan centre. The trailing edge runs lobe tip -> notch (L, 0) -> lobe tip, concave."""
     x0 = sp.body_end * L
-    tip_x = L + (sp.lobe_tip - 1.0) * L * jf
+    tip_x = L + (sp.lobe_tip - 1.0) * L * jf * fork_scale
     span = sp.lobe_span * L * jf
     t = np.linspace(0, 1, 8)
     # leading (outer) edge: peduncle corner to the tip, bulging outwards
@@ -119,6 +138,12 @@ def _caudal_outline(sp: Species, L: float, top: float, bottom: float, jf: float)
     trail_z = span * (1 - t[1:]) ** 1.3
     upper = np.c_[np.r_[lead_x, trail_x], np.r_[lead_z, trail_z]]
     lower = upper[::-1][1:] * [1, -1]
+    if wear > 0 and rng is not None:
+        n = len(t) - 1                                # trailing-edge points before the notch
+        for part, idx in ((upper, np.arange(len(t) - 1, len(t) - 1 + n - 1)), (lower, np.arange(1, n))):
+            from_notch = np.abs(part[idx, 1]) / max(span, 1e-9)
+            bite = wear * rng.uniform(0, 1, len(idx)) * 0.35 * (tip_x - x0) * from_notch
+            part[idx, 0] = np.maximum(part[idx, 0] - bite, L + 0.5 * (part[idx, 0] - L))
     lower[:, 1] *= bottom / top if top > 0 else 1.0
     outline = np.vstack([upper, lower])
     centre = np.array([x0 - 0.02 * L, 0.0])
@@ -145,7 +170,7 @@ def bend(points: np.ndarray, curvature: float) -> np.ndarray:
     x, y, z = points.T
     a = curvature * x
     cx, cy = np.sin(a) / curvature, (1 - np.cos(a)) / curvature
-    return np.c_[cx - y * np.sin(a), cy + y * np.cos(a), z]
+    return np.stack([cx - y * np.sin(a), cy + y * np.cos(a), z], axis=1)
 
 
 def pose_matrix(heading_rad: float, pitch_rad: float, roll_rad: float) -> np.ndarray:

@@ -26,6 +26,11 @@ def _log_uniform(rng, lo, hi):
     return float(np.exp(rng.uniform(np.log(lo), np.log(hi))))
 
 
+def _jpeg(rng, c):
+    """None (lossless) for 60 % of scenes, else a JPEG quality 60..95."""
+    return int(rng.integers(60, 96)) if rng.random() < 0.4 else None
+
+
 def _water_bgr(rng, c):
     green = rng.uniform(0.0, 1.0)                     # 0 blue ocean .. 1 green coastal water
     return [float(rng.uniform(0.8, 1.0) - 0.25 * green), float(rng.uniform(0.75, 0.95)),
@@ -38,7 +43,7 @@ UNDERWATER = {
     "mean_length_cm": lambda r, c: float(r.uniform(*SPECIES[c["species"]].mean_length_cm)),
     "length_cv": lambda r, c: float(r.uniform(0.10, 0.15)),
     "weight_scatter": lambda r, c: 0.05,               # sd of log condition factor
-    "n_fish": lambda r, c: int(r.integers(3, 15)),
+    "n_fish": lambda r, c: int(r.integers(3, 21)),
     "range_mm": lambda r, c: [600.0, 2000.0],
     "frame_margin": lambda r, c: 0.15,                 # fish centres placed this far beyond the edges
     "yaw_sd_deg": lambda r, c: float(r.uniform(12, 30)),   # heading off side-on
@@ -53,16 +58,26 @@ UNDERWATER = {
     "light_bgr": lambda r, c: [float(v) for v in r.uniform([200, 200, 110], [255, 250, 190])],
     "sun_tilt_deg": lambda r, c: float(r.uniform(0, 30)),
     "sun_azimuth_deg": lambda r, c: float(r.uniform(0, 360)),
+    "sun_rays": lambda r, c: float(r.uniform(0.1, 0.6)) if r.random() < 0.5 else 0.0,   # light shafts
+    "_rays_seed": lambda r, c: int(r.integers(1 << 30)),
     "light_attenuation_mm": lambda r, c: float(r.uniform(1500, 6000)),
-    "ambient": lambda r, c: float(r.uniform(0.25, 0.5)),
+    "ambient": lambda r, c: float(r.uniform(0.45, 0.8)),    # underwater light is diffuse
     "clutter": lambda r, c: str(r.choice(["none", "net", "reef"], p=[0.4, 0.3, 0.3])),
     "clutter_range_mm": lambda r, c: float(r.uniform(2300, 3500)),
     "net_bgr": lambda r, c: [float(v) for v in r.uniform(0.2, 0.6) * r.uniform(0.8, 1.2, 3) * 255],
-    "reef_bgr": lambda r, c: [float(v) for v in r.uniform([0.2, 0.35, 0.35], [0.5, 0.7, 0.8]) * 255],
+    "reef_bgr": lambda r, c: [float(v) for v in r.uniform([0.25, 0.3, 0.3], [0.45, 0.55, 0.6]) * 255],
     "bubbles": lambda r, c: int(r.integers(0, 60)) if r.random() < 0.7 else 0,
+    "fish_gain": lambda r, c: _log_uniform(r, 0.6, 2.2),    # fish darker .. brighter than the water
+    "shade": lambda r, c: float(r.uniform(0.05, 0.35)),      # darkening of the water under a fish
+    "shade_drop": lambda r, c: float(r.uniform(0.6, 1.5)),   # how far under it, in body depths
     "focus_mm": lambda r, c: float(r.uniform(900, 1400)),
     "blur_gain": lambda r, c: float(r.uniform(0.3, 1.8)),
     "noise_sd": lambda r, c: float(r.uniform(1.0, 4.0)),
+    "particles": lambda r, c: int(r.integers(50, 600)) if r.random() < 0.6 else 0,   # marine snow
+    "_snow_seed": lambda r, c: int(r.integers(1 << 30)),
+    "vignette": lambda r, c: float(r.uniform(0.0, 0.4)),
+    "camera_gain": lambda r, c: [1.0, float(np.exp(r.normal(0, 0.04)))],   # left, right
+    "jpeg_quality": _jpeg,
     "speed_bl_s": lambda r, c: [0.5, 1.5],
 }
 
@@ -71,7 +86,7 @@ SURFACE = {
     "mean_length_cm": lambda r, c: float(r.uniform(*SPECIES[c["species"]].nursery_length_cm)),
     "length_cv": lambda r, c: float(r.uniform(0.10, 0.15)),
     "weight_scatter": lambda r, c: 0.05,
-    "n_fish": lambda r, c: int(r.integers(5, 21)),
+    "n_fish": lambda r, c: int(r.integers(5, 31)),
     "floor_depth_mm": lambda r, c: float(r.uniform(400, 700)),
     "swim_depth_mm": lambda r, c: [40.0, c["floor_depth_mm"] - 80.0],
     "frame_margin": lambda r, c: 0.15,
@@ -80,28 +95,40 @@ SURFACE = {
     "bend": lambda r, c: float(r.uniform(0.0, 0.06)),
     "visibility_mm": lambda r, c: _log_uniform(r, 3000, 15000),
     "water_bgr": lambda r, c: [float(v) for v in r.uniform([90, 100, 80], [150, 150, 120])],
-    "floor_bgr": lambda r, c: [float(v) for v in r.uniform([120, 120, 100], [230, 220, 210])],
+    "floor_bgr": lambda r, c: _floor_bgr(r),
     "floor_texture": lambda r, c: float(r.uniform(0.05, 0.5)),
     "lamps": lambda r, c: _lamps(r),
     "light_bgr": lambda r, c: [float(v) for v in r.uniform([200, 210, 210], [255, 255, 255])],
     "ambient": lambda r, c: float(r.uniform(0.3, 0.5)),
-    "glare_px": lambda r, c: float(r.uniform(25, 90)),
-    "glare_strength": lambda r, c: float(r.uniform(0.2, 0.9)),
+    "glare_px": lambda r, c: float(r.uniform(150, 450)),     # spread of the ripples' glitter
+    "glare_strength": lambda r, c: float(r.uniform(0.3, 1.0)),
     "sheen": lambda r, c: float(r.uniform(0.0, 0.12)),
     "bubbles": lambda r, c: int(r.integers(0, 15)) if r.random() < 0.3 else 0,
+    "fish_gain": lambda r, c: float(r.uniform(0.5, 1.3)),
+    "shade": lambda r, c: float(r.uniform(0.1, 0.5)),        # shadows on the tank floor
     "focus_mm": lambda r, c: 1200.0,
     "blur_gain": lambda r, c: float(r.uniform(0.2, 1.0)),
     "noise_sd": lambda r, c: float(r.uniform(1.0, 3.0)),
+    "vignette": lambda r, c: float(r.uniform(0.0, 0.3)),
+    "camera_gain": lambda r, c: [1.0, float(np.exp(r.normal(0, 0.04)))],
+    "jpeg_quality": _jpeg,
     "speed_bl_s": lambda r, c: [0.5, 1.5],
 }
+
+
+def _floor_bgr(rng) -> list[float]:
+    """A tank floor: grey, blue, green or beige painted or fibreglass, a little worn."""
+    base = [(190, 190, 190), (200, 160, 110), (140, 170, 120), (160, 190, 205), (110, 110, 110)]
+    col = np.asarray(base[int(rng.integers(len(base)))], float) * rng.uniform(0.8, 1.15, 3)
+    return [float(v) for v in np.clip(col, 40, 240)]
 
 
 def _lamps(rng) -> list[list[float]]:
     """One or two lamps ~1.5 m from the tank centre, ~45 deg above the water."""
     out = []
     for _ in range(int(rng.integers(1, 3))):
-        az, el = rng.uniform(0, 2 * np.pi), np.radians(rng.uniform(38, 52))
-        d = rng.uniform(1200, 2000)
+        az, el = rng.uniform(0, 2 * np.pi), np.radians(rng.uniform(38, 55))
+        d = rng.uniform(800, 1800)
         out.append([float(d * np.cos(el) * np.cos(az)), float(d * np.cos(el) * np.sin(az)), float(d * np.sin(el))])
     return out
 
@@ -122,19 +149,26 @@ def _draw(rng, table: dict, n_fish, given: dict, setup: str) -> dict:
     return cond
 
 
+def _texture_size(rig) -> int:
+    """Texture side in texels: enough detail for the image (planes repeat mirrored beyond it)."""
+    return int(np.clip(0.4 * max(rig.image_size), 160, 640))
+
+
 def underwater_conditions(rng, rig, n_fish, given: dict) -> tuple[dict, dict]:
     cond = _draw(rng, UNDERWATER, n_fish, given, "underwater")
     textures = {}
+    n = _texture_size(rig)
     if cond["clutter"] == "net":
-        textures["net"] = net_texture(rng, mesh_mm=float(rng.uniform(20, 45)), texel_mm=4.0, size=1024)
+        textures["net"] = net_texture(rng, mesh_mm=float(rng.uniform(20, 45)), texel_mm=4.0, size=n)
     elif cond["clutter"] == "reef":
-        textures["reef"] = random_texture((768, 768), rng, (1.5, 5.0, 16.0, 40.0))
+        textures["reef"] = random_texture((n, n), rng, (1.5, 5.0, 16.0, 40.0))
     return cond, textures
 
 
 def surface_conditions(rng, rig, n_fish, given: dict) -> tuple[dict, dict]:
     cond = _draw(rng, SURFACE, n_fish, given, "surface")
-    floor = random_texture((640, 640), rng, (2.0, 8.0, 30.0))
+    n = _texture_size(rig)
+    floor = random_texture((n, n), rng, (2.0, 8.0, 30.0))
     textures = {"floor": (0.5 + cond["floor_texture"] * (floor - 0.5)).astype(np.float32),
-                "ripples": ripple_texture(rng, 640)}
+                "ripples": ripple_texture(rng, n)}
     return cond, textures

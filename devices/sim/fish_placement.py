@@ -13,7 +13,7 @@ from __future__ import annotations
 import numpy as np
 
 from devices.sim.fish_species import SPECIES
-from devices.sim.fish_stock import Fish, clear_of, make_fish
+from devices.sim.fish_stock import Fish, clear_of, make_fish, segment_distance
 
 TRIES = 40
 
@@ -149,6 +149,8 @@ def step_swim(rng, rig, cond, fishes: list[Fish], bubbles: np.ndarray, dt: float
         f.centre = f.centre + (-R[:, 0]) * f.speed_mm_s * dt
         f.beat_phase += 2 * np.pi * (1.0 + f.speed_mm_s / f.length_mm) * dt
         f.curvature = f.bend_amp * np.sin(f.beat_phase)
+    _keep_apart(fishes, dt)
+    for f in fishes:
         if _in_volume(rig, cond, f):
             kept.append(f)
     while len(kept) < cond["n_fish"]:
@@ -165,6 +167,32 @@ def step_swim(rng, rig, cond, fishes: list[Fish], bubbles: np.ndarray, dt: float
         if gone.any():
             bubbles[gone] = _bubbles(rng, rig, cond, int(gone.sum()))
     return kept, bubbles
+
+
+def _keep_apart(fishes: list[Fish], dt: float) -> None:
+    """Fish about to touch turn away from each other; bodies that would still overlap are eased
+    apart (a few mm a frame), so drawn fish never pass through one another."""
+    for i, a in enumerate(fishes):
+        for b in fishes[i + 1:]:
+            d = a.centre - b.centre
+            dist = float(np.linalg.norm(d))
+            if dist > 0.6 * (a.length_mm + b.length_mm) or dist == 0.0:
+                continue
+            sa, fa, ra = a.segment_radius()
+            sb, fb, rb = b.segment_radius()
+            gap = segment_distance(sa, fa, sb, fb)
+            need = 0.9 * (ra + rb)
+            if gap > 1.5 * need:
+                continue
+            away = d / dist
+            for fish, sign in ((a, 1.0), (b, -1.0)):
+                fwd = np.array([np.cos(fish.heading), np.sin(fish.heading)])
+                side = fwd[0] * away[1] - fwd[1] * away[0]     # > 0: away is to the fish's left
+                fish.heading += sign * np.sign(side) * 1.5 * dt
+            if gap < need:
+                push = away * (need - gap) / 2
+                a.centre = a.centre + push
+                b.centre = b.centre - push
 
 
 def _bubbles_in(rig, cond, bubbles: np.ndarray) -> np.ndarray:

@@ -26,6 +26,10 @@ def project(rig, world: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         if len(world) == 0:
             out.append(np.zeros((0, 2)))
             continue
+        if D is None or not np.any(D):            # pinhole: the same numbers, without OpenCV's overhead
+            cam = world @ (K @ R).T + K @ np.asarray(t, float)
+            out.append(cam[:, :2] / cam[:, 2:3])
+            continue
         dist = np.zeros(5) if D is None else np.asarray(D, dtype=float)
         px = cv2.projectPoints(world.reshape(-1, 1, 3), cv2.Rodrigues(np.asarray(R, float))[0],
                                np.asarray(t, dtype=float), K, dist)[0]
@@ -40,10 +44,17 @@ class Posed:
     verts: np.ndarray              # (N, 3) world mm
     body: np.ndarray               # (M, 3) outward-wound body faces
     fins: np.ndarray               # (K, 3) fin faces (two-sided)
-    albedo: np.ndarray             # (N, 3) BGR
+    albedo: np.ndarray             # (M, 3) BGR per body face
     fin_albedo: np.ndarray         # (3,) BGR
     glint: np.ndarray              # (M,) specular strength per body face (scales catch light)
     fin_alpha: float               # fin opacity 0..1
+    fork_vertex: int               # index of the fork notch vertex
+    gain: float = 1.0              # this fish's brightness (silvery fish flash, dark ones absorb)
+    scales: float = 30.0           # scale rows along the body (diamond lattice)
+    scale_contrast: float = 0.08
+    surface: tuple | None = None   # per-face normals, centroids, lit colour, light (set on first use)
+    fin_rays: float = 30.0         # rays across the fins per fork length
+    ray_contrast: float = 0.1
 
 
 @dataclass
@@ -60,37 +71,58 @@ class Light:
         return np.exp(np.minimum((np.minimum(z, 0.0) - self.z_ref) / self.attenuation_mm, 1.0))
 
 
-def face_colours(p: Posed, cam_centre: np.ndarray, light: Light) -> tuple[np.ndarray, np.ndarray]:
-    """(visible face mask (M,), BGR colour (M, 3) of each body face) seen from ``cam_centre``."""
-    a, b, c = (p.verts[p.body[:, k]] for k in range(3))
-    n = np.cross(b - a, c - a)
-    n /= np.linalg.norm(n, axis=1, keepdims=True) + 1e-12
-    centroid = (a + b + c) / 3
-    view = cam_centre - centroid
-    view /= np.linalg.norm(view, axis=1, keepdims=True)
+def _bgr(grey: np.ndarray) -> np.ndarray:
+    """A float32 single-channel map repeated on three channels (OpenCV does it faster than a
+    numpy broadcast in the multiply or add that follows)."""
+    return cv2.cvtColor(np.ascontiguousarray(grey, dtype=np.float32), cv2.COLOR_GRAY2BGR)
+
+
+def _unit_rows(v: np.ndarray) -> np.ndarray:
+    return v / (np.sqrt(np.einsum("ij,ij->i", v, v))[:, None] + 1e-12)
+
+
+def _surface(p: Posed, light: Light) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """(normals, centroids, lit colour, light level) of the body faces: the same for both cameras,
+    so worked out once per fish and frame."""
+    if p.surface is None:
+        a, b, c = (p.verts[p.body[:, k]] for k in range(3))
+        e1, e2 = b - a, c - a
+        n = np.stack([e1[:, 1] * e2[:, 2] - e1[:, 2] * e2[:, 1], e1[:, 2] * e2[:, 0] - e1[:, 0] * e2[:, 2],
+                      e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0]], axis=1)
+        n = _unit_rows(n)
+        centroid = (a + b + c) * (1 / 3)
+        level = light.at(centroid[:, 2]) * p.gain
+        diffuse = np.maximum(n @ light.direction, 0.0)
+        colour = p.albedo * ((light.ambient + (1 - light.ambient) * diffuse) * level)[:, None] * light.colour
+        p.surface = (n, centroid, colour, level)
+    return p.surface
+
+
+def face_colours(p: Posed, cam_centre: np.ndarray, light: Light) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(visible (M,), diffuse BGR (M, 3), specular (M,)) of each body face seen from ``cam_centre``."""
+    n, centroid, colour, level = _surface(p, light)
+    view = _unit_rows(cam_centre - centroid)
     visible = np.einsum("ij,ij->i", n, view) > 0
-    diffuse = np.clip(n @ light.direction, 0, None)
-    depth_light = light.at(centroid[:, 2])
-    h = view + light.direction
-    h /= np.linalg.norm(h, axis=1, keepdims=True)
-    spec = np.clip(np.einsum("ij,ij->i", n, h), 0, None) ** light.shininess * p.glint
-    albedo = p.albedo[p.body].mean(axis=1)
-    colour = albedo * (light.ambient + (1 - light.ambient) * diffuse)[:, None] * light.colour
-    colour = (colour + spec[:, None]) * depth_light[:, None]
-    return visible, colour
+    h = _unit_rows(view + light.direction)
+    spec = np.maximum(np.einsum("ij,ij->i", n, h), 0.0) ** light.shininess * p.glint * level
+    return visible, colour, spec
 
 
-def _fill_groups(img: np.ndarray, tri: np.ndarray, colours: np.ndarray, levels: int = 48) -> None:
-    """Fill triangles (n, 3, 2) fixed-point int32 into ``img`` in groups of equal quantised colour."""
-    q = np.clip(np.rint(colours * (levels / 255.0)), 0, 2 * levels).astype(np.int64)
-    key = (q[:, 0] * 256 + q[:, 1]) * 256 + q[:, 2]
+def _fill_groups(img: np.ndarray, tri: np.ndarray, values: np.ndarray, levels: int = 20, floor: int = 1) -> None:
+    """Fill triangles (n, 3, 2) fixed-point int32 into ``img`` in groups of equal quantised value
+    (``values`` (n, channels) in 0..255-ish; one fillPoly call per group, not per triangle).
+    With ``floor`` 1 every filled value is at least one step above 0, so ``img > 0`` is the area."""
+    q = np.clip(np.rint(values * (levels / 255.0)), floor, 4 * levels).astype(np.int64)
+    key = np.zeros(len(q), np.int64)
+    for k in range(q.shape[1]):
+        key = key * 256 + q[:, k]
     order = np.argsort(key, kind="stable")
-    keys, starts = np.unique(key[order], return_index=True)
-    bounds = np.r_[starts, len(order)]
-    for g in range(len(keys)):
-        sel = order[bounds[g]:bounds[g + 1]]
-        col = tuple(float(v) for v in q[sel[0]] * (255.0 / levels))
-        cv2.fillPoly(img, list(tri[sel]), col, lineType=cv2.LINE_8, shift=SHIFT)
+    key, q, tri = key[order], q[order], tri[order]
+    starts = np.flatnonzero(np.diff(key)) + 1
+    bounds = np.concatenate([[0], starts, [len(key)]])
+    for a, b in zip(bounds[:-1], bounds[1:], strict=True):
+        col = tuple(float(v) for v in q[a] * (255.0 / levels))
+        cv2.fillPoly(img, tri[a:b], col, lineType=cv2.LINE_8, shift=SHIFT)
 
 
 @dataclass
@@ -101,10 +133,59 @@ class Drawn:
     inside: bool                   # every vertex projects inside the frame
 
 
+def _wave(shape, origin, snout, fork, k_along: float, k_across: float) -> np.ndarray:
+    """cos(2 pi (k_along * a + k_across * b)) over the patch, a and b the position along and
+    across the snout->fork axis in fork lengths; built from 1-D factors (cos(x + y) =
+    cos x cos y - sin x sin y), not a cosine per pixel."""
+    ax = np.asarray(fork, float) - np.asarray(snout, float)
+    n2 = float(ax @ ax) + 1e-6
+    gx = 2 * np.pi * (k_along * ax[0] - k_across * ax[1]) / n2      # phase per pixel along x
+    gy = 2 * np.pi * (k_along * ax[1] + k_across * ax[0]) / n2
+    x = (np.arange(shape[1]) + origin[0] - snout[0]) * gx
+    y = (np.arange(shape[0]) + origin[1] - snout[1]) * gy
+    cx, sx = np.cos(x).astype(np.float32), np.sin(x).astype(np.float32)
+    cy, sy = np.cos(y).astype(np.float32), np.sin(y).astype(np.float32)
+    return np.outer(cy, cx) - np.outer(sy, sx)
+
+
+def _body_shading(shape: tuple[int, int], tri: np.ndarray, colours: np.ndarray, spec: np.ndarray,
+                  length_px: float) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+    """(colour (h, w, 3), body mask (h, w) uint8 255, glint (h, w) or None) of the visible body
+    triangles ``tri`` (fixed point). The flat facets are smoothed by normalised convolution inside
+    the body, so the outline stays sharp; a big fish's shading is worked out at half resolution
+    (it is smooth) while its outline is drawn at full resolution."""
+    ph, pw = shape
+    q = 2 if length_px > 240 else 1
+    sh = ((ph + q - 1) // q, (pw + q - 1) // q)
+    tq = tri if q == 1 else tri // q
+    colour = np.zeros(sh + (3,), np.float32)
+    if len(tq):     # small fish: coarser shading steps (smoothed over afterwards anyway)
+        _fill_groups(colour, tq, colours, levels=int(np.clip(length_px / 12, 8, 20)))
+    inside = (colour[..., 0] > 0).astype(np.float32)
+    k = 2 * int(np.clip(length_px / (45.0 * q), 1, 5)) + 1
+    colour = cv2.stackBlur(colour, (k, k)) / np.maximum(cv2.stackBlur(inside, (k, k)), np.float32(1e-3))[..., None]
+    lit = spec > 2.0
+    glint = None
+    if lit.any():
+        glint = np.zeros(sh, np.float32)
+        _fill_groups(glint, tq[lit], spec[lit][:, None], levels=12, floor=0)
+    if q == 1:
+        return colour, (inside > 0).view(np.uint8) * np.uint8(255), glint
+    full = (sh[1] * q, sh[0] * q)
+    colour = cv2.resize(colour, full, interpolation=cv2.INTER_LINEAR)[:ph, :pw]
+    if glint is not None:
+        glint = cv2.resize(glint, full, interpolation=cv2.INTER_NEAREST)[:ph, :pw]
+    body = np.zeros((ph, pw), np.uint8)
+    cv2.fillPoly(body, tri, 255, lineType=cv2.LINE_8, shift=SHIFT)
+    return colour, body, glint
+
+
 def draw_fish(frame: np.ndarray, ranks: np.ndarray, rank: int, p: Posed, px: np.ndarray,
               cam_centre: np.ndarray, light: Light, veil: np.ndarray, visibility_mm: float,
-              blur_px: float) -> Drawn:
-    """Draw fish ``p`` whose vertices project to ``px`` (N, 2) into ``frame`` (H, W, 3 float32)."""
+              blur_px: float, sparkle: np.ndarray) -> Drawn:
+    """Draw fish ``p`` whose vertices project to ``px`` (N, 2) into ``frame`` (H, W, 3 float32).
+    ``sparkle`` (H, W) 0..1: where a glinting scale face shows a highlight (scales are small
+    mirrors: a glint is a few pixels, not a whole mesh facet)."""
     h, w = frame.shape[:2]
     inside = bool(np.all((px[:, 0] >= 0) & (px[:, 0] <= w - 1) & (px[:, 1] >= 0) & (px[:, 1] <= h - 1)))
     pad = int(np.ceil(3 * blur_px)) + 3
@@ -115,31 +196,70 @@ def draw_fish(frame: np.ndarray, ranks: np.ndarray, rank: int, p: Posed, px: np.
         return Drawn(0, inside)
     pw, ph = cx1 - cx0, cy1 - cy0
     fixed = np.rint((px - [cx0, cy0]) * _ONE).astype(np.int32)
-    visible, colours = face_colours(p, cam_centre, light)
-    colour = np.zeros((ph, pw, 3), np.float32)
-    body = np.zeros((ph, pw), np.uint8)
+    visible, colours, spec = face_colours(p, cam_centre, light)
     fin = np.zeros((ph, pw), np.uint8)
-    fin_tri = fixed[p.fins]
-    cv2.fillPoly(fin, list(fin_tri), 255, lineType=cv2.LINE_8, shift=SHIFT)
-    fin_col = p.fin_albedo * light.colour * (light.ambient + 0.5 * (1 - light.ambient))
-    fin_col *= light.at(p.verts[:, 2].mean())
-    colour[fin > 0] = fin_col
-    body_tri = fixed[p.body[visible]]
-    cv2.fillPoly(body, list(body_tri), 255, lineType=cv2.LINE_8, shift=SHIFT)
-    _fill_groups(colour, body_tri, colours[visible])
-    alpha = np.maximum(body.astype(np.float32) / 255, (fin > 0) * np.float32(p.fin_alpha))
+    cv2.fillPoly(fin, fixed[p.fins], 255, lineType=cv2.LINE_8, shift=SHIFT)
+    snout_px, fork_px = px[0], px[p.fork_vertex]
+    length_px = float(np.linalg.norm(fork_px - snout_px))
+    colour, body, glint = _body_shading((ph, pw), fixed[p.body[visible]], colours[visible], spec[visible],
+                                        length_px)
+    bodyf = body.astype(np.float32) * np.float32(1 / 255)
+    # a diamond lattice of scales fixed to the body (``p.scales`` rows along the fish)
+    origin = (cx0, cy0)
+    lattice = (_wave((ph, pw), origin, snout_px, fork_px, 2 * p.scales, 0.0)
+               + _wave((ph, pw), origin, snout_px, fork_px, 0.0, 2 * p.scales))
+    colour = cv2.multiply(colour, _bgr(1.0 + np.float32(0.5 * p.scale_contrast) * lattice))
+    if glint is not None:
+        colour = cv2.add(colour, _bgr(glint * sparkle[cy0:cy1, cx0:cx1]))
+    fin_col = (p.fin_albedo * light.colour * (light.ambient + 0.5 * (1 - light.ambient))
+               * light.at(p.verts[:, 2].mean()) * p.gain).astype(np.float32)
+    is_fin = (fin > 0) & (body == 0)
+    if is_fin.any():
+        rays = 1.0 + p.ray_contrast * _wave((ph, pw), origin, snout_px, fork_px, 0.0, p.fin_rays)[is_fin]
+        colour[is_fin] = fin_col * rays[:, None]
+    alpha = np.maximum(bodyf, is_fin * np.float32(p.fin_alpha))
     rng_mm = float(np.linalg.norm(p.verts.mean(axis=0) - cam_centre))
-    trans = np.float32(np.exp(-rng_mm / visibility_mm))
+    trans = float(np.exp(-rng_mm / visibility_mm))
     sl = np.s_[cy0:cy1, cx0:cx1]
-    colour = colour * trans + veil[sl] * (1 - trans)
-    sigma = max(blur_px, 0.45)                      # a soft edge even in focus (anti-aliasing)
-    alpha = cv2.GaussianBlur(alpha, (0, 0), sigma)
+    colour = cv2.addWeighted(colour, trans, veil[sl], 1.0 - trans, 0.0)
+    alpha = cv2.GaussianBlur(alpha, (0, 0), max(blur_px, 0.45))    # a soft edge even in focus
     if blur_px > 0.5:
         colour = cv2.GaussianBlur(colour, (0, 0), blur_px)
-    frame[sl] += (colour - frame[sl]) * alpha[..., None]
+    frame[sl] = cv2.blendLinear(colour, frame[sl], alpha, 1.0 - alpha)
     covered = (body > 0) | (fin > 0)
     ranks[sl][covered] = rank
-    return Drawn(int(covered.sum()), inside)
+    return Drawn(int(np.count_nonzero(covered)), inside)
+
+
+SHADE_Q = 4                        # shades are soft: drawn at a quarter of the resolution
+
+
+def add_shade(shade_map: np.ndarray, px: np.ndarray, strength: float, soft_px: float) -> None:
+    """Add to ``shade_map`` (H/4, W/4) the soft convex outline of points ``px`` (full-res pixels):
+    a fish's shade in the water under it, or its shadow on the tank floor."""
+    h, w = shade_map.shape
+    hull = cv2.convexHull(px.astype(np.float32)).reshape(-1, 2) / SHADE_Q
+    soft = max(soft_px / SHADE_Q, 0.5)
+    pad = int(3 * soft) + 2
+    x0, y0 = np.floor(hull.min(axis=0)).astype(int) - pad
+    x1, y1 = np.ceil(hull.max(axis=0)).astype(int) + pad
+    cx0, cy0, cx1, cy1 = max(x0, 0), max(y0, 0), min(x1, w), min(y1, h)
+    if cx0 >= cx1 or cy0 >= cy1:
+        return
+    small = np.zeros((y1 - y0, x1 - x0), np.float32)
+    pts = np.rint((hull - [x0, y0]) * _ONE).astype(np.int32)
+    cv2.fillPoly(small, [pts], float(strength), lineType=cv2.LINE_8, shift=SHIFT)
+    small = cv2.GaussianBlur(small, (0, 0), soft)
+    shade_map[cy0:cy1, cx0:cx1] += small[cy0 - y0:cy1 - y0, cx0 - x0:cx1 - x0]
+
+
+def shaded(background: np.ndarray, shade_map: np.ndarray) -> np.ndarray:
+    """A new frame: ``background`` darkened by the accumulated shades (at least 0.2 of the light
+    left), in one pass (the copy every frame needs anyway)."""
+    h, w = background.shape[:2]
+    keep = cv2.resize(1.0 - np.minimum(shade_map, 0.8), (shade_map.shape[1] * SHADE_Q, shade_map.shape[0] * SHADE_Q),
+                      interpolation=cv2.INTER_LINEAR)[:h, :w]
+    return cv2.multiply(background, _bgr(keep))
 
 
 def draw_disc(frame: np.ndarray, ranks: np.ndarray | None, rank: int, centre: np.ndarray, radius: float,
@@ -153,8 +273,8 @@ def draw_disc(frame: np.ndarray, ranks: np.ndarray | None, rank: int, centre: np
     cx0, cy0, cx1, cy1 = max(x0, 0), max(y0, 0), min(x1, w), min(y1, h)
     if cx0 >= cx1 or cy0 >= cy1:
         return
-    yy, xx = np.mgrid[cy0:cy1, cx0:cx1].astype(np.float32)
-    d = np.hypot(xx - centre[0], yy - centre[1])
+    yy, xx = np.ogrid[cy0:cy1, cx0:cx1]
+    d = np.hypot(xx - centre[0], yy - centre[1]).astype(np.float32)
     a = np.clip(r + 0.5 - d, 0, 1) * alpha
     rim = np.clip(1 - np.abs(d - r * 0.7) / max(r * 0.5, 0.7), 0, 1)       # bright rim, clearer core
     shade = (0.55 + 0.45 * rim)[..., None]

@@ -44,7 +44,7 @@ class FishTruth:
     snout_px: np.ndarray       # (2, 2) [[u1, v1], [u2, v2]] true pixels (left, right)
     fork_px: np.ndarray        # (2, 2)
     measurable: bool           # snout and fork inside both images and not hidden in either
-    fully_visible: bool        # whole fish inside both frames, < 10 % of it hidden in either
+    fully_visible: bool        # whole fish inside both frames, < 10 % of it hidden in either (and measurable)
     model_weight_g: float = 0.0     # a L^b of the fork length, without the individual scatter
     hidden: tuple[float, float] = (0.0, 0.0)   # share of the fish's drawn pixels hidden (left, right)
 

@@ -23,7 +23,7 @@ class Fish:
     length_mm: float               # fork length along the (unbent) body
     weight_g: float
     mesh: FishMesh
-    albedo: np.ndarray             # (N, 3) per vertex
+    face_albedo: np.ndarray        # (M, 3) BGR per body face
     glint: np.ndarray              # (M,) per body face
     fin_alpha: float
     centre: np.ndarray             # (3,) world mm, mid-body on the axis
@@ -35,6 +35,11 @@ class Fish:
     turn_rad_s: float = 0.0
     beat_phase: float = 0.0
     bend_amp: float = 0.0          # curvature amplitude of the tail beat, 1/mm
+    gain: float = 1.0              # brightness of this fish under the scene's light
+    scales: float = 30.0           # rows of the scale lattice along the body
+    scale_contrast: float = 0.08
+    fin_rays: float = 30.0         # fin rays across the caudal fin
+    ray_contrast: float = 0.1
 
     def rotation(self) -> np.ndarray:
         return pose_matrix(self.heading, self.pitch, self.roll)
@@ -49,8 +54,10 @@ class Fish:
         return pts[0], pts[1]
 
     def posed(self) -> Posed:
-        return Posed(self._place(self.mesh.verts), self.mesh.body, self.mesh.fins, self.albedo,
-                     np.asarray(self.species.fin, float), self.glint, self.fin_alpha)
+        return Posed(self._place(self.mesh.verts), self.mesh.body, self.mesh.fins, self.face_albedo,
+                     np.asarray(self.species.fin, float), self.glint, self.fin_alpha,
+                     self.mesh.fork_vertex, self.gain, self.scales, self.scale_contrast, None,
+                     self.fin_rays, self.ray_contrast)
 
     def segment_radius(self) -> tuple[np.ndarray, np.ndarray, float]:
         s, f = self.snout_fork()
@@ -61,15 +68,18 @@ def make_fish(rng: np.random.Generator, fid: int, sp: Species, length_mm: float,
               weight_scatter: float) -> Fish:
     """One fish of species ``sp`` (pose to be set by the caller)."""
     jitter = 1.0 + rng.normal(0, [0.04, 0.05, 0.08])
-    mesh = build_mesh(sp, length_mm, jitter)
+    wear = float(rng.uniform(0.2, 1.0)) if rng.random() < 0.4 else 0.0      # eroded caudal fins
+    mesh = build_mesh(sp, length_mm, jitter, fork_scale=float(np.exp(rng.normal(0, 0.12))), wear=wear, rng=rng)
     L_cm = length_mm / 10.0
     k = np.exp(rng.normal(-0.5 * weight_scatter ** 2, weight_scatter)) if weight_scatter > 0 else 1.0
     weight = sp.a * L_cm ** sp.b * k
-    albedo = _skin(rng, sp, mesh)
+    albedo = _skin(rng, sp, mesh)[mesh.body].mean(axis=1)
     glint = np.where(rng.random(len(mesh.body)) < 0.35, rng.uniform(0.3, 1.4, len(mesh.body)), 0.0)
     glint *= 255.0 * rng.uniform(0.3, 1.0)
     return Fish(fid, sp, length_mm, float(weight), mesh, albedo, glint, float(rng.uniform(0.35, 0.75)),
-                np.zeros(3), 0.0, 0.0, 0.0, 0.0)
+                np.zeros(3), 0.0, 0.0, 0.0, 0.0, gain=float(np.exp(rng.normal(0, 0.15))),
+                scales=float(rng.uniform(25, 40)), scale_contrast=float(rng.uniform(0.02, 0.08)),
+                fin_rays=float(rng.uniform(15, 45)), ray_contrast=float(rng.uniform(0.0, 0.15)))
 
 
 def _skin(rng: np.random.Generator, sp: Species, mesh: FishMesh) -> np.ndarray:

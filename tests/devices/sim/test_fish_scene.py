@@ -1,7 +1,9 @@
 """The simulated stereo camera: truth is exact, fish appear where the truth says, flags are right."""
+import cv2
 import numpy as np
 import pytest
 
+from devices.sim.fish_body import build_mesh
 from devices.sim.fish_conditions import underwater_conditions
 from devices.sim.fish_paint import render_pair
 from devices.sim.fish_scene import SurveyScene, surface_rig, surface_scene, swim, underwater_rig, underwater_scene
@@ -9,16 +11,23 @@ from devices.sim.fish_species import SPECIES
 from devices.sim.fish_stock import make_fish
 
 SMALL = dict(image_size=(640, 480), focal_px=700.0)
+TINY = dict(image_size=(320, 240), focal_px=350.0)     # same view, quicker
 
 
-def _lone(rng, rig, fishes_spec, **given):
-    """Render fish placed by hand: [(species, length_mm, centre, heading_rad)], calm clear water."""
+def _lone(rng, rig, fishes_spec, pose=(0.0, 0.0, 0.0), plain=False, **given):
+    """Render fish placed by hand: [(species, length_mm, centre, heading_rad)] with (pitch, roll,
+    curvature) ``pose``, in calm clear water; ``plain``: the species' own outline (no individual
+    fork depth or fin wear)."""
     cond, tex = underwater_conditions(rng, rig, len(fishes_spec),
-                                      dict(clutter="none", bubbles=0, visibility_mm=12000.0, **given))
+                                      dict(clutter="none", bubbles=0, particles=0, visibility_mm=12000.0,
+                                           jpeg_quality=None, **given))
     fishes = []
     for i, (name, length, centre, heading) in enumerate(fishes_spec):
         f = make_fish(rng, i, SPECIES[name], length, 0.05)
         f.centre, f.heading = np.asarray(centre, float), heading
+        f.pitch, f.roll, f.curvature = pose
+        if plain:
+            f.mesh = build_mesh(SPECIES[name], length)
         fishes.append(f)
     seed = int(rng.integers(1 << 30))
     out = render_pair(np.random.default_rng(seed), rig, fishes, np.zeros((0, 4)), cond, tex, masks=True)
@@ -28,10 +37,10 @@ def _lone(rng, rig, fishes_spec, **given):
 
 @pytest.mark.parametrize("make", [underwater_scene, surface_scene])
 def test_truth_pixels_are_the_rig_projection_and_length_is_the_3d_distance(make):
-    rig = underwater_rig(**SMALL) if make is underwater_scene else surface_rig(**SMALL)
+    rig = underwater_rig(**TINY) if make is underwater_scene else surface_rig(**TINY)
     for seed in range(3):
-        scene = make(np.random.default_rng(seed), rig=rig)
-        assert isinstance(scene, SurveyScene) and scene.left.shape == (480, 640, 3) and scene.left.dtype == np.uint8
+        scene = make(np.random.default_rng(seed), rig=rig, n_fish=6)
+        assert isinstance(scene, SurveyScene) and scene.left.shape == (240, 320, 3) and scene.left.dtype == np.uint8
         assert scene.fish, "a default scene holds fish"
         for f in scene.fish:
             p1, p2 = rig.project(np.array([f.snout_mm, f.fork_mm]))
@@ -42,11 +51,28 @@ def test_truth_pixels_are_the_rig_projection_and_length_is_the_3d_distance(make)
             assert 0.75 < f.weight_g / (sp.a * f.length_cm ** sp.b) < 1.33      # scatter, not a law change
 
 
+def _fork_in_notch(seen: np.ndarray, snout: np.ndarray, fork: np.ndarray) -> bool:
+    """Just behind the fork point is water, just ahead of it fin, and behind it, on either side
+    of the snout-fork line, the two lobes."""
+    axis = (fork - snout) / np.linalg.norm(fork - snout)
+    normal = np.array([-axis[1], axis[0]])
+
+    def at(p):
+        return seen[int(round(p[1])), int(round(p[0]))]
+
+    beyond = fork + 2.5 * axis
+    ks = np.linspace(1, 0.25 * np.linalg.norm(fork - snout), 40)
+    # the notch is a narrow V: which pixel row holds its apex depends on sub-pixel position
+    water = any(at(beyond + d * normal) == -1 for d in (-0.5, 0.0, 0.5))
+    return (water and at(fork - 4 * axis) == 0
+            and any(at(beyond + k * normal) == 0 for k in ks) and any(at(beyond - k * normal) == 0 for k in ks))
+
+
 def test_fish_drawn_at_its_truth_pixels_and_fork_sits_in_the_notch_between_the_lobes():
     rig = underwater_rig(**SMALL)
     for name in ("sparus_aurata", "dicentrarchus_labrax", "salmo_salar"):
         (left, right, truths, seen), (eleft, eright, _), _ = _lone(
-            np.random.default_rng(1), rig, [(name, 300.0, (0, 1500, -1500), 0.0)])
+            np.random.default_rng(1), rig, [(name, 300.0, (0, 1500, -1493), 0.0)], plain=True)
         t = truths[0]
         assert t["measurable"] and t["fully_visible"]
         for cam, (img, empty) in enumerate(((left, eleft), (right, eright))):
@@ -55,19 +81,22 @@ def test_fish_drawn_at_its_truth_pixels_and_fork_sits_in_the_notch_between_the_l
             assert seen[cam][mid[1], mid[0]] == 0
             win = np.s_[mid[1] - 2:mid[1] + 3, mid[0] - 2:mid[0] + 3]
             assert np.abs(img[win].astype(float).mean((0, 1)) - empty[win].astype(float).mean((0, 1))).max() > 10
-            axis = (f - s) / np.linalg.norm(f - s)
-            normal = np.array([-axis[1], axis[0]])
-            beyond = f + 3 * axis
-            mask = seen[cam]
+            assert _fork_in_notch(seen[cam], s, f)
 
-            def at(p, mask=mask):
-                return mask[int(round(p[1])), int(round(p[0]))]
-            assert at(beyond) == -1, "just behind the fork notch is water"
-            assert at(f - 4 * axis) == 0, "just ahead of it is fin"
-            span = np.linalg.norm(f - s) * 0.25
-            ts = np.linspace(1, span, 40)
-            assert any(at(beyond + k * normal) == 0 for k in ts), "upper lobe"
-            assert any(at(beyond - k * normal) == 0 for k in ts), "lower lobe"
+
+def test_fork_stays_in_the_notch_for_oblique_pitched_rolled_bent_fish():
+    # up to 45 deg off side-on: beyond that the notch, foreshortened by cos(yaw), is under the
+    # 2 px probe at this image scale (it is still drawn; the probe cannot see it)
+    rig = underwater_rig(**SMALL)
+    rng = np.random.default_rng(5)
+    for trial, yaw in enumerate((-45, -30, 0, 25, 40, 45)):
+        name = ("sparus_aurata", "dicentrarchus_labrax")[trial % 2]
+        heading = np.radians(yaw) + np.pi * (trial % 3 == 0)
+        centre = (rng.uniform(-150, 150), rng.uniform(1300, 1700), -1500 + rng.uniform(-100, 100))
+        pose = (np.radians(rng.uniform(-20, 20)), np.radians(rng.uniform(-20, 20)), rng.uniform(-3e-4, 3e-4))
+        (_, _, truths, seen), _, _ = _lone(rng, rig, [(name, 300.0, centre, heading)], pose, plain=True)
+        for cam in (0, 1):
+            assert _fork_in_notch(seen[cam], truths[0]["snout_px"][cam], truths[0]["fork_px"][cam]), (trial, cam)
 
 
 def test_fish_cut_by_the_frame_edge_is_neither_measurable_nor_fully_visible():
@@ -98,17 +127,20 @@ def test_fish_behind_a_nearer_one_is_hidden_and_the_nearer_one_is_not():
 
 
 def test_same_seed_same_scene_other_seed_other_scene():
-    rig = underwater_rig(**SMALL)
+    rig = underwater_rig(**TINY)
     a, b = (underwater_scene(np.random.default_rng(7), rig=rig) for _ in range(2))
     c = underwater_scene(np.random.default_rng(8), rig=rig)
     assert np.array_equal(a.left, b.left) and np.array_equal(a.right, b.right)
     assert [f.id for f in a.fish] == [f.id for f in b.fish]
     assert all(np.array_equal(x.snout_mm, y.snout_mm) for x, y in zip(a.fish, b.fish, strict=True))
     assert not np.array_equal(a.left, c.left)
+    clips = [list(swim(np.random.default_rng(3), "surface", 0.3, 10, rig=surface_rig(**TINY))) for _ in range(2)]
+    assert all(np.array_equal(x.left, y.left) and np.array_equal(x.right, y.right)
+               for x, y in zip(*clips, strict=True))
 
 
 def test_conditions_drawn_per_scene_reported_and_checked():
-    rig = underwater_rig(**SMALL)
+    rig = underwater_rig(**TINY)
     scenes = [underwater_scene(np.random.default_rng(s), rig=rig, n_fish=2) for s in range(3)]
     assert all(len(s.fish) <= 2 for s in scenes)
     assert len({s.conditions["visibility_mm"] for s in scenes}) == 3
@@ -117,13 +149,14 @@ def test_conditions_drawn_per_scene_reported_and_checked():
     with pytest.raises(ValueError, match="turbidty"):
         underwater_scene(np.random.default_rng(0), rig=rig, turbidty=3)
     with pytest.raises(ValueError, match="species"):
-        surface_scene(np.random.default_rng(0), rig=surface_rig(**SMALL), species="carp")
+        surface_scene(np.random.default_rng(0), rig=surface_rig(**TINY), species="carp")
 
 
-def test_swim_keeps_ids_and_moves_fish_smoothly():
-    rig = underwater_rig(**SMALL)
+@pytest.mark.parametrize("setup", ["underwater", "surface"])
+def test_swim_keeps_ids_and_moves_fish_smoothly(setup):
+    rig = underwater_rig(**TINY) if setup == "underwater" else surface_rig(**TINY)
     fps = 10.0
-    frames = list(swim(np.random.default_rng(4), "underwater", 1.0, fps, rig=rig, n_fish=4, bubbles=0))
+    frames = list(swim(np.random.default_rng(4), setup, 1.0, fps, rig=rig, n_fish=4, bubbles=0))
     assert len(frames) == 10
     seen_ids: set[int] = set()
     for prev, cur in zip(frames, frames[1:], strict=False):
@@ -135,6 +168,80 @@ def test_swim_keeps_ids_and_moves_fish_smoothly():
                 assert 0 < step <= 1.5 * 10 * f.length_cm / fps * 1.3 + 5
                 assert abs(f.length_cm - before[f.id].length_cm) < 0.02 * f.length_cm
             else:
-                assert f.id not in seen_ids and f.id >= max(before), "a new fish gets a new id"
+                assert f.id not in seen_ids and f.id > max(before), "a new fish gets a new id"
         seen_ids |= set(before)
     assert set(f.id for f in frames[0].fish) & set(f.id for f in frames[-1].fish)
+
+
+def test_surface_fish_seen_from_above_at_its_truth_pixels_with_its_shadow_elsewhere():
+    from devices.sim.fish_conditions import surface_conditions
+    rig = surface_rig(**SMALL)
+    rng = np.random.default_rng(9)
+    cond, tex = surface_conditions(rng, rig, 1, dict(bubbles=0, jpeg_quality=None, glare_strength=0.0, sheen=0.0,
+                                                     lamps=[[0.0, -1000.0, 1000.0]], shade=0.5))
+    f = make_fish(rng, 0, SPECIES["sparus_aurata"], 120.0, 0.05)
+    f.centre, f.heading = np.array([0.0, 0.0, -150.0]), 0.3
+    seed = int(rng.integers(1 << 30))
+    left, right, truths, seen = render_pair(np.random.default_rng(seed), rig, [f], np.zeros((0, 4)), cond, tex,
+                                            masks=True)
+    eleft, _, _ = render_pair(np.random.default_rng(seed), rig, [], np.zeros((0, 4)), cond, tex)
+    t = truths[0]
+    assert t["measurable"] and t["fully_visible"]
+    assert abs(t["snout_mm"][2] - t["fork_mm"][2]) < 1.0           # level fish: both ends at one depth
+    s, fk = t["snout_px"][0], t["fork_px"][0]
+    mid = np.rint((s + fk) / 2).astype(int)
+    assert seen[0][mid[1], mid[0]] == 0
+    win = np.s_[mid[1] - 1:mid[1] + 2, mid[0] - 1:mid[0] + 2]
+    assert np.abs(left[win].astype(float).mean((0, 1)) - eleft[win].astype(float).mean((0, 1))).max() > 10
+    # the lamp stands towards -y: the shadow falls towards +y on the floor, i.e. up the image
+    # (image-up is world +y), away from the fish itself
+    shadow = eleft.astype(float).sum(2) - left.astype(float).sum(2)
+    shadow[seen[0] >= 0] = 0
+    v, u = np.unravel_index(np.argmax(cv2.GaussianBlur(shadow, (0, 0), 3)), shadow.shape)
+    assert v < mid[1] - 20
+    assert shadow[max(v - 3, 0):v + 4, max(u - 3, 0):u + 4].mean() > 10
+
+
+def test_flags_are_consistent_over_many_scenes():
+    rig = underwater_rig(**TINY)
+    seen_cut = seen_whole = 0
+    for seed in range(6):
+        for f in underwater_scene(np.random.default_rng(100 + seed), rig=rig).fish:
+            inside = all(np.all((p >= 0) & (p <= [319, 239])) for p in (f.snout_px, f.fork_px))
+            assert f.measurable <= inside and f.fully_visible <= f.measurable
+            assert f.fully_visible <= (max(f.hidden) < 0.1)
+            seen_cut += not inside
+            seen_whole += f.fully_visible
+    assert seen_cut and seen_whole            # scenes hold both fish cut by the frame and whole ones
+
+
+def test_swimming_fish_leave_the_view_and_new_ones_enter_from_the_sides():
+    rig = underwater_rig(**TINY)
+    frames = list(swim(np.random.default_rng(6), "underwater", 8.0, 4.0, rig=rig, n_fish=3, bubbles=0,
+                       particles=0))
+    first = {f.id for f in frames[0].fish}
+    later = set().union(*({f.id for f in fr.fish} for fr in frames[1:]))
+    assert first - {f.id for f in frames[-1].fish}, "some fish left"
+    newcomers = later - first
+    assert newcomers, "new fish came in"
+    for fid in newcomers:
+        k = next(i for i, fr in enumerate(frames) if fid in {f.id for f in fr.fish})
+        f = next(f for f in frames[k].fish if f.id == fid)
+        u = (f.snout_px[0, 0] + f.fork_px[0, 0]) / 2
+        assert u < 0.25 * 320 or u > 0.75 * 320, "a newcomer appears at a side of the view"
+
+
+def test_worn_or_shallow_caudal_fins_keep_the_fork_notch_innermost():
+    from devices.sim.fish_body import _caudal_outline
+    L = 250.0
+    for name, sp in SPECIES.items():
+        for seed in range(5):
+            outline, _ = _caudal_outline(sp, L, 20.0, 16.0, 0.8, fork_scale=0.7, wear=1.0,
+                                         rng=np.random.default_rng(seed))
+            top, bottom = np.argmax(outline[:, 1]), np.argmin(outline[:, 1])      # the two lobe tips
+            trailing = outline[top:bottom + 1]
+            innermost = trailing[np.argmin(trailing[:, 0])]
+            np.testing.assert_allclose(innermost, [L, 0.0], err_msg=name)
+            assert np.sum(np.all(np.isclose(trailing, [L, 0.0]), axis=1)) == 1
+            mesh = build_mesh(sp, L, None, fork_scale=0.7, wear=1.0, rng=np.random.default_rng(seed))
+            np.testing.assert_allclose(mesh.verts[mesh.fork_vertex], [L, 0.0, 0.0])
