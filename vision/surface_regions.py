@@ -26,6 +26,7 @@ from vision.surface_prep import Contrast
 class RegionParams:
     seed_sigma: float = 8.0        # seeds: contrast above this many noise levels ...
     min_seed: float = 0.12         # ... and above this fraction of the floor
+    max_seed: float = 0.25         # ... but never more than this
     grow_sigma: float = 4.0        # growing: above this many noise levels ...
     min_grow: float = 0.05         # ... and this fraction
     edge_level: float = 0.4        # full-res boundary: this fraction of the region's peak contrast
@@ -33,8 +34,11 @@ class RegionParams:
     min_length_frac: float = 0.025  # fish length in px >= this x image diagonal
     max_length_frac: float = 0.6
     min_elongation: float = 2.2    # split pieces: (4 sd along the axis)^2 / area, a loose bound
-    min_slender: float = 3.5       # a fish: length^2 / area (fish from above ~6-11; an ellipse of
-                                   # axes a > b: 4a / (pi b), so a lamp's reflection 3x longer than wide fails)
+    min_slender: float = 5.0       # a fish: length^2 / area (fish from above ~6-11; an ellipse of
+                                   # axes a > b: 4a / (pi b), so a blob 4x longer than wide fails)
+    min_box_slender: float = 4.0   # coarse pre-check: bounding-box diagonal^2 / area (a fish ~8, a disc 2.5)
+    min_coarse_slender: float = 3.0   # the same from the coarse mask's moments (fish ~6, a 2.4:1 ellipse 3)
+    max_regions: int = 40          # per polarity, the largest: a textured floor seeds hundreds of blobs
     glare_level: int = 245         # a light region this bright (median) is a reflection, not a fish
     border_px: int = 2             # a region this close to the frame edge is cut by it
 
@@ -59,8 +63,10 @@ def _grow(c: Contrast, p: RegionParams, sign: float):
     pixels per label pixel). Thresholds are taken at the working level; the masks are then pooled
     2x2 (a pixel is set if any of its four is) so the connected components run on a quarter of the
     pixels: regions are redrawn at full resolution anyway."""
-    seed_t = max(p.seed_sigma * c.noise, p.min_seed)
-    grow_t = max(p.grow_sigma * c.noise, p.min_grow)
+    # a textured floor inflates the spread the noise is read from: never ask seeds for more than
+    # ``max_seed`` of the floor's brightness (fish from above are darker or lighter than that)
+    seed_t = min(max(p.seed_sigma * c.noise, p.min_seed), p.max_seed)
+    grow_t = min(max(p.grow_sigma * c.noise, p.min_grow), p.max_seed / 2)
     work = c.work if sign > 0 else -c.work
     size = (work.shape[1] // 2, work.shape[0] // 2)
     def pool(mask):                 # 0/255 averaged over 2x2: non-zero where any of the four is set
@@ -69,7 +75,14 @@ def _grow(c: Contrast, p: RegionParams, sign: float):
     n, labels, stats, _ = cv2.connectedComponentsWithStats(weak, connectivity=8)
     seeded = np.bincount(labels[strong > 0], minlength=n) > 0
     seeded[0] = False
-    return labels, stats, np.flatnonzero(seeded), 2 * c.scale
+    w, h, area = (stats[:, k].astype(float) for k in (cv2.CC_STAT_WIDTH, cv2.CC_STAT_HEIGHT, cv2.CC_STAT_AREA))
+    scale = 2 * c.scale
+    diag = float(np.hypot(*c.full.shape))
+    seeded &= np.maximum(w, h) * scale >= 0.5 * p.min_length_frac * diag
+    seeded &= w * w + h * h >= p.min_box_slender * area    # a blob (floor texture, glitter): not a fish
+    keep = np.flatnonzero(seeded)
+    keep = keep[np.argsort(-area[keep], kind="stable")[:p.max_regions]]
+    return labels, stats, keep, 2 * c.scale
 
 
 def _fill(mask: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
@@ -92,6 +105,16 @@ def _elongation(mask: np.ndarray) -> float:
     lam = np.linalg.eigvalsh(np.cov(np.vstack([xs, ys]).astype(np.float64)))
     length = 4.0 * np.sqrt(max(lam[1], 1e-9))          # a uniform bar of length L has sd L / 3.46
     return length * length / area
+
+
+def _moment_slender(mask: np.ndarray) -> float:
+    """(4 sd along the principal axis)^2 / area from the mask's moments (cheap: no pixel lists)."""
+    m = cv2.moments(mask, binaryImage=True)
+    if m["m00"] < 10:
+        return 0.0
+    a, b, c = m["mu20"] / m["m00"], m["mu02"] / m["m00"], m["mu11"] / m["m00"]
+    lam = 0.5 * (a + b) + np.sqrt(0.25 * (a - b) ** 2 + c * c)
+    return 16.0 * lam / m["m00"]
 
 
 def _separate(mask: np.ndarray, min_elongation: float) -> list[np.ndarray]:
@@ -199,6 +222,8 @@ def _regions(c: Contrast, p: RegionParams, sign: float) -> list[Region]:
         x, y, w, h, area = stats[k]
         if max(w, h) * s < 0.5 * min_len or min(w, h) * s > max_len:
             continue
+        if _moment_slender((labels[y:y + h, x:x + w] == k).view(np.uint8)) < p.min_coarse_slender:
+            continue                  # a blob at the coarse level (floor texture, glitter)
         m = int(np.ceil(0.3 * max(w, h) * s + 4))
         u0, v0 = max(int(x * s) - m, 0), max(int(y * s) - m, 0)
         u1, v1 = min(int((x + w) * s) + m, W), min(int((y + h) * s) + m, H)
@@ -222,6 +247,8 @@ def _regions(c: Contrast, p: RegionParams, sign: float) -> list[Region]:
             continue
         mask = (lab2 == int(overlap.argmax())).astype(np.uint8)
         mask, _ = _fill(mask)
+        if _moment_slender(mask) < p.min_coarse_slender:  # a blob: no fish, nor fish side by side
+            continue
         glaring = ((img >= 250) | ((img > 1.15 * floor) & (sign > 0))).astype(np.uint8)
         for part in (q for w in _separate(mask, p.min_elongation) for q in _cut_at_waist(w, p.min_elongation)):
             part, contour = _fill(part)
