@@ -38,6 +38,7 @@ class RegionParams:
                                    # axes a > b: 4a / (pi b), so a blob 4x longer than wide fails)
     min_box_slender: float = 4.0   # coarse pre-check: bounding-box diagonal^2 / area (a fish ~8, a disc 2.5)
     min_coarse_slender: float = 3.0   # the same from the coarse mask's moments (fish ~6, a 2.4:1 ellipse 3)
+    end_to_end_slender: float = 9.0   # only regions this slender are tried for a waist
     max_regions: int = 40          # per polarity, the largest: a textured floor seeds hundreds of blobs
     glare_level: int = 245         # a light region this bright (median) is a reflection, not a fish
     border_px: int = 2             # a region this close to the frame edge is cut by it
@@ -250,7 +251,11 @@ def _regions(c: Contrast, p: RegionParams, sign: float) -> list[Region]:
         if _moment_slender(mask) < p.min_coarse_slender:  # a blob: no fish, nor fish side by side
             continue
         glaring = ((img >= 250) | ((img > 1.15 * floor) & (sign > 0))).astype(np.uint8)
-        for part in (q for w in _separate(mask, p.min_elongation) for q in _cut_at_waist(w, p.min_elongation)):
+        parts = _separate(mask, p.min_elongation)
+        # end to end, two fish are about twice as slender as one (one: ~6)
+        parts = [q for w in parts for q in (_cut_at_waist(w, p.min_elongation)
+                                            if _moment_slender(w) > p.end_to_end_slender else [w])]
+        for part in parts:
             part, contour = _fill(part)
             if contour is None or len(contour) < 8:
                 continue
