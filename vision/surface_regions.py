@@ -39,6 +39,7 @@ class RegionParams:
     min_box_slender: float = 4.0   # coarse pre-check: bounding-box diagonal^2 / area (a fish ~8, a disc 2.5)
     min_coarse_slender: float = 3.0   # the same from the coarse mask's moments (fish ~6, a 2.4:1 ellipse 3)
     end_to_end_slender: float = 9.0   # only regions this slender are tried for a waist
+    min_coarse_solidity: float = 0.6  # light regions: coarse area / convex hull area
     max_regions: int = 40          # per polarity, the largest: a textured floor seeds hundreds of blobs
     glare_level: int = 245         # a light region this bright (median) is a reflection, not a fish
     border_px: int = 2             # a region this close to the frame edge is cut by it
@@ -116,6 +117,17 @@ def _moment_slender(mask: np.ndarray) -> float:
     a, b, c = m["mu20"] / m["m00"], m["mu02"] / m["m00"], m["mu11"] / m["m00"]
     lam = 0.5 * (a + b) + np.sqrt(0.25 * (a - b) ** 2 + c * c)
     return 16.0 * lam / m["m00"]
+
+
+def _solidity(mask: np.ndarray) -> float:
+    """Area / convex hull area of a small mask's largest outline (a fish's body ~0.8-0.9, a ragged
+    patch of glitter or floor texture much less)."""
+    contours, _ = cv2.findContours(mask, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE)
+    if not contours:
+        return 0.0
+    c = max(contours, key=cv2.contourArea)
+    hull = cv2.contourArea(cv2.convexHull(c))
+    return float(cv2.contourArea(c) / hull) if hull > 0 else 1.0
 
 
 def _separate(mask: np.ndarray, min_elongation: float) -> list[np.ndarray]:
@@ -223,8 +235,12 @@ def _regions(c: Contrast, p: RegionParams, sign: float) -> list[Region]:
         x, y, w, h, area = stats[k]
         if max(w, h) * s < 0.5 * min_len or min(w, h) * s > max_len:
             continue
-        if _moment_slender((labels[y:y + h, x:x + w] == k).view(np.uint8)) < p.min_coarse_slender:
-            continue                  # a blob at the coarse level (floor texture, glitter)
+        coarse = (labels[y:y + h, x:x + w] == k).view(np.uint8)
+        if _moment_slender(coarse) < p.min_coarse_slender:
+            continue                  # a blob at the coarse level (floor texture)
+        if sign < 0 and _solidity(coarse) < p.min_coarse_solidity:
+            continue                  # a ragged light patch: lamp glitter on the ripples (dark regions
+                                      # are not asked: fish touching each other are ragged too)
         m = int(np.ceil(0.3 * max(w, h) * s + 4))
         u0, v0 = max(int(x * s) - m, 0), max(int(y * s) - m, 0)
         u1, v1 = min(int((x + w) * s) + m, W), min(int((y + h) * s) + m, H)
