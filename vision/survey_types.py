@@ -34,6 +34,10 @@ class FishGeometry:
     max_length_cm: float = 80.0
     max_tilt_deg: float = 35.0          # body axis against the water surface
     depth_to_length: float = 0.38       # body depth / fork length (sea bream ~0.38; salmon ~0.25)
+    # Seen from above (surface setup) the caudal fin stands edge-on and its fork is rarely seen: the
+    # fork is then placed from the fin's base, at snout + (base - snout) / fin_base_to_fork (the
+    # species' standard-to-fork length ratio, ~0.86-0.91). None: the rear end of the fin is used.
+    fin_base_to_fork: float | None = None
 
 
 @dataclass(frozen=True)

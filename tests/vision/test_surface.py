@@ -1,0 +1,211 @@
+"""Surface setup (nursery tank seen from above): per-image fish points and the stereo measurement,
+on fish drawn from the contract's words (tests/vision/test_surface_drawing.py)."""
+from __future__ import annotations
+
+import cv2
+import numpy as np
+import pytest
+
+from tests.vision.test_surface_drawing import (
+    draw,
+    edge_on,
+    finish,
+    floor,
+    outline,
+    place,
+    reflection,
+    stereo_tank,
+    top_rig,
+)
+from vision.surface import detect_fish, measure_surface, up_direction
+from vision.survey import measure_pair
+from vision.survey_types import FishGeometry, SurveySetup
+
+SETUP = SurveySetup(setup="surface")
+
+
+def _tank(fish, rng, glare=None, size=(1280, 960)):
+    """One image: fish given as (snout (u, v), heading rad, length px[, darkness])."""
+    img = floor(size, rng)
+    for f in fish:
+        draw(img, place(outline(f[2]), np.asarray(f[0], float), f[1]), *(f[3:] or ()))
+    if glare is not None:
+        reflection(img, *glare)
+    return finish(img)
+
+
+def _nearest(found, snout):
+    return min(found, key=lambda f: np.linalg.norm(f.snout - snout) + 0 * f.length_px)
+
+
+@pytest.mark.parametrize("heading_deg", range(0, 360, 45))
+def test_snout_and_fork_found_at_every_heading(heading_deg):
+    rng = np.random.default_rng(heading_deg)
+    L = 150.0
+    snout = np.array([640.0, 480.0])
+    h = np.radians(heading_deg)
+    img = _tank([(snout, h, L)], rng, glare=((200, 150), (70, 30)))
+    found = detect_fish(img)
+    assert len(found) == 1
+    f = found[0]
+    fork = snout + L * np.array([np.cos(h), np.sin(h)])
+    assert np.linalg.norm(f.snout - snout) < 0.02 * L
+    assert np.linalg.norm(f.fork - fork) < 0.02 * L           # the notch, not the lobe tips (+15 %)
+    assert f.head_conf > 0.5 and f.fork_depth > 0.05
+
+
+def test_head_decided_by_taper_when_the_tail_is_not_forked():
+    rng = np.random.default_rng(3)
+    img = floor(rng=rng)
+    snout, L = np.array([400.0, 500.0]), 160.0
+    draw(img, place(outline(L, lobe=0.05), snout, 0.0))      # lobes barely spread: no notch to see
+    f, = detect_fish(finish(img))
+    assert f.snout[0] < f.fork[0] and np.linalg.norm(f.snout - snout) < 0.02 * L
+
+
+@pytest.mark.parametrize("heading_deg", [20, 110, 200, 290])
+def test_edge_on_fin_fork_placed_from_the_fin_base_by_the_species_ratio(heading_deg):
+    rng = np.random.default_rng(heading_deg)
+    L, snout, h = 140.0, np.array([600.0, 450.0]), np.radians(heading_deg)
+    img = floor(rng=rng)
+    body, fin = edge_on(L)
+    draw(img, place(body, snout, h))
+    line = np.zeros(img.shape, np.uint8)
+    ends = np.round(place(fin, snout, h)).astype(int)
+    cv2.line(line, tuple(ends[0]), tuple(ends[1]), 255, 2, cv2.LINE_AA)
+    img *= 1 - 0.25 * line.astype(np.float32) / 255                   # translucent, paler than the body
+    img = finish(img)
+    fork = snout + L * np.array([np.cos(h), np.sin(h)])
+    f, = detect_fish(img, base_ratio=0.87)
+    assert np.linalg.norm(f.snout - snout) < 0.02 * L
+    assert np.linalg.norm(f.fork - fork) < 0.03 * L and not f.fork_seen
+    g, = detect_fish(img)                                     # no ratio: the rear end of the fin
+    assert np.linalg.norm(g.fork - (snout + 1.12 * L * np.array([np.cos(h), np.sin(h)]))) < 0.04 * L
+
+
+def test_sizes_pale_and_dark_fish_under_the_lamp_gradient():
+    rng = np.random.default_rng(5)
+    fish = [((150, 150), 0.2, 60, 0.3), ((700, 200), 2.0, 220, 0.6), ((300, 700), -0.4, 120, 0.25),
+            ((1000, 600), 1.2, 100, 0.5)]
+    found = detect_fish(_tank(fish, rng))
+    assert len(found) == 4
+    for snout, _h, L, _ in fish:
+        f = _nearest(found, np.asarray(snout, float))
+        assert abs(f.length_px - L) < 0.03 * L + 1.0         # a pixel of blur on the 60 px fish
+
+
+def test_pale_fish_over_a_dark_floor():
+    rng = np.random.default_rng(6)
+    img = floor(rng=rng, gradient=(70, 40))
+    snout, L = np.array([300.0, 600.0]), 130.0
+    draw(img, place(outline(L), snout, -0.7), darkness=-1.2)           # 2.2x the floor's brightness
+    f, = detect_fish(finish(img))
+    fork = snout + L * np.array([np.cos(-0.7), np.sin(-0.7)])
+    assert np.linalg.norm(f.snout - snout) < 0.02 * L and np.linalg.norm(f.fork - fork) < 0.03 * L
+
+
+def test_fish_cut_by_the_frame_edge_and_reflections_alone_are_not_reported():
+    rng = np.random.default_rng(7)
+    fish = [((-30, 300), 0.0, 150), ((1200, 800), 0.3, 150)]          # snout out; lobes out
+    img = _tank(fish, rng, glare=((640, 480), (120, 40)))
+    assert detect_fish(img) == []
+    assert detect_fish(np.full((480, 640), 128, np.uint8)) == []
+    assert detect_fish(np.zeros((480, 640, 3), np.uint8)) == []
+
+
+def test_a_fish_next_to_a_reflection_keeps_its_points():
+    rng = np.random.default_rng(8)
+    snout, L = np.array([500.0, 400.0]), 150.0
+    img = _tank([(snout, 0.0, L)], rng, glare=((600, 340), (80, 22), 0.0))   # the glare runs along its back
+    found = detect_fish(img)
+    assert len(found) == 1 and np.linalg.norm(found[0].snout - snout) < 0.03 * L
+
+
+def test_touching_fish_are_split():
+    rng = np.random.default_rng(9)
+    L = 150.0
+    fish = [((500, 400), 0.0, L), ((560, 417), np.pi / 2, L)]      # one noses the other's flank
+    found = detect_fish(_tank(fish, rng))
+    assert len(found) == 2
+    for snout, *_ in fish:
+        assert np.linalg.norm(_nearest(found, np.asarray(snout, float)).snout - snout) < 0.05 * L
+
+
+def test_other_image_sizes():
+    rng = np.random.default_rng(10)
+    small = _tank([((100, 100), 0.5, 80)], rng, size=(400, 300))
+    big = _tank([((600, 500), 2.5, 300)], rng, size=(1920, 1080))
+    assert len(detect_fish(small)) == 1 and len(detect_fish(big)) == 1
+
+
+FISH = [dict(length_mm=120, snout_xy=(-150, 50), heading=0.3, depth_mm=150),
+        dict(length_mm=90, snout_xy=(100, -100), heading=2.5, depth_mm=250, tilt_deg=8),
+        dict(length_mm=150, snout_xy=(0, 150), heading=-1.2, depth_mm=100),
+        dict(length_mm=70, snout_xy=(250, 200), heading=np.pi, depth_mm=60)]
+
+
+def test_stereo_fork_lengths_and_pixels():
+    left, right, rig, truths = stereo_tank(np.random.default_rng(11), FISH, glare=((1000, 150), (60, 25)))
+    found = measure_surface(left, right, rig.calibration(), SETUP, timings := {})
+    assert set(timings) == {"prep", "detect", "stereo"}
+    assert len(found) == len(truths)
+    for s, k, spx, _kpx in truths:
+        m = min(found, key=lambda m: np.linalg.norm(m.snout_mm - s))
+        L = np.linalg.norm(s - k)
+        assert np.linalg.norm(m.snout_mm - s) < 0.03 * L and np.linalg.norm(m.fork_mm - k) < 0.03 * L
+        assert abs(m.length_cm * 10 - L) < 0.02 * L
+        assert np.abs(m.snout_px - np.c_[spx[0], spx[1]].T).max() < 3
+        assert 0.5 < m.score <= 1
+
+
+def test_stereo_through_measure_pair_on_colour_and_grey():
+    left, right, rig, _ = stereo_tank(np.random.default_rng(12), FISH[:2])
+    calib = rig.calibration()
+    grey = measure_pair(left, right, calib, SETUP)
+    colour = measure_pair(cv2.cvtColor(left, cv2.COLOR_GRAY2BGR), cv2.cvtColor(right, cv2.COLOR_GRAY2BGR),
+                          calib, SETUP)
+    assert len(grey) == 2 and [m.length_cm for m in grey] == pytest.approx([m.length_cm for m in colour])
+
+
+def test_empty_tank_gives_no_fish():
+    rig = top_rig()
+    img = finish(floor(rng=np.random.default_rng(13)))
+    assert measure_surface(img, img.copy(), rig.calibration(), SETUP) == []
+
+
+def test_up_defaults_to_towards_the_cameras():
+    up = up_direction(top_rig().calibration(), SETUP)
+    assert up == pytest.approx([0, 0, 1], abs=0.01)
+    assert up_direction(top_rig().calibration(), SurveySetup(setup="surface", up_world=(0, 0, 2))) == \
+        pytest.approx([0, 0, 1])
+
+
+def test_tilted_and_implausible_fish_dropped_and_tilt_lowers_the_score():
+    fish = [dict(length_mm=120, snout_xy=(-150, 0), heading=0.0, depth_mm=150, tilt_deg=0),
+            dict(length_mm=120, snout_xy=(100, -150), heading=0.0, depth_mm=150, tilt_deg=22),
+            dict(length_mm=120, snout_xy=(0, 150), heading=0.0, depth_mm=150, tilt_deg=50)]
+    left, right, rig, truths = stereo_tank(np.random.default_rng(14), fish)
+    found = sorted(measure_surface(left, right, rig.calibration(), SETUP), key=lambda m: m.quality["tilt_deg"])
+    assert len(found) == 2
+    assert found[0].quality["tilt_deg"] < 3 and 18 < found[1].quality["tilt_deg"] < 26
+    assert found[1].score < found[0].score
+    narrow = SurveySetup(setup="surface", geometry=FishGeometry(min_length_cm=13, max_length_cm=40))
+    assert measure_surface(left, right, rig.calibration(), narrow) == []
+
+
+def test_two_fish_on_one_epipolar_band_are_not_crossed():
+    fish = [dict(length_mm=110, snout_xy=(-200, 0), heading=0.1, depth_mm=100),
+            dict(length_mm=130, snout_xy=(80, 5), heading=0.1, depth_mm=300)]
+    left, right, rig, truths = stereo_tank(np.random.default_rng(15), fish)
+    found = measure_surface(left, right, rig.calibration(), SETUP)
+    assert sorted(round(m.length_cm) for m in found) == [11, 13]
+
+
+@pytest.mark.parametrize("shape", [(1, 1), (8, 8), (5, 300), (32, 32), (33, 47, 3), (480, 640)])
+def test_frames_without_fish_of_any_size_give_no_fish(shape):
+    rng = np.random.default_rng(16)
+    calib = top_rig().calibration()
+    for img in (np.zeros(shape, np.uint8), np.full(shape, 255, np.uint8),
+                rng.integers(0, 256, shape).astype(np.uint8),
+                ((rng.random(shape) < 0.01) * 255).astype(np.uint8)):
+        assert measure_surface(img, img.copy(), calib, SETUP) == []

@@ -1,0 +1,211 @@
+"""Fish measured from above in a nursery tank (the paper's non-underwater setup, section 4.2, Fig. 6).
+
+Per image (vision.surface_prep, .surface_regions, .surface_shape): noise reduction and a flat field
+(the lamps' illumination divided out), region growing from seeds, each region's body axis, snout
+tip, caudal-fork notch and midline points; which end is the head is decided by shape.
+
+Across the pair: a left fish and a right fish are the same fish when the right snout and fork lie on
+the epipolar lines of the left ones (within a band that grows with the fish's size). Each candidate
+pairing is triangulated and checked in 3-D: fork length within the species' range
+(``SurveySetup.geometry``), body axis within ``max_tilt_deg`` of the water surface. Pairs are taken
+greedily, best first, one fish per region. When the two views disagree on which end is the head
+(the pairing fits with snout and fork swapped), the view more sure of itself decides.
+
+"Up" (the water surface's normal): ``SurveySetup.up_world`` when given; else, for this setup, the
+direction from the tank towards the cameras, i.e. minus the mean of the two optical axes: cameras
+over a tank look down, so the image-up of the underwater default would lie in the water surface.
+
+Score (0..1), the product of the terms kept in ``quality``: epipolar residual of snout and fork
+(``q_epipolar``), axis tilt against the surface (``q_tilt``), straightness of the body through the
+intermediate points in the left view (``q_straight``; a fish bent sideways has a fork length
+shorter than its body),
+head/tail confidence (``q_head``), the caudal fork found as a notch in both views (``q_fork``: 1; in
+neither, placed from the fin base: 0.8; in one only: 0.6), the right view's own fork against the
+place the left fork's epipolar line gives it (``q_fork_views``, Gaussian in 6 % of the length), the
+outline free of lamp reflections (``q_glare``), and left/right agreement of the apparent length
+(``q_views``). Fork length is the straight 3-D snout-fork distance (the contract); the length along
+the body through the intermediate points (the 3-D length scaled by the view's bend) is kept as
+``body_mm``.
+"""
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+from vision.calib_file import StereoCalibration
+from vision.epipolar import fundamental_from_projections
+from vision.surface_prep import contrast_map
+from vision.surface_regions import RegionParams, find_regions
+from vision.surface_shape import Fish2D, analyse
+from vision.surface_stereo import candidate_pairs, on_right_body, refine
+from vision.survey_types import FishMeasurement, SurveySetup
+from vision.triangulation import triangulate_calibrated
+
+MIN_SCORE = 0.05        # below this a "fish" is noise: not reported
+MIN_SIDE_PX = 32        # an image smaller than this either way holds no measurable fish
+
+
+def _tick(timings, stage, t0):
+    if timings is not None:
+        timings[stage] = timings.get(stage, 0.0) + time.perf_counter() - t0
+    return time.perf_counter()
+
+
+DEFAULT_PARAMS = RegionParams()
+
+
+def _fish_in(c, params: RegionParams, base_ratio: float | None) -> list[Fish2D]:
+    found = (analyse(r, base_ratio) for r in find_regions(c, params))
+    found = [f for f in found if f is not None and f.elongation >= params.min_slender]
+    # one fish seen as two regions (a dark body and a light one, under a glint): keep the longer
+    found.sort(key=lambda f: -f.length_px)
+    kept: list[Fish2D] = []
+    for f in found:
+        if not any(min(np.linalg.norm(f.snout - g.snout), np.linalg.norm(f.snout - g.fork)) < 0.15 * g.length_px
+                   and min(np.linalg.norm(f.fork - g.fork), np.linalg.norm(f.fork - g.snout)) < 0.15 * g.length_px
+                   for g in kept):
+            kept.append(f)
+    return kept
+
+
+def detect_fish(img: np.ndarray, params: RegionParams = DEFAULT_PARAMS,
+                base_ratio: float | None = None) -> list[Fish2D]:
+    """Fish found in one image seen from above: front, rear and intermediate points of each."""
+    if min(np.shape(img)[:2]) < MIN_SIDE_PX:
+        return []
+    return _fish_in(contrast_map(img), params, base_ratio)
+
+
+def up_direction(calib: StereoCalibration, setup: SurveySetup) -> np.ndarray:
+    """Unit normal of the water surface in world mm (see module docstring)."""
+    if setup.up_world is not None:
+        up = np.asarray(setup.up_world, float)
+        return up / np.linalg.norm(up)
+    view = np.zeros(3)
+    for P in (calib.P1, calib.P2):
+        M = np.asarray(P, float)[:, :3]
+        view += np.sign(np.linalg.det(M)) * M[2] / np.linalg.norm(M[2])
+    return -view / np.linalg.norm(view)
+
+
+def _orient(a: Fish2D, b: Fish2D, swapped: bool):
+    """Left and right points (2 + K, 2) [snout, fork, intermediate...] of a pair after settling which
+    end is the head, and the confidence of that decision."""
+    pa = np.vstack([a.snout, a.fork, a.mid])
+    pb = np.vstack([b.snout, b.fork, b.mid])
+    flip = np.r_[1, 0, np.arange(len(b.mid) + 1, 1, -1)]       # the other end is the head
+    if not swapped:
+        return pa, pb, 1 - (1 - a.head_conf) * (1 - b.head_conf)
+    if a.head_conf >= b.head_conf:
+        return pa, pb[flip], a.head_conf - b.head_conf
+    return pa[flip], pb, b.head_conf - a.head_conf
+
+
+def _solids(calib, setup: SurveySetup, up, sets: list[tuple[np.ndarray, np.ndarray]]):
+    """For each (pts1, pts2) of one fish: its triangulated points and residuals, snout-fork length
+    and tilt, or None when the species geometry rules the pairing out. One triangulation call for
+    all the fish (its set-up costs more than a fish's points)."""
+    if not sets:
+        return []
+    X, res = triangulate_calibrated(calib, np.vstack([a for a, _ in sets]), np.vstack([b for _, b in sets]))
+    g = setup.geometry
+    out, k = [], 0
+    for a, _ in sets:
+        Xi, ri = X[k:k + len(a)], res[k:k + len(a)]
+        k += len(a)
+        axis = Xi[0] - Xi[1]
+        length_mm = float(np.linalg.norm(axis))
+        ok = np.all(np.isfinite(Xi)) and 10 * g.min_length_cm <= length_mm <= 10 * g.max_length_cm
+        tilt = float(np.degrees(np.arcsin(min(abs(axis @ up) / length_mm, 1.0)))) if ok else 90.0
+        out.append((Xi, ri, length_mm, tilt) if ok and tilt <= g.max_tilt_deg else None)
+    return out
+
+
+def _measure(setup: SurveySetup, a: Fish2D, b: Fish2D, pts1, pts2, head, solid, ncc,
+             fork_gap: float) -> FishMeasurement:
+    X, res, length_mm, tilt = solid
+    S, K = X[0], X[1]
+    g = setup.geometry
+    # bend from the left view (the midline points' depths are the noisiest numbers of the fish)
+    chain = np.vstack([pts1[0], pts1[2:], pts1[1]])
+    along = np.linalg.norm(np.diff(chain, axis=0), axis=1).sum()
+    straight = float(np.linalg.norm(pts1[0] - pts1[1]) / max(along, 1e-9))
+    body_mm = length_mm / max(straight, 1e-9)
+    epi = float(np.sqrt(np.mean(res[:2] ** 2)))
+    views = min(a.length_px, b.length_px) / max(a.length_px, b.length_px)
+    q = {
+        "q_epipolar": float(np.exp(-(epi / (0.75 + 0.005 * a.length_px)) ** 2)),
+        "q_tilt": float(np.exp(-(tilt / (g.max_tilt_deg / 2.5)) ** 2)),     # fish swim level
+        "q_straight": float(np.clip((straight - 0.9) / 0.1, 0, 1)) ** 0.5,
+        "q_head": float(0.5 + 0.5 * np.clip(head, 0, 1)),
+        "q_fork": 1.0 if a.fork_seen and b.fork_seen else (0.6 if a.fork_seen or b.fork_seen else 0.8),
+        "q_fork_views": float(np.exp(-(fork_gap / 0.06) ** 2)),
+        "q_glare": float(np.clip(1 - 2 * max(a.glare, b.glare), 0, 1)),
+        "q_views": float(np.clip((views - 0.6) / 0.3, 0, 1)),
+        "q_match": float(np.clip(np.nan_to_num(ncc, nan=0.6).min(), 0.5, 1.0)) * 2 - 1,
+    }
+    score = float(np.prod(list(q.values())))
+    q.update({"epipolar_px": epi, "mid_epipolar_px": float(np.sqrt(np.mean(res[2:] ** 2))), "tilt_deg": tilt,
+              "body_mm": body_mm, "straightness": straight, "head_conf": float(head),
+              "ncc_snout": float(np.nan_to_num(ncc[0])), "ncc_fork": float(np.nan_to_num(ncc[1])),
+              "fork_depth": float(min(a.fork_depth, b.fork_depth)), "length_px": a.length_px,
+              "fork_gap": fork_gap})
+    return FishMeasurement(S, K, np.array([pts1[0], pts2[0]]), np.array([pts1[1], pts2[1]]), score, q)
+
+
+def _patch(fish: list[Fish2D]) -> int:
+    """Correlation window side: a tenth of the typical fish length, odd, 9..41 px (on renders an
+    eighth to a fifth matched the snout a little worse in depth)."""
+    n = int(np.clip(0.1 * np.median([f.length_px for f in fish]), 9, 41))
+    return n | 1
+
+
+def measure_surface(left: np.ndarray, right: np.ndarray, calib: StereoCalibration, setup: SurveySetup,
+                    timings: dict[str, float] | None = None) -> list[FishMeasurement]:
+    """Fish measured in one pair seen from above (see module docstring). Never raises on a frame
+    without fish: returns []."""
+    t0 = time.perf_counter()
+    if min(np.shape(left)[:2] + np.shape(right)[:2]) < MIN_SIDE_PX:
+        return []
+    cl, cr = contrast_map(left), contrast_map(right)
+    t0 = _tick(timings, "prep", t0)
+    ratio = setup.geometry.fin_base_to_fork
+    fl, fr = _fish_in(cl, DEFAULT_PARAMS, ratio), _fish_in(cr, DEFAULT_PARAMS, ratio)
+    t0 = _tick(timings, "detect", t0)
+    F = fundamental_from_projections(np.asarray(calib.P1, float), np.asarray(calib.P2, float))
+    up = up_direction(calib, setup)
+    cands = [(i, j, _orient(fl[i], fr[j], swapped)) for i, j, swapped, _ in candidate_pairs(calib, F, fl, fr)]
+    used_l, used_r, pairs = set(), set(), []
+    for (i, j, (pts1, pts2, head)), solid in zip(cands, _solids(calib, setup, up, [c[2][:2] for c in cands]),
+                                                 strict=True):
+        if i in used_l or j in used_r or solid is None:
+            continue
+        used_l.add(i)
+        used_r.add(j)
+        pairs.append((fl[i], fr[j], pts1, pts2, head))
+    if not pairs:
+        _tick(timings, "stereo", t0)
+        return []
+    # snout and fork only: a window on the midline slides along a body lying along the epipolar line
+    ends2, ncc = refine(cl.full, cr.full, calib, F, np.vstack([p[2][:2] for p in pairs]),
+                        np.vstack([p[3][:2] for p in pairs]), _patch(fl))
+    sets, gaps = [], []
+    for k, (a, b, pts1, pts2, _) in enumerate(pairs):
+        own = pts2[1].copy()                          # the right view's own fork
+        pts2 = np.vstack([ends2[2 * k:2 * k + 2], pts2[2:]])
+        if not (a.fork_seen and b.fork_seen):        # midline and fork: where the body crosses the line
+            poly = np.vstack([pts2[0], pts2[2:], pts2[1]])
+            pts2[1:] = on_right_body(F, pts1[1:], poly, pts2[1:])
+        sets.append((pts1, pts2))
+        gaps.append(float(np.linalg.norm(own - pts2[1]) / max(b.length_px, 1.0)))
+    out = []
+    for k, ((a, b, _, _, head), (pts1, pts2), solid) in enumerate(zip(pairs, sets, _solids(calib, setup, up, sets),
+                                                                      strict=True)):
+        if solid is None:
+            continue
+        m = _measure(setup, a, b, pts1, pts2, head, solid, ncc[2 * k:2 * k + 2], gaps[k])
+        if m.score >= MIN_SCORE:
+            out.append(m)
+    _tick(timings, "stereo", t0)
+    return out

@@ -1,0 +1,228 @@
+"""A fish's front and rear points from its silhouette seen from above (the paper's Fig. 6).
+
+The body axis is the principal axis of the region's pixels; the midline is the mean lateral position
+of the pixels in slices across it (so a moderately bent fish keeps a midline on its body). Which end
+is the head is decided by shape, three cues weighed together:
+
+  * the caudal fork: a notch (convexity defect of the outline) at one end, between two lobes on
+    either side of the midline, deeper than a few per cent of the length;
+  * the taper: a fish is widest about a third of its length behind the snout and narrows to the
+    caudal peduncle, so the band 15-45 % from the head end is wider than the same band from the tail;
+  * the caudal fin: paler than the body, it runs on past the body's end at the tail only.
+
+The front point is the snout tip: the outline's extreme along the local head direction (the midline's
+direction near the head). The rear point is the innermost point of the caudal fork: the notch's
+deepest point when a fork is found, else the outline's extreme at the tail end (a fish with an
+unforked tail: fork length = total length). Intermediate points lie on the midline between them.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from vision.surface_regions import Region
+
+
+@dataclass
+class Fish2D:
+    snout: np.ndarray          # (2,) px
+    fork: np.ndarray           # (2,) px
+    mid: np.ndarray            # (K, 2) px, intermediate midline points from snout to fork
+    length_px: float
+    width_px: float            # widest slice
+    head_conf: float           # 0..1, how clearly the shape says which end is the head
+    fork_depth: float          # notch depth / length (0: no fork found)
+    elongation: float          # length / mean width
+    glare: float
+    peak: float
+    base: np.ndarray | None = None    # (2,) px, the body's rear end (caudal fin base, fins excluded)
+    tip: np.ndarray | None = None     # (2,) px, the rear end with the pale caudal fin
+    notch: np.ndarray | None = None   # (2,) px, the fork notch when one is seen
+    fork_seen: bool = False           # ``fork`` is the notch seen (not placed from the fin base)
+    centre: np.ndarray | None = None  # (2,) px, centroid of the body's pixels
+
+
+N_SLICES = 24
+N_MID = 5
+
+
+def _ends_defects(contour: np.ndarray, s: np.ndarray, t_rel: np.ndarray, L: float, lo: float, hi: float):
+    """Deepest fork notch at each end: ((depth, index) at the low end, (depth, index) at the high end)."""
+    pts = contour.astype(np.int32).reshape(-1, 1, 2)
+    best = [(0.0, -1), (0.0, -1)]
+    try:
+        hull = cv2.convexHull(pts, returnPoints=False)
+        if hull is None or len(hull) < 4:
+            return best
+        defects = cv2.convexityDefects(pts, np.sort(hull, axis=0))
+    except cv2.error:
+        return best
+    if defects is None:
+        return best
+    d = defects.reshape(-1, 4)
+    a, b, far, depth = d[:, 0], d[:, 1], d[:, 2], d[:, 3] / 256.0
+    zone = 0.3 * L
+    lobes = np.sign(t_rel[a]) * np.sign(t_rel[b]) < 0           # lobes on either side of the midline
+    central = np.abs(t_rel[far]) < 0.25 * L
+    for end, near in ((0, s[far] < lo + zone), (1, s[far] > hi - zone)):
+        ok = lobes & central & near & (depth > 0.025 * L)
+        if ok.any():
+            j = int(np.flatnonzero(ok)[np.argmax(depth[ok])])
+            best[end] = (float(depth[j] / L), int(far[j]))
+    return best
+
+
+def _notches(r: Region, centre, e, n, lo, L, tmid):
+    """Deepest fork notch at each end ((depth / L, point or None), low end then high end): in the
+    body's outline when the caudal fin was dark enough to join it (drawn at the higher level, the
+    notch is less filled in by blur), else in the outline with the pale fin."""
+    best = [(0.0, None), (0.0, None)]
+    for outline in (r.contour, r.outline):
+        s_o, t_o = (outline - centre) @ e, (outline - centre) @ n
+        ko = np.clip(((s_o - lo) / L * N_SLICES).astype(int), 0, N_SLICES - 1)
+        found = _ends_defects(outline, s_o, t_o - tmid[ko], L, float(s_o.min()), float(s_o.max()))
+        for end, (depth, i) in enumerate(found):
+            if best[end][1] is None and i >= 0:
+                best[end] = (depth, outline[i].astype(float))
+    return best
+
+
+def _extreme(contour: np.ndarray, direction: np.ndarray) -> np.ndarray:
+    """Tip of the outline along a direction: the mean of the points within 0.75 px of the extreme
+    (a blunt snout's tip is its middle), pushed out to the extreme."""
+    proj = contour @ direction
+    top = proj.max()
+    near = contour[proj >= top - 0.75]
+    tip = near.mean(axis=0)
+    return tip + (top - tip @ direction) * direction
+
+
+def _fin_base(r: Region, snout: np.ndarray, tail: np.ndarray, level: float = 0.16) -> np.ndarray:
+    """The caudal fin's base by mass: going from the snout towards the tail, the last place where the
+    fish's contrast summed across the body (its "mass" per pixel of length) is still ``level`` of
+    the body's most (a peduncle keeps ~15-25 % of the widest slice's mass, a fin seen edge-on less).
+    Used as a check on the outline's own end, which runs on along a caudal fin dark enough to pass
+    the outline's level (the outline's end alone, measured on renders, was the better estimate
+    otherwise)."""
+    ys, xs = np.nonzero(r.whole)
+    w = np.clip(r.con[ys, xs], 0, None)
+    rel = np.c_[xs, ys] + r.origin - snout
+    s = rel @ tail
+    t = rel @ np.array([-tail[1], tail[0]])
+    b = np.clip(np.round(s).astype(int), 0, None)
+    mass = np.bincount(b, weights=w)
+    mass = np.convolve(mass, np.ones(3) / 3, mode="same")
+    top = mass.max(initial=0)
+    above = np.flatnonzero(mass >= level * top)
+    if top <= 0 or len(above) == 0:
+        return _extreme(r.contour, tail)
+    j = int(above[-1])
+    nxt = mass[j + 1] if j + 1 < len(mass) else 0.0
+    frac = (mass[j] - level * top) / max(mass[j] - nxt, 1e-9)      # where the fall crosses the level
+    along = j + float(np.clip(frac, 0, 1))
+    at = b == j
+    lateral = float((w[at] * t[at]).sum() / max(w[at].sum(), 1e-9))
+    return snout + along * tail + lateral * np.array([-tail[1], tail[0]])
+
+
+def _fork(snout, base, tip, notch, base_ratio: float | None, tail: np.ndarray) -> np.ndarray:
+    """The fork point from what the view shows. A notch seen in the fin is the fork, unless the
+    species' fin-base ratio puts the fork more than 4 % of the length away from it (a bite out of
+    the outline, not the fork). Without a notch: on from the fin base by the species' ratio along
+    the body's direction at the tail (the faint fin's own direction, tried, was noisier); without
+    a ratio, the rear end of the fin (fork length = total)."""
+    est = None
+    if base_ratio is not None:
+        run = np.linalg.norm(base - snout) * (1 / base_ratio - 1)
+        est = base + run * tail
+    if notch is not None and (est is None or np.linalg.norm(notch - est) < 0.04 * np.linalg.norm(est - snout)):
+        return notch
+    return est if est is not None else tip
+
+
+def _on_fin(r: Region, point: np.ndarray, tail: np.ndarray, reach: float) -> np.ndarray:
+    """A point placed on the caudal fin moved across the tail onto the fin's ridge, where the fin
+    shows as a faint line (seen edge-on from above): the ridge is what both views see, the
+    extrapolated point is not. Unchanged when no ridge stands out within +-``reach`` px."""
+    side = np.array([-tail[1], tail[0]])
+    across = np.arange(-np.ceil(reach), np.ceil(reach) + 1)
+    along = np.arange(-2.0, 3.0)
+    grid = point - r.origin + along[:, None, None] * tail + across[None, :, None] * side
+    prof = cv2.remap(r.con, grid[..., 0].astype(np.float32), grid[..., 1].astype(np.float32),
+                     cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE).mean(axis=0)
+    j = int(np.argmax(prof))
+    edge = np.r_[prof[:2], prof[-2:]].mean()
+    if not (0 < j < len(prof) - 1) or prof[j] - edge < 0.1 * r.peak:
+        return point
+    den = prof[j - 1] - 2 * prof[j] + prof[j + 1]
+    off = 0.5 * (prof[j - 1] - prof[j + 1]) / den if den < 0 else 0.0
+    return point + (across[j] + float(np.clip(off, -0.5, 0.5))) * side
+
+
+def analyse(r: Region, base_ratio: float | None = None) -> Fish2D | None:
+    """Front/rear/intermediate points of one region; None if it is not fish-shaped. ``base_ratio``:
+    the species' caudal fin base / fork length (``FishGeometry.fin_base_to_fork``)."""
+    ys, xs = np.nonzero(r.mask)
+    if len(xs) < 20:
+        return None
+    pix = np.c_[xs, ys].astype(np.float64) + r.origin
+    centre = pix.mean(axis=0)
+    cov = np.cov((pix - centre).T)
+    lam, vec = np.linalg.eigh(cov)
+    e = vec[:, 1]
+    n = np.array([-e[1], e[0]])
+    s_pix, t_pix = (pix - centre) @ e, (pix - centre) @ n
+    s_c = (r.contour - centre) @ e
+    lo, hi = float(s_c.min()), float(s_c.max())
+    L = hi - lo
+    if L < 8:
+        return None
+    # width and midline per slice across the axis
+    k = np.clip(((s_pix - lo) / L * N_SLICES).astype(int), 0, N_SLICES - 1)
+    count = np.bincount(k, minlength=N_SLICES).astype(float)
+    width = count * N_SLICES / L
+    tmid = np.bincount(k, weights=t_pix, minlength=N_SLICES) / np.maximum(count, 1)
+    centres = lo + (np.arange(N_SLICES) + 0.5) * L / N_SLICES
+    elong = L / max(float(count.sum()) / L, 1.0)
+    # fork and taper cues, positive = the high end (s = hi) is the head
+    (d_lo, i_lo), (d_hi, i_hi) = _notches(r, centre, e, n, lo, L, tmid)
+    band = slice(int(0.15 * N_SLICES), int(0.45 * N_SLICES) + 1)
+    w_lo, w_hi = width[band].mean(), width[::-1][band].mean()
+    taper = (w_hi - w_lo) / max(w_hi + w_lo, 1e-9)
+    s_o = (r.outline - centre) @ e            # the pale caudal fin runs on past the body's tail end
+    fin = (float(lo - s_o.min()) - float(s_o.max() - hi)) / L
+    evidence = 6.0 * taper + 25.0 * (d_lo - d_hi) + 20.0 * fin
+    head_hi = evidence >= 0
+    head_conf = float(np.tanh(abs(evidence)))
+    # local directions at both ends from the midline
+    def along(frac):
+        j = min(int(frac * N_SLICES), N_SLICES - 1)
+        return centre + centres[j] * e + tmid[j] * n
+    dir_hi = along(0.92) - along(0.6)
+    dir_lo = along(0.08) - along(0.4)
+    dir_hi /= max(np.linalg.norm(dir_hi), 1e-9)
+    dir_lo /= max(np.linalg.norm(dir_lo), 1e-9)
+    if head_hi:
+        snout = _extreme(r.contour, dir_hi)
+        fork_i, fork_d, tail_dir = i_lo, d_lo, dir_lo
+    else:
+        snout = _extreme(r.contour, dir_lo)
+        fork_i, fork_d, tail_dir = i_hi, d_hi, dir_hi
+    base = _extreme(r.contour, tail_dir)
+    by_mass = _fin_base(r, snout, tail_dir)
+    if (base - by_mass) @ tail_dir > 0.05 * np.linalg.norm(base - snout):
+        base = by_mass                # the outline ran on along a dark caudal fin
+    tip = _extreme(r.outline, tail_dir)
+    notch = fork_i if fork_d > 0 else None
+    fork = _fork(snout, base, tip, notch, base_ratio, tail_dir)
+    if notch is None or not np.array_equal(fork, notch):
+        fork = _on_fin(r, fork, tail_dir, 0.06 * np.linalg.norm(fork - snout))
+    fr = np.linspace(0, 1, N_MID + 2)[1:-1]
+    s_f = (snout - centre) @ e + fr * ((base - centre) @ e - (snout - centre) @ e)
+    t_f = np.interp(s_f, centres, tmid)
+    mid = centre + s_f[:, None] * e + t_f[:, None] * n
+    return Fish2D(snout, fork, mid, float(np.linalg.norm(snout - fork)), float(width.max()), head_conf,
+                  fork_d, float(elong), r.glare, r.peak, base, tip, notch,
+                  bool(notch is not None and np.array_equal(fork, notch)), centre)
