@@ -26,6 +26,8 @@ class SurveyShape(BaseModel):
     max_length_cm: float = Field(FishGeometry.max_length_cm, gt=0, le=500)
     max_tilt_deg: float = Field(FishGeometry.max_tilt_deg, gt=0, le=90)
     depth_to_length: float = Field(FishGeometry.depth_to_length, gt=0, lt=1)
+    fin_base_to_fork: float | None = Field(None, gt=0.5, lt=1.0,
+                                           description="standard length / fork length (surface setup)")
     mi_ref: float = Field(SurveySetup.mi_ref, gt=0, lt=255, description="eq. 11 reference mean intensity")
     c_ref: float = Field(SurveySetup.c_ref, gt=0, lt=255, description="eq. 12 reference contrast")
 
@@ -37,7 +39,8 @@ class SurveyShape(BaseModel):
         return self
 
     def geometry(self) -> FishGeometry:
-        return FishGeometry(self.min_length_cm, self.max_length_cm, self.max_tilt_deg, self.depth_to_length)
+        return FishGeometry(self.min_length_cm, self.max_length_cm, self.max_tilt_deg, self.depth_to_length,
+                            self.fin_base_to_fork)
 
 
 class StockSection(BaseModel):
