@@ -15,6 +15,7 @@ def plot_survey(summary: dict, path: str) -> None:
     import matplotlib
     matplotlib.use("Agg")                      # no display on a farm PC or in CI
     import matplotlib.pyplot as plt
+    from matplotlib.ticker import MaxNLocator
 
     w, L = summary["weight_g"], summary["length_cm"]
     n = summary["count"]
@@ -26,7 +27,9 @@ def plot_survey(summary: dict, path: str) -> None:
         if part["mean"] is not None:
             ax.axvline(part["mean"], color="black", lw=2, label=f"mean {_fmt(part['mean'], unit)}")
         ax.set_xlabel("weight (g)" if unit == "g" else "fork length (cm)")
-        ax.set_ylabel(f"fish ({summary.get('statistics_per', 'fish')}s)" if unit == "g" else "fish")
+        per = summary.get("statistics_per", "fish")
+        ax.set_ylabel("fish" if per == "fish" else "fish (one per track)")
+        ax.yaxis.set_major_locator(MaxNLocator(integer=True))        # fish come whole
         ax.grid(axis="y", alpha=0.3)
     if w.get("ci"):
         lo, hi = w["ci"]
