@@ -104,8 +104,8 @@ def test_a_calibration_for_other_frames_is_refused_by_name(tmp_path):
     rig = convergent_rig(image_size=(640, 480))
     items, _ = stills(tmp_path, rig, np.random.default_rng(1), [1])
     calib = convergent_rig().calibration()            # 1280x960
-    with pytest.raises(BadInput, match=r"0_L.png: does not fit the calibration: image_size: calibration made for 1280x960 "
-                                         r"images, the frames are 640x480"):
+    with pytest.raises(BadInput, match=r"0_L.png: does not fit the calibration: image_size: "
+                                         r"calibration made for 1280x960 images, the frames are 640x480"):
         run_survey(still_source(items), calib, options(f"{STANDIN}:dots"), str(tmp_path / "o.json"))
 
 
