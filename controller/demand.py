@@ -43,6 +43,15 @@ deadline allows. Counting occupied seconds rather than contacts caps any short c
 burst of 200 contacts in 8 s counts at most 9), while losing little for fish (rate r fills
 1 - e^-r of the seconds: 95 % of the information at 0.1 /s, still ~0.86 /s at 2 /s).
 
+*Runs.* Bursts are collapsed to one event: a run is contacts each < ``RUN_GAP_S`` (1 s) after
+the one before; for its first ``BURST_S`` (10 s, the contract's longest burst) a run counts at
+most max(``run_cap`` (1), k / 4) busy seconds, after that every busy second again (fish pacing
+at 2 /s form one long run; a burst never lasts 10 s; on a turbulent tank, k >= 8, fast Poisson
+fish need their runs' seconds, and a burst is a smaller share of k). Slow fish lose little (at 0.15 /s a contact follows
+the one before within 1 s 14 % of the time), a 3–20 /s burst counts ~1–2 whatever its size,
+so a burst plus a minute's turbulence rarely reaches the threshold: the false demands this
+saves pay for the lower threshold below (``false_alarms_per_day`` 1.5, was 1).
+
 *Chatter.* A bin with >= chatter_hz x 5 = 15 contacts counts 0 (2 /s fish reach that in ~9 % of
 bins, a 3 /s stuck switch in all); at >= 20 (4 /s, never fish) the burst's own busy seconds in the
 bin before go too (those since its run began: contacts < ``RUN_GAP_S`` apart), and in the bin
@@ -50,14 +59,16 @@ after, its contacts until the run pauses. On a quiet tank, 10 s holding >= ``clu
 contacts at >= 2.5 per busy second is a short burst and counts 0. Bursts at the slow end of
 their band (3 /s Poisson) cannot be told from 2 /s fish locally: only duration separates them
 (< 10 s against >= 1 min). Hence *persistence*: the
-densest 15 s of the window may add no more than ``spike_gain`` x what the other 45 s hold per
-15 s, plus ``spike_allowance``; steady fish count in full, a burst on a quiet tank adds ~nothing.
+densest 15 s of the window may add no more than ``spike_gain`` (3) x what the other 45 s hold per
+15 s, plus ``spike_allowance`` (2); steady fish count in full, a burst on a quiet tank adds
+little (runs already collapse most bursts; the old 2 and 1 cost slow fish at an episode's
+start, whose contacts crowd the window's end).
 
 *The threshold.* Under turbulence alone, contacts at rate b upcross a sliding count k over a
 window W at the rate b·P[Poisson(bW) = k-1] per second (a Poisson arrival sees the window's
 stationary count; capping and the exclusions above only lower it). k is the least integer with
-86,400 × that ≤ ``false_alarms_per_day`` (default 1: nominal; busy seconds, the burst rules and
-the margin below bring the measured rate to 0.05–0.3 a tank-day). At 0.05 /s, k = 12 busy
+86,400 × that ≤ ``false_alarms_per_day`` (default 1.5: nominal; busy seconds, runs, the burst
+rules and the margin below bring the measured rate to 0.1–0.4 a tank-day). At 0.05 /s, k = 12 busy
 seconds in 60 s; at 0.01 /s, 6; never below ``min_contacts``. b is the tank's own, learned from
 what it measures: the share of empty 55-s spans (the window's complete bins) outside demand,
 exponentially weighted over ``background_tau_s``, is e^(-55 b) under Poisson turbulence, and its
@@ -81,9 +92,9 @@ at 0.1 /s has 6 cycles in 60 s: S = 6 × 3.5 = 21 clears λ at b = 0.01, not at 
 ``bench/bench_demand.py``; recall within 60 s of an episode's first contact, background 0.002–
 0.02 /s, bursts 3 /h, 432 episodes a case; ``bound``: the ideal detector above on the same
 stream): see the README's table. In short: every episode of fish peaking at 0.4–2 /s within
-60 s (1,152 of 1,152 with ramps, split sensors, bursts just before, waves); ~0.99 from 0.3 /s;
-0.53 at 0.1 /s (bound ~0.7); false demands 0–0.33 per tank-day, 0.05 over 120 tank-days of
-background, bursts and waves alone.
+60 s (`every`: 432 of 432 on the bench's seed, 864 of 864 on fresh seeds 21–22); ~0.99 from
+0.3 /s; 0.64 at 0.1 /s (bound 0.75; 0.53 before runs); false demands 0–0.5 per tank-day a case,
+~0.1–0.2 over tank-days of background, bursts and waves alone.
 
 *Episodes and repeats.* One demand when the score first reaches k, raised on the contact that
 made it, and only if that contact followed the previous one within twice the episode's own pace
@@ -92,7 +103,12 @@ contact is turbulence tens of seconds later, or a burst, and must not be the one
 The tank is "in demand" until its busy seconds (exclusions ignored) fall below ``end_fraction``
 x k. While in demand a demand is repeated at most every ``repeat_s``, on fresh evidence only:
 ``repeat_contacts`` busy seconds after the repeat fell due, each gap <= 3 x pace, the last <= 1 x
-pace, spanning >= half their share of the window (a burst's seconds come faster). Residual
+pace, spanning >= half their share of the window (a burst's seconds come faster). Only counted
+busy seconds (not chatter, a burst's tail or a run past its cap) raise or repeat. *A burst's
+demand holds nothing back*: when the run that raised the last demand proves a burst (its bin
+turns chatter, or a clump is cut), the tank leaves demand and the repeat wait is cleared, so
+fish that follow the burst are raised on their own evidence (before, the 120 s repeat rule
+held such an episode back). Residual
 risk: a turbulence contact right after an episode's end can still be the raising one: the
 independent streams count those within 10 s of an end apart (``afterglow``).
 
@@ -137,6 +153,7 @@ __all__ = ["Demand", "DemandFilter", "DemandParams", "SensorFault", "SensorRecov
 _NONE: tuple = ()
 FISH_MAX_HZ = 2.0       # the contract's fastest fish
 RUN_GAP_S = 1.0         # contacts closer than this continue a run (a burst's tail goes with it)
+BURST_S = 10.0          # the contract's longest chatter burst: a run lasting longer is not one
 
 
 @dataclass(frozen=True, slots=True)
@@ -178,9 +195,9 @@ class DemandParams(BaseModel):
     slot_s: float = Field(1.0, gt=0, le=10, description="one contact per slot counts")
     chatter_hz: float = Field(3.0, gt=0, description="a bin faster than this is chatter")
     clump_contacts: int = Field(8, ge=3, description="short-burst test on a quiet tank, per 10 s")
-    spike_gain: float = Field(2.0, ge=0)
-    spike_allowance: float = Field(1.0, ge=0)
-    false_alarms_per_day: float = Field(1.0, gt=0, lt=10, description="the count's nominal Poisson-tail budget")
+    spike_gain: float = Field(3.0, ge=0)
+    spike_allowance: float = Field(2.0, ge=0)
+    false_alarms_per_day: float = Field(1.5, gt=0, lt=10, description="the count's nominal Poisson-tail budget")
     turbulence_max_hz: float = Field(0.05, gt=0, description="the contract's bound; starting estimate")
     turbulence_floor_hz: float = Field(0.005, gt=0)
     background_tau_s: float = Field(7200.0, gt=0)
@@ -195,6 +212,7 @@ class DemandParams(BaseModel):
     dead_after_s: float = Field(300.0, gt=0)
     dead_active_bins: int = Field(20, ge=1)
     dead_p: float = Field(1e-6, gt=0, lt=1, description="a live sensor this silent: less likely than this")
+    run_cap: int = Field(1, ge=0, description="busy seconds a run of contacts (< 1 s apart) may count; 0: all")
     beat_false_alarms_per_day: float = Field(0.05, gt=0, lt=10)
     beat_jitter: tuple[float, ...] = Field((0.15, 0.35), min_length=1, max_length=4,
                                            description="beat tolerances, ± share of the period")
@@ -224,7 +242,7 @@ class _Tank:
     __slots__ = ("name", "sensors", "bin_end", "slot", "cur", "raw", "excl", "excl_next", "vals",
                  "raws", "head", "vsum", "rsum", "m_old", "p1", "p2", "k", "bg_n", "bg_t",
                  "demanding", "last_raise", "fresh", "recent", "active", "last_t", "prev_c", "tail",
-                 "run_cur", "run_prev",
+                 "run_cur", "run_prev", "run_len", "run_t0", "cap",
                  "occ", "occs", "osum", "beats", "grid_i", "told", "active_ew")
 
     def __init__(self, name: str, n_bins: int, k: int, bg_n: float, bg_t: float, beats: Beats):
@@ -239,6 +257,7 @@ class _Tank:
         self.head = 0
         self.vsum = self.rsum = self.m_old = self.p1 = self.p2 = 0
         self.k, self.bg_n, self.bg_t = k, bg_n, bg_t
+        self.cap = 1 << 30                          # busy seconds a run may count in its first BURST_S
         self.demanding, self.last_raise, self.fresh = False, -math.inf, 0
         self.recent: list[float] = []
         self.active = 0                             # bins with a healthy contact (dead-sensor test)
@@ -246,6 +265,8 @@ class _Tank:
         self.prev_c = -math.inf                     # the previous contact
         self.tail = False                           # a burst's tail: its contacts count nothing
         self.run_cur = self.run_prev = 0            # busy seconds of the current run, this bin and the last
+        self.run_len = 0                            # busy seconds of the current run
+        self.run_t0 = -math.inf                     # its first contact
         self.occ = self.osum = 0                    # busy seconds, excluded bins included
         self.occs = [0] * (n_bins - 1)
         self.beats, self.grid_i = beats, -1
@@ -272,6 +293,7 @@ class DemandFilter:
         self._beat_grid = [beat_tests(b, p.beat_jitter, p.beat_false_alarms_per_day, p.beat_period_s,
                                       self._window) for b in self._b_grid]
         self._beat_bin = math.ceil(p.bin_s / p.beat_period_s[0]) + 1   # more in a bin: a burst
+        self._run_cap = p.run_cap or 1 << 30
         self._fixed = tanks is not None
         self._tanks: dict[str, _Tank] = {}
         self.ignored = 0                            # contacts from unknown tanks/sensors
@@ -301,7 +323,8 @@ class DemandFilter:
         s.mark = ts.active
         if t - ts.prev_c >= RUN_GAP_S:              # a pause: a new run of contacts
             ts.tail = False
-            ts.run_cur = ts.run_prev = 0
+            ts.run_cur = ts.run_prev = ts.run_len = 0
+            ts.run_t0 = t
         ts.prev_c = t
         ts.raw += 1
         if ts.raw >= self._chatter:
@@ -310,11 +333,15 @@ class DemandFilter:
         if slot > ts.slot:
             ts.slot = slot
             ts.occ += 1
-            if not (ts.excl or ts.tail):
+            ts.run_len += 1
+            counted = not (ts.excl or ts.tail) and (ts.run_len <= ts.cap or t - ts.run_t0 >= BURST_S)
+            if counted:
                 ts.cur += 1
                 ts.run_cur += 1
-            if ts.demanding or ts.vsum + ts.cur >= ts.k:
+            if counted and (ts.demanding or ts.vsum + ts.cur >= ts.k):
                 events = self._decide(ts, t, events)
+            elif ts.demanding and ts.osum + ts.occ < self.params.end_fraction * ts.k:
+                ts.demanding = False
             ts.last_t = t
         if (ts.beats.contact(t, ts.raw, ts.excl or ts.tail) and not ts.demanding
                 and t - ts.last_raise >= self.params.repeat_s and ts.beats.found(t)):
@@ -417,6 +444,8 @@ class DemandFilter:
         if not ts.excl:
             ts.excl = True
             ts.cur = 0
+            if ts.last_raise >= ts.run_t0:          # the burst raised the last demand
+                self._retract(ts)
         if ts.raw == self._no_fish and not ts.excl_next:
             ts.excl_next = True
             last = (ts.head - 1) % len(ts.vals)
@@ -433,13 +462,25 @@ class DemandFilter:
         test (fish below 1.5 /s give < 2 per busy second, bursts at >= 3 /s give >= 3.2)."""
         prev = h - 1 if h else len(ts.vals) - 1
         raw = ts.raws[h] + ts.raws[prev]
-        if (raw >= self.params.clump_contacts and 2 * raw >= 5 * (ts.vals[h] + ts.vals[prev])
+        if (raw >= self.params.clump_contacts and 2 * raw >= 5 * (ts.occs[h] + ts.occs[prev])
                 and 2 * (ts.osum - ts.occs[h] - ts.occs[prev]) <= len(ts.vals)):
             ts.vsum -= ts.vals[h] + ts.vals[prev]
             ts.rsum -= raw
             ts.vals[h] = ts.vals[prev] = ts.raws[h] = ts.raws[prev] = ts.p1 = ts.p2 = 0
             ts.excl_next = True                     # and the bin that follows
             ts.beats.forget(ts.bin_end - 2 * self._bin, ts.bin_end)
+            if ts.last_raise >= ts.bin_end - 2 * self._bin:
+                self._retract(ts)
+
+    @staticmethod
+    def _retract(ts: _Tank) -> None:
+        """The last demand was raised by what has since proved a burst: it holds nothing back
+        (no repeat wait, not in demand), and the next demand needs evidence from after the burst:
+        the window's busy seconds so far are dropped."""
+        ts.last_raise, ts.demanding = -math.inf, False
+        for i in range(len(ts.vals)):
+            ts.vals[i] = 0
+        ts.vsum = ts.p1 = ts.p2 = ts.m_old = 0
 
     def _max3(self, ts: _Tank) -> int:
         vals, h, n = ts.vals, ts.head, len(ts.vals)
@@ -545,4 +586,5 @@ class DemandFilter:
         i = min(63, bisect.bisect_left(self._b_grid, self._background(ts)))
         if i != ts.grid_i:
             ts.grid_i, ts.k = i, self._k_grid[i]
+            ts.cap = max(self._run_cap, ts.k // 4) if self.params.run_cap else 1 << 30
             ts.beats.tests, ts.beats.least = self._beat_grid[i]
