@@ -470,3 +470,22 @@ def test_a_run_of_contacts_counts_one_busy_second_for_its_first_ten_seconds():
             f.on_contact(t1 + 0.01 + 0.6 * i, "T1", "a")
         scores.append(f.score("T1")[0])
     assert scores[0] <= 1.0 + 1e-9 < scores[1], scores      # uncapped: the spike rule's 2
+
+
+@pytest.mark.parametrize(("run", "counted"), [(2, 5), (3, 4)])
+def test_a_run_of_two_contacts_counts_two_once_it_has_ended(run, counted):
+    # slow fish on a quiet tank: single contacts 20 s apart and a run at +40 s 0.3 s apart, then
+    # one more at +50 s; a pair is two contacts (slow fish fall within 1 s of each other by
+    # chance), a run of three is a burst's: one busy second
+    calm = [(T0 + 300.0 * i, "T1", "ab"[i % 2]) for i in range(13)]
+    t1 = T0 + 3900.0
+    f = DemandFilter()
+    for t, tank, sensor in calm:
+        f.on_time(t)
+        f.on_contact(t, tank, sensor)
+    f.on_time(t1)
+    for t in (t1 + 0.5, t1 + 20.5, *(t1 + 40.5 + 0.3 * i for i in range(run))):
+        f.on_contact(t, "T1", "a")
+    before = f.score("T1")[0]
+    f.on_contact(t1 + 50.5, "T1", "b")                 # the run has ended
+    assert (before, f.score("T1")[0]) == (3, counted)
