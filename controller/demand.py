@@ -94,10 +94,11 @@ at 0.1 /s has 6 cycles in 60 s: S = 6 × 3.5 = 21 clears λ at b = 0.01, not at 
 *What that buys.* Measured on the independent contract streams (tests/contract_streams.py,
 ``bench/bench_demand.py``; recall within 60 s of an episode's first contact, background 0.002–
 0.02 /s, bursts 3 /h, 432 episodes a case; ``bound``: the ideal detector above on the same
-stream): see the README's table. In short: every episode of fish peaking at 0.4–2 /s within
-60 s (`every`: 432 of 432 on the bench's seed, 864 of 864 on fresh seeds 21–22); ~0.99 from
-0.3 /s; 0.64 at 0.1 /s (bound 0.75; 0.53 before runs); false demands 0–0.5 per tank-day a case,
-~0.1–0.2 over tank-days of background, bursts and waves alone.
+stream): see the README's tables. In short: every episode of fish peaking at 0.4–2 /s within
+60 s (`every`: 432 of 432 on the bench's seed, 864 of 864 on held-out seeds 21–22); ~0.99 from
+0.2–0.3 /s; 0.68 at 0.1 /s (bound 0.75; 0.53 before runs, 0.64 before pairs); false demands
+0.25–0.34 per tank-day over the cases, 0.14–0.22 over tank-days of background, bursts and waves
+alone.
 
 *Episodes and repeats.* One demand when the score first reaches k, raised on the contact that
 made it, and only if that contact followed the previous one within three times the episode's own
