@@ -43,6 +43,18 @@ deadline allows. Counting occupied seconds rather than contacts caps any short c
 burst of 200 contacts in 8 s counts at most 9), while losing little for fish (rate r fills
 1 - e^-r of the seconds: 95 % of the information at 0.1 /s, still ~0.86 /s at 2 /s).
 
+*Runs.* Bursts are collapsed to one event: a run is contacts each < ``RUN_GAP_S`` (1 s) after
+the one before; for its first ``BURST_S`` (10 s, the contract's longest burst) a run counts at
+most max(``run_cap`` (1), k / 4) busy seconds, after that every busy second again (fish pacing
+at 2 /s form one long run; a burst never lasts 10 s; on a turbulent tank, k >= 8, fast Poisson
+fish need their runs' seconds, and a burst is a smaller share of k). Slow fish lose little (at 0.15 /s a contact follows
+the one before within 1 s 14 % of the time), a 3–20 /s burst counts ~1–2 whatever its size,
+so a burst plus a minute's turbulence rarely reaches the threshold: the false demands this
+saves pay for the lower threshold below (``false_alarms_per_day`` 1.5, was 1). A run of exactly
+two contacts counts two, once it has ended (at the next contact): a burst almost always holds
+more, while two contacts of slow fish fall within 1 s of each other at the rate's own odds
+(~10 % of contacts at 0.1 /s), and counting the pair as one cost them a contact at the margin.
+
 *Chatter.* A bin with >= chatter_hz x 5 = 15 contacts counts 0 (2 /s fish reach that in ~9 % of
 bins, a 3 /s stuck switch in all); at >= 20 (4 /s, never fish) the burst's own busy seconds in the
 bin before go too (those since its run began: contacts < ``RUN_GAP_S`` apart), and in the bin
@@ -50,14 +62,16 @@ after, its contacts until the run pauses. On a quiet tank, 10 s holding >= ``clu
 contacts at >= 2.5 per busy second is a short burst and counts 0. Bursts at the slow end of
 their band (3 /s Poisson) cannot be told from 2 /s fish locally: only duration separates them
 (< 10 s against >= 1 min). Hence *persistence*: the
-densest 15 s of the window may add no more than ``spike_gain`` x what the other 45 s hold per
-15 s, plus ``spike_allowance``; steady fish count in full, a burst on a quiet tank adds ~nothing.
+densest 15 s of the window may add no more than ``spike_gain`` (3) x what the other 45 s hold per
+15 s, plus ``spike_allowance`` (2); steady fish count in full, a burst on a quiet tank adds
+little (runs already collapse most bursts; the old 2 and 1 cost slow fish at an episode's
+start, whose contacts crowd the window's end).
 
 *The threshold.* Under turbulence alone, contacts at rate b upcross a sliding count k over a
 window W at the rate b·P[Poisson(bW) = k-1] per second (a Poisson arrival sees the window's
 stationary count; capping and the exclusions above only lower it). k is the least integer with
-86,400 × that ≤ ``false_alarms_per_day`` (default 1: nominal; busy seconds, the burst rules and
-the margin below bring the measured rate to 0.05–0.3 a tank-day). At 0.05 /s, k = 12 busy
+86,400 × that ≤ ``false_alarms_per_day`` (default 1.5: nominal; busy seconds, runs, the burst
+rules and the margin below bring the measured rate to 0.1–0.4 a tank-day). At 0.05 /s, k = 12 busy
 seconds in 60 s; at 0.01 /s, 6; never below ``min_contacts``. b is the tank's own, learned from
 what it measures: the share of empty 55-s spans (the window's complete bins) outside demand,
 exponentially weighted over ``background_tau_s``, is e^(-55 b) under Poisson turbulence, and its
@@ -80,19 +94,26 @@ at 0.1 /s has 6 cycles in 60 s: S = 6 × 3.5 = 21 clears λ at b = 0.01, not at 
 *What that buys.* Measured on the independent contract streams (tests/contract_streams.py,
 ``bench/bench_demand.py``; recall within 60 s of an episode's first contact, background 0.002–
 0.02 /s, bursts 3 /h, 432 episodes a case; ``bound``: the ideal detector above on the same
-stream): see the README's table. In short: every episode of fish peaking at 0.4–2 /s within
-60 s (1,152 of 1,152 with ramps, split sensors, bursts just before, waves); ~0.99 from 0.3 /s;
-0.53 at 0.1 /s (bound ~0.7); false demands 0–0.33 per tank-day, 0.05 over 120 tank-days of
-background, bursts and waves alone.
+stream): see the README's tables. In short: every episode of fish peaking at 0.4–2 /s within
+60 s (`every`: 432 of 432 on the bench's seed, 864 of 864 on held-out seeds 21–22); ~0.99 from
+0.2–0.3 /s; 0.68 at 0.1 /s (bound 0.75; 0.53 before runs, 0.64 before pairs); false demands
+0.25–0.34 per tank-day over the cases, 0.14–0.22 over tank-days of background, bursts and waves
+alone.
 
 *Episodes and repeats.* One demand when the score first reaches k, raised on the contact that
-made it, and only if that contact followed the previous one within twice the episode's own pace
-(window / score) and is not in a clump (> 3 contacts per busy second): after fish stop, the next
-contact is turbulence tens of seconds later, or a burst, and must not be the one that raises.
+made it, and only if that contact followed the previous one within three times the episode's own
+pace (window / score; twice cost slow fish, whose gaps are exponential, a raise in ~1 of 6) and
+is not in a clump (> 3 contacts per busy second): after fish stop, the next contact is
+turbulence tens of seconds later, or a burst, and must not be the one that raises.
 The tank is "in demand" until its busy seconds (exclusions ignored) fall below ``end_fraction``
 x k. While in demand a demand is repeated at most every ``repeat_s``, on fresh evidence only:
 ``repeat_contacts`` busy seconds after the repeat fell due, each gap <= 3 x pace, the last <= 1 x
-pace, spanning >= half their share of the window (a burst's seconds come faster). Residual
+pace, spanning >= half their share of the window (a burst's seconds come faster). Only counted
+busy seconds (not chatter, a burst's tail or a run past its cap) raise or repeat. *A burst's
+demand holds nothing back*: when the run that raised the last demand proves a burst (its bin
+turns chatter, or a clump is cut), the tank leaves demand and the repeat wait is cleared, so
+fish that follow the burst are raised on their own evidence (before, the 120 s repeat rule
+held such an episode back). Residual
 risk: a turbulence contact right after an episode's end can still be the raising one: the
 independent streams count those within 10 s of an end apart (``afterglow``).
 
@@ -116,9 +137,6 @@ from __future__ import annotations
 
 import bisect
 import math
-from dataclasses import dataclass
-
-from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from controller.demand_stats import (
     HEALTHY,
@@ -131,129 +149,19 @@ from controller.demand_stats import (
     rate_for,
     threshold,
 )
+from controller.demand_types import Demand, DemandParams, SensorFault, SensorRecovered, SlowFishUndetectable
+from controller.demand_window import BurstRules, TankWindow
 
 __all__ = ["Demand", "DemandFilter", "DemandParams", "SensorFault", "SensorRecovered", "SlowFishUndetectable",
            "threshold"]
 _NONE: tuple = ()
 FISH_MAX_HZ = 2.0       # the contract's fastest fish
 RUN_GAP_S = 1.0         # contacts closer than this continue a run (a burst's tail goes with it)
+BURST_S = 10.0          # the contract's longest chatter burst: a run lasting longer is not one
+RAISE_GAP_PACES = 3.0   # the raising contact follows the one before within this many paces
 
 
-@dataclass(frozen=True, slots=True)
-class Demand:
-    tank: str
-    t: float
-    rate_hz: float
-
-
-@dataclass(frozen=True, slots=True)
-class SensorFault:
-    tank: str
-    sensor: str
-    t: float
-    kind: str           # "stuck" | "dead"
-
-
-@dataclass(frozen=True, slots=True)
-class SlowFishUndetectable:
-    """The tank's measured turbulence hides its slowest fish: raised once per tank."""
-    tank: str
-    t: float
-    note: str
-
-
-@dataclass(frozen=True, slots=True)
-class SensorRecovered:
-    tank: str
-    sensor: str
-    t: float
-
-
-class DemandParams(BaseModel):
-    """farm.toml ``[demand]``. Times in farm seconds."""
-
-    model_config = ConfigDict(extra="forbid", frozen=True)
-    window_s: float = Field(60.0, ge=20, le=600, description="evidence window: the deadline")
-    bin_s: float = Field(5.0, gt=0, le=30)
-    slot_s: float = Field(1.0, gt=0, le=10, description="one contact per slot counts")
-    chatter_hz: float = Field(3.0, gt=0, description="a bin faster than this is chatter")
-    clump_contacts: int = Field(8, ge=3, description="short-burst test on a quiet tank, per 10 s")
-    spike_gain: float = Field(2.0, ge=0)
-    spike_allowance: float = Field(1.0, ge=0)
-    false_alarms_per_day: float = Field(1.0, gt=0, lt=10, description="the count's nominal Poisson-tail budget")
-    turbulence_max_hz: float = Field(0.05, gt=0, description="the contract's bound; starting estimate")
-    turbulence_floor_hz: float = Field(0.005, gt=0)
-    background_tau_s: float = Field(7200.0, gt=0)
-    min_contacts: int = Field(4, ge=2, description="never demand on fewer occupied slots")
-    end_fraction: float = Field(0.5, gt=0, le=1)
-    repeat_s: float = Field(120.0, gt=0)
-    repeat_contacts: int = Field(5, ge=1)
-    stuck_rate_hz: float = Field(3.0, gt=0)
-    stuck_window_s: float = Field(120.0, gt=0)
-    stuck_share: float = Field(0.75, gt=0, le=1)
-    recover_s: float = Field(60.0, gt=0)
-    dead_after_s: float = Field(300.0, gt=0)
-    dead_active_bins: int = Field(20, ge=1)
-    dead_p: float = Field(1e-6, gt=0, lt=1, description="a live sensor this silent: less likely than this")
-    beat_false_alarms_per_day: float = Field(0.05, gt=0, lt=10)
-    beat_jitter: tuple[float, ...] = Field((0.15, 0.35), min_length=1, max_length=4,
-                                           description="beat tolerances, ± share of the period")
-    beat_period_s: tuple[float, float] = (2.0, 12.0)
-    beat_search_nodes: int = Field(30, ge=1)
-    beat_single_s: float = Field(0.5, ge=0, description="closer contacts are a burst's, not a beat's")
-    slow_fish_hz: float = Field(0.1, gt=0, description="the slowest fish the tank must serve")
-    slow_fish_recall: float = Field(0.5, gt=0, lt=1, description="below this, say they are undetectable")
-    learn_s: float = Field(3600.0, ge=0, description="measure this long before judging a tank")
-
-    @model_validator(mode="after")
-    def _shape(self):
-        if self.window_s / self.bin_s < 6:
-            raise ValueError("window_s must hold at least 6 bins of bin_s")
-        if self.slot_s > self.bin_s:
-            raise ValueError("slot_s must not exceed bin_s")
-        if self.turbulence_floor_hz > self.turbulence_max_hz:
-            raise ValueError("turbulence_floor_hz must not exceed turbulence_max_hz")
-        if not all(0 < d <= 0.45 for d in self.beat_jitter):
-            raise ValueError("beat_jitter values must lie in (0, 0.45]")
-        if not 0 < self.beat_period_s[0] < self.beat_period_s[1]:
-            raise ValueError("beat_period_s must be (shortest, longest) > 0")
-        return self
-
-
-class _Tank:
-    __slots__ = ("name", "sensors", "bin_end", "slot", "cur", "raw", "excl", "excl_next", "vals",
-                 "raws", "head", "vsum", "rsum", "m_old", "p1", "p2", "k", "bg_n", "bg_t",
-                 "demanding", "last_raise", "fresh", "recent", "active", "last_t", "prev_c", "tail",
-                 "run_cur", "run_prev",
-                 "occ", "occs", "osum", "beats", "grid_i", "told", "active_ew")
-
-    def __init__(self, name: str, n_bins: int, k: int, bg_n: float, bg_t: float, beats: Beats):
-        self.name = name
-        self.sensors: dict[str, Sensor] = {}
-        self.bin_end = -math.inf
-        self.slot = -1
-        self.cur = self.raw = 0                     # current bin: occupied slots, contacts
-        self.excl = self.excl_next = False
-        self.vals = [0] * (n_bins - 1)              # complete bins in the window (ring)
-        self.raws = [0] * (n_bins - 1)
-        self.head = 0
-        self.vsum = self.rsum = self.m_old = self.p1 = self.p2 = 0
-        self.k, self.bg_n, self.bg_t = k, bg_n, bg_t
-        self.demanding, self.last_raise, self.fresh = False, -math.inf, 0
-        self.recent: list[float] = []
-        self.active = 0                             # bins with a healthy contact (dead-sensor test)
-        self.last_t = -math.inf                     # the previous contact in a new second
-        self.prev_c = -math.inf                     # the previous contact
-        self.tail = False                           # a burst's tail: its contacts count nothing
-        self.run_cur = self.run_prev = 0            # busy seconds of the current run, this bin and the last
-        self.occ = self.osum = 0                    # busy seconds, excluded bins included
-        self.occs = [0] * (n_bins - 1)
-        self.beats, self.grid_i = beats, -1
-        self.told = False                           # slow fish said undetectable
-        self.active_ew = 0.0                        # the same, decaying (shares of sensors)
-
-
-class DemandFilter:
+class DemandFilter(BurstRules):
     """See the module docstring. ``tanks``: tank -> its sensors; None: learn them from contacts."""
 
     def __init__(self, params: DemandParams | None = None, tanks: dict[str, list[str]] | None = None):
@@ -272,8 +180,9 @@ class DemandFilter:
         self._beat_grid = [beat_tests(b, p.beat_jitter, p.beat_false_alarms_per_day, p.beat_period_s,
                                       self._window) for b in self._b_grid]
         self._beat_bin = math.ceil(p.bin_s / p.beat_period_s[0]) + 1   # more in a bin: a burst
+        self._run_cap = p.run_cap or 1 << 30
         self._fixed = tanks is not None
-        self._tanks: dict[str, _Tank] = {}
+        self._tanks: dict[str, TankWindow] = {}
         self.ignored = 0                            # contacts from unknown tanks/sensors
         self.unknown: set[tuple[str, str]] = set()
         for tank, sensors in (tanks or {}).items():
@@ -300,8 +209,12 @@ class DemandFilter:
             events = self._revive(ts, s, t, events)
         s.mark = ts.active
         if t - ts.prev_c >= RUN_GAP_S:              # a pause: a new run of contacts
+            if ts.run_n == 2 and ts.run_cnt == 1 and self._run_cap < 1 << 30:
+                self._pair(ts)                      # the run that ended was a pair: both count
             ts.tail = False
-            ts.run_cur = ts.run_prev = 0
+            ts.run_cur = ts.run_prev = ts.run_len = ts.run_n = ts.run_cnt = 0
+            ts.run_t0 = t
+        ts.run_n += 1
         ts.prev_c = t
         ts.raw += 1
         if ts.raw >= self._chatter:
@@ -310,11 +223,16 @@ class DemandFilter:
         if slot > ts.slot:
             ts.slot = slot
             ts.occ += 1
-            if not (ts.excl or ts.tail):
+            ts.run_len += 1
+            counted = not (ts.excl or ts.tail) and (ts.run_len <= ts.cap or t - ts.run_t0 >= BURST_S)
+            if counted:
                 ts.cur += 1
                 ts.run_cur += 1
-            if ts.demanding or ts.vsum + ts.cur >= ts.k:
+                ts.run_cnt += 1
+            if counted and (ts.demanding or ts.vsum + ts.cur >= ts.k):
                 events = self._decide(ts, t, events)
+            elif ts.demanding and ts.osum + ts.occ < self.params.end_fraction * ts.k:
+                ts.demanding = False
             ts.last_t = t
         if (ts.beats.contact(t, ts.raw, ts.excl or ts.tail) and not ts.demanding
                 and t - ts.last_raise >= self.params.repeat_s and ts.beats.found(t)):
@@ -356,7 +274,7 @@ class DemandFilter:
         return ("healthy", "stuck", "dead")[self._tanks[tank].sensors[sensor].state]
 
     # -- evidence -----------------------------------------------------------------------------
-    def _score(self, ts: _Tank) -> float:
+    def _score(self, ts: TankWindow) -> float:
         total = ts.vsum + ts.cur
         m = ts.p1 + ts.p2 + ts.cur
         if ts.m_old > m:
@@ -365,7 +283,7 @@ class DemandFilter:
         allowed = self.params.spike_gain * rest * 3.0 / (self._n - 3) + self.params.spike_allowance
         return rest + (m if m < allowed else allowed)
 
-    def _decide(self, ts: _Tank, t: float, events):
+    def _decide(self, ts: TankWindow, t: float, events):
         """Raise, repeat or end a demand. Every raise also asks that this contact follow the one
         before it no later than the episode's own pace suggests: after fish stop, the next
         contact is turbulence, tens of seconds later, and must not be the one that raises."""
@@ -373,7 +291,7 @@ class DemandFilter:
         pace = self._n * self._bin / max(score, 1.0)          # mean gap between busy seconds
         p = self.params
         if not ts.demanding:
-            if (score < ts.k or t - ts.last_t > 2.0 * pace or t - ts.last_raise < p.repeat_s
+            if (score < ts.k or t - ts.last_t > RAISE_GAP_PACES * pace or t - ts.last_raise < p.repeat_s
                     or ts.raw > 3 * ts.occ + 1):             # a clump of contacts: chatter starting
                 return events
             return self._start(ts, t, events)
@@ -397,57 +315,29 @@ class DemandFilter:
             return self._raise(ts, t, events)
         return events
 
-    def _start(self, ts: _Tank, t: float, events):
+    def _start(self, ts: TankWindow, t: float, events):
         ts.demanding, ts.last_raise, ts.fresh = True, t, 0
         self._unlearn_window(ts)
         return self._raise(ts, t, events)
 
-    def _unlearn_window(self, ts: _Tank) -> None:
+    def _unlearn_window(self, ts: TankWindow) -> None:
         """The window that made a demand was the episode's start, not turbulence: take its
         (non-empty) spans back out of the background estimate."""
         ts.bg_t = max(ts.bg_n + 1.0, ts.bg_t - len(ts.vals))
 
-    def _raise(self, ts: _Tank, t: float, events):
-        rate = (ts.rsum + (0 if ts.excl else ts.raw)) / self._window
+    def _raise(self, ts: TankWindow, t: float, events):
+        """The rate: the window's contacts over the span that holds them (from the start of its
+        oldest bin with contacts), so fish raised early in an episode are not reported slow."""
+        n, start = len(ts.raws), ts.bin_end - self._bin
+        for j in range(n):
+            if ts.raws[(ts.head + j) % n]:
+                start = ts.bin_end - self._bin * (n + 1 - j)
+                break
+        rate = (ts.rsum + (0 if ts.excl else ts.raw)) / max(t - start, self._bin)
         return [*(events or ()), Demand(ts.name, t, rate)]
 
-    def _chatter_bin(self, ts: _Tank) -> None:
-        """This bin is too fast for fish: it counts for nothing. At twice the fastest fish (no
-        fish, ever) its neighbours go too: they hold the burst's ramp and tail."""
-        if not ts.excl:
-            ts.excl = True
-            ts.cur = 0
-        if ts.raw == self._no_fish and not ts.excl_next:
-            ts.excl_next = True
-            last = (ts.head - 1) % len(ts.vals)
-            cut = min(ts.run_prev, ts.vals[last])    # the burst's own seconds in the bin before
-            ts.vsum -= cut
-            ts.vals[last] -= cut
-            ts.p1 = ts.vals[last]
-            ts.m_old = self._max3(ts)
-            ts.beats.forget(ts.bin_end - 2 * self._bin, ts.bin_end)
-
-    def _clump(self, ts: _Tank, h: int) -> None:
-        """A quiet tank (the other 50 s of the window hold few busy seconds), then 10 s with >=
-        clump_contacts contacts at >= 2 per busy second: a short burst too slow for the chatter
-        test (fish below 1.5 /s give < 2 per busy second, bursts at >= 3 /s give >= 3.2)."""
-        prev = h - 1 if h else len(ts.vals) - 1
-        raw = ts.raws[h] + ts.raws[prev]
-        if (raw >= self.params.clump_contacts and 2 * raw >= 5 * (ts.vals[h] + ts.vals[prev])
-                and 2 * (ts.osum - ts.occs[h] - ts.occs[prev]) <= len(ts.vals)):
-            ts.vsum -= ts.vals[h] + ts.vals[prev]
-            ts.rsum -= raw
-            ts.vals[h] = ts.vals[prev] = ts.raws[h] = ts.raws[prev] = ts.p1 = ts.p2 = 0
-            ts.excl_next = True                     # and the bin that follows
-            ts.beats.forget(ts.bin_end - 2 * self._bin, ts.bin_end)
-
-    def _max3(self, ts: _Tank) -> int:
-        vals, h, n = ts.vals, ts.head, len(ts.vals)
-        seq = vals[h:] + vals[:h]
-        return max(seq[i] + seq[i + 1] + seq[i + 2] for i in range(n - 2))
-
     # -- time ---------------------------------------------------------------------------------
-    def _roll(self, ts: _Tank, t: float):
+    def _roll(self, ts: TankWindow, t: float):
         """Close the current bin and any empty ones up to the bin holding ``t``."""
         if ts.bin_end == -math.inf:
             ts.bin_end = (math.floor(t / self._bin) + 1) * self._bin
@@ -486,7 +376,7 @@ class DemandFilter:
             ts.demanding = False
         return events
 
-    def _close_bin(self, ts: _Tank) -> None:
+    def _close_bin(self, ts: TankWindow) -> None:
         v = 0 if ts.excl else ts.cur
         r = 0 if ts.excl else ts.raw
         h = ts.head
@@ -509,7 +399,7 @@ class DemandFilter:
         ts.tail, ts.excl_next = ts.excl_next, False     # the next bin, until the run pauses
         ts.run_prev, ts.run_cur = ts.run_cur, 0
 
-    def _background(self, ts: _Tank) -> float:
+    def _background(self, ts: TankWindow) -> float:
         """From the share of empty spans (the window's complete bins): e^(-b·span) under Poisson
         turbulence, its lower confidence bound (one s.d., spans a window apart independent)."""
         share, n_eff = ts.bg_n / ts.bg_t, max(1.0, ts.bg_t / len(ts.vals))
@@ -518,7 +408,7 @@ class DemandFilter:
         return min(max(self.params.turbulence_floor_hz, b), self._b_grid[-1])
 
     # -- sensors ------------------------------------------------------------------------------
-    def _revive(self, ts: _Tank, s: Sensor, t: float, events):
+    def _revive(self, ts: TankWindow, s: Sensor, t: float, events):
         s.state = HEALTHY
         return [*(events or ()), SensorRecovered(ts.name, s.name, t)]
 
@@ -531,18 +421,19 @@ class DemandFilter:
         s = ts.sensors[sensor] = Sensor(sensor, t, ts.active)
         return s
 
-    def _new_tank(self, tank: str) -> _Tank:
+    def _new_tank(self, tank: str) -> TankWindow:
         p = self.params
         t0 = 900.0 / p.bin_s                        # the prior: 15 min at the contract's bound
-        ts = _Tank(tank, self._n, 0, t0 * math.exp(-p.turbulence_max_hz * self._span), t0,
+        ts = TankWindow(tank, self._n, 0, t0 * math.exp(-p.turbulence_max_hz * self._span), t0,
                    Beats(self._window, p.beat_single_s, p.beat_period_s[0], p.beat_search_nodes, self._beat_bin))
         self._thresholds(ts)
         self._tanks[tank] = ts
         return ts
 
-    def _thresholds(self, ts: _Tank) -> None:
+    def _thresholds(self, ts: TankWindow) -> None:
         """Both tests' thresholds from the tank's turbulence, rounded up on the grid."""
         i = min(63, bisect.bisect_left(self._b_grid, self._background(ts)))
         if i != ts.grid_i:
             ts.grid_i, ts.k = i, self._k_grid[i]
+            ts.cap = max(self._run_cap, ts.k // 4) if self.params.run_cap else 1 << 30
             ts.beats.tests, ts.beats.least = self._beat_grid[i]

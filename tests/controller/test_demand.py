@@ -431,3 +431,61 @@ def test_a_tank_too_turbulent_for_its_slowest_fish_says_so_once():
     assert T0 + DemandParams().learn_s <= told[0].t < T0 + 3 * 3600
     assert "0.1/s" in told[0].note and f.slow_fish("T1") is not None
     assert f.slow_fish("T2") is None
+
+
+def test_a_burst_that_raised_a_demand_does_not_hold_back_the_fish_after_it():
+    # a quiet tank; four turbulence contacts, then a burst whose first contact completes the
+    # count (a false demand the filter cannot take back), then fish at 0.5 /s: the burst must
+    # not make them wait for the 120 s repeat rule
+    rows = [(T0 + 300.0 * i, "T1", "ab"[i % 2]) for i in range(13)]           # an hour, calm
+    t1 = T0 + 3900.0
+    rows += [(t1 - 50.0, "T1", "b"), (t1 - 40.0, "T1", "a"), (t1 - 30.0, "T1", "b"), (t1 - 20.0, "T1", "a")]
+    rows += [(t1 + 0.05 * i, "T1", "b") for i in range(100)]                  # 20 /s for 5 s
+    fish = [t1 + 8.0 + 2.0 * i for i in range(40)]
+    rows += [(t, "T1", "ab"[i % 2]) for i, t in enumerate(fish)]
+    f, events, nxt = DemandFilter(), [], -math.inf
+    for t, tank, sensor in sorted(rows):
+        if t >= nxt:
+            events += f.on_time(t)
+            nxt = t + 5.0
+        events += f.on_contact(t, tank, sensor)
+    assert demands(events)[0].t == t1                   # the burst's first contact raised one
+    after = [d.t for d in demands(events) if d.t >= fish[0]]
+    assert after and after[0] - fish[0] <= 60.0, [d.t - t1 for d in demands(events)]
+
+
+def test_a_run_of_contacts_counts_one_busy_second_for_its_first_ten_seconds():
+    # bursts collapse to one event on a quiet tank: contacts 0.6 s apart for 6 s (too slow for
+    # the chatter and clump rules) count 1 busy second; run_cap = 0 turns it off
+    calm = [(T0 + 300.0 * i, "T1", "ab"[i % 2]) for i in range(13)]
+    t1 = T0 + 3900.0
+    scores = []
+    for cap in (1, 0):
+        f = DemandFilter(DemandParams(run_cap=cap))
+        for t, tank, sensor in calm:
+            f.on_time(t)
+            f.on_contact(t, tank, sensor)
+        f.on_time(t1)
+        for i in range(10):
+            f.on_contact(t1 + 0.01 + 0.6 * i, "T1", "a")
+        scores.append(f.score("T1")[0])
+    assert scores[0] <= 1.0 + 1e-9 < scores[1], scores      # uncapped: the spike rule's 2
+
+
+@pytest.mark.parametrize(("run", "counted"), [(2, 5), (3, 4)])
+def test_a_run_of_two_contacts_counts_two_once_it_has_ended(run, counted):
+    # slow fish on a quiet tank: single contacts 20 s apart and a run at +40 s 0.3 s apart, then
+    # one more at +50 s; a pair is two contacts (slow fish fall within 1 s of each other by
+    # chance), a run of three is a burst's: one busy second
+    calm = [(T0 + 300.0 * i, "T1", "ab"[i % 2]) for i in range(13)]
+    t1 = T0 + 3900.0
+    f = DemandFilter()
+    for t, tank, sensor in calm:
+        f.on_time(t)
+        f.on_contact(t, tank, sensor)
+    f.on_time(t1)
+    for t in (t1 + 0.5, t1 + 20.5, *(t1 + 40.5 + 0.3 * i for i in range(run))):
+        f.on_contact(t, "T1", "a")
+    before = f.score("T1")[0]
+    f.on_contact(t1 + 50.5, "T1", "b")                 # the run has ended
+    assert (before, f.score("T1")[0]) == (3, counted)
