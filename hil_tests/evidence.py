@@ -13,7 +13,7 @@ from collections import defaultdict
 from dataclasses import dataclass, field
 
 SERVE_WITHIN_S = 60.0
-QUEUED_BY = 2            # other feeds started while one waited: the robot was busy, not idle
+QUEUED_BY = 2            # other feeds under way or started while one waited: the robot was busy, not idle
 RESOLUTION_G = 0.1
 # A fish that stops asking leaves no mark: a turbulence contact seconds after the last fish contact
 # looks like one more from the fish. Demands raised this soon after an episode's end are counted
@@ -83,6 +83,13 @@ def inside(t: float, spans: list[tuple[float, float]], slack: float = 0.0) -> tu
     return None
 
 
+def _running_at(g: dict, t: float) -> bool:
+    """The robot was already serving feed ``g`` at ``t`` (its intent before, its close after; a feed
+    never closed proves nothing and does not count)."""
+    closed = g.get("t_closed")
+    return closed is not None and g["t_intent"] < t < closed
+
+
 def service_against_demands(v: Verdict, feeds, demand_t: dict, since: float | None = None) -> None:
     """Every raise served within 60 s (ledger rows as dicts; ``demand_t`` maps demand id to its raise)."""
     for f in feeds:
@@ -97,7 +104,8 @@ def service_against_demands(v: Verdict, feeds, demand_t: dict, since: float | No
             # One robot serves one tank at a time: demands that come together from tanks across the
             # rail can exceed what it can do in 60 s. Late with the robot serving other tanks all the
             # while is a queue (counted, bounded by the caller); late otherwise is the controller's.
-            others = sum(raised <= g["t_intent"] < f["t_intent"] and g["id"] != f["id"] for g in feeds)
+            others = sum(g["id"] != f["id"] and (raised <= g["t_intent"] < f["t_intent"] or _running_at(g, raised))
+                         for g in feeds)
             if others >= QUEUED_BY and wait <= 2 * SERVE_WITHIN_S:
                 v.queued.append(f"feed {f['id']} for {f['tank']}: {wait:.1f} s behind {others} other feeds")
             else:

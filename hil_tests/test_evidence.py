@@ -96,3 +96,24 @@ def test_late_service_is_a_queue_only_behind_other_tanks():
     v = Verdict()
     service_against_demands(v, feeds, demand_t, since=600.0)   # the warm-up's raises are not judged
     assert v.queued == [] and v.problems == [] and v.service_s == [5.0]
+
+
+def test_a_feed_under_way_when_the_demand_is_raised_counts_in_the_queue():
+    demand_t = {1: 0.0, 2: 10.0, 3: 20.0, 4: 300.0, 5: 400.0}
+    feeds = [feed("a", 1, 5.0, demand_id=1, t_closed=25.0),   # serving a when 3 is raised
+             feed("b", 2, 40.0, demand_id=2, t_closed=55.0),
+             feed("c", 3, 85.0, demand_id=3, t_closed=95.0),  # 65 s behind a (running) and b
+             feed("d", 4, 301.0, demand_id=4, t_closed=310.0),  # closed before 5 was raised
+             feed("e", 5, 470.0, demand_id=5, t_closed=480.0)]  # 70 s, the robot idle: a lapse
+    v = Verdict()
+    service_against_demands(v, feeds, demand_t)
+    assert len(v.queued) == 1 and "feed c" in v.queued[0] and "behind 2 other feeds" in v.queued[0]
+    assert len(v.problems) == 1 and "feed e" in v.problems[0]
+
+
+def test_the_warm_up_is_not_judged():
+    demand_t = {1: 0.0, 2: 1.0, 3: 2.0, 4: 500.0, 5: 900.0}
+    feeds = [feed("e", 5, 905.0, demand_id=5)]
+    v = Verdict()
+    service_against_demands(v, feeds, demand_t, since=600.0)
+    assert v.queued == [] and v.problems == [] and v.service_s == [5.0]
