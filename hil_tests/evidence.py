@@ -86,7 +86,7 @@ def inside(t: float, spans: list[tuple[float, float]], slack: float = 0.0) -> tu
 def _running_at(g: dict, t: float) -> bool:
     """The robot was already serving feed ``g`` at ``t`` (its intent before, its close after; a feed
     never closed proves nothing and does not count)."""
-    closed = g.get("t_closed")
+    closed = g["t_closed"] if "t_closed" in g.keys() else None     # a ledger row or a dict
     return closed is not None and g["t_intent"] < t < closed
 
 
