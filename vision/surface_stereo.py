@@ -112,3 +112,36 @@ def on_right_body(F: np.ndarray, pts1: np.ndarray, poly2: np.ndarray, guess2: np
     tj = t[rows, j[rows]]
     out[rows] = a[j[rows]] + tj[:, None] * seg[j[rows]]
     return out
+
+
+def _rays(calib, pts: np.ndarray, which: int) -> tuple[np.ndarray, np.ndarray]:
+    """Optical centre (3,) and unit ray directions (N, 3) through pixels of one camera."""
+    P = np.asarray(calib.P1 if which == 1 else calib.P2, float)
+    M = P[:, :3]
+    C = -np.linalg.solve(M, P[:, 3])
+    uv = _undist(calib, np.asarray(pts, float).reshape(-1, 2), which)
+    r = np.linalg.solve(M, np.c_[uv, np.ones(len(uv))].T).T
+    return C, r / np.linalg.norm(r, axis=1, keepdims=True)
+
+
+def fit_axis(X: np.ndarray, w: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Weighted least-squares 3-D line (point, unit direction) through points (N, 3)."""
+    w = np.ones(len(X)) if w is None else np.asarray(w, float)
+    c = (w[:, None] * X).sum(axis=0) / w.sum()
+    D = (X - c) * np.sqrt(w)[:, None]
+    _, _, vt = np.linalg.svd(D, full_matrices=False)
+    return c, vt[0]
+
+
+def ends_on_axis(calib, c: np.ndarray, d: np.ndarray, px1: np.ndarray, px2: np.ndarray) -> np.ndarray:
+    """Points (N, 3) on the line c + s d for end pixels seen in both views (px1, px2: (N, 2)): per
+    view the line's point nearest the pixel's ray, the two views averaged. The image places an end
+    along the fish to a fraction of a pixel; the depth comes from the whole fish's line."""
+    s = np.zeros(len(px1))
+    for which, px in ((1, px1), (2, px2)):
+        C, r = _rays(calib, px, which)
+        b = r @ d
+        w0 = c - C
+        den = np.maximum(1 - b ** 2, 1e-9)
+        s += (b * (r @ w0) - w0 @ d) / den
+    return c + (s / 2)[:, None] * d

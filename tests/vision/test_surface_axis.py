@@ -1,0 +1,27 @@
+"""The fish triangulated as a whole: a 3-D line through its points, the ends placed on it."""
+from __future__ import annotations
+
+import numpy as np
+
+from tests.vision.test_surface_drawing import top_rig
+from vision.surface_stereo import ends_on_axis, fit_axis
+from vision.triangulation import project
+
+
+def test_ends_on_the_fitted_line_keep_their_place_along_it_with_noisy_depths():
+    rig = top_rig()
+    calib = rig.calibration()
+    P1, P2 = np.asarray(calib.P1, float), np.asarray(calib.P2, float)
+    snout, fork = np.array([-60.0, 20.0, -150.0]), np.array([70.0, -10.0, -160.0])   # tilted ~4 deg
+    line = snout + np.linspace(0, 1, 7)[:, None] * (fork - snout)
+    rng = np.random.default_rng(3)
+    noisy = line + rng.normal(0, 1.0, line.shape) + np.array([0, 0, 1.0]) * rng.normal(0, 4.0, (7, 1))
+    c, d = fit_axis(noisy)
+    ends = np.array([snout, fork])
+    got = ends_on_axis(calib, c, d, project(P1, ends), project(P2, ends))
+    # the length barely moves with the line's depth: the rays fix the ends along the fish
+    assert abs(np.linalg.norm(got[0] - got[1]) - np.linalg.norm(snout - fork)) < 0.02 * np.linalg.norm(snout - fork)
+    # exact points give the exact ends
+    c, d = fit_axis(line)
+    got = ends_on_axis(calib, c, d, project(P1, ends), project(P2, ends))
+    assert np.allclose(got, ends, atol=1e-6)
