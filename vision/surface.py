@@ -11,8 +11,9 @@ pairing is triangulated and checked in 3-D: fork length within the species' rang
 greedily, best first, one fish per region. The fish is then triangulated as a whole: a 3-D line is
 fitted to its snout, fork and midline points (each midline point matched where its epipolar line
 crosses the other view's midline) and the ends placed on that line where their rays pass, so one
-end's depth error (a pixel of disparity is ~5 mm at 1 m) no longer becomes length or tilt. When the two views disagree on which end is the head
-(the pairing fits with snout and fork swapped), the view more sure of itself decides.
+end's depth error (a pixel of disparity is ~5 mm at 1 m) no longer becomes length or tilt.
+When the two views disagree on which end is the head (the pairing fits with snout and fork swapped),
+the view more sure of itself decides.
 
 "Up" (the water surface's normal): ``SurveySetup.up_world`` when given; else, for this setup, the
 direction from the tank towards the cameras, i.e. minus the mean of the two optical axes: cameras
