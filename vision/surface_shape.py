@@ -130,7 +130,9 @@ def _fin_base(r: Region, snout: np.ndarray, tail: np.ndarray, level: float = 0.1
 def _fork(snout, base, tip, notch, base_ratio: float | None, tail: np.ndarray) -> np.ndarray:
     """The fork point from what the view shows. A notch seen in the fin is the fork, unless the
     species' fin-base ratio puts the fork more than 4 % of the length away from it (a bite out of
-    the outline, not the fork). Without a notch: on from the fin base by the species' ratio along
+    the outline, not the fork) -- unless the body's outline ends where the fin does, past the
+    notch (a caudal fin dark enough to join the body: no fin base seen), when the notch is kept.
+    Without a notch: on from the fin base by the species' ratio along
     the body's direction at the tail (the faint fin's own direction, tried, was noisier); without
     a ratio, the rear end of the fin (fork length = total)."""
     est = None
@@ -139,6 +141,9 @@ def _fork(snout, base, tip, notch, base_ratio: float | None, tail: np.ndarray) -
         est = base + run * tail
     if notch is not None and (est is None or np.linalg.norm(notch - est) < 0.04 * np.linalg.norm(est - snout)):
         return notch
+    body = np.linalg.norm(base - snout)
+    if notch is not None and (tip - base) @ tail < 0.05 * body and (notch - base) @ tail < 0:
+        return notch        # the body's outline runs out to the fin's tip, past the notch: a dark fin
     return est if est is not None else tip
 
 

@@ -25,3 +25,16 @@ def test_ends_on_the_fitted_line_keep_their_place_along_it_with_noisy_depths():
     c, d = fit_axis(line)
     got = ends_on_axis(calib, c, d, project(P1, ends), project(P2, ends))
     assert np.allclose(got, ends, atol=1e-6)
+
+
+def test_a_dark_fin_joined_to_the_body_keeps_its_notch_as_the_fork():
+    from vision.surface_shape import _fork
+    snout, tail = np.array([0.0, 0.0]), np.array([1.0, 0.0])
+    # the body's outline runs out to the fin's tip (1.10), past the notch (1.00): no base was seen
+    fork = _fork(snout, base=np.array([108.0, 0]), tip=np.array([110.0, 0]), notch=np.array([100.0, 0]),
+                 base_ratio=0.86, tail=tail)
+    assert np.allclose(fork, [100.0, 0])
+    # a pale fin past a body that ends at its base: a notch near the base is a bite, not the fork
+    fork = _fork(snout, base=np.array([86.0, 0]), tip=np.array([110.0, 0]), notch=np.array([87.0, 0]),
+                 base_ratio=0.86, tail=tail)
+    assert np.allclose(fork, [100.0, 0])
