@@ -146,7 +146,8 @@ def _measure(setup: SurveySetup, a: Fish2D, b: Fish2D, pts1, pts2, head, solid, 
     S, K = X[0], X[1]
     g = setup.geometry
     # bend from the left view (the midline points' depths are the noisiest numbers of the fish)
-    chain = np.vstack([pts1[0], pts1[2:], pts1[1]])
+    mids = pts1[2:]       # 5 of them: between close midline points the slices' noise reads as bend
+    chain = np.vstack([pts1[0], mids[np.round(np.linspace(0, len(mids) - 1, 5)).astype(int)], pts1[1]])
     along = np.linalg.norm(np.diff(chain, axis=0), axis=1).sum()
     straight = float(np.linalg.norm(pts1[0] - pts1[1]) / max(along, 1e-9))
     body_mm = length_mm / max(straight, 1e-9)

@@ -45,7 +45,7 @@ class Fish2D:
 
 
 N_SLICES = 24
-N_MID = 5
+N_MID = 15         # midline points: the fish's 3-D line is fitted to them (5 -> 15: 3-D recall x1.3 on the bench)
 
 
 def _ends_defects(contour: np.ndarray, s: np.ndarray, t_rel: np.ndarray, L: float, lo: float, hi: float):
@@ -225,7 +225,10 @@ def analyse(r: Region, base_ratio: float | None = None) -> Fish2D | None:
     if notch is None or not np.array_equal(fork, notch):
         fork = _on_fin(r, fork, tail_dir, 0.06 * np.linalg.norm(fork - snout))
     fr = np.linspace(0, 1, N_MID + 2)[1:-1]
-    s_f = (snout - centre) @ e + fr * ((base - centre) @ e - (snout - centre) @ e)
+    s0 = (snout - centre) @ e                  # intermediate points between the snout and the body's
+    s1 = (base - centre) @ e                   # end, or the fork when the "end" ran on along a dark fin
+    s1 = s0 + np.sign(s1 - s0) * min(abs(s1 - s0), abs((fork - centre) @ e - s0))
+    s_f = s0 + fr * (s1 - s0)
     t_f = np.interp(s_f, centres, tmid)
     mid = centre + s_f[:, None] * e + t_f[:, None] * n
     return Fish2D(snout, fork, mid, float(np.linalg.norm(snout - fork)), float(width.max()), head_conf,
