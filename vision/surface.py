@@ -42,7 +42,7 @@ from vision.epipolar import fundamental_from_projections
 from vision.surface_prep import contrast_map
 from vision.surface_regions import RegionParams, find_regions
 from vision.surface_shape import Fish2D, analyse
-from vision.surface_stereo import candidate_pairs, ends_on_axis, fit_axis, on_right_body, refine
+from vision.surface_stereo import candidate_pairs, ends_on_axis, fit_axis_robust, on_right_body, refine
 from vision.survey_types import FishMeasurement, SurveySetup
 from vision.triangulation import triangulate_calibrated
 
@@ -130,7 +130,7 @@ def _on_axis(calib, up, solid, pts1, pts2):
     """The fish triangulated as a whole: a 3-D line fitted to its snout, fork and midline points,
     the ends placed on it where their rays pass (see vision.surface_stereo.ends_on_axis)."""
     X, res, _, _ = solid
-    c, d = fit_axis(X)
+    c, d = fit_axis_robust(X)
     S, K = ends_on_axis(calib, c, d, np.array([pts1[0], pts1[1]]), np.array([pts2[0], pts2[1]]))
     axis = S - K
     length_mm = float(np.linalg.norm(axis))

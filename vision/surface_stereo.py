@@ -133,6 +133,15 @@ def fit_axis(X: np.ndarray, w: np.ndarray | None = None) -> tuple[np.ndarray, np
     return c, vt[0]
 
 
+def fit_axis_robust(X: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``fit_axis`` twice, the second time with the points far off the first line (over 2.5 robust
+    sd: a midline point matched on the wrong part of the body) left out."""
+    c, d = fit_axis(X)
+    r = np.linalg.norm((X - c) - np.outer((X - c) @ d, d), axis=1)
+    keep = r <= 2.5 * 1.4826 * np.median(r) + 1e-9
+    return fit_axis(X[keep]) if keep.sum() >= 3 else (c, d)
+
+
 def ends_on_axis(calib, c: np.ndarray, d: np.ndarray, px1: np.ndarray, px2: np.ndarray) -> np.ndarray:
     """Points (N, 3) on the line c + s d for end pixels seen in both views (px1, px2: (N, 2)): per
     view the line's point nearest the pixel's ray, the two views averaged. The image places an end

@@ -38,3 +38,14 @@ def test_a_dark_fin_joined_to_the_body_keeps_its_notch_as_the_fork():
     fork = _fork(snout, base=np.array([86.0, 0]), tip=np.array([110.0, 0]), notch=np.array([87.0, 0]),
                  base_ratio=0.86, tail=tail)
     assert np.allclose(fork, [100.0, 0])
+
+
+def test_a_midline_point_matched_off_the_body_does_not_tilt_the_line():
+    from vision.surface_stereo import fit_axis_robust
+    rng = np.random.default_rng(5)
+    line = np.c_[np.linspace(0, 150, 17), np.zeros(17), np.full(17, -200.0)] + rng.normal(0, 0.5, (17, 3))
+    line[8, 2] += 40.0                       # one point 40 mm too high
+    c, d = fit_axis_robust(line)
+    assert abs(d[2]) < 0.01 and abs(c[2] + 200) < 1.0
+    _, d0 = fit_axis(line)
+    assert abs(d0[2]) < abs(d[2]) or abs(c[2] + 200) < 1.0      # (the plain fit is pulled up: 40/17 mm)
