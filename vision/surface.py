@@ -42,7 +42,7 @@ from vision.epipolar import fundamental_from_projections
 from vision.surface_prep import contrast_map
 from vision.surface_regions import RegionParams, find_regions
 from vision.surface_shape import Fish2D, analyse
-from vision.surface_stereo import candidate_pairs, ends_on_axis, fit_axis_robust, on_right_body, refine
+from vision.surface_stereo import body_crossings, candidate_pairs, ends_on_axis, fit_axis, fit_axis_robust, refine
 from vision.survey_types import FishMeasurement, SurveySetup
 from vision.triangulation import triangulate_calibrated
 
@@ -126,11 +126,13 @@ def _solids(calib, setup: SurveySetup, up, sets: list[tuple[np.ndarray, np.ndarr
     return out
 
 
-def _on_axis(calib, up, solid, pts1, pts2):
+def _on_axis(calib, up, solid, pts1, pts2, matched):
     """The fish triangulated as a whole: a 3-D line fitted to its snout, fork and midline points,
     the ends placed on it where their rays pass (see vision.surface_stereo.ends_on_axis)."""
     X, res, _, _ = solid
-    c, d = fit_axis_robust(X)
+    # the midline points matched where the other view's midline crosses their epipolar lines; the
+    # others (a body along the lines) are only the other view's own midline at the same fraction
+    c, d = fit_axis_robust(X[matched]) if matched.sum() >= 5 else fit_axis(X)
     S, K = ends_on_axis(calib, c, d, np.array([pts1[0], pts1[1]]), np.array([pts2[0], pts2[1]]))
     axis = S - K
     length_mm = float(np.linalg.norm(axis))
@@ -209,15 +211,17 @@ def measure_surface(left: np.ndarray, right: np.ndarray, calib: StereoCalibratio
     # snout and fork only: a window on the midline slides along a body lying along the epipolar line
     ends2, ncc = refine(cl.full, cr.full, calib, F, np.vstack([p[2][:2] for p in pairs]),
                         np.vstack([p[3][:2] for p in pairs]), _patch(fl))
-    sets, gaps = [], []
+    sets, gaps, solid_pts = [], [], []
     for k, (a, b, pts1, pts2, _) in enumerate(pairs):
         own = pts2[1].copy()                          # the right view's own fork
         pts2 = np.vstack([ends2[2 * k:2 * k + 2], pts2[2:]])
         poly = np.vstack([pts2[0], pts2[2:], pts2[1]])
         if not (a.fork_seen and b.fork_seen):        # midline and fork: where the body crosses the line
-            pts2[1:] = on_right_body(F, pts1[1:], poly, pts2[1:])
+            pts2[1:], crossed = body_crossings(F, pts1[1:], poly, pts2[1:])
+            crossed = crossed[1:]
         else:                                        # the midline only
-            pts2[2:] = on_right_body(F, pts1[2:], poly, pts2[2:])
+            pts2[2:], crossed = body_crossings(F, pts1[2:], poly, pts2[2:])
+        solid_pts.append(np.r_[True, True, crossed])
         sets.append((pts1, pts2))
         gaps.append(float(np.linalg.norm(own - pts2[1]) / max(b.length_px, 1.0)))
     out = []
@@ -225,7 +229,7 @@ def measure_surface(left: np.ndarray, right: np.ndarray, calib: StereoCalibratio
                                                                       strict=True)):
         if solid is None:
             continue
-        solid = _on_axis(calib, up, solid, pts1, pts2)
+        solid = _on_axis(calib, up, solid, pts1, pts2, solid_pts[k])
         m = _measure(setup, a, b, pts1, pts2, head, solid, ncc[2 * k:2 * k + 2], gaps[k])
         if m.score >= MIN_SCORE:
             out.append(m)

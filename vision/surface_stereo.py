@@ -82,13 +82,19 @@ def refine(left, right, calib, F, pts1: np.ndarray, pts2: np.ndarray, patch: int
 
 def on_right_body(F: np.ndarray, pts1: np.ndarray, poly2: np.ndarray, guess2: np.ndarray,
                   min_sin: float = 0.35) -> np.ndarray:
+    """See ``body_crossings`` (the points only)."""
+    return body_crossings(F, pts1, poly2, guess2, min_sin)[0]
+
+
+def body_crossings(F: np.ndarray, pts1: np.ndarray, poly2: np.ndarray, guess2: np.ndarray,
+                   min_sin: float = 0.35) -> tuple[np.ndarray, np.ndarray]:
     """Right points (N, 2) for left points on a fish's body (midline points, the fork): where each
     left point's epipolar line crosses the right view's midline ``poly2`` (K, 2), the last segment
     extended past its end (the fork lies on the midline's continuation). A point seen only as a
     place along the body (not as a feature both views find) is fixed this way by the body's
     position across the line, which both views agree on. Where the line crosses the body at less
     than asin(``min_sin``) (~20 deg: a fish lying along the epipolar lines) the crossing is
-    ill-conditioned and ``guess2`` is kept."""
+    ill-conditioned and ``guess2`` is kept. Also returns which points (N,) were crossings."""
     pts1 = np.asarray(pts1, float).reshape(-1, 2)
     out = np.asarray(guess2, float).reshape(-1, 2).copy()
     a, b = poly2[:-1], poly2[1:]                                  # segments (S, 2)
@@ -104,14 +110,16 @@ def on_right_body(F: np.ndarray, pts1: np.ndarray, poly2: np.ndarray, guess2: np
     hi = np.ones(len(a))
     hi[-1] = 2.0                                                  # the last segment runs on to the fork
     ok = np.isfinite(t) & (t >= 0) & (t <= hi) & (sin >= min_sin)
+    found = np.zeros(len(pts1), bool)
     if not ok.any():
-        return out
+        return out, found
     cost = np.where(ok, np.abs(t - 0.5), np.inf)
     j = cost.argmin(axis=1)
     rows = np.flatnonzero(np.isfinite(cost[np.arange(len(pts1)), j]))
     tj = t[rows, j[rows]]
     out[rows] = a[j[rows]] + tj[:, None] * seg[j[rows]]
-    return out
+    found[rows] = True
+    return out, found
 
 
 def _rays(calib, pts: np.ndarray, which: int) -> tuple[np.ndarray, np.ndarray]:
@@ -135,10 +143,11 @@ def fit_axis(X: np.ndarray, w: np.ndarray | None = None) -> tuple[np.ndarray, np
 
 def fit_axis_robust(X: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """``fit_axis`` twice, the second time with the points far off the first line (over 2.5 robust
-    sd: a midline point matched on the wrong part of the body) left out."""
+    sd, and over 2 % of the length: a midline point matched on the wrong part of the body) left out."""
     c, d = fit_axis(X)
     r = np.linalg.norm((X - c) - np.outer((X - c) @ d, d), axis=1)
-    keep = r <= 2.5 * 1.4826 * np.median(r) + 1e-9
+    length = np.ptp(X @ d)                  # never an outlier within 2 % of the fish's length
+    keep = r <= max(2.5 * 1.4826 * np.median(r), 0.02 * length)
     return fit_axis(X[keep]) if keep.sum() >= 3 else (c, d)
 
 
