@@ -8,8 +8,12 @@ Across the pair: a left fish and a right fish are the same fish when the right s
 the epipolar lines of the left ones (within a band that grows with the fish's size). Each candidate
 pairing is triangulated and checked in 3-D: fork length within the species' range
 (``SurveySetup.geometry``), body axis within ``max_tilt_deg`` of the water surface. Pairs are taken
-greedily, best first, one fish per region. When the two views disagree on which end is the head
-(the pairing fits with snout and fork swapped), the view more sure of itself decides.
+greedily, best first, one fish per region. The fish is then triangulated as a whole: a 3-D line is
+fitted to its snout, fork and midline points (each midline point matched where its epipolar line
+crosses the other view's midline) and the ends placed on that line where their rays pass, so one
+end's depth error (a pixel of disparity is ~5 mm at 1 m) no longer becomes length or tilt.
+When the two views disagree on which end is the head (the pairing fits with snout and fork swapped),
+the view more sure of itself decides.
 
 "Up" (the water surface's normal): ``SurveySetup.up_world`` when given; else, for this setup, the
 direction from the tank towards the cameras, i.e. minus the mean of the two optical axes: cameras
@@ -38,7 +42,7 @@ from vision.epipolar import fundamental_from_projections
 from vision.surface_prep import contrast_map
 from vision.surface_regions import RegionParams, find_regions
 from vision.surface_shape import Fish2D, analyse
-from vision.surface_stereo import candidate_pairs, on_right_body, refine
+from vision.surface_stereo import body_crossings, candidate_pairs, ends_on_axis, fit_axis, fit_axis_robust, refine
 from vision.survey_types import FishMeasurement, SurveySetup
 from vision.triangulation import triangulate_calibrated
 
@@ -122,13 +126,30 @@ def _solids(calib, setup: SurveySetup, up, sets: list[tuple[np.ndarray, np.ndarr
     return out
 
 
+def _on_axis(calib, up, solid, pts1, pts2, matched):
+    """The fish triangulated as a whole: a 3-D line fitted to its snout, fork and midline points,
+    the ends placed on it where their rays pass (see vision.surface_stereo.ends_on_axis)."""
+    X, res, _, _ = solid
+    # the midline points matched where the other view's midline crosses their epipolar lines; the
+    # others (a body along the lines) are only the other view's own midline at the same fraction
+    c, d = fit_axis_robust(X[matched]) if matched.sum() >= 5 else fit_axis(X)
+    S, K = ends_on_axis(calib, c, d, np.array([pts1[0], pts1[1]]), np.array([pts2[0], pts2[1]]))
+    axis = S - K
+    length_mm = float(np.linalg.norm(axis))
+    tilt = float(np.degrees(np.arcsin(min(abs(axis @ up) / max(length_mm, 1e-9), 1.0))))
+    X = X.copy()
+    X[0], X[1] = S, K
+    return X, res, length_mm, tilt
+
+
 def _measure(setup: SurveySetup, a: Fish2D, b: Fish2D, pts1, pts2, head, solid, ncc,
              fork_gap: float) -> FishMeasurement:
     X, res, length_mm, tilt = solid
     S, K = X[0], X[1]
     g = setup.geometry
     # bend from the left view (the midline points' depths are the noisiest numbers of the fish)
-    chain = np.vstack([pts1[0], pts1[2:], pts1[1]])
+    mids = pts1[2:]       # 5 of them: between close midline points the slices' noise reads as bend
+    chain = np.vstack([pts1[0], mids[np.round(np.linspace(0, len(mids) - 1, 5)).astype(int)], pts1[1]])
     along = np.linalg.norm(np.diff(chain, axis=0), axis=1).sum()
     straight = float(np.linalg.norm(pts1[0] - pts1[1]) / max(along, 1e-9))
     body_mm = length_mm / max(straight, 1e-9)
@@ -190,13 +211,17 @@ def measure_surface(left: np.ndarray, right: np.ndarray, calib: StereoCalibratio
     # snout and fork only: a window on the midline slides along a body lying along the epipolar line
     ends2, ncc = refine(cl.full, cr.full, calib, F, np.vstack([p[2][:2] for p in pairs]),
                         np.vstack([p[3][:2] for p in pairs]), _patch(fl))
-    sets, gaps = [], []
+    sets, gaps, solid_pts = [], [], []
     for k, (a, b, pts1, pts2, _) in enumerate(pairs):
         own = pts2[1].copy()                          # the right view's own fork
         pts2 = np.vstack([ends2[2 * k:2 * k + 2], pts2[2:]])
+        poly = np.vstack([pts2[0], pts2[2:], pts2[1]])
         if not (a.fork_seen and b.fork_seen):        # midline and fork: where the body crosses the line
-            poly = np.vstack([pts2[0], pts2[2:], pts2[1]])
-            pts2[1:] = on_right_body(F, pts1[1:], poly, pts2[1:])
+            pts2[1:], crossed = body_crossings(F, pts1[1:], poly, pts2[1:])
+            crossed = crossed[1:]
+        else:                                        # the midline only
+            pts2[2:], crossed = body_crossings(F, pts1[2:], poly, pts2[2:])
+        solid_pts.append(np.r_[True, True, crossed])
         sets.append((pts1, pts2))
         gaps.append(float(np.linalg.norm(own - pts2[1]) / max(b.length_px, 1.0)))
     out = []
@@ -204,6 +229,7 @@ def measure_surface(left: np.ndarray, right: np.ndarray, calib: StereoCalibratio
                                                                       strict=True)):
         if solid is None:
             continue
+        solid = _on_axis(calib, up, solid, pts1, pts2, solid_pts[k])
         m = _measure(setup, a, b, pts1, pts2, head, solid, ncc[2 * k:2 * k + 2], gaps[k])
         if m.score >= MIN_SCORE:
             out.append(m)

@@ -275,6 +275,10 @@ def _regions(c: Contrast, p: RegionParams, sign: float) -> list[Region]:
             part, contour = _fill(part)
             if contour is None or len(contour) < 8:
                 continue
+            if _moment_slender(part) < 0.65 * p.min_slender:
+                continue              # too stout for a fish, by its moments (cheap): spared the shape
+                                      # analysis. 4 sd along the axis >= 0.82 of the end-to-end length
+                                      # for any fish-like outline (a diamond's 4 sd: 0.816 of it)
             whole, outline = _silhouette(con, part, p.fin_level * peak)
             if _touches(outline, (u0, v0), (W, H), p.border_px):
                 continue

@@ -45,7 +45,7 @@ class Fish2D:
 
 
 N_SLICES = 24
-N_MID = 5
+N_MID = 15         # midline points: the fish's 3-D line is fitted to them (5 -> 15: 3-D recall x1.3 on the bench)
 
 
 def _ends_defects(contour: np.ndarray, s: np.ndarray, t_rel: np.ndarray, L: float, lo: float, hi: float):
@@ -130,7 +130,9 @@ def _fin_base(r: Region, snout: np.ndarray, tail: np.ndarray, level: float = 0.1
 def _fork(snout, base, tip, notch, base_ratio: float | None, tail: np.ndarray) -> np.ndarray:
     """The fork point from what the view shows. A notch seen in the fin is the fork, unless the
     species' fin-base ratio puts the fork more than 4 % of the length away from it (a bite out of
-    the outline, not the fork). Without a notch: on from the fin base by the species' ratio along
+    the outline, not the fork) -- unless the body's outline ends where the fin does, past the
+    notch (a caudal fin dark enough to join the body: no fin base seen), when the notch is kept.
+    Without a notch: on from the fin base by the species' ratio along
     the body's direction at the tail (the faint fin's own direction, tried, was noisier); without
     a ratio, the rear end of the fin (fork length = total)."""
     est = None
@@ -139,6 +141,9 @@ def _fork(snout, base, tip, notch, base_ratio: float | None, tail: np.ndarray) -
         est = base + run * tail
     if notch is not None and (est is None or np.linalg.norm(notch - est) < 0.04 * np.linalg.norm(est - snout)):
         return notch
+    body = np.linalg.norm(base - snout)
+    if notch is not None and (tip - base) @ tail < 0.05 * body and (notch - base) @ tail < 0:
+        return notch        # the body's outline runs out to the fin's tip, past the notch: a dark fin
     return est if est is not None else tip
 
 
@@ -220,7 +225,10 @@ def analyse(r: Region, base_ratio: float | None = None) -> Fish2D | None:
     if notch is None or not np.array_equal(fork, notch):
         fork = _on_fin(r, fork, tail_dir, 0.06 * np.linalg.norm(fork - snout))
     fr = np.linspace(0, 1, N_MID + 2)[1:-1]
-    s_f = (snout - centre) @ e + fr * ((base - centre) @ e - (snout - centre) @ e)
+    s0 = (snout - centre) @ e                  # intermediate points between the snout and the body's
+    s1 = (base - centre) @ e                   # end, or the fork when the "end" ran on along a dark fin
+    s1 = s0 + np.sign(s1 - s0) * min(abs(s1 - s0), abs((fork - centre) @ e - s0))
+    s_f = s0 + fr * (s1 - s0)
     t_f = np.interp(s_f, centres, tmid)
     mid = centre + s_f[:, None] * e + t_f[:, None] * n
     return Fish2D(snout, fork, mid, float(np.linalg.norm(snout - fork)), float(width.max()), head_conf,

@@ -82,13 +82,19 @@ def refine(left, right, calib, F, pts1: np.ndarray, pts2: np.ndarray, patch: int
 
 def on_right_body(F: np.ndarray, pts1: np.ndarray, poly2: np.ndarray, guess2: np.ndarray,
                   min_sin: float = 0.35) -> np.ndarray:
+    """See ``body_crossings`` (the points only)."""
+    return body_crossings(F, pts1, poly2, guess2, min_sin)[0]
+
+
+def body_crossings(F: np.ndarray, pts1: np.ndarray, poly2: np.ndarray, guess2: np.ndarray,
+                   min_sin: float = 0.35) -> tuple[np.ndarray, np.ndarray]:
     """Right points (N, 2) for left points on a fish's body (midline points, the fork): where each
     left point's epipolar line crosses the right view's midline ``poly2`` (K, 2), the last segment
     extended past its end (the fork lies on the midline's continuation). A point seen only as a
     place along the body (not as a feature both views find) is fixed this way by the body's
     position across the line, which both views agree on. Where the line crosses the body at less
     than asin(``min_sin``) (~20 deg: a fish lying along the epipolar lines) the crossing is
-    ill-conditioned and ``guess2`` is kept."""
+    ill-conditioned and ``guess2`` is kept. Also returns which points (N,) were crossings."""
     pts1 = np.asarray(pts1, float).reshape(-1, 2)
     out = np.asarray(guess2, float).reshape(-1, 2).copy()
     a, b = poly2[:-1], poly2[1:]                                  # segments (S, 2)
@@ -104,11 +110,56 @@ def on_right_body(F: np.ndarray, pts1: np.ndarray, poly2: np.ndarray, guess2: np
     hi = np.ones(len(a))
     hi[-1] = 2.0                                                  # the last segment runs on to the fork
     ok = np.isfinite(t) & (t >= 0) & (t <= hi) & (sin >= min_sin)
+    found = np.zeros(len(pts1), bool)
     if not ok.any():
-        return out
+        return out, found
     cost = np.where(ok, np.abs(t - 0.5), np.inf)
     j = cost.argmin(axis=1)
     rows = np.flatnonzero(np.isfinite(cost[np.arange(len(pts1)), j]))
     tj = t[rows, j[rows]]
     out[rows] = a[j[rows]] + tj[:, None] * seg[j[rows]]
-    return out
+    found[rows] = True
+    return out, found
+
+
+def _rays(calib, pts: np.ndarray, which: int) -> tuple[np.ndarray, np.ndarray]:
+    """Optical centre (3,) and unit ray directions (N, 3) through pixels of one camera."""
+    P = np.asarray(calib.P1 if which == 1 else calib.P2, float)
+    M = P[:, :3]
+    C = -np.linalg.solve(M, P[:, 3])
+    uv = _undist(calib, np.asarray(pts, float).reshape(-1, 2), which)
+    r = np.linalg.solve(M, np.c_[uv, np.ones(len(uv))].T).T
+    return C, r / np.linalg.norm(r, axis=1, keepdims=True)
+
+
+def fit_axis(X: np.ndarray, w: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Weighted least-squares 3-D line (point, unit direction) through points (N, 3)."""
+    w = np.ones(len(X)) if w is None else np.asarray(w, float)
+    c = (w[:, None] * X).sum(axis=0) / w.sum()
+    D = (X - c) * np.sqrt(w)[:, None]
+    _, _, vt = np.linalg.svd(D, full_matrices=False)
+    return c, vt[0]
+
+
+def fit_axis_robust(X: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``fit_axis`` twice, the second time with the points far off the first line (over 2.5 robust
+    sd, and over 2 % of the length: a midline point matched on the wrong part of the body) left out."""
+    c, d = fit_axis(X)
+    r = np.linalg.norm((X - c) - np.outer((X - c) @ d, d), axis=1)
+    length = np.ptp(X @ d)                  # never an outlier within 2 % of the fish's length
+    keep = r <= max(2.5 * 1.4826 * np.median(r), 0.02 * length)
+    return fit_axis(X[keep]) if keep.sum() >= 3 else (c, d)
+
+
+def ends_on_axis(calib, c: np.ndarray, d: np.ndarray, px1: np.ndarray, px2: np.ndarray) -> np.ndarray:
+    """Points (N, 3) on the line c + s d for end pixels seen in both views (px1, px2: (N, 2)): per
+    view the line's point nearest the pixel's ray, the two views averaged. The image places an end
+    along the fish to a fraction of a pixel; the depth comes from the whole fish's line."""
+    s = np.zeros(len(px1))
+    for which, px in ((1, px1), (2, px2)):
+        C, r = _rays(calib, px, which)
+        b = r @ d
+        w0 = c - C
+        den = np.maximum(1 - b ** 2, 1e-9)
+        s += (b * (r @ w0) - w0 @ d) / den
+    return c + (s / 2)[:, None] * d
