@@ -23,6 +23,8 @@ import numpy as np
 from vision.fins import Fins, sample_frames
 
 SAMPLES = 40            # grid steps per fin span
+SHALLOW_SLOPE = 0.12    # arms flatter than this: a square-cut or shallow tail
+FLAT_OK = True
 
 
 
@@ -117,7 +119,8 @@ def _masked_median(a: np.ndarray, m: np.ndarray) -> np.ndarray:
     return np.where(n > 0, np.take_along_axis(v, idx[..., None], axis=-1)[..., 0], 0.0)
 
 
-def locate_forks(pyr: list[np.ndarray], fins: Fins, min_contrast: float = 5.0, min_slope: float = 0.12) -> Forks:
+def locate_forks(pyr: list[np.ndarray], fins: Fins, min_contrast: float = 5.0, min_slope: float = 0.12,
+                 flat_ok: bool = FLAT_OK) -> Forks:
     """Re-measure every candidate's innermost fork point and axis on the image pyramid."""
     N = len(fins)
     if N == 0:
@@ -157,6 +160,11 @@ def locate_forks(pyr: list[np.ndarray], fins: Fins, min_contrast: float = 5.0, m
     with np.errstate(invalid="ignore", divide="ignore"):
         xb = t[j - 1] + (t[1] - t[0]) * (-s0) / (s1 - s0)                   # crossing, in spans
     rows = np.abs(t) <= 0.45
+    # past the lobes' tips (rows beyond ~half a span each side) a tail has water as far ahead as
+    # the grid reaches, or the body well ahead of the notch; a straight edge goes on
+    outer = np.where(has & np.isfinite(xb), xb, np.inf)
+    side_hi = outer[:, t >= 0.57].min(axis=1)
+    side_lo = outer[:, t <= -0.57].min(axis=1)
     xb = np.where(has & rows[None], xb, -np.inf)
     # the apex is near the candidate: rows far out can pass beside the fin and meet the body
     apex = np.where(np.abs(t) <= 0.12, xb, -np.inf).argmax(axis=1)
@@ -171,9 +179,16 @@ def locate_forks(pyr: list[np.ndarray], fins: Fins, min_contrast: float = 5.0, m
     a2, b2, r2 = _line_fit(np.broadcast_to(t, xb.shape), xbf, dn.astype(float))
     enough = (up.sum(axis=1) >= 3) & (dn.sum(axis=1) >= 3)
     v_shape = (b1 < -min_slope) & (b2 > min_slope)
+    if flat_ok:
+        xm = xb[np.arange(N), np.where(np.abs(t) <= 0.12, xb, -np.inf).argmax(axis=1)]
+        bounded = (side_hi > xm + 0.1) | (side_lo > xm + 0.1)
+        v_shape |= (b1 < SHALLOW_SLOPE) & (b2 > -SHALLOW_SLOPE) & (contrast >= 2 * min_contrast) & bounded
     with np.errstate(invalid="ignore", divide="ignore"):
         yv = (a2 - a1) / (b1 - b2)
-        xv = a1 + b1 * yv
+    # a shallow or square-cut tail (tilapia, worn fins): the arms barely meet; the apex row is
+    # where the rear edge is innermost
+    shallow = ~(np.abs(b1 - b2) >= 2 * SHALLOW_SLOPE) | ~np.isfinite(yv)
+    yv = np.where(shallow, y0, yv)
     xmax = xb[np.arange(N), apex]
 
     xv = _apex(np.broadcast_to(t, xb.shape), xbf, up | dn, np.where(np.isfinite(yv), yv, y0), xmax)

@@ -52,6 +52,7 @@ class Params:
     band_px: float = 3.0            # epipolar band for fork pairing
     max_residual_px: float = 2.5    # snout triangulation
     good_length_px: float = 250.0   # fish this long in the image score 1 on size (x image width / 1280)
+    fin_floor: float = 0.2          # the least the fork-template term (eq. 13) gives a located fork
     min_score: float = 0.12         # post-filter: a fish whose measurement rests on little is dropped
     transfer: bool = True           # a fork found in one image only is looked for along its epipolar line
     near_mm: float = 300.0          # working range of the rig for that search (from the camera)
@@ -228,7 +229,9 @@ def _measurements(rows, pairs, f1, f2, v1, v2, fork_mm, fork_res, ch, calib, geo
     len_px = 0.5 * (np.linalg.norm(ch.px1 - f1.xy, axis=1) + np.linalg.norm(ch.px2 - f2.xy, axis=1))
     terms = {
         "t_stereo": np.clip((pairs.ncc - 0.4) / 0.5, 0, 1),
-        "t_fin": np.clip((np.minimum(f1.score, f2.score) - 0.3) / 0.4, 0, 1),
+        # eq. (13)'s bank is drawn with a forked tail: a square-cut or worn tail the locator found
+        # scores low on it without being any less a tail, so the bank lowers the score, never vetoes
+        "t_fin": p.fin_floor + (1 - p.fin_floor) * np.clip((np.minimum(f1.score, f2.score) - 0.3) / 0.4, 0, 1),
         "t_fork_residual": np.exp(-(fork_res / 1.5) ** 2),
         "t_snout_residual": np.exp(-(ch.residual_px / 1.5) ** 2),
         "t_snout_edge": np.clip(ch.strength, 0, 1),

@@ -123,3 +123,23 @@ def test_body_ends_give_both_ends_of_each_fish_with_its_axis():
         assert np.linalg.norm(ends.xy[k] - xy) < 0.2 * L
         assert 0.75 * L < length[k] < 1.2 * L
         assert abs(np.angle(np.exp(1j * (ends.angle[k] - angle)))) < np.radians(10)
+
+
+def test_square_cut_tail_located_at_its_rear_edge():
+    """A tail with no notch (tilapia, worn fins): the fork is the middle of the straight rear edge;
+    found to 1.5 % of the length from a start a few percent off, while a straight edge that goes
+    on past the fin (above) is still refused."""
+    rng = np.random.default_rng(5)
+    img = water(600, 800, rng)
+    length, rear = 300.0, np.array([300.0, 300.0])                  # head towards +x
+    cv2.ellipse(img, (int(rear[0] + 0.55 * length), 300), (int(0.45 * length), int(0.14 * length)), 0, 0, 360,
+                40.0, -1, cv2.LINE_AA)                                # the body
+    fin = np.array([[rear[0], 300 - 0.15 * length], [rear[0] + 0.12 * length, 300 - 0.03 * length],
+                    [rear[0] + 0.12 * length, 300 + 0.03 * length], [rear[0], 300 + 0.15 * length]])
+    cv2.fillPoly(img, [np.round(fin * 16).astype(np.int32)], 60.0, cv2.LINE_AA, shift=4)   # the fin
+    img = np.clip(img, 0, 255).astype(np.uint8)
+    start = rear + np.array([0.04, -0.02]) * length
+    forks = locate_forks(pyramid(img), Fins(start[None], np.array([0.1]), np.array([0.3 * length]),
+                                            np.ones(1), np.ones(1)))
+    assert forks.ok.all()
+    assert np.linalg.norm(forks.fins.xy[0] - rear) < 0.015 * length
