@@ -16,6 +16,16 @@ are proposed from the bodies (``vision.bodies``), located on the image (``vision
 bank is evaluated there, at the located fork's own angle and scale (``fin_scores``): a measure of
 how fork-like the point is, one term of the fish's score. That is also cheaper than any pyramid
 scan: a few dozen windows per image.
+
+Tried and measured as a second proposer beside the bodies' ends (the bank over the water-distance
+working image and 3-4 halvings, peaks non-maximum suppressed, the best 16-40 per megapixel, each
+at its axis and +-12 degrees, through the full-resolution locator): on 20 scenes (76 fish views)
+located true forks 16 -> 17 (stride 2) or 19 (stride 1, every point), with 50-200 more false
+forks; on the bench (57 scenes, 101 fish) recall 0.089 and precision 0.909 unchanged, 74 -> 117
+ms per pair (ratio 0.114 -> 0.207); stride 1 was slower still (ratio 0.27) and lost a fish to
+false pairings. Keeping only peaks with the body's region ahead of them lost forks (15). The
+bank's ten best peaks are almost never a fork (reef, net and body edges); the locator, not the
+proposals, is where fish are lost (17 of 38 true forks located even when started on them).
 """
 from __future__ import annotations
 
