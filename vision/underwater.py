@@ -34,7 +34,7 @@ from vision.association import (
 )
 from vision.bodies import body_ends, fish_masks
 from vision.calib_file import StereoCalibration
-from vision.fins import SPAN_OF_FL, Fins, concat, fin_scores, suppress
+from vision.fins import SPAN_OF_FL, Fins, bank_proposals, concat, fin_scores, suppress
 from vision.fork import locate_forks, pyramid
 from vision.illumination import water_distance
 from vision.snout import find_snouts, refine_tips
@@ -57,6 +57,10 @@ class Params:
     transfer: bool = True           # a fork found in one image only is looked for along its epipolar line
     near_mm: float = 300.0          # working range of the rig for that search (from the camera)
     far_mm: float = 4000.0
+    bank_per_mpix: float = 8.0      # eq. (13)'s best fork proposals per megapixel (0: off; 10 at 1280x960)
+    bank_levels: int = 2            # ... scored on the working image and its first halving
+    bank_stride: int = 2            # ... at grid points this many px apart
+    bank_keep: float = 0.1          # ... the share of them with the most emboss energy
 
 
 class _Clock:
@@ -101,6 +105,11 @@ def _view(img: np.ndarray, setup: SurveySetup, p: Params, clock: _Clock) -> View
     # a region's end is the caudal peduncle when the fin is too faint to be in it (the region is
     # then ~0.87 of the fork length), or the lobe tips when it is not
     hyps = concat([_shifted(ends, length, off) for off in (-0.17, -0.12, -0.07, -0.02, 0.03)])
+    n_bank = int(round(p.bank_per_mpix * H * W / 1e6))
+    if n_bank > 0:
+        # a second proposer, eq. (13) over the working image: forks the bodies' ends miss (a fish
+        # before reef or net, fish touching); each located like the others
+        hyps = concat([hyps, bank_proposals(dist, sx, sy, n_bank, p.bank_levels, p.bank_stride, p.bank_keep)])
     clock.lap("fins")
     forks = locate_forks(pyr, hyps)
     forks = locate_forks(pyr, forks.fins.take(np.flatnonzero(forks.ok)))        # again, from the fork

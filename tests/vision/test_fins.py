@@ -8,7 +8,7 @@ import pytest
 
 from tests.vision.fish_drawing import draw_fish_2d, water
 from vision.bodies import body_ends, fish_masks
-from vision.fins import EMBOSS, Fins, fin_scores, fork_mask, sample_frames, template_bank
+from vision.fins import EMBOSS, Fins, bank_proposals, fin_scores, fork_mask, sample_frames, template_bank
 from vision.fork import locate_forks, pyramid
 from vision.illumination import water_distance
 
@@ -143,3 +143,21 @@ def test_square_cut_tail_located_at_its_rear_edge():
                                             np.ones(1), np.ones(1)))
     assert forks.ok.all()
     assert np.linalg.norm(forks.fins.xy[0] - rear) < 0.015 * length
+
+
+def test_bank_proposes_forks_among_its_best_peaks():
+    """Eq. (13) over a whole reduced water-distance image (the second fork proposer, beside the
+    bodies' ends): at least half the drawn forks, either polarity, are among its 10 best peaks,
+    within 5 % of their length and 25 degrees of their axis, in full-resolution pixels, beside a
+    straight edge and water texture (a weak proposer on its own: the locator sorts them out)."""
+    rng = np.random.default_rng(6)
+    img = scene(rng, FISH)
+    img[:, 1200:] = 0                                           # a straight edge
+    small = cv2.resize(img, (320, 240), interpolation=cv2.INTER_AREA)
+    props = bank_proposals(water_distance(small, 120, 130), 4.0, 4.0, 10)
+    assert 0 < len(props) <= 10
+    hits = 0
+    for xy, angle, L, _ in FISH:
+        turn = np.abs(np.angle(np.exp(1j * (props.angle - angle))))
+        hits += bool(np.any((np.linalg.norm(props.xy - xy, axis=1) < 0.05 * L) & (turn < np.radians(25))))
+    assert hits >= 2
