@@ -9,7 +9,7 @@ import pytest
 from tests.vision.fish_drawing import draw_fish_2d, water
 from vision.bodies import body_ends, fish_masks
 from vision.fins import EMBOSS, Fins, bank_proposals, fin_scores, fork_mask, sample_frames, template_bank
-from vision.fork import locate_forks, pyramid
+from vision.fork import ANGLE_TRIES, locate_forks, pyramid
 from vision.illumination import water_distance
 
 
@@ -161,3 +161,20 @@ def test_bank_proposes_forks_among_its_best_peaks():
         turn = np.abs(np.angle(np.exp(1j * (props.angle - angle))))
         hits += bool(np.any((np.linalg.norm(props.xy - xy, axis=1) < 0.05 * L) & (turn < np.radians(25))))
     assert hits >= 2
+
+
+def test_a_fork_started_on_an_axis_45_degrees_off_is_found_by_turning_it():
+    """Along an axis 45 degrees off its fin's a drawn fork shows no V (one lobe leaves the rows);
+    the turned axes (``tries``) find it within 1 % of the length, and a straight edge stays no fork."""
+    pyr = pyramid(scene(np.random.default_rng(7), FISH))
+    cands = Fins(np.array([f[0] for f in FISH], float), np.array([f[1] for f in FISH]) + np.radians(45),
+                 0.3 * np.array([f[2] for f in FISH], float), np.ones(4), np.ones(4))
+    assert not locate_forks(pyr, cands).ok.any()
+    turned = locate_forks(pyr, cands, tries=ANGLE_TRIES)
+    assert turned.ok.all()
+    for k, (true_xy, _, length, _) in enumerate(FISH):
+        assert np.linalg.norm(turned.fins.xy[k] - true_xy) < 0.01 * length
+    img = water(400, 400, np.random.default_rng(3))
+    img[:, 200:] -= 80                                             # a straight edge
+    edge = Fins(np.array([[200.0, 100.0]]), np.array([0.0]), np.array([75.0]), np.ones(1), np.ones(1))
+    assert not locate_forks(pyramid(np.clip(img, 0, 255).astype(np.uint8)), edge, tries=ANGLE_TRIES).ok.any()
