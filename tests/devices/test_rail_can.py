@@ -43,8 +43,11 @@ def asynctest(fn):
 
 
 def drive_config(channel: str, interface: str, node: int = 1, **kw) -> Config:
+    # Wall-time watchdogs: 0.25 s failed a clean CI run (no first status frame over the slcan pty
+    # while the other test worker started processes on the second core); 1 s still tells a silent
+    # drive from a slow machine.
     return Config(kind="rail", driver="can", interface=interface, channel=channel, node_id=node,
-                  status_timeout_s=0.25, command_timeout_s=0.25, **kw)
+                  status_timeout_s=1.0, command_timeout_s=1.0, **kw)
 
 
 @contextlib.asynccontextmanager
