@@ -11,9 +11,9 @@ prints one JSON object. Figures:
 - ``video_60s``: a 60 s clip at 25 fps (two synchronised mp4 files) surveyed: wall (goal <= 60 s);
 - ``long_clip``: an RG video of --long-frames frames: RSS of the whole process tree (parent,
   forkserver, workers) at 10 %, 50 % and 100 % of it, and the parent's peak RSS.
-``pipeline`` says what measured each pair: vision.survey.measure_pair once vision.underwater is
-merged, else the stand-in (bench/survey_standin.py: the plan's 70 ms per pair of one core, spent
-in OpenCV, then four fixed fish) — the integrator reruns this with the real pipeline.
+Pairs are measured by vision.survey.measure_pair on the simulated camera's scenes; the
+harness-only run and the long clip use bench/survey_standin.py (fixed fish, no detection) so
+they time and size the survey itself.
 """
 from __future__ import annotations
 
@@ -21,7 +21,7 @@ import os
 import sys
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-sys.path.insert(0, ROOT)            # bench.survey_standin, tests.controller.surveys.standin (scenes)
+sys.path.insert(0, ROOT)            # bench.survey_standin (the harness-only and long-clip runs)
 
 import argparse  # noqa: E402
 import json  # noqa: E402
@@ -38,37 +38,13 @@ import numpy as np  # noqa: E402
 from controller.surveys.frames import still_source  # noqa: E402
 from controller.surveys.species import survey_species  # noqa: E402
 from controller.surveys.survey import SurveyOptions, run_survey  # noqa: E402
-from devices.sim.stereo_rig import convergent_rig  # noqa: E402
-from tests.controller.surveys import standin  # noqa: E402
-
-
-def pipeline() -> tuple[str, str]:
-    try:
-        import vision.underwater  # noqa: F401
-        return "vision.survey:measure_pair", "vision.survey.measure_pair"
-    except ModuleNotFoundError:
-        return "bench.survey_standin:budget", f"stand-in: {os.environ.get('STANDIN_MS', '70')} ms CPU + 4 fixed fish"
+from devices.sim.fish_scene import underwater_rig, underwater_scene  # noqa: E402
 
 
 def scenes(n: int, rng: np.random.Generator):
-    """(rig, [(left, right)]): the renderer's underwater scenes when merged, else dot fish on a
-    noisy lit background (PNG then costs what a photograph costs to decode)."""
-    try:
-        from devices.sim.fish_scene import underwater_rig, underwater_scene
-        rig = underwater_rig()
-        return rig, [(s.left, s.right) for s in (underwater_scene(rng, rig) for _ in range(n))]
-    except ModuleNotFoundError:
-        pass
-    rig = convergent_rig()
-    w, h = rig.image_size
-    ramp = np.linspace(75, 25, h, dtype=np.float32)[:, None, None] * np.ones((1, w, 3), np.float32)
-    out = []
-    for _ in range(n):
-        left, right = standin.draw_fish(rig, standin.random_fish(rig, rng, 4), colour=True)
-        noise = [rng.normal(0, 4, (h, w, 3)).astype(np.float32) for _ in range(2)]
-        out.append(tuple(np.clip(np.maximum(img.astype(np.float32), ramp + nz), 0, 255).astype(np.uint8)
-                         for img, nz in zip((left, right), noise, strict=True)))
-    return rig, out
+    """(rig, [(left, right)]): the simulated camera's underwater scenes."""
+    rig = underwater_rig()
+    return rig, [(s.left, s.right) for s in (underwater_scene(rng, rig) for _ in range(n))]
 
 
 def baseline_ms(paths: list[tuple[str, str]]) -> float:
@@ -178,7 +154,7 @@ def main() -> None:
     ap.add_argument("--video-s", type=float, default=60.0)
     ap.add_argument("--long-frames", type=int, default=4500)
     args = ap.parse_args()
-    measure, what = pipeline()
+    measure, what = "vision.survey:measure_pair", "vision.survey.measure_pair"
     rng = np.random.default_rng(1)
     rig, pairs = scenes(min(args.pairs, 20), rng)
     calib = rig.calibration()

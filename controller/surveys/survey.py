@@ -41,7 +41,8 @@ CONFIRMING_RATE = 5.0
 
 
 class _Tracks:
-    """Track ids for a video's fish; without vision.tracking (or for stills) each fish is its own.
+    """Track ids: in video a fish is followed across frames (vision.tracking); in stills each fish
+    is its own.
 
     In video a track of fewer than CONFIRMED sightings is most likely a false detection (a real
     fish lingers): the statistics leave such tracks out when frames are surveyed at
@@ -53,16 +54,9 @@ class _Tracks:
         self.min_sightings = 1
         self.tracks_seen = 0
         if fps is not None:
-            try:
-                from vision.tracking import FishTracker
-            except ModuleNotFoundError as exc:
-                if exc.name != "vision.tracking":
-                    raise
-            else:
-                from vision import tracking
-                self.tracker = FishTracker(fps)
-                confirmed = getattr(tracking, "CONFIRMED", 1)
-                self.min_sightings = confirmed if fps / max(every, 1) >= CONFIRMING_RATE else 1
+            from vision.tracking import CONFIRMED, FishTracker  # imported here: stills never need it
+            self.tracker = FishTracker(fps)
+            self.min_sightings = CONFIRMED if fps / max(every, 1) >= CONFIRMING_RATE else 1
 
     @property
     def per(self) -> str:

@@ -129,7 +129,7 @@ def test_video_statistics_use_one_entry_per_track(tmp_path, monkeypatch):
         def finish(self):
             return [Track(i, v) for i, v in self.seen.items()]
 
-    monkeypatch.setitem(sys.modules, "vision.tracking", types.SimpleNamespace(FishTracker=FishTracker))
+    monkeypatch.setitem(sys.modules, "vision.tracking", types.SimpleNamespace(FishTracker=FishTracker, CONFIRMED=3))
     rig = convergent_rig()
     fish = standin.random_fish(rig, np.random.default_rng(3), 2)
     left, right = standin.draw_fish(rig, fish, colour=True)
