@@ -12,6 +12,7 @@ BIN     := $(VENV)/bin
 STAMP   := $(VENV)/.installed-$(PYVER)
 CONFIG  ?= config/farm.toml
 ARGS    ?=
+CREDENTIALS ?= config/zenoh/credentials.txt
 
 .PHONY: run test bench lint clean
 
@@ -23,8 +24,12 @@ $(STAMP): pyproject.toml
 	$(BIN)/python -m pip install --quiet -e '.[dev]'
 	touch $(STAMP)
 
-run: $(STAMP)
+run: $(STAMP) $(CREDENTIALS)
 	$(BIN)/fishfarm run --config $(CONFIG) $(ARGS)
+
+# The deployment's Zenoh passwords (config/zenoh/deploy.json5): random, made once, git-ignored.
+$(CREDENTIALS): | $(STAMP)
+	$(BIN)/fishfarm credentials --out $@
 
 # The layers first (import-linter contracts in pyproject.toml: a broken one fails at once), then
 # unit tests sharing the two cores; the hardware-in-loop runs then get the machine to themselves,

@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import inspect
 import json
 import logging
 import queue
@@ -35,12 +36,15 @@ import zenoh
 
 from controller.config import BusConfig
 from controller.errors import BadInput
+from controller.identity import BY, USER, bind_identities, user_of
 from controller.payload import parse_object
 
 log = logging.getLogger("fishfarm.bus")
 
-Handler = Callable[[dict], Awaitable[dict]]
-"""A queryable's handler: request payload (a JSON object) in, reply (a JSON object) out."""
+Handler = Callable[..., Awaitable[dict]]
+"""A queryable's handler: request payload (a JSON object) in, reply (a JSON object) out. An
+override handler that takes a ``user`` keyword gets the authenticated user name (controller.identity)
+or None: ``await handler(payload, user=...)``; one that does not is called ``handler(payload)``."""
 Listener = Callable[[str, dict], Awaitable[None]]
 """A subscriber's handler: key suffix after ``farm/{site}/`` and the payload."""
 
@@ -79,6 +83,10 @@ def session_config(cfg: BusConfig) -> zenoh.Config:
             zc = zenoh.Config.from_file(cfg.config)
         except (zenoh.ZError, OSError, ValueError) as exc:
             raise BadInput(cfg.config, None, f"not a usable Zenoh config: {_one_line(exc)}") from None
+        _own_password(zc, cfg.config)
+        acl = json.loads(zc.get_json("access_control"))
+        if acl.get("enabled"):
+            _set(zc, "access_control", bind_identities(acl, cfg.config), cfg.config, "access_control")
     else:
         zc = zenoh.Config()
         # an explicit empty listen list keeps a peer from listening on every interface (its default)
@@ -102,6 +110,27 @@ def client_config(connect: str, user: str | None = None, password: str | None = 
     for key, value in settings.items():
         _set(zc, key, value, "--connect", None)
     return zc
+
+
+def _own_password(zc: zenoh.Config, where: str) -> None:
+    """The controller's own login (``transport.auth.usrpwd.user``, to reach an upstream router)
+    with an empty password takes its password from the credentials file, so no config file holds
+    one. A missing credentials file is BadInput saying how to make one."""
+    path = json.loads(zc.get_json("transport/auth/usrpwd/dictionary_file"))
+    if path is None:
+        return
+    try:
+        lines = open(path, encoding="utf-8").read().splitlines()  # noqa: SIM115 - read at once
+    except OSError as exc:
+        raise BadInput(path, None, f"credentials file: {exc.strerror or exc} "
+                       f"(make one: fishfarm credentials --out {path})") from None
+    user = json.loads(zc.get_json("transport/auth/usrpwd/user"))
+    if user is None or json.loads(zc.get_json("transport/auth/usrpwd/password")) != "":
+        return
+    passwords = dict(line.split(":", 1) for line in lines if ":" in line)
+    if user not in passwords:
+        raise BadInput(path, user, f"no password for the controller's own user (named in {where})")
+    _set(zc, "transport/auth/usrpwd/password", passwords[user], where, "transport.auth.usrpwd.password")
 
 
 def _set(zc: zenoh.Config, key: str, value, where: str, field: str | None) -> None:
@@ -149,6 +178,8 @@ class Bus:
             why = f"cannot open Zenoh session: {_one_line(exc)}"
             raise BadInput(cfg.config or "[bus]", None, why) from None
         self._start(session, zc, site, loop)
+        # this session enforces the ACL bind_identities extended: a query on .../by/USER came from USER
+        self.identified = json.loads(zc.get_json("access_control/enabled")) is True
 
     @classmethod
     def client(cls, connect: str = DEFAULT_CONNECT, *, site: str = "demo", user: str | None = None,
@@ -173,6 +204,7 @@ class Bus:
         if not _CHUNK.match(site):
             raise ValueError(f"site {site!r} is not a plain key chunk")
         self.session, self.zconfig, self.site = session, zc, site
+        self.identified = False
         self.prefix = f"farm/{site}/"
         self._loop = loop
         self._lock = threading.Lock()
@@ -273,23 +305,30 @@ class Bus:
         """Answer gets on ``farm/{site}/{suffix}`` with ``await handler(payload)``.
         A payload that is not a JSON object is refused (``{"ok": false, "error": ...}``) unless
         ``lenient``, when the handler gets ``{}``. A handler exception is such a refusal too."""
-        self._serve(suffix, lambda _key: (handler, lenient, None))
+        wrapped = _with_user(handler)
+        self._serve(suffix, lambda _key: (wrapped, lenient, None, None))
 
     def overrides(self, commands: Mapping[str, Handler], *, lenient: Iterable[str] = ("estop",),
                   urgent: Mapping[str, Callable[[], None]] | None = None) -> None:
-        """Serve ``farm/{site}/override/*``: dispatch on the command name; an unknown command is
-        refused. Commands in ``lenient`` (estop) are never refused for their payload; those in
-        ``urgent`` first call their function on the Zenoh thread, before anything else."""
+        """Serve ``farm/{site}/override/*`` and ``farm/{site}/override/*/by/*``: dispatch on the
+        command name; an unknown command is refused. Commands in ``lenient`` (estop) are never
+        refused for their payload; those in ``urgent`` first call their function on the Zenoh
+        thread, before anything else. A handler taking a ``user`` keyword gets the user of a
+        ``.../by/USER`` key when this session enforces the ACL (``identified``), else None."""
         forgiving = set(lenient)
-        table = dict(commands)
+        table = {name: _with_user(handler) for name, handler in commands.items()}
         now = dict(urgent or {})
 
         def resolve(suffix: str):
-            command = suffix.split("/", 1)[1]
+            base, user = user_of(suffix)
+            command = base.split("/", 1)[1]
             if command not in table:
                 raise LookupError(f"unknown command {command!r}; known: {', '.join(sorted(table))}")
-            return table[command], command in forgiving, now.get(command)
+            if user is not None and not USER.match(user):
+                raise LookupError(f"user {user!r}: letters, digits, _ . - only")
+            return table[command], command in forgiving, now.get(command), user if self.identified else None
         self._serve("override/*", resolve)
+        self._serve(f"override/*/{BY}/*", resolve)
 
     def _serve(self, suffix: str, resolve) -> None:
         loop = self._handler_loop()
@@ -313,13 +352,13 @@ class Bus:
 
     def _dispatch(self, query: zenoh.Query, key: str, resolve, loop) -> None:
         try:
-            handler, lenient, *urgent = resolve(self._suffix(key))
+            handler, lenient, urgent, user = resolve(self._suffix(key))
         except LookupError as exc:
             return self._reply(query, {"ok": False, "error": str(exc)})
         acted = False
-        if urgent and urgent[0] is not None:
+        if urgent is not None:
             try:
-                urgent[0]()
+                urgent()
                 acted = True
             except Exception:
                 log.exception("urgent action for %s failed", key)
@@ -331,7 +370,7 @@ class Bus:
                                            else f"unreadable payload ({type(exc).__name__})"})
             payload = {}
         try:
-            future = asyncio.run_coroutine_threadsafe(_answer(handler, payload, key), loop)
+            future = asyncio.run_coroutine_threadsafe(_answer(handler, payload, key, user), loop)
         except RuntimeError:  # the loop is closed: the controller is stopping
             error = "controller is shutting down" + (" (acted on already)" if acted else "")
             return self._reply(query, {"ok": acted, "error": error} if not acted else {"ok": True, "note": error})
@@ -437,10 +476,26 @@ class Bus:
         self.close()
 
 
-async def _answer(handler: Handler, payload: dict, key: str) -> dict:
+def _with_user(handler: Handler) -> Handler:
+    """``handler`` itself if it takes a ``user`` keyword; else a wrapper dropping ``user``, so the
+    handlers written before identities (``async def h(payload)``) keep working."""
+    try:
+        params = inspect.signature(handler).parameters.values()
+    except (TypeError, ValueError):  # a builtin or C callable: assume the old form
+        params = ()
+    if any(p.name == "user" and p.kind in (p.KEYWORD_ONLY, p.POSITIONAL_OR_KEYWORD) or p.kind == p.VAR_KEYWORD
+           for p in params):
+        return handler
+
+    async def payload_only(payload, *, user=None):
+        return await handler(payload)
+    return payload_only
+
+
+async def _answer(handler: Handler, payload: dict, key: str, user: str | None = None) -> dict:
     """Run one handler; whatever goes wrong becomes a refusal the operator can read."""
     try:
-        answer = await handler(payload)
+        answer = await handler(payload, user=user)
     except Exception as exc:
         log.exception("handler for %s failed", key)
         return {"ok": False, "error": f"{type(exc).__name__}: {exc}"}

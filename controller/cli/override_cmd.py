@@ -86,18 +86,31 @@ def _check(site: str, connect: str) -> None:
 
 
 def _ask(connect, user, password, site, timeout_s, suffix, payload) -> dict:
-    """One get through a fresh client session; the first reply, or BadInput if nobody answers."""
+    """One get through a fresh client session; the first reply, or BadInput if nobody answers.
+    An override with --user goes to ``override/COMMAND/by/USER``: the key the deployment's access
+    control lets only USER query, so the controller knows who sent it (controller/identity.py)."""
     from controller.bus import Bus, BusUnreachable  # Zenoh only for the commands that need it
+    from controller.identity import BY, USER
 
     _check(site, connect)
+    if user is not None and not USER.match(user):
+        raise BadInput("--user", user, "letters, digits, _ . - only")
+    if user is not None and suffix.startswith("override/"):
+        suffix = f"{suffix}/{BY}/{user}"
     try:
         bus = Bus.client(connect, site=site, user=user, password=password, timeout_s=timeout_s)
     except BusUnreachable as exc:
         raise BadInput("--connect", None, str(exc)) from None
     try:
         replies = bus.query(suffix, payload, timeout_s=timeout_s)
+        # access control drops a refused query silently: tell it from an absent controller by
+        # asking for status, which every role may
+        refused = not replies and suffix != "status" and bool(bus.query("status", timeout_s=timeout_s))
     finally:
         bus.close()
+    if refused:
+        who = f"user {user!r}" if user else "this session"
+        raise BadInput(f"farm/{site}/{suffix}", None, f"refused: {who} may not send this (access control)")
     if not replies:
         raise BadInput(f"farm/{site}/{suffix}", None,
                        f"no reply within {timeout_s:g} s (no controller serving this site, or not permitted)")
