@@ -97,9 +97,10 @@ def session_config(cfg: BusConfig) -> zenoh.Config:
 
 
 def client_config(connect: str, user: str | None = None, password: str | None = None,
-                  *, mode: str = "client", timeout_s: float = 2.0) -> zenoh.Config:
+                  *, mode: str = "client", timeout_s: float = 2.0, ca: str | None = None) -> zenoh.Config:
     """A short-lived tool's session: connect to one endpoint, listen nowhere, scout nothing.
-    A malformed endpoint is BadInput naming --connect."""
+    ``ca``: the certificate (PEM) that signed a ``tls/...`` endpoint's. A malformed endpoint is
+    BadInput naming --connect."""
     zc = zenoh.Config()
     settings = {"mode": mode, "connect/endpoints": [connect], "listen/endpoints": [],
                 "scouting/multicast/enabled": False, "scouting/gossip/enabled": False,
@@ -107,6 +108,8 @@ def client_config(connect: str, user: str | None = None, password: str | None = 
     if user is not None or password is not None:
         settings["transport/auth/usrpwd/user"] = user or ""
         settings["transport/auth/usrpwd/password"] = password or ""
+    if ca is not None:
+        settings["transport/link/tls/root_ca_certificate"] = ca
     for key, value in settings.items():
         _set(zc, key, value, "--connect", None)
     return zc
@@ -149,13 +152,16 @@ def _one_line(exc: BaseException) -> str:
 
 def _why_unreachable(connect: str, user: str | None, detail: str) -> str:
     """Tell 'nobody listens there' from 'a Zenoh node is there but would not admit us'."""
-    m = re.fullmatch(r"tcp/\[?([^\]]+?)\]?:(\d+)", connect)
+    m = re.fullmatch(r"(?:tcp|tls)/\[?([^\]]+?)\]?:(\d+)", connect)
     if m is None:
         return f"could not connect to {connect}: {detail}"
     try:
         socket.create_connection((m.group(1), int(m.group(2))), timeout=1.0).close()
     except OSError as exc:
         return f"could not connect to {connect}: {exc.strerror or exc} (is the controller running?)"
+    if connect.startswith("tls/"):
+        return (f"{connect} refused the session: its certificate is not signed by --ca, or "
+                + (f"authentication failed for user {user!r}" if user else "it requires --user/--password"))
     if user:
         return f"{connect} refused the session: authentication failed for user {user!r}"
     return f"{connect} refused the session (does it require --user/--password?)"
@@ -184,11 +190,11 @@ class Bus:
     @classmethod
     def client(cls, connect: str = DEFAULT_CONNECT, *, site: str = "demo", user: str | None = None,
                password: str | None = None, timeout_s: float = 2.0, mode: str = "client",
-               loop: asyncio.AbstractEventLoop | None = None) -> Bus:
+               loop: asyncio.AbstractEventLoop | None = None, ca: str | None = None) -> Bus:
         """A tool's bus (CLI, tests): connected to ``connect`` and checked to have reached somebody
         within ``timeout_s``; otherwise BusUnreachable saying whether nobody answered or the
         session was refused (authentication)."""
-        zc = client_config(connect, user, password, mode=mode, timeout_s=timeout_s)
+        zc = client_config(connect, user, password, mode=mode, timeout_s=timeout_s, ca=ca)
         try:
             session = zenoh.open(zc)
         except zenoh.ZError as exc:

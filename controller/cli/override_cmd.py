@@ -25,12 +25,14 @@ _STRINGS = {"tank", "id"}  # identifiers, whatever they look like: a tank may be
 
 
 def _connection_options(f):
-    """--connect/--user/--password/--site/--timeout, shared by both commands."""
+    """--connect/--user/--password/--ca/--site/--timeout, shared by both commands."""
     for option in reversed([
         click.option("--connect", default=DEFAULT_CONNECT, show_default=True, metavar="tcp/HOST:PORT",
                      help="Zenoh endpoint of the controller (or its router)."),
         click.option("--user", default=None, help="Zenoh user name (deployments with authentication)."),
         click.option("--password", default=None, help="Zenoh password."),
+        click.option("--ca", default=None, type=click.Path(exists=True, dir_okay=False),
+                     help="certificate (PEM) that signed the controller's, for a tls/HOST:PORT endpoint."),
         click.option("--site", default="demo", show_default=True, help="farm site, as in farm.toml."),
         click.option("--timeout", "timeout_s", default=2.0, show_default=True, type=click.FloatRange(0.1, 60),
                      help="seconds to wait for the connection and for the reply."),
@@ -85,7 +87,7 @@ def _check(site: str, connect: str) -> None:
         raise BadInput("--connect", connect, "expected an endpoint like tcp/127.0.0.1:7447")
 
 
-def _ask(connect, user, password, site, timeout_s, suffix, payload) -> dict:
+def _ask(connect, user, password, site, timeout_s, suffix, payload, ca=None) -> dict:
     """One get through a fresh client session; the first reply, or BadInput if nobody answers.
     An override with --user goes to ``override/COMMAND/by/USER``: the key the deployment's access
     control lets only USER query, so the controller knows who sent it (controller/identity.py)."""
@@ -98,7 +100,7 @@ def _ask(connect, user, password, site, timeout_s, suffix, payload) -> dict:
     if user is not None and suffix.startswith("override/"):
         suffix = f"{suffix}/{BY}/{user}"
     try:
-        bus = Bus.client(connect, site=site, user=user, password=password, timeout_s=timeout_s)
+        bus = Bus.client(connect, site=site, user=user, password=password, timeout_s=timeout_s, ca=ca)
     except BusUnreachable as exc:
         raise BadInput("--connect", None, str(exc)) from None
     try:
@@ -124,7 +126,7 @@ def _ask(connect, user, password, site, timeout_s, suffix, payload) -> dict:
               help="who gives the command (logged by the controller).")
 @click.option("--reason", default=None, help="why (logged by the controller).")
 @_connection_options
-def override(command, args, operator, reason, connect, user, password, site, timeout_s):
+def override(command, args, operator, reason, connect, user, password, ca, site, timeout_s):
     """Send an operator command (estop, feed, pause, ...) to the controller.
 
     ARGS are key=value fields of the command, e.g. `fishfarm override feed tank=T3 grams=40`.
@@ -133,7 +135,7 @@ def override(command, args, operator, reason, connect, user, password, site, tim
     if not _COMMAND.match(command):
         raise BadInput("COMMAND", command, "lower-case letters, digits, _ and - only")
     payload = {"operator": operator, **({"reason": reason} if reason else {}), **parse_args(args)}
-    reply = _ask(connect, user, password, site, timeout_s, f"override/{command}", payload)
+    reply = _ask(connect, user, password, site, timeout_s, f"override/{command}", payload, ca)
     click.echo(json.dumps(reply, ensure_ascii=False))
     return 0 if reply.get("ok") is True else 1
 
@@ -141,9 +143,9 @@ def override(command, args, operator, reason, connect, user, password, site, tim
 @click.command()
 @click.option("--json", "as_json", is_flag=True, help="print the snapshot as JSON.")
 @_connection_options
-def status(as_json, connect, user, password, site, timeout_s):
+def status(as_json, connect, user, password, ca, site, timeout_s):
     """Show the controller's state: tanks (demand, fed/ration), feeder, cleaner, alarms."""
-    snapshot = _ask(connect, user, password, site, timeout_s, "status", None)
+    snapshot = _ask(connect, user, password, site, timeout_s, "status", None, ca)
     if as_json:
         click.echo(json.dumps(snapshot, ensure_ascii=False, indent=2))
     else:

@@ -52,8 +52,9 @@ class Farm:
             self.heard.get()
 
 
-def deploy_config(tmp: Path, endpoint: str) -> tuple[Path, dict[str, str]]:
-    """deploy.json5 on ``endpoint`` with fresh credentials in ``tmp`` and PEOPLE in their roles."""
+def deploy_config(tmp: Path, endpoint: str, tls: dict | None = None) -> tuple[Path, dict[str, str]]:
+    """deploy.json5 on ``endpoint`` with fresh credentials in ``tmp`` and PEOPLE in their roles;
+    ``tls``: the ``transport.link.tls`` section, as README tells a deployment to add it."""
     creds = tmp / "credentials.txt"
     assert fishfarm_main(["credentials", "--out", str(creds)]) == 0
     assert fishfarm_main(["credentials", "--out", str(creds), *(a for p in PEOPLE for a in ("--add", p))]) == 0
@@ -64,6 +65,8 @@ def deploy_config(tmp: Path, endpoint: str) -> tuple[Path, dict[str, str]]:
         role = subject[:-1]
         edits.append((f'{{ id: "{subject}", usernames: ["{role}"] }}',
                       f'{{ id: "{subject}", usernames: ["{role}", "{person}"] }}'))
+    if tls is not None:
+        edits.append(("  transport: {\n", f"  transport: {{\n    link: {{ tls: {json.dumps(tls)} }},\n"))
     for old, new in edits:
         assert text.count(old) == 1, old
         text = text.replace(old, new)
@@ -72,9 +75,9 @@ def deploy_config(tmp: Path, endpoint: str) -> tuple[Path, dict[str, str]]:
     return path, read(creds)
 
 
-def start_farm(tmp: Path):
-    endpoint = f"tcp/127.0.0.1:{free_port()}"
-    path, passwords = deploy_config(tmp, endpoint)
+def start_farm(tmp: Path, *, scheme: str = "tcp", tls: dict | None = None):
+    endpoint = f"{scheme}/127.0.0.1:{free_port()}"
+    path, passwords = deploy_config(tmp, endpoint, tls)
     loop = asyncio.new_event_loop()
     thread = threading.Thread(target=loop.run_forever, daemon=True)
     thread.start()
