@@ -7,6 +7,10 @@ reply is sent from the loop when the handler finishes. An ``urgent`` override (e
 a plain function on the Zenoh thread itself, first, before the payload is even parsed: it acts
 whatever the payload and however busy the loop is. Every query gets a reply.
 
+Overrides are served on ``override/{command}`` (the contract key) and on
+``override/{command}/by/{user}``, a key the deployment's ACL lets only that user query
+(controller/identity.py): a handler taking a ``user`` keyword is told that user, or None.
+
 Reliable publishes (``CongestionControl.BLOCK``) block while a subscriber's link is full, so
 they never run on the caller's thread: a publisher thread sends them in order (order kept for
 every key). ``close()`` gives it ``DRAIN_S`` to finish.
@@ -27,7 +31,6 @@ import json
 import logging
 import queue
 import re
-import socket
 import threading
 import time
 from collections.abc import Awaitable, Callable, Iterable, Mapping
@@ -36,8 +39,11 @@ import zenoh
 
 from controller.config import BusConfig
 from controller.errors import BadInput
-from controller.identity import BY, USER, bind_identities, user_of
+from controller.identity import BY, USER, user_of
 from controller.payload import parse_object
+from controller.zenoh_config import _one_line, _why_unreachable, client_config, session_config
+
+__all__ = ["Bus", "BusUnreachable", "client_config", "decode", "encode", "session_config"]
 
 log = logging.getLogger("fishfarm.bus")
 
@@ -71,100 +77,6 @@ def decode(data: zenoh.ZBytes | bytes | None) -> dict:
     """A payload as a dict; no payload at all is ``{}``. Raises ValueError saying what is wrong:
     not UTF-8, not JSON, not an object, nested too deep, a key given twice (controller.payload)."""
     return parse_object(bytes(data.to_bytes() if isinstance(data, zenoh.ZBytes) else data or b""))
-
-
-# ---------------------------------------------------------------- configs
-
-def session_config(cfg: BusConfig) -> zenoh.Config:
-    """The Zenoh config of the controller's session: cfg.config (a JSON5 file) wins over
-    mode/listen/connect; multicast scouting is off in every case."""
-    if cfg.config:
-        try:
-            zc = zenoh.Config.from_file(cfg.config)
-        except (zenoh.ZError, OSError, ValueError) as exc:
-            raise BadInput(cfg.config, None, f"not a usable Zenoh config: {_one_line(exc)}") from None
-        _own_password(zc, cfg.config)
-        acl = json.loads(zc.get_json("access_control"))
-        if acl.get("enabled"):
-            _set(zc, "access_control", bind_identities(acl, cfg.config), cfg.config, "access_control")
-    else:
-        zc = zenoh.Config()
-        # an explicit empty listen list keeps a peer from listening on every interface (its default)
-        for key, value in (("mode", cfg.mode), ("listen", cfg.listen), ("connect", cfg.connect)):
-            _set(zc, key if key == "mode" else f"{key}/endpoints", value, "[bus]", f"bus.{key}")
-    zc.insert_json5("scouting/multicast/enabled", "false")
-    return zc
-
-
-def client_config(connect: str, user: str | None = None, password: str | None = None,
-                  *, mode: str = "client", timeout_s: float = 2.0, ca: str | None = None) -> zenoh.Config:
-    """A short-lived tool's session: connect to one endpoint, listen nowhere, scout nothing.
-    ``ca``: the certificate (PEM) that signed a ``tls/...`` endpoint's. A malformed endpoint is
-    BadInput naming --connect."""
-    zc = zenoh.Config()
-    settings = {"mode": mode, "connect/endpoints": [connect], "listen/endpoints": [],
-                "scouting/multicast/enabled": False, "scouting/gossip/enabled": False,
-                "transport/unicast/open_timeout": max(1, int(timeout_s * 1000))}
-    if user is not None or password is not None:
-        settings["transport/auth/usrpwd/user"] = user or ""
-        settings["transport/auth/usrpwd/password"] = password or ""
-    if ca is not None:
-        settings["transport/link/tls/root_ca_certificate"] = ca
-    for key, value in settings.items():
-        _set(zc, key, value, "--connect", None)
-    return zc
-
-
-def _own_password(zc: zenoh.Config, where: str) -> None:
-    """The controller's own login (``transport.auth.usrpwd.user``, to reach an upstream router)
-    with an empty password takes its password from the credentials file, so no config file holds
-    one. A missing credentials file is BadInput saying how to make one."""
-    path = json.loads(zc.get_json("transport/auth/usrpwd/dictionary_file"))
-    if path is None:
-        return
-    try:
-        lines = open(path, encoding="utf-8").read().splitlines()  # noqa: SIM115 - read at once
-    except OSError as exc:
-        raise BadInput(path, None, f"credentials file: {exc.strerror or exc} "
-                       f"(make one: fishfarm credentials --out {path})") from None
-    user = json.loads(zc.get_json("transport/auth/usrpwd/user"))
-    if user is None or json.loads(zc.get_json("transport/auth/usrpwd/password")) != "":
-        return
-    passwords = dict(line.split(":", 1) for line in lines if ":" in line)
-    if user not in passwords:
-        raise BadInput(path, user, f"no password for the controller's own user (named in {where})")
-    _set(zc, "transport/auth/usrpwd/password", passwords[user], where, "transport.auth.usrpwd.password")
-
-
-def _set(zc: zenoh.Config, key: str, value, where: str, field: str | None) -> None:
-    try:
-        zc.insert_json5(key, json.dumps(value))
-    except zenoh.ZError as exc:
-        raise BadInput(where, field, _one_line(exc)) from None
-
-
-def _one_line(exc: BaseException) -> str:
-    """Zenoh's message on one line, without the Rust source locations it appends."""
-    text = re.sub(r"\s+at /\S+:\d+\.?", "", " ".join(str(exc).split()))
-    quoted = re.search(r'msg: "(.*?)"', text)  # a JSON5 error wraps the message in a Rust struct
-    return ((quoted.group(1) if quoted else text).strip(" .!") or type(exc).__name__)[:300]
-
-
-def _why_unreachable(connect: str, user: str | None, detail: str) -> str:
-    """Tell 'nobody listens there' from 'a Zenoh node is there but would not admit us'."""
-    m = re.fullmatch(r"(?:tcp|tls)/\[?([^\]]+?)\]?:(\d+)", connect)
-    if m is None:
-        return f"could not connect to {connect}: {detail}"
-    try:
-        socket.create_connection((m.group(1), int(m.group(2))), timeout=1.0).close()
-    except OSError as exc:
-        return f"could not connect to {connect}: {exc.strerror or exc} (is the controller running?)"
-    if connect.startswith("tls/"):
-        return (f"{connect} refused the session: its certificate is not signed by --ca, or "
-                + (f"authentication failed for user {user!r}" if user else "it requires --user/--password"))
-    if user:
-        return f"{connect} refused the session: authentication failed for user {user!r}"
-    return f"{connect} refused the session (does it require --user/--password?)"
 
 
 # ---------------------------------------------------------------- the bus
