@@ -39,7 +39,7 @@ import zenoh
 
 from controller.config import BusConfig
 from controller.errors import BadInput
-from controller.identity import BY, USER, user_of
+from controller.identity import BY, USER, identities_bound, user_of
 from controller.payload import parse_object
 from controller.zenoh_config import _one_line, _why_unreachable, client_config, session_config
 
@@ -97,7 +97,7 @@ class Bus:
             raise BadInput(cfg.config or "[bus]", None, why) from None
         self._start(session, zc, site, loop)
         # this session enforces the ACL bind_identities extended: a query on .../by/USER came from USER
-        self.identified = json.loads(zc.get_json("access_control/enabled")) is True
+        self.identified = identities_bound(json.loads(zc.get_json("access_control")))
 
     @classmethod
     def client(cls, connect: str = DEFAULT_CONNECT, *, site: str = "demo", user: str | None = None,

@@ -93,6 +93,12 @@ def _unique(entries: list[dict]) -> list[dict]:
     return list(seen.values())
 
 
+def identities_bound(acl: dict) -> bool:
+    """Whether a session enforcing ``acl`` (as bind_identities left it) vouches for the user of a
+    ``.../by/{user}`` key: only under default deny, where nobody else is let through to it."""
+    return acl.get("enabled") is True and acl.get("default_permission") == "deny"
+
+
 def user_of(suffix: str) -> tuple[str, str | None]:
     """``override/feed/by/ana`` -> ("override/feed", "ana"); a contract key -> (suffix, None)."""
     chunks = suffix.split("/")

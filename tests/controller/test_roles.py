@@ -4,6 +4,7 @@ handler learns the authenticated user, that impostors holding another role's cre
 neither serve status nor publish, and what a refused command-line user sees."""
 from __future__ import annotations
 
+import asyncio
 import json
 import os
 import queue
@@ -20,7 +21,7 @@ from controller.cli import main as fishfarm_main
 from controller.cli.credentials_cmd import USERS, read
 from controller.config import BusConfig
 from controller.errors import BadInput
-from controller.identity import bind_identities
+from controller.identity import bind_identities, identities_bound
 from tests.controller.zenoh_farm import FISHFARM, ROLE_OF, WAIT_S, ZDIR, free_port, start_farm, wait_probe
 
 # who may send what, from the roles' words in README (deploy.json5 is what is under test)
@@ -227,6 +228,13 @@ def test_a_rule_that_would_let_users_pose_as_others_is_refused(key):
         bind_identities(_acl(key))
 
 
+def test_only_a_default_deny_acl_vouches_for_users():
+    assert identities_bound(bind_identities(_acl()))
+    assert not identities_bound(bind_identities({**_acl(), "default_permission": "allow"}))
+    assert not identities_bound(bind_identities({**_acl(), "enabled": False}))
+    assert not identities_bound({})    # the demo: no access control
+
+
 def test_a_user_name_that_is_no_key_chunk_is_refused():
     with pytest.raises(BadInput, match="subjects.ops"):
         bind_identities(_acl(users=("ana/x",)))
@@ -257,3 +265,27 @@ def test_the_controller_without_a_credentials_file_says_how_to_make_one(tmp_path
     (tmp_path / "deploy.json5").write_text(text)
     with pytest.raises(BadInput, match="fishfarm credentials --out"):
         Bus(BusConfig(config=str(tmp_path / "deploy.json5")))
+
+
+def test_without_access_control_a_user_key_is_a_claim_only():
+    """The demo (no ACL): anybody may query .../by/anybody, so the handler is told nobody."""
+    loop = asyncio.new_event_loop()
+    thread = threading.Thread(target=loop.run_forever, daemon=True)
+    thread.start()
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    users = []
+
+    async def feed(payload, *, user="unset"):
+        users.append(user)
+        return {"ok": True}
+    try:
+        with Bus(BusConfig(listen=[endpoint]), "demo", loop=loop) as bus:
+            bus.overrides({"feed": feed})
+            assert not bus.identified
+            with Bus.client(endpoint, timeout_s=WAIT_S) as tool:
+                assert tool.query("override/feed/by/erin", {}) == [{"ok": True}]
+                assert tool.query("override/feed", {}) == [{"ok": True}]
+    finally:
+        loop.call_soon_threadsafe(loop.stop)
+        thread.join(5)
+    assert users == [None, None]
