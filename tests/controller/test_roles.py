@@ -5,6 +5,7 @@ neither serve status nor publish, and what a refused command-line user sees."""
 from __future__ import annotations
 
 import asyncio
+import functools
 import json
 import os
 import queue
@@ -16,7 +17,7 @@ import time
 import pytest
 import zenoh
 
-from controller.bus import Bus, BusUnreachable
+from controller.bus import Bus, BusUnreachable, _with_user
 from controller.cli import main as fishfarm_main
 from controller.cli.credentials_cmd import USERS, read
 from controller.config import BusConfig
@@ -289,3 +290,25 @@ def test_without_access_control_a_user_key_is_a_claim_only():
         loop.call_soon_threadsafe(loop.stop)
         thread.join(5)
     assert users == [None, None]
+
+
+def test_an_apply_shaped_entry_gets_the_user_and_old_handlers_do_not():
+    """How the integrator wires Overrides.apply(command, payload, *, user=None, origin="zenoh"):
+    bus.overrides({name: functools.partial(overrides.apply, name) ...}) — the bus passes user=."""
+    got = []
+
+    class Overrides:
+        async def apply(self, command, payload, *, user=None, origin="zenoh"):
+            got.append((command, payload, user, origin))
+            return {"ok": True}
+
+    async def old(payload):
+        got.append(("old", payload))
+        return {"ok": True}
+
+    async def loose(payload, **kw):
+        got.append(("loose", kw))
+        return {"ok": True}
+    for handler in (functools.partial(Overrides().apply, "feed"), old, loose):
+        assert asyncio.run(_with_user(handler)({"tank": "T1"}, user="ana")) == {"ok": True}
+    assert got == [("feed", {"tank": "T1"}, "ana", "zenoh"), ("old", {"tank": "T1"}), ("loose", {"user": "ana"})]
