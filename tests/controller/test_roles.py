@@ -126,7 +126,7 @@ def test_the_unauthenticated_cannot_even_estop(farm):
 
 # ---------------------------------------------------------------- impostors
 
-@pytest.mark.parametrize("stolen", ["operator", "engineer", "controller"])
+@pytest.mark.parametrize("stolen", ["viewer", "operator", "engineer", "controller"])
 def test_an_impostor_neither_serves_status_nor_publishes_alarms(farm, stolen):
     """A second 'controller' started with stolen credentials (any user but the controller process
     itself, which is the router): its queryables never get a query, its alarms reach nobody; what
