@@ -276,19 +276,30 @@ class Bus:
         self._serve(suffix, lambda _key: (handler, lenient, None))
 
     def overrides(self, commands: Mapping[str, Handler], *, lenient: Iterable[str] = ("estop",),
-                  urgent: Mapping[str, Callable[[], None]] | None = None) -> None:
+                  urgent: Mapping[str, Callable[[], None]] | None = None,
+                  refused: Callable[[str, str], None] | None = None) -> None:
         """Serve ``farm/{site}/override/*``: dispatch on the command name; an unknown command is
         refused. Commands in ``lenient`` (estop) are never refused for their payload; those in
-        ``urgent`` first call their function on the Zenoh thread, before anything else."""
+        ``urgent`` first call their function on the Zenoh thread, before anything else.
+        ``refused(command, error)`` hears, on the loop, of every query refused here before a
+        handler saw it (unknown command, unreadable payload): the audit keeps those too."""
         forgiving = set(lenient)
         table = dict(commands)
         now = dict(urgent or {})
+        loop = self._handler_loop()
+
+        def tell(command: str, error: str) -> None:
+            if refused is not None:
+                with contextlib.suppress(RuntimeError):     # the loop is closed: the process is ending
+                    loop.call_soon_threadsafe(refused, command, error)
 
         def resolve(suffix: str):
             command = suffix.split("/", 1)[1]
             if command not in table:
-                raise LookupError(f"unknown command {command!r}; known: {', '.join(sorted(table))}")
-            return table[command], command in forgiving, now.get(command)
+                error = f"unknown command {command!r}; known: {', '.join(sorted(table))}"
+                tell(command, error)
+                raise LookupError(error)
+            return table[command], command in forgiving, now.get(command), lambda error: tell(command, error)
         self._serve("override/*", resolve)
 
     def _serve(self, suffix: str, resolve) -> None:
@@ -327,8 +338,10 @@ class Bus:
             payload = decode(query.payload)
         except Exception as exc:  # noqa: BLE001 - ValueError, or whatever a hostile payload raises
             if not lenient:
-                return self._reply(query, {"ok": False, "error": str(exc) if isinstance(exc, ValueError)
-                                           else f"unreadable payload ({type(exc).__name__})"})
+                error = str(exc) if isinstance(exc, ValueError) else f"unreadable payload ({type(exc).__name__})"
+                if len(urgent) > 1:
+                    urgent[1](error)
+                return self._reply(query, {"ok": False, "error": error})
             payload = {}
         try:
             future = asyncio.run_coroutine_threadsafe(_answer(handler, payload, key), loop)

@@ -38,15 +38,22 @@ def test_retried_alarm_with_varying_text_is_one_row_and_one_publish(ledger):
     assert len(store.alarms()) == 1 and len(published) == 1
     suffix, payload, reliable = published[0]
     assert suffix == "alarm/device/rail" and reliable
-    assert payload == {"t": alarms.clock.iso(T0 + 0.5), "severity": "warning",
-                       "text": "no status frame for 0.50 s", "active": True, "kind": "unreachable"}
+    first = alarms.clock.iso(T0 + 0.5)
+    assert payload == {"t": first, "severity": "warning", "text": "no status frame for 0.50 s", "active": True,
+                       "kind": "unreachable", "count": 1, "first_t": first, "last_t": first, "acked": False,
+                       "acked_by": None, "acked_t": None}
     [shown] = alarms.listing()
     assert shown["text"] == "no status frame for 1.49 s" and shown["repeats"] == 99   # status: the latest
+    assert (shown["count"], shown["first_t"], shown["last_t"]) == (100, first, alarms.clock.iso(T0 + 50))
     assert alarms.clear("device/rail", "connected") is True
     assert alarms.clear("device/rail", "connected") is False
     assert [(r["active"], r["text"]) for r in store.alarms()] == [(1, "no status frame for 0.50 s"),
                                                                  (0, "connected")]
-    assert len(published) == 2 and published[1][1]["active"] is False and alarms.listing() == []
+    assert len(published) == 2 and published[1][1]["active"] is False and published[1][1]["count"] == 100
+    [shown] = alarms.listing()          # cleared, unacknowledged: shown until someone acknowledges it
+    assert shown["active"] is False and shown["acked"] is False and shown["text"] == "connected"
+    assert [a.key for a in alarms.ack("ana")] == [("device/rail", "unreachable")]
+    assert alarms.listing() == []
 
 
 def test_severity_change_is_news_and_kinds_are_separate_conditions(ledger):
