@@ -17,9 +17,26 @@ import asyncio
 import logging
 
 from controller.feeding.robot import Job
-from controller.override_models import (AUDIT_TEXT_MAX, OPERATOR_MAX, RATION_MAX_G, REASON_MAX,  # noqa: F401
-                                        STARTING, Ack, Bare, Feed, Loss, Manual, Refused, SetRation, Settle,
-                                        Tank, Transfer, claimed, parse, payload_text)
+from controller.override_models import (  # noqa: F401
+    AUDIT_TEXT_MAX,
+    OPERATOR_MAX,
+    RATION_MAX_G,
+    REASON_MAX,
+    STARTING,
+    Ack,
+    Bare,
+    Feed,
+    Loss,
+    Manual,
+    Refused,
+    SetRation,
+    Settle,
+    Tank,
+    Transfer,
+    claimed,
+    parse,
+    payload_text,
+)
 from controller.text import printable
 
 log = logging.getLogger("fishfarm.override")

@@ -21,6 +21,7 @@ COMMANDS = {
     "track": "controller.cli.track_cmd:track",
     "override": "controller.cli.override_cmd:override",
     "status": "controller.cli.override_cmd:status",
+    "audit": "controller.cli.audit_cmd:audit",
 }
 
 

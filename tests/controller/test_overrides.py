@@ -18,17 +18,14 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from controller.alarms import TEXT_MAX, Alarms
+from controller.alarms import TEXT_MAX
 from controller.bus import Bus
-from controller.config import BusConfig, Config, FeedingConfig, TankConfig
-from controller.feeding.rations import Rations, load_species
+from controller.config import BusConfig
 from controller.overrides import OPERATOR_MAX, RATION_MAX_G, REASON_MAX, Overrides
 from controller.store import Store
 from controller.text import has_control, printable
-from devices.clock import ManualClock
+from tests.controller.override_rig import FEEDING, TANKS, Farm
 
-FEEDING = FeedingConfig(portion_g=60.0, min_portion_g=5.0)
-TANKS = ("T1", "T2", "12")
 WAIT_S = 10.0
 
 
@@ -36,60 +33,6 @@ def free_port() -> int:
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
         return s.getsockname()[1]
-
-
-class Robot:
-    """What the real robot offers overrides, recording every call."""
-
-    def __init__(self):
-        self.state, self.pending, self.calls = "idle", {}, []
-        self.dispensing = self
-
-    def portion(self, tank, grams):
-        return grams
-
-    def on_demand(self, job):
-        self.calls.append(("on_demand", job.tank, job.grams, job.source))
-
-    def set_manual(self, on):
-        self.calls.append(("set_manual", on))
-
-    def operator_reset(self):
-        self.calls.append(("operator_reset",))
-
-
-class Farm:
-    """The controller as overrides see it: config, clock, robot, rations, tanks."""
-
-    def __init__(self, store):
-        tanks = [TankConfig(id=t, stock=2000, mean_weight_g=20, position_m=3.0 + i, sensors=[f"s{i}"])
-                 for i, t in enumerate(TANKS)]
-        self.cfg = Config(tanks=tanks, feeding=FEEDING, path="<test>")
-        self.clock = ManualClock()
-        self.robot = Robot()
-        self.store = store
-        self.rations = Rations(self.cfg, load_species(), store)
-        self.sensor_tank = {s: t.id for t in tanks for s in t.sensors}
-        self.published, self.estops, self.tripped = [], [], []
-        self.alarms = Alarms(store, lambda *a, **k: None, self.clock)
-
-    def publish_ration(self, tank):
-        self.published.append(tank)
-
-    def trip_estop(self, reason="operator e-stop"):     # from the Zenoh thread, before the payload is read
-        self.tripped.append(reason)
-
-    async def emergency_stop(self, reason):       # as Controller.emergency_stop before the robot is up
-        self.estops.append(reason)
-        self.alarms.raise_("estop", f"emergency stop: {reason}", "critical", kind="latched")
-        return True                               # both latches confirmed
-
-    def status(self):
-        return {"t": self.clock.iso(), "alarms": self.alarms.listing()}
-
-    def acted(self) -> list:
-        rows = [tuple(r) for r in self.store.db.execute("SELECT * FROM ration")]
-        return [*self.robot.calls, *self.published, *self.estops, *rows]
 
 
 @pytest.fixture(scope="module")
