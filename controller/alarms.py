@@ -104,6 +104,7 @@ class Alarms:
         self.active = ActiveAlarms()
         self.known: dict[tuple[str, str], Alarm] = {}   # every alarm ever raised, standing or cleared
         self._saved_t: dict[tuple[str, str], float] = {}
+        self._unsaved: set[tuple[str, str]] = set()      # repeats held back (SAVE_REPEATS_S)
         for row in store.alarm_states():
             alarm = Alarm(row["source"], row["severity"], row["text"], row["t"], row["kind"],
                           active=bool(row["active"]), first_t=row["first_t"], last_t=row["last_t"],
@@ -192,7 +193,17 @@ class Alarms:
         else:
             self.active._pop(alarm.key)
         if not news and alarm.last_t - self._saved_t.get(alarm.key, alarm.t) < SAVE_REPEATS_S:
+            self._unsaved.add(alarm.key)
             return
+        self._save(alarm)
+
+    def flush(self) -> None:
+        """Write the repeats not written yet (a clean stop calls it before closing the ledger)."""
+        for key in sorted(self._unsaved):
+            self._save(self.known[key])
+
+    def _save(self, alarm: Alarm) -> None:
+        self._unsaved.discard(alarm.key)
         self._saved_t[alarm.key] = alarm.last_t if alarm.last_t is not None else alarm.t
         self.store.save_alarm_state(source=alarm.source, kind=alarm.kind, severity=alarm.severity,
                                     text=alarm.text, active=alarm.active, t=alarm.t,

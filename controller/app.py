@@ -200,6 +200,8 @@ class Controller:
         sim = asyncio.ensure_future(self.sim.stop()) if self.sim is not None else None
         if hasattr(self, "store"):
             try:
+                if hasattr(self, "alarms"):
+                    self.alarms.flush()       # repeats counted since their last write
                 self.store.close()
             except Exception:
                 log.exception("ledger: closing failed")
