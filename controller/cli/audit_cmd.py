@@ -112,7 +112,7 @@ def audit(since, operator, config_path, db, as_json):
         from rich.text import Text
         table = Table()
         for col in COLUMNS:
-            table.add_column(col, overflow="fold")
+            table.add_column(col, overflow="fold", no_wrap=col in ("time", "command"))
         for entry in entries:
             table.add_row(*(Text(c) for c in _cells(entry)), style=None if entry["ok"] else "red")
         Console().print(table)
