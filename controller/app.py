@@ -200,6 +200,8 @@ class Controller:
         sim = asyncio.ensure_future(self.sim.stop()) if self.sim is not None else None
         if hasattr(self, "store"):
             try:
+                if hasattr(self, "overrides"):
+                    self.overrides.flush_audit()  # this turn's audit rows
                 if hasattr(self, "alarms"):
                     self.alarms.flush()       # repeats counted since their last write
                 self.store.close()

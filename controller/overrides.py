@@ -5,7 +5,7 @@ Payloads are validated strictly (controller.override_models): a refusal is
 ``{"ok": false, "error": "<field>: <why>"}`` and nothing is done. Nothing is coerced.
 ``estop`` is never refused: any payload, even an empty or unreadable one, stops the robot. Its
 latches are tripped before ``apply`` runs (on the Zenoh thread by the bus, or by the Modbus write
-handler), and its audit row is written after the reply, so no fsync sits on its path.
+handler); audit rows are written after the reply, so no fsync sits on its path.
 
 Every command, accepted or refused, is one row of the audit (controller.records): who (the
 authenticated ``user`` when the transport knows it, and the ``operator`` the payload claims), when,
@@ -80,6 +80,7 @@ def who(user: str | None, operator: str | None) -> str:
 class Overrides:
     def __init__(self, controller):
         self.c = controller
+        self._rows: list[dict] = []      # audit rows not written yet (this loop turn's)
         self._act = {name: getattr(self, name.replace("-", "_")) for name in COMMANDS if name not in NOT_YET}
 
     def declare(self, bus) -> None:
@@ -122,11 +123,7 @@ class Overrides:
         except Exception as exc:  # a bug: the operator hears of it, the audit keeps it
             log.exception("override %s failed", name)
             reply = {"ok": False, "error": f"internal error: {type(exc).__name__}"}
-        row = dict(t=t, user=user, command=name, payload=payload, origin=origin, reply=reply)
-        if name == "estop":     # after the reply: nothing on the e-stop's way waits for an fsync
-            asyncio.get_running_loop().call_soon(lambda: self._audit(**row))
-        else:
-            self._audit(**row)
+        self._audit(t=t, user=user, command=name, payload=payload, origin=origin, reply=reply)
         return reply
 
     def refused_on_wire(self, command: str, error: str, user: str | None = None) -> None:
@@ -136,18 +133,33 @@ class Overrides:
                     origin="zenoh", reply={"ok": False, "error": error})
 
     def _audit(self, *, t, user, command, payload, origin, reply) -> None:
+        """Queue the row; the queue is written in one transaction just after this loop turn (the
+        reply goes first). One fsync for all the commands of a turn: a flood of queries costs the
+        loop a commit per turn, not per query, and nothing waits for one on the e-stop's way."""
         ok = reply.get("ok") is True
         extra = {k: v for k, v in reply.items() if k not in ("ok", "error")}
+        self._rows.append(dict(
+            t=t, user=printable(user, OPERATOR_MAX) if user is not None else None,
+            operator=claimed(payload), command=command,
+            payload=None if payload is None else payload_text(payload),
+            origin=printable(origin, AUDIT_TEXT_MAX), ok=ok,
+            result="ok" if ok and "error" not in reply else printable(reply.get("error", ""), AUDIT_TEXT_MAX),
+            reply=payload_text(extra) if extra else None))
+        if len(self._rows) == 1:
+            try:
+                asyncio.get_running_loop().call_soon(self.flush_audit)
+            except RuntimeError:      # no loop (a tool calling in): now
+                self.flush_audit()
+
+    def flush_audit(self) -> None:
+        rows, self._rows = self._rows, []
+        if not rows:
+            return
         try:
-            self.c.store.add_audit(
-                t=t, user=printable(user, OPERATOR_MAX) if user is not None else None,
-                operator=claimed(payload), command=command,
-                payload=None if payload is None else payload_text(payload),
-                origin=printable(origin, AUDIT_TEXT_MAX), ok=ok,
-                result="ok" if ok and "error" not in reply else printable(reply.get("error", ""), AUDIT_TEXT_MAX),
-                reply=payload_text(extra) if extra else None)
+            self.c.store.add_audits(rows)
         except Exception:   # an audit that cannot be written is loud, and never undoes the command
-            log.exception("audit of %s not written", command)
+            log.exception("audit of %d command(s) not written: %s", len(rows),
+                          ", ".join(sorted({r["command"] for r in rows})))
 
     # ------------------------------------------------------------ commands
 

@@ -14,6 +14,7 @@ connection, lock and ``_write``), kept apart so the ledger's feed logic stays re
 from __future__ import annotations
 
 import sqlite3
+import threading
 
 MIGRATION_4 = """
     CREATE TABLE audit (
@@ -81,6 +82,7 @@ ALARM_FIELDS = ("source", "kind", "severity", "text", "active", "t", "first_t", 
 
 class Records:
     db: sqlite3.Connection
+    _lock: threading.RLock
 
     # -- audit ----------------------------------------------------------------
     def add_audit(self, *, t: float, user: str | None, operator: str | None, command: str,
@@ -89,6 +91,19 @@ class Records:
             "INSERT INTO audit (t, user, operator, command, payload, origin, ok, result, reply) "
             "VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?)",
             (t, user, operator, command, payload, origin, int(ok), result, reply)).lastrowid
+
+    def add_audits(self, rows: list[dict]) -> None:
+        """Several audit rows (``add_audit``'s fields) in one transaction: one fsync."""
+        with self._lock:
+            self.db.execute("BEGIN IMMEDIATE")
+            try:
+                self.db.executemany(
+                    "INSERT INTO audit (t, user, operator, command, payload, origin, ok, result, reply) "
+                    "VALUES (:t, :user, :operator, :command, :payload, :origin, :ok, :result, :reply)", rows)
+                self.db.execute("COMMIT")
+            except BaseException:
+                self.db.execute("ROLLBACK")
+                raise
 
     def audit(self, *, since: float | None = None, operator: str | None = None) -> list[sqlite3.Row]:
         """Rows oldest first; ``operator`` matches the authenticated user or the claimed name."""
