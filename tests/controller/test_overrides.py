@@ -272,3 +272,47 @@ def test_a_ration_of_minus_zero_is_zero(served, caplog):
     grams = farm.rations.today("T1", farm.clock.now()).grams
     assert grams == 0 and math.copysign(1.0, grams) == 1.0
     assert "ration T1 = 0 g" in caplog.text and "-0" not in caplog.text
+
+
+def _audited(farm, n: int) -> list[dict]:
+    """The last ``n`` audit rows, once written (just after the reply, on the controller's loop)."""
+    for _ in range(1000):
+        rows = [dict(r) for r in farm.store.audit()]
+        if len(rows) >= n:
+            return rows[-n:]
+        threading.Event().wait(0.01)
+    raise AssertionError(f"{n} audit rows never written: {rows}")
+
+
+def test_what_the_bus_refuses_before_any_handler_is_audited_too(served):
+    farm, client = served
+    before = len(farm.store.audit())
+    assert ask(client, "launch", b"{}")["error"].startswith("unknown command 'launch'")
+    assert ask(client, "feed", b"\xff{oops")["error"] == "payload is not UTF-8"
+    assert ask(client, "ration", b'{"tank": "T1", "grams": 1, "grams": 2}')["error"] == "grams: duplicate key"
+    assert ask(client, "estop", b"\xff{oops") == {"ok": True, "confirmed": True}   # never refused
+    rows = _audited(farm, 4)
+    assert len(farm.store.audit()) == before + 4
+    assert [(r["command"], r["payload"], r["ok"], r["result"][:20]) for r in rows] == [
+        ("launch", None, 0, "unknown command 'lau"), ("feed", None, 0, "payload is not UTF-8"),
+        ("ration", None, 0, "grams: duplicate key"), ("estop", "{}", 1, "ok")]
+
+
+def test_a_handler_hands_the_authenticated_user_to_the_audit(tmp_path):
+    """The bus (branch roles) calls each override handler with ``user=``: the audit names it, and
+    keeps the name the payload claims beside it."""
+    store = Store(tmp_path / "ledger.db")
+    farm = Farm(store)
+    overrides = Overrides(farm)
+    handlers = {name: overrides._from_zenoh(name) for name in ("feed", "pause")}
+
+    async def go():
+        await handlers["feed"]({"tank": "T1", "grams": 20, "operator": "ana"}, user="op7")
+        await handlers["pause"]({"tank": "T2"})
+        await asyncio.sleep(0)
+    asyncio.run(go())
+    rows = [dict(r) for r in store.audit()]
+    assert [(r["user"], r["operator"], r["command"], r["ok"]) for r in rows] == [
+        ("op7", "ana", "feed", 1), (None, None, "pause", 1)]
+    assert store.paused_tanks()["T2"]["who"] == "unknown (claimed)"
+    store.close()
