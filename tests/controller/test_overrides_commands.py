@@ -254,3 +254,10 @@ def test_every_command_of_the_plan_has_its_entry():
                              "mortality", "harvest", "transfer", "start-survey", "cleaner-start", "cleaner-stop",
                              "cleaner-return"}
     assert set(NOT_YET) == {"start-survey", "cleaner-start", "cleaner-stop", "cleaner-return"}
+
+
+def test_the_override_command_line_sends_names_as_strings():
+    """``fishfarm override transfer tank=12 to=14``: tank and alarm names stay strings, counts are numbers."""
+    from controller.cli.override_cmd import parse_args
+    assert parse_args(["tank=12", "to=14", "count=3", "source=7", "kind=1", "all=true"]) == {
+        "tank": "12", "to": "14", "count": 3, "source": "7", "kind": "1", "all": True}
