@@ -128,8 +128,8 @@ class Alarms:
         before = self.known.get((source, kind))
         alarm = Alarm(source, severity, text, now, kind, first_t=before.first_t if before else now,
                       last_t=now, count=before.count + 1 if before else 1)
-        self._keep(alarm, news=True)
-        self._record(alarm)
+        self._keep(alarm, news=True, history=True)
+        self._publish(alarm)
         (log.error if severity == "critical" else log.warning)("%s: %s", source, text)
         return True
 
@@ -144,8 +144,8 @@ class Alarms:
                 continue
             cleared = True
             alarm = replace(current, text=text, t=self.clock.now(), active=False, t_text=None, repeats=0)
-            self._keep(alarm, news=True)
-            self._record(alarm)
+            self._keep(alarm, news=True, history=True)
+            self._publish(alarm)
             log.info("%s: %s", source, text)
         return cleared
 
@@ -183,10 +183,11 @@ class Alarms:
                 "last_t": iso(a.last_t if a.last_t is not None else a.t), "acked": a.acked,
                 "acked_by": a.acked_by, "acked_t": None if a.acked_t is None else iso(a.acked_t)}
 
-    def _keep(self, alarm: Alarm, *, news: bool) -> None:
-        """Hold ``alarm`` and write its state: at once when ``news``; a repeat at most every
-        ``SAVE_REPEATS_S`` (a device retried twice a second must not cost an fsync each time: a
-        crash loses at most that long of a standing alarm's count)."""
+    def _keep(self, alarm: Alarm, *, news: bool, history: bool = False) -> None:
+        """Hold ``alarm`` and write its state (with a ``history`` row, in the same commit): at once
+        when ``news``; a repeat at most every ``SAVE_REPEATS_S`` (a device retried twice a second
+        must not cost an fsync each time: a crash loses at most that long of a standing alarm's
+        count)."""
         self.known[alarm.key] = alarm
         if alarm.active:
             self.active._set(alarm)
@@ -195,25 +196,22 @@ class Alarms:
         if not news and alarm.last_t - self._saved_t.get(alarm.key, alarm.t) < SAVE_REPEATS_S:
             self._unsaved.add(alarm.key)
             return
-        self._save(alarm)
+        self._save(alarm, history)
 
     def flush(self) -> None:
         """Write the repeats not written yet (a clean stop calls it before closing the ledger)."""
         for key in sorted(self._unsaved):
             self._save(self.known[key])
 
-    def _save(self, alarm: Alarm) -> None:
+    def _save(self, alarm: Alarm, history: bool = False) -> None:
         self._unsaved.discard(alarm.key)
         self._saved_t[alarm.key] = alarm.last_t if alarm.last_t is not None else alarm.t
         self.store.save_alarm_state(source=alarm.source, kind=alarm.kind, severity=alarm.severity,
                                     text=alarm.text, active=alarm.active, t=alarm.t,
                                     first_t=alarm.first_t if alarm.first_t is not None else alarm.t,
                                     last_t=alarm.last_t if alarm.last_t is not None else alarm.t,
-                                    count=alarm.count, acked_by=alarm.acked_by, acked_t=alarm.acked_t)
-
-    def _record(self, alarm: Alarm) -> None:
-        self.store.add_alarm(alarm.source, alarm.t, alarm.severity, alarm.text, alarm.active, kind=alarm.kind)
-        self._publish(alarm)
+                                    count=alarm.count, acked_by=alarm.acked_by, acked_t=alarm.acked_t,
+                                    history=history)
 
     def _publish(self, alarm: Alarm) -> None:
         self.publish(f"alarm/{alarm.source}", self._fields(alarm), reliable=True)

@@ -146,10 +146,24 @@ class Records:
         return {r["tank"]: r for r in self.db.execute("SELECT * FROM tank_pause")}
 
     # -- alarm states -------------------------------------------------------------
-    def save_alarm_state(self, **fields) -> None:
+    def save_alarm_state(self, *, history: bool = False, **fields) -> None:
+        """An alarm's state now; with ``history``, its row in the ``alarm`` history too, in the
+        same commit (raised, severity changed, cleared)."""
         values = tuple(int(v) if isinstance(v, bool) else v for v in (fields[f] for f in ALARM_FIELDS))
-        self._write(f"INSERT OR REPLACE INTO alarm_state ({', '.join(ALARM_FIELDS)}) "
-                    f"VALUES ({', '.join('?' * len(ALARM_FIELDS))})", values)
+        with self._lock:
+            self.db.execute("BEGIN IMMEDIATE")
+            try:
+                self.db.execute(f"INSERT OR REPLACE INTO alarm_state ({', '.join(ALARM_FIELDS)}) "
+                                f"VALUES ({', '.join('?' * len(ALARM_FIELDS))})", values)
+                if history:
+                    self.db.execute("INSERT INTO alarm (source, kind, t, severity, text, active) "
+                                    "VALUES (?, ?, ?, ?, ?, ?)",
+                                    (fields["source"], fields["kind"], fields["t"], fields["severity"],
+                                     fields["text"], int(fields["active"])))
+                self.db.execute("COMMIT")
+            except BaseException:
+                self.db.execute("ROLLBACK")
+                raise
 
     def alarm_states(self) -> list[sqlite3.Row]:
         return self.db.execute("SELECT * FROM alarm_state ORDER BY first_t, source, kind").fetchall()
