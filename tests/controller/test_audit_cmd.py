@@ -17,12 +17,17 @@ from controller.store import MIGRATIONS, Store
 from devices.clock import ManualClock
 from tests.controller.override_rig import Farm
 
-NOW = time.time()
 CONTROL = "reason: control characters (newline, carriage return, escape...) are not allowed"
 
 
 @pytest.fixture
-def ledger(tmp_path):
+def now():
+    """The wall clock when the rows are written: ``--since 90s`` is taken from the command's own now."""
+    return time.time()
+
+
+@pytest.fixture
+def ledger(tmp_path, now):
     """Three overrides: an hour ago, ten minutes ago and now; one refused; one authenticated."""
     path = tmp_path / "ledger.db"
     store = Store(path)
@@ -34,7 +39,7 @@ def ledger(tmp_path):
                 (3600, "ration", {"tank": "T1", "grams": 500, "operator": "ana"}, None),
                 (600, "feed", {"tank": "T9", "grams": 20, "operator": "ana", "reason": "tab\there"}, "bob"),
                 (0, "estop", {"operator": "eve", "reason": "[bold]x[/bold]"}, None)]:
-            farm.clock = ManualClock(NOW - ago)
+            farm.clock = ManualClock(now - ago)
             await overrides.apply(command, payload, user=user)
             await asyncio.sleep(0)
     asyncio.run(run())
@@ -68,9 +73,9 @@ def test_since_a_duration(ledger, capsys, since, commands):
     assert code == 0 and [r["command"] for r in json.loads(out)] == commands
 
 
-def test_since_an_iso_time_and_by_operator(ledger, capsys):
+def test_since_an_iso_time_and_by_operator(ledger, capsys, now):
     import datetime as dt
-    when = dt.datetime.fromtimestamp(NOW - 1800, dt.UTC)
+    when = dt.datetime.fromtimestamp(now - 1800, dt.UTC)
     for text in (when.isoformat(), when.strftime("%Y-%m-%dT%H:%M:%S"), when.strftime("%Y-%m-%dT%H:%M:%SZ")):
         code, out, _ = run(capsys, "--db", ledger, "--json", "--since", text)
         assert code == 0 and [r["command"] for r in json.loads(out)] == ["feed", "estop"], text

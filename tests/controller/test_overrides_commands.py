@@ -14,6 +14,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from controller.app import Controller
+from controller.feeding.rations import Rations
 from controller.override_models import AUDIT_PAYLOAD_MAX, COUNT_MAX
 from controller.overrides import COMMANDS, NOT_YET, Overrides
 from controller.store import Store
@@ -152,7 +153,7 @@ def test_refusals_name_their_field_and_change_nothing(farm, command, payload, er
     assert (row["command"], row["ok"], row["result"]) == (command, 0, error)
 
 
-@settings(max_examples=150, deadline=None)
+@settings(max_examples=100, deadline=None)
 @given(data=st.data())
 def test_generated_stock_events_move_exactly_the_fish_they_name(data):
     """Over the whole range, a few events in a row on a fresh ledger: a count is taken iff it is an
@@ -189,8 +190,8 @@ def _one_stock_event(farm, data) -> None:
     else:
         assert reply["error"].split(":")[0] in ("count", "to"), reply
     assert after == expected
-    fresh = Farm(farm.store)                      # what a restart reads: config + the ledger's events
-    assert {t: fresh.rations.stock(t) for t in TANKS} == after
+    fresh = Rations(farm.cfg, farm.rations.species, farm.store)   # a restart: config + the ledger's events
+    assert {t: fresh.stock(t) for t in TANKS} == after
 
 
 # ---------------------------------------------------------------- acknowledge
