@@ -171,7 +171,7 @@ def spoilt_value(draw, command, field, fault):
 def faulty(draw, command, field, fault):
     """(field that must be named, raw body): a valid payload of ``command`` with one field spoilt."""
     payload = draw(valid_payloads(command))
-    fields = [*VALID[command], *OPTIONAL]
+    fields = [*VALID[command], *OPTIONAL, *{"ack": ("kind", "all")}.get(command, ())]   # all it takes
     if fault == "unknown":
         field = draw(st.text(min_size=1, max_size=80).filter(lambda k: k not in fields))
         value = json.dumps(draw(json_values))
