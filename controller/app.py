@@ -200,6 +200,10 @@ class Controller:
         sim = asyncio.ensure_future(self.sim.stop()) if self.sim is not None else None
         if hasattr(self, "store"):
             try:
+                if hasattr(self, "overrides"):
+                    self.overrides.flush_audit()  # this turn's audit rows
+                if hasattr(self, "alarms"):
+                    self.alarms.flush()       # repeats counted since their last write
                 self.store.close()
             except Exception:
                 log.exception("ledger: closing failed")
@@ -424,13 +428,16 @@ class Controller:
         now = self.clock.now()
         tanks = {}
         pending = self.robot.pending if self.robot is not None else {}
+        store = getattr(self, "store", None)
+        paused = store.paused_tanks() if store is not None and store.db is not None else {}
         for tank in self.cfg.tanks:
             r = self.rations.today(tank.id, now)
             job = pending.get(tank.id)
             tanks[tank.id] = {"demand": job is not None,
                               "demand_t": None if job is None else self.clock.iso(job.t),
                               "fed_g": round(r.fed_g, 1), "ration_g": round(r.grams, 1),
-                              "pellet_mm": r.pellet_mm}
+                              "pellet_mm": r.pellet_mm, "stock": self.rations.stock(tank.id),
+                              "paused": tank.id in paused}
             demand = getattr(self, "filter", None)     # absent while the controller starts
             note = demand.slow_fish(tank.id) if demand is not None and tank.id in demand.tanks else None
             if note is not None:
@@ -440,7 +447,6 @@ class Controller:
         out = {"t": self.clock.iso(now), "site": self.cfg.site, "feeder": feeder,
                "tanks": tanks,
                "alarms": self.alarms.listing()}
-        store = getattr(self, "store", None)
         suspects = store.suspects() if store is not None and store.db is not None else []
         if suspects:      # feeds of unknown outcome, held against the ration until settled
             out["suspect"] = [{"id": f.id, "tank": f.tank, "date": f.date, "t": self.clock.iso(f.t_intent),

@@ -224,27 +224,42 @@ class Bus:
         A payload that is not a JSON object is refused (``{"ok": false, "error": ...}``) unless
         ``lenient``, when the handler gets ``{}``. A handler exception is such a refusal too."""
         wrapped = _with_user(handler)
-        self._serve(suffix, lambda _key: (wrapped, lenient, None, None))
+        self._serve(suffix, lambda _key: (wrapped, lenient, None, None, None))
 
     def overrides(self, commands: Mapping[str, Handler], *, lenient: Iterable[str] = ("estop",),
-                  urgent: Mapping[str, Callable[[], None]] | None = None) -> None:
+                  urgent: Mapping[str, Callable[[], None]] | None = None,
+                  refused: Callable[[str, str, str | None], None] | None = None) -> None:
         """Serve ``farm/{site}/override/*`` and ``farm/{site}/override/*/by/*``: dispatch on the
         command name; an unknown command is refused. Commands in ``lenient`` (estop) are never
         refused for their payload; those in ``urgent`` first call their function on the Zenoh
         thread, before anything else. A handler taking a ``user`` keyword gets the user of a
-        ``.../by/USER`` key when this session enforces the ACL (``identified``), else None."""
+        ``.../by/USER`` key when this session enforces the ACL (``identified``), else None.
+        ``refused(command, error, user)`` hears, on the loop, of every query refused here before a
+        handler saw it (unknown command, unreadable payload): the audit keeps those too."""
         forgiving = set(lenient)
         table = {name: _with_user(handler) for name, handler in commands.items()}
         now = dict(urgent or {})
+        loop = self._handler_loop()
+
+        def tell(command: str, error: str, user: str | None = None) -> None:
+            if refused is not None:
+                with contextlib.suppress(RuntimeError):     # the loop is closed: the process is ending
+                    loop.call_soon_threadsafe(refused, command, error, user)
 
         def resolve(suffix: str):
             base, user = user_of(suffix)
             command = base.split("/", 1)[1]
             if command not in table:
-                raise LookupError(f"unknown command {command!r}; known: {', '.join(sorted(table))}")
+                error = f"unknown command {command!r}; known: {', '.join(sorted(table))}"
+                tell(command, error)
+                raise LookupError(error)
             if user is not None and not USER.match(user):
-                raise LookupError(f"user {user!r}: letters, digits, _ . - only")
-            return table[command], command in forgiving, now.get(command), user if self.identified else None
+                error = f"user {user!r}: letters, digits, _ . - only"
+                tell(command, error)
+                raise LookupError(error)
+            user = user if self.identified else None
+            return (table[command], command in forgiving, now.get(command), user,
+                    lambda error: tell(command, error, user))
         self._serve("override/*", resolve)
         self._serve(f"override/*/{BY}/*", resolve)
 
@@ -270,7 +285,7 @@ class Bus:
 
     def _dispatch(self, query: zenoh.Query, key: str, resolve, loop) -> None:
         try:
-            handler, lenient, urgent, user = resolve(self._suffix(key))
+            handler, lenient, urgent, user, refused = resolve(self._suffix(key))
         except LookupError as exc:
             return self._reply(query, {"ok": False, "error": str(exc)})
         acted = False
@@ -284,8 +299,10 @@ class Bus:
             payload = decode(query.payload)
         except Exception as exc:  # noqa: BLE001 - ValueError, or whatever a hostile payload raises
             if not lenient:
-                return self._reply(query, {"ok": False, "error": str(exc) if isinstance(exc, ValueError)
-                                           else f"unreadable payload ({type(exc).__name__})"})
+                error = str(exc) if isinstance(exc, ValueError) else f"unreadable payload ({type(exc).__name__})"
+                if refused is not None:
+                    refused(error)
+                return self._reply(query, {"ok": False, "error": error})
             payload = {}
         try:
             future = asyncio.run_coroutine_threadsafe(_answer(handler, payload, key, user), loop)

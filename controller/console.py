@@ -19,6 +19,11 @@ import sys
 log = logging.getLogger("fishfarm.status")
 
 
+def alarm_label(alarm: dict) -> str:
+    """A standing alarm, or one cleared that nobody acknowledged yet (status lists both)."""
+    return "ALARM" if alarm.get("active", True) else "CLEARED, unacknowledged:"
+
+
 def tank_lines(status: dict) -> list[str]:
     feeder = status["feeder"]
     lines = [f"{status['t']}  feeder {feeder['state']:<10} at {feeder['position_m']} m, "
@@ -29,7 +34,7 @@ def tank_lines(status: dict) -> list[str]:
         lines.append(f"  {tank_id:<6} {demand}  fed {tank['fed_g']:>8.1f} / {tank['ration_g']:>8.1f} g "
                      f"({pct:5.1f} %)  pellet {tank['pellet_mm']} mm")
     for alarm in status["alarms"]:
-        lines.append(f"  ALARM {alarm['severity']} {alarm['source']}: {alarm['text']}")
+        lines.append(f"  {alarm_label(alarm)} {alarm['severity']} {alarm['source']}: {alarm['text']}")
     return lines
 
 
@@ -62,7 +67,7 @@ def render(status: dict, height: int | None = None):
     table = Table()
     for col in ("tank", "demand", "fed today (g)", "ration (g)", "%", "pellet"):
         table.add_column(col, justify="right" if col != "tank" else "left", no_wrap=True)
-    alarms = [_one_row(f"ALARM {a['severity']} {a['source']}: {a['text']}", "bold red")
+    alarms = [_one_row(f"{alarm_label(a)} {a['severity']} {a['source']}: {a['text']}", "bold red")
               for a in status["alarms"][:MAX_ALARM_ROWS]]
     if len(status["alarms"]) > MAX_ALARM_ROWS:
         alarms.append(_one_row(f"... {len(status['alarms']) - MAX_ALARM_ROWS} more alarms: fishfarm status",

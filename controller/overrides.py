@@ -1,29 +1,53 @@
-"""Operator overrides over Zenoh: ``farm/{site}/override/{command}`` queryables.
+"""Operator overrides: one entry, ``Overrides.apply``, for every command from Zenoh
+(``farm/{site}/override/{command}`` queryables) or Modbus writes: validate, act, audit, reply.
 
-Every payload may carry ``operator`` and ``reason``; each command validates its own fields
-strictly: a field of the wrong JSON type (``grams=true``, ``grams="40"``, ``on="yes"``), a number
-that is not finite or out of range, an unknown field, a key given twice (refused by the bus's
-decoder) or text too long or holding control characters is refused with
+Payloads are validated strictly (controller.override_models): a refusal is
 ``{"ok": false, "error": "<field>: <why>"}`` and nothing is done. Nothing is coerced.
-``estop`` is never refused: any payload, even an empty or unreadable one, stops the robot.
+``estop`` is never refused: any payload, even an empty or unreadable one, stops the robot. Its
+latches are tripped before ``apply`` runs (on the Zenoh thread by the bus, or by the Modbus write
+handler); audit rows are written after the reply, so no fsync sits on its path.
+
+Every command, accepted or refused, is one row of the audit (controller.records): who (the
+authenticated ``user`` when the transport knows it, and the ``operator`` the payload claims), when,
+the command, the payload (escaped, bounded), from where, and the result.
 """
 from __future__ import annotations
 
+import asyncio
 import logging
-from typing import Annotated
-
-from pydantic import AfterValidator, BaseModel, ConfigDict, Field, ValidationError, ValidationInfo, field_validator
 
 from controller.feeding.robot import Job
-from controller.text import has_control, printable
+from controller.override_models import (  # noqa: F401
+    AUDIT_TEXT_MAX,
+    OPERATOR_MAX,
+    RATION_MAX_G,
+    REASON_MAX,
+    STARTING,
+    Ack,
+    Bare,
+    Feed,
+    Loss,
+    Manual,
+    Refused,
+    SetRation,
+    Settle,
+    Tank,
+    Transfer,
+    claimed,
+    parse,
+    payload_text,
+)
+from controller.text import printable
 
 log = logging.getLogger("fishfarm.override")
 
-STARTING = "the controller is starting: waiting for its devices"
-OPERATOR_MAX = 64
-REASON_MAX = 200
-RATION_MAX_G = 1_000_000.0     # a tonne a day for one tank: beyond that it is a typing error
 LOG_LINE_MAX = 1000
+NOT_YET = {"start-survey": "weight surveys are not started by override",
+           "cleaner-start": "there is no pond cleaner in this controller",
+           "cleaner-stop": "there is no pond cleaner in this controller",
+           "cleaner-return": "there is no pond cleaner in this controller"}
+COMMANDS = ("estop", "reset", "manual", "feed", "ration", "settle", "pause", "resume", "ack",
+            "mortality", "harvest", "transfer", *NOT_YET)
 
 
 class _OneLine(logging.Filter):
@@ -38,157 +62,140 @@ class _OneLine(logging.Filter):
 log.addFilter(_OneLine())
 
 
-class Refused(Exception):
-    """A command the controller will not carry out; its text is the reply's error."""
-
-
-def _one_line(text: str) -> str:
-    if has_control(text):
-        raise ValueError("control characters (newline, carriage return, escape...) are not allowed")
-    return text
-
-
-Operator = Annotated[str, Field(min_length=1, max_length=OPERATOR_MAX), AfterValidator(_one_line)]
-Reason = Annotated[str, Field(max_length=REASON_MAX), AfterValidator(_one_line)]
-TankId = Annotated[str, Field(pattern=r"^[A-Za-z0-9_-]{1,32}$")]   # as farm.toml's tank ids
-
-_JSON_TYPE = {bool: "a boolean", str: "a string", dict: "an object", list: "an array", type(None): "null",
-              int: "a number", float: "a number"}
-_WANTED = {"float_type": "a number", "int_type": "an integer", "bool_type": "true or false",
-           "string_type": "a string"}
-
-
-def _why(err: dict) -> str:
-    """Pydantic's error as an operator reads it: what the field must be, never the value sent."""
-    kind, ctx = err["type"], err.get("ctx") or {}
-    if kind == "extra_forbidden":
-        return "unknown field"
-    if kind == "missing":
-        return "required"
-    if kind in _WANTED:
-        given = err.get("input")
-        if isinstance(given, int) and not isinstance(given, bool) and kind == "float_type":
-            return "out of range"                      # an integer too large for a float
-        return f"must be {_WANTED[kind]}, not {_JSON_TYPE.get(type(given), type(given).__name__)}"
-    if kind == "finite_number":
-        return "must be a finite number"
-    bound = {"greater_than_equal": ("at least", "ge"), "greater_than": ("more than", "gt"),
-             "less_than_equal": ("at most", "le"), "less_than": ("less than", "lt")}.get(kind)
-    if bound is not None:
-        return f"must be {bound[0]} {ctx.get(bound[1]):g}"
-    if kind == "string_too_long":
-        return f"longer than {ctx.get('max_length')} characters"
-    if kind == "string_too_short":
-        return "must not be empty"
-    if kind == "string_pattern_mismatch":
-        return "letters, digits, _ and - only (1 to 32)"
-    msg = err["msg"]
-    return msg[len("Value error, "):] if msg.startswith("Value error, ") else msg
-
-
-def _parse(model, payload, context: dict | None = None):
-    try:
-        return model.model_validate(payload if payload is not None else {}, context=context)
-    except ValidationError as exc:
-        err = exc.errors()[0]
-        field = printable(".".join(str(p) for p in err["loc"]) or "payload", 64)
-        raise Refused(f"{field}: {_why(err)}") from None
-
-
 def _answering(handler):
     """A refusal becomes ``{"ok": false, "error": ...}``; everything else is the bus's business."""
-    async def answer(payload) -> dict:
+    async def answer(payload, *args) -> dict:
         try:
-            return await handler(payload)
+            return await handler(payload, *args)
         except Refused as exc:
             return {"ok": False, "error": str(exc)}
     return answer
 
 
-class _Command(BaseModel):
-    # strict: JSON's true is no number and "40" no grams; ints are taken for floats (40 is 40.0)
-    model_config = ConfigDict(extra="forbid", strict=True, allow_inf_nan=False, frozen=True)
-    operator: Operator = "unknown"
-    reason: Reason = ""
-
-
-class Manual(_Command):
-    on: bool = True
-
-
-class Feed(_Command):
-    tank: TankId
-    grams: float
-
-    @field_validator("grams")
-    @classmethod
-    def _one_portion(cls, grams: float, info: ValidationInfo) -> float:
-        """Between the smallest portion served and one portion: an ask outside is a mistake to
-        say, not a number to quietly clamp (1e-300 g would be a 1 ms auger run)."""
-        feeding = info.context["feeding"]
-        if grams < feeding.min_portion_g:
-            raise ValueError(f"less than feeding.min_portion_g ({feeding.min_portion_g:g} g)")
-        if grams > feeding.portion_g:
-            raise ValueError(f"more than one portion, feeding.portion_g ({feeding.portion_g:g} g)")
-        return grams
-
-
-class SetRation(_Command):
-    tank: TankId
-    # -0.0 is within 0.. and would be a ration of "-0 g" in the log, the ledger and the topic
-    grams: Annotated[float, Field(ge=0, le=RATION_MAX_G), AfterValidator(lambda g: g + 0.0)]
-
-
-class Settle(_Command):
-    """An operator's word on a suspect feed: the grams that went in (0 with a reason: none)."""
-    id: str = Field(min_length=1, max_length=64)
-    grams: float = Field(ge=0, le=5000)
+def who(user: str | None, operator: str | None) -> str:
+    """The name records carry: the authenticated user, else the claimed name, marked so."""
+    return user if user else f"{operator or 'unknown'} (claimed)"
 
 
 class Overrides:
     def __init__(self, controller):
         self.c = controller
+        self._rows: list[dict] = []      # audit rows not written yet (this loop turn's)
+        self._act = {name: getattr(self, name.replace("-", "_")) for name in COMMANDS if name not in NOT_YET}
 
     def declare(self, bus) -> None:
         # one queryable on override/*: an unknown command is refused with a reason, not left unanswered
-        commands = ("estop", "reset", "manual", "feed", "ration", "settle")
+        handlers = {name: self._from_zenoh(name) for name in COMMANDS}
         # estop also trips the latches on the Zenoh thread itself, before the payload is parsed
-        bus.overrides({name: _answering(getattr(self, name)) for name in commands}, lenient=("estop",),
-                      urgent={"estop": lambda: self.c.trip_estop("operator e-stop")})
+        bus.overrides(handlers, lenient=("estop",), urgent={"estop": lambda: self.c.trip_estop("operator e-stop")},
+                      refused=self.refused_on_wire)
         bus.queryable("status", self.status, lenient=True)
 
-    async def status(self, payload) -> dict:
+    def _from_zenoh(self, command: str):
+        async def handle(payload, user: str | None = None) -> dict:
+            return await self.apply(command, payload, user=user, origin="zenoh")
+        return handle
+
+    async def status(self, payload, user: str | None = None) -> dict:
         return self.c.status()
 
-    async def estop(self, payload) -> dict:
+    # ------------------------------------------------------------ the one entry
+
+    async def apply(self, command: str, payload: object, *, user: str | None = None,
+                    origin: str = "zenoh") -> dict:
+        """Every override, from Zenoh or Modbus: validate, act, audit, reply. Never raises for bad
+        input: returns {"ok": False, "error": "<field>: <why>"}. ``user`` is the authenticated
+        identity when known and is what the audit names; the payload's ``operator`` is kept as the
+        claimed name beside it. ``origin`` says from where, e.g. "zenoh", "modbus 127.0.0.1:53122"."""
+        t = self.c.clock.now()
+        name = command if isinstance(command, str) else printable(command, 64)
+        try:
+            if name not in COMMANDS:
+                raise Refused(f"command: unknown command {printable(name, 64)!r}; known: {', '.join(COMMANDS)}")
+            if payload is not None and not isinstance(payload, dict) and name != "estop":
+                raise Refused(f"payload: must be a JSON object, not {type(payload).__name__}")
+            if name in NOT_YET:
+                parse(Tank if name == "start-survey" else Bare, payload)
+                raise Refused(f"not available yet: {NOT_YET[name]}")
+            reply = await self._act[name](payload, user)
+        except Refused as exc:
+            reply = {"ok": False, "error": str(exc)}
+        except Exception as exc:  # a bug: the operator hears of it, the audit keeps it
+            log.exception("override %s failed", name)
+            reply = {"ok": False, "error": f"internal error: {type(exc).__name__}"}
+        self._audit(t=t, user=user, command=name, payload=payload, origin=origin, reply=reply)
+        return reply
+
+    def refused_on_wire(self, command: str, error: str, user: str | None = None) -> None:
+        """The bus refused a query before any handler saw it (an unknown command, an unreadable
+        payload): audited all the same. Called on the loop."""
+        self._audit(t=self.c.clock.now(), user=user, command=printable(command, 64), payload=None,
+                    origin="zenoh", reply={"ok": False, "error": error})
+
+    def _audit(self, *, t, user, command, payload, origin, reply) -> None:
+        """Queue the row; the queue is written in one transaction just after this loop turn (the
+        reply goes first). One fsync for all the commands of a turn: a flood of queries costs the
+        loop a commit per turn, not per query, and nothing waits for one on the e-stop's way."""
+        ok = reply.get("ok") is True
+        extra = {k: v for k, v in reply.items() if k not in ("ok", "error")}
+        self._rows.append(dict(
+            t=t, user=printable(user, OPERATOR_MAX) if user is not None else None,
+            operator=claimed(payload), command=command,
+            payload=None if payload is None else payload_text(payload),
+            origin=printable(origin, AUDIT_TEXT_MAX), ok=ok,
+            result="ok" if ok and "error" not in reply else printable(reply.get("error", ""), AUDIT_TEXT_MAX),
+            reply=payload_text(extra) if extra else None))
+        if len(self._rows) == 1:
+            try:
+                asyncio.get_running_loop().call_soon(self.flush_audit)
+            except RuntimeError:      # no loop (a tool calling in): now
+                self.flush_audit()
+
+    def flush_audit(self) -> None:
+        rows, self._rows = self._rows, []
+        if not rows:
+            return
+        try:
+            self.c.store.add_audits(rows)
+        except Exception:   # an audit that cannot be written is loud, and never undoes the command
+            log.exception("audit of %d command(s) not written: %s", len(rows),
+                          ", ".join(sorted({r["command"] for r in rows})))
+
+    # ------------------------------------------------------------ commands
+
+    async def estop(self, payload, by: str | None = None) -> dict:
         """Any payload stops: fields of the wrong type are ignored, never a refusal. The reply
         comes once both devices confirmed their latches (``confirmed`` false: not within 2 s)."""
-        who = why = None
+        name, why = None, None
         if isinstance(payload, dict):
-            who, why = payload.get("operator"), payload.get("reason")
-        who = who if isinstance(who, str) else "unknown"
+            name, why = payload.get("operator"), payload.get("reason")
+        name = by if by else (name if isinstance(name, str) else "unknown")
         why = why if isinstance(why, str) else ""
-        log.warning("e-stop by %s: %s", who[:100], why[:200])   # the log filter escapes them
+        reason = f"operator {name[:100]}" + (f": {why[:200]}" if why else "")
+        self.c.trip_estop(reason)        # tripped already by whoever called; safe again, never waits
+        log.warning("e-stop by %s: %s", name[:100], why[:200])   # the log filter escapes them
         try:
-            confirmed = await self.c.emergency_stop(f"operator {who[:100]}" + (f": {why[:200]}" if why else ""))
-        except Exception:   # the latches were set on the Zenoh thread already: say so, not "refused"
+            confirmed = await self.c.emergency_stop(reason)
+        except Exception:   # the latches were set already: say so, not "refused"
             log.exception("e-stop bookkeeping failed")
             confirmed = False
         return {"ok": True, "confirmed": bool(confirmed)}
 
-    async def reset(self, payload) -> dict:
-        cmd, robot = _parse(_Command, payload), self._robot()
-        log.warning("reset by %s: %s", cmd.operator, cmd.reason)
+    async def reset(self, payload, by: str | None = None) -> dict:
+        cmd, robot = parse(Bare, payload), self._robot()
+        log.warning("reset by %s: %s", by or cmd.operator, cmd.reason)
         return self._result(robot.operator_reset())
 
-    async def manual(self, payload) -> dict:
-        cmd, robot = _parse(Manual, payload), self._robot()
-        log.warning("manual=%s by %s: %s", cmd.on, cmd.operator, cmd.reason)
+    async def manual(self, payload, by: str | None = None) -> dict:
+        cmd, robot = parse(Manual, payload), self._robot()
+        log.warning("manual=%s by %s: %s", cmd.on, by or cmd.operator, cmd.reason)
         return self._result(robot.set_manual(cmd.on))
 
-    async def feed(self, payload) -> dict:
-        cmd = _parse(Feed, payload, {"feeding": self.c.cfg.feeding})
+    async def feed(self, payload, by: str | None = None) -> dict:
+        cmd = parse(Feed, payload, {"feeding": self.c.cfg.feeding})
         self._tank(cmd.tank)
+        if cmd.tank in self.c.store.paused_tanks():
+            raise Refused(f"tank: {cmd.tank} is paused (resume it first)")
         robot = self._robot()
         if robot.state in ("estop", "manual"):
             raise Refused(f"feeder is in {robot.state}")
@@ -197,37 +204,104 @@ class Overrides:
         grams = robot.dispensing.portion(cmd.tank, cmd.grams)
         if grams <= 0:
             raise Refused(f"tank {cmd.tank} has had its ration today")
-        log.warning("feed %s %.0f g by %s: %s", cmd.tank, grams, cmd.operator, cmd.reason)
+        log.warning("feed %s %.0f g by %s: %s", cmd.tank, grams, by or cmd.operator, cmd.reason)
         robot.on_demand(Job(cmd.tank, self.c.clock.now(), None, "operator", grams))
         return {"ok": True, "grams": round(grams, 1)}
 
-    async def ration(self, payload) -> dict:
-        cmd = _parse(SetRation, payload)
+    async def ration(self, payload, by: str | None = None) -> dict:
+        cmd = parse(SetRation, payload)
         self._tank(cmd.tank)
-        log.warning("ration %s = %.0f g by %s: %s", cmd.tank, cmd.grams, cmd.operator, cmd.reason)
+        log.warning("ration %s = %.0f g by %s: %s", cmd.tank, cmd.grams, by or cmd.operator, cmd.reason)
         self.c.rations.set(cmd.tank, self.c.clock.now(), cmd.grams, "operator")
         self.c.publish_ration(cmd.tank)
         return {"ok": True}
 
-    async def settle(self, payload) -> dict:
-        cmd = _parse(Settle, payload)
+    async def settle(self, payload, by: str | None = None) -> dict:
+        cmd = parse(Settle, payload)
         if cmd.grams == 0 and not cmd.reason.strip():
             raise Refused("reason: settling a feed with grams=0 (none went in) needs a reason")
         robot = self._robot()
         try:
-            feed = robot.dispensing.settle_suspect(cmd.id, cmd.grams, cmd.operator, cmd.reason)
+            feed = robot.dispensing.settle_suspect(cmd.id, cmd.grams, by or cmd.operator, cmd.reason)
         except LookupError:
             raise Refused(f"id: feed {cmd.id!r} is not suspect") from None
         return {"ok": True, "phase": feed.phase}
+
+    async def pause(self, payload, by: str | None = None) -> dict:
+        """A paused tank's demands are not served (closed as ``paused``), nor operator feeds; a
+        portion already on its way finishes. Kept in the ledger: a restart stays paused."""
+        cmd = parse(Tank, payload)
+        self._tank(cmd.tank)
+        fresh = self.c.store.pause_tank(cmd.tank, self.c.clock.now(), by or who(None, cmd.operator), cmd.reason)
+        if self.c.robot is not None:
+            self.c.robot.pause(cmd.tank)
+        log.warning("pause %s by %s: %s", cmd.tank, by or cmd.operator, cmd.reason)
+        return {"ok": True} if fresh else {"ok": True, "note": f"tank {cmd.tank} was paused already"}
+
+    async def resume(self, payload, by: str | None = None) -> dict:
+        cmd = parse(Tank, payload)
+        self._tank(cmd.tank)
+        was = self.c.store.resume_tank(cmd.tank)
+        if self.c.robot is not None:
+            self.c.robot.resume(cmd.tank)
+        log.warning("resume %s by %s: %s", cmd.tank, by or cmd.operator, cmd.reason)
+        return {"ok": True} if was else {"ok": True, "note": f"tank {cmd.tank} was not paused"}
+
+    async def ack(self, payload, by: str | None = None) -> dict:
+        cmd = parse(Ack, payload)
+        if cmd.all and (cmd.source is not None or cmd.kind is not None):
+            raise Refused(f"{'source' if cmd.source is not None else 'kind'}: not with \"all\": true")
+        if not cmd.all and cmd.source is None:
+            raise Refused("source: required (or \"all\": true)")
+        try:
+            done = self.c.alarms.ack(by or who(None, cmd.operator), cmd.source, cmd.kind)
+        except LookupError:
+            field = "kind" if cmd.kind is not None and any(s == cmd.source for s, _ in self.c.alarms.known) \
+                else "source"
+            raise Refused(f"{field}: no such alarm") from None
+        return {"ok": True, "acked": [{"source": a.source, "kind": a.kind} for a in done]}
+
+    async def mortality(self, payload, by: str | None = None) -> dict:
+        return self._stock_event("mortality", parse(Loss, payload), None, by)
+
+    async def harvest(self, payload, by: str | None = None) -> dict:
+        return self._stock_event("harvest", parse(Loss, payload), None, by)
+
+    async def transfer(self, payload, by: str | None = None) -> dict:
+        cmd = parse(Transfer, payload)
+        self._tank(cmd.tank)
+        if cmd.to == cmd.tank:
+            raise Refused("to: the same tank as tank")
+        self._tank(cmd.to, "to")
+        return self._stock_event("transfer", cmd, cmd.to, by)
+
+    def _stock_event(self, kind: str, cmd, to: str | None, by: str | None) -> dict:
+        """Fish that left ``cmd.tank`` (and, in a transfer, came to ``to``): the stock the rations
+        use changes, and today's ration with it unless an operator or a survey set it."""
+        self._tank(cmd.tank)
+        rations, now = self.c.rations, self.c.clock.now()
+        held = rations.stock(cmd.tank)
+        if cmd.count > held:
+            raise Refused(f"count: more than the {held} fish in tank {cmd.tank}")
+        self.c.store.add_stock_event(t=now, tank=cmd.tank, kind=kind, count=cmd.count, to_tank=to,
+                                     who=by or who(None, cmd.operator), reason=cmd.reason)
+        log.warning("%s %s %d fish%s by %s: %s", kind, cmd.tank, cmd.count, f" to {to}" if to else "",
+                    by or cmd.operator, cmd.reason)
+        stock = {}
+        for tank in filter(None, (cmd.tank, to)):
+            rations.restocked(tank, now)
+            self.c.publish_ration(tank)
+            stock[tank] = rations.stock(tank)
+        return {"ok": True, "stock": stock}
 
     def _robot(self):
         if self.c.robot is None:
             raise Refused(STARTING)
         return self.c.robot
 
-    def _tank(self, tank: str) -> None:
-        if tank not in self.c.sensor_tank.values():
-            raise Refused(f"tank: no tank {tank!r}")
+    def _tank(self, tank: str, field: str = "tank") -> None:
+        if tank not in {t.id for t in self.c.cfg.tanks}:
+            raise Refused(f"{field}: no tank {tank!r}")
 
     @staticmethod
     def _result(error: str | None) -> dict:

@@ -1,6 +1,7 @@
 """The ledger: SQLite in WAL mode with synchronous=FULL, so a committed row survives a power cut.
 
-What it holds: validated demands, feed intents and their outcomes, daily rations, alarms.
+What it holds: validated demands, feed intents and their outcomes, daily rations, alarms; and
+(controller.records) the audit of overrides, stock events, paused tanks and each alarm's state.
 Exactly-once dispensing rests on one rule: a feed row is committed in phase ``intent``
 (with the dispenser's cycle counter and load cell read just before and a 16-bit tag) *before*
 the auger is told to start, and closed as ``done`` (grams from the load cell) or ``aborted``
@@ -20,6 +21,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from controller.errors import BadInput
+from controller.records import MIGRATION_4, Records
 
 MIGRATIONS = [
     """
@@ -89,6 +91,10 @@ MIGRATIONS = [
         t        REAL NOT NULL
     );
     """,
+    # 3 -> 4: what operators do and are held to (controller.records): the audit of every override,
+    # stock events, paused tanks, and each alarm's standing state (the ``alarm`` table stays its
+    # history of changes)
+    MIGRATION_4,
 ]
 
 SUSPECT = "suspect"
@@ -185,7 +191,7 @@ def next_tag(last_tag: int | None, device_tags=()) -> int:
     return tag
 
 
-class Store:
+class Store(Records):
     """One SQLite connection, used from the controller's event loop thread (plus a lock for
     the occasional call from another thread). Every write is its own committed transaction."""
 

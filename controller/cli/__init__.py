@@ -22,6 +22,7 @@ COMMANDS = {
     "override": "controller.cli.override_cmd:override",
     "status": "controller.cli.override_cmd:status",
     "credentials": "controller.cli.credentials_cmd:credentials",
+    "audit": "controller.cli.audit_cmd:audit",
 }
 
 

@@ -21,7 +21,8 @@ _NAME = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*$")
 _COMMAND = re.compile(r"^[a-z][a-z0-9_-]{0,63}$")
 _SITE = re.compile(r"^[A-Za-z0-9_-]{1,64}$")
 _RESERVED = {"operator": "--operator", "reason": "--reason"}
-_STRINGS = {"tank", "id"}  # identifiers, whatever they look like: a tank may be called 12, a feed 0123
+# identifiers, whatever they look like: a tank may be called 12, a feed 0123
+_STRINGS = {"tank", "to", "id", "source", "kind"}
 
 
 def _connection_options(f):

@@ -1,6 +1,7 @@
 """Daily rations: biomass × feeding-table rate, and what is left of today's.
 
-Until a weight survey exists for a tank, biomass is the config's stock × mean weight. A
+Until a weight survey exists for a tank, biomass is its stock × the config's mean weight, the stock
+being the config's count plus the stock events in the store (mortality, harvests, transfers). A
 ration is fixed for a farm day when first asked for (row in the store), so a restart or a
 config edit mid-day does not move the goalposts; an operator or a survey may replace it.
 """
@@ -70,6 +71,7 @@ class Rations:
         self.cfg = cfg
         self.store = store
         self.species = species
+        self._stock: dict[str, int] = {}      # config + stock events, until the next event
         for tank in cfg.tanks:
             if tank.species not in species:
                 raise ValueError(f"tank {tank.id}: unknown species {tank.species!r}")
@@ -77,12 +79,29 @@ class Rations:
     def date(self, t: float) -> str:
         return farm_date(t, self.cfg.utc_offset_h)
 
+    def stock(self, tank_id: str) -> int:
+        """Fish in the tank: the config's stock plus the stock events recorded since."""
+        if tank_id not in self._stock:
+            self._stock[tank_id] = self.cfg.tank(tank_id).stock + self.store.stock_change(tank_id)
+        return self._stock[tank_id]
+
+    def restocked(self, tank_id: str, t: float) -> Ration:
+        """A stock event was recorded: the count is read again, and today's ration planned again
+        from it unless an operator or a survey set it (theirs stands)."""
+        self._stock.pop(tank_id, None)
+        current = self.today(tank_id, t)
+        row = self.store.ration(tank_id, current.date)
+        if row is not None and row["source"] == "config":
+            grams, pellet = self.planned(tank_id)
+            self.store.set_ration(tank_id, current.date, grams, pellet, "config", t)
+        return self.today(tank_id, t)
+
     def planned(self, tank_id: str) -> tuple[float, float]:
-        """(grams a day, pellet mm) from the config's biomass and the species table."""
+        """(grams a day, pellet mm) from the stock, the config's mean weight and the species table."""
         tank = self.cfg.tank(tank_id)
         row = self.species[tank.species].row(tank.mean_weight_g)
         rate = tank.feeding_rate_pct if tank.feeding_rate_pct is not None else row.rate_pct
-        return tank.stock * tank.mean_weight_g * rate / 100.0, row.pellet_mm
+        return self.stock(tank_id) * tank.mean_weight_g * rate / 100.0, row.pellet_mm
 
     def today(self, tank_id: str, t: float) -> Ration:
         date = self.date(t)

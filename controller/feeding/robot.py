@@ -74,6 +74,7 @@ class FeedingRobot:
         self.dispensing = Dispensing(cfg, clock, dispenser, store, rations, alarms, publish)
         self.dispensing.halted = lambda: self.lane.tripped
         self.pending: dict[str, Job] = {}
+        self.paused: set[str] = set(store.paused_tanks())   # tanks whose demands are not served
         self.failures = 0
         self._wake = asyncio.Event()          # a demand came, or an operator acted
         self._operator = asyncio.Event()      # an operator acted: only this cuts a back-off short
@@ -91,12 +92,27 @@ class FeedingRobot:
 
     # -- what the rest of the controller calls ---------------------------------
     def on_demand(self, job: Job) -> None:
+        if job.tank in self.paused:          # an operator paused the tank: its demands are not served
+            if job.demand_id is not None:
+                self.store.close_demand(job.demand_id, "paused")
+            return
         if job.tank in self.pending:         # fish still waiting: the older raise sets the deadline
             if job.demand_id is not None:
                 self.store.close_demand(job.demand_id, "merged")
             return
         self.pending[job.tank] = job
         self._wake.set()
+
+    def pause(self, tank: str) -> None:
+        """Serve the tank no more (its waiting demand is closed ``paused``); a portion already on its
+        way finishes."""
+        self.paused.add(tank)
+        job = self.pending.get(tank)
+        if job is not None:
+            self._finish(job, "paused")
+
+    def resume(self, tank: str) -> None:
+        self.paused.discard(tank)
 
     async def emergency_stop(self, reason: str) -> bool:
         """Latch auger, refill gate and drive stopped now, from any state; safe to call twice.

@@ -38,15 +38,22 @@ def test_retried_alarm_with_varying_text_is_one_row_and_one_publish(ledger):
     assert len(store.alarms()) == 1 and len(published) == 1
     suffix, payload, reliable = published[0]
     assert suffix == "alarm/device/rail" and reliable
-    assert payload == {"t": alarms.clock.iso(T0 + 0.5), "severity": "warning",
-                       "text": "no status frame for 0.50 s", "active": True, "kind": "unreachable"}
+    first = alarms.clock.iso(T0 + 0.5)
+    assert payload == {"t": first, "severity": "warning", "text": "no status frame for 0.50 s", "active": True,
+                       "kind": "unreachable", "count": 1, "first_t": first, "last_t": first, "acked": False,
+                       "acked_by": None, "acked_t": None}
     [shown] = alarms.listing()
     assert shown["text"] == "no status frame for 1.49 s" and shown["repeats"] == 99   # status: the latest
+    assert (shown["count"], shown["first_t"], shown["last_t"]) == (100, first, alarms.clock.iso(T0 + 50))
     assert alarms.clear("device/rail", "connected") is True
     assert alarms.clear("device/rail", "connected") is False
     assert [(r["active"], r["text"]) for r in store.alarms()] == [(1, "no status frame for 0.50 s"),
                                                                  (0, "connected")]
-    assert len(published) == 2 and published[1][1]["active"] is False and alarms.listing() == []
+    assert len(published) == 2 and published[1][1]["active"] is False and published[1][1]["count"] == 100
+    [shown] = alarms.listing()          # cleared, unacknowledged: shown until someone acknowledges it
+    assert shown["active"] is False and shown["acked"] is False and shown["text"] == "connected"
+    assert [a.key for a in alarms.ack("ana")] == [("device/rail", "unreachable")]
+    assert alarms.listing() == []
 
 
 def test_severity_change_is_news_and_kinds_are_separate_conditions(ledger):
@@ -165,3 +172,101 @@ def test_over_zenoh_a_hundred_retries_are_one_message(ledger):
         loop.call_soon_threadsafe(loop.stop)
         thread.join(5)
         loop.close()
+
+
+# ---------------------------------------------------------------- the alarm model (issue 8 part 5)
+
+def test_count_first_and_last_seen_across_repeats_clears_and_raises(ledger):
+    alarms, store, published = make(ledger)
+    for i in range(5):
+        alarms.clock.advance(1.0)
+        alarms.raise_("device/rail", f"timeout {i}", kind="unreachable")
+    alarms.clock.advance(1.0)
+    alarms.clear("device/rail", "back")
+    alarms.clock.advance(1.0)
+    assert alarms.raise_("device/rail", "timeout again", kind="unreachable")     # news again
+    a = alarms.known["device/rail", "unreachable"]
+    assert (a.count, a.first_t, a.last_t, a.t, a.active) == (6, T0 + 1, T0 + 7, T0 + 7, True)
+    assert len(store.alarms()) == 3 and len(published) == 3                      # raise, clear, raise
+    assert published[1][1]["count"] == 5 and published[2][1]["count"] == 6
+
+
+def test_acknowledged_but_active_stays_active_and_a_new_raise_needs_a_new_ack(ledger):
+    alarms, store, published = make(ledger)
+    alarms.raise_("feeder", "fault: rail", kind="fault")
+    alarms.clock.advance(2.0)
+    [acked] = alarms.ack("ana", "feeder")
+    assert acked.acked_by == "ana" and acked.acked_t == T0 + 2 and ("feeder", "fault") in alarms.active
+    assert published[-1][1] | {} == published[-1][1] and published[-1][1]["acked"] is True
+    assert published[-1][1]["acked_by"] == "ana" and published[-1][1]["active"] is True
+    [shown] = alarms.listing()
+    assert shown["active"] and shown["acked"] and shown["acked_by"] == "ana"
+    assert alarms.ack("bob", "feeder") == []                         # acknowledged once
+    assert not alarms.raise_("feeder", "fault: rail again", kind="fault")      # a repeat: still acked
+    assert alarms.known["feeder", "fault"].acked
+    assert alarms.raise_("feeder", "fault: rail", "critical", kind="fault")    # worse: ack again
+    assert not alarms.known["feeder", "fault"].acked
+    alarms.ack("ana", "feeder", "fault")
+    alarms.clear("feeder", "back in service")
+    assert alarms.listing() == []                  # cleared and acknowledged: nothing to show
+    alarms.raise_("feeder", "fault: rail", kind="fault")                       # raised again
+    [shown] = alarms.listing()
+    assert shown["acked"] is False and shown["acked_by"] is None and shown["count"] == 4
+    with pytest.raises(LookupError):
+        alarms.ack("ana", "nobody")
+    with pytest.raises(LookupError):
+        alarms.ack("ana", "feeder", "nokind")
+
+
+def test_the_model_survives_a_restart(ledger):
+    alarms, store, _ = make(ledger)
+    for _ in range(3):
+        alarms.raise_("sensor/T1-a", "stuck", kind="stuck")
+    alarms.raise_("estop", "operator", "critical", kind="latched")
+    alarms.ack("ana", "estop")
+    alarms.raise_("feeder", "fault", kind="fault")
+    alarms.clear("feeder")
+    counts = {r["source"]: r["count"] for r in store.alarm_states()}
+    assert counts["sensor/T1-a"] == 1                      # the repeats are held back...
+    alarms.flush()                                         # ...until a clean stop writes them
+    store.close()
+    again, store, _ = make(ledger)
+    assert set(again.active) == {("sensor/T1-a", "stuck"), ("estop", "latched")}
+    assert again.known["sensor/T1-a", "stuck"].count == 3
+    assert again.known["estop", "latched"].acked_by == "ana"
+    assert [(a["source"], a["active"], a["acked"]) for a in again.listing()] == [
+        ("estop", True, True), ("sensor/T1-a", True, False), ("feeder", False, False)]
+
+
+def test_repeats_are_written_at_most_once_a_minute_not_once_each(ledger, monkeypatch):
+    alarms, store, _ = make(ledger)
+    writes = []
+    save = store.save_alarm_state
+    monkeypatch.setattr(store, "save_alarm_state", lambda **f: (writes.append(f["count"]), save(**f)))
+    for _ in range(240):                      # two minutes of a retry every half second
+        alarms.clock.advance(0.5)
+        alarms.raise_("device/rail", "no status frame", kind="unreachable")
+    assert writes[0] == 1 and 2 <= len(writes) <= 4
+    assert store.alarm_states()[0]["count"] >= 240 - 2 * 60     # a crash loses under a minute's count
+    alarms.clear("device/rail")
+    assert store.alarm_states()[0]["count"] == 240              # the clear writes it exactly
+
+
+def test_a_version_3_ledger_keeps_its_alarms_meaningful(ledger):
+    db = sqlite3.connect(ledger)
+    db.executescript(";".join(MIGRATIONS[:3]) + "; PRAGMA user_version = 3;")
+    rows = [("estop", "latched", 1, "critical", "stop", 1), ("feeder", "fault", 2, "warning", "x", 1),
+            ("feeder", "fault", 3, "warning", "ok", 0), ("feeder", "fault", 4, "warning", "y", 1),
+            ("feeder", "fault", 5, "critical", "y", 1), ("sim", "exited", 6, "critical", "code 1", 1),
+            ("sim", "exited", 7, "critical", "back", 0)]
+    db.executemany("INSERT INTO alarm (source, kind, t, severity, text, active) VALUES (?, ?, ?, ?, ?, ?)", rows)
+    db.commit()
+    db.close()
+    alarms, store, _ = make(ledger)
+    assert set(alarms.active) == {("estop", "latched"), ("feeder", "fault")}
+    f = alarms.known["feeder", "fault"]
+    assert (f.count, f.first_t, f.last_t, f.severity, f.acked) == (3, 2, 5, "critical", False)
+    s = alarms.known["sim", "exited"]
+    assert not s.active and s.acked                # cleared before anyone could acknowledge: not shown
+    assert [a["source"] for a in alarms.listing()] == ["estop", "feeder"]
+    assert len(store.alarms()) == len(rows)        # the history is kept as it was

@@ -1,0 +1,123 @@
+"""``fishfarm audit``: print the audit of operator overrides from the controller's ledger.
+
+    fishfarm audit [--since ISO-or-duration] [--operator NAME] [--config farm.toml | --db PATH] [--json]
+
+Every override the controller answered, accepted or refused, e-stop included (controller.records):
+when, who (the authenticated user; a name only the payload claimed is shown as "NAME (claimed)"),
+the command, from where, the result and the payload as received (escaped, bounded). ``--since``
+takes an ISO time (``2026-06-01T06:00``, UTC unless it names an offset) or a duration back from
+now (``90s``, ``30m``, ``12h``, ``7d``). ``--operator`` matches the authenticated user or the
+claimed name. The ledger is opened read-only: the controller may be running.
+A table on a terminal, tab-separated lines otherwise, a JSON array with ``--json``.
+Bad input (an unreadable --since, no ledger, a ledger without an audit) exits 2 with one line.
+"""
+from __future__ import annotations
+
+import datetime as dt
+import json
+import re
+import sqlite3
+import sys
+import time
+from pathlib import Path
+
+import click
+
+from controller.errors import BadInput
+
+_DURATION = re.compile(r"^\s*(\d+(?:\.\d+)?)\s*(s|m|h|d|w)\s*$")
+_UNIT_S = {"s": 1, "m": 60, "h": 3600, "d": 86400, "w": 7 * 86400}
+COLUMNS = ("time", "who", "command", "origin", "result", "payload")
+
+
+def parse_since(text: str, now: float) -> float:
+    """Unix seconds from an ISO time or a duration back from ``now``; BadInput naming --since."""
+    m = _DURATION.match(text)
+    if m:
+        return now - float(m.group(1)) * _UNIT_S[m.group(2)]
+    try:
+        when = dt.datetime.fromisoformat(text.strip().replace("z", "Z"))
+    except ValueError:
+        raise BadInput("--since", None, f"{text[:60]!r} is neither an ISO time (2026-06-01T06:00) "
+                                        "nor a duration (90s, 30m, 12h, 7d)") from None
+    if when.tzinfo is None:
+        when = when.replace(tzinfo=dt.UTC)
+    return when.timestamp()
+
+
+def _iso(t: float) -> str:
+    return dt.datetime.fromtimestamp(t, dt.UTC).isoformat(timespec="milliseconds").replace("+00:00", "Z")
+
+
+def _ledger(config_path: str, db: str | None) -> str:
+    if db is not None:
+        return db
+    from controller.config import load_config
+    return load_config(config_path).store.path
+
+
+def read_audit(path: str, since: float | None, operator: str | None) -> list[dict]:
+    if not Path(path).is_file():
+        raise BadInput(path, None, "no such ledger (has the controller run with this config?)")
+    try:
+        db = sqlite3.connect(f"file:{Path(path).resolve()}?mode=ro", uri=True)
+    except sqlite3.Error as exc:
+        raise BadInput(path, None, f"cannot open the ledger: {exc}") from None
+    db.row_factory = sqlite3.Row
+    try:
+        sql, args = "SELECT * FROM audit WHERE 1 = 1", []
+        if since is not None:
+            sql, args = sql + " AND t >= ?", [since]
+        if operator is not None:
+            sql, args = sql + " AND (user = ? OR operator = ?)", [*args, operator, operator]
+        rows = db.execute(sql + " ORDER BY id", args).fetchall()
+    except sqlite3.OperationalError as exc:
+        why = ("no audit in this ledger (an older schema: the controller adds it when it starts)"
+               if "no such table" in str(exc) else f"cannot read the ledger: {exc}")
+        raise BadInput(path, None, why) from None
+    except sqlite3.DatabaseError as exc:
+        raise BadInput(path, None, f"not a ledger: {exc}") from None
+    finally:
+        db.close()
+    return [_entry(r) for r in rows]
+
+
+def _entry(row: sqlite3.Row) -> dict:
+    user, operator = row["user"], row["operator"]
+    return {"t": _iso(row["t"]), "who": user if user else f"{operator or 'unknown'} (claimed)",
+            "user": user, "operator": operator, "command": row["command"], "origin": row["origin"],
+            "ok": bool(row["ok"]), "result": row["result"], "reply": row["reply"], "payload": row["payload"]}
+
+
+def _cells(entry: dict) -> list[str]:
+    return [entry["t"], entry["who"], entry["command"], entry["origin"], entry["result"], entry["payload"] or ""]
+
+
+@click.command()
+@click.option("--since", default=None, metavar="ISO|DURATION", help="from this time, or this long ago (30m, 12h, 7d).")
+@click.option("--operator", default=None, metavar="NAME", help="only this user (authenticated or claimed).")
+@click.option("--config", "config_path", default="config/farm.toml", show_default=True,
+              help="farm config whose [store] path holds the ledger.")
+@click.option("--db", default=None, metavar="PATH", help="the ledger itself (instead of --config).")
+@click.option("--json", "as_json", is_flag=True, help="print a JSON array.")
+def audit(since, operator, config_path, db, as_json):
+    """Print the audit of operator overrides, oldest first."""
+    since_t = parse_since(since, time.time()) if since is not None else None
+    entries = read_audit(_ledger(config_path, db), since_t, operator)
+    if as_json:
+        click.echo(json.dumps(entries, ensure_ascii=False, indent=1))
+    elif sys.stdout.isatty():
+        from rich.console import Console
+        from rich.table import Table
+        from rich.text import Text
+        table = Table()
+        for col in COLUMNS:
+            table.add_column(col, overflow="fold", no_wrap=col in ("time", "command"))
+        for entry in entries:
+            table.add_row(*(Text(c) for c in _cells(entry)), style=None if entry["ok"] else "red")
+        Console().print(table)
+    else:
+        click.echo("\t".join(COLUMNS))
+        for entry in entries:
+            click.echo("\t".join(c.replace("\t", " ") for c in _cells(entry)))
+    return 0
