@@ -94,4 +94,16 @@ def test_people_reach_the_deployed_controller_as_their_role_allows(controller):
     proc = _fishfarm(endpoint, passwords, "viewer", "override", "estop", "--reason", "test")
     assert proc.returncode == 0, proc.stderr
     assert json.loads(proc.stdout) == {"ok": True, "confirmed": True}
-    assert "e-stop by tester" in log_path.read_text(errors="replace")
+    # the log and the audit name the login that sent it, the payload's claimed name beside it
+    assert "e-stop by viewer" in log_path.read_text(errors="replace")
+    rows, deadline = [], time.monotonic() + 10.0
+    while not any(r["command"] == "estop" for r in rows):     # written just after the reply
+        assert time.monotonic() < deadline, rows
+        time.sleep(0.05)
+        proc = subprocess.run([FISHFARM, "audit", "--db", str(log_path.parent / "ledger.db"), "--json"],
+                              capture_output=True, text=True, timeout=30)
+        assert proc.returncode == 0, proc.stderr
+        rows = json.loads(proc.stdout)
+    (estop,) = [r for r in rows if r["command"] == "estop"]
+    assert estop["user"] == "viewer" and estop["ok"], estop
+    assert not any(r["command"] == "reset" and r["ok"] for r in rows)      # the viewer's reset never ran
