@@ -157,6 +157,18 @@ class Overrides:
                       urgent={"estop": lambda: self.c.trip_estop("operator e-stop")})
         bus.queryable("status", self.status, lenient=True)
 
+    async def apply(self, command: str, payload: object, *, user: str | None = None,
+                    origin: str = "zenoh") -> dict:
+        """Every override, from Zenoh or Modbus (PLAN8's one entry). Minimal dispatcher until the
+        audit branch's lands: maps the command to its handler; never raises for bad input."""
+        handlers = {"estop": self.estop, "reset": self.reset, "manual": self.manual, "feed": self.feed,
+                    "ration": self.ration, "settle": self.settle}
+        handler = handlers.get(command)
+        if handler is None:
+            return {"ok": False, "error": f"command: not available yet: {printable(str(command), 40)}"}
+        log.info("override %s from %s (%s)", command, origin, user or "unauthenticated")
+        return await _answering(handler)(payload)
+
     async def status(self, payload) -> dict:
         return self.c.status()
 
