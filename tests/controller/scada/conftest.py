@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import asyncio
 import csv
+import logging
 import threading
 from pathlib import Path
 
@@ -88,6 +89,11 @@ class ServerThread:
 
 @pytest.fixture
 def serve():
+    # as `fishfarm run` sets it (controller/cli/run_cmd.py): pymodbus's error lines carry hex dumps of
+    # the last frames, which a garbage-sending client would otherwise have the server format for it
+    pymodbus_log = logging.getLogger("pymodbus")
+    level = pymodbus_log.level
+    pymodbus_log.setLevel(logging.CRITICAL)
     servers = []
 
     def start(controller: StandIn | None = None, **scada) -> ServerThread:
@@ -98,3 +104,4 @@ def serve():
     yield start
     for srv in servers:
         srv.stop()
+    pymodbus_log.setLevel(level)
