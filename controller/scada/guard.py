@@ -72,19 +72,22 @@ class Guard:
             return plan
         self.accepted += 1
         origin = f"modbus {peer}"
-        for entry, value in plan:
-            if not await self._act(entry, value, origin):
+        for i, (entry, value) in enumerate(plan):
+            if not await self._act(entry, value, origin, last=i == len(plan) - 1):
                 return ExcCodes.DEVICE_FAILURE
         self.coordinator.refresh()
         return None
 
-    async def _act(self, e: Entry, value, origin: str) -> bool:
+    async def _act(self, e: Entry, value, origin: str, last: bool = True) -> bool:
         who = self.scada.identity
         base = {"operator": who, "reason": f"SCADA write to {e.name}"}
         command = e.row.write.command
         if command == "estop":
             self.controller.trip_estop(f"modbus e-stop by {who}")     # the latches first, at once
-            self._later(self._apply("estop", base, origin))
+            if not last:            # what the same write asks next (a reset?) comes after the stop
+                await self._apply("estop", base, origin)
+            else:                   # the reply does not wait for the bookkeeping
+                self._later(self._apply("estop", base, origin))
             return True
         if command == "pause":
             return await self._apply("pause" if value else "resume", {**base, "tank": e.label}, origin)

@@ -73,7 +73,8 @@ TABLE: tuple[Row, ...] = (
     # -- the farm: is the controller alive, and how is the map laid out -------------------------
     Row("farm", "heartbeat", IR, 0, "u16", 1, "", "R", "counts up at every snapshot refresh (wraps 65534 -> 0): "
         "a value that stops moving is a frozen controller", lambda v: v.heartbeat),
-    Row("farm", "uptime_s", IR, 1, "u32", 1, "s", "R", "wall seconds since the controller started", lambda v: v.uptime_s),
+    Row("farm", "uptime_s", IR, 1, "u32", 1, "s", "R", "wall seconds since the controller started",
+        lambda v: v.uptime_s),
     Row("farm", "map_version", IR, 3, "u16", 1, "", "R", f"layout version of this map ({MAP_VERSION})",
         lambda v: MAP_VERSION),
     Row("farm", "tank_count", IR, 4, "u16", 1, "", "R", "tanks in the map, config order", lambda v: len(v.tanks)),
@@ -128,7 +129,8 @@ TABLE: tuple[Row, ...] = (
         write=Write("ack")),
     # -- per tank, config order -------------------------------------------------------------------
     Row("tank", "demand", IR, 0, "u16", 1, "", "R", "1: a validated demand waits to be served", _t("demand")),
-    Row("tank", "paused", IR, 1, "u16", 1, "", "R", "1: feeding paused by an operator", lambda v: _bit(v.tank.get("paused"))),
+    Row("tank", "paused", IR, 1, "u16", 1, "", "R", "1: feeding paused by an operator",
+        lambda v: _bit(v.tank.get("paused"))),
     Row("tank", "ration_g", IR, 2, "f32", 1, "g", "R", "today's ration", _t("ration_g")),
     Row("tank", "fed_g", IR, 4, "f32", 1, "g", "R", "fed today", _t("fed_g")),
     Row("tank", "pellet_mm", IR, 6, "f32", 1, "mm", "R", "pellet size of today's ration", _t("pellet_mm")),

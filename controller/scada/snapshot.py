@@ -120,9 +120,9 @@ class Coordinator:
             self.failed = False
         self.heartbeat = (self.heartbeat + 1) % 0xFFFF
         self.last_status = status
-        self.image = render(status, self.lay, heartbeat=self.heartbeat,
-                            uptime_s=status.get("uptime_s", self.monotonic() - self.started), word_order=self.cfg.word_order,
-                            read_only=self.cfg.read_only)
+        uptime_s = status.get("uptime_s", self.monotonic() - self.started)
+        self.image = render(status, self.lay, heartbeat=self.heartbeat, uptime_s=uptime_s,
+                            word_order=self.cfg.word_order, read_only=self.cfg.read_only)
 
 
 __all__ = ["COIL", "DI", "HR", "IR", "Coordinator", "View", "in_slot", "prepare", "refreshing", "render", "unix"]

@@ -5,9 +5,8 @@ import subprocess
 import sys
 import tomllib
 
-import tomli_w
-
 import pytest
+import tomli_w
 from hypothesis import given
 from hypothesis import strategies as st
 

@@ -44,7 +44,7 @@ def random_status(rng: random.Random, tanks: list[str], slots: list[str]) -> dic
 
 def expected(row: dict, st: dict, tanks: list[str], word_order: str, read_only: bool):
     """What a row must read, from the map's words and the status — independently of the server."""
-    name, dtype = row["name"], row["data_type"]
+    name = row["name"]
     if row["access"] == "W":
         return 0                                     # momentary commands read 0
 
@@ -97,7 +97,8 @@ def check_row(row, got, value, word_order):
     elif value is None:
         assert got == NO_VALUE[dtype], row["name"]
     else:
-        raw = got[0] if WIDTH[dtype] == 1 else ((got[0] << 16) | got[1] if word_order == "big" else (got[1] << 16) | got[0])
+        words = got if word_order == "big" else got[::-1]
+        raw = words[0] if WIDTH[dtype] == 1 else (words[0] << 16) | words[1]
         assert raw == value, row["name"]
 
 
