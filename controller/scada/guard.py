@@ -65,7 +65,9 @@ class Guard:
         return value
 
     # -- acting -------------------------------------------------------------------------------
-    async def write(self, kind: str, address: int, values: list, peer: str) -> ExcCodes | None:
+    async def write(self, kind: str, address: int, values: list, peer: str, *,
+                    tripped: bool = False) -> ExcCodes | None:
+        """``tripped``: the connection already tripped the latches for this very frame."""
         plan = self.check(kind, address, values)
         if isinstance(plan, ExcCodes):
             self.refused += 1
@@ -73,17 +75,18 @@ class Guard:
         self.accepted += 1
         origin = f"modbus {peer}"
         for i, (entry, value) in enumerate(plan):
-            if not await self._act(entry, value, origin, last=i == len(plan) - 1):
+            if not await self._act(entry, value, origin, last=i == len(plan) - 1, tripped=tripped):
                 return ExcCodes.DEVICE_FAILURE
         self.coordinator.refresh()
         return None
 
-    async def _act(self, e: Entry, value, origin: str, last: bool = True) -> bool:
+    async def _act(self, e: Entry, value, origin: str, last: bool = True, tripped: bool = False) -> bool:
         who = self.scada.identity
         base = {"operator": who, "reason": f"SCADA write to {e.name}"}
         command = e.row.write.command
         if command == "estop":
-            self.controller.trip_estop(f"modbus e-stop by {who}")     # the latches first, at once
+            if not tripped:
+                self.controller.trip_estop(f"modbus e-stop by {who}")     # the latches first, at once
             if not last:            # what the same write asks next (a reset?) comes after the stop
                 await self._apply("estop", base, origin)
             else:                   # the reply does not wait for the bookkeeping

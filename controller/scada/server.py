@@ -32,7 +32,7 @@ from controller.scada.register_map import COIL, DI, HR, IR, Layout
 
 log = logging.getLogger("fishfarm.scada")
 
-PEER: contextvars.ContextVar[str] = contextvars.ContextVar("scada_peer", default="?")
+PEER: contextvars.ContextVar = contextvars.ContextVar("scada_peer", default=None)   # the _Connection
 ECHO: contextvars.ContextVar[list | None] = contextvars.ContextVar("scada_echo", default=None)
 READ_KIND = {1: COIL, 2: DI, 3: HR, 4: IR, 23: HR}
 WRITE_KIND = {5: COIL, 15: COIL, 6: HR, 16: HR, 23: HR}
@@ -82,12 +82,20 @@ class ScadaStore:
         values = list(values) if isinstance(values, (list, tuple)) else [values]
         if func_code in (5, 6):
             ECHO.set(values)
-        return await self.guard.write(kind, address, values, PEER.get())
+        conn = PEER.get()
+        return await self.guard.write(kind, address, values, conn.peer if conn is not None else "?",
+                                      tripped=conn is not None and conn.take_trip())
 
 
 class _Connection(ServerRequestHandler):
     peer = "?"
     last_heard = 0.0
+    tripped = False
+
+    def take_trip(self) -> bool:
+        """Whether this request's e-stop was tripped on arrival (then the guard does not again)."""
+        tripped, self.tripped = self.tripped, False
+        return tripped
 
     def callback_connected(self) -> None:
         super().callback_connected()
@@ -113,6 +121,9 @@ class _Connection(ServerRequestHandler):
             log.debug("scada: %s sent a broken MBAP header; dropped", self.peer)
             self.close()
             return len(data)
+        if self.server.urgent is not None and self.server.estop_frame(data):
+            self.tripped = True
+            self.server.urgent()       # the latches now, before pymodbus schedules the request
         try:
             return super().callback_data(data, addr)
         except Exception as exc:     # a frame pymodbus cannot take apart: this client only loses
@@ -122,7 +133,7 @@ class _Connection(ServerRequestHandler):
             return len(data)
 
     async def handle_request(self):
-        PEER.set(self.peer)      # this request's task only: the store names the peer in the audit
+        PEER.set(self)           # this request's task only: the store names the peer in the audit
         await super().handle_request()
 
 
@@ -139,6 +150,15 @@ class ScadaServer(ModbusTcpServer):
         self.scada = scada_cfg
         self.refused = self.broken = self.idled = 0
         self.refusing = False
+        self.urgent = None           # set by the service: trips the e-stop latches
+        # the one frame acted on before parsing, as Zenoh's estop is: a complete FC 5 writing ON
+        # to the e-stop coil, for this unit, with writes allowed — always a write the guard takes
+        coil = next(e.address for e in store.lay.by_kind(COIL) if e.name == "estop")
+        self._estop = None if scada_cfg.read_only else (
+            b"\x00\x00\x00\x06" + bytes([scada_cfg.unit, 5]) + coil.to_bytes(2, "big") + b"\xff\x00")
+
+    def estop_frame(self, data: bytes) -> bool:
+        return self._estop is not None and len(data) == 12 and data[2:] == self._estop
 
     def callback_new_connection(self):
         return _Connection(self, self.trace_packet, self.trace_pdu, self.trace_connect)

@@ -18,6 +18,7 @@ LISTEN_BACKOFF_S = (1.0, 2.0, 5.0, 10.0, 30.0)
 class Scada:
     def __init__(self, controller, cfg, *, alarms=None):
         self.cfg, self.scada = cfg, cfg.scada
+        self.controller = controller
         self.alarms = alarms
         self.lay = layout(cfg)
         self.coordinator = Coordinator(controller.status, self.lay, self.scada)
@@ -28,6 +29,7 @@ class Scada:
 
     async def listen(self) -> bool:
         server = ScadaServer(self.store, self.scada, self.cfg.site)
+        server.urgent = lambda: self.controller.trip_estop(f"modbus e-stop by {self.scada.identity}")
         if not await server.listen():
             return False
         self.server = server

@@ -172,3 +172,22 @@ def test_ten_thousand_generated_writes(serve):
         assert seen(stand_in, before) == [("feed", {"tank": "T1", "grams": 20.0})]
     finally:
         c.close()
+
+
+def test_the_estop_frame_trips_once_and_only_for_this_unit(serve):
+    """The e-stop coil's FC 5 trips the latches as it arrives; the guard does not trip it again."""
+    stand_in = StandIn()
+    srv = serve(stand_in)
+    c = Mbap(srv.port)
+    try:
+        got, data = c.call(5, struct.pack(">HH", 0, 0xFF00), unit=7)
+        assert got == 0x85 and data[0] == 0x0B and stand_in.trips == []
+        assert c.write("coil", 0, [1]) is None
+        srv.call(lambda: None)
+        assert stand_in.trips == ["modbus e-stop by scada"]
+        assert [call[0] for call in stand_in.calls] == ["estop"]
+        # e-stop and a 0 to reset in one FC 15: refused whole (03), and nothing tripped on arrival
+        assert c.write("coil", 0, [1, 0], single=False) == ("exception", 3)
+        assert stand_in.trips == ["modbus e-stop by scada"]
+    finally:
+        c.close()
