@@ -202,7 +202,8 @@ def main() -> dict:
         out["reads_during_estops"] = n2 - n1
         for kind in ("modbus", "zenoh"):
             disp, drive, stopped = samples[kind]
-            out[f"estop_{kind}"] = ({"samples": len(stopped), "missing": missing[kind], "stopped": figures(stopped),
+            out[f"estop_{kind}"] = ({"samples": len(stopped), "missing": missing[kind],
+                                     "stopped": {**figures(stopped), "p90_ms": round(pct(stopped, 0.9), 2)},
                                      "dispenser": figures(disp), "drive": figures(drive), "goal_p99_ms": GOAL_MS,
                                      "goal_met": pct(stopped, 0.99) <= GOAL_MS and missing[kind] == 0}
                                     if stopped else {"samples": 0, "missing": missing[kind], "goal_met": False})
