@@ -109,11 +109,11 @@ class Coordinator:
             status = self.status()
         except Exception:        # never the end of the server: the heartbeat stops, SCADA sees it
             if not self.failed:
-                log.exception("scada: status() failed; the snapshot (and heartbeat) hold still")
+                log.exception("scada: status() failed; every value reads \"no value\", the heartbeat holds")
             self.failed = True
-            if not self.image:       # the server still answers: every value "no value"
-                self.image = render({}, self.lay, heartbeat=self.heartbeat, uptime_s=0.0,
-                                    word_order=self.cfg.word_order, read_only=self.cfg.read_only)
+            # what the controller cannot say now reads "no value", never the last number it said
+            self.image = render({}, self.lay, heartbeat=self.heartbeat, uptime_s=self.monotonic() - self.started,
+                                word_order=self.cfg.word_order, read_only=self.cfg.read_only)
             return
         if self.failed:
             log.info("scada: status() answers again")

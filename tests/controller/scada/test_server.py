@@ -150,3 +150,34 @@ def test_reads_beyond_the_map_and_other_units_are_refused(serve):
         assert got == 0x84 and data[0] == 0x0B          # gateway target failed to respond: not this unit
     finally:
         client.close()
+
+
+class Failing(StandIn):
+    broken = False
+
+    def status(self):
+        if self.broken:
+            raise RuntimeError("status is broken")
+        return super().status()
+
+
+def test_a_failing_status_reads_no_value_not_the_last_number(serve):
+    stand_in = Failing({"t": "2026-06-01T00:00:00.000Z", "feeder": {"state": "idle", "position_m": 4.5},
+                        "tanks": {"T1": {"ration_g": 250.0}}, "alarms": []})
+    srv = serve(stand_in)
+    client = Mbap(srv.port)
+    try:
+        srv.refresh()
+        assert words_f32(client.read("input register", 102, 2), "big") == 250.0
+        [beat] = client.read("input register", 0)
+        stand_in.broken = True
+        srv.refresh()
+        x = words_f32(client.read("input register", 102, 2), "big")
+        assert x != x and words_f32(client.read("input register", 11, 2), "big") != 4.5    # NaN, not 250 / 4.5
+        assert client.read("input register", 0) == [beat]             # the heartbeat holds: SCADA sees it stop
+        stand_in.broken = False
+        srv.refresh()
+        assert words_f32(client.read("input register", 102, 2), "big") == 250.0
+        assert client.read("input register", 0) == [(beat + 1) % 0xFFFF]
+    finally:
+        client.close()
