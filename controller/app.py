@@ -24,6 +24,7 @@ from controller.feeding.estop import EstopLane, log_latch
 from controller.feeding.rations import Rations, load_species, ration_payload
 from controller.feeding.robot import FeedingRobot, Job
 from controller.overrides import Overrides
+from controller.scada.service import Scada
 from controller.shutdown import install_signal_handlers
 from controller.simproc import SimProcess
 from controller.store import Store, reconcile
@@ -75,6 +76,8 @@ class Controller:
         self.watchdog: shutdown.StopWatchdog | None = None
         self._starting: asyncio.Task | None = None
         self._stopped = False
+        self.scada: Scada | None = None
+        self.started_monotonic = time.monotonic()
         self.species = load_species()
         check_farm(cfg, self.species)
         # every section is checked before anything starts: a bad key is one line and exit 2, not a
@@ -115,6 +118,9 @@ class Controller:
         self.lane.listen(self._lane_report_before_start)
         self.overrides = Overrides(self)
         self.overrides.declare(self.bus)
+        if cfg.scada is not None and cfg.scada.enabled:     # SCADA sees (and can e-stop) a starting controller
+            self.scada = Scada(self, cfg, alarms=self.alarms)
+            self.tasks.append(asyncio.create_task(self._supervise(self._scada)))
         await asyncio.gather(*(self._open(device) for device in self.devices.values()))
         if self.stopping.is_set():                # stopped while waiting for a device: start nothing
             return
@@ -129,6 +135,9 @@ class Controller:
         # collection (which holds the GIL, so the e-stop's threads too) takes ~1 ms, not ~70
         gc.freeze()
         log.info("controller for site %s up: %d tanks", cfg.site, len(cfg.tanks))
+
+    async def _scada(self) -> None:
+        await self.scada.run()
 
     def trip_estop(self, reason: str = "operator e-stop") -> None:
         """From any thread (the Zenoh thread that got the query): latch the devices now, before
@@ -437,7 +446,8 @@ class Controller:
                               "demand_t": None if job is None else self.clock.iso(job.t),
                               "fed_g": round(r.fed_g, 1), "ration_g": round(r.grams, 1),
                               "pellet_mm": r.pellet_mm, "stock": self.rations.stock(tank.id),
-                              "paused": tank.id in paused}
+                              "paused": tank.id in paused, "mean_weight_g": tank.mean_weight_g,
+                              "last_survey_t": None}
             demand = getattr(self, "filter", None)     # absent while the controller starts
             note = demand.slow_fish(tank.id) if demand is not None and tank.id in demand.tanks else None
             if note is not None:
@@ -445,6 +455,7 @@ class Controller:
         feeder = self.robot.snapshot() if self.robot is not None else {
             "t": self.clock.iso(now), "state": "starting", "position_m": None, "hopper_g": None}
         out = {"t": self.clock.iso(now), "site": self.cfg.site, "feeder": feeder,
+               "uptime_s": round(time.monotonic() - self.started_monotonic, 3),
                "tanks": tanks,
                "alarms": self.alarms.listing()}
         suspects = store.suspects() if store is not None and store.db is not None else []

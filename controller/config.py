@@ -40,6 +40,21 @@ class StoreConfig(Strict):
     path: str = "var/fishfarm.db"
 
 
+class ScadaConfig(Strict):
+    """``[scada]``: the Modbus TCP server for SCADA (controller/scada). No section, no server."""
+    enabled: bool = True
+    listen: str = Field("127.0.0.1", min_length=1, max_length=255, description="address to listen on")
+    port: int = Field(5020, ge=0, le=65535, description="0: any free port (logged)")
+    unit: int = Field(1, ge=1, le=247, description="Modbus unit id answered; others get exception 0B")
+    word_order: Literal["big", "little"] = Field("big", description="32-bit values: big = high word first")
+    read_only: bool = Field(False, description="refuse every write (exception 02)")
+    identity: str = Field("scada", pattern=r"^[A-Za-z0-9_.@-]{1,64}$",
+                          description="the operator Modbus writes are audited as")
+    idle_timeout_s: float = Field(60.0, gt=0, le=DAY_S, description="a connection silent this long is dropped")
+    max_connections: int = Field(8, ge=1, le=1000, description="connections beyond are closed at once")
+    refresh_s: float = Field(0.25, ge=0.01, le=60, description="wall seconds between snapshot refreshes")
+
+
 class TankConfig(Strict):
     id: str = Field(pattern=r"^[A-Za-z0-9_-]{1,32}$")
     species: str = "sparus_aurata"
@@ -87,6 +102,7 @@ class Config(Strict):
     utc_offset_h: float = Field(0.0, ge=-14, le=14, description="rations reset at local midnight")
     bus: BusConfig = BusConfig()
     store: StoreConfig = StoreConfig()
+    scada: ScadaConfig | None = None
     feeding: FeedingConfig = FeedingConfig()
     demand: dict[str, Any] = {}
     tanks: list[TankConfig] = Field(min_length=1)

@@ -59,6 +59,9 @@ class HilFarm:
         self.truth_path = self.dir / "truth.jsonl"
         self.db_path = self.dir / "ledger.db"
         self.zenoh_port = free_port()
+        self.scada_port = free_port()
+        if "scada" in self.config:            # the SCADA server too: never the demo's 5020
+            self.config["scada"]["port"] = self.scada_port
 
     # -- clock ----------------------------------------------------------------
     def clock_args(self) -> list[str]:

@@ -84,6 +84,7 @@ class RunningController:
         self.zenoh = f"tcp/127.0.0.1:{free_port()}"
         self.silent: SilentPlc | None = None
         raw = tomllib.loads((ROOT / "config" / "farm.toml").read_text())
+        raw["scada"]["port"] = 0    # any free port: runs must not collide with the demo's 5020
         raw["bus"] = {"mode": "peer", "listen": [self.zenoh], "connect": []}
         raw["store"] = {"path": str(self.db)}
         raw["devices"]["dispenser"]["port"] = 0

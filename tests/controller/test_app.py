@@ -22,6 +22,7 @@ def free_port():
 def test_operator_drives_the_controller_over_zenoh(tmp_path):
     port = free_port()
     raw = tomllib.loads(open("config/farm.toml").read())
+    raw["scada"]["port"] = 0    # any free port: runs must not collide with the demo's 5020
     raw["bus"] = {"listen": [f"tcp/127.0.0.1:{port}"]}
     raw["store"] = {"path": str(tmp_path / "ledger.db")}
     (tmp_path / "farm.toml").write_text(tomli_w.dumps(raw))
@@ -80,6 +81,7 @@ def test_operator_drives_the_controller_over_zenoh(tmp_path):
 def test_waits_for_absent_devices_yet_answers_and_estops(tmp_path):
     port, dead_port = free_port(), free_port()
     raw = tomllib.loads(open("config/farm.toml").read())
+    raw["scada"]["port"] = 0    # any free port: runs must not collide with the demo's 5020
     raw["bus"] = {"listen": [f"tcp/127.0.0.1:{port}"]}
     raw["store"] = {"path": str(tmp_path / "ledger.db")}
     raw["devices"] = {

@@ -101,6 +101,7 @@ def test_a_dead_simulator_is_reaped_and_alarmed_at_once(controller):
 
 def absent_farm(tmp_path):
     raw = tomllib.loads((ROOT / "config" / "farm.toml").read_text())
+    raw["scada"]["port"] = 0    # any free port: runs must not collide with the demo's 5020
     raw.pop("sim")
     raw["store"] = {"path": str(tmp_path / "ledger.db")}
     raw["devices"] = {

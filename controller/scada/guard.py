@@ -1,0 +1,125 @@
+"""The guard on Modbus writes: only the map's writable addresses (else exception 02), only values in
+the row's range (else 03), nothing at all with ``read_only`` (02); a write is checked whole before
+anything is done. Each accepted value becomes an override through
+``controller.overrides.apply(command, payload, user=<[scada] identity>, origin="modbus <peer>")``;
+an override the controller refuses (feeder in e-stop, ration already fed...) answers 04.
+
+The e-stop coil trips the devices' latches synchronously first (``controller.trip_estop``), then
+the override's bookkeeping runs as a task: the reply does not wait for it.
+"""
+from __future__ import annotations
+
+import asyncio
+import logging
+import math
+
+from pymodbus.constants import ExcCodes
+
+from controller.scada.register_map import COIL, Entry, Layout, decode
+from controller.scada.snapshot import in_slot
+
+log = logging.getLogger("fishfarm.scada")
+
+
+class Guard:
+    def __init__(self, lay: Layout, farm_cfg, scada_cfg, controller, coordinator):
+        self.lay, self.farm, self.scada = lay, farm_cfg, scada_cfg
+        self.controller, self.coordinator = controller, coordinator
+        self.writable = {kind: {e.address: e for e in lay.by_kind(kind) if e.row.write is not None}
+                         for kind in (COIL, "holding register")}
+        self.accepted = self.refused = 0
+        self._tasks: set[asyncio.Task] = set()
+
+    # -- checking -----------------------------------------------------------------------------
+    def check(self, kind: str, address: int, values: list) -> list[tuple[Entry, object]] | ExcCodes:
+        """The (entry, value) pairs a write means, or the exception code that refuses all of it."""
+        if self.scada.read_only:
+            return ExcCodes.ILLEGAL_ADDRESS
+        at, plan, i = self.writable.get(kind, {}), [], 0
+        if not values:
+            return ExcCodes.ILLEGAL_VALUE
+        while i < len(values):
+            e = at.get(address + i)
+            if e is None or i + e.words > len(values):       # not writable, or half a 32-bit value
+                return ExcCodes.ILLEGAL_ADDRESS
+            value = self._value(e, values[i:i + e.words])
+            if value is None:
+                return ExcCodes.ILLEGAL_VALUE
+            plan.append((e, value))
+            i += e.words
+        return plan
+
+    def _value(self, e: Entry, words: list):
+        """The value written, or None when the row does not take it."""
+        row = e.row
+        if row.dtype == "bool":
+            on = bool(words[0])
+            # e-stop, reset and acknowledge are commands: 0 would claim a release they cannot give
+            return on if on or row.write.command == "pause" else None
+        value = decode(row.dtype, [int(w) & 0xFFFF for w in words], row.scale, self.scada.word_order)
+        if value is None or not math.isfinite(value):
+            return None
+        lo, hi = row.write.limits(self.farm)
+        if (lo is not None and value < lo) or (hi is not None and value > hi):
+            return None
+        return value
+
+    # -- acting -------------------------------------------------------------------------------
+    async def write(self, kind: str, address: int, values: list, peer: str, *,
+                    tripped: bool = False) -> ExcCodes | None:
+        """``tripped``: the connection already tripped the latches for this very frame."""
+        plan = self.check(kind, address, values)
+        if isinstance(plan, ExcCodes):
+            self.refused += 1
+            return plan
+        self.accepted += 1
+        origin = f"modbus {peer}"
+        for i, (entry, value) in enumerate(plan):
+            if not await self._act(entry, value, origin, last=i == len(plan) - 1, tripped=tripped):
+                return ExcCodes.DEVICE_FAILURE
+        self.coordinator.refresh()
+        return None
+
+    async def _act(self, e: Entry, value, origin: str, last: bool = True, tripped: bool = False) -> bool:
+        who = self.scada.identity
+        base = {"operator": who, "reason": f"SCADA write to {e.name}"}
+        command = e.row.write.command
+        if command == "estop":
+            if not tripped:
+                self.controller.trip_estop(f"modbus e-stop by {who}")     # the latches first, at once
+            if not last:            # what the same write asks next (a reset?) comes after the stop
+                await self._apply("estop", base, origin)
+            else:                   # the reply does not wait for the bookkeeping
+                self._later(self._apply("estop", base, origin))
+            return True
+        if command == "pause":
+            return await self._apply("pause" if value else "resume", {**base, "tank": e.label}, origin)
+        if command in ("feed", "ration"):
+            return await self._apply(command, {**base, "tank": e.label, "grams": float(value)}, origin)
+        if command == "ack" and e.label is None:
+            return await self._apply("ack", {**base, "all": True}, origin)
+        if command == "ack":            # an alarm slot: each of its standing sources
+            status = self.coordinator.last_status or {}
+            sources = sorted({a["source"] for a in status.get("alarms", []) if in_slot(a.get("source", ""), e.label)})
+            results = [await self._apply("ack", {**base, "source": s}, origin) for s in sources]
+            return all(results)
+        return await self._apply(command, base, origin)      # reset
+
+    async def _apply(self, command: str, payload: dict, origin: str) -> bool:
+        try:
+            reply = await self.controller.overrides.apply(command, payload, user=self.scada.identity, origin=origin)
+        except Exception:
+            log.exception("scada: override %s failed", command)
+            return False
+        if not reply.get("ok"):
+            log.warning("scada: %s from %s refused: %s", command, origin, reply.get("error"))
+            return False
+        return True
+
+    def _later(self, coro) -> None:
+        task = asyncio.ensure_future(coro)
+        self._tasks.add(task)
+        task.add_done_callback(self._tasks.discard)
+
+
+__all__ = ["Guard"]

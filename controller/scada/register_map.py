@@ -1,0 +1,339 @@
+"""The Modbus register map: ONE table (``TABLE``), laid out per farm by ``layout(cfg)``.
+
+Each row is one value of a block: the farm, the feeder, the cleaner, the alarm summary, one alarm
+slot (repeated per slot) or one tank (repeated per tank, in config order). A row's ``offset`` is
+its address within its block; ``BLOCKS`` gives each block's base address and stride per table.
+Everything else — config/modbus_map.csv, README's table, the server's reads and the guard on its
+writes — is generated from these two.
+
+    python -m controller.scada.register_map [--config config/farm.toml] > config/modbus_map.csv
+    python -m controller.scada.register_map --markdown      # README's block table
+"""
+from __future__ import annotations
+
+import csv
+import io
+import math
+import struct
+import sys
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+COIL, DI, IR, HR = "coil", "discrete input", "input register", "holding register"
+KINDS = (COIL, DI, IR, HR)
+WORDS = {"bool": 1, "u16": 1, "i16": 1, "u32": 2, "i32": 2, "f32": 2}
+# "no value": what a register reads while the controller does not know the value (SunSpec's markers)
+NO_VALUE = {"u16": 0xFFFF, "i16": -0x8000, "u32": 0xFFFF_FFFF, "i32": -0x8000_0000, "f32": math.nan}
+MAP_VERSION = 1
+FEEDER_STATES = ("starting", "idle", "homing", "moving", "dispensing", "refilling", "fault", "estop", "manual")
+SEVERITY = {None: 0, "info": 1, "warning": 2, "critical": 3}
+MAX_SLOTS = 40
+RATION_MAX_G = 1_000_000.0     # as controller/overrides.py: a tonne a day for one tank
+
+
+@dataclass(frozen=True)
+class Write:
+    """What a write to the row means: the override command, and the values accepted (others: 03)."""
+    command: str
+    limits: Callable = lambda cfg: (None, None)     # (lowest, highest) accepted, from the config
+
+
+@dataclass(frozen=True)
+class Row:
+    block: str
+    name: str
+    kind: str
+    offset: int
+    dtype: str
+    scale: float
+    units: str
+    access: str             # R, R/W, or W (a momentary command: reads 0)
+    description: str
+    value: Callable = field(default=lambda v: None, repr=False)   # View -> python value or None
+    write: Write | None = None
+
+
+def _t(key):
+    return lambda v: v.tank.get(key)
+
+
+def _feeder_state(v):
+    state = v.s["feeder"].get("state")
+    return FEEDER_STATES.index(state) if state in FEEDER_STATES else None
+
+
+def _bit(x):
+    return None if x is None else int(bool(x))
+
+
+_FEED = Write("feed", lambda cfg: (math.ceil(cfg.feeding.min_portion_g), math.floor(cfg.feeding.portion_g)))
+_STATES = ", ".join(f"{i} {s}" for i, s in enumerate(FEEDER_STATES))
+
+TABLE: tuple[Row, ...] = (
+    # -- the farm: is the controller alive, and how is the map laid out -------------------------
+    Row("farm", "heartbeat", IR, 0, "u16", 1, "", "R", "counts up at every snapshot refresh (wraps 65534 -> 0): "
+        "a value that stops moving is a frozen controller", lambda v: v.heartbeat),
+    Row("farm", "uptime_s", IR, 1, "u32", 1, "s", "R", "wall seconds since the controller started",
+        lambda v: v.uptime_s),
+    Row("farm", "map_version", IR, 3, "u16", 1, "", "R", f"layout version of this map ({MAP_VERSION})",
+        lambda v: MAP_VERSION),
+    Row("farm", "tank_count", IR, 4, "u16", 1, "", "R", "tanks in the map, config order", lambda v: len(v.tanks)),
+    Row("farm", "word_order", IR, 5, "u16", 1, "", "R", "32-bit word order in use: 0 big (high word first), "
+        "1 little (low word first)", lambda v: int(v.word_order == "little")),
+    Row("farm", "farm_time", IR, 6, "u32", 1, "s", "R", "the farm clock of the snapshot, Unix seconds UTC",
+        lambda v: v.s.get("t_unix")),
+    Row("farm", "estop", COIL, 0, "bool", 1, "", "R/W", "e-stop latch: write 1 stops auger and drive at once "
+        "(latched, as the Zenoh estop); writing 0 is refused (03): release with reset. Reads 1 while latched",
+        lambda v: v.s["feeder"].get("state") == "estop", Write("estop")),
+    Row("farm", "reset", COIL, 1, "bool", 1, "", "W", "write 1: operator reset (releases the e-stop latch, "
+        "clears a fault); reads 0", write=Write("reset")),
+    Row("farm", "ack_all", COIL, 2, "bool", 1, "", "W", "write 1: acknowledge every standing alarm; reads 0",
+        write=Write("ack")),
+    Row("farm", "estop_latched", DI, 0, "bool", 1, "", "R", "the feeder is in e-stop",
+        lambda v: v.s["feeder"].get("state") == "estop"),
+    Row("farm", "ready", DI, 1, "bool", 1, "", "R", "the controller is up (its devices opened)",
+        lambda v: v.s["feeder"].get("state") not in (None, "starting")),
+    Row("farm", "writes_enabled", DI, 2, "bool", 1, "", "R", "writes are accepted ([scada] read_only = false)",
+        lambda v: not v.read_only),
+    # -- the rail feeding robot ---------------------------------------------------------------
+    Row("feeder", "feeder.state", IR, 0, "u16", 1, "", "R", f"feeder state: {_STATES}", _feeder_state),
+    Row("feeder", "feeder.position_m", IR, 1, "f32", 1, "m", "R", "carriage position along the rail from home",
+        lambda v: v.s["feeder"].get("position_m")),
+    Row("feeder", "feeder.hopper_g", IR, 3, "f32", 1, "g", "R", "food in the hopper",
+        lambda v: v.s["feeder"].get("hopper_g")),
+    # -- the pond cleaner: reserved, "no value" until a cleaner exists --------------------------
+    Row("cleaner", "cleaner.state", IR, 0, "u16", 1, "", "R", "cleaner state (reserved: no value until a cleaner "
+        "exists)", lambda v: (v.s.get("cleaner") or {}).get("state_code")),
+    Row("cleaner", "cleaner.x_m", IR, 1, "f32", 1, "m", "R", "cleaner position x in the pond (reserved)",
+        lambda v: (v.s.get("cleaner") or {}).get("x_m")),
+    Row("cleaner", "cleaner.y_m", IR, 3, "f32", 1, "m", "R", "cleaner position y in the pond (reserved)",
+        lambda v: (v.s.get("cleaner") or {}).get("y_m")),
+    Row("cleaner", "cleaner.heading_rad", IR, 5, "f32", 1, "rad", "R", "cleaner heading (reserved)",
+        lambda v: (v.s.get("cleaner") or {}).get("heading_rad")),
+    Row("cleaner", "cleaner.coverage", IR, 7, "f32", 1, "", "R", "share of the pond cleaned, 0..1 (reserved)",
+        lambda v: (v.s.get("cleaner") or {}).get("coverage")),
+    # -- alarms: the summary, then one slot per source known at start ---------------------------
+    Row("alarms", "alarms.active", IR, 0, "u16", 1, "", "R", "standing alarms",
+        lambda v: len(v.s["alarms"])),
+    Row("alarms", "alarms.unacked", IR, 1, "u16", 1, "", "R", "standing alarms not acknowledged",
+        lambda v: sum(not a.get("acked") for a in v.s["alarms"])),
+    Row("alarms", "alarms.highest", IR, 2, "u16", 1, "", "R", "highest standing severity: 0 none, 1 info, "
+        "2 warning, 3 critical", lambda v: max((SEVERITY.get(a["severity"], 3) for a in v.s["alarms"]), default=0)),
+    Row("slot", "severity", IR, 0, "u16", 1, "", "R", "highest standing severity of the slot's alarms "
+        "(0 none, 1 info, 2 warning, 3 critical)", lambda v: max((SEVERITY.get(a["severity"], 3) for a in v.slot),
+                                                                 default=0)),
+    Row("slot", "active", DI, 0, "bool", 1, "", "R", "an alarm of the slot stands", lambda v: bool(v.slot)),
+    Row("slot", "unacked", DI, 1, "bool", 1, "", "R", "a standing alarm of the slot is not acknowledged",
+        lambda v: any(not a.get("acked") for a in v.slot)),
+    Row("slot", "ack", COIL, 0, "bool", 1, "", "W", "write 1: acknowledge the slot's standing alarms; reads 0",
+        write=Write("ack")),
+    # -- per tank, config order -------------------------------------------------------------------
+    Row("tank", "demand", IR, 0, "u16", 1, "", "R", "1: a validated demand waits to be served", _t("demand")),
+    Row("tank", "paused", IR, 1, "u16", 1, "", "R", "1: feeding paused by an operator",
+        lambda v: _bit(v.tank.get("paused"))),
+    Row("tank", "ration_g", IR, 2, "f32", 1, "g", "R", "today's ration", _t("ration_g")),
+    Row("tank", "fed_g", IR, 4, "f32", 1, "g", "R", "fed today", _t("fed_g")),
+    Row("tank", "pellet_mm", IR, 6, "f32", 1, "mm", "R", "pellet size of today's ration", _t("pellet_mm")),
+    Row("tank", "mean_weight_g", IR, 8, "f32", 1, "g", "R", "mean fish weight the ration uses", _t("mean_weight_g")),
+    Row("tank", "biomass_kg", IR, 10, "f32", 1, "kg", "R", "stock count x mean weight", _t("biomass_kg")),
+    Row("tank", "stock", IR, 12, "u32", 1, "fish", "R", "stock count", _t("stock")),
+    Row("tank", "last_survey_t", IR, 14, "u32", 1, "s", "R", "last weight survey, Unix seconds UTC",
+        _t("last_survey_unix")),
+    Row("tank", "alarm_severity", IR, 16, "u16", 1, "", "R", "highest standing severity of the tank's sensor and "
+        "demand alarms (0 none .. 3 critical)", _t("alarm_severity")),
+    Row("tank", "feed_now_g", HR, 0, "u16", 1, "g", "W", "write grams: feed this tank now (feeding.min_portion_g "
+        "to feeding.portion_g, else 03); reads 0", write=_FEED),
+    Row("tank", "set_ration_g", HR, 1, "f32", 1, "g", "R/W", f"today's ration; write to set it (0 to {RATION_MAX_G:g}, "
+        "both words in one request)", _t("ration_g"), Write("ration", lambda cfg: (0.0, RATION_MAX_G))),
+    Row("tank", "pause", COIL, 0, "bool", 1, "", "R/W", "1 pause feeding this tank, 0 resume; reads 1 while paused",
+        lambda v: bool(v.tank.get("paused")), Write("pause")),
+)
+
+# (base address, stride) of each block in each table; a block's rows sit at base + index * stride + offset
+BLOCKS: dict[str, dict[str, tuple[int, int]]] = {
+    "farm": {IR: (0, 0), COIL: (0, 0), DI: (0, 0)},
+    "feeder": {IR: (10, 0)},
+    "cleaner": {IR: (20, 0)},
+    "alarms": {IR: (30, 0)},
+    "slot": {IR: (40, 1), DI: (10, 2), COIL: (10, 1)},
+    "tank": {IR: (100, 20), HR: (100, 4), COIL: (100, 1)},
+}
+FIXED_SLOTS = ("estop", "feeder", "ledger", "dispenser_counters", "sim", "controller", "scada")
+
+
+def alarm_slots(cfg) -> list[str]:
+    """The alarm sources known at start, each a slot: an alarm belongs to slot S when its source is S
+    or starts with ``S/`` (``controller`` holds ``controller/robot.run`` and its kin). A tank's
+    sensor and demand alarms are in the tank's block (``alarm_severity``)."""
+    slots = list(FIXED_SLOTS) + [f"device/{name}" for name in cfg.devices]
+    return slots[:MAX_SLOTS]
+
+
+@dataclass(frozen=True)
+class Entry:
+    row: Row
+    name: str
+    address: int
+    index: int | None       # the tank's or slot's position, None for the single blocks
+    label: str | None       # tank id or slot source
+
+    @property
+    def kind(self) -> str:
+        return self.row.kind
+
+    @property
+    def words(self) -> int:
+        return WORDS[self.row.dtype]
+
+
+@dataclass
+class Layout:
+    entries: list[Entry]
+    tanks: list[str]
+    slots: list[str]
+    extent: dict[str, int]        # per table: addresses 0 .. extent-1 may be read
+    cfg: object = None
+
+    def by_kind(self, kind: str) -> list[Entry]:
+        return [e for e in self.entries if e.kind == kind]
+
+    def at(self, kind: str) -> dict[int, Entry]:
+        return {e.address: e for e in self.entries if e.kind == kind}
+
+
+def layout(cfg) -> Layout:
+    tanks = [t.id for t in cfg.tanks]
+    slots = alarm_slots(cfg)
+    entries: list[Entry] = []
+    for row in TABLE:
+        base, stride = BLOCKS[row.block][row.kind]
+        if row.block == "tank":
+            labels = tanks
+        elif row.block == "slot":
+            labels = slots
+        else:
+            labels = [None]
+        for i, label in enumerate(labels):
+            if row.block == "tank":
+                name = f"tank.{label}.{row.name}"
+            elif row.block == "slot":
+                name = f"alarm.{label}.{row.name}"
+            else:
+                name = row.name
+            entries.append(Entry(row, name, base + i * stride + row.offset, None if label is None else i, label))
+    entries.sort(key=lambda e: (KINDS.index(e.kind), e.address))
+    extent = {}
+    for kind in KINDS:
+        ends = [e.address + e.words for e in entries if e.kind == kind]
+        if kind in BLOCKS["tank"] and tanks:       # a tank block reads whole, reserved words too
+            base, stride = BLOCKS["tank"][kind]
+            ends.append(base + stride * len(tanks))
+        extent[kind] = max(ends, default=0)
+    _check(entries)
+    return Layout(entries, tanks, slots, extent, cfg)
+
+
+def _check(entries: list[Entry]) -> None:
+    """No two values share a word: a table edit that overlaps blocks fails at once, not on a farm."""
+    seen: dict[tuple[str, int], str] = {}
+    for e in entries:
+        for w in range(e.words):
+            key = (e.kind, e.address + w)
+            if key in seen:
+                raise ValueError(f"register map: {e.name} overlaps {seen[key]} at {e.kind} {e.address + w}")
+            seen[key] = e.name
+        if e.address + e.words > 0x10000:
+            raise ValueError(f"register map: {e.name} beyond address 65535 (too many tanks?)")
+
+
+# -- values <-> words -------------------------------------------------------------------------------
+def encode(dtype: str, value, scale: float = 1.0, word_order: str = "big") -> list[int]:
+    """A value as the words on the wire; None (or a value the type cannot hold) as "no value"."""
+    if dtype == "bool":
+        return [int(bool(value))]
+    if dtype == "f32":
+        x = math.nan if value is None else float(value) / scale
+        hi, lo = struct.unpack(">HH", struct.pack(">f", x))
+        return [hi, lo] if word_order == "big" else [lo, hi]
+    raw = None if value is None or isinstance(value, float) and not math.isfinite(value) else round(value / scale)
+    lo_lim, hi_lim = {"u16": (0, 0xFFFE), "i16": (-0x7FFF, 0x7FFF), "u32": (0, 0xFFFF_FFFE),
+                      "i32": (-0x7FFF_FFFF, 0x7FFF_FFFF)}[dtype]
+    if raw is None or not lo_lim <= raw <= hi_lim:
+        raw = NO_VALUE[dtype]
+    if dtype in ("u16", "i16"):
+        return [raw & 0xFFFF]
+    raw &= 0xFFFF_FFFF
+    hi, lo = raw >> 16, raw & 0xFFFF
+    return [hi, lo] if word_order == "big" else [lo, hi]
+
+
+def decode(dtype: str, words: list[int], scale: float = 1.0, word_order: str = "big"):
+    """Words from the wire as a value (None for the "no value" marker)."""
+    if dtype in ("bool", "u16", "i16"):
+        raw = words[0] & 0xFFFF
+        if dtype == "bool":
+            return bool(raw)
+        if dtype == "i16" and raw >= 0x8000:
+            raw -= 0x10000
+        return None if raw == NO_VALUE[dtype] else raw * scale
+    hi, lo = (words[0], words[1]) if word_order == "big" else (words[1], words[0])
+    if dtype == "f32":
+        x = struct.unpack(">f", struct.pack(">HH", hi, lo))[0]
+        return None if math.isnan(x) else x * scale
+    raw = (hi << 16) | lo
+    if dtype == "i32" and raw >= 0x8000_0000:
+        raw -= 0x1_0000_0000
+    return None if raw == NO_VALUE[dtype] else raw * scale
+
+
+# -- the written forms ------------------------------------------------------------------------------
+COLUMNS = ("name", "type", "address", "data_type", "scale", "units", "access", "description")
+
+
+def csv_text(lay: Layout) -> str:
+    out = io.StringIO()
+    w = csv.writer(out, lineterminator="\n")
+    w.writerow(COLUMNS)
+    for e in lay.entries:
+        r = e.row
+        w.writerow([e.name, r.kind, e.address, r.dtype, f"{r.scale:g}", r.units, r.access, r.description])
+    return out.getvalue()
+
+
+def markdown() -> str:
+    """README's table: every row once, with its block's base and stride."""
+    lines = ["| block | name | type | address | data type | scale | units | access | description |",
+             "|---|---|---|---|---|---|---|---|---|"]
+    for r in TABLE:
+        base, stride = BLOCKS[r.block][r.kind]
+        where = f"{base + r.offset}" if not stride else f"{base} + {stride}·i + {r.offset}"
+        lines.append(f"| {r.block} | {r.name} | {r.kind} | {where} | {r.dtype} | {r.scale:g} | {r.units} | "
+                     f"{r.access} | {r.description.replace('|', '/')} |")
+    return "\n".join(lines) + "\n"
+
+
+def main(argv: list[str] | None = None) -> int:
+    import argparse
+
+    from controller.config import load_config
+    from controller.errors import BadInput
+
+    p = argparse.ArgumentParser(prog="python -m controller.scada.register_map",
+                                description="Write the Modbus register map as CSV (or README's markdown).")
+    p.add_argument("--config", default="config/farm.toml")
+    p.add_argument("--markdown", action="store_true", help="README's block table instead of the CSV")
+    args = p.parse_args(argv)
+    if args.markdown:
+        sys.stdout.write(markdown())
+        return 0
+    try:
+        cfg = load_config(args.config)
+    except BadInput as exc:
+        print(f"fishfarm: {exc}", file=sys.stderr)
+        return 2
+    sys.stdout.write(csv_text(layout(cfg)))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

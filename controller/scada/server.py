@@ -1,0 +1,190 @@
+"""The Modbus TCP server for SCADA (pymodbus 3.16), inside the controller process.
+
+Reads are answered from the coordinator's snapshot, never from a device. Writes are guarded by the
+register map (controller/scada/guard.py) and each accepted one becomes an override through
+``controller.overrides.apply`` — the e-stop coil trips the latches first, synchronously.
+
+pymodbus's request PDUs talk to their datastore through two calls, ``async_getValues`` and
+``async_setValues`` (pymodbus/pdu/*: ``datastore_update``), and turn an ``ExcCodes`` returned
+into the exception response: ``ScadaStore`` is that datastore, built on the map rather than on
+pymodbus's (deprecated) memory blocks. Each connection is a ``ServerRequestHandler``
+subclass that drops a client whose MBAP header cannot be a Modbus TCP frame (pymodbus would wait
+on it for good), notes when it last heard the client (idle connections are dropped), and names
+the peer for the audit. Connections beyond ``max_connections`` are closed at once.
+"""
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import contextvars
+import logging
+import time
+
+from pymodbus.constants import ExcCodes
+from pymodbus.exceptions import NoSuchIdException
+from pymodbus.pdu.device import ModbusDeviceIdentification
+from pymodbus.server import ModbusTcpServer
+from pymodbus.server.requesthandler import ServerRequestHandler
+from pymodbus.simulator import DataType, SimData, SimDevice
+
+from controller.scada.guard import Guard
+from controller.scada.register_map import COIL, DI, HR, IR, Layout
+
+log = logging.getLogger("fishfarm.scada")
+
+PEER: contextvars.ContextVar = contextvars.ContextVar("scada_peer", default=None)   # the _Connection
+ECHO: contextvars.ContextVar[list | None] = contextvars.ContextVar("scada_echo", default=None)
+READ_KIND = {1: COIL, 2: DI, 3: HR, 4: IR, 23: HR}
+WRITE_KIND = {5: COIL, 15: COIL, 6: HR, 16: HR, 23: HR}
+
+
+def broken_mbap(buf: bytes) -> bool:
+    """A header no Modbus TCP frame has: protocol id not 0, or a length outside 2..254 (unit id +
+    a PDU of at most 253 bytes). pymodbus would wait for the rest of such a frame for ever."""
+    if len(buf) < 6:
+        return False
+    length = int.from_bytes(buf[4:6], "big")
+    return buf[2:4] != b"\x00\x00" or not 2 <= length <= 254
+
+
+class ScadaStore:
+    """The datastore the request PDUs call."""
+
+    def __init__(self, lay: Layout, cfg, coordinator, guard: Guard):
+        self.lay, self.cfg, self.coordinator, self.guard = lay, cfg, coordinator, guard
+
+    def device_ids(self) -> list[int]:
+        return [self.cfg.unit]
+
+    def _unit(self, device_id: int) -> None:
+        if device_id != self.cfg.unit:
+            raise NoSuchIdException(f"unit {device_id}")    # pymodbus answers exception 0B
+
+    async def async_getValues(self, device_id: int, func_code: int, address: int, count: int = 1):
+        self._unit(device_id)
+        if func_code in (5, 6):          # a single write's reply echoes what was written
+            echo = ECHO.get()
+            return echo if echo is not None else ExcCodes.ILLEGAL_FUNCTION
+        kind = READ_KIND.get(func_code)
+        if kind is None:
+            return ExcCodes.ILLEGAL_FUNCTION
+        image = self.coordinator.image[kind]
+        if address < 0 or count < 1 or address + count > len(image):
+            return ExcCodes.ILLEGAL_ADDRESS
+        words = image[address:address + count]
+        return [bool(w) for w in words] if kind in (COIL, DI) else words
+
+    async def async_setValues(self, device_id: int, func_code: int, address: int, values):
+        self._unit(device_id)
+        kind = WRITE_KIND.get(func_code)
+        if kind is None:
+            return ExcCodes.ILLEGAL_FUNCTION
+        values = list(values) if isinstance(values, (list, tuple)) else [values]
+        if func_code in (5, 6):
+            ECHO.set(values)
+        conn = PEER.get()
+        return await self.guard.write(kind, address, values, conn.peer if conn is not None else "?",
+                                      tripped=conn is not None and conn.take_trip())
+
+
+class _Connection(ServerRequestHandler):
+    peer = "?"
+    last_heard = 0.0
+    tripped = False
+
+    def take_trip(self) -> bool:
+        """Whether this request's e-stop was tripped on arrival (then the guard does not again)."""
+        tripped, self.tripped = self.tripped, False
+        return tripped
+
+    def callback_connected(self) -> None:
+        super().callback_connected()
+        self.last_heard = time.monotonic()
+        with contextlib.suppress(Exception):
+            host, port = self.transport.get_extra_info("peername")[:2]
+            self.peer = f"{host}:{port}"
+        server = self.server
+        if len(server.active_connections) > server.scada.max_connections:
+            server.refused += 1
+            if not server.refusing:
+                log.warning("scada: %d connections already; refusing %s (and more, silently, until one ends)",
+                            server.scada.max_connections, self.peer)
+            server.refusing = True
+            self.close()
+        else:
+            server.refusing = False
+
+    def callback_data(self, data: bytes, addr: tuple | None = None) -> int:
+        self.last_heard = time.monotonic()
+        if broken_mbap(data):
+            self.server.broken += 1
+            log.debug("scada: %s sent a broken MBAP header; dropped", self.peer)
+            self.close()
+            return len(data)
+        if self.server.urgent is not None and self.server.estop_frame(data):
+            self.tripped = True
+            self.server.urgent()       # the latches now, before pymodbus schedules the request
+        try:
+            return super().callback_data(data, addr)
+        except Exception as exc:     # a frame pymodbus cannot take apart: this client only loses
+            self.server.broken += 1
+            log.debug("scada: %s: undecodable frame (%s); dropped", self.peer, exc)
+            self.close()
+            return len(data)
+
+    async def handle_request(self):
+        PEER.set(self)           # this request's task only: the store names the peer in the audit
+        await super().handle_request()
+
+
+class ScadaServer(ModbusTcpServer):
+    def __init__(self, store: ScadaStore, scada_cfg, site: str):
+        identity = ModbusDeviceIdentification(info_name={
+            "VendorName": "fishfarm", "ProductCode": "fishfarm-controller",
+            "ProductName": "fishfarm controller", "ModelName": f"site {site}",
+            "MajorMinorRevision": "map 1"})
+        # the placeholder device satisfies the constructor; every request goes to ``store``
+        super().__init__(SimDevice(scada_cfg.unit, simdata=SimData(0, datatype=DataType.REGISTERS)),
+                         address=(scada_cfg.listen, scada_cfg.port), identity=identity)
+        self.context = store
+        self.scada = scada_cfg
+        self.refused = self.broken = self.idled = 0
+        self.refusing = False
+        self.urgent = None           # set by the service: trips the e-stop latches
+        # the one frame acted on before parsing, as Zenoh's estop is: a complete FC 5 writing ON
+        # to the e-stop coil, for this unit, with writes allowed — always a write the guard takes
+        coil = next(e.address for e in store.lay.by_kind(COIL) if e.name == "estop")
+        self._estop = None if scada_cfg.read_only else (
+            b"\x00\x00\x00\x06" + bytes([scada_cfg.unit, 5]) + coil.to_bytes(2, "big") + b"\xff\x00")
+
+    def estop_frame(self, data: bytes) -> bool:
+        return self._estop is not None and len(data) == 12 and data[2:] == self._estop
+
+    def callback_new_connection(self):
+        return _Connection(self, self.trace_packet, self.trace_pdu, self.trace_connect)
+
+    @property
+    def port(self) -> int | None:
+        sockets = getattr(self.transport, "sockets", None)
+        return sockets[0].getsockname()[1] if sockets else None
+
+    def drop_idle(self, now: float | None = None) -> int:
+        """Close the connections silent for ``idle_timeout_s``: a half-open one holds no slot for good."""
+        now = time.monotonic() if now is None else now
+        dropped = 0
+        for conn in list(self.active_connections.values()):
+            if now - getattr(conn, "last_heard", now) > self.scada.idle_timeout_s:
+                log.debug("scada: %s idle for %.0f s; dropped", getattr(conn, "peer", "?"),
+                          now - conn.last_heard)
+                conn.close()
+                dropped += 1
+        self.idled += dropped
+        return dropped
+
+    async def watch_idle(self) -> None:
+        while True:
+            await asyncio.sleep(min(1.0, self.scada.idle_timeout_s / 4))
+            self.drop_idle()
+
+
+__all__ = ["ECHO", "PEER", "ScadaServer", "ScadaStore", "broken_mbap"]

@@ -1,0 +1,193 @@
+"""Guarded writes: only the map's writable addresses (else 02), values in range (else 03), nothing
+with read_only (02); each accepted write is one override named after the [scada] identity. An
+override the controller refuses answers 04. >= 10,000 generated writes: never a crash, never an
+action on an invalid write, a valid feed accepted after."""
+import math
+import struct
+import tomllib
+
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from .conftest import ROOT, StandIn, map_rows
+from .mbap import Mbap, f32_words
+
+WIDTH = {"bool": 1, "u16": 1, "i16": 1, "u32": 2, "i32": 2, "f32": 2}
+FARM = tomllib.loads((ROOT / "config" / "farm.toml").read_text())
+PORTION = (FARM["feeding"]["min_portion_g"], FARM["feeding"]["portion_g"])
+ROWS = map_rows()
+WRITABLE = {(r["type"], int(r["address"])): r for r in ROWS if "W" in r["access"]}
+
+
+def oracle(table: str, address: int, values: list[int], word_order: str = "big", read_only: bool = False):
+    """(exception code or None, the overrides expected) from the map's words alone."""
+    if read_only:
+        return 2, []
+    calls, i = [], 0
+    while i < len(values):
+        row = WRITABLE.get((table, address + i))
+        if row is None or i + WIDTH[row["data_type"]] > len(values):
+            return 2, []
+        name, v = row["name"], values[i:i + WIDTH[row["data_type"]]]
+        tank = name.split(".")[1] if name.startswith("tank.") else None
+        if name.endswith(".pause"):
+            calls.append(("pause" if v[0] else "resume", {"tank": tank}))
+        elif name.endswith(".feed_now_g"):
+            if not PORTION[0] <= v[0] <= PORTION[1]:
+                return 3, []
+            calls.append(("feed", {"tank": tank, "grams": float(v[0])}))
+        elif name.endswith(".set_ration_g"):
+            hi, lo = v if word_order == "big" else v[::-1]
+            g = struct.unpack(">f", struct.pack(">HH", hi, lo))[0]
+            if not (math.isfinite(g) and 0 <= g <= 1e6):
+                return 3, []
+            calls.append(("ration", {"tank": tank, "grams": g}))
+        else:                                    # estop, reset, ack_all, alarm.*.ack: 1 only
+            if not v[0]:
+                return 3, []
+            command = {"estop": "estop", "reset": "reset", "ack_all": "ack"}.get(name, "slot ack")
+            if command == "ack":
+                calls.append(("ack", {"all": True}))
+            elif command != "slot ack":          # a slot with nothing standing acknowledges nothing
+                calls.append((command, {}))
+        i += WIDTH[row["data_type"]]
+    return None, calls
+
+
+def seen(stand_in: StandIn, since: int) -> list:
+    out = []
+    for command, payload, user, origin in stand_in.calls[since:]:
+        assert user == "scada" and origin.startswith("modbus 127.0.0.1:")
+        out.append((command, {k: v for k, v in payload.items() if k not in ("operator", "reason")}))
+    return out
+
+
+def test_each_writable_address_is_one_override(serve):
+    stand_in = StandIn()
+    srv = serve(stand_in)
+    c = Mbap(srv.port)
+    try:
+        for (table, address), row in WRITABLE.items():
+            if row["data_type"] == "f32":
+                values = f32_words(1234.5, "big")
+            elif row["data_type"] == "u16":
+                values = [int(PORTION[1])]
+            else:
+                values = [1]
+            before = len(stand_in.calls)
+            assert c.write(table, address, values) is None, row["name"]
+            srv.call(lambda: None)
+            want = oracle(table, address, values)
+            assert want[0] is None and seen(stand_in, before) == want[1], row["name"]
+        assert stand_in.trips == ["modbus e-stop by scada"]
+    finally:
+        c.close()
+
+
+def test_refusals(serve):
+    stand_in = StandIn(refuse={"feed"})
+    srv = serve(stand_in)
+    c = Mbap(srv.port)
+    try:
+        assert c.write("holding register", 100, [20]) == ("exception", 4)     # the controller said no
+        assert c.write("holding register", 100, [int(PORTION[0]) - 1]) == ("exception", 3)
+        assert c.write("holding register", 100, [int(PORTION[1]) + 1]) == ("exception", 3)
+        assert c.write("holding register", 101, [0x7FC0, 0]) == ("exception", 3)        # NaN
+        assert c.write("holding register", 101, f32_words(-1.0, "big"), single=False) == ("exception", 3)
+        assert c.write("holding register", 101, [0x4000]) == ("exception", 2)           # half a float
+        assert c.write("holding register", 102, [0, 0]) == ("exception", 2)            # its second word
+        assert c.write("coil", 0, [0]) == ("exception", 3)                              # e-stop 0: no release
+        assert c.write("coil", 3, [1]) == ("exception", 2)                              # nothing there
+        assert c.write("holding register", 0, [1]) == ("exception", 2)
+        assert [call[0] for call in stand_in.calls] == ["feed"] and stand_in.trips == []
+    finally:
+        c.close()
+
+
+def test_read_only_refuses_every_write(serve):
+    stand_in = StandIn()
+    srv = serve(stand_in, read_only=True)
+    c = Mbap(srv.port)
+    try:
+        for (table, address), row in WRITABLE.items():
+            values = [1] * WIDTH[row["data_type"]]
+            assert c.write(table, address, values, single=len(values) == 1) == ("exception", 2), row["name"]
+        assert c.read("discrete input", 2) == [0]        # writes_enabled says so
+        assert stand_in.calls == [] and stand_in.trips == []
+    finally:
+        c.close()
+
+
+@pytest.mark.parametrize("word_order", ["little"])
+def test_ration_words_follow_the_word_order(serve, word_order):
+    stand_in = StandIn()
+    srv = serve(stand_in, word_order=word_order)
+    c = Mbap(srv.port)
+    try:
+        assert c.write("holding register", 105, f32_words(321.25, word_order), single=False) is None
+        assert seen(stand_in, 0) == [("ration", {"tank": "T2", "grams": 321.25})]
+    finally:
+        c.close()
+
+
+# -- the storm --------------------------------------------------------------------------------------
+_near = st.sampled_from(sorted({a + d for (_, a) in WRITABLE for d in (-1, 0, 1, 2)} - {-1}))
+_word = st.one_of(st.integers(0, 0xFFFF), st.integers(0, 80), st.sampled_from([0x7FC0, 0x7F80, 0xFF80, 0x4000]))
+_write = st.tuples(st.sampled_from(["coil", "holding register"]), st.one_of(_near, st.integers(0, 0xFFFF)),
+                   st.lists(_word, min_size=1, max_size=4), st.booleans())
+BATCH = 20
+EXAMPLES = 500          # x BATCH = 10,000 writes
+
+
+def test_ten_thousand_generated_writes(serve):
+    stand_in = StandIn()
+    srv = serve(stand_in)
+    c = Mbap(srv.port)
+    count = [0]
+
+    @settings(max_examples=EXAMPLES, deadline=None, database=None,
+              suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large])
+    @given(st.lists(_write, min_size=BATCH, max_size=BATCH))
+    def storm(writes):
+        for table, address, values, single in writes:
+            if table == "coil":
+                values = [v & 1 for v in values]
+            single = single and len(values) == 1
+            values = [v & 0xFFFF for v in values][: max(1, min(len(values), 0x10000 - address))]
+            before, trips = len(stand_in.calls), len(stand_in.trips)
+            got = c.write(table, address, values, single=single)
+            srv.call(lambda: None)      # the e-stop's override runs as a task queued before the reply
+            code, calls = oracle(table, address, values)
+            assert got == (None if code is None else ("exception", code)), (table, address, values)
+            assert seen(stand_in, before) == calls, (table, address, values)
+            assert len(stand_in.trips) - trips == sum(1 for cmd, _ in calls if cmd == "estop")
+            count[0] += 1
+
+    try:
+        storm()
+        assert count[0] >= 10_000
+        before = len(stand_in.calls)
+        assert c.write("holding register", 100, [20]) is None          # a valid feed, after the storm
+        assert seen(stand_in, before) == [("feed", {"tank": "T1", "grams": 20.0})]
+    finally:
+        c.close()
+
+
+def test_the_estop_frame_trips_once_and_only_for_this_unit(serve):
+    """The e-stop coil's FC 5 trips the latches as it arrives; the guard does not trip it again."""
+    stand_in = StandIn()
+    srv = serve(stand_in)
+    c = Mbap(srv.port)
+    try:
+        got, data = c.call(5, struct.pack(">HH", 0, 0xFF00), unit=7)
+        assert got == 0x85 and data[0] == 0x0B and stand_in.trips == []
+        assert c.write("coil", 0, [1]) is None
+        srv.call(lambda: None)
+        assert stand_in.trips == ["modbus e-stop by scada"]
+        assert [call[0] for call in stand_in.calls] == ["estop"]
+        # e-stop and a 0 to reset in one FC 15: refused whole (03), and nothing tripped on arrival
+        assert c.write("coil", 0, [1, 0], single=False) == ("exception", 3)
+        assert stand_in.trips == ["modbus e-stop by scada"]
+    finally:
+        c.close()
