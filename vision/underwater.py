@@ -37,7 +37,9 @@ from vision.calib_file import StereoCalibration
 from vision.fins import SPAN_OF_FL, Fins, bank_proposals, concat, fin_scores, suppress
 from vision.fork import locate_forks, pyramid
 from vision.illumination import water_distance
-from vision.snout import find_snouts, refine_tips
+from vision.silhouettes import background_distance, components, outline_forks, silhouette_tips
+from vision.silhouettes import fish_masks as outline_masks
+from vision.snout import Snouts, find_snouts, refine_tips
 from vision.survey_types import FishMeasurement, SurveySetup
 from vision.triangulation import triangulate_calibrated
 
@@ -61,6 +63,8 @@ class Params:
     bank_levels: int = 2            # ... scored on the working image and its first halving
     bank_stride: int = 2            # ... at grid points this many px apart
     bank_keep: float = 0.1          # ... the share of them with the most emboss energy
+    outlines: bool = True           # fork proposals from silhouettes against the local background
+    outline_k: tuple[float, ...] = (2.0, 4.0)   # ... thresholds, in local background spreads
 
 
 class _Clock:
@@ -87,7 +91,7 @@ def _channels(img: np.ndarray) -> np.ndarray:
     return img
 
 
-def _view(img: np.ndarray, setup: SurveySetup, p: Params, clock: _Clock) -> View:
+def _view(img: np.ndarray, setup: SurveySetup, p: Params, clock: _Clock, trace: dict | None = None) -> View:
     img = np.asarray(img)
     H, W = img.shape[:2]
     pyr = pyramid(img)
@@ -110,7 +114,20 @@ def _view(img: np.ndarray, setup: SurveySetup, p: Params, clock: _Clock) -> View
         # a second proposer, eq. (13) over the working image: forks the bodies' ends miss (a fish
         # before reef or net, fish touching); each located like the others
         hyps = concat([hyps, bank_proposals(dist, sx, sy, n_bank, p.bank_levels, p.bank_stride, p.bank_keep)])
+    comps = []
+    if p.outlines:
+        # a third, from silhouettes against the local background: the caudal notch as a convexity
+        # defect of the outline, the outline's ends
+        masks = outline_masks(background_distance(small), p.outline_k)
+        comps = components(masks)
+        for m in masks:
+            f, ln = outline_forks(m, sx, sy, p.min_fish_frac * small.shape[1])
+            notch = f.score > 1.0
+            hyps = concat([hyps, f.take(np.flatnonzero(notch))]
+                          + [_shifted(f.take(np.flatnonzero(~notch)), ln[~notch], off) for off in (-0.12, -0.02)])
     clock.lap("fins")
+    if trace is not None:
+        trace.setdefault("proposed", []).append(hyps.xy.copy())
     forks = locate_forks(pyr, hyps)
     forks = locate_forks(pyr, forks.fins.take(np.flatnonzero(forks.ok)))        # again, from the fork
     ok = np.flatnonzero(forks.ok)
@@ -119,7 +136,7 @@ def _view(img: np.ndarray, setup: SurveySetup, p: Params, clock: _Clock) -> View
     keep = suppress(located, p.max_fins, 0.1)             # the same fork from several hypotheses: the best
     ok, fins = ok[keep], located.take(keep)
     clock.lap("fork")
-    return View(pyr, fins, forks.fish_level[ok], forks.water_level[ok], forks.arm_rms[ok])
+    return View(pyr, fins, forks.fish_level[ok], forks.water_level[ok], forks.arm_rms[ok], comps, (sx, sy))
 
 
 def _transfer(calib, v1: View, v2: View, pairs, p: Params) -> tuple[View, View]:
@@ -140,7 +157,8 @@ def _transfer(calib, v1: View, v2: View, pairs, p: Params) -> tuple[View, View]:
         new = forks.fins.take(ok)
         new.score = fin_scores(v.pyr, new)
         views[dst] = View(v.pyr, concat([v.fins, new]), np.vstack([v.fish_level, forks.fish_level[ok]]),
-                          np.vstack([v.water_level, forks.water_level[ok]]), np.r_[v.arm_rms, forks.arm_rms[ok]])
+                          np.vstack([v.water_level, forks.water_level[ok]]), np.r_[v.arm_rms, forks.arm_rms[ok]],
+                          v.comps, v.scale)
     return views[0], views[1]
 
 
@@ -169,18 +187,23 @@ def _shifted(fins: Fins, length: np.ndarray, frac: float) -> Fins:
 
 
 def measure_underwater(left: np.ndarray, right: np.ndarray, calib: StereoCalibration, setup: SurveySetup,
-                       timings: dict[str, float] | None = None, params: Params = Params()) -> list[FishMeasurement]:
-    """Fish measured in one underwater pair (grey or BGR uint8, any size); [] when there are none."""
+                       timings: dict[str, float] | None = None, params: Params = Params(),
+                       trace: dict | None = None) -> list[FishMeasurement]:
+    """Fish measured in one underwater pair (grey or BGR uint8, any size); [] when there are none.
+    ``trace`` (diagnostics, bench/diag_underwater.py) receives each stage's points."""
     clock = _Clock(timings)
     left, right = _channels(left), _channels(right)
     if left.size == 0 or min(left.shape[:2]) < 32:
         return []
-    v1 = _view(left, setup, params, clock)
-    v2 = _view(right, setup, params, clock)
+    v1 = _view(left, setup, params, clock, trace)
+    v2 = _view(right, setup, params, clock, trace)
     pairs = match_forks(calib, v1, v2, params.band_px)
     if params.transfer:
         v1, v2 = _transfer(calib, v1, v2, pairs, params)
         pairs = match_forks(calib, v1, v2, params.band_px)
+    if trace is not None:
+        trace["located"] = [v1.fins.xy.copy(), v2.fins.xy.copy()]
+        trace["pairs"] = (v1.fins.xy[pairs.i].copy(), v2.fins.xy[pairs.j].copy())
     if len(pairs.i) == 0:
         clock.lap("stereo")
         return []
@@ -195,6 +218,14 @@ def measure_underwater(left: np.ndarray, right: np.ndarray, calib: StereoCalibra
     for v, f, idx, lo, hi in ((v1, f1, pairs.i, lo1, hi1), (v2, f2, pairs.j, lo1 * scale21, hi1 * scale21)):
         sn.append(find_snouts(v.pyr, f.xy, f.body_angle(), 0.08 * f.span_px, v.fish_level[idx], v.water_level[idx],
                               lo, hi))
+    if params.outlines:
+        # the far end of the silhouette each fork belongs to, its tip refined on the image
+        for c, (v, f, idx) in enumerate(((v1, f1, pairs.i), (v2, f2, pairs.j))):
+            tips = silhouette_tips(v.comps, *v.scale, f.xy, f.body_angle(), f.span_px)
+            tips, found = _tips(v, f, tips, idx)
+            strength = np.where(found, 0.8, 0.4) * np.all(np.isfinite(tips), axis=2)
+            sn[c] = Snouts(np.concatenate([sn[c].dist_px, np.linalg.norm(tips - f.xy[:, None], axis=2)], axis=1),
+                           np.concatenate([sn[c].xy, tips], axis=1), np.concatenate([sn[c].strength, strength], axis=1))
     clock.lap("snout")
     up = np.asarray(setup.up_world if setup.up_world is not None else camera_frame(calib.P1)[1], float)
     up = up / np.linalg.norm(up)
@@ -203,6 +234,8 @@ def measure_underwater(left: np.ndarray, right: np.ndarray, calib: StereoCalibra
     expected = f1.span_px * depth / f_px / SPAN_OF_FL             # the fin's size in mm, as a length
     gate = params.max_residual_px + 0.01 * f1.span_px / SPAN_OF_FL
     px1, s1, px2, s2 = sn[0].xy, sn[0].strength, sn[1].xy, sn[1].strength
+    if trace is not None:
+        trace["snouts"] = (px1.copy(), px2.copy())
     if params.transfer:
         # each left candidate also looked for along its epipolar line in the right image, within the
         # (kept only where a tip is seen there: a point on a line is no snout by itself)
@@ -223,6 +256,8 @@ def measure_underwater(left: np.ndarray, right: np.ndarray, calib: StereoCalibra
         moved = same.any(axis=1)
         view = np.where(moved, np.clip((np.where(same, tn, 0).max(axis=1) - 0.5) / 0.4, 0, 1), 1.0)
     keep = ch.ok & np.all(np.isfinite(fork_mm), axis=1) & (fork_res <= gate)
+    if trace is not None:
+        trace["associated"] = (f1.xy.copy(), f2.xy.copy(), ch.px1.copy(), ch.px2.copy(), keep.copy())
     out = _measurements(np.flatnonzero(keep), pairs, f1, f2, v1, v2, fork_mm, fork_res, ch, calib, geo, params,
                         left.shape[1], expected, view)
     clock.lap("associate")
