@@ -10,7 +10,9 @@ fractions of the fish's fork length in that image):
 ``paired``    a left-right fork pair with both ends within 3 %;
 ``snout``     for that pair, a snout candidate within 3 % of the true snout in both images;
 ``associated`` the pair's chosen snouts within 3 % in both and the pair kept by the filters;
-``reported``  a report the bench counts correct (bench_survey_underwater.assign).
+``filtered``  a report the bench counts correct (bench_survey_underwater.assign): lost here, the fish
+             was dropped by the post-filters (score, epipolar consistency, one fish per snout) or
+             its 3-D placement is outside the bench's tolerance.
 """
 from __future__ import annotations
 
@@ -33,7 +35,7 @@ from devices.sim.fish_scene import underwater_scene  # noqa: E402
 from vision.survey_types import SurveySetup  # noqa: E402
 from vision.underwater import measure_underwater  # noqa: E402
 
-STAGES = ("proposed", "located", "paired", "snout", "associated", "reported")
+STAGES = ("proposed", "located", "paired", "snout", "associated", "filtered")
 PROPOSE_TOL = 0.10
 TOL = 0.03
 
@@ -76,7 +78,7 @@ def fish_stage(t, tr: dict, reported_ok: bool) -> str:
     if not any(keep[r] and _near(c1[r], t.snout_px[0], TOL * fl[0]).all() and _near(c2[r], t.snout_px[1], TOL * fl[1]).all()
                for r in rows):
         return "associated"
-    return "reported"
+    return "filtered"
 
 
 def main() -> None:

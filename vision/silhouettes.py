@@ -50,9 +50,10 @@ def _smooth_masked(values: np.ndarray, weight: np.ndarray, sigma_frac: float) ->
 
 
 def background_distance(img: np.ndarray, k_first: float = 3.0, sigma_frac: float = 0.08,
-                        min_spread: float = 1.5) -> np.ndarray:
+                        min_spread: float = 1.5) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """How unlike its local background each pixel is, in units of the background's local spread
-    (float32 (h, w), >= 0). ``img``: BGR or grey uint8, a reduced working copy."""
+    (float32 (h, w), >= 0), with the background (h, w, C) (Lab, or grey) and the spread (h, w) it
+    was measured against. ``img``: BGR or grey uint8, a reduced working copy."""
     lab = cv2.GaussianBlur(_lab(img), (0, 0), 1.0).reshape(img.shape[0], img.shape[1], -1)
     h, w = lab.shape[:2]
     # first background: a median over ~0.4 of the width of a ~40 px wide copy
@@ -71,7 +72,8 @@ def background_distance(img: np.ndarray, k_first: float = 3.0, sigma_frac: float
     d = np.linalg.norm(lab - bg, axis=2)
     spread = np.sqrt(_smooth_masked((d * d)[..., None], keep, 2 * sigma_frac)[..., 0])
     floor = max(min_spread, float(np.median(spread)) * 0.5)
-    return d / np.maximum(spread, floor)
+    spread = np.maximum(spread, floor).astype(np.float32)
+    return d / spread, bg.astype(np.float32), spread
 
 
 def fish_masks(z: np.ndarray, ks: tuple[float, ...] = (2.0, 4.0), seed_k: float = 5.0) -> list[np.ndarray]:
@@ -199,3 +201,23 @@ def silhouette_tips(comps: list[tuple[np.ndarray, np.ndarray]], sx: float, sy: f
             tip = (rel[ahead][dist[ahead] >= far - 1.0]).mean(axis=0) + p0[n]
             out[n, c] = (tip + 0.5) * scale - 0.5
     return out
+
+
+def body_fill(comps: list[tuple[np.ndarray, np.ndarray]], sx: float, sy: float, a: np.ndarray, b: np.ndarray,
+              samples: int = 32) -> np.ndarray:
+    """Share (N,) of the segment from ``a`` to ``b`` (full-resolution px, (N, 2)) inside a silhouette of
+    the first (lowest-threshold) mask: a fish's axis from fork to snout runs through its body; a
+    fork paired with the snout of a fish ahead, or two points of reef, cross water."""
+    N = len(a)
+    if N == 0 or not comps:
+        return np.ones(N)
+    lab = comps[0][0]
+    h, w = lab.shape
+    u = np.linspace(0.0, 1.0, samples)[None, :, None]
+    pts = a[:, None] + u * (b - a)[:, None]
+    ok = np.all(np.isfinite(pts), axis=2)
+    pts = np.where(ok[..., None], pts, 0.0)
+    x = np.clip(np.rint((pts[..., 0] + 0.5) / sx - 0.5), 0, w - 1).astype(int)
+    y = np.clip(np.rint((pts[..., 1] + 0.5) / sy - 0.5), 0, h - 1).astype(int)
+    inside = lab[y, x] > 0
+    return np.where(ok, inside, False).mean(axis=1)

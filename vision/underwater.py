@@ -36,8 +36,9 @@ from vision.bodies import body_ends, fish_masks
 from vision.calib_file import StereoCalibration
 from vision.fins import SPAN_OF_FL, Fins, bank_proposals, concat, fin_scores, suppress
 from vision.fork import locate_forks, pyramid
+from vision.fork_outline import outline_locate
 from vision.illumination import water_distance
-from vision.silhouettes import background_distance, components, outline_forks, silhouette_tips
+from vision.silhouettes import background_distance, body_fill, components, outline_forks, silhouette_tips
 from vision.silhouettes import fish_masks as outline_masks
 from vision.snout import Snouts, find_snouts, refine_tips
 from vision.survey_types import FishMeasurement, SurveySetup
@@ -55,7 +56,9 @@ class Params:
     max_residual_px: float = 2.5    # snout triangulation
     good_length_px: float = 250.0   # fish this long in the image score 1 on size (x image width / 1280)
     fin_floor: float = 0.2          # the least the fork-template term (eq. 13) gives a located fork
-    min_score: float = 0.12         # post-filter: a fish whose measurement rests on little is dropped
+    min_score: float = 0.02         # post-filter: a fish whose measurement rests on little is dropped
+    max_epipolar: float = 0.03      # post-filter: each end within this share of the length of the other
+                                    # image's best match along its epipolar line
     transfer: bool = True           # a fork found in one image only is looked for along its epipolar line
     near_mm: float = 300.0          # working range of the rig for that search (from the camera)
     far_mm: float = 4000.0
@@ -65,6 +68,11 @@ class Params:
     bank_keep: float = 0.1          # ... the share of them with the most emboss energy
     outlines: bool = True           # fork proposals from silhouettes against the local background
     outline_k: tuple[float, ...] = (2.0, 4.0)   # ... thresholds, in local background spreads
+    outline_locate: bool = True     # notches also located on the outline at full resolution (vision.fork_outline)
+    outline_agree: float = 0.07     # an outline fork and the crossings' within this share of the span agree
+    outline_prefer_crossing: bool = False   # ... and then the crossings' point is kept
+    min_fill: float = 0.0           # the least share of the fork-snout segment inside a silhouette (term 0 there)
+    outline_rms: float = 0.015      # the fork-shape misfit an outline fork is scored with
 
 
 class _Clock:
@@ -114,16 +122,18 @@ def _view(img: np.ndarray, setup: SurveySetup, p: Params, clock: _Clock, trace: 
         # a second proposer, eq. (13) over the working image: forks the bodies' ends miss (a fish
         # before reef or net, fish touching); each located like the others
         hyps = concat([hyps, bank_proposals(dist, sx, sy, n_bank, p.bank_levels, p.bank_stride, p.bank_keep)])
-    comps = []
+    comps, notches = [], []
     if p.outlines:
         # a third, from silhouettes against the local background: the caudal notch as a convexity
         # defect of the outline, the outline's ends
-        masks = outline_masks(background_distance(small), p.outline_k)
+        z, bg, spread = background_distance(small)
+        masks = outline_masks(z, p.outline_k)
         comps = components(masks)
         for m in masks:
             f, ln = outline_forks(m, sx, sy, p.min_fish_frac * small.shape[1])
             notch = f.score > 1.0
-            hyps = concat([hyps, f.take(np.flatnonzero(notch))]
+            notches.append(f.take(np.flatnonzero(notch)))
+            hyps = concat([hyps, notches[-1]]
                           + [_shifted(f.take(np.flatnonzero(~notch)), ln[~notch], off) for off in (-0.12, -0.02)])
     clock.lap("fins")
     if trace is not None:
@@ -132,11 +142,26 @@ def _view(img: np.ndarray, setup: SurveySetup, p: Params, clock: _Clock, trace: 
     forks = locate_forks(pyr, forks.fins.take(np.flatnonzero(forks.ok)))        # again, from the fork
     ok = np.flatnonzero(forks.ok)
     located = forks.fins.take(ok)
+    fish, water, arm = forks.fish_level[ok], forks.water_level[ok], forks.arm_rms[ok]
+    notches = concat(notches)
+    if len(notches) and p.outline_locate:
+        # the notches again on the outline at full resolution: faint fins the crossings miss
+        of, found = outline_locate(pyr, bg, spread, sx, sy, notches)
+        of = of.take(np.flatnonzero(found))
+        lev = locate_forks(pyr, of)
+        agree = lev.ok & (np.linalg.norm(lev.fins.xy - of.xy, axis=1) <= p.outline_agree * of.span_px)
+        if p.outline_prefer_crossing:
+            of.xy = np.where(agree[:, None], lev.fins.xy, of.xy)
+        good = np.flatnonzero(np.all(np.isfinite(lev.fish_level), axis=1) & np.all(np.isfinite(lev.water_level), axis=1)
+                              & (lev.contrast >= 3.0))
+        located = concat([located, of.take(good)])
+        fish, water = np.vstack([fish, lev.fish_level[good]]), np.vstack([water, lev.water_level[good]])
+        arm = np.r_[arm, np.where(agree, lev.arm_rms, p.outline_rms)[good]]
     located.score = fin_scores(pyr, located)              # eq. (13), where the forks are
     keep = suppress(located, p.max_fins, 0.1)             # the same fork from several hypotheses: the best
-    ok, fins = ok[keep], located.take(keep)
+    fins = located.take(keep)
     clock.lap("fork")
-    return View(pyr, fins, forks.fish_level[ok], forks.water_level[ok], forks.arm_rms[ok], comps, (sx, sy))
+    return View(pyr, fins, fish[keep], water[keep], arm[keep], comps, (sx, sy))
 
 
 def _transfer(calib, v1: View, v2: View, pairs, p: Params) -> tuple[View, View]:
@@ -256,22 +281,39 @@ def measure_underwater(left: np.ndarray, right: np.ndarray, calib: StereoCalibra
         moved = same.any(axis=1)
         view = np.where(moved, np.clip((np.where(same, tn, 0).max(axis=1) - 0.5) / 0.4, 0, 1), 1.0)
     keep = ch.ok & np.all(np.isfinite(fork_mm), axis=1) & (fork_res <= gate)
+    # each end looked for again along its epipolar line in the other image, by likeness alone: a
+    # fork or snout paired with the wrong structure on that line (another fin, a fin's edge) is
+    # not where the other image's best match is
+    near, far = np.maximum(depth - 0.8 * expected, 1.0), depth + 0.8 * expected
+    lo_d, hi_d = np.maximum(depth - 0.5 * expected, 1.0), depth + 0.5 * expected
+    fwd = transfer_forks(calib.P1, calib.P2, v1, v2, pairs.i, lo_d, hi_d)
+    bwd = transfer_forks(calib.P2, calib.P1, v2, v1, pairs.j, lo_d, hi_d)
+    fork_epi = np.maximum(np.linalg.norm(fwd.xy - f2.xy, axis=1), np.linalg.norm(bwd.xy - f1.xy, axis=1))
+    s12, _ = transfer_snouts(calib.P1, calib.P2, v1, v2, ch.px1[:, None], f1.body_angle(), f2.body_angle(),
+                             0.5 * f1.span_px, near, far)
+    s21, _ = transfer_snouts(calib.P2, calib.P1, v2, v1, ch.px2[:, None], f2.body_angle(), f1.body_angle(),
+                             0.5 * f2.span_px, near, far)
+    snout_epi = np.maximum(np.linalg.norm(s12[:, 0] - ch.px2, axis=1), np.linalg.norm(s21[:, 0] - ch.px1, axis=1))
     if trace is not None:
         trace["associated"] = (f1.xy.copy(), f2.xy.copy(), ch.px1.copy(), ch.px2.copy(), keep.copy())
     out = _measurements(np.flatnonzero(keep), pairs, f1, f2, v1, v2, fork_mm, fork_res, ch, calib, geo, params,
-                        left.shape[1], expected, view)
+                        left.shape[1], expected, view, fork_epi, snout_epi)
     clock.lap("associate")
     return out
 
 
 def _measurements(rows, pairs, f1, f2, v1, v2, fork_mm, fork_res, ch, calib, geo, p: Params,
-                  width: int, expected: np.ndarray, view: np.ndarray) -> list[FishMeasurement]:
+                  width: int, expected: np.ndarray, view: np.ndarray, fork_epi: np.ndarray,
+                  snout_epi: np.ndarray) -> list[FishMeasurement]:
     if len(rows) == 0:
         return []
     c1 = -np.linalg.solve(calib.P1[:, :3], calib.P1[:, 3])
     rng_mm = np.linalg.norm(fork_mm - c1, axis=1)
     len_px = 0.5 * (np.linalg.norm(ch.px1 - f1.xy, axis=1) + np.linalg.norm(ch.px2 - f2.xy, axis=1))
+    fill = np.minimum(body_fill(v1.comps, *v1.scale, f1.xy, ch.px1), body_fill(v2.comps, *v2.scale, f2.xy, ch.px2)) \
+        if p.outlines else np.ones(len(f1))
     terms = {
+        "t_fill": np.clip((fill - p.min_fill) / (1 - p.min_fill), 0, 1) if p.min_fill < 1 else np.ones(len(f1)),
         "t_stereo": np.clip((pairs.ncc - 0.4) / 0.5, 0, 1),
         # eq. (13)'s bank is drawn with a forked tail: a square-cut or worn tail the locator found
         # scores low on it without being any less a tail, so the bank lowers the score, never vetoes
@@ -291,9 +333,13 @@ def _measurements(rows, pairs, f1, f2, v1, v2, fork_mm, fork_res, ch, calib, geo
     score = np.prod(np.stack(list(terms.values())), axis=0)
     raw = {"stereo_ncc": pairs.ncc, "fork_residual_px": fork_res, "snout_residual_px": ch.residual_px,
            "tilt_deg": ch.tilt_deg, "range_mm": rng_mm, "length_px": len_px,
-           "fin_ncc": np.minimum(f1.score, f2.score), "snout_edge": ch.strength, "body_length_mm": expected}
+           "fin_ncc": np.minimum(f1.score, f2.score), "snout_edge": ch.strength, "body_length_mm": expected,
+           "body_fill": fill, "fork_epi_px": fork_epi, "snout_epi_px": snout_epi}
     fish = []
-    rows = rows[score[rows] >= p.min_score]
+    # post-filter: an end the other image's best match along its epipolar line puts elsewhere
+    # is on the wrong structure there, and its depth with it
+    epi = np.maximum(fork_epi, snout_epi) / np.maximum(len_px, 1e-6)
+    rows = rows[(score[rows] >= p.min_score) & (epi[rows] <= p.max_epipolar)]
     for r in _unique_snouts(rows, ch, score):
         q = {k: float(v[r]) for k, v in raw.items()} | {k: float(v[r]) for k, v in terms.items()}
         fish.append(FishMeasurement(snout_mm=ch.mm[r].copy(), fork_mm=fork_mm[r].copy(),
