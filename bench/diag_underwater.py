@@ -1,7 +1,9 @@
 """Where the underwater survey loses fish: for every fully visible rendered fish, the first stage
 it does not pass. Prints one JSON object.
 
-Run: ``.venv/bin/python bench/diag_underwater.py [--scenes 20] [--seed0 0]``.
+Run: ``.venv/bin/python bench/diag_underwater.py [--scenes 20] [--seed0 0] [--params "min_score=0.12"]``
+(``--params``: ``vision.underwater.Params`` fields to change, e.g. ``outlines=False,min_score=0.12,
+max_epipolar=1e9`` for the pipeline before the silhouettes).
 
 Stages (each judged in image pixels against ``FishTruth.fork_px`` / ``snout_px``, tolerances as
 fractions of the fish's fork length in that image):
@@ -22,6 +24,8 @@ for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ.setdefault(_var, "1")
 
 import argparse  # noqa: E402
+import ast  # noqa: E402
+import dataclasses  # noqa: E402
 import json  # noqa: E402
 import sys  # noqa: E402
 from pathlib import Path  # noqa: E402
@@ -33,7 +37,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 from bench.bench_survey_underwater import assign  # noqa: E402
 from devices.sim.fish_scene import underwater_scene  # noqa: E402
 from vision.survey_types import SurveySetup  # noqa: E402
-from vision.underwater import measure_underwater  # noqa: E402
+from vision.underwater import Params, measure_underwater  # noqa: E402
 
 STAGES = ("proposed", "located", "paired", "snout", "associated", "filtered")
 PROPOSE_TOL = 0.10
@@ -75,7 +79,8 @@ def fish_stage(t, tr: dict, reported_ok: bool) -> str:
                    for r in rows):
             return "snout"
     c1, c2, keep = tr["associated"][2:]
-    if not any(keep[r] and _near(c1[r], t.snout_px[0], TOL * fl[0]).all() and _near(c2[r], t.snout_px[1], TOL * fl[1]).all()
+    if not any(keep[r] and _near(c1[r], t.snout_px[0], TOL * fl[0]).all()
+               and _near(c2[r], t.snout_px[1], TOL * fl[1]).all()
                for r in rows):
         return "associated"
     return "filtered"
@@ -85,7 +90,13 @@ def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--scenes", type=int, default=20)
     ap.add_argument("--seed0", type=int, default=0)
+    ap.add_argument("--params", default="", help="Params fields, e.g. 'outlines=False,min_score=0.12'")
     args = ap.parse_args()
+    changes = {}
+    for item in filter(None, args.params.split(",")):
+        key, value = item.split("=")
+        changes[key.strip()] = ast.literal_eval(value.strip())
+    params = dataclasses.replace(Params(), **changes)
     cv2.setNumThreads(1)
     setup = SurveySetup(up_world=(0.0, 0.0, 1.0))
     lost = {s: 0 for s in STAGES} | {"found": 0}
@@ -93,7 +104,7 @@ def main() -> None:
     for seed in range(args.seed0, args.seed0 + args.scenes):
         sc = underwater_scene(np.random.default_rng(seed))
         tr: dict = {}
-        fish = measure_underwater(sc.left, sc.right, sc.rig.calibration(), setup, trace=tr)
+        fish = measure_underwater(sc.left, sc.right, sc.rig.calibration(), setup, params=params, trace=tr)
         hits = {ti for _, ti, _, _ in assign(fish, sc.fish, sc.rig.centres[0]) if ti >= 0}
         for i, t in enumerate(sc.fish):
             if t.fully_visible:
@@ -103,7 +114,8 @@ def main() -> None:
     for s in STAGES:
         passed -= lost[s]
         out[s] = {"lost": lost[s], "passed": passed}
-    print(json.dumps({"scenes": args.scenes, "seed0": args.seed0, "fully_visible": visible, "stages": out,
+    print(json.dumps({"scenes": args.scenes, "seed0": args.seed0, "params": changes, "fully_visible": visible,
+                      "stages": out,
                       "found": lost["found"]}))
 
 

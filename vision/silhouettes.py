@@ -15,7 +15,16 @@ On each silhouette's outline, the caudal fork is a concavity between two lobes: 
 defect (``cv2.convexityDefects``) near one end of the body's main axis, deep against the body's
 length, whose hull edge spans the axis. Each such defect's deepest point is a fork proposal,
 pointing along the axis to the far end (where the snout is); both axis ends are proposals too
-(a fin too faint for the mask leaves the body ending at the caudal peduncle).
+(a fin too faint for the mask leaves the body ending at the caudal peduncle). Each proposal is
+located by ``vision.fork``; snout candidates are the far end of the silhouette a located fork
+belongs to (``silhouette_tips``).
+
+Measured and left out (bench/bench_survey_underwater.py, 107 scenes, 203 fully visible fish): the
+notch re-measured on the outline of a full-resolution crop thresholded against this background
+(the deepest convexity defect, sub-pixel): from near-true starts it placed 15 of 76 rendered forks
+within 2 % (the crossings of ``vision.fork``: 27), and in the survey it added no fish found, only
+false ones (precision 1.0 without it, 0.95 with it): a half-transparent fin over reef or another
+fish has no outline of its own at any one threshold.
 """
 from __future__ import annotations
 

@@ -36,7 +36,6 @@ from vision.bodies import body_ends, fish_masks
 from vision.calib_file import StereoCalibration
 from vision.fins import SPAN_OF_FL, Fins, bank_proposals, concat, fin_scores, suppress
 from vision.fork import locate_forks, pyramid
-from vision.fork_outline import outline_locate
 from vision.illumination import water_distance
 from vision.silhouettes import background_distance, body_fill, components, outline_forks, silhouette_tips
 from vision.silhouettes import fish_masks as outline_masks
@@ -66,13 +65,10 @@ class Params:
     bank_levels: int = 2            # ... scored on the working image and its first halving
     bank_stride: int = 2            # ... at grid points this many px apart
     bank_keep: float = 0.1          # ... the share of them with the most emboss energy
+    row_regions: bool = True        # fork proposals at the ends of regions unlike the row-compensated water
     outlines: bool = True           # fork proposals from silhouettes against the local background
     outline_k: tuple[float, ...] = (2.0, 4.0)   # ... thresholds, in local background spreads
-    outline_locate: bool = True     # notches also located on the outline at full resolution (vision.fork_outline)
-    outline_agree: float = 0.07     # an outline fork and the crossings' within this share of the span agree
-    outline_prefer_crossing: bool = False   # ... and then the crossings' point is kept
     min_fill: float = 0.0           # the least share of the fork-snout segment inside a silhouette (term 0 there)
-    outline_rms: float = 0.015      # the fork-shape misfit an outline fork is scored with
 
 
 class _Clock:
@@ -108,32 +104,37 @@ def _view(img: np.ndarray, setup: SurveySetup, p: Params, clock: _Clock, trace: 
     src = pyr[k]
     small = src if src.shape[1] == round(W * scale) else cv2.resize(
         src, (round(W * scale), round(H * scale)), interpolation=cv2.INTER_AREA)
-    dist = water_distance(small, setup.mi_ref, setup.c_ref)
-    clock.lap("illumination")
     sx, sy = W / small.shape[1], H / small.shape[0]
-    # two thresholds: a low one finds faint fish, a high one splits fish that touch at the low one
-    found = [body_ends(m, sx, sy, p.min_fish_frac * small.shape[1]) for m in fish_masks(dist, p.mask_k, p.otsu_share)]
-    ends, length = concat([f[0] for f in found]), np.concatenate([f[1] for f in found])
-    # a region's end is the caudal peduncle when the fin is too faint to be in it (the region is
-    # then ~0.87 of the fork length), or the lobe tips when it is not
-    hyps = concat([_shifted(ends, length, off) for off in (-0.17, -0.12, -0.07, -0.02, 0.03)])
+    hyps = Fins.empty()
+    dist = None
+    if p.row_regions:
+        dist = water_distance(small, setup.mi_ref, setup.c_ref)
+        # two thresholds: a low one finds faint fish, a high one splits fish that touch at the low one
+        found = [body_ends(m, sx, sy, p.min_fish_frac * small.shape[1])
+                 for m in fish_masks(dist, p.mask_k, p.otsu_share)]
+        ends, length = concat([f[0] for f in found]), np.concatenate([f[1] for f in found])
+        # a region's end is the caudal peduncle when the fin is too faint to be in it (the region is
+        # then ~0.87 of the fork length), or the lobe tips when it is not
+        hyps = concat([_shifted(ends, length, off) for off in (-0.17, -0.12, -0.07, -0.02, 0.03)])
+    clock.lap("illumination")
     n_bank = int(round(p.bank_per_mpix * H * W / 1e6))
     if n_bank > 0:
+        if dist is None:
+            dist = water_distance(small, setup.mi_ref, setup.c_ref)
         # a second proposer, eq. (13) over the working image: forks the bodies' ends miss (a fish
         # before reef or net, fish touching); each located like the others
         hyps = concat([hyps, bank_proposals(dist, sx, sy, n_bank, p.bank_levels, p.bank_stride, p.bank_keep)])
-    comps, notches = [], []
+    comps = []
     if p.outlines:
         # a third, from silhouettes against the local background: the caudal notch as a convexity
         # defect of the outline, the outline's ends
-        z, bg, spread = background_distance(small)
+        z = background_distance(small)[0]
         masks = outline_masks(z, p.outline_k)
         comps = components(masks)
         for m in masks:
             f, ln = outline_forks(m, sx, sy, p.min_fish_frac * small.shape[1])
             notch = f.score > 1.0
-            notches.append(f.take(np.flatnonzero(notch)))
-            hyps = concat([hyps, notches[-1]]
+            hyps = concat([hyps, f.take(np.flatnonzero(notch))]
                           + [_shifted(f.take(np.flatnonzero(~notch)), ln[~notch], off) for off in (-0.12, -0.02)])
     clock.lap("fins")
     if trace is not None:
@@ -143,20 +144,6 @@ def _view(img: np.ndarray, setup: SurveySetup, p: Params, clock: _Clock, trace: 
     ok = np.flatnonzero(forks.ok)
     located = forks.fins.take(ok)
     fish, water, arm = forks.fish_level[ok], forks.water_level[ok], forks.arm_rms[ok]
-    notches = concat(notches)
-    if len(notches) and p.outline_locate:
-        # the notches again on the outline at full resolution: faint fins the crossings miss
-        of, found = outline_locate(pyr, bg, spread, sx, sy, notches)
-        of = of.take(np.flatnonzero(found))
-        lev = locate_forks(pyr, of)
-        agree = lev.ok & (np.linalg.norm(lev.fins.xy - of.xy, axis=1) <= p.outline_agree * of.span_px)
-        if p.outline_prefer_crossing:
-            of.xy = np.where(agree[:, None], lev.fins.xy, of.xy)
-        good = np.flatnonzero(np.all(np.isfinite(lev.fish_level), axis=1) & np.all(np.isfinite(lev.water_level), axis=1)
-                              & (lev.contrast >= 3.0))
-        located = concat([located, of.take(good)])
-        fish, water = np.vstack([fish, lev.fish_level[good]]), np.vstack([water, lev.water_level[good]])
-        arm = np.r_[arm, np.where(agree, lev.arm_rms, p.outline_rms)[good]]
     located.score = fin_scores(pyr, located)              # eq. (13), where the forks are
     keep = suppress(located, p.max_fins, 0.1)             # the same fork from several hypotheses: the best
     fins = located.take(keep)

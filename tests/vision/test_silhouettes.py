@@ -1,5 +1,5 @@
-"""Silhouettes against a local background, fork proposals from their outlines, the outline locator
-and snout tips from silhouettes: on fish drawn with cv2 (a body with a forked caudal fin) over water
+"""Silhouettes against a local background, fork proposals from their outlines and snout tips from
+silhouettes: on fish drawn with cv2 (a body with a forked caudal fin) over water
 with a vertical gradient and clutter, independent of the renderer."""
 from __future__ import annotations
 
@@ -8,9 +8,7 @@ import numpy as np
 import pytest
 
 from tests.vision.fish_drawing import draw_fish_2d, water
-from vision.fins import SPAN_OF_FL, Fins
-from vision.fork import pyramid
-from vision.fork_outline import outline_locate
+from vision.fins import SPAN_OF_FL
 from vision.silhouettes import (
     background_distance,
     body_fill,
@@ -52,7 +50,7 @@ def test_forks_are_proposed_at_the_notch_of_bright_and_dark_fish(colour, clutter
     img, _ = scene(np.random.default_rng(1), FISH, clutter, colour)
     z, bg, spread = background_distance(small_of(img))
     assert z.shape == (H // 4, W // 4) and bg.shape[:2] == z.shape and spread.min() > 0
-    for fork, angle, L, _ in FISH:
+    for fork, _, L, _ in FISH:
         hits = []
         for m in fish_masks(z):
             f, _ = outline_forks(m, WORK, WORK, 20)
@@ -69,32 +67,6 @@ def test_open_water_gives_no_silhouette():
     for m in fish_masks(z):
         f, _ = outline_forks(m, WORK, WORK, 20)
         assert len(f) == 0
-
-
-def test_outline_locator_finds_the_innermost_point_to_one_percent():
-    img, _ = scene(np.random.default_rng(3), FISH, clutter=True)
-    z, bg, spread = background_distance(small_of(img))
-    pyr = pyramid(img)
-    rng = np.random.default_rng(4)
-    for fork, angle, L, _ in FISH:
-        # a proposal a few percent off, its axis 10 degrees off, its span 20 % off
-        start = np.asarray(fork) + rng.uniform(-0.03, 0.03, 2) * L
-        f = Fins(start[None], np.array([angle + 0.17]), np.array([1.2 * SPAN_OF_FL * L]), np.ones(1), np.ones(1))
-        got, ok = outline_locate(pyr, bg, spread, WORK, WORK, f)
-        assert ok[0]
-        assert np.linalg.norm(got.xy[0] - fork) <= 0.01 * L
-        assert abs(np.angle(np.exp(1j * (got.angle[0] - angle)))) < np.radians(8)
-
-
-def test_outline_locator_finds_no_fork_on_a_plain_ellipse():
-    rng = np.random.default_rng(5)
-    img = np.clip(water(H, W, rng), 0, 255).astype(np.uint8)
-    cv2.ellipse(img, (320, 240), (120, 40), 0, 0, 360, 230, -1, cv2.LINE_AA)
-    img = cv2.merge([img, img, img])
-    z, bg, spread = background_distance(small_of(img))
-    f = Fins(np.array([[200.0, 240.0]]), np.array([0.0]), np.array([70.0]), np.ones(1), np.ones(1))
-    _, ok = outline_locate(pyramid(img), bg, spread, WORK, WORK, f)
-    assert not ok[0]
 
 
 def test_snout_tips_are_the_silhouettes_far_ends_and_segments_lie_in_them():
