@@ -2,10 +2,12 @@
 location, stereo pairing, snouts, 3-D association, post-filters and a quality score per fish.
 
 Stages (``timings`` keys): ``illumination`` (pyramid, noise reduction, row compensation, water
-distance), ``fins`` (fish regions, fork hypotheses at their ends), ``fork`` (forks located at full
-resolution, eq. 13 scored there), ``stereo`` (fork pairing, forks seen in one image looked for
-along their epipolar line in the other, triangulation), ``snout`` (profiles and tips), ``associate``
-(snout pairing in 3-D, filters, score).
+distance), ``fins`` (fish regions, fork hypotheses at their ends, the template bank's, fish
+silhouettes against a local background and the notches in their outlines), ``fork`` (forks
+located at full resolution, eq. 13 scored there), ``stereo`` (fork pairing, forks seen in one
+image looked for along their epipolar line in the other, triangulation), ``snout`` (profiles,
+silhouettes' far ends and tips), ``associate`` (snout pairing in 3-D, each end checked along its
+epipolar line, filters, score).
 
 The score (0..1) is the product of terms, each 1 when that part of the measurement is as good as it
 gets and falling towards 0 as it becomes doubtful; ``FishMeasurement.quality`` holds the raw
@@ -68,6 +70,7 @@ class Params:
     row_regions: bool = True        # fork proposals at the ends of regions unlike the row-compensated water
     outlines: bool = True           # fork proposals from silhouettes against the local background
     outline_k: tuple[float, ...] = (2.0, 4.0)   # ... thresholds, in local background spreads
+    outline_ends: tuple[float, ...] = (-0.12, -0.02)   # ... outline ends shifted by these shares of its length
     min_fill: float = 0.0           # the least share of the fork-snout segment inside a silhouette (term 0 there)
 
 
@@ -109,6 +112,7 @@ def _view(img: np.ndarray, setup: SurveySetup, p: Params, clock: _Clock, trace: 
     dist = None
     if p.row_regions:
         dist = water_distance(small, setup.mi_ref, setup.c_ref)
+        clock.lap("illumination")
         # two thresholds: a low one finds faint fish, a high one splits fish that touch at the low one
         found = [body_ends(m, sx, sy, p.min_fish_frac * small.shape[1])
                  for m in fish_masks(dist, p.mask_k, p.otsu_share)]
@@ -116,11 +120,11 @@ def _view(img: np.ndarray, setup: SurveySetup, p: Params, clock: _Clock, trace: 
         # a region's end is the caudal peduncle when the fin is too faint to be in it (the region is
         # then ~0.87 of the fork length), or the lobe tips when it is not
         hyps = concat([_shifted(ends, length, off) for off in (-0.17, -0.12, -0.07, -0.02, 0.03)])
-    clock.lap("illumination")
     n_bank = int(round(p.bank_per_mpix * H * W / 1e6))
     if n_bank > 0:
         if dist is None:
             dist = water_distance(small, setup.mi_ref, setup.c_ref)
+            clock.lap("illumination")
         # a second proposer, eq. (13) over the working image: forks the bodies' ends miss (a fish
         # before reef or net, fish touching); each located like the others
         hyps = concat([hyps, bank_proposals(dist, sx, sy, n_bank, p.bank_levels, p.bank_stride, p.bank_keep)])
@@ -135,7 +139,7 @@ def _view(img: np.ndarray, setup: SurveySetup, p: Params, clock: _Clock, trace: 
             f, ln = outline_forks(m, sx, sy, p.min_fish_frac * small.shape[1])
             notch = f.score > 1.0
             hyps = concat([hyps, f.take(np.flatnonzero(notch))]
-                          + [_shifted(f.take(np.flatnonzero(~notch)), ln[~notch], off) for off in (-0.12, -0.02)])
+                          + [_shifted(f.take(np.flatnonzero(~notch)), ln[~notch], off) for off in p.outline_ends])
     clock.lap("fins")
     if trace is not None:
         trace.setdefault("proposed", []).append(hyps.xy.copy())
