@@ -16,7 +16,7 @@ fin's axis, so the 3-D snout lies on the same side of the fork in both views or 
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import cv2
 import numpy as np
@@ -39,6 +39,8 @@ class View:
     fish_level: np.ndarray
     water_level: np.ndarray
     arm_rms: np.ndarray
+    comps: list = field(default_factory=list)       # silhouettes' (labels, stats) on the working image
+    scale: tuple[float, float] = (1.0, 1.0)         # full-resolution px per working px
 
 
 @dataclass

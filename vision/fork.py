@@ -24,6 +24,7 @@ from vision.fins import Fins, sample_frames
 
 SAMPLES = 40            # grid steps per fin span
 SHALLOW_SLOPE = 0.12    # arms flatter than this: a square-cut or shallow tail
+APEX_BEHIND = 0.0      # how far (spans) the fitted apex may lie behind the deepest crossing seen
 FLAT_OK = True
 
 
@@ -95,7 +96,8 @@ def _apex(y: np.ndarray, x: np.ndarray, w: np.ndarray, y0: np.ndarray, xmax: np.
     runs parallel to the axis at the apex). Rows next to the apex are already left out of ``w``;
     rows whose crossing misses the fitted curve by more than 3x the median miss (a ragged fin
     ray, a glint) are dropped and the fit repeated. The apex may not lie more than 0.1 span
-    ahead of the deepest crossing seen, nor 0.02 behind it."""
+    ahead of the deepest crossing seen, nor behind it (``APEX_BEHIND``): blur rounds the apex off
+    and pulls its crossing back, so the innermost point is at least as deep as any crossing seen."""
     r = np.abs(y - y0[:, None])[:, None, :] ** POWERS[None, :, None]          # (N, P, rows)
     xx = np.broadcast_to(x[:, None, :], r.shape)
     wf = np.broadcast_to(w.astype(float)[:, None, :], r.shape)
@@ -108,7 +110,7 @@ def _apex(y: np.ndarray, x: np.ndarray, w: np.ndarray, y0: np.ndarray, xmax: np.
     err = (wf * res * res).sum(axis=2) / np.maximum(wf.sum(axis=2), 1)
     best = (err * PREFER_V).argmin(axis=1)
     apex = x0[np.arange(len(x0)), best]
-    return np.clip(apex, xmax - 0.02, xmax + 0.1)
+    return np.clip(apex, xmax - APEX_BEHIND, xmax + 0.1)
 
 
 def _masked_median(a: np.ndarray, m: np.ndarray) -> np.ndarray:

@@ -2,10 +2,12 @@
 location, stereo pairing, snouts, 3-D association, post-filters and a quality score per fish.
 
 Stages (``timings`` keys): ``illumination`` (pyramid, noise reduction, row compensation, water
-distance), ``fins`` (fish regions, fork hypotheses at their ends), ``fork`` (forks located at full
-resolution, eq. 13 scored there), ``stereo`` (fork pairing, forks seen in one image looked for
-along their epipolar line in the other, triangulation), ``snout`` (profiles and tips), ``associate``
-(snout pairing in 3-D, filters, score).
+distance), ``fins`` (fish regions, fork hypotheses at their ends, the template bank's, fish
+silhouettes against a local background and the notches in their outlines), ``fork`` (forks
+located at full resolution, eq. 13 scored there), ``stereo`` (fork pairing, forks seen in one
+image looked for along their epipolar line in the other, triangulation), ``snout`` (profiles,
+silhouettes' far ends and tips), ``associate`` (snout pairing in 3-D, each end checked along its
+epipolar line, filters, score).
 
 The score (0..1) is the product of terms, each 1 when that part of the measurement is as good as it
 gets and falling towards 0 as it becomes doubtful; ``FishMeasurement.quality`` holds the raw
@@ -37,7 +39,9 @@ from vision.calib_file import StereoCalibration
 from vision.fins import SPAN_OF_FL, Fins, bank_proposals, concat, fin_scores, suppress
 from vision.fork import locate_forks, pyramid
 from vision.illumination import water_distance
-from vision.snout import find_snouts, refine_tips
+from vision.silhouettes import background_distance, body_fill, components, outline_forks, silhouette_tips
+from vision.silhouettes import fish_masks as outline_masks
+from vision.snout import Snouts, find_snouts, refine_tips
 from vision.survey_types import FishMeasurement, SurveySetup
 from vision.triangulation import triangulate_calibrated
 
@@ -53,7 +57,9 @@ class Params:
     max_residual_px: float = 2.5    # snout triangulation
     good_length_px: float = 250.0   # fish this long in the image score 1 on size (x image width / 1280)
     fin_floor: float = 0.2          # the least the fork-template term (eq. 13) gives a located fork
-    min_score: float = 0.12         # post-filter: a fish whose measurement rests on little is dropped
+    min_score: float = 0.02         # post-filter: a fish whose measurement rests on little is dropped
+    max_epipolar: float = 0.03      # post-filter: each end within this share of the length of the other
+                                    # image's best match along its epipolar line
     transfer: bool = True           # a fork found in one image only is looked for along its epipolar line
     near_mm: float = 300.0          # working range of the rig for that search (from the camera)
     far_mm: float = 4000.0
@@ -61,6 +67,11 @@ class Params:
     bank_levels: int = 2            # ... scored on the working image and its first halving
     bank_stride: int = 2            # ... at grid points this many px apart
     bank_keep: float = 0.1          # ... the share of them with the most emboss energy
+    row_regions: bool = True        # fork proposals at the ends of regions unlike the row-compensated water
+    outlines: bool = True           # fork proposals from silhouettes against the local background
+    outline_k: tuple[float, ...] = (2.0, 4.0)   # ... thresholds, in local background spreads
+    outline_ends: tuple[float, ...] = (-0.12, -0.02)   # ... outline ends shifted by these shares of its length
+    min_fill: float = 0.0           # the least share of the fork-snout segment inside a silhouette (term 0 there)
 
 
 class _Clock:
@@ -87,7 +98,7 @@ def _channels(img: np.ndarray) -> np.ndarray:
     return img
 
 
-def _view(img: np.ndarray, setup: SurveySetup, p: Params, clock: _Clock) -> View:
+def _view(img: np.ndarray, setup: SurveySetup, p: Params, clock: _Clock, trace: dict | None = None) -> View:
     img = np.asarray(img)
     H, W = img.shape[:2]
     pyr = pyramid(img)
@@ -96,30 +107,52 @@ def _view(img: np.ndarray, setup: SurveySetup, p: Params, clock: _Clock) -> View
     src = pyr[k]
     small = src if src.shape[1] == round(W * scale) else cv2.resize(
         src, (round(W * scale), round(H * scale)), interpolation=cv2.INTER_AREA)
-    dist = water_distance(small, setup.mi_ref, setup.c_ref)
-    clock.lap("illumination")
     sx, sy = W / small.shape[1], H / small.shape[0]
-    # two thresholds: a low one finds faint fish, a high one splits fish that touch at the low one
-    found = [body_ends(m, sx, sy, p.min_fish_frac * small.shape[1]) for m in fish_masks(dist, p.mask_k, p.otsu_share)]
-    ends, length = concat([f[0] for f in found]), np.concatenate([f[1] for f in found])
-    # a region's end is the caudal peduncle when the fin is too faint to be in it (the region is
-    # then ~0.87 of the fork length), or the lobe tips when it is not
-    hyps = concat([_shifted(ends, length, off) for off in (-0.17, -0.12, -0.07, -0.02, 0.03)])
+    hyps = Fins.empty()
+    dist = None
+    if p.row_regions:
+        dist = water_distance(small, setup.mi_ref, setup.c_ref)
+        clock.lap("illumination")
+        # two thresholds: a low one finds faint fish, a high one splits fish that touch at the low one
+        found = [body_ends(m, sx, sy, p.min_fish_frac * small.shape[1])
+                 for m in fish_masks(dist, p.mask_k, p.otsu_share)]
+        ends, length = concat([f[0] for f in found]), np.concatenate([f[1] for f in found])
+        # a region's end is the caudal peduncle when the fin is too faint to be in it (the region is
+        # then ~0.87 of the fork length), or the lobe tips when it is not
+        hyps = concat([_shifted(ends, length, off) for off in (-0.17, -0.12, -0.07, -0.02, 0.03)])
     n_bank = int(round(p.bank_per_mpix * H * W / 1e6))
     if n_bank > 0:
+        if dist is None:
+            dist = water_distance(small, setup.mi_ref, setup.c_ref)
+            clock.lap("illumination")
         # a second proposer, eq. (13) over the working image: forks the bodies' ends miss (a fish
         # before reef or net, fish touching); each located like the others
         hyps = concat([hyps, bank_proposals(dist, sx, sy, n_bank, p.bank_levels, p.bank_stride, p.bank_keep)])
+    comps = []
+    if p.outlines:
+        # a third, from silhouettes against the local background: the caudal notch as a convexity
+        # defect of the outline, the outline's ends
+        z = background_distance(small)[0]
+        masks = outline_masks(z, p.outline_k)
+        comps = components(masks)
+        for m in masks:
+            f, ln = outline_forks(m, sx, sy, p.min_fish_frac * small.shape[1])
+            notch = f.score > 1.0
+            hyps = concat([hyps, f.take(np.flatnonzero(notch))]
+                          + [_shifted(f.take(np.flatnonzero(~notch)), ln[~notch], off) for off in p.outline_ends])
     clock.lap("fins")
+    if trace is not None:
+        trace.setdefault("proposed", []).append(hyps.xy.copy())
     forks = locate_forks(pyr, hyps)
     forks = locate_forks(pyr, forks.fins.take(np.flatnonzero(forks.ok)))        # again, from the fork
     ok = np.flatnonzero(forks.ok)
     located = forks.fins.take(ok)
+    fish, water, arm = forks.fish_level[ok], forks.water_level[ok], forks.arm_rms[ok]
     located.score = fin_scores(pyr, located)              # eq. (13), where the forks are
     keep = suppress(located, p.max_fins, 0.1)             # the same fork from several hypotheses: the best
-    ok, fins = ok[keep], located.take(keep)
+    fins = located.take(keep)
     clock.lap("fork")
-    return View(pyr, fins, forks.fish_level[ok], forks.water_level[ok], forks.arm_rms[ok])
+    return View(pyr, fins, fish[keep], water[keep], arm[keep], comps, (sx, sy))
 
 
 def _transfer(calib, v1: View, v2: View, pairs, p: Params) -> tuple[View, View]:
@@ -140,7 +173,8 @@ def _transfer(calib, v1: View, v2: View, pairs, p: Params) -> tuple[View, View]:
         new = forks.fins.take(ok)
         new.score = fin_scores(v.pyr, new)
         views[dst] = View(v.pyr, concat([v.fins, new]), np.vstack([v.fish_level, forks.fish_level[ok]]),
-                          np.vstack([v.water_level, forks.water_level[ok]]), np.r_[v.arm_rms, forks.arm_rms[ok]])
+                          np.vstack([v.water_level, forks.water_level[ok]]), np.r_[v.arm_rms, forks.arm_rms[ok]],
+                          v.comps, v.scale)
     return views[0], views[1]
 
 
@@ -169,18 +203,23 @@ def _shifted(fins: Fins, length: np.ndarray, frac: float) -> Fins:
 
 
 def measure_underwater(left: np.ndarray, right: np.ndarray, calib: StereoCalibration, setup: SurveySetup,
-                       timings: dict[str, float] | None = None, params: Params = Params()) -> list[FishMeasurement]:
-    """Fish measured in one underwater pair (grey or BGR uint8, any size); [] when there are none."""
+                       timings: dict[str, float] | None = None, params: Params = Params(),
+                       trace: dict | None = None) -> list[FishMeasurement]:
+    """Fish measured in one underwater pair (grey or BGR uint8, any size); [] when there are none.
+    ``trace`` (diagnostics, bench/diag_underwater.py) receives each stage's points."""
     clock = _Clock(timings)
     left, right = _channels(left), _channels(right)
     if left.size == 0 or min(left.shape[:2]) < 32:
         return []
-    v1 = _view(left, setup, params, clock)
-    v2 = _view(right, setup, params, clock)
+    v1 = _view(left, setup, params, clock, trace)
+    v2 = _view(right, setup, params, clock, trace)
     pairs = match_forks(calib, v1, v2, params.band_px)
     if params.transfer:
         v1, v2 = _transfer(calib, v1, v2, pairs, params)
         pairs = match_forks(calib, v1, v2, params.band_px)
+    if trace is not None:
+        trace["located"] = [v1.fins.xy.copy(), v2.fins.xy.copy()]
+        trace["pairs"] = (v1.fins.xy[pairs.i].copy(), v2.fins.xy[pairs.j].copy())
     if len(pairs.i) == 0:
         clock.lap("stereo")
         return []
@@ -195,6 +234,14 @@ def measure_underwater(left: np.ndarray, right: np.ndarray, calib: StereoCalibra
     for v, f, idx, lo, hi in ((v1, f1, pairs.i, lo1, hi1), (v2, f2, pairs.j, lo1 * scale21, hi1 * scale21)):
         sn.append(find_snouts(v.pyr, f.xy, f.body_angle(), 0.08 * f.span_px, v.fish_level[idx], v.water_level[idx],
                               lo, hi))
+    if params.outlines:
+        # the far end of the silhouette each fork belongs to, its tip refined on the image
+        for c, (v, f, idx) in enumerate(((v1, f1, pairs.i), (v2, f2, pairs.j))):
+            tips = silhouette_tips(v.comps, *v.scale, f.xy, f.body_angle(), f.span_px)
+            tips, found = _tips(v, f, tips, idx)
+            strength = np.where(found, 0.8, 0.4) * np.all(np.isfinite(tips), axis=2)
+            sn[c] = Snouts(np.concatenate([sn[c].dist_px, np.linalg.norm(tips - f.xy[:, None], axis=2)], axis=1),
+                           np.concatenate([sn[c].xy, tips], axis=1), np.concatenate([sn[c].strength, strength], axis=1))
     clock.lap("snout")
     up = np.asarray(setup.up_world if setup.up_world is not None else camera_frame(calib.P1)[1], float)
     up = up / np.linalg.norm(up)
@@ -203,6 +250,8 @@ def measure_underwater(left: np.ndarray, right: np.ndarray, calib: StereoCalibra
     expected = f1.span_px * depth / f_px / SPAN_OF_FL             # the fin's size in mm, as a length
     gate = params.max_residual_px + 0.01 * f1.span_px / SPAN_OF_FL
     px1, s1, px2, s2 = sn[0].xy, sn[0].strength, sn[1].xy, sn[1].strength
+    if trace is not None:
+        trace["snouts"] = (px1.copy(), px2.copy())
     if params.transfer:
         # each left candidate also looked for along its epipolar line in the right image, within the
         # (kept only where a tip is seen there: a point on a line is no snout by itself)
@@ -223,20 +272,39 @@ def measure_underwater(left: np.ndarray, right: np.ndarray, calib: StereoCalibra
         moved = same.any(axis=1)
         view = np.where(moved, np.clip((np.where(same, tn, 0).max(axis=1) - 0.5) / 0.4, 0, 1), 1.0)
     keep = ch.ok & np.all(np.isfinite(fork_mm), axis=1) & (fork_res <= gate)
+    # each end looked for again along its epipolar line in the other image, by likeness alone: a
+    # fork or snout paired with the wrong structure on that line (another fin, a fin's edge) is
+    # not where the other image's best match is
+    near, far = np.maximum(depth - 0.8 * expected, 1.0), depth + 0.8 * expected
+    lo_d, hi_d = np.maximum(depth - 0.5 * expected, 1.0), depth + 0.5 * expected
+    fwd = transfer_forks(calib.P1, calib.P2, v1, v2, pairs.i, lo_d, hi_d)
+    bwd = transfer_forks(calib.P2, calib.P1, v2, v1, pairs.j, lo_d, hi_d)
+    fork_epi = np.maximum(np.linalg.norm(fwd.xy - f2.xy, axis=1), np.linalg.norm(bwd.xy - f1.xy, axis=1))
+    s12, _ = transfer_snouts(calib.P1, calib.P2, v1, v2, ch.px1[:, None], f1.body_angle(), f2.body_angle(),
+                             0.5 * f1.span_px, near, far)
+    s21, _ = transfer_snouts(calib.P2, calib.P1, v2, v1, ch.px2[:, None], f2.body_angle(), f1.body_angle(),
+                             0.5 * f2.span_px, near, far)
+    snout_epi = np.maximum(np.linalg.norm(s12[:, 0] - ch.px2, axis=1), np.linalg.norm(s21[:, 0] - ch.px1, axis=1))
+    if trace is not None:
+        trace["associated"] = (f1.xy.copy(), f2.xy.copy(), ch.px1.copy(), ch.px2.copy(), keep.copy())
     out = _measurements(np.flatnonzero(keep), pairs, f1, f2, v1, v2, fork_mm, fork_res, ch, calib, geo, params,
-                        left.shape[1], expected, view)
+                        left.shape[1], expected, view, fork_epi, snout_epi)
     clock.lap("associate")
     return out
 
 
 def _measurements(rows, pairs, f1, f2, v1, v2, fork_mm, fork_res, ch, calib, geo, p: Params,
-                  width: int, expected: np.ndarray, view: np.ndarray) -> list[FishMeasurement]:
+                  width: int, expected: np.ndarray, view: np.ndarray, fork_epi: np.ndarray,
+                  snout_epi: np.ndarray) -> list[FishMeasurement]:
     if len(rows) == 0:
         return []
     c1 = -np.linalg.solve(calib.P1[:, :3], calib.P1[:, 3])
     rng_mm = np.linalg.norm(fork_mm - c1, axis=1)
     len_px = 0.5 * (np.linalg.norm(ch.px1 - f1.xy, axis=1) + np.linalg.norm(ch.px2 - f2.xy, axis=1))
+    fill = np.minimum(body_fill(v1.comps, *v1.scale, f1.xy, ch.px1), body_fill(v2.comps, *v2.scale, f2.xy, ch.px2)) \
+        if p.outlines else np.ones(len(f1))
     terms = {
+        "t_fill": np.clip((fill - p.min_fill) / (1 - p.min_fill), 0, 1) if p.min_fill < 1 else np.ones(len(f1)),
         "t_stereo": np.clip((pairs.ncc - 0.4) / 0.5, 0, 1),
         # eq. (13)'s bank is drawn with a forked tail: a square-cut or worn tail the locator found
         # scores low on it without being any less a tail, so the bank lowers the score, never vetoes
@@ -256,9 +324,13 @@ def _measurements(rows, pairs, f1, f2, v1, v2, fork_mm, fork_res, ch, calib, geo
     score = np.prod(np.stack(list(terms.values())), axis=0)
     raw = {"stereo_ncc": pairs.ncc, "fork_residual_px": fork_res, "snout_residual_px": ch.residual_px,
            "tilt_deg": ch.tilt_deg, "range_mm": rng_mm, "length_px": len_px,
-           "fin_ncc": np.minimum(f1.score, f2.score), "snout_edge": ch.strength, "body_length_mm": expected}
+           "fin_ncc": np.minimum(f1.score, f2.score), "snout_edge": ch.strength, "body_length_mm": expected,
+           "body_fill": fill, "fork_epi_px": fork_epi, "snout_epi_px": snout_epi}
     fish = []
-    rows = rows[score[rows] >= p.min_score]
+    # post-filter: an end the other image's best match along its epipolar line puts elsewhere
+    # is on the wrong structure there, and its depth with it
+    epi = np.maximum(fork_epi, snout_epi) / np.maximum(len_px, 1e-6)
+    rows = rows[(score[rows] >= p.min_score) & (epi[rows] <= p.max_epipolar)]
     for r in _unique_snouts(rows, ch, score):
         q = {k: float(v[r]) for k, v in raw.items()} | {k: float(v[r]) for k, v in terms.items()}
         fish.append(FishMeasurement(snout_mm=ch.mm[r].copy(), fork_mm=fork_mm[r].copy(),

@@ -107,3 +107,13 @@ def test_image_up_is_the_default_surface_normal():
     b = run(rig_of(), [1], setup=SurveySetup())[0][0]
     assert len(a) == len(b)
     assert all(np.allclose(x.snout_mm, y.snout_mm) for x, y in zip(a, b, strict=True))
+
+
+def test_each_reported_end_is_where_the_other_image_best_matches_it(results):
+    """The epipolar post-filter: every fish reported has its fork and its snout within 3 % of its
+    length of where the other image's best match along the epipolar line puts them."""
+    reported = [f for fish, _, _ in results for f in fish]
+    assert reported
+    for f in reported:
+        assert max(f.quality["fork_epi_px"], f.quality["snout_epi_px"]) <= 0.03 * f.quality["length_px"] + 1e-9
+        assert 0.0 <= f.quality["body_fill"] <= 1.0
