@@ -186,13 +186,23 @@ def measure_surface(left: np.ndarray, right: np.ndarray, calib: StereoCalibratio
                     timings: dict[str, float] | None = None) -> list[FishMeasurement]:
     """Fish measured in one pair seen from above (see module docstring). Never raises on a frame
     without fish: returns []."""
+    return [m for m in surface_stages(left, right, calib, setup, timings)["measured"] if m.score >= MIN_SCORE]
+
+
+def surface_stages(left: np.ndarray, right: np.ndarray, calib: StereoCalibration, setup: SurveySetup,
+                   timings: dict[str, float] | None = None) -> dict:
+    """The pipeline's intermediate results, for diagnosis (bench/diag_surface.py): ``left`` and
+    ``right`` (Fish2D per view), ``pairs`` ((left index, right index) taken), ``measured`` (every
+    paired fish's FishMeasurement, before the MIN_SCORE cut) and ``measured_pair`` (its index in ``pairs``)."""
     t0 = time.perf_counter()
+    out: dict = {"left": [], "right": [], "pairs": [], "measured": [], "measured_pair": []}
     if min(np.shape(left)[:2] + np.shape(right)[:2]) < MIN_SIDE_PX:
-        return []
+        return out
     cl, cr = contrast_map(left), contrast_map(right)
     t0 = _tick(timings, "prep", t0)
     ratio = setup.geometry.fin_base_to_fork
     fl, fr = _fish_in(cl, DEFAULT_PARAMS, ratio), _fish_in(cr, DEFAULT_PARAMS, ratio)
+    out["left"], out["right"] = fl, fr
     t0 = _tick(timings, "detect", t0)
     F = fundamental_from_projections(np.asarray(calib.P1, float), np.asarray(calib.P2, float))
     up = up_direction(calib, setup)
@@ -205,9 +215,10 @@ def measure_surface(left: np.ndarray, right: np.ndarray, calib: StereoCalibratio
         used_l.add(i)
         used_r.add(j)
         pairs.append((fl[i], fr[j], pts1, pts2, head))
+        out["pairs"].append((i, j))
     if not pairs:
         _tick(timings, "stereo", t0)
-        return []
+        return out
     # snout and fork only: a window on the midline slides along a body lying along the epipolar line
     ends2, ncc = refine(cl.full, cr.full, calib, F, np.vstack([p[2][:2] for p in pairs]),
                         np.vstack([p[3][:2] for p in pairs]), _patch(fl))
@@ -224,14 +235,13 @@ def measure_surface(left: np.ndarray, right: np.ndarray, calib: StereoCalibratio
         solid_pts.append(np.r_[True, True, crossed])
         sets.append((pts1, pts2))
         gaps.append(float(np.linalg.norm(own - pts2[1]) / max(b.length_px, 1.0)))
-    out = []
     for k, ((a, b, _, _, head), (pts1, pts2), solid) in enumerate(zip(pairs, sets, _solids(calib, setup, up, sets),
                                                                       strict=True)):
         if solid is None:
             continue
         solid = _on_axis(calib, up, solid, pts1, pts2, solid_pts[k])
         m = _measure(setup, a, b, pts1, pts2, head, solid, ncc[2 * k:2 * k + 2], gaps[k])
-        if m.score >= MIN_SCORE:
-            out.append(m)
+        out["measured"].append(m)
+        out["measured_pair"].append(k)
     _tick(timings, "stereo", t0)
     return out
