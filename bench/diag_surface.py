@@ -14,6 +14,9 @@ denominator) the stages it passes, in order (``stages``: how many fish are still
                               bench's rule), before the score cut;
   reported_ok                 the same, with the score kept (>= MIN_SCORE).
 
+``each_stage_alone``: how many fish pass each stage whatever happened before it (e.g. right_ends
+with the left view failed).
+
 Also: the reports' failures by kind (a pairing of two different fish, a region that is no fish,
 ends misplaced in an image, only the 3-D wrong); how the ends miss in each view (short of the true
 end along the body, or past it); and, for the fish right in both images, the 3-D error of each end
@@ -106,6 +109,7 @@ def _frame3d(m, t, up):
 def run(scenes: int, seed: int) -> dict:
     cv2.setNumThreads(1)
     stages = dict.fromkeys(STAGES, 0)
+    alone = dict.fromkeys(STAGES, 0)     # each stage on its own, not after the ones before
     fails = {"reported": 0, "ok": 0, "no_region": 0, "cross_paired": 0, "ends_in_images": 0, "depth_only": 0,
              "duplicate": 0}
     misses = {"left": [], "right": []}
@@ -162,6 +166,8 @@ def run(scenes: int, seed: int) -> dict:
             for m in ms:
                 if _ok_img(m, t):
                     frame3d.append(_frame3d(m, t, up))
+            for name in STAGES:
+                alone[name] += bool(passed[name])
             for name in STAGES:           # cumulative: a fish counts at a stage only if it passed all before
                 if not passed[name]:
                     break
@@ -175,7 +181,7 @@ def run(scenes: int, seed: int) -> dict:
                       "snout_short": int(np.sum(a[:, 0] < -100 * TOL)), "snout_long": int(np.sum(a[:, 0] > 100 * TOL)),
                       "fork_short": int(np.sum(a[:, 2] < -100 * TOL)), "fork_long": int(np.sum(a[:, 2] > 100 * TOL)),
                       "side_off": int(np.sum(np.maximum(np.abs(a[:, 1]), np.abs(a[:, 3])) > 100 * TOL))}
-    return {"scenes": scenes, "seed": seed, "stages": stages, "reports": fails, "end_misses": miss,
+    return {"scenes": scenes, "seed": seed, "stages": stages, "each_stage_alone": alone, "reports": fails, "end_misses": miss,
             "err3d_pct_of_length_image_ok": {"n": len(f3), **{
                 q: dict(zip(names, np.round(np.percentile(f3, p, axis=0), 2).tolist())) if len(f3) else {}
                 for q, p in (("p25", 25), ("median", 50), ("p75", 75))}}}
