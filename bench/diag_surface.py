@@ -181,10 +181,10 @@ def run(scenes: int, seed: int) -> dict:
                       "snout_short": int(np.sum(a[:, 0] < -100 * TOL)), "snout_long": int(np.sum(a[:, 0] > 100 * TOL)),
                       "fork_short": int(np.sum(a[:, 2] < -100 * TOL)), "fork_long": int(np.sum(a[:, 2] > 100 * TOL)),
                       "side_off": int(np.sum(np.maximum(np.abs(a[:, 1]), np.abs(a[:, 3])) > 100 * TOL))}
-    return {"scenes": scenes, "seed": seed, "stages": stages, "each_stage_alone": alone, "reports": fails, "end_misses": miss,
-            "err3d_pct_of_length_image_ok": {"n": len(f3), **{
-                q: dict(zip(names, np.round(np.percentile(f3, p, axis=0), 2).tolist())) if len(f3) else {}
-                for q, p in (("p25", 25), ("median", 50), ("p75", 75))}}}
+    err3d = {q: dict(zip(names, np.round(np.percentile(f3, p, axis=0), 2).tolist(), strict=True)) if len(f3) else {}
+             for q, p in (("p25", 25), ("median", 50), ("p75", 75))}
+    return {"scenes": scenes, "seed": seed, "stages": stages, "each_stage_alone": alone, "reports": fails,
+            "end_misses": miss, "err3d_pct_of_length_image_ok": {"n": len(f3), **err3d}}
 
 
 def main() -> None:
