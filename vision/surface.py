@@ -26,10 +26,10 @@ shorter than its body),
 head/tail confidence (``q_head``), the caudal fork found as a notch in both views (``q_fork``: 1; in
 neither, placed from the fin base: 0.8; in one only: 0.6), the right view's own fork against the
 place the left fork's epipolar line gives it (``q_fork_views``, Gaussian in 2 % of the length: the
-views disagree where one of them cuts the tail short), the outline free of lamp reflections (``q_glare``), and left/right agreement of the apparent length
-(``q_views``). Fork length is the straight 3-D snout-fork distance (the contract); the length along
-the body through the intermediate points (the 3-D length scaled by the view's bend) is kept as
-``body_mm``.
+views disagree where one of them cuts the tail short), the outline free of lamp reflections
+(``q_glare``), and left/right agreement of the apparent length (``q_views``). Fork length is the
+straight 3-D snout-fork distance (the contract); the length along the body through the
+intermediate points (the 3-D length scaled by the view's bend) is kept as ``body_mm``.
 """
 from __future__ import annotations
 
