@@ -16,8 +16,9 @@ from tests.vision.test_surface_drawing import (
     reflection,
     stereo_tank,
     top_rig,
+    world_fish,
 )
-from vision.surface import detect_fish, measure_surface, up_direction
+from vision.surface import detect_fish, measure_surface, surface_stages, up_direction
 from vision.survey import measure_pair
 from vision.survey_types import FishGeometry, SurveySetup
 
@@ -209,3 +210,31 @@ def test_frames_without_fish_of_any_size_give_no_fish(shape):
                 rng.integers(0, 256, shape).astype(np.uint8),
                 ((rng.random(shape) < 0.01) * 255).astype(np.uint8)):
         assert measure_surface(img, img.copy(), calib, SETUP) == []
+
+
+def test_a_fork_the_views_disagree_on_is_not_reported():
+    """A lamp's sheen is view-dependent: it can cut a tail short in one view only. A fish whose right
+    view ends 5 % of its length short of the left view's fork is not reported (its fork is in
+    doubt); its neighbour, whole in both views, is."""
+    rng = np.random.default_rng(17)
+    rig = top_rig()
+    imgs = [floor(rig.image_size, rng), floor(rig.image_size, rng, gradient=(190, 95))]
+    whole = dict(length_mm=120, snout_xy=(-150, 50), heading=0.3, depth_mm=150)
+    cut = dict(length_mm=120, snout_xy=(50, -150), heading=1.9, depth_mm=150)
+    for f in (whole, cut):
+        pts, _, _ = world_fish(**f)
+        for view, (img, poly) in enumerate(zip(imgs, rig.project(pts), strict=True)):
+            if f is cut and view == 1:     # the right view: the tail lost past 95 % of the length
+                poly = poly[outline(f["length_mm"])[:, 0] <= 0.95 * f["length_mm"]]
+            draw(img, poly)
+    left, right = finish(imgs[0]), finish(imgs[1])
+    found = measure_surface(left, right, rig.calibration(), SETUP)
+    assert len(found) == 1
+    s = world_fish(**whole)[1]
+    assert np.linalg.norm(found[0].snout_mm - s) < 0.03 * whole["length_mm"]
+    assert found[0].quality["q_fork_views"] > 0.5
+    # the cut fish is paired and measured, and its fork term alone rules it out
+    measured = surface_stages(left, right, rig.calibration(), SETUP)["measured"]
+    doubt = [m for m in measured if np.linalg.norm(m.snout_mm - world_fish(**cut)[1]) < 0.05 * cut["length_mm"]]
+    assert len(doubt) == 1 and doubt[0].quality["fork_gap"] > 0.04
+    assert doubt[0].quality["q_fork_views"] < 0.05
