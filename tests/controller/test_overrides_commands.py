@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import asyncio
 import tempfile
+import time
 from pathlib import Path
 from types import SimpleNamespace
 
@@ -44,7 +45,7 @@ def audit(farm) -> list[dict]:
 def status(farm) -> dict:
     """The real Controller.status over the farm's parts (the robot not up yet)."""
     parts = SimpleNamespace(cfg=farm.cfg, clock=farm.clock, robot=None, rations=farm.rations,
-                            store=farm.store, alarms=farm.alarms)
+                            store=farm.store, alarms=farm.alarms, started_monotonic=time.monotonic())
     return Controller.status(parts)
 
 
