@@ -189,7 +189,7 @@ def sample_frames(img: np.ndarray, centres: np.ndarray, axes: np.ndarray, xs: np
     ny, nx = ys.shape[1], xs.shape[1]
     if N == 0:
         return np.zeros((0, ny, nx) + np.shape(img)[2:], np.float32)
-    normal = np.c_[-axes[:, 1], axes[:, 0]]
+    normal = np.stack([-axes[:, 1], axes[:, 0]], axis=1)
     maps, lo, hi = [], [], []
     for k in range(2):
         along = centres[:, k, None] + xs * axes[:, k, None]              # (N, nx), float64
@@ -205,15 +205,16 @@ def sample_frames(img: np.ndarray, centres: np.ndarray, axes: np.ndarray, xs: np
         out = cv2.remap(img, maps[0], maps[1], cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
         out = out.astype(np.float32)
         h, w = img.shape[:2]
-        # only frames reaching past the image's edge need the per-sample test (1 px to spare)
-        edge = np.flatnonzero((lo[0] < 1) | (hi[0] > w - 2) | (lo[1] < 1) | (hi[1] > h - 2))
+        # only frames reaching past the image's edge need the per-sample test, and not those
+        # wholly outside it (1 px to spare either way)
+        o = out.reshape((N, ny, nx) + img.shape[2:])
+        gone = (hi[0] < -1) | (lo[0] > w) | (hi[1] < -1) | (lo[1] > h)
+        o[gone] = np.nan
+        edge = np.flatnonzero(~gone & ((lo[0] < 1) | (hi[0] > w - 2) | (lo[1] < 1) | (hi[1] > h - 2)))
         if len(edge):
             mx, my = maps[0].reshape(N, ny, nx)[edge], maps[1].reshape(N, ny, nx)[edge]
-            off = (mx < 0) | (mx > w - 1) | (my < 0) | (my > h - 1)
-            o = out.reshape((N, ny, nx) + img.shape[2:])
-            sub = o[edge]
-            sub[off] = np.nan
-            o[edge] = sub
+            e, y, x = np.nonzero((mx < 0) | (mx > w - 1) | (my < 0) | (my > h - 1))
+            o[edge[e], y, x] = np.nan
     else:
         img = img.astype(np.float32, copy=False)
         out = cv2.remap(img, maps[0], maps[1], cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT,
