@@ -189,19 +189,32 @@ def sample_frames(img: np.ndarray, centres: np.ndarray, axes: np.ndarray, xs: np
     ny, nx = ys.shape[1], xs.shape[1]
     if N == 0:
         return np.zeros((0, ny, nx) + np.shape(img)[2:], np.float32)
-    normal = np.c_[-axes[:, 1], axes[:, 0]]
-    maps = []
+    normal = np.stack([-axes[:, 1], axes[:, 0]], axis=1)
+    maps, lo, hi = [], [], []
     for k in range(2):
-        m = (centres[:, k, None, None] + xs[:, None, :] * axes[:, k, None, None]
-             + ys[:, :, None] * normal[:, k, None, None])
-        maps.append(m.reshape(N * ny, nx).astype(np.float32))
+        along = centres[:, k, None] + xs * axes[:, k, None]              # (N, nx), float64
+        across = ys * normal[:, k, None]                                 # (N, ny)
+        m = np.empty((N, ny, nx), np.float32)    # summed in float64, rounded once, no float64 copy
+        np.add(along[:, None, :], across[:, :, None], out=m, casting="same_kind")
+        maps.append(m.reshape(N * ny, nx))
+        # addition and rounding are monotonic: a frame's extreme samples are these, exactly
+        lo.append(along.min(axis=1) + across.min(axis=1))
+        hi.append(along.max(axis=1) + across.max(axis=1))
     img = np.asarray(img)
     if img.dtype == np.uint8:        # remap of uint8 is ~3x faster; values keep 1/2 grey level
         out = cv2.remap(img, maps[0], maps[1], cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
         out = out.astype(np.float32)
         h, w = img.shape[:2]
-        off = (maps[0] < 0) | (maps[0] > w - 1) | (maps[1] < 0) | (maps[1] > h - 1)
-        out[off] = np.nan
+        # only frames reaching past the image's edge need the per-sample test, and not those
+        # wholly outside it (1 px to spare either way)
+        o = out.reshape((N, ny, nx) + img.shape[2:])
+        gone = (hi[0] < -1) | (lo[0] > w) | (hi[1] < -1) | (lo[1] > h)
+        o[gone] = np.nan
+        edge = np.flatnonzero(~gone & ((lo[0] < 1) | (hi[0] > w - 2) | (lo[1] < 1) | (hi[1] > h - 2)))
+        if len(edge):
+            mx, my = maps[0].reshape(N, ny, nx)[edge], maps[1].reshape(N, ny, nx)[edge]
+            e, y, x = np.nonzero((mx < 0) | (mx > w - 1) | (my < 0) | (my > h - 1))
+            o[edge[e], y, x] = np.nan
     else:
         img = img.astype(np.float32, copy=False)
         out = cv2.remap(img, maps[0], maps[1], cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT,

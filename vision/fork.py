@@ -170,7 +170,7 @@ def _locate(pyr: list[np.ndarray], fins: Fins, min_contrast: float, min_slope: f
     g = S / SAMPLES
     axes = np.c_[np.cos(fins.angle), np.sin(fins.angle)]
     C = pyr[0].shape[2] if pyr[0].ndim == 3 else 1
-    P = np.full((N, len(t), len(t), C), np.nan, np.float32)
+    P = np.empty((N, len(t), len(t), C), np.float32)             # every candidate is at one level
     lev = np.clip(np.floor(np.log2(np.maximum(g, 1.0))).astype(int), 0, len(pyr) - 1)
     for k in np.unique(lev):
         idx = np.flatnonzero(lev == k)
@@ -181,13 +181,17 @@ def _locate(pyr: list[np.ndarray], fins: Fins, min_contrast: float, min_slope: f
     ahead = (t >= 0.1) & (t <= 0.35)
     behind = t <= -0.35
     near = np.abs(t) <= 0.1
-    fish = np.stack([nan_median(P[:, near][:, :, ahead, c]) for c in range(C)], axis=1)      # (N, C)
-    water = np.stack([nan_median(P[:, near][:, :, behind, c]) for c in range(C)], axis=1)
+    Pn = P[:, near]
+    fish = np.stack([nan_median(Pn[:, :, ahead, c]) for c in range(C)], axis=1)      # (N, C)
+    water = np.stack([nan_median(Pn[:, :, behind, c]) for c in range(C)], axis=1)
     diff = fish - water
     contrast = np.linalg.norm(diff, axis=1)
     # each sample's position between the water's colour (-0.5) and the fish's (+0.5)
     unit = diff / np.maximum(contrast, 1e-6)[:, None] ** 2
-    s = np.einsum("nyxc,nc->nyx", P - water[:, None, None], unit) - 0.5       # fish > 0
+    s = np.zeros(P.shape[:3])                  # channel by channel: no (N, y, x, C) float64 copy
+    for c in range(C):
+        s += (P[..., c] - water[:, c, None, None]) * unit[:, c, None, None]
+    s -= 0.5                                                               # fish > 0
     sign = np.sign(diff.sum(axis=1))
     inside = s >= 0
     first = inside.argmax(axis=2)                                          # (N, rows)

@@ -114,7 +114,9 @@ def _along(pyr, xy, angle, half_band_px, fish_level, water_level, lo_px, hi_px, 
         idx = np.flatnonzero(lev == lv)
         f = 2.0 ** -lv
         band = sample_frames(pyr[lv], (xy[idx] + 0.5) * f - 0.5, axes[idx], xs[idx] * f, ys[idx] * f)
-        prof[idx] = np.median(band.reshape(len(idx), ACROSS, SAMPLES + 1, C), axis=1)
+        # np.median's value (the middle of ACROSS, odd; NaN where any is NaN) from one sort, ~1/3 cheaper
+        srt = np.sort(band.reshape(len(idx), ACROSS, SAMPLES + 1, C), axis=1)          # NaN sort last
+        prof[idx] = np.where(np.isnan(srt[:, -1]), np.nan, srt[:, ACROSS // 2])
     # unlike the water by more than half the fin's own contrast: fish (> 0)
     contrast = np.maximum(np.linalg.norm(fish_level - water_level, axis=1), 1e-6)
     s = np.linalg.norm(prof - water_level[:, None], axis=2) / contrast[:, None] - 0.5
