@@ -1,4 +1,4 @@
-"""``fishfarm calibrate dlt|chessboard|import``: each method in its own module."""
+"""``fishfarm calibrate dlt|chessboard|import|tower``: each method in its own module."""
 from __future__ import annotations
 
 import click
@@ -11,9 +11,10 @@ class _Methods(LazyGroup):
         "dlt": "controller.cli.calibrate_dlt:dlt",
         "chessboard": "controller.cli.calibrate_chessboard:chessboard",
         "import": "controller.cli.calibrate_import:import_",
+        "tower": "controller.cli.calibrate_tower:tower",
     }
 
 
 @click.group(cls=_Methods)
 def calibrate():
-    """Calibrate the stereo rig: from a measured grid (DLT) or a printed chessboard, or import one."""
+    """Calibrate the stereo rig (measured grid, chessboard, or import), or the tower camera's pond map."""

@@ -1,0 +1,80 @@
+"""``fishfarm calibrate tower`` run as the user runs it: a subprocess."""
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from vision.tower import to_pond
+
+FISHFARM = str(Path(sys.executable).parent / "fishfarm")
+HEADER = "u,v,x_m,y_m"
+# a tower camera's map pond -> pixel (a perspective view of the 20 m x 10 m pond)
+G = np.array([[60.0, -8.0, 300.0], [2.0, -30.0, 700.0], [0.0, -0.04, 1.0]])
+POND = np.array([[0.0, 0.0], [20.0, 0.0], [20.0, 10.0], [0.0, 10.0], [10.0, 5.0], [5.0, 8.0]])
+
+
+def pixels(pond):
+    h = np.c_[pond, np.ones(len(pond))] @ G.T
+    return h[:, :2] / h[:, 2:]
+
+
+def run(*args):
+    return subprocess.run([FISHFARM, *map(str, args)], capture_output=True, text=True, timeout=60)
+
+
+def write(path, text):
+    path.write_text(text)
+    return path
+
+
+def ref_text(pond, px=None):
+    px = pixels(pond) if px is None else px
+    return "\n".join([HEADER] + [f"{u:.6f},{v:.6f},{x},{y}" for (u, v), (x, y) in zip(px, pond, strict=True)]) + "\n"
+
+
+def test_writes_h_and_prints_the_error_in_metres(tmp_path):
+    ref = write(tmp_path / "REF.csv", ref_text(POND))
+    out = tmp_path / "TOWER.json"
+    result = run("calibrate", "tower", "--points", ref, "--out", out)
+    assert result.returncode == 0, result.stderr
+    doc = json.loads(out.read_text())
+    assert doc["points"] == 6 and doc["rms_m"] < 1e-4 and doc["max_m"] < 1e-4
+    np.testing.assert_allclose(to_pond(np.array(doc["H"]), pixels(POND)), POND, atol=1e-4)
+    assert result.stdout.count("point ") >= 6 and "error on the pond RMS 0.000 m, worst 0.000 m" in result.stdout
+    assert f"written: {out}" in result.stdout
+
+
+@pytest.mark.parametrize("text, fault", [
+    ("", "empty file"),
+    ("u,v,x_m\n1,2,3\n", "header: expected 'u,v,x_m,y_m', found 'u,v,x_m'"),
+    ("u,v,x_m,y_m,z_m\n1,2,3,4,5\n", "header: expected 'u,v,x_m,y_m', found 'u,v,x_m,y_m,z_m'"),
+    (ref_text(POND[:3]), "3 points: at least 4 are needed"),
+    (HEADER + "\n1,2,3,4\n5,6,abc,8\n", "line 3, column x_m: not a number: 'abc'"),
+    (HEADER + "\n1,2,3,4\n5,nan,7,8\n", "line 3, column v: nan is not a finite number"),
+    (HEADER + "\n1,2,3,4\n5,6,7\n", "line 3: 3 fields, expected 4"),
+    (ref_text(POND[[0, 1, 2, 3, 0]]), "points 1 and 5 are the same in the image"),
+    (ref_text(np.array([[0.0, 0.0], [5.0, 1.0], [10.0, 2.0], [15.0, 3.0], [20.0, 4.0]]),
+              px=pixels(POND[:5])), "all 5 points lie on one line on the pond"),
+    (ref_text(np.array([[0.0, 0.0], [10.0, 0.0], [20.0, 0.0], [10.0, 10.0]])),
+     "points 1, 2, 3 lie on one line in the image"),
+])
+def test_bad_input_exits_2_with_one_line(tmp_path, text, fault):
+    ref = write(tmp_path / "REF.csv", text)
+    out = tmp_path / "TOWER.json"
+    result = run("calibrate", "tower", "--points", ref, "--out", out)
+    assert result.returncode == 2, result.stdout
+    assert result.stderr.count("\n") == 1 and "Traceback" not in result.stderr
+    assert result.stderr.startswith(f"fishfarm: {ref}: ") and fault in result.stderr, result.stderr
+    assert not out.exists()
+
+
+def test_missing_file_and_unwritable_out_exit_2(tmp_path):
+    result = run("calibrate", "tower", "--points", tmp_path / "absent.csv", "--out", tmp_path / "T.json")
+    assert result.returncode == 2 and result.stderr.strip() == f"fishfarm: {tmp_path / 'absent.csv'}: no such file"
+    ref = write(tmp_path / "REF.csv", ref_text(POND))
+    bad_out = tmp_path / "no" / "such" / "TOWER.json"
+    result = run("calibrate", "tower", "--points", ref, "--out", bad_out)
+    assert result.returncode == 2 and result.stderr.strip().startswith(f"fishfarm: {bad_out}: cannot write")
