@@ -62,16 +62,6 @@ class _OneLine(logging.Filter):
 log.addFilter(_OneLine())
 
 
-def _answering(handler):
-    """A refusal becomes ``{"ok": false, "error": ...}``; everything else is the bus's business."""
-    async def answer(payload, *args) -> dict:
-        try:
-            return await handler(payload, *args)
-        except Refused as exc:
-            return {"ok": False, "error": str(exc)}
-    return answer
-
-
 def who(user: str | None, operator: str | None) -> str:
     """The name records carry: the authenticated user, else the claimed name, marked so."""
     return user if user else f"{operator or 'unknown'} (claimed)"
@@ -232,7 +222,7 @@ class Overrides:
         portion already on its way finishes. Kept in the ledger: a restart stays paused."""
         cmd = parse(Tank, payload)
         self._tank(cmd.tank)
-        fresh = self.c.store.pause_tank(cmd.tank, self.c.clock.now(), by or who(None, cmd.operator), cmd.reason)
+        fresh = self.c.store.pause_tank(cmd.tank, self.c.clock.now(), who(by, cmd.operator), cmd.reason)
         if self.c.robot is not None:
             self.c.robot.pause(cmd.tank)
         log.warning("pause %s by %s: %s", cmd.tank, by or cmd.operator, cmd.reason)
@@ -254,7 +244,7 @@ class Overrides:
         if not cmd.all and cmd.source is None:
             raise Refused("source: required (or \"all\": true)")
         try:
-            done = self.c.alarms.ack(by or who(None, cmd.operator), cmd.source, cmd.kind)
+            done = self.c.alarms.ack(who(by, cmd.operator), cmd.source, cmd.kind)
         except LookupError:
             field = "kind" if cmd.kind is not None and any(s == cmd.source for s, _ in self.c.alarms.known) \
                 else "source"
@@ -284,7 +274,7 @@ class Overrides:
         if cmd.count > held:
             raise Refused(f"count: more than the {held} fish in tank {cmd.tank}")
         self.c.store.add_stock_event(t=now, tank=cmd.tank, kind=kind, count=cmd.count, to_tank=to,
-                                     who=by or who(None, cmd.operator), reason=cmd.reason)
+                                     who=who(by, cmd.operator), reason=cmd.reason)
         log.warning("%s %s %d fish%s by %s: %s", kind, cmd.tank, cmd.count, f" to {to}" if to else "",
                     by or cmd.operator, cmd.reason)
         stock = {}

@@ -6,7 +6,7 @@ from types import SimpleNamespace
 import pytest
 
 from controller.feeding.dispensing import COUNTERS, LEDGER
-from controller.overrides import Overrides, _answering
+from controller.overrides import Overrides
 from controller.store import Store
 from devices.dispenser.modbus_dispenser import Config as DispenserConfig
 from devices.dispenser.modbus_dispenser import ModbusDispenser
@@ -72,7 +72,8 @@ def test_a_power_cut_mid_run_leaves_a_suspect_feed_counted_against_the_ration(tm
             await r.until(lambda: COUNTERS not in r.alarms.active, what="counters alarm cleared")
             assert LEDGER in r.alarms.active                            # until an operator settles it
             # the operator settles it over the override
-            overrides = SimpleNamespace(settle=_answering(Overrides(SimpleNamespace(robot=r.robot)).settle))
+            through = Overrides(SimpleNamespace(robot=r.robot, clock=r.clock, store=r.store))
+            overrides = SimpleNamespace(settle=lambda payload: through.apply("settle", payload))
             refused = await overrides.settle({"id": suspect.id, "grams": 0})
             assert refused["ok"] is False and "reason" in refused["error"]
             assert (await overrides.settle({"id": "nope", "grams": 3}))["ok"] is False
