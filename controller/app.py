@@ -20,15 +20,18 @@ from controller.bus import Bus, session_config
 from controller.config import Config, validate_section
 from controller.demand import Demand, DemandFilter, DemandParams, SensorFault, SensorRecovered, SlowFishUndetectable
 from controller.errors import BadInput
-from controller.feeding.estop import EstopLane, log_latch
+from controller.feeding.estop import EstopLane, Latch, log_latch
 from controller.feeding.rations import Rations, load_species, ration_payload
 from controller.feeding.robot import FeedingRobot, Job
 from controller.overrides import Overrides
 from controller.scada.service import Scada
 from controller.shutdown import install_signal_handlers
 from controller.simproc import SimProcess
+from controller.status import farm_status
 from controller.store import Store, reconcile
+from controller.surveys.watch import SurveyWatch
 from devices.errors import DeviceError
+from devices.sections import backends as device_backends
 from devices.sim.world import SimSection
 
 log = logging.getLogger("fishfarm")
@@ -38,12 +41,13 @@ STATE_EVERY_WALL_S = 1.0    # periodic state publication besides every change
 OPEN_BACKOFF_S = (0.2, 0.5, 1.0, 2.0, 5.0, 10.0)
 REOPEN_BACKOFF_S = (0.5, 1.0, 2.0, 5.0)
 SIM_WATCH_S = 0.5           # wall seconds between checks that the simulated devices' child lives
+CLEANER_KINDS = ("thrusters", "tower_camera")
 
 
 
 def build_device(name: str, section: dict, clock, where: str):
     kind = section["kind"]
-    backends = importlib.import_module(f"devices.{kind}").BACKENDS
+    backends = device_backends(kind)
     module, attr = backends[section["driver"]].split(":")
     cls = getattr(importlib.import_module(module), attr)
     return cls(name, validate_section(cls.Config, section, where, f"devices.{name}"), clock)
@@ -60,6 +64,13 @@ def check_farm(cfg: Config, species: dict) -> None:
         if len(found) != 1:
             raise BadInput(cfg.path, "devices", f"the feeding robot needs exactly one {kind} device, "
                                                 f"found {len(found)}")
+    for kind in CLEANER_KINDS:
+        found = [name for name, s in cfg.devices.items() if s["kind"] == kind]
+        if cfg.cleaning is None and found:
+            raise BadInput(cfg.path, f"devices.{found[0]}", f"a {kind} device needs a [cleaning] section")
+        if cfg.cleaning is not None and len(found) != 1:
+            raise BadInput(cfg.path, "devices", f"the pond cleaner needs exactly one {kind} device, "
+                                                f"found {len(found)}")
 
 
 class Controller:
@@ -71,6 +82,7 @@ class Controller:
         self.stopping = asyncio.Event()
         self.unknown_sensors: set[str] = set()
         self.robot: FeedingRobot | None = None
+        self.cleaner = None                   # the pond cleaner (controller/cleaning), with [cleaning]
         self.lane: EstopLane | None = None
         self.estop_before_start: str | None = None
         self.watchdog: shutdown.StopWatchdog | None = None
@@ -84,6 +96,10 @@ class Controller:
         # simulator started and stopped around it
         self.demand_params = validate_section(DemandParams, cfg.demand, cfg.path, "demand")
         session_config(cfg.bus)
+        self.cleaning = None
+        if cfg.cleaning is not None:
+            from controller.cleaning.setup import prepare
+            self.cleaning = prepare(cfg)          # geometry, dock, tower, plan: bad input now, not at start
         if any(s["driver"] == "sim" for s in cfg.devices.values()):
             validate_section(SimSection, cfg.sim, cfg.path, "sim")
 
@@ -107,6 +123,7 @@ class Controller:
         if self.sim is not None:
             self.tasks.append(asyncio.create_task(self._watch_sim()))
         self.rations = Rations(cfg, self.species, self.store)
+        self.surveys = SurveyWatch(cfg, self.store, self.rations, self.alarms, self.bus.publish)
         self.filter = DemandFilter(self.demand_params,
                                    {t.id: list(t.sensors) for t in cfg.tanks})
         self.devices = {name: build_device(name, s, self.clock, cfg.path) for name, s in sections.items()}
@@ -114,14 +131,24 @@ class Controller:
         self.rail = self._one("rail")
         self.dispenser = self._one("dispenser")
         self._loop = asyncio.get_running_loop()
-        self.lane = EstopLane(self.rail, self.dispenser)    # live before any device is open
+        cleaner_devices = [d for d in self.devices.values() if d.kind in CLEANER_KINDS]
+        thrusters = [Latch(d.name, d) for d in cleaner_devices if d.kind == "thrusters"]
+        self.lane = EstopLane(self.rail, self.dispenser, *thrusters)    # live before any device is open
         self.lane.listen(self._lane_report_before_start)
+        if self.cleaning is not None:
+            from controller.cleaning.setup import build
+            self.cleaner = build(self.cleaning, self._one("tower_camera"), self._one("thrusters"), self.store,
+                                 self.clock, self.bus.publish, alarms=self.alarms, lane=self.lane,
+                                 reopen=self._fresh)
+            self.tasks.append(asyncio.create_task(self._supervise(self._cleaner_loop)))
         self.overrides = Overrides(self)
         self.overrides.declare(self.bus)
         if cfg.scada is not None and cfg.scada.enabled:     # SCADA sees (and can e-stop) a starting controller
             self.scada = Scada(self, cfg, alarms=self.alarms)
             self.tasks.append(asyncio.create_task(self._supervise(self._scada)))
-        await asyncio.gather(*(self._open(device) for device in self.devices.values()))
+        # the cleaner's devices open in its own task: a camera that is not up does not hold the feeder
+        await asyncio.gather(*(self._open(device) for device in self.devices.values()
+                               if device not in cleaner_devices))
         if self.stopping.is_set():                # stopped while waiting for a device: start nothing
             return
         self.robot = FeedingRobot(cfg, self.clock, self.rail, self.dispenser, self.store, self.rations,
@@ -161,6 +188,8 @@ class Controller:
     async def emergency_stop(self, reason: str) -> bool:
         """E-stop wins from any state, even before the robot exists: it then starts stopped.
         True once the devices confirmed their latches."""
+        if self.cleaner is not None:
+            self.cleaner.stopped(reason)          # its thrusters were latched by the lane's trip
         if self.robot is None:
             self.estop_before_start = reason
             text = self.lane.alarm_text(reason) if self.lane is not None else f"emergency stop: {reason}"
@@ -262,6 +291,8 @@ class Controller:
                 commands += [("auger stop", device.stop()), ("refill gate close", device.set_refill(False))]
             elif device.kind == "rail":
                 commands.append(("drive stop", device.stop()))
+            elif device.kind == "thrusters":
+                commands.append(("thrusters stop", device.stop()))
         if not commands:
             return
         tasks = {asyncio.ensure_future(cmd): what for what, cmd in commands}
@@ -342,6 +373,28 @@ class Controller:
                 return
             await self._pause(SIM_WATCH_S)
 
+    async def _cleaner_loop(self) -> None:
+        await asyncio.gather(*(self._open(self._one(kind)) for kind in CLEANER_KINDS))
+        if not self.stopping.is_set():
+            await self.cleaner.run()
+
+    def _new_driver(self, device):
+        """A driver like ``device`` (same backend, same section), not open: a lost link is lost for
+        good on the old one."""
+        return type(device)(device.name, type(device.config).model_validate(dict(device.config)), self.clock)
+
+    async def _fresh(self, device):
+        """A device whose link is lost for good (LinkDown) replaced by a fresh driver on the same
+        section, its e-stop latch included; DeviceError when it does not open (the caller retries)."""
+        with contextlib.suppress(Exception):
+            await asyncio.wait_for(device.close(), shutdown.CLOSE_DEVICE_S)
+        fresh = self._new_driver(device)
+        await fresh.open()
+        self.devices[device.name] = fresh
+        self.lane.replace_device(device, fresh)
+        log.info("%s reopened", device.name)
+        return fresh
+
     def _requeue_open_demands(self) -> None:
         for row in self.store.open_demands():
             self.robot.on_demand(Job(row["tank"], row["t"], row["id"]))
@@ -374,12 +427,12 @@ class Controller:
         loss was alarmed by the caller and the first good read clears it; retries log at debug."""
         with contextlib.suppress(Exception):
             await asyncio.wait_for(device.close(), shutdown.CLOSE_DEVICE_S)
-        name, section = device.name, dict(device.config)
+        name = device.name
         for attempt in itertools.count():
             await self._pause(REOPEN_BACKOFF_S[min(attempt, len(REOPEN_BACKOFF_S) - 1)])
             if self.stopping.is_set():
                 return
-            fresh = type(device)(name, type(device.config).model_validate(section), self.clock)
+            fresh = self._new_driver(device)
             try:
                 await fresh.open()
             except DeviceError as exc:
@@ -417,6 +470,7 @@ class Controller:
             heard = self.contacts.stream_t
             for event in self.filter.on_time(now if heard is None else min(now, heard)):
                 self._on_filter_event(event)
+            self.surveys.check(now)
             date = self.rations.date(now)
             if date != last_date:
                 last_date = date
@@ -430,39 +484,13 @@ class Controller:
     async def _state_loop(self) -> None:
         while not self.stopping.is_set():
             self.bus.publish("feeder/state", self.robot.snapshot())
+            if self.cleaner is not None:              # periodic besides each frame's: frames may stop
+                self.bus.publish("cleaner/state", self.cleaner.snapshot())
             await asyncio.sleep(STATE_EVERY_WALL_S)
 
     # -- what status and the console show ----------------------------------------
     def status(self) -> dict:
-        now = self.clock.now()
-        tanks = {}
-        pending = self.robot.pending if self.robot is not None else {}
-        store = getattr(self, "store", None)
-        paused = store.paused_tanks() if store is not None and store.db is not None else {}
-        for tank in self.cfg.tanks:
-            r = self.rations.today(tank.id, now)
-            job = pending.get(tank.id)
-            tanks[tank.id] = {"demand": job is not None,
-                              "demand_t": None if job is None else self.clock.iso(job.t),
-                              "fed_g": round(r.fed_g, 1), "ration_g": round(r.grams, 1),
-                              "pellet_mm": r.pellet_mm, "stock": self.rations.stock(tank.id),
-                              "paused": tank.id in paused, "mean_weight_g": tank.mean_weight_g,
-                              "last_survey_t": None}
-            demand = getattr(self, "filter", None)     # absent while the controller starts
-            note = demand.slow_fish(tank.id) if demand is not None and tank.id in demand.tanks else None
-            if note is not None:
-                tanks[tank.id]["slow_fish"] = note
-        feeder = self.robot.snapshot() if self.robot is not None else {
-            "t": self.clock.iso(now), "state": "starting", "position_m": None, "hopper_g": None}
-        out = {"t": self.clock.iso(now), "site": self.cfg.site, "feeder": feeder,
-               "uptime_s": round(time.monotonic() - self.started_monotonic, 3),
-               "tanks": tanks,
-               "alarms": self.alarms.listing()}
-        suspects = store.suspects() if store is not None and store.db is not None else []
-        if suspects:      # feeds of unknown outcome, held against the ration until settled
-            out["suspect"] = [{"id": f.id, "tank": f.tank, "date": f.date, "t": self.clock.iso(f.t_intent),
-                               "target_g": round(f.target_g, 1), "note": f.note} for f in suspects]
-        return out
+        return farm_status(self)
 
 
 __all__ = ["Controller", "build_device", "check_farm", "install_signal_handlers"]

@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import functools
 import inspect
 import json
 import logging
@@ -219,12 +220,23 @@ class Bus:
 
     # ------------------------------------------------------------ queryables
 
-    def queryable(self, suffix: str, handler: Handler, *, lenient: bool = False) -> None:
+    def queryable(self, suffix: str, handler: Handler, *, lenient: bool = False, selector: bool = False) -> None:
         """Answer gets on ``farm/{site}/{suffix}`` with ``await handler(payload)``.
         A payload that is not a JSON object is refused (``{"ok": false, "error": ...}``) unless
-        ``lenient``, when the handler gets ``{}``. A handler exception is such a refusal too."""
-        wrapped = _with_user(handler)
-        self._serve(suffix, lambda _key: (wrapped, lenient, None, None, None))
+        ``lenient``, when the handler gets ``{}``. A handler exception is such a refusal too.
+        ``selector``: ``suffix`` may hold wildcards, and the handler is called
+        ``handler(payload, key=..., params=...)`` with the concrete key's suffix and the selector's
+        parameters (``...?since=2026-06-01;until=...``, strings)."""
+        if not selector:
+            wrapped = _with_user(handler)
+            self._serve(suffix, lambda _key: (wrapped, lenient, None, None, None))
+            return
+
+        def resolve(key: str):
+            async def bound(payload: dict, *, user=None, params=None):
+                return await handler(payload, key=key, params=params or {})
+            return bound, lenient, None, None, None, True
+        self._serve(suffix, resolve)
 
     def overrides(self, commands: Mapping[str, Handler], *, lenient: Iterable[str] = ("estop",),
                   urgent: Mapping[str, Callable[[], None]] | None = None,
@@ -285,9 +297,12 @@ class Bus:
 
     def _dispatch(self, query: zenoh.Query, key: str, resolve, loop) -> None:
         try:
-            handler, lenient, urgent, user, refused = resolve(self._suffix(key))
+            handler, lenient, urgent, user, refused, *selector = resolve(self._suffix(key))
         except LookupError as exc:
             return self._reply(query, {"ok": False, "error": str(exc)})
+        if selector:
+            params = {k: v for k, v in dict(query.parameters).items() if k != "_time"}
+            handler = functools.partial(handler, params=params)
         acted = False
         if urgent is not None:
             try:

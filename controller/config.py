@@ -64,6 +64,8 @@ class TankConfig(Strict):
     sensors: list[SensorId] = Field(min_length=1)
     feeding_rate_pct: float | None = Field(None, gt=0, le=20,
                                            description="% body weight a day; default from species")
+    water_temp_c: float | None = Field(None, ge=-5, le=40, description="this tank's water; default [feeding]'s")
+    target_weight_g: float | None = Field(None, gt=0, le=1_000_000, description="harvest weight, for projections")
 
 
 class FeedingConfig(Strict):
@@ -86,6 +88,11 @@ class FeedingConfig(Strict):
                                  "for what travel estimates miss (docking, talking to the devices)")
     rail_speed_m_s: float = Field(1.0, gt=0, le=100, description="cruise speed, for planning the next stop")
     rail_accel_m_s2: float = Field(0.5, gt=0, le=100, description="acceleration, for planning the next stop")
+    water_temp_c: float = Field(20.0, ge=-5, le=40, description="water temperature the feeding tables are read at")
+    tables: list[str] = Field([], description="feeding charts (TOML, controller/feeding/feeding_table.py), "
+                              "relative to farm.toml; a species without one is fed by its species.toml rows")
+    survey_max_age_d: float = Field(14.0, gt=0, le=365, description="older surveys: the weight is projected")
+    grading_cv_pct: float = Field(30.0, gt=0, le=200, description="weight CV above which a tank wants grading")
 
     @model_validator(mode="after")
     def _portions_fit(self):
@@ -95,6 +102,32 @@ class FeedingConfig(Strict):
             raise ValueError(f"refill_below_g ({self.refill_below_g:g}) must be below hopper_capacity_g "
                              f"({self.hopper_capacity_g:g})")
         return self
+
+
+Point = tuple[Annotated[float, Field(ge=-100_000, le=100_000)], Annotated[float, Field(ge=-100_000, le=100_000)]]
+
+
+class CleaningConfig(Strict):
+    """``[cleaning]``: the pond cleaner (controller/cleaning). No section, no cleaner. Pond metres,
+    x right / y up; the pond's geometry is checked as a whole by controller/cleaning/geometry.py."""
+    outline: list[Point] = Field(min_length=3, max_length=10_000, description="the pond's edge, [x, y] corners")
+    keepouts: list[list[Point]] = Field([], max_length=1000, description="drains, feeders: polygons to avoid")
+    tower: str = Field(min_length=1, description="TOWER.json: the tower camera's homography (fishfarm calibrate tower)")
+    dock: Point = Field(description="where the robot rests, [x, y]")
+    brush_m: float = Field(0.5, gt=0, le=10, description="width the brush cleans")
+    body_radius_m: float = Field(0.4, gt=0, le=10, description="the robot's radius: its centre keeps this off walls")
+    cruise: float = Field(0.6, gt=0, le=1, description="thrust along the path, fraction of full")
+    lookahead_m: float = Field(1.0, gt=0, le=50, description="pure pursuit's look-ahead")
+    lost_after_s: float = Field(4.0, gt=0, le=3600, description="the float unseen this long: lost, thrusters stop")
+    recover_after_s: float = Field(5.0, gt=0, le=3600,
+                                   description="lost this long: back up slowly along the last ~2 m driven")
+    autostart: bool = Field(False, description="at start, clean from the dock if the map is not complete")
+    cell_m: float = Field(0.1, ge=0.01, le=5, description="coverage map cell")
+    overlap: float = Field(0.05, ge=0, lt=0.5, description="share of the brush lanes overlap by")
+    save_every_s: float = Field(5.0, gt=0, le=3600, description="farm seconds between saves of the map")
+    publish_every_s: float = Field(1.0, gt=0, le=3600, description="farm seconds between cleaner/state besides changes")
+    detection: dict[str, Any] = Field({}, alias="float",
+                                      description="[cleaning.float]: the marker's detection (vision/float_detect.py)")
 
 
 class Config(Strict):
@@ -109,6 +142,7 @@ class Config(Strict):
     devices: dict[str, dict[str, Any]] = {}
     sim: dict[str, Any] = {}
     stocks: dict[str, dict[str, Any]] = {}     # weight surveys' a, b per stock: controller/surveys/species.py
+    cleaning: CleaningConfig | None = None
     path: str = "<config>"
 
     @field_validator("tanks")

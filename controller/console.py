@@ -13,6 +13,7 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import logging
+import math
 import re
 import sys
 
@@ -24,10 +25,22 @@ def alarm_label(alarm: dict) -> str:
     return "ALARM" if alarm.get("active", True) else "CLEARED, unacknowledged:"
 
 
+def cleaner_line(cleaner: dict) -> str:
+    """The pond cleaner in one line: state, where, heading, share of the pond cleaned, the float."""
+    where = "float not seen" if cleaner.get("x_m") is None else (
+        f"at ({cleaner['x_m']:.2f}, {cleaner['y_m']:.2f}) m {math.degrees(cleaner['heading_rad'] or 0.0):.0f}°")
+    coverage = cleaner.get("coverage")
+    cleaned = "" if coverage is None else f", {100 * coverage:.1f} % cleaned"
+    tracking = cleaner.get("tracking")
+    return f"cleaner: {cleaner['state']} {where}{cleaned}" + (f", float {tracking}" if tracking else "")
+
+
 def tank_lines(status: dict) -> list[str]:
     feeder = status["feeder"]
     lines = [f"{status['t']}  feeder {feeder['state']:<10} at {feeder['position_m']} m, "
              f"hopper {feeder['hopper_g']} g"]
+    if status.get("cleaner") is not None:
+        lines.append(f"  {cleaner_line(status['cleaner'])}")
     for tank_id, tank in status["tanks"].items():
         demand = "DEMAND" if tank["demand"] else "quiet "
         pct = 100.0 * tank["fed_g"] / tank["ration_g"] if tank["ration_g"] else 0.0
@@ -39,10 +52,14 @@ def tank_lines(status: dict) -> list[str]:
 
 
 def heading(status: dict) -> list[str]:
-    """The table's heading: where and when, then the feeder. Each fits 80 columns for a usual site."""
+    """The table's heading: where and when, then the feeder, then the pond cleaner if there is one.
+    Each fits 80 columns for a usual site."""
     feeder = status["feeder"]
-    return [f"fishfarm {status['site']}  {status['t']}",
-            f"feeder: {feeder['state']} at {feeder['position_m']} m, hopper {feeder['hopper_g']} g"]
+    lines = [f"fishfarm {status['site']}  {status['t']}",
+             f"feeder: {feeder['state']} at {feeder['position_m']} m, hopper {feeder['hopper_g']} g"]
+    if status.get("cleaner") is not None:
+        lines.append(cleaner_line(status["cleaner"]))
+    return lines
 
 
 _CONTROL = re.compile(r"[\x00-\x1f\x7f]")
@@ -72,10 +89,11 @@ def render(status: dict, height: int | None = None):
     if len(status["alarms"]) > MAX_ALARM_ROWS:
         alarms.append(_one_row(f"... {len(status['alarms']) - MAX_ALARM_ROWS} more alarms: fishfarm status",
                                "bold red"))
+    top, *machines = heading(status)
     tanks = list(status["tanks"].items())
     shown = tanks
     if height is not None:
-        room = height - 7 - len(alarms)    # heading 2, table 4 (borders, header), Live's cursor line 1
+        room = height - 6 - len(machines) - len(alarms)   # heading, table 4 (borders, header), Live's cursor 1
         if len(tanks) > room:
             shown = tanks[:max(1, room - 1)]
     for tank_id, tank in shown:
@@ -83,8 +101,7 @@ def render(status: dict, height: int | None = None):
         table.add_row(tank_id, "[bold yellow]DEMAND[/]" if tank["demand"] else "-", f"{tank['fed_g']:.1f}",
                       f"{tank['ration_g']:.1f}", f"{pct:.0f}", f"{tank['pellet_mm']} mm")
     more = [_one_row(f"... {len(tanks) - len(shown)} more tanks: fishfarm status")] if len(shown) < len(tanks) else []
-    top, feeder = heading(status)
-    return Group(_one_row(top, "bold"), _one_row(feeder), table, *more, *alarms)
+    return Group(_one_row(top, "bold"), *map(_one_row, machines), table, *more, *alarms)
 
 
 class Frame:

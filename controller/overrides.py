@@ -42,12 +42,10 @@ from controller.text import printable
 log = logging.getLogger("fishfarm.override")
 
 LOG_LINE_MAX = 1000
-NOT_YET = {"start-survey": "weight surveys are not started by override",
-           "cleaner-start": "there is no pond cleaner in this controller",
-           "cleaner-stop": "there is no pond cleaner in this controller",
-           "cleaner-return": "there is no pond cleaner in this controller"}
+NOT_YET = {"start-survey": "weight surveys are not started by override"}
+NO_CLEANER = "no pond cleaner in this controller (farm.toml has no [cleaning] section)"
 COMMANDS = ("estop", "reset", "manual", "feed", "ration", "settle", "pause", "resume", "ack",
-            "mortality", "harvest", "transfer", *NOT_YET)
+            "mortality", "harvest", "transfer", "cleaner-start", "cleaner-stop", "cleaner-return", *NOT_YET)
 
 
 class _OneLine(logging.Filter):
@@ -80,6 +78,7 @@ class Overrides:
         bus.overrides(handlers, lenient=("estop",), urgent={"estop": lambda: self.c.trip_estop("operator e-stop")},
                       refused=self.refused_on_wire)
         bus.queryable("status", self.status, lenient=True)
+        bus.queryable("history/*/*", self.history, lenient=True, selector=True)
 
     def _from_zenoh(self, command: str):
         async def handle(payload, user: str | None = None) -> dict:
@@ -88,6 +87,12 @@ class Overrides:
 
     async def status(self, payload, user: str | None = None) -> dict:
         return self.c.status()
+
+    async def history(self, payload, *, key: str, params: dict) -> dict:
+        """``history/{what}/{tank}?since=...;until=...`` (controller/history.py); the range may
+        come in the payload instead ({"since": ..., "until": ...})."""
+        from controller.history import query_reply
+        return query_reply(self.c.store, self.c.cfg, key, {**params, **payload}, self.c.clock.now())
 
     # ------------------------------------------------------------ the one entry
 
@@ -172,9 +177,38 @@ class Overrides:
         return {"ok": True, "confirmed": bool(confirmed)}
 
     async def reset(self, payload, by: str | None = None) -> dict:
+        """The feeder's reset, and the cleaner's when it is in ``estop`` (its thrusters' latch is
+        released and confirmed before it leaves ``estop``)."""
         cmd, robot = parse(Bare, payload), self._robot()
         log.warning("reset by %s: %s", by or cmd.operator, cmd.reason)
-        return self._result(robot.operator_reset())
+        feeder = robot.operator_reset()
+        cleaner = getattr(self.c, "cleaner", None)
+        if cleaner is None or cleaner.state != "estop":
+            return self._result(feeder)
+        error = await cleaner.operator_reset()
+        if error is not None:
+            return {"ok": False, "error": error}
+        return {"ok": True} if feeder is None or feeder.startswith("nothing to reset") else self._result(feeder)
+
+    async def cleaner_start(self, payload, by: str | None = None) -> dict:
+        """Start cleaning (resuming the saved map and path, or a fresh run once the last finished)."""
+        return await self._cleaner("start", payload, by)
+
+    async def cleaner_stop(self, payload, by: str | None = None) -> dict:
+        """Stop where it is (``manual``): nothing of ours moves until a start or a return."""
+        return await self._cleaner("stop", payload, by)
+
+    async def cleaner_return(self, payload, by: str | None = None) -> dict:
+        """Go to the dock (after re-acquiring the float, when it is not tracked)."""
+        return await self._cleaner("go_home", payload, by)
+
+    async def _cleaner(self, action: str, payload, by: str | None) -> dict:
+        cmd = parse(Bare, payload)
+        cleaner = getattr(self.c, "cleaner", None)
+        if cleaner is None:
+            raise Refused(f"command: {STARTING}" if self.c.cfg.cleaning is not None else f"command: {NO_CLEANER}")
+        log.warning("cleaner %s by %s: %s", action, by or cmd.operator, cmd.reason)
+        return self._result(await getattr(cleaner, action)())
 
     async def manual(self, payload, by: str | None = None) -> dict:
         cmd, robot = parse(Manual, payload), self._robot()

@@ -1,7 +1,9 @@
 """The ledger: SQLite in WAL mode with synchronous=FULL, so a committed row survives a power cut.
 
-What it holds: validated demands, feed intents and their outcomes, daily rations, alarms; and
-(controller.records) the audit of overrides, stock events, paused tanks and each alarm's state.
+What it holds: validated demands, feed intents and their outcomes, daily rations, alarms;
+(controller.records) the audit of overrides, stock events, paused tanks and each alarm's state;
+(controller.cleaning.ledger) the pond cleaner's coverage map, progress and trace; and
+(controller.surveys.ledger) weight surveys with every fish they counted.
 Exactly-once dispensing rests on one rule: a feed row is committed in phase ``intent``
 (with the dispenser's cycle counter and load cell read just before and a 16-bit tag) *before*
 the auger is told to start, and closed as ``done`` (grams from the load cell) or ``aborted``
@@ -20,8 +22,10 @@ import uuid
 from dataclasses import dataclass
 from pathlib import Path
 
+from controller.cleaning.ledger import MIGRATION_5, CleanerRecords
 from controller.errors import BadInput
 from controller.records import MIGRATION_4, Records
+from controller.surveys.ledger import MIGRATION_6, SurveyRecords
 
 MIGRATIONS = [
     """
@@ -95,6 +99,11 @@ MIGRATIONS = [
     # stock events, paused tanks, and each alarm's standing state (the ``alarm`` table stays its
     # history of changes)
     MIGRATION_4,
+    # 4 -> 5: the pond cleaner's coverage map, path index and the path it followed
+    # (controller.cleaning.ledger)
+    MIGRATION_5,
+    # 5 -> 6: weight surveys and every fish they counted (controller.surveys.ledger)
+    MIGRATION_6,
 ]
 
 SUSPECT = "suspect"
@@ -191,7 +200,7 @@ def next_tag(last_tag: int | None, device_tags=()) -> int:
     return tag
 
 
-class Store(Records):
+class Store(Records, CleanerRecords, SurveyRecords):
     """One SQLite connection, used from the controller's event loop thread (plus a lock for
     the occasional call from another thread). Every write is its own committed transaction."""
 
@@ -359,6 +368,17 @@ class Store(Records):
         """Grams measured into ``tank`` on farm day ``date`` (done feeds only)."""
         return self.db.execute("SELECT COALESCE(SUM(grams), 0) FROM feed WHERE tank = ? AND date = ? "
                                "AND phase = 'done'", (tank, date)).fetchone()[0]
+
+    def feed_per_day(self, tank: str, since: float | None = None) -> list[tuple[str, float, float]]:
+        """(farm day, first intent's farm time, grams measured) per day with feeds done, in order."""
+        rows = self.db.execute("SELECT date, MIN(t_intent), SUM(grams) FROM feed WHERE tank = ? AND phase = 'done' "
+                               "AND t_intent >= ? GROUP BY date ORDER BY date", (tank, since or -1e18))
+        return [(r[0], r[1], r[2]) for r in rows]
+
+    def fed_between(self, tank: str, t1: float, t2: float) -> float:
+        """Grams measured into ``tank`` by feeds begun in (t1, t2] (farm time)."""
+        return self.db.execute("SELECT COALESCE(SUM(grams), 0) FROM feed WHERE tank = ? AND phase = 'done' "
+                               "AND t_intent > ? AND t_intent <= ?", (tank, t1, t2)).fetchone()[0]
 
     def committed_g(self, tank: str, date: str) -> float:
         """Fed plus the targets of open and suspect intents: what the ration must still cover."""

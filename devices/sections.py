@@ -13,7 +13,14 @@ from pydantic import BaseModel, ValidationError
 
 from devices.errors import BadInput
 
-DEVICE_KINDS = ("contacts", "rail", "dispenser")
+DEVICE_KINDS = ("contacts", "rail", "dispenser", "thrusters", "tower_camera")
+PACKAGES = {"tower_camera": "devices.camera"}
+"""The package of a kind whose name is not its package's (default: ``devices.<kind>``)."""
+
+
+def backends(kind: str) -> dict[str, str]:
+    """A kind's ``BACKENDS`` table: driver -> ``module:Class``."""
+    return dict(importlib.import_module(PACKAGES.get(kind, f"devices.{kind}")).BACKENDS)
 
 
 def _loc(err: dict) -> str:
@@ -40,7 +47,7 @@ def section_model(kind: str, driver: str) -> type[BaseModel]:
     ``driver = "sim"`` is the simulated twin's section (devices/sim). ValueError names the choices."""
     if kind not in DEVICE_KINDS:
         raise ValueError(f"kind must be one of {', '.join(DEVICE_KINDS)}")
-    table = dict(importlib.import_module(f"devices.{kind}").BACKENDS)
+    table = backends(kind)
     if driver == "sim":
         return importlib.import_module("devices.sim").SIM_SECTIONS[kind]
     if driver not in table:

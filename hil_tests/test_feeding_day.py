@@ -9,8 +9,13 @@ from controller.demand import DemandParams
 from hil_tests.evidence import judge
 from hil_tests.farm import HilFarm
 
-DAY_S = 86_400.0
-# A farm day in four minutes of wall time. At 1440x (a day a minute) one farm minute is 42 ms of
+# Half a farm day in the suite (two minutes of wall time: ~110 fish episodes over eight tanks,
+# every part of the day's work); the whole day, twice the evidence, in bench/bench_farm_day.py
+# (FISHFARM_HIL_DAY_H=24). Counts the test holds the run to scale with its length.
+DAY_H = float(os.environ.get("FISHFARM_HIL_DAY_H", "12"))
+DAY_S = DAY_H * 3600.0
+PER_DAY = DAY_H / 24.0
+# At 360x a farm day takes four minutes of wall time. At 1440x (a day a minute) one farm minute is 42 ms of
 # wall time, so a Modbus or CAN round trip delayed by a busy machine costs farm seconds: the day
 # failed on the 60 s service at load averages of 2.5-9 (main and the filter alike) and passed 3 of 3
 # at 360x under the same load.
@@ -21,6 +26,7 @@ LEARN_S = DemandParams().learn_s    # ... and an hour to measure each tank's tur
 
 @pytest.mark.hil
 def test_a_farm_day_is_fed_on_demand_within_rations(tmp_path):
+    """DAY_H farm hours (12 in the suite, 24 in bench/bench_farm_day.py) of the demo farm."""
     # a stuck and a dead sensor every few days per tank (a couple of each over the farm's day),
     # and line noise on the contact hub's serial line
     farm = HilFarm(tmp_path, speed=SPEED, overrides={"sim": {"fish": {"stuck_per_day": 0.3, "dead_per_day": 0.3},
@@ -56,13 +62,14 @@ def test_a_farm_day_is_fed_on_demand_within_rations(tmp_path):
     print(report)
     assert not verdict.problems, "\n".join([report, *verdict.problems, *verdict.false_demands,
                                              farm.log("controller.log")[-4000:]])
-    assert verdict.feeds >= 100 and verdict.episodes >= 100, report
+    assert verdict.feeds >= 100 * PER_DAY and verdict.episodes >= 100 * PER_DAY, report
     # demands that come together from tanks across the rail can outrun one robot: such waits are
     # counted, each under 120 s with the robot busy serving others the whole time, and rare
     assert len(verdict.queued) <= max(2, verdict.feeds // 50), "\n".join([report, *verdict.queued])
     # demands outside every episode: within the filter's budget, 0.5 a tank-day
     tanks = {r["tank"] for r in truth if r["kind"] == "episode_start"}
-    assert len(verdict.false_demands) <= 0.5 * len(tanks), "\n".join([report, *verdict.false_demands])
+    budget = max(1.0, 0.5 * len(tanks) * PER_DAY)
+    assert len(verdict.false_demands) <= budget, "\n".join([report, *verdict.false_demands])
     # the contract: every episode demanded within 60 s of its start, for the fish the sim makes
     # (paced, the whole 0.1-2 /s band, calm tanks; Poisson fish at the slow end are a documented
     # limit, measured in bench/bench_demand.py)

@@ -23,7 +23,7 @@ import numpy as np
 
 from vision.calib_file import StereoCalibration
 from vision.epipolar import epipolar_lines, fundamental_from_projections
-from vision.fins import Fins, sample_frames
+from vision.fins import Fins, sample_frames, sample_frames_raw
 from vision.match_geometry import segments_by_range
 from vision.triangulation import normalise_projection, triangulate_calibrated, undistort_pixels
 
@@ -66,17 +66,28 @@ def _patches(v: View, f: Fins | None = None) -> np.ndarray:
     f = v.fins if f is None else f
     t = np.linspace(-0.5, 0.5, PATCH)
     C = v.pyr[0].shape[2] if v.pyr[0].ndim == 3 else 1
-    out = np.full((len(f), PATCH * PATCH * C), np.nan, np.float32)
     step = f.span_px / PATCH
     lev = np.clip(np.floor(np.log2(np.maximum(step, 1.0))).astype(int), 0, len(v.pyr) - 1)
     axes = np.c_[np.cos(f.angle), np.sin(f.angle)]
-    for k in np.unique(lev):
+    levels = np.unique(lev)
+    out = None if len(levels) == 1 else np.empty((len(f), PATCH * PATCH * C), np.float32)
+    for k in levels:
         idx = np.flatnonzero(lev == k)
         s = 2.0 ** -k
         off = t[None] * (f.span_px[idx] * s)[:, None]
-        p = sample_frames(v.pyr[k], (f.xy[idx] + 0.5) * s - 0.5, axes[idx], off, off)
-        out[idx] = p.reshape(len(idx), -1)
-    out = np.nan_to_num(out)                 # a neighbourhood cut by the frame: its missing part counts as 0
+        p, cut = sample_frames_raw(v.pyr[k], (f.xy[idx] + 0.5) * s - 0.5, axes[idx], off, off)
+        if p.dtype != np.uint8:
+            np.nan_to_num(p, copy=False)     # a neighbourhood cut by the frame: its missing part counts as 0
+        p = p.astype(np.float32, copy=False)
+        if cut is not None:                  # (uint8 samples: the mask says where)
+            p[cut] = 0.0
+        p = p.reshape(len(idx), -1)
+        if out is None:                      # one level (the usual case): no copy
+            out = p
+        else:
+            out[idx] = p
+    if out is None:
+        return np.zeros((0, PATCH * PATCH * C), np.float32)
     out -= out.mean(axis=1, keepdims=True)
     out /= np.maximum(np.linalg.norm(out, axis=1, keepdims=True), 1e-6)
     return out
@@ -247,7 +258,7 @@ def transfer_forks(P_src: np.ndarray, P_dst: np.ndarray, src: View, dst: View, i
     h, w = dst.pyr[0].shape[:2]
     cand = Fins(pts.reshape(-1, 2), np.repeat(f.angle, steps), np.repeat(f.span_px, steps),
                 np.ones(n * steps), np.ones(n * steps))
-    ncc = (_patches(dst, cand).reshape(n, steps, -1) * _patches(src, f)[:, None]).sum(axis=2)
+    ncc = np.matmul(_patches(dst, cand).reshape(n, steps, -1), _patches(src, f)[:, :, None])[..., 0]
     inside = np.all((pts >= 0) & (pts <= [w - 1, h - 1]), axis=2)
     best = np.where(inside, ncc, -np.inf).argmax(axis=1)
     return Fins(pts[np.arange(n), best], f.angle.copy(), f.span_px.copy(), ncc[np.arange(n), best], f.polarity.copy(),
@@ -276,7 +287,7 @@ def transfer_snouts(P1: np.ndarray, P2: np.ndarray, left: View, right: View, px1
     src = Fins(pts, angle1[n_idx], size_px[n_idx], np.ones(M), np.ones(M))
     dst = Fins(cand.reshape(-1, 2), np.repeat(angle2[n_idx], steps), np.repeat(size_px[n_idx], steps),
                np.ones(M * steps), np.ones(M * steps))
-    ncc = (_patches(right, dst).reshape(M, steps, -1) * _patches(left, src)[:, None]).sum(axis=2)
+    ncc = np.matmul(_patches(right, dst).reshape(M, steps, -1), _patches(left, src)[:, :, None])[..., 0]
     h, w = right.pyr[0].shape[:2]
     inside = np.all((cand >= 0) & (cand <= [w - 1, h - 1]), axis=2)
     best = np.where(inside, ncc, -np.inf).argmax(axis=1)

@@ -175,20 +175,45 @@ def suppress(fins: Fins, max_fins: int, reach_of_span: float = 0.5) -> np.ndarra
     return order[np.flatnonzero(keep)[:max_fins]]
 
 
+_REMAP_ROWS = 32767
+
+
 def sample_frames(img: np.ndarray, centres: np.ndarray, axes: np.ndarray, xs: np.ndarray,
                   ys: np.ndarray) -> np.ndarray:
     """Bilinear samples (N, ny, nx) of img in each candidate's own frame: the point centre + x axis
     + y normal, with normal = axis turned +90 degrees (image coordinates). ``xs``/``ys``: (nx,) and
     (ny,) offsets shared by all, or (N, nx) / (N, ny) per candidate. Outside the image: NaN. A
     colour image gives (N, ny, nx, C)."""
+    out, off = sample_frames_raw(img, centres, axes, xs, ys)
+    out = out.astype(np.float32, copy=False)
+    if off is not None:
+        out[off] = np.nan
+    return out
+
+
+def sample_frames_raw(img: np.ndarray, centres: np.ndarray, axes: np.ndarray, xs: np.ndarray,
+                      ys: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
+    """``sample_frames`` before the samples outside the image are set to NaN: the samples in the
+    image's own dtype for uint8 (what cv2.remap gives: no float copy) and a mask (N, ny, nx) of those
+    outside (None when there are none); float images give float32 with NaN already and None."""
     centres = np.asarray(centres, float).reshape(-1, 2)
     axes = np.asarray(axes, float).reshape(-1, 2)
     N = len(centres)
     xs = np.broadcast_to(np.asarray(xs, float), (N, np.shape(xs)[-1]))
     ys = np.broadcast_to(np.asarray(ys, float), (N, np.shape(ys)[-1]))
     ny, nx = ys.shape[1], xs.shape[1]
+    img = np.asarray(img)
     if N == 0:
-        return np.zeros((0, ny, nx) + np.shape(img)[2:], np.float32)
+        return np.zeros((0, ny, nx) + img.shape[2:], np.uint8 if img.dtype == np.uint8 else np.float32), None
+    if N * ny >= _REMAP_ROWS:
+        # cv2.remap takes maps of fewer than 32767 rows: many candidates go in batches
+        step = max(1, (_REMAP_ROWS - 1) // ny)
+        parts = [sample_frames_raw(img, centres[k:k + step], axes[k:k + step], xs[k:k + step], ys[k:k + step])
+                 for k in range(0, N, step)]
+        offs = None
+        if any(o is not None for _, o in parts):
+            offs = np.concatenate([np.zeros(p.shape[:3], bool) if o is None else o for p, o in parts])
+        return np.concatenate([p for p, _ in parts]), offs
     normal = np.stack([-axes[:, 1], axes[:, 0]], axis=1)
     maps, lo, hi = [], [], []
     for k in range(2):
@@ -200,26 +225,27 @@ def sample_frames(img: np.ndarray, centres: np.ndarray, axes: np.ndarray, xs: np
         # addition and rounding are monotonic: a frame's extreme samples are these, exactly
         lo.append(along.min(axis=1) + across.min(axis=1))
         hi.append(along.max(axis=1) + across.max(axis=1))
-    img = np.asarray(img)
-    if img.dtype == np.uint8:        # remap of uint8 is ~3x faster; values keep 1/2 grey level
-        out = cv2.remap(img, maps[0], maps[1], cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
-        out = out.astype(np.float32)
-        h, w = img.shape[:2]
-        # only frames reaching past the image's edge need the per-sample test, and not those
-        # wholly outside it (1 px to spare either way)
-        o = out.reshape((N, ny, nx) + img.shape[2:])
-        gone = (hi[0] < -1) | (lo[0] > w) | (hi[1] < -1) | (lo[1] > h)
-        o[gone] = np.nan
-        edge = np.flatnonzero(~gone & ((lo[0] < 1) | (hi[0] > w - 2) | (lo[1] < 1) | (hi[1] > h - 2)))
-        if len(edge):
-            mx, my = maps[0].reshape(N, ny, nx)[edge], maps[1].reshape(N, ny, nx)[edge]
-            e, y, x = np.nonzero((mx < 0) | (mx > w - 1) | (my < 0) | (my > h - 1))
-            o[edge[e], y, x] = np.nan
-    else:
+    if img.dtype != np.uint8:
         img = img.astype(np.float32, copy=False)
         out = cv2.remap(img, maps[0], maps[1], cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT,
                         borderValue=(np.nan,) * 4)
-    return out.reshape((N, ny, nx) + img.shape[2:])
+        return out.reshape((N, ny, nx) + img.shape[2:]), None
+    # remap of uint8 is ~3x faster; values keep 1/2 grey level
+    out = cv2.remap(img, maps[0], maps[1], cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+    out = out.reshape((N, ny, nx) + img.shape[2:])
+    h, w = img.shape[:2]
+    # only frames reaching past the image's edge need the per-sample test, and not those
+    # wholly outside it (1 px to spare either way)
+    gone = (hi[0] < -1) | (lo[0] > w) | (hi[1] < -1) | (lo[1] > h)
+    edge = np.flatnonzero(~gone & ((lo[0] < 1) | (hi[0] > w - 2) | (lo[1] < 1) | (hi[1] > h - 2)))
+    if not gone.any() and len(edge) == 0:
+        return out, None
+    off = np.zeros((N, ny, nx), bool)
+    off[gone] = True
+    if len(edge):
+        mx, my = maps[0].reshape(N, ny, nx)[edge], maps[1].reshape(N, ny, nx)[edge]
+        off[edge] = (mx < 0) | (mx > w - 1) | (my < 0) | (my > h - 1)
+    return out, off
 
 
 def fin_scores(pyr: list[np.ndarray], fins: Fins, bank: Bank | None = None) -> np.ndarray:

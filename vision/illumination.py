@@ -23,7 +23,6 @@ from typing import Literal
 
 import cv2
 import numpy as np
-from scipy.ndimage import median_filter
 
 Contrast = Literal["percentile", "range"]
 
@@ -67,6 +66,16 @@ def row_stats(img: np.ndarray, contrast: Contrast = "percentile",
     return mean, part[:, k[1]] - part[:, k[0]]
 
 
+def running_median(v: np.ndarray, k: int) -> np.ndarray:
+    """Median over a window of ``k`` (odd) values centred on each, the ends repeated beyond the
+    array (scipy.ndimage.median_filter(v, k, mode="nearest"), without importing scipy in a worker)."""
+    v = np.asarray(v)
+    h = k // 2
+    padded = np.concatenate([np.repeat(v[:1], h), v, np.repeat(v[-1:], h)])
+    windows = np.lib.stride_tricks.sliding_window_view(padded, k)
+    return np.partition(windows, h, axis=1)[:, h].astype(v.dtype, copy=False)
+
+
 def compensate_rows(img: np.ndarray, mi_ref: float, c_ref: float, contrast: Contrast = "percentile",
                     min_contrast: float = 2.0, clip: bool = True, max_gain: float | None = None,
                     smooth_rows: float = 0.0) -> np.ndarray:
@@ -85,7 +94,7 @@ def compensate_rows(img: np.ndarray, mi_ref: float, c_ref: float, contrast: Cont
     mi, c = row_stats(img, contrast)
     if smooth_rows > 0:
         k = max(3, int(round(smooth_rows * img.shape[0])) // 2 * 2 + 1)
-        mi, c = (median_filter(v, size=k, mode="nearest") for v in (mi, c))
+        mi, c = (running_median(v, k) for v in (mi, c))
     floor = max(min_contrast, 1e-6, c_ref / max_gain if max_gain else 0.0)
     gain = np.float32(c_ref) / np.maximum(c, np.float32(floor))
     out = (img - mi[:, None]) * gain[:, None] + np.float32(mi_ref)

@@ -114,9 +114,8 @@ def _along(pyr, xy, angle, half_band_px, fish_level, water_level, lo_px, hi_px, 
         idx = np.flatnonzero(lev == lv)
         f = 2.0 ** -lv
         band = sample_frames(pyr[lv], (xy[idx] + 0.5) * f - 0.5, axes[idx], xs[idx] * f, ys[idx] * f)
-        # np.median's value (the middle of ACROSS, odd; NaN where any is NaN) from one sort, ~1/3 cheaper
-        srt = np.sort(band.reshape(len(idx), ACROSS, SAMPLES + 1, C), axis=1)          # NaN sort last
-        prof[idx] = np.where(np.isnan(srt[:, -1]), np.nan, srt[:, ACROSS // 2])
+        # np.median's value across the rows (NaN where any is NaN)
+        prof[idx] = median_across(band.reshape(len(idx), ACROSS, SAMPLES + 1, C))
     # unlike the water by more than half the fin's own contrast: fish (> 0)
     contrast = np.maximum(np.linalg.norm(fish_level - water_level, axis=1), 1e-6)
     s = np.linalg.norm(prof - water_level[:, None], axis=2) / contrast[:, None] - 0.5
@@ -148,6 +147,20 @@ def _along(pyr, xy, angle, half_band_px, fish_level, water_level, lo_px, hi_px, 
         block = np.abs(i[None] - best[:, None]) <= 2 * m[:, None]
         work[block] = -1.0
     return dist, strength, contrast
+
+
+def median_across(band: np.ndarray) -> np.ndarray:
+    """Median over axis 1 (NaN where any is NaN), for 5 rows by min/max comparisons (exact: the
+    median of 5 is the median of e and the larger of the pairs' minima and the smaller of their
+    maxima; ~6x cheaper than sorting the axis), else by one sort."""
+    if band.shape[1] != 5:
+        srt = np.sort(band, axis=1)                                                   # NaN sort last
+        return np.where(np.isnan(srt[:, -1]), np.nan, srt[:, band.shape[1] // 2])
+    a, b, c, d, e = (band[:, i] for i in range(5))
+    lo = np.maximum(np.minimum(a, b), np.minimum(c, d))
+    hi = np.minimum(np.maximum(a, b), np.maximum(c, d))
+    med = np.maximum(np.minimum(lo, hi), np.minimum(np.maximum(lo, hi), e))
+    return np.where(np.isnan(band).any(axis=1), np.nan, med)
 
 
 def _crossing(s: np.ndarray, best: np.ndarray) -> np.ndarray:

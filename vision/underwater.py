@@ -51,6 +51,8 @@ class Params:
     min_fish_frac: float = 0.08     # shortest fish looked for, as a fraction of the image width
     work_width: int = 320           # width of the working image bodies are found on
     mask_k: tuple[float, ...] = (2.0, 5.0)   # fish: water distance above median + k MAD
+    end_offsets: tuple[float, ...] = (-0.17, -0.12, -0.07, -0.02, 0.03)   # fork hypotheses at each
+                                    # region end, shifted by these shares of its length along its axis
     otsu_share: float = 1.0         # ... and above this share of Otsu's threshold
     max_fins: int = 60              # per image
     band_px: float = 3.0            # epipolar band for fork pairing
@@ -119,7 +121,7 @@ def _view(img: np.ndarray, setup: SurveySetup, p: Params, clock: _Clock, trace: 
         ends, length = concat([f[0] for f in found]), np.concatenate([f[1] for f in found])
         # a region's end is the caudal peduncle when the fin is too faint to be in it (the region is
         # then ~0.87 of the fork length), or the lobe tips when it is not
-        hyps = concat([_shifted(ends, length, off) for off in (-0.17, -0.12, -0.07, -0.02, 0.03)])
+        hyps = concat([_shifted(ends, length, off) for off in p.end_offsets])
     n_bank = int(round(p.bank_per_mpix * H * W / 1e6))
     if n_bank > 0:
         if dist is None:

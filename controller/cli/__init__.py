@@ -23,6 +23,9 @@ COMMANDS = {
     "status": "controller.cli.override_cmd:status",
     "credentials": "controller.cli.credentials_cmd:credentials",
     "audit": "controller.cli.audit_cmd:audit",
+    "cleaner": "controller.cli.cleaner_cmd:cleaner",
+    "report": "controller.cli.report_cmd:report",
+    "history": "controller.cli.history_cmd:history",
 }
 
 

@@ -15,7 +15,6 @@ from __future__ import annotations
 
 import datetime as dt
 import json
-import re
 import sqlite3
 import sys
 import time
@@ -24,9 +23,9 @@ from pathlib import Path
 import click
 
 from controller.errors import BadInput
+from controller.history import DURATION as _DURATION
+from controller.history import UNIT_S as _UNIT_S
 
-_DURATION = re.compile(r"^\s*(\d+(?:\.\d+)?)\s*(s|m|h|d|w)\s*$")
-_UNIT_S = {"s": 1, "m": 60, "h": 3600, "d": 86400, "w": 7 * 86400}
 COLUMNS = ("time", "who", "command", "origin", "result", "payload")
 
 

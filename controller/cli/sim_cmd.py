@@ -29,7 +29,8 @@ import click
 @click.option("--log-level", default="warning", show_default=True,
               type=click.Choice(["debug", "info", "warning", "error"], case_sensitive=False))
 def sim(config_path, endpoints, truth, speed, epoch_wall, epoch_farm, log_level):
-    """Simulated farm: fish, contact hub, rail drive, dispenser. SIGUSR1 power-cycles the dispenser."""
+    """Simulated farm: fish, contact hub, rail drive, dispenser, pond cleaner's thrusters and tower
+    camera. SIGUSR1 power-cycles the dispenser."""
     from controller.config import load_config
     from devices.clock import ScaledClock
     from devices.sim.truth import TruthLog

@@ -85,6 +85,29 @@ class _Progress:
             self.bar.stop()
 
 
+def _recorder(config_path: str, tank_id: str, species: str, json_path: str):
+    """Checked before any pair is measured: the tank exists and holds ``species``, the ledger opens."""
+    import time
+
+    from controller.config import load_config
+    from controller.store import Store
+    cfg = load_config(config_path)
+    tank = next((t for t in cfg.tanks if t.id == tank_id), None)
+    if tank is None:
+        raise BadInput(config_path, "--tank", f"no tank {tank_id!r} (tanks: {', '.join(t.id for t in cfg.tanks)})")
+    if tank.species != species:
+        raise BadInput(config_path, "--tank", f"{tank_id} holds {tank.species}, not {species}")
+    Store(cfg.store.path).close()
+
+    def record(lengths, weights) -> None:
+        store = Store(cfg.store.path)
+        try:
+            store.add_survey(tank_id, time.time(), species, json_path, lengths, weights)
+        finally:
+            store.close()
+    return record
+
+
 @click.command()
 @click.option("--calib", "calib_path", required=True, metavar="CALIB.json", help="the stereo rig's calibration")
 @click.option("--species", required=True, help="a species of config/species.toml, e.g. sparus_aurata")
@@ -99,14 +122,15 @@ class _Progress:
 @click.option("--json", "json_path", required=True, metavar="OUT.json")
 @click.option("--plot", "plot_path", metavar="HIST.png", help="weight and length histograms (PNG)")
 @click.option("--csv", "csv_path", metavar="FISH.csv", help="every fish, units in the headers")
-@click.option("--config", "config_path", metavar="farm.toml", help="farm config holding [stocks.NAME]")
+@click.option("--config", "config_path", metavar="farm.toml", help="farm config: [stocks.NAME], the ledger for --tank")
+@click.option("--tank", "tank_id", help="record the survey in the ledger for this tank: its rations follow it")
 @click.option("--stock", help="use this stock's a, b (farm.toml [stocks.NAME]) instead of the species'")
 @click.option("--up", "up", metavar="x,y,z", help="water-surface normal in the calibration's frame")
 @click.option("--workers", type=click.IntRange(min=1), default=None, help="processes (default: cores)")
 @click.option("--seed", type=int, default=1, show_default=True, help="seed of the bootstrap interval")
 @click.option("--measure", default=None, hidden=True, help="module:function measuring a pair (tests)")
 def survey(calib_path, species, setup, pairs, rgs, directory, video, rg_video, every, max_frames, json_path,
-           plot_path, csv_path, config_path, stock, up, workers, seed, measure):
+           plot_path, csv_path, config_path, stock, tank_id, up, workers, seed, measure):
     """Fish lengths and weights from stereo pairs, with the survey's statistics."""
     from controller.cli.calib_io import load_calibration
     from controller.surveys.runner import MEASURE
@@ -116,8 +140,9 @@ def survey(calib_path, species, setup, pairs, rgs, directory, video, rg_video, e
     sp = survey_species(species)
     if stock:
         sp = with_stock(sp, config_path or "config/farm.toml", stock)
-    elif config_path:
-        raise click.UsageError("--config is read for --stock NAME only: give --stock too")
+    elif config_path and not tank_id:
+        raise click.UsageError("--config is read for --stock NAME or --tank T only: give one of them too")
+    record = _recorder(config_path or "config/farm.toml", tank_id, species, json_path) if tank_id else None
     calib = load_calibration(calib_path)
     up_world = _up(up)
     source = _source(pairs, rgs, directory, video, rg_video, every, max_frames)
@@ -126,7 +151,7 @@ def survey(calib_path, species, setup, pairs, rgs, directory, video, rg_video, e
         check_writable(plot_path, "the plot")
     progress = _Progress(source.total)
     opts = SurveyOptions(sp.setup(setup, up_world), sp, workers=workers, seed=seed,
-                         measure=measure or MEASURE, on_pair=progress)
+                         measure=measure or MEASURE, on_pair=progress, record=record)
     try:
         summary = run_survey(source, calib, opts, json_path, csv_path)
     finally:

@@ -4,17 +4,19 @@ A safety relay, not a task: ``trip()`` may be called from any thread (the Zenoh 
 received the ``estop`` query calls it before even parsing the payload). It sets the stop token
 (``tripped``) first, synchronously — every actuator command of the robot checks it — sends the
 first ESTOPs from the calling thread itself unless it runs an event loop (the drive's frame, then
-the dispenser's exchange: the caller's thread is held for about one Modbus round trip,
+the dispenser's exchange, then the thrusters': the caller's thread is held for about one round trip each,
 ``estop_timeout_s`` at worst), then wakes the lane's own thread, which
 
 - sends the drive's ESTOP frame straight onto the bus (``RailDrive.trip_estop``) and watches for a
   status frame in "estop" (noted on the CAN reader thread, not the loop);
 - writes the dispenser's ESTOP over the dispenser's e-stop connection and reads STATE back
   (``Dispenser.trip_estop``), until bit3 shows the latch;
+- with a pond cleaner, writes the thrusters' latch line and reads their state back
+  (``Thrusters.trip_estop``), until it shows the latch — any further ``Latch`` likewise;
 - retries each every ``retry_s`` (backing off to 1 s) until it confirms, reports a device still
   unconfirmed after ``confirm_within_s`` (the robot raises the ``estop`` alarm with it) and keeps
-  retrying; once both confirmed it looks again every ``recheck_s`` (a power-cycled PLC loses its
-  latch).
+  retrying; once all confirmed it looks again every ``recheck_s`` (a power-cycled PLC loses its
+  latch). Each latch is confirmed on its own: one device that does not answer delays no other.
 
 The event loop is never waited for: news goes to it with ``call_soon_threadsafe``. ``release()``
 (an operator's reset) stops the lane before the robot resets the latches; it waits for at most
@@ -59,12 +61,53 @@ class Halted(Exception):
     """An actuator command was not sent: the e-stop is tripped."""
 
 
-class EstopLane:
-    DEVICES = ("drive", "dispenser")
+class Latch:
+    """One device's e-stop latch as the lane drives it: ``send()`` sets it (blocking, bounded; a
+    ``DeviceError`` when the device cannot be reached), ``confirmed(sent_at, reply)`` says whether
+    it holds, from the reply of the latest send or from what the device reported since the first
+    one was sent (``sent_at``, monotonic). The default reads a state with an ``estop`` flag back
+    (the dispenser's STATE, the thrusters' state)."""
 
-    def __init__(self, rail, dispenser, *, confirm_within_s: float = 0.25, retry_s: float = 0.02,
+    unconfirmed_why = "its state does not show the latch"
+
+    def __init__(self, name: str, device):
+        self.name, self.device = name, device
+
+    def send(self):
+        return self.device.trip_estop()
+
+    def confirmed(self, sent_at: float, reply) -> bool:
+        return bool(getattr(reply, "estop", False))
+
+    def settle(self, sent_at: float, retry_s: float) -> None:
+        """Wait briefly for a confirmation that comes on its own (nothing to wait for here)."""
+
+
+class DriveLatch(Latch):
+    """The rail drive: its ESTOP frame goes straight onto the bus; any status frame in "estop" seen
+    after the first send confirms it (noted on the CAN reader thread, not the loop)."""
+
+    def confirmed(self, sent_at: float, reply) -> bool:
+        return self.device.estop_seen_since(sent_at)
+
+    def settle(self, sent_at: float, retry_s: float) -> None:
+        """The drive answers an accepted ESTOP with a status frame at once: wait for it briefly."""
+        deadline = sent_at + retry_s
+        while not self.device.estop_seen_since(sent_at) and time.monotonic() < deadline:
+            time.sleep(0.0002)
+
+
+class DispenserLatch(Latch):
+    unconfirmed_why = "its STATE does not show the latch"
+
+
+class EstopLane:
+    def __init__(self, rail, dispenser, *more: Latch, confirm_within_s: float = 0.25, retry_s: float = 0.02,
                  recheck_s: float = 1.0):
+        """The feeder's two latches (the drive's, the dispenser's), then ``more`` (the cleaner's
+        thrusters), each confirmed on its own; they are sent in this order."""
         self.rail, self.dispenser = rail, dispenser
+        self.latches: tuple[Latch, ...] = (DriveLatch("drive", rail), DispenserLatch("dispenser", dispenser), *more)
         self.confirm_within_s, self.retry_s, self.recheck_s = confirm_within_s, retry_s, recheck_s
         self.reason: str | None = None
         self._tripped = False
@@ -77,12 +120,25 @@ class EstopLane:
         self._confirmed: concurrent.futures.Future = concurrent.futures.Future()
         self._reports: list[Report] = []
         self.unconfirmed: dict[str, str] = {}      # device -> why its latch is not confirmed
-        self._first: tuple | None = None           # (gen, drive sent at, dispenser state) from trip()
+        self._first: tuple | None = None           # (gen, {device: (sent at, reply)}) from trip()
+
+    @property
+    def DEVICES(self) -> tuple[str, ...]:        # noqa: N802 - the names the feeder's code knew
+        return tuple(latch.name for latch in self.latches)
 
     @property
     def tripped(self) -> bool:
         """The stop token: no actuator command may be sent while it is set."""
         return self._tripped
+
+    def replace_device(self, old, new) -> None:
+        """A fresh driver takes over ``old``'s latch (its link was lost for good). A tripped lane
+        is woken to latch it at once."""
+        for latch in self.latches:
+            if latch.device is old:
+                latch.device = new               # the lane's thread reads it whole: one assignment
+        if self._tripped:
+            self._wake.set()
 
     def listen(self, report: Report) -> None:
         self._reports.append(report)
@@ -97,7 +153,7 @@ class EstopLane:
 
     def trip(self, reason: str) -> concurrent.futures.Future:
         """Stop everything now, from any thread; safe to call again. The future is done (True)
-        once both devices have confirmed their latches; it is never failed."""
+        once every device has confirmed its latch; it is never failed."""
         with self._flag:
             first = not self._tripped
             if first:
@@ -114,10 +170,11 @@ class EstopLane:
             # the first ESTOPs go out from the caller's thread, now: waking the lane's thread first
             # would add a scheduling hop (and a GIL hand-over) before anything reaches a device.
             # Not from an event loop's thread: blocking I/O there would stall the loop.
-            stamp = time.monotonic()
-            drive = self._send(gen, self.rail.trip_estop, {}, "drive")
-            state = self._send(gen, self.dispenser.trip_estop, {}, "dispenser")
-            self._first = (gen, stamp if drive else None, state)   # the lane goes on from here
+            first = {}
+            for latch in self.latches:
+                stamp = time.monotonic()
+                first[latch.name] = (stamp, self._send(gen, latch.send, {}, latch.name))
+            self._first = (gen, first)            # the lane goes on from here
         self._wake.set()
         return confirmed
 
@@ -149,45 +206,45 @@ class EstopLane:
                 self._latch(self._gen)
 
     def _latch(self, gen: int) -> None:
-        """Set both latches and retry until each confirms (or a release/another trip comes)."""
+        """Set every latch and retry until each confirms (or a release/another trip comes)."""
         started = time.monotonic()
-        pending = set(self.DEVICES)
-        sent_at: float | None = None
+        pending = {latch.name: latch for latch in self.latches}
+        sent_at: dict[str, float] = {}             # device -> its first accepted send this trip
         first, self._first = self._first, None
         if first is not None and first[0] == gen:     # what trip() sent from its caller's thread
-            sent_at = first[1]
-            if sent_at is not None and self.rail.estop_seen_since(sent_at):
-                pending.discard("drive")
-            if getattr(first[2], "estop", False):
-                pending.discard("dispenser")
+            for name, (stamp, reply) in first[1].items():
+                if reply is not None and name in pending:
+                    sent_at[name] = stamp
+                    if pending[name].confirmed(stamp, reply):
+                        del pending[name]
         told: set[str] = set()
         why: dict[str, str] = {}
         delay = self.retry_s
         while pending:
-            if "drive" in pending:       # (re)send: any "estop" frame after the first send confirms
+            replies = {}
+            for name, latch in pending.items():     # (re)send each
                 stamp = time.monotonic()
-                if self._send(gen, self.rail.trip_estop, why, "drive") and sent_at is None:
-                    sent_at = stamp
-            if "dispenser" in pending:
-                state = self._send(gen, self.dispenser.trip_estop, why, "dispenser")
-                if state is not None and state.estop:
-                    pending.discard("dispenser")
-                elif state is not None:
-                    why["dispenser"] = "its STATE does not show the latch"
+                replies[name] = self._send(gen, latch.send, why, name)
+                if replies[name] is not None:
+                    sent_at.setdefault(name, stamp)
             if gen != self._gen:
                 return
-            if "drive" in pending and sent_at is not None:
-                self._await_drive(sent_at)
-                if self.rail.estop_seen_since(sent_at):
-                    pending.discard("drive")
-            for device in self.DEVICES:
-                if device not in pending and device in told:
-                    told.discard(device)
-                    self._tell(device, None)
+            for name, latch in list(pending.items()):
+                if name not in sent_at:
+                    continue
+                latch.settle(sent_at[name], self.retry_s)
+                if latch.confirmed(sent_at[name], replies[name]):
+                    del pending[name]
+                elif replies[name] is not None and replies[name] is not True:
+                    why[name] = latch.unconfirmed_why
+            for name in self.DEVICES:
+                if name not in pending and name in told:
+                    told.discard(name)
+                    self._tell(name, None)
             if pending and time.monotonic() - started >= self.confirm_within_s:
-                for device in pending - told:
-                    told.add(device)
-                    self._tell(device, why.get(device, "no confirmation"))
+                for name in pending.keys() - told:
+                    told.add(name)
+                    self._tell(name, why.get(name, "no confirmation"))
             if pending:                   # fast at first, then backing off to once a second
                 time.sleep(delay)
                 if time.monotonic() - started >= self.confirm_within_s:
@@ -210,12 +267,6 @@ class EstopLane:
                 why[device] = f"{type(exc).__name__}: {exc}"
                 return None
         return True if result is None else result
-
-    def _await_drive(self, sent_at: float) -> None:
-        """The drive answers an accepted ESTOP with a status frame at once: wait for it briefly."""
-        deadline = sent_at + self.retry_s
-        while not self.rail.estop_seen_since(sent_at) and time.monotonic() < deadline:
-            time.sleep(0.0002)
 
     def _tell(self, device: str, why: str | None) -> None:
         if why is None:

@@ -1,19 +1,36 @@
 """Daily rations: biomass × feeding-table rate, and what is left of today's.
 
-Until a weight survey exists for a tank, biomass is its stock × the config's mean weight, the stock
-being the config's count plus the stock events in the store (mortality, harvests, transfers). A
-ration is fixed for a farm day when first asked for (row in the store), so a restart or a
-config edit mid-day does not move the goalposts; an operator or a survey may replace it.
+The stock is the config's count plus the stock events in the store (mortality, harvests,
+transfers). The weights come from the tank's latest weight survey in the ledger, each fish fed by
+its own weight class (controller/feeding/feeding_table.py) at the tank's water temperature; a
+survey older than ``[feeding] survey_max_age_d`` has its weights projected to today (at the growth
+measured between the last two surveys, else the chart's expected growth) and the ration says so;
+with no survey, the config's mean weight. A ration is fixed for a farm day when first asked for
+(row in the store), so a restart or a config edit mid-day does not move the goalposts; a new survey
+or a stock event plans it again, an operator's ration stands.
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from pathlib import Path
 
+import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
 from controller.config import Config, load_toml, validate_section
+from controller.errors import BadInput
+from controller.feeding.feeding_table import (
+    FeedingTable,
+    load_feeding_table,
+    project_weight,
+    ration_from_weights,
+    table_from_species,
+)
 from devices.clock import farm_date
+
+DAY_S = 86_400.0
+PLANNED = ("config", "survey", "projected")    # rations the controller plans (an operator's stands)
 
 
 class FeedingRow(BaseModel):
@@ -39,7 +56,8 @@ class Species(BaseModel):
         return self.feeding[-1]
 
 
-SPECIES_FILE = Path(__file__).resolve().parents[2] / "config" / "species.toml"
+SHIPPED = Path(__file__).resolve().parents[2] / "config"
+SPECIES_FILE = SHIPPED / "species.toml"
 
 
 def load_species(path: str | Path = SPECIES_FILE) -> dict[str, Species]:
@@ -55,15 +73,27 @@ class Ration:
     pellet_mm: float
     fed_g: float
     committed_g: float
+    source: str = "config"          # config | survey | projected | operator
 
     @property
     def left_g(self) -> float:
         return max(0.0, self.grams - self.committed_g)
 
 
+@dataclass(frozen=True)
+class Plan:
+    """What a planned ration rests on."""
+    grams: float
+    pellet_mm: float
+    source: str                     # config | survey | projected
+    mean_weight_g: float
+    note: str
+
+
 def ration_payload(r: Ration) -> dict:
     """``farm/{site}/tank/{tank}/ration``."""
-    return {"date": r.date, "grams": round(r.grams, 1), "fed_g": round(r.fed_g, 1), "pellet_mm": r.pellet_mm}
+    return {"date": r.date, "grams": round(r.grams, 1), "fed_g": round(r.fed_g, 1), "pellet_mm": r.pellet_mm,
+            "basis": r.source}
 
 
 class Rations:
@@ -75,6 +105,10 @@ class Rations:
         for tank in cfg.tanks:
             if tank.species not in species:
                 raise ValueError(f"tank {tank.id}: unknown species {tank.species!r}")
+        self.tables = load_tables(cfg)
+        self._plans: dict[tuple[str, str], Plan] = {}     # (tank, farm day) -> what today's plan rests on
+        for key in {tank.species for tank in cfg.tanks} - self.tables.keys():
+            self.tables[key] = table_from_species(key, species[key])
 
     def date(self, t: float) -> str:
         return farm_date(t, self.cfg.utc_offset_h)
@@ -87,31 +121,73 @@ class Rations:
 
     def restocked(self, tank_id: str, t: float) -> Ration:
         """A stock event was recorded: the count is read again, and today's ration planned again
-        from it unless an operator or a survey set it (theirs stands)."""
+        from it unless an operator set it (theirs stands)."""
         self._stock.pop(tank_id, None)
+        return self.replan(tank_id, t)
+
+    def replan(self, tank_id: str, t: float) -> Ration:
+        """Plan today's ration again (a new survey, a new count), unless an operator set it."""
         current = self.today(tank_id, t)
-        row = self.store.ration(tank_id, current.date)
-        if row is not None and row["source"] == "config":
-            grams, pellet = self.planned(tank_id)
-            self.store.set_ration(tank_id, current.date, grams, pellet, "config", t)
+        plan = self.plan(tank_id, t)
+        self._plans[(tank_id, current.date)] = plan
+        if current.source in PLANNED:
+            self.store.set_ration(tank_id, current.date, plan.grams, plan.pellet_mm, plan.source, t)
         return self.today(tank_id, t)
 
-    def planned(self, tank_id: str) -> tuple[float, float]:
-        """(grams a day, pellet mm) from the stock, the config's mean weight and the species table."""
+    def basis(self, tank_id: str, t: float) -> Plan:
+        """What today's planned ration rests on (mean weight, survey or not), kept for the day."""
+        key = (tank_id, self.date(t))
+        if key not in self._plans:
+            self._plans = {k: v for k, v in self._plans.items() if k[1] == key[1]}   # yesterday's go
+            self._plans[key] = self.plan(tank_id, t)
+        return self._plans[key]
+
+    def water_temp_c(self, tank_id: str) -> float:
         tank = self.cfg.tank(tank_id)
-        row = self.species[tank.species].row(tank.mean_weight_g)
-        rate = tank.feeding_rate_pct if tank.feeding_rate_pct is not None else row.rate_pct
-        return self.stock(tank_id) * tank.mean_weight_g * rate / 100.0, row.pellet_mm
+        return tank.water_temp_c if tank.water_temp_c is not None else self.cfg.feeding.water_temp_c
+
+    def plan(self, tank_id: str, t: float) -> Plan:
+        """Today's ration from the stock and the weights the ledger knows at ``t`` (module docstring)."""
+        tank = self.cfg.tank(tank_id)
+        table, temp, stock = self.tables[tank.species], self.water_temp_c(tank_id), self.stock(tank_id)
+        weights, source, note = self._weights(tank_id, t, table, temp)
+        plan = ration_from_weights(weights, stock, temp, table)
+        grams = plan.grams
+        if tank.feeding_rate_pct is not None:          # the operator's rate for this tank, on its biomass
+            grams = plan.biomass_g * tank.feeding_rate_pct / 100.0
+        return Plan(grams, plan.pellet_mm, source, plan.mean_weight_g, note)
+
+    def _weights(self, tank_id: str, t: float, table: FeedingTable, temp: float) -> tuple[np.ndarray, str, str]:
+        last = self.store.surveys(tank_id, until=t, limit=2)
+        if not last:
+            w = self.cfg.tank(tank_id).mean_weight_g
+            return np.array([w]), "config", f"no survey: the config's mean weight {w:g} g"
+        s = last[0]
+        weights = self.store.survey_weights(s.id)
+        age_d = (t - s.t) / DAY_S
+        when = f"survey of {self.date(s.t)} ({s.count} fish, mean {s.mean_weight_g:.1f} g)"
+        if age_d <= self.cfg.feeding.survey_max_age_d:
+            return weights, "survey", when
+        sgr = None
+        if len(last) == 2 and s.t - last[1].t >= DAY_S:    # growth measured between the last two
+            sgr = 100.0 * math.log(s.mean_weight_g / last[1].mean_weight_g) / ((s.t - last[1].t) / DAY_S)
+        projected = project_weight(s.mean_weight_g, age_d, temp, table, sgr)
+        if projected is None:
+            return weights, "projected", f"{when}, {age_d:.0f} days old; no growth known: not projected"
+        how = f"{sgr:.2f} %/day measured" if sgr is not None else "the feeding chart's growth"
+        return (weights * projected / s.mean_weight_g, "projected",
+                f"{when}, {age_d:.0f} days old: projected to {projected:.1f} g at {how}")
 
     def today(self, tank_id: str, t: float) -> Ration:
         date = self.date(t)
         row = self.store.ration(tank_id, date)
         if row is None:
-            grams, pellet = self.planned(tank_id)
-            self.store.set_ration(tank_id, date, grams, pellet, "config", t)
+            plan = self.plan(tank_id, t)
+            self._plans[(tank_id, date)] = plan
+            self.store.set_ration(tank_id, date, plan.grams, plan.pellet_mm, plan.source, t)
             row = self.store.ration(tank_id, date)
         return Ration(tank_id, date, row["grams"], row["pellet_mm"],
-                      self.store.fed_g(tank_id, date), self.store.committed_g(tank_id, date))
+                      self.store.fed_g(tank_id, date), self.store.committed_g(tank_id, date), row["source"])
 
     def set(self, tank_id: str, t: float, grams: float, source: str) -> Ration:
         current = self.today(tank_id, t)
@@ -124,3 +200,19 @@ class Rations:
         ration = self.today(tank_id, t)
         grams = min(self.cfg.feeding.portion_g, ration.left_g / (1.0 + overshoot))
         return grams if grams >= self.cfg.feeding.min_portion_g else 0.0
+
+
+def load_tables(cfg: Config) -> dict[str, FeedingTable]:
+    """``[feeding] tables``: one chart per species. A relative path is looked for beside farm.toml,
+    then among the charts shipped with fishfarm (its config/ directory, as species.toml)."""
+    base = Path(cfg.path).parent if Path(cfg.path).is_file() else Path.cwd()
+    tables: dict[str, FeedingTable] = {}
+    for i, name in enumerate(cfg.feeding.tables):
+        path = Path(name)
+        if not path.is_absolute():
+            path = base / name if (base / name).is_file() or not (SHIPPED / name).is_file() else SHIPPED / name
+        table = load_feeding_table(path)
+        if table.species in tables:
+            raise BadInput(cfg.path, f"feeding.tables.{i}", f"a second table for {table.species!r}")
+        tables[table.species] = table
+    return tables

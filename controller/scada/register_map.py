@@ -101,16 +101,19 @@ TABLE: tuple[Row, ...] = (
         lambda v: v.s["feeder"].get("position_m")),
     Row("feeder", "feeder.hopper_g", IR, 3, "f32", 1, "g", "R", "food in the hopper",
         lambda v: v.s["feeder"].get("hopper_g")),
-    # -- the pond cleaner: reserved, "no value" until a cleaner exists --------------------------
-    Row("cleaner", "cleaner.state", IR, 0, "u16", 1, "", "R", "cleaner state (reserved: no value until a cleaner "
-        "exists)", lambda v: (v.s.get("cleaner") or {}).get("state_code")),
-    Row("cleaner", "cleaner.x_m", IR, 1, "f32", 1, "m", "R", "cleaner position x in the pond (reserved)",
+    # -- the pond cleaner: "no value" on a farm without [cleaning] -------------------------------
+    Row("cleaner", "cleaner.state", IR, 0, "u16", 1, "", "R", "cleaner state: 0 docked, 1 localising, 2 cleaning, "
+        "3 returning, 4 lost, 5 fault, 6 estop, 7 manual (no value without [cleaning])",
+        lambda v: (v.s.get("cleaner") or {}).get("state_code")),
+    Row("cleaner", "cleaner.x_m", IR, 1, "f32", 1, "m", "R",
+        "cleaner position x in the pond (no value while not tracked)",
         lambda v: (v.s.get("cleaner") or {}).get("x_m")),
-    Row("cleaner", "cleaner.y_m", IR, 3, "f32", 1, "m", "R", "cleaner position y in the pond (reserved)",
+    Row("cleaner", "cleaner.y_m", IR, 3, "f32", 1, "m", "R",
+        "cleaner position y in the pond (no value while not tracked)",
         lambda v: (v.s.get("cleaner") or {}).get("y_m")),
-    Row("cleaner", "cleaner.heading_rad", IR, 5, "f32", 1, "rad", "R", "cleaner heading (reserved)",
+    Row("cleaner", "cleaner.heading_rad", IR, 5, "f32", 1, "rad", "R", "cleaner heading (no value while not tracked)",
         lambda v: (v.s.get("cleaner") or {}).get("heading_rad")),
-    Row("cleaner", "cleaner.coverage", IR, 7, "f32", 1, "", "R", "share of the pond cleaned, 0..1 (reserved)",
+    Row("cleaner", "cleaner.coverage", IR, 7, "f32", 1, "", "R", "share of the reachable floor cleaned this run, 0..1",
         lambda v: (v.s.get("cleaner") or {}).get("coverage")),
     # -- alarms: the summary, then one slot per source known at start ---------------------------
     Row("alarms", "alarms.active", IR, 0, "u16", 1, "", "R", "standing alarms",
@@ -134,13 +137,20 @@ TABLE: tuple[Row, ...] = (
     Row("tank", "ration_g", IR, 2, "f32", 1, "g", "R", "today's ration", _t("ration_g")),
     Row("tank", "fed_g", IR, 4, "f32", 1, "g", "R", "fed today", _t("fed_g")),
     Row("tank", "pellet_mm", IR, 6, "f32", 1, "mm", "R", "pellet size of today's ration", _t("pellet_mm")),
-    Row("tank", "mean_weight_g", IR, 8, "f32", 1, "g", "R", "mean fish weight the ration uses", _t("mean_weight_g")),
+    Row("tank", "mean_weight_g", IR, 8, "f32", 1, "g", "R", "mean fish weight the ration uses (survey, projected "
+        "or config)", _t("mean_weight_g")),
     Row("tank", "biomass_kg", IR, 10, "f32", 1, "kg", "R", "stock count x mean weight", _t("biomass_kg")),
     Row("tank", "stock", IR, 12, "u32", 1, "fish", "R", "stock count", _t("stock")),
     Row("tank", "last_survey_t", IR, 14, "u32", 1, "s", "R", "last weight survey, Unix seconds UTC",
         _t("last_survey_unix")),
-    Row("tank", "alarm_severity", IR, 16, "u16", 1, "", "R", "highest standing severity of the tank's sensor and "
-        "demand alarms (0 none .. 3 critical)", _t("alarm_severity")),
+    Row("tank", "alarm_severity", IR, 16, "u16", 1, "", "R", "highest standing severity of the tank's sensor, "
+        "demand and grading alarms (0 none .. 3 critical)", _t("alarm_severity")),
+    Row("tank", "weight_cv_pct", IR, 17, "u16", 0.1, "%", "R", "size uniformity: weight CV of the last survey",
+        _t("weight_cv_pct")),
+    Row("tank", "sgr_pct_day", IR, 18, "i16", 0.01, "%/day", "R", "specific growth rate between the last two "
+        "surveys", _t("sgr_pct_day")),
+    Row("tank", "fcr", IR, 19, "u16", 0.01, "", "R", "feed conversion ratio between the last two surveys "
+        "(feed / biomass gain)", _t("fcr")),
     Row("tank", "feed_now_g", HR, 0, "u16", 1, "g", "W", "write grams: feed this tank now (feeding.min_portion_g "
         "to feeding.portion_g, else 03); reads 0", write=_FEED),
     Row("tank", "set_ration_g", HR, 1, "f32", 1, "g", "R/W", f"today's ration; write to set it (0 to {RATION_MAX_G:g}, "
@@ -164,7 +174,7 @@ FIXED_SLOTS = ("estop", "feeder", "ledger", "dispenser_counters", "sim", "contro
 def alarm_slots(cfg) -> list[str]:
     """The alarm sources known at start, each a slot: an alarm belongs to slot S when its source is S
     or starts with ``S/`` (``controller`` holds ``controller/robot.run`` and its kin). A tank's
-    sensor and demand alarms are in the tank's block (``alarm_severity``)."""
+    sensor, demand and grading alarms are in the tank's block (``alarm_severity``)."""
     slots = list(FIXED_SLOTS) + [f"device/{name}" for name in cfg.devices]
     return slots[:MAX_SLOTS]
 

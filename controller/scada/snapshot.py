@@ -51,7 +51,8 @@ def prepare(status: dict, lay: Layout) -> dict:
     s["t_unix"] = unix(s.get("t"))
     sensors = {}
     if lay.cfg is not None:
-        sensors = {t.id: {f"sensor/{x}" for x in t.sensors} | {f"demand/{t.id}"} for t in lay.cfg.tanks}
+        sensors = {t.id: {f"sensor/{x}" for x in t.sensors} | {f"demand/{t.id}", f"grading/{t.id}"}
+                   for t in lay.cfg.tanks}
     tanks = {}
     for tank_id in lay.tanks:
         t = dict((s.get("tanks") or {}).get(tank_id) or {})

@@ -2,9 +2,7 @@
 interval on mean weight and the count, large enough to read at a glance on a phone."""
 from __future__ import annotations
 
-from pathlib import Path
-
-from controller.errors import BadInput
+from controller.plotting import pyplot, save_figure
 
 
 def _fmt(x, unit: str, digits: int = 1) -> str:
@@ -12,9 +10,7 @@ def _fmt(x, unit: str, digits: int = 1) -> str:
 
 
 def plot_survey(summary: dict, path: str) -> None:
-    import matplotlib
-    matplotlib.use("Agg")                      # no display on a farm PC or in CI
-    import matplotlib.pyplot as plt
+    plt = pyplot()
     from matplotlib.ticker import MaxNLocator
 
     w, L = summary["weight_g"], summary["length_cm"]
@@ -47,10 +43,4 @@ def plot_survey(summary: dict, path: str) -> None:
     if n == 0:
         for ax in (ax_w, ax_l):
             ax.text(0.5, 0.5, "no fish measured", ha="center", va="center", transform=ax.transAxes, fontsize=14)
-    try:
-        Path(path).parent.mkdir(parents=True, exist_ok=True)
-        fig.savefig(path, dpi=110)
-    except OSError as exc:
-        raise BadInput(path, None, f"cannot write the plot: {exc.strerror or exc}") from None
-    finally:
-        plt.close(fig)
+    save_figure(fig, path)

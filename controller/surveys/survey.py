@@ -33,6 +33,7 @@ class SurveyOptions:
     read_in: str = "worker"
     on_pair: Callable[[PairResult], None] | None = None       # progress, warnings
     extra: dict = field(default_factory=dict)                  # more optional OUT.json fields
+    record: Callable[[np.ndarray, np.ndarray], None] | None = None   # (lengths, weights) the statistics use
 
 
 # A fish in view for 0.6 s or more is seen this often at 5 surveyed frames a second; below that
@@ -103,6 +104,8 @@ def run_survey(source: Source, calib: StereoCalibration, opts: SurveyOptions,
         lengths = tracks.lengths_cm()
         lengths = lengths[np.isfinite(lengths) & (lengths > 0)]
         stats = summarise(lengths, weight.weight_g(lengths), rng=np.random.default_rng(opts.seed))
+        if opts.record is not None:
+            opts.record(lengths, weight.weight_g(lengths))
         head = {"species": opts.species.key, "setup": opts.setup.setup, "frames": frames}
         tail = {"count": stats["count"], "length_cm": stats["length_cm"], "weight_g": stats["weight_g"],
                 "condition_k": stats["condition_k"], "precision": stats["precision"],

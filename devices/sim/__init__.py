@@ -3,9 +3,12 @@
 A device marked ``driver = "sim"`` in farm.toml is served by ``fishfarm sim`` (its own
 process, see controller/cli/sim_cmd.py) over the same protocol as the hardware: the contact
 hub on a pseudo-terminal, the rail drive over slcan on a pseudo-terminal, the dispenser as a
-Modbus TCP server. The controller then reaches it through the real driver.
+Modbus TCP server, the cleaner's thruster controller on a pseudo-terminal, the tower camera
+as an MJPEG-over-HTTP server. The controller then reaches it through the real driver.
 """
 from __future__ import annotations
+
+from pydantic import Field
 
 from devices.base import Section
 
@@ -24,8 +27,23 @@ class SimDispenserSection(Section):
     unit: int = 1
 
 
+class SimThrustersSection(Section):
+    """The simulated thruster controller (``[sim.thrusters]``: its watchdog, ramps)."""
+
+    watchdog_s: float | None = Field(None, ge=0.05, le=600, description="set by the controller on open")
+
+
+class SimTowerCameraSection(Section):
+    """The simulated tower camera (``[sim.tower_camera]``: size, frame rate) over the pond (``[sim.pond]``)."""
+
+    host: str = "127.0.0.1"
+    port: int = Field(0, ge=0, le=65535, description="0: any free port, reported by the sim process")
+
+
 SIM_SECTIONS = {
     "contacts": SimContactsSection,
     "rail": SimRailSection,
     "dispenser": SimDispenserSection,
+    "thrusters": SimThrustersSection,
+    "tower_camera": SimTowerCameraSection,
 }

@@ -20,17 +20,15 @@ is attached; ``stop()`` closes both ends, and a reader then sees the port vanish
 from __future__ import annotations
 
 import asyncio
-import contextlib
 import heapq
 import math
-import os
-import tty
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
 from devices.contacts.serial_hub import contact_line, heartbeat_line
 from devices.sections import validate_section
+from devices.sim.ptys import close_pty, end_task, open_pty, write_lines
 
 MAX_PENDING = 1 << 16                   # bytes kept for a partial write before dropping lines
 HEARTBEAT_S = 0.25                      # wall: keeps the line alive whatever the farm clock does
@@ -80,21 +78,13 @@ class SimContactHub:
         return self._port
 
     async def start(self) -> None:
-        self._master, self._slave = os.openpty()
-        tty.setraw(self._slave)
-        os.set_blocking(self._master, False)
-        self._port = os.ttyname(self._slave)
+        self._master, self._slave, self._port = open_pty()
         self._task = asyncio.create_task(self._serve(), name="sim-contact-hub")
 
     async def stop(self) -> None:
-        if self._task is not None:
-            self._task.cancel()
-            with contextlib.suppress(asyncio.CancelledError):
-                await self._task
-            self._task = None
-        for fd in (self._master, self._slave):
-            if fd >= 0:
-                os.close(fd)
+        await end_task(self._task)
+        self._task = None
+        close_pty(self._master, self._slave)
         self._master = self._slave = -1
 
     async def _serve(self) -> None:
@@ -141,15 +131,6 @@ class SimContactHub:
         return out
 
     def _write(self, lines: list[bytes]) -> None:
-        if len(self._pending) > MAX_PENDING:
-            self.dropped += len(lines)
-            lines = []
-        data = self._pending + b"".join(lines)
-        if not data:
-            return
-        try:
-            n = os.write(self._master, data)
-        except BlockingIOError:
-            n = 0
-        self._pending = data[n:]
-        self.sent += len(lines)
+        self._pending, dropped = write_lines(self._master, self._pending, lines, MAX_PENDING)
+        self.dropped += dropped
+        self.sent += len(lines) - dropped

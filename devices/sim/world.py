@@ -1,4 +1,5 @@
-"""The simulated farm: tanks of fish, the rail carriage and the dispenser on it, in one process.
+"""The simulated farm: tanks of fish, the rail carriage and the dispenser on it, and the pond with
+its cleaning robot (thrusters, physics, tower camera), in one process.
 
 Each simulated device serves its own protocol; the world only links their physics: food
 leaving the auger falls into the tank under the carriage (or on the floor between tanks),
@@ -9,6 +10,7 @@ closed-form motion, at the instants the carriage passes a tank mouth's or the fo
 """
 from __future__ import annotations
 
+import asyncio
 import logging
 import random
 from typing import Any
@@ -25,6 +27,7 @@ from devices.sim.truth import TruthLog
 log = logging.getLogger("fishfarm.sim")
 
 TANK_MOUTH_M = 0.30       # the chute is over a tank when within this of the tank's position
+RECV_WINDOW = "recv_buffer_size;262144"   # the simulated camera's reader: FFmpeg's TCP receive buffer
 FOOD_BOX_M = 0.10         # the hopper fills only this close to the food box
 
 
@@ -37,6 +40,9 @@ class SimSection(BaseModel):
     contacts: dict[str, Any] = {}
     rail: dict[str, Any] = {}
     dispenser: dict[str, Any] = {}
+    thrusters: dict[str, Any] = {}
+    tower_camera: dict[str, Any] = {}
+    pond: dict[str, Any] = {}
     soak_days: float = Field(0.0, ge=0, description="reserved")
 
 
@@ -51,12 +57,15 @@ class SimFarm:
         self.rng = random.Random(self.section.seed)
         simulated = [(n, s) for n, s in cfg.devices.items() if s["driver"] == "sim"]
         self.devices = {kind: [(n, s) for n, s in simulated if s["kind"] == kind]
-                        for kind in ("contacts", "rail", "dispenser")}
+                        for kind in ("contacts", "rail", "dispenser", "thrusters", "tower_camera")}
         self.motor: SimRailMotor | None = None
         self.adapter: SlcanAdapter | None = None
         self.dispenser: SimDispenser | None = None
         self.tanks = self._build_tanks()
         self.hubs: list = []
+        self.thrusters = None                 # SimThrusters, the pond cleaner's
+        self.pond = None                      # SimPond: the cleaner on the floor
+        self.camera = None                    # SimTowerCamera
         self.tank_positions = sorted((t.position_m, t.id) for t in cfg.tanks)
         box = cfg.feeding.food_box_m
         self.edges = sorted({p + d for p, _ in self.tank_positions for d in (-TANK_MOUTH_M, TANK_MOUTH_M)}
@@ -138,6 +147,46 @@ class SimFarm:
                                "port": self.dispenser.port, "unit": unit}
         for name, _section in self.devices["contacts"]:
             endpoints[name] = await self._start_hub()
+        endpoints.update(await self._start_pond())
+        return endpoints
+
+    async def _start_pond(self) -> dict[str, dict]:
+        """The cleaner's thruster controller, the pond it moves on and the tower camera over it."""
+        from devices.sim.thrusters import SimThrusters
+        from devices.sim.tower_camera import SimTowerCamera, SimTowerCameraParams
+        endpoints: dict[str, dict] = {}
+        where = self.cfg.path
+        for name, section in self.devices["thrusters"][:1]:
+            self.thrusters = SimThrusters(self.clock, self.section.thrusters, self.truth, where=where)
+            await self.thrusters.start()
+            endpoints[name] = {"kind": "thrusters", "driver": "serial", "port": self.thrusters.port}
+            if section.get("watchdog_s") is not None:
+                endpoints[name]["watchdog_s"] = section["watchdog_s"]
+        cameras = self.devices["tower_camera"][:1]
+        if not (self.thrusters or cameras):
+            return endpoints
+        from devices.sim.pond import build_pond, pond_outline
+        params = validate_section(SimTowerCameraParams, self.section.tower_camera, where, "sim.tower_camera")
+        if not cameras and self.section.pond.get("outline") is None and pond_outline(self.cfg) is None:
+            return endpoints                  # thrusters on a bench: no pond to push
+        thrust = self.thrusters.thrust if self.thrusters is not None else (lambda t: (0.0, 0.0))
+        size = {"width": params.width, "height": params.height} if cameras else None
+        # the pose trace goes to a truth file only: kept in memory it would grow all night
+        trace = self.truth if self.truth.records is None else None
+        self.pond = build_pond(self.cfg, self.section.pond, self.clock, thrust, camera=size,
+                               truth=trace, where=where)
+        await self.pond.start()
+        for name, section in cameras:
+            self.camera = SimTowerCamera(self.pond.render, self.clock, params, host=section.get("host", "127.0.0.1"),
+                                         port=section.get("port", 0), where=where)
+            try:
+                self.camera.start()
+            except OSError as exc:
+                raise BadInput(where, f"devices.{name}.port", str(exc)) from None
+            # a small receive window: a reader that falls behind makes the camera skip frames
+            # instead of the kernel queueing old ones (loopback TCP, nothing lost)
+            endpoints[name] = {"kind": "tower_camera", "driver": "capture", "source": self.camera.url,
+                               "api": "ffmpeg", "ffmpeg_options": RECV_WINDOW}
         return endpoints
 
     async def _start_hub(self) -> dict:
@@ -148,6 +197,12 @@ class SimFarm:
         return {"kind": "contacts", "driver": "serial", "port": hub.port}
 
     async def stop(self) -> None:
+        if self.camera is not None:
+            await asyncio.to_thread(self.camera.stop)
+        if self.pond is not None:
+            await self.pond.stop()
+        if self.thrusters is not None:
+            await self.thrusters.stop()
         for hub in self.hubs:
             await hub.stop()
             self.truth.write("contact_hub", self.clock.now(), sent=hub.sent, dropped=hub.dropped)

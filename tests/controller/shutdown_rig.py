@@ -21,6 +21,8 @@ from pathlib import Path
 
 import tomli_w
 
+from hil_tests.farm import without_cleaner  # the demo farm's feeder alone
+
 ROOT = Path(__file__).resolve().parents[2]
 SIM_PID = re.compile(r"fishfarm sim, pid (\d+)")
 PHASES = ("starting", "absent_device", "silent_device", "feeding", "sim_died")
@@ -69,6 +71,8 @@ class SilentPlc:
             self.conns.append(conn)
 
     def close(self):
+        with contextlib.suppress(OSError):          # wakes the accept thread: close alone leaves it waiting
+            self.sock.shutdown(socket.SHUT_RDWR)
         self.sock.close()
         for conn in self.conns:
             conn.close()
@@ -83,7 +87,7 @@ class RunningController:
         self.truth = self.dir / "truth.jsonl"
         self.zenoh = f"tcp/127.0.0.1:{free_port()}"
         self.silent: SilentPlc | None = None
-        raw = tomllib.loads((ROOT / "config" / "farm.toml").read_text())
+        raw = without_cleaner(tomllib.loads((ROOT / "config" / "farm.toml").read_text()))
         raw["scada"]["port"] = 0    # any free port: runs must not collide with the demo's 5020
         raw["bus"] = {"mode": "peer", "listen": [self.zenoh], "connect": []}
         raw["store"] = {"path": str(self.db)}

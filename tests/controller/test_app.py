@@ -11,6 +11,7 @@ from controller.app import Controller
 from controller.bus import Bus
 from controller.config import load_config
 from devices.clock import ScaledClock
+from hil_tests.farm import without_cleaner  # the demo farm's feeder alone
 
 
 def free_port():
@@ -21,7 +22,7 @@ def free_port():
 
 def test_operator_drives_the_controller_over_zenoh(tmp_path):
     port = free_port()
-    raw = tomllib.loads(open("config/farm.toml").read())
+    raw = without_cleaner(tomllib.loads(open("config/farm.toml").read()))
     raw["scada"]["port"] = 0    # any free port: runs must not collide with the demo's 5020
     raw["bus"] = {"listen": [f"tcp/127.0.0.1:{port}"]}
     raw["store"] = {"path": str(tmp_path / "ledger.db")}
@@ -80,7 +81,7 @@ def test_operator_drives_the_controller_over_zenoh(tmp_path):
 
 def test_waits_for_absent_devices_yet_answers_and_estops(tmp_path):
     port, dead_port = free_port(), free_port()
-    raw = tomllib.loads(open("config/farm.toml").read())
+    raw = without_cleaner(tomllib.loads(open("config/farm.toml").read()))
     raw["scada"]["port"] = 0    # any free port: runs must not collide with the demo's 5020
     raw["bus"] = {"listen": [f"tcp/127.0.0.1:{port}"]}
     raw["store"] = {"path": str(tmp_path / "ledger.db")}

@@ -445,3 +445,20 @@ def test_a_stalled_subscriber_never_blocks_a_reliable_publish(loop):
         release.set()
         stalled.close()
         server.close()
+
+
+def test_a_selector_queryable_hears_the_concrete_key_and_the_selector_s_parameters(pair):
+    server, client = pair
+    calls = []
+
+    async def history(payload, *, key, params):
+        calls.append((key, params, payload))
+        return {"ok": True, "key": key, "params": params}
+    server.queryable("history/*/*", history, lenient=True, selector=True)
+    [reply] = client.query("history/surveys/T1?since=2026-06-01T06:00;until=1780000000")
+    assert reply == {"ok": True, "key": "history/surveys/T1",
+                     "params": {"since": "2026-06-01T06:00", "until": "1780000000"}}
+    assert client.query("history/fish/T2", {"since": "7d"})[0]["params"] == {}
+    assert calls[-1] == ("history/fish/T2", {}, {"since": "7d"})
+    assert client.query("history/*/T1") == [] and client.query("history/**") == []     # nobody answers a wildcard
+    assert len(calls) == 2

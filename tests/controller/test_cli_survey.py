@@ -178,3 +178,35 @@ def test_a_progress_bar_on_a_terminal_none_in_a_pipe_and_a_faint_blue_channel_wa
     assert p.returncode == 0
     text = out.decode(errors="replace")
     assert "survey" in text and "3/3" in text and f"{tmp_path}/[b]0.png: blue channel" in text
+
+
+def test_a_survey_recorded_for_a_tank_sets_its_ration(farm, tmp_path):
+    import tomllib
+
+    import tomli_w
+
+    from controller.config import load_config
+    from controller.feeding.rations import Rations, load_species
+    from controller.store import Store
+    d, truth = farm
+    raw = tomllib.loads((ROOT / "config" / "farm.toml").read_text())
+    raw["store"] = {"path": str(tmp_path / "ledger.db")}
+    (tmp_path / "farm.toml").write_text(tomli_w.dumps(raw))
+    cfg_path = tmp_path / "farm.toml"
+    r = run(*common(d, "--dir", d / "pairs", "--json", tmp_path / "out.json", "--config", cfg_path, "--tank", "T2"))
+    assert r.returncode == 0, r.stderr
+    doc = json.loads((tmp_path / "out.json").read_text())
+    store = Store(tmp_path / "ledger.db")
+    [s] = store.surveys("T2")
+    assert s.count == doc["count"] == 6 and s.source == str(tmp_path / "out.json")
+    assert s.mean_weight_g == pytest.approx(doc["weight_g"]["mean"], rel=1e-6)
+    rations = Rations(load_config(str(cfg_path)), load_species(), store)
+    assert rations.plan("T2", s.t + 60).source == "survey"
+    # refused before anything is measured: another species' tank, a tank that is not there
+    for tank, fault in (("T9", "--tank: no tank 'T9'"),):
+        bad = run(*common(d, "--dir", d / "pairs", "--json", tmp_path / "x.json", "--config", cfg_path, "--tank", tank))
+        assert bad.returncode == 2 and fault in bad.stderr and not (tmp_path / "x.json").exists()
+    raw["tanks"][0]["species"] = "dicentrarchus_labrax"
+    (tmp_path / "farm.toml").write_text(tomli_w.dumps(raw))
+    bad = run(*common(d, "--dir", d / "pairs", "--json", tmp_path / "y.json", "--config", cfg_path, "--tank", "T1"))
+    assert bad.returncode == 2 and "T1 holds dicentrarchus_labrax, not sparus_aurata" in bad.stderr

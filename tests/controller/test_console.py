@@ -185,3 +185,25 @@ def test_a_modbus_reconnect_retry_is_a_debug_line_not_an_error(level, shown, roo
         logging.getLogger("pymodbus").setLevel(saved)
     assert ("Connection refused" in err.getvalue()) is shown, err.getvalue()
     assert ("Failed to connect" in err.getvalue()) is shown, err.getvalue()
+
+
+CLEANER = {"t": "2031-03-07T06:00:00.000Z", "state": "cleaning", "x_m": 12.345, "y_m": 4.5, "heading_rad": -1.5708,
+           "coverage": 0.4567, "tracking": "predicted"}
+
+
+@pytest.mark.parametrize("width", [80, 160])
+def test_the_cleaner_has_its_row_under_the_feeder(width):
+    lines = view_lines({**farm_status(), "cleaner": CLEANER}, width)
+    assert lines[2] == "cleaner: cleaning at (12.35, 4.50) m -90°, 45.7 % cleaned, float predicted"
+    assert lines[3].startswith("┏")
+    lost = view_lines({**farm_status(), "cleaner": {**CLEANER, "x_m": None, "y_m": None, "heading_rad": None,
+                                                    "state": "lost", "tracking": "lost"}}, width)
+    assert lost[2] == "cleaner: lost float not seen, 45.7 % cleaned, float lost"
+    tall = view_lines({**farm_status(tanks=100), "cleaner": CLEANER}, 80, 30)
+    assert len(tall) == 29                                          # the row is counted in the room
+
+
+def test_without_a_terminal_the_cleaner_is_a_log_line_too():
+    from controller.console import tank_lines
+    assert tank_lines({**farm_status(), "cleaner": CLEANER})[1].startswith("  cleaner: cleaning at (12.35, 4.50) m")
+    assert not any("cleaner" in line for line in tank_lines(farm_status()))

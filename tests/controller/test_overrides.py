@@ -333,3 +333,13 @@ def test_a_handler_hands_the_authenticated_user_to_the_audit(tmp_path):
         ("op7", "ana", "feed", 1), (None, None, "pause", 1)]
     assert store.paused_tanks()["T2"]["who"] == "unknown (claimed)"
     store.close()
+
+
+def test_the_history_queryable_serves_the_ledger_over_zenoh(served):
+    farm, client = served
+    farm.store.add_survey("T1", farm.clock.now() - 3600, "sparus_aurata", "h.json", [10.0, 11.0], [20.0, 24.0])
+    [reply] = client.query("history/fish/T1?since=2h")
+    assert reply["ok"] and [r[3] for r in reply["rows"]] == [20.0, 24.0]
+    assert client.query("history/fish/T1?since=30m")[0]["rows"] == []
+    [refused] = client.query("history/fish/T9")
+    assert refused["ok"] is False and "no tank 'T9'" in refused["error"]

@@ -138,8 +138,9 @@ def test_a_count_that_is_no_count_of_these_fish_is_refused(farm, command, count,
     ("ack", {"source": "x" * 101}, "source: longer than 100 characters"),
     ("start-survey", {"tank": "T1"}, "not available yet: weight surveys are not started by override"),
     ("start-survey", {"tank": 3}, "tank: must be a string, not a number"),
-    ("cleaner-start", {}, "not available yet: there is no pond cleaner in this controller"),
-    ("cleaner-stop", {"operator": "ana"}, "not available yet: there is no pond cleaner in this controller"),
+    ("cleaner-start", {}, "command: no pond cleaner in this controller (farm.toml has no [cleaning] section)"),
+    ("cleaner-stop", {"operator": "ana"},
+     "command: no pond cleaner in this controller (farm.toml has no [cleaning] section)"),
     ("cleaner-return", {"speed": 1}, "speed: unknown field"),
     ("reset", [1, 2], "payload: must be a JSON object, not list"),
     ("feed", "T1 40", "payload: must be a JSON object, not str"),
@@ -233,7 +234,8 @@ def test_every_command_accepted_or_refused_is_one_audit_row(farm):
         (t, "op1", "ana", "feed", "modbus 127.0.0.1:50000", 1, "ok"),
         (t, None, "eve", "feed", "zenoh", 0, "grams: more than one portion, feeding.portion_g (60 g)"),
         (t, "op2", None, "estop", "zenoh", 1, "ok"),
-        (t, None, None, "cleaner-start", "zenoh", 0, "not available yet: there is no pond cleaner in this controller"),
+        (t, None, None, "cleaner-start", "zenoh", 0,
+         "command: no pond cleaner in this controller (farm.toml has no [cleaning] section)"),
     ]
     assert rows[0]["payload"] == '{"tank":"T1","grams":20,"operator":"ana","reason":"check"}'
     assert rows[0]["reply"] == '{"grams":20.0}' and rows[2]["payload"] == '["not","an","object"]'
@@ -255,7 +257,7 @@ def test_every_command_of_the_plan_has_its_entry():
     assert set(COMMANDS) == {"estop", "reset", "manual", "feed", "ration", "settle", "pause", "resume", "ack",
                              "mortality", "harvest", "transfer", "start-survey", "cleaner-start", "cleaner-stop",
                              "cleaner-return"}
-    assert set(NOT_YET) == {"start-survey", "cleaner-start", "cleaner-stop", "cleaner-return"}
+    assert set(NOT_YET) == {"start-survey"}
 
 
 def test_the_override_command_line_sends_names_as_strings():

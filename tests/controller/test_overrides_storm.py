@@ -31,6 +31,7 @@ from controller.app import Controller
 from controller.bus import Bus
 from controller.config import load_config
 from devices.clock import ScaledClock
+from hil_tests.farm import without_cleaner  # the demo farm's feeder alone
 
 TARGET = int(os.environ.get("STORM_PAYLOADS", 10_000))
 FAMILIES = 10                                    # per batch, ~10 payloads each, sent at once
@@ -50,7 +51,7 @@ def free_port() -> int:
 def farm(tmp_path_factory):
     tmp = tmp_path_factory.mktemp("storm")
     port = free_port()
-    raw = tomllib.loads(open("config/farm.toml").read())
+    raw = without_cleaner(tomllib.loads(open("config/farm.toml").read()))
     raw["bus"] = {"listen": [f"tcp/127.0.0.1:{port}"]}
     raw["store"] = {"path": str(tmp / "ledger.db")}
     (tmp / "farm.toml").write_text(tomli_w.dumps(raw))

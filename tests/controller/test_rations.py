@@ -48,3 +48,113 @@ def test_bad_species_file(tmp_path):
     p.write_text('[x]\nname = "x"\na = -1\nb = 3\nfeeding = [{ up_to_g = 1, rate_pct = 1, pellet_mm = 1 }]\n')
     with pytest.raises(BadInput, match=r"s.toml: x.a: "):
         load_species(p)
+
+
+# -- rations from surveys -------------------------------------------------------------------------
+DAY = 86_400.0
+
+
+def species_rate(rations, w: float) -> float:
+    """The species file's rate for a fish of ``w`` g, read here from its rows."""
+    rows = rations.species["sparus_aurata"].feeding
+    return next((r.rate_pct for r in rows if w < r.up_to_g), rows[-1].rate_pct)
+
+
+def test_a_fresh_survey_feeds_each_fish_by_its_own_class(rations):
+    weights = [4.0, 12.0, 12.0, 30.0, 90.0]                     # five classes of the species' table
+    rations.store.add_survey("T1", T - DAY, "sparus_aurata", "test", [8.0] * 5, weights)
+    r = rations.today("T1", T)
+    stock = rations.cfg.tank("T1").stock
+    assert r.source == "survey"
+    assert r.grams == pytest.approx(stock * sum(w * species_rate(rations, w) for w in weights) / 5 / 100)
+    assert r.pellet_mm == 1.2                                   # the smallest quarter: 12 g fish's
+
+
+def test_a_stale_survey_is_projected_at_the_growth_measured_between_the_last_two(rations):
+    first = [10.0, 14.0, 18.0]
+    second = [w * 1.25 for w in first]                         # +25 % in 10 days
+    rations.store.add_survey("T1", T - 40 * DAY, "sparus_aurata", "a", [8.0] * 3, first)
+    rations.store.add_survey("T1", T - 30 * DAY, "sparus_aurata", "b", [9.0] * 3, second)
+    plan = rations.plan("T1", T)                                # 30 days > 14: projected
+    grown = [w * 1.25 ** 3 for w in second]                    # the same growth for three more periods
+    stock = rations.cfg.tank("T1").stock
+    assert plan.source == "projected" and "projected to" in plan.note and "measured" in plan.note
+    assert plan.mean_weight_g == pytest.approx(sum(grown) / 3)
+    assert plan.grams == pytest.approx(stock * sum(w * species_rate(rations, w) for w in grown) / 3 / 100)
+
+
+def test_a_stale_lone_survey_grows_at_the_chart_s_rate_or_says_it_is_not_projected(rations, tmp_path):
+    import math
+    import tomllib
+    rations.store.add_survey("T1", T - 30 * DAY, "sparus_aurata", "a", [8.0] * 2, [20.0, 30.0])
+    plan = rations.plan("T1", T)
+    chart = tomllib.loads(open("config/feeding/sparus_aurata.toml").read())   # the demo's, at 22 degC
+    col = chart["temperatures_c"].index(rations.cfg.feeding.water_temp_c)
+    w = 25.0
+    for _ in range(30):                                 # a day at a time, at the class's SGR
+        row = next(c for c in chart["classes"] if w < c["up_to_g"])
+        w *= math.exp(row["sgr_pct"][col] / 100)
+    assert plan.source == "projected" and "the feeding chart's growth" in plan.note
+    assert plan.mean_weight_g == pytest.approx(w)
+    bare = rations.cfg.model_copy(update={"feeding": rations.cfg.feeding.model_copy(update={"tables": []})})
+    plain = Rations(bare, load_species(), rations.store)       # the species rows give no growth
+    plan = plain.plan("T1", T)
+    assert plan.source == "projected" and "not projected" in plan.note and plan.mean_weight_g == 25.0
+
+
+def test_a_survey_after_the_time_asked_is_not_used(rations):
+    rations.store.add_survey("T1", T + 3600, "sparus_aurata", "later", [8.0], [90.0])
+    assert rations.plan("T1", T).source == "config"
+
+
+def test_a_new_survey_plans_the_day_again_but_an_operator_s_ration_stands(rations):
+    before = rations.today("T1", T)
+    rations.store.add_survey("T1", T + 60, "sparus_aurata", "new", [8.0] * 2, [30.0, 30.0])
+    after = rations.replan("T1", T + 60)
+    assert before.source == "config" and after.source == "survey" and after.grams != before.grams
+    rations.set("T1", T + 120, 123.0, "operator")
+    assert rations.replan("T1", T + 180).grams == 123.0
+
+
+def test_a_chart_is_read_at_the_tank_s_water_temperature(tmp_path):
+    import tomli_w
+
+    from controller.config import load_config
+    chart = {"species": "sparus_aurata", "source": "test", "temperatures_c": [10.0, 20.0],
+             "classes": [{"up_to_g": 1e9, "pellet_mm": 2.0, "rate_pct": [1.0, 3.0]}]}
+    (tmp_path / "chart.toml").write_text(tomli_w.dumps(chart))
+    cfg = load_config("config/farm.toml")
+    cfg = cfg.model_copy(update={"path": str(tmp_path / "farm.toml"),
+                                 "feeding": cfg.feeding.model_copy(update={"tables": ["chart.toml"],
+                                                                           "water_temp_c": 15.0})})
+    (tmp_path / "farm.toml").write_text("")
+    tanks = [t.model_copy(update={"water_temp_c": 12.0}) if t.id == "T2" else t for t in cfg.tanks]
+    cfg = cfg.model_copy(update={"tanks": tanks})
+    r = Rations(cfg, load_species(), Store(tmp_path / "r.db"))
+    t1, t2 = cfg.tank("T1"), cfg.tank("T2")
+    assert r.today("T1", T).grams == pytest.approx(t1.stock * t1.mean_weight_g * 2.0 / 100)     # 15 degC
+    assert r.today("T2", T).grams == pytest.approx(t2.stock * t2.mean_weight_g * 1.4 / 100)     # 12 degC
+    twice = cfg.model_copy(update={"feeding": cfg.feeding.model_copy(update={"tables": ["chart.toml"] * 2})})
+    from controller.errors import BadInput
+    with pytest.raises(BadInput, match=r"farm.toml: feeding.tables.1: a second table for 'sparus_aurata'"):
+        Rations(twice, load_species(), Store(tmp_path / "s.db"))
+
+
+def test_a_chart_is_found_beside_farm_toml_first_then_among_those_shipped(tmp_path):
+    import tomli_w
+
+    from controller.config import load_config
+    from controller.errors import BadInput
+    cfg = load_config("config/farm.toml")
+    moved = cfg.model_copy(update={"path": str(tmp_path / "farm.toml")})
+    (tmp_path / "farm.toml").write_text("")
+    shipped = Rations(moved, load_species(), Store(tmp_path / "a.db")).tables["sparus_aurata"]
+    assert shipped.source.startswith("fishfarm example")
+    (tmp_path / "feeding").mkdir()
+    own = {"species": "sparus_aurata", "source": "our feed maker", "temperatures_c": [20.0],
+           "classes": [{"up_to_g": 1e9, "pellet_mm": 3.0, "rate_pct": [1.0]}]}
+    (tmp_path / "feeding" / "sparus_aurata.toml").write_text(tomli_w.dumps(own))
+    assert Rations(moved, load_species(), Store(tmp_path / "b.db")).tables["sparus_aurata"].source == "our feed maker"
+    missing = moved.model_copy(update={"feeding": moved.feeding.model_copy(update={"tables": ["nowhere.toml"]})})
+    with pytest.raises(BadInput, match="nowhere.toml: no such file"):
+        Rations(missing, load_species(), Store(tmp_path / "c.db"))

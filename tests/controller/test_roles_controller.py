@@ -18,6 +18,7 @@ import pytest
 import tomli_w
 
 from controller.bus import Bus
+from hil_tests.farm import without_cleaner  # the demo farm's feeder alone
 from tests.controller.zenoh_farm import FISHFARM, ROOT, deploy_config, free_port
 
 UP_S = 60.0
@@ -28,7 +29,7 @@ def controller(tmp_path_factory):
     tmp = tmp_path_factory.mktemp("deployed")
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     zconfig, passwords = deploy_config(tmp, endpoint)
-    raw = tomllib.loads((ROOT / "config" / "farm.toml").read_text())
+    raw = without_cleaner(tomllib.loads((ROOT / "config" / "farm.toml").read_text()))
     raw["bus"] = {"config": str(zconfig)}
     raw["store"] = {"path": str(tmp / "ledger.db")}
     raw["devices"]["dispenser"]["port"] = 0

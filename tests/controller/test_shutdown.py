@@ -18,6 +18,7 @@ from controller.alarms import Alarms
 from controller.config import load_config
 from controller.store import Store
 from devices.clock import ScaledClock
+from hil_tests.farm import without_cleaner  # the demo farm's feeder alone
 from tests.controller.shutdown_rig import PHASES, ROOT, RunningController, free_port, proc_state
 
 LIMIT_S = 5.0
@@ -100,7 +101,7 @@ def test_a_dead_simulator_is_reaped_and_alarmed_at_once(controller):
 # -- retry loops, in-process: they end when the controller stops and alarm once -------------------
 
 def absent_farm(tmp_path):
-    raw = tomllib.loads((ROOT / "config" / "farm.toml").read_text())
+    raw = without_cleaner(tomllib.loads((ROOT / "config" / "farm.toml").read_text()))
     raw["scada"]["port"] = 0    # any free port: runs must not collide with the demo's 5020
     raw.pop("sim")
     raw["store"] = {"path": str(tmp_path / "ledger.db")}

@@ -42,22 +42,26 @@ def asynctest(fn):
     return run
 
 
-def drive_config(channel: str, interface: str, node: int = 1, **kw) -> Config:
+def drive_config(channel: str, interface: str, node: int = 1, timeout_s: float = 1.0, **kw) -> Config:
     # Wall-time watchdogs: 0.25 s failed a clean CI run (no first status frame over the slcan pty
     # while the other test worker started processes on the second core); 1 s still tells a silent
-    # drive from a slow machine.
+    # drive from a slow machine. Tests of motion, not of silence, give STALL_S: a clean CI run also
+    # saw 1 s without a frame there (the VM stalled), which is no fault of the drive's.
     return Config(kind="rail", driver="can", interface=interface, channel=channel, node_id=node,
-                  status_timeout_s=1.0, command_timeout_s=1.0, **kw)
+                  status_timeout_s=timeout_s, command_timeout_s=timeout_s, **kw)
+
+
+STALL_S = 5.0
 
 
 @contextlib.asynccontextmanager
-async def rig(link: str, clock, node: int = 1, **params):
+async def rig(link: str, clock, node: int = 1, timeout_s: float = 1.0, **params):
     """A simulated drive on a frame port, and the real driver talking to it."""
     motor = SimRailMotor(SimRailParams(**params), clock, node_id=node)
     port = BusPort.virtual(f"rail-{uuid.uuid4().hex}") if link == "virtual" else SlcanAdapter()
     await motor.start(port)
     channel = port.bus.channel_id if link == "virtual" else port.port
-    drive = CanRailDrive("rail", drive_config(channel, link, node), clock)
+    drive = CanRailDrive("rail", drive_config(channel, link, node, timeout_s), clock)
     await drive.open()
     try:
         await drive.wait_until(lambda s: True, FOREVER)       # first status frame
@@ -85,15 +89,22 @@ async def homed(drive):
 @asynctest
 async def test_homing_from_anywhere_zeroes_the_encoder(link):
     clock = ScaledClock.starting(SPEED)
-    async with rig(link, clock, start_m=1.0) as (drive, motor, _):
+    async with rig(link, clock, timeout_s=STALL_S, start_m=1.0) as (drive, motor, _):
         first = drive.status()
         assert (first.state, first.homed, first.position_m) == ("unhomed", False, 0.0)
+        seen = []
         t0 = clock.now()
         await drive.home()
-        assert drive.status().state == "homing"           # the status frame precedes the reply
-        done = await drive.wait_until(lambda s: s.state == "idle", FOREVER)
+        started = drive.status()                          # the status frame precedes the reply
+        assert started.state == "homing"
+        done = await drive.wait_until(lambda s: seen.append(s) or s.state == "idle", FOREVER)
         expected = 0.2 / ACCEL + 1.0 / 0.2                # default homing speed 0.2 m/s
-        assert 1.0 <= (done.t - t0) / expected < 1.05
+        # frames are stamped on arrival, late on a loaded machine: the time is judged by bounds no
+        # late frame can break, the motion by each frame's own speed (unhomed, it reads no place)
+        assert expected <= done.t - t0 < 2 * expected     # farm time: a wall-time drive takes 20x
+        homing = [started, *(s for s in seen if s.state == "homing")]
+        assert all(-0.2 - 1e-3 <= s.velocity_m_s <= 0.0 for s in homing)     # towards the switch
+        assert sum(s.velocity_m_s == pytest.approx(-0.2, abs=1e-3) for s in homing) > 5
         assert (done.homed, done.position_m, done.at_limit, done.at_target) == (True, 0.0, True, True)
         assert motor.position() == 0.0
 
@@ -102,7 +113,7 @@ async def test_homing_from_anywhere_zeroes_the_encoder(link):
 @asynctest
 async def test_move_follows_the_trapezoid_in_farm_time(link):
     clock = ScaledClock.starting(SPEED)
-    async with rig(link, clock) as (drive, _, _port):
+    async with rig(link, clock, timeout_s=STALL_S) as (drive, _, _port):
         await homed(drive)
         seen = []
 
@@ -113,14 +124,20 @@ async def test_move_follows_the_trapezoid_in_farm_time(link):
         t0 = clock.now()
         await drive.move_to(12.0)
         end = await drive.wait_until(arrived, FOREVER)
-        expected = VMAX / ACCEL + 12.0 / VMAX
-        assert 1.0 <= (end.t - t0) / expected < 1.05
+        # frames are stamped on arrival, late on a loaded machine: the timing is judged by bounds a
+        # late frame cannot break, the shape by each frame's own speed and place (sampled together)
+        assert end.t - t0 >= VMAX / ACCEL + 12.0 / VMAX
         assert (end.position_m, end.velocity_m_s, end.at_target) == (12.0, 0.0, True)
         moving = [s for s in seen if s.state == "moving"]
         assert len(moving) > 10                           # heartbeats along the way
         speeds = [s.velocity_m_s for s in moving]
         assert max(speeds) == pytest.approx(VMAX, abs=1e-3)   # cruised at full speed, never beyond
+        for s in moving:
+            x = s.position_m
+            v = min(VMAX, (2 * ACCEL * x) ** 0.5, (2 * ACCEL * max(0.0, 12.0 - x)) ** 0.5)
+            assert s.velocity_m_s == pytest.approx(v, abs=0.02), f"at {x:.3f} m"
         assert all(b.position_m >= a.position_m for a, b in zip(moving, moving[1:], strict=False))
+        assert end.t - t0 < 2 * (VMAX / ACCEL + 12.0 / VMAX)      # farm time: a wall-time drive takes 20x
 
 
 @asynctest
@@ -171,7 +188,9 @@ async def test_estop_in_travel_stops_at_once_latches_and_clears(link):
         with pytest.raises(DeviceFault, match="estop"):   # nobody waits for an arrival that won't come
             await drive.wait_until(lambda s: s.state == "idle", FOREVER)
         still = await drive.wait_until(lambda s: s.velocity_m_s == 0.0, FOREVER, stop_on_fault=False)
-        assert 0.0 <= still.position_m - hit.position_m <= hit.velocity_m_s**2 / (2 * 5.0) + 1e-4
+        # frames carry position to 0.1 mm (two readings: 1e-4 m) and speed to 1 mm/s (the braking
+        # distance's share: v * 0.0005 / 5 <= 1e-4 m)
+        assert 0.0 <= still.position_m - hit.position_m <= hit.velocity_m_s**2 / (2 * 5.0) + 2e-4
         for refused in (drive.move_to(3.0), drive.home()):
             with pytest.raises(DeviceFault, match="IN_ESTOP"):
                 await refused

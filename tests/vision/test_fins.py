@@ -8,7 +8,16 @@ import pytest
 
 from tests.vision.fish_drawing import draw_fish_2d, water
 from vision.bodies import body_ends, fish_masks
-from vision.fins import EMBOSS, Fins, bank_proposals, fin_scores, fork_mask, sample_frames, template_bank
+from vision.fins import (
+    EMBOSS,
+    Fins,
+    bank_proposals,
+    fin_scores,
+    fork_mask,
+    sample_frames,
+    sample_frames_raw,
+    template_bank,
+)
 from vision.fork import ANGLE_TRIES, locate_forks, pyramid
 from vision.illumination import water_distance
 
@@ -50,6 +59,22 @@ def test_sample_frames_turns_and_marks_the_outside():
     u8 = sample_frames(ramp.astype(np.uint8), np.array([[10.0, 10.0]]), np.array([[1.0, 0.0]]), np.array([0.5]),
                        np.array([0.0]))
     assert abs(u8[0, 0, 0] - 10.5) <= 0.5
+
+
+@pytest.mark.parametrize("dtype", [np.uint8, np.float32])
+def test_sample_frames_takes_more_frames_than_one_remap_holds(dtype):
+    # OpenCV's remap refuses maps of 32767 rows or more: 800 frames of 49 rows are 39,200
+    rng = np.random.default_rng(3)
+    img = rng.integers(0, 256, (120, 160)).astype(dtype)
+    n = 800
+    centres = np.c_[rng.uniform(0, 160, n), rng.uniform(0, 120, n)]
+    ang = rng.uniform(-np.pi, np.pi, n)
+    axes = np.c_[np.cos(ang), np.sin(ang)]
+    t = np.linspace(-10, 10, 49)
+    out = sample_frames(img, centres, axes, t, t)
+    assert out.shape == (n, 49, 49)
+    for k in (0, 700, n - 1):                   # frames in every batch sampled as alone
+        assert np.array_equal(out[k], sample_frames(img, centres[k:k + 1], axes[k:k + 1], t, t)[0], equal_nan=True)
 
 
 def scene(rng, fish, size=(960, 1280)):
@@ -178,3 +203,67 @@ def test_a_fork_started_on_an_axis_45_degrees_off_is_found_by_turning_it():
     img[:, 200:] -= 80                                             # a straight edge
     edge = Fins(np.array([[200.0, 100.0]]), np.array([0.0]), np.array([75.0]), np.ones(1), np.ones(1))
     assert not locate_forks(pyramid(np.clip(img, 0, 255).astype(np.uint8)), edge, tries=ANGLE_TRIES).ok.any()
+
+
+@pytest.mark.parametrize("notch_deg", [60.0, 75.0])
+def test_a_fork_before_a_ledge_is_traced_from_inside_the_fin(notch_deg, monkeypatch):
+    """A ledge of the fish's own brightness behind the tail (reef, another fish) is met first by
+    every row scanned from the back: a straight edge, no fork. Traced from inside the fin back to
+    the first water, the notch is found, within 1 % of the length."""
+    import vision.fork as fork_mod
+    rng = np.random.default_rng(int(notch_deg))
+    img = water(400, 500, rng)
+    length, fork = 300.0, np.array([130.0, 200.0])
+    draw_fish_2d(img, fork, 0.0, length, 200.0, notch_deg=notch_deg)
+    x0 = int(fork[0] - 0.18 * length)
+    img[:, x0:x0 + 6] = 200.0
+    pyr = pyramid(np.clip(img, 0, 255).astype(np.uint8))
+    cand = Fins(fork[None] + [[4.0, -3.0]], np.array([0.1]), np.array([0.3 * length]), np.ones(1), np.ones(1))
+    found = locate_forks(pyr, cand)
+    assert found.ok[0]
+    assert np.linalg.norm(found.fins.xy[0] - fork) < 0.01 * length
+    monkeypatch.setattr(fork_mod, "INSIDE_FROM", None)            # the scan from the back alone
+    assert not locate_forks(pyr, cand).ok[0]
+
+
+def test_body_ends_of_all_bodies_at_once_match_each_body_measured_alone():
+    """The vectorised ends (moments by bincount, grouped quantiles) equal the per-body figures."""
+    mask = np.zeros((120, 160), np.uint8)
+    cv2.ellipse(mask, (50, 40), (30, 8), 20, 0, 360, 1, -1)
+    cv2.ellipse(mask, (110, 85), (36, 10), -35, 0, 360, 1, -1)
+    cv2.ellipse(mask, (130, 20), (5, 5), 0, 0, 360, 1, -1)             # round: no axis, no ends
+    ends, length = body_ends(mask, 2.0, 2.0, 20)
+    assert len(ends) == 4
+    n, labels = cv2.connectedComponents(mask)
+    for lab in range(1, n):
+        ys, xs = np.nonzero(labels == lab)
+        pts = np.c_[xs, ys].astype(float)
+        c = pts.mean(axis=0)
+        evals, evecs = np.linalg.eigh(np.cov((pts - c).T))
+        if np.sqrt(evals[1] / evals[0]) < 1.8:
+            continue
+        t = (pts - c) @ evecs[:, 1]
+        lo, hi = np.quantile(t, [0.002, 0.998])
+        for end in (lo, hi):
+            want = (c + end * evecs[:, 1] + 0.5) * 2.0 - 0.5
+            assert np.linalg.norm(ends.xy - want, axis=1).min() < 1e-9
+        assert np.abs(length - 2.0 * (hi - lo)).min() < 1e-9
+
+
+def test_raw_frames_are_the_samples_with_a_mask_where_the_float_ones_are_nan():
+    """``sample_frames_raw`` (uint8, no float copy) gives the same samples as ``sample_frames``,
+    its mask exactly where those are NaN (frames inside, across the edge, wholly outside)."""
+    rng = np.random.default_rng(2)
+    img = rng.integers(0, 256, (60, 80, 3), dtype=np.uint8)
+    centres = np.array([[40.0, 30.0], [2.0, 30.0], [79.5, 59.0], [-50.0, 10.0]])
+    ang = np.array([0.3, 1.0, 2.0, -0.5])
+    axes = np.c_[np.cos(ang), np.sin(ang)]
+    t = np.linspace(-6, 6, 9)
+    ref = sample_frames(img, centres, axes, t, t)
+    raw, off = sample_frames_raw(img, centres, axes, t, t)
+    assert raw.dtype == np.uint8 and off is not None
+    assert np.array_equal(off, np.isnan(ref).any(axis=3))
+    assert np.array_equal(raw.astype(np.float32)[~off], ref[~off])
+    assert not off[0].any() and off[1].any() and off[3].all()
+    inside, none = sample_frames_raw(img, centres[:1], axes[:1], t, t)
+    assert none is None and np.array_equal(inside.astype(np.float32), ref[:1])

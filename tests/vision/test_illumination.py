@@ -85,3 +85,13 @@ def test_open_water_rows_are_not_stretched_beyond_the_gain_cap():
     capped = compensate_rows(img, 120, 130, clip=False, max_gain=3)
     assert paper.std() > 10 * img.std()           # eq. (12) as written: noise to full contrast
     assert capped.std() <= 3.01 * img.std()
+
+
+def test_running_median_is_scipy_median_filter_with_nearest_ends():
+    from scipy.ndimage import median_filter
+
+    from vision.illumination import running_median
+    rng = np.random.default_rng(3)
+    for n, k in ((240, 37), (10, 37), (5, 3), (961, 145)):
+        v = rng.normal(size=n).astype(np.float32)
+        assert np.array_equal(running_median(v, k), median_filter(v, size=k, mode="nearest"))

@@ -94,3 +94,13 @@ def test_a_dark_band_across_the_body_stops_the_first_crossing_rule_but_not_ours(
     profile = img[200, 100 + 40:].astype(float)                    # past the fin
     first_crossing = 100 + 40 + int(np.argmax(profile < 150))
     assert abs(first_crossing - 300) < 3                           # the rule we did not use stops at the bar
+
+
+def test_median_across_five_rows_is_numpys_median_with_nan_where_any_is_nan():
+    from vision.snout import median_across
+    rng = np.random.default_rng(4)
+    band = rng.integers(0, 5, (40, 5, 30, 3)).astype(np.float32)       # many ties
+    band[3, 2, 7, 1] = np.nan
+    want = np.median(band, axis=1)
+    assert np.array_equal(median_across(band), want, equal_nan=True)
+    assert np.array_equal(median_across(band[:, :3]), np.median(band[:, :3], axis=1), equal_nan=True)

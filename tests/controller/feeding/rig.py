@@ -57,6 +57,7 @@ class Rig:
         self.alarms = Alarms(self.store, self.published, self.clock)
         self.rations = Rations(self.cfg, load_species(), self.store)
         self.at_box = True
+        self.robots: list[FeedingRobot] = []
         self.motor = SimRailMotor(SimRailParams(**rail), self.clock)
         self.sim = SimDispenser(SimDispenserParams(**{"seed": 3, **dispenser}), self.clock,
                                 deliver=self._deliver, at_food_box=self._at_food_box)
@@ -87,8 +88,10 @@ class Rig:
         self.task = asyncio.create_task(self.robot.run()) if run else None
 
     def new_robot(self) -> FeedingRobot:
-        return FeedingRobot(self.cfg, self.clock, self.rail, self.dispenser, self.store, self.rations,
-                            self.alarms, self.published)
+        robot = FeedingRobot(self.cfg, self.clock, self.rail, self.dispenser, self.store, self.rations,
+                             self.alarms, self.published)
+        self.robots.append(robot)
+        return robot
 
     async def stop(self):
         if self.task is not None:
@@ -99,6 +102,8 @@ class Rig:
         await self.sim.stop()
         await self.motor.stop()
         self.store.close()
+        for robot in self.robots:             # a tripped lane's thread retries until it is closed
+            robot.lane.close()
 
     async def until(self, predicate, farm_s: float = 120.0, what: str = "condition"):
         """Wait (farm seconds) for ``predicate()``; fail the test with ``what`` otherwise."""

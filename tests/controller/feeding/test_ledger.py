@@ -10,6 +10,7 @@ from controller.overrides import Overrides
 from controller.store import Store
 from devices.dispenser.modbus_dispenser import Config as DispenserConfig
 from devices.dispenser.modbus_dispenser import ModbusDispenser
+from hil_tests.farm import without_cleaner  # the demo farm's feeder alone
 from tests.controller.feeding.rig import rig
 
 
@@ -182,7 +183,7 @@ def test_status_lists_suspect_feeds(tmp_path):
     from controller.feeding.rations import Rations
     from devices.clock import ManualClock
 
-    raw = tomllib.loads(open("config/farm.toml").read())
+    raw = without_cleaner(tomllib.loads(open("config/farm.toml").read()))
     raw["store"] = {"path": str(tmp_path / "ledger.db")}
     (tmp_path / "farm.toml").write_text(tomli_w.dumps(raw))
     c = Controller(load_config(tmp_path / "farm.toml"), ManualClock(1_780_000_000.0))

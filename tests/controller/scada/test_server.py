@@ -28,7 +28,8 @@ def random_status(rng: random.Random, tanks: list[str], slots: list[str]) -> dic
         return struct.unpack(">f", struct.pack(">f", rng.uniform(lo, hi)))[0]
 
     alarms = []
-    for source in rng.sample(slots + ["sensor/T1-a", "demand/T2", "controller/robot.run", "elsewhere"], 5):
+    for source in rng.sample(slots + ["sensor/T1-a", "demand/T2", "grading/T3", "controller/robot.run", "elsewhere"],
+                             6):
         alarms.append({"source": source, "kind": "general", "severity": rng.choice(SEVERITIES),
                        "acked": rng.random() < 0.5})
     return {"t": "2026-06-01T12:00:00.000Z", "uptime_s": rng.uniform(0, 1e6),
@@ -39,7 +40,11 @@ def random_status(rng: random.Random, tanks: list[str], slots: list[str]) -> dic
                           "ration_g": maybe(f32(0, 5000)), "fed_g": maybe(f32(0, 5000)),
                           "pellet_mm": maybe(f32(0.5, 9)), "mean_weight_g": maybe(f32(1, 3000)),
                           "stock": maybe(rng.randint(0, 10**7)),
-                          "last_survey_t": maybe("2026-05-30T08:00:00.000Z")} for t in tanks}}
+                          "last_survey_t": maybe("2026-05-30T08:00:00.000Z"),
+                          # survey figures: whole tenths of a % and hundredths, as the map scales them
+                          "weight_cv_pct": maybe(rng.randint(0, 2000) / 10),
+                          "sgr_pct_day": maybe(rng.randint(-500, 2000) / 100),
+                          "fcr": maybe(rng.randint(0, 600) / 100)} for t in tanks}}
 
 
 def expected(row: dict, st: dict, tanks: list[str], word_order: str, read_only: bool):
@@ -66,7 +71,12 @@ def expected(row: dict, st: dict, tanks: list[str], word_order: str, read_only: 
                  else t["stock"] * t["mean_weight_g"] / 1000,
                  "stock": t["stock"], "last_survey_t": None if t["last_survey_t"] is None else 1780128000,
                  "alarm_severity": sev([x for x in st["alarms"] if x["source"] in
-                                        (f"sensor/{tank}-a", f"sensor/{tank}-b", f"demand/{tank}")])}[field]
+                                        (f"sensor/{tank}-a", f"sensor/{tank}-b", f"demand/{tank}",
+                                         f"grading/{tank}")]),
+                 # raw words: value / scale, a negative i16 in two's complement
+                 "weight_cv_pct": None if t["weight_cv_pct"] is None else round(t["weight_cv_pct"] * 10),
+                 "sgr_pct_day": None if t["sgr_pct_day"] is None else round(t["sgr_pct_day"] * 100) & 0xFFFF,
+                 "fcr": None if t["fcr"] is None else round(t["fcr"] * 100)}[field]
     elif a:
         slot, field = a.groups()
         mine = [x for x in st["alarms"] if in_slot(x, slot)]

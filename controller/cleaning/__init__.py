@@ -1,0 +1,1 @@
+"""The pond-cleaning robot: pond geometry, coverage plan, coverage map, steering, state machine."""

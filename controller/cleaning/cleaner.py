@@ -1,0 +1,430 @@
+"""The pond cleaner's coordinator: one frame of the tower camera at a time,
+
+    detect the float (worker thread) -> track -> state machine -> steer -> drive -> sweep the map
+    -> save (every few farm seconds, and on every state change) -> publish ``cleaner/state``.
+
+Safety is the thrusters' own latch, set by the e-stop lane (controller.feeding.estop) with the
+feeder's, and the lane's stop token: every drive checks the token and the state first, with
+nothing awaited between the check and the send; a drive that slips past is refused by the latched
+device, and a robot that stops hearing drives is stopped by the device's watchdog. Only in
+``cleaning`` and ``returning`` are the thrusters driven, and in ``lost`` backing up along its
+trail (recovery.py, no further); entering any other state stops them.
+
+A camera or thrusters that go away are alarmed (``device/NAME``, logged once on loss and once on
+recovery), the thrusters stopped, the machine put in ``fault``; when they are back it localises
+again. Progress (coverage map, path index, mission) is in the ledger: a restart, even after
+SIGKILL, resumes where the last save left it.
+"""
+from __future__ import annotations
+
+import asyncio
+import concurrent.futures
+import logging
+import math
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+
+from controller.cleaning.ledger import Progress
+from controller.cleaning.machine import STATES, CleanerMachine
+from controller.feeding.estop import Halted
+from devices.errors import DeviceError, LinkDown
+
+log = logging.getLogger("fishfarm.cleaner")
+
+REOPEN_WALL_S = (0.5, 1.0, 2.0, 5.0)   # wall seconds between fresh drivers for lost thrusters
+RETRY_WALL_S = 0.5          # wall seconds between reads of a camera that failed
+TRACE_STEP_M = 0.05         # the trace keeps poses this far apart (the map plot needs no more)
+
+
+@dataclass(frozen=True)
+class Course:
+    """What the cleaner needs of the plan besides the follower and map it runs: how to start a
+    fresh run and how to get home. ``follow(path, start_index)`` makes a path follower;
+    ``fresh_map()`` an empty coverage map; ``route_home(x, y)`` the waypoints to the dock."""
+    follow: Callable
+    fresh_map: Callable
+    route_home: Callable
+    fingerprint: str
+    save_every_s: float = 5.0
+    publish_every_s: float = 1.0
+
+
+class Cleaner:
+    def __init__(self, camera, thrusters, detector, tracker, plan, follower, coverage_map, store, clock, publish,
+                 *, alarms, lane, course: Course, run: int = 1, state: str = "docked", mission: str | None = None,
+                 reopen: Callable | None = None, fence=None, recovery=None):
+        self.camera, self.thrusters, self.detector, self.tracker = camera, thrusters, detector, tracker
+        self.reopen = reopen                   # async (device) -> a fresh one: a lost link is lost for good
+        self._reopen_at = -math.inf            # monotonic: the next attempt, backing off
+        self._reopen_tries = 0
+        self.plan, self.follower, self.map = plan, follower, coverage_map
+        self.store, self.clock, self.publish, self.alarms, self.lane = store, clock, publish, alarms, lane
+        self.course, self.run_id = course, run
+        self.fence = fence                     # geofence.Geofence: every drive passes it (None: tests' stand-ins)
+        self.recovery = recovery               # recovery.Recovery: backs up its trail when lost (None: waits)
+        self.homing = None                     # the follower of the route to the dock, while returning
+        self.track = None                      # the tracker's latest FloatTrack
+        self._swept_from: tuple[float, float] | None = None
+        self._trace: list[tuple[float, float]] = []       # poses not saved yet
+        self._traced: tuple[float, float] | None = None   # the last pose kept in the trace
+        self._down: dict[str, str] = {}        # device name -> why it is out
+        self._must_stop = True                 # thrusters to be stopped before anything else is sent
+        self._saved_t = self._published_t = -math.inf
+        self._steered_t: float | None = None
+        self._last_seq = None
+        self.machine = CleanerMachine(state, mission, latch_released=self._latch_released,
+                                      on_change=self._changed)
+
+    @property
+    def state(self) -> str:
+        return self.machine.state
+
+    # -- the frame loop ----------------------------------------------------------
+    async def run(self) -> None:
+        """Frames until cancelled; the thrusters are stopped on the way out (a courtesy: the
+        device's watchdog stops them anyway once drives stop coming)."""
+        loop = asyncio.get_running_loop()
+        pool = concurrent.futures.ThreadPoolExecutor(1, thread_name_prefix="float-detect")  # one per run()
+        try:
+            while True:
+                frame = await self._next_frame()
+                if frame is None:
+                    continue
+                near = self.tracker.search_region(frame.t)   # looked for where it will be now
+                fix = await loop.run_in_executor(pool, self.detector, frame.image, near)
+                await self.on_track(self.tracker.step(frame.t, fix))
+        finally:
+            pool.shutdown(wait=False, cancel_futures=True)
+            self.save()
+            if not self.lane.tripped:
+                try:
+                    await asyncio.wait_for(self.thrusters.stop(), 1.0)
+                except (DeviceError, TimeoutError, Halted) as exc:
+                    log.warning("cleaner: thrusters not stopped on the way out: %s", exc)
+
+    async def _next_frame(self):
+        try:
+            frame = await self.camera.read()
+        except DeviceError as exc:
+            self._device_down(self.camera.name, exc.text)
+            await self._halt()
+            await asyncio.sleep(RETRY_WALL_S)
+            return None
+        self._device_up(self.camera.name)
+        if frame.seq == self._last_seq:        # nothing new yet: no second look at the same frame
+            await asyncio.sleep(0.005)
+            return None
+        self._last_seq = frame.seq
+        return frame
+
+    async def on_track(self, track) -> None:
+        """One tracker output: events to the machine, then steer, drive, sweep, save, publish."""
+        self.track = track
+        self._hear_estop()
+        self._sweep(track)                     # the brush moved here in the state it was in
+        if track.state == "tracking":
+            self.machine.fire("float_tracking")
+        elif track.state == "lost":
+            self.machine.fire("float_lost")
+        if self.recovery is not None:
+            self.recovery.note(track, self.state == "lost")
+        if self.state == "fault" and self.thrusters.name in self._down:
+            await self._try_thrusters()
+        command = self._steer(track)
+        if command is not None:
+            await self._drive(*command)
+        else:
+            await self._halt()
+        self._mark(track)
+        now = self.clock.now()
+        if now - self._saved_t >= self.course.save_every_s:
+            self.save()
+        if now - self._published_t >= self.course.publish_every_s:
+            self._publish()
+
+    def _steer(self, track) -> tuple[float, float] | None:
+        """(left, right) while cleaning or returning with a pose, or backing up when lost; None: stop."""
+        if not self.machine.moving or track.x_m is None:
+            self._steered_t = None
+            backing = self.state == "lost" and self.recovery is not None
+            return self.recovery.command(self.clock.now()) if backing else None
+        dt = None if self._steered_t is None else max(1e-3, track.t_s - self._steered_t)
+        self._steered_t = track.t_s
+        refused = 0 if self.fence is None else self.fence.streak    # the follower gives such aims up
+        if self.state == "cleaning":
+            command = self.follower.command(track.x_m, track.y_m, track.heading_rad, dt_s=dt, refused=refused)
+            if self.follower.done:
+                self.machine.fire("path_done")       # -> returning: the route home is made on entry
+                return None
+            return command
+        if self.homing is None:
+            self.homing = self.course.follow(self.course.route_home(track.x_m, track.y_m), 0)
+        command = self.homing.command(track.x_m, track.y_m, track.heading_rad, dt_s=dt, refused=refused)
+        if self.homing.done:
+            self.machine.fire("path_done")           # -> docked
+            return None
+        return command
+
+    def _sweep(self, track) -> None:
+        """Before the track's events: the brush cleaned from the last measured pose to this one if
+        the robot was cleaning on the way."""
+        if self.state == "cleaning" and track.state == "tracking" and self._swept_from is not None:
+            x0, y0, h0 = self._swept_from
+            self.map.sweep(x0, y0, track.x_m, track.y_m, h0, track.heading_rad)
+
+    def _mark(self, track) -> None:
+        """After them: where the next sweep starts, and the trace."""
+        if self.state != "cleaning":
+            self._swept_from = None
+            return
+        if track.state != "tracking":          # coasting: the next fix sweeps from the last one
+            return
+        self._swept_from = (track.x_m, track.y_m, track.heading_rad)
+        here = (track.x_m, track.y_m)
+        if self._traced is None or math.dist(self._traced, here) >= TRACE_STEP_M:
+            self._trace.append(here)
+            self._traced = here
+
+    # -- actuators: state and e-stop first ----------------------------------------
+    async def _drive(self, left: float, right: float) -> None:
+        backing = self.state == "lost" and self.recovery is not None and self.recovery.active   # its trail
+        if self.fence is not None and not backing:     # the body's predicted footprint, not the follower's word
+            left, right = self.fence.check(self.track, (left, right), self.clock.now())
+        if self._must_stop and not backing:
+            await self._halt()
+        if self.lane.tripped or not (self.machine.moving or backing):   # nothing awaited between this and the send
+            return
+        try:
+            await self.thrusters.drive(left, right)
+        except DeviceError as exc:
+            self._thrusters_failed(exc)
+            return
+        self._must_stop = self._must_stop or backing   # the recovery's end stops them
+        status = self._thruster_status()
+        if status is not None and (status.estop or status.fault is not None):
+            self._thrusters_failed(DeviceError(self.thrusters.name, status.fault or "e-stop latched"))
+
+    async def _halt(self) -> None:
+        """Stop the thrusters once per entry into a still state (and when asked again)."""
+        if not self._must_stop or self.lane.tripped:   # latched: the device holds them stopped
+            return
+        try:
+            await self.thrusters.stop()
+            self._must_stop = False
+        except DeviceError as exc:
+            self._thrusters_failed(exc)
+
+    def _thrusters_failed(self, exc: DeviceError) -> None:
+        status = self._thruster_status()
+        if self.lane.tripped:
+            self._hear_estop()
+        elif status is not None and status.estop:   # its own button, or latched before a restart
+            self.lane.trip(f"{self.thrusters.name} reports an e-stop")
+            self._hear_estop()
+        else:
+            self._device_down(self.thrusters.name, exc.text)
+
+    async def _try_thrusters(self) -> None:
+        """In fault with the thrusters out: a stop that goes through and a clean state say they are back."""
+        try:
+            await self.thrusters.stop()
+        except LinkDown as exc:
+            self._device_down(self.thrusters.name, exc.text)
+            await self._reopen_thrusters()
+            return
+        except DeviceError as exc:
+            self._device_down(self.thrusters.name, exc.text)
+            return
+        status = self._thruster_status()
+        if status is None or status.fault is None:
+            self._must_stop = False
+            self._reopen_tries = 0
+            self._device_up(self.thrusters.name)
+
+    async def _reopen_thrusters(self) -> None:
+        """A driver whose link went is replaced by a fresh one, backing off: the next frame's stop
+        then says whether they are back."""
+        now = time.monotonic()
+        if self.reopen is None or now < self._reopen_at:
+            return
+        self._reopen_at = now + REOPEN_WALL_S[min(self._reopen_tries, len(REOPEN_WALL_S) - 1)]
+        self._reopen_tries += 1
+        try:
+            self.thrusters = await self.reopen(self.thrusters)
+        except DeviceError as exc:
+            log.debug("cleaner: reopening %s failed: %s", self.thrusters.name, exc.text)
+
+    def _thruster_status(self):
+        try:
+            return self.thrusters.status()
+        except DeviceError:
+            return None
+
+    def _latch_released(self) -> bool:
+        status = self._thruster_status()
+        return not self.lane.tripped and status is not None and not status.estop
+
+    # -- devices going and coming ---------------------------------------------------
+    def _device_down(self, name: str, why: str) -> None:
+        self._down[name] = why
+        self.alarms.raise_(f"device/{name}", why, kind="unreachable")   # logged once, repeats counted
+        self._must_stop = True
+        self.machine.fire("device_fault")
+
+    def _device_up(self, name: str) -> None:
+        if name not in self._down:
+            return
+        del self._down[name]
+        self.alarms.clear(f"device/{name}", "back", kind="unreachable")
+        if not self._down:
+            self.machine.fire("device_recovered")
+
+    # -- e-stop -------------------------------------------------------------------
+    def _hear_estop(self) -> None:
+        if self.lane.tripped and self.state != "estop":
+            self.stopped(self.lane.reason or "e-stop")
+
+    def stopped(self, reason: str) -> None:
+        """The cleaner's side of an e-stop the lane has latched already: state, nothing sent."""
+        if self.state != "estop":
+            log.warning("cleaner: e-stop (%s)", reason)
+            self.machine.estop()
+
+    async def operator_reset(self) -> str | None:
+        """Release the thrusters' latch and leave ``estop`` once the device shows it released.
+        An error text, or None."""
+        if self.state != "estop":
+            return f"cleaner: nothing to reset in state {self.state}"
+        if self.lane.tripped:
+            self.lane.release()
+        try:
+            await self.thrusters.reset_estop()
+        except DeviceError as exc:
+            return f"cleaner: thrusters latch not reset: {exc.text}"
+        if not self.machine.reset():
+            return "cleaner: the thrusters still report their e-stop latch"
+        self._must_stop = True
+        await self._halt()
+        return None
+
+    # -- operator commands --------------------------------------------------------
+    async def start(self) -> str | None:
+        if not self.machine.allows("start"):
+            return f"cleaner is {self.state}: cannot start"
+        if self.follower.done:                 # the last run finished: a fresh one
+            self.run_id = self.store.next_cleaner_run()
+            self.map = self.course.fresh_map()
+            self.follower = self.course.follow(self.plan.path, 0)
+            self._trace.clear()
+            self._traced = None
+            log.info("cleaner: run %d begins on a fresh map", self.run_id)
+        self.machine.start()
+        return None
+
+    async def stop(self) -> str | None:
+        if not self.machine.allows("stop"):
+            return f"cleaner is {self.state}: nothing to stop"
+        self.machine.stop()
+        await self._halt()
+        return None
+
+    async def go_home(self) -> str | None:
+        if not self.machine.allows("go_home"):
+            return f"cleaner is {self.state}: cannot return"
+        self.machine.go_home()
+        return None
+
+    # -- news and the record ------------------------------------------------------
+    @property
+    def path_index(self) -> int:
+        """The coverage path's waypoint reached; its length once the run is done."""
+        return len(self.plan.path) if self.follower.done else int(self.follower.progress)
+
+    def _changed(self, state: str) -> None:
+        if state != "returning":
+            self.homing = None
+        if state not in ("cleaning", "returning"):
+            self._must_stop = True
+        self._publish()
+        try:
+            asyncio.get_running_loop().call_soon(self.save)   # no fsync on the way of an e-stop
+        except RuntimeError:                                  # no loop (a tool): now
+            self.save()
+
+    def snapshot(self) -> dict:
+        track = self.track
+        pos = track is not None and track.x_m is not None
+
+        def r(v, nd=3):
+            return None if v is None else round(float(v), nd)
+        return {"t": self.clock.iso(), "state": self.state,
+                "x_m": r(track.x_m) if pos else None, "y_m": r(track.y_m) if pos else None,
+                "heading_rad": r(track.heading_rad, 4) if pos else None,
+                "coverage": round(float(self.map.coverage()), 4),
+                "tracking": None if track is None else track.state,
+                "path_index": self.path_index, "mission": self.machine.mission,
+                "state_code": STATES.index(self.state)}
+
+    def _publish(self) -> None:
+        self._published_t = self.clock.now()
+        try:                                   # news, not the record: never let it stop a move
+            self.publish("cleaner/state", self.snapshot())
+        except Exception as exc:
+            log.warning("cleaner state not published: %s", exc)
+
+    def save(self) -> None:
+        """The map, the path index, state and mission, and the trace since the last save: one commit."""
+        self._saved_t = self.clock.now()
+        trace = np.array(self._trace) if self._trace else None
+        progress = Progress(self.course.fingerprint, self.run_id, self.map.to_bytes(), self.path_index,
+                            self.state, self.machine.mission, float(self.map.coverage()), self._saved_t)
+        try:
+            self.store.save_cleaner(progress, trace)
+        except Exception:
+            log.exception("cleaner: progress not saved")
+            return
+        self._trace.clear()
+
+
+@dataclass(frozen=True)
+class Resumed:
+    follower: object
+    map: object
+    run: int
+    state: str
+    mission: str | None
+
+
+def resume(store, course: Course, plan, map_from_bytes: Callable, *, estop_standing: bool,
+           autostart: bool) -> Resumed:
+    """Where a (re)started controller takes the cleaner up. The ledger's map and path index if they
+    were made for this plan (same fingerprint), else a fresh run. A mission that stood (cleaning,
+    returning, lost, fault...) is taken up again from ``localising`` (the robot may have drifted);
+    an operator's stop stays ``manual``; an e-stop that stands starts in ``estop``. ``autostart``
+    begins cleaning from the dock when the map is not complete."""
+    saved = store.cleaner_progress()
+    cmap = None
+    if saved is not None and saved.fingerprint == course.fingerprint:
+        try:
+            cmap = map_from_bytes(saved.map) if saved.map is not None else course.fresh_map()
+        except ValueError as exc:
+            log.warning("cleaner: the saved coverage map cannot be used (%s): a fresh map", exc)
+    if cmap is not None:
+        last = len(plan.path) - 1
+        follower = course.follow(plan.path, min(saved.path_index, last))
+        follower.done = saved.path_index > last    # the run was finished
+        run, mission = saved.run, saved.mission
+        state = "manual" if saved.state == "manual" else ("localising" if mission else "docked")
+    else:
+        if saved is not None and saved.fingerprint != course.fingerprint:
+            log.warning("cleaner: the pond or its plan changed since the saved map: a fresh map")
+        cmap, follower, run = course.fresh_map(), course.follow(plan.path, 0), store.next_cleaner_run()
+        state, mission = "docked", None
+    if state == "docked" and autostart and not follower.done:
+        state, mission = "localising", "clean"
+    if estop_standing:
+        state = "estop"
+    return Resumed(follower, cmap, run, state, mission)

@@ -1,0 +1,193 @@
+"""A geofence in the cleaner's command path that does not rest on the follower being right.
+
+Before every drive, ``Geofence.check`` predicts where the body's footprint (a disc of the body
+radius) goes if the command is held for the pose's age plus ``horizon_s`` and the thrusters are
+then stopped and the robot coasts out (``coast_s``): a unicycle whose speed and turn rate follow
+the thrust with the robot's time constants, the thrust ramping as the device ramps it. The
+robot's speed ahead is the one the thrust sent lately gives (the tracker's when nothing was sent:
+its speed from fixes a few times a second is too noisy), along its heading (the margins cover
+the current's few cm/s of crabbing).
+
+The gap of the footprint to a keep-out must stay at least ``margin_m`` + ``k_std`` x the pose's
+uncertainty (the band); a command that would bring it under that (and closer than it is now,
+less ``slack_m``) or under ``k_std`` x the uncertainty at all, is refused. A body already in the
+band is backed out of it first, whatever was asked: slowly, off the nearest keep-out, ahead or
+astern (``backed_off`` counts these). At the pond's edge the walls hold the robot (the edge pass
+runs along them, pressed on by the current, on purpose): there only a command predicted to ram
+deeper than ``edge_limit_m`` past the wall, and deeper than the robot is now, is refused. A
+refused command is replaced by the first safe of: the same command at half, then a quarter of its
+speed ahead; a slow move off the nearest keep-out; the command's turn on the spot; a slow
+back-off; a stop; if none is safe, the one that ends farthest off. ``streak`` counts the commands
+replaced in a row (the path follower gives up a waypoint the fence keeps refusing, steering.py).
+A track that is not ``tracking`` or older than ``max_age_s`` gets a stop (and the robot, its
+tracks held, stays where it is: devices/sim/pond_physics.py).
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+import shapely
+import shapely.ops
+
+STOP = (0.0, 0.0)
+
+
+@dataclass(frozen=True)
+class Motion:
+    """The robot's response to thrust (devices/sim/pond_physics.py defaults: 2 x 12 N against
+    60 N s/m, 40 kg; yaw 2 x 12 N x 0.25 m against 6 N m s, 2.5 kg m2; ramps 4/s)."""
+    top_speed_m_s: float = 0.4       # at command (1, 1)
+    speed_tau_s: float = 0.67        # mass / drag
+    top_turn_rad_s: float = 1.0      # at command (-1, 1)
+    turn_tau_s: float = 0.42         # inertia / yaw drag
+    ramp_per_s: float = 4.0          # the thrusters' ramp
+
+
+@dataclass
+class Geofence:
+    outline: object                  # shapely Polygon: the pond
+    keepouts: tuple = ()             # shapely Polygons
+    body_radius_m: float = 0.35
+    margin_m: float = 0.03
+    k_std: float = 2.0
+    slack_m: float = 0.02
+    edge_limit_m: float = 0.25
+    horizon_s: float = 0.3
+    coast_s: float = 1.5
+    step_s: float = 0.05
+    max_age_s: float = 0.5
+    latency_s: float = 0.1           # from the frame's instant to its track (render, link, detection)
+    backoff: float = 0.3
+    motion: Motion = field(default_factory=Motion)
+    refused: int = 0                 # commands replaced
+    streak: int = 0                  # commands replaced in a row (the follower learns of them)
+    backed_off: int = 0              # drives that backed the body out of a keep-out's band
+    blind: int = 0                   # drives refused for want of a fresh tracked pose
+
+    def __post_init__(self):
+        self._last = None                # (farm s, command) last let through
+        self._v, self._thrust = 0.0, np.zeros(2)
+        self._edge = self.outline.exterior
+        self._keep = shapely.union_all(list(self.keepouts)) if self.keepouts else None
+        for g in (self.outline, self._edge, self._keep):
+            if g is not None:
+                shapely.prepare(g)
+
+    # -- the gaps ---------------------------------------------------------------
+    def gaps(self, xy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Per centre (N, 2): the body's gap to the pond's edge and to the nearest keep-out (m;
+        negative: that far over)."""
+        xy = np.asarray(xy, float).reshape(-1, 2)
+        pts = shapely.points(xy)
+        d = shapely.distance(self._edge, pts)
+        inside = shapely.contains_xy(self.outline, xy[:, 0], xy[:, 1])
+        edge = np.where(inside, d, -d) - self.body_radius_m
+        if self._keep is None:
+            return edge, np.full(len(xy), np.inf)
+        dk = shapely.distance(self._keep, pts)        # 0 inside
+        into = shapely.contains_xy(self._keep, xy[:, 0], xy[:, 1])
+        if into.any():
+            dk = np.where(into, -shapely.distance(self._keep.boundary, pts), dk)
+        return edge, dk - self.body_radius_m
+
+    # -- the prediction ---------------------------------------------------------
+    def predict(self, x, y, heading, speed, command, lead_s) -> np.ndarray:
+        """Centres (N, 2) from now: ``command`` held ``lead_s`` + ``horizon_s``, then coasting."""
+        m = self.motion
+        left, right = (max(-1.0, min(1.0, float(c))) for c in command)
+        held = lead_s + self.horizon_s
+        n = max(1, math.ceil((held + self.coast_s) / self.step_s))
+        fl = fr = max(-1.0, min(1.0, speed / m.top_speed_m_s))   # thrust now, as the speed says
+        v, w, ramp = speed, 0.0, m.ramp_per_s * self.step_s
+        out = np.empty((n + 1, 2))
+        out[0] = x, y
+        for i in range(1, n + 1):
+            tl, tr = (left, right) if i * self.step_s <= held else STOP
+            fl += max(-ramp, min(ramp, tl - fl))
+            fr += max(-ramp, min(ramp, tr - fr))
+            v += (m.top_speed_m_s * (fl + fr) / 2 - v) * self.step_s / m.speed_tau_s
+            w += (m.top_turn_rad_s * (fr - fl) / 2 - w) * self.step_s / m.turn_tau_s
+            heading += w * self.step_s
+            x += v * math.cos(heading) * self.step_s
+            y += v * math.sin(heading) * self.step_s
+            out[i] = x, y
+        return out
+
+    def _judge(self, now_gaps, path, std) -> tuple[bool, float]:
+        """Safe or not, and how far off it ends (to choose among unsafe ones: the pose now is the
+        same for all, so their least gap cannot tell them apart)."""
+        edge, keep = self.gaps(path)
+        e, k = float(edge.min()), float(keep.min())
+        e0, k0 = float(now_gaps[0][0]), float(now_gaps[1][0])
+        keep_ok = k >= self.k_std * std and (k >= self.margin_m + self.k_std * std or k >= k0 - self.slack_m)
+        edge_ok = e >= -self.edge_limit_m or e >= e0 - self.slack_m
+        return keep_ok and edge_ok, min(float(keep[-1]), float(edge[-1]) + self.edge_limit_m)
+
+    # -- the check --------------------------------------------------------------
+    def check(self, track, command, now_s: float) -> tuple[float, float]:
+        """The command to send for ``command`` given the latest track at farm time ``now_s``."""
+        if (track is None or track.state != "tracking" or track.x_m is None
+                or now_s - track.t_s > self.max_age_s):
+            self.blind += 1
+            return STOP
+        std = float(track.std_m or 0.0)
+        speed = self._speed(now_s, float(track.speed_m_s or 0.0))
+        lead = max(0.0, now_s - track.t_s) + self.latency_s
+        pose = (track.x_m, track.y_m, track.heading_rad, speed)
+        here = self.gaps(np.array([[track.x_m, track.y_m]]))
+        if float(here[1][0]) < self.margin_m + self.k_std * std:   # in the band: out of it first
+            self.refused, self.streak, self.backed_off = self.refused + 1, self.streak + 1, self.backed_off + 1
+            return self._sent(now_s, self._away(track))
+        ok, _ = self._judge(here, self.predict(*pose, command, lead), std)
+        if ok:
+            self.streak = 0
+            return self._sent(now_s, (float(command[0]), float(command[1])))
+        self.refused, self.streak = self.refused + 1, self.streak + 1
+        ahead, turn = (float(command[0]) + float(command[1])) / 2, (float(command[1]) - float(command[0])) / 2
+        slower = [(ahead * k - turn, ahead * k + turn) for k in (0.5, 0.25) if ahead > 0]
+        options = [*slower, self._away(track), (-turn, turn), (-self.backoff, -self.backoff), STOP]
+        best, widest = STOP, -math.inf
+        for option in options:
+            safe, gap = self._judge(here, self.predict(*pose, option, lead), std)
+            if safe:
+                return self._sent(now_s, option)
+            if gap > widest:
+                best, widest = option, gap
+        return self._sent(now_s, best)
+
+    def _away(self, track) -> tuple[float, float]:
+        """Off the nearest keep-out (the wall if there is none) at once, slowly, along the band's
+        outward normal as a robot that cannot move sideways can: ahead or astern, whichever end
+        faces away, turning that end onto the normal — a robot the current presses on a keep-out
+        must not wait there, nor spin first."""
+        here = shapely.Point(track.x_m, track.y_m)
+        nearest = shapely.ops.nearest_points(self._keep if self._keep is not None else self._edge, here)[0]
+        away = math.atan2(track.y_m - nearest.y, track.x_m - nearest.x)
+        alpha = math.remainder(away - track.heading_rad, 2 * math.pi)
+        sign = 1.0
+        if abs(alpha) > math.pi / 2:       # it is ahead: back off, turning the stern away
+            sign, alpha = -1.0, math.remainder(alpha - math.pi, 2 * math.pi)
+        ahead = sign * self.backoff              # 0.12 m/s: slow, yet well ahead of a few cm/s of current
+        turn = max(-0.5, min(0.5, alpha))
+        return ahead - turn, ahead + turn
+
+    def _speed(self, now_s: float, tracked: float) -> float:
+        """The speed ahead the thrust sent so far gives (the tracker's, from 3 cm fixes at a few
+        per second, wanders by +-0.15 m/s); the tracker's when nothing was sent lately."""
+        if self._last is None or not 0 <= now_s - self._last[0] <= self.max_age_s:
+            self._v, self._thrust = tracked, np.full(2, tracked / self.motion.top_speed_m_s)
+            return tracked
+        m, dt = self.motion, now_s - self._last[0]
+        self._thrust += np.clip(np.asarray(self._last[1]) - self._thrust, -m.ramp_per_s * dt, m.ramp_per_s * dt)
+        self._v += (m.top_speed_m_s * float(self._thrust.mean()) - self._v) * (1 - math.exp(-dt / m.speed_tau_s))
+        return self._v
+
+    def _sent(self, now_s: float, command):
+        self._last = (now_s, command)
+        return command
+
+    @classmethod
+    def for_pond(cls, geom, body_radius_m: float, **kw) -> Geofence:
+        return cls(geom.outline, tuple(geom.keepouts), body_radius_m, **kw)

@@ -1,0 +1,99 @@
+"""The pond cleaner's progress in the ledger: a mixin of ``controller.store.Store`` (its
+connection, lock and ``_write``), as ``controller.records`` is.
+
+- ``cleaner``: one row: the plan's ``fingerprint`` (pond outline, keep-outs, brush, body, cell,
+  plan parameters: a changed pond starts a fresh map), the ``run`` (cleaning runs begun, ever),
+  the coverage ``map`` (``CoverageMap.to_bytes``), the ``path_index`` reached on the coverage
+  path, and the state, mission and coverage last saved. A restart — even after SIGKILL — resumes
+  from it; what was swept since the last save (a few farm seconds) is swept again.
+- ``cleaner_trace``: the path followed, for ``fishfarm cleaner map``: per save, the poses since
+  the previous one as float32 (x, y) pairs in metres, thinned to a few centimetres apart.
+"""
+from __future__ import annotations
+
+import sqlite3
+import threading
+from dataclasses import dataclass
+
+import numpy as np
+
+MIGRATION_5 = """
+    CREATE TABLE cleaner (
+        id          INTEGER PRIMARY KEY CHECK (id = 1),
+        fingerprint TEXT NOT NULL,
+        run         INTEGER NOT NULL,
+        map         BLOB,
+        path_index  INTEGER NOT NULL,
+        state       TEXT NOT NULL,
+        mission     TEXT,
+        coverage    REAL NOT NULL,
+        t           REAL NOT NULL
+    );
+    CREATE TABLE cleaner_trace (
+        id    INTEGER PRIMARY KEY,
+        run   INTEGER NOT NULL,
+        t     REAL NOT NULL,
+        xy    BLOB NOT NULL
+    );
+    CREATE INDEX cleaner_trace_run ON cleaner_trace (run, id)
+"""
+"""4 -> 5: the pond cleaner's coverage map, path index and trace."""
+
+
+@dataclass(frozen=True)
+class Progress:
+    fingerprint: str
+    run: int
+    map: bytes | None
+    path_index: int
+    state: str
+    mission: str | None
+    coverage: float
+    t: float
+
+
+class CleanerRecords:
+    db: sqlite3.Connection
+    _lock: threading.RLock
+
+    def cleaner_progress(self) -> Progress | None:
+        row = self.db.execute("SELECT * FROM cleaner WHERE id = 1").fetchone()
+        if row is None:
+            return None
+        fields = dict(row)
+        fields.pop("id")
+        return Progress(**fields)
+
+    def next_cleaner_run(self) -> int:
+        """A run number never used: a fresh map's trace never mixes with an older one's."""
+        row = self.db.execute("SELECT MAX(r) FROM (SELECT MAX(run) AS r FROM cleaner "
+                              "UNION ALL SELECT MAX(run) FROM cleaner_trace)").fetchone()
+        return (row[0] or 0) + 1
+
+    def save_cleaner(self, progress: Progress, trace: np.ndarray | None = None) -> None:
+        """The progress, and the poses followed since the last save, in one commit."""
+        with self._lock:
+            self.db.execute("BEGIN IMMEDIATE")
+            try:
+                self.db.execute(
+                    "INSERT INTO cleaner (id, fingerprint, run, map, path_index, state, mission, coverage, t) "
+                    "VALUES (1, ?, ?, ?, ?, ?, ?, ?, ?) ON CONFLICT (id) DO UPDATE SET "
+                    "fingerprint = excluded.fingerprint, run = excluded.run, map = excluded.map, "
+                    "path_index = excluded.path_index, state = excluded.state, mission = excluded.mission, "
+                    "coverage = excluded.coverage, t = excluded.t",
+                    (progress.fingerprint, progress.run, progress.map, progress.path_index, progress.state,
+                     progress.mission, progress.coverage, progress.t))
+                if trace is not None and len(trace):
+                    self.db.execute("INSERT INTO cleaner_trace (run, t, xy) VALUES (?, ?, ?)",
+                                    (progress.run, progress.t, np.asarray(trace, "<f4").reshape(-1, 2).tobytes()))
+                self.db.execute("COMMIT")
+            except BaseException:
+                self.db.execute("ROLLBACK")
+                raise
+
+    def cleaner_trace(self, run: int) -> np.ndarray:
+        """(N, 2) poses (m) the cleaner followed in ``run``, in order."""
+        rows = self.db.execute("SELECT xy FROM cleaner_trace WHERE run = ? ORDER BY id", (run,)).fetchall()
+        if not rows:
+            return np.zeros((0, 2))
+        return np.frombuffer(b"".join(r["xy"] for r in rows), "<f4").reshape(-1, 2).astype(float)

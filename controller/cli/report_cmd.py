@@ -1,0 +1,76 @@
+"""``fishfarm report --tank T [--since ISO|DURATION] [--target G] [--png REPORT.png] [--json]
+[--config farm.toml]``
+
+A tank's production figures from the ledger (controller/production.py): each survey (fish, mean
+weight, CV, condition factor, stock), between consecutive surveys the growth (SGR), feed given,
+biomass gain and FCR, size uniformity against ``[feeding] grading_cv_pct``, and the projection to
+the target weight (``--target`` or the tank's ``target_weight_g``) at the last SGR. ``--png``
+draws weight over time with each survey's histogram, the projection and the feed per day. Reads
+the ledger only; a running controller may keep writing it. Bad input exits 2 with one line.
+"""
+from __future__ import annotations
+
+import json
+import time
+from pathlib import Path
+
+import click
+
+from controller.errors import BadInput
+from controller.production import iso_day
+
+
+def text(report: dict) -> str:
+    lines = [f"{report['tank']} ({report['species']}): {len(report['surveys'])} surveys"]
+    for s in report["surveys"]:
+        lines.append(f"  survey {s['date']}: {s['fish']} fish, mean {s['mean_weight_g']:.1f} g, "
+                     f"CV {s['cv_pct'] or 0:.1f} %, K {s['k']:.2f}, stock {s['stock']}")
+    for i in report["intervals"]:
+        fcr = "n/a (no gain)" if i["fcr"] is None else f"{i['fcr']:.2f}"
+        lines.append(f"  {iso_day(i['t1'])} -> {iso_day(i['t2'])} ({i['days']:.1f} d): SGR {i['sgr_pct']:.2f} %/day, "
+                     f"feed {i['feed_g']:.0f} g, biomass gain {i['gain_g']:.0f} g, FCR {fcr}")
+    if "grading" in report:
+        cv = report["surveys"][-1]["cv_pct"] or 0
+        verdict = "GRADE: above" if report["grading"] else "within"
+        lines.append(f"  uniformity: CV {cv:.1f} % ({verdict} {report['grading_cv_pct']:g} %)")
+    p = report.get("projection")
+    if p is not None:
+        when = "not growing: no date" if p["days"] is None else f"in {p['days']:.0f} days, {p['date']}"
+        lines.append(f"  projection: {p['target_g']:g} g at {p['sgr_pct']:.2f} %/day {when}")
+    if not report["surveys"]:
+        lines.append("  no survey in the ledger for this tank")
+    return "\n".join(lines)
+
+
+@click.command()
+@click.option("--tank", "tank_id", required=True, help="the tank's id")
+@click.option("--since", default=None, metavar="ISO|DURATION", help="surveys from this time, or this long ago (30d).")
+@click.option("--target", "target_g", type=float, default=None, help="harvest weight, g (default: the tank's)")
+@click.option("--png", "png_path", default=None, metavar="REPORT.png", help="also draw the report")
+@click.option("--json", "as_json", is_flag=True, help="print the figures as JSON")
+@click.option("--config", "config_path", default="config/farm.toml", show_default=True, metavar="farm.toml")
+def report(tank_id, since, target_g, png_path, as_json, config_path) -> None:
+    """A tank's growth, feed conversion, uniformity and projection, between its surveys."""
+    from controller.cli.audit_cmd import parse_since
+    from controller.config import load_config
+    from controller.production import tank_figures
+    from controller.store import Store
+    cfg = load_config(config_path)
+    if tank_id not in {t.id for t in cfg.tanks}:
+        raise BadInput(config_path, "--tank", f"no tank {tank_id!r} (tanks: {', '.join(t.id for t in cfg.tanks)})")
+    if target_g is not None and not target_g > 0:
+        raise BadInput("--target", None, f"must be a weight above 0 g, not {target_g:g}")
+    start = parse_since(since, time.time()) if since else None
+    if not Path(cfg.store.path).exists():
+        raise BadInput(cfg.store.path, None, "no ledger there (the controller has not run with this config)")
+    store = Store(cfg.store.path)
+    try:
+        data = tank_figures(cfg, store, tank_id, start, target_g)
+    finally:
+        store.close()
+    click.echo(json.dumps(data) if as_json else text(data))
+    if png_path:
+        from controller.report_plot import draw_report
+        draw_report(png_path, data)
+        if not as_json:
+            click.echo(f"written: {png_path}")

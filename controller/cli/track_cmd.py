@@ -1,0 +1,141 @@
+"""``fishfarm track``: replay tower camera frames through the controller's own float detection and
+tracking, offline.
+
+    fishfarm track --frames DIR --tower TOWER.json --json OUT.json [--lost-after S]
+
+``DIR/frames.csv``: header ``frame,t_s,file``, one row per frame in time order (any origin, any
+rate, gaps allowed); ``file`` is a colour image (PNG) relative to DIR, of any size. TOWER.json:
+``{"H": 3x3}`` mapping pixel (u, v, 1) to pond (x_m, y_m, 1). OUT.json: ``{"track": [{"t_s",
+"x_m", "y_m", "heading_rad", "state", "frame", "std_m", "speed_m_s", "confidence"}]}``, one entry a
+frame; state "tracking", "predicted" (coasting through a dropout) or "lost" (position null). A
+frame with no float in it is a dropout, not an error.
+
+Frames go one at a time through ``vision.float_track.track_frame``, the very call the cleaner's
+coordinator makes on the live camera. Bad input exits 2 with one line naming the file and the
+fault (frames.csv: the line and the column), before anything is written.
+"""
+from __future__ import annotations
+
+import csv
+import json
+import math
+from pathlib import Path
+
+import click
+import numpy as np
+
+from controller.cli.csvio import _read_text as read_text
+from controller.cli.csvio import number
+from controller.errors import BadInput
+
+HEADER = ("frame", "t_s", "file")
+DET_TOL = 1e-12        # |det H| / |H|^3 under which H counts as singular (as vision.tower)
+
+
+def load_tower(path: str) -> np.ndarray:
+    """H (3x3, finite, invertible) from TOWER.json; BadInput naming the fault."""
+    try:
+        doc = json.loads(Path(path).read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        raise BadInput(path, None, "no such file") from None
+    except IsADirectoryError:
+        raise BadInput(path, None, "is a directory, expected TOWER.json") from None
+    except (UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise BadInput(path, None, f"not JSON: {exc}") from None
+    except OSError as exc:
+        raise BadInput(path, None, f"cannot read: {exc.strerror or exc}") from None
+    if not isinstance(doc, dict) or "H" not in doc:
+        raise BadInput(path, "H", 'missing (expected {"H": 3x3})')
+    try:
+        H = np.array(doc["H"], dtype=float)
+    except (TypeError, ValueError):
+        raise BadInput(path, "H", "expected a 3x3 array of numbers") from None
+    if H.shape != (3, 3):
+        raise BadInput(path, "H", f"expected a 3x3 array of numbers, got shape {H.shape}")
+    if not np.all(np.isfinite(H)):
+        raise BadInput(path, "H", "a value is not a finite number")
+    if abs(np.linalg.det(H)) <= DET_TOL * np.linalg.norm(H) ** 3:
+        raise BadInput(path, "H", "singular: not a homography (it maps the image onto a line or a point)")
+    return H
+
+
+def read_frames(folder: str) -> list[tuple[int, float, Path, int]]:
+    """(frame, t_s, image path, line) of each row of DIR/frames.csv; BadInput at the first fault."""
+    d = Path(folder)
+    if not d.is_dir():
+        raise BadInput(folder, None, "no such directory" if not d.exists() else "not a directory")
+    path = d / "frames.csv"
+    where = str(path)
+    reader = csv.reader(read_text(path).splitlines())
+    header = next(reader, None)
+    if header is None:
+        raise BadInput(where, None, f"empty file (expected header '{','.join(HEADER)}')")
+    if tuple(c.strip() for c in header) != HEADER:
+        raise BadInput(where, "header", f"expected '{','.join(HEADER)}', found '{','.join(header)}'")
+    rows, prev = [], -math.inf
+    for lineno, cells in enumerate(reader, start=2):
+        if not "".join(cells).strip():
+            continue
+        if len(cells) != len(HEADER):
+            raise BadInput(where, f"line {lineno}", f"{len(cells)} fields, expected {len(HEADER)}")
+        frame = number(cells[0], where, lineno, "frame")
+        if frame != int(frame) or frame < 0:
+            raise BadInput(where, f"line {lineno}, column frame", f"not a frame number: {cells[0].strip()!r}")
+        t = number(cells[1], where, lineno, "t_s")
+        if t < prev:
+            raise BadInput(where, f"line {lineno}, column t_s",
+                           f"{cells[1].strip()} is earlier than the row before ({prev:g}): rows must be in time order")
+        name = cells[2].strip()
+        if not name:
+            raise BadInput(where, f"line {lineno}, column file", "empty")
+        rows.append((int(frame), t, d / name, lineno))
+        prev = t
+    return rows
+
+
+def read_image(path: Path, where: str) -> np.ndarray:
+    import cv2
+    if not path.is_file():
+        raise BadInput(str(path), None, f"no such file ({where})")
+    image = cv2.imread(str(path), cv2.IMREAD_COLOR)
+    if image is None or image.size == 0:
+        raise BadInput(str(path), None, f"cannot read it as an image ({where})")
+    return image
+
+
+def replay(frames: list[tuple[int, float, Path, int]], H: np.ndarray, csv_path: str, *,
+           lost_after_s: float = 4.0) -> list[dict]:
+    from vision.float_track import FloatTracker, track_frame
+    tracker = FloatTracker(lost_after_s=lost_after_s)
+    out = []
+    for frame, t, path, lineno in frames:
+        image = read_image(path, f"{csv_path} line {lineno}")
+        track, fix = track_frame(tracker, t, image, H)
+        out.append({"t_s": t, "x_m": track.x_m, "y_m": track.y_m, "heading_rad": track.heading_rad,
+                    "state": track.state, "frame": frame, "std_m": track.std_m, "speed_m_s": track.speed_m_s,
+                    "confidence": None if fix is None else fix.confidence})
+    return out
+
+
+@click.command("track")
+@click.option("--frames", "frames_dir", required=True, metavar="DIR",
+              help="tower camera frames: DIR/frames.csv (frame,t_s,file) and the images it names")
+@click.option("--tower", "tower_path", required=True, metavar="TOWER.json", help="pixel -> pond homography")
+@click.option("--json", "json_path", required=True, metavar="OUT.json", help="the float's track, one entry a frame")
+@click.option("--lost-after", "lost_after_s", default=4.0, show_default=True,
+              type=click.FloatRange(min=0, min_open=True), metavar="S",
+              help="seconds without a fix before the float is reported lost")
+def track(frames_dir: str, tower_path: str, json_path: str, lost_after_s: float) -> None:
+    """Replay tower camera frames through float detection and tracking; write the track."""
+    import cv2
+    cv2.setNumThreads(1)
+    H = load_tower(tower_path)
+    frames = read_frames(frames_dir)
+    entries = replay(frames, H, str(Path(frames_dir) / "frames.csv"), lost_after_s=lost_after_s)
+    try:
+        Path(json_path).write_text(json.dumps({"track": entries}, indent=1) + "\n", encoding="utf-8")
+    except OSError as exc:
+        raise BadInput(json_path, None, f"cannot write: {exc.strerror or exc}") from None
+    states = [e["state"] for e in entries]
+    click.echo(f"{len(entries)} frames: tracking {states.count('tracking')}, predicted {states.count('predicted')}, "
+               f"lost {states.count('lost')}; written: {json_path}")

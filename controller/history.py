@@ -1,0 +1,98 @@
+"""A tank's history from the ledger, over a time range: for the Zenoh queryable
+``farm/{site}/history/{what}/{tank}?since=...;until=...`` and for ``fishfarm history --csv``.
+
+``what``: ``surveys`` (one row a survey: its summary), ``fish`` (every fish every survey counted),
+``rations`` (one row a farm day: grams, pellet, what it rested on), ``stock`` (mortality, harvests
+and transfers in or out), ``feeds`` (every feed: intent time, aim, grams measured, outcome).
+``since``/``until``: an ISO time (2026-06-01T06:00, UTC unless it says) or Unix seconds; ``since``
+also a duration back from now (30m, 12h, 7d). Rows come oldest first, at most ``MAX_ROWS``.
+"""
+from __future__ import annotations
+
+import datetime as dt
+import math
+import re
+
+from controller.errors import BadInput
+
+DURATION = re.compile(r"^\s*(\d+(?:\.\d+)?)\s*(s|m|h|d|w)\s*$")
+UNIT_S = {"s": 1, "m": 60, "h": 3600, "d": 86400, "w": 7 * 86400}
+MAX_ROWS = 100_000
+COLUMNS = {
+    "surveys": ("time", "survey", "species", "count", "mean_weight_g", "sd_weight_g", "mean_length_cm",
+                "cv_pct", "source"),
+    "fish": ("time", "survey", "length_cm", "weight_g", "score"),
+    "rations": ("time", "date", "grams", "pellet_mm", "basis"),
+    "stock": ("time", "kind", "count", "from_tank", "to_tank", "who", "reason"),
+    "feeds": ("time", "feed", "date", "target_g", "grams", "phase", "source", "note"),
+}
+_SQL = {
+    "surveys": ("SELECT t, id, species, count, mean_weight_g, sd_weight_g, mean_length_cm, cv_pct, source "
+                "FROM survey WHERE tank = :tank AND t >= :since AND t <= :until ORDER BY t, id"),
+    "fish": ("SELECT s.t, s.id, f.length_cm, f.weight_g, f.score FROM survey_fish f JOIN survey s "
+             "ON s.id = f.survey WHERE s.tank = :tank AND s.t >= :since AND s.t <= :until ORDER BY s.t, s.id, f.rowid"),
+    "rations": ("SELECT t, date, grams, pellet_mm, source FROM ration WHERE tank = :tank AND t >= :since "
+                "AND t <= :until ORDER BY date"),
+    "stock": ("SELECT t, kind, count, tank, to_tank, who, reason FROM stock_event WHERE (tank = :tank "
+              "OR to_tank = :tank) AND t >= :since AND t <= :until ORDER BY t, id"),
+    "feeds": ("SELECT t_intent, id, date, target_g, grams, phase, source, note FROM feed WHERE tank = :tank "
+              "AND t_intent >= :since AND t_intent <= :until ORDER BY seq"),
+}
+WHAT = tuple(COLUMNS)
+
+
+def parse_time(text, name: str, now: float, *, durations: bool) -> float:
+    """Unix seconds from ISO, Unix seconds or (``durations``) a span back from ``now``."""
+    text = str(text).strip()
+    try:
+        value = float(text)
+        if math.isfinite(value):
+            return value
+    except ValueError:
+        pass
+    m = DURATION.match(text) if durations else None
+    if m:
+        return now - float(m.group(1)) * UNIT_S[m.group(2)]
+    try:
+        when = dt.datetime.fromisoformat(text.replace("z", "Z"))
+    except ValueError:
+        spans = ", a duration (30m, 12h, 7d)" if durations else ""
+        raise BadInput(name, None, f"{text[:60]!r} is not an ISO time (2026-06-01T06:00), "
+                                   f"Unix seconds{spans}") from None
+    return (when if when.tzinfo else when.replace(tzinfo=dt.UTC)).timestamp()
+
+
+def iso(t: float) -> str:
+    return dt.datetime.fromtimestamp(t, dt.UTC).isoformat(timespec="seconds").replace("+00:00", "Z")
+
+
+def history(store, what: str, tank: str, since: float | None = None, until: float | None = None):
+    """(columns, rows, truncated): the rows oldest first, ``time`` as ISO."""
+    if what not in COLUMNS:
+        raise BadInput("what", None, f"{what!r} is not one of {', '.join(WHAT)}")
+    args = {"tank": tank, "since": -math.inf if since is None else since,
+            "until": math.inf if until is None else until}
+    cur = store.db.execute(_SQL[what] + f" LIMIT {MAX_ROWS + 1}", args)
+    rows = [[iso(r[0]), *r[1:]] for r in cur]
+    return COLUMNS[what], rows[:MAX_ROWS], len(rows) > MAX_ROWS
+
+
+def query_reply(store, cfg, key: str, params: dict, now: float) -> dict:
+    """The queryable's answer to ``history/{what}/{tank}`` with its selector's parameters."""
+    parts = key.split("/")
+    if len(parts) != 3 or parts[0] != "history":
+        return {"ok": False, "error": f"ask history/{{{'|'.join(WHAT)}}}/{{tank}}, not {key!r}"}
+    what, tank = parts[1], parts[2]
+    tanks = [t.id for t in cfg.tanks]
+    if tank not in tanks:
+        return {"ok": False, "error": f"no tank {tank!r} (tanks: {', '.join(tanks)})"}
+    unknown = sorted(set(params) - {"since", "until"})
+    if unknown:
+        return {"ok": False, "error": f"unknown parameter {unknown[0]!r}: since, until"}
+    try:
+        since = parse_time(params["since"], "since", now, durations=True) if "since" in params else None
+        until = parse_time(params["until"], "until", now, durations=False) if "until" in params else None
+        columns, rows, truncated = history(store, what, tank, since, until)
+    except BadInput as exc:
+        return {"ok": False, "error": str(exc)}
+    return {"ok": True, "what": what, "tank": tank, "columns": list(columns), "rows": rows, "truncated": truncated}

@@ -1,0 +1,133 @@
+"""Production figures a manager reads, per tank, between consecutive weight surveys.
+
+For surveys 1 and 2 of a tank (mean weights W1, W2 g; stocks N1, N2 at their times, from the
+config's count and the stock events; ``days`` apart):
+
+- specific growth rate  SGR = 100 · (ln W2 − ln W1) / days          (% a day)
+- biomass gain          G = N2·W2 − N1·W1 + Σ fish out · W(t) − Σ fish in · W(t)
+  (mortality, harvests and transfers between the surveys, each weighed at the weight the tank's
+  fish had then, W(t) growing exponentially from W1 to W2): the growth the feed made, whether the
+  fish are still in the tank or not;
+- feed conversion ratio FCR = feed given / G   (the grams of the feed rows done between them; none
+  when G ≤ 0: a loss is not a conversion);
+- condition factor      K = 100 · W / L³ per fish (g, cm), the survey's mean;
+- size uniformity       CV = sd / mean of weight (%), and whether it calls for grading;
+- projection: the days to a target weight at the last SGR, and the date.
+"""
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+DAY_S = 86_400.0
+
+
+@dataclass(frozen=True)
+class SurveyPoint:
+    t: float
+    mean_weight_g: float
+    cv_pct: float
+    k: float                   # mean condition factor of its fish
+    count: int                 # fish measured
+    stock: int                 # fish in the tank then
+
+
+@dataclass(frozen=True)
+class Interval:
+    t1: float
+    t2: float
+    days: float
+    sgr_pct: float
+    feed_g: float
+    gain_g: float
+    fcr: float | None
+
+
+def condition_factor(lengths_cm, weights_g) -> float:
+    """Mean of 100 · W / L³ over the fish."""
+    length, weight = np.asarray(lengths_cm, float), np.asarray(weights_g, float)
+    return float(np.mean(100.0 * weight / length**3)) if length.size else math.nan
+
+
+def stock_at(base: int, events, tank: str, t: float) -> int:
+    """The tank's fish at farm time ``t``: ``base`` (the config's count) plus the stock events up to
+    ``t`` (rows with t, tank, count, to_tank: out of ``tank``, into ``to_tank``)."""
+    n = base
+    for e in events:
+        if e["t"] <= t:
+            n += (e["count"] if e["to_tank"] == tank else 0) - (e["count"] if e["tank"] == tank else 0)
+    return n
+
+
+def weight_at(t: float, p1: SurveyPoint, p2: SurveyPoint) -> float:
+    """Exponential growth from one survey's mean weight to the next's."""
+    f = min(1.0, max(0.0, (t - p1.t) / (p2.t - p1.t)))
+    return p1.mean_weight_g * (p2.mean_weight_g / p1.mean_weight_g) ** f
+
+
+def interval(p1: SurveyPoint, p2: SurveyPoint, feed_g: float, events, tank: str) -> Interval:
+    """The figures between two surveys of ``tank`` (module docstring); ``feed_g``: feed given
+    between them; ``events``: the stock events (all of them: those between count)."""
+    days = (p2.t - p1.t) / DAY_S
+    if days <= 0:
+        raise ValueError("the second survey must come after the first")
+    sgr = 100.0 * (math.log(p2.mean_weight_g) - math.log(p1.mean_weight_g)) / days
+    moved = 0.0
+    for e in events:
+        if p1.t < e["t"] <= p2.t:
+            w = weight_at(e["t"], p1, p2)
+            moved += (e["count"] if e["tank"] == tank else 0) * w - (e["count"] if e["to_tank"] == tank else 0) * w
+    gain = p2.stock * p2.mean_weight_g - p1.stock * p1.mean_weight_g + moved
+    return Interval(p1.t, p2.t, days, sgr, feed_g, gain, feed_g / gain if gain > 0 else None)
+
+
+def days_to(target_g: float, weight_g: float, sgr_pct: float) -> float | None:
+    """Days from ``weight_g`` to ``target_g`` at ``sgr_pct``; 0 when there already, None when the
+    fish are not growing."""
+    if weight_g >= target_g:
+        return 0.0
+    if sgr_pct <= 0:
+        return None
+    return 100.0 * math.log(target_g / weight_g) / sgr_pct
+
+
+def needs_grading(cv_pct: float, limit_pct: float) -> bool:
+    return bool(cv_pct > limit_pct)
+
+
+def tank_figures(cfg, store, tank_id: str, since: float | None = None, target_g: float | None = None,
+                 *, last: int | None = None) -> dict:
+    """A tank's figures from the ledger as plain data (``fishfarm report --json``): its surveys
+    since ``since`` (the newest ``last`` of them), the intervals between, uniformity, projection."""
+    tank = cfg.tank(tank_id)
+    events = [dict(e) for e in store.stock_events()]
+    rows = sorted(store.surveys(tank_id, since=since, limit=last), key=lambda s: s.t)
+    points, surveys = [], []
+    for s in rows:
+        lengths, weights = store.survey_fish(s.id)
+        p = SurveyPoint(s.t, s.mean_weight_g, s.cv_pct or 0.0, condition_factor(lengths, weights), s.count,
+                        stock_at(tank.stock, events, tank_id, s.t))
+        points.append(p)
+        surveys.append({"t": s.t, "date": iso_day(s.t), "fish": s.count, "mean_weight_g": s.mean_weight_g,
+                        "cv_pct": s.cv_pct, "k": p.k, "stock": p.stock, "weights_g": [float(w) for w in weights]})
+    intervals = [interval(a, b, store.fed_between(tank_id, a.t, b.t), events, tank_id).__dict__
+                 for a, b in zip(points, points[1:], strict=False)]
+    out = {"tank": tank_id, "species": tank.species, "surveys": surveys, "intervals": intervals,
+           "grading_cv_pct": cfg.feeding.grading_cv_pct, "feed_per_day": store.feed_per_day(tank_id, since)}
+    if points:
+        newest = points[-1]
+        out["grading"] = needs_grading(newest.cv_pct, cfg.feeding.grading_cv_pct)
+        target = target_g if target_g is not None else tank.target_weight_g
+        if target is not None and intervals:
+            sgr = intervals[-1]["sgr_pct"]
+            days = days_to(target, newest.mean_weight_g, sgr)
+            out["projection"] = {"target_g": target, "sgr_pct": sgr, "days": days,
+                                 "date": None if days is None else iso_day(newest.t + days * DAY_S)}
+    return out
+
+
+def iso_day(t: float) -> str:
+    return time.strftime("%Y-%m-%d", time.gmtime(t))

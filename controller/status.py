@@ -1,0 +1,54 @@
+"""The whole state snapshot (``farm/{site}/status``, the console, the SCADA coordinator): built
+from what the controller's parts already hold, never from a device. Parts still starting read
+as absent or "starting"."""
+from __future__ import annotations
+
+import time
+
+
+def farm_status(c) -> dict:
+    """``c``: the Controller (controller/app.py)."""
+    now = c.clock.now()
+    tanks = {}
+    pending = c.robot.pending if c.robot is not None else {}
+    store = getattr(c, "store", None)
+    paused = store.paused_tanks() if store is not None and store.db is not None else {}
+    for tank in c.cfg.tanks:
+        r = c.rations.today(tank.id, now)
+        job = pending.get(tank.id)
+        tanks[tank.id] = {"demand": job is not None,
+                          "demand_t": None if job is None else c.clock.iso(job.t),
+                          "fed_g": round(r.fed_g, 1), "ration_g": round(r.grams, 1),
+                          "pellet_mm": r.pellet_mm, "stock": c.rations.stock(tank.id),
+                          "paused": tank.id in paused, **_weights(c, tank.id, now)}
+        demand = getattr(c, "filter", None)     # absent while the controller starts
+        note = demand.slow_fish(tank.id) if demand is not None and tank.id in demand.tanks else None
+        if note is not None:
+            tanks[tank.id]["slow_fish"] = note
+    feeder = c.robot.snapshot() if c.robot is not None else {
+        "t": c.clock.iso(now), "state": "starting", "position_m": None, "hopper_g": None}
+    out = {"t": c.clock.iso(now), "site": c.cfg.site, "feeder": feeder,
+           "uptime_s": round(time.monotonic() - c.started_monotonic, 3),
+           "tanks": tanks,
+           "alarms": c.alarms.listing()}
+    cleaner = getattr(c, "cleaner", None)
+    if cleaner is not None:
+        out["cleaner"] = cleaner.snapshot()
+    elif c.cfg.cleaning is not None:
+        out["cleaner"] = {"t": c.clock.iso(now), "state": "starting", "x_m": None, "y_m": None,
+                          "heading_rad": None, "coverage": None}
+    suspects = store.suspects() if store is not None and store.db is not None else []
+    if suspects:      # feeds of unknown outcome, held against the ration until settled
+        out["suspect"] = [{"id": f.id, "tank": f.tank, "date": f.date, "t": c.clock.iso(f.t_intent),
+                           "target_g": round(f.target_g, 1), "note": f.note} for f in suspects]
+    return out
+
+
+def _weights(c, tank_id: str, now: float) -> dict:
+    """What the tank's ration rests on, and its last survey's figures (None before any)."""
+    basis = c.rations.basis(tank_id, now)
+    watch = getattr(c, "surveys", None)
+    f = watch.figures.get(tank_id, {}) if watch is not None else {}
+    return {"mean_weight_g": round(basis.mean_weight_g, 2), "ration_basis": basis.source,
+            "last_survey_t": f.get("last_survey_t"), "weight_cv_pct": f.get("weight_cv_pct"),
+            "sgr_pct_day": f.get("sgr_pct_day"), "fcr": f.get("fcr")}

@@ -1,0 +1,116 @@
+"""Weight surveys in the ledger: a mixin of ``controller.store.Store`` (its connection, lock and
+``_write``), as ``controller.records`` is.
+
+- ``survey``: one row a survey of a tank: when (farm time), species, what it rests on (``source``:
+  the OUT.json it came from, or the scheduler's job) and its summary — fish counted, mean and
+  standard deviation of weight, mean length, coefficient of variation of weight.
+- ``survey_fish``: every fish it counted (one per track in video): fork length, weight and score.
+
+A survey and its fish are one transaction: a kill mid-write leaves neither.
+"""
+from __future__ import annotations
+
+import math
+import sqlite3
+import threading
+from dataclasses import dataclass
+
+import numpy as np
+
+MIGRATION_6 = """
+    CREATE TABLE survey (
+        id            INTEGER PRIMARY KEY,
+        tank          TEXT NOT NULL,
+        t             REAL NOT NULL,
+        species       TEXT NOT NULL,
+        source        TEXT NOT NULL,
+        count         INTEGER NOT NULL,
+        mean_weight_g REAL,
+        sd_weight_g   REAL,
+        mean_length_cm REAL,
+        cv_pct        REAL
+    );
+    CREATE INDEX survey_tank_t ON survey (tank, t);
+    CREATE TABLE survey_fish (
+        survey     INTEGER NOT NULL REFERENCES survey (id),
+        length_cm  REAL NOT NULL,
+        weight_g   REAL NOT NULL,
+        score      REAL
+    );
+    CREATE INDEX survey_fish_survey ON survey_fish (survey)
+"""
+"""5 -> 6: weight surveys and every fish they measured."""
+
+
+@dataclass(frozen=True)
+class SurveyRow:
+    id: int
+    tank: str
+    t: float
+    species: str
+    source: str
+    count: int
+    mean_weight_g: float | None
+    sd_weight_g: float | None
+    mean_length_cm: float | None
+    cv_pct: float | None
+
+
+class SurveyRecords:
+    db: sqlite3.Connection
+    _lock: threading.RLock
+
+    def add_survey(self, tank: str, t: float, species: str, source: str, lengths_cm, weights_g,
+                   scores=None) -> int:
+        """Record a survey and its fish (one per fish counted); returns its id. An empty survey
+        (no fish) is a result too: count 0, no means."""
+        length = np.asarray(lengths_cm, float).ravel()
+        weight = np.asarray(weights_g, float).ravel()
+        score = np.full(len(weight), np.nan) if scores is None else np.asarray(scores, float).ravel()
+        if not len(length) == len(weight) == len(score):
+            raise ValueError("a length, a weight and a score for every fish")
+        if not (np.all(np.isfinite(length) & (length > 0)) and np.all(np.isfinite(weight) & (weight > 0))):
+            raise ValueError("every fish needs a positive, finite length and weight")
+        n = len(weight)
+        mean = float(weight.mean()) if n else None
+        sd = float(weight.std(ddof=1)) if n > 1 else (0.0 if n else None)
+        cv = 100.0 * sd / mean if n and mean > 0 else None
+        with self._lock:
+            self.db.execute("BEGIN IMMEDIATE")
+            try:
+                cur = self.db.execute(
+                    "INSERT INTO survey (tank, t, species, source, count, mean_weight_g, sd_weight_g, "
+                    "mean_length_cm, cv_pct) VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?)",
+                    (tank, t, species, source, n, mean, sd, float(length.mean()) if n else None, cv))
+                sid = cur.lastrowid
+                self.db.executemany(
+                    "INSERT INTO survey_fish (survey, length_cm, weight_g, score) VALUES (?, ?, ?, ?)",
+                    [(sid, float(a), float(b), None if math.isnan(c) else float(c))
+                     for a, b, c in zip(length, weight, score, strict=True)])
+                self.db.execute("COMMIT")
+            except BaseException:
+                self.db.execute("ROLLBACK")
+                raise
+        return int(sid)
+
+    def surveys(self, tank: str, *, since: float | None = None, until: float | None = None,
+                with_fish: bool = False, limit: int | None = None) -> list[SurveyRow]:
+        """The tank's surveys with fish counted, newest first (``limit``: only that many)."""
+        sql = "SELECT * FROM survey WHERE tank = ? AND count > 0"
+        args: list = [tank]
+        if since is not None:
+            sql, args = sql + " AND t >= ?", [*args, since]
+        if until is not None:
+            sql, args = sql + " AND t <= ?", [*args, until]
+        sql += " ORDER BY t DESC, id DESC" + (f" LIMIT {int(limit)}" if limit is not None else "")
+        return [SurveyRow(**dict(r)) for r in self.db.execute(sql, args)]
+
+    def survey_fish(self, survey_id: int) -> tuple[np.ndarray, np.ndarray]:
+        """(fork lengths cm, weights g) of every fish the survey counted, in the order recorded."""
+        rows = self.db.execute("SELECT length_cm, weight_g FROM survey_fish WHERE survey = ? ORDER BY rowid",
+                               (survey_id,)).fetchall()
+        table = np.array(rows, float).reshape(-1, 2)
+        return table[:, 0], table[:, 1]
+
+    def survey_weights(self, survey_id: int) -> np.ndarray:
+        return self.survey_fish(survey_id)[1]

@@ -1,0 +1,96 @@
+"""New weight surveys in the ledger, taken up by the running controller.
+
+A survey lands in the ledger from another process (``fishfarm survey --tank``) or, later, the
+survey scheduler. Each housekeeping tick the controller looks for a tank's newest survey; for one
+it has not taken up yet (and at start, for the newest of each tank):
+
+- today's ration is planned again from it (an operator's ration stands) and published;
+- the survey is published on ``farm/{site}/tank/{tank}/survey``: its OUT.json (the survey's
+  ``source``, when that file is still there and is the survey's) plus ``"t"`` (ISO), else the
+  ledger's summary of it in OUT.json's shape;
+- the tank's grading alarm (``grading/{tank}``) is raised when the weight CV is above
+  ``[feeding] grading_cv_pct``, cleared when a later survey is within it;
+- its production figures between its last two surveys (controller/production.py) are published on
+  ``farm/{site}/tank/{tank}/figures`` and kept for the status snapshot and the SCADA map.
+"""
+from __future__ import annotations
+
+import json
+import logging
+from datetime import UTC, datetime
+
+from controller.feeding.rations import ration_payload
+
+log = logging.getLogger(__name__)
+GRADING = "grading"
+
+
+class SurveyWatch:
+    def __init__(self, cfg, store, rations, alarms, publish):
+        self.cfg, self.store, self.rations, self.alarms, self.publish = cfg, store, rations, alarms, publish
+        self.taken: dict[str, int] = {}        # tank -> id of the survey last taken up
+        self.figures: dict[str, dict] = {}      # tank -> the latest figures (status, SCADA)
+
+    def check(self, now: float) -> list[str]:
+        """Take up each tank's newest survey not yet seen; returns the tanks that had one."""
+        fresh = []
+        for tank in self.cfg.tanks:
+            newest = self.store.surveys(tank.id, until=now, limit=1)
+            if not newest or self.taken.get(tank.id) == newest[0].id:
+                continue
+            survey = newest[0]
+            self.taken[tank.id] = survey.id
+            fresh.append(tank.id)
+            self.publish(f"tank/{tank.id}/ration", ration_payload(self.rations.replan(tank.id, now)))
+            self.publish(f"tank/{tank.id}/survey", survey_payload(survey))
+            self._grading(tank.id, survey)
+            self.figures[tank.id] = figures = self._figures(tank.id, survey)
+            self.publish(f"tank/{tank.id}/figures", figures)
+        return fresh
+
+    def _figures(self, tank_id: str, survey) -> dict:
+        from controller.production import tank_figures
+        f = tank_figures(self.cfg, self.store, tank_id, last=2)
+        last = f["intervals"][-1] if f["intervals"] else {}
+        return {"t": _iso(survey.t), "last_survey_t": _iso(survey.t), "fish": survey.count,
+                "mean_weight_g": survey.mean_weight_g, "weight_cv_pct": survey.cv_pct,
+                "condition_k": f["surveys"][-1]["k"] if f["surveys"] else None,
+                "sgr_pct_day": last.get("sgr_pct"), "fcr": last.get("fcr"), "feed_g": last.get("feed_g"),
+                "gain_g": last.get("gain_g"), "days": last.get("days"), "grading": f.get("grading"),
+                "projection": f.get("projection")}
+
+    def _grading(self, tank_id: str, survey) -> None:
+        limit = self.cfg.feeding.grading_cv_pct
+        cv = survey.cv_pct or 0.0
+        when = _iso(survey.t)
+        if cv > limit:
+            self.alarms.raise_(f"grading/{tank_id}", f"tank {tank_id}: weight CV {cv:.1f} % above {limit:g} % "
+                               f"(survey {when}, {survey.count} fish): grade the stock", kind=GRADING)
+        else:
+            self.alarms.clear(f"grading/{tank_id}", f"tank {tank_id}: weight CV {cv:.1f} % (survey {when})",
+                              kind=GRADING)
+
+
+def survey_payload(survey) -> dict:
+    """OUT.json + {"t": iso} when the survey's OUT.json is at hand, else the ledger's summary."""
+    doc = _out_json(survey.source, survey.count)
+    if doc is None:
+        doc = {"species": survey.species, "count": survey.count, "source": survey.source,
+               "length_cm": {"mean": survey.mean_length_cm},
+               "weight_g": {"mean": survey.mean_weight_g, "sd": survey.sd_weight_g},
+               "cv_pct": survey.cv_pct}
+    return {**doc, "t": _iso(survey.t)}
+
+
+def _out_json(path: str, count: int) -> dict | None:
+    try:
+        with open(path, encoding="utf-8") as fh:
+            doc = json.load(fh)
+    except (OSError, ValueError):
+        return None
+    return doc if isinstance(doc, dict) and doc.get("count") == count else None
+
+
+def _iso(t: float) -> str:
+    """As the rest of the snapshot stamps time: UTC, milliseconds, ``Z``."""
+    return datetime.fromtimestamp(t, UTC).isoformat(timespec="milliseconds").replace("+00:00", "Z")

@@ -1,0 +1,84 @@
+"""``[cleaning]``: absent, no cleaner; every fault is one line naming the file, the key and the fault."""
+from __future__ import annotations
+
+import json
+
+import pytest
+
+from controller.cleaning.setup import fingerprint, prepare
+from controller.config import load_config
+from controller.errors import BadInput
+
+TANK = "[[tank]]\nid = \"T1\"\nstock = 10\nmean_weight_g = 10\nposition_m = 1\nsensors = [\"a\"]\n"
+
+
+def farm(tmp_path, cleaning: str, H=((0.02, 0, 0), (0, 0.02, 0), (0, 0, 1))):
+    tower = tmp_path / "tower.json"
+    tower.write_text(json.dumps({"H": H}) if H is not None else "{", encoding="utf-8")
+    path = tmp_path / "farm.toml"
+    path.write_text(TANK + "[cleaning]\n" + f'tower = "{tower}"\n' + cleaning, encoding="utf-8")
+    return path
+
+
+POND = 'outline = [[0, 0], [20, 0], [20, 10], [0, 10]]\nkeepouts = [[[5, 4], [6, 4], [6, 5], [5, 5]]]\ndock = [1, 1]\n'
+
+
+def test_no_section_no_cleaner(tmp_path):
+    path = tmp_path / "farm.toml"
+    path.write_text(TANK, encoding="utf-8")
+    assert load_config(path).cleaning is None
+
+
+def test_a_good_section_plans_the_pond(tmp_path):
+    cfg = load_config(farm(tmp_path, POND + "brush_m = 0.6\n[cleaning.float]\nspacing_m = 0.4\n"))
+    prep = prepare(cfg)
+    assert prep.plan.path.shape[1] == 2 and len(prep.plan.path) > 10 and prep.float_params.spacing_m == 0.4
+    assert prep.fingerprint == fingerprint(cfg.cleaning)
+    assert cfg.cleaning.recover_after_s == 5.0
+    assert load_config(farm(tmp_path, POND + "recover_after_s = 12.5\n")).cleaning.recover_after_s == 12.5
+    moved = load_config(farm(tmp_path, POND.replace("[5, 4], [6, 4]", "[5, 3], [6, 3]")))
+    assert fingerprint(moved.cleaning) != prep.fingerprint       # a changed pond: another map
+
+
+@pytest.mark.parametrize("text,key,fault", [
+    (POND + "brsh_m = 0.5\n", "cleaning.brsh_m", "unknown key"),
+    (POND + "cruise = 1.5\n", "cleaning.cruise", "less than or equal to 1"),
+    (POND + "recover_after_s = 0\n", "cleaning.recover_after_s", "greater than 0"),
+    (POND + "recover_after = 5\n", "cleaning.recover_after", "unknown key"),
+    (POND.replace("dock = [1, 1]\n", ""), "cleaning.dock", "Field required"),
+    (POND + "[cleaning.float]\nspacing = 0.4\n", "cleaning.float.spacing", "unknown key"),
+    (POND + "[cleaning.float]\nspacing_m = -1\n", "cleaning.float.spacing_m", "must be > 0"),
+    (POND.replace("dock = [1, 1]", "dock = [30, 1]"), "cleaning.dock", "not on the floor"),
+    (POND.replace("dock = [1, 1]", "dock = [5.5, 4.5]"), "cleaning.dock", "not on the floor"),
+    (POND.replace("[20, 0], [20, 10]", "[20, 10], [20, 0]"), "cleaning.outline", ""),
+])
+def test_faults_name_section_and_key(tmp_path, text, key, fault):
+    with pytest.raises(BadInput) as err:
+        prepare(load_config(farm(tmp_path, text)))
+    assert f": {key}: " in str(err.value) and fault in str(err.value) and "\n" not in str(err.value)
+
+
+@pytest.mark.parametrize("H,fault", [(None, "not JSON"), ([[1, 0], [0, 1]], "got shape"),
+                                     ([[1, 0, 0], [0, 1, 0], [0, 0, 0]], "singular"),
+                                     ([[1, 0, 0], [0, "x", 0], [0, 0, 1]], "expected a 3x3 array of numbers")])
+def test_a_tower_file_that_is_no_homography_is_refused_by_name(tmp_path, H, fault):
+    with pytest.raises(BadInput, match=fault) as err:
+        prepare(load_config(farm(tmp_path, POND, H=H)))
+    assert "tower.json" in str(err.value)
+
+
+DEVICES = "".join(f'[devices.{k}]\nkind = "{k}"\ndriver = "sim"\n' for k in ("contacts", "rail", "dispenser"))
+
+
+@pytest.mark.parametrize("extra,key,fault", [
+    ('[devices.thr]\nkind = "thrusters"\ndriver = "sim"\n', "devices.thr", "needs a [cleaning] section"),
+    ("[cleaning]\n" + POND + 'tower = "t.json"\n', "devices", "exactly one thrusters device, found 0"),
+])
+def test_the_cleaners_devices_and_section_go_together(tmp_path, extra, key, fault):
+    from controller.app import Controller
+    from devices.clock import ManualClock
+    path = tmp_path / "farm.toml"
+    path.write_text(TANK + DEVICES + extra, encoding="utf-8")
+    with pytest.raises(BadInput) as err:
+        Controller(load_config(path), ManualClock())
+    assert f": {key}: " in str(err.value) and fault in str(err.value)

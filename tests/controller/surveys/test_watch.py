@@ -1,0 +1,96 @@
+"""A survey another process writes into the ledger is taken up by the running controller: the
+ration planned again and published, the survey published, the grading alarm raised or cleared."""
+from __future__ import annotations
+
+import json
+
+import pytest
+
+from controller.alarms import Alarms
+from controller.config import load_config
+from controller.feeding.rations import Rations, load_species
+from controller.store import Store
+from controller.surveys.watch import SurveyWatch
+from devices.clock import ManualClock
+
+T = 1_780_000_000.0
+
+
+class Published(list):
+    def __call__(self, suffix, payload, reliable=False):
+        self.append((suffix, payload))
+
+    def on(self, suffix):
+        return [p for s, p in self if s == suffix]
+
+
+@pytest.fixture
+def farm(tmp_path):
+    cfg = load_config("config/farm.toml")
+    store = Store(tmp_path / "ledger.db")
+    published = Published()
+    clock = ManualClock(T)
+    alarms = Alarms(store, published, clock)
+    rations = Rations(cfg, load_species(), store)
+    return cfg, store, rations, alarms, published, SurveyWatch(cfg, store, rations, alarms, published)
+
+
+def test_a_new_survey_sets_the_ration_is_published_once_and_a_spread_stock_raises_grading(farm, tmp_path):
+    cfg, store, rations, alarms, published, watch = farm
+    before = rations.today("T1", T)
+    assert watch.check(T) == []
+    out = tmp_path / "out.json"
+    out.write_text(json.dumps({"species": "sparus_aurata", "count": 4, "fish": [], "weight_g": {"mean": 42.5}}))
+    other = Store(tmp_path / "ledger.db")                # another process: fishfarm survey --tank T1
+    other.add_survey("T1", T + 10, "sparus_aurata", str(out), [10.0, 11.0, 13.0, 15.0], [20.0, 30.0, 40.0, 80.0])
+    other.close()
+    assert watch.check(T + 20) == ["T1"] and watch.check(T + 25) == []         # taken up once
+    [ration] = published.on("tank/T1/ration")
+    assert ration["basis"] == "survey" and ration["grams"] != pytest.approx(before.grams)
+    assert ration["grams"] == pytest.approx(rations.today("T1", T + 20).grams, abs=0.05)
+    [survey] = published.on("tank/T1/survey")
+    assert survey["count"] == 4 and survey["weight_g"] == {"mean": 42.5} and survey["t"].startswith("2026-")
+    cv = 100 * (sum((w - 42.5) ** 2 for w in (20, 30, 40, 80)) / 3) ** 0.5 / 42.5     # 61 %: above 30 %
+    [alarm] = [a for a in alarms.active.of("grading/T1")]
+    assert f"weight CV {cv:.1f} %" in alarm.text and "grade the stock" in alarm.text
+    # a later, even survey clears it; its OUT.json is gone: the ledger's summary is published
+    store.add_survey("T1", T + 100, "sparus_aurata", str(tmp_path / "gone.json"), [12.0, 12.0], [30.0, 31.0])
+    assert watch.check(T + 200) == ["T1"] and list(alarms.active.of("grading/T1")) == []
+    latest = published.on("tank/T1/survey")[-1]
+    assert latest["count"] == 2 and latest["weight_g"]["mean"] == pytest.approx(30.5) and "fish" not in latest
+
+
+def test_an_operator_s_ration_stands_and_a_survey_not_yet_taken_is_not_seen_early(farm):
+    cfg, store, rations, alarms, published, watch = farm
+    rations.set("T2", T, 777.0, "operator")
+    store.add_survey("T2", T + 50, "sparus_aurata", "x", [10.0], [25.0])
+    assert watch.check(T + 10) == []                      # stamped later than now
+    assert watch.check(T + 60) == ["T2"]
+    assert published.on("tank/T2/ration")[-1]["grams"] == 777.0
+    assert published.on("tank/T2/ration")[-1]["basis"] == "operator"
+
+
+def test_the_figures_between_the_last_two_surveys_are_published_and_shown_in_status(farm):
+    import math
+    from types import SimpleNamespace
+
+    from controller.status import _weights
+    cfg, store, rations, alarms, published, watch = farm
+    day = 86_400.0
+    store.add_survey("T1", T, "sparus_aurata", "a", [10.0] * 3, [20.0] * 3)
+    f = store.add_intent(tank="T1", date="d", t=T + day, target_g=900, run_s=60, cycles_before=0, source="demand")
+    store.close_feed(f.id, "done", 900.0, T + day + 60)
+    store.add_survey("T1", T + 10 * day, "sparus_aurata", "b", [11.0] * 3, [25.0] * 3)
+    assert watch.check(T + 10 * day + 5) == ["T1"]
+    [fig] = published.on("tank/T1/figures")
+    stock = cfg.tank("T1").stock
+    assert fig["sgr_pct_day"] == pytest.approx(100 * math.log(25 / 20) / 10)
+    assert fig["feed_g"] == 900 and fig["fcr"] == pytest.approx(900 / (stock * 25 - stock * 20))
+    assert fig["mean_weight_g"] == 25 and fig["weight_cv_pct"] == 0 and fig["grading"] is False
+    c = SimpleNamespace(rations=rations, surveys=watch)
+    shown = _weights(c, "T1", T + 10 * day + 5)
+    assert shown["mean_weight_g"] == 25 and shown["ration_basis"] == "survey"
+    assert shown["sgr_pct_day"] == fig["sgr_pct_day"] and shown["fcr"] == fig["fcr"]
+    never = _weights(c, "T4", T)
+    assert never["ration_basis"] == "config" and never["mean_weight_g"] == cfg.tank("T4").mean_weight_g
+    assert never["last_survey_t"] is None and never["fcr"] is None

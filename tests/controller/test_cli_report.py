@@ -1,0 +1,109 @@
+"""``fishfarm report``: a tank's figures between surveys, worked out here from their definitions
+(SGR = 100·ln(W2/W1)/days; gain = N2·W2 − N1·W1 + fish out weighed when they left; FCR = feed /
+gain; K = 100·W/L³; days to target = 100·ln(target/W)/SGR) on a ledger written through the store."""
+from __future__ import annotations
+
+import json
+import math
+
+import pytest
+import tomli_w
+
+from controller.cli import main
+from controller.store import Store
+
+DAY = 86_400.0
+T1 = 1_780_000_000.0
+
+
+@pytest.fixture
+def farm(tmp_path):
+    import tomllib
+    raw = tomllib.loads(open("config/farm.toml").read())
+    raw["store"] = {"path": str(tmp_path / "ledger.db")}
+    (tmp_path / "farm.toml").write_text(tomli_w.dumps(raw))
+    stock = next(t["stock"] for t in raw["tanks"] if t["id"] == "T1")
+    store = Store(tmp_path / "ledger.db")
+    store.add_survey("T1", T1, "sparus_aurata", "a", [12.0] * 50, [20.0] * 50)
+    store.add_survey("T1", T1 + 10 * DAY, "sparus_aurata", "b", [13.5] * 40, [30.0] * 40)
+    store.add_survey("T2", T1, "sparus_aurata", "other tank", [5.0], [999.0])
+    store.add_stock_event(t=T1 + 5 * DAY, tank="T1", kind="mortality", count=100, to_tank=None, who="op", reason="")
+    for i, (t, phase) in enumerate([(T1 - 3600, "done"), (T1 + DAY, "done"), (T1 + 2 * DAY, "done"),
+                                    (T1 + 9 * DAY, "done"), (T1 + 4 * DAY, "aborted"), (T1 + 11 * DAY, "done")]):
+        f = store.add_intent(tank="T1", date=f"d{i}", t=t, target_g=1000, run_s=80, cycles_before=i, source="demand")
+        store.close_feed(f.id, phase, 1000.0 if phase == "done" else None, t + 90)
+    store.close()
+    return tmp_path, stock
+
+
+def run(capsys, *args):
+    code = main(list(args))
+    out = capsys.readouterr()
+    return code, out.out, out.err
+
+
+def test_the_figures_between_two_surveys_follow_their_definitions(farm, capsys):
+    path, stock = farm
+    code, out, _ = run(capsys, "report", "--tank", "T1", "--config", str(path / "farm.toml"), "--json",
+                       "--target", "400")
+    assert code == 0
+    r = json.loads(out)
+    [i] = r["intervals"]
+    sgr = 100 * math.log(30 / 20) / 10
+    w_mid = 20 * (30 / 20) ** 0.5                                  # the dead fish's weight at day 5
+    gain = (stock - 100) * 30 - stock * 20 + 100 * w_mid
+    assert i["sgr_pct"] == pytest.approx(sgr) and i["days"] == pytest.approx(10)
+    assert i["feed_g"] == 3000                                     # the three done feeds between
+    assert i["gain_g"] == pytest.approx(gain) and i["fcr"] == pytest.approx(3000 / gain)
+    s1, s2 = r["surveys"]
+    assert (s1["stock"], s2["stock"]) == (stock, stock - 100)
+    assert s1["k"] == pytest.approx(100 * 20 / 12**3) and s2["k"] == pytest.approx(100 * 30 / 13.5**3)
+    assert r["grading"] is False and s2["cv_pct"] == 0
+    days = 100 * math.log(400 / 30) / sgr
+    assert r["projection"]["days"] == pytest.approx(days)
+    assert [d[2] for d in r["feed_per_day"]] == [1000.0] * 5
+
+
+def test_the_text_report_and_its_page(farm, capsys):
+    path, _ = farm
+    png = path / "report.png"
+    code, out, _ = run(capsys, "report", "--tank", "T1", "--config", str(path / "farm.toml"), "--png", str(png))
+    assert code == 0 and png.stat().st_size > 10_000
+    assert "SGR 4.05 %/day" in out and "FCR" in out and "uniformity: CV 0.0 % (within 30 %)" in out
+    assert f"written: {png}" in out
+
+
+def test_a_spread_stock_is_flagged_for_grading(farm, capsys):
+    path, _ = farm
+    store = Store(path / "ledger.db")
+    store.add_survey("T1", T1 + 20 * DAY, "sparus_aurata", "c", [14.0] * 4, [20.0, 30.0, 40.0, 70.0])
+    store.close()
+    code, out, _ = run(capsys, "report", "--tank", "T1", "--config", str(path / "farm.toml"))
+    assert code == 0 and "GRADE: above 30 %" in out
+
+
+@pytest.mark.parametrize(("args", "fault"), [
+    (["--tank", "T99"], "--tank: no tank 'T99'"),
+    (["--tank", "T1", "--since", "yesterdayish"], "--since"),
+    (["--tank", "T1", "--target", "-5"], "--target: must be a weight above 0 g"),
+])
+def test_bad_input_is_one_line_and_exit_2(farm, capsys, args, fault):
+    path, _ = farm
+    code, out, err = run(capsys, "report", "--config", str(path / "farm.toml"), *args)
+    assert code == 2 and fault in err and err.count("\n") == 1 and out == ""
+
+
+def test_a_tank_never_surveyed_says_so(farm, capsys):
+    path, _ = farm
+    code, out, _ = run(capsys, "report", "--tank", "T3", "--config", str(path / "farm.toml"), "--png",
+                       str(path / "empty.png"))
+    assert code == 0 and "no survey in the ledger for this tank" in out and (path / "empty.png").exists()
+
+
+def test_no_ledger_is_an_error_naming_it(tmp_path, capsys):
+    import tomllib
+    raw = tomllib.loads(open("config/farm.toml").read())
+    raw["store"] = {"path": str(tmp_path / "none.db")}
+    (tmp_path / "farm.toml").write_text(tomli_w.dumps(raw))
+    code, _, err = run(capsys, "report", "--tank", "T1", "--config", str(tmp_path / "farm.toml"))
+    assert code == 2 and "none.db: no ledger there" in err

@@ -1,0 +1,91 @@
+"""A tank's history from the ledger: what the queryable serves and ``fishfarm history`` exports."""
+from __future__ import annotations
+
+import csv
+import io
+
+import pytest
+import tomli_w
+
+from controller.cli import main
+from controller.config import load_config
+from controller.history import history, parse_time, query_reply
+from controller.store import Store
+
+T = 1_780_000_000.0                      # 2026-05-28T20:26:40Z
+DAY = 86_400.0
+
+
+@pytest.fixture
+def ledger(tmp_path):
+    store = Store(tmp_path / "ledger.db")
+    store.add_survey("T1", T, "sparus_aurata", "a.json", [10.0, 12.0], [20.0, 30.0])
+    store.add_survey("T1", T + 7 * DAY, "sparus_aurata", "b.json", [13.0], [40.0])
+    store.add_survey("T2", T + DAY, "sparus_aurata", "c.json", [9.0], [10.0])
+    store.add_stock_event(t=T + DAY, tank="T1", kind="mortality", count=3, to_tank=None, who="ana")
+    store.add_stock_event(t=T + 2 * DAY, tank="T2", kind="transfer", count=50, to_tank="T1", who="ana")
+    store.set_ration("T1", "2026-05-29", 500.0, 2.0, "survey", T + DAY)
+    f = store.add_intent(tank="T1", date="2026-05-29", t=T + DAY, target_g=40, run_s=3, cycles_before=0,
+                         source="demand")
+    store.close_feed(f.id, "done", 41.5, T + DAY + 5)
+    yield store
+    store.close()
+
+
+def test_each_kind_of_row_for_the_tank_oldest_first_within_the_range(ledger):
+    cols, rows, more = history(ledger, "surveys", "T1")
+    assert cols[:4] == ("time", "survey", "species", "count") and not more
+    assert [r[0] for r in rows] == ["2026-05-28T20:26:40Z", "2026-06-04T20:26:40Z"] and [r[3] for r in rows] == [2, 1]
+    _, fish, _ = history(ledger, "fish", "T1", since=T + DAY)
+    assert [(r[2], r[3]) for r in fish] == [(13.0, 40.0)]
+    _, fish, _ = history(ledger, "fish", "T1", until=T)
+    assert [(r[2], r[3]) for r in fish] == [(10.0, 20.0), (12.0, 30.0)]
+    _, stock, _ = history(ledger, "stock", "T1")               # out of T1, and into it from T2
+    assert [(r[1], r[2], r[3], r[4]) for r in stock] == [("mortality", 3, "T1", None), ("transfer", 50, "T2", "T1")]
+    _, rations, _ = history(ledger, "rations", "T1")
+    assert [r[1:] for r in rations] == [["2026-05-29", 500.0, 2.0, "survey"]]
+    _, feeds, _ = history(ledger, "feeds", "T1")
+    assert [(r[3], r[4], r[5]) for r in feeds] == [(40, 41.5, "done")]
+    assert history(ledger, "feeds", "T3")[1] == []
+
+
+@pytest.mark.parametrize(("text", "durations", "want"), [
+    ("1780000000", False, T), ("2026-05-28T20:26:40", False, T), ("2026-05-28T22:26:40+02:00", False, T),
+    ("2026-05-28T20:26:40Z", False, T), ("7d", True, T + 7 * DAY - 7 * DAY), ("36h", True, T - 1.5 * DAY)])
+def test_times_are_iso_unix_seconds_or_a_span_back(text, durations, want):
+    now = T + 7 * DAY if text == "7d" else T
+    assert parse_time(text, "since", now, durations=durations) == pytest.approx(want)
+
+
+def test_the_queryable_s_answers_and_refusals(ledger):
+    cfg = load_config("config/farm.toml")
+    reply = query_reply(ledger, cfg, "history/surveys/T1", {"since": "2026-06-01"}, T)
+    assert reply["ok"] and len(reply["rows"]) == 1 and reply["columns"][0] == "time"
+    for key, params, fault in [("history/surveys/T9", {}, "no tank 'T9'"),
+                               ("history/weather/T1", {}, "'weather' is not one of surveys, fish"),
+                               ("history/surveys/T1", {"from": "x"}, "unknown parameter 'from'"),
+                               ("history/surveys/T1", {"since": "last tuesday"}, "since: 'last tuesday'"),
+                               ("history/surveys/T1", {"until": "7d"}, "until: '7d' is not an ISO time")]:
+        reply = query_reply(ledger, cfg, key, params, T)
+        assert reply["ok"] is False and fault in reply["error"], (key, reply)
+
+
+def test_fishfarm_history_writes_csv_with_units_in_the_headers(ledger, tmp_path, capsys):
+    import tomllib
+    raw = tomllib.loads(open("config/farm.toml").read())
+    raw["store"] = {"path": str(tmp_path / "ledger.db")}
+    (tmp_path / "farm.toml").write_text(tomli_w.dumps(raw))
+    out = tmp_path / "fish.csv"
+    cfg = str(tmp_path / "farm.toml")
+    code = main(["history", "--tank", "T1", "--what", "fish", "--csv", str(out), "--config", cfg])
+    assert code == 0 and "3 rows" in capsys.readouterr().err
+    rows = list(csv.DictReader(io.StringIO(out.read_text())))
+    assert [float(r["weight_g"]) for r in rows] == [20.0, 30.0, 40.0] and "length_cm" in rows[0]
+    code = main(["history", "--tank", "T1", "--what", "surveys", "--since", "2026-06-01", "--config",
+                 str(tmp_path / "farm.toml")])
+    printed = capsys.readouterr().out.splitlines()
+    assert code == 0 and len(printed) == 2 and printed[0].startswith("time,survey,species")
+    code = main(["history", "--tank", "T1", "--what", "fish", "--since", "soon", "--config",
+                 str(tmp_path / "farm.toml")])
+    err = capsys.readouterr().err
+    assert code == 2 and "--since: 'soon'" in err and err.count("\n") == 1

@@ -1,0 +1,211 @@
+"""The tower camera's ``capture`` driver (cv2.VideoCapture over FFmpeg) reading the MJPEG twin."""
+from __future__ import annotations
+
+import asyncio
+import os
+import time
+import urllib.request
+
+import cv2
+import numpy as np
+import pytest
+
+from devices.camera import Frame
+from devices.camera.capture import CaptureCamera, Config
+from devices.clock import ManualClock
+from devices.errors import BadInput, LinkDown
+from devices.sim.tower_camera import SimTowerCamera
+
+from .waits import until
+
+W, H = 320, 192           # the smallest frames that exercise the pipe
+BITS, CELL = 12, 16
+
+
+def stamp(image, n):
+    for i in range(BITS):
+        image[:CELL, i * CELL:(i + 1) * CELL] = 255 if n >> i & 1 else 0
+
+
+def unstamp(image) -> int:
+    cells = image[2:CELL - 2, :BITS * CELL].reshape(CELL - 4, BITS, CELL, -1)[:, :, 2:CELL - 2]
+    return sum(1 << i for i, v in enumerate(cells.mean(axis=(0, 2, 3))) if v > 127)
+
+
+class Scene:
+    """Renders frame n with n stamped in its corner and the farm time it was asked for noted."""
+
+    def __init__(self):
+        self.asked: list[float] = []
+        y, x = np.mgrid[:H, :W]           # smooth: JPEG keeps it within a few levels
+        wave = 90 + 30 * np.sin(x / 23.0) * np.cos(y / 17.0)
+        self.water = np.dstack([wave + 20, wave, wave - 30]).astype(np.uint8)
+
+    def __call__(self, t_s):
+        self.asked.append(t_s)
+        img = self.water.copy()
+        stamp(img, len(self.asked))
+        return img
+
+
+def camera(url, clock, **kw) -> CaptureCamera:
+    cfg = Config(kind="tower_camera", driver="capture", source=url, api="ffmpeg",
+                 read_timeout_s=kw.pop("read_timeout_s", 2.0), reconnect_s=(0.05, 0.1), open_timeout_s=2.0, **kw)
+    return CaptureCamera("tower", cfg, clock)
+
+
+def serve(scene, clock, fps=50.0, port=0) -> SimTowerCamera:
+    cam = SimTowerCamera(scene, clock, {"fps": fps, "width": W, "height": H}, port=port)
+    cam.start()
+    return cam
+
+
+def test_frames_come_through_videocapture_in_order_stamped_at_arrival():
+    async def main():
+        clock, scene = ManualClock(t=5000.0), Scene()
+        cam = serve(scene, clock)
+        dev = camera(cam.url, clock)
+        await dev.open()
+        frames: list[Frame] = []
+        for i in range(12):
+            clock.t = 5000.0 + i                      # farm time moves between reads
+            frames.append(await dev.read())
+        await dev.close()
+        await dev.close()                              # safe twice
+        cam.stop()
+        return scene, frames
+    scene, frames = asyncio.run(main())
+    for f in frames:
+        assert f.image.shape == (H, W, 3) and f.image.dtype == np.uint8
+        n = unstamp(f.image)
+        assert 1 <= n <= len(scene.asked)
+        # the picture is the rendered one (JPEG aside), stamp and all
+        ref = scene.water.copy()
+        stamp(ref, n)
+        assert np.abs(f.image.astype(int) - ref).mean() < 4
+    seqs = [f.seq for f in frames]
+    assert seqs == sorted(seqs) and len(set(seqs)) == len(seqs)
+    numbers = [unstamp(f.image) for f in frames]
+    assert numbers == sorted(numbers) and len(set(numbers)) == len(numbers)
+    # stamped with the farm time at arrival: never before the read that could see it was set up
+    assert all(5000.0 <= f.t <= 5011.0 for f in frames)
+
+
+def test_read_gives_the_newest_frame_never_a_queue():
+    async def main():
+        clock, scene = ManualClock(), Scene()
+        cam = serve(scene, clock, fps=40.0)
+        dev = camera(cam.url, clock)
+        await dev.open()
+        first = await dev.read()
+        await until(lambda: dev.received >= first.seq + 6)      # six more arrived unread
+        newest = await dev.read()
+        skipped = dev.skipped
+        await dev.close()
+        cam.stop()
+        return first, newest, skipped
+    first, newest, skipped = asyncio.run(main())
+    assert newest.seq >= first.seq + 6
+    assert unstamp(newest.image) >= unstamp(first.image) + 6
+    assert skipped >= 5
+
+
+def test_the_server_dying_is_link_down_and_its_return_is_recovery():
+    async def main():
+        clock, scene = ManualClock(), Scene()
+        cam = serve(scene, clock)
+        port = cam.port
+        dev = camera(cam.url, clock, read_timeout_s=1.0)
+        await dev.open()
+        await dev.read()
+        cam.stop()
+        deadline = time.monotonic() + 5.0
+        with pytest.raises(LinkDown):
+            while time.monotonic() < deadline:
+                await dev.read()                          # the frames still in flight, then LinkDown
+        with pytest.raises(LinkDown):                     # and it stays down while nothing serves
+            await dev.read()
+        back = serve(scene, clock, port=port)
+        deadline = time.monotonic() + 10.0
+        frame = None
+        while frame is None:
+            try:
+                frame = await dev.read()
+            except LinkDown:
+                assert time.monotonic() < deadline, "no recovery"
+                await asyncio.sleep(0.02)
+        rendered_before = len(scene.asked)
+        await until(lambda: dev.received > frame.seq)
+        after = await dev.read()
+        await dev.close()
+        back.stop()
+        return frame, after, rendered_before, dev.reconnects
+    frame, after, rendered_before, reconnects = asyncio.run(main())
+    assert after.seq > frame.seq and unstamp(after.image) >= unstamp(frame.image)
+    assert reconnects >= 1
+
+
+def test_ffmpeg_options_hold_for_their_own_open_only(monkeypatch):
+    monkeypatch.delenv("OPENCV_FFMPEG_CAPTURE_OPTIONS", raising=False)
+
+    async def main():
+        clock, scene = ManualClock(), Scene()
+        cam = serve(scene, clock)
+        dev = camera(cam.url, clock, ffmpeg_options="recv_buffer_size;131072")
+        await dev.open()
+        frame = await dev.read()
+        await dev.close()
+        cam.stop()
+        return frame
+    assert asyncio.run(main()).image.shape == (H, W, 3)
+    assert "OPENCV_FFMPEG_CAPTURE_OPTIONS" not in os.environ
+
+
+def test_a_source_that_is_not_there_is_link_down_on_open():
+    async def main():
+        dev = camera("http://127.0.0.1:9/stream.mjpg", ManualClock())
+        with pytest.raises(LinkDown):
+            await dev.open()
+        await dev.close()
+        await dev.close()
+    asyncio.run(main())
+
+
+def test_snapshot_and_nothing_rendered_without_a_client():
+    clock, scene = ManualClock(t=42.0), Scene()
+    cam = serve(scene, clock, fps=100.0)
+    try:
+        time.sleep(0.05)                                # no client: the producer idles
+        assert scene.asked == []
+        with urllib.request.urlopen(f"http://127.0.0.1:{cam.port}/frame.jpg", timeout=5) as r:
+            assert r.headers["Content-Type"] == "image/jpeg"
+            img = cv2.imdecode(np.frombuffer(r.read(), np.uint8), cv2.IMREAD_COLOR)
+        assert img.shape == (H, W, 3) and unstamp(img) == 1 and scene.asked == [42.0]
+    finally:
+        cam.stop()
+
+
+def test_a_blue_dot_a_few_pixels_across_keeps_its_colour():
+    # the float's blue disc on the far side of a 640x360 view is ~4 px: 4:2:0 chroma smeared it
+    # into the water (a float unseen there for good); the snapshot keeps colour at full resolution
+    clock = ManualClock(t=1.0)
+    water = np.full((H, W, 3), (66, 96, 81), np.uint8)
+    cv2.circle(water, (160, 96), 2, (223, 164, 61), -1)             # BGR: the renderer's blue disc
+
+    def scene(t_s):
+        return water.copy()
+    cam = serve(scene, clock)
+    try:
+        with urllib.request.urlopen(f"http://127.0.0.1:{cam.port}/frame.jpg", timeout=5) as r:
+            img = cv2.imdecode(np.frombuffer(r.read(), np.uint8), cv2.IMREAD_COLOR)
+        hue, sat, _ = cv2.cvtColor(img[95:98, 159:162], cv2.COLOR_BGR2HSV).reshape(-1, 3).mean(axis=0)
+        assert 92 <= hue <= 132 and sat >= 100                       # inside FloatParams' blue band
+    finally:
+        cam.stop()
+
+
+def test_params_are_checked_by_name():
+    with pytest.raises(BadInput, match="sim.tower_camera.fsp: unknown key"):
+        SimTowerCamera(Scene(), ManualClock(), {"fsp": 10})
+    with pytest.raises(ValueError):
+        Config(kind="tower_camera", driver="capture", source=0, api="directshow")

@@ -1,0 +1,193 @@
+"""FloatTracker on fixes made from a known motion (no images): accuracy at irregular frame times,
+heading across +-pi, coasting through dropouts, "lost" after the configured time and back at once,
+gating that holds out a stray fix yet cannot lock the tracker out."""
+import math
+
+import numpy as np
+import pytest
+
+from vision.float_detect import FloatFix
+from vision.float_track import FloatTracker
+
+
+def motion(t):
+    """A float circling at 0.4 m/s (radius 2 m), crabbing: heading 0.2 rad off its travel."""
+    a = 0.2 * t
+    x, y = 10 + 2 * math.cos(a), 5 + 2 * math.sin(a)
+    return x, y, math.remainder(a + math.pi / 2 + 0.2, 2 * math.pi)
+
+
+def fixes(times, rng, pos_sd=0.01, head_sd=0.01, conf=0.9):
+    for t in times:
+        x, y, h = motion(t)
+        yield t, FloatFix(x + rng.normal(0, pos_sd), y + rng.normal(0, pos_sd),
+                          math.remainder(h + rng.normal(0, head_sd), 2 * math.pi), conf)
+
+
+def irregular(duration, rng, lo=0.02, hi=0.15, start=1000.0):
+    return start + np.cumsum(rng.uniform(lo, hi, int(duration / lo)))[: int(duration / ((lo + hi) / 2))]
+
+
+def heading_error(a, b):
+    return abs(math.remainder(a - b, 2 * math.pi))
+
+
+def test_tracks_a_crabbing_turning_float_at_irregular_frame_times():
+    rng = np.random.default_rng(1)
+    tr = FloatTracker()
+    pos, head = [], []
+    for t, fix in fixes(irregular(40, rng), rng):
+        tk = tr.step(t, fix)
+        assert tk.state == "tracking" and tk.t_s == t
+        assert -math.pi < tk.heading_rad <= math.pi
+        x, y, h = motion(t)
+        pos.append(math.hypot(tk.x_m - x, tk.y_m - y))
+        head.append(heading_error(tk.heading_rad, h))
+    assert np.sqrt(np.mean(np.square(pos[20:]))) < 0.015
+    assert math.degrees(np.sqrt(np.mean(np.square(head[20:])))) < 1.5
+    assert abs(tk.speed_m_s - 0.4) < 0.05 and tk.std_m < 0.02
+
+
+def test_heading_through_plus_minus_pi_is_one_smooth_motion():
+    """A spin on the spot at 1 rad/s through +-pi many times: no 2 pi jumps in the estimate."""
+    tr = FloatTracker()
+    worst = 0.0
+    for k in range(400):
+        t = k / 20
+        h = math.remainder(3.0 + 1.0 * t, 2 * math.pi)
+        tk = tr.step(t, FloatFix(4.0, 3.0, h, 1.0))
+        if k > 20:
+            worst = max(worst, heading_error(tk.heading_rad, h))
+    assert math.degrees(worst) < 1.0
+
+
+@pytest.mark.parametrize("gap_s", [0.5, 1.5, 3.0])
+def test_dropouts_up_to_3_s_coast_as_predicted_within_0_3_m(gap_s):
+    rng = np.random.default_rng(2)
+    tr = FloatTracker(lost_after_s=4.0)
+    times = np.arange(0, 14, 0.04)
+    gap = (8.0, 8.0 + gap_s)
+    for t, fix in fixes(times, rng):
+        hidden = gap[0] <= t < gap[1]
+        tk = tr.step(t, None if hidden else fix)
+        if hidden:
+            x, y, _ = motion(t)
+            assert tk.state == "predicted" and math.hypot(tk.x_m - x, tk.y_m - y) <= 0.3
+        else:
+            assert tk.state == "tracking"
+
+
+@pytest.mark.parametrize("lost_after", [1.0, 4.0, 7.5])
+def test_lost_after_the_configured_time_and_tracking_on_the_first_fix_back(lost_after):
+    rng = np.random.default_rng(3)
+    tr = FloatTracker(lost_after_s=lost_after)
+    states = []
+    for t, fix in fixes(np.arange(0, 30, 0.1), rng):
+        hidden = 5.0 <= t < 15.0
+        tk = tr.step(t, None if hidden else fix)
+        states.append((t, tk.state))
+        if hidden and t - 4.9 > lost_after + 1e-9:
+            assert tk.state == "lost" and tk.x_m is None and tk.heading_rad is None
+            assert tr.search_region() is None
+        elif hidden:
+            assert tk.state == "predicted"
+        else:
+            assert tk.state == "tracking", (t, tk)     # including the first frame back, at 15.0
+    x, y, _ = motion(15.0)
+    first_back = next(s for t, s in states if t >= 15.0 - 1e-9)
+    assert first_back == "tracking"
+
+
+def test_a_stray_fix_far_away_is_held_out():
+    rng = np.random.default_rng(4)
+    tr = FloatTracker()
+    for t, fix in fixes(np.arange(0, 5, 0.04), rng):
+        tr.step(t, fix)
+    before = tr.search_region()
+    tk = tr.step(5.0, FloatFix(16.0, 8.0, 0.0, 1.0))        # a distractor pair across the pond
+    assert tk.state == "predicted" and math.hypot(tk.x_m - before[0], tk.y_m - before[1]) < 0.1
+    x, y, h = motion(5.04)
+    tk = tr.step(5.04, FloatFix(x, y, h, 1.0))
+    assert tk.state == "tracking" and math.hypot(tk.x_m - x, tk.y_m - y) < 0.02
+
+
+@pytest.mark.parametrize("reinit_after", [1, 3, 5])
+def test_gating_cannot_lock_out_a_float_that_really_moved(reinit_after):
+    """The float is put back elsewhere by hand: after reinit_after agreeing fixes it is tracked there."""
+    rng = np.random.default_rng(5)
+    tr = FloatTracker(reinit_after=reinit_after)
+    for t, fix in fixes(np.arange(0, 5, 0.04), rng):
+        tr.step(t, fix)
+    for k in range(reinit_after + 3):
+        tk = tr.step(5.0 + 0.04 * k, FloatFix(3.0 + 0.01 * k, 8.0, 1.0, 1.0))
+        if k + 1 < reinit_after:
+            assert tk.state == "predicted", k
+        else:
+            assert tk.state == "tracking" and abs(tk.x_m - (3.0 + 0.01 * k)) < 0.02, (k, tk)
+
+
+def test_scattered_strays_do_not_restart_the_track():
+    """Held-out fixes that jump about (glints paired with blue objects) never agree: no restart."""
+    tr = FloatTracker(lost_after_s=10.0)
+    for k in range(50):
+        tr.step(k * 0.04, FloatFix(5.0, 5.0, 0.0, 1.0))
+    spots = [(15.0, 2.0), (2.0, 9.0), (18.0, 8.0), (8.0, 1.0)]
+    for k in range(8):
+        tk = tr.step(2.0 + 0.04 * k, FloatFix(*spots[k % 4], 0.0, 1.0))
+        assert tk.state == "predicted" and abs(tk.x_m - 5.0) < 0.1
+
+
+def test_the_gate_widens_while_coasting_so_a_float_back_elsewhere_is_taken():
+    tr = FloatTracker(lost_after_s=20.0)
+    for k in range(50):
+        tr.step(k * 0.04, FloatFix(5.0, 5.0, 0.0, 1.0))
+    for k in range(60):                                    # 6 s unseen: the position is uncertain
+        tk = tr.step(2.0 + 0.1 * k, None)
+    assert tk.state == "predicted" and tk.std_m > 1.0
+    tk = tr.step(8.1, FloatFix(8.0, 6.0, 1.0, 1.0))        # 3 m on: taken on the first fix
+    assert tk.state == "tracking" and abs(tk.x_m - 8.0) < 0.05
+
+
+def test_low_confidence_fixes_count_as_dropouts_and_weak_ones_pull_less():
+    tr = FloatTracker(min_confidence=0.3)
+    tr.step(0.0, FloatFix(1.0, 1.0, 0.0, 1.0))
+    assert tr.step(0.04, FloatFix(1.0, 1.0, 0.0, 0.1)).state == "predicted"
+    strong, weak = FloatTracker(), FloatTracker()
+    for tr_, conf in ((strong, 1.0), (weak, 0.35)):
+        for k in range(25):
+            tr_.step(k * 0.04, FloatFix(1.0, 1.0, 0.0, 1.0))
+        tr_.step(1.0, FloatFix(1.03, 1.0, 0.0, conf))
+    assert strong.search_region()[0] - 1.0 > weak.search_region()[0] - 1.0 > 0
+
+
+def test_search_region_holds_the_float_and_grows_while_unseen():
+    rng = np.random.default_rng(6)
+    tr = FloatTracker()
+    assert tr.search_region() is None and tr.step(0.0, None).state == "lost"
+    for t, fix in fixes(np.arange(0, 4, 0.04), rng):
+        tr.step(t, fix)
+    x, y, r = tr.search_region()
+    assert math.hypot(x - motion(3.96)[0], y - motion(3.96)[1]) < 0.05 and r >= 0.5
+    for k in range(20):
+        tr.step(4.0 + 0.04 * k, None)
+    assert tr.search_region()[2] > r
+
+
+def test_frames_at_the_same_time_and_bad_settings():
+    tr = FloatTracker()
+    tr.step(1.0, FloatFix(1.0, 1.0, 0.0, 1.0))
+    assert tr.step(1.0, FloatFix(1.0, 1.0, 0.0, 1.0)).state == "tracking"    # a repeated frame
+    with pytest.raises(ValueError, match="lost_after_s"):
+        FloatTracker(lost_after_s=0)
+    with pytest.raises(ValueError, match="reinit_after"):
+        FloatTracker(reinit_after=0)
+
+
+def test_search_region_looks_ahead_to_the_frame_time():
+    tr = FloatTracker()
+    for k in range(40):                                   # 1 m/s along +x, frames 0.2 s apart
+        tr.step(k * 0.2, FloatFix(0.2 * k, 3.0, 0.0, 1.0))
+    x_next, _, r_next = tr.search_region()
+    x_later, y, r_later = tr.search_region(7.8 + 0.6)
+    assert abs(x_next - 8.0) < 0.03 and abs(x_later - 8.4) < 0.05 and abs(y - 3.0) < 0.02
+    assert r_later > r_next
