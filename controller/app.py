@@ -30,6 +30,7 @@ from controller.simproc import SimProcess
 from controller.status import farm_status
 from controller.store import Store, reconcile
 from controller.surveys.watch import SurveyWatch
+from controller.water import WaterTemperatures, check_thermometer
 from devices.errors import DeviceError
 from devices.sections import backends as device_backends
 from devices.sim.world import SimSection
@@ -64,6 +65,7 @@ def check_farm(cfg: Config, species: dict) -> None:
         if len(found) != 1:
             raise BadInput(cfg.path, "devices", f"the feeding robot needs exactly one {kind} device, "
                                                 f"found {len(found)}")
+    check_thermometer(cfg)
     for kind in CLEANER_KINDS:
         found = [name for name, s in cfg.devices.items() if s["kind"] == kind]
         if cfg.cleaning is None and found:
@@ -135,6 +137,12 @@ class Controller:
         thrusters = [Latch(d.name, d) for d in cleaner_devices if d.kind == "thrusters"]
         self.lane = EstopLane(self.rail, self.dispenser, *thrusters)    # live before any device is open
         self.lane.listen(self._lane_report_before_start)
+        thermometer = next((d for d in self.devices.values() if d.kind == "thermometer"), None)
+        self.water = WaterTemperatures(cfg, thermometer, self.clock, self.alarms, reopen=self._fresh,
+                                       on_fresh=self._water_measured)
+        self.rations.water = self.water
+        if thermometer is not None:           # opened in its own task: a silent one holds nothing up
+            self.tasks.append(asyncio.create_task(self._supervise(self._water_loop)))
         if self.cleaning is not None:
             from controller.cleaning.setup import build
             self.cleaner = build(self.cleaning, self._one("tower_camera"), self._one("thrusters"), self.store,
@@ -148,7 +156,7 @@ class Controller:
             self.tasks.append(asyncio.create_task(self._supervise(self._scada)))
         # the cleaner's devices open in its own task: a camera that is not up does not hold the feeder
         await asyncio.gather(*(self._open(device) for device in self.devices.values()
-                               if device not in cleaner_devices))
+                               if device not in cleaner_devices and device is not thermometer))
         if self.stopping.is_set():                # stopped while waiting for a device: start nothing
             return
         self.robot = FeedingRobot(cfg, self.clock, self.rail, self.dispenser, self.store, self.rations,
@@ -372,6 +380,18 @@ class Controller:
                 self.alarms.raise_("sim", f"simulated devices exited (code {code})", "critical", kind="exited")
                 return
             await self._pause(SIM_WATCH_S)
+
+    async def _water_loop(self) -> None:
+        await self._open(self.water.device)
+        await self.water.run(self.stopping)
+
+    def _water_measured(self, tanks: list[str]) -> None:
+        """Today's rations of tanks read at the configured temperature are planned again at the
+        measured one (an operator's ration stands)."""
+        now = self.clock.now()
+        for tank in tanks:
+            self.rations.replan(tank, now)
+            self.publish_ration(tank)
 
     async def _cleaner_loop(self) -> None:
         await asyncio.gather(*(self._open(self._one(kind)) for kind in CLEANER_KINDS))

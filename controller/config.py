@@ -88,7 +88,11 @@ class FeedingConfig(Strict):
                                  "for what travel estimates miss (docking, talking to the devices)")
     rail_speed_m_s: float = Field(1.0, gt=0, le=100, description="cruise speed, for planning the next stop")
     rail_accel_m_s2: float = Field(0.5, gt=0, le=100, description="acceleration, for planning the next stop")
-    water_temp_c: float = Field(20.0, ge=-5, le=40, description="water temperature the feeding tables are read at")
+    water_temp_c: float = Field(20.0, ge=-5, le=40, description="water temperature the feeding tables are read at "
+                                "(without a thermometer, or while its reading is stale or faulty)")
+    water_poll_s: float = Field(300.0, gt=0, le=86400, description="farm seconds between thermometer reads")
+    water_max_age_s: float = Field(3600.0, gt=0, le=7 * 86400,
+                                   description="a probe's last good reading older than this is not used")
     tables: list[str] = Field([], description="feeding charts (TOML, controller/feeding/feeding_table.py), "
                               "relative to farm.toml; a species without one is fed by its species.toml rows")
     survey_max_age_d: float = Field(14.0, gt=0, le=365, description="older surveys: the weight is projected")

@@ -31,6 +31,9 @@ def farm_status(c) -> dict:
            "uptime_s": round(time.monotonic() - c.started_monotonic, 3),
            "tanks": tanks,
            "alarms": c.alarms.listing()}
+    water = getattr(c, "water", None)
+    if water is not None and water.device is not None:
+        out["water"] = water.snapshot()
     cleaner = getattr(c, "cleaner", None)
     if cleaner is not None:
         out["cleaner"] = cleaner.snapshot()
@@ -49,6 +52,10 @@ def _weights(c, tank_id: str, now: float) -> dict:
     basis = c.rations.basis(tank_id, now)
     watch = getattr(c, "surveys", None)
     f = watch.figures.get(tank_id, {}) if watch is not None else {}
+    water = getattr(c, "water", None)
+    temp = water.temperature(tank_id, now) if water is not None else None
     return {"mean_weight_g": round(basis.mean_weight_g, 2), "ration_basis": basis.source,
+            "water_temp_c": None if temp is None else round(temp.celsius, 2),
+            "water_temp_source": None if temp is None else temp.source,
             "last_survey_t": f.get("last_survey_t"), "weight_cv_pct": f.get("weight_cv_pct"),
             "sgr_pct_day": f.get("sgr_pct_day"), "fcr": f.get("fcr")}

@@ -13,7 +13,7 @@ from pydantic import BaseModel, ValidationError
 
 from devices.errors import BadInput
 
-DEVICE_KINDS = ("contacts", "rail", "dispenser", "thrusters", "tower_camera")
+DEVICE_KINDS = ("contacts", "rail", "dispenser", "thrusters", "tower_camera", "thermometer")
 PACKAGES = {"tower_camera": "devices.camera"}
 """The package of a kind whose name is not its package's (default: ``devices.<kind>``)."""
 

@@ -106,6 +106,7 @@ class Rations:
             if tank.species not in species:
                 raise ValueError(f"tank {tank.id}: unknown species {tank.species!r}")
         self.tables = load_tables(cfg)
+        self.water = None                     # controller.water.WaterTemperatures, once devices are up
         self._plans: dict[tuple[str, str], Plan] = {}     # (tank, farm day) -> what today's plan rests on
         for key in {tank.species for tank in cfg.tanks} - self.tables.keys():
             self.tables[key] = table_from_species(key, species[key])
@@ -143,6 +144,9 @@ class Rations:
         return self._plans[key]
 
     def water_temp_c(self, tank_id: str) -> float:
+        """The thermometer's fresh reading for the tank, else the configured temperature."""
+        if self.water is not None:
+            return self.water.temperature(tank_id).celsius
         tank = self.cfg.tank(tank_id)
         return tank.water_temp_c if tank.water_temp_c is not None else self.cfg.feeding.water_temp_c
 

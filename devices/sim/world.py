@@ -43,6 +43,7 @@ class SimSection(BaseModel):
     thrusters: dict[str, Any] = {}
     tower_camera: dict[str, Any] = {}
     pond: dict[str, Any] = {}
+    thermometer: dict[str, Any] = {}
     soak_days: float = Field(0.0, ge=0, description="reserved")
 
 
@@ -57,7 +58,7 @@ class SimFarm:
         self.rng = random.Random(self.section.seed)
         simulated = [(n, s) for n, s in cfg.devices.items() if s["driver"] == "sim"]
         self.devices = {kind: [(n, s) for n, s in simulated if s["kind"] == kind]
-                        for kind in ("contacts", "rail", "dispenser", "thrusters", "tower_camera")}
+                        for kind in ("contacts", "rail", "dispenser", "thrusters", "tower_camera", "thermometer")}
         self.motor: SimRailMotor | None = None
         self.adapter: SlcanAdapter | None = None
         self.dispenser: SimDispenser | None = None
@@ -66,6 +67,7 @@ class SimFarm:
         self.thrusters = None                 # SimThrusters, the pond cleaner's
         self.pond = None                      # SimPond: the cleaner on the floor
         self.camera = None                    # SimTowerCamera
+        self.thermometer = None               # SimThermometer over the water model
         self.tank_positions = sorted((t.position_m, t.id) for t in cfg.tanks)
         box = cfg.feeding.food_box_m
         self.edges = sorted({p + d for p, _ in self.tank_positions for d in (-TANK_MOUTH_M, TANK_MOUTH_M)}
@@ -148,6 +150,22 @@ class SimFarm:
         for name, _section in self.devices["contacts"]:
             endpoints[name] = await self._start_hub()
         endpoints.update(await self._start_pond())
+        endpoints.update(await self._start_thermometer())
+        return endpoints
+
+    async def _start_thermometer(self) -> dict[str, dict]:
+        from devices.sim.thermometer import SimThermometer
+        endpoints: dict[str, dict] = {}
+        for name, section in self.devices["thermometer"][:1]:
+            host, unit, probes = section.get("host", "127.0.0.1"), section.get("unit", 1), section["probes"]
+            self.thermometer = SimThermometer(self.section.thermometer, self.clock, probes, host=host,
+                                              port=section.get("port", 0), unit=unit, where=self.cfg.path)
+            try:
+                await self.thermometer.start()
+            except OSError as exc:
+                raise BadInput(self.cfg.path, f"devices.{name}.port", str(exc)) from None
+            endpoints[name] = {"kind": "thermometer", "driver": "modbus", "host": host,
+                               "port": self.thermometer.port, "unit": unit, "probes": probes}
         return endpoints
 
     async def _start_pond(self) -> dict[str, dict]:
@@ -197,6 +215,8 @@ class SimFarm:
         return {"kind": "contacts", "driver": "serial", "port": hub.port}
 
     async def stop(self) -> None:
+        if self.thermometer is not None:
+            await self.thermometer.stop()
         if self.camera is not None:
             await asyncio.to_thread(self.camera.stop)
         if self.pond is not None:

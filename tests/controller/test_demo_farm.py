@@ -91,5 +91,5 @@ def test_the_feeders_hil_runs_leave_the_cleaner_out():
     raw = without_cleaner(tomllib.loads((ROOT / "config" / "farm.toml").read_text()))
     cfg = Config.model_validate({**raw, "path": "<hil>"})
     assert cfg.cleaning is None
-    assert {s["kind"] for s in cfg.devices.values()} == {"contacts", "rail", "dispenser"}
+    assert {s["kind"] for s in cfg.devices.values()} == {"contacts", "rail", "dispenser", "thermometer"}
     assert not {"pond", "thrusters", "tower_camera"} & set(cfg.sim)
