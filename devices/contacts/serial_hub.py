@@ -22,6 +22,7 @@ import asyncio
 import errno
 import os
 import re
+import select
 from functools import reduce
 from operator import xor
 
@@ -111,6 +112,13 @@ class SerialContactHub(ContactSensors):
                 raise LinkDown(self.name, self._error)
             left = self._last_line + timeout - loop.time()
             if left <= 0:
+                # A last look at the port itself before calling it silent: after a stall of this
+                # process (a VM descheduled, a long GC) the timer may fire before the loop has run
+                # the port's reader, with the hub's lines waiting unread in the kernel.
+                if self._fd >= 0 and select.select([self._fd], [], [], 0)[0]:
+                    self._readable()      # ready: an empty read is the port gone, as on the loop
+                if self._batch or self._error is not None or loop.time() < self._last_line + timeout:
+                    continue
                 raise LinkDown(self.name, f"{self.config.port} silent for {timeout:g} s (no heartbeat)")
             self._wake.clear()
             # asyncio.wait, not wait_for: on Python 3.11 wait_for swallows a cancel that lands in
