@@ -46,6 +46,7 @@ STATES = ("unhomed", "homing", "idle", "moving", "fault", "estop")   # state cod
 FLAG_HOMED, FLAG_AT_TARGET, FLAG_AT_LIMIT = 0x08, 0x10, 0x20          # high bits of the state byte
 _DMM = 10_000.0       # 0.1 mm per metre
 _MM = 1_000.0
+LAST_LISTEN_S = 0.1   # wall: how long a last listen for frames lasts before silence is declared
 
 
 class Op(IntEnum):
@@ -389,12 +390,21 @@ class CanRailDrive(RailDrive):
         deadline = self.clock.now() + timeout_s
         since = time.monotonic()               # silence counts from our arrival at the earliest
         limit = self.config.status_timeout_s
+        listened = False
         while True:
             if self._link_error is not None:
                 raise LinkDown(self.name, f"CAN link down: {self._link_error}")
             quiet = time.monotonic() - max(self._last_rx, since)
+            if quiet > limit and not listened:
+                # A last listen before calling it silent: after a stall of this process the timer
+                # can fire before the bus reader's thread has handed the loop the frames it holds.
+                listened = True
+                with contextlib.suppress(TimeoutError):
+                    await asyncio.wait_for(self._changed.wait(), LAST_LISTEN_S)
+                continue
             if quiet > limit:
                 raise DeviceTimeout(self.name, f"no status frame for {quiet:.2f} s (CAN silence)")
+            listened = False
             st = self._latest if self._silent_for() <= limit else None    # never judge a stale report
             if st is not None and predicate(st):
                 return st

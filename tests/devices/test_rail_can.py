@@ -5,6 +5,7 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import functools
+import time
 import uuid
 
 import can
@@ -504,3 +505,20 @@ async def test_estop_lane_sends_and_confirms_while_the_loop_is_blocked(link):
         thread.join(5)
     with pytest.raises(LinkDown):
         drive.trip_estop()
+
+
+@pytest.mark.parametrize("link", LINKS)
+@asynctest
+async def test_a_stall_of_the_process_past_the_silence_limit_is_not_silence(link):
+    """The whole process stalls (the VM descheduled it) longer than the drive's silence limit; the
+    drive itself is fine. The driver listens once more before calling it silent."""
+    async with rig(link, ScaledClock.starting(SPEED)) as (drive, motor, _):
+        await homed(drive)
+        await drive.move_to(2.0)                          # ~4 farm s, 0.2 s of wall
+        # 0.05 s into the wait everything is held (the loop, the motor's beat) for 1.3 s
+        asyncio.get_running_loop().call_later(0.05, time.sleep, 1.3)
+        done = await drive.wait_until(lambda s: s.state == "idle", FOREVER)
+        assert done.position_m == pytest.approx(2.0, abs=1e-3)
+        motor.silence()                                   # a drive truly gone is still found out
+        with pytest.raises(DeviceTimeout, match="CAN silence"):
+            await drive.wait_until(lambda s: s.state == "moving", FOREVER)
