@@ -67,7 +67,8 @@ class SimTank:
         self.truth = truth
         self.rng = rng                                      # fish behaviour
         self._bg_rng = np.random.default_rng(rng.integers(2**63))  # turbulence and faults
-        self.appetite_g_s = tank_cfg.stock * tank_cfg.mean_weight_g * params.ration_pct_day / 100 / 86400
+        self._biomass0_g = tank_cfg.stock * tank_cfg.mean_weight_g
+        self.stock = None                                   # devices/sim/stock.SimStock: the fish grow
         self.hunger_g = params.initial_hunger * params.hunger_threshold_g
         self.rate_hz = 0.0                                  # > 0 while the fish ask
         self._give_up = self._next_fish = math.inf
@@ -83,6 +84,12 @@ class SimTank:
 
     # -- public -------------------------------------------------------------------------------
     @property
+    def appetite_g_s(self) -> float:
+        """Grams a second the fish would eat: their biomass (growing, with a stock) x the ration."""
+        biomass = self.stock.biomass_g if self.stock is not None else self._biomass0_g
+        return max(biomass, 1e-9) * self.p.ration_pct_day / 100 / 86400
+
+    @property
     def asking(self) -> bool:
         return self.rate_hz > 0
 
@@ -96,6 +103,8 @@ class SimTank:
     def feed(self, grams: float, t: float) -> None:
         """Food reaches the water at ``t``: the fish eat it, and stop asking once sated."""
         self._advance(t)
+        if self.stock is not None:
+            self.stock.feed(grams, t)
         self.hunger_g = max(0.0, self.hunger_g - grams)
         if self.truth is not None:
             self.truth.write("fed", t, tank=self.id, grams=round(grams, 3))
@@ -127,6 +136,8 @@ class SimTank:
                 if end >= start:
                     self._start_episode(start)
         self._background(t)
+        if self.stock is not None:
+            self.stock.advance(t)
 
     def _start_episode(self, t: float) -> None:
         lo, hi = np.log(self.p.rate_hz[0]), np.log(self.p.rate_hz[1])

@@ -44,6 +44,7 @@ class SimSection(BaseModel):
     tower_camera: dict[str, Any] = {}
     pond: dict[str, Any] = {}
     thermometer: dict[str, Any] = {}
+    stock: dict[str, Any] = {}
     soak_days: float = Field(0.0, ge=0, description="reserved")
 
 
@@ -120,9 +121,17 @@ class SimFarm:
         from devices.sim.fish import SimFishParams, SimTank
         params = validate_section(SimFishParams, self.section.fish, self.cfg.path, "sim.fish")
         import numpy as np
+
+        from devices.sim.stock import SimStock, SimStockParams
+        stock = validate_section(SimStockParams, self.section.stock, self.cfg.path, "sim.stock")
         seeds = np.random.SeedSequence(self.section.seed).spawn(len(self.cfg.tanks))
-        return {t.id: SimTank(t, params, np.random.default_rng(s), self.truth)
-                for t, s in zip(self.cfg.tanks, seeds, strict=True)}
+        tanks = {}
+        for t, s in zip(self.cfg.tanks, seeds, strict=True):
+            fish_seed, stock_seed = s.spawn(2)
+            tanks[t.id] = tank = SimTank(t, params, np.random.default_rng(fish_seed), self.truth)
+            tank.stock = SimStock(t.id, t.stock, t.mean_weight_g, stock, np.random.default_rng(stock_seed),
+                                  self.clock.now(), self.truth)
+        return tanks
 
     async def start(self) -> dict[str, dict]:
         """Start every simulated device; return the real-driver config section for each."""

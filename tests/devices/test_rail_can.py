@@ -117,7 +117,9 @@ async def test_homing_from_anywhere_zeroes_the_encoder(link):
         assert expected <= done.t - t0 < 2 * expected     # farm time: a wall-time drive takes 20x
         homing = [started, *(s for s in seen if s.state == "homing")]
         assert all(-0.2 - 1e-3 <= s.velocity_m_s <= 0.0 for s in homing)     # towards the switch
-        assert sum(s.velocity_m_s == pytest.approx(-0.2, abs=1e-3) for s in homing) > 5
+        # it reaches the homing speed: at least one frame says so (how many arrive in the 0.25 s of
+        # wall the cruise lasts depends on the machine's load: a CI run under load saw 3)
+        assert any(s.velocity_m_s == pytest.approx(-0.2, abs=1e-3) for s in homing)
         assert (done.homed, done.position_m, done.at_limit, done.at_target) == (True, 0.0, True, True)
         assert motor.position() == 0.0
 
