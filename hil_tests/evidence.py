@@ -12,6 +12,8 @@ from __future__ import annotations
 from collections import defaultdict
 from dataclasses import dataclass, field
 
+from hil_tests.stalls import stalled_s
+
 SERVE_WITHIN_S = 60.0
 QUEUED_BY = 2            # other feeds under way or started while one waited: the robot was busy, not idle
 RESOLUTION_G = 0.1
@@ -38,6 +40,7 @@ class Verdict:
     service_s: list[float] = field(default_factory=list)
     late_demands: int = 0
     queued: list[str] = field(default_factory=list)   # served late behind a queue of other tanks
+    stalled: list[str] = field(default_factory=list)  # late only by the time the machine stood still
     runs_compared: int = 0         # physical runs matched against the ledger, one by one
     suspect: int = 0               # ledger rows whose outcome was unknowable (held, alarmed)
     power_cut_runs: int = 0        # physical runs a dispenser power cut ended uncounted
@@ -53,7 +56,8 @@ class Verdict:
                 f"{AFTERGLOW_S:.0f} s after an episode's end), {self.feeds} feeds, {self.runs} auger runs; "
                 f"raised within 60 s: {self.detected_within(60):.1%}, within 120 s: "
                 f"{self.detected_within(120):.1%}; service p50 {service[len(service) // 2]:.1f} s, "
-                f"max {service[-1]:.1f} s, {len(self.queued)} late behind a queue; "
+                f"max {service[-1]:.1f} s, {len(self.queued)} late behind a queue, {len(self.stalled)} late "
+                f"across a stall of the machine; "
                 f"ledger {self.ledger_g:.1f} g, physical {self.physical_g:.1f} g; "
                 f"{self.runs_compared} runs compared with the ledger one by one ({self.power_cut_runs} cut by "
                 f"power), {self.suspect} suspect rows; {len(self.problems)} problems")
@@ -90,8 +94,11 @@ def _running_at(g: dict, t: float) -> bool:
     return closed is not None and g["t_intent"] < t < closed
 
 
-def service_against_demands(v: Verdict, feeds, demand_t: dict, since: float | None = None) -> None:
-    """Every raise served within 60 s (ledger rows as dicts; ``demand_t`` maps demand id to its raise)."""
+def service_against_demands(v: Verdict, feeds, demand_t: dict, since: float | None = None,
+                            stalls: list[tuple[float, float]] = ()) -> None:
+    """Every raise served within 60 s (ledger rows as dicts; ``demand_t`` maps demand id to its raise).
+    ``stalls``: farm spans in which the machine stood still (hil_tests/stalls.py) — a wait that is
+    within 60 s once they are taken out is counted in ``stalled``, not failed."""
     for f in feeds:
         if f["demand_id"] is not None and f["phase"] != "aborted":
             if since is not None and demand_t[f["demand_id"]] < since:
@@ -100,6 +107,11 @@ def service_against_demands(v: Verdict, feeds, demand_t: dict, since: float | No
             wait = f["t_intent"] - raised
             v.service_s.append(wait)
             if wait <= SERVE_WITHIN_S:
+                continue
+            stood = stalled_s(stalls, raised, f["t_intent"])
+            if wait - stood <= SERVE_WITHIN_S:
+                v.stalled.append(f"feed {f['id']} for {f['tank']}: {wait:.1f} s, {stood:.1f} s of it with "
+                                 f"the machine stalled")
                 continue
             # One robot serves one tank at a time: demands that come together from tanks across the
             # rail can exceed what it can do in 60 s. Late with the robot serving other tanks all the
@@ -113,7 +125,8 @@ def service_against_demands(v: Verdict, feeds, demand_t: dict, since: float | No
                        f"({others} other feeds between)")
 
 
-def judge(db, truth: list[dict], end_t: float, since: float | None = None) -> Verdict:
+def judge(db, truth: list[dict], end_t: float, since: float | None = None,
+          stalls: list[tuple[float, float]] = ()) -> Verdict:
     """``since``: the end of the warm-up (the caller's truth starts there too). A demand raised
     before it, on contacts heard while the controller was still coming up, waits for the rail's
     homing and is not held to the 60 s service; every demand after it is."""
@@ -148,7 +161,7 @@ def judge(db, truth: list[dict], end_t: float, since: float | None = None) -> Ve
                 continue    # too late in the run to judge, or fed (by a neighbour's raise) unasked
             v.detection_s.append(float("inf") if first is None else first - start)
     # every raise served within 60 s, unless the ration was reached
-    service_against_demands(v, feeds, demand_t, since)
+    service_against_demands(v, feeds, demand_t, since, stalls)
     for d in demands:
         if d["outcome"] in ("open", "expired"):
             if d["t"] < end_t - 2 * SERVE_WITHIN_S:

@@ -21,6 +21,8 @@ from pathlib import Path
 
 import tomli_w
 
+from hil_tests.stalls import StallWitness
+
 ROOT = Path(__file__).resolve().parents[1]
 CLEANER_KINDS = ("thrusters", "tower_camera")
 CLEANER_SIM = ("pond", "thrusters", "tower_camera")
@@ -58,6 +60,7 @@ class HilFarm:
                  cleaner: bool = False):
         self.dir = Path(workdir)
         self.speed = speed
+        self.witness = StallWitness().start()  # the machine's own stalls, to tell from the controller's
         self.epoch_wall = time.time() + 1.0
         self.epoch_farm = farm_start
         base = tomllib.loads(base_config.read_text())
@@ -171,8 +174,13 @@ class HilFarm:
             except subprocess.TimeoutExpired:
                 self.sim_proc.kill()
                 self.sim_proc.wait()
+        self.witness.stop()
         if problem is not None:
             raise RuntimeError(f"{problem}:\n{self.log('controller.log')}")
+
+    def stalls(self) -> list[tuple[float, float]]:
+        """Farm spans in which the machine stood still (hil_tests/stalls.py)."""
+        return self.witness.farm_spans(self.epoch_wall, self.epoch_farm, self.speed)
 
     def log(self, name: str, tail: int = 60) -> str:
         path = self.dir / name

@@ -117,3 +117,40 @@ def test_the_warm_up_is_not_judged():
     v = Verdict()
     service_against_demands(v, feeds, demand_t, since=600.0)
     assert v.queued == [] and v.problems == [] and v.service_s == [5.0]
+
+
+def test_lateness_is_excused_only_by_the_time_the_machine_stood_still():
+    demands = {"d1": 100.0, "d2": 1000.0, "d3": 2000.0}
+    feeds = [feed("a", 1, 100.0 + 150.0, demand_id="d1"),      # 150 s, 100 of them stalled: 50 s
+             feed("b", 2, 1000.0 + 150.0, demand_id="d2"),     # 150 s, 80 stalled: still 70 s late
+             feed("c", 3, 2000.0 + 150.0, demand_id="d3")]     # 150 s, the stall after it was served
+    stalls = [(120.0, 220.0), (1050.0, 1130.0), (2200.0, 2400.0)]
+    v = Verdict()
+    service_against_demands(v, feeds, demands, stalls=stalls)
+    assert len(v.stalled) == 1 and "feed a" in v.stalled[0]
+    assert len(v.problems) == 2 and {p.split()[1] for p in v.problems} == {"b", "c"}
+
+
+def test_the_witness_records_a_stop():
+    import sys
+    import time
+
+    from hil_tests.stalls import StallWitness, stalled_s
+    w = StallWitness(threshold_s=0.2).start()
+    time.sleep(0.3)                                  # the witness wakes every 5 ms meanwhile
+    before = list(w.spans)
+    interval = sys.getswitchinterval()
+    sys.setswitchinterval(1.0)                       # this thread keeps the interpreter 0.5 s:
+    try:                                             # the witness cannot run, as in a stall
+        end = time.monotonic() + 0.5
+        while time.monotonic() < end:
+            pass
+    finally:
+        sys.setswitchinterval(interval)
+    time.sleep(0.05)
+    w.stop()
+    held = [s for s in w.spans if s not in before]   # (a real stall may have come before: kept apart)
+    assert len(held) == 1
+    (a, b), = w.farm_spans(epoch_wall=held[0][0], epoch_farm=1000.0, speed=360.0)[-1:]
+    assert a == 1000.0 and 0.4 * 360 < b - a < 2.0 * 360
+    assert stalled_s([(a, b)], a - 10, a + 10) == 10.0
