@@ -82,7 +82,7 @@ def render(status: dict, height: int | None = None):
     from rich.console import Group
     from rich.table import Table
     table = Table()
-    for col in ("tank", "demand", "fed today (g)", "ration (g)", "%", "pellet"):
+    for col in ("tank", "demand", "fed today (g)", "ration (g)", "%", "pellet", "water"):
         table.add_column(col, justify="right" if col != "tank" else "left", no_wrap=True)
     alarms = [_one_row(f"{alarm_label(a)} {a['severity']} {a['source']}: {a['text']}", "bold red")
               for a in status["alarms"][:MAX_ALARM_ROWS]]
@@ -99,9 +99,17 @@ def render(status: dict, height: int | None = None):
     for tank_id, tank in shown:
         pct = 100.0 * tank["fed_g"] / tank["ration_g"] if tank["ration_g"] else 0.0
         table.add_row(tank_id, "[bold yellow]DEMAND[/]" if tank["demand"] else "-", f"{tank['fed_g']:.1f}",
-                      f"{tank['ration_g']:.1f}", f"{pct:.0f}", f"{tank['pellet_mm']} mm")
+                      f"{tank['ration_g']:.1f}", f"{pct:.0f}", f"{tank['pellet_mm']} mm", _water(tank))
     more = [_one_row(f"... {len(tanks) - len(shown)} more tanks: fishfarm status")] if len(shown) < len(tanks) else []
     return Group(_one_row(top, "bold"), *map(_one_row, machines), table, *more, *alarms)
+
+
+def _water(tank: dict) -> str:
+    """The water the ration is read at: measured, or the configured figure (marked)."""
+    celsius = tank.get("water_temp_c")
+    if celsius is None:
+        return "-"
+    return f"{celsius:.1f} °C" + ("" if tank.get("water_temp_source") == "sensor" else " (config)")
 
 
 class Frame:

@@ -207,3 +207,15 @@ def test_without_a_terminal_the_cleaner_is_a_log_line_too():
     from controller.console import tank_lines
     assert tank_lines({**farm_status(), "cleaner": CLEANER})[1].startswith("  cleaner: cleaning at (12.35, 4.50) m")
     assert not any("cleaner" in line for line in tank_lines(farm_status()))
+
+
+def test_the_water_column_says_whether_the_temperature_was_measured():
+    status = farm_status()
+    tanks = list(status["tanks"])
+    status["tanks"][tanks[0]].update(water_temp_c=19.25, water_temp_source="sensor")
+    status["tanks"][tanks[1]].update(water_temp_c=22.0, water_temp_source="config")
+    lines = view_lines(status, 120)
+    row = {line.split("│")[1].strip(): line for line in lines if line.startswith("│")}
+    assert "19.2 °C" in row[tanks[0]] and "config" not in row[tanks[0]]
+    assert "22.0 °C (config)" in row[tanks[1]]
+    assert row[tanks[2]].rstrip("│ ").endswith("-")            # a status without the figure
