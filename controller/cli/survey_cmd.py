@@ -130,6 +130,9 @@ class _WorkersType(click.ParamType):
 
 
 _WORKERS = _WorkersType()
+# workers waiting for a listener retry every second (worker_cmd.RETRY_S): a survey that has just
+# started listening gives them this long to join before it measures here
+HUB_DISCOVER_S = 5.0
 
 
 def _remote(endpoint: str, site: str):
@@ -140,7 +143,7 @@ def _remote(endpoint: str, site: str):
     if not SITE.match(site):
         raise BadInput("--site", None, f"{site!r}: letters, digits, _ and - only")
     session, listening = connect(endpoint)
-    return {"session": session, "site": site, "discover_s": 3.0 if listening else DISCOVER_S}, session
+    return {"session": session, "site": site, "discover_s": HUB_DISCOVER_S if listening else DISCOVER_S}, session
 
 
 @click.command()
