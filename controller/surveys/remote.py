@@ -116,6 +116,9 @@ class _Dispatch:
         self.busy: dict[str, int] = defaultdict(int)
         self.asked: dict[str, dict[str, _Job]] = defaultdict(dict)
         self.local: PairWork | None = None
+        self.order: deque[int] = deque()             # jobs read, not yet yielded, in frame order
+        self.done: dict[int, PairResult] = {}         # results waiting for their turn
+        self.resend: deque[_Job] = deque()            # jobs waiting for a worker
         self.survey = uuid.uuid4().hex[:12]
         data = wire.calibration_bytes(calib)
         self.digest = wire.content_hash(data)
@@ -158,9 +161,6 @@ class _Dispatch:
     def run(self, jobs: Iterable[PairJob]) -> Iterator[PairResult]:
         it = iter(jobs)
         exhausted = False
-        self.order: deque[int] = deque()
-        self.done: dict[int, PairResult] = {}
-        self.resend: deque[_Job] = deque()
         seq = 0
         while True:
             self._drain()

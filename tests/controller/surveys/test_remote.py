@@ -305,3 +305,20 @@ def test_worker_command_refuses_bad_options(capsys):
     assert fishfarm_main(["worker", "--site", "a/b"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 2 and "--cpu" in err[0] and "--site" in err[1]
+
+
+def test_the_controller_measures_through_its_own_bus_session(rendered, workers):
+    # the scheduled surveys run in the controller: its Bus (peer, listening) is the workers' hub
+    from controller.bus import Bus
+    from controller.config import BusConfig
+    items, calib, local, _ = rendered
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    bus = Bus(BusConfig(mode="peer", listen=[endpoint], connect=[]), site="farmx")
+    try:
+        workers.start(endpoint, "farmx", "wctl")
+        workers.wait_alive(bus.session, "farmx", "wctl")
+        results = list(measure_remote(jobs(items, 2), calib, SETUP, session=bus.session, site=bus.site))
+    finally:
+        bus.close()
+    same(results, local[:2])
+    assert {r.worker for r in results} == {"wctl"}
