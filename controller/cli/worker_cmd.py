@@ -60,14 +60,15 @@ def _open(connect: str, user, password, stop: threading.Event):
     """A client session, retried every RETRY_S while nobody listens at ``connect``."""
     import zenoh
 
-    from controller.zenoh_config import client_config
+    from controller.zenoh_config import _one_line, _why_unreachable, client_config
     said = False
     while not stop.is_set():
         try:
             return zenoh.open(client_config(connect, user, password, timeout_s=2.0))
-        except zenoh.ZError:
-            if not said:
-                click.echo(f"fishfarm worker: nobody at {connect} yet, retrying", err=True)
+        except zenoh.ZError as exc:
+            if not said:      # once: a worker started before the controller is normal
+                why = _why_unreachable(connect, user, _one_line(exc))
+                click.echo(f"fishfarm worker: {why}; retrying every {RETRY_S:g} s", err=True)
                 said = True
             stop.wait(RETRY_S)
     return None

@@ -322,3 +322,9 @@ def test_the_controller_measures_through_its_own_bus_session(rendered, workers):
         bus.close()
     same(results, local[:2])
     assert {r.worker for r in results} == {"wctl"}
+
+
+def test_worker_command_reads_its_config_or_says_what_is_wrong(tmp_path, capsys):
+    assert fishfarm_main(["worker", "--config", str(tmp_path / "none.toml")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "none.toml" in err[0]
