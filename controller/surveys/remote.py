@@ -103,6 +103,7 @@ class _Job:
     encode_s: float
     asked: set[str] = field(default_factory=set)     # workers whose answer is awaited
     queued: bool = False
+    finished: bool = False                           # its result is in (done, or yielded already)
 
 
 class _Dispatch:
@@ -192,7 +193,7 @@ class _Dispatch:
         return _Job(seq, job, job_id, payload, time.perf_counter() - t0 + job.read_s)
 
     def _queue(self, rec: _Job, first: bool = False) -> None:
-        if rec.seq in self.done or rec.queued:
+        if rec.finished or rec.queued:
             return
         rec.queued = True
         (self.resend.appendleft if first else self.resend.append)(rec)
@@ -200,7 +201,7 @@ class _Dispatch:
     def _send(self) -> None:
         while self.resend:
             rec = self.resend[0]
-            if rec.seq in self.done:
+            if rec.finished:
                 self.resend.popleft()
                 rec.queued = False
                 continue
@@ -235,12 +236,13 @@ class _Dispatch:
 
     def _measure_here(self, rec: _Job) -> None:
         rec.queued = False
-        if rec.seq in self.done:
+        if rec.finished:
             return
         if self.local is None:
             log.warning("no usable vision worker left: measuring the rest here")
             self.local = PairWork(self.calib, self.setup, self.measure)
         self.done[rec.seq] = self.local(rec.job)
+        rec.finished = True
 
     # ---- events --------------------------------------------------------------------------
 
@@ -274,8 +276,9 @@ class _Dispatch:
         self.asked[worker].pop(rec.id, None)
         rec.asked.discard(worker)
         if isinstance(outcome, dict) and outcome["ok"]:
-            if rec.seq not in self.done:
+            if not rec.finished:           # a re-run's twin may have answered first
                 self.done[rec.seq] = self._result(rec, worker, outcome, rtt)
+                rec.finished = True
             return
         if isinstance(outcome, dict) and outcome.get("kind") == "bad_input":
             raise BadInput(outcome["error"])

@@ -328,3 +328,44 @@ def test_worker_command_reads_its_config_or_says_what_is_wrong(tmp_path, capsys)
     assert fishfarm_main(["worker", "--config", str(tmp_path / "none.toml")]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "none.toml" in err[0]
+
+
+def test_a_late_answer_from_a_worker_given_up_on_is_not_counted_twice(rendered, hub):
+    # the worker's token goes while it holds two jobs (re-run here at once); its right answers
+    # come afterwards, or before, whichever: each frame is in the results once
+    import threading
+    items, calib, local, _ = rendered
+    session, endpoint, site = hub
+    late = zenoh.open(wire_client(endpoint))
+    key = node_key(site, "late")
+    token = late.liveliness().declare_token(key)
+    gone = threading.Event()
+    threads = []
+
+    def answer_later(query):
+        header, _ = wire.decode_job(bytes(query.payload.to_bytes()))
+        if not gone.is_set():
+            gone.set()
+            token.undeclare()
+        gone.wait()
+        time.sleep(0.3)          # only orders the two answers one way more often; both ways pass
+        fish = [wire.fish_to_json(f) for f in local[header["frame"]].fish]
+        query.reply(query.key_expr, wire.encode_reply({"ok": True, "job": header["job"], "frame": header["frame"],
+                                                       "fish": fish, "timings": {}}))
+        query.drop()
+
+    def on_query(query):
+        t = threading.Thread(target=answer_later, args=(query,))
+        threads.append(t)
+        t.start()
+    queryable = late.declare_queryable(f"{key}/pair", on_query)
+    try:
+        results = list(measure_remote(jobs(items, 4), calib, SETUP, session=session, site=site, local_workers=1,
+                                      discover_s=WAIT_S))
+        for t in threads:
+            t.join(WAIT_S)
+    finally:
+        queryable.undeclare()
+        late.close()
+    same(results, local[:4])
+    assert gone.is_set() and len(threads) >= 1
