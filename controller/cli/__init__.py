@@ -26,6 +26,7 @@ COMMANDS = {
     "cleaner": "controller.cli.cleaner_cmd:cleaner",
     "report": "controller.cli.report_cmd:report",
     "history": "controller.cli.history_cmd:history",
+    "worker": "controller.cli.worker_cmd:worker",
 }
 
 

@@ -3,9 +3,13 @@
     fishfarm survey --calib CALIB.json --species sparus_aurata --setup underwater|surface
                     (--pair L R ... | --rg FRAME ... | --dir DIR | --video L R | --rg-video F)
                     --json OUT.json [--plot HIST.png] [--csv FISH.csv] [--config farm.toml --stock NAME]
-                    [--up x,y,z] [--every N] [--max-frames M] [--workers N] [--seed S]
+                    [--up x,y,z] [--every N] [--max-frames M] [--workers N|tcp/HOST:PORT [--site S]]
+                    [--seed S]
 
-Pairs are measured by vision.survey.measure_pair in one worker process per core; OUT.json is
+Pairs are measured by vision.survey.measure_pair in one worker process per core, or, with
+``--workers tcp/HOST:PORT``, by the ``fishfarm worker`` processes reached there over Zenoh
+(controller/surveys/remote.py: if nothing listens there, the survey listens itself for workers to
+join; with no worker up it measures here). OUT.json is
 the contract of DESIGN.md plus optional fields (README, "Weight surveys"). Bad input exits 2
 with one line naming the file and the fault; an empty survey (no fish) is a result, count 0.
 """
@@ -108,6 +112,40 @@ def _recorder(config_path: str, tank_id: str, species: str, json_path: str):
     return record
 
 
+class _WorkersType(click.ParamType):
+    """A number of local processes, or a Zenoh endpoint (``tcp/HOST:PORT``) where vision workers are."""
+
+    name = "workers"
+
+    def convert(self, value, param, ctx):
+        if isinstance(value, int) or "/" not in str(value):
+            try:
+                n = int(value)
+            except ValueError:
+                self.fail(f"{value!r} is neither a number of processes nor an endpoint like tcp/HOST:PORT", param, ctx)
+            if n < 1:
+                self.fail(f"{n} processes: at least 1", param, ctx)
+            return n
+        return str(value)
+
+
+_WORKERS = _WorkersType()
+# workers waiting for a listener retry every second (worker_cmd.RETRY_S): a survey that has just
+# started listening gives them this long to join before it measures here
+HUB_DISCOVER_S = 5.0
+
+
+def _remote(endpoint: str, site: str):
+    """(options for measure_remote, session): whatever listens at ``endpoint``, or this survey
+    listening there itself for workers to join (then it waits a little longer for them)."""
+    from controller.surveys.remote import DISCOVER_S, connect
+    from controller.surveys.worker import SITE
+    if not SITE.match(site):
+        raise BadInput("--site", None, f"{site!r}: letters, digits, _ and - only")
+    session, listening = connect(endpoint)
+    return {"session": session, "site": site, "discover_s": HUB_DISCOVER_S if listening else DISCOVER_S}, session
+
+
 @click.command()
 @click.option("--calib", "calib_path", required=True, metavar="CALIB.json", help="the stereo rig's calibration")
 @click.option("--species", required=True, help="a species of config/species.toml, e.g. sparus_aurata")
@@ -126,11 +164,13 @@ def _recorder(config_path: str, tank_id: str, species: str, json_path: str):
 @click.option("--tank", "tank_id", help="record the survey in the ledger for this tank: its rations follow it")
 @click.option("--stock", help="use this stock's a, b (farm.toml [stocks.NAME]) instead of the species'")
 @click.option("--up", "up", metavar="x,y,z", help="water-surface normal in the calibration's frame")
-@click.option("--workers", type=click.IntRange(min=1), default=None, help="processes (default: cores)")
+@click.option("--workers", type=_WORKERS, default=None, metavar="N|tcp/HOST:PORT",
+              help="N local processes (default: cores), or the vision workers reached at this Zenoh endpoint")
+@click.option("--site", default="demo", show_default=True, help="farm site of the vision workers (--workers ENDPOINT)")
 @click.option("--seed", type=int, default=1, show_default=True, help="seed of the bootstrap interval")
 @click.option("--measure", default=None, hidden=True, help="module:function measuring a pair (tests)")
 def survey(calib_path, species, setup, pairs, rgs, directory, video, rg_video, every, max_frames, json_path,
-           plot_path, csv_path, config_path, stock, tank_id, up, workers, seed, measure):
+           plot_path, csv_path, config_path, stock, tank_id, up, workers, site, seed, measure):
     """Fish lengths and weights from stereo pairs, with the survey's statistics."""
     from controller.cli.calib_io import load_calibration
     from controller.surveys.runner import MEASURE
@@ -149,13 +189,16 @@ def survey(calib_path, species, setup, pairs, rgs, directory, video, rg_video, e
     if plot_path:
         from controller.surveys.outputs import check_writable
         check_writable(plot_path, "the plot")
+    remote, session = _remote(workers, site) if isinstance(workers, str) else (None, None)
     progress = _Progress(source.total)
-    opts = SurveyOptions(sp.setup(setup, up_world), sp, workers=workers, seed=seed,
-                         measure=measure or MEASURE, on_pair=progress, record=record)
+    opts = SurveyOptions(sp.setup(setup, up_world), sp, workers=None if remote else workers, seed=seed,
+                         measure=measure or MEASURE, on_pair=progress, record=record, remote=remote)
     try:
         summary = run_survey(source, calib, opts, json_path, csv_path)
     finally:
         progress.stop()
+        if session is not None:
+            session.close()
     if plot_path:
         from controller.surveys.plot import plot_survey
         plot_survey(summary, plot_path)

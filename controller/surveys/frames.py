@@ -87,6 +87,38 @@ def check_same_size(left: np.ndarray, right: np.ndarray, left_name: str, right_n
         raise BadInput(right_name, None, f"{w2}x{h2} pixels, but the left image {left_name} is {w1}x{h1}")
 
 
+def _imdecode(data: bytes, name: str, flags: int = cv2.IMREAD_ANYCOLOR) -> np.ndarray:
+    if not data:
+        raise BadInput(name, None, "empty file")
+    img = cv2.imdecode(np.frombuffer(data, np.uint8), flags)
+    if img is None or img.size == 0:
+        raise BadInput(name, None, "not a readable image (PNG or JPEG expected)")
+    return img
+
+
+def decode_pair(blobs: tuple[bytes, ...], names: tuple[str, ...]) -> tuple[np.ndarray, np.ndarray, str | None]:
+    """``read_pair`` of encoded files that travelled over the bus: (left, right) or one RG frame,
+    decoded exactly as the files would be."""
+    if len(blobs) == 1:
+        return split_rg(_imdecode(blobs[0], names[0], cv2.IMREAD_COLOR), names[0])
+    left, right = _imdecode(blobs[0], names[0]), _imdecode(blobs[1], names[1])
+    check_same_size(left, right, names[0], names[1])
+    return left, right, None
+
+
+def file_bytes(path: str) -> bytes:
+    """A job's file as it lies on disk, for a worker to decode; the faults ``_imread`` names."""
+    p = Path(path)
+    if not p.exists():
+        raise BadInput(path, None, "no such file")
+    if p.is_dir():
+        raise BadInput(path, None, "is a directory, expected an image")
+    data = p.read_bytes()
+    if not data:
+        raise BadInput(path, None, "empty file")
+    return data
+
+
 def read_pair(job: PairJob) -> tuple[np.ndarray, np.ndarray, str | None]:
     """(left, right, warning) of a job, decoding its files if it names them."""
     if job.left is not None:

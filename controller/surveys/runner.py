@@ -41,6 +41,7 @@ class PairResult:
     fish: list[FishMeasurement]
     timings: dict[str, float] = field(default_factory=dict)   # seconds per stage, "read" included
     warning: str | None = None
+    worker: str | None = None        # the vision worker that measured it (remote.py); None: here
 
 
 def resolve(measure: str | Measure) -> Measure:

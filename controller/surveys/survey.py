@@ -34,6 +34,7 @@ class SurveyOptions:
     on_pair: Callable[[PairResult], None] | None = None       # progress, warnings
     extra: dict = field(default_factory=dict)                  # more optional OUT.json fields
     record: Callable[[np.ndarray, np.ndarray], None] | None = None   # (lengths, weights) the statistics use
+    remote: dict | None = None          # measure_remote's keywords (session, site, ...): vision workers
 
 
 # A fish in view for 0.6 s or more is seen this often at 5 surveyed frames a second; below that
@@ -79,6 +80,15 @@ class _Tracks:
         return np.asarray(self.lengths, dtype=float)
 
 
+def _results(source: Source, calib: StereoCalibration, opts: SurveyOptions):
+    if opts.remote is not None:
+        from controller.surveys.remote import measure_remote
+        return measure_remote(source.jobs, calib, opts.setup, measure=opts.measure, local_workers=opts.workers,
+                              **opts.remote)
+    return measure_all(source.jobs, calib, opts.setup, measure=opts.measure, workers=opts.workers,
+                       read_in=opts.read_in)
+
+
 def run_survey(source: Source, calib: StereoCalibration, opts: SurveyOptions,
                json_path: str, csv_path: str | None = None) -> dict:
     """Measure every pair of ``source``, write OUT.json (and FISH.csv); return the summary
@@ -90,8 +100,7 @@ def run_survey(source: Source, calib: StereoCalibration, opts: SurveyOptions,
     frames = 0
     started = time.perf_counter()
     try:
-        for result in measure_all(source.jobs, calib, opts.setup, measure=opts.measure,
-                                  workers=opts.workers, read_in=opts.read_in):
+        for result in _results(source, calib, opts):
             frames += 1
             for stage, s in result.timings.items():
                 stage_s[stage] = stage_s.get(stage, 0.0) + s

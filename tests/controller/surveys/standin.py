@@ -85,3 +85,13 @@ def random_fish(rig, rng, n: int, rows: bool = True):
         axis /= np.linalg.norm(axis)
         out.append((centre + axis * length / 2, centre - axis * length / 2))
     return out
+
+
+def measure_or_hang(left, right, calib, setup, timings=None):
+    """vision.survey.measure_pair, except in a process whose FISHFARM_TEST_HANG is set: there every
+    pair hangs (a worker holding its jobs when it is killed)."""
+    import os
+    if os.environ.get("FISHFARM_TEST_HANG"):
+        time.sleep(3600)
+    from vision.survey import measure_pair
+    return measure_pair(left, right, calib, setup, timings)

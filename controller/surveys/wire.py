@@ -1,0 +1,164 @@
+"""What travels between a survey and its vision workers over Zenoh (README, "Vision workers").
+
+A **job** (the payload of a get on ``farm/{site}/worker/node/{id}/pair``) is binary:
+``b"FFJ1"``, a 4-byte big-endian header length, a UTF-8 JSON header, then the encoded images
+back to back (sizes in the header)::
+
+    {"job": str, "frame": int, "where": str, "names": [str, ...], "sizes": [int, ...],
+     "calib": sha256 hex of the calibration's canonical JSON, "setup": SurveySetup as JSON,
+     "measure": "module:function"}
+
+One image is an RG frame, two are left and right. Image files go as they lie on disk (the worker
+decodes them exactly as ``read_pair`` would); decoded frames (video) go as lossless PNG, so a
+worker measures the very pixels the survey would have.
+
+A **reply** is one JSON object: ``{"ok": true, "job", "frame", "worker", "fish": [...],
+"timings": {...}, "warning"}`` or ``{"ok": false, "job", "kind", "error"}`` where ``kind`` is
+``bad_input`` (the pair itself is at fault: the survey stops, as it would locally),
+``calibration`` (the worker could not fetch the calibration its hash names), ``refused`` (the
+worker measures with another function or speaks another version) or ``internal``. NaN may appear
+in a reply (Python's JSON extension): both ends are ours, and a quality term may be undefined.
+"""
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import json
+import struct
+
+import cv2
+import numpy as np
+
+from controller.surveys.frames import PairJob, file_bytes
+from vision.calib_file import StereoCalibration
+from vision.survey_types import FishGeometry, FishMeasurement, SurveySetup
+
+MAGIC = b"FFJ1"
+_LEN = struct.Struct(">I")
+HEADER_MAX = 1 << 20          # a header is a few hundred bytes: more is garbage, not a job
+PNG_FAST = [cv2.IMWRITE_PNG_COMPRESSION, 1]   # lossless either way; 1 is the cheapest to write
+
+
+class WireError(ValueError):
+    """A job or a reply that does not follow this format."""
+
+
+# ---- calibration by content --------------------------------------------------------------
+
+def calibration_bytes(calib: StereoCalibration) -> bytes:
+    return json.dumps(calib.to_json(), sort_keys=True, separators=(",", ":")).encode()
+
+
+def content_hash(data: bytes) -> str:
+    return hashlib.sha256(data).hexdigest()
+
+
+# ---- setup ---------------------------------------------------------------------------------
+
+def setup_to_json(setup: SurveySetup) -> dict:
+    return dataclasses.asdict(setup)
+
+
+def setup_from_json(data: dict) -> SurveySetup:
+    try:
+        geometry = FishGeometry(**data["geometry"])
+        up = data.get("up_world")
+        return SurveySetup(setup=data["setup"], mi_ref=float(data["mi_ref"]), c_ref=float(data["c_ref"]),
+                           geometry=geometry, up_world=None if up is None else tuple(float(x) for x in up))
+    except (KeyError, TypeError, ValueError) as exc:
+        raise WireError(f"setup: {exc}") from None
+
+
+# ---- jobs ----------------------------------------------------------------------------------
+
+def job_blobs(job: PairJob) -> tuple[tuple[bytes, ...], tuple[str, ...]]:
+    """The encoded images of a job and the names its faults are reported under."""
+    if job.left is not None:
+        blobs = []
+        for img in (job.left, job.right):
+            ok, buf = cv2.imencode(".png", np.ascontiguousarray(img), PNG_FAST)
+            if not ok:
+                raise WireError(f"{job.where}: cannot encode as PNG")
+            blobs.append(buf.tobytes())
+        return tuple(blobs), (job.where, job.where)
+    return tuple(file_bytes(p) for p in job.paths), tuple(job.paths)
+
+
+def encode_job(header: dict, blobs: tuple[bytes, ...]) -> bytes:
+    head = json.dumps({**header, "sizes": [len(b) for b in blobs]}, separators=(",", ":")).encode()
+    return b"".join((MAGIC, _LEN.pack(len(head)), head, *blobs))
+
+
+def decode_job(data: bytes) -> tuple[dict, tuple[bytes, ...]]:
+    if len(data) < 8 or data[:4] != MAGIC:
+        raise WireError("not a fishfarm job (bad magic)")
+    (n,) = _LEN.unpack_from(data, 4)
+    if n > HEADER_MAX or 8 + n > len(data):
+        raise WireError("job header length out of range")
+    try:
+        header = json.loads(data[8:8 + n])
+    except (UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise WireError(f"job header is not JSON: {exc}") from None
+    sizes = header.get("sizes") if isinstance(header, dict) else None
+    if (not isinstance(sizes, list) or len(sizes) not in (1, 2)
+            or not all(isinstance(s, int) and s >= 0 for s in sizes) or 8 + n + sum(sizes) != len(data)):
+        raise WireError("job image sizes do not match its length")
+    for key, kind in (("job", str), ("frame", int), ("where", str), ("calib", str), ("measure", str),
+                      ("names", list), ("setup", dict)):
+        if not isinstance(header.get(key), kind):
+            raise WireError(f"job header: {key} missing or not {kind.__name__}")
+    blobs, at = [], 8 + n
+    for s in sizes:
+        blobs.append(data[at:at + s])
+        at += s
+    return header, tuple(blobs)
+
+
+# ---- replies -------------------------------------------------------------------------------
+
+def fish_to_json(fish: FishMeasurement) -> dict:
+    return {"snout_mm": np.asarray(fish.snout_mm, float).tolist(), "fork_mm": np.asarray(fish.fork_mm, float).tolist(),
+            "snout_px": np.asarray(fish.snout_px, float).tolist(), "fork_px": np.asarray(fish.fork_px, float).tolist(),
+            "score": float(fish.score), "quality": fish.quality}
+
+
+def fish_from_json(data: dict) -> FishMeasurement:
+    try:
+        arrays = {k: np.asarray(data[k], dtype=float) for k in ("snout_mm", "fork_mm", "snout_px", "fork_px")}
+        quality = data.get("quality", {})
+        if not isinstance(quality, dict):
+            raise TypeError("quality is not an object")
+        fish = FishMeasurement(score=float(data["score"]), quality=quality, **arrays)
+    except (KeyError, TypeError, ValueError) as exc:
+        raise WireError(f"fish: {exc}") from None
+    if fish.snout_mm.shape != (3,) or fish.fork_mm.shape != (3,) or fish.snout_px.shape != (2, 2) \
+            or fish.fork_px.shape != (2, 2):
+        raise WireError("fish: points of the wrong shape")
+    return fish
+
+
+def encode_reply(reply: dict) -> bytes:
+    return json.dumps(reply, separators=(",", ":")).encode()
+
+
+def decode_reply(data: bytes, job_id: str) -> dict:
+    """A reply to job ``job_id``, checked; WireError when it is not one."""
+    try:
+        reply = json.loads(data)
+    except (UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise WireError(f"reply is not JSON: {exc}") from None
+    if not isinstance(reply, dict) or not isinstance(reply.get("ok"), bool):
+        raise WireError("reply is not an object with a boolean ok")
+    if reply.get("job") != job_id:
+        raise WireError(f"reply answers job {reply.get('job')!r}, not {job_id!r}")
+    if reply["ok"]:
+        if not isinstance(reply.get("fish"), list) or not isinstance(reply.get("timings", {}), dict):
+            raise WireError("reply without a fish list")
+        reply["fish"] = [fish_from_json(f) if isinstance(f, dict) else _not_fish() for f in reply["fish"]]
+    elif not isinstance(reply.get("error"), str):
+        raise WireError("refusal without an error")
+    return reply
+
+
+def _not_fish():
+    raise WireError("fish entry is not an object")
