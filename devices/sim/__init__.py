@@ -4,7 +4,8 @@ A device marked ``driver = "sim"`` in farm.toml is served by ``fishfarm sim`` (i
 process, see controller/cli/sim_cmd.py) over the same protocol as the hardware: the contact
 hub on a pseudo-terminal, the rail drive over slcan on a pseudo-terminal, the dispenser as a
 Modbus TCP server, the cleaner's thruster controller on a pseudo-terminal, the tower camera
-as an MJPEG-over-HTTP server, the survey cameras the same way (both views side by side). The controller then reaches it through the real driver.
+as an MJPEG-over-HTTP server, the survey cameras the same way (both views side by side).
+The controller then reaches it through the real driver.
 """
 from __future__ import annotations
 
