@@ -30,6 +30,7 @@ from controller.simproc import SimProcess
 from controller.status import farm_status
 from controller.store import Store, reconcile
 from controller.surveys.watch import SurveyWatch
+from controller.surveys.wiring import build_survey_stops, survey_camera_name
 from devices.errors import DeviceError
 from devices.sections import backends as device_backends
 from devices.sim.world import SimSection
@@ -102,6 +103,8 @@ class Controller:
             self.cleaning = prepare(cfg)          # geometry, dock, tower, plan: bad input now, not at start
         if any(s["driver"] == "sim" for s in cfg.devices.values()):
             validate_section(SimSection, cfg.sim, cfg.path, "sim")
+        survey_camera_name(cfg)                   # scheduled surveys without a camera: bad input now
+        self.survey_stops = None
 
     # -- life cycle -------------------------------------------------------------
     async def start(self) -> None:
@@ -153,6 +156,7 @@ class Controller:
             return
         self.robot = FeedingRobot(cfg, self.clock, self.rail, self.dispenser, self.store, self.rations,
                                   self.alarms, self.bus.publish, lane=self.lane)
+        self.robot.surveys = self.survey_stops = build_survey_stops(self)
         if self.estop_before_start is not None:
             await self.robot.emergency_stop(self.estop_before_start)
         self._requeue_open_demands()
@@ -220,6 +224,8 @@ class Controller:
             took[name], last = now - last, now
 
         tasks = [t for t in (self._starting, *self.tasks) if t is not None]
+        if self.survey_stops is not None:          # surveys being measured are not recorded
+            tasks += list(self.survey_stops.stop.finishing)
         for task in tasks:
             task.cancel()
         await shutdown.ended(tasks, shutdown.STOP_TASKS_S, "task")
