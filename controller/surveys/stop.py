@@ -85,35 +85,57 @@ class SurveyStop:
 
     async def visit(self, session: SurveySession, interrupted: Callable[[], bool], wake: asyncio.Event) -> str:
         """At the tank: ``captured`` (all in: the robot may go), ``preempted`` (a demand waits; the
-        session resumes later) or ``failed`` (the camera: the session is dropped, alarmed)."""
+        session resumes later) or ``failed`` (the camera: the session is dropped, alarmed).
+
+        The cameras stream from the session's first visit to its end, preemptions included (a
+        camera's stream takes a while to open, a visit may be short). So a frame may have been
+        taken on the way here: after the water settles the first frame that arrives is dropped,
+        and each next one was taken once that one had arrived — with the carriage at the tank."""
         session.visits += 1
-        if self._closing is not None:
-            await asyncio.shield(self._closing)
+        outcome = "failed"
         settled_at = self.clock.now() + self.s.settle_s
         try:
-            await self.camera.start()
+            if not self.camera.streaming:
+                if self._closing is not None:
+                    await asyncio.shield(self._closing)
+                await self.camera.start()
             while self.clock.now() < settled_at:
                 if interrupted():
-                    return "preempted"
+                    outcome = "preempted"
+                    return outcome
                 await _until(self.clock, wake, settled_at - self.clock.now())
+            fresh = False
             while not self.enough(session):
                 if interrupted():
-                    return "preempted"
+                    outcome = "preempted"
+                    return outcome
                 pair = await _first(self.camera.read(), wake)
-                if pair is None or pair.t < settled_at or pair.t < session.last_pair_t + self.s.pair_interval_s:
+                if pair is None or pair.t < settled_at:
+                    continue
+                if not fresh:                    # perhaps taken before the carriage stopped here
+                    fresh = True
+                    continue
+                if pair.t < session.last_pair_t + self.s.pair_interval_s:
                     continue
                 self._measure(session, pair)
                 while len(session.measuring) >= IN_FLIGHT and not interrupted():
                     await _first(asyncio.wait(set(session.measuring)), wake)
             self.alarms.clear(f"device/{self.camera.name}", "survey camera back")
-            return "captured"
+            outcome = "captured"
+            return outcome
         except DeviceError as exc:
             session.failed = exc.text
             self.alarms.raise_(f"device/{self.camera.name}", f"survey of {session.tank} stopped: {exc.text}",
                                kind="unreachable")
-            return "failed"
+            return outcome
         finally:
-            self._closing = asyncio.ensure_future(self.camera.stop())    # the robot does not wait for it
+            if outcome != "preempted":           # cancelled (an e-stop) too: the streams close
+                self.release()
+
+    def release(self) -> None:
+        """Stop the cameras' streams, in the background: nothing of the robot's waits for it."""
+        if self.camera.streaming and (self._closing is None or self._closing.done()):
+            self._closing = asyncio.ensure_future(self.camera.stop())
 
     def _measure(self, session: SurveySession, pair) -> None:
         frame = session.captured

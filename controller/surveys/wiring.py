@@ -41,7 +41,10 @@ class SurveyStops:
         self.poke = lambda: None               # the robot's wake-up, set by the wiring
 
     def next(self, paused: set[str], now: float) -> SurveySession | None:
-        return self.schedule.next(paused, now)
+        session = self.schedule.next(paused, now)
+        if session is None:                    # nothing to survey now: the cameras need not stream
+            self.stop.release()
+        return session
 
     async def visit(self, session: SurveySession, interrupted, wake) -> str:
         outcome = "failed"

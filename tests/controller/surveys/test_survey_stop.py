@@ -6,6 +6,8 @@ code under test)."""
 from __future__ import annotations
 
 import asyncio
+import json
+import time
 
 import numpy as np
 import pytest
@@ -118,7 +120,8 @@ def test_a_survey_stop_settles_captures_its_pairs_at_the_tank_and_is_recorded(tm
     assert survey.count == 8 * 3 == len(truth)
     assert survey.mean_length_cm == pytest.approx(truth.mean())
     assert survey.mean_weight_g == pytest.approx(np.mean(sp.weight.weight_g(truth)))
-    assert len(camera.pairs) == 8
+    assert len(camera.pairs) == 8 + 1                                       # the first after settling dropped
+    assert not camera.streaming and camera.starts == 1
     assert all(abs(pos - 8.0) <= 0.05 for _, pos in camera.pairs)          # at T2, not on the way
     assert all(t >= arrived + 30.0 - 1.0 for t, _ in camera.pairs)          # after the water settled
     assert ["moving", "surveying", "idle"] == [s for s in states if s in ("moving", "surveying", "idle")][-3:]
@@ -137,11 +140,12 @@ def test_a_demand_preempts_the_survey_within_60_s_and_the_survey_resumes(tmp_pat
             await r.until(lambda: r.store.feeds(), 120.0, what="T1 fed")
             started = r.store.feeds()[0].t_intent
             survey = await recorded(r, stops, "T2", 900.0)
+            await r.until(lambda: not camera.streaming, 60.0, what="the streams closed")
             return survey, camera, started - raised, stops
     survey, camera, waited, stops = run(main())
     assert waited <= 60.0
     assert survey.count == 6 * 3
-    assert camera.starts >= 2                     # it came back to T2 and started the cameras again
+    assert json.loads(open(survey.source).read())["visits"] >= 2     # it came back to T2 for the rest
     assert all(abs(pos - 8.0) <= 0.05 for _, pos in camera.pairs)
 
 
@@ -168,15 +172,17 @@ def test_an_estop_while_surveying_latches_the_devices_and_the_survey_resumes_aft
             stops, camera, _, _ = await attach(r, tmp_path, period_s=10.0, ci_pct=0.1)
             stops.request("T1", pairs=5)
             await r.until(lambda: r.robot.state == "surveying" and camera.pairs, 300.0, what="capturing")
-            confirmed = await r.robot.emergency_stop("test")
-            state, streaming = r.robot.state, camera.streaming
-            await asyncio.sleep(0.05)
-            dispenser_latched = (await r.robot.dispensing.read()).estop
+            await r.robot.emergency_stop("test")        # its own wait for the latches is wall-bounded: not asserted
+            state = r.robot.state
+            deadline = time.monotonic() + 10.0          # a loaded VM stalls ~1 s: generous
+            while not ((await r.robot.dispensing.read()).estop and not camera.streaming):
+                assert time.monotonic() < deadline, "the dispenser's latch or the streams' close not seen in 10 s"
+                await asyncio.sleep(0.01)
             session = stops.schedule.current
             assert r.robot.operator_reset() is None
             survey = await recorded(r, stops, "T1", 900.0)
-            return confirmed, state, streaming, dispenser_latched, session, survey, camera
-    confirmed, state, streaming, latched, session, survey, camera = run(main())
-    assert confirmed and state == "estop" and latched
+            return state, session, survey, camera
+    state, session, survey, camera = run(main())
+    assert state == "estop"
     assert session is not None and session.tank == "T1"          # kept for after the reset
-    assert survey.count == 5 * 3 and camera.starts >= 2
+    assert survey.count == 5 * 3 and camera.starts == 2     # the e-stop closed the streams; reopened after
