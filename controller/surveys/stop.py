@@ -87,18 +87,16 @@ class SurveyStop:
         """At the tank: ``captured`` (all in: the robot may go), ``preempted`` (a demand waits; the
         session resumes later) or ``failed`` (the camera: the session is dropped, alarmed).
 
-        The cameras stream from the session's first visit to its end, preemptions included (a
-        camera's stream takes a while to open, a visit may be short). So a frame may have been
-        taken on the way here: after the water settles the first frame that arrives is dropped,
-        and each next one was taken once that one had arrived — with the carriage at the tank."""
+        The cameras stream for the visit only, from the carriage's arrival: a frame taken on the way
+        is never measured as this tank's fish. Frames wait in a network camera's buffers, so the
+        first frame that arrives after the water settled is dropped as well."""
         session.visits += 1
         outcome = "failed"
         settled_at = self.clock.now() + self.s.settle_s
         try:
-            if not self.camera.streaming:
-                if self._closing is not None:
-                    await asyncio.shield(self._closing)
-                await self.camera.start()
+            if self._closing is not None:
+                await asyncio.shield(self._closing)
+            await self.camera.start()
             while self.clock.now() < settled_at:
                 if interrupted():
                     outcome = "preempted"
@@ -129,8 +127,7 @@ class SurveyStop:
                                kind="unreachable")
             return outcome
         finally:
-            if outcome != "preempted":           # cancelled (an e-stop) too: the streams close
-                self.release()
+            self.release()                       # cancelled (an e-stop) too
 
     def release(self) -> None:
         """Stop the cameras' streams, in the background: nothing of the robot's waits for it."""

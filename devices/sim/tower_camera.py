@@ -176,9 +176,9 @@ class SimTowerCamera:
             self._stop.wait(max(0.0, next_at - time.monotonic()))
 
     def frames(self):
-        """Each new JPEG as it is made, for one client, until the camera stops."""
-        seen = 0
+        """Each new JPEG made after the client came, as it is made, until the camera stops."""
         with self._cond:
+            seen = self._seq          # not a frame rendered before this client came (a stale view)
             self._clients += 1
             self._cond.notify_all()
         try:

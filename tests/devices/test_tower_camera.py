@@ -209,3 +209,24 @@ def test_params_are_checked_by_name():
         SimTowerCamera(Scene(), ManualClock(), {"fsp": 10})
     with pytest.raises(ValueError):
         Config(kind="tower_camera", driver="capture", source=0, api="directshow")
+
+
+def test_a_new_client_never_gets_a_frame_rendered_before_it_came():
+    """The survey cameras stream per visit: a view left from the last stream would be another tank's."""
+    async def main():
+        clock, scene = ManualClock(), Scene()
+        cam = serve(scene, clock, fps=20.0)
+        dev = camera(cam.url, clock)
+        await dev.open()
+        await dev.read()
+        await dev.close()
+        await until(lambda: cam._clients == 0, what="the first client gone")
+        rendered = len(scene.asked)
+        again = camera(cam.url, clock)
+        await again.open()
+        first = await again.read()
+        await again.close()
+        cam.stop()
+        return rendered, unstamp(first.image)
+    rendered, first = asyncio.run(main())
+    assert first > rendered

@@ -146,6 +146,7 @@ def test_a_demand_preempts_the_survey_within_60_s_and_the_survey_resumes(tmp_pat
     assert waited <= 60.0
     assert survey.count == 6 * 3
     assert json.loads(open(survey.source).read())["visits"] >= 2     # it came back to T2 for the rest
+    assert camera.starts >= 2                     # and streamed again: frames of one visit only
     assert all(abs(pos - 8.0) <= 0.05 for _, pos in camera.pairs)
 
 
