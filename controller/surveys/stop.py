@@ -75,7 +75,7 @@ class SurveyStop:
         self.clock, self.camera, self.store, self.alarms = clock, camera, store, alarms
         self.species, self.measure = species, measure          # tank -> SurveySpecies
         self.setups = {tank: sp.setup(self.s.setup, None) for tank, sp in species.items()}
-        self._closing: asyncio.Future | None = None        # the streams' close, not waited for by a visit
+        self._power: asyncio.Future | None = None          # the cameras' last start or stop, in order
         self.finishing: set[asyncio.Task] = set()
         self.recorded: list[int] = []                      # survey ids, in order
 
@@ -94,9 +94,12 @@ class SurveyStop:
         outcome = "failed"
         settled_at = self.clock.now() + self.s.settle_s
         try:
-            if self._closing is not None:
-                await asyncio.shield(self._closing)
-            await self.camera.start()
+            opening = self._chain(self.camera.start)       # after the last stop; it may take seconds
+            await _first(asyncio.shield(opening), wake)
+            if not opening.done():
+                outcome = "preempted"
+                return outcome
+            opening.result()
             while self.clock.now() < settled_at:
                 if interrupted():
                     outcome = "preempted"
@@ -131,8 +134,22 @@ class SurveyStop:
 
     def release(self) -> None:
         """Stop the cameras' streams, in the background: nothing of the robot's waits for it."""
-        if self.camera.streaming and (self._closing is None or self._closing.done()):
-            self._closing = asyncio.ensure_future(self.camera.stop())
+        if self.camera.streaming or (self._power is not None and not self._power.done()):
+            self._chain(self.camera.stop)
+
+    def _chain(self, step) -> asyncio.Future:
+        """``step()`` once the cameras' previous start or stop has ended: a stream is never opened
+        while the last one is still closing. A visit waits for a start only as long as no demand
+        comes; a start or stop nobody waits for any more still runs, in turn."""
+        before = self._power
+
+        async def run():
+            if before is not None:
+                await asyncio.gather(before, return_exceptions=True)
+            return await step()
+        self._power = task = asyncio.ensure_future(run())
+        task.add_done_callback(_retrieved)
+        return task
 
     def _measure(self, session: SurveySession, pair) -> None:
         frame = session.captured
@@ -201,6 +218,12 @@ class SurveyStop:
             task.cancel()
         with contextlib.suppress(Exception):
             await self.camera.stop()
+
+
+def _retrieved(task: asyncio.Future) -> None:
+    """A start or stop whose visit left: its fault is the next visit's to meet (logged here)."""
+    if not task.cancelled() and task.exception() is not None:
+        log.debug("survey cameras: %s", task.exception())
 
 
 async def _until(clock, event: asyncio.Event, farm_s: float) -> None:

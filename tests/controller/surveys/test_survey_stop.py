@@ -29,9 +29,9 @@ def run(coro):
 class CameraDouble(StereoCamera):
     """A pair every ``period_s`` farm seconds while streaming; notes where the carriage was."""
 
-    def __init__(self, clock, rail, period_s=5.0):
+    def __init__(self, clock, rail, period_s=5.0, slow_s=0.0):
         super().__init__("stereo", None, clock)
-        self.rail, self.period_s = rail, period_s
+        self.rail, self.period_s, self.slow_s = rail, period_s, slow_s      # slow_s: each start and stop
         self.calibration = None
         self.pairs: list[tuple[float, float]] = []       # (t, carriage position) of each pair handed out
         self.starts = 0
@@ -42,9 +42,10 @@ class CameraDouble(StereoCamera):
 
     async def _start(self):
         self.starts += 1
+        await self.clock.asleep(self.slow_s)
 
     async def _stop(self):
-        pass
+        await self.clock.asleep(self.slow_s)
 
     async def _read(self):
         await self.clock.asleep(self.period_s)
@@ -81,10 +82,10 @@ def surveys_cfg(r, **kw):
     return cfg
 
 
-async def attach(r, tmp_path, period_s=5.0, measure=None, **kw):
+async def attach(r, tmp_path, period_s=5.0, measure=None, slow_s=0.0, **kw):
     r.store_path = tmp_path / "ledger.db"
     cfg = surveys_cfg(r, **kw)
-    camera = CameraDouble(r.clock, r.rail, period_s)
+    camera = CameraDouble(r.clock, r.rail, period_s, slow_s)
     await camera.open()
     measure = measure or MeasureDouble()
     sp = survey_species("sparus_aurata")
@@ -148,6 +149,28 @@ def test_a_demand_preempts_the_survey_within_60_s_and_the_survey_resumes(tmp_pat
     assert json.loads(open(survey.source).read())["visits"] >= 2     # it came back to T2 for the rest
     assert camera.starts >= 2                     # and streamed again: frames of one visit only
     assert all(abs(pos - 8.0) <= 0.05 for _, pos in camera.pairs)
+
+
+def test_cameras_slow_to_open_or_close_hold_no_demand_back(tmp_path):
+    """An IP camera's stream can take seconds to open or close: a demand waits for neither."""
+    async def main():
+        async with rig(tmp_path, speed=50.0) as r:
+            await r.until(lambda: r.robot.state == "idle", what="homed")
+            stops, camera, _, _ = await attach(r, tmp_path, period_s=5.0, slow_s=300.0, settle_s=10.0, ci_pct=0.1)
+            stops.request("T2", pairs=4)
+            await r.until(lambda: r.robot.state == "surveying" and camera.starts, 300.0, what="the cameras opening")
+            raised = r.clock.now()
+            r.demand("T1")                                 # while the streams open
+            await r.until(lambda: r.store.feeds(), 120.0, what="T1 fed")
+            first = r.store.feeds()[0].t_intent - raised
+            await r.until(lambda: r.robot.state == "surveying", 900.0, what="back at T2")
+            raised = r.clock.now()
+            r.demand("T1")                                 # the streams closing again behind it
+            await r.until(lambda: len(r.store.feeds()) == 2, 120.0, what="T1 fed again")
+            second = max(f.t_intent for f in r.store.feeds()) - raised
+            return first, second
+    first, second = run(main())
+    assert first <= 60.0 and second <= 60.0
 
 
 def test_the_survey_stops_early_once_the_mean_weight_is_known_within_2_percent(tmp_path):
