@@ -146,6 +146,8 @@ class SurveysConfig(Strict):
     settle_s: float = Field(60.0, ge=0, le=3600, description="farm seconds the water settles before capture")
     pair_interval_s: float = Field(2.0, ge=0, le=3600, description="farm seconds at least between pairs")
     pairs: int = Field(40, ge=1, le=10_000, description="pairs of a survey started by an operator")
+    stale_frames: int = Field(1, ge=0, le=100, description="frames dropped after settling: a camera's buffers "
+                              "may hold ones taken before the carriage stopped")
     ci_pct: float = Field(2.0, gt=0, le=100, description="stop early once the mean weight's 95 % CI is within ±this")
     min_fish: int = Field(30, ge=2, le=100_000, description="fish measured before the CI may stop a survey")
     retry_s: float = Field(3600.0, gt=0, le=86_400 * 7,

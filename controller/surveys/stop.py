@@ -89,7 +89,7 @@ class SurveyStop:
 
         The cameras stream for the visit only, from the carriage's arrival: a frame taken on the way
         is never measured as this tank's fish. Frames wait in a network camera's buffers, so the
-        first frame that arrives after the water settled is dropped as well."""
+        first ``stale_frames`` that arrive after the water settled are dropped as well."""
         session.visits += 1
         outcome = "failed"
         settled_at = self.clock.now() + self.s.settle_s
@@ -105,7 +105,7 @@ class SurveyStop:
                     outcome = "preempted"
                     return outcome
                 await _until(self.clock, wake, settled_at - self.clock.now())
-            fresh = False
+            stale = self.s.stale_frames
             while not self.enough(session):
                 if interrupted():
                     outcome = "preempted"
@@ -113,8 +113,8 @@ class SurveyStop:
                 pair = await _first(self.camera.read(), wake)
                 if pair is None or pair.t < settled_at:
                     continue
-                if not fresh:                    # perhaps taken before the carriage stopped here
-                    fresh = True
+                if stale > 0:                    # perhaps taken before the carriage stopped here
+                    stale -= 1
                     continue
                 if pair.t < session.last_pair_t + self.s.pair_interval_s:
                     continue
