@@ -32,6 +32,8 @@ from devices.errors import DeviceError
 from vision.survey_stats import summarise
 
 log = logging.getLogger("fishfarm.survey")
+OUTLIER_SD = 5.0           # robust SDs from the median length beyond which a "fish" is a measuring error
+OUTLIER_MIN_FISH = 10      # fewer: nothing is called an outlier
 IN_FLIGHT = 2              # pairs measuring at once: the robot's own CPU stays free for the loop
 Z95 = 1.96
 
@@ -40,6 +42,18 @@ def measure_pairs(jobs: Iterable[PairJob], calib, setup) -> Iterator[PairResult]
     """Every pair measured, in order: the survey stop's one call into the vision (here, in this
     process; remote vision workers take the same arguments)."""
     return measure_all(jobs, calib, setup, workers=1)
+
+
+def implausible(lengths: np.ndarray) -> np.ndarray:
+    """(N,) bool, the lengths left out: one stock's fork lengths are one hump (CV ~10 %); a "fish"
+    ``OUTLIER_SD`` robust SDs (1.4826 MAD) from the median is a stereo match gone wrong (two fish
+    taken for one), and at W = a L^b one 35 cm error among 9 cm fish doubles the mean weight."""
+    far = np.zeros(len(lengths), bool)
+    if len(lengths) < OUTLIER_MIN_FISH:
+        return far
+    median = float(np.median(lengths))
+    spread = 1.4826 * float(np.median(np.abs(lengths - median)))
+    return far if spread <= 0 else np.abs(lengths - median) > OUTLIER_SD * spread
 
 
 @dataclass
@@ -57,6 +71,7 @@ class SurveySession:
     measuring: set = field(default_factory=set)
     visits: int = 0
     failed: str | None = None
+    rejected: list[float] = field(default_factory=list)      # lengths left out as measuring errors
 
     def precise(self, weight, ci_pct: float, min_fish: int) -> bool:
         """The mean weight's 95 % CI (normal approximation) within ±ci_pct of it."""
@@ -186,7 +201,15 @@ class SurveyStop:
         while session.measuring:
             await asyncio.wait(set(session.measuring))
         t = self.clock.now()
-        lengths = np.asarray(session.lengths, float)
+        measured = np.asarray(session.lengths, float)
+        far = implausible(measured)
+        lengths, rejected = measured[~far], [float(x) for x in measured[far]]
+        for entry, out in zip(session.entries, far, strict=True):
+            entry["outlier"] = bool(out)
+        if rejected:
+            log.warning("survey of %s: %d of %d lengths left out as measuring errors (%s cm)", session.tank,
+                        len(rejected), len(session.lengths), ", ".join(f"{x:.1f}" for x in rejected))
+        session.rejected = rejected
         sp = self.species[session.tank]
         weights = sp.weight.weight_g(lengths)
         path = self._write_out_json(session, t, lengths, weights)
@@ -201,7 +224,8 @@ class SurveyStop:
         doc = {"species": self.species[session.tank].key, "setup": self.s.setup, "frames": session.captured,
                "fish": session.entries, "count": stats["count"], "length_cm": stats["length_cm"],
                "weight_g": stats["weight_g"], "precision": stats["precision"], "tank": session.tank,
-               "requested_by": session.why, "visits": session.visits, "statistics_per": "fish"}
+               "requested_by": session.why, "visits": session.visits, "statistics_per": "fish",
+               "rejected_lengths_cm": [round(x, 2) for x in session.rejected]}
         out = Path(self.s.out_dir) / f"{session.tank}-{self.clock.iso(t).replace(':', '')}.json"
         try:
             out.parent.mkdir(parents=True, exist_ok=True)
