@@ -23,6 +23,8 @@ from pydantic import BaseModel, ConfigDict, Field
 from devices.sim.fish_scene import underwater_rig, underwater_scene
 from devices.sim.fish_species import SPECIES
 
+SIZE_SAMPLE = 256         # individuals a still's sizes are drawn from, when the tank keeps them
+
 
 class SimStereoCameraParams(BaseModel):
     """farm.toml ``[sim.stereo_camera]``."""
@@ -62,12 +64,24 @@ class TankView:
             conditions["species"] = "sparus_aurata"
         else:
             sp = SPECIES[tank.species] if tank.species in SPECIES else SPECIES["sparus_aurata"]
-            weight, cv = tank.mean_weight_g(t), tank.p.length_cv
+            weight, length, cv = self._sizes(tank, sp, t)
             n = int(self.rng.integers(lo, hi + 1))
-            conditions.update(species=sp.name, mean_length_cm=mean_length_cm(weight, sp.a, sp.b, cv), length_cv=cv)
+            conditions.update(species=sp.name, mean_length_cm=length, length_cv=cv)
         scene = underwater_scene(self.rng, self.rig, n_fish=n, **conditions)
         self.seen = [*self.seen[-63:], (t, tank_id if tank is not None else None, weight)]
         return np.hstack([scene.left, scene.right])
+
+    def _sizes(self, tank, sp, t: float) -> tuple[float, float, float]:
+        """(mean weight g, mean fork length cm, length CV) of the tank's fish at ``t``: drawn from its
+        individuals when it has a stock that keeps them (``stock.weights(n, rng)``), else from its
+        mean weight and ``[sim.fish] length_cv``."""
+        stock = getattr(tank, "stock", None)
+        if stock is not None and hasattr(stock, "weights"):
+            w = np.asarray(stock.weights(SIZE_SAMPLE, self.rng), float)
+            lengths = (w / sp.a) ** (1 / sp.b)
+            return float(w.mean()), float(lengths.mean()), float(lengths.std() / lengths.mean())
+        weight, cv = tank.mean_weight_g(t), tank.p.length_cv
+        return weight, mean_length_cm(weight, sp.a, sp.b, cv), cv
 
     def write_calibration(self, path: Path) -> str:
         path.write_text(json.dumps(self.rig.calibration().to_json()))

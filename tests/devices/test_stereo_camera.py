@@ -13,6 +13,7 @@ from devices.clock import ManualClock
 from devices.errors import BadInput
 from devices.sections import section_model, validate_section
 from devices.sim.fish import SimFishParams, SimTank
+from devices.sim.fish_species import SPECIES
 from devices.sim.stereo_camera import SimStereoCameraParams, TankView, frame_size, mean_length_cm
 from devices.sim.stereo_rig import convergent_rig
 from devices.sim.tower_camera import SimTowerCamera
@@ -120,3 +121,21 @@ def test_pairs_of_the_tank_under_the_carriage_come_through_videocapture(tmp_path
     assert [p.seq for p in pairs] == [1, 2, 3]
     seen = [s for s in view.seen if s[1] == "T1"]
     assert seen and all(w == pytest.approx(200.0 * np.exp(0.01 * t / 86400)) for t, _, w in seen)
+
+
+def test_a_tank_that_keeps_its_fish_as_individuals_is_drawn_from_them():
+    """A stock of individuals (weights lognormal here): the stills' lengths follow theirs."""
+    class Stock:
+        def __init__(self):
+            self.w = np.random.default_rng(1).lognormal(np.log(150.0), 0.25, 5000)
+
+        def weights(self, n, rng):
+            return rng.choice(self.w, n)
+
+    tank = types.SimpleNamespace(species="sparus_aurata", stock=Stock())
+    view = TankView(SimStereoCameraParams(width=W, height=H), {"T1": tank}, lambda t: "T1")
+    weight, length, cv = view._sizes(tank, SPECIES["sparus_aurata"], 0.0)
+    lengths = (tank.stock.w / 0.02263) ** (1 / 3.032)
+    assert weight == pytest.approx(tank.stock.w.mean(), rel=0.05)
+    assert length == pytest.approx(lengths.mean(), rel=0.02) and cv == pytest.approx(lengths.std() / lengths.mean(),
+                                                                                      rel=0.15)
