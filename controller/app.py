@@ -31,6 +31,7 @@ from controller.stopping import Stopping
 from controller.store import Store
 from controller.surveys.watch import SurveyWatch
 from controller.water import WaterTemperatures
+from controller.surveys.wiring import build_survey_stops, survey_camera_name
 from devices.errors import DeviceError
 from devices.sim.world import SimSection
 
@@ -73,6 +74,8 @@ class Controller(Stopping):
             self.cleaning = prepare(cfg)          # geometry, dock, tower, plan: bad input now, not at start
         if any(s["driver"] == "sim" for s in cfg.devices.values()):
             validate_section(SimSection, cfg.sim, cfg.path, "sim")
+        survey_camera_name(cfg)                   # scheduled surveys without a camera: bad input now
+        self.survey_stops = None
 
     # -- life cycle -------------------------------------------------------------
     async def start(self) -> None:
@@ -130,6 +133,7 @@ class Controller(Stopping):
             return
         self.robot = FeedingRobot(cfg, self.clock, self.rail, self.dispenser, self.store, self.rations,
                                   self.alarms, self.bus.publish, lane=self.lane)
+        self.robot.surveys = self.survey_stops = build_survey_stops(self)
         if self.estop_before_start is not None:
             await self.robot.emergency_stop(self.estop_before_start)
         self._requeue_open_demands()

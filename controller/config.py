@@ -55,6 +55,14 @@ class ScadaConfig(Strict):
     refresh_s: float = Field(0.25, ge=0.01, le=60, description="wall seconds between snapshot refreshes")
 
 
+class SurveySchedule(Strict):
+    """A tank's ``survey = {every_days = 7, at = "10:00", pairs = 40}``: the rail robot surveys it
+    every ``every_days`` days from ``at`` (farm local time) on, ``pairs`` stereo pairs at most."""
+    every_days: int = Field(7, ge=1, le=365)
+    at: str = Field("10:00", pattern=r"^([01][0-9]|2[0-3]):[0-5][0-9]$", description="HH:MM, farm local time")
+    pairs: int = Field(40, ge=1, le=10_000)
+
+
 class TankConfig(Strict):
     id: str = Field(pattern=r"^[A-Za-z0-9_-]{1,32}$")
     species: str = "sparus_aurata"
@@ -66,6 +74,7 @@ class TankConfig(Strict):
                                            description="% body weight a day; default from species")
     water_temp_c: float | None = Field(None, ge=-5, le=40, description="this tank's water; default [feeding]'s")
     target_weight_g: float | None = Field(None, gt=0, le=1_000_000, description="harvest weight, for projections")
+    survey: SurveySchedule | None = Field(None, description="scheduled weight surveys (none: on request only)")
 
 
 class FeedingConfig(Strict):
@@ -134,6 +143,22 @@ class CleaningConfig(Strict):
                                       description="[cleaning.float]: the marker's detection (vision/float_detect.py)")
 
 
+class SurveysConfig(Strict):
+    """``[surveys]``: how the rail robot's survey stop runs (controller/surveys/stop.py)."""
+    camera: str | None = Field(None, description="the stereo_camera device (default: the only one)")
+    setup: Literal["underwater", "surface"] = "underwater"
+    settle_s: float = Field(60.0, ge=0, le=3600, description="farm seconds the water settles before capture")
+    pair_interval_s: float = Field(2.0, ge=0, le=3600, description="farm seconds at least between pairs")
+    pairs: int = Field(40, ge=1, le=10_000, description="pairs of a survey started by an operator")
+    stale_frames: int = Field(1, ge=0, le=100, description="frames dropped after settling: a camera's buffers "
+                              "may hold ones taken before the carriage stopped")
+    ci_pct: float = Field(2.0, gt=0, le=100, description="stop early once the mean weight's 95 % CI is within ±this")
+    min_fish: int = Field(30, ge=2, le=100_000, description="fish measured before the CI may stop a survey")
+    retry_s: float = Field(3600.0, gt=0, le=86_400 * 7,
+                           description="farm seconds before a failed survey is tried again")
+    out_dir: str = Field("var/surveys", min_length=1, description="each survey's OUT.json")
+
+
 class Config(Strict):
     site: str = Field("demo", pattern=r"^[A-Za-z0-9_-]{1,64}$")
     utc_offset_h: float = Field(0.0, ge=-14, le=14, description="rations reset at local midnight")
@@ -147,6 +172,7 @@ class Config(Strict):
     sim: dict[str, Any] = {}
     stocks: dict[str, dict[str, Any]] = {}     # weight surveys' a, b per stock: controller/surveys/species.py
     cleaning: CleaningConfig | None = None
+    surveys: SurveysConfig = SurveysConfig()
     path: str = "<config>"
 
     @field_validator("tanks")

@@ -42,10 +42,11 @@ from controller.text import printable
 log = logging.getLogger("fishfarm.override")
 
 LOG_LINE_MAX = 1000
-NOT_YET = {"start-survey": "weight surveys are not started by override"}
+NOT_YET: dict[str, str] = {}
+NO_CAMERA = "no survey camera in this controller (farm.toml has no stereo_camera device)"
 NO_CLEANER = "no pond cleaner in this controller (farm.toml has no [cleaning] section)"
 COMMANDS = ("estop", "reset", "manual", "feed", "ration", "settle", "pause", "resume", "ack",
-            "mortality", "harvest", "transfer", "cleaner-start", "cleaner-stop", "cleaner-return", *NOT_YET)
+            "mortality", "harvest", "transfer", "start-survey", "cleaner-start", "cleaner-stop", "cleaner-return")
 
 
 class _OneLine(logging.Filter):
@@ -270,6 +271,21 @@ class Overrides:
             self.c.robot.resume(cmd.tank)
         log.warning("resume %s by %s: %s", cmd.tank, by or cmd.operator, cmd.reason)
         return {"ok": True} if was else {"ok": True, "note": f"tank {cmd.tank} was not paused"}
+
+    async def start_survey(self, payload, by: str | None = None) -> dict:
+        """A weight survey of the tank now: the rail robot takes it once no demand waits, and leaves
+        it for any demand that comes (controller/surveys/stop.py)."""
+        cmd = parse(Tank, payload)
+        self._tank(cmd.tank)
+        self._robot()
+        stops = getattr(self.c, "survey_stops", None)
+        if stops is None:
+            raise Refused(f"command: {NO_CAMERA}")
+        if cmd.tank in self.c.store.paused_tanks():
+            raise Refused(f"tank: {cmd.tank} is paused (resume it first)")
+        note = stops.request(cmd.tank)
+        log.warning("start-survey %s by %s: %s", cmd.tank, by or cmd.operator, cmd.reason)
+        return {"ok": True} if note is None else {"ok": True, "note": note}
 
     async def ack(self, payload, by: str | None = None) -> dict:
         cmd = parse(Ack, payload)

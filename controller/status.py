@@ -40,6 +40,9 @@ def farm_status(c) -> dict:
     elif c.cfg.cleaning is not None:
         out["cleaner"] = {"t": c.clock.iso(now), "state": "starting", "x_m": None, "y_m": None,
                           "heading_rad": None, "coverage": None}
+    stops = getattr(c, "survey_stops", None)
+    if stops is not None:                 # the survey under way (tank, pairs so far) and those asked for
+        out["survey"] = stops.snapshot()
     suspects = store.suspects() if store is not None and store.db is not None else []
     if suspects:      # feeds of unknown outcome, held against the ration until settled
         out["suspect"] = [{"id": f.id, "tank": f.tank, "date": f.date, "t": c.clock.iso(f.t_intent),

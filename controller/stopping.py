@@ -35,6 +35,8 @@ class Stopping:
             took[name], last = now - last, now
 
         tasks = [t for t in (self._starting, *self.tasks) if t is not None]
+        if getattr(self, "survey_stops", None) is not None:   # surveys being measured are not recorded
+            tasks += list(self.survey_stops.stop.finishing)
         for task in tasks:
             task.cancel()
         await shutdown.ended(tasks, shutdown.STOP_TASKS_S, "task")

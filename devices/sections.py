@@ -13,8 +13,8 @@ from pydantic import BaseModel, ValidationError
 
 from devices.errors import BadInput
 
-DEVICE_KINDS = ("contacts", "rail", "dispenser", "thrusters", "tower_camera", "thermometer")
-PACKAGES = {"tower_camera": "devices.camera"}
+DEVICE_KINDS = ("contacts", "rail", "dispenser", "thrusters", "tower_camera", "thermometer", "stereo_camera")
+PACKAGES = {"tower_camera": "devices.camera", "stereo_camera": "devices.stereo"}
 """The package of a kind whose name is not its package's (default: ``devices.<kind>``)."""
 
 

@@ -26,6 +26,7 @@ from hil_tests.stalls import StallWitness
 ROOT = Path(__file__).resolve().parents[1]
 CLEANER_KINDS = ("thrusters", "tower_camera")
 CLEANER_SIM = ("pond", "thrusters", "tower_camera")
+SURVEY_KINDS = ("stereo_camera",)
 FARM_START = 1_780_016_400.0          # 2026-05-29 01:00 UTC = local midnight (utc_offset_h = 1)
 STOP_LIMIT_S = 10.0                   # the controller ends within 5 s of SIGTERM; slack for a loaded machine
 
@@ -45,12 +46,16 @@ def merge(base: dict, extra: dict) -> dict:
 
 
 def without_cleaner(config: dict) -> dict:
-    """The farm without its pond cleaner: the feeder's runs go at hundreds of times the wall,
-    where a camera's frames are farm minutes apart, and its rendering would only take their CPU."""
-    out = {k: v for k, v in config.items() if k != "cleaning"}
-    out["devices"] = {n: s for n, s in config.get("devices", {}).items() if s.get("kind") not in CLEANER_KINDS}
+    """The farm's feeder alone, without its pond cleaner and its survey cameras: the feeder's runs go
+    at hundreds of times the wall, where a camera's frames are farm minutes apart, and rendering
+    would only take their CPU (and a scheduled survey would move the robot those runs time)."""
+    out = {k: v for k, v in config.items() if k not in ("cleaning", "surveys")}
+    out["devices"] = {n: s for n, s in config.get("devices", {}).items()
+                      if s.get("kind") not in (*CLEANER_KINDS, *SURVEY_KINDS)}
     if "sim" in config:
-        out["sim"] = {k: v for k, v in config["sim"].items() if k not in CLEANER_SIM}
+        out["sim"] = {k: v for k, v in config["sim"].items() if k not in (*CLEANER_SIM, *SURVEY_KINDS)}
+    if "tanks" in config:
+        out["tanks"] = [{k: v for k, v in t.items() if k != "survey"} for t in config["tanks"]]
     return out
 
 

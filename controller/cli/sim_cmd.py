@@ -45,6 +45,7 @@ def sim(config_path, endpoints, truth, speed, epoch_wall, epoch_farm, log_level)
 
     async def main():
         farm = SimFarm(cfg, clock, TruthLog(truth) if truth else None)
+        farm.files_dir = Path(endpoints).parent     # the stereo rig's CALIB.json beside the endpoints
         stop = asyncio.Event()
         loop = asyncio.get_running_loop()
         for sig in (signal.SIGINT, signal.SIGTERM):

@@ -28,8 +28,8 @@ from devices.errors import DeviceError, DeviceTimeout
 
 log = logging.getLogger("fishfarm.feeder")
 
-STATES = ["idle", "homing", "moving", "dispensing", "refilling", "fault", "estop", "manual"]
-ACTIVE = ["idle", "homing", "moving", "dispensing", "refilling"]
+STATES = ["idle", "homing", "moving", "dispensing", "refilling", "surveying", "fault", "estop", "manual"]
+ACTIVE = ["idle", "homing", "moving", "dispensing", "refilling", "surveying"]
 TRANSITIONS = [
     # trigger            source                      dest
     ["homed",            "homing",                   "idle"],
@@ -38,6 +38,8 @@ TRANSITIONS = [
     ["arrive_box",       "moving",                   "refilling"],
     ["dispensed",        "dispensing",               "idle"],
     ["refilled",         "refilling",                "idle"],
+    ["arrive_survey",    "moving",                   "surveying"],
+    ["surveyed",         "surveying",                "idle"],
     ["fail",             ACTIVE,                     "fault"],
     ["recover",          "fault",                    "homing"],
     ["estop",            "*",                        "estop"],
@@ -80,6 +82,7 @@ class FeedingRobot:
         self._operator = asyncio.Event()      # an operator acted: only this cuts a back-off short
         self._estop_released = False
         self._action: asyncio.Task | None = None
+        self.surveys = None                   # controller/surveys/wiring.py's SurveyStops, when a camera is set up
         initial = "estop" if "estop" in alarms.active else "homing"
         Machine(model=self, states=STATES, transitions=TRANSITIONS, initial=initial,
                 auto_transitions=False, after_state_change="_state_changed")
@@ -282,6 +285,8 @@ class FeedingRobot:
                 await self._serve(job)
         elif hopper < self.feeding.refill_below_g:
             await self._refill()
+        elif (survey := self._survey_due()) is not None:
+            await self._survey(survey)
         else:
             await self._wait(self._wake, 30.0)
 
@@ -317,6 +322,17 @@ class FeedingRobot:
             self._finish(job, "ration_reached")
         self.dispensed()
         self._in_service()
+
+    def _survey_due(self):
+        return None if self.surveys is None else self.surveys.next(self.paused, self.clock.now())
+
+    async def _survey(self, session) -> None:
+        """A survey stop (controller/surveys/stop.py): it leaves for any demand that comes."""
+        self.go()
+        await self._move_to(self.cfg.tank(session.tank).position_m)
+        self.arrive_survey()
+        await self.surveys.visit(session, lambda: bool(self.pending), self._wake)
+        self.surveyed()
 
     async def _refill(self) -> None:
         self.go()
@@ -376,6 +392,10 @@ class FeedingRobot:
         if status is None:
             status = await self.rail.wait_until(lambda s: True, self.feeding.move_timeout_s)
         return status
+
+    def poke(self) -> None:
+        """Something to do may have come (an operator's survey): look again now."""
+        self._wake.set()
 
     def _poke(self) -> None:
         self._operator.set()

@@ -94,6 +94,8 @@ class Guard:
             return True
         if command == "pause":
             return await self._apply("pause" if value else "resume", {**base, "tank": e.label}, origin)
+        if command == "start-survey":
+            return await self._apply(command, {**base, "tank": e.label}, origin)
         if command in ("feed", "ration"):
             return await self._apply(command, {**base, "tank": e.label, "grams": float(value)}, origin)
         if command == "ack" and e.label is None:

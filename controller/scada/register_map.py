@@ -25,7 +25,8 @@ WORDS = {"bool": 1, "u16": 1, "i16": 1, "u32": 2, "i32": 2, "f32": 2}
 # "no value": what a register reads while the controller does not know the value (SunSpec's markers)
 NO_VALUE = {"u16": 0xFFFF, "i16": -0x8000, "u32": 0xFFFF_FFFF, "i32": -0x8000_0000, "f32": math.nan}
 MAP_VERSION = 1
-FEEDER_STATES = ("starting", "idle", "homing", "moving", "dispensing", "refilling", "fault", "estop", "manual")
+FEEDER_STATES = ("starting", "idle", "homing", "moving", "dispensing", "refilling", "fault", "estop", "manual",
+                 "surveying")         # appended: a code once given keeps its meaning
 SEVERITY = {None: 0, "info": 1, "warning": 2, "critical": 3}
 MAX_SLOTS = 40
 RATION_MAX_G = 1_000_000.0     # as controller/overrides.py: a tonne a day for one tank
@@ -157,6 +158,10 @@ TABLE: tuple[Row, ...] = (
         "both words in one request)", _t("ration_g"), Write("ration", lambda cfg: (0.0, RATION_MAX_G))),
     Row("tank", "pause", COIL, 0, "bool", 1, "", "R/W", "1 pause feeding this tank, 0 resume; reads 1 while paused",
         lambda v: bool(v.tank.get("paused")), Write("pause")),
+    # -- per tank, config order: its survey coils, a block of their own (the tank's coils are 1 apart) --
+    Row("survey", "start_survey", COIL, 0, "bool", 1, "", "W", "write 1: survey this tank's fish now (the rail "
+        "robot's survey stop, once no demand waits; refused without a stereo camera or while paused); reads 0",
+        write=Write("start-survey")),
 )
 
 # (base address, stride) of each block in each table; a block's rows sit at base + index * stride + offset
@@ -167,6 +172,7 @@ BLOCKS: dict[str, dict[str, tuple[int, int]]] = {
     "alarms": {IR: (30, 0)},
     "slot": {IR: (40, 1), DI: (10, 2), COIL: (10, 1)},
     "tank": {IR: (100, 20), HR: (100, 4), COIL: (100, 1)},
+    "survey": {COIL: (1100, 1)},
 }
 FIXED_SLOTS = ("estop", "feeder", "ledger", "dispenser_counters", "sim", "controller", "scada")
 
@@ -217,14 +223,14 @@ def layout(cfg) -> Layout:
     entries: list[Entry] = []
     for row in TABLE:
         base, stride = BLOCKS[row.block][row.kind]
-        if row.block == "tank":
+        if row.block in ("tank", "survey"):
             labels = tanks
         elif row.block == "slot":
             labels = slots
         else:
             labels = [None]
         for i, label in enumerate(labels):
-            if row.block == "tank":
+            if row.block in ("tank", "survey"):
                 name = f"tank.{label}.{row.name}"
             elif row.block == "slot":
                 name = f"alarm.{label}.{row.name}"

@@ -4,8 +4,9 @@ A device marked ``driver = "sim"`` in farm.toml is served by ``fishfarm sim`` (i
 process, see controller/cli/sim_cmd.py) over the same protocol as the hardware: the contact
 hub on a pseudo-terminal, the rail drive over slcan on a pseudo-terminal, the dispenser as a
 Modbus TCP server, the cleaner's thruster controller on a pseudo-terminal, the tower camera
-as an MJPEG-over-HTTP server, the water thermometer as a Modbus TCP server. The controller
-then reaches it through the real driver.
+as an MJPEG-over-HTTP server, the survey cameras the same way (both views side by side),
+the water thermometer as a Modbus TCP server. The controller then reaches it through the
+real driver.
 """
 from __future__ import annotations
 
@@ -50,6 +51,13 @@ class SimThermometerSection(Section):
     probes: dict[str, int] = Field(description="probe name -> channel, as the real transmitter's")
 
 
+class SimStereoCameraSection(Section):
+    """The simulated survey cameras on the carriage (``[sim.stereo_camera]``: size, rate, fish)."""
+
+    host: str = "127.0.0.1"
+    port: int = Field(0, ge=0, le=65535, description="0: any free port, reported by the sim process")
+
+
 SIM_SECTIONS = {
     "contacts": SimContactsSection,
     "rail": SimRailSection,
@@ -57,4 +65,5 @@ SIM_SECTIONS = {
     "thrusters": SimThrustersSection,
     "tower_camera": SimTowerCameraSection,
     "thermometer": SimThermometerSection,
+    "stereo_camera": SimStereoCameraSection,
 }

@@ -96,6 +96,7 @@ class SimTowerCamera:
         self.render_walls: dict[int, float] = {}   # seq -> perf_counter when rendering began (last few)
         self._cond = threading.Condition()
         self._jpeg: bytes | None = None
+        self._began = 0.0                          # perf_counter when the newest frame's rendering began
         self._seq = 0
         self._clients = 0
         self._stop = threading.Event()
@@ -161,6 +162,7 @@ class SimTowerCamera:
                     next_at = time.monotonic()
             if self._stop.is_set():
                 return
+            began = time.perf_counter()
             try:
                 jpeg = self._encode()
             except Exception:  # noqa: BLE001 - a renderer bug must not kill the camera silently
@@ -169,22 +171,24 @@ class SimTowerCamera:
                 continue
             with self._cond:
                 self._seq += 1
-                self._jpeg = jpeg
+                self._jpeg, self._began = jpeg, began
                 self.rendered += 1
                 self._cond.notify_all()
             next_at = max(next_at + period, time.monotonic() - period)   # late: no burst to catch up
             self._stop.wait(max(0.0, next_at - time.monotonic()))
 
     def frames(self):
-        """Each new JPEG as it is made, for one client, until the camera stops."""
-        seen = 0
+        """Each new JPEG made after the client came, as it is made, until the camera stops."""
+        came = time.perf_counter()    # no frame whose rendering began before: a stale view
         with self._cond:
+            seen = self._seq
             self._clients += 1
             self._cond.notify_all()
         try:
             while True:
                 with self._cond:
-                    while self._seq == seen and not self._stop.is_set():
+                    while (self._seq == seen or self._began < came) and not self._stop.is_set():
+                        seen = self._seq
                         self._cond.wait(0.5)
                     if self._stop.is_set():
                         return

@@ -13,6 +13,8 @@ from __future__ import annotations
 import asyncio
 import logging
 import random
+import tempfile
+from pathlib import Path
 from typing import Any
 
 from pydantic import BaseModel, ConfigDict, Field
@@ -42,6 +44,7 @@ class SimSection(BaseModel):
     dispenser: dict[str, Any] = {}
     thrusters: dict[str, Any] = {}
     tower_camera: dict[str, Any] = {}
+    stereo_camera: dict[str, Any] = {}
     pond: dict[str, Any] = {}
     thermometer: dict[str, Any] = {}
     stock: dict[str, Any] = {}
@@ -59,7 +62,8 @@ class SimFarm:
         self.rng = random.Random(self.section.seed)
         simulated = [(n, s) for n, s in cfg.devices.items() if s["driver"] == "sim"]
         self.devices = {kind: [(n, s) for n, s in simulated if s["kind"] == kind]
-                        for kind in ("contacts", "rail", "dispenser", "thrusters", "tower_camera", "thermometer")}
+                        for kind in ("contacts", "rail", "dispenser", "thrusters", "tower_camera", "thermometer",
+                                     "stereo_camera")}
         self.motor: SimRailMotor | None = None
         self.adapter: SlcanAdapter | None = None
         self.dispenser: SimDispenser | None = None
@@ -69,6 +73,8 @@ class SimFarm:
         self.pond = None                      # SimPond: the cleaner on the floor
         self.camera = None                    # SimTowerCamera
         self.thermometer = None               # SimThermometer over the water model
+        self.stereo = None                    # the survey cameras' server (a SimTowerCamera of pairs)
+        self.files_dir: Path | None = None    # where the stereo rig's CALIB.json goes (a temporary dir if None)
         self.tank_positions = sorted((t.position_m, t.id) for t in cfg.tanks)
         box = cfg.feeding.food_box_m
         self.edges = sorted({p + d for p, _ in self.tank_positions for d in (-TANK_MOUTH_M, TANK_MOUTH_M)}
@@ -160,6 +166,7 @@ class SimFarm:
             endpoints[name] = await self._start_hub()
         endpoints.update(await self._start_pond())
         endpoints.update(await self._start_thermometer())
+        endpoints.update(self._start_stereo())
         return endpoints
 
     async def _start_thermometer(self) -> dict[str, dict]:
@@ -175,6 +182,31 @@ class SimFarm:
                 raise BadInput(self.cfg.path, f"devices.{name}.port", str(exc)) from None
             endpoints[name] = {"kind": "thermometer", "driver": "modbus", "host": host,
                                "port": self.thermometer.port, "unit": unit, "probes": probes}
+        return endpoints
+
+    def _start_stereo(self) -> dict[str, dict]:
+        """The survey cameras on the carriage: they see the fish of the tank under it."""
+        from devices.sim.stereo_camera import SimStereoCameraParams, TankView, frame_size
+        from devices.sim.tower_camera import SimTowerCamera
+        endpoints: dict[str, dict] = {}
+        where = self.cfg.path
+        for name, section in self.devices["stereo_camera"][:1]:
+            params = validate_section(SimStereoCameraParams, self.section.stereo_camera, where, "sim.stereo_camera")
+            view = TankView(params, self.tanks, lambda t: self.tank_under(self.carriage_m(t)))
+            if self.files_dir is None:
+                self._tmp = tempfile.TemporaryDirectory(prefix="fishfarm-stereo-")
+                self.files_dir = Path(self._tmp.name)
+            calib = view.write_calibration(self.files_dir / f"{name}-CALIB.json")
+            served = {"fps": params.fps, "jpeg_quality": params.jpeg_quality, **frame_size(params)}
+            self.stereo = SimTowerCamera(view.render, self.clock, served, host=section.get("host", "127.0.0.1"),
+                                         port=section.get("port", 0), where=where)
+            try:
+                self.stereo.start()
+            except OSError as exc:
+                raise BadInput(where, f"devices.{name}.port", str(exc)) from None
+            endpoints[name] = {"kind": "stereo_camera", "driver": "capture", "sources": [self.stereo.url],
+                               "layout": "side_by_side", "calib": calib, "api": "ffmpeg",
+                               "ffmpeg_options": RECV_WINDOW}
         return endpoints
 
     async def _start_pond(self) -> dict[str, dict]:
@@ -226,6 +258,8 @@ class SimFarm:
     async def stop(self) -> None:
         if self.thermometer is not None:
             await self.thermometer.stop()
+        if self.stereo is not None:
+            await asyncio.to_thread(self.stereo.stop)
         if self.camera is not None:
             await asyncio.to_thread(self.camera.stop)
         if self.pond is not None:

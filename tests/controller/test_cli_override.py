@@ -185,3 +185,12 @@ def test_booleans_and_tank_ids_travel_typed(controller):
     assert proc.returncode == 1, proc.stderr
     assert received == [("feed", {"operator": "tester", "tank": "12", "grams": 40, "on": True, "off": False,
                                   "word": "yes"})]
+
+
+def test_status_table_shows_the_survey_under_way():
+    snap = {**SNAPSHOT, "survey": {"current": {"tank": "T3", "why": "operator", "captured": 12, "pairs": 40,
+                                               "fish": 9, "visits": 3}, "asked": ["T5"]}}
+    assert "survey: T3 (operator) 12/40 pairs, 9 fish, 3 visits; asked: T5" in render_status(snap).splitlines()
+    idle = render_status({**SNAPSHOT, "survey": {"current": None, "asked": []}, "alarms": []})
+    assert idle.splitlines()[-1] == "survey: none under way"
+    assert "survey" not in render_status({**SNAPSHOT, "alarms": []})     # no camera: no line

@@ -24,7 +24,8 @@ def test_demo_config_loads():
     cfg = load_config("config/farm.toml")
     assert len(cfg.tanks) == 8 and cfg.site == "demo"
     assert {s["kind"] for s in cfg.devices.values()} == {"contacts", "rail", "dispenser", "thrusters", "tower_camera",
-                                                           "thermometer"}
+                                                           "thermometer", "stereo_camera"}
+    assert all(t.survey is not None and t.survey.every_days == 7 for t in cfg.tanks)
     assert cfg.cleaning is not None          # the pond and its cleaner (tests/controller/test_demo_farm.py)
 
 

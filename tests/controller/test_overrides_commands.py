@@ -136,7 +136,9 @@ def test_a_count_that_is_no_count_of_these_fish_is_refused(farm, command, count,
     ("ack", {"source": "nobody"}, "source: no such alarm"),
     ("ack", {"source": "feeder\n"}, "source: control characters (newline, carriage return, escape...) are not allowed"),
     ("ack", {"source": "x" * 101}, "source: longer than 100 characters"),
-    ("start-survey", {"tank": "T1"}, "not available yet: weight surveys are not started by override"),
+    ("start-survey", {"tank": "T1"}, "command: no survey camera in this controller (farm.toml has no "
+                                     "stereo_camera device)"),
+    ("start-survey", {"tank": "T9"}, "tank: no tank 'T9'"),
     ("start-survey", {"tank": 3}, "tank: must be a string, not a number"),
     ("cleaner-start", {}, "command: no pond cleaner in this controller (farm.toml has no [cleaning] section)"),
     ("cleaner-stop", {"operator": "ana"},
@@ -257,7 +259,7 @@ def test_every_command_of_the_plan_has_its_entry():
     assert set(COMMANDS) == {"estop", "reset", "manual", "feed", "ration", "settle", "pause", "resume", "ack",
                              "mortality", "harvest", "transfer", "start-survey", "cleaner-start", "cleaner-stop",
                              "cleaner-return"}
-    assert set(NOT_YET) == {"start-survey"}
+    assert set(NOT_YET) == set()
 
 
 def test_the_override_command_line_sends_names_as_strings():

@@ -209,3 +209,55 @@ def test_params_are_checked_by_name():
         SimTowerCamera(Scene(), ManualClock(), {"fsp": 10})
     with pytest.raises(ValueError):
         Config(kind="tower_camera", driver="capture", source=0, api="directshow")
+
+
+def test_a_new_client_never_gets_a_frame_rendered_before_it_came():
+    """The survey cameras stream per visit: a view left from the last stream would be another tank's."""
+    async def main():
+        clock, scene = ManualClock(), Scene()
+        cam = serve(scene, clock, fps=20.0)
+        dev = camera(cam.url, clock)
+        await dev.open()
+        await dev.read()
+        await dev.close()
+        await until(lambda: cam._clients == 0, what="the first client gone")
+        rendered = len(scene.asked)
+        again = camera(cam.url, clock)
+        await again.open()
+        first = await again.read()
+        await again.close()
+        cam.stop()
+        return rendered, unstamp(first.image)
+    rendered, first = asyncio.run(main())
+    assert first > rendered
+
+
+def test_a_frame_whose_rendering_began_before_the_client_came_is_not_its_first():
+    """A frame still being rendered when a new stream opens shows the scene of before it opened."""
+    class SlowScene(Scene):
+        def __init__(self):
+            super().__init__()
+            self.began: list[float] = []
+
+        def __call__(self, t_s):
+            self.began.append(time.perf_counter())
+            time.sleep(0.15)                      # rendering takes a while: the next client comes meanwhile
+            return super().__call__(t_s)
+
+    async def main():
+        clock, scene = ManualClock(), SlowScene()
+        cam = serve(scene, clock, fps=50.0)
+        dev = camera(cam.url, clock)
+        await dev.open()
+        await dev.read()
+        await until(lambda: len(scene.began) > len(scene.asked), what="a rendering under way")
+        await dev.close()
+        came = time.perf_counter()
+        again = camera(cam.url, clock)
+        await again.open()
+        first = await again.read()
+        await again.close()
+        cam.stop()
+        return scene, came, unstamp(first.image)
+    scene, came, first = asyncio.run(main())
+    assert scene.began[first - 1] >= came

@@ -58,10 +58,13 @@ def test_every_value_has_its_own_words_and_a_documented_form():
 def test_tank_blocks_follow_the_documented_stride():
     cfg = load_config(ROOT / "config" / "farm.toml")
     rows = {(r["type"], r["name"]): int(r["address"]) for r in map_rows()}
-    for kind, (base, stride) in rm.BLOCKS["tank"].items():
-        for i, t in enumerate(cfg.tanks):
-            mine = [a for (k, n), a in rows.items() if k == kind and n.startswith(f"tank.{t.id}.")]
-            assert mine and all(base + i * stride <= a < base + (i + 1) * stride for a in mine)
+    for block in ("tank", "survey"):                 # the survey coils: a per-tank block of their own
+        names = {r.name for r in rm.TABLE if r.block == block}
+        for kind, (base, stride) in rm.BLOCKS[block].items():
+            for i, t in enumerate(cfg.tanks):
+                mine = [a for (k, n), a in rows.items()
+                        if k == kind and n.startswith(f"tank.{t.id}.") and n.split(".")[-1] in names]
+                assert mine and all(base + i * stride <= a < base + (i + 1) * stride for a in mine)
 
 
 def words(dtype, raw, order):

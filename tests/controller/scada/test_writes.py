@@ -33,6 +33,10 @@ def oracle(table: str, address: int, values: list[int], word_order: str = "big",
         tank = name.split(".")[1] if name.startswith("tank.") else None
         if name.endswith(".pause"):
             calls.append(("pause" if v[0] else "resume", {"tank": tank}))
+        elif name.endswith(".start_survey"):
+            if not v[0]:
+                return 3, []
+            calls.append(("start-survey", {"tank": tank}))
         elif name.endswith(".feed_now_g"):
             if not PORTION[0] <= v[0] <= PORTION[1]:
                 return 3, []

@@ -1,0 +1,95 @@
+"""Which tank the rail robot surveys next, and when.
+
+Per tank, ``survey = {every_days, at, pairs}`` (farm.toml ``[[tanks]]``): a survey is due from
+``at`` (farm local time) on the day ``every_days`` after the farm day of the tank's newest survey
+in the ledger (any survey: a hand-held ``fishfarm survey --tank`` counts), and at the first ``at``
+for a tank never surveyed. An operator's ``start-survey`` asks for one now.
+
+The robot asks ``next()`` only when no feeding demand waits (feeding comes first), so a survey
+never runs during feeding. A tank is skipped while paused (an operator's pause: grading, a
+treatment) or fasting (an operator's ration of 0 g today); its survey waits for the resume. A
+survey that failed (the camera) is tried again ``retry_s`` later. One survey at a time: an
+unfinished one (preempted by demands) is resumed before any other is started.
+"""
+from __future__ import annotations
+
+import logging
+import math
+from collections import OrderedDict
+
+from controller.surveys.stop import SurveySession
+
+log = logging.getLogger("fishfarm.survey")
+DAY_S = 86_400.0
+
+
+def due(every_days: int, at: str, last_t: float | None, now: float, utc_offset_h: float) -> bool:
+    """A survey every ``every_days`` farm days from ``at`` local time on: due at ``now``?"""
+    hh, mm = (int(x) for x in at.split(":"))
+    local = now + utc_offset_h * 3600.0
+    day, time_of_day = divmod(local, DAY_S)
+    if time_of_day < hh * 3600 + mm * 60 and (last_t is None or day - _day(last_t, utc_offset_h) <= every_days):
+        return False                           # not yet today's hour (an overdue day waits for no hour)
+    return last_t is None or day - _day(last_t, utc_offset_h) >= every_days
+
+
+def _day(t: float, utc_offset_h: float) -> float:
+    return math.floor((t + utc_offset_h * 3600.0) / DAY_S)
+
+
+class SurveySchedule:
+    def __init__(self, cfg, store, rations, clock):
+        self.cfg, self.store, self.rations, self.clock = cfg, store, rations, clock
+        self.current: SurveySession | None = None
+        self.asked: OrderedDict[str, SurveySession] = OrderedDict()    # operators' requests, in order
+        self.not_before: dict[str, float] = {}                          # tank -> retry after a failure
+
+    def request(self, tank: str, pairs: int | None = None) -> str | None:
+        """An operator's survey of ``tank`` now (after any demand waiting). A note when one is
+        already asked for or running."""
+        if self.current is not None and self.current.tank == tank:
+            return f"a survey of {tank} is under way ({self.current.captured} of {self.current.pairs} pairs)"
+        if tank in self.asked:
+            return f"a survey of {tank} is asked for already"
+        self.asked[tank] = SurveySession(tank, pairs or self.cfg.surveys.pairs, "operator", self.clock.now())
+        self.not_before.pop(tank, None)
+        return None
+
+    def held(self, tank: str, paused: set[str], now: float) -> str | None:
+        """Why ``tank`` is not surveyed now, or None."""
+        if tank in paused:
+            return "paused"
+        ration = self.rations.today(tank, now)
+        if ration.source == "operator" and ration.grams == 0:
+            return "fasting"
+        if now < self.not_before.get(tank, -math.inf):
+            return "retry later"
+        return None
+
+    def next(self, paused: set[str], now: float) -> SurveySession | None:
+        """The survey the robot should work on now, or None."""
+        if self.current is not None:
+            return self.current if self.held(self.current.tank, paused, now) is None else None
+        for tank, session in self.asked.items():
+            if self.held(tank, paused, now) is None:
+                self.current = self.asked.pop(tank)
+                return session
+        for tank in self.cfg.tanks:
+            plan = tank.survey
+            if plan is None or self.held(tank.id, paused, now) is not None:
+                continue
+            newest = self.store.surveys(tank.id, until=now, limit=1)
+            if due(plan.every_days, plan.at, newest[0].t if newest else None, now, self.cfg.utc_offset_h):
+                self.current = SurveySession(tank.id, plan.pairs, "schedule", now)
+                return self.current
+        return None
+
+    def ended(self, session: SurveySession, outcome: str, now: float) -> None:
+        """A visit's outcome: ``captured`` ends the session (its record follows), ``failed`` drops it
+        until ``retry_s`` has passed, ``preempted`` keeps it for the next visit."""
+        if outcome == "preempted":
+            return
+        if self.current is session:
+            self.current = None
+        # a survey that measured no fish is not one the ledger dates the next from: not at once again
+        self.not_before[session.tank] = now + self.cfg.surveys.retry_s

@@ -1,0 +1,278 @@
+"""The rail robot's survey stop: at the tank, wait for the water to settle, capture stereo pairs
+until ``pairs`` are in or the mean weight's 95 % CI is within ±``ci_pct`` (``[surveys]``), measure
+them, record the survey in the ledger (SurveyWatch then replans the ration).
+
+A stop never holds a feeding demand back: a visit captures one pair at a time and leaves as soon
+as a demand is waiting (``interrupted``) — from the settle wait, from a wait for a frame, between
+pairs. The survey (``SurveySession``) outlives the visit: the robot comes back, lets the water
+settle again and captures the rest. Pairs are measured off the loop (a thread each, at most
+``IN_FLIGHT`` at once) while the next is captured; measuring the last ones needs no robot, so the
+robot is free once the last pair is captured, and the survey is recorded when they are measured.
+
+Measuring goes through ``measure_pairs`` only: same shape as ``runner.measure_all`` (jobs, calib,
+setup -> results in order), the one place remote vision workers plug in.
+"""
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import json
+import logging
+import math
+from collections.abc import Callable, Iterable, Iterator
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from controller.surveys.frames import PairJob
+from controller.surveys.outputs import fish_entry
+from controller.surveys.runner import PairResult, measure_all
+from devices.errors import DeviceError
+from vision.survey_stats import summarise
+
+log = logging.getLogger("fishfarm.survey")
+OUTLIER_SD = 5.0           # robust SDs from the median length beyond which a "fish" is a measuring error
+OUTLIER_MIN_FISH = 10      # fewer: nothing is called an outlier
+IN_FLIGHT = 2              # pairs measuring at once: the robot's own CPU stays free for the loop
+Z95 = 1.96
+
+
+def measure_pairs(jobs: Iterable[PairJob], calib, setup) -> Iterator[PairResult]:
+    """Every pair measured, in order: the survey stop's one call into the vision (here, in this
+    process; remote vision workers take the same arguments)."""
+    return measure_all(jobs, calib, setup, workers=1)
+
+
+def implausible(lengths: np.ndarray) -> np.ndarray:
+    """(N,) bool, the lengths left out: one stock's fork lengths are one hump (CV ~10 %); a "fish"
+    ``OUTLIER_SD`` robust SDs (1.4826 MAD) from the median is a stereo match gone wrong (two fish
+    taken for one), and at W = a L^b one 35 cm error among 9 cm fish doubles the mean weight."""
+    far = np.zeros(len(lengths), bool)
+    if len(lengths) < OUTLIER_MIN_FISH:
+        return far
+    median = float(np.median(lengths))
+    spread = 1.4826 * float(np.median(np.abs(lengths - median)))
+    return far if spread <= 0 else np.abs(lengths - median) > OUTLIER_SD * spread
+
+
+@dataclass
+class SurveySession:
+    """One survey of one tank, across visits. ``why``: schedule | operator."""
+
+    tank: str
+    pairs: int
+    why: str
+    t: float                                   # when it was asked for
+    captured: int = 0
+    last_pair_t: float = -math.inf
+    lengths: list[float] = field(default_factory=list)
+    entries: list[dict] = field(default_factory=list)
+    measuring: set = field(default_factory=set)
+    visits: int = 0
+    failed: str | None = None
+    rejected: list[float] = field(default_factory=list)      # lengths left out as measuring errors
+
+    def precise(self, weight, ci_pct: float, min_fish: int) -> bool:
+        """The mean weight's 95 % CI (normal approximation) within ±ci_pct of it."""
+        n = len(self.lengths)
+        if n < max(min_fish, 2):
+            return False
+        w = weight.weight_g(np.asarray(self.lengths))
+        return Z95 * float(np.std(w, ddof=1)) / math.sqrt(n) <= ci_pct / 100 * float(np.mean(w))
+
+
+class SurveyStop:
+    """What the robot calls at a tank (``visit``), and the sessions' bookkeeping."""
+
+    def __init__(self, cfg, clock, camera, store, species, alarms, *, measure: Callable = measure_pairs):
+        self.cfg, self.s = cfg, cfg.surveys
+        self.clock, self.camera, self.store, self.alarms = clock, camera, store, alarms
+        self.species, self.measure = species, measure          # tank -> SurveySpecies
+        self.setups = {tank: sp.setup(self.s.setup, None) for tank, sp in species.items()}
+        self._power: asyncio.Future | None = None          # the cameras' last start or stop, in order
+        self.finishing: set[asyncio.Task] = set()
+        self.recorded: list[int] = []                      # survey ids, in order
+
+    def enough(self, session: SurveySession) -> bool:
+        return session.captured >= session.pairs or session.precise(self.species[session.tank].weight,
+                                                                      self.s.ci_pct, self.s.min_fish)
+
+    async def visit(self, session: SurveySession, interrupted: Callable[[], bool], wake: asyncio.Event) -> str:
+        """At the tank: ``captured`` (all in: the robot may go), ``preempted`` (a demand waits; the
+        session resumes later) or ``failed`` (the camera: the session is dropped, alarmed).
+
+        The cameras stream for the visit only, from the carriage's arrival: a frame taken on the way
+        is never measured as this tank's fish. Frames wait in a network camera's buffers, so the
+        first ``stale_frames`` that arrive after the water settled are dropped as well."""
+        session.visits += 1
+        outcome = "failed"
+        settled_at = self.clock.now() + self.s.settle_s
+        try:
+            opening = self._chain(self.camera.start)       # after the last stop; it may take seconds
+            await _first(asyncio.shield(opening), wake)
+            if not opening.done():
+                outcome = "preempted"
+                return outcome
+            opening.result()
+            while self.clock.now() < settled_at:
+                if interrupted():
+                    outcome = "preempted"
+                    return outcome
+                await _until(self.clock, wake, settled_at - self.clock.now())
+            stale = self.s.stale_frames
+            while not self.enough(session):
+                if interrupted():
+                    outcome = "preempted"
+                    return outcome
+                pair = await _first(self.camera.read(), wake)
+                if pair is None or pair.t < settled_at:
+                    continue
+                if stale > 0:                    # perhaps taken before the carriage stopped here
+                    stale -= 1
+                    continue
+                if pair.t < session.last_pair_t + self.s.pair_interval_s:
+                    continue
+                self._measure(session, pair)
+                while len(session.measuring) >= IN_FLIGHT and not interrupted():
+                    await _first(asyncio.wait(set(session.measuring)), wake)
+            self.alarms.clear(f"device/{self.camera.name}", "survey camera back")
+            outcome = "captured"
+            return outcome
+        except DeviceError as exc:
+            session.failed = exc.text
+            self.alarms.raise_(f"device/{self.camera.name}", f"survey of {session.tank} stopped: {exc.text}",
+                               kind="unreachable")
+            return outcome
+        finally:
+            self.release()                       # cancelled (an e-stop) too
+
+    def release(self) -> None:
+        """Stop the cameras' streams, in the background: nothing of the robot's waits for it."""
+        if self.camera.streaming or (self._power is not None and not self._power.done()):
+            self._chain(self.camera.stop)
+
+    def _chain(self, step) -> asyncio.Future:
+        """``step()`` once the cameras' previous start or stop has ended: a stream is never opened
+        while the last one is still closing. A visit waits for a start only as long as no demand
+        comes; a start or stop nobody waits for any more still runs, in turn."""
+        before = self._power
+
+        async def run():
+            if before is not None:
+                await asyncio.gather(before, return_exceptions=True)
+            return await step()
+        self._power = task = asyncio.ensure_future(run())
+        task.add_done_callback(_retrieved)
+        return task
+
+    def _measure(self, session: SurveySession, pair) -> None:
+        frame = session.captured
+        session.captured += 1
+        session.last_pair_t = pair.t
+        job = PairJob(frame, f"{self.camera.name} pair {frame}", left=pair.left, right=pair.right)
+        calib, setup = self.camera.calibration, self.setups[session.tank]
+        task = asyncio.ensure_future(asyncio.to_thread(lambda: list(self.measure(iter([job]), calib, setup))))
+        session.measuring.add(task)
+        task.add_done_callback(lambda t: self._measured(session, t))
+
+    def _measured(self, session: SurveySession, task: asyncio.Task) -> None:
+        session.measuring.discard(task)
+        if task.cancelled():
+            return
+        if task.exception() is not None:
+            log.warning("survey of %s: a pair not measured: %s", session.tank, task.exception())
+            return
+        for result in task.result():
+            for fish in result.fish:
+                if math.isfinite(fish.length_cm) and fish.length_cm > 0:
+                    session.lengths.append(float(fish.length_cm))
+                    weight = float(self.species[session.tank].weight.weight_g(fish.length_cm))
+                    session.entries.append(fish_entry(result.frame, len(session.entries), fish, weight))
+
+    def finish(self, session: SurveySession) -> asyncio.Task:
+        """Record the survey once its pairs are measured (in the background: the robot is free)."""
+        task = asyncio.ensure_future(self._record(session))
+        self.finishing.add(task)
+        task.add_done_callback(self.finishing.discard)
+        return task
+
+    async def _record(self, session: SurveySession) -> int:
+        while session.measuring:
+            await asyncio.wait(set(session.measuring))
+        t = self.clock.now()
+        measured = np.asarray(session.lengths, float)
+        far = implausible(measured)
+        lengths, rejected = measured[~far], [float(x) for x in measured[far]]
+        for entry, out in zip(session.entries, far, strict=True):
+            entry["outlier"] = bool(out)
+        if rejected:
+            log.warning("survey of %s: %d of %d lengths left out as measuring errors (%s cm)", session.tank,
+                        len(rejected), len(session.lengths), ", ".join(f"{x:.1f}" for x in rejected))
+        session.rejected = rejected
+        sp = self.species[session.tank]
+        weights = sp.weight.weight_g(lengths)
+        path = self._write_out_json(session, t, lengths, weights)
+        sid = self.store.add_survey(session.tank, t, sp.key, path, lengths, weights)
+        self.recorded.append(sid)
+        log.info("survey of %s recorded: %d pairs in %d visit(s), %d fish, mean %.1f g", session.tank,
+                 session.captured, session.visits, len(lengths), float(weights.mean()) if len(lengths) else math.nan)
+        return sid
+
+    def _write_out_json(self, session: SurveySession, t: float, lengths, weights) -> str:
+        stats = summarise(lengths, weights, rng=np.random.default_rng(session.captured))
+        doc = {"species": self.species[session.tank].key, "setup": self.s.setup, "frames": session.captured,
+               "fish": session.entries, "count": stats["count"], "length_cm": stats["length_cm"],
+               "weight_g": stats["weight_g"], "precision": stats["precision"], "tank": session.tank,
+               "requested_by": session.why, "visits": session.visits, "statistics_per": "fish",
+               "rejected_lengths_cm": [round(x, 2) for x in session.rejected]}
+        out = Path(self.s.out_dir) / f"{session.tank}-{self.clock.iso(t).replace(':', '')}.json"
+        try:
+            out.parent.mkdir(parents=True, exist_ok=True)
+            tmp = out.with_suffix(".tmp")
+            tmp.write_text(json.dumps(doc))
+            tmp.replace(out)
+        except OSError as exc:          # the ledger keeps the survey all the same
+            log.warning("survey of %s: OUT.json not written: %s", session.tank, exc)
+            return f"survey stop {session.tank} ({session.why})"
+        return str(out)
+
+    async def close(self) -> None:
+        for task in [*self.finishing]:
+            task.cancel()
+        with contextlib.suppress(Exception):
+            await self.camera.stop()
+
+
+def _retrieved(task: asyncio.Future) -> None:
+    """A start or stop whose visit left: its fault is the next visit's to meet (logged here)."""
+    if not task.cancelled() and task.exception() is not None:
+        log.debug("survey cameras: %s", task.exception())
+
+
+async def _until(clock, event: asyncio.Event, farm_s: float) -> None:
+    """Until ``farm_s`` farm seconds have passed or ``event`` is set (cleared here)."""
+    sleeper = asyncio.ensure_future(clock.asleep(farm_s))
+    waiter = asyncio.ensure_future(event.wait())
+    try:
+        await asyncio.wait({sleeper, waiter}, return_when=asyncio.FIRST_COMPLETED)
+    finally:
+        sleeper.cancel()
+        waiter.cancel()
+        event.clear()
+
+
+async def _first(work, event: asyncio.Event):
+    """``work``'s result, or None when ``event`` is set first (the work is then cancelled)."""
+    task = asyncio.ensure_future(work)
+    waiter = asyncio.ensure_future(event.wait())
+    try:
+        await asyncio.wait({task, waiter}, return_when=asyncio.FIRST_COMPLETED)
+    finally:
+        waiter.cancel()
+        if not task.done():
+            task.cancel()
+            with contextlib.suppress(asyncio.CancelledError, DeviceError):
+                await task
+    event.clear()
+    return task.result() if task.done() and not task.cancelled() else None

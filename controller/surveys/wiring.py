@@ -1,0 +1,91 @@
+"""The survey stops of the rail robot wired from the config: the stereo camera device, the
+schedule (controller/surveys/schedule.py) and the stop itself (controller/surveys/stop.py).
+
+The robot sees one object (``robot.surveys``): ``next`` (the survey to work on, or None) and
+``visit`` (the stop at the tank). Operators reach ``request`` through ``start-survey``.
+"""
+from __future__ import annotations
+
+import logging
+
+from controller.errors import BadInput
+from controller.surveys.schedule import SurveySchedule
+from controller.surveys.stop import SurveySession, SurveyStop
+
+log = logging.getLogger("fishfarm.survey")
+
+
+def survey_camera_name(cfg) -> str | None:
+    """The stereo camera the robot carries: ``[surveys] camera``, else the only one; None when the
+    farm has none (surveys then come from ``fishfarm survey --tank`` only). BadInput otherwise."""
+    cameras = [name for name, s in cfg.devices.items() if s["kind"] == "stereo_camera"]
+    name = cfg.surveys.camera
+    if name is not None:
+        if name not in cameras:
+            raise BadInput(cfg.path, "surveys.camera", f"no stereo_camera device {name!r} "
+                                                       f"(stereo cameras: {', '.join(cameras) or 'none'})")
+        return name
+    if len(cameras) > 1:
+        raise BadInput(cfg.path, "surveys.camera", f"{len(cameras)} stereo cameras: name the robot's")
+    if not cameras and any(t.survey is not None for t in cfg.tanks):
+        tank = next(i for i, t in enumerate(cfg.tanks) if t.survey is not None)
+        raise BadInput(cfg.path, f"tanks.{tank}.survey", "scheduled surveys need a stereo_camera device")
+    return cameras[0] if cameras else None
+
+
+class SurveyStops:
+    def __init__(self, cfg, clock, camera, store, rations, alarms, species, **kw):
+        self.schedule = SurveySchedule(cfg, store, rations, clock)
+        self.stop = SurveyStop(cfg, clock, camera, store, species, alarms, **kw)
+        self.clock = clock
+        self.poke = lambda: None               # the robot's wake-up, set by the wiring
+
+    def next(self, paused: set[str], now: float) -> SurveySession | None:
+        session = self.schedule.next(paused, now)
+        if session is None:                    # nothing to survey now: the cameras need not stream
+            self.stop.release()
+        return session
+
+    async def visit(self, session: SurveySession, interrupted, wake) -> str:
+        outcome = "failed"
+        try:
+            outcome = await self.stop.visit(session, interrupted, wake)
+        except Exception as exc:       # a bug in a survey never stops the feeding: alarmed, dropped
+            log.exception("survey of %s failed", session.tank)
+            session.failed = f"internal error: {type(exc).__name__}: {exc}"
+            self.stop.alarms.raise_("survey", f"survey of {session.tank} failed: {session.failed}", "warning",
+                                    kind="failed")
+        finally:
+            self.schedule.ended(session, outcome if outcome != "failed" or session.failed else "preempted",
+                                self.clock.now())
+        if outcome == "captured":
+            self.stop.finish(session)
+        return outcome
+
+    def request(self, tank: str, pairs: int | None = None) -> str | None:
+        note = self.schedule.request(tank, pairs)
+        self.poke()
+        return note
+
+    def snapshot(self) -> dict:
+        cur = self.schedule.current
+        return {"current": None if cur is None else {"tank": cur.tank, "pairs": cur.pairs, "captured": cur.captured,
+                                                     "fish": len(cur.lengths), "visits": cur.visits, "why": cur.why},
+                "asked": list(self.schedule.asked)}
+
+    async def close(self) -> None:
+        await self.stop.close()
+
+
+def build_survey_stops(controller) -> SurveyStops | None:
+    """For the app: the robot's survey stops, or None when the farm has no stereo camera."""
+    from controller.surveys.species import survey_species
+    c = controller
+    name = survey_camera_name(c.cfg)
+    if name is None:
+        return None
+    kinds = {sp: survey_species(sp) for sp in {t.species for t in c.cfg.tanks}}
+    stops = SurveyStops(c.cfg, c.clock, c.devices[name], c.store, c.rations, c.alarms,
+                        {t.id: kinds[t.species] for t in c.cfg.tanks})
+    stops.poke = c.robot.poke
+    return stops

@@ -1,0 +1,93 @@
+"""The simulated stereo pair on the rail carriage: the survey renderer's fish of the tank under
+the carriage, at their size of the moment (they grow: devices/sim/fish.py ``sgr_pct_day``).
+
+Each frame is one still of the tank (``underwater_scene``: fish placed anew, as independent
+stills), both views side by side in one JPEG (4:4:4), served as MJPEG over HTTP by the tower
+camera's server (devices/sim/tower_camera.py) and read by the real ``capture`` driver with
+``layout = "side_by_side"``. Away from every tank's mouth the cameras see empty water. The rig's
+exact calibration is written as CALIB.json for the driver's section.
+
+Lengths are normal around the mean whose a L^b, averaged over the spread, is the tank's mean
+weight (E[L^b] = mu^b (1 + b(b-1)/2 cv^2) to second order), with the renderer's species law —
+the species.toml figure the controller measures with.
+"""
+from __future__ import annotations
+
+import json
+from collections.abc import Callable
+from pathlib import Path
+
+import numpy as np
+from pydantic import BaseModel, ConfigDict, Field
+
+from devices.sim.fish_scene import underwater_rig, underwater_scene
+from devices.sim.fish_species import SPECIES
+
+SIZE_SAMPLE = 256         # individuals a still's sizes are drawn from, when the tank keeps them
+
+
+class SimStereoCameraParams(BaseModel):
+    """farm.toml ``[sim.stereo_camera]``."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+    fps: float = Field(2.0, gt=0, le=30, description="pairs per wall second while a survey streams")
+    width: int = Field(1280, ge=160, le=2048, description="each view's width")
+    height: int = Field(960, ge=120, le=4096)
+    focal_px: float = Field(1400.0, gt=0, description="at 1280 px wide; scaled with the width")
+    fish_in_view: tuple[int, int] = Field((8, 16), description="fish per still, drawn uniformly")
+    jpeg_quality: int = Field(95, ge=10, le=100)
+    seed: int = 0
+
+
+def mean_length_cm(weight_g: float, a: float, b: float, cv: float) -> float:
+    """The mean fork length of fish of mean weight ``weight_g`` whose lengths spread by ``cv``."""
+    return (weight_g / (a * (1 + b * (b - 1) / 2 * cv ** 2))) ** (1 / b)
+
+
+class TankView:
+    """``render(t)``: the side-by-side pair the carriage's cameras see at farm time ``t``."""
+
+    def __init__(self, params: SimStereoCameraParams, tanks: dict, tank_at: Callable[[float], str | None]):
+        self.p, self.tanks, self.tank_at = params, tanks, tank_at
+        w = params.width
+        self.rig = underwater_rig(image_size=(w, params.height), focal_px=params.focal_px * w / 1280)
+        self.rng = np.random.default_rng(params.seed)
+        self.seen: list[tuple[float, str | None, float | None]] = []   # (t, tank, its mean weight), last few
+
+    def render(self, t: float) -> np.ndarray:
+        tank_id = self.tank_at(t)
+        tank = self.tanks.get(tank_id) if tank_id is not None else None
+        lo, hi = self.p.fish_in_view
+        conditions = dict(jpeg_quality=None)
+        if tank is None:
+            n, weight = 0, None
+            conditions["species"] = "sparus_aurata"
+        else:
+            sp = SPECIES[tank.species] if tank.species in SPECIES else SPECIES["sparus_aurata"]
+            weight, length, cv = self._sizes(tank, sp, t)
+            n = int(self.rng.integers(lo, hi + 1))
+            conditions.update(species=sp.name, mean_length_cm=length, length_cv=cv)
+        scene = underwater_scene(self.rng, self.rig, n_fish=n, **conditions)
+        self.seen = [*self.seen[-63:], (t, tank_id if tank is not None else None, weight)]
+        return np.hstack([scene.left, scene.right])
+
+    def _sizes(self, tank, sp, t: float) -> tuple[float, float, float]:
+        """(mean weight g, mean fork length cm, length CV) of the tank's fish at ``t``: drawn from its
+        individuals when it has a stock that keeps them (``stock.weights(n, rng)``), else from its
+        mean weight and ``[sim.fish] length_cv``."""
+        stock = getattr(tank, "stock", None)
+        if stock is not None and hasattr(stock, "weights"):
+            w = np.asarray(stock.weights(SIZE_SAMPLE, self.rng), float)
+            lengths = (w / sp.a) ** (1 / sp.b)
+            return float(w.mean()), float(lengths.mean()), float(lengths.std() / lengths.mean())
+        weight, cv = tank.mean_weight_g(t), tank.p.length_cv
+        return weight, mean_length_cm(weight, sp.a, sp.b, cv), cv
+
+    def write_calibration(self, path: Path) -> str:
+        path.write_text(json.dumps(self.rig.calibration().to_json()))
+        return str(path)
+
+
+def frame_size(params: SimStereoCameraParams) -> dict:
+    """The served frame's size (both views side by side), for the MJPEG server's check."""
+    return {"width": 2 * params.width, "height": params.height}

@@ -1,0 +1,141 @@
+"""When a tank's survey is due, which tanks are held back, and the start-survey override."""
+from __future__ import annotations
+
+import asyncio
+from datetime import UTC, datetime
+
+import pytest
+
+from controller.config import Config, SurveySchedule, SurveysConfig, TankConfig
+from controller.feeding.rations import Rations, load_species
+from controller.overrides import Overrides
+from controller.store import Store
+from controller.surveys.schedule import SurveySchedule as Schedule
+from controller.surveys.schedule import due
+from controller.surveys.wiring import SurveyStops, survey_camera_name
+from devices.clock import ManualClock
+from devices.errors import BadInput
+from tests.controller.override_rig import Farm
+
+DAY = 86_400.0
+
+
+def t(iso: str) -> float:
+    return datetime.fromisoformat(iso).replace(tzinfo=UTC).timestamp()
+
+
+@pytest.mark.parametrize("last, now, offset_h, expected", [
+    (None, "2026-06-01T09:59", 0, False),                 # never surveyed: the first 10:00
+    (None, "2026-06-01T10:00", 0, True),
+    ("2026-06-01T10:30", "2026-06-07T23:00", 0, False),   # day 6 of 7
+    ("2026-06-01T10:30", "2026-06-08T09:00", 0, False),   # day 7, before the hour
+    ("2026-06-01T10:30", "2026-06-08T10:00", 0, True),    # day 7 at the hour
+    ("2026-06-01T10:30", "2026-06-09T03:00", 0, True),    # overdue: no hour to wait for
+    ("2026-06-01T10:30", "2026-06-08T09:00", 1, True),    # 10:00 local at UTC+1
+    ("2026-06-01T23:30", "2026-06-08T09:30", 1, False),   # local 02-06 00:30: day 6 of 7 locally
+])
+def test_a_survey_is_due_every_n_farm_days_from_its_hour(last, now, offset_h, expected):
+    assert due(7, "10:00", None if last is None else t(last), t(now), offset_h) is expected
+
+
+def config(**surveys):
+    tanks = [TankConfig(id="T1", stock=1000, mean_weight_g=20, position_m=3, sensors=["a"],
+                        survey=SurveySchedule(every_days=7, at="10:00", pairs=12)),
+             TankConfig(id="T2", stock=1000, mean_weight_g=20, position_m=6, sensors=["b"],
+                        survey=SurveySchedule(every_days=1, at="11:00", pairs=5)),
+             TankConfig(id="T3", stock=1000, mean_weight_g=20, position_m=9, sensors=["c"])]
+    return Config(tanks=tanks, surveys=SurveysConfig(**surveys), path="<test>",
+                  devices={"stereo": {"kind": "stereo_camera", "driver": "sim"}})
+
+
+@pytest.fixture
+def parts(tmp_path):
+    cfg = config()
+    store = Store(tmp_path / "ledger.db")
+    clock = ManualClock(t=t("2026-06-01T09:00"))
+    yield cfg, store, Rations(cfg, load_species(), store), clock
+    store.close()
+
+
+def test_tanks_come_due_at_their_hours_and_a_recorded_survey_resets_the_count(parts):
+    cfg, store, rations, clock = parts
+    schedule = Schedule(cfg, store, rations, clock)
+    assert schedule.next(set(), clock.now()) is None
+    clock.t = t("2026-06-01T10:05")
+    first = schedule.next(set(), clock.now())
+    assert (first.tank, first.pairs, first.why) == ("T1", 12, "schedule")
+    assert schedule.next(set(), clock.now()) is first                 # resumed before anything else
+    store.add_survey("T1", clock.now(), "sparus_aurata", "test", [10.0, 11.0], [25.0, 30.0])
+    schedule.ended(first, "captured", clock.now())
+    clock.t = t("2026-06-01T11:00")
+    assert schedule.next(set(), clock.now()).tank == "T2"             # T1 done for a week; T3 has none
+    schedule.ended(schedule.current, "captured", clock.now())
+    store.add_survey("T2", clock.now(), "sparus_aurata", "test", [10.0], [25.0])
+    clock.t = t("2026-06-02T11:00")
+    assert schedule.next(set(), clock.now()).tank == "T2"             # daily
+
+
+def test_paused_fasting_and_failed_tanks_are_skipped_until_they_may_be_surveyed(parts):
+    cfg, store, rations, clock = parts
+    schedule = Schedule(cfg, store, rations, clock)
+    clock.t = t("2026-06-01T12:00")
+    rations.set("T2", clock.now(), 0.0, "operator")                    # a fasting day
+    assert schedule.held("T2", set(), clock.now()) == "fasting"
+    assert schedule.next({"T1"}, clock.now()) is None                  # T1 paused, T2 fasting
+    session = schedule.next(set(), clock.now())
+    assert session.tank == "T1"
+    schedule.ended(session, "failed", clock.now())                     # the camera failed
+    assert schedule.next(set(), clock.now()) is None
+    clock.t += cfg.surveys.retry_s
+    assert schedule.next(set(), clock.now()).tank == "T1"
+
+
+def test_an_operator_survey_goes_first_once_per_tank(parts):
+    cfg, store, rations, clock = parts
+    schedule = Schedule(cfg, store, rations, clock)
+    assert schedule.request("T3") is None
+    assert schedule.request("T3") == "a survey of T3 is asked for already"
+    session = schedule.next(set(), clock.now())
+    assert (session.tank, session.pairs, session.why) == ("T3", cfg.surveys.pairs, "operator")
+    assert schedule.request("T3").startswith("a survey of T3 is under way")
+
+
+def test_the_robot_s_camera_is_named_or_the_only_one():
+    cfg = config()
+    assert survey_camera_name(cfg) == "stereo"
+    two = cfg.model_copy(update={"devices": {n: {"kind": "stereo_camera", "driver": "sim"} for n in ("a", "b")}})
+    with pytest.raises(BadInput, match="surveys.camera: 2 stereo cameras: name the robot's"):
+        survey_camera_name(two)
+    none = cfg.model_copy(update={"devices": {}})
+    with pytest.raises(BadInput, match=r"^<test>: tanks.0.survey: scheduled surveys need a stereo_camera device$"):
+        survey_camera_name(none)
+    wrong = cfg.model_copy(update={"surveys": SurveysConfig(camera="left")})
+    with pytest.raises(BadInput, match="surveys.camera: no stereo_camera device 'left'"):
+        survey_camera_name(wrong)
+
+
+def test_start_survey_over_zenoh_or_modbus_asks_the_robot_and_is_audited(tmp_path):
+    store = Store(tmp_path / "ledger.db")
+    farm = Farm(store)
+    pokes = []
+    stops = SurveyStops(farm.cfg, farm.clock, camera=None, store=store, rations=farm.rations, alarms=farm.alarms,
+                        species={})
+    stops.poke = lambda: pokes.append(1)
+    farm.survey_stops = stops
+
+    async def go():
+        o = Overrides(farm)
+        replies = [await o.apply("start-survey", {"tank": "T1", "operator": "ana", "reason": "weekly"}, user="ana"),
+                   await o.apply("start-survey", {"tank": "T1"}, origin="modbus 127.0.0.1:5"),
+                   await o.apply("pause", {"tank": "T2"}),
+                   await o.apply("start-survey", {"tank": "T2"})]
+        await asyncio.sleep(0)
+        return replies
+    replies = asyncio.run(go())
+    assert replies == [{"ok": True}, {"ok": True, "note": "a survey of T1 is asked for already"}, {"ok": True},
+                       {"ok": False, "error": "tank: T2 is paused (resume it first)"}]
+    assert list(stops.schedule.asked) == ["T1"] and pokes
+    rows = [dict(r) for r in store.audit() if r["command"] == "start-survey"]
+    assert [(r["user"], r["ok"], r["origin"]) for r in rows] == [("ana", 1, "zenoh"), (None, 1, "modbus 127.0.0.1:5"),
+                                                                  (None, 0, "zenoh")]
+    store.close()

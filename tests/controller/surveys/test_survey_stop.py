@@ -1,0 +1,236 @@
+"""The rail robot's survey stop, on the real rail and dispenser drivers against their simulated
+twins (tests/controller/feeding/rig.py), with a stereo camera double that hands a pair every
+``period_s`` farm seconds and a measuring double of ``measure_all``'s shape whose fish lengths are
+drawn here, from a known distribution (what is recorded is checked against them, not against the
+code under test)."""
+from __future__ import annotations
+
+import asyncio
+import json
+import time
+
+import numpy as np
+import pytest
+
+from controller.config import SurveysConfig
+from controller.surveys.runner import PairResult
+from controller.surveys.species import survey_species
+from controller.surveys.watch import SurveyWatch
+from controller.surveys.wiring import SurveyStops
+from devices.stereo import StereoCamera, StereoPair
+from tests.controller.feeding.rig import rig
+from vision.survey_types import FishMeasurement
+
+
+def run(coro):
+    return asyncio.run(asyncio.wait_for(coro, 90))
+
+
+class CameraDouble(StereoCamera):
+    """A pair every ``period_s`` farm seconds while streaming; notes where the carriage was."""
+
+    def __init__(self, clock, rail, period_s=5.0, slow_s=0.0):
+        super().__init__("stereo", None, clock)
+        self.rail, self.period_s, self.slow_s = rail, period_s, slow_s      # slow_s: each start and stop
+        self.calibration = None
+        self.pairs: list[tuple[float, float]] = []       # (t, carriage position) of each pair handed out
+        self.starts = 0
+        self._seq = 0
+
+    async def _open(self):
+        pass
+
+    async def _start(self):
+        self.starts += 1
+        await self.clock.asleep(self.slow_s)
+
+    async def _stop(self):
+        await self.clock.asleep(self.slow_s)
+
+    async def _read(self):
+        await self.clock.asleep(self.period_s)
+        self._seq += 1
+        self.pairs.append((self.clock.now(), self.rail.status().position_m))
+        blank = np.zeros((4, 4), np.uint8)
+        return StereoPair(self.clock.now(), blank, blank, self._seq)
+
+
+class MeasureDouble:
+    """``measure_all``'s shape: each pair yields ``per_pair`` fish, lengths N(mean, cv*mean)."""
+
+    def __init__(self, mean_cm=11.0, cv=0.10, per_pair=3, seed=5):
+        self.rng = np.random.default_rng(seed)
+        self.mean, self.cv, self.per_pair = mean_cm, cv, per_pair
+        self.lengths: list[float] = []
+
+    def __call__(self, jobs, calib, setup):
+        for job in jobs:
+            fish = []
+            for length in self.rng.normal(self.mean, self.cv * self.mean, self.per_pair):
+                self.lengths.append(float(length))
+                snout = np.array([0.0, 1000.0, -500.0])
+                px = np.zeros((2, 2))
+                fish.append(FishMeasurement(snout, snout + [10.0 * length, 0.0, 0.0], px, px, 0.9))
+            yield PairResult(job.frame, job.where, fish)
+
+
+def surveys_cfg(r, **kw):
+    cfg = r.cfg.model_copy(update={"surveys": SurveysConfig(**{"settle_s": 30.0, "pair_interval_s": 0.0,
+                                                                "out_dir": str(r.store_path.parent / "surveys"),
+                                                                **kw})})
+    r.robot.cfg = cfg
+    return cfg
+
+
+async def attach(r, tmp_path, period_s=5.0, measure=None, slow_s=0.0, **kw):
+    r.store_path = tmp_path / "ledger.db"
+    cfg = surveys_cfg(r, **kw)
+    camera = CameraDouble(r.clock, r.rail, period_s, slow_s)
+    await camera.open()
+    measure = measure or MeasureDouble()
+    sp = survey_species("sparus_aurata")
+    stops = SurveyStops(cfg, r.clock, camera, r.store, r.rations, r.alarms, {t.id: sp for t in cfg.tanks},
+                        measure=measure)
+    stops.poke = r.robot.poke
+    r.robot.surveys = stops
+    return stops, camera, measure, sp
+
+
+async def recorded(r, stops, tank, farm_s=600.0):
+    await r.until(lambda: r.store.surveys(tank), farm_s, what=f"a survey of {tank} recorded")
+    return r.store.surveys(tank)[0]
+
+
+def test_a_survey_stop_settles_captures_its_pairs_at_the_tank_and_is_recorded(tmp_path):
+    async def main():
+        async with rig(tmp_path) as r:
+            await r.until(lambda: r.robot.state == "idle", what="homed")
+            stops, camera, measure, sp = await attach(r, tmp_path, ci_pct=0.1)
+            asked = r.clock.now()
+            assert stops.request("T2", pairs=8) is None
+            assert stops.request("T2") == "a survey of T2 is asked for already"
+            await r.until(lambda: r.robot.state == "surveying", what="surveying")
+            arrived = r.clock.now()
+            survey = await recorded(r, stops, "T2")
+            states = r.published.states()
+            watch = SurveyWatch(r.robot.cfg, r.store, r.rations, r.alarms, r.published)
+            fresh = watch.check(r.clock.now())
+            return survey, camera, measure, sp, states, arrived, asked, fresh, r.rations.today("T2", r.clock.now())
+    survey, camera, measure, sp, states, arrived, asked, fresh, ration = run(main())
+    truth = np.array(measure.lengths)
+    assert survey.count == 8 * 3 == len(truth)
+    assert survey.mean_length_cm == pytest.approx(truth.mean())
+    assert survey.mean_weight_g == pytest.approx(np.mean(sp.weight.weight_g(truth)))
+    assert len(camera.pairs) == 8 + 1                                       # the first after settling dropped
+    assert not camera.streaming and camera.starts == 1
+    assert all(abs(pos - 8.0) <= 0.05 for _, pos in camera.pairs)          # at T2, not on the way
+    assert all(t >= arrived + 30.0 - 1.0 for t, _ in camera.pairs)          # after the water settled
+    assert ["moving", "surveying", "idle"] == [s for s in states if s in ("moving", "surveying", "idle")][-3:]
+    assert fresh == ["T2"] and ration.source == "survey"
+
+
+def test_a_demand_preempts_the_survey_within_60_s_and_the_survey_resumes(tmp_path):
+    async def main():
+        async with rig(tmp_path, speed=50.0) as r:
+            await r.until(lambda: r.robot.state == "idle", what="homed")
+            stops, camera, measure, _ = await attach(r, tmp_path, period_s=20.0, settle_s=10.0, ci_pct=0.1)
+            stops.request("T2", pairs=6)
+            await r.until(lambda: len(camera.pairs) >= 2, 300.0, what="two pairs captured")
+            raised = r.clock.now()
+            r.demand("T1")
+            await r.until(lambda: r.store.feeds(), 120.0, what="T1 fed")
+            started = r.store.feeds()[0].t_intent
+            survey = await recorded(r, stops, "T2", 900.0)
+            await r.until(lambda: not camera.streaming, 60.0, what="the streams closed")
+            return survey, camera, started - raised, stops
+    survey, camera, waited, stops = run(main())
+    assert waited <= 60.0
+    assert survey.count == 6 * 3
+    assert json.loads(open(survey.source).read())["visits"] >= 2     # it came back to T2 for the rest
+    assert camera.starts >= 2                     # and streamed again: frames of one visit only
+    assert all(abs(pos - 8.0) <= 0.05 for _, pos in camera.pairs)
+
+
+def test_cameras_slow_to_open_or_close_hold_no_demand_back(tmp_path):
+    """An IP camera's stream can take seconds to open or close: a demand waits for neither."""
+    async def main():
+        async with rig(tmp_path, speed=50.0) as r:
+            await r.until(lambda: r.robot.state == "idle", what="homed")
+            stops, camera, _, _ = await attach(r, tmp_path, period_s=5.0, slow_s=300.0, settle_s=10.0, ci_pct=0.1)
+            stops.request("T2", pairs=4)
+            await r.until(lambda: r.robot.state == "surveying" and camera.starts, 300.0, what="the cameras opening")
+            raised = r.clock.now()
+            r.demand("T1")                                 # while the streams open
+            await r.until(lambda: r.store.feeds(), 120.0, what="T1 fed")
+            first = r.store.feeds()[0].t_intent - raised
+            await r.until(lambda: r.robot.state == "surveying", 900.0, what="back at T2")
+            raised = r.clock.now()
+            r.demand("T1")                                 # the streams closing again behind it
+            await r.until(lambda: len(r.store.feeds()) == 2, 120.0, what="T1 fed again")
+            second = max(f.t_intent for f in r.store.feeds()) - raised
+            return first, second
+    first, second = run(main())
+    assert first <= 60.0 and second <= 60.0
+
+
+def test_the_survey_stops_early_once_the_mean_weight_is_known_within_2_percent(tmp_path):
+    async def main():
+        async with rig(tmp_path) as r:
+            await r.until(lambda: r.robot.state == "idle", what="homed")
+            stops, camera, measure, sp = await attach(r, tmp_path, period_s=2.0, min_fish=20,
+                                                      measure=MeasureDouble(cv=0.02, per_pair=5))
+            stops.request("T1", pairs=200)
+            survey = await recorded(r, stops, "T1", 2000.0)
+            return survey, camera, measure, sp
+    survey, camera, measure, sp = run(main())
+    w = sp.weight.weight_g(np.array(measure.lengths))
+    assert 4 <= len(camera.pairs) < 200               # ~20 fish of CV 6 % in weight: a few pairs
+    half = 1.96 * w[:survey.count].std(ddof=1) / np.sqrt(survey.count)
+    assert half <= 0.02 * w[:survey.count].mean()
+
+
+def test_an_estop_while_surveying_latches_the_devices_and_the_survey_resumes_after_reset(tmp_path):
+    async def main():
+        async with rig(tmp_path) as r:
+            await r.until(lambda: r.robot.state == "idle", what="homed")
+            stops, camera, _, _ = await attach(r, tmp_path, period_s=10.0, ci_pct=0.1)
+            stops.request("T1", pairs=5)
+            await r.until(lambda: r.robot.state == "surveying" and camera.pairs, 300.0, what="capturing")
+            await r.robot.emergency_stop("test")        # its own wait for the latches is wall-bounded: not asserted
+            state = r.robot.state
+            deadline = time.monotonic() + 10.0          # a loaded VM stalls ~1 s: generous
+            while not ((await r.robot.dispensing.read()).estop and not camera.streaming):
+                assert time.monotonic() < deadline, "the dispenser's latch or the streams' close not seen in 10 s"
+                await asyncio.sleep(0.01)
+            session = stops.schedule.current
+            assert r.robot.operator_reset() is None
+            survey = await recorded(r, stops, "T1", 900.0)
+            return state, session, survey, camera
+    state, session, survey, camera = run(main())
+    assert state == "estop"
+    assert session is not None and session.tank == "T1"          # kept for after the reset
+    assert survey.count == 5 * 3 and camera.starts == 2     # the e-stop closed the streams; reopened after
+
+
+def test_a_length_far_from_the_stock_s_is_left_out_as_a_measuring_error(tmp_path):
+    """Two fish taken for one measure ~35 cm among 9 cm fish: W = a L^b would double the mean."""
+    class WithErrors(MeasureDouble):
+        def __call__(self, jobs, calib, setup):
+            for result in super().__call__(jobs, calib, setup):
+                if result.frame == 2:                 # a stereo match gone wrong, in the third pair
+                    snout = np.array([0.0, 1000.0, -500.0])
+                    result.fish.append(FishMeasurement(snout, snout + [350.0, 0.0, 0.0], np.zeros((2, 2)),
+                                                       np.zeros((2, 2)), 0.5))
+                yield result
+
+    async def main():
+        async with rig(tmp_path) as r:
+            await r.until(lambda: r.robot.state == "idle", what="homed")
+            stops, _, measure, sp = await attach(r, tmp_path, measure=WithErrors(mean_cm=9.0), ci_pct=0.1)
+            stops.request("T1", pairs=6)
+            return await recorded(r, stops, "T1"), measure, sp
+    survey, measure, sp = run(main())
+    truth = np.array(measure.lengths)                         # the 18 drawn from the stock, not the error
+    assert survey.count == 18 and survey.mean_weight_g == pytest.approx(np.mean(sp.weight.weight_g(truth)))
+    doc = json.loads(open(survey.source).read())
+    assert doc["rejected_lengths_cm"] == [35.0] and sum(f["outlier"] for f in doc["fish"]) == 1

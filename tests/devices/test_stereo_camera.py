@@ -1,0 +1,141 @@
+"""The stereo camera kind: its section, the ``capture`` driver over the simulated pair on the
+carriage (MJPEG over HTTP, side by side), and the simulated fish it shows growing."""
+from __future__ import annotations
+
+import asyncio
+import json
+import types
+
+import numpy as np
+import pytest
+
+from devices.clock import ManualClock
+from devices.errors import BadInput
+from devices.sections import section_model, validate_section
+from devices.sim.fish import SimFishParams, SimTank
+from devices.sim.fish_species import SPECIES
+from devices.sim.stereo_camera import SimStereoCameraParams, TankView, frame_size, mean_length_cm
+from devices.sim.stereo_rig import convergent_rig
+from devices.sim.tower_camera import SimTowerCamera
+from devices.stereo import StereoPair
+from devices.stereo.capture import CaptureStereo, split_pair
+
+W, H = 320, 240
+
+
+@pytest.fixture
+def calib_file(tmp_path):
+    path = tmp_path / "CALIB.json"
+    path.write_text(json.dumps(convergent_rig(image_size=(W, H)).calibration().to_json()))
+    return str(path)
+
+
+def section(calib, **kw):
+    return {"kind": "stereo_camera", "driver": "capture", "sources": ["rtsp://a", "rtsp://b"], "calib": calib, **kw}
+
+
+def validate(data):
+    return validate_section(section_model("stereo_camera", data["driver"]), data, "farm.toml", "devices.stereo")
+
+
+def test_the_section_is_the_capture_drivers_and_faults_name_the_key(calib_file, tmp_path):
+    assert validate(section(calib_file)).layout == "pair"
+    with pytest.raises(BadInput, match=r"^farm.toml: devices.stereo.zoom: unknown key$"):
+        validate(section(calib_file, zoom=2))
+    with pytest.raises(BadInput, match="layout 'side_by_side' takes 1 source, not 2"):
+        validate(section(calib_file, layout="side_by_side"))
+    with pytest.raises(BadInput, match=r"devices.stereo.calib: .*nope.json: No such file"):
+        validate(section(str(tmp_path / "nope.json")))
+    (tmp_path / "bad.json").write_text(json.dumps({"P1": [[1, 0, 0, 0]] * 3, "P2": [[1, 0, 0, 0]] * 3}))
+    with pytest.raises(BadInput, match=r"devices.stereo.calib: .*bad.json: "):
+        validate(section(str(tmp_path / "bad.json")))
+    with pytest.raises(BadInput, match=r"devices.stereo.portt: unknown key"):
+        validate({"kind": "stereo_camera", "driver": "sim", "portt": 1})
+
+
+def test_one_frame_carrying_both_views_is_split():
+    frame = np.zeros((4, 6, 3), np.uint8)
+    frame[:, :3] = 10
+    frame[:, 3:] = 20
+    left, right = split_pair(frame, "side_by_side")
+    assert left.shape == right.shape == (4, 3, 3) and (left == 10).all() and (right == 20).all()
+    frame[..., 2], frame[..., 1] = 7, 9               # BGR: red is left, green is right
+    left, right = split_pair(frame, "rg")
+    assert (left == 7).all() and (right == 9).all()
+
+
+def test_the_mean_length_of_a_mean_weight_holds_over_the_spread():
+    rng = np.random.default_rng(3)
+    a, b = 0.02263, 3.032
+    for weight, cv in ((18.0, 0.10), (250.0, 0.15)):
+        mu = mean_length_cm(weight, a, b, cv)
+        lengths = rng.normal(mu, cv * mu, 400_000)
+        assert abs(np.mean(a * lengths ** b) / weight - 1) < 0.01
+
+
+def test_the_simulated_fish_grow_by_their_specific_growth_rate():
+    tank_cfg = types.SimpleNamespace(id="T1", sensors=["s"], stock=1000, mean_weight_g=20.0, species="sparus_aurata")
+    tank = SimTank(tank_cfg, SimFishParams(sgr_pct_day=2.0), np.random.default_rng(0), t0=0.0)
+    assert tank.mean_weight_g(0.0) == 20.0
+    assert tank.mean_weight_g(30 * 86400.0) == pytest.approx(20.0 * np.exp(0.6))
+    before = tank.appetite_g_s
+    tank.contacts_until(10 * 86400.0)
+    assert tank.appetite_g_s == pytest.approx(before * np.exp(0.2))
+    still = SimTank(tank_cfg, SimFishParams(), np.random.default_rng(0), t0=0.0)
+    assert still.mean_weight_g(30 * 86400.0) == 20.0
+
+
+def test_pairs_of_the_tank_under_the_carriage_come_through_videocapture(tmp_path):
+    async def main():
+        clock = ManualClock(t=1000.0)
+        params = SimStereoCameraParams(width=W, height=H, fps=20, fish_in_view=(3, 3), focal_px=1400)
+        tank_cfg = types.SimpleNamespace(id="T1", sensors=["s"], stock=100, mean_weight_g=200.0,
+                                         species="sparus_aurata")
+        tanks = {"T1": SimTank(tank_cfg, SimFishParams(sgr_pct_day=1.0), np.random.default_rng(0), t0=0.0)}
+        where = {"tank": "T1"}
+        view = TankView(params, tanks, lambda t: where["tank"])
+        served = SimTowerCamera(view.render, clock, {"fps": params.fps, "jpeg_quality": 95, **frame_size(params)})
+        served.start()
+        calib = view.write_calibration(tmp_path / "CALIB.json")
+        cfg = validate({"kind": "stereo_camera", "driver": "capture", "sources": [served.url],
+                        "layout": "side_by_side", "calib": calib, "api": "ffmpeg"})
+        cam = CaptureStereo("stereo", cfg, clock)
+        await cam.open()
+        assert served.rendered == 0                  # nothing streams before a survey starts
+        await cam.start()
+        pairs = [await cam.read() for _ in range(3)]
+        where["tank"] = None                         # the carriage moved off: empty water
+        clock.t = 10 * 86400.0
+        while view.seen[-1][1] is not None:
+            await cam.read()
+        await cam.stop()
+        await cam.close()
+        served.stop()
+        return cam, view, pairs
+    cam, view, pairs = asyncio.run(main())
+    assert np.allclose(cam.calibration.P1, view.rig.calibration().P1)
+    for pair in pairs:
+        assert isinstance(pair, StereoPair)
+        assert pair.left.shape == pair.right.shape == (H, W, 3)
+        assert not np.array_equal(pair.left, pair.right)          # two viewpoints
+    assert [p.seq for p in pairs] == [1, 2, 3]
+    seen = [s for s in view.seen if s[1] == "T1"]
+    assert seen and all(w == pytest.approx(200.0 * np.exp(0.01 * t / 86400)) for t, _, w in seen)
+
+
+def test_a_tank_that_keeps_its_fish_as_individuals_is_drawn_from_them():
+    """A stock of individuals (weights lognormal here): the stills' lengths follow theirs."""
+    class Stock:
+        def __init__(self):
+            self.w = np.random.default_rng(1).lognormal(np.log(150.0), 0.25, 5000)
+
+        def weights(self, n, rng):
+            return rng.choice(self.w, n)
+
+    tank = types.SimpleNamespace(species="sparus_aurata", stock=Stock())
+    view = TankView(SimStereoCameraParams(width=W, height=H), {"T1": tank}, lambda t: "T1")
+    weight, length, cv = view._sizes(tank, SPECIES["sparus_aurata"], 0.0)
+    lengths = (tank.stock.w / 0.02263) ** (1 / 3.032)
+    assert weight == pytest.approx(tank.stock.w.mean(), rel=0.05)
+    assert length == pytest.approx(lengths.mean(), rel=0.02) and cv == pytest.approx(lengths.std() / lengths.mean(),
+                                                                                      rel=0.15)
