@@ -30,8 +30,8 @@ from controller.status import farm_status
 from controller.stopping import Stopping
 from controller.store import Store
 from controller.surveys.watch import SurveyWatch
-from controller.water import WaterTemperatures
 from controller.surveys.wiring import build_survey_stops, survey_camera_name
+from controller.water import WaterTemperatures
 from devices.errors import DeviceError
 from devices.sim.world import SimSection
 

@@ -14,6 +14,8 @@ from controller.surveys.stop import SurveySession, SurveyStop
 
 log = logging.getLogger("fishfarm.survey")
 
+WORKERS_DISCOVER_S = 0.3   # wall: how long a pair waits to hear of a worker before it is measured here
+
 
 def survey_camera_name(cfg) -> str | None:
     """The stereo camera the robot carries: ``[surveys] camera``, else the only one; None when the
@@ -77,6 +79,18 @@ class SurveyStops:
         await self.stop.close()
 
 
+def workers_or_here(session, site: str, discover_s: float = WORKERS_DISCOVER_S):
+    """The survey stop's ``measure``: the farm's vision workers (``fishfarm worker``, reached over
+    the controller's own Zenoh session, controller/surveys/remote.py) measure its pairs when any is
+    up; with none, this process does, as before."""
+    from controller.surveys.remote import measure_remote
+
+    def measure(jobs, calib, setup):
+        return measure_remote(jobs, calib, setup, session=session, site=site, discover_s=discover_s,
+                              local_workers=1)
+    return measure
+
+
 def build_survey_stops(controller) -> SurveyStops | None:
     """For the app: the robot's survey stops, or None when the farm has no stereo camera."""
     from controller.surveys.species import survey_species
@@ -86,6 +100,7 @@ def build_survey_stops(controller) -> SurveyStops | None:
         return None
     kinds = {sp: survey_species(sp) for sp in {t.species for t in c.cfg.tanks}}
     stops = SurveyStops(c.cfg, c.clock, c.devices[name], c.store, c.rations, c.alarms,
-                        {t.id: kinds[t.species] for t in c.cfg.tanks})
+                        {t.id: kinds[t.species] for t in c.cfg.tanks},
+                        measure=workers_or_here(c.bus.session, c.cfg.site))
     stops.poke = c.robot.poke
     return stops
