@@ -23,7 +23,8 @@ the CPU the workers got over the wall time, per worker (below 1: others ran on t
 ``workers_cores_total`` the same for all of them together. With the kernel's autogroup scheduling
 (``/proc/sys/kernel/sched_autogroup_enabled``), every process of one terminal session shares one
 fair share of the CPU against other sessions: on a machine others keep busy, this total stays the
-same whatever the number of workers, and the throughput with it.
+same whatever the number of workers, and the throughput with it. ``--sessions`` starts each worker
+in a session of its own, as separate services are: each then competes as one more party.
 ``ratio_2_over_1_free_cores_estimate`` is not a throughput measurement: 2 x the one worker's CPU a
 frame over the two workers' (plus the survey's), what the ratio would be with the cores free.
 ``one_more_machine``: what another machine of C cores would add, from these measured costs, not
@@ -85,7 +86,7 @@ def jobs(items, n: int) -> list[PairJob]:
     return [PairJob(i, f"pair {i}", paths=items[i % len(items)]) for i in range(n)]
 
 
-def start_workers(endpoint: str, k: int, folder: Path) -> list[subprocess.Popen]:
+def start_workers(endpoint: str, k: int, folder: Path, sessions: bool) -> list[subprocess.Popen]:
     """k workers on their own site (``bench{k}``): the configurations live side by side, idle
     ones waiting on their queue (no CPU), so rounds can alternate between them."""
     cores = sorted(os.sched_getaffinity(0))
@@ -94,7 +95,7 @@ def start_workers(endpoint: str, k: int, folder: Path) -> list[subprocess.Popen]
         log = open(folder / f"w{k}-{i}.log", "w")  # noqa: SIM115 - the process holds it
         procs.append(subprocess.Popen([FISHFARM, "worker", "--connect", endpoint, "--site", f"{SITE}{k}",
                                        "--id", f"w{k}-{i}", "--cpu", str(cores[i % len(cores)])],
-                                      stdout=log, stderr=subprocess.STDOUT))
+                                      stdout=log, stderr=subprocess.STDOUT, start_new_session=sessions))
     return procs
 
 
@@ -155,11 +156,14 @@ def main() -> None:
     ap.add_argument("--frames", type=int, default=32, help="timed frames per configuration and round")
     ap.add_argument("--rounds", type=int, default=3, help="1, 2, 4 workers in turn, this many times")
     ap.add_argument("--workers", default="1,2,4")
+    ap.add_argument("--sessions", action="store_true",
+                    help="start each worker in a session of its own, as a service manager would")
     args = ap.parse_args()
     cv2.setNumThreads(1)
     load_before = os.getloadavg()
     ks = [int(x) for x in args.workers.split(",")]
     out: dict = {"cores": len(os.sched_getaffinity(0)), "frames": args.frames, "rounds": args.rounds,
+                 "own_sessions": args.sessions,
                  "pairs_rendered": args.pairs}
     runs: dict[int, list[dict]] = {k: [] for k in ks}
     with tempfile.TemporaryDirectory() as tmp:
@@ -170,7 +174,7 @@ def main() -> None:
         out["local_2_processes_with_pool_start"] = {"frames_per_s": local["frames_per_s"]}
         endpoint = f"tcp/127.0.0.1:{free_port()}"
         session, _ = connect(endpoint)
-        procs = [p for k in ks for p in start_workers(endpoint, k, folder)]
+        procs = [p for k in ks for p in start_workers(endpoint, k, folder, args.sessions)]
         try:
             remote = {k: dict(session=session, site=f"{SITE}{k}", discover_s=10.0) for k in ks}
             for k in ks:
