@@ -61,14 +61,15 @@ PER_WORKER = 2
 def measure_remote(jobs: Iterable[PairJob], calib: StereoCalibration, setup: SurveySetup, *,
                    session: zenoh.Session, site: str = "demo", measure: str = MEASURE,
                    discover_s: float = DISCOVER_S, timeout_s: float = TIMEOUT_S, per_worker: int = PER_WORKER,
-                   local_workers: int | None = None) -> Iterator[PairResult]:
-    """Every job measured, in order, by the workers on ``session``'s network (or here, if none)."""
+                   local_workers: int | None = None, announce: bool = True) -> Iterator[PairResult]:
+    """Every job measured, in order, by the workers on ``session``'s network (or here, if none;
+    said at info level unless ``announce`` is False: the survey stop asks once a pair)."""
     if not isinstance(measure, str):
         raise TypeError("measure travels by name to the workers: give 'module:function'")
     dispatch = _Dispatch(session, site, calib, setup, measure, timeout_s, per_worker)
     try:
         if not dispatch.discover(discover_s):
-            log.info("no vision worker on farm/%s: measuring here", site)
+            (log.info if announce else log.debug)("no vision worker on farm/%s: measuring here", site)
             yield from measure_all(jobs, calib, setup, measure=measure, workers=local_workers)
             return
         yield from dispatch.run(jobs)

@@ -87,7 +87,7 @@ def workers_or_here(session, site: str, discover_s: float = WORKERS_DISCOVER_S):
 
     def measure(jobs, calib, setup):
         return measure_remote(jobs, calib, setup, session=session, site=site, discover_s=discover_s,
-                              local_workers=1)
+                              local_workers=1, announce=False)
     return measure
 
 
