@@ -103,8 +103,10 @@ def main() -> dict:
     up = Trace(trace.t[keep], trace.xy[keep], trace.heading[keep], trace.thrust[keep])
     cleaned = truth_map(run, prep.geometry,
                         {"cell_m": s.cell_m, "brush_m": s.brush_m, "body_radius_m": s.body_radius_m})
-    return {"pond_m": [20, 10], "keepouts": len(s.keepouts), "speed": SPEED, "fps": FPS, "jpeg_quality": farm.config["sim"]["tower_camera"].get("jpeg_quality", 85),
-            "camera": [farm.config["sim"]["tower_camera"]["width"], farm.config["sim"]["tower_camera"]["height"]],
+    camera = farm.config["sim"]["tower_camera"]
+    return {"pond_m": [20, 10], "keepouts": len(s.keepouts), "speed": SPEED, "fps": FPS,
+            "jpeg_quality": camera.get("jpeg_quality", 85),
+            "camera": [camera["width"], camera["height"]],
             "current_m_s": farm.config["sim"]["pond"].get("robot", {}).get("current_m_s"),
             "plan_length_m": round(prep.plan.length_m, 1),
             "reachable_m2": round(cleaned.reachable.sum() * s.cell_m ** 2, 1),

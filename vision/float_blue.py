@@ -6,20 +6,24 @@ it: no blob of blue pixels is left to find, but the blue is still there, spread.
 floating over a blue tarp makes one blob with it, too large for a disc. Both are found by where the
 blue disc must be: on the circle of the spacing (0.40 m) round the orange disc's centre.
 
-For each bearing round the orange centre the disc's footprint is sampled (sub-pixel, bilinear,
-through H: the same pond points whatever the frame's size) together with a ring round it, cut in
-four quarters. The disc's score is its colour's distance from the *nearest* of the four quarters
-(opponent colour: chroma counts fully, brightness half, so a shadow or glare veil is not colour):
-a disc on plain water differs from the water all round; a bearing where the disc's footprint
-straddles the edge of a tarp or the orange disc shares its colour with one quarter at least and
-scores nothing; a blue disc on a blue tarp of another hue or saturation still differs from the
-tarp all round. The ring lies 1.5 pixels outside the disc (pixels in pond metres at that place,
-through H), so the disc's blur does not count as its background. A bearing counts only if its
-disc is bluer than the water the window shows (its median).
+For each of 72 bearings round the orange centre the disc's footprint is sampled (sub-pixel,
+bilinear, through H: the same pond points whatever the frame's size) with a ring round it, cut in
+eight sectors; ring samples on the orange disc are left out. Colours are opponent colours (chroma
+fully, brightness half: a shadow or glare veil is not a colour). A bearing's score is how far its
+disc's colour lies off every *mix* of two sectors' colours, and off the colour of any one ring
+sample: a disc of its own paint on water, or on a tarp of another hue or saturation, is none of
+them; a footprint straddling the edge of a tarp is a mix of the tarp and the water beside it, and
+a footprint inside a blue thing larger than the disc matches the ring where that thing reaches it
+— both score nothing. So a blue disc on a tarp of its own blue gives no bearing (the detector then
+reports the position alone), never a wrong one. The ring lies 1.5 pixels outside the disc (a pixel
+in pond metres at that place, through H: a minimum size derived from H, not a constant), so the
+disc's own blur is not its background. A bearing counts only if its disc is bluer than the water
+(the window's median).
 
 The peak bearing is refined by a parabola through its neighbours. It is taken when it stands
-clear of the noise of the water (the window's own spread, robustly) and of every bearing more
-than a right angle away (a blue ball beside the float gives a second peak: ambiguous, refused).
+clear of the water's noise (the window's own spread, robustly, over the root of the pixels the
+disc covers) and of every bearing more than a right angle away (a blue ball beside the float
+gives a second peak: ambiguous, refused).
 """
 from __future__ import annotations
 
@@ -31,7 +35,8 @@ import numpy as np
 BEARINGS = 72
 SECTORS = 8          # the ring round a bearing's disc, cut in sectors
 # opponent colour axes (rows, on B, G, R): red-green, yellow-blue, brightness (weighed half below)
-_OPP = np.array([[0.0, -1.0, 1.0], [-2.0, 1.0, 1.0], [1.0, 1.0, 1.0]]) / np.array([[2 ** 0.5], [6 ** 0.5], [2 * 3 ** 0.5]])
+_OPP = np.array([[0.0, -1.0, 1.0], [-2.0, 1.0, 1.0], [1.0, 1.0, 1.0]]) \
+    / np.array([[2 ** 0.5], [6 ** 0.5], [2 * 3 ** 0.5]])
 _BLUE_AXIS = np.array([1.0, -0.5, -0.5])   # B - (G + R) / 2: how much bluer than its grey
 
 
@@ -73,7 +78,8 @@ def blue_bearing(frame_bgr: np.ndarray, H: np.ndarray, orange_xy, *, blue_diamet
     t = np.linspace(0, 2 * np.pi, 32, endpoint=False)
     ring = np.r_[np.c_[np.cos(t), np.sin(t)] * ring_in, np.c_[np.cos(t), np.sin(t)] * ring_out]   # (64, 2)
     sector = np.tile(np.arange(32) * SECTORS // 32, 2)
-    pts = np.concatenate([(centres[:, None] + disc[None]).reshape(-1, 2), (centres[:, None] + ring[None]).reshape(-1, 2)])
+    pts = np.concatenate([(centres[:, None] + disc[None]).reshape(-1, 2),
+                          (centres[:, None] + ring[None]).reshape(-1, 2)])
     uv = _to_px(Hi, pts)
     if not np.all(np.isfinite(uv)):
         return None
@@ -120,7 +126,8 @@ def blue_bearing(frame_bgr: np.ndarray, H: np.ndarray, orange_xy, *, blue_diamet
     peak = float(score[k])
     q = np.c_[np.array([uv[0], uv[0] + (1, 0), uv[0] + (0, 1)]), np.ones(3)] @ H.T
     q = q[:, :2] / q[:, 2:3]
-    disc_px = math.pi * r * r / max(abs(float(np.linalg.det(np.c_[q[1] - q[0], q[2] - q[0]]))), 1e-12)   # pixels it covers
+    disc_px = math.pi * r * r / max(abs(float(np.linalg.det(np.c_[q[1] - q[0], q[2] - q[0]]))), 1e-12)
+    # the disc's mean is over the pixels it covers: the water's spread shrinks by their root
     floor = max(min_contrast, noise_k * float(np.hypot(spread[0], spread[1])) / math.sqrt(max(1.0, disc_px)))
     if peak < floor:
         return None
