@@ -19,9 +19,9 @@ Figures, measured on the robot's true poses from the simulator's truth log (ever
 
 Run: ``.venv/bin/python bench/bench_cleaning_hil.py`` (about 22 minutes of wall); one JSON object.
 ``BENCH_CLEANER_KEEP=DIR`` keeps the run's logs, truth log and ledger in DIR to look into.
-``BENCH_CLEANER_JPEG=Q`` sets the simulated camera's JPEG quality (default the demo's 85): at
-640x360 the blue disc along the far wall is 2-3 px, which quality 85 can lose for good at some
-spots — and a robot stopped `lost` there waits for ever (the run then stops at its limit).
+``BENCH_CLEANER_JPEG=Q`` sets the simulated camera's JPEG quality (default the demo's config/farm.toml);
+``BENCH_CLEANER_SIZE=WxH`` its frame size (default the demo's 1280x720; at 640x360 the blue disc
+along the far wall is 3 x 1.6 px) — with another size the run uses that camera's own exact TOWER.json.
 """
 from __future__ import annotations
 
@@ -45,11 +45,12 @@ from hil_tests.cleaning_run import (  # noqa: E402
     watchdog_stop,
 )
 
-# 0.15 farm s between frames at 20 frames/s; the frames stay the demo's 640x360 (its TOWER.json)
+# 0.15 farm s between frames at 20 frames/s; the frames the demo's size (its TOWER.json) unless asked
 SPEED = float(os.environ.get("BENCH_CLEANER_SPEED", "3"))
 FPS = float(os.environ.get("BENCH_CLEANER_FPS", "20"))
 SMOKE = os.environ.get("BENCH_CLEANER_SMOKE") == "1"      # a quick look at the machinery, not the figures
 JPEG = os.environ.get("BENCH_CLEANER_JPEG")
+SIZE = os.environ.get("BENCH_CLEANER_SIZE")
 KILL_AT = 0.02 if SMOKE else 0.40
 UNTIL = 0.05 if SMOKE else 1.0                                # share of the coverage path's waypoints
 ROOT = Path(__file__).resolve().parents[1]
@@ -65,8 +66,9 @@ def main() -> dict:
     keep = os.environ.get("BENCH_CLEANER_KEEP")          # a directory to keep the logs, truth and ledger in
     with (contextlib.nullcontext(keep) if keep else tempfile.TemporaryDirectory(prefix="bench-cleaner-")) as tmp:
         Path(tmp).mkdir(parents=True, exist_ok=True)
-        farm = pond_farm(Path(tmp), speed=SPEED, own_tower=False,
-                         sim={"tower_camera": {"fps": FPS, **({"jpeg_quality": int(JPEG)} if JPEG else {})},
+        size = dict(zip(("width", "height"), map(int, SIZE.split("x")), strict=True)) if SIZE else {}
+        farm = pond_farm(Path(tmp), speed=SPEED, own_tower=bool(SIZE),
+                         sim={"tower_camera": {"fps": FPS, **size, **({"jpeg_quality": int(JPEG)} if JPEG else {})},
                               "pond": {"trace_s": TRACE_S}})
         cfg = Config.model_validate({**farm.config, "path": "config/farm.toml"})
         prep = prepare(cfg)
@@ -101,8 +103,10 @@ def main() -> dict:
     up = Trace(trace.t[keep], trace.xy[keep], trace.heading[keep], trace.thrust[keep])
     cleaned = truth_map(run, prep.geometry,
                         {"cell_m": s.cell_m, "brush_m": s.brush_m, "body_radius_m": s.body_radius_m})
-    return {"pond_m": [20, 10], "keepouts": len(s.keepouts), "speed": SPEED, "fps": FPS, "jpeg_quality": JPEG or 85,
-            "camera": [farm.config["sim"]["tower_camera"]["width"], farm.config["sim"]["tower_camera"]["height"]],
+    camera = farm.config["sim"]["tower_camera"]
+    return {"pond_m": [20, 10], "keepouts": len(s.keepouts), "speed": SPEED, "fps": FPS,
+            "jpeg_quality": camera.get("jpeg_quality", 85),
+            "camera": [camera["width"], camera["height"]],
             "current_m_s": farm.config["sim"]["pond"].get("robot", {}).get("current_m_s"),
             "plan_length_m": round(prep.plan.length_m, 1),
             "reachable_m2": round(cleaned.reachable.sum() * s.cell_m ** 2, 1),

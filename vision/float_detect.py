@@ -30,6 +30,8 @@ from functools import lru_cache
 import cv2
 import numpy as np
 
+from vision.float_blue import blue_bearing
+
 # more of the frame (of a window round the float) than this in a marker's colour: it is the water's
 # colour (the marker, a buoy beside it and glints stay far below, even in a window a metre wide)
 WATER_SHARE_FRAME, WATER_SHARE_WINDOW = 0.15, 0.5
@@ -69,6 +71,7 @@ class FloatFix:
     y_m: float
     heading_rad: float
     confidence: float       # 0..1
+    heading_known: bool = True   # False: the orange disc alone (its blue not made out); heading a guess
 
 
 @dataclass(frozen=True)
@@ -242,7 +245,10 @@ def _mask(hsv: np.ndarray, band, share: float) -> np.ndarray:
 
 
 def _search(frame: np.ndarray, H: np.ndarray, params: FloatParams, box: tuple[int, int, int, int],
-            scale: int) -> FloatFix | None:
+            scale: int, guided: bool = False) -> FloatFix | None:
+    """The float in pixel window ``box`` (searched ``scale`` times downscaled): the discs as blobs and
+    paired; else the blue disc looked for round an orange one (float_blue.py), or the orange one round
+    a blue one; with ``guided`` (the tracker's window) an orange disc alone gives the position."""
     u0, v0, u1, v1 = box
     crop = frame[v0:v1, u0:u1]
     if scale > 1:
@@ -254,8 +260,6 @@ def _search(frame: np.ndarray, H: np.ndarray, params: FloatParams, box: tuple[in
     whole = (u1 - u0) * (v1 - v0) >= 0.5 * frame.shape[0] * frame.shape[1]
     share = WATER_SHARE_FRAME if whole else WATER_SHARE_WINDOW
     blues = _discs(H, _mask(hsv, params.blue_hsv, share), origin, scale, params.blue_diameter_m, params)
-    if not blues:
-        return None
     oranges = _discs(H, _mask(hsv, params.orange_hsv, share), origin, scale, params.orange_diameter_m, params)
     best, best_score = None, 0.0
     for o in oranges:
@@ -267,12 +271,37 @@ def _search(frame: np.ndarray, H: np.ndarray, params: FloatParams, box: tuple[in
             score = o.conf * b.conf * (1 - 0.5 * off * off)
             if score > best_score:
                 best, best_score = (o.centre, d), score
+    known = True
     if best is None:
+        best, best_score = _round_orange(frame, H, params, oranges)
+    if best is None and blues:
         best, best_score = _anchored(hsv, H, params, blues, origin, scale)
+    if best is None and guided and oranges:
+        o = max(oranges, key=lambda d: d.conf)
+        if o.conf >= 0.5:
+            best, best_score, known = (o.centre, np.array([params.spacing_m, 0.0])), 0.5 * o.conf, False
     if best is None:
         return None
     c, d = best
-    return FloatFix(float(c[0]), float(c[1]), _wrap(math.atan2(d[1], d[0])), float(np.clip(best_score, 0, 1)))
+    return FloatFix(float(c[0]), float(c[1]), _wrap(math.atan2(d[1], d[0])), float(np.clip(best_score, 0, 1)),
+                    known)
+
+
+def _round_orange(frame, H, params: FloatParams, oranges: list[_Disc]):
+    """The blue disc on the circle of the spacing round an orange one (float_blue.py):
+    ((centre, orange -> blue), score) or (None, 0)."""
+    best, best_score = None, 0.0
+    for o in sorted(oranges, key=lambda d: -d.conf)[:4]:
+        found = blue_bearing(frame, H, o.centre, blue_diameter_m=params.blue_diameter_m, spacing_m=params.spacing_m,
+                             orange_diameter_m=params.orange_diameter_m)
+        if found is None:
+            continue
+        bearing, conf = found
+        score = 0.8 * o.conf * conf
+        if score > best_score:
+            best = (o.centre, params.spacing_m * np.array([math.cos(bearing), math.sin(bearing)]))
+            best_score = score
+    return best, best_score
 
 
 def _disc_grid(diameter: float, n: int = 9) -> np.ndarray:
@@ -343,16 +372,22 @@ def _box(H: np.ndarray, shape, x: float, y: float, r: float) -> tuple[int, int, 
     return (u0, v0, u1, v1) if u1 - u0 >= 4 and v1 - v0 >= 4 else None
 
 
-def _window(frame, H, params, x, y, r) -> FloatFix | None:
+def _window(frame, H, params, x, y, r, guided: bool = False) -> FloatFix | None:
     box = _box(H, frame.shape, x, y, r)
     if box is None:
         return None
     area = (box[2] - box[0]) * (box[3] - box[1])
     scale = 1 if area <= 0.15 * frame.shape[0] * frame.shape[1] else _scale(frame, H, params)
-    fix = _search(frame, H, params, box, scale)
-    if fix is not None and scale > 1:
-        return _window(frame, H, params, fix.x_m, fix.y_m, params.spacing_m + params.orange_diameter_m) or fix
-    return fix
+    fix = _search(frame, H, params, box, scale, guided)
+    return _refined(frame, H, params, fix) if scale > 1 else fix
+
+
+def _refined(frame, H, params, fix: FloatFix | None) -> FloatFix | None:
+    """A fix from a downscaled pass measured again at full resolution (kept if that finds less)."""
+    if fix is None:
+        return None
+    again = _window(frame, H, params, fix.x_m, fix.y_m, params.spacing_m + params.orange_diameter_m)
+    return again if again is not None and (again.heading_known or not fix.heading_known) else fix
 
 
 def _scale(frame, H, params) -> int:
@@ -363,17 +398,16 @@ def _scale(frame, H, params) -> int:
 
 def detect_float(frame_bgr: np.ndarray, H: np.ndarray, params: FloatParams = FloatParams(), *,
                  near: tuple[float, float, float] | None = None) -> FloatFix | None:
-    """The float in a BGR frame, or None (a dropout). ``near=(x_m, y_m, radius_m)``: look there first."""
+    """The float in a BGR frame, or None (a dropout). ``near=(x_m, y_m, radius_m)``: look there first;
+    there (only) an orange disc whose blue is not made out gives a fix with ``heading_known`` False."""
     if frame_bgr.ndim != 3 or frame_bgr.shape[2] != 3:
         raise ValueError(f"expected a colour (h, w, 3) frame, got shape {frame_bgr.shape}")
     H = np.asarray(H, dtype=float)
     if near is not None:
-        fix = _window(frame_bgr, H, params, *near)
+        fix = _window(frame_bgr, H, params, *near, guided=True)
         if fix is not None:
             return fix
     h, w = frame_bgr.shape[:2]
     scale = _scale(frame_bgr, H, params)
     fix = _search(frame_bgr, H, params, (0, 0, w, h), scale)
-    if fix is not None and scale > 1:
-        return _window(frame_bgr, H, params, fix.x_m, fix.y_m, params.spacing_m + params.orange_diameter_m) or fix
-    return fix
+    return _refined(frame_bgr, H, params, fix) if scale > 1 else fix

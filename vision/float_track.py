@@ -13,6 +13,11 @@ agree with each other (a speed the float can do between them) restart the track 
 a fix once the position is this uncertain (``reinit_std_m``); the gate also widens by itself as the
 position's uncertainty grows while coasting.
 
+A fix that gives the position alone (``heading_known`` False: the orange disc seen, its blue not
+made out — a blue tarp under it) updates position and speed only; the heading coasts on its rate
+and its uncertainty grows. Such fixes never start a track, and once the heading's 1-sigma passes
+``max_heading_std_rad`` they no longer count as "tracking": the pose is then "predicted".
+
 States: "tracking" (this frame's fix was taken), "predicted" (coasting on the model through a
 dropout), "lost" (no fix taken for longer than ``lost_after_s``: no position is given). The
 first good fix after "lost" starts the track again at once.
@@ -61,7 +66,8 @@ class FloatTracker:
     def __init__(self, *, lost_after_s: float = 4.0, pos_std_m: float = 0.02, heading_std_rad: float = 0.03,
                  accel_std: float = 1.5, yaw_accel_std: float = 0.6, gate: float = 13.8,
                  reinit_after: int = 3, max_speed_m_s: float = 2.0, reinit_std_m: float = 1.0,
-                 min_confidence: float = 0.15, reach_m: float = 0.6, turn: float = 1.0):
+                 min_confidence: float = 0.15, reach_m: float = 0.6, turn: float = 1.0,
+                 max_heading_std_rad: float = 0.12):
         if not lost_after_s > 0:
             raise ValueError("lost_after_s must be > 0")
         if reinit_after < 1:
@@ -71,7 +77,7 @@ class FloatTracker:
         self.accel_std, self.yaw_accel_std = accel_std, yaw_accel_std
         self.gate, self.reinit_after, self.max_speed_m_s = gate, reinit_after, max_speed_m_s
         self.reinit_std_m, self.min_confidence, self.reach_m = reinit_std_m, min_confidence, reach_m
-        self.turn = turn
+        self.turn, self.max_heading_std_rad = turn, max_heading_std_rad
         self.kf: KalmanFilter | None = None
         self._t: float | None = None          # time the filter stands at
         self._fix_t = -math.inf               # time of the last fix taken
@@ -151,7 +157,7 @@ class FloatTracker:
         if fix is not None and not fix.confidence >= self.min_confidence:
             fix = None
         if self.kf is None or self.state == "lost":
-            if fix is not None:
+            if fix is not None and fix.heading_known:
                 self._start(t_s, fix)
             else:
                 self._t = t_s
@@ -165,12 +171,19 @@ class FloatTracker:
             z, R = self._measure(fix)
             d_pos, d_heading = self._distance2(z, R)
             if d_pos <= self.gate:
-                if d_heading > self.gate:
-                    self._turned(z, R)
-                self.kf.update(z, R=R)
+                if not fix.heading_known:
+                    self.kf.update(z[:2], R=R[:2, :2], H=_MEASURE[:2])
+                    taken = self.heading_std() <= self.max_heading_std_rad
+                else:
+                    if d_heading > self.gate:
+                        self._turned(z, R)
+                    self.kf.update(z, R=R)
+                    taken = True
                 self.kf.x[4] = _wrap(self.kf.x[4])
-                self._fix_t, self._held, taken = t_s, [], True
-            else:
+                self._held = []
+                if taken:
+                    self._fix_t = t_s
+            elif fix.heading_known:
                 self._held.append((t_s, fix))
                 if self._consistent() or self.std_m() > self.reinit_std_m:
                     self._start(t_s, fix)
@@ -182,6 +195,9 @@ class FloatTracker:
         else:
             self.state = "predicted"
         return self._report(t_s)
+
+    def heading_std(self) -> float:
+        return float(math.sqrt(max(self.kf.P[4, 4], 0.0)))
 
     def std_m(self) -> float:
         """Position uncertainty (m): the larger axis of the position's 1-sigma ellipse."""

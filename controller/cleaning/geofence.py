@@ -19,8 +19,12 @@ refused command is replaced by the first safe of: the same command at half, then
 speed ahead; a slow move off the nearest keep-out; the command's turn on the spot; a slow
 back-off; a stop; if none is safe, the one that ends farthest off. ``streak`` counts the commands
 replaced in a row (the path follower gives up a waypoint the fence keeps refusing, steering.py).
-A track that is not ``tracking`` or older than ``max_age_s`` gets a stop (and the robot, its
-tracks held, stays where it is: devices/sim/pond_physics.py).
+A track older than ``max_age_s``, or neither ``tracking`` nor a ``predicted`` one whose position
+is still known within ``blind_std_m`` (the float's blue hidden by a blue tarp: its orange still
+fixes the position, the heading coasts), gets a stop (and the robot, its tracks held, stays where
+it is: devices/sim/pond_physics.py). On such a predicted pose the command is first slowed to
+``blind_thrust`` at most, then judged as any other with the pose's std in the band: a robot
+crossing a blind spot creeps on out of it instead of stopping in it.
 """
 from __future__ import annotations
 
@@ -60,6 +64,8 @@ class Geofence:
     max_age_s: float = 0.5
     latency_s: float = 0.1           # from the frame's instant to its track (render, link, detection)
     backoff: float = 0.3
+    blind_std_m: float = 0.1
+    blind_thrust: float = 0.3
     motion: Motion = field(default_factory=Motion)
     refused: int = 0                 # commands replaced
     streak: int = 0                  # commands replaced in a row (the follower learns of them)
@@ -128,10 +134,13 @@ class Geofence:
     # -- the check --------------------------------------------------------------
     def check(self, track, command, now_s: float) -> tuple[float, float]:
         """The command to send for ``command`` given the latest track at farm time ``now_s``."""
-        if (track is None or track.state != "tracking" or track.x_m is None
-                or now_s - track.t_s > self.max_age_s):
+        if not self._drivable(track, now_s):
             self.blind += 1
             return STOP
+        if track.state != "tracking":          # predicted, position still known: creep
+            most = max(abs(float(command[0])), abs(float(command[1])), 1e-9)
+            k = min(1.0, self.blind_thrust / most)
+            command = (float(command[0]) * k, float(command[1]) * k)
         std = float(track.std_m or 0.0)
         speed = self._speed(now_s, float(track.speed_m_s or 0.0))
         lead = max(0.0, now_s - track.t_s) + self.latency_s
@@ -156,6 +165,12 @@ class Geofence:
             if gap > widest:
                 best, widest = option, gap
         return self._sent(now_s, best)
+
+    def _drivable(self, track, now_s: float) -> bool:
+        if track is None or track.x_m is None or now_s - track.t_s > self.max_age_s:
+            return False
+        return track.state == "tracking" or (track.state == "predicted" and track.std_m is not None
+                                              and track.std_m <= self.blind_std_m)
 
     def _away(self, track) -> tuple[float, float]:
         """Off the nearest keep-out (the wall if there is none) at once, slowly, along the band's

@@ -191,3 +191,32 @@ def test_search_region_looks_ahead_to_the_frame_time():
     x_later, y, r_later = tr.search_region(7.8 + 0.6)
     assert abs(x_next - 8.0) < 0.03 and abs(x_later - 8.4) < 0.05 and abs(y - 3.0) < 0.02
     assert r_later > r_next
+
+
+def test_position_only_fixes_keep_the_position_while_the_heading_coasts_and_never_start_a_track():
+    """The orange disc alone (the blue one over a blue tarp): position and speed follow it, the
+    heading coasts on and grows uncertain; past max_heading_std_rad the pose is only "predicted",
+    and such fixes never start a track from "lost"."""
+    rng = np.random.default_rng(5)
+    tr = FloatTracker(max_heading_std_rad=0.12)
+    t, wrong = 0.0, 2.5                                        # the heading a position-only fix carries: a guess
+    for _ in range(100):                                       # 4 s of full fixes, straight at 0.25 m/s
+        t += 0.04
+        tr.step(t, FloatFix(2.0 + 0.25 * t + rng.normal(0, 0.01), 3.0 + rng.normal(0, 0.01), 0.0, 0.9))
+    states = []
+    for _ in range(75):                                        # 3 s of position-only fixes
+        t += 0.04
+        tk = tr.step(t, FloatFix(2.0 + 0.25 * t + rng.normal(0, 0.01), 3.0 + rng.normal(0, 0.01), wrong, 0.5,
+                                 heading_known=False))
+        states.append(tk.state)
+        assert abs(tk.x_m - (2.0 + 0.25 * t)) < 0.05 and abs(tk.y_m - 3.0) < 0.05, tk
+        assert heading_error(tk.heading_rad, 0.0) < 0.3, tk        # coasting, not pulled to the guess
+    assert states[0] == "tracking" and states[-1] == "predicted", states
+    assert tr.heading_std() > 0.12
+    while tr.state != "lost":                                  # then it goes, and position-only fixes
+        t += 0.04                                              # do not bring it back
+        tr.step(t, None)
+    for _ in range(10):
+        t += 0.04
+        assert tr.step(t, FloatFix(5.0, 3.0, wrong, 0.9, heading_known=False)).state == "lost"
+    assert tr.step(t + 0.04, FloatFix(5.0, 3.0, 0.1, 0.9)).state == "tracking"

@@ -67,11 +67,23 @@ def test_far_from_every_keepout_commands_pass_unchanged(x, y, h, speed, cmd):
 @pytest.mark.parametrize("state", ["predicted", "lost"])
 def test_no_drive_without_a_tracked_pose(state):
     f = fence()
-    t = track(10, 5, 0, state=state) if state == "predicted" else FloatTrack(10.0, None, None, None, "lost",
-                                                                            None, None)
+    t = track(10, 5, 0, state=state, std=f.blind_std_m + 0.01) if state == "predicted" else \
+        FloatTrack(10.0, None, None, None, "lost", None, None)
     assert f.check(t, (0.5, 0.5), 10.0) == STOP
     assert f.check(None, (0.5, 0.5), 10.0) == STOP
     assert f.blind == 2
+
+
+@settings(max_examples=60, deadline=None)
+@given(cmd=commands, std=st.floats(0.0, 0.1))
+def test_a_predicted_pose_known_to_a_few_cm_creeps_no_faster_than_blind_thrust(cmd, std):
+    f = fence()
+    out = f.check(track(10, 5, 0, std=std, state="predicted"), cmd, 10.0)
+    assert max(abs(out[0]), abs(out[1])) <= f.blind_thrust + 1e-9
+    most = max(abs(cmd[0]), abs(cmd[1]))
+    if most > 1e-6:                               # the same turn and way, only slower
+        k = min(1.0, f.blind_thrust / most)
+        assert out == pytest.approx((cmd[0] * k, cmd[1] * k))
 
 
 def test_a_stale_pose_stops():
@@ -146,5 +158,5 @@ def test_streak_counts_refusals_in_a_row_and_a_command_let_through_ends_it():
         assert f.streak == k
     f.check(track(10, 5, 0.0), (0.5, 0.5), 10.0)
     assert f.streak == 0 and f.refused == 3
-    f.check(track(10, 5, 0.0, state="predicted"), (0.5, 0.5), 10.0)   # blind: no news either way
+    f.check(track(10, 5, 0.0, state="predicted", std=0.5), (0.5, 0.5), 10.0)   # blind: no news either way
     assert f.streak == 0 and f.blind == 1
