@@ -54,6 +54,8 @@ def without_cleaner(config: dict) -> dict:
                       if s.get("kind") not in (*CLEANER_KINDS, *SURVEY_KINDS)}
     if "sim" in config:
         out["sim"] = {k: v for k, v in config["sim"].items() if k not in (*CLEANER_SIM, *SURVEY_KINDS)}
+        # the feeder's runs judge feeding over their whole span, nights included: fish ask round the clock
+        out["sim"]["fish"] = {k: v for k, v in out["sim"].get("fish", {}).items() if k != "feeding_hours"}
     if "tanks" in config:
         out["tanks"] = [{k: v for k, v in t.items() if k != "survey"} for t in config["tanks"]]
     return out

@@ -53,6 +53,8 @@ class SimFishParams(BaseModel):
     dead_per_day: float = Field(0.0, ge=0)
     fault_s: tuple[float, float] = (600.0, 3600.0)
     stuck_rate_hz: float = Field(5.0, gt=0)
+    feeding_hours: tuple[float, float] | None = Field(None, description="local hours [from, to) the fish ask "
+                                                      "for food in (fish feed by day); None: round the clock")
     sgr_pct_day: float = Field(0.0, ge=0, le=10, description="growth: specific growth rate, % body weight a day")
     length_cv: float = Field(0.10, ge=0, le=0.5, description="fork length's coefficient of variation in a tank")
 
@@ -61,8 +63,10 @@ class SimTank:
     """The physical tank. ``contacts_until(t)`` advances it; ``feed(grams, t)`` feeds it."""
 
     def __init__(self, tank_cfg, params: SimFishParams, rng: np.random.Generator, truth=None,
-                 t0: float | None = None):
-        """``t0``: farm time the simulation starts; by default the first call's time."""
+                 t0: float | None = None, utc_offset_h: float = 0.0):
+        """``t0``: farm time the simulation starts; by default the first call's time.
+        ``utc_offset_h``: the farm's, for ``feeding_hours``."""
+        self.utc_offset_s = utc_offset_h * 3600.0
         self.id = tank_cfg.id
         self.sensors = list(tank_cfg.sensors)
         self.p = params
@@ -147,7 +151,7 @@ class SimTank:
                     self._rest_until = end + self.p.rest_s
             else:
                 need = self.p.hunger_threshold_g - self.hunger_g
-                start = max(self._rest_until, self.t + max(0.0, need) / self.appetite_g_s)
+                start = self._by_day(max(self._rest_until, self.t + max(0.0, need) / self.appetite_g_s))
                 end = min(t, start)
                 self.hunger_g += self.appetite_g_s * (end - self.t)
                 self.t = end
@@ -156,6 +160,20 @@ class SimTank:
         self._background(t)
         if self.stock is not None:
             self.stock.advance(t)
+
+    def _by_day(self, t: float) -> float:
+        """``t``, or the next start of the feeding hours when ``t`` falls outside them."""
+        if self.p.feeding_hours is None:
+            return t
+        start_h, end_h = self.p.feeding_hours
+        local = t + self.utc_offset_s
+        day = math.floor(local / 86400.0) * 86400.0
+        hour = (local - day) / 3600.0
+        inside = start_h <= hour < end_h if start_h <= end_h else (hour >= start_h or hour < end_h)
+        if inside:
+            return t
+        opens = day + start_h * 3600.0
+        return (opens if opens > local else opens + 86400.0) - self.utc_offset_s
 
     def _start_episode(self, t: float) -> None:
         lo, hi = np.log(self.p.rate_hz[0]), np.log(self.p.rate_hz[1])

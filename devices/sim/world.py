@@ -134,7 +134,8 @@ class SimFarm:
         tanks = {}
         for t, s in zip(self.cfg.tanks, seeds, strict=True):
             fish_seed, stock_seed = s.spawn(2)
-            tanks[t.id] = tank = SimTank(t, params, np.random.default_rng(fish_seed), self.truth)
+            tanks[t.id] = tank = SimTank(t, params, np.random.default_rng(fish_seed), self.truth,
+                                         utc_offset_h=self.cfg.utc_offset_h)
             tank.stock = SimStock(t.id, t.stock, t.mean_weight_g, stock, np.random.default_rng(stock_seed),
                                   self.clock.now(), self.truth)
         return tanks

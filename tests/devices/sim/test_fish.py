@@ -93,3 +93,24 @@ def test_a_day_asks_for_about_the_ration_in_portions():
 def test_params_are_strict():
     with pytest.raises(ValidationError):
         SimFishParams(rate=1.0)
+
+
+def test_fish_fed_by_day_ask_only_within_their_feeding_hours():
+    from controller.config import load_config
+    cfg = load_config("config/farm.toml")
+    t0 = 1_780_016_400.0                                  # local midnight at utc_offset_h = 1
+    for hours in ((6.0, 20.0), (22.0, 4.0)):             # a window over midnight too
+        tank = SimTank(cfg.tanks[0], SimFishParams(feeding_hours=hours), np.random.default_rng(1), t0=t0,
+                       utc_offset_h=1.0)
+        starts = []
+        for k in range(1, 3 * 24 * 60):
+            t = t0 + 60.0 * k
+            was = tank.asking
+            tank.contacts_until(t)
+            if tank.asking and not was:
+                starts.append(((t + 3600.0) % 86400.0) / 3600.0)
+            if tank.asking and k % 7 == 0:
+                tank.feed(200.0, t)                       # served: the episode ends
+        lo, hi = hours
+        inside = [(lo <= h < hi) if lo < hi else (h >= lo or h < hi) for h in starts]
+        assert len(starts) > 10 and all(inside), (hours, starts)
