@@ -23,8 +23,9 @@ the CPU the workers got over the wall time, per worker (below 1: others ran on t
 ``workers_cores_total`` the same for all of them together. With the kernel's autogroup scheduling
 (``/proc/sys/kernel/sched_autogroup_enabled``), every process of one terminal session shares one
 fair share of the CPU against other sessions: on a machine others keep busy, this total stays the
-same whatever the number of workers, and the throughput with it. ``--sessions`` starts each worker
-in a session of its own, as separate services are: each then competes as one more party.
+same whatever the number of workers, and the throughput with it. So each worker is started in a
+session of its own, as separate services are (``own_sessions``); ``--one-session`` keeps them in the
+benchmark's (on an idle machine the two agree).
 ``ratio_2_over_1_free_cores_estimate`` is not a throughput measurement: 2 x the one worker's CPU a
 frame over the two workers' (plus the survey's), what the ratio would be with the cores free.
 ``one_more_machine``: what another machine of C cores would add, from these measured costs, not
@@ -156,8 +157,8 @@ def main() -> None:
     ap.add_argument("--frames", type=int, default=32, help="timed frames per configuration and round")
     ap.add_argument("--rounds", type=int, default=3, help="1, 2, 4 workers in turn, this many times")
     ap.add_argument("--workers", default="1,2,4")
-    ap.add_argument("--sessions", action="store_true",
-                    help="start each worker in a session of its own, as a service manager would")
+    ap.add_argument("--one-session", dest="sessions", action="store_false",
+                    help="start the workers in the benchmark's own session (one fair share for all)")
     args = ap.parse_args()
     cv2.setNumThreads(1)
     load_before = os.getloadavg()
