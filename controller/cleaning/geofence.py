@@ -5,8 +5,8 @@ radius) goes if the command is held for the pose's age plus ``horizon_s`` and th
 then stopped and the robot coasts out (``coast_s``): a unicycle whose speed and turn rate follow
 the thrust with the robot's time constants, the thrust ramping as the device ramps it. The
 robot's speed ahead is the one the thrust sent lately gives (the tracker's when nothing was sent:
-its speed from fixes a few times a second is too noisy), along its heading (the margins cover
-the current's few cm/s of crabbing).
+its speed from fixes a few times a second is too noisy), along its heading, plus the current's
+crabbing across it, learned from the last ``drift_window_s`` of tracked fixes (``drift``).
 
 The gap of the footprint to a keep-out must stay at least ``margin_m`` + ``k_std`` x the pose's
 uncertainty (the band); a command that would bring it under that (and closer than it is now,
@@ -29,6 +29,7 @@ crossing a blind spot creeps on out of it instead of stopping in it.
 from __future__ import annotations
 
 import math
+from collections import deque
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -66,6 +67,8 @@ class Geofence:
     backoff: float = 0.3
     blind_std_m: float = 0.1
     blind_thrust: float = 0.3
+    drift_window_s: float = 8.0      # tracked fixes the current's crabbing is learned over
+    max_drift_m_s: float = 0.2       # a larger learned crab is a bad estimate, not a current
     motion: Motion = field(default_factory=Motion)
     refused: int = 0                 # commands replaced
     streak: int = 0                  # commands replaced in a row (the follower learns of them)
@@ -75,6 +78,10 @@ class Geofence:
     def __post_init__(self):
         self._last = None                # (farm s, command) last let through
         self._v, self._thrust = 0.0, np.zeros(2)
+        self._trail: deque = deque()     # (t, position, dead-reckoned position) of tracked fixes
+        self._reckoned = np.zeros(2)
+        self._fix: tuple[float, float] | None = None      # (t, heading) of the last fix learned from
+        self.drift = np.zeros(2)         # the current's push across the heading, m/s (learned)
         self._edge = self.outline.exterior
         self._keep = shapely.union_all(list(self.keepouts)) if self.keepouts else None
         for g in (self.outline, self._edge, self._keep):
@@ -99,9 +106,11 @@ class Geofence:
         return edge, dk - self.body_radius_m
 
     # -- the prediction ---------------------------------------------------------
-    def predict(self, x, y, heading, speed, command, lead_s) -> np.ndarray:
-        """Centres (N, 2) from now: ``command`` held ``lead_s`` + ``horizon_s``, then coasting."""
+    def predict(self, x, y, heading, speed, command, lead_s, drift=(0.0, 0.0)) -> np.ndarray:
+        """Centres (N, 2) from now: ``command`` held ``lead_s`` + ``horizon_s``, then coasting;
+        ``drift`` (m/s) carries the body besides (the current's crabbing)."""
         m = self.motion
+        dx, dy = float(drift[0]), float(drift[1])
         left, right = (max(-1.0, min(1.0, float(c))) for c in command)
         held = lead_s + self.horizon_s
         n = max(1, math.ceil((held + self.coast_s) / self.step_s))
@@ -116,8 +125,8 @@ class Geofence:
             v += (m.top_speed_m_s * (fl + fr) / 2 - v) * self.step_s / m.speed_tau_s
             w += (m.top_turn_rad_s * (fr - fl) / 2 - w) * self.step_s / m.turn_tau_s
             heading += w * self.step_s
-            x += v * math.cos(heading) * self.step_s
-            y += v * math.sin(heading) * self.step_s
+            x += (v * math.cos(heading) + dx) * self.step_s
+            y += (v * math.sin(heading) + dy) * self.step_s
             out[i] = x, y
         return out
 
@@ -143,13 +152,14 @@ class Geofence:
             command = (float(command[0]) * k, float(command[1]) * k)
         std = float(track.std_m or 0.0)
         speed = self._speed(now_s, float(track.speed_m_s or 0.0))
+        self._learn_drift(track, speed)
         lead = max(0.0, now_s - track.t_s) + self.latency_s
         pose = (track.x_m, track.y_m, track.heading_rad, speed)
         here = self.gaps(np.array([[track.x_m, track.y_m]]))
         if float(here[1][0]) < self.margin_m + self.k_std * std:   # in the band: out of it first
             self.refused, self.streak, self.backed_off = self.refused + 1, self.streak + 1, self.backed_off + 1
             return self._sent(now_s, self._away(track))
-        ok, _ = self._judge(here, self.predict(*pose, command, lead), std)
+        ok, _ = self._judge(here, self.predict(*pose, command, lead, self.drift), std)
         if ok:
             self.streak = 0
             return self._sent(now_s, (float(command[0]), float(command[1])))
@@ -159,12 +169,39 @@ class Geofence:
         options = [*slower, self._away(track), (-turn, turn), (-self.backoff, -self.backoff), STOP]
         best, widest = STOP, -math.inf
         for option in options:
-            safe, gap = self._judge(here, self.predict(*pose, option, lead), std)
+            safe, gap = self._judge(here, self.predict(*pose, option, lead, self.drift), std)
             if safe:
                 return self._sent(now_s, option)
             if gap > widest:
                 best, widest = option, gap
         return self._sent(now_s, best)
+
+    def _learn_drift(self, track, speed: float) -> None:
+        """The current's push across the robot's heading: over the last ``drift_window_s`` of
+        tracked fixes, how far the float went across its heading beyond what the thrust's speed
+        along it explains. Only the cross part: pressed on a wall (the edge pass), the part along
+        the heading would read as a current holding the robot back, and the fence would then
+        predict it short of a keep-out ahead."""
+        if track.state != "tracking" or track.x_m is None or track.heading_rad is None:
+            return
+        t = float(track.t_s)
+        if self._fix is not None:
+            if t <= self._fix[0]:
+                return                           # the same fix again
+            t0, h0 = self._fix
+            self._reckoned = self._reckoned + speed * (t - t0) * np.array([math.cos(h0), math.sin(h0)])
+        self._fix = (t, float(track.heading_rad))
+        self._trail.append((t, np.array([track.x_m, track.y_m], float), self._reckoned.copy()))
+        while t - self._trail[0][0] > self.drift_window_s:
+            self._trail.popleft()
+        t0, p0, r0 = self._trail[0]
+        if t - t0 < self.drift_window_s / 2:
+            self.drift = np.zeros(2)
+            return
+        moved = (self._trail[-1][1] - p0) - (self._reckoned - r0)
+        across = np.array([-math.sin(track.heading_rad), math.cos(track.heading_rad)])
+        crab = max(-self.max_drift_m_s, min(self.max_drift_m_s, float(moved @ across) / (t - t0)))
+        self.drift = crab * across
 
     def _drivable(self, track, now_s: float) -> bool:
         if track is None or track.x_m is None or now_s - track.t_s > self.max_age_s:

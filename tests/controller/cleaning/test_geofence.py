@@ -160,3 +160,32 @@ def test_streak_counts_refusals_in_a_row_and_a_command_let_through_ends_it():
     assert f.streak == 0 and f.refused == 3
     f.check(track(10, 5, 0.0, state="predicted", std=0.5), (0.5, 0.5), 10.0)   # blind: no news either way
     assert f.streak == 0 and f.blind == 1
+
+
+def crabbing_run(f, *, crab=0.1, until=5.5, y_end=2.53, speed=0.2, seconds=8.0, rate=10.0):
+    """Fixes of a robot driving along +x that a current pushes +y (towards the drain) at ``crab``,
+    arriving at (``until``, ``y_end``); the fence checks a forward command at each."""
+    out = None
+    for i in range(int(seconds * rate) + 1):
+        t = 10.0 + i / rate
+        left = seconds - i / rate
+        out = f.check(track(until - speed * left, y_end - crab * left, 0.0, speed=speed, t=t), (0.5, 0.5), t)
+    return out
+
+
+def test_the_current_crabbing_is_learned_and_keeps_the_body_off_a_keepout_beside_the_lane():
+    fresh = fence()
+    here = track(5.5, 2.53, 0.0, speed=0.2, t=18.0)                    # 0.12 m under the drain
+    assert fresh.check(here, (0.5, 0.5), 18.0) == (0.5, 0.5)            # along the lane: clear
+    f = fence()
+    out = crabbing_run(f)
+    assert f.drift == pytest.approx([0.0, 0.1], abs=0.01)              # learned across the heading
+    assert out != (0.5, 0.5) and f.refused >= 1                        # the current would carry it in
+
+
+def test_a_robot_held_by_a_wall_learns_no_current_holding_it_back():
+    f = fence()
+    for i in range(90):                                                # commanded ahead, not moving
+        t = 10.0 + i / 10
+        f.check(track(19.0 - BODY, 5.0, 0.0, speed=0.0, t=t), (0.6, 0.6), t)
+    assert f.drift == pytest.approx([0.0, 0.0], abs=1e-9)
