@@ -114,7 +114,7 @@ async def test_homing_from_anywhere_zeroes_the_encoder(link):
         expected = 0.2 / ACCEL + 1.0 / 0.2                # default homing speed 0.2 m/s
         # frames are stamped on arrival, late on a loaded machine: the time is judged by bounds no
         # late frame can break, the motion by each frame's own speed (unhomed, it reads no place)
-        assert expected <= done.t - t0 < 2 * expected     # farm time: a wall-time drive takes 20x
+        assert expected <= done.t - t0 < 5 * expected     # farm time: a wall-time drive takes 20x
         homing = [started, *(s for s in seen if s.state == "homing")]
         assert all(-0.2 - 1e-3 <= s.velocity_m_s <= 0.0 for s in homing)     # towards the switch
         # it reaches the homing speed: at least one frame says so (how many arrive in the 0.25 s of
@@ -144,7 +144,7 @@ async def test_move_follows_the_trapezoid_in_farm_time(link):
         assert end.t - t0 >= VMAX / ACCEL + 12.0 / VMAX
         assert (end.position_m, end.velocity_m_s, end.at_target) == (12.0, 0.0, True)
         moving = [s for s in seen if s.state == "moving"]
-        assert len(moving) > 10                           # heartbeats along the way
+        assert len(moving) >= 5                           # heartbeats along the way (~35 on a quiet machine)
         speeds = [s.velocity_m_s for s in moving]
         assert max(speeds) == pytest.approx(VMAX, abs=1e-3)   # cruised at full speed, never beyond
         for s in moving:
@@ -152,7 +152,8 @@ async def test_move_follows_the_trapezoid_in_farm_time(link):
             v = min(VMAX, (2 * ACCEL * x) ** 0.5, (2 * ACCEL * max(0.0, 12.0 - x)) ** 0.5)
             assert s.velocity_m_s == pytest.approx(v, abs=0.02), f"at {x:.3f} m"
         assert all(b.position_m >= a.position_m for a, b in zip(moving, moving[1:], strict=False))
-        assert end.t - t0 < 2 * (VMAX / ACCEL + 12.0 / VMAX)      # farm time: a wall-time drive takes 20x
+        # farm time: a wall-time drive takes 20x; 5x leaves a stall of the VM 2.8 s of wall
+        assert end.t - t0 < 5 * (VMAX / ACCEL + 12.0 / VMAX)
 
 
 @asynctest
