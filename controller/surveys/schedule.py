@@ -3,7 +3,7 @@
 Per tank, ``survey = {every_days, at, pairs}`` (farm.toml ``[[tanks]]``): a survey is due from
 ``at`` (farm local time) on the day ``every_days`` after the farm day of the tank's newest survey
 in the ledger (any survey: a hand-held ``fishfarm survey --tank`` counts), and at the first ``at``
-for a tank never surveyed. An operator's ``start-survey`` asks for one now.
+after the controller started for a tank never surveyed. An operator's ``start-survey`` asks for one now.
 
 The robot asks ``next()`` only when no feeding demand waits (feeding comes first), so a survey
 never runs during feeding. A tank is skipped while paused (an operator's pause: grading, a
@@ -23,14 +23,25 @@ log = logging.getLogger("fishfarm.survey")
 DAY_S = 86_400.0
 
 
-def due(every_days: int, at: str, last_t: float | None, now: float, utc_offset_h: float) -> bool:
-    """A survey every ``every_days`` farm days from ``at`` local time on: due at ``now``?"""
+def due(every_days: int, at: str, last_t: float | None, now: float, utc_offset_h: float,
+        since: float | None = None) -> bool:
+    """A survey every ``every_days`` farm days from ``at`` local time on: due at ``now``? A tank
+    never surveyed is due from the first ``at`` at or after ``since`` (the schedule's start: a
+    controller started by day surveys at the tank's hour, not at once) — from today's without it."""
     hh, mm = (int(x) for x in at.split(":"))
+    if last_t is None and since is not None:
+        return now >= _first_at(hh * 3600 + mm * 60, since, utc_offset_h)
     local = now + utc_offset_h * 3600.0
     day, time_of_day = divmod(local, DAY_S)
     if time_of_day < hh * 3600 + mm * 60 and (last_t is None or day - _day(last_t, utc_offset_h) <= every_days):
         return False                           # not yet today's hour (an overdue day waits for no hour)
     return last_t is None or day - _day(last_t, utc_offset_h) >= every_days
+
+
+def _first_at(at_s: float, t: float, utc_offset_h: float) -> float:
+    """The first instant at or after ``t`` whose local time of day is ``at_s``."""
+    day, time_of_day = divmod(t + utc_offset_h * 3600.0, DAY_S)
+    return (day + (time_of_day > at_s)) * DAY_S + at_s - utc_offset_h * 3600.0
 
 
 def _day(t: float, utc_offset_h: float) -> float:
@@ -43,6 +54,7 @@ class SurveySchedule:
         self.current: SurveySession | None = None
         self.asked: OrderedDict[str, SurveySession] = OrderedDict()    # operators' requests, in order
         self.not_before: dict[str, float] = {}                          # tank -> retry after a failure
+        self.started = clock.now()            # a tank never surveyed waits for its first hour after it
 
     def request(self, tank: str, pairs: int | None = None) -> str | None:
         """An operator's survey of ``tank`` now (after any demand waiting). A note when one is
@@ -79,7 +91,8 @@ class SurveySchedule:
             if plan is None or self.held(tank.id, paused, now) is not None:
                 continue
             newest = self.store.surveys(tank.id, until=now, limit=1)
-            if due(plan.every_days, plan.at, newest[0].t if newest else None, now, self.cfg.utc_offset_h):
+            if due(plan.every_days, plan.at, newest[0].t if newest else None, now, self.cfg.utc_offset_h,
+                   since=self.started):
                 self.current = SurveySession(tank.id, plan.pairs, "schedule", now)
                 return self.current
         return None

@@ -38,6 +38,21 @@ def test_a_survey_is_due_every_n_farm_days_from_its_hour(last, now, offset_h, ex
     assert due(7, "10:00", None if last is None else t(last), t(now), offset_h) is expected
 
 
+@pytest.mark.parametrize("since, now, offset_h, expected", [
+    ("2026-06-01T09:00", "2026-06-01T09:59", 0, False),   # started before the hour: that day's
+    ("2026-06-01T09:00", "2026-06-01T10:00", 0, True),
+    ("2026-06-01T10:00", "2026-06-01T10:00", 0, True),    # started at the hour
+    ("2026-06-01T11:00", "2026-06-01T12:00", 0, False),   # started after it: the next day's, not at once
+    ("2026-06-01T11:00", "2026-06-02T09:59", 0, False),
+    ("2026-06-01T11:00", "2026-06-02T10:00", 0, True),
+    ("2026-06-01T08:30", "2026-06-01T09:00", 1, True),    # 10:00 local at UTC+1 is 09:00 UTC
+    ("2026-06-01T09:30", "2026-06-02T08:59", 1, False),
+    ("2026-06-01T23:30", "2026-06-02T09:00", 1, True),    # started 00:30 local: that day's 10:00
+])
+def test_a_tank_never_surveyed_waits_for_its_first_hour_after_the_start(since, now, offset_h, expected):
+    assert due(7, "10:00", None, t(now), offset_h, since=t(since)) is expected
+
+
 def config(**surveys):
     tanks = [TankConfig(id="T1", stock=1000, mean_weight_g=20, position_m=3, sensors=["a"],
                         survey=SurveySchedule(every_days=7, at="10:00", pairs=12)),
