@@ -45,18 +45,20 @@ def merge(base: dict, extra: dict) -> dict:
     return out
 
 
-def without_cleaner(config: dict) -> dict:
+def without_cleaner(config: dict, surveys: bool = False) -> dict:
     """The farm's feeder alone, without its pond cleaner and its survey cameras: the feeder's runs go
     at hundreds of times the wall, where a camera's frames are farm minutes apart, and rendering
-    would only take their CPU (and a scheduled survey would move the robot those runs time)."""
-    out = {k: v for k, v in config.items() if k not in ("cleaning", "surveys")}
+    would only take their CPU (and a scheduled survey would move the robot those runs time).
+    ``surveys``: keep the survey cameras, schedules and the fish's feeding hours (a grow-out)."""
+    gone = () if surveys else SURVEY_KINDS
+    out = {k: v for k, v in config.items() if k not in ("cleaning", *(() if surveys else ("surveys",)))}
     out["devices"] = {n: s for n, s in config.get("devices", {}).items()
-                      if s.get("kind") not in (*CLEANER_KINDS, *SURVEY_KINDS)}
+                      if s.get("kind") not in (*CLEANER_KINDS, *gone)}
     if "sim" in config:
-        out["sim"] = {k: v for k, v in config["sim"].items() if k not in (*CLEANER_SIM, *SURVEY_KINDS)}
-        # the feeder's runs judge feeding over their whole span, nights included: fish ask round the clock
-        out["sim"]["fish"] = {k: v for k, v in out["sim"].get("fish", {}).items() if k != "feeding_hours"}
-    if "tanks" in config:
+        out["sim"] = {k: v for k, v in config["sim"].items() if k not in (*CLEANER_SIM, *gone)}
+        if not surveys:   # the feeder's runs judge feeding over their whole span: fish ask round the clock
+            out["sim"]["fish"] = {k: v for k, v in out["sim"].get("fish", {}).items() if k != "feeding_hours"}
+    if "tanks" in config and not surveys:
         out["tanks"] = [{k: v for k, v in t.items() if k != "survey"} for t in config["tanks"]]
     return out
 
@@ -64,7 +66,7 @@ def without_cleaner(config: dict) -> dict:
 class HilFarm:
     def __init__(self, workdir: Path, *, speed: float, overrides: dict | None = None,
                  base_config: Path = ROOT / "config" / "farm.toml", farm_start: float = FARM_START,
-                 cleaner: bool = False):
+                 cleaner: bool = False, surveys: bool = False):
         self.dir = Path(workdir)
         self.speed = speed
         self.witness = StallWitness().start()  # the machine's own stalls, to tell from the controller's
@@ -72,7 +74,7 @@ class HilFarm:
         self.epoch_farm = farm_start
         base = tomllib.loads(base_config.read_text())
         if not cleaner:
-            base = without_cleaner(base)
+            base = without_cleaner(base, surveys=surveys)
         self.config = merge(base, overrides or {})
         for section in self.config.get("devices", {}).values():
             if section.get("kind") == "dispenser":

@@ -12,7 +12,8 @@ A tank of 20,000 fish is followed through a sample of at most ``sample`` individ
 the whole count (each is ``count / sample`` fish): the weights a camera sees are drawn from it. The
 count itself is exact: deaths are drawn for the whole count, and the same share of the sample goes.
 Deaths are written to the truth log (``mortality``: tank, count) as a farm worker would count them,
-and a ``stock`` record closes every farm day (count, biomass, mean and CV of weight, food eaten).
+and a ``stock`` record closes every farm day, or every ``record_s`` (count, biomass, mean and CV of
+weight, food eaten).
 """
 from __future__ import annotations
 
@@ -34,6 +35,7 @@ class SimStockParams(BaseModel):
     growth_cv_pct: float = Field(10.0, ge=0, le=100, description="spread of the fish's own growth factors")
     sample: int = Field(2000, ge=10, le=200_000, description="individuals followed")
     step_s: float = Field(3600.0, gt=0, le=DAY_S, description="farm s between mortality draws")
+    record_s: float = Field(DAY_S, gt=0, le=DAY_S, description="farm s between the truth log's stock records")
 
 
 class SimStock:
@@ -50,7 +52,7 @@ class SimStock:
         g = math.sqrt(math.log1p((params.growth_cv_pct / 100.0) ** 2))
         self.k = rng.lognormal(-g * g / 2, g, n)
         self.t = t0
-        self.day = math.floor(t0 / DAY_S)
+        self.period = math.floor(t0 / params.record_s)
         self.eaten_g = 0.0                                        # since t0
         self.deaths = 0
 
@@ -68,12 +70,13 @@ class SimStock:
     def advance(self, t: float) -> None:
         """Mortality (and the day's records) up to ``t``."""
         while self.t < t:
-            end = min(t, (math.floor(self.t / self.p.step_s) + 1) * self.p.step_s)
+            step = min(self.p.step_s, self.p.record_s)
+            end = min(t, (math.floor(self.t / step) + 1) * step)
             self._deaths(end - self.t, end)
             self.t = end
-            day = math.floor(end / DAY_S)
-            if day != self.day:
-                self.day = day
+            period = math.floor(end / self.p.record_s)
+            if period != self.period:
+                self.period = period
                 self._record(end)
 
     # -- what a camera and a judge see -------------------------------------------------------
