@@ -30,6 +30,13 @@ log = logging.getLogger(__name__)
 APIS = {"any": cv2.CAP_ANY, "ffmpeg": cv2.CAP_FFMPEG, "gstreamer": cv2.CAP_GSTREAMER, "v4l2": cv2.CAP_V4L2}
 
 
+
+def known_api(api: str) -> str:
+    """A VideoCapture backend name this driver knows (a config validator's check)."""
+    if api not in APIS:
+        raise ValueError(f"api must be one of {', '.join(APIS)}")
+    return api
+
 class Config(Section):
     source: str | int = Field(description="an RTSP/HTTP URL, a video file, or a device index (0, 1, ...)")
     api: str = Field("any", description="VideoCapture backend: " + ", ".join(APIS))
@@ -44,9 +51,7 @@ class Config(Section):
     @field_validator("api")
     @classmethod
     def _api(cls, api: str) -> str:
-        if api not in APIS:
-            raise ValueError(f"api must be one of {', '.join(APIS)}")
-        return api
+        return known_api(api)
 
     @field_validator("reconnect_s")
     @classmethod

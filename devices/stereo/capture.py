@@ -16,7 +16,7 @@ import numpy as np
 from pydantic import Field, field_validator, model_validator
 
 from devices.base import Section
-from devices.camera.capture import APIS, CaptureCamera
+from devices.camera.capture import APIS, CaptureCamera, known_api
 from devices.camera.capture import Config as SourceConfig
 from devices.stereo import StereoCamera, StereoPair
 from vision.calib_file import CalibrationError, StereoCalibration, calibration_from_json
@@ -38,9 +38,7 @@ class Config(Section):
     @field_validator("api")
     @classmethod
     def _api(cls, api: str) -> str:
-        if api not in APIS:
-            raise ValueError(f"api must be one of {', '.join(APIS)}")
-        return api
+        return known_api(api)
 
     @field_validator("calib")
     @classmethod
