@@ -137,6 +137,8 @@ class CleaningConfig(Strict):
     autostart: bool = Field(False, description="at start, clean from the dock if the map is not complete")
     cell_m: float = Field(0.1, ge=0.01, le=5, description="coverage map cell")
     overlap: float = Field(0.05, ge=0, lt=0.5, description="share of the brush lanes overlap by")
+    keepout_margin_m: float = Field(0.10, ge=0, le=5, description="the plan's room beyond body_radius_m round "
+                                    "keep-outs (no wall stops the robot there; the geofence guards them)")
     save_every_s: float = Field(5.0, gt=0, le=3600, description="farm seconds between saves of the map")
     publish_every_s: float = Field(1.0, gt=0, le=3600, description="farm seconds between cleaner/state besides changes")
     detection: dict[str, Any] = Field({}, alias="float",

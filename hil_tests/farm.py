@@ -63,6 +63,18 @@ def without_cleaner(config: dict, surveys: bool = False) -> dict:
     return out
 
 
+def without_surveys(config: dict) -> dict:
+    """The farm without its survey cameras and schedules (a cleaning run: their rendering would take
+    the CPU the tower camera's frames need, and a survey is not the run's subject)."""
+    out = {k: v for k, v in config.items() if k != "surveys"}
+    out["devices"] = {n: s for n, s in config.get("devices", {}).items() if s.get("kind") not in SURVEY_KINDS}
+    if "sim" in config:
+        out["sim"] = {k: v for k, v in config["sim"].items() if k not in SURVEY_KINDS}
+    if "tanks" in config:
+        out["tanks"] = [{k: v for k, v in t.items() if k != "survey"} for t in config["tanks"]]
+    return out
+
+
 class HilFarm:
     def __init__(self, workdir: Path, *, speed: float, overrides: dict | None = None,
                  base_config: Path = ROOT / "config" / "farm.toml", farm_start: float = FARM_START,
@@ -75,6 +87,8 @@ class HilFarm:
         base = tomllib.loads(base_config.read_text())
         if not cleaner:
             base = without_cleaner(base, surveys=surveys)
+        elif not surveys:
+            base = without_surveys(base)
         self.config = merge(base, overrides or {})
         for section in self.config.get("devices", {}).values():
             if section.get("kind") == "dispenser":

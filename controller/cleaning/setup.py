@@ -49,9 +49,12 @@ def float_params(values: dict, where: str):
 
 def fingerprint(settings) -> str:
     """What the map and the path index mean: a change here starts a fresh map."""
+    from controller.cleaning.coverage import KEEPOUT_MARGIN
     keys = {"outline": settings.outline, "keepouts": settings.keepouts, "dock": settings.dock,
             "brush_m": settings.brush_m, "body_radius_m": settings.body_radius_m, "cell_m": settings.cell_m,
             "overlap": settings.overlap}
+    if settings.keepout_margin_m != KEEPOUT_MARGIN:       # the default leaves older maps' fingerprints as they were
+        keys["keepout_margin_m"] = settings.keepout_margin_m
     return hashlib.sha256(json.dumps(keys, sort_keys=True).encode()).hexdigest()[:16]
 
 
@@ -69,7 +72,7 @@ def prepare(cfg) -> Prepared:
     H = load_tower(s.tower)
     params = float_params(s.detection, where)
     plan = plan_coverage(geom, brush_m=s.brush_m, body_radius_m=s.body_radius_m, overlap=s.overlap,
-                         start_xy=s.dock, where=where, key="cleaning")
+                         keepout_margin_m=s.keepout_margin_m, start_xy=s.dock, where=where, key="cleaning")
     return Prepared(s, geom, plan, H, params, fingerprint(s))
 
 

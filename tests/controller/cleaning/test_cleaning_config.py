@@ -82,3 +82,25 @@ def test_the_cleaners_devices_and_section_go_together(tmp_path, extra, key, faul
     with pytest.raises(BadInput) as err:
         Controller(load_config(path), ManualClock())
     assert f": {key}: " in str(err.value) and fault in str(err.value)
+
+
+def test_the_plan_keeps_its_margin_round_keepouts_and_the_default_keeps_old_maps(tmp_path):
+    from shapely.geometry import LineString, Polygon
+    drain = Polygon([(5, 4), (6, 4), (6, 5), (5, 5)])
+    gaps = {}
+    for margin in (0.10, 0.05, 0.0):
+        cfg = load_config(farm(tmp_path, POND + f"keepout_margin_m = {margin}\n"))
+        path = prepare(cfg).plan.path
+        gaps[margin] = LineString(path).distance(drain) - cfg.cleaning.body_radius_m
+        assert gaps[margin] >= margin - 1e-6
+    assert gaps[0.0] < gaps[0.05] < gaps[0.10]                  # closer, lane by lane, as asked
+    default = load_config(farm(tmp_path, POND)).cleaning
+    assert default.keepout_margin_m == 0.10
+    keys = {k: getattr(default, k) for k in ("outline", "keepouts", "dock", "brush_m", "body_radius_m", "cell_m",
+                                             "overlap")}
+    import hashlib
+    assert fingerprint(default) == hashlib.sha256(json.dumps(keys, sort_keys=True).encode()).hexdigest()[:16]
+    assert fingerprint(load_config(farm(tmp_path, POND + "keepout_margin_m = 0.05\n")).cleaning) != \
+        fingerprint(default)
+    with pytest.raises(BadInput, match="cleaning.keepout_margin_m"):
+        load_config(farm(tmp_path, POND + "keepout_margin_m = -0.1\n"))
