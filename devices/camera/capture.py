@@ -37,14 +37,14 @@ def known_api(api: str) -> str:
         raise ValueError(f"api must be one of {', '.join(APIS)}")
     return api
 
-class Config(Section):
-    source: str | int = Field(description="an RTSP/HTTP URL, a video file, or a device index (0, 1, ...)")
+
+class SourceLink(Section):
+    """How a VideoCapture source is reached: what the tower camera and the survey cameras share."""
+
     api: str = Field("any", description="VideoCapture backend: " + ", ".join(APIS))
-    read_timeout_s: float = Field(2.0, gt=0, le=60, description="wall seconds without a frame = gone")
     open_timeout_s: float = Field(5.0, gt=0, le=60, description="wall seconds to open the source")
     reconnect_s: tuple[float, ...] = Field((0.2, 0.5, 1.0, 2.0, 5.0), min_length=1,
                                            description="wall back-off between reconnects; the last repeats")
-    loop_file: bool = False
     ffmpeg_options: str | None = Field(None, description='FFmpeg options for this source, OpenCV\'s '
                                        '"key;value|key;value" (e.g. "rtsp_transport;tcp", "recv_buffer_size;262144")')
 
@@ -59,6 +59,12 @@ class Config(Section):
         if any(not 0 < s <= 600 for s in steps):
             raise ValueError("every reconnect_s step must lie in (0, 600]")
         return steps
+
+
+class Config(SourceLink):
+    source: str | int = Field(description="an RTSP/HTTP URL, a video file, or a device index (0, 1, ...)")
+    read_timeout_s: float = Field(2.0, gt=0, le=60, description="wall seconds without a frame = gone")
+    loop_file: bool = False
 
 
 _ENV = "OPENCV_FFMPEG_CAPTURE_OPTIONS"

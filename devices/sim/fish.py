@@ -55,8 +55,6 @@ class SimFishParams(BaseModel):
     stuck_rate_hz: float = Field(5.0, gt=0)
     feeding_hours: tuple[float, float] | None = Field(None, description="local hours [from, to) the fish ask "
                                                       "for food in (fish feed by day); None: round the clock")
-    sgr_pct_day: float = Field(0.0, ge=0, le=10, description="growth: specific growth rate, % body weight a day")
-    length_cv: float = Field(0.10, ge=0, le=0.5, description="fork length's coefficient of variation in a tank")
 
 
 class SimTank:
@@ -76,7 +74,7 @@ class SimTank:
         self._count0 = tank_cfg.stock
         self.stock = None                                   # devices/sim/stock.SimStock: the fish grow
         self.species = tank_cfg.species
-        self.weight0_g, self.t0 = tank_cfg.mean_weight_g, t0
+        self.weight0_g = tank_cfg.mean_weight_g
         self.hunger_g = params.initial_hunger * params.hunger_threshold_g
         self.rate_hz = 0.0                                  # > 0 while the fish ask
         self._give_up = self._next_fish = math.inf
@@ -88,27 +86,13 @@ class SimTank:
 
     def _begin(self, t0: float) -> None:
         self.t = self._rest_until = t0
-        self.t0 = t0 if self.t0 is None else self.t0
         self._chunk_end = math.floor(t0 / CHUNK_S) * CHUNK_S
 
     # -- public -------------------------------------------------------------------------------
-    def mean_weight_g(self, t: float) -> float:
-        """The fish's mean weight at farm time ``t``: the stock's (devices/sim/stock.py: grown on
-        the food eaten) when the tank has one, else W0 exp(SGR/100 days) since the start."""
-        if self.stock is not None:
-            return self.stock.mean_g
-        if self.t0 is None or self.p.sgr_pct_day == 0:
-            return self.weight0_g
-        return self.weight0_g * math.exp(self.p.sgr_pct_day / 100 * (t - self.t0) / 86400)
-
     @property
     def appetite_g_s(self) -> float:
-        """Grams a second the fish would eat: their biomass now (they grow) x ration_pct_day."""
-        if self.stock is not None:
-            biomass = self.stock.biomass_g
-        else:
-            t = getattr(self, "t", None)
-            biomass = self._count0 * (self.weight0_g if t is None else self.mean_weight_g(t))
+        """Grams a second the fish would eat: their biomass now (growing, with a stock) x the ration."""
+        biomass = self.stock.biomass_g if self.stock is not None else self._count0 * self.weight0_g
         return max(biomass, 1e-9) * self.p.ration_pct_day / 100 / 86400
 
     @property

@@ -1,5 +1,5 @@
 """The simulated stereo pair on the rail carriage: the survey renderer's fish of the tank under
-the carriage, at their size of the moment (they grow: devices/sim/fish.py ``sgr_pct_day``).
+the carriage, at their size of the moment (they grow: devices/sim/stock.py).
 
 Each frame is one still of the tank (``underwater_scene``: fish placed anew, as independent
 stills), both views side by side in one JPEG (4:4:4), served as MJPEG over HTTP by the tower
@@ -39,11 +39,6 @@ class SimStereoCameraParams(BaseModel):
     seed: int = 0
 
 
-def mean_length_cm(weight_g: float, a: float, b: float, cv: float) -> float:
-    """The mean fork length of fish of mean weight ``weight_g`` whose lengths spread by ``cv``."""
-    return (weight_g / (a * (1 + b * (b - 1) / 2 * cv ** 2))) ** (1 / b)
-
-
 class TankView:
     """``render(t)``: the side-by-side pair the carriage's cameras see at farm time ``t``."""
 
@@ -72,16 +67,11 @@ class TankView:
         return np.hstack([scene.left, scene.right])
 
     def _sizes(self, tank, sp, t: float) -> tuple[float, float, float]:
-        """(mean weight g, mean fork length cm, length CV) of the tank's fish at ``t``: drawn from its
-        individuals when it has a stock that keeps them (``stock.weights(n, rng)``), else from its
-        mean weight and ``[sim.fish] length_cv``."""
-        stock = getattr(tank, "stock", None)
-        if stock is not None and hasattr(stock, "weights"):
-            w = np.asarray(stock.weights(SIZE_SAMPLE, self.rng), float)
-            lengths = (w / sp.a) ** (1 / sp.b)
-            return float(w.mean()), float(lengths.mean()), float(lengths.std() / lengths.mean())
-        weight, cv = tank.mean_weight_g(t), tank.p.length_cv
-        return weight, mean_length_cm(weight, sp.a, sp.b, cv), cv
+        """(mean weight g, mean fork length cm, length CV) of the tank's fish now, drawn from its
+        individuals (devices/sim/stock.py: they grow on what they eat and die)."""
+        w = np.asarray(tank.stock.weights(SIZE_SAMPLE, self.rng), float)
+        lengths = (w / sp.a) ** (1 / sp.b)
+        return float(w.mean()), float(lengths.mean()), float(lengths.std() / lengths.mean())
 
     def write_calibration(self, path: Path) -> str:
         path.write_text(json.dumps(self.rig.calibration().to_json()))

@@ -15,30 +15,19 @@ from typing import Any, Literal
 import numpy as np
 from pydantic import Field, field_validator, model_validator
 
-from devices.base import Section
-from devices.camera.capture import APIS, CaptureCamera, known_api
+from devices.camera.capture import CaptureCamera, SourceLink
 from devices.camera.capture import Config as SourceConfig
 from devices.stereo import StereoCamera, StereoPair
 from vision.calib_file import CalibrationError, StereoCalibration, calibration_from_json
 
 
-class Config(Section):
+class Config(SourceLink):
     sources: list[str | int] = Field(min_length=1, max_length=2,
                                      description="RTSP/HTTP URLs, video files or device indices: [left, right], "
                                      "or one source carrying both views")
     layout: Literal["pair", "side_by_side", "rg"] = "pair"
     calib: str = Field(min_length=1, description="CALIB.json of the rig (fishfarm calibrate ...)")
-    api: str = Field("any", description="VideoCapture backend: " + ", ".join(APIS))
     read_timeout_s: float = Field(5.0, gt=0, le=60, description="wall seconds without a frame = gone")
-    open_timeout_s: float = Field(5.0, gt=0, le=60, description="wall seconds to open a source")
-    reconnect_s: tuple[float, ...] = Field((0.2, 0.5, 1.0, 2.0, 5.0), min_length=1,
-                                           description="wall back-off between reconnects; the last repeats")
-    ffmpeg_options: str | None = Field(None, description="FFmpeg options, OpenCV's \"key;value|key;value\"")
-
-    @field_validator("api")
-    @classmethod
-    def _api(cls, api: str) -> str:
-        return known_api(api)
 
     @field_validator("calib")
     @classmethod

@@ -14,8 +14,9 @@ from devices.errors import BadInput
 from devices.sections import section_model, validate_section
 from devices.sim.fish import SimFishParams, SimTank
 from devices.sim.fish_species import SPECIES
-from devices.sim.stereo_camera import SimStereoCameraParams, TankView, frame_size, mean_length_cm
+from devices.sim.stereo_camera import SimStereoCameraParams, TankView, frame_size
 from devices.sim.stereo_rig import convergent_rig
+from devices.sim.stock import SimStock, SimStockParams
 from devices.sim.tower_camera import SimTowerCamera
 from devices.stereo import StereoPair
 from devices.stereo.capture import CaptureStereo, split_pair
@@ -64,34 +65,32 @@ def test_one_frame_carrying_both_views_is_split():
     assert (left == 7).all() and (right == 9).all()
 
 
-def test_the_mean_length_of_a_mean_weight_holds_over_the_spread():
-    rng = np.random.default_rng(3)
-    a, b = 0.02263, 3.032
-    for weight, cv in ((18.0, 0.10), (250.0, 0.15)):
-        mu = mean_length_cm(weight, a, b, cv)
-        lengths = rng.normal(mu, cv * mu, 400_000)
-        assert abs(np.mean(a * lengths ** b) / weight - 1) < 0.01
+def a_tank(count: int, weight_g: float, t0: float = 0.0) -> SimTank:
+    """A simulated tank whose fish grow on what they eat (devices/sim/stock.py), none dying."""
+    tank_cfg = types.SimpleNamespace(id="T1", sensors=["s"], stock=count, mean_weight_g=weight_g,
+                                     species="sparus_aurata")
+    tank = SimTank(tank_cfg, SimFishParams(), np.random.default_rng(0), t0=t0)
+    tank.stock = SimStock("T1", count, weight_g, SimStockParams(mortality_pct_day=0.0), np.random.default_rng(1), t0)
+    return tank
 
 
-def test_the_simulated_fish_grow_by_their_specific_growth_rate():
-    tank_cfg = types.SimpleNamespace(id="T1", sensors=["s"], stock=1000, mean_weight_g=20.0, species="sparus_aurata")
-    tank = SimTank(tank_cfg, SimFishParams(sgr_pct_day=2.0), np.random.default_rng(0), t0=0.0)
-    assert tank.mean_weight_g(0.0) == 20.0
-    assert tank.mean_weight_g(30 * 86400.0) == pytest.approx(20.0 * np.exp(0.6))
-    before = tank.appetite_g_s
-    tank.contacts_until(10 * 86400.0)
-    assert tank.appetite_g_s == pytest.approx(before * np.exp(0.2))
-    still = SimTank(tank_cfg, SimFishParams(), np.random.default_rng(0), t0=0.0)
-    assert still.mean_weight_g(30 * 86400.0) == 20.0
+def test_the_cameras_see_the_stock_grow_on_what_it_eats():
+    tank = a_tank(1000, 20.0)
+    view = TankView(SimStereoCameraParams(width=W, height=H), {"T1": tank}, lambda t: "T1")
+    sp = SPECIES["sparus_aurata"]
+    before, _, _ = view._sizes(tank, sp, 0.0)
+    tank.feed(2800.0, 3600.0)                        # 2,800 g eaten at fcr 1.4: +2,000 g of fish, +2 g each
+    after, length, _ = view._sizes(tank, sp, 3600.0)
+    assert before == pytest.approx(20.0, rel=0.05) and after == pytest.approx(22.0, rel=0.05)
+    assert after - before == pytest.approx(2.0, rel=0.3)
+    assert length == pytest.approx((22.0 / sp.a) ** (1 / sp.b), rel=0.05)
 
 
 def test_pairs_of_the_tank_under_the_carriage_come_through_videocapture(tmp_path):
     async def main():
         clock = ManualClock(t=1000.0)
         params = SimStereoCameraParams(width=W, height=H, fps=20, fish_in_view=(3, 3), focal_px=1400)
-        tank_cfg = types.SimpleNamespace(id="T1", sensors=["s"], stock=100, mean_weight_g=200.0,
-                                         species="sparus_aurata")
-        tanks = {"T1": SimTank(tank_cfg, SimFishParams(sgr_pct_day=1.0), np.random.default_rng(0), t0=0.0)}
+        tanks = {"T1": a_tank(100, 200.0)}
         where = {"tank": "T1"}
         view = TankView(params, tanks, lambda t: where["tank"])
         served = SimTowerCamera(view.render, clock, {"fps": params.fps, "jpeg_quality": 95, **frame_size(params)})
@@ -120,7 +119,7 @@ def test_pairs_of_the_tank_under_the_carriage_come_through_videocapture(tmp_path
         assert not np.array_equal(pair.left, pair.right)          # two viewpoints
     assert [p.seq for p in pairs] == [1, 2, 3]
     seen = [s for s in view.seen if s[1] == "T1"]
-    assert seen and all(w == pytest.approx(200.0 * np.exp(0.01 * t / 86400)) for t, _, w in seen)
+    assert seen and all(w == pytest.approx(200.0, rel=0.1) for _, _, w in seen)     # the stock's fish
 
 
 def test_a_tank_that_keeps_its_fish_as_individuals_is_drawn_from_them():
