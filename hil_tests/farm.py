@@ -50,16 +50,15 @@ def without_cleaner(config: dict, surveys: bool = False) -> dict:
     at hundreds of times the wall, where a camera's frames are farm minutes apart, and rendering
     would only take their CPU (and a scheduled survey would move the robot those runs time).
     ``surveys``: keep the survey cameras, schedules and the fish's feeding hours (a grow-out)."""
-    gone = () if surveys else SURVEY_KINDS
-    out = {k: v for k, v in config.items() if k not in ("cleaning", *(() if surveys else ("surveys",)))}
-    out["devices"] = {n: s for n, s in config.get("devices", {}).items()
-                      if s.get("kind") not in (*CLEANER_KINDS, *gone)}
+    out = {k: v for k, v in config.items() if k != "cleaning"}
+    out["devices"] = {n: s for n, s in config.get("devices", {}).items() if s.get("kind") not in CLEANER_KINDS}
     if "sim" in config:
-        out["sim"] = {k: v for k, v in config["sim"].items() if k not in (*CLEANER_SIM, *gone)}
-        if not surveys:   # the feeder's runs judge feeding over their whole span: fish ask round the clock
-            out["sim"]["fish"] = {k: v for k, v in out["sim"].get("fish", {}).items() if k != "feeding_hours"}
-    if "tanks" in config and not surveys:
-        out["tanks"] = [{k: v for k, v in t.items() if k != "survey"} for t in config["tanks"]]
+        out["sim"] = {k: v for k, v in config["sim"].items() if k not in CLEANER_SIM}
+    if surveys:
+        return out
+    out = without_surveys(out)
+    if "sim" in out:      # the feeder's runs judge feeding over their whole span: fish ask round the clock
+        out["sim"]["fish"] = {k: v for k, v in out["sim"].get("fish", {}).items() if k != "feeding_hours"}
     return out
 
 
