@@ -17,7 +17,7 @@ from controller.errors import BadInput
 from controller.identity import USER
 
 DEFAULT_OUT = "config/zenoh/credentials.txt"
-USERS = ("controller", "engineer", "operator", "viewer")
+USERS = ("controller", "engineer", "operator", "viewer", "worker")
 PASSWORD_BYTES = 18      # 24 characters of [A-Za-z0-9_-]: 144 random bits
 
 
@@ -70,7 +70,7 @@ def _name(value: str) -> str:
               help="add a user with a new random password to the file (repeatable); prints NAME:PASSWORD.")
 @click.option("--force", is_flag=True, help="replace an existing file: every password changes.")
 def credentials(out, add, force):
-    """Write random passwords for controller, engineer, operator and viewer (or --add people).
+    """Write random passwords for controller, engineer, operator, viewer and worker (or --add people).
 
     Then list each person's user name in their role's subject in config/zenoh/deploy.json5.
     """

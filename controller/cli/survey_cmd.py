@@ -135,14 +135,14 @@ _WORKERS = _WorkersType()
 HUB_DISCOVER_S = 5.0
 
 
-def _remote(endpoint: str, site: str):
+def _remote(endpoint: str, site: str, user: str | None, password: str | None):
     """(options for measure_remote, session): whatever listens at ``endpoint``, or this survey
     listening there itself for workers to join (then it waits a little longer for them)."""
     from controller.surveys.remote import DISCOVER_S, connect
     from controller.surveys.worker import SITE
     if not SITE.match(site):
         raise BadInput("--site", None, f"{site!r}: letters, digits, _ and - only")
-    session, listening = connect(endpoint)
+    session, listening = connect(endpoint, user=user, password=password)
     return {"session": session, "site": site, "discover_s": HUB_DISCOVER_S if listening else DISCOVER_S}, session
 
 
@@ -167,10 +167,12 @@ def _remote(endpoint: str, site: str):
 @click.option("--workers", type=_WORKERS, default=None, metavar="N|tcp/HOST:PORT",
               help="N local processes (default: cores), or the vision workers reached at this Zenoh endpoint")
 @click.option("--site", default="demo", show_default=True, help="farm site of the vision workers (--workers ENDPOINT)")
+@click.option("--user", default=None, help="Zenoh user name at --workers ENDPOINT (a deployment's router)")
+@click.option("--password", default=None, help="its Zenoh password")
 @click.option("--seed", type=int, default=1, show_default=True, help="seed of the bootstrap interval")
 @click.option("--measure", default=None, hidden=True, help="module:function measuring a pair (tests)")
 def survey(calib_path, species, setup, pairs, rgs, directory, video, rg_video, every, max_frames, json_path,
-           plot_path, csv_path, config_path, stock, tank_id, up, workers, site, seed, measure):
+           plot_path, csv_path, config_path, stock, tank_id, up, workers, site, user, password, seed, measure):
     """Fish lengths and weights from stereo pairs, with the survey's statistics."""
     from controller.cli.calib_io import load_calibration
     from controller.surveys.runner import MEASURE
@@ -189,7 +191,9 @@ def survey(calib_path, species, setup, pairs, rgs, directory, video, rg_video, e
     if plot_path:
         from controller.surveys.outputs import check_writable
         check_writable(plot_path, "the plot")
-    remote, session = _remote(workers, site) if isinstance(workers, str) else (None, None)
+    if (user is not None or password is not None) and not isinstance(workers, str):
+        raise BadInput("--user", None, "a login is for --workers tcp/HOST:PORT (a deployment's router)")
+    remote, session = _remote(workers, site, user, password) if isinstance(workers, str) else (None, None)
     progress = _Progress(source.total)
     opts = SurveyOptions(sp.setup(setup, up_world), sp, workers=None if remote else workers, seed=seed,
                          measure=measure or MEASURE, on_pair=progress, record=record, remote=remote)

@@ -77,15 +77,19 @@ def measure_remote(jobs: Iterable[PairJob], calib: StereoCalibration, setup: Sur
         dispatch.close()
 
 
-def connect(endpoint: str, *, timeout_s: float = 2.0) -> tuple[zenoh.Session, bool]:
+def connect(endpoint: str, *, timeout_s: float = 2.0, user: str | None = None,
+            password: str | None = None) -> tuple[zenoh.Session, bool]:
     """A session for a survey run from the command line: a client of whatever listens at
     ``endpoint`` (the controller, a router), or, when nothing does, a peer listening there itself,
-    so workers started with ``--connect endpoint`` join it. (session, listening)."""
-    zc = client_config(endpoint, timeout_s=timeout_s)
+    so workers started with ``--connect endpoint`` join it. (session, listening). With a ``user``
+    the endpoint is a deployment's router (config/zenoh/deploy.json5): it is that or nothing."""
+    zc = client_config(endpoint, user, password, timeout_s=timeout_s)
     try:
         return zenoh.open(zc), False
-    except zenoh.ZError:
-        pass
+    except zenoh.ZError as exc:
+        if user is not None or password is not None:
+            raise BadInput("--workers", None, f"cannot log in at {endpoint} as {user!r}: "
+                                              f"{_one_line(exc)}") from None
     hub = client_config(endpoint, mode="peer", timeout_s=timeout_s)
     hub.insert_json5("connect/endpoints", "[]")
     hub.insert_json5("listen/endpoints", json.dumps([endpoint]))
