@@ -162,6 +162,12 @@ TABLE: tuple[Row, ...] = (
     Row("survey", "start_survey", COIL, 0, "bool", 1, "", "W", "write 1: survey this tank's fish now (the rail "
         "robot's survey stop, once no demand waits; refused without a stereo camera or while paused); reads 0",
         write=Write("start-survey")),
+    # -- per tank, config order: its water, a block of their own (the tank's 20 words were taken) ---
+    Row("water", "water_temp_c", IR, 0, "i16", 0.01, "°C", "R", "the water temperature the tank's ration uses",
+        _t("water_temp_c")),
+    Row("water", "water_temp_source", IR, 1, "u16", 1, "", "R", "where that temperature comes from: 0 a probe's "
+        "fresh reading, 1 the configured figure (no probe, or its reading is stale or at fault)",
+        lambda v: {"sensor": 0, "config": 1}.get(v.tank.get("water_temp_source"))),
 )
 
 # (base address, stride) of each block in each table; a block's rows sit at base + index * stride + offset
@@ -173,7 +179,9 @@ BLOCKS: dict[str, dict[str, tuple[int, int]]] = {
     "slot": {IR: (40, 1), DI: (10, 2), COIL: (10, 1)},
     "tank": {IR: (100, 20), HR: (100, 4), COIL: (100, 1)},
     "survey": {COIL: (1100, 1)},
+    "water": {IR: (10000, 2)},       # far past the tank block: 495 tanks before they meet
 }
+PER_TANK = ("tank", "survey", "water")
 FIXED_SLOTS = ("estop", "feeder", "ledger", "dispenser_counters", "sim", "controller", "scada")
 
 
@@ -223,14 +231,14 @@ def layout(cfg) -> Layout:
     entries: list[Entry] = []
     for row in TABLE:
         base, stride = BLOCKS[row.block][row.kind]
-        if row.block in ("tank", "survey"):
+        if row.block in PER_TANK:
             labels = tanks
         elif row.block == "slot":
             labels = slots
         else:
             labels = [None]
         for i, label in enumerate(labels):
-            if row.block in ("tank", "survey"):
+            if row.block in PER_TANK:
                 name = f"tank.{label}.{row.name}"
             elif row.block == "slot":
                 name = f"alarm.{label}.{row.name}"

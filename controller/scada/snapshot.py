@@ -12,7 +12,7 @@ import logging
 import time
 from dataclasses import dataclass, field
 
-from controller.scada.register_map import COIL, DI, HR, IR, KINDS, SEVERITY, Layout, encode
+from controller.scada.register_map import COIL, DI, HR, IR, KINDS, PER_TANK, SEVERITY, Layout, encode
 
 log = logging.getLogger("fishfarm.scada")
 
@@ -77,7 +77,7 @@ def render(status: dict, lay: Layout, *, heartbeat: int, uptime_s: float, word_o
     slots = {slot: [a for a in s["alarms"] if in_slot(a.get("source", ""), slot)] for slot in lay.slots}
     for e in lay.entries:
         r = e.row
-        if r.block == "tank":
+        if r.block in PER_TANK:
             view.tank = s["tanks"][e.label]
         elif r.block == "slot":
             view.slot = slots[e.label]

@@ -44,7 +44,10 @@ def random_status(rng: random.Random, tanks: list[str], slots: list[str]) -> dic
                           # survey figures: whole tenths of a % and hundredths, as the map scales them
                           "weight_cv_pct": maybe(rng.randint(0, 2000) / 10),
                           "sgr_pct_day": maybe(rng.randint(-500, 2000) / 100),
-                          "fcr": maybe(rng.randint(0, 600) / 100)} for t in tanks}}
+                          "fcr": maybe(rng.randint(0, 600) / 100),
+                          # the water: hundredths of a degree, below freezing to a hot summer
+                          "water_temp_c": maybe(rng.randint(-500, 4000) / 100),
+                          "water_temp_source": maybe(rng.choice(["sensor", "config"]))} for t in tanks}}
 
 
 def expected(row: dict, st: dict, tanks: list[str], word_order: str, read_only: bool):
@@ -76,7 +79,9 @@ def expected(row: dict, st: dict, tanks: list[str], word_order: str, read_only: 
                  # raw words: value / scale, a negative i16 in two's complement
                  "weight_cv_pct": None if t["weight_cv_pct"] is None else round(t["weight_cv_pct"] * 10),
                  "sgr_pct_day": None if t["sgr_pct_day"] is None else round(t["sgr_pct_day"] * 100) & 0xFFFF,
-                 "fcr": None if t["fcr"] is None else round(t["fcr"] * 100)}[field]
+                 "fcr": None if t["fcr"] is None else round(t["fcr"] * 100),
+                 "water_temp_c": None if t["water_temp_c"] is None else round(t["water_temp_c"] * 100) & 0xFFFF,
+                 "water_temp_source": {None: None, "sensor": 0, "config": 1}[t["water_temp_source"]]}[field]
     elif a:
         slot, field = a.groups()
         mine = [x for x in st["alarms"] if in_slot(x, slot)]

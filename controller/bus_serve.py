@@ -1,0 +1,202 @@
+"""The bus's serving side: queryables and overrides answered from the controller's loop.
+
+A query arrives on a Zenoh thread. ``_on_query`` never blocks it and never lets it raise: an
+``urgent`` action (estop) runs right there, first; the payload is parsed; the handler is scheduled
+onto the loop, and its reply is sent from the loop when it finishes. Every concrete query gets a
+reply; a wildcard get is dropped unanswered (it must not fire every command).
+"""
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import functools
+import inspect
+import json
+import logging
+import re
+from collections.abc import Awaitable, Callable, Iterable, Mapping
+
+import zenoh
+
+from controller.identity import BY, USER, user_of
+from controller.payload import parse_object
+from controller.zenoh_config import _one_line
+
+log = logging.getLogger("fishfarm.bus")
+
+Handler = Callable[..., Awaitable[dict]]
+"""A queryable's handler: request payload (a JSON object) in, reply (a JSON object) out. An
+override handler that takes a ``user`` keyword gets the authenticated user name (controller.identity)
+or None: ``await handler(payload, user=...)``; one that does not is called ``handler(payload)``."""
+_CHUNK = re.compile(r"^[^/*$#?]+$")  # one concrete key chunk: no wildcard, no selector syntax
+
+
+def encode(payload: dict) -> bytes:
+    """JSON, UTF-8. NaN/inf are refused: they are not JSON and other clients would choke on them."""
+    if not isinstance(payload, dict):
+        raise TypeError(f"bus payloads are JSON objects, not {type(payload).__name__}")
+    return json.dumps(payload, ensure_ascii=False, allow_nan=False, separators=(",", ":")).encode()
+
+
+def decode(data: zenoh.ZBytes | bytes | None) -> dict:
+    """A payload as a dict; no payload at all is ``{}``. Raises ValueError saying what is wrong:
+    not UTF-8, not JSON, not an object, nested too deep, a key given twice (controller.payload)."""
+    return parse_object(bytes(data.to_bytes() if isinstance(data, zenoh.ZBytes) else data or b""))
+
+
+class Serving:
+    """Mixin of ``Bus``: needs ``session``, ``key()``, ``_suffix()``, ``identified``,
+    ``_handler_loop()`` and ``_keep()``."""
+
+    def queryable(self, suffix: str, handler: Handler, *, lenient: bool = False, selector: bool = False) -> None:
+        """Answer gets on ``farm/{site}/{suffix}`` with ``await handler(payload)``.
+        A payload that is not a JSON object is refused (``{"ok": false, "error": ...}``) unless
+        ``lenient``, when the handler gets ``{}``. A handler exception is such a refusal too.
+        ``selector``: ``suffix`` may hold wildcards, and the handler is called
+        ``handler(payload, key=..., params=...)`` with the concrete key's suffix and the selector's
+        parameters (``...?since=2026-06-01;until=...``, strings)."""
+        if not selector:
+            wrapped = _with_user(handler)
+            self._serve(suffix, lambda _key: (wrapped, lenient, None, None, None))
+            return
+
+        def resolve(key: str):
+            async def bound(payload: dict, *, user=None, params=None):
+                return await handler(payload, key=key, params=params or {})
+            return bound, lenient, None, None, None, True
+        self._serve(suffix, resolve)
+
+    def overrides(self, commands: Mapping[str, Handler], *, lenient: Iterable[str] = ("estop",),
+                  urgent: Mapping[str, Callable[[], None]] | None = None,
+                  refused: Callable[[str, str, str | None], None] | None = None) -> None:
+        """Serve ``farm/{site}/override/*`` and ``farm/{site}/override/*/by/*``: dispatch on the
+        command name; an unknown command is refused. Commands in ``lenient`` (estop) are never
+        refused for their payload; those in ``urgent`` first call their function on the Zenoh
+        thread, before anything else. A handler taking a ``user`` keyword gets the user of a
+        ``.../by/USER`` key when this session enforces the ACL (``identified``), else None.
+        ``refused(command, error, user)`` hears, on the loop, of every query refused here before a
+        handler saw it (unknown command, unreadable payload): the audit keeps those too."""
+        forgiving = set(lenient)
+        table = {name: _with_user(handler) for name, handler in commands.items()}
+        now = dict(urgent or {})
+        loop = self._handler_loop()
+
+        def tell(command: str, error: str, user: str | None = None) -> None:
+            if refused is not None:
+                with contextlib.suppress(RuntimeError):     # the loop is closed: the process is ending
+                    loop.call_soon_threadsafe(refused, command, error, user)
+
+        def resolve(suffix: str):
+            base, user = user_of(suffix)
+            command = base.split("/", 1)[1]
+            if command not in table:
+                error = f"unknown command {command!r}; known: {', '.join(sorted(table))}"
+                tell(command, error)
+                raise LookupError(error)
+            if user is not None and not USER.match(user):
+                error = f"user {user!r}: letters, digits, _ . - only"
+                tell(command, error)
+                raise LookupError(error)
+            user = user if self.identified else None
+            return (table[command], command in forgiving, now.get(command), user,
+                    lambda error: tell(command, error, user))
+        self._serve("override/*", resolve)
+        self._serve(f"override/*/{BY}/*", resolve)
+
+    def _serve(self, suffix: str, resolve) -> None:
+        loop = self._handler_loop()
+        self._keep(self.session.declare_queryable(
+            self.key(suffix), lambda query: self._on_query(query, resolve, loop)))
+
+    def _on_query(self, query: zenoh.Query, resolve, loop: asyncio.AbstractEventLoop) -> None:
+        """On a Zenoh thread: act (urgent), parse, then hand the work to the loop. Never blocks,
+        never raises, and every concrete query gets a reply."""
+        key = str(query.key_expr)
+        if not all(_CHUNK.match(c) for c in key.split("/")):
+            # a wildcard get (override/**) must not fire every command: nobody answers it
+            query.drop()
+            return
+        try:
+            self._dispatch(query, key, resolve, loop)
+        except BaseException as exc:  # noqa: BLE001 - a Zenoh thread must not die, the querier must hear
+            self._reply(query, {"ok": False, "error": f"internal error: {type(exc).__name__}"})
+            if not isinstance(exc, Exception):
+                raise
+
+    def _dispatch(self, query: zenoh.Query, key: str, resolve, loop) -> None:
+        try:
+            handler, lenient, urgent, user, refused, *selector = resolve(self._suffix(key))
+        except LookupError as exc:
+            return self._reply(query, {"ok": False, "error": str(exc)})
+        if selector:
+            params = {k: v for k, v in dict(query.parameters).items() if k != "_time"}
+            handler = functools.partial(handler, params=params)
+        acted = False
+        if urgent is not None:
+            try:
+                urgent()
+                acted = True
+            except Exception:
+                log.exception("urgent action for %s failed", key)
+        try:
+            payload = decode(query.payload)
+        except Exception as exc:  # noqa: BLE001 - ValueError, or whatever a hostile payload raises
+            if not lenient:
+                error = str(exc) if isinstance(exc, ValueError) else f"unreadable payload ({type(exc).__name__})"
+                if refused is not None:
+                    refused(error)
+                return self._reply(query, {"ok": False, "error": error})
+            payload = {}
+        try:
+            future = asyncio.run_coroutine_threadsafe(_answer(handler, payload, key, user), loop)
+        except RuntimeError:  # the loop is closed: the controller is stopping
+            error = "controller is shutting down" + (" (acted on already)" if acted else "")
+            return self._reply(query, {"ok": acted, "error": error} if not acted else {"ok": True, "note": error})
+        future.add_done_callback(lambda f: self._reply(query, _outcome(f)))
+
+    def _reply(self, query: zenoh.Query, answer: dict) -> None:
+        try:
+            try:
+                data = encode(answer)
+            except (TypeError, ValueError) as exc:
+                data = encode({"ok": False, "error": f"reply is not JSON-serialisable: {exc}"})
+            query.reply(query.key_expr, data, encoding=zenoh.Encoding.APPLICATION_JSON)
+        except zenoh.ZError as exc:  # session closed or querier gone: nobody to tell
+            log.debug("reply to %s lost: %s", query.key_expr, _one_line(exc))
+        finally:
+            query.drop()  # finalises the query: the querier stops waiting now, not at its timeout
+
+
+def _with_user(handler: Handler) -> Handler:
+    """``handler`` itself if it takes a ``user`` keyword; else a wrapper dropping ``user``, so the
+    handlers written before identities (``async def h(payload)``) keep working."""
+    try:
+        params = inspect.signature(handler).parameters.values()
+    except (TypeError, ValueError):  # a builtin or C callable: assume the old form
+        params = ()
+    if any(p.name == "user" and p.kind in (p.KEYWORD_ONLY, p.POSITIONAL_OR_KEYWORD) or p.kind == p.VAR_KEYWORD
+           for p in params):
+        return handler
+
+    async def payload_only(payload, *, user=None):
+        return await handler(payload)
+    return payload_only
+
+
+async def _answer(handler: Handler, payload: dict, key: str, user: str | None = None) -> dict:
+    """Run one handler; whatever goes wrong becomes a refusal the operator can read."""
+    try:
+        answer = await handler(payload, user=user)
+    except Exception as exc:
+        log.exception("handler for %s failed", key)
+        return {"ok": False, "error": f"{type(exc).__name__}: {exc}"}
+    if not isinstance(answer, dict):
+        return {"ok": False, "error": f"handler returned {type(answer).__name__}, not a JSON object"}
+    return answer
+
+
+def _outcome(future) -> dict:
+    if future.cancelled():
+        return {"ok": False, "error": "controller is shutting down"}
+    exc = future.exception()  # only BaseException gets here (_answer catches the rest)
+    return {"ok": False, "error": f"handler aborted: {exc!r}"} if exc else future.result()
