@@ -7,7 +7,7 @@ import logging
 import time
 
 from controller import shutdown
-from controller.store import reconcile
+from controller.feed_outcome import reconcile
 
 log = logging.getLogger("fishfarm")
 

@@ -7,7 +7,7 @@ What it holds: validated demands, feed intents and their outcomes, daily rations
 Exactly-once dispensing rests on one rule: a feed row is committed in phase ``intent``
 (with the dispenser's cycle counter and load cell read just before and a 16-bit tag) *before*
 the auger is told to start, and closed as ``done`` (grams from the load cell) or ``aborted``
-after. ``reconcile()`` decides an open intent from the dispenser's own counters after a restart.
+after. ``controller.feed_outcome.reconcile()`` decides an open intent from the dispenser's own counters after a restart.
 An outcome the counters cannot tell (a power cut reset them, another tag ran) is never freed:
 the row becomes ``suspect``, its target still counted against the ration, until an operator
 settles it with the grams (``settle_suspect``).
@@ -19,11 +19,11 @@ from __future__ import annotations
 import sqlite3
 import threading
 import uuid
-from dataclasses import dataclass
 from pathlib import Path
 
 from controller.cleaning.ledger import MIGRATION_5, CleanerRecords
 from controller.errors import BadInput
+from controller.feed_outcome import Feed, next_tag
 from controller.records import MIGRATION_4, Records
 from controller.surveys.ledger import MIGRATION_6, SurveyRecords
 
@@ -105,100 +105,6 @@ MIGRATIONS = [
     # 5 -> 6: weight surveys and every fish they counted (controller.surveys.ledger)
     MIGRATION_6,
 ]
-
-SUSPECT = "suspect"
-TAGS = 65535            # the device's tags are 1..65535; 0 means none
-
-
-@dataclass(frozen=True)
-class Feed:
-    id: str
-    seq: int
-    tank: str
-    date: str
-    t_intent: float
-    target_g: float
-    run_s: float
-    tag: int
-    cycles_before: int
-    phase: str
-    grams: float | None
-    t_closed: float | None
-    note: str | None
-    source: str
-    demand_id: int | None
-    hopper_before: float | None = None     # load cell just before the intent (None: older rows)
-    settled_by: str | None = None          # operator who settled a suspect feed
-
-
-@dataclass(frozen=True)
-class Reconciled:
-    feed: Feed
-    phase: str          # done | aborted | wait (the auger is still running) | suspect
-    grams: float | None
-    note: str
-
-
-def went_backwards(cycles_before: int, cycles_now: int) -> bool:
-    """The 32-bit run counter stepped back (a reset), as opposed to moving on or wrapping."""
-    return (cycles_now - cycles_before) % 2**32 >= 2**31
-
-
-def reconcile(feed: Feed, state, *, accepted: bool = False, hopper_tolerance_g: float | None = None
-              ) -> Reconciled:
-    """Decide an open intent from the dispenser's counters (``DispenserState``).
-
-    The device counts completed runs and remembers the tag and load-cell grams of the last
-    one. Our run happened iff the counter moved past ``cycles_before`` and the last tag is
-    ours; it never started iff the counter has not moved, the auger is still and the load cell
-    has not dropped since the intent. ``accepted``: the device acknowledged our START, so "never
-    started" cannot be true. Anything else is ``suspect``: food may have left, and nobody can
-    say how much from here. An ``aborted`` result for a START that may still be on the wire is
-    the caller's to confirm (see ``Dispensing._wait_run_end``).
-    """
-    if state.running and state.run_tag == feed.tag:
-        return Reconciled(feed, "wait", None, "auger still running")
-    if went_backwards(feed.cycles_before, state.cycles):
-        return Reconciled(feed, SUSPECT, None,
-                          f"dispenser counters went backwards (cycles {feed.cycles_before} -> {state.cycles}): "
-                          f"power cut or new PLC{_hopper_hint(feed, state)}")
-    if state.running:
-        return Reconciled(feed, "wait", None, f"auger running another run (tag {state.run_tag})")
-    moved = (state.cycles - feed.cycles_before) % 2**32
-    if moved == 0:
-        tolerance = hopper_tolerance_g if hopper_tolerance_g is not None else 1.5 * state.resolution_g
-        if feed.hopper_before is not None and feed.hopper_before - state.hopper_g > tolerance:
-            return Reconciled(feed, SUSPECT, None, "no run counted but the load cell dropped"
-                              + _hopper_hint(feed, state))
-        if accepted:
-            return Reconciled(feed, SUSPECT, None, "the dispenser accepted the start but counted no run")
-        return Reconciled(feed, "aborted", None, "auger never started")
-    if state.last_tag == feed.tag and moved == 1:
-        note = "jammed; load cell grams" if state.jammed else "reconciled from dispenser counters"
-        return Reconciled(feed, "done", state.last_grams, note)
-    if state.last_tag == feed.tag:
-        # other runs happened before ours completed? impossible: ours is the last; count it.
-        return Reconciled(feed, "done", state.last_grams, f"reconciled; counter moved by {moved}")
-    return Reconciled(feed, SUSPECT, None,
-                      f"dispenser counter moved by {moved} but last tag {state.last_tag} is not ours")
-
-
-def _hopper_hint(feed: Feed, state) -> str:
-    if feed.hopper_before is None:
-        return ""
-    return f"; load cell {feed.hopper_before - state.hopper_g:.1f} g down since the intent"
-
-
-def next_tag(last_tag: int | None, device_tags=()) -> int:
-    """The tag after ``last_tag`` (the ledger's latest) in 1..65535, wrapping 65535 -> 1, and
-    never one the device shows (its LAST_TAG or RUN_TAG, read just before): after a lost or
-    restored ledger, a tag the device remembers would be refused or, worse, taken as already run."""
-    taken = {t for t in device_tags if t}
-    tag = (last_tag or 0) % TAGS + 1
-    while tag in taken:
-        tag = tag % TAGS + 1
-    return tag
-
 
 class Store(Records, CleanerRecords, SurveyRecords):
     """One SQLite connection, used from the controller's event loop thread (plus a lock for

@@ -17,9 +17,9 @@ import asyncio
 import logging
 import math
 
+from controller.feed_outcome import SUSPECT, reconcile, went_backwards
 from controller.feeding.estop import Halted
 from controller.feeding.rations import ration_payload
-from controller.store import SUSPECT, reconcile, went_backwards
 from devices.errors import DeviceFault, DeviceTimeout
 
 log = logging.getLogger("fishfarm.feeder")

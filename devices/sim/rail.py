@@ -6,7 +6,7 @@ a stop or an e-stop in mid-travel is exact. Position is a closed-form function o
 it is right at any clock speed and between any two looks at it; the motor keeps its last
 ``HISTORY`` profiles, so it is right for an instant before the latest command too (the simulated
 world credits food by where the carriage was when it fell, which it learns after the fact).
-The drive speaks the frames of devices/rail/can_drive.py through any frame port (a python-can
+The drive speaks the frames of devices/rail/can_frames.py through any frame port (a python-can
 bus, or the slcan adapter on a pty). ESTOP latches: HOME and MOVE are refused IN_ESTOP until
 CLEAR_FAULT (with the carriage at rest); each time the latch is set is kept in ``estops`` (farm
 time, wall ``time.time()``) and written to the truth log as ``estop``.
@@ -25,7 +25,7 @@ from typing import Any
 import can
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
-from devices.rail.can_drive import COMMAND_BASE, Command, Fault, Op, Reason, Reply, StatusFrame
+from devices.rail.can_frames import COMMAND_BASE, Command, Fault, Op, Reason, Reply, StatusFrame
 
 log = logging.getLogger(__name__)
 

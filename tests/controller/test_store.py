@@ -7,7 +7,8 @@ import textwrap
 
 import pytest
 
-from controller.store import MIGRATIONS, Store, next_tag, reconcile
+from controller.feed_outcome import next_tag, reconcile
+from controller.store import MIGRATIONS, Store
 from devices.dispenser import DispenserState
 
 

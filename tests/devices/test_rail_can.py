@@ -15,18 +15,8 @@ from pydantic import ValidationError
 
 from devices.clock import ManualClock, ScaledClock
 from devices.errors import DeviceFault, DeviceTimeout, LinkDown
-from devices.rail.can_drive import (
-    COMMAND_BASE,
-    REPLY_BASE,
-    STATUS_BASE,
-    CanRailDrive,
-    Command,
-    Config,
-    Fault,
-    Op,
-    Reason,
-    StatusFrame,
-)
+from devices.rail.can_drive import CanRailDrive, Config
+from devices.rail.can_frames import COMMAND_BASE, REPLY_BASE, STATUS_BASE, Command, Fault, Op, Reason, StatusFrame
 from devices.sim.rail import SimRailMotor, SimRailParams
 from devices.sim.slcan_adapter import BusPort, SlcanAdapter
 

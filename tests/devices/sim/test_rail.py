@@ -8,7 +8,7 @@ import pytest
 from pydantic import ValidationError
 
 from devices.clock import ManualClock
-from devices.rail.can_drive import Command, Fault, Op, Reason
+from devices.rail.can_frames import Command, Fault, Op, Reason
 from devices.sim.rail import SimRailMotor, SimRailParams, plan_move, plan_stop
 
 VMAX, ACCEL = 1.0, 0.5

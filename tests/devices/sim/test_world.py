@@ -11,7 +11,7 @@ import pytest
 
 from controller.config import Config, FeedingConfig, TankConfig
 from devices.clock import ManualClock
-from devices.rail.can_drive import Command, Op, Reason
+from devices.rail.can_frames import Command, Op, Reason
 from devices.sim.dispenser import DispenserPhysics, SimDispenserParams
 from devices.sim.truth import TruthLog
 from devices.sim.world import FOOD_BOX_M, TANK_MOUTH_M, SimFarm
