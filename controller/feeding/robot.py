@@ -24,6 +24,7 @@ from transitions import Machine
 from controller.feeding.dispensing import AugerJammed, Dispensing
 from controller.feeding.estop import EstopLane, Halted, log_latch
 from controller.feeding.planner import Stop, next_stop
+from controller.feeding.recovery import Recovering
 from devices.errors import DeviceError, DeviceTimeout
 
 log = logging.getLogger("fishfarm.feeder")
@@ -61,11 +62,7 @@ class Job:
 CONFIRM_WAIT_S = 1.0    # wall seconds an e-stop's caller waits for both latches to confirm
 
 
-class DriveEstopped(DeviceError):
-    """A device reports an e-stop nobody here commanded: its own button, or one before a restart."""
-
-
-class FeedingRobot:
+class FeedingRobot(Recovering):
     def __init__(self, cfg, clock, rail, dispenser, store, rations, alarms, publish, lane: EstopLane | None = None):
         self.cfg, self.feeding = cfg, cfg.feeding
         self.clock, self.rail, self.dispenser = clock, rail, dispenser
@@ -204,54 +201,6 @@ class FeedingRobot:
             await self._recover()
         else:                                  # estop, manual: wait for the operator
             await self._wait(self._operator, 3600.0)
-
-    def _fault(self, exc: BaseException) -> None:
-        if self.state in ("estop", "manual") or self.lane.tripped:
-            return                            # an e-stop explains it: run() puts us in estop
-        if isinstance(exc, DriveEstopped):
-            self.lane.trip(exc.text)          # latch the other device too
-            self._stopped(exc.text)
-            return
-        if not isinstance(exc, DeviceError):
-            log.error("feeder: unexpected error", exc_info=exc)
-        if self.state != "fault":
-            self.fail()
-        self.failures += 1
-        self.alarms.raise_("feeder", f"fault: {exc}", "warning", kind="fault")
-
-    async def _recover(self) -> None:
-        backoff = self.feeding.retry_backoff_s
-        delay = backoff[min(self.failures, len(backoff)) - 1] if self.failures else 0.0
-        await self._wait(self._operator, delay)
-        if self.state != "fault":
-            return
-        state = await self.dispensing.read()
-        if state.jammed:
-            await self.dispenser.clear_fault()
-        if state.refilling:
-            await self.dispenser.set_refill(False)
-        await self._clear_rail()
-        self.recover()
-
-    async def _clear_rail(self):
-        """Clear a latched drive fault once the carriage has come to rest; an e-stop (the drive's
-        or the dispenser's) only when an operator has released it here."""
-        if (await self.dispensing.read()).estop:
-            if not self._estop_released:
-                raise DriveEstopped(self.dispenser.name, "the dispenser reports an e-stop")
-            self._halt_if_tripped()
-            await self.dispenser.reset_estop()
-        status = await self._rail_status()
-        if status.state == "estop" and not self._estop_released:
-            raise DriveEstopped(self.rail.name, "the drive reports an e-stop")
-        if status.state in ("fault", "estop"):
-            await self.rail.wait_until(lambda s: s.velocity_m_s == 0, 30.0, stop_on_fault=False)
-            self._halt_if_tripped()
-            await self.rail.clear_fault()
-            status = await self.rail.wait_until(lambda s: s.state not in ("fault", "estop"), 30.0,
-                                                stop_on_fault=False)
-        self._estop_released = False
-        return status
 
     async def _home(self) -> None:
         self.dispensing.hopper_g = None          # hands may have been on the hopper: look again
