@@ -139,10 +139,16 @@ class Controller(Stopping):
         self._requeue_open_demands()
         for loop in (self.robot.run, self._contacts_loop, self._housekeeping, self._state_loop):
             self.tasks.append(asyncio.create_task(self._supervise(loop)))
+        if hasattr(self.clock, "idle_until"):     # an elastic clock: say when the farm may run fast
+            self.tasks.append(asyncio.create_task(self._supervise(self._pace)))
         # what start-up built lives as long as the process: out of the collector's sight, a full
         # collection (which holds the GIL, so the e-stop's threads too) takes ~1 ms, not ~70
         gc.freeze()
         log.info("controller for site %s up: %d tanks", cfg.site, len(cfg.tanks))
+
+    async def _pace(self) -> None:
+        from controller.pace import pace
+        await pace(self)
 
     async def _scada(self) -> None:
         await self.scada.run()

@@ -41,8 +41,9 @@ from devices.clock import iso
 
 MAGIC = b"FFCK"
 VERSION = 1
-HEAD = struct.Struct("<4sIQdddddddI4x")      # magic, version, gen, wall0, farm0, speed, limit, after, slow, fast, nslots
-SLOT = struct.Struct("<16siId")              # name, pid, kind, value
+# magic, version, sequence counter, the segment (wall0, farm0, speed, limit, after), slow, fast, slots
+HEAD = struct.Struct("<4sIQdddddddI4x")
+SLOT = struct.Struct("<16siId16s")           # name, pid, kind, value, why (for the record)
 NSLOTS = 16
 SLICE_S = 0.005                              # wall: a sleeper's longest nap while the speed may rise
 EMPTY, BUSY, IDLE, AWAITED = 0, 1, 2, 3
@@ -84,6 +85,7 @@ class Slot:
     pid: int
     kind: int
     value: float
+    why: str = ""
 
 
 def create(path: str | Path, *, slow: float, fast: float, farm_start: float,
@@ -95,7 +97,7 @@ def create(path: str | Path, *, slow: float, fast: float, farm_start: float,
     buf = bytearray(HEAD.size + NSLOTS * SLOT.size)
     HEAD.pack_into(buf, 0, MAGIC, VERSION, 0, wall_time(), farm_start, slow, math.inf, slow, slow, fast, NSLOTS)
     for i, name in enumerate(awaited):
-        SLOT.pack_into(buf, HEAD.size + i * SLOT.size, name.encode()[:16], 0, AWAITED, 0.0)
+        SLOT.pack_into(buf, HEAD.size + i * SLOT.size, name.encode()[:16], 0, AWAITED, 0.0, b"awaited")
     tmp = Path(f"{path}.tmp")
     tmp.write_bytes(bytes(buf))
     os.replace(tmp, path)
@@ -159,8 +161,10 @@ class ElasticClock:
         return t
 
     def at(self, wall: float) -> float:
-        """Farm time at wall instant ``wall`` (a log record's), on the current segment."""
-        return self.segment().farm_at(wall)
+        """Farm time at wall instant ``wall`` (a log record's, just made), on the current segment;
+        an instant before the segment's anchor reads as the anchor (the earlier speed is gone)."""
+        seg = self.segment()
+        return seg.farm_at(max(wall, seg.wall0))
 
     @property
     def speed(self) -> float:
@@ -199,8 +203,8 @@ class ElasticClock:
     def slots(self) -> list[Slot]:
         out = []
         for i in range(NSLOTS):
-            name, pid, kind, value = SLOT.unpack_from(self._map, HEAD.size + i * SLOT.size)
-            out.append(Slot(name.rstrip(b"\0").decode(), pid, kind, value))
+            name, pid, kind, value, why = SLOT.unpack_from(self._map, HEAD.size + i * SLOT.size)
+            out.append(Slot(name.rstrip(b"\0").decode(), pid, kind, value, why.rstrip(b"\0").decode()))
         return out
 
     # -- declaring ----------------------------------------------------------------------------
@@ -213,36 +217,36 @@ class ElasticClock:
             if not (mine or free):
                 raise RuntimeError(f"{self.path}: all {NSLOTS} clock slots are taken")
             self.slot = (mine or free)[0]
-            self._write_slot(name, BUSY, self.slow)
+            self._write_slot(name, BUSY, self.slow, "starting")
             self._govern()
-        self._said = (BUSY, self.slow)
+        self._said = (BUSY, self.slow, "starting")
         return self.slot
 
-    def busy(self, max_speed: float | None = None) -> None:
+    def busy(self, max_speed: float | None = None, why: str = "") -> None:
         """Farm time must run at no more than ``max_speed`` (default: the slow speed) from now."""
-        self._declare(BUSY, min(self.slow if max_speed is None else max_speed, self.fast))
+        self._declare(BUSY, min(self.slow if max_speed is None else max_speed, self.fast), why)
 
-    def idle_until(self, t: float) -> None:
+    def idle_until(self, t: float, why: str = "") -> None:
         """Nothing here needs fine time before farm time ``t``."""
-        self._declare(IDLE, t)
+        self._declare(IDLE, t, why)
 
     def release(self) -> None:
         """This process leaves the farm's timeline (its slot is freed)."""
         if self.slot is not None:
             with self._locked():
-                self._write_slot("", EMPTY, 0.0)
+                self._write_slot("", EMPTY, 0.0, "")
                 self._govern()
             self.slot, self._said = None, None
 
-    def _declare(self, kind: int, value: float) -> None:
+    def _declare(self, kind: int, value: float, why: str) -> None:
         if self.slot is None:
             raise RuntimeError("claim() a clock slot before declaring")
-        if self._said == (kind, value):
+        if self._said == (kind, value, why):
             return                              # unchanged: the segment already says so
         with self._locked():
-            self._write_slot(None, kind, value)
+            self._write_slot(None, kind, value, why)
             self._govern()
-        self._said = (kind, value)
+        self._said = (kind, value, why)
 
     def govern(self) -> Segment:
         """Re-draw the segment from the slots now (the harness may call it; declaring does)."""
@@ -282,11 +286,12 @@ class ElasticClock:
         limit = min(until)
         return (self.fast, limit) if limit > f else (self.slow, math.inf)
 
-    def _write_slot(self, name: str | None, kind: int, value: float) -> None:
+    def _write_slot(self, name: str | None, kind: int, value: float, why: str) -> None:
         at = HEAD.size + self.slot * SLOT.size
         if name is None:
             name = SLOT.unpack_from(self._map, at)[0].rstrip(b"\0").decode()
-        SLOT.pack_into(self._map, at, name.encode()[:16], os.getpid() if kind != EMPTY else 0, kind, value)
+        SLOT.pack_into(self._map, at, name.encode()[:16], os.getpid() if kind != EMPTY else 0, kind, value,
+                       why.encode()[:16])
 
     def _locked(self):
         return _Flock(self._fd)

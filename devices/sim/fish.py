@@ -99,6 +99,14 @@ class SimTank:
     def asking(self) -> bool:
         return self.rate_hz > 0
 
+    def next_episode(self, now: float) -> float:
+        """Farm time the fish will next start asking, as things stand (``now`` while they ask or
+        before the tank has begun): hunger grows at a known pace, so the simulator knows it ahead."""
+        if self.asking or not hasattr(self, "t"):
+            return now
+        need = max(0.0, self.p.hunger_threshold_g - self.hunger_g)
+        return self._by_day(max(self._rest_until, self.t + need / self.appetite_g_s))
+
     def contacts_until(self, t: float) -> list[tuple[float, str]]:
         """Advance to farm time ``t``; the contacts since the last call, sorted by time."""
         self._advance(t)

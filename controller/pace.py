@@ -1,0 +1,58 @@
+"""The controller's word to an elastic farm clock (devices/elastic_clock.py).
+
+Busy (the slow speed) while the robot is anything but idle (homing, moving, dispensing,
+refilling, surveying, a fault, an e-stop) or a demand waits or a survey is under way; otherwise
+idle until the next scheduled survey hour of any tank, whose clock then slows by itself at that
+hour. Each hour stays slow for ``GRACE_S`` after it, so the idle robot, which looks for due
+surveys every 30 farm s, has found it before the clock may speed on. Other periodic work
+(housekeeping, thermometer reads) keeps no fine time when nothing happens and needs no word.
+"""
+from __future__ import annotations
+
+import asyncio
+
+from controller.surveys.schedule import _first_at
+
+GRACE_S = 60.0           # farm s a survey hour stays slow
+PERIOD_S = 0.005         # wall s between looks: bounds how soon the clock speeds up, not when it slows
+
+
+def next_survey_hour(cfg, now: float) -> float | None:
+    """The first tank survey hour at or after ``now - GRACE_S`` (any tank's, due or not)."""
+    hours = []
+    for tank in cfg.tanks:
+        if tank.survey is not None:
+            hh, mm = (int(x) for x in tank.survey.at.split(":"))
+            hours.append(_first_at(hh * 3600 + mm * 60, now - GRACE_S, cfg.utc_offset_h))
+    return min(hours, default=None)
+
+
+def busy_with(robot) -> str | None:
+    """What keeps the robot from idling (for the clock file's record), or None."""
+    if robot is None:
+        return "starting"
+    if robot.state != "idle":
+        return robot.state
+    if robot.pending:
+        return "demand waiting"
+    stops = robot.surveys
+    if stops is not None and (stops.schedule.current is not None or stops.schedule.asked):
+        return "survey due"
+    return None
+
+
+def declare(controller) -> None:
+    clock = controller.clock
+    why = busy_with(getattr(controller, "robot", None))
+    if why is not None:
+        clock.busy(why=why)
+        return
+    now = clock.now()
+    hour = next_survey_hour(controller.cfg, now)
+    clock.idle_until(now + 365 * 86400.0 if hour is None else hour, why="next survey")
+
+
+async def pace(controller, period_s: float = PERIOD_S) -> None:
+    while True:
+        declare(controller)
+        await asyncio.sleep(period_s)
