@@ -21,7 +21,9 @@ so ``now()`` is also held monotonic within a process.
 
 Sleepers: a wake that falls inside the current segment's fast part is exact (a later segment can
 only slow it, which wakes the sleeper early and it looks again); any other wake is slept in slices
-of ``SLICE_S`` wall, as the speed may rise meanwhile (overshoot at most SLICE_S x fast).
+of ``SLICE_S`` wall, as the speed may rise meanwhile (overshoot at most SLICE_S x fast). While the
+farm runs fast nobody needs fine time, so naps are at least ``FAST_NAP_S`` of wall then: periodic
+farm-second ticks (housekeeping every 5 farm s) do not become busy loops at 10,000x.
 """
 from __future__ import annotations
 
@@ -46,6 +48,7 @@ HEAD = struct.Struct("<4sIQdddddddI4x")
 SLOT = struct.Struct("<16siId16s")           # name, pid, kind, value, why (for the record)
 NSLOTS = 16
 SLICE_S = 0.005                              # wall: a sleeper's longest nap while the speed may rise
+FAST_NAP_S = 0.001                           # wall: a sleeper's shortest nap while the farm runs fast
 EMPTY, BUSY, IDLE, AWAITED = 0, 1, 2, 3
 GEN_AT = 8                                   # byte offset of the sequence counter
 SEG_AT = 16                                  # byte offset of the segment (5 doubles)
@@ -182,6 +185,9 @@ class ElasticClock:
         if max(seg.farm_at(w), self._last) >= until:
             return None
         nap = max(0.0, seg.wall_at(until) - w)
+        if seg.speed_at(seg.farm_at(w)) >= self.fast:
+            # nobody needs fine time now: a 5-farm-s housekeeping tick is not a busy loop
+            nap = max(nap, FAST_NAP_S)
         return nap if seg.speed_at(until) >= self.fast else min(nap, SLICE_S)
 
     def sleep(self, farm_seconds: float) -> None:

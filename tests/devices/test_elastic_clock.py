@@ -8,7 +8,7 @@ import time
 
 import pytest
 
-from devices.elastic_clock import SLICE_S, ElasticClock, create
+from devices.elastic_clock import FAST_NAP_S, SLICE_S, ElasticClock, create
 
 SLOW, FAST, START = 100.0, 10_000.0, 1_780_000_000.0
 
@@ -164,6 +164,19 @@ def test_a_sleeper_across_the_limit_wakes_at_the_slow_part(path, wall):
     sleeper.sleep(10_500.0)                    # 1 s at FAST, then 5 s at SLOW
     assert sleeper.now() == pytest.approx(START + 10_500.0, abs=1e-6)
     assert wall.t == pytest.approx(5_000.0 + 6.0)
+
+
+def test_short_naps_are_floored_only_while_the_farm_runs_fast(path, wall):
+    sim, ctl = handle(path, wall, "sim"), handle(path, wall, "controller")
+    naps = []
+    sleeper = handle(path, wall, pause=lambda s: (naps.append(s), setattr(wall, "t", wall.t + s)))
+    sleeper.sleep(0.5)                         # slow: 5 ms of wall, exact
+    assert naps == [pytest.approx(0.005)]
+    sim.idle_until(START + 1e9)
+    ctl.idle_until(START + 1e9)
+    naps.clear()
+    sleeper.sleep(0.5)                         # fast: 50 us of wall would spin; one 1 ms nap
+    assert naps == [pytest.approx(FAST_NAP_S)]
 
 
 def test_wall_converts_on_the_current_segment(path, wall):

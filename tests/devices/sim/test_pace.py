@@ -1,0 +1,43 @@
+"""The simulator's word to an elastic clock: busy while fish ask, else idle until the next episode."""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from devices.elastic_clock import BUSY, IDLE, ElasticClock, create
+from devices.sim.pace import LEAD_S, declare
+
+START = 1_780_000_000.0
+
+
+@dataclass
+class Tank:
+    asking: bool
+    start: float
+
+    def next_episode(self, now: float) -> float:
+        return now if self.asking else self.start
+
+
+def clock(tmp_path):
+    create(tmp_path / "clock", slow=100.0, fast=10_000.0, farm_start=START, wall_time=lambda: 0.0)
+    c = ElasticClock(tmp_path / "clock", wall_time=lambda: 0.0, alive=lambda pid: True)
+    c.claim("sim")
+    return c
+
+
+def mine(c):
+    return c.slots()[c.slot]
+
+
+def test_idle_until_the_earliest_next_episode_less_the_lead(tmp_path):
+    c = clock(tmp_path)
+    declare(c, [Tank(False, START + 5_000.0), Tank(False, START + 3_000.0)])
+    assert (mine(c).kind, mine(c).value) == (IDLE, START + 3_000.0 - LEAD_S)
+
+
+def test_busy_while_any_tank_asks_and_with_no_tanks(tmp_path):
+    c = clock(tmp_path)
+    declare(c, [Tank(False, START + 5_000.0), Tank(True, 0.0)])
+    assert (mine(c).kind, mine(c).why) == (BUSY, "fish asking")
+    declare(c, [])
+    assert mine(c).kind == BUSY
