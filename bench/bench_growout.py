@@ -42,7 +42,6 @@ sys.path.insert(0, str(ROOT))
 from controller.config import load_config  # noqa: E402
 from controller.production import tank_figures  # noqa: E402
 from controller.store import Store  # noqa: E402
-from hil_tests.clock_watch import ClockWatch  # noqa: E402
 from hil_tests.farm import HilFarm  # noqa: E402
 
 DAYS = float(os.environ.get("BENCH_GROWOUT_DAYS", "3"))
@@ -164,7 +163,6 @@ def main() -> int:
     farm = HilFarm(work, speed=SPEED, overrides=overrides(), farm_start=START, surveys=True, elastic=ELASTIC)
     started = time.monotonic()
     entered: dict = {}
-    watch = ClockWatch(farm.clock).start() if farm.clock is not None else None
     try:
         farm.start_sim()
         farm.start_controller()
@@ -178,7 +176,7 @@ def main() -> int:
         farm.check_alive()
     finally:
         farm.stop()
-    wall_by_reason = watch.stop() if watch is not None else None
+    wall_by_reason = farm.watch.summary() if farm.watch is not None else None
     speed = SPEED if ELASTIC is None else {"slow": ELASTIC[0], "fast": ELASTIC[1]}
     out = {"days": DAYS, "speed": speed, "surveyed": SURVEYED, "wall_s": round(time.monotonic() - started, 1),
            "goals": {"biomass_err_pct": "<= 5", "fcr_err_pct": "<= 5", "sgr_err_pct": "<= 5",

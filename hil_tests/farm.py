@@ -85,13 +85,15 @@ class HilFarm:
         self.witness = StallWitness().start()  # the machine's own stalls, to tell from the controller's
         self.epoch_wall = time.time() + 1.0
         self.epoch_farm = farm_start
-        self.clock = None
+        self.clock = self.watch = None
         if elastic is not None:
             from devices.elastic_clock import ElasticClock, create
+            from hil_tests.clock_watch import ClockWatch
             self.dir.mkdir(parents=True, exist_ok=True)
             create(self.dir / "clock", slow=elastic[0], fast=elastic[1], farm_start=farm_start,
                    awaited=("sim", "controller"))
             self.clock = ElasticClock(self.dir / "clock")
+            self.watch = ClockWatch(self.clock).start()
         base = tomllib.loads(base_config.read_text())
         if not cleaner:
             base = without_cleaner(base, surveys=surveys)
@@ -210,13 +212,15 @@ class HilFarm:
                 self.sim_proc.kill()
                 self.sim_proc.wait()
         self.witness.stop()
+        if self.watch is not None:
+            self.watch.stop()
         if problem is not None:
             raise RuntimeError(f"{problem}:\n{self.log('controller.log')}")
 
     def stalls(self) -> list[tuple[float, float]]:
         """Farm spans in which the machine stood still (hil_tests/stalls.py)."""
-        if self.clock is not None:      # the stalls' farm instants on the clock's segment then: ~now
-            raise NotImplementedError("stall spans on an elastic clock")
+        if self.watch is not None:      # an elastic clock: through the samples of its timeline
+            return [(self.watch.farm_at(a), self.watch.farm_at(b)) for a, b in self.witness.spans]
         return self.witness.farm_spans(self.epoch_wall, self.epoch_farm, self.speed)
 
     def log(self, name: str, tail: int = 60) -> str:
