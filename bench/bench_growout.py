@@ -62,7 +62,10 @@ def overrides() -> dict:
         if t.id in SURVEYED:
             row["survey"] = {"every_days": 1, "at": SURVEYED[t.id], "pairs": 40}
         tanks.append(row)
-    return {"tanks": tanks, "sim": {"stock": {"record_s": 3600.0}}}
+    sim = {"stock": {"record_s": 3600.0}}
+    if os.environ.get("BENCH_GROWOUT_CAMERA_FPS"):     # the simulated survey cameras' wall rate
+        sim["stereo_camera"] = {"fps": float(os.environ["BENCH_GROWOUT_CAMERA_FPS"])}
+    return {"tanks": tanks, "sim": sim}
 
 
 def enter_deaths(farm: HilFarm, entered: dict) -> None:

@@ -175,9 +175,12 @@ class ElasticClock:
         return seg.speed_at(seg.farm_at(w))
 
     def wall(self, farm_seconds: float) -> float:
-        """Wall seconds ``farm_seconds`` take from now on the current segment."""
+        """Wall seconds ``farm_seconds`` take from now on the current segment; while the farm runs
+        fast, at least ``FAST_NAP_S`` (a timeout of 30 farm s must not make a loop spin)."""
         seg, w = self._read()
-        return max(0.0, seg.wall_at(seg.farm_at(w) + farm_seconds) - w)
+        f = seg.farm_at(w)
+        out = max(0.0, seg.wall_at(f + farm_seconds) - w)
+        return max(out, FAST_NAP_S) if seg.speed_at(f) >= self.fast and farm_seconds > 0 else out
 
     def _nap(self, until: float) -> float | None:
         """Wall seconds to nap before looking again for farm time ``until``; None: it has come."""

@@ -11,7 +11,8 @@ from __future__ import annotations
 
 import asyncio
 
-LEAD_S = 30.0            # farm s of slow time before an episode's first contact
+LEAD_S = 5.0             # farm s of slow time before an episode's first contact (the start is exact: a
+                         # later one only comes of deaths lowering the appetite, which errs late)
 PERIOD_S = 0.005         # wall s between looks
 
 

@@ -185,6 +185,9 @@ def test_wall_converts_on_the_current_segment(path, wall):
     ctl.idle_until(START + 1e9)
     assert ctl.wall(5_000.0) == pytest.approx(0.5)
     assert ctl.wall(20_000.0) == pytest.approx(1.0 + 10_000.0 / SLOW)
+    assert ctl.wall(1.0) == FAST_NAP_S         # fast: a 1-farm-s timeout is no spin
+    sim.busy()
+    assert ctl.wall(1.0) == pytest.approx(1.0 / SLOW)
 
 
 def test_asleep_is_woken_by_a_speed_rise_on_the_real_wall(tmp_path):
