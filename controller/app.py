@@ -344,6 +344,8 @@ class Controller(Stopping):
 
     def _on_filter_event(self, event) -> None:
         if isinstance(event, Demand):
+            if hasattr(self.clock, "busy"):   # an elastic clock: slow from this instant, not the pacer's next look
+                self.clock.busy(why="demand raised")
             log.info("demand from %s at %.1f contacts/s, heard %.1f s after", event.tank, event.rate_hz,
                      self.clock.now() - event.t)
             demand_id = self.store.add_demand(event.tank, event.t, event.rate_hz)
