@@ -6,6 +6,8 @@ idle until the next scheduled survey hour of any tank, whose clock then slows by
 hour. Each hour stays slow for ``GRACE_S`` after it, so the idle robot, which looks for due
 surveys every 30 farm s, has found it before the clock may speed on. Other periodic work
 (housekeeping, thermometer reads) keeps no fine time when nothing happens and needs no word.
+A survey stop runs at a tenth of the slow speed: its wall time is rendering and measuring, so a
+slower clock costs no wall and keeps the survey to a real one's farm minutes.
 """
 from __future__ import annotations
 
@@ -14,6 +16,7 @@ import asyncio
 from controller.surveys.schedule import _first_at
 
 GRACE_S = 60.0           # farm s a survey hour stays slow
+SURVEY_SHARE = 0.1       # a survey stop at this share of the slow speed (below)
 PERIOD_S = 0.005         # wall s between looks: bounds how soon the clock speeds up, not when it slows
 
 
@@ -44,12 +47,17 @@ def busy_with(robot) -> str | None:
 def declare(controller) -> None:
     clock = controller.clock
     why = busy_with(getattr(controller, "robot", None))
-    if why is not None:
+    if why == "surveying":
+        # a survey's wall time is its rendering and measuring, whatever the clock: at the slow
+        # speed 40 pairs spanned 4-5 farm hours (into the fish's morning under load); at a tenth
+        # they span tens of farm minutes, as a real survey does, for the same wall
+        clock.busy(max_speed=clock.slow * SURVEY_SHARE, why=why)
+    elif why is not None:
         clock.busy(why=why)
-        return
-    now = clock.now()
-    hour = next_survey_hour(controller.cfg, now)
-    clock.idle_until(now + 365 * 86400.0 if hour is None else hour, why="next survey")
+    else:
+        now = clock.now()
+        hour = next_survey_hour(controller.cfg, now)
+        clock.idle_until(now + 365 * 86400.0 if hour is None else hour, why="next survey")
 
 
 async def pace(controller, period_s: float = PERIOD_S) -> None:

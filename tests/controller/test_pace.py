@@ -36,3 +36,29 @@ def test_the_robot_idles_only_with_nothing_waiting():
     assert busy_with(robot(current=object())) == "survey due"       # a preempted survey resumes
     assert busy_with(robot(asked=["T2"])) == "survey due"
     assert busy_with(NS(state="idle", pending={}, surveys=None)) is None
+
+
+class Clock:
+    slow = 600.0
+
+    def __init__(self):
+        self.said = []
+
+    def now(self):
+        return LOCAL_MIDNIGHT + 12 * 3600
+
+    def busy(self, max_speed=None, why=""):
+        self.said.append(("busy", max_speed, why))
+
+    def idle_until(self, t, why=""):
+        self.said.append(("idle", t, why))
+
+
+def test_a_survey_stop_runs_at_a_tenth_of_the_slow_speed_and_the_rest_as_busy_or_idle():
+    from controller.pace import SURVEY_SHARE, declare
+    c = Clock()
+    declare(NS(clock=c, cfg=cfg("20:30"), robot=robot(state="surveying", current=object())))
+    declare(NS(clock=c, cfg=cfg("20:30"), robot=robot(state="moving")))
+    declare(NS(clock=c, cfg=cfg("20:30"), robot=robot()))
+    assert c.said == [("busy", 600.0 * SURVEY_SHARE, "surveying"), ("busy", None, "moving"),
+                      ("idle", LOCAL_MIDNIGHT + 20.5 * 3600, "next survey")]
