@@ -90,8 +90,8 @@ def truth_at(stock: dict, tank: str, t: float) -> dict:
     return rows[max(i, 0)]
 
 
-def pct(a: float, b: float) -> float:
-    return round(100.0 * (a - b) / b, 2)
+def pct(a: float, b: float) -> float | None:
+    return round(100.0 * (a - b) / b, 2) if b else None
 
 
 def visits(log: str) -> list[tuple[float, float]]:
