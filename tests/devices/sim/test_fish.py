@@ -140,3 +140,16 @@ def test_a_tank_whose_fish_ask_is_due_now():
     t, _ = tank(initial_hunger=1.0)
     t.contacts_until(T0 + 1.0)
     assert t.asking and t.next_episode(T0 + 1.0) == T0 + 1.0
+
+
+def test_the_fish_are_heeded_from_their_start_and_each_meal_and_unfed_start_again_after_rest():
+    t, truth = tank(initial_hunger=1.0, turbulence_hz=0.0, bursts_per_hour=0.0, duration_s=(300, 300),
+                    rest_s=900.0)
+    t.contacts_until(T0 + 10.0)
+    start = kinds(truth, "episode_start")[0]["t"]
+    assert t.heeded_t == start and t.unheeded_until() == pytest.approx(start + 300.0 + 900.0)
+    t.feed(5.0, T0 + 20.0)                               # a morsel: still hungry, still asking
+    assert t.asking and t.heeded_t == T0 + 20.0
+    t.contacts_until(T0 + 5_000.0)                       # nobody feeds them: they give up and rest
+    again = [r["t"] for r in kinds(truth, "episode_start")][1]
+    assert again >= start + 300.0 + 900.0

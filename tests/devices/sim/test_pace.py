@@ -4,7 +4,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from devices.elastic_clock import BUSY, IDLE, ElasticClock, create
-from devices.sim.pace import LEAD_S, declare
+from devices.sim.pace import ATTENTION_S, LEAD_S, declare
 
 START = 1_780_000_000.0
 
@@ -13,9 +13,14 @@ START = 1_780_000_000.0
 class Tank:
     asking: bool
     start: float
+    heeded_t: float = START
+    again: float = START + 10_000.0
 
     def next_episode(self, now: float) -> float:
         return now if self.asking else self.start
+
+    def unheeded_until(self) -> float:
+        return self.again
 
 
 def clock(tmp_path):
@@ -41,3 +46,13 @@ def test_busy_while_any_tank_asks_and_with_no_tanks(tmp_path):
     assert (mine(c).kind, mine(c).why) == (BUSY, "fish asking")
     declare(c, [])
     assert mine(c).kind == BUSY
+
+
+def test_fish_asking_unfed_past_the_attention_span_wait_for_their_next_start(tmp_path):
+    c = clock(tmp_path)                        # its wall stands still: now() is START
+    heeded = Tank(True, 0.0, heeded_t=START - ATTENTION_S + 1.0)
+    declare(c, [Tank(False, START + 5_000.0), heeded])
+    assert mine(c).kind == BUSY                # within the span: a demand may come
+    ignored = Tank(True, 0.0, heeded_t=START - ATTENTION_S - 1.0, again=START + 2_000.0)
+    declare(c, [Tank(False, START + 5_000.0), ignored])
+    assert (mine(c).kind, mine(c).value, mine(c).why) == (IDLE, START + 2_000.0 - LEAD_S, "unheeded fish")
