@@ -13,8 +13,9 @@ def cfg(*hours):
     return NS(utc_offset_h=1.0, tanks=[NS(survey=None)] + [NS(survey=NS(at=h)) for h in hours])
 
 
-def robot(state="idle", pending=(), current=None, asked=()):
-    return NS(state=state, pending=dict.fromkeys(pending), surveys=NS(schedule=NS(current=current, asked=list(asked))))
+def robot(state="idle", pending=(), current=None, asked=(), finishing=()):
+    return NS(state=state, pending=dict.fromkeys(pending),
+              surveys=NS(schedule=NS(current=current, asked=list(asked)), stop=NS(finishing=set(finishing))))
 
 
 def test_the_next_survey_hour_is_the_earliest_tank_hour_ahead():
@@ -35,6 +36,7 @@ def test_the_robot_idles_only_with_nothing_waiting():
     assert busy_with(robot(pending=["T1"])) == "demand waiting"
     assert busy_with(robot(current=object())) == "survey due"       # a preempted survey resumes
     assert busy_with(robot(asked=["T2"])) == "survey due"
+    assert busy_with(robot(finishing=["a record task"])) == "survey measuring"
     assert busy_with(NS(state="idle", pending={}, surveys=None)) is None
 
 
@@ -58,7 +60,9 @@ def test_a_survey_stop_runs_at_a_tenth_of_the_slow_speed_and_the_rest_as_busy_or
     from controller.pace import SURVEY_SHARE, declare
     c = Clock()
     declare(NS(clock=c, cfg=cfg("20:30"), robot=robot(state="surveying", current=object())))
+    declare(NS(clock=c, cfg=cfg("20:30"), robot=robot(finishing=["a record task"])))
     declare(NS(clock=c, cfg=cfg("20:30"), robot=robot(state="moving")))
     declare(NS(clock=c, cfg=cfg("20:30"), robot=robot()))
-    assert c.said == [("busy", 600.0 * SURVEY_SHARE, "surveying"), ("busy", None, "moving"),
+    assert c.said == [("busy", 600.0 * SURVEY_SHARE, "surveying"), ("busy", 600.0 * SURVEY_SHARE, "survey measuring"),
+                      ("busy", None, "moving"),
                       ("idle", LOCAL_MIDNIGHT + 20.5 * 3600, "next survey")]
