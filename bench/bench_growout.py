@@ -46,6 +46,9 @@ from hil_tests.farm import HilFarm  # noqa: E402
 
 DAYS = float(os.environ.get("BENCH_GROWOUT_DAYS", "3"))
 SPEED = float(os.environ.get("BENCH_GROWOUT_SPEED", "600"))
+# "SLOW,FAST": an elastic clock (devices/elastic_clock.py) instead of the constant SPEED
+ELASTIC = tuple(float(x) for x in os.environ["BENCH_GROWOUT_ELASTIC"].split(",")) \
+    if os.environ.get("BENCH_GROWOUT_ELASTIC") else None
 SURVEYED = {"T1": "20:30", "T2": "00:30"}       # every night: ~3 farm h a survey at 600x on 2 cores
 START = 1_780_056_000.0                          # 2026-05-29 12:00 UTC, 13:00 local: by day
 STATE_LINE = re.compile(r"^(\S+Z) INFO\s+fishfarm\.feeder: feeder: (\w+)")
@@ -59,7 +62,10 @@ def overrides() -> dict:
         if t.id in SURVEYED:
             row["survey"] = {"every_days": 1, "at": SURVEYED[t.id], "pairs": 40}
         tanks.append(row)
-    return {"tanks": tanks, "sim": {"stock": {"record_s": 3600.0}}}
+    sim = {"stock": {"record_s": 3600.0}}
+    if os.environ.get("BENCH_GROWOUT_CAMERA_FPS"):     # the simulated survey cameras' wall rate
+        sim["stereo_camera"] = {"fps": float(os.environ["BENCH_GROWOUT_CAMERA_FPS"])}
+    return {"tanks": tanks, "sim": sim}
 
 
 def enter_deaths(farm: HilFarm, entered: dict) -> None:
@@ -84,8 +90,8 @@ def truth_at(stock: dict, tank: str, t: float) -> dict:
     return rows[max(i, 0)]
 
 
-def pct(a: float, b: float) -> float:
-    return round(100.0 * (a - b) / b, 2)
+def pct(a: float, b: float) -> float | None:
+    return round(100.0 * (a - b) / b, 2) if b else None
 
 
 def visits(log: str) -> list[tuple[float, float]]:
@@ -157,7 +163,7 @@ def main() -> int:
     keep = os.environ.get("BENCH_GROWOUT_KEEP")
     work = Path(keep) if keep else Path(tempfile.mkdtemp(prefix="fishfarm-growout-"))
     work.mkdir(parents=True, exist_ok=True)
-    farm = HilFarm(work, speed=SPEED, overrides=overrides(), farm_start=START, surveys=True)
+    farm = HilFarm(work, speed=SPEED, overrides=overrides(), farm_start=START, surveys=True, elastic=ELASTIC)
     started = time.monotonic()
     entered: dict = {}
     try:
@@ -173,10 +179,14 @@ def main() -> int:
         farm.check_alive()
     finally:
         farm.stop()
-    out = {"days": DAYS, "speed": SPEED, "surveyed": SURVEYED, "wall_s": round(time.monotonic() - started, 1),
+    wall_by_reason = farm.watch.summary() if farm.watch is not None else None
+    speed = SPEED if ELASTIC is None else {"slow": ELASTIC[0], "fast": ELASTIC[1]}
+    out = {"days": DAYS, "speed": speed, "surveyed": SURVEYED, "wall_s": round(time.monotonic() - started, 1),
            "goals": {"biomass_err_pct": "<= 5", "fcr_err_pct": "<= 5", "sgr_err_pct": "<= 5",
                      "over_60_during_visits": 0},
            "deaths_entered": entered, **judge(farm)}
+    if wall_by_reason is not None:
+        out["wall_by_reason"] = wall_by_reason
     print(json.dumps(out))
     return 0
 

@@ -139,10 +139,16 @@ class Controller(Stopping):
         self._requeue_open_demands()
         for loop in (self.robot.run, self._contacts_loop, self._housekeeping, self._state_loop):
             self.tasks.append(asyncio.create_task(self._supervise(loop)))
+        if hasattr(self.clock, "idle_until"):     # an elastic clock: say when the farm may run fast
+            self.tasks.append(asyncio.create_task(self._supervise(self._pace)))
         # what start-up built lives as long as the process: out of the collector's sight, a full
         # collection (which holds the GIL, so the e-stop's threads too) takes ~1 ms, not ~70
         gc.freeze()
         log.info("controller for site %s up: %d tanks", cfg.site, len(cfg.tanks))
+
+    async def _pace(self) -> None:
+        from controller.pace import pace
+        await pace(self)
 
     async def _scada(self) -> None:
         await self.scada.run()
@@ -338,6 +344,8 @@ class Controller(Stopping):
 
     def _on_filter_event(self, event) -> None:
         if isinstance(event, Demand):
+            if hasattr(self.clock, "busy"):   # an elastic clock: slow from this instant, not the pacer's next look
+                self.clock.busy(why="demand raised")
             log.info("demand from %s at %.1f contacts/s, heard %.1f s after", event.tank, event.rate_hz,
                      self.clock.now() - event.t)
             demand_id = self.store.add_demand(event.tank, event.t, event.rate_hz)

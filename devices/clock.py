@@ -40,6 +40,10 @@ class ScaledClock:
     def now(self) -> float:
         return self.epoch_farm + (time.time() - self.epoch_wall) * self.speed
 
+    def at(self, wall: float) -> float:
+        """Farm time at wall instant ``wall`` (a log record's)."""
+        return self.epoch_farm + (wall - self.epoch_wall) * self.speed
+
     def wall(self, farm_seconds: float) -> float:
         """Wall seconds that ``farm_seconds`` of farm time take."""
         return farm_seconds / self.speed

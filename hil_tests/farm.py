@@ -77,12 +77,23 @@ def without_surveys(config: dict) -> dict:
 class HilFarm:
     def __init__(self, workdir: Path, *, speed: float, overrides: dict | None = None,
                  base_config: Path = ROOT / "config" / "farm.toml", farm_start: float = FARM_START,
-                 cleaner: bool = False, surveys: bool = False):
+                 cleaner: bool = False, surveys: bool = False, elastic: tuple[float, float] | None = None):
+        """``elastic``: (slow, fast) speeds of an elastic clock (devices/elastic_clock.py) shared
+        by the processes through a file in ``workdir``, instead of a constant ``speed``."""
         self.dir = Path(workdir)
         self.speed = speed
         self.witness = StallWitness().start()  # the machine's own stalls, to tell from the controller's
         self.epoch_wall = time.time() + 1.0
         self.epoch_farm = farm_start
+        self.clock = self.watch = None
+        if elastic is not None:
+            from devices.elastic_clock import ElasticClock, create
+            from hil_tests.clock_watch import ClockWatch
+            self.dir.mkdir(parents=True, exist_ok=True)
+            create(self.dir / "clock", slow=elastic[0], fast=elastic[1], farm_start=farm_start,
+                   awaited=("sim", "controller"))
+            self.clock = ElasticClock(self.dir / "clock")
+            self.watch = ClockWatch(self.clock).start()
         base = tomllib.loads(base_config.read_text())
         if not cleaner:
             base = without_cleaner(base, surveys=surveys)
@@ -105,16 +116,20 @@ class HilFarm:
 
     # -- clock ----------------------------------------------------------------
     def clock_args(self) -> list[str]:
+        if self.clock is not None:
+            return self.clock.as_args()
         return ["--speed", repr(self.speed), "--epoch-wall", repr(self.epoch_wall),
                 "--epoch-farm", repr(self.epoch_farm)]
 
     def farm_now(self) -> float:
+        if self.clock is not None:
+            return self.clock.now()
         return self.epoch_farm + (time.time() - self.epoch_wall) * self.speed
 
     def sleep_until_farm(self, t: float) -> None:
         while (now := self.farm_now()) < t:
             self.check_alive()
-            time.sleep(min(0.2, (t - now) / self.speed))
+            time.sleep(min(0.2, (t - now) / self.speed if self.clock is None else self.clock.wall(t - now)))
 
     # -- processes ------------------------------------------------------------
     def _spawn(self, args: list[str], log_name: str) -> subprocess.Popen:
@@ -197,11 +212,15 @@ class HilFarm:
                 self.sim_proc.kill()
                 self.sim_proc.wait()
         self.witness.stop()
+        if self.watch is not None:
+            self.watch.stop()
         if problem is not None:
             raise RuntimeError(f"{problem}:\n{self.log('controller.log')}")
 
     def stalls(self) -> list[tuple[float, float]]:
         """Farm spans in which the machine stood still (hil_tests/stalls.py)."""
+        if self.watch is not None:      # an elastic clock: through the samples of its timeline
+            return [(self.watch.farm_at(a), self.watch.farm_at(b)) for a, b in self.witness.spans]
         return self.witness.farm_spans(self.epoch_wall, self.epoch_farm, self.speed)
 
     def log(self, name: str, tail: int = 60) -> str:

@@ -17,8 +17,7 @@ class FarmTimeFormatter(logging.Formatter):
         self.clock = clock
 
     def format(self, record):
-        record.farmtime = self.clock.iso(self.clock.epoch_farm + (record.created - self.clock.epoch_wall)
-                                         * self.clock.speed)
+        record.farmtime = self.clock.iso(self.clock.at(record.created))
         return super().format(record)
 
 
@@ -44,10 +43,12 @@ def setup_logging(clock, level: str) -> None:
               help="simulated time runs X times faster than real time (simulated devices only)")
 @click.option("--epoch-wall", type=float, default=None, hidden=True)
 @click.option("--epoch-farm", type=float, default=None, hidden=True)
+@click.option("--clock", "clock_path", type=click.Path(dir_okay=False, exists=True), default=None, hidden=True,
+              help="an elastic clock file shared with the simulator (devices/elastic_clock.py)")
 @click.option("--log-level", default="info", show_default=True,
               type=click.Choice(["debug", "info", "warning", "error"], case_sensitive=False))
 @click.option("--no-console", is_flag=True, help="no live status table, even on a terminal")
-def run(config_path, duration, speed, epoch_wall, epoch_farm, log_level, no_console):
+def run(config_path, duration, speed, epoch_wall, epoch_farm, clock_path, log_level, no_console):
     """The controller: demand filter, feeding robot, ledger, bus."""
     from controller.app import Controller, install_signal_handlers
     from controller.config import load_config
@@ -57,7 +58,10 @@ def run(config_path, duration, speed, epoch_wall, epoch_farm, log_level, no_cons
     all_sim = all(s["driver"] == "sim" for s in cfg.devices.values())
     if speed != 1.0 and not all_sim and epoch_wall is None:
         raise BadInput(config_path, "devices", "--speed needs every device simulated (driver = \"sim\")")
-    if epoch_wall is not None:
+    if clock_path is not None:
+        from controller.cli.sim_cmd import elastic
+        clock = elastic(clock_path, "controller")
+    elif epoch_wall is not None:
         clock = ScaledClock(speed, epoch_wall, epoch_farm if epoch_farm is not None else epoch_wall)
     else:
         clock = ScaledClock.starting(speed) if speed != 1.0 else ScaledClock.real()

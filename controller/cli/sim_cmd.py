@@ -26,9 +26,12 @@ import click
 @click.option("--speed", type=click.FloatRange(min=0, min_open=True), default=1.0, show_default=True)
 @click.option("--epoch-wall", type=float, default=None, help="wall time at which farm time is --epoch-farm")
 @click.option("--epoch-farm", type=float, default=None)
+@click.option("--clock", "clock_path", type=click.Path(dir_okay=False, exists=True), default=None,
+              help="an elastic clock file (devices/elastic_clock.py) shared with the controller: "
+                   "replaces --speed/--epoch-*")
 @click.option("--log-level", default="warning", show_default=True,
               type=click.Choice(["debug", "info", "warning", "error"], case_sensitive=False))
-def sim(config_path, endpoints, truth, speed, epoch_wall, epoch_farm, log_level):
+def sim(config_path, endpoints, truth, speed, epoch_wall, epoch_farm, clock_path, log_level):
     """Simulated farm: fish, contact hub, rail drive, dispenser, pond cleaner's thrusters and tower
     camera. SIGUSR1 power-cycles the dispenser."""
     from controller.config import load_config
@@ -38,7 +41,9 @@ def sim(config_path, endpoints, truth, speed, epoch_wall, epoch_farm, log_level)
 
     logging.basicConfig(level=log_level.upper(), format="sim %(levelname)s %(name)s: %(message)s")
     cfg = load_config(config_path)
-    if epoch_wall is None:
+    if clock_path is not None:
+        clock = elastic(clock_path, "sim")
+    elif epoch_wall is None:
         clock = ScaledClock.starting(speed, epoch_farm)
     else:
         clock = ScaledClock(speed, epoch_wall, epoch_farm if epoch_farm is not None else epoch_wall)
@@ -57,9 +62,33 @@ def sim(config_path, endpoints, truth, speed, epoch_wall, epoch_farm, log_level)
             tmp = Path(endpoints).with_suffix(".tmp")
             tmp.write_text(json.dumps(found, indent=2))
             os.replace(tmp, endpoints)            # readers never see half a file
+            pacer = asyncio.create_task(_pace(farm)) if clock_path is not None else None
             await stop.wait()
+            if pacer is not None:
+                pacer.cancel()
         finally:
             await farm.stop()
 
     asyncio.run(main())
     return 0
+
+
+def elastic(path: str, slot: str):
+    """The elastic clock in ``path``, with this process's ``slot`` claimed (busy until it speaks)."""
+    from controller.errors import BadInput
+    from devices.elastic_clock import ElasticClock
+    try:
+        clock = ElasticClock(path)
+    except (OSError, ValueError) as exc:
+        raise BadInput("--clock", None, str(exc)) from None
+    clock.claim(slot)
+    return clock
+
+
+async def _pace(farm) -> None:
+    """Fish asking or not; a pond's cleaner is always busy (it moves by the tower camera's frames)."""
+    from devices.sim.pace import pace
+    if getattr(farm, "pond", None) is not None:
+        farm.clock.busy()
+        return
+    await pace(farm.clock, list(farm.tanks.values()))

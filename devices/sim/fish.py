@@ -78,6 +78,7 @@ class SimTank:
         self.hunger_g = params.initial_hunger * params.hunger_threshold_g
         self.rate_hz = 0.0                                  # > 0 while the fish ask
         self._give_up = self._next_fish = math.inf
+        self.heeded_t = -math.inf                          # the episode's start or its last meal
         self._bg: list[tuple[float, str]] = []
         self._dead: list[tuple[str, float, float]] = []
         self._out: list[tuple[float, str]] = []
@@ -99,6 +100,19 @@ class SimTank:
     def asking(self) -> bool:
         return self.rate_hz > 0
 
+    def next_episode(self, now: float) -> float:
+        """Farm time the fish will next start asking, as things stand (``now`` while they ask or
+        before the tank has begun): hunger grows at a known pace, so the simulator knows it ahead."""
+        if self.asking or not hasattr(self, "t"):
+            return now
+        need = max(0.0, self.p.hunger_threshold_g - self.hunger_g)
+        return self._by_day(max(self._rest_until, self.t + need / self.appetite_g_s))
+
+    def unheeded_until(self) -> float:
+        """While the fish ask: the earliest an episode can start again if nobody feeds them (they
+        give up, then rest); inf otherwise."""
+        return self._give_up + self.p.rest_s if self.asking else math.inf
+
     def contacts_until(self, t: float) -> list[tuple[float, str]]:
         """Advance to farm time ``t``; the contacts since the last call, sorted by time."""
         self._advance(t)
@@ -112,6 +126,7 @@ class SimTank:
         if self.stock is not None:
             self.stock.feed(grams, t)
         self.hunger_g = max(0.0, self.hunger_g - grams)
+        self.heeded_t = t
         if self.truth is not None:
             self.truth.write("fed", t, tank=self.id, grams=round(grams, 3))
         if self.asking and self.hunger_g <= self.p.sated_fraction * self.p.hunger_threshold_g:
@@ -164,6 +179,7 @@ class SimTank:
         self.rate_hz = float(np.exp(self.rng.uniform(lo, hi)))
         self._give_up = t + float(self.rng.uniform(*self.p.duration_s))
         self._next_fish = t if self.p.pattern == "paced" else t + self._interval()
+        self.heeded_t = t
         if self.truth is not None:
             self.truth.write("episode_start", t, tank=self.id, rate_hz=round(self.rate_hz, 4))
 

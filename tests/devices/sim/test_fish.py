@@ -114,3 +114,42 @@ def test_fish_fed_by_day_ask_only_within_their_feeding_hours():
         lo, hi = hours
         inside = [(lo <= h < hi) if lo < hi else (h >= lo or h < hi) for h in starts]
         assert len(starts) > 10 and all(inside), (hours, starts)
+
+
+def test_the_next_episode_is_known_ahead_to_the_instant_it_starts():
+    """What an elastic clock slows for: the prediction, made between episodes at any step, is the
+    episode start the truth log then records (fed by day, given up, rested, fed again)."""
+    t, truth = tank(seed=3, initial_hunger=0.2, duration_s=(120, 300), rest_s=600.0, feeding_hours=(6.0, 20.0))
+    predicted, now = [], T0
+    for step in range(3_000):
+        now += 7.0 + (step % 13) * 11.0                  # uneven steps, as a fast clock's ticks are
+        before = t.asking
+        if not before:
+            predicted.append(t.next_episode(now))
+        t.contacts_until(now)
+        if t.asking and step % 3 == 0:
+            t.feed(80.0, now)
+    starts = [r["t"] for r in kinds(truth, "episode_start")]
+    assert len(starts) > 20
+    for s in starts:                                      # each start was foretold just before it
+        assert any(p == pytest.approx(s, abs=1e-3) for p in predicted)
+    assert t.next_episode(now) >= now or t.asking
+
+
+def test_a_tank_whose_fish_ask_is_due_now():
+    t, _ = tank(initial_hunger=1.0)
+    t.contacts_until(T0 + 1.0)
+    assert t.asking and t.next_episode(T0 + 1.0) == T0 + 1.0
+
+
+def test_the_fish_are_heeded_from_their_start_and_each_meal_and_unfed_start_again_after_rest():
+    t, truth = tank(initial_hunger=1.0, turbulence_hz=0.0, bursts_per_hour=0.0, duration_s=(300, 300),
+                    rest_s=900.0)
+    t.contacts_until(T0 + 10.0)
+    start = kinds(truth, "episode_start")[0]["t"]
+    assert t.heeded_t == start and t.unheeded_until() == pytest.approx(start + 300.0 + 900.0)
+    t.feed(5.0, T0 + 20.0)                               # a morsel: still hungry, still asking
+    assert t.asking and t.heeded_t == T0 + 20.0
+    t.contacts_until(T0 + 5_000.0)                       # nobody feeds them: they give up and rest
+    again = [r["t"] for r in kinds(truth, "episode_start")][1]
+    assert again >= start + 300.0 + 900.0

@@ -1,0 +1,51 @@
+"""The simulator's word to an elastic farm clock (devices/elastic_clock.py): busy while fish in any
+tank ask for food, else idle until the next episode starts, less a lead so the first contacts and
+the controller's detection run at the slow speed. The tanks know the next start ahead (hunger grows
+at a known pace), so the clock slows at it by itself: the wall period of this loop only bounds how
+soon the clock speeds up again after an episode, never how late it slows.
+
+Fish asking are busy for ``ATTENTION_S`` from their episode's start or their last meal: the
+demand and its service come within that (the contract: a demand within 60 s; 180 s for the slow
+fish the filter takes longer over). Fish that ask on past it are not being fed (their tank's
+ration is reached, or it is paused): they need no fine time until they could start again after
+giving up and resting. A demand the controller raises later slows the clock at once from its side.
+
+Turbulence and chatter need no fine time: contacts carry their farm timestamps, and the
+controller's demand filter judges them by those, however late a fast clock delivers them.
+"""
+from __future__ import annotations
+
+import asyncio
+
+LEAD_S = 5.0             # farm s of slow time before an episode's first contact (the start is exact: a
+                         # later one only comes of deaths lowering the appetite, which errs late)
+PERIOD_S = 0.005         # wall s between looks
+ATTENTION_S = 180.0      # farm s fish asking hold the clock slow after their start or last meal
+
+
+def needs_slow_from(tank, now: float, attention_s: float = ATTENTION_S) -> float:
+    """The farm time from which ``tank`` needs the slow clock (``now`` or earlier: it does now)."""
+    if not tank.asking:
+        return tank.next_episode(now)
+    if now < tank.heeded_t + attention_s:
+        return now
+    return tank.unheeded_until()
+
+
+def declare(clock, tanks, lead_s: float = LEAD_S, attention_s: float = ATTENTION_S) -> None:
+    if not tanks:
+        clock.busy(why="no tanks")
+        return
+    now = clock.now()
+    t = min(needs_slow_from(tank, now, attention_s) for tank in tanks)
+    if t <= now:
+        clock.busy(why="fish asking")
+    else:
+        clock.idle_until(t - lead_s, why="next episode" if not any(k.asking for k in tanks) else "unheeded fish")
+
+
+async def pace(clock, tanks, lead_s: float = LEAD_S, period_s: float = PERIOD_S) -> None:
+    tanks = [t for t in tanks if hasattr(t, "next_episode")]
+    while True:
+        declare(clock, tanks, lead_s)
+        await asyncio.sleep(period_s)

@@ -1,0 +1,259 @@
+"""The elastic clock (devices/elastic_clock.py) on a fake wall: continuity, monotony, the segment's
+own slow-down at the lookahead limit, sleepers across speed changes, slots, readers in other processes."""
+from __future__ import annotations
+
+import asyncio
+import multiprocessing as mp
+import time
+
+import pytest
+
+from devices.elastic_clock import FAST_NAP_S, SLICE_S, ElasticClock, create
+
+SLOW, FAST, START = 100.0, 10_000.0, 1_780_000_000.0
+
+
+class Wall:
+    """A wall clock a test moves by hand."""
+
+    def __init__(self, t: float = 5_000.0):
+        self.t = t
+
+    def __call__(self) -> float:
+        return self.t
+
+
+@pytest.fixture
+def wall():
+    return Wall()
+
+
+@pytest.fixture
+def path(tmp_path, wall):
+    p = tmp_path / "clock"
+    create(p, slow=SLOW, fast=FAST, farm_start=START, wall_time=wall)
+    return p
+
+
+def handle(path, wall, name=None, alive=lambda pid: True, **kw):
+    c = ElasticClock(path, wall_time=wall, alive=alive, **kw)
+    if name:
+        c.claim(name)
+    return c
+
+
+def test_a_new_clock_runs_at_the_slow_speed_from_its_start(path, wall):
+    c = handle(path, wall)
+    assert c.now() == START
+    wall.t += 2.0
+    assert c.now() == pytest.approx(START + 2.0 * SLOW)
+    assert c.speed == SLOW
+
+
+def test_everyone_idle_runs_fast_then_slows_by_itself_at_the_earliest_limit(path, wall):
+    sim, ctl = handle(path, wall, "sim"), handle(path, wall, "controller")
+    sim.idle_until(START + 50_000.0)
+    assert sim.speed == SLOW                   # the controller has not spoken: still busy
+    ctl.idle_until(START + 20_000.0)
+    assert ctl.speed == FAST
+    wall.t += 1.0                              # 10 000 farm s at FAST
+    assert ctl.now() == pytest.approx(START + 10_000.0)
+    wall.t += 1.5                              # 1 s more reaches the limit, the 0.5 s after it are slow
+    assert ctl.now() == pytest.approx(START + 20_000.0 + 0.5 * SLOW)
+    assert ctl.speed == SLOW
+
+
+def test_speed_changes_keep_farm_time_continuous_and_monotonic(path, wall):
+    sim, ctl = handle(path, wall, "sim"), handle(path, wall, "controller")
+    seen = []
+    for step in range(40):                     # busy and idle alternating at odd instants
+        wall.t += 0.013 * (1 + step % 5)
+        before = ctl.now()
+        if step % 3 == 0:
+            sim.busy()
+        elif step % 3 == 1:
+            sim.idle_until(before + 1_000.0 * (step % 7))
+        else:
+            ctl.idle_until(before + 5_000.0)
+        after = ctl.now()
+        assert after == pytest.approx(before, abs=1e-6)   # no jump when the segment is re-drawn
+        seen.append(after)
+    assert seen == sorted(seen)
+
+
+def test_a_busy_process_caps_the_speed_at_its_word(path, wall):
+    sim, ctl = handle(path, wall, "sim"), handle(path, wall, "controller")
+    sim.idle_until(START + 1e6)
+    ctl.busy(max_speed=40.0)
+    assert ctl.speed == 40.0
+    ctl.busy(max_speed=1e9)                    # never above the file's fast speed
+    assert ctl.speed == FAST
+
+
+def test_awaited_and_dead_slots_hold_the_clock_slow(tmp_path, wall):
+    p = tmp_path / "clock"
+    create(p, slow=SLOW, fast=FAST, farm_start=START, awaited=("sim", "controller"), wall_time=wall)
+    dead: set[int] = set()
+    sim = handle(p, wall, "sim", alive=lambda pid: pid not in dead)
+    sim.idle_until(START + 1e6)
+    assert sim.speed == SLOW                   # the controller is awaited
+    ctl = handle(p, wall, "controller", alive=lambda pid: pid not in dead)
+    ctl.idle_until(START + 1e6)
+    assert sim.speed == FAST
+    dead.add(ctl.slots()[1].pid)               # its process is gone: its word no longer holds
+    assert sim.govern().speed == SLOW
+    dead.clear()                               # (one pid for both handles here)
+    ctl.busy()
+    ctl.release()
+    assert sim.govern().speed == FAST          # a process that leaves on purpose holds nothing back
+
+
+def test_claiming_again_by_name_takes_the_same_slot(path, wall):
+    a = handle(path, wall, "controller")
+    b = handle(path, wall, "controller")
+    assert a.slot == b.slot
+    assert [s.name for s in a.slots()].count("controller") == 1
+
+
+def test_a_sleeper_wakes_at_its_farm_time_when_the_speed_rises_mid_sleep(path, wall):
+    sim, ctl = handle(path, wall, "sim"), handle(path, wall, "controller")
+    sim.busy()
+    ctl.idle_until(START + 1e9)
+    naps = []
+
+    def pause(s):
+        naps.append(s)
+        wall.t += s
+        if len(naps) == 3:                     # another process goes idle: the speed rises x100
+            sim.idle_until(START + 1e9)
+
+    sleeper = handle(path, wall, pause=pause)
+    target = sleeper.now() + 5_000.0           # 50 wall s at SLOW, 0.5 at FAST
+    sleeper.sleep(5_000.0)
+    woke = sleeper.now()
+    assert woke >= target
+    assert woke - target <= SLICE_S * FAST + 1e-6
+    assert sum(naps) < 1.0                     # it did not sleep its slow-speed 50 s
+
+
+def test_a_sleeper_inside_the_fast_part_naps_once_and_one_slowed_under_it_looks_again(path, wall):
+    sim, ctl = handle(path, wall, "sim"), handle(path, wall, "controller")
+    sim.idle_until(START + 1e9)
+    ctl.idle_until(START + 1e9)
+    naps = []
+
+    def pause(s):
+        naps.append(s)
+        wall.t += s
+        if len(naps) == 1:
+            sim.busy()                         # slowed during the nap: woken early, sleeps again
+
+    sleeper = handle(path, wall, pause=pause)
+    target = sleeper.now() + 20_000.0
+    sleeper.sleep(20_000.0)
+    assert naps[0] == pytest.approx(2.0)       # one exact nap at FAST
+    assert sleeper.now() >= target
+    assert sleeper.now() - target <= 1e-6 + SLICE_S * SLOW
+
+
+def test_a_sleeper_across_the_limit_wakes_at_the_slow_part(path, wall):
+    sim, ctl = handle(path, wall, "sim"), handle(path, wall, "controller")
+    sim.idle_until(START + 10_000.0)
+    ctl.idle_until(START + 1e9)
+    sleeper = handle(path, wall, pause=lambda s: setattr(wall, "t", wall.t + s))
+    sleeper.sleep(10_500.0)                    # 1 s at FAST, then 5 s at SLOW
+    assert sleeper.now() == pytest.approx(START + 10_500.0, abs=1e-6)
+    assert wall.t == pytest.approx(5_000.0 + 6.0)
+
+
+def test_short_naps_are_floored_only_while_the_farm_runs_fast(path, wall):
+    sim, ctl = handle(path, wall, "sim"), handle(path, wall, "controller")
+    naps = []
+    sleeper = handle(path, wall, pause=lambda s: (naps.append(s), setattr(wall, "t", wall.t + s)))
+    sleeper.sleep(0.5)                         # slow: 5 ms of wall, exact
+    assert naps == [pytest.approx(0.005)]
+    sim.idle_until(START + 1e9)
+    ctl.idle_until(START + 1e9)
+    naps.clear()
+    sleeper.sleep(0.5)                         # fast: 50 us of wall would spin; one 1 ms nap
+    assert naps == [pytest.approx(FAST_NAP_S)]
+
+
+def test_wall_converts_on_the_current_segment(path, wall):
+    sim, ctl = handle(path, wall, "sim"), handle(path, wall, "controller")
+    sim.idle_until(START + 10_000.0)
+    ctl.idle_until(START + 1e9)
+    assert ctl.wall(5_000.0) == pytest.approx(0.5)
+    assert ctl.wall(20_000.0) == pytest.approx(1.0 + 10_000.0 / SLOW)
+    assert ctl.wall(1.0) == FAST_NAP_S         # fast: a 1-farm-s timeout is no spin
+    sim.busy()
+    assert ctl.wall(1.0) == pytest.approx(1.0 / SLOW)
+
+
+def test_asleep_is_woken_by_a_speed_rise_on_the_real_wall(tmp_path):
+    p = tmp_path / "clock"
+    create(p, slow=SLOW, fast=FAST, farm_start=START)
+    sim, ctl = ElasticClock(p), ElasticClock(p)
+    sim.claim("sim")
+    ctl.claim("controller")
+    ctl.idle_until(START + 1e9)
+
+    async def run():
+        target = ctl.now() + 500.0             # 5 wall s at SLOW
+        t0 = time.monotonic()
+        task = asyncio.ensure_future(ctl.asleep(500.0))
+        await asyncio.sleep(0.05)
+        sim.idle_until(START + 1e9)
+        await task
+        return target, time.monotonic() - t0
+
+    target, took = asyncio.run(run())
+    assert ctl.now() >= target
+    assert took < 2.5                           # half of what the slow speed would have taken
+
+
+def _sample(path: str, n: int, out) -> None:
+    c = ElasticClock(path)
+    rows = []
+    for _ in range(n):
+        w = time.time()
+        rows.append((w, c.now(), time.time()))
+        time.sleep(0.001)
+    out.put(rows)
+
+
+def test_readers_in_other_processes_agree_with_the_segments_written(tmp_path):
+    p = tmp_path / "clock"
+    create(p, slow=SLOW, fast=FAST, farm_start=START)
+    gov = ElasticClock(p)
+    gov.claim("sim")
+    ctx = mp.get_context("spawn")
+    out = ctx.Queue()
+    readers = [ctx.Process(target=_sample, args=(str(p), 300, out)) for _ in range(3)]
+    for r in readers:
+        r.start()
+    segments = [gov.segment()]
+    deadline = time.time() + 30
+    while any(r.is_alive() for r in readers) and time.time() < deadline:
+        if len(segments) % 2:
+            gov.idle_until(gov.now() + 5_000.0)
+        else:
+            gov.busy()
+        segments.append(gov.segment())
+        time.sleep(0.01)
+        if out.qsize() == len(readers):
+            break
+    rows = [out.get(timeout=30) for _ in readers]
+    for r in readers:
+        r.join(timeout=30)
+    def farm(w):                               # the timeline the segments drew
+        return [s for s in segments if s.wall0 <= w][-1].farm_at(w)
+
+    checked = 0
+    for samples in rows:
+        farms = [f for _w, f, _after in samples]
+        assert farms == sorted(farms)
+        for w0, f, w1 in samples:
+            assert farm(w0) - 1e-3 <= f <= farm(w1) + 1e-3
+            checked += 1
+    assert checked == 900
