@@ -113,6 +113,17 @@ def assign(reports, truths, centre, strict: bool = False):
     return sorted(out)
 
 
+def terciles(size: list[float], found: list[bool]) -> list[dict]:
+    """Recall in each third of the fish by ``size``: [{"from", "to", "fish", "recall"}] x 3."""
+    size, found = np.asarray(size, float), np.asarray(found, bool)
+    if len(size) < 3:
+        return []
+    edges = np.quantile(size, [0, 1 / 3, 2 / 3, 1])
+    part = np.clip(np.searchsorted(edges, size, side="right") - 1, 0, 2)
+    return [{"from": round(float(edges[k]), 1), "to": round(float(edges[k + 1]), 1), "fish": int((part == k).sum()),
+             "recall": round(float(found[part == k].mean()), 3) if (part == k).any() else None} for k in range(3)]
+
+
 def spearman(a, b) -> float:
     if len(a) < 3:
         return float("nan")
@@ -130,6 +141,7 @@ def main() -> None:
     setup = SurveySetup(up_world=(0.0, 0.0, 1.0))
     visible = found = reported = correct = correct_strict = found_strict = 0
     w_err, len_errs, scores, rep_w, true_w = [], [], [], [], []
+    vis_px, vis_cm, vis_found = [], [], []          # every fully visible fish: its size, whether found
     stage_ms: dict[str, list[float]] = {}
     total_ms, base_ms = [], []
     seed = args.seed0
@@ -172,6 +184,11 @@ def main() -> None:
                     hit.add(ti)
                     w_err.append(abs(w / truths[ti].model_weight_g - 1))
             found += len(hit & set(vis))
+            for i in vis:
+                t = truths[i]
+                vis_px.append(float(np.mean(np.linalg.norm(t.snout_px - t.fork_px, axis=1))))
+                vis_cm.append(t.length_cm)
+                vis_found.append(i in hit)
     scores, len_errs = np.array(scores), np.array(len_errs)
     top = scores >= np.quantile(scores, 0.2) if len(scores) else np.zeros(0, bool)
     med = {k: round(float(np.median(v)), 2) for k, v in stage_ms.items()}
@@ -195,6 +212,12 @@ def main() -> None:
         "ms_per_pair_median": round(pipeline, 2), "ms_per_stage_median_wall": med,
         "baseline_ms_median": round(base, 2), "ratio": round(pipeline / base, 3),
         "load": os.getloadavg()[0],
+        # size bias: recall per tercile of the visible fish's fork length (image px, mean of the
+        # two views; cm), and how much longer the found fish are than the visible ones
+        "recall_by_tercile_px": terciles(vis_px, vis_found),
+        "recall_by_tercile_cm": terciles(vis_cm, vis_found),
+        "found_vs_visible_length_pct": round(100 * (np.mean(np.array(vis_cm)[np.array(vis_found, bool)])
+                                                    / np.mean(vis_cm) - 1), 2) if any(vis_found) else None,
     }
     out["goals_met"] = {k: bool(out[k] is not None and (abs(out[k]) <= g if k in ("weight_mape_pct",
                         "mean_weight_error_pct", "ratio") else out[k] >= g)) for k, g in GOALS.items()}

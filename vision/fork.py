@@ -141,18 +141,19 @@ ANGLE_TRIES = np.radians([10.0, -10.0, 20.0, -20.0])
 
 
 def locate_forks(pyr: list[np.ndarray], fins: Fins, min_contrast: float = 5.0, min_slope: float = 0.12,
-                 flat_ok: bool = FLAT_OK, tries=(), retry: np.ndarray | None = None) -> Forks:
+                 flat_ok: bool = FLAT_OK, tries=(), retry: np.ndarray | None = None, scales=()) -> Forks:
     """Re-measure every candidate's innermost fork point and axis on the image pyramid; a candidate
     that shows no fork along its own axis (and is in ``retry``, default all) is measured again along
     each axis turned by ``tries`` (the first that shows one is kept): a proposal's axis can be 20
-    degrees off, and then one lobe leaves the grid's rows."""
+    degrees off, and then one lobe leaves the grid's rows. Then, likewise, with its grid scaled by
+    each of ``scales`` (see ``SPAN_TRIES``)."""
     out = _locate(pyr, fins, min_contrast, min_slope, flat_ok)
-    for turn in tries:
+    for turn, scale in [(t, 1.0) for t in tries] + [(0.0, s) for s in scales]:
         bad = np.flatnonzero(~out.ok if retry is None else ~out.ok & retry)
         if len(bad) == 0:
             break
         sub = fins.take(bad)
-        sub = Fins(sub.xy, sub.angle + turn, sub.span_px, sub.score, sub.polarity, sub.body)
+        sub = Fins(sub.xy, sub.angle + turn, sub.span_px * scale, sub.score, sub.polarity, sub.body)
         again = _locate(pyr, sub, min_contrast, min_slope, flat_ok)
         hit = bad[again.ok]
         if len(hit) == 0:

@@ -74,6 +74,8 @@ class Params:
     outline_k: tuple[float, ...] = (2.0, 4.0)   # ... thresholds, in local background spreads
     outline_ends: tuple[float, ...] = (-0.12, -0.02)   # ... outline ends shifted by these shares of its length
     min_fill: float = 0.0           # the least share of the fork-snout segment inside a silhouette (term 0 there)
+    fork_passes: int = 2            # each fork located again from where the first pass put it
+    span_tries: tuple[float, ...] = ()   # a hypothesis showing no fork is located again on a grid this much larger/smaller
 
 
 class _Clock:
@@ -145,8 +147,7 @@ def _view(img: np.ndarray, setup: SurveySetup, p: Params, clock: _Clock, trace: 
     clock.lap("fins")
     if trace is not None:
         trace.setdefault("proposed", []).append(hyps.xy.copy())
-    forks = locate_forks(pyr, hyps)
-    forks = locate_forks(pyr, forks.fins.take(np.flatnonzero(forks.ok)))        # again, from the fork
+    forks = _locate(pyr, hyps, p)
     ok = np.flatnonzero(forks.ok)
     located = forks.fins.take(ok)
     fish, water, arm = forks.fish_level[ok], forks.water_level[ok], forks.arm_rms[ok]
@@ -155,6 +156,14 @@ def _view(img: np.ndarray, setup: SurveySetup, p: Params, clock: _Clock, trace: 
     fins = located.take(keep)
     clock.lap("fork")
     return View(pyr, fins, fish[keep], water[keep], arm[keep], comps, (sx, sy))
+
+
+def _locate(pyr: list[np.ndarray], hyps: Fins, p: Params):
+    """The forks the hypotheses show (``vision.fork.locate_forks``), only those."""
+    forks = locate_forks(pyr, hyps, scales=p.span_tries)
+    for _ in range(p.fork_passes - 1):
+        forks = locate_forks(pyr, forks.fins.take(np.flatnonzero(forks.ok)))        # again, from the fork
+    return forks
 
 
 def _transfer(calib, v1: View, v2: View, pairs, p: Params) -> tuple[View, View]:
@@ -167,8 +176,7 @@ def _transfer(calib, v1: View, v2: View, pairs, p: Params) -> tuple[View, View]:
             continue
         hyp = transfer_forks(Ps, Pd, views[src], views[dst], lone, p.near_mm, p.far_mm)
         v = views[dst]
-        forks = locate_forks(v.pyr, hyp)
-        forks = locate_forks(v.pyr, forks.fins.take(np.flatnonzero(forks.ok)))
+        forks = _locate(v.pyr, hyp, p)
         ok = np.flatnonzero(forks.ok)
         if len(ok) == 0:
             continue
