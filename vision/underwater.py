@@ -15,6 +15,24 @@ figures and the terms. Misplaced points show up as weak stereo evidence (NCC), e
 (a snout or fork matched to the wrong structure does not triangulate cleanly), a weak snout edge,
 an axis tilted towards the species' limit, or a fish too small in the image for pixel errors to
 stay small against its length.
+
+Where fish are lost, and what was tried (2026-12-02, bench/diag_underwater.py --scenes 40, and
+bench/bench_survey_underwater.py --fish 200; seeds 0+ / 1000+). Of 75 / 97 fully visible fish,
+proposals reach 54 / 57 (``vision.bodies``: faint fins and thin peduncles outside the regions,
+touching fish merged), location keeps 34 / 37 (``vision.fork``: reef, net and faint fins), pairing
+all of them, snouts 28 / 31, association 26 / 30, the post-filters 18 / 24. The post-filters take
+a third of what the locator's improvements add: of the fish lost there after association, in 40
+scenes ~half fall to ``min_score`` (products of small terms: ``t_fork_shape``, the residuals,
+``t_fin``) and ~half to ``max_epipolar`` (several at 0.031-0.037), and every one of them was
+placed within the bench's tolerance. The options below locate or keep more fish, and each adds
+wrong reports too (bench, recall / precision; main: 0.261 / 0.966 and 0.215 / 0.957):
+``refit_arms`` 0.271 / 0.967, 0.220 / 0.918; ``residual_per_step=1`` 0.286 / 0.938, 0.230 / 0.906;
+with ``min_fill=0.5`` 0.276 / 0.937, 0.215 / 0.957; that with ``refit_arms`` and
+``span_tries=(0.75,)`` 0.291 / 0.954, 0.215 / 0.938 (fork stage ~1.4x); ``fork_passes=1`` or
+``keep_first`` with ``span_tries``: more located, fewer found in the 40-scene diagnosis (the
+second pass's arm fit is what ``t_fork_shape`` trusts). So they stay off: the score, not the
+locator, decides what the survey keeps, and it separates right from wrong poorly (Spearman 0.18
+with the length error).
 """
 from __future__ import annotations
 

@@ -291,3 +291,24 @@ def test_a_fork_with_specks_in_its_notch_is_located_by_its_arms_without_them(see
     assert np.linalg.norm(found.fins.xy[0] - fork) < 0.015 * length
     plain = locate_forks(pyr, cand, refit=False)
     assert not plain.ok[0] or np.linalg.norm(plain.fins.xy[0] - fork) >= 0.03 * length
+
+
+@pytest.mark.parametrize("too_large", [1.8, 2.2])
+def test_a_fork_proposed_with_too_large_a_span_is_found_on_a_scaled_grid(too_large):
+    """A hypothesis whose span is far too large (a region merged with a neighbour) spreads its grid
+    over a ledge behind the tail (reef, another fish): no fork on it. ``scales`` measures such a
+    hypothesis again on smaller grids, and the fork is found within 1 % of the length."""
+    rng = np.random.default_rng(int(10 * too_large))
+    img = water(500, 600, rng)
+    length, fork = 300.0, np.array([200.0, 250.0])
+    draw_fish_2d(img, fork, 0.0, length, 200.0, notch_deg=60.0)
+    x0 = int(fork[0] - 0.27 * length)
+    img[:, x0:x0 + 8] = 200.0
+    pyr = pyramid(np.clip(img, 0, 255).astype(np.uint8))
+    cand = Fins(fork[None] + [[3.0, -2.0]], np.array([0.05]), np.array([too_large * 0.3 * length]), np.ones(1),
+                np.ones(1))
+    assert not locate_forks(pyr, cand).ok[0]
+    found = locate_forks(pyr, cand, scales=(0.75, 0.5))
+    assert found.ok[0]
+    assert np.linalg.norm(found.fins.xy[0] - fork) < 0.01 * length
+    assert found.fins.span_px[0] == cand.span_px[0]          # the hypothesis's span is kept
