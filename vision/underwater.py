@@ -28,7 +28,8 @@ placed within the bench's tolerance. The options below locate or keep more fish,
 wrong reports too (bench, recall / precision; main: 0.261 / 0.966 and 0.215 / 0.957):
 ``refit_arms`` 0.271 / 0.967, 0.220 / 0.918; ``residual_per_step=1`` 0.286 / 0.938, 0.230 / 0.906;
 with ``min_fill=0.5`` 0.276 / 0.937, 0.215 / 0.957; that with ``refit_arms`` and
-``span_tries=(0.75,)`` 0.291 / 0.954, 0.215 / 0.938 (fork stage ~1.4x); ``fork_passes=1`` or
+``span_tries=(0.75,)`` 0.291 / 0.954, 0.215 / 0.938 (fork stage ~1.4x), and ``min_score=0.04``
+0.276 / 0.952, 0.215 / 0.957; ``max_epipolar=0.04`` 0.271 / 0.935, 0.220 / 0.918; ``fork_passes=1`` or
 ``keep_first`` with ``span_tries``: more located, fewer found in the 40-scene diagnosis (the
 second pass's arm fit is what ``t_fork_shape`` trusts). So they stay off: the score, not the
 locator, decides what the survey keeps, and it separates right from wrong poorly (Spearman 0.18
