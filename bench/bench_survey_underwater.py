@@ -38,7 +38,10 @@ for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ.setdefault(_var, "1")         # before numpy loads: "one core" means one core
 
 import argparse  # noqa: E402
+import ast  # noqa: E402
+import dataclasses  # noqa: E402
 import json  # noqa: E402
+import re  # noqa: E402
 import tempfile  # noqa: E402
 import time  # noqa: E402
 from pathlib import Path  # noqa: E402
@@ -50,6 +53,7 @@ from devices.sim.fish_scene import underwater_scene  # noqa: E402
 from devices.sim.fish_species import SPECIES  # noqa: E402
 from vision.survey import measure_pair  # noqa: E402
 from vision.survey_types import SurveySetup  # noqa: E402
+from vision.underwater import Params, measure_underwater  # noqa: E402
 
 TOL = 0.03
 TOL_DEPTH = 0.10
@@ -113,6 +117,27 @@ def assign(reports, truths, centre, strict: bool = False):
     return sorted(out)
 
 
+def parse_params(text: str) -> Params | None:
+    """``vision.underwater.Params`` with the fields ``text`` gives ('a=1,b=(0.5, 2)'); None for none."""
+    changes = {}
+    # split at the commas that start another field (a tuple's own commas stay)
+    for item in filter(None, re.split(r",(?=\s*\w+\s*=)", text)):
+        key, value = item.split("=")
+        changes[key.strip()] = ast.literal_eval(value.strip())
+    return dataclasses.replace(Params(), **changes) if changes else None
+
+
+def terciles(size: list[float], found: list[bool]) -> list[dict]:
+    """Recall in each third of the fish by ``size``: [{"from", "to", "fish", "recall"}] x 3."""
+    size, found = np.asarray(size, float), np.asarray(found, bool)
+    if len(size) < 3:
+        return []
+    edges = np.quantile(size, [0, 1 / 3, 2 / 3, 1])
+    part = np.clip(np.searchsorted(edges, size, side="right") - 1, 0, 2)
+    return [{"from": round(float(edges[k]), 1), "to": round(float(edges[k + 1]), 1), "fish": int((part == k).sum()),
+             "recall": round(float(found[part == k].mean()), 3) if (part == k).any() else None} for k in range(3)]
+
+
 def spearman(a, b) -> float:
     if len(a) < 3:
         return float("nan")
@@ -125,11 +150,15 @@ def main() -> None:
     ap.add_argument("--fish", type=int, default=200)
     ap.add_argument("--seed0", type=int, default=0)
     ap.add_argument("--max-scenes", type=int, default=400)
+    ap.add_argument("--params", default="", help="vision.underwater.Params fields, e.g. 'span_tries=(0.75,)'")
     args = ap.parse_args()
+    params = parse_params(args.params)
     cv2.setNumThreads(1)
     setup = SurveySetup(up_world=(0.0, 0.0, 1.0))
     visible = found = reported = correct = correct_strict = found_strict = 0
     w_err, len_errs, scores, rep_w, true_w = [], [], [], [], []
+    pair_w = []                                     # (reported, true) weight of each correct report
+    vis_px, vis_cm, vis_found = [], [], []          # every fully visible fish: its size, whether found
     stage_ms: dict[str, list[float]] = {}
     total_ms, base_ms = [], []
     seed = args.seed0
@@ -141,7 +170,8 @@ def main() -> None:
             calib = sc.rig.calibration()
             timings: dict[str, float] = {}
             t0 = time.process_time()
-            fish = measure_pair(sc.left, sc.right, calib, setup, timings)
+            fish = measure_underwater(sc.left, sc.right, calib, setup, timings, params) if params \
+                else measure_pair(sc.left, sc.right, calib, setup, timings)
             total_ms.append(1e3 * (time.process_time() - t0))
             for k, v in timings.items():
                 stage_ms.setdefault(k, []).append(1e3 * v)
@@ -171,7 +201,13 @@ def main() -> None:
                     correct += 1
                     hit.add(ti)
                     w_err.append(abs(w / truths[ti].model_weight_g - 1))
+                    pair_w.append((w, truths[ti].weight_g))
             found += len(hit & set(vis))
+            for i in vis:
+                t = truths[i]
+                vis_px.append(float(np.mean(np.linalg.norm(t.snout_px - t.fork_px, axis=1))))
+                vis_cm.append(t.length_cm)
+                vis_found.append(i in hit)
     scores, len_errs = np.array(scores), np.array(len_errs)
     top = scores >= np.quantile(scores, 0.2) if len(scores) else np.zeros(0, bool)
     med = {k: round(float(np.median(v)), 2) for k, v in stage_ms.items()}
@@ -186,6 +222,13 @@ def main() -> None:
         "weight_mape_pct": round(100 * float(np.mean(w_err)), 2) if w_err else None,
         "weight_p90_pct": round(100 * float(np.quantile(w_err, 0.9)), 2) if w_err else None,
         "mean_weight_error_pct": round(100 * (np.mean(rep_w) / np.mean(true_w) - 1), 2) if rep_w and true_w else None,
+        # what the survey mean's error is made of: the measurement (the found fish against their
+        # own true weights), and the sampling of so few of so varied fish (a random draw of as
+        # many of the visible fish as were reported misses their mean by this sd, in %)
+        "mean_weight_error_found_pct": round(100 * (sum(a for a, _ in pair_w) / sum(b for _, b in pair_w) - 1), 2)
+        if pair_w else None,
+        "mean_weight_sampling_sd_pct": round(100 * float(np.std(true_w) / np.mean(true_w)) * float(
+            np.sqrt(max(1 - len(rep_w) / len(true_w), 0) / max(len(rep_w), 1))), 1) if rep_w and true_w else None,
         "score_vs_abs_length_error_spearman": round(spearman(scores, len_errs), 3),
         "length_error_median_pct_all": round(100 * float(np.median(len_errs)), 2) if len(len_errs) else None,
         "length_error_mean_pct_all": round(100 * float(np.mean(len_errs)), 2) if len(len_errs) else None,
@@ -194,7 +237,13 @@ def main() -> None:
         "wild_over_10pct_top80": int((len_errs[top] > 0.1).sum()) if top.any() else 0,
         "ms_per_pair_median": round(pipeline, 2), "ms_per_stage_median_wall": med,
         "baseline_ms_median": round(base, 2), "ratio": round(pipeline / base, 3),
-        "load": os.getloadavg()[0],
+        "load": os.getloadavg()[0], "params": args.params,
+        # size bias: recall per tercile of the visible fish's fork length (image px, mean of the
+        # two views; cm), and how much longer the found fish are than the visible ones
+        "recall_by_tercile_px": terciles(vis_px, vis_found),
+        "recall_by_tercile_cm": terciles(vis_cm, vis_found),
+        "found_vs_visible_length_pct": round(100 * (np.mean(np.array(vis_cm)[np.array(vis_found, bool)])
+                                                    / np.mean(vis_cm) - 1), 2) if any(vis_found) else None,
     }
     out["goals_met"] = {k: bool(out[k] is not None and (abs(out[k]) <= g if k in ("weight_mape_pct",
                         "mean_weight_error_pct", "ratio") else out[k] >= g)) for k, g in GOALS.items()}

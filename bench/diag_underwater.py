@@ -27,6 +27,7 @@ import argparse  # noqa: E402
 import ast  # noqa: E402
 import dataclasses  # noqa: E402
 import json  # noqa: E402
+import re  # noqa: E402
 import sys  # noqa: E402
 from pathlib import Path  # noqa: E402
 
@@ -93,7 +94,8 @@ def main() -> None:
     ap.add_argument("--params", default="", help="Params fields, e.g. 'outlines=False,min_score=0.12'")
     args = ap.parse_args()
     changes = {}
-    for item in filter(None, args.params.split(",")):
+    # split at the commas that start another field (a tuple's own commas stay)
+    for item in filter(None, re.split(r",(?=\s*\w+\s*=)", args.params)):
         key, value = item.split("=")
         changes[key.strip()] = ast.literal_eval(value.strip())
     params = dataclasses.replace(Params(), **changes)

@@ -9,6 +9,20 @@ of each elongated region that is unlike the water (``illumination.water_distance
 threshold set from the frame's own statistics). Each end is a fork hypothesis with the body's axis
 as its angle and 0.3 of the region's length as its fin span; ``vision.fork`` keeps the ends that
 show a fork (a V notch), which also tells the tail from the snout.
+
+Where proposals miss (measured 2026-12-02, bench/diag_underwater.py's "proposed" stage, seeds 0-39:
+21 of 75 fully visible fish, 42 views, 5 of them with a proposal in that view but not the other;
+every proposer of ``vision.underwater`` counted): in 19 views the nearest proposal is on the
+fish's axis but 0.1-0.3 of its length ahead of the fork -- the half-transparent fin and a thin
+peduncle are not in the region (the 3x3 opening at the 320 px working width cuts a peduncle under
+~12 full-resolution px deep), so the region ends at the peduncle or short of it and the shifted
+ends (``Params.end_offsets``, back to 0.17 of the region) do not reach the notch; in 15 no
+proposal is within 0.3 of the length (the fish merged with a fish it touches or overlaps into one
+region whose ends are elsewhere, or cut up by a reef behind it); in 3 the proposals are beside the
+axis (a region's axis tilted by an adjoining fish or the fish's shadow). Shifting the ends back
+further (-0.3 of the region, outlines' -0.25) proposes 4-5 more fish in 40 scenes (54 -> 58,
+57 -> 62 of 75 / 97; both runs with ``refit_arms``) but finds no more (19 -> 21, 23 -> 22: the
+post-filters drop them).
 """
 from __future__ import annotations
 

@@ -117,3 +117,41 @@ def test_each_reported_end_is_where_the_other_image_best_matches_it(results):
     for f in reported:
         assert max(f.quality["fork_epi_px"], f.quality["snout_epi_px"]) <= 0.03 * f.quality["length_px"] + 1e-9
         assert 0.0 <= f.quality["body_fill"] <= 1.0
+
+
+def test_a_second_pass_that_keeps_the_first_fork_keeps_every_fork_the_plain_one_finds():
+    """``Params.keep_first``: where the second pass (from the located fork) shows a fork, it is the
+    plain two passes' fork, the same point; where it shows none, the first pass's fork is kept
+    rather than dropped. Drawn fish before blobs of clutter, hypotheses scattered near and away
+    from their forks."""
+    import cv2
+
+    from tests.vision.fish_drawing import draw_fish_2d
+    from vision.fins import Fins
+    from vision.fork import pyramid
+    from vision.underwater import Params, _locate
+    rng = np.random.default_rng(0)
+    img = water(600, 800, rng)
+    for _ in range(60):
+        cv2.circle(img, (int(rng.uniform(0, 800)), int(rng.uniform(0, 600))), int(rng.uniform(5, 25)),
+                   float(rng.uniform(60, 200)), -1)
+    truth = [((250.0, 200.0), 0.1, 260.0, 40.0), ((600.0, 420.0), np.pi - 0.2, 200.0, 220.0)]
+    for xy, angle, length, value in truth:
+        draw_fish_2d(img, xy, angle, length, value)
+    pyr = pyramid(np.clip(img, 0, 255).astype(np.uint8))
+    n = 40
+    k = rng.integers(0, 2, n)
+    xy = np.array([truth[i][0] for i in k]) + rng.normal(0, 0.08, (n, 2)) * np.array([truth[i][2] for i in k])[:, None]
+    angle = np.array([truth[i][1] for i in k]) + rng.normal(0, 0.3, n)
+    hyps = Fins(xy, angle, 0.3 * np.array([truth[i][2] for i in k]), np.ones(n), np.ones(n))
+    plain = _locate(pyr, hyps, Params())
+    kept = _locate(pyr, hyps, Params(keep_first=True))
+    once = _locate(pyr, hyps, Params(fork_passes=1))
+    assert len(kept.ok) == once.ok.sum() and kept.ok.all()
+    assert plain.ok.sum() < len(kept.ok)                    # the second pass drops some: the case tested
+    # the plain two passes' forks are among the kept, at the same points
+    hit = np.flatnonzero(plain.ok)
+    assert np.allclose(kept.fins.xy[hit], plain.fins.xy[hit])
+    assert np.allclose(kept.arm_rms[hit], plain.arm_rms[hit])
+    lost = np.flatnonzero(~plain.ok)
+    assert np.allclose(kept.fins.xy[lost], once.fins.xy[once.ok][lost])
