@@ -165,13 +165,21 @@ async def test_farm_time_is_exact_on_a_manual_clock():
 @pytest.mark.parametrize("link", LINKS)
 @asynctest
 async def test_refused_commands_raise_device_fault_with_the_reason(link):
-    async with rig(link, ScaledClock.starting(SPEED), start_m=3.0) as (drive, _, _port):
+    # farm time stands still unless the test moves it: homing is under way when the MOVE comes, and
+    # the last move has not arrived when it is looked at, however long the machine stalls
+    clock = ManualClock()
+    async with rig(link, clock, start_m=3.0) as (drive, _, _port):
         with pytest.raises(DeviceFault, match="MOVE rejected: NOT_HOMED"):
             await drive.move_to(5.0)
         await drive.home()
         with pytest.raises(DeviceFault, match="MOVE rejected: BUSY"):
             await drive.move_to(5.0)
-        await drive.wait_until(lambda s: s.state == "idle", FOREVER)
+        for _ in range(120):                              # 3 m back at the homing speed, a farm s a step
+            if drive.status().state == "idle":
+                break
+            clock.advance(1.0)
+            await drive.wait_until(lambda s: s.t >= clock.now(), FOREVER, stop_on_fault=False)
+        assert drive.status().state == "idle" and drive.status().homed
         with pytest.raises(DeviceFault, match="MOVE rejected: OUT_OF_RANGE"):
             await drive.move_to(40.0)
         with pytest.raises(ValueError):
