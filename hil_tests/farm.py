@@ -27,7 +27,7 @@ ROOT = Path(__file__).resolve().parents[1]
 CLEANER_KINDS = ("thrusters", "tower_camera")
 CLEANER_SIM = ("pond", "thrusters", "tower_camera")
 SURVEY_KINDS = ("stereo_camera",)
-FARM_START = 1_780_016_400.0          # 2026-05-29 01:00 UTC = local midnight (utc_offset_h = 1)
+FARM_START = 1_780_016_400.0          # 2026-05-29 01:00 UTC = 02:00 local (utc_offset_h = 1)
 STOP_LIMIT_S = 10.0                   # the controller ends within 5 s of SIGTERM; slack for a loaded machine
 
 

@@ -27,6 +27,7 @@ COMMANDS = {
     "report": "controller.cli.report_cmd:report",
     "history": "controller.cli.history_cmd:history",
     "worker": "controller.cli.worker_cmd:worker",
+    "clock": "controller.cli.clock_cmd:clock",
 }
 
 

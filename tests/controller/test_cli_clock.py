@@ -1,0 +1,60 @@
+"""``fishfarm clock``: the file it makes is the clock the farm's processes share, and it shows one."""
+from __future__ import annotations
+
+import json
+
+import pytest
+
+from controller.cli import main as fishfarm_main
+from devices.elastic_clock import ElasticClock
+
+
+def test_made_clock_runs_slow_until_the_awaited_speak_then_fast(tmp_path, capsys):
+    path = tmp_path / "clock"
+    assert fishfarm_main(["clock", "--out", str(path), "--slow", "360", "--fast", "8640",
+                          "--farm-start", "2026-05-29T16:00:00Z", "--await", "sim", "--await", "controller"]) == 0
+    sim, ctl = ElasticClock(path), ElasticClock(path)
+    try:
+        assert abs(sim.now() - 1_780_070_400.0) < 360 * 60        # started at the farm time given
+        assert (sim.slow, sim.fast, sim.speed) == (360.0, 8640.0, 360.0)
+        sim.claim("sim")
+        sim.idle_until(sim.now() + 3600, "no fish asking")
+        assert sim.speed == 360.0                                  # the controller has not spoken
+        ctl.claim("controller")
+        ctl.idle_until(ctl.now() + 7200, "next survey")
+        assert ctl.speed == 8640.0                                 # both idle: fast
+        capsys.readouterr()
+        assert fishfarm_main(["clock", "--show", str(path)]) == 0
+        shown = json.loads(capsys.readouterr().out)
+        assert shown["speed"] == 8640.0 and shown["fast_until"] is not None
+        assert [(s["name"], s["state"], s["why"]) for s in shown["slots"]] == [
+            ("sim", "idle", "no fish asking"), ("controller", "idle", "next survey")]
+        ctl.busy(why="moving")
+        assert sim.speed == 360.0
+    finally:
+        sim.close()
+        ctl.close()
+
+
+@pytest.mark.parametrize("args, names", [
+    (["--slow", "0", "--fast", "10"], "--slow"),
+    (["--slow", "100", "--fast", "10"], "--slow"),
+    (["--slow", "10"], "--fast"),
+    (["--slow", "1", "--fast", "nan"], "--fast"),
+    (["--slow", "1", "--fast", "10", "--farm-start", "yesterday"], "--farm-start"),
+    (["--slow", "1", "--fast", "10", "--await", "a-name-longer-than-16"], "--await"),
+])
+def test_bad_clocks_are_refused_in_one_line(tmp_path, capsys, args, names):
+    assert fishfarm_main(["clock", "--out", str(tmp_path / "c"), *args]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and names in err[0]
+    assert not (tmp_path / "c").exists()
+
+
+def test_show_refuses_what_is_no_clock(tmp_path, capsys):
+    (tmp_path / "x").write_bytes(b"not a clock" * 100)
+    assert fishfarm_main(["clock", "--show", str(tmp_path / "x")]) == 2
+    assert fishfarm_main(["clock", "--show", str(tmp_path / "missing")]) == 2
+    assert fishfarm_main(["clock"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 3 and str(tmp_path / "x") in err[0] and "missing" in err[1] and "--out" in err[2]
