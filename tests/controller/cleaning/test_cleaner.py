@@ -13,7 +13,8 @@ import pytest
 
 from controller.alarms import Alarms
 from controller.cleaning import cleaner as cleaner_mod
-from controller.cleaning.cleaner import Cleaner, Course, resume
+from controller.cleaning.cleaner import Cleaner, Course
+from controller.cleaning.ledger import resume
 from controller.feeding.estop import EstopLane, Latch
 from controller.store import Store
 from devices.clock import ManualClock

@@ -1,0 +1,242 @@
+"""The mop-up: after the boustrophedon path, short passes over the reachable floor the coverage
+map still calls dirty, within a cap, and then home.
+
+Why: the lanes leave gaps where the robot crabbed off its lane, and the follower gives up
+waypoints the geofence keeps refusing (steering.py); the plan never comes back to them.
+
+- ``plan_mopup``: the map's dirty reachable cells, less those given up, in patches (8-connected,
+  gaps of one cell closed). For each patch, the space where the robot's centre may be (the
+  plan's drive space: coverage.drivable) and brushes it (the patch grown by half the brush) is
+  cut by lines along the patch's long axis, at most ``spacing`` apart across it: the passes. A
+  cell no centre in that space brushes (a sliver next to a keep-out inside the plan's margin, or
+  along a wall) is out of reach and left alone, and so are patches of fewer than MIN_CELLS cells:
+  on the demo pond most of those are the map's noise, clean on the true poses (bench_cleaning_loop).
+  The passes are taken greedily from where the robot is, the one giving the most
+  dirty cells per metre of way to it and along it next, as long as the whole stays within
+  ``max_m``: every metre over clean floor counts as overlap, so the cap is the overlap spent.
+- ``MopUp`` drives that plan with the cleaner's follower (and geofence); its account lives in
+  the map (``CoverageMap.mopup``, ``given_up``), which the ledger keeps: a restarted controller
+  plans again from the saved map with what is left of the cap. A pass the follower has gone past
+  with cells it aimed at still dirty (the fence refused it again) gives them up for good, logged
+  once. It ends when the plan is driven or the cap — metres swept (with ``SLACK`` for the
+  robot's weaving) or farm seconds — is spent, whichever first.
+"""
+from __future__ import annotations
+
+import logging
+import math
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+import shapely
+from shapely import affinity
+from shapely.geometry import LineString
+
+from controller.cleaning.coverage import SLIVER
+
+log = logging.getLogger("fishfarm.cleaner")
+
+MIN_CELLS = 3        # a smaller patch is mostly the map's noise (the tracked pose's 3 cm): not worth the way
+TILE_M = 1.5        # a patch is cut in squares this size, each mopped along its own long axis
+SLACK = 1.2          # metres swept may exceed the planned length by this factor (weaving, crabbing)
+
+
+@dataclass(frozen=True)
+class Pass:
+    a: np.ndarray              # one end (the robot's centre), pond metres
+    b: np.ndarray              # the other
+    cells: np.ndarray          # flat indices of the map's dirty cells it brushes
+
+
+@dataclass(frozen=True)
+class MopupPlan:
+    path: np.ndarray           # (N, 2) from the robot's position
+    passes: tuple[Pass, ...]   # in the order driven (each a -> b)
+    ends: tuple[int, ...]      # per pass, the path index of its end
+    length_m: float
+    aimed: int                 # dirty cells the passes brush
+    out_of_reach: int          # dirty cells no pass can brush
+
+
+def dirty(cmap) -> np.ndarray:
+    """Reachable cells not cleaned and not given up."""
+    return cmap.reachable & ~cmap.cleaned() & ~cmap.given_up
+
+
+def _centres(cmap, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
+    return np.c_[cmap.origin[0] + (cols + 0.5) * cmap.cell_m, cmap.origin[1] + (rows + 0.5) * cmap.cell_m]
+
+
+def _patches(mask: np.ndarray) -> list[np.ndarray]:
+    """Flat indices of the dirty cells of each patch (cells a cell apart belong together)."""
+    closed = cv2.morphologyEx(mask.astype(np.uint8), cv2.MORPH_CLOSE, np.ones((3, 3), np.uint8))
+    n, labels = cv2.connectedComponents(closed | mask.astype(np.uint8), connectivity=8)
+    flat = np.flatnonzero(mask)
+    owner = labels.reshape(-1)[flat]
+    order = np.argsort(owner, kind="stable")
+    cuts = np.flatnonzero(np.diff(owner[order])) + 1
+    return [g for g in np.split(flat[order], cuts) if len(g)]
+
+
+def _tiles(cmap, cells: np.ndarray) -> list[np.ndarray]:
+    """A patch cut in TILE_M squares: a patch bent round a keep-out has no one long axis, its
+    pieces have."""
+    rows, cols = np.unravel_index(cells, cmap.first_m.shape)
+    n = max(1, round(TILE_M / cmap.cell_m))
+    tile = (rows // n) * (cmap.first_m.shape[1] // n + 1) + cols // n
+    order = np.argsort(tile, kind="stable")
+    return np.split(cells[order], np.flatnonzero(np.diff(tile[order])) + 1)
+
+
+def _patch_passes(cmap, cells: np.ndarray, drive, brush: float, spacing: float) -> list[Pass]:
+    """The passes over one patch (module docstring)."""
+    rows, cols = np.unravel_index(cells, cmap.first_m.shape)
+    xy = _centres(cmap, rows, cols)
+    if len(xy) > 1:                      # the long axis: the principal direction of its cells
+        w, v = np.linalg.eigh(np.cov((xy - xy.mean(axis=0)).T))
+        angle = math.atan2(v[1, -1], v[0, -1])
+    else:
+        angle = 0.0
+    c, s = math.cos(angle), math.sin(angle)
+    along, across = xy @ [c, s], xy @ [-s, c]
+    half = brush / 2
+    room = drive.intersection(shapely.union_all(shapely.buffer(shapely.points(xy), half - 1e-3)))
+    if room.is_empty:
+        return []
+    rot = affinity.rotate(room, -angle, origin=(0, 0), use_radians=True)
+    lo, hi = rot.bounds[1] + 1e-3, rot.bounds[3] - 1e-3
+    n = max(1, math.ceil((across.max() - across.min() + cmap.cell_m) / spacing))
+    wanted = np.linspace(across.min(), across.max(), n + 2)[1:-1] if n > 1 else [across.mean()]
+    out = []
+    # besides the lanes across it, lines through the room half a lane apart: where the room bends
+    # (round a keep-out) the lane at the patch's own offset may miss it; the greedy choice drops
+    # the ones that add nothing
+    spare = np.arange(lo, hi, spacing / 2) if lo <= hi else np.array([(lo + hi) / 2])
+    for off in np.unique(np.r_[np.clip(wanted, lo, hi), spare] if lo <= hi else spare):
+        line = LineString([(along.min() - 2 * brush, off), (along.max() + 2 * brush, off)])
+        cut = rot.intersection(line)
+        for piece in getattr(cut, "geoms", [cut]):
+            if piece.geom_type != "LineString" or piece.length < SLIVER:
+                continue
+            (x0, _), (x1, _) = piece.coords[0], piece.coords[-1]
+            x0, x1 = min(x0, x1), max(x0, x1)
+            hit = (np.abs(across - off) <= half - cmap.cell_m / 2) & (along >= x0) & (along <= x1)
+            if hit.any():
+                ends = [np.array([c * x - s * off, s * x + c * off]) for x in (x0, x1)]
+                out.append(Pass(ends[0], ends[1], cells[hit]))
+    return out
+
+
+def plan_mopup(cmap, drive, router, start, *, brush_m: float, spacing_m: float, max_m: float,
+               step_m: float = 0.25) -> MopupPlan:
+    """The mop-up from ``start`` (module docstring); ``router.route(a, b)`` the way between passes."""
+    from controller.cleaning.coverage import _densify
+    start = np.asarray(start, float)
+    mask = dirty(cmap)
+    rows, cols = np.nonzero(mask)
+    xy = _centres(cmap, rows, cols)
+    brushed = drive.buffer(brush_m / 2 - cmap.cell_m / 2)        # a centre in drive brushes these
+    inside = np.zeros_like(mask)
+    inside[rows, cols] = shapely.contains_xy(brushed, xy[:, 0], xy[:, 1])
+    patches = [c for c in _patches(inside) if len(c) >= MIN_CELLS]
+    passes = [p for cells in patches for piece in _tiles(cmap, cells)
+              for p in _patch_passes(cmap, piece, drive, brush_m, spacing_m)]
+    reach = np.zeros(mask.size, bool)
+    for p in passes:
+        reach[p.cells] = True
+    chosen, ways, done = [], [], np.zeros(mask.size, bool)
+    spent, here = 0.0, start
+    while passes:
+        gains = np.array([np.count_nonzero(~done[p.cells]) for p in passes])
+        ends = np.array([[p.a, p.b] for p in passes])                     # (P, 2 ways in, 2)
+        total = np.hypot(*(ends - here).transpose(2, 0, 1)) + np.hypot(*(ends[:, 1] - ends[:, 0]).T)[:, None]
+        fits = (spent + total <= max_m) & (gains[:, None] > 0)
+        if not fits.any():
+            break
+        score = np.where(fits, gains[:, None] / np.maximum(total, 1e-3), -1.0)
+        i, flip = np.unravel_index(int(np.argmax(score)), score.shape)
+        p = passes.pop(int(i))
+        a, b = (p.b, p.a) if flip else (p.a, p.b)
+        way = [np.asarray(q, float) for q in router.route(here, a)] + [b]
+        leg = sum(math.dist(u, v) for u, v in zip(way, way[1:], strict=False))
+        if spent + leg > max_m:          # the way round a keep-out is longer than the straight line
+            continue
+        spent, here = spent + leg, b
+        chosen.append(Pass(a, b, p.cells))
+        ways.append(way)
+        done[p.cells] = True
+    dense, end_idx = [start], []
+    for way in ways:                     # resampled every step_m; each pass's end keeps its index
+        for q in way[1:]:
+            if math.dist(q, dense[-1]) > 1e-9:
+                dense.extend(_densify([dense[-1], q], step_m)[1:])
+        end_idx.append(len(dense) - 1)
+    return MopupPlan(np.array(dense), tuple(chosen), tuple(end_idx), spent, int(done.sum()),
+                     int(np.count_nonzero(mask.reshape(-1) & ~reach)))
+
+
+class MopUp:
+    """Drives a mop-up plan (module docstring). ``command`` gives thrust, or None once it is over."""
+
+    def __init__(self, cmap, plan: MopupPlan, follower, *, max_m: float, max_s: float):
+        self.map, self.plan, self.follower = cmap, plan, follower
+        self.max_m, self.max_s = max_m, max_s
+        self._judged = 0                 # passes judged so far
+        if cmap.mopup is None:
+            cmap.mopup = {"from_m": cmap.odometer_m, "s": 0.0, "done": False}
+        if cmap.mopup["done"]:
+            return
+        if not plan.passes:
+            cmap.mopup["done"] = True
+        log.info("cleaner: mop-up of %d passes, %.1f m, over %d dirty cells (%d out of reach)",
+                     len(plan.passes), plan.length_m, plan.aimed, plan.out_of_reach)
+
+    @property
+    def done(self) -> bool:
+        return bool(self.map.mopup["done"])
+
+    def spent(self) -> tuple[float, float]:
+        """Metres swept and farm seconds run since the mop-up began (over restarts)."""
+        return self.map.odometer_m - self.map.mopup["from_m"], self.map.mopup["s"]
+
+    def command(self, x: float, y: float, heading: float, dt_s: float | None = None,
+                refused: int = 0) -> tuple[float, float] | None:
+        if self.done:
+            return None
+        self.map.mopup["s"] += dt_s or 0.0
+        metres, seconds = self.spent()
+        capped = metres > self.max_m * SLACK or seconds > self.max_s
+        command = None if capped else self.follower.command(x, y, heading, dt_s=dt_s, refused=refused)
+        self._judge(len(self.plan.passes) if self.follower.done else self._passed())
+        if capped or self.follower.done:
+            self.map.mopup["done"] = True
+            log.info("cleaner: mop-up over%s after %.1f m, %.0f s", " (its cap)" if capped else "", metres, seconds)
+            return None
+        return command
+
+    def _passed(self) -> int:
+        """Passes whose end the follower has gone beyond (the next one's begun)."""
+        return int(np.searchsorted(np.asarray(self.plan.ends), self.follower.progress, side="left"))
+
+    def _judge(self, upto: int) -> None:
+        cleaned = self.map.cleaned().reshape(-1)
+        for k in range(self._judged, upto):
+            left = self.plan.passes[k].cells[~cleaned[self.plan.passes[k].cells]]
+            if len(left):
+                self.map.given_up.flat[left] = True
+                xy = self.plan.passes[k].a
+                log.warning("cleaner: mop-up gives up %d cells near (%.1f, %.1f): not brushed on its pass",
+                            len(left), xy[0], xy[1])
+        self._judged = max(self._judged, upto)
+
+
+def begin(cmap, drive, router, start, follow, *, brush_m: float, spacing_m: float, max_m: float,
+          max_s: float) -> MopUp:
+    """The mop-up from ``start`` on this map: planned with what is left of the cap (none to plan
+    once it is over); ``follow(path, 0)`` the cleaner's path follower."""
+    over = cmap.mopup is not None and cmap.mopup["done"]
+    metres = 0.0 if cmap.mopup is None else cmap.odometer_m - cmap.mopup["from_m"]
+    left = 0.0 if over else max(0.0, max_m - metres)
+    plan = plan_mopup(cmap, drive, router, start, brush_m=brush_m, spacing_m=spacing_m, max_m=left)
+    return MopUp(cmap, plan, follow(plan.path, 0), max_m=max_m, max_s=max_s)
