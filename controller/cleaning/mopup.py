@@ -79,10 +79,23 @@ def _patches(mask: np.ndarray) -> list[np.ndarray]:
     return [g for g in np.split(flat[order], cuts) if len(g)]
 
 
+def _axis(xy: np.ndarray) -> float:
+    """The long axis of cell centres: their principal direction (0 for one cell)."""
+    if len(xy) < 2:
+        return 0.0
+    _, v = np.linalg.eigh(np.cov((xy - xy.mean(axis=0)).T))
+    return math.atan2(v[1, -1], v[0, -1])
+
+
 def _tiles(cmap, cells: np.ndarray) -> list[np.ndarray]:
     """A patch cut in TILE_M squares: a patch bent round a keep-out has no one long axis, its
-    pieces have."""
+    pieces have. One a lane covers across its long axis stays whole (cut, it would take two
+    passes' run-ins)."""
     rows, cols = np.unravel_index(cells, cmap.first_m.shape)
+    angle = _axis(_centres(cmap, rows, cols))
+    across = _centres(cmap, rows, cols) @ [-math.sin(angle), math.cos(angle)]
+    if np.ptp(across) <= cmap.brush_m / 2:
+        return [cells]
     n = max(1, round(TILE_M / cmap.cell_m))
     tile = (rows // n) * (cmap.first_m.shape[1] // n + 1) + cols // n
     order = np.argsort(tile, kind="stable")
@@ -93,11 +106,7 @@ def _patch_passes(cmap, cells: np.ndarray, drive, brush: float, spacing: float) 
     """The passes over one patch (module docstring)."""
     rows, cols = np.unravel_index(cells, cmap.first_m.shape)
     xy = _centres(cmap, rows, cols)
-    if len(xy) > 1:                      # the long axis: the principal direction of its cells
-        w, v = np.linalg.eigh(np.cov((xy - xy.mean(axis=0)).T))
-        angle = math.atan2(v[1, -1], v[0, -1])
-    else:
-        angle = 0.0
+    angle = _axis(xy)
     c, s = math.cos(angle), math.sin(angle)
     along, across = xy @ [c, s], xy @ [-s, c]
     half = brush / 2
