@@ -17,8 +17,8 @@ overlap measure exact and cheap:
 
 ``to_bytes``/``from_bytes`` carry the whole map through the store, so a restarted controller
 resumes with what was cleaned and with the same overlap account — and with the mop-up's
-(mopup.py): ``mopup`` (None before it begins; then the odometer it began at, the farm seconds it
-has run, whether it is over) and ``given_up``, the cells it gave up for good.
+(mopup.py): ``mopup`` (None before it begins; then the metres of its plans gone by, the farm
+seconds it has run, whether it is over) and ``given_up``, the cells it gave up for good.
 """
 from __future__ import annotations
 
@@ -56,7 +56,7 @@ class CoverageMap:
         self._pending_m = 0.0                # length swept since the last judgement
         self._pending_cells = [0, 0]         # its cells: cleaned before, all
         self.given_up = np.zeros((rows, cols), bool)   # cells the mop-up will not try again
-        self.mopup: dict | None = None       # {"from_m", "s", "done"} once the mop-up began
+        self.mopup: dict | None = None       # {"m", "s", "done"} once the mop-up began
 
     def _cells(self, corners: np.ndarray):
         """Cells whose centre lies in the convex hull of the corners: (mask, its window) or None.
@@ -162,7 +162,7 @@ class CoverageMap:
             fresh.odometer_m, fresh.overlap_m = float(head["odometer_m"]), float(head["overlap_m"])
             if head.get("mopup") is not None:          # older maps have none: the mop-up not begun
                 m = head["mopup"]
-                fresh.mopup = {"from_m": float(m["from_m"]), "s": float(m["s"]), "done": bool(m["done"])}
+                fresh.mopup = {"m": float(m["m"]), "s": float(m["s"]), "done": bool(m["done"])}
                 fresh.given_up.flat[np.asarray(head.get("given_up", []), int)] = True
         except (struct.error, zlib.error, KeyError, TypeError, IndexError, json.JSONDecodeError) as exc:
             raise ValueError(f"stored coverage map unreadable: {exc}") from None

@@ -18,8 +18,10 @@ waypoints the geofence keeps refusing (steering.py); the plan never comes back t
   the map (``CoverageMap.mopup``, ``given_up``), which the ledger keeps: a restarted controller
   plans again from the saved map with what is left of the cap. A pass the follower has gone past
   with cells it aimed at still dirty (the fence refused it again) gives them up for good, logged
-  once. It ends when the plan is driven or the cap — metres swept (with ``SLACK`` for the
-  robot's weaving) or farm seconds — is spent, whichever first.
+  once. The cap is ``max_m`` of the plans' path gone by (the follower's progress: the metres a
+  noisy pose sweeps would overstate it) and ``max_s`` farm seconds, over restarts: a plan is made
+  within what is left of the metres, and the mop-up ends when it is driven or the seconds are
+  spent (a patch the robot cannot get to does not keep it out all night).
 """
 from __future__ import annotations
 
@@ -39,7 +41,6 @@ log = logging.getLogger("fishfarm.cleaner")
 
 MIN_CELLS = 3        # a smaller patch is mostly the map's noise (the tracked pose's 3 cm): not worth the way
 TILE_M = 1.5        # a patch is cut in squares this size, each mopped along its own long axis
-SLACK = 1.2          # metres swept may exceed the planned length by this factor (weaving, crabbing)
 
 
 @dataclass(frozen=True)
@@ -193,7 +194,8 @@ class MopUp:
         self.max_m, self.max_s = max_m, max_s
         self._judged = 0                 # passes judged so far
         if cmap.mopup is None:
-            cmap.mopup = {"from_m": cmap.odometer_m, "s": 0.0, "done": False}
+            cmap.mopup = {"m": 0.0, "s": 0.0, "done": False}
+        self._before_m = cmap.mopup["m"]     # gone by on earlier plans (before a restart)
         if cmap.mopup["done"]:
             return
         if not plan.passes:
@@ -206,17 +208,18 @@ class MopUp:
         return bool(self.map.mopup["done"])
 
     def spent(self) -> tuple[float, float]:
-        """Metres swept and farm seconds run since the mop-up began (over restarts)."""
-        return self.map.odometer_m - self.map.mopup["from_m"], self.map.mopup["s"]
+        """Metres of planned path gone by and farm seconds run since the mop-up began (over restarts)."""
+        return self.map.mopup["m"], self.map.mopup["s"]
 
     def command(self, x: float, y: float, heading: float, dt_s: float | None = None,
                 refused: int = 0) -> tuple[float, float] | None:
         if self.done:
             return None
         self.map.mopup["s"] += dt_s or 0.0
-        metres, seconds = self.spent()
-        capped = metres > self.max_m * SLACK or seconds > self.max_s
+        capped = self.map.mopup["s"] > self.max_s or self.map.mopup["m"] > self.max_m
         command = None if capped else self.follower.command(x, y, heading, dt_s=dt_s, refused=refused)
+        self.map.mopup["m"] = self._before_m + float(self.follower.s[self.follower.progress])
+        metres, seconds = self.spent()
         self._judge(len(self.plan.passes) if self.follower.done else self._passed())
         if capped or self.follower.done:
             self.map.mopup["done"] = True
@@ -245,7 +248,7 @@ def begin(cmap, drive, router, start, follow, *, brush_m: float, spacing_m: floa
     """The mop-up from ``start`` on this map: planned with what is left of the cap (none to plan
     once it is over); ``follow(path, 0)`` the cleaner's path follower."""
     over = cmap.mopup is not None and cmap.mopup["done"]
-    metres = 0.0 if cmap.mopup is None else cmap.odometer_m - cmap.mopup["from_m"]
+    metres = 0.0 if cmap.mopup is None else cmap.mopup["m"]
     left = 0.0 if over else max(0.0, max_m - metres)
     plan = plan_mopup(cmap, drive, router, start, brush_m=brush_m, spacing_m=spacing_m, max_m=left)
     return MopUp(cmap, plan, follow(plan.path, 0), max_m=max_m, max_s=max_s)

@@ -142,7 +142,8 @@ def test_a_restart_mid_mopup_plans_again_from_the_saved_map_with_what_is_left_of
     half = job.plan.ends[1]
     ride(m, job, job.plan.path[:half + 1])
     assert not job.done and m.mopup["s"] > 0
-    metres = m.odometer_m - m.mopup["from_m"]
+    metres = m.mopup["m"]
+    assert metres == pytest.approx(float(np.sum(np.hypot(*np.diff(job.plan.path[:half + 1], axis=0).T))), abs=0.3)
     saved = m.to_bytes()                                   # what the ledger holds at the kill
     back = CoverageMap.from_bytes(GEOM, saved, cell_m=CELL, brush_m=BRUSH, body_radius_m=BODY)
     assert back.mopup == m.mopup
@@ -166,11 +167,14 @@ def test_the_cap_ends_the_mopup_and_stays_ended_across_a_restart(cap):
     dirty_patches(m, rng, 5)
     job = begin(m, (0.6, 0.6), max_m=100.0, max_s=30.0)
     assert job.command(0.6, 0.6, 0.0, 0.1) is not None
-    if cap == "metres":
-        m.odometer_m += 100.0 * mopup.SLACK + 0.1          # weaving: the planned way and more
+    if cap == "metres":                 # the last process drove its plans to the cap, and was killed
+        m.mopup["m"] = 100.0
+        back = CoverageMap.from_bytes(GEOM, m.to_bytes(), cell_m=CELL, brush_m=BRUSH, body_radius_m=BODY)
+        again = begin(back, (0.6, 0.6), max_m=100.0, max_s=30.0)
+        assert again.plan.passes == () and again.done and mopup.dirty(back).any()
     else:
         m.mopup["s"] += 30.0
-    assert job.command(0.6, 0.6, 0.0, 0.1) is None and job.done
+        assert job.command(0.6, 0.6, 0.0, 0.1) is None and job.done
     back = CoverageMap.from_bytes(GEOM, m.to_bytes(), cell_m=CELL, brush_m=BRUSH, body_radius_m=BODY)
     assert begin(back, (0.6, 0.6), max_m=100.0, max_s=30.0).command(0.6, 0.6, 0.0, 0.1) is None
 
