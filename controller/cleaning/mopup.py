@@ -13,7 +13,8 @@ waypoints the geofence keeps refusing (steering.py); the plan never comes back t
   on the demo pond most of those are the map's noise, clean on the true poses (bench_cleaning_loop).
   The passes are taken greedily from where the robot is, the one giving the most
   dirty cells per metre of way to it and along it next, as long as the whole stays within
-  ``max_m``: every metre over clean floor counts as overlap, so the cap is the overlap spent.
+  ``max_m``, each bringing at least MIN_YIELD cells a metre: every metre over clean floor counts
+  as overlap, so the cap is the overlap spent.
 - ``MopUp`` drives that plan with the cleaner's follower (and geofence); its account lives in
   the map (``CoverageMap.mopup``, ``given_up``), which the ledger keeps: a restarted controller
   plans again from the saved map with what is left of the cap. A pass the follower has gone past
@@ -40,6 +41,9 @@ from controller.cleaning.coverage import SLIVER
 log = logging.getLogger("fishfarm.cleaner")
 
 MIN_CELLS = 3        # a smaller patch is mostly the map's noise (the tracked pose's 3 cm): not worth the way
+MIN_YIELD = 3.0      # dirty cells per metre (way there and pass): below it, a pass buys less floor than
+                     # the overlap it costs (one metre over clean floor is 1/400 of the demo's path)
+REACH_TOL = 0.02     # m: a cell counts as brushed by a pass when its centre is this far inside the brush
 TILE_M = 1.5        # a patch is cut in squares this size, each mopped along its own long axis
 
 
@@ -131,7 +135,7 @@ def _patch_passes(cmap, cells: np.ndarray, drive, brush: float, spacing: float) 
                 continue
             (x0, _), (x1, _) = piece.coords[0], piece.coords[-1]
             x0, x1 = min(x0, x1), max(x0, x1)
-            hit = (np.abs(across - off) <= half - cmap.cell_m / 2) & (along >= x0) & (along <= x1)
+            hit = (np.abs(across - off) <= half - REACH_TOL) & (along >= x0) & (along <= x1)
             if hit.any():
                 ends = [np.array([c * x - s * off, s * x + c * off]) for x in (x0, x1)]
                 out.append(Pass(ends[0], ends[1], cells[hit]))
@@ -139,14 +143,14 @@ def _patch_passes(cmap, cells: np.ndarray, drive, brush: float, spacing: float) 
 
 
 def plan_mopup(cmap, drive, router, start, *, brush_m: float, spacing_m: float, max_m: float,
-               step_m: float = 0.25) -> MopupPlan:
+               step_m: float = 0.25, min_yield: float = MIN_YIELD) -> MopupPlan:
     """The mop-up from ``start`` (module docstring); ``router.route(a, b)`` the way between passes."""
     from controller.cleaning.coverage import _densify
     start = np.asarray(start, float)
     mask = dirty(cmap)
     rows, cols = np.nonzero(mask)
     xy = _centres(cmap, rows, cols)
-    brushed = drive.buffer(brush_m / 2 - cmap.cell_m / 2)        # a centre in drive brushes these
+    brushed = drive.buffer(brush_m / 2 - REACH_TOL)        # a centre in drive brushes these
     inside = np.zeros_like(mask)
     inside[rows, cols] = shapely.contains_xy(brushed, xy[:, 0], xy[:, 1])
     patches = [c for c in _patches(inside) if len(c) >= MIN_CELLS]
@@ -161,7 +165,7 @@ def plan_mopup(cmap, drive, router, start, *, brush_m: float, spacing_m: float, 
         gains = np.array([np.count_nonzero(~done[p.cells]) for p in passes])
         ends = np.array([[p.a, p.b] for p in passes])                     # (P, 2 ways in, 2)
         total = np.hypot(*(ends - here).transpose(2, 0, 1)) + np.hypot(*(ends[:, 1] - ends[:, 0]).T)[:, None]
-        fits = (spent + total <= max_m) & (gains[:, None] > 0)
+        fits = (spent + total <= max_m) & (gains[:, None] > 0) & (gains[:, None] >= min_yield * total)
         if not fits.any():
             break
         score = np.where(fits, gains[:, None] / np.maximum(total, 1e-3), -1.0)
@@ -244,11 +248,12 @@ class MopUp:
 
 
 def begin(cmap, drive, router, start, follow, *, brush_m: float, spacing_m: float, max_m: float,
-          max_s: float) -> MopUp:
+          max_s: float, min_yield: float = MIN_YIELD) -> MopUp:
     """The mop-up from ``start`` on this map: planned with what is left of the cap (none to plan
     once it is over); ``follow(path, 0)`` the cleaner's path follower."""
     over = cmap.mopup is not None and cmap.mopup["done"]
     metres = 0.0 if cmap.mopup is None else cmap.mopup["m"]
     left = 0.0 if over else max(0.0, max_m - metres)
-    plan = plan_mopup(cmap, drive, router, start, brush_m=brush_m, spacing_m=spacing_m, max_m=left)
+    plan = plan_mopup(cmap, drive, router, start, brush_m=brush_m, spacing_m=spacing_m, max_m=left,
+                      min_yield=min_yield)
     return MopUp(cmap, plan, follow(plan.path, 0), max_m=max_m, max_s=max_s)

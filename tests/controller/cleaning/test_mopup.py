@@ -76,7 +76,7 @@ def test_the_plan_driven_brushes_every_generated_patch_and_stays_in_the_plans_sp
     m = clean_map()
     patches = dirty_patches(m, rng, int(rng.integers(1, 7)))
     start = np.array([0.6, 0.6])
-    plan = mopup.plan_mopup(m, DRIVE, ROUTER, start, brush_m=BRUSH, spacing_m=SPACING, max_m=1000.0)
+    plan = mopup.plan_mopup(m, DRIVE, ROUTER, start, brush_m=BRUSH, spacing_m=SPACING, max_m=1000.0, min_yield=0)
     assert np.allclose(plan.path[0], start)
     assert plan.aimed == sum(len(p) for p in patches) and plan.out_of_reach == 0
     for p in plan.passes:                        # the passes keep the plan's margin round keep-outs
@@ -107,11 +107,23 @@ def test_the_plan_keeps_within_its_cap_and_takes_the_nearest_richest_dirt_first(
     near = np.ravel_multi_index((np.full(15, 10), np.arange(10, 25)), m.first_m.shape)    # 1.5 m gap near
     far = np.ravel_multi_index((np.full(15, 70), np.arange(95, 110)), m.first_m.shape)     # the same far off
     m.first_m.flat[np.r_[near, far]] = np.inf
-    whole = mopup.plan_mopup(m, DRIVE, ROUTER, (0.6, 0.6), brush_m=BRUSH, spacing_m=SPACING, max_m=1000.0)
+    whole = mopup.plan_mopup(m, DRIVE, ROUTER, (0.6, 0.6), brush_m=BRUSH, spacing_m=SPACING, max_m=1000.0,
+                             min_yield=0)
     assert len(whole.passes) == 2 and np.intersect1d(whole.passes[0].cells, near).size == 15
     for cap in (0.0, 1.0, whole.length_m / 2, whole.length_m - 0.1):
-        capped = mopup.plan_mopup(m, DRIVE, ROUTER, (0.6, 0.6), brush_m=BRUSH, spacing_m=SPACING, max_m=cap)
+        capped = mopup.plan_mopup(m, DRIVE, ROUTER, (0.6, 0.6), brush_m=BRUSH, spacing_m=SPACING, max_m=cap,
+                                  min_yield=0)
         assert capped.length_m <= cap + 1e-9 and len(capped.passes) < 2
+
+
+def test_a_patch_not_worth_its_way_is_left():
+    m = clean_map()
+    rich = np.ravel_multi_index((np.full(15, 12), np.arange(10, 25)), m.first_m.shape)    # 1.5 m gap near
+    poor = np.ravel_multi_index((np.full(4, 70), np.arange(100, 104)), m.first_m.shape)   # 4 cells 10 m off
+    m.first_m.flat[np.r_[rich, poor]] = np.inf
+    plan = mopup.plan_mopup(m, DRIVE, ROUTER, (0.6, 0.6), brush_m=BRUSH, spacing_m=SPACING, max_m=1000.0)
+    assert len(plan.passes) == 1 and set(plan.passes[0].cells) == set(rich)
+    assert plan.length_m * mopup.MIN_YIELD <= len(rich)
 
 
 def follow(path, start):
@@ -119,7 +131,9 @@ def follow(path, start):
 
 
 def begin(m, xy, max_m=50.0, max_s=900.0):
-    return mopup.begin(m, DRIVE, ROUTER, xy, follow, brush_m=BRUSH, spacing_m=SPACING, max_m=max_m, max_s=max_s)
+    """Every patch worth its way (the generated ones lie far apart)."""
+    return mopup.begin(m, DRIVE, ROUTER, xy, follow, brush_m=BRUSH, spacing_m=SPACING, max_m=max_m, max_s=max_s,
+                       min_yield=0)
 
 
 def ride(m, job, path, sweep=True, dt=0.1):
@@ -182,7 +196,7 @@ def test_the_cap_ends_the_mopup_and_stays_ended_across_a_restart(cap):
 def test_a_pass_gone_by_with_its_dirt_left_gives_it_up_for_good_logged_once(caplog):
     m = clean_map()
     gaps = [np.ravel_multi_index((np.full(12, r), np.arange(c, c + 12)), m.first_m.shape)
-            for r, c in ((10, 10), (10, 60))]
+            for r, c in ((10, 10), (16, 30))]
     for g in gaps:
         m.first_m.flat[g] = np.inf
     job = begin(m, (0.6, 0.6))
