@@ -93,8 +93,8 @@ def main() -> dict:
                                            "cleaning again")
             lanes = wait_progress(farm, lambda r: r["path_index"] >= UNTIL * len(prep.plan.path), LIMIT_WALL_S,
                                   "the coverage path done", 0.2)
-            done = lanes if SMOKE else wait_progress(farm, lambda r: r["state"] != "cleaning", LIMIT_WALL_S,
-                                                     "the mop-up done", 0.2)
+            done = lanes if SMOKE else wait_progress(farm, lambda r: r["state"] in ("returning", "docked"),
+                                                     LIMIT_WALL_S, "the mop-up done", 0.2)
             done_wall = time.monotonic()
             home = done if SMOKE else wait_progress(farm, lambda r: r["state"] == "docked", 600.0, "home", 0.2)
         finally:
