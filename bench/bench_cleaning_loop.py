@@ -36,8 +36,6 @@ from bench.bench_coverage import BODY_M, BRUSH_M, KEEPOUTS, LIMIT_S, NOISE_M, NO
 from controller.cleaning import mopup  # noqa: E402
 from controller.cleaning.coverage import (  # noqa: E402
     KEEPOUT_MARGIN,  # noqa: E402
-    Router,
-    drivable,
     plan_coverage,
 )
 from controller.cleaning.geofence import Geofence  # noqa: E402
@@ -115,9 +113,8 @@ class LiveLoop(Loop):
             self.lanes_done = {"coverage": round(self.truth.coverage(), 4), "overlap": round(self.truth.overlap(), 4),
                                "map_coverage": round(self.belief.coverage(), 4),
                                "driven_m": round(self.truth.odometer_m, 1), "farm_s": round(self.t, 1)}
-            free = self.geom.free(BODY_M)
-            drive = drivable(self.geom, free, BODY_M, KEEPOUT_MARGIN)
-            self.mopup = mopup.begin(self.belief, drive, Router(free, drive), (x, y),
+            drive, router = mopup.spaces(self.geom, BODY_M, KEEPOUT_MARGIN)
+            self.mopup = mopup.begin(self.belief, drive, router, (x, y),
                                      lambda path, i: PathFollower(path, period_s=self.args.frame_s,
                                                                   lookahead_m=self.args.lookahead,
                                                                   cruise=self.args.cruise, start_index=i),

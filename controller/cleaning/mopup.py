@@ -36,7 +36,7 @@ import shapely
 from shapely import affinity
 from shapely.geometry import LineString
 
-from controller.cleaning.coverage import SLIVER
+from controller.cleaning.coverage import SLIVER, _densify
 
 log = logging.getLogger("fishfarm.cleaner")
 
@@ -44,6 +44,8 @@ MIN_CELLS = 3        # a smaller patch is mostly the map's noise (the tracked po
 MIN_YIELD = 3.0      # dirty cells per metre (way there and pass): below it, a pass buys less floor than
                      # the overlap it costs (one metre over clean floor is 1/400 of the demo's path)
 REACH_TOL = 0.02     # m: a cell counts as brushed by a pass when its centre is this far inside the brush
+EXTRA_MARGIN_M = 0.10   # m round keep-outs beyond the plan's margin (``spaces``)
+STALL_S = 30.0       # farm s without a waypoint reached: the pass is given up
 TILE_M = 1.5        # a patch is cut in squares this size, each mopped along its own long axis
 
 
@@ -145,7 +147,6 @@ def _patch_passes(cmap, cells: np.ndarray, drive, brush: float, spacing: float) 
 def plan_mopup(cmap, drive, router, start, *, brush_m: float, spacing_m: float, max_m: float,
                step_m: float = 0.25, min_yield: float = MIN_YIELD) -> MopupPlan:
     """The mop-up from ``start`` (module docstring); ``router.route(a, b)`` the way between passes."""
-    from controller.cleaning.coverage import _densify
     start = np.asarray(start, float)
     mask = dirty(cmap)
     rows, cols = np.nonzero(mask)
@@ -197,6 +198,7 @@ class MopUp:
         self.map, self.plan, self.follower = cmap, plan, follower
         self.max_m, self.max_s = max_m, max_s
         self._judged = 0                 # passes judged so far
+        self._at, self._still_s = follower.progress, 0.0     # the waypoint, and how long it has held
         if cmap.mopup is None:
             cmap.mopup = {"m": 0.0, "s": 0.0, "done": False}
         self._before_m = cmap.mopup["m"]     # gone by on earlier plans (before a restart)
@@ -221,6 +223,7 @@ class MopUp:
             return None
         self.map.mopup["s"] += dt_s or 0.0
         capped = self.map.mopup["s"] > self.max_s or self.map.mopup["m"] > self.max_m
+        self._unstall(dt_s or 0.0)
         command = None if capped else self.follower.command(x, y, heading, dt_s=dt_s, refused=refused)
         self.map.mopup["m"] = self._before_m + float(self.follower.s[self.follower.progress])
         metres, seconds = self.spent()
@@ -230,6 +233,27 @@ class MopUp:
             log.info("cleaner: mop-up over%s after %.1f m, %.0f s", " (its cap)" if capped else "", metres, seconds)
             return None
         return command
+
+    def _unstall(self, dt: float) -> None:
+        """No waypoint for STALL_S (the follower and the fence at a standoff by a keep-out, each
+        command let through at a crawl): the rest of this pass, or of the way to the next, is
+        given up (its cells then judged as any pass gone by)."""
+        if self.follower.progress != self._at:
+            self._at, self._still_s = self.follower.progress, 0.0
+            return
+        self._still_s += dt
+        if self._still_s < STALL_S:
+            return
+        k = int(np.searchsorted(np.asarray(self.plan.ends), self.follower.progress, side="left"))
+        after = self.plan.ends[k] + 1 if k < len(self.plan.ends) else len(self.follower.path)
+        log.warning("cleaner: mop-up stalled %.0f s near (%.1f, %.1f): %s", self._still_s,
+                    *self.follower.path[self.follower.progress],
+                    "on to the next pass" if after < len(self.follower.path) else "over")
+        if after < len(self.follower.path):
+            self.follower.skip_to(after)
+        else:
+            self.follower.done = True
+        self._at, self._still_s = self.follower.progress, 0.0
 
     def _passed(self) -> int:
         """Passes whose end the follower has gone beyond (the next one's begun)."""
@@ -245,6 +269,16 @@ class MopUp:
                 log.warning("cleaner: mop-up gives up %d cells near (%.1f, %.1f): not brushed on its pass",
                             len(left), xy[0], xy[1])
         self._judged = max(self._judged, upto)
+
+
+def spaces(geom, body_radius_m: float, keepout_margin_m: float):
+    """The mop-up's drive space and router: the plan's space with EXTRA_MARGIN_M more round the
+    keep-outs (its passes and the ways between them turn sharply there, as the plan's smooth
+    edge pass round a keep-out does not)."""
+    from controller.cleaning.coverage import Router, drivable
+    free = geom.free(body_radius_m)
+    drive = drivable(geom, free, body_radius_m, keepout_margin_m + EXTRA_MARGIN_M)
+    return drive, Router(free, drive)
 
 
 def begin(cmap, drive, router, start, follow, *, brush_m: float, spacing_m: float, max_m: float,

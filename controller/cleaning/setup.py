@@ -80,7 +80,7 @@ def build(prep: Prepared, camera, thrusters, store, clock, publish, *, alarms, l
     """The coordinator, taken up where the ledger left it (ledger.resume)."""
     from controller.cleaning import mopup
     from controller.cleaning.cleaner import Cleaner, Course
-    from controller.cleaning.coverage import Router, drivable
+    from controller.cleaning.coverage import Router
     from controller.cleaning.coverage_map import CoverageMap
     from controller.cleaning.geofence import Geofence
     from controller.cleaning.ledger import resume
@@ -92,8 +92,7 @@ def build(prep: Prepared, camera, thrusters, store, clock, publish, *, alarms, l
     s, geom = prep.settings, prep.geometry
     free = geom.free(s.body_radius_m)
     router = Router(free)
-    drive = drivable(geom, free, s.body_radius_m, s.keepout_margin_m)   # the plan's: the mop-up keeps its margin
-    mop_router = Router(free, drive)
+    drive, mop_router = mopup.spaces(geom, s.body_radius_m, s.keepout_margin_m)
 
     def follow(path, start):
         return PathFollower(path, lookahead_m=s.lookahead_m, cruise=s.cruise, start_index=start)

@@ -212,3 +212,42 @@ def test_a_pass_gone_by_with_its_dirt_left_gives_it_up_for_good_logged_once(capl
     back = CoverageMap.from_bytes(GEOM, m.to_bytes(), cell_m=CELL, brush_m=BRUSH, body_radius_m=BODY)
     again = begin(back, (3.0, 1.0))
     assert all(np.intersect1d(p.cells, first).size == 0 for p in again.plan.passes)
+
+
+def test_a_stalled_pass_is_given_up_after_stall_s_and_a_stalled_last_one_ends_the_mopup(caplog):
+    m = clean_map()
+    for r, c in ((10, 10), (16, 30)):
+        m.first_m.flat[np.ravel_multi_index((np.full(12, r), np.arange(c, c + 12)), m.first_m.shape)] = np.inf
+    job = begin(m, (0.6, 0.6))
+    assert len(job.plan.passes) == 2
+    stuck = job.plan.path[1]                      # held short of its first pass (a standoff with the fence)
+    ride(m, job, job.plan.path[:2], sweep=False)
+    at = job.follower.progress
+    with caplog.at_level(logging.WARNING, "fishfarm.cleaner"):
+        for _ in range(round(mopup.STALL_S / 0.5) - 1):
+            assert job.command(*stuck, 0.0, dt_s=0.5) is not None
+        assert job.follower.progress == at        # not yet
+        job.command(*stuck, 0.0, dt_s=0.5)
+        job.command(*stuck, 0.0, dt_s=0.5)
+    assert job.follower.progress == job.plan.ends[0] + 1 and not job.done
+    assert m.given_up.flat[job.plan.passes[0].cells].all()
+    assert any("stalled" in r.getMessage() for r in caplog.records)
+    stuck = job.plan.path[job.plan.ends[0] + 1]
+    out = [job.command(*stuck, 0.0, dt_s=0.5) for _ in range(round(mopup.STALL_S / 0.5) + 3)]
+    assert out[-1] is None and job.done and m.mopup["done"]
+
+
+def test_the_mopup_keeps_its_extra_margin_round_keepouts():
+    drive, router = mopup.spaces(GEOM, BODY, MARGIN)
+    m = clean_map()
+    rows, cols = np.nonzero(m.reachable)
+    xy = cell_xy(m, rows, cols)
+    gap = np.min([shapely.distance(k, shapely.points(xy)) for k in GEOM.keepouts], axis=0)
+    ring = (gap > 0.3) & (gap < 0.6)              # dirt round both keep-outs
+    m.first_m[rows[ring], cols[ring]] = np.inf
+    plan = mopup.plan_mopup(m, drive, router, (0.6, 0.6), brush_m=BRUSH, spacing_m=SPACING, max_m=1000.0,
+                            min_yield=0)
+    assert plan.passes
+    least = BODY + MARGIN + mopup.EXTRA_MARGIN_M - 0.01
+    for p in plan.passes:
+        assert min(shapely.distance(k, LineString([p.a, p.b])) for k in GEOM.keepouts) >= least
