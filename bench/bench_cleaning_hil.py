@@ -1,12 +1,13 @@
 """The pond cleaner's goal run on the real processes: the demo's 20 m x 10 m pond with a drain and a
 feeder (config/farm.toml, its TOWER.json from `fishfarm calibrate tower`), `fishfarm sim` serving
 the thrusters on a pty and the tower camera as MJPEG over HTTP, `fishfarm run` steering from the
-frames; SIGKILLed when its map reaches 40 %, restarted at once, and run until the coverage path is
-done (state ``returning``) and the robot is home (``docked``).
+frames; SIGKILLed when its map reaches 40 %, restarted at once, and run until the coverage path and
+the mop-up after it (controller/cleaning/mopup.py) are done (state ``returning``) and the robot is
+home (``docked``). ``lanes_done``: the same figures when the coverage path ended, before the mop-up.
 
 Figures, measured on the robot's true poses from the simulator's truth log (every ``TRACE_S``):
 - ``coverage``: reachable floor its brush swept / reachable floor (goal >= 0.98), the map swept
-  from the true poses over the run (from the first ``cleaning`` to the path's end);
+  from the true poses over the run (from the first ``cleaning`` to the mop-up's end);
   ``map_coverage``: what the controller's own map (the ledger) says;
 - ``overlap``: path driven over floor already more than half cleaned / path driven (goal <= 0.10),
   coverage_map.py's measure;
@@ -90,8 +91,10 @@ def main() -> dict:
                                  "the restarted controller's first save")
             cleaning_again = wait_progress(farm, lambda r: r["t"] > killed and r["state"] == "cleaning", 120.0,
                                            "cleaning again")
-            done = wait_progress(farm, lambda r: r["path_index"] >= UNTIL * len(prep.plan.path), LIMIT_WALL_S,
-                                 "the coverage path done", 0.2)
+            lanes = wait_progress(farm, lambda r: r["path_index"] >= UNTIL * len(prep.plan.path), LIMIT_WALL_S,
+                                  "the coverage path done", 0.2)
+            done = lanes if SMOKE else wait_progress(farm, lambda r: r["state"] in ("returning", "docked"),
+                                                     LIMIT_WALL_S, "the mop-up done", 0.2)
             done_wall = time.monotonic()
             home = done if SMOKE else wait_progress(farm, lambda r: r["state"] == "docked", 600.0, "home", 0.2)
         finally:
@@ -103,6 +106,8 @@ def main() -> dict:
     up = Trace(trace.t[keep], trace.xy[keep], trace.heading[keep], trace.thrust[keep])
     cleaned = truth_map(run, prep.geometry,
                         {"cell_m": s.cell_m, "brush_m": s.brush_m, "body_radius_m": s.body_radius_m})
+    lanes_only = truth_map(trace.between(first["t"], lanes["t"]), prep.geometry,
+                           {"cell_m": s.cell_m, "brush_m": s.brush_m, "body_radius_m": s.body_radius_m})
     camera = farm.config["sim"]["tower_camera"]
     return {"pond_m": [20, 10], "keepouts": len(s.keepouts), "speed": SPEED, "fps": FPS,
             "jpeg_quality": camera.get("jpeg_quality", 85),
@@ -113,6 +118,10 @@ def main() -> dict:
             "goals": {"coverage": ">= 0.98", "overlap": "<= 0.10", "max_out_of_pond_m": 0, "max_in_keepout_m": 0},
             "coverage": round(cleaned.coverage(), 4), "overlap": round(cleaned.overlap(), 4),
             "map_coverage": round(done["coverage"], 4), "driven_m": round(cleaned.odometer_m, 1),
+            "lanes_done": {"coverage": round(lanes_only.coverage(), 4), "overlap": round(lanes_only.overlap(), 4),
+                           "map_coverage": round(lanes["coverage"], 4), "driven_m": round(lanes_only.odometer_m, 1),
+                           "farm_s": round(lanes["t"] - first["t"], 1)},
+            "mopup": {"max_m": s.mopup_max_m, "farm_s": round(done["t"] - lanes["t"], 1)},
             "controlled": footprint(up, s.outline, s.keepouts, body),
             "controller_down": footprint(down, s.outline, s.keepouts, body) if len(down.t) else None,
             "farm_s": round(done["t"] - first["t"], 1), "wall_s": round(done_wall - started, 1),

@@ -33,16 +33,24 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from bench.bench_coverage import BODY_M, BRUSH_M, KEEPOUTS, LIMIT_S, NOISE_M, NOISE_RAD, PHYS_DT, POND, Loop  # noqa: E402
-from controller.cleaning.coverage import plan_coverage  # noqa: E402
+from controller.cleaning import mopup  # noqa: E402
+from controller.cleaning.coverage import (  # noqa: E402
+    KEEPOUT_MARGIN,  # noqa: E402
+    plan_coverage,
+)
 from controller.cleaning.geofence import Geofence  # noqa: E402
 from controller.cleaning.geometry import pond_geometry  # noqa: E402
 from controller.cleaning.recovery import Recovery  # noqa: E402
 from controller.cleaning.steering import PathFollower  # noqa: E402
+from controller.config import CleaningConfig  # noqa: E402
 from devices.sim.pond_physics import CleanerParams  # noqa: E402
 from vision.float_detect import FloatFix  # noqa: E402
 from vision.float_track import FloatTrack, FloatTracker  # noqa: E402
 
 WATCHDOG_S = 0.5
+OVERLAP = 0.05                 # plan_coverage's default, which this bench plans with
+_DEFAULTS = CleaningConfig.model_fields
+MOPUP_M, MOPUP_S = _DEFAULTS["mopup_max_m"].default, _DEFAULTS["mopup_max_s"].default   # the farm's defaults
 
 
 class Thrust:
@@ -87,6 +95,33 @@ class LiveLoop(Loop):
         self.recovery = (None if args.no_recovery
                          else Recovery(gaps=None if self.fence is None else self.fence.gaps))
         self.lost_s, self.lost_at = 0.0, None
+        self.mopup = None              # the cleaner's mop-up once the lanes are done (mopup.py)
+        self.lanes_done = None         # figures when the boustrophedon path ended
+
+    def finished(self):
+        return self.follower.done and (self.args.mopup_m <= 0 or (self.mopup is not None and self.mopup.done))
+
+    def steer(self, x, y, heading, dt, refused):
+        """The cleaner's _steer in ``cleaning``: the path, then the mop-up (cleaner.py)."""
+        if not self.follower.done:
+            command = self.follower.command(x, y, heading, dt_s=dt, refused=refused)
+            if not self.follower.done:
+                return command
+        if self.args.mopup_m <= 0:
+            return 0.0, 0.0
+        if self.mopup is None:
+            self.lanes_done = {"coverage": round(self.truth.coverage(), 4), "overlap": round(self.truth.overlap(), 4),
+                               "map_coverage": round(self.belief.coverage(), 4),
+                               "driven_m": round(self.truth.odometer_m, 1), "farm_s": round(self.t, 1)}
+            drive, router = mopup.spaces(self.geom, BODY_M, KEEPOUT_MARGIN)
+            self.mopup = mopup.begin(self.belief, drive, router, (x, y),
+                                     lambda path, i: PathFollower(path, period_s=self.args.frame_s,
+                                                                  lookahead_m=self.args.lookahead,
+                                                                  cruise=self.args.cruise, start_index=i),
+                                     brush_m=BRUSH_M, spacing_m=BRUSH_M * (1 - OVERLAP), max_m=self.args.mopup_m,
+                                     max_s=self.args.mopup_s)
+        command = self.mopup.command(x, y, heading, dt_s=dt, refused=refused)
+        return (0.0, 0.0) if command is None else command
 
     def step_physics(self):
         r = self.robot
@@ -99,7 +134,7 @@ class LiveLoop(Loop):
     def run(self, stop=lambda loop: False):
         a, rng = self.args, self.rng
         next_frame = 0.0
-        while not self.follower.done and self.t < a.limit_s and not stop(self):
+        while not self.finished() and self.t < a.limit_s and not stop(self):
             if self.t >= next_frame:
                 x, y, h = self.measure()
                 r = self.robot
@@ -134,7 +169,7 @@ class LiveLoop(Loop):
         dt = None if self.steered is None else max(1e-3, t_frame - self.steered)
         self.steered = t_frame
         refused = 0 if self.fence is None else self.fence.streak
-        command = self.follower.command(track.x_m, track.y_m, track.heading_rad, dt_s=dt, refused=refused)
+        command = self.steer(track.x_m, track.y_m, track.heading_rad, dt, refused)
         if self.fence is not None:
             command = self.fence.check(track, command, t_frame)
         self.thrust.drive(*command)
@@ -145,6 +180,12 @@ class LiveLoop(Loop):
             out.update(geofence_refused=self.fence.refused, geofence_blind=self.fence.blind,
                        geofence_backed_off=self.fence.backed_off, waypoints_skipped=self.follower.skipped)
         out["lost_s"] = round(self.lost_s, 1)
+        if self.mopup is not None:
+            metres, seconds = self.mopup.spent()
+            out["mopup"] = {"lanes_done": self.lanes_done, "passes": len(self.mopup.plan.passes),
+                            "planned_m": round(self.mopup.plan.length_m, 1), "aimed_cells": self.mopup.plan.aimed,
+                            "out_of_reach_cells": self.mopup.plan.out_of_reach, "driven_m": round(metres, 1),
+                            "farm_s": round(seconds, 1), "given_up_cells": int(self.belief.given_up.sum())}
         if self.recovery is not None:
             out["recovery"] = {"runs": self.recovery.runs, **self.recovery.ended}
         return out
@@ -167,6 +208,8 @@ def main(argv=None) -> dict:
     ap.add_argument("--blind-cell", type=float, default=0.2, help="m: the blind spots' cells")
     ap.add_argument("--limit-s", type=float, default=LIMIT_S, help="farm s before the run is called off")
     ap.add_argument("--no-recovery", action="store_true", help="wait when lost, as before recovery.py")
+    ap.add_argument("--mopup-m", type=float, default=MOPUP_M, help="the mop-up's cap, m (0: none)")
+    ap.add_argument("--mopup-s", type=float, default=MOPUP_S, help="the mop-up's cap, farm s")
     ap.add_argument("--raw-pose", action="store_true", help="steer on the fixes, not the tracker's output")
     args = ap.parse_args(argv)
     geom = pond_geometry(POND, KEEPOUTS)
@@ -178,6 +221,7 @@ def main(argv=None) -> dict:
     return {"frame_s": args.frame_s, "latency_s": args.latency_s, "cruise": args.cruise, "ramp": args.ramp,
             "raw_pose": args.raw_pose, "blind": args.blind, "blind_seen": args.blind_seen,
             "blind_cell": args.blind_cell, "recovery": not args.no_recovery,
+            "mopup_m": args.mopup_m,
             "lookahead_m": args.lookahead, "geofence": not args.no_geofence,
             "noise": [NOISE_M, round(math.degrees(NOISE_RAD), 1)], "current_m_s": list(args.current),
             "goals": {"coverage": ">= 0.98", "overlap": "<= 0.10", "max_in_keepout_m": 0},

@@ -48,6 +48,7 @@ class Course:
     fresh_map: Callable
     route_home: Callable
     fingerprint: str
+    mop_up: Callable | None = None       # (map, x, y) -> mopup.MopUp; None: home once the lanes are done
     save_every_s: float = 5.0
     publish_every_s: float = 1.0
 
@@ -66,6 +67,7 @@ class Cleaner:
         self.fence = fence                     # geofence.Geofence: every drive passes it (None: tests' stand-ins)
         self.recovery = recovery               # recovery.Recovery: backs up its trail when lost (None: waits)
         self.homing = None                     # the follower of the route to the dock, while returning
+        self.mopup = None                      # mopup.MopUp once the lanes are done (this process)
         self.track = None                      # the tracker's latest FloatTrack
         self._swept_from: tuple[float, float] | None = None
         self._trace: list[tuple[float, float]] = []       # poses not saved yet
@@ -156,9 +158,10 @@ class Cleaner:
         refused = 0 if self.fence is None else self.fence.streak    # the follower gives such aims up
         if self.state == "cleaning":
             command = self.follower.command(track.x_m, track.y_m, track.heading_rad, dt_s=dt, refused=refused)
-            if self.follower.done:
+            if self.follower.done:               # the lanes done: the mop-up (mopup.py), then home
+                command = self._mop_up(track, dt, refused)
+            if command is None:
                 self.machine.fire("path_done")       # -> returning: the route home is made on entry
-                return None
             return command
         if self.homing is None:
             self.homing = self.course.follow(self.course.route_home(track.x_m, track.y_m), 0)
@@ -167,6 +170,15 @@ class Cleaner:
             self.machine.fire("path_done")           # -> docked
             return None
         return command
+
+    def _mop_up(self, track, dt, refused) -> tuple[float, float] | None:
+        """The mop-up's command; None once it is over (or there is none). Planned from the map
+        on the first call, so a restarted controller plans again from the saved one."""
+        if self.course.mop_up is None:
+            return None
+        if self.mopup is None:
+            self.mopup = self.course.mop_up(self.map, track.x_m, track.y_m)
+        return self.mopup.command(track.x_m, track.y_m, track.heading_rad, dt_s=dt, refused=refused)
 
     def _sweep(self, track) -> None:
         """Before the track's events: the brush cleaned from the last measured pose to this one if
@@ -318,6 +330,7 @@ class Cleaner:
             self.run_id = self.store.next_cleaner_run()
             self.map = self.course.fresh_map()
             self.follower = self.course.follow(self.plan.path, 0)
+            self.mopup = None
             self._trace.clear()
             self._traced = None
             log.info("cleaner: run %d begins on a fresh map", self.run_id)
@@ -366,7 +379,14 @@ class Cleaner:
                 "coverage": round(float(self.map.coverage()), 4),
                 "tracking": None if track is None else track.state,
                 "path_index": self.path_index, "mission": self.machine.mission,
-                "state_code": STATES.index(self.state)}
+                "state_code": STATES.index(self.state), "phase": self.phase}
+
+    @property
+    def phase(self) -> str | None:
+        """While cleaning: ``lanes`` (the coverage path) or ``mopup`` (mopup.py, the map's say)."""
+        if self.state != "cleaning":
+            return None
+        return "mopup" if self.follower.done else "lanes"
 
     def _publish(self) -> None:
         self._published_t = self.clock.now()
@@ -387,44 +407,3 @@ class Cleaner:
             log.exception("cleaner: progress not saved")
             return
         self._trace.clear()
-
-
-@dataclass(frozen=True)
-class Resumed:
-    follower: object
-    map: object
-    run: int
-    state: str
-    mission: str | None
-
-
-def resume(store, course: Course, plan, map_from_bytes: Callable, *, estop_standing: bool,
-           autostart: bool) -> Resumed:
-    """Where a (re)started controller takes the cleaner up. The ledger's map and path index if they
-    were made for this plan (same fingerprint), else a fresh run. A mission that stood (cleaning,
-    returning, lost, fault...) is taken up again from ``localising`` (the robot may have drifted);
-    an operator's stop stays ``manual``; an e-stop that stands starts in ``estop``. ``autostart``
-    begins cleaning from the dock when the map is not complete."""
-    saved = store.cleaner_progress()
-    cmap = None
-    if saved is not None and saved.fingerprint == course.fingerprint:
-        try:
-            cmap = map_from_bytes(saved.map) if saved.map is not None else course.fresh_map()
-        except ValueError as exc:
-            log.warning("cleaner: the saved coverage map cannot be used (%s): a fresh map", exc)
-    if cmap is not None:
-        last = len(plan.path) - 1
-        follower = course.follow(plan.path, min(saved.path_index, last))
-        follower.done = saved.path_index > last    # the run was finished
-        run, mission = saved.run, saved.mission
-        state = "manual" if saved.state == "manual" else ("localising" if mission else "docked")
-    else:
-        if saved is not None and saved.fingerprint != course.fingerprint:
-            log.warning("cleaner: the pond or its plan changed since the saved map: a fresh map")
-        cmap, follower, run = course.fresh_map(), course.follow(plan.path, 0), store.next_cleaner_run()
-        state, mission = "docked", None
-    if state == "docked" and autostart and not follower.done:
-        state, mission = "localising", "clean"
-    if estop_standing:
-        state = "estop"
-    return Resumed(follower, cmap, run, state, mission)

@@ -286,7 +286,7 @@ def _candidate_angles(outline: Polygon) -> list[float]:
     return angles
 
 
-def _drivable(geom: PondGeometry, free: Polygon, body_radius_m: float, margin: float):
+def drivable(geom: PondGeometry, free: Polygon, body_radius_m: float, margin: float):
     """Where lanes and edge passes run: the free space less a margin round the keep-outs. Where
     that margin cuts it in pieces, every piece is mown; moves between them go through ``free``."""
     if margin <= 0 or not geom.keepouts:
@@ -304,7 +304,7 @@ def plan_coverage(geom: PondGeometry, *, brush_m: float, body_radius_m: float, o
     the robot; a keep-out does not)."""
     _check(brush_m, body_radius_m, overlap, where, key)
     free = geom.free(body_radius_m)
-    drive = _drivable(geom, free, body_radius_m, keepout_margin_m)
+    drive = drivable(geom, free, body_radius_m, keepout_margin_m)
     if free.is_empty or drive.area < 1e-4:
         raise BadInput(where, f"{key}.outline", f"no room for a robot of radius {body_radius_m} m")
     router = Router(free, drive)

@@ -16,7 +16,9 @@ overlap measure exact and cheap:
 - ``overlap()`` = length of overlapping sweeps / length of all sweeps.
 
 ``to_bytes``/``from_bytes`` carry the whole map through the store, so a restarted controller
-resumes with what was cleaned and with the same overlap account.
+resumes with what was cleaned and with the same overlap account — and with the mop-up's
+(mopup.py): ``mopup`` (None before it begins; then the metres of its plans gone by, the farm
+seconds it has run, whether it is over) and ``given_up``, the cells it gave up for good.
 """
 from __future__ import annotations
 
@@ -53,6 +55,8 @@ class CoverageMap:
         self.overlap_m = 0.0
         self._pending_m = 0.0                # length swept since the last judgement
         self._pending_cells = [0, 0]         # its cells: cleaned before, all
+        self.given_up = np.zeros((rows, cols), bool)   # cells the mop-up will not try again
+        self.mopup: dict | None = None       # {"m", "s", "done"} once the mop-up began
 
     def _cells(self, corners: np.ndarray):
         """Cells whose centre lies in the convex hull of the corners: (mask, its window) or None.
@@ -134,7 +138,10 @@ class CoverageMap:
                 "brush_m": self.brush_m, "body_radius_m": self.body_radius_m}
 
     def to_bytes(self) -> bytes:
-        head = json.dumps({**self._header(), "odometer_m": self.odometer_m, "overlap_m": self.overlap_m}).encode()
+        extra = {} if self.mopup is None else {"mopup": self.mopup,
+                                               "given_up": np.flatnonzero(self.given_up).tolist()}
+        head = json.dumps({**self._header(), "odometer_m": self.odometer_m, "overlap_m": self.overlap_m,
+                           **extra}).encode()
         return MAGIC + struct.pack("<I", len(head)) + head + zlib.compress(self.first_m.tobytes(), 6)
 
     @classmethod
@@ -153,6 +160,10 @@ class CoverageMap:
                 raise ValueError("made for another pond, grid or robot")
             fresh.first_m[...] = grid.reshape(fresh.first_m.shape)
             fresh.odometer_m, fresh.overlap_m = float(head["odometer_m"]), float(head["overlap_m"])
-        except (struct.error, zlib.error, KeyError, TypeError, json.JSONDecodeError) as exc:
+            if head.get("mopup") is not None:          # older maps have none: the mop-up not begun
+                m = head["mopup"]
+                fresh.mopup = {"m": float(m["m"]), "s": float(m["s"]), "done": bool(m["done"])}
+                fresh.given_up.flat[np.asarray(head.get("given_up", []), int)] = True
+        except (struct.error, zlib.error, KeyError, TypeError, IndexError, json.JSONDecodeError) as exc:
             raise ValueError(f"stored coverage map unreadable: {exc}") from None
         return fresh

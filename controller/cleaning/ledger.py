@@ -11,11 +11,15 @@ connection, lock and ``_write``), as ``controller.records`` is.
 """
 from __future__ import annotations
 
+import logging
 import sqlite3
 import threading
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
+
+log = logging.getLogger("fishfarm.cleaner")
 
 MIGRATION_5 = """
     CREATE TABLE cleaner (
@@ -97,3 +101,44 @@ class CleanerRecords:
         if not rows:
             return np.zeros((0, 2))
         return np.frombuffer(b"".join(r["xy"] for r in rows), "<f4").reshape(-1, 2).astype(float)
+
+
+@dataclass(frozen=True)
+class Resumed:
+    follower: object
+    map: object
+    run: int
+    state: str
+    mission: str | None
+
+
+def resume(store, course, plan, map_from_bytes: Callable, *, estop_standing: bool,
+           autostart: bool) -> Resumed:
+    """Where a (re)started controller takes the cleaner up. The ledger's map and path index if they
+    were made for this plan (same fingerprint), else a fresh run. A mission that stood (cleaning,
+    returning, lost, fault...) is taken up again from ``localising`` (the robot may have drifted);
+    an operator's stop stays ``manual``; an e-stop that stands starts in ``estop``. ``autostart``
+    begins cleaning from the dock when the map is not complete."""
+    saved = store.cleaner_progress()
+    cmap = None
+    if saved is not None and saved.fingerprint == course.fingerprint:
+        try:
+            cmap = map_from_bytes(saved.map) if saved.map is not None else course.fresh_map()
+        except ValueError as exc:
+            log.warning("cleaner: the saved coverage map cannot be used (%s): a fresh map", exc)
+    if cmap is not None:
+        last = len(plan.path) - 1
+        follower = course.follow(plan.path, min(saved.path_index, last))
+        follower.done = saved.path_index > last    # the run was finished
+        run, mission = saved.run, saved.mission
+        state = "manual" if saved.state == "manual" else ("localising" if mission else "docked")
+    else:
+        if saved is not None and saved.fingerprint != course.fingerprint:
+            log.warning("cleaner: the pond or its plan changed since the saved map: a fresh map")
+        cmap, follower, run = course.fresh_map(), course.follow(plan.path, 0), store.next_cleaner_run()
+        state, mission = "docked", None
+    if state == "docked" and autostart and not follower.done:
+        state, mission = "localising", "clean"
+    if estop_standing:
+        state = "estop"
+    return Resumed(follower, cmap, run, state, mission)

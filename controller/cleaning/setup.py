@@ -77,21 +77,32 @@ def prepare(cfg) -> Prepared:
 
 
 def build(prep: Prepared, camera, thrusters, store, clock, publish, *, alarms, lane, reopen=None):
-    """The coordinator, taken up where the ledger left it (cleaner.resume)."""
-    from controller.cleaning.cleaner import Cleaner, Course, resume
+    """The coordinator, taken up where the ledger left it (ledger.resume)."""
+    from controller.cleaning import mopup
+    from controller.cleaning.cleaner import Cleaner, Course
     from controller.cleaning.coverage import Router
     from controller.cleaning.coverage_map import CoverageMap
     from controller.cleaning.geofence import Geofence
+    from controller.cleaning.ledger import resume
     from controller.cleaning.recovery import Recovery
     from controller.cleaning.steering import PathFollower
     from vision.float_detect import detect_float
     from vision.float_track import FloatTracker
 
     s, geom = prep.settings, prep.geometry
-    router = Router(geom.free(s.body_radius_m))
+    free = geom.free(s.body_radius_m)
+    router = Router(free)
+    drive, mop_router = mopup.spaces(geom, s.body_radius_m, s.keepout_margin_m)
+
+    def follow(path, start):
+        return PathFollower(path, lookahead_m=s.lookahead_m, cruise=s.cruise, start_index=start)
+
+    def mop_up(cmap, x, y):
+        return mopup.begin(cmap, drive, mop_router, (x, y), follow, brush_m=s.brush_m,
+                           spacing_m=s.brush_m * (1 - s.overlap), max_m=s.mopup_max_m, max_s=s.mopup_max_s)
     map_args = dict(cell_m=s.cell_m, brush_m=s.brush_m, body_radius_m=s.body_radius_m)
     course = Course(
-        follow=lambda path, start: PathFollower(path, lookahead_m=s.lookahead_m, cruise=s.cruise, start_index=start),
+        follow=follow, mop_up=mop_up if s.mopup_max_m > 0 else None,
         fresh_map=lambda: CoverageMap(geom, **map_args),
         route_home=lambda x, y: np.array(router.route((x, y), s.dock)),
         fingerprint=prep.fingerprint, save_every_s=s.save_every_s, publish_every_s=s.publish_every_s)

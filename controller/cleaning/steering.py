@@ -121,6 +121,13 @@ class PathFollower:
         if self._skipped_m + leg <= self.skip_max_m:
             self.progress, self._skipped_m, self.skipped = i + 1, self._skipped_m + leg, self.skipped + 1
 
+    def skip_to(self, index: int) -> None:
+        """Give the path up to ``index`` (a stretch its owner has given up: the mop-up's stalled
+        pass): progress there, with no stall, skip or sideways account carried over."""
+        self.progress = int(min(max(index, self.progress), len(self.path) - 1))
+        self._stalled_s, self._skipped_m = 0.0, 0.0
+        self._push[:] = 0.0
+
     def command(self, x: float, y: float, heading: float, dt_s: float | None = None,
                 refused: int = 0) -> tuple[float, float]:
         """Thrust (left, right) in [-1, 1] for the measured pose; (0, 0) once done. ``refused``: how

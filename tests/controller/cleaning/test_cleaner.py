@@ -6,6 +6,7 @@ it resumes the saved map and path index."""
 from __future__ import annotations
 
 import asyncio
+import dataclasses
 import threading
 
 import numpy as np
@@ -13,7 +14,8 @@ import pytest
 
 from controller.alarms import Alarms
 from controller.cleaning import cleaner as cleaner_mod
-from controller.cleaning.cleaner import Cleaner, Course, resume
+from controller.cleaning.cleaner import Cleaner, Course
+from controller.cleaning.ledger import resume
 from controller.feeding.estop import EstopLane, Latch
 from controller.store import Store
 from devices.clock import ManualClock
@@ -378,4 +380,67 @@ def test_every_drive_passes_the_geofence_and_goes_as_it_says(tmp_path):
             # the follower hears how many of its commands in a row the fence has refused so far
             told = r.cleaner.follower.refused
             assert told[0] == 0 and told[1:len(drives)] == list(range(1, len(drives)))
+    run(main())
+
+
+class ScriptedMopUp:
+    """mopup.MopUp's face to the cleaner: ``n`` commands, then None (over). (The real one's account
+    in the map across a restart: test_mopup.py.)"""
+
+    def __init__(self, cmap, n):
+        self.map, self.left = cmap, n
+        self.given = 0
+
+    def command(self, x, y, heading, dt_s=None, refused=0):
+        if self.given >= self.left:
+            return None
+        self.given += 1
+        return 0.3, 0.3
+
+
+def test_after_the_lanes_the_mopup_drives_in_cleaning_and_a_restart_takes_it_up_again(tmp_path):
+    made = []
+
+    def mop_up(cmap, x, y):
+        made.append(ScriptedMopUp(cmap, 4))
+        return made[-1]
+
+    async def main():
+        r = Rig(tmp_path, state="localising", mission="clean")
+        r.cleaner.course = r.course = dataclasses.replace(r.course, mop_up=mop_up)
+        task = asyncio.create_task(r.cleaner.run())
+        await r.frames(poses(PATH))
+        assert r.cleaner.follower.done and r.cleaner.state == "cleaning" and len(made) == 1
+        assert r.cleaner.snapshot()["phase"] == "mopup" and r.cleaner.path_index == len(PATH)
+        drives = len(r.thrusters.drives())
+        await r.frames(poses([PATH[-1]] * 2))
+        assert len(r.thrusters.drives()) == drives + 2 and r.thrusters.drives()[-1][2:] == (0.3, 0.3)
+        r.cleaner.save()
+        task.cancel()                                       # SIGKILL mid-mop-up
+        await asyncio.gather(task, return_exceptions=True)
+        r.lane.close()
+        r.store.close()
+        store = Store(tmp_path / "ledger.db")
+        back = resume(store, r.course, Plan(PATH), CellMap.from_bytes, estop_standing=False, autostart=True)
+        store.close()
+        assert (back.state, back.mission) == ("localising", "clean") and back.follower.done
+        r2 = Rig(tmp_path, state=back.state, mission=back.mission, run=back.run, follower=back.follower,
+                 cmap=back.map)
+        r2.cleaner.course = dataclasses.replace(r2.course, mop_up=mop_up)
+        async with r2:
+            await r2.frames(poses([PATH[-1]] * 3))
+            assert len(made) == 2 and made[1].map is r2.cleaner.map      # planned again, from the saved map
+            assert r2.cleaner.state == "cleaning" and r2.cleaner.snapshot()["phase"] == "mopup"
+            await r2.frames(poses([PATH[-1]] * 3))
+            assert r2.cleaner.state == "returning" and r2.cleaner.snapshot()["phase"] is None
+    run(main())
+
+
+def test_without_a_mopup_the_lanes_end_in_returning_and_the_phase_says_lanes_while_cleaning(tmp_path):
+    async def main():
+        async with Rig(tmp_path, state="localising", mission="clean") as r:
+            await r.frames(poses(PATH[:3]))
+            assert r.cleaner.snapshot()["phase"] == "lanes"
+            await r.frames(poses(PATH[3:]))
+            assert r.cleaner.state == "returning"
     run(main())
