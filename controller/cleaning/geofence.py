@@ -130,15 +130,16 @@ class Geofence:
             out[i] = x, y
         return out
 
-    def _judge(self, now_gaps, path, std) -> tuple[bool, float]:
-        """Safe or not, and how far off it ends (to choose among unsafe ones: the pose now is the
-        same for all, so their least gap cannot tell them apart)."""
+    def _judge(self, now_gaps, path, std) -> tuple[bool, tuple[bool, float]]:
+        """Safe or not, and a rank to choose among unsafe ones: first whether the body stays out of
+        every keep-out at all (a margin given up is better than a keep-out entered), then how far
+        off it ends."""
         edge, keep = self.gaps(path)
         e, k = float(edge.min()), float(keep.min())
         e0, k0 = float(now_gaps[0][0]), float(now_gaps[1][0])
         keep_ok = k >= self.k_std * std and (k >= self.margin_m + self.k_std * std or k >= k0 - self.slack_m)
         edge_ok = e >= -self.edge_limit_m or e >= e0 - self.slack_m
-        return keep_ok and edge_ok, min(float(keep[-1]), float(edge[-1]) + self.edge_limit_m)
+        return keep_ok and edge_ok, (k >= 0.0, min(float(keep[-1]), float(edge[-1]) + self.edge_limit_m))
 
     # -- the check --------------------------------------------------------------
     def check(self, track, command, now_s: float) -> tuple[float, float]:
@@ -158,7 +159,11 @@ class Geofence:
         here = self.gaps(np.array([[track.x_m, track.y_m]]))
         if float(here[1][0]) < self.margin_m + self.k_std * std:   # in the band: out of it first
             self.refused, self.streak, self.backed_off = self.refused + 1, self.streak + 1, self.backed_off + 1
-            return self._sent(now_s, self._away(track))
+            # off the keep-out, turning away, unless coming in fast that turn swings it in: then
+            # straight back, the asked turn on the spot, or stop
+            turn = (float(command[1]) - float(command[0])) / 2
+            options = [self._away(track), (-self.backoff, -self.backoff), (-turn, turn), STOP]
+            return self._sent(now_s, self._first_safe(here, pose, lead, std, options))
         ok, _ = self._judge(here, self.predict(*pose, command, lead, self.drift), std)
         if ok:
             self.streak = 0
@@ -167,14 +172,18 @@ class Geofence:
         ahead, turn = (float(command[0]) + float(command[1])) / 2, (float(command[1]) - float(command[0])) / 2
         slower = [(ahead * k - turn, ahead * k + turn) for k in (0.5, 0.25) if ahead > 0]
         options = [*slower, self._away(track), (-turn, turn), (-self.backoff, -self.backoff), STOP]
-        best, widest = STOP, -math.inf
+        return self._sent(now_s, self._first_safe(here, pose, lead, std, options))
+
+    def _first_safe(self, here, pose, lead: float, std: float, options: list) -> tuple[float, float]:
+        """The first of ``options`` whose prediction is safe; if none is, the one ending farthest off."""
+        best, widest = STOP, (False, -math.inf)
         for option in options:
             safe, gap = self._judge(here, self.predict(*pose, option, lead, self.drift), std)
             if safe:
-                return self._sent(now_s, option)
+                return option
             if gap > widest:
                 best, widest = option, gap
-        return self._sent(now_s, best)
+        return best
 
     def _learn_drift(self, track, speed: float) -> None:
         """The current's push across the robot's heading: over the last ``drift_window_s`` of
