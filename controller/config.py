@@ -139,7 +139,7 @@ class CleaningConfig(Strict):
     overlap: float = Field(0.05, ge=0, lt=0.5, description="share of the brush lanes overlap by")
     keepout_margin_m: float = Field(0.10, ge=0, le=5, description="the plan's room beyond body_radius_m round "
                                     "keep-outs (no wall stops the robot there; the geofence guards them)")
-    mopup_max_m: float = Field(12.0, ge=0, le=10_000, description="after the lanes, at most this path (m) over "
+    mopup_max_m: float = Field(6.0, ge=0, le=10_000, description="after the lanes, at most this path (m) over "
                                "floor the map calls dirty (controller/cleaning/mopup.py); 0: no mop-up")
     mopup_max_s: float = Field(900.0, gt=0, le=86_400, description="and at most this many farm seconds")
     save_every_s: float = Field(5.0, gt=0, le=3600, description="farm seconds between saves of the map")
