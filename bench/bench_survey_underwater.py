@@ -150,7 +150,7 @@ def main() -> None:
     ap.add_argument("--fish", type=int, default=200)
     ap.add_argument("--seed0", type=int, default=0)
     ap.add_argument("--max-scenes", type=int, default=400)
-    ap.add_argument("--params", default="", help="vision.underwater.Params fields, e.g. 'span_tries=(0.75,)'")
+    ap.add_argument("--params", default="", help="vision.underwater.Params fields, e.g. 'min_score=0.04'")
     args = ap.parse_args()
     params = parse_params(args.params)
     cv2.setNumThreads(1)

@@ -21,7 +21,7 @@ proposal is within 0.3 of the length (the fish merged with a fish it touches or 
 region whose ends are elsewhere, or cut up by a reef behind it); in 3 the proposals are beside the
 axis (a region's axis tilted by an adjoining fish or the fish's shadow). Shifting the ends back
 further (-0.3 of the region, outlines' -0.25) proposes 4-5 more fish in 40 scenes (54 -> 58,
-57 -> 62 of 75 / 97; both runs with ``refit_arms``) but finds no more (19 -> 21, 23 -> 22: the
+57 -> 62 of 75 / 97; both runs with the arms refitted, vision.fork) but finds no more (19 -> 21, 23 -> 22: the
 post-filters drop them).
 """
 from __future__ import annotations

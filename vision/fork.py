@@ -23,13 +23,13 @@ lose it in the second, 13 are placed > 3 % off. By what is behind the fin: reef 
 fail, net 11 of 22, open water 15 of 46 -- the mid level between the peduncle's colour and the
 water's is crossed by the reef's pattern and the net's bars as well as by the fin's edge; 13 of the
 50 have a fin-to-water contrast under 12 grey levels (a faint fin behind a net or in dim water).
-In crops of the sampled grids, the cleaner failures are sea bream and sea bass fins whose lobes
+In crops of the sampled grids, the other failures are sea bream and sea bass fins whose lobes
 reach the grid's edge (their span is ~0.34 of the length, not 0.3), and a few rows of one arm
-crossing early on a speck or a ray seen through the fin, which turned that arm's least-squares
-line: each arm's line is now fitted again without its outlying rows (``refit``, opt-in, ``Params.refit_arms``: from true
-starts 60 -> 62 within 3 %; from starts 4 % and ~6 degrees off, 43 -> 46). A grid 0.75x the
-span tried where the first shows no fork (``locate_forks(scales=...)``, opt-in) locates more (one
-pass from true starts: 64 -> 73 within 3 %); in the survey, see ``vision.underwater.Params``.
+crossing early on a speck or a ray seen through the fin, which turns that arm's least-squares line.
+Measured and left out (each locates a few more forks; in the survey each adds wrong reports, see
+``vision.underwater``): each arm fitted again without its outlying rows (from true starts 60 -> 62
+within 3 %; from starts 4 % and ~6 degrees off, 43 -> 46); a grid 0.75x the span tried where the
+first shows no fork (one pass from true starts: 64 -> 73 within 3 %, the fork stage ~1.4x).
 """
 from __future__ import annotations
 
@@ -53,9 +53,6 @@ FLAT_OK = True
 # (67 %) but a worse survey (seeds 0+: precision 0.966 -> 0.932).
 INSIDE_FROM = 0.15
 INSIDE_RMS = 0.02
-# each arm's line fitted again without its outlying rows (``_refit_arm``)
-ARM_REFIT = False
-ARM_MISS = 3.0
 
 
 
@@ -143,20 +140,6 @@ def _apex(y: np.ndarray, x: np.ndarray, w: np.ndarray, y0: np.ndarray, xmax: np.
     return np.clip(apex, xmax - APEX_BEHIND, xmax + 0.1)
 
 
-def _refit_arm(y: np.ndarray, x: np.ndarray, w: np.ndarray, a: np.ndarray, b: np.ndarray, rms: np.ndarray):
-    """An arm's line fitted again without the rows that miss it by more than ``ARM_MISS`` x the
-    median miss: (rows kept, a, b, rms). A ray of the fin darker than the mid level, or clutter
-    seen through the fin, moves a few rows' crossings far back, and a plain fit over ~8 rows then
-    turns the arm (a V read as no V); a fit that has no such rows keeps them all."""
-    miss = np.abs(x - (a[:, None] + b[:, None] * y))
-    med = _masked_median(miss, w)
-    keep = w & (miss <= ARM_MISS * med[:, None] + 0.5 / SAMPLES)
-    a2, b2, r2 = _line_fit(y, x, keep.astype(float))
-    enough = keep.sum(axis=1) >= np.maximum(2, 0.6 * w.sum(axis=1))
-    return (np.where(enough[:, None], keep, w), np.where(enough, a2, a), np.where(enough, b2, b),
-            np.where(enough, r2, rms))
-
-
 def _masked_median(a: np.ndarray, m: np.ndarray) -> np.ndarray:
     """Median of a over its last axis where m, per leading index (NaN-free sort trick)."""
     v = np.sort(np.where(m, a, np.inf), axis=-1)
@@ -174,23 +157,19 @@ ANGLE_TRIES = np.radians([10.0, -10.0, 20.0, -20.0])
 
 
 def locate_forks(pyr: list[np.ndarray], fins: Fins, min_contrast: float = 5.0, min_slope: float = 0.12,
-                 flat_ok: bool = FLAT_OK, tries=(), retry: np.ndarray | None = None, scales=(),
-                 refit: bool | None = None) -> Forks:
+                 flat_ok: bool = FLAT_OK, tries=(), retry: np.ndarray | None = None) -> Forks:
     """Re-measure every candidate's innermost fork point and axis on the image pyramid; a candidate
     that shows no fork along its own axis (and is in ``retry``, default all) is measured again along
     each axis turned by ``tries`` (the first that shows one is kept): a proposal's axis can be 20
-    degrees off, and then one lobe leaves the grid's rows. Then, likewise, with its grid scaled by
-    each of ``scales``. ``refit``: each arm fitted again without its outlying rows (default
-    ``ARM_REFIT``)."""
-    refit = ARM_REFIT if refit is None else refit
-    out = _locate(pyr, fins, min_contrast, min_slope, flat_ok, refit)
-    for turn, scale in [(t, 1.0) for t in tries] + [(0.0, s) for s in scales]:
+    degrees off, and then one lobe leaves the grid's rows."""
+    out = _locate(pyr, fins, min_contrast, min_slope, flat_ok)
+    for turn in tries:
         bad = np.flatnonzero(~out.ok if retry is None else ~out.ok & retry)
         if len(bad) == 0:
             break
         sub = fins.take(bad)
-        sub = Fins(sub.xy, sub.angle + turn, sub.span_px * scale, sub.score, sub.polarity, sub.body)
-        again = _locate(pyr, sub, min_contrast, min_slope, flat_ok, refit)
+        sub = Fins(sub.xy, sub.angle + turn, sub.span_px, sub.score, sub.polarity, sub.body)
+        again = _locate(pyr, sub, min_contrast, min_slope, flat_ok)
         hit = bad[again.ok]
         if len(hit) == 0:
             continue
@@ -206,8 +185,7 @@ def locate_forks(pyr: list[np.ndarray], fins: Fins, min_contrast: float = 5.0, m
     return out
 
 
-def _locate(pyr: list[np.ndarray], fins: Fins, min_contrast: float, min_slope: float, flat_ok: bool,
-            refit: bool) -> Forks:
+def _locate(pyr: list[np.ndarray], fins: Fins, min_contrast: float, min_slope: float, flat_ok: bool) -> Forks:
     """One measurement of every candidate along its own axis."""
     N = len(fins)
     if N == 0:
@@ -266,7 +244,7 @@ def _locate(pyr: list[np.ndarray], fins: Fins, min_contrast: float, min_slope: f
     live = np.flatnonzero(contrast >= min_contrast)
     if len(live):
         ok_l, xy[live], ang[live], rms[live] = _trace(s, live, t, fins.take(live), contrast[live], min_contrast,
-                                                      min_slope, flat_ok, refit)
+                                                      min_slope, flat_ok)
         ok[live] = ok_l
     out = Fins(np.where(ok[:, None], xy, fins.xy), np.where(ok, ang, fins.angle),
                fins.span_px, fins.score, np.where(ok, sign, fins.polarity), fins.body)
@@ -274,7 +252,7 @@ def _locate(pyr: list[np.ndarray], fins: Fins, min_contrast: float, min_slope: f
 
 
 def _trace(s: np.ndarray, which: np.ndarray, t: np.ndarray, fins: Fins, contrast: np.ndarray, min_contrast: float,
-           min_slope: float, flat_ok: bool, refit: bool):
+           min_slope: float, flat_ok: bool):
     """Each row's crossing into the fish (``s`` (M, rows, samples) > 0; the candidates are its
     rows ``which`` (N,): no copy of their grids) and the notch they trace (``_notch``), from the
     back and, for candidates that show no fork that way, from inside the fin: ok, xy, angle, rms (N,)."""
@@ -284,7 +262,7 @@ def _trace(s: np.ndarray, which: np.ndarray, t: np.ndarray, fins: Fins, contrast
         inside, nan_row = inside[which], nan_row[which]
     first = inside.argmax(axis=2)                                          # (N, rows)
     has = inside.any(axis=2) & (first > 0) & ~nan_row
-    ok, xy, ang, rms = _notch(s, t, first, has, fins, contrast, min_contrast, min_slope, flat_ok, which, refit)
+    ok, xy, ang, rms = _notch(s, t, first, has, fins, contrast, min_contrast, min_slope, flat_ok, which)
     if INSIDE_FROM is not None and not ok.all():
         # clutter behind the fin (reef, another fish) crosses the mid level before the fin's edge
         # does: the rows of the candidates that showed no fork are traced again from inside the
@@ -297,8 +275,7 @@ def _trace(s: np.ndarray, which: np.ndarray, t: np.ndarray, fins: Fins, contrast
         has_in = ~blocked[..., j0] & (first_in > 0) & ~nan_row[bad]
         # (rows the fin does not reach at that point keep their crossing from the back)
         ok2, xy2, ang2, rms2 = _notch(s, t, np.where(has_in, first_in, first[bad]), has[bad] | has_in,
-                                      fins.take(bad), contrast[bad], min_contrast, min_slope, flat_ok, which[bad],
-                                      refit)
+                                      fins.take(bad), contrast[bad], min_contrast, min_slope, flat_ok, which[bad])
         ok2 &= rms2 <= INSIDE_RMS
         hit = bad[ok2]
         ok[hit], xy[hit], ang[hit], rms[hit] = True, xy2[ok2], ang2[ok2], rms2[ok2]
@@ -306,8 +283,7 @@ def _trace(s: np.ndarray, which: np.ndarray, t: np.ndarray, fins: Fins, contrast
 
 
 def _notch(s: np.ndarray, t: np.ndarray, first: np.ndarray, has: np.ndarray, fins: Fins, contrast: np.ndarray,
-           min_contrast: float, min_slope: float, flat_ok: bool, which: np.ndarray | None = None,
-           refit: bool = False):
+           min_contrast: float, min_slope: float, flat_ok: bool, which: np.ndarray | None = None):
     """The notch from each row's crossing into the fish (``first``: the sample past it, ``has``:
     the row has one): ok (N,), the innermost point xy (N, 2), the fin's axis angle (N,), the arm
     fits' RMS (N,) in spans. ``which``: the rows of ``s`` these candidates are (default all)."""
@@ -336,12 +312,8 @@ def _notch(s: np.ndarray, t: np.ndarray, first: np.ndarray, has: np.ndarray, fin
     gap = 2.5 / SAMPLES
     up = valid & (dy > gap) & (dy <= 0.25)
     dn = valid & (dy < -gap) & (dy >= -0.25)
-    ty = np.broadcast_to(t, xb.shape)
-    a1, b1, r1 = _line_fit(ty, xbf, up.astype(float))
-    a2, b2, r2 = _line_fit(ty, xbf, dn.astype(float))
-    if refit:
-        up, a1, b1, r1 = _refit_arm(ty, xbf, up, a1, b1, r1)
-        dn, a2, b2, r2 = _refit_arm(ty, xbf, dn, a2, b2, r2)
+    a1, b1, r1 = _line_fit(np.broadcast_to(t, xb.shape), xbf, up.astype(float))
+    a2, b2, r2 = _line_fit(np.broadcast_to(t, xb.shape), xbf, dn.astype(float))
     # one lobe's inner edge may be faint or short (few rows cross the mid level): 2 rows on that
     # side are enough when the other gives the rest
     nu, nd = up.sum(axis=1), dn.sum(axis=1)

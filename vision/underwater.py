@@ -24,14 +24,15 @@ all of them, snouts 28 / 31, association 26 / 30, the post-filters 18 / 24. The 
 a third of what the locator's improvements add: of the fish lost there after association, in 40
 scenes ~half fall to ``min_score`` (products of small terms: ``t_fork_shape``, the residuals,
 ``t_fin``) and ~half to ``max_epipolar`` (several at 0.031-0.037), and every one of them was
-placed within the bench's tolerance. The options below locate or keep more fish, and each adds
-wrong reports too (bench, recall / precision; main: 0.261 / 0.966 and 0.215 / 0.957):
-``refit_arms`` 0.271 / 0.967, 0.220 / 0.918; ``residual_per_step=1`` 0.286 / 0.938, 0.230 / 0.906;
-with ``min_fill=0.5`` 0.276 / 0.937, 0.215 / 0.957; that with ``refit_arms`` and
-``span_tries=(0.75,)`` 0.291 / 0.954, 0.215 / 0.938 (fork stage ~1.4x), and ``min_score=0.04``
-0.276 / 0.952, 0.215 / 0.957; ``max_epipolar=0.04`` 0.271 / 0.935, 0.220 / 0.918; ``fork_passes=1`` or
-``keep_first`` with ``span_tries``: more located, fewer found in the 40-scene diagnosis (the
-second pass's arm fit is what ``t_fork_shape`` trusts). So they stay off: the score, not the
+placed within the bench's tolerance. Measured and left out, each locating or keeping more fish
+and adding wrong reports too (bench, recall / precision; kept: 0.261 / 0.966 and 0.215 / 0.957):
+arms refitted without outlying rows (``vision.fork``) 0.271 / 0.967, 0.220 / 0.918; the score's
+epipolar residual scale grown to one step of the fork's grid 0.286 / 0.938, 0.230 / 0.906, with
+``min_fill=0.5`` 0.276 / 0.937, 0.215 / 0.957; that with the refit and a 0.75x grid retried where a
+hypothesis shows no fork 0.291 / 0.954, 0.215 / 0.938 (fork stage ~1.4x), with ``min_score=0.04``
+0.276 / 0.952, 0.215 / 0.957; ``max_epipolar=0.04`` 0.271 / 0.935, 0.220 / 0.918; one location
+pass, or the second keeping the first's fork where it shows none: more located, fewer found in the
+40-scene diagnosis (the second pass's arm fit is what ``t_fork_shape`` trusts). The score, not the
 locator, decides what the survey keeps, and it separates right from wrong poorly (Spearman 0.18
 with the length error).
 """
@@ -56,8 +57,7 @@ from vision.association import (
 from vision.bodies import body_ends, fish_masks
 from vision.calib_file import StereoCalibration
 from vision.fins import SPAN_OF_FL, Fins, bank_proposals, concat, fin_scores, suppress
-from vision.fork import SAMPLES as FORK_SAMPLES
-from vision.fork import Forks, locate_forks, pyramid
+from vision.fork import locate_forks, pyramid
 from vision.illumination import water_distance
 from vision.silhouettes import background_distance, body_fill, components, outline_forks, silhouette_tips
 from vision.silhouettes import fish_masks as outline_masks
@@ -94,12 +94,6 @@ class Params:
     outline_k: tuple[float, ...] = (2.0, 4.0)   # ... thresholds, in local background spreads
     outline_ends: tuple[float, ...] = (-0.12, -0.02)   # ... outline ends shifted by these shares of its length
     min_fill: float = 0.0           # the least share of the fork-snout segment inside a silhouette (term 0 there)
-    residual_px: float = 1.5        # score: the epipolar residual a well-placed end leaves ...
-    residual_per_step: float = 0.0  # ... at least this many steps of the fork's grid (0: px only)
-    fork_passes: int = 2            # each fork located again from where the first pass put it
-    keep_first: bool = False        # ... and kept where it was when the second pass shows none
-    refit_arms: bool = False        # each arm of a fork fitted again without its outlying rows (vision.fork)
-    span_tries: tuple[float, ...] = ()   # a hypothesis showing no fork: located again, its grid scaled by these
 
 
 class _Clock:
@@ -171,7 +165,8 @@ def _view(img: np.ndarray, setup: SurveySetup, p: Params, clock: _Clock, trace: 
     clock.lap("fins")
     if trace is not None:
         trace.setdefault("proposed", []).append(hyps.xy.copy())
-    forks = _locate(pyr, hyps, p)
+    forks = locate_forks(pyr, hyps)
+    forks = locate_forks(pyr, forks.fins.take(np.flatnonzero(forks.ok)))        # again, from the fork
     ok = np.flatnonzero(forks.ok)
     located = forks.fins.take(ok)
     fish, water, arm = forks.fish_level[ok], forks.water_level[ok], forks.arm_rms[ok]
@@ -180,29 +175,6 @@ def _view(img: np.ndarray, setup: SurveySetup, p: Params, clock: _Clock, trace: 
     fins = located.take(keep)
     clock.lap("fork")
     return View(pyr, fins, fish[keep], water[keep], arm[keep], comps, (sx, sy))
-
-
-def _locate(pyr: list[np.ndarray], hyps: Fins, p: Params):
-    """The forks the hypotheses show (``vision.fork.locate_forks``), only those."""
-    forks = locate_forks(pyr, hyps, scales=p.span_tries, refit=p.refit_arms)
-    for _ in range(p.fork_passes - 1):
-        ok = np.flatnonzero(forks.ok)
-        again = locate_forks(pyr, forks.fins.take(ok), refit=p.refit_arms)        # again, from the fork
-        if not p.keep_first:
-            forks = again
-            continue
-        forks = _take_forks(forks, ok)
-        hit = np.flatnonzero(again.ok)
-        for name in ("fish_level", "water_level", "arm_rms", "contrast"):
-            getattr(forks, name)[hit] = getattr(again, name)[hit]
-        for name in ("xy", "angle", "polarity"):
-            getattr(forks.fins, name)[hit] = getattr(again.fins, name)[hit]
-    return forks
-
-
-def _take_forks(forks: Forks, idx: np.ndarray) -> Forks:
-    return Forks(forks.fins.take(idx), forks.ok[idx], forks.fish_level[idx], forks.water_level[idx],
-                 forks.arm_rms[idx], forks.contrast[idx])
 
 
 def _transfer(calib, v1: View, v2: View, pairs, p: Params) -> tuple[View, View]:
@@ -215,7 +187,8 @@ def _transfer(calib, v1: View, v2: View, pairs, p: Params) -> tuple[View, View]:
             continue
         hyp = transfer_forks(Ps, Pd, views[src], views[dst], lone, p.near_mm, p.far_mm)
         v = views[dst]
-        forks = _locate(v.pyr, hyp, p)
+        forks = locate_forks(v.pyr, hyp)
+        forks = locate_forks(v.pyr, forks.fins.take(np.flatnonzero(forks.ok)))
         ok = np.flatnonzero(forks.ok)
         if len(ok) == 0:
             continue
@@ -352,17 +325,14 @@ def _measurements(rows, pairs, f1, f2, v1, v2, fork_mm, fork_res, ch, calib, geo
     len_px = 0.5 * (np.linalg.norm(ch.px1 - f1.xy, axis=1) + np.linalg.norm(ch.px2 - f2.xy, axis=1))
     fill = np.minimum(body_fill(v1.comps, *v1.scale, f1.xy, ch.px1), body_fill(v2.comps, *v2.scale, f2.xy, ch.px2)) \
         if p.outlines else np.ones(len(f1))
-    # the residual a well-placed point leaves: 1.5 px, or more for a big fish, whose ends are
-    # located on a coarser pyramid level (a step of the fork's grid: a span / fork.SAMPLES)
-    res_px = p.residual_px * np.maximum(1.0, p.residual_per_step * 0.5 * (f1.span_px + f2.span_px) / FORK_SAMPLES)
     terms = {
         "t_fill": np.clip((fill - p.min_fill) / (1 - p.min_fill), 0, 1) if p.min_fill < 1 else np.ones(len(f1)),
         "t_stereo": np.clip((pairs.ncc - 0.4) / 0.5, 0, 1),
         # eq. (13)'s bank is drawn with a forked tail: a square-cut or worn tail the locator found
         # scores low on it without being any less a tail, so the bank lowers the score, never vetoes
         "t_fin": p.fin_floor + (1 - p.fin_floor) * np.clip((np.minimum(f1.score, f2.score) - 0.3) / 0.4, 0, 1),
-        "t_fork_residual": np.exp(-(fork_res / res_px) ** 2),
-        "t_snout_residual": np.exp(-(ch.residual_px / res_px) ** 2),
+        "t_fork_residual": np.exp(-(fork_res / 1.5) ** 2),
+        "t_snout_residual": np.exp(-(ch.residual_px / 1.5) ** 2),
         "t_snout_edge": np.clip(ch.strength, 0, 1),
         "t_tilt": np.clip(1 - (ch.tilt_deg / geo.max_tilt_deg) ** 2, 0, 1),
         "t_size": np.clip(len_px / (p.good_length_px * width / 1280.0), 0, 1),

@@ -19,8 +19,7 @@ from pathlib import Path
 import click
 
 from controller.errors import BadInput
-
-KINDS = {1: "busy", 2: "idle", 3: "awaited"}
+from devices.clock import iso as _iso
 
 
 @click.command()
@@ -60,7 +59,8 @@ def _make(out: str, slow, fast, farm_start, awaited) -> None:
 
 
 def _state(show: str) -> dict:
-    from devices.elastic_clock import ElasticClock
+    from devices.elastic_clock import AWAITED, BUSY, IDLE, ElasticClock
+    kinds = {BUSY: "busy", IDLE: "idle", AWAITED: "awaited"}
     try:
         c = ElasticClock(show)
     except (OSError, ValueError) as exc:
@@ -69,14 +69,9 @@ def _state(show: str) -> dict:
         seg, now = c.segment(), c.now()
         return {"farm_time": _iso(now), "speed": c.speed, "slow": c.slow, "fast": c.fast,
                 "fast_until": None if not math.isfinite(seg.limit) else _iso(seg.limit),
-                "slots": [{"name": s.name, "pid": s.pid, "state": KINDS.get(s.kind, "?"),
-                           **({"until": _iso(s.value)} if s.kind == 2 else
-                              {"max_speed": s.value} if s.kind == 1 and s.value > 0 else {}),
-                           "why": s.why} for s in c.slots() if s.kind in KINDS]}
+                "slots": [{"name": s.name, "pid": s.pid, "state": kinds[s.kind],
+                           **({"until": _iso(s.value)} if s.kind == IDLE else
+                              {"max_speed": s.value} if s.kind == BUSY and s.value > 0 else {}),
+                           "why": s.why} for s in c.slots() if s.kind in kinds]}
     finally:
         c.close()
-
-
-def _iso(t: float) -> str:
-    from devices.clock import iso
-    return iso(t)
