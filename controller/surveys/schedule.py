@@ -9,7 +9,9 @@ The robot asks ``next()`` only when no feeding demand waits (feeding comes first
 never runs during feeding. A tank is skipped while paused (an operator's pause: grading, a
 treatment) or fasting (an operator's ration of 0 g today); its survey waits for the resume. A
 survey that failed (the camera) is tried again ``retry_s`` later. One survey at a time: an
-unfinished one (preempted by demands) is resumed before any other is started.
+unfinished one (preempted by demands) is resumed before any other is started. A captured survey
+holds its tank until its record lands (its last pairs are measured after the robot has left): the
+ledger dates the next survey from that record, so a slow measurement must not look like no survey.
 """
 from __future__ import annotations
 
@@ -54,6 +56,7 @@ class SurveySchedule:
         self.current: SurveySession | None = None
         self.asked: OrderedDict[str, SurveySession] = OrderedDict()    # operators' requests, in order
         self.not_before: dict[str, float] = {}                          # tank -> retry after a failure
+        self.recording: dict[str, SurveySession] = {}                   # tank -> captured, not yet recorded
         self.started = clock.now()            # a tank never surveyed waits for its first hour after it
 
     def request(self, tank: str, pairs: int | None = None) -> str | None:
@@ -74,6 +77,8 @@ class SurveySchedule:
         ration = self.rations.today(tank, now)
         if ration.source == "operator" and ration.grams == 0:
             return "fasting"
+        if tank in self.recording:
+            return "measuring"
         if now < self.not_before.get(tank, -math.inf):
             return "retry later"
         return None
@@ -104,5 +109,15 @@ class SurveySchedule:
             return
         if self.current is session:
             self.current = None
+        if outcome == "captured":
+            self.recording[session.tank] = session
+        else:
+            self.not_before[session.tank] = now + self.cfg.surveys.retry_s
+
+    def recorded(self, session: SurveySession, now: float) -> None:
+        """A captured survey's record has landed in the ledger (or failed to): its tank may be
+        surveyed again once the ledger says it is due."""
+        if self.recording.get(session.tank) is session:
+            del self.recording[session.tank]
         # a survey that measured no fish is not one the ledger dates the next from: not at once again
         self.not_before[session.tank] = now + self.cfg.surveys.retry_s

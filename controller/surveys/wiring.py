@@ -61,8 +61,12 @@ class SurveyStops:
             self.schedule.ended(session, outcome if outcome != "failed" or session.failed else "preempted",
                                 self.clock.now())
         if outcome == "captured":
-            self.stop.finish(session)
+            self.stop.finish(session).add_done_callback(lambda _task: self._recorded(session))
         return outcome
+
+    def _recorded(self, session: SurveySession) -> None:
+        self.schedule.recorded(session, self.clock.now())
+        self.poke()
 
     def request(self, tank: str, pairs: int | None = None) -> str | None:
         note = self.schedule.request(tank, pairs)

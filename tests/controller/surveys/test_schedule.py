@@ -80,12 +80,15 @@ def test_tanks_come_due_at_their_hours_and_a_recorded_survey_resets_the_count(pa
     first = schedule.next(set(), clock.now())
     assert (first.tank, first.pairs, first.why) == ("T1", 12, "schedule")
     assert schedule.next(set(), clock.now()) is first                 # resumed before anything else
-    store.add_survey("T1", clock.now(), "sparus_aurata", "test", [10.0, 11.0], [25.0, 30.0])
     schedule.ended(first, "captured", clock.now())
+    store.add_survey("T1", clock.now(), "sparus_aurata", "test", [10.0, 11.0], [25.0, 30.0])
+    schedule.recorded(first, clock.now())
     clock.t = t("2026-06-01T11:00")
     assert schedule.next(set(), clock.now()).tank == "T2"             # T1 done for a week; T3 has none
-    schedule.ended(schedule.current, "captured", clock.now())
+    second = schedule.current
+    schedule.ended(second, "captured", clock.now())
     store.add_survey("T2", clock.now(), "sparus_aurata", "test", [10.0], [25.0])
+    schedule.recorded(second, clock.now())
     clock.t = t("2026-06-02T11:00")
     assert schedule.next(set(), clock.now()).tank == "T2"             # daily
 
@@ -100,6 +103,43 @@ def test_paused_fasting_and_failed_tanks_are_skipped_until_they_may_be_surveyed(
     session = schedule.next(set(), clock.now())
     assert session.tank == "T1"
     schedule.ended(session, "failed", clock.now())                     # the camera failed
+    assert schedule.next(set(), clock.now()) is None
+    clock.t += cfg.surveys.retry_s
+    assert schedule.next(set(), clock.now()).tank == "T1"
+
+
+@pytest.mark.parametrize("measuring_s", [0.0, 1.0, 3.0])   # x retry_s: the record lands that long after the visit
+def test_a_captured_survey_is_not_started_again_while_its_record_is_pending(parts, measuring_s):
+    cfg, store, rations, clock = parts
+    schedule = Schedule(cfg, store, rations, clock)
+    clock.t = t("2026-06-01T11:00")
+    session = schedule.next(set(), clock.now())
+    assert session.tank == "T1"
+    schedule.ended(session, "captured", clock.now())
+    step = cfg.surveys.retry_s / 4
+    for _ in range(int(measuring_s * 4)):                  # the last pairs are still being measured
+        clock.t += step
+        assert schedule.held("T1", set(), clock.now()) == "measuring"
+        assert schedule.next(set(), clock.now()).tank == "T2"
+        schedule.current = None                              # T2 is not what this test is about
+    store.add_survey("T1", clock.now(), "sparus_aurata", "test", [10.0], [25.0])
+    schedule.recorded(session, clock.now())
+    assert schedule.held("T1", set(), clock.now()) == "retry later"
+    clock.t += cfg.surveys.retry_s
+    assert schedule.held("T1", set(), clock.now()) is None
+    assert schedule.next(set(), clock.now()).tank == "T2"  # T1's record dates its next survey a week on
+    schedule.current = None
+    clock.t = t("2026-06-08T10:00")
+    assert schedule.next(set(), clock.now()).tank == "T1"
+
+
+def test_a_captured_survey_that_recorded_no_fish_waits_retry_s_not_a_week(parts):
+    cfg, store, rations, clock = parts
+    schedule = Schedule(cfg, store, rations, clock)
+    clock.t = t("2026-06-01T10:05")
+    session = schedule.next(set(), clock.now())
+    schedule.ended(session, "captured", clock.now())
+    schedule.recorded(session, clock.now())                  # measured nothing: the ledger has no survey
     assert schedule.next(set(), clock.now()) is None
     clock.t += cfg.surveys.retry_s
     assert schedule.next(set(), clock.now()).tank == "T1"

@@ -112,6 +112,8 @@ def test_a_survey_stop_settles_captures_its_pairs_at_the_tank_and_is_recorded(tm
             await r.until(lambda: r.robot.state == "surveying", what="surveying")
             arrived = r.clock.now()
             survey = await recorded(r, stops, "T2")
+            await r.until(lambda: not stops.schedule.recording, 5.0, what="the schedule told of the record")
+            assert stops.schedule.held("T2", set(), r.clock.now()) == "retry later"
             states = r.published.states()
             watch = SurveyWatch(r.robot.cfg, r.store, r.rations, r.alarms, r.published)
             fresh = watch.check(r.clock.now())
