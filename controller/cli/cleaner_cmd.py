@@ -1,8 +1,9 @@
 """``fishfarm cleaner map --png MAP.png [--config farm.toml]``
 
 The pond cleaner's coverage map from the ledger (``[store] path`` of the config): the cells
-cleaned, those still to clean and the water out of the robot's reach, the keep-outs, the dock,
-and the path the robot followed in the current run. Prints the share cleaned and where the run
+cleaned, those still to clean, those the mop-up gave up for good (the geofence refused them, or no
+pass reached them), the water out of the robot's reach, the keep-outs, the dock, and the path the
+robot followed in the current run. Prints the share cleaned and where the run
 stands. Reads the ledger only; a running controller may keep writing it. Bad input (no
 ``[cleaning]`` section, a ledger that cannot be read, a map saved for another pond) exits 2 with
 one line naming the fault.
@@ -16,6 +17,7 @@ import click
 from controller.errors import BadInput
 
 CLEAN, DIRTY, OUT_OF_REACH = 255, 130, 60      # CoverageMap.image()'s values
+GIVEN_UP = 100                                  # drawn here: dirty cells the mop-up will not try again
 
 
 @click.group()
@@ -53,7 +55,9 @@ def map_cmd(png_path: str, config_path: str) -> None:
     extent = (minx, minx + cols * cmap.cell_m, miny, miny + rows * cmap.cell_m)
     title = "no cleaning run yet" if saved is None else (
         f"run {saved.run}: {100 * cmap.coverage():.1f} % cleaned, {saved.state}")
-    draw_map(png_path, geom, cmap.image(), extent, trace, s.dock, title)
+    image = cmap.image()
+    image[(cmap.given_up & cmap.reachable & ~cmap.cleaned())[::-1]] = GIVEN_UP
+    draw_map(png_path, geom, image, extent, trace, s.dock, title)
     click.echo(f"{title}; written: {png_path}")
 
 
@@ -76,15 +80,15 @@ def draw_map(path: str, geom, image, extent, trace, dock, title: str) -> None:
     plt = pyplot()
     from matplotlib.colors import ListedColormap
 
-    colours = ListedColormap(["white", "#9db8c9", "#c9a56b", "#3a9a5b"])
-    levels = {0: 0, OUT_OF_REACH: 1, DIRTY: 2, CLEAN: 3}
+    colours = ListedColormap(["white", "#9db8c9", "#c9a56b", "#3a9a5b", "#8e44ad"])
+    levels = {0: 0, OUT_OF_REACH: 1, DIRTY: 2, CLEAN: 3, GIVEN_UP: 4}
     shown = image.copy()
     for value, level in levels.items():
         shown[image == value] = level
     w, h = extent[1] - extent[0], extent[3] - extent[2]
     fig, ax = plt.subplots(figsize=(min(14.0, 3 + 10 * w / max(w, h)), min(10.0, 2 + 8 * h / max(w, h))),
                            constrained_layout=True)
-    ax.imshow(shown, cmap=colours, vmin=0, vmax=3, extent=extent, origin="upper", interpolation="nearest")
+    ax.imshow(shown, cmap=colours, vmin=0, vmax=4, extent=extent, origin="upper", interpolation="nearest")
     ax.plot(*geom.outline.exterior.xy, color="black", lw=1.5)
     for k in geom.keepouts:
         ax.fill(*k.exterior.xy, facecolor="#555555", edgecolor="black", lw=1, alpha=0.8)
@@ -93,6 +97,7 @@ def draw_map(path: str, geom, image, extent, trace, dock, title: str) -> None:
     ax.plot(*dock, marker="s", color="black", ms=8, ls="none", label="dock")
     from matplotlib.patches import Patch
     handles = [Patch(color="#3a9a5b", label="cleaned"), Patch(color="#c9a56b", label="to clean"),
+               Patch(color="#8e44ad", label="given up (mop-up)"),
                Patch(color="#9db8c9", label="out of reach"), *ax.get_legend_handles_labels()[0]]
     ax.legend(handles=handles, loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=9)
     ax.set_aspect("equal")

@@ -18,6 +18,7 @@ TANK = "[[tank]]\nid = \"T1\"\nstock = 10\nmean_weight_g = 10\nposition_m = 1\ns
 POND = ('outline = [[0, 0], [20, 0], [20, 10], [0, 10]]\nkeepouts = [[[5, 4], [6, 4], [6, 5], [5, 5]]]\n'
         'dock = [1, 1]\n')
 GREEN = np.array([0x3a, 0x9a, 0x5b]) / 255
+PURPLE = np.array([0x8e, 0x44, 0xad]) / 255
 
 
 def farm(tmp_path, cleaning=POND):
@@ -28,7 +29,7 @@ def farm(tmp_path, cleaning=POND):
     return path
 
 
-def save_run(cfg, lanes):
+def save_run(cfg, lanes, give_up=()):
     from controller.cleaning.geometry import pond_geometry
     s = cfg.cleaning
     geom = pond_geometry(s.outline, s.keepouts)
@@ -37,6 +38,10 @@ def save_run(cfg, lanes):
     for y in lanes:
         cmap.sweep(1.0, y, 19.0, y)
         trace += [(1.0, y), (19.0, y)]
+    for x0, y0, x1, y1 in give_up:                     # the mop-up's account, with the cells it gave up
+        cmap.mopup = {"m": 1.0, "s": 10.0, "done": False}
+        xs, ys = _centres(cmap)
+        cmap.given_up |= (xs >= x0) & (xs <= x1) & (ys >= y0) & (ys <= y1)
     store = Store(cfg.store.path)
     store.save_cleaner(Progress(fingerprint(s), 1, cmap.to_bytes(), 10, "cleaning", "clean", cmap.coverage(), 5.0),
                        np.array(trace))
@@ -44,10 +49,17 @@ def save_run(cfg, lanes):
     return cmap.coverage()
 
 
-def green_share(png):
+def _centres(cmap):
+    rows, cols = cmap.given_up.shape
+    xs = cmap.origin[0] + (np.arange(cols) + 0.5) * cmap.cell_m
+    ys = cmap.origin[1] + (np.arange(rows) + 0.5) * cmap.cell_m
+    return np.meshgrid(xs, ys)
+
+
+def green_share(png, colour=GREEN):
     import matplotlib.image
     img = matplotlib.image.imread(png)[..., :3]
-    return float(np.mean(np.all(np.abs(img - GREEN) < 0.02, axis=-1)))
+    return float(np.mean(np.all(np.abs(img - colour) < 0.02, axis=-1)))
 
 
 def test_the_map_shows_what_was_cleaned(tmp_path, capsys):
@@ -77,3 +89,19 @@ def test_bad_input_is_one_line_exit_2(tmp_path, capsys, case, fault):
     assert main(["cleaner", "map", "--png", str(tmp_path / "m.png"), "--config", str(path)]) == 2
     err = capsys.readouterr().err
     assert fault in err and err.count("\n") == 1 and not (tmp_path / "m.png").exists()
+
+
+def test_the_cells_the_mop_up_gave_up_are_drawn_apart_from_those_still_to_clean(tmp_path, capsys):
+    path = farm(tmp_path)
+    cfg = load_config(path)
+    save_run(cfg, [1.0, 1.5])
+    assert main(["cleaner", "map", "--png", str(tmp_path / "none.png"), "--config", str(path)]) == 0
+    save_run(cfg, [1.0, 1.5], give_up=[(10.0, 6.0, 14.0, 8.0)])            # a 4 m x 2 m patch, dirty
+    assert main(["cleaner", "map", "--png", str(tmp_path / "some.png"), "--config", str(path)]) == 0
+    save_run(cfg, [1.0, 1.5], give_up=[(10.0, 6.0, 14.0, 8.0), (2.0, 1.0, 18.0, 1.5)])   # cleaned: not given up
+    assert main(["cleaner", "map", "--png", str(tmp_path / "cleaned.png"), "--config", str(path)]) == 0
+    legend = green_share(tmp_path / "none.png", PURPLE)
+    some = green_share(tmp_path / "some.png", PURPLE) - legend
+    cleaned = green_share(tmp_path / "cleaned.png", PURPLE) - legend
+    assert legend < 0.002 and some > 0.01
+    assert cleaned == pytest.approx(some, rel=0.1) and green_share(tmp_path / "cleaned.png") > legend
