@@ -30,6 +30,7 @@ How it goes:
 """
 from __future__ import annotations
 
+import itertools
 import json
 import logging
 import queue
@@ -56,6 +57,10 @@ log = logging.getLogger("fishfarm.survey")
 DISCOVER_S = 1.0
 TIMEOUT_S = 30.0           # a pair takes well under a second; this is for a hung worker
 PER_WORKER = 2
+# The survey stop sends each pair in a call of its own, so a dispatch's own load count starts at
+# zero every time: ties are broken by a turn that moves on with each dispatch of this process,
+# or every pair would go to the same worker (measured: one of two workers did 1 % of a grow-out's).
+_TURNS = itertools.count()
 
 
 def measure_remote(jobs: Iterable[PairJob], calib: StereoCalibration, setup: SurveySetup, *,
@@ -126,6 +131,7 @@ class _Dispatch:
         self.done: dict[int, PairResult] = {}         # results waiting for their turn
         self.resend: deque[_Job] = deque()            # jobs waiting for a worker
         self.survey = uuid.uuid4().hex[:12]
+        self.turn = next(_TURNS)
         data = wire.calibration_bytes(calib)
         self.digest = wire.content_hash(data)
         self.header = {"calib": self.digest, "setup": wire.setup_to_json(setup), "measure": measure}
@@ -213,13 +219,19 @@ class _Dispatch:
             free = [w for w in self.usable() if self.busy[w] < self.per_worker and w not in rec.asked]
             if not free:
                 return
-            worker = min(free, key=lambda w: (self.busy[w], w))
+            worker = self._least_busy(free)
             self.resend.popleft()
             rec.queued = False
             rec.asked.add(worker)
             self.busy[worker] += 1
             self.asked[worker][rec.id] = rec
             self.pool.submit(self._ask, rec, worker)
+
+    def _least_busy(self, free: list[str]) -> str:
+        """The free worker with the fewest jobs; among equals, the next in turn."""
+        ring = sorted(self.usable())
+        turn = {w: (ring.index(w) - self.turn) % len(ring) for w in free}
+        return min(free, key=lambda w: (self.busy[w], turn[w]))
 
     def _ask(self, rec: _Job, worker: str) -> None:
         """On a pool thread: one get, its outcome to the event queue."""

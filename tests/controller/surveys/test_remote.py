@@ -172,7 +172,7 @@ def test_with_no_worker_up_the_survey_is_measured_here(rendered, hub):
     assert {r.worker for r in results} == {None}
 
 
-def _fake_worker(session: zenoh.Session, site: str, answer):
+def _fake_worker(session: zenoh.Session, site: str, answer, name: str = "liar"):
     """An in-process 'worker' answering every job with ``answer(header)`` (bytes) or never (None)."""
     held = []
 
@@ -184,7 +184,7 @@ def _fake_worker(session: zenoh.Session, site: str, answer):
             return
         query.reply(query.key_expr, data)
         query.drop()
-    key = node_key(site, "liar")
+    key = node_key(site, name)
     entities = [session.declare_queryable(f"{key}/pair", on_query), session.liveliness().declare_token(key)]
     return entities, held
 
@@ -369,3 +369,30 @@ def test_a_late_answer_from_a_worker_given_up_on_is_not_counted_twice(rendered, 
         late.close()
     same(results, local[:4])
     assert gone.is_set() and len(threads) >= 1
+
+
+def test_pairs_sent_one_call_each_as_the_survey_stop_does_are_shared_by_the_workers(rendered, hub):
+    items, calib, local, _ = rendered
+    session, endpoint, site = hub
+    served: dict[str, list[int]] = {"w1": [], "w2": []}
+
+    def honest(name):
+        def answer(header):
+            served[name].append(header["frame"])
+            fish = [wire.fish_to_json(f) for f in local[header["frame"]].fish]
+            return wire.encode_reply({"ok": True, "job": header["job"], "frame": header["frame"],
+                                      "fish": fish, "timings": {}})
+        return answer
+    peer = zenoh.open(wire_client(endpoint))
+    try:
+        entities = [e for name in served for e in _fake_worker(peer, site, honest(name), name)[0]]
+        for frame in range(8):
+            [result] = measure_remote(jobs(items, 8)[frame:frame + 1], calib, SETUP, session=session, site=site,
+                                      local_workers=1, discover_s=WAIT_S)
+            same([result], local[frame:frame + 1])
+        for e in entities:
+            e.undeclare()
+    finally:
+        peer.close()
+    assert sorted(served["w1"] + served["w2"]) == list(range(8))          # each pair measured once
+    assert min(len(v) for v in served.values()) >= 3, served
