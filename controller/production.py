@@ -13,6 +13,12 @@ config's count and the stock events; ``days`` apart):
 - condition factor      K = 100 · W / L³ per fish (g, cm), the survey's mean;
 - size uniformity       CV = sd / mean of weight (%), and whether it calls for grading;
 - projection: the days to a target weight at the last SGR, and the date.
+
+Beside them, the same figures from the tank's growth fitted to every survey of a window
+(controller/growth.py): SGR with its 95 % interval, and FCR = feed ÷ the gain between the fitted
+weights at the window's first and last survey (the same moves of fish counted), with its interval.
+The window: the surveys since the last harvest or transfer of the tank (they change which fish are
+in it: a fit across one mixes two stocks) and within ``[feeding] growth_window_d`` of the newest.
 """
 from __future__ import annotations
 
@@ -21,6 +27,8 @@ import time
 from dataclasses import dataclass
 
 import numpy as np
+
+from controller.growth import GrowthFit, Weighing, conversion, fit_growth
 
 DAY_S = 86_400.0
 
@@ -82,6 +90,45 @@ def interval(p1: SurveyPoint, p2: SurveyPoint, feed_g: float, events, tank: str)
             moved += (e["count"] if e["tank"] == tank else 0) * w - (e["count"] if e["to_tank"] == tank else 0) * w
     gain = p2.stock * p2.mean_weight_g - p1.stock * p1.mean_weight_g + moved
     return Interval(p1.t, p2.t, days, sgr, feed_g, gain, feed_g / gain if gain > 0 else None)
+
+
+BREAKS = ("harvest", "transfer")        # stock events after which the fit starts again
+
+
+def growth_window(store, tank_id: str, t: float, window_d: float) -> list:
+    """The surveys the growth fit pools at ``t``, oldest first (module docstring)."""
+    rows = store.surveys(tank_id, until=t)
+    if not rows:
+        return []
+    moved = [e["t"] for e in store.stock_events()
+             if e["kind"] in BREAKS and e["t"] <= t and tank_id in (e["tank"], e["to_tank"])]
+    start = max([rows[0].t - window_d * DAY_S, *moved])
+    return sorted((r for r in rows if r.t >= start), key=lambda r: r.t) or [rows[0]]
+
+
+def tank_growth(store, tank_id: str, t: float, window_d: float,
+                prior_sgr_pct: float | None = None) -> tuple[GrowthFit, list] | None:
+    """The tank's growth fit at ``t`` and the surveys it rests on; None before any survey."""
+    rows = growth_window(store, tank_id, t, window_d)
+    fit = fit_growth([Weighing(r.t, r.mean_weight_g, r.cv_pct, r.count) for r in rows], prior_sgr_pct)
+    return None if fit is None else (fit, rows)
+
+
+def fitted_figures(cfg, store, tank_id: str, t: float) -> dict | None:
+    """SGR and FCR over the fit's window, with their 95 % intervals (module docstring)."""
+    got = tank_growth(store, tank_id, t, cfg.feeding.growth_window_d)
+    if got is None or not got[0].measured:
+        return None
+    fit, rows = got
+    base, events = cfg.tank(tank_id).stock, [dict(e) for e in store.stock_events()]
+    t1, t2 = fit.t_first, fit.t_last
+    terms = [(stock_at(base, events, tank_id, t2), t2), (-stock_at(base, events, tank_id, t1), t1)]
+    for e in events:
+        if t1 < e["t"] <= t2:
+            terms.append(((e["count"] if e["tank"] == tank_id else 0)
+                          - (e["count"] if e["to_tank"] == tank_id else 0), e["t"]))
+    conv = conversion(fit, store.fed_between(tank_id, t1, t2), terms)
+    return {**fit.summary(t2), **conv.summary(), "since": iso_day(t1), "t_first": t1, "t_last": t2}
 
 
 def days_to(target_g: float, weight_g: float, sgr_pct: float) -> float | None:

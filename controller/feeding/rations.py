@@ -2,16 +2,18 @@
 
 The stock is the config's count plus the stock events in the store (mortality, harvests,
 transfers). The weights come from the tank's latest weight survey in the ledger, each fish fed by
-its own weight class (controller/feeding/feeding_table.py) at the tank's water temperature; a
-survey older than ``[feeding] survey_max_age_d`` has its weights projected to today (at the growth
-measured between the last two surveys, else the chart's expected growth) and the ration says so;
+its own weight class (controller/feeding/feeding_table.py) at the tank's water temperature, its
+weights scaled to the mean weight the tank's growth fit (controller/growth.py: every survey of the
+window pooled, ln W linear in time) gives for today — a survey is days old when the ration is
+planned and one survey's mean is noisy (~4 % for 30 fish). With one survey in the window the chart's
+expected growth projects it (not projected when the chart has none). A survey older than
+``[feeding] survey_max_age_d`` is projected the same way and the ration says so (``projected``);
 with no survey, the config's mean weight. A ration is fixed for a farm day when first asked for
 (row in the store), so a restart or a config edit mid-day does not move the goalposts; a new survey
 or a stock event plans it again, an operator's ration stands.
 """
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -27,6 +29,7 @@ from controller.feeding.feeding_table import (
     ration_from_weights,
     table_from_species,
 )
+from controller.production import tank_growth
 from devices.clock import farm_date
 
 DAY_S = 86_400.0
@@ -88,6 +91,7 @@ class Plan:
     source: str                     # config | survey | projected
     mean_weight_g: float
     note: str
+    growth: dict | None = None      # the growth fit today's weight comes from (GrowthFit.summary)
 
 
 def ration_payload(r: Ration) -> dict:
@@ -154,33 +158,37 @@ class Rations:
         """Today's ration from the stock and the weights the ledger knows at ``t`` (module docstring)."""
         tank = self.cfg.tank(tank_id)
         table, temp, stock = self.tables[tank.species], self.water_temp_c(tank_id), self.stock(tank_id)
-        weights, source, note = self._weights(tank_id, t, table, temp)
+        weights, source, note, growth = self._weights(tank_id, t, table, temp)
         plan = ration_from_weights(weights, stock, temp, table)
         grams = plan.grams
         if tank.feeding_rate_pct is not None:          # the operator's rate for this tank, on its biomass
             grams = plan.biomass_g * tank.feeding_rate_pct / 100.0
-        return Plan(grams, plan.pellet_mm, source, plan.mean_weight_g, note)
+        return Plan(grams, plan.pellet_mm, source, plan.mean_weight_g, note, growth)
 
-    def _weights(self, tank_id: str, t: float, table: FeedingTable, temp: float) -> tuple[np.ndarray, str, str]:
-        last = self.store.surveys(tank_id, until=t, limit=2)
-        if not last:
+    def _weights(self, tank_id: str, t: float, table: FeedingTable,
+                 temp: float) -> tuple[np.ndarray, str, str, dict | None]:
+        """The newest survey's fish, scaled to the growth fit's mean weight today (module docstring)."""
+        newest = self.store.surveys(tank_id, until=t, limit=1)
+        if not newest:
             w = self.cfg.tank(tank_id).mean_weight_g
-            return np.array([w]), "config", f"no survey: the config's mean weight {w:g} g"
-        s = last[0]
+            return np.array([w]), "config", f"no survey: the config's mean weight {w:g} g", None
+        s = newest[0]
+        fit, _ = tank_growth(self.store, tank_id, t, self.cfg.feeding.growth_window_d)
         weights = self.store.survey_weights(s.id)
         age_d = (t - s.t) / DAY_S
+        source = "survey" if age_d <= self.cfg.feeding.survey_max_age_d else "projected"
         when = f"survey of {self.date(s.t)} ({s.count} fish, mean {s.mean_weight_g:.1f} g)"
-        if age_d <= self.cfg.feeding.survey_max_age_d:
-            return weights, "survey", when
-        sgr = None
-        if len(last) == 2 and s.t - last[1].t >= DAY_S:    # growth measured between the last two
-            sgr = 100.0 * math.log(s.mean_weight_g / last[1].mean_weight_g) / ((s.t - last[1].t) / DAY_S)
-        projected = project_weight(s.mean_weight_g, age_d, temp, table, sgr)
-        if projected is None:
-            return weights, "projected", f"{when}, {age_d:.0f} days old; no growth known: not projected"
-        how = f"{sgr:.2f} %/day measured" if sgr is not None else "the feeding chart's growth"
-        return (weights * projected / s.mean_weight_g, "projected",
-                f"{when}, {age_d:.0f} days old: projected to {projected:.1f} g at {how}")
+        now = fit.weight_g(t)
+        if fit.measured:
+            how = f"{fit.sgr_pct:.2f} %/day fitted to {fit.surveys} surveys"
+        else:                           # one survey: the chart's growth, class by class as the fish grow
+            now = project_weight(fit.weight_g(fit.t_last), max(0.0, (t - fit.t_last) / DAY_S), temp, table)
+            if now is None:
+                return weights, source, f"{when}, {age_d:.1f} days old; no growth known: not projected", None
+            how = "the feeding chart's growth"
+        return (weights * now / s.mean_weight_g, source,
+                f"{when}, {age_d:.1f} days old: {now:.1f} g (±{fit.weight_ci_pct(t):.1f} %) today at {how}",
+                fit.summary(t) | {"weight_g": now})
 
     def today(self, tank_id: str, t: float) -> Ration:
         date = self.date(t)

@@ -62,7 +62,7 @@ def species_rate(rations, w: float) -> float:
 
 def test_a_fresh_survey_feeds_each_fish_by_its_own_class(rations):
     weights = [4.0, 12.0, 12.0, 30.0, 90.0]                     # five classes of the species' table
-    rations.store.add_survey("T1", T - DAY, "sparus_aurata", "test", [8.0] * 5, weights)
+    rations.store.add_survey("T1", T, "sparus_aurata", "test", [8.0] * 5, weights)    # not grown yet
     r = rations.today("T1", T)
     stock = rations.cfg.tank("T1").stock
     assert r.source == "survey"
@@ -78,7 +78,7 @@ def test_a_stale_survey_is_projected_at_the_growth_measured_between_the_last_two
     plan = rations.plan("T1", T)                                # 30 days > 14: projected
     grown = [w * 1.25 ** 3 for w in second]                    # the same growth for three more periods
     stock = rations.cfg.tank("T1").stock
-    assert plan.source == "projected" and "projected to" in plan.note and "measured" in plan.note
+    assert plan.source == "projected" and "fitted to 2 surveys" in plan.note
     assert plan.mean_weight_g == pytest.approx(sum(grown) / 3)
     assert plan.grams == pytest.approx(stock * sum(w * species_rate(rations, w) for w in grown) / 3 / 100)
 
