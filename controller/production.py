@@ -12,7 +12,8 @@ config's count and the stock events; ``days`` apart):
   when G ≤ 0: a loss is not a conversion);
 - condition factor      K = 100 · W / L³ per fish (g, cm), the survey's mean;
 - size uniformity       CV = sd / mean of weight (%), and whether it calls for grading;
-- projection: the days to a target weight at the last SGR, and the date.
+- projection: the days to a target weight at the fitted SGR (below; the last interval's without
+  a fit), from the fitted weight at the newest survey, and the date.
 
 Beside them, the same figures from the tank's growth fitted to every survey of a window
 (controller/growth.py): SGR with its 95 % interval, and FCR = feed ÷ the gain between the fitted
@@ -167,12 +168,15 @@ def tank_figures(cfg, store, tank_id: str, since: float | None = None, target_g:
     if points:
         newest = points[-1]
         out["grading"] = needs_grading(newest.cv_pct, cfg.feeding.grading_cv_pct)
+        fit = out["fit"] = fitted_figures(cfg, store, tank_id, newest.t)
         target = target_g if target_g is not None else tank.target_weight_g
-        if target is not None and intervals:
-            sgr = intervals[-1]["sgr_pct"]
-            days = days_to(target, newest.mean_weight_g, sgr)
+        if target is not None and intervals:       # from the fitted growth: pooled, it is the steadier
+            sgr, weight = ((fit["sgr_pct_day"], fit["weight_g"]) if fit is not None
+                           else (intervals[-1]["sgr_pct"], newest.mean_weight_g))
+            days = days_to(target, weight, sgr)
             out["projection"] = {"target_g": target, "sgr_pct": sgr, "days": days,
-                                 "date": None if days is None else iso_day(newest.t + days * DAY_S)}
+                                 "date": None if days is None else iso_day(newest.t + days * DAY_S),
+                                 "basis": "fit" if fit is not None else "last interval"}
     return out
 
 

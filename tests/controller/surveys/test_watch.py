@@ -91,6 +91,11 @@ def test_the_figures_between_the_last_two_surveys_are_published_and_shown_in_sta
     shown = _weights(c, "T1", T + 10 * day + 5)
     assert shown["mean_weight_g"] == 25 and shown["ration_basis"] == "survey"
     assert shown["sgr_pct_day"] == fig["sgr_pct_day"] and shown["fcr"] == fig["fcr"]
+    # two surveys: the fitted growth is the interval's, and so are its FCR's feed and gain
+    assert fig["fit"]["sgr_pct_day"] == pytest.approx(fig["sgr_pct_day"]) and fig["fit"]["surveys"] == 2
+    assert fig["fit"]["fcr"] == pytest.approx(fig["fcr"]) and fig["fit"]["fcr_ci"][0] < fig["fcr"]
+    assert shown["sgr_fit_pct_day"] == fig["fit"]["sgr_pct_day"] and shown["fcr_fit"] == fig["fit"]["fcr"]
+    assert shown["weight_ci_pct"] > 0
     never = _weights(c, "T4", T)
     assert never["ration_basis"] == "config" and never["mean_weight_g"] == cfg.tank("T4").mean_weight_g
     assert never["last_survey_t"] is None and never["fcr"] is None
