@@ -12,7 +12,7 @@ fish picked at random, a fish's chance of being found growing with its length as
 "Nursery-sized fish read heavy"), every length read ``LENGTH_BIAS_PCT`` long (+0.8 %) and the weight
 from the length with the condition-factor scatter of one fish (``CONDITION_SD``, log sd).
 
-Per configuration (fish a survey × the fit's window × biased or not), over ``SEEDS`` seeds, for
+Per configuration (fish a survey × the fit's window and model × biased or not), over ``SEEDS`` seeds, for
 runs of 14 and 60 days:
 - ``ration``: the biomass the ration rests on (the controller's stock × its mean weight) and the
   ration itself against the ones the true fish call for (same chart), every day from the first
@@ -23,7 +23,8 @@ runs of 14 and 60 days:
   the last two surveys (what `fishfarm report` showed before).
 
 Run: ``.venv/bin/python bench/bench_rations.py``; BENCH_RATIONS_SEEDS (default 40),
-BENCH_RATIONS_FISH (default "30,62,120"), BENCH_RATIONS_WINDOWS (days, default "14,21,28").
+BENCH_RATIONS_FISH (default "30,62,120"), BENCH_RATIONS_WINDOWS (days, default "21,28,42"),
+BENCH_RATIONS_MODELS (``[feeding] growth_model``s, default "feed,sgr").
 """
 from __future__ import annotations
 
@@ -48,7 +49,8 @@ from devices.sim.stock import SimStock, SimStockParams  # noqa: E402
 
 SEEDS = int(os.environ.get("BENCH_RATIONS_SEEDS", "40"))
 FISH = [int(x) for x in os.environ.get("BENCH_RATIONS_FISH", "30,62,120").split(",")]
-WINDOWS = [float(x) for x in os.environ.get("BENCH_RATIONS_WINDOWS", "14,21,28").split(",")]
+WINDOWS = [float(x) for x in os.environ.get("BENCH_RATIONS_WINDOWS", "21,28,42").split(",")]
+MODELS = os.environ.get("BENCH_RATIONS_MODELS", "feed,sgr").split(",")
 RUN_DAYS = (14, 60)
 DETECT_GAMMA = 4.4
 LENGTH_BIAS_PCT = 0.8
@@ -74,8 +76,9 @@ class Survey:
         return length, self.a * length ** self.b
 
 
-def run(seed: int, days: int, fish: int, window_d: float, biased: bool, cfg, species) -> dict:
-    cfg = cfg.model_copy(update={"feeding": cfg.feeding.model_copy(update={"growth_window_d": window_d})})
+def run(seed: int, days: int, fish: int, window_d: float, model: str, biased: bool, cfg, species) -> dict:
+    cfg = cfg.model_copy(update={"feeding": cfg.feeding.model_copy(update={"growth_window_d": window_d,
+                                                                           "growth_model": model})})
     store = Store(":memory:")
     rations = Rations(cfg, species, store)
     tank = cfg.tank(TANK)
@@ -164,9 +167,9 @@ def stats(errors: list[float]) -> dict:
             "within_5pct": round(float(np.mean(np.abs(e) <= 0.05)), 3), "n": int(len(e))}
 
 
-def configuration(days: int, fish: int, window_d: float, biased: bool, cfg, species) -> dict:
-    runs = [run(seed, days, fish, window_d, biased, cfg, species) for seed in range(SEEDS)]
-    out = {"days": days, "fish": fish, "window_d": window_d, "biased": biased,
+def configuration(days: int, fish: int, window_d: float, model: str, biased: bool, cfg, species) -> dict:
+    runs = [run(seed, days, fish, window_d, model, biased, cfg, species) for seed in range(SEEDS)]
+    out = {"days": days, "fish": fish, "window_d": window_d, "model": model, "biased": biased,
            "biomass": stats([e for r in runs for e in r["biomass"]]),
            "ration": stats([e for r in runs for e in r["ration"]])}
     for key in ("sgr", "fcr", "sgr_consecutive", "fcr_consecutive"):
@@ -184,8 +187,9 @@ def main() -> None:
     cfg = load_config(ROOT / "config" / "farm.toml")
     species = load_species()
     started = time.process_time()
-    results = [configuration(days, fish, window, biased, cfg, species)
-               for biased in (False, True) for days in RUN_DAYS for fish in FISH for window in WINDOWS]
+    results = [configuration(days, fish, window, model, biased, cfg, species)
+               for biased in (False, True) for days in RUN_DAYS for fish in FISH for window in WINDOWS
+               for model in MODELS]
     print(json.dumps({"seeds": SEEDS, "cpu_s": round(time.process_time() - started, 1),
                       "detect_gamma": DETECT_GAMMA, "length_bias_pct": LENGTH_BIAS_PCT, "results": results},
                      indent=1))

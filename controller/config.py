@@ -108,6 +108,8 @@ class FeedingConfig(Strict):
     grading_cv_pct: float = Field(30.0, gt=0, le=200, description="weight CV above which a tank wants grading")
     growth_window_d: float = Field(21.0, gt=0, le=365, description="surveys pooled in the growth fit: those "
                                    "this many days before the newest (controller/growth.py)")
+    growth_model: Literal["feed", "sgr"] = Field("feed", description="the growth fitted to the surveys: "
+                                                 "feed given / FCR, or a constant SGR (controller/growth.py)")
 
     @model_validator(mode="after")
     def _portions_fit(self):

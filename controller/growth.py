@@ -97,7 +97,7 @@ class GrowthFit:
 
     def summary(self, t: float | None = None) -> dict:
         """Plain data for the figures, the report and the ration."""
-        out = {"sgr_pct_day": self.sgr_pct, "sgr_ci_pct_day": self.sgr_ci_pct, "surveys": self.surveys,
+        out = {"model": "sgr", "sgr_pct_day": self.sgr_pct, "sgr_ci_pct_day": self.sgr_ci_pct, "surveys": self.surveys,
                "fish": self.fish, "days": self.days, "scatter": self.scatter, "measured": self.measured}
         if t is not None:
             out |= {"weight_g": self.weight_g(t), "weight_ci_pct": self.weight_ci_pct(t)}
@@ -165,3 +165,102 @@ def conversion(fit: GrowthFit, feed_g: float, terms: list[tuple[float, float]]) 
     cov = np.array(fit.cov)
     se = float(math.sqrt(max(0.0, grad @ cov @ grad))) if fit.measured else math.nan
     return Conversion(float(feed_g), float(gain), se, fit.quantile)
+
+
+# -- the feed model: the fish gain what they are fed, over a conversion ratio --------------------
+@dataclass(frozen=True)
+class Account:
+    """The ledger at ``t``, counted from the window's first survey: feed given since, the stock
+    then, and the weight of the fish that left since (mortality, harvests) less that of those
+    that came."""
+    t: float
+    feed_g: float
+    stock: int
+    left_g: float
+
+
+@dataclass(frozen=True)
+class FeedFit:
+    """B(t) = start_g + (feed given since the first survey) / FCR − (weight of the fish that left):
+    the biomass the surveys (N·W, each weighted by 1/its se²) say the tank held at its first survey
+    and the feed conversion ratio, fitted by least squares. Unlike a constant SGR it follows the
+    ration: growth slows when the chart's rate steps down, and a survey a week old is brought to
+    today by the feed given since. ``cov``: of (start_g, 1/FCR), scaled as GrowthFit's."""
+    start_g: float
+    per_feed: float                  # 1 / FCR: grams of fish a gram of feed makes
+    cov: tuple[tuple[float, float], tuple[float, float]]
+    first: Account
+    last: Account
+    surveys: int
+    fish: int
+    scatter: float
+    quantile: float
+
+    def biomass_g(self, a: Account) -> float:
+        return self.start_g + self.per_feed * a.feed_g - a.left_g
+
+    def weight_g(self, a: Account) -> float:
+        return self.biomass_g(a) / a.stock if a.stock > 0 else math.nan
+
+    def _log_grad(self, a: Account) -> np.ndarray:
+        return np.array([1.0, a.feed_g]) / self.biomass_g(a)
+
+    def weight_ci_pct(self, a: Account) -> float:
+        g = self._log_grad(a)
+        return 100.0 * math.expm1(self.quantile * math.sqrt(max(0.0, g @ np.array(self.cov) @ g)))
+
+    @property
+    def days(self) -> float:
+        return (self.last.t - self.first.t) / DAY_S
+
+    @property
+    def sgr_pct(self) -> float:
+        return 100.0 * math.log(self.weight_g(self.last) / self.weight_g(self.first)) / self.days
+
+    @property
+    def sgr_ci_pct(self) -> float:
+        g = self._log_grad(self.last) - self._log_grad(self.first)
+        return 100.0 * self.quantile * math.sqrt(max(0.0, g @ np.array(self.cov) @ g)) / self.days
+
+    @property
+    def fcr(self) -> float | None:
+        return 1.0 / self.per_feed if self.per_feed > 0 else None
+
+    @property
+    def fcr_ci(self) -> tuple[float | None, float | None]:
+        half = self.quantile * math.sqrt(self.cov[1][1])
+        lo, hi = self.per_feed - half, self.per_feed + half
+        return (1.0 / hi if hi > 0 else None, 1.0 / lo if lo > 0 else None)
+
+
+    def summary(self, now: Account | None = None) -> dict:
+        lo, hi = self.fcr_ci
+        out = {"model": "feed", "sgr_pct_day": self.sgr_pct, "sgr_ci_pct_day": self.sgr_ci_pct,
+               "surveys": self.surveys, "fish": self.fish, "days": self.days, "scatter": self.scatter,
+               "measured": True, "fcr": self.fcr, "fcr_ci": [lo, hi], "feed_g": self.last.feed_g - self.first.feed_g,
+               "gain_g": self.biomass_g(self.last) - self.biomass_g(self.first) + self.last.left_g - self.first.left_g}
+        if now is not None:
+            out |= {"weight_g": self.weight_g(now), "weight_ci_pct": self.weight_ci_pct(now)}
+        return out
+
+
+def fit_feed(weighings: list[Weighing], accounts: list[Account]) -> FeedFit | None:
+    """The feed model's fit (FeedFit) to surveys and the ledger's accounts at their times (same
+    order); None unless two surveys with feed given between them."""
+    if len(weighings) < 2 or len(weighings) != len(accounts):
+        return None
+    feed = np.array([a.feed_g for a in accounts])
+    if np.ptp(feed) <= 0:
+        return None
+    y = np.array([w.mean_weight_g * a.stock + a.left_g for w, a in zip(weighings, accounts, strict=True)])
+    inv_var = 1.0 / np.array([w.mean_weight_g * a.stock * w.log_se
+                              for w, a in zip(weighings, accounts, strict=True)]) ** 2
+    X = np.column_stack([np.ones_like(feed), feed])
+    cov = np.linalg.inv(X.T @ (X * inv_var[:, None]))
+    beta = cov @ (X.T @ (inv_var * y))
+    dof = len(y) - 2
+    ratio = float(np.sum(inv_var * (y - X @ beta) ** 2)) / dof if dof > 0 else 0.0
+    scale, q = (math.sqrt(ratio), float(stats.t.ppf(0.975, dof))) if ratio > 1.0 else (1.0, Z95)
+    cov = cov * scale**2
+    return FeedFit(float(beta[0]), float(beta[1]), ((cov[0, 0], cov[0, 1]), (cov[1, 0], cov[1, 1])),
+                   accounts[0], accounts[-1], len(y), int(sum(w.count for w in weighings)), scale, q)

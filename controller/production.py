@@ -29,7 +29,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from controller.growth import GrowthFit, Weighing, conversion, fit_growth
+from controller.growth import Account, FeedFit, GrowthFit, Weighing, conversion, fit_feed, fit_growth
 
 DAY_S = 86_400.0
 
@@ -115,21 +115,60 @@ def tank_growth(store, tank_id: str, t: float, window_d: float,
     return None if fit is None else (fit, rows)
 
 
+def _accounts(cfg, store, tank_id: str, t_first: float, times: list[float], weight_at) -> list[Account]:
+    """The ledger at each of ``times`` since ``t_first`` (growth.Account); the fish that moved are
+    weighed at ``weight_at(t)``."""
+    base, events = cfg.tank(tank_id).stock, [dict(e) for e in store.stock_events()]
+    out = []
+    for t in times:
+        left = sum(((e["count"] if e["tank"] == tank_id else 0) - (e["count"] if e["to_tank"] == tank_id else 0))
+                   * weight_at(e["t"]) for e in events if t_first < e["t"] <= t)
+        out.append(Account(t, store.fed_between(tank_id, t_first, t), stock_at(base, events, tank_id, t), left))
+    return out
+
+
+def _feed_fit(cfg, store, tank_id: str, fit: GrowthFit, rows) -> FeedFit | None:
+    times = [r.t for r in rows]
+    return fit_feed([Weighing(r.t, r.mean_weight_g, r.cv_pct, r.count) for r in rows],
+                    _accounts(cfg, store, tank_id, times[0], times, fit.weight_g))
+
+
+def fitted_weight(cfg, store, tank_id: str, t: float) -> tuple[float, dict, str] | None:
+    """The tank's mean weight at ``t`` from its growth fit (``[feeding] growth_model``), the fit's
+    summary and how it was had; None without a measured growth (fewer than two surveys)."""
+    got = tank_growth(store, tank_id, t, cfg.feeding.growth_window_d)
+    if got is None or not got[0].measured:
+        return None
+    fit, rows = got
+    if cfg.feeding.growth_model == "feed":
+        feed = _feed_fit(cfg, store, tank_id, fit, rows)
+        if feed is not None:
+            [now] = _accounts(cfg, store, tank_id, feed.first.t, [t], fit.weight_g)
+            return (feed.weight_g(now), feed.summary(now),
+                    f"{feed.fcr or math.inf:.2f} FCR fitted to {feed.surveys} surveys and the feed since")
+    return fit.weight_g(t), fit.summary(t), f"{fit.sgr_pct:.2f} %/day fitted to {fit.surveys} surveys"
+
+
 def fitted_figures(cfg, store, tank_id: str, t: float) -> dict | None:
     """SGR and FCR over the fit's window, with their 95 % intervals (module docstring)."""
     got = tank_growth(store, tank_id, t, cfg.feeding.growth_window_d)
     if got is None or not got[0].measured:
         return None
     fit, rows = got
-    base, events = cfg.tank(tank_id).stock, [dict(e) for e in store.stock_events()]
     t1, t2 = fit.t_first, fit.t_last
+    when = {"since": iso_day(t1), "t_first": t1, "t_last": t2}
+    if cfg.feeding.growth_model == "feed":
+        feed = _feed_fit(cfg, store, tank_id, fit, rows)
+        if feed is not None:
+            return {**feed.summary(feed.last), **when}
+    base, events = cfg.tank(tank_id).stock, [dict(e) for e in store.stock_events()]
     terms = [(stock_at(base, events, tank_id, t2), t2), (-stock_at(base, events, tank_id, t1), t1)]
     for e in events:
         if t1 < e["t"] <= t2:
             terms.append(((e["count"] if e["tank"] == tank_id else 0)
                           - (e["count"] if e["to_tank"] == tank_id else 0), e["t"]))
     conv = conversion(fit, store.fed_between(tank_id, t1, t2), terms)
-    return {**fit.summary(t2), **conv.summary(), "since": iso_day(t1), "t_first": t1, "t_last": t2}
+    return {**fit.summary(t2), **conv.summary(), **when}
 
 
 def days_to(target_g: float, weight_g: float, sgr_pct: float) -> float | None:

@@ -14,6 +14,7 @@ or a stock event plans it again, an operator's ration stands.
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -29,7 +30,8 @@ from controller.feeding.feeding_table import (
     ration_from_weights,
     table_from_species,
 )
-from controller.production import tank_growth
+from controller.growth import Z95, Weighing
+from controller.production import fitted_weight
 from devices.clock import farm_date
 
 DAY_S = 86_400.0
@@ -173,22 +175,23 @@ class Rations:
             w = self.cfg.tank(tank_id).mean_weight_g
             return np.array([w]), "config", f"no survey: the config's mean weight {w:g} g", None
         s = newest[0]
-        fit, _ = tank_growth(self.store, tank_id, t, self.cfg.feeding.growth_window_d)
         weights = self.store.survey_weights(s.id)
         age_d = (t - s.t) / DAY_S
         source = "survey" if age_d <= self.cfg.feeding.survey_max_age_d else "projected"
         when = f"survey of {self.date(s.t)} ({s.count} fish, mean {s.mean_weight_g:.1f} g)"
-        now = fit.weight_g(t)
-        if fit.measured:
-            how = f"{fit.sgr_pct:.2f} %/day fitted to {fit.surveys} surveys"
+        fitted = fitted_weight(self.cfg, self.store, tank_id, t)
+        if fitted is not None:
+            now, growth, how = fitted
         else:                           # one survey: the chart's growth, class by class as the fish grow
-            now = project_weight(fit.weight_g(fit.t_last), max(0.0, (t - fit.t_last) / DAY_S), temp, table)
+            now = project_weight(s.mean_weight_g, max(0.0, age_d), temp, table)
             if now is None:
                 return weights, source, f"{when}, {age_d:.1f} days old; no growth known: not projected", None
-            how = "the feeding chart's growth"
+            one = Weighing(s.t, s.mean_weight_g, s.cv_pct, s.count)
+            growth, how = {"model": "chart", "weight_g": now, "weight_ci_pct": 100 * math.expm1(Z95 * one.log_se),
+                           "surveys": 1, "measured": False}, "the feeding chart's growth"
         return (weights * now / s.mean_weight_g, source,
-                f"{when}, {age_d:.1f} days old: {now:.1f} g (±{fit.weight_ci_pct(t):.1f} %) today at {how}",
-                fit.summary(t) | {"weight_g": now})
+                f"{when}, {age_d:.1f} days old: {now:.1f} g (±{growth['weight_ci_pct']:.1f} %) today at {how}",
+                growth)
 
     def today(self, tank_id: str, t: float) -> Ration:
         date = self.date(t)

@@ -99,18 +99,28 @@ def test_the_window_starts_again_after_a_transfer_or_harvest_but_not_a_death(tmp
     assert growth_window(store, "T1", T - DAY, 21) == []
 
 
-def test_fitted_figures_of_a_ledger_follow_the_generating_growth(tmp_path):
+@pytest.mark.parametrize("model", ["feed", "sgr"])
+def test_fitted_figures_of_a_ledger_follow_the_generating_growth(tmp_path, model):
     from controller.config import load_config
+    from controller.production import fitted_weight
     cfg = load_config("config/farm.toml")
+    cfg = cfg.model_copy(update={"feeding": cfg.feeding.model_copy(update={"growth_model": model})})
     store = Store(tmp_path / "f.db")
     stock, sgr, fcr = cfg.tank("T1").stock, 1.5, 1.3
     w = lambda d: 20 * math.exp(sgr / 100 * d)                  # noqa: E731
     for d in (0, 7, 14):
         store.add_survey("T1", T + d * DAY, "sparus_aurata", f"s{d}", [10.0] * 4,
                          [w(d) * f for f in (0.8, 0.9, 1.1, 1.2)])
-    feed = fcr * stock * (w(14) - w(0))
-    f = store.add_intent(tank="T1", date="x", t=T + DAY, target_g=feed, run_s=1, cycles_before=0, source="t")
-    store.close_feed(f.id, "done", feed, T + DAY)
+    for d in range(16):                                         # each day's feed makes that day's growth
+        feed = fcr * stock * (w(d + 1) - w(d))
+        f = store.add_intent(tank="T1", date=f"d{d}", t=T + d * DAY + 3600, target_g=feed, run_s=1,
+                             cycles_before=0, source="t")
+        store.close_feed(f.id, "done", feed, T + d * DAY + 3600)
     fig = fitted_figures(cfg, store, "T1", T + 15 * DAY)
+    assert fig["model"] == model and fig["surveys"] == 3 and fig["days"] == 14
     assert fig["sgr_pct_day"] == pytest.approx(sgr) and fig["fcr"] == pytest.approx(fcr)
-    assert fig["surveys"] == 3 and fig["days"] == 14
+    # an hour after day 15's feed: the feed model counts the day's growth as fed, a constant SGR
+    # grows continuously
+    weight, summary, _ = fitted_weight(cfg, store, "T1", T + 15 * DAY + 7200)
+    assert weight == pytest.approx(w(16) if model == "feed" else w(15 + 7200 / DAY))
+    assert summary["model"] == model and summary["weight_g"] == weight
