@@ -124,3 +124,26 @@ def test_fitted_figures_of_a_ledger_follow_the_generating_growth(tmp_path, model
     weight, summary, _ = fitted_weight(cfg, store, "T1", T + 15 * DAY + 7200)
     assert weight == pytest.approx(w(16) if model == "feed" else w(15 + 7200 / DAY))
     assert summary["model"] == model and summary["weight_g"] == weight
+
+
+@settings(max_examples=6, deadline=None)
+@given(w0=st.floats(2, 300), rate=st.floats(0.01, 0.04), fcr=st.floats(0.9, 2.5), surveys=st.integers(3, 9),
+       fish=st.integers(20, 150), cv=st.floats(10, 35), seed=st.integers(0, 2**31))
+def test_the_feed_model_s_stated_95_pct_interval_holds_the_true_fcr_19_times_in_20(
+        w0, rate, fcr, surveys, fish, cv, seed):
+    """Fish fed ``rate`` of their biomass a day grow by feed / FCR; weekly surveys of them."""
+    from controller.growth import Account, fit_feed
+    rng = np.random.default_rng(seed)
+    stock, days = 1000, np.arange(surveys) * 7
+    biomass, fed = [stock * w0], [0.0]
+    for _ in range(int(days[-1])):
+        feed = rate * biomass[-1]
+        biomass.append(biomass[-1] + feed / fcr)
+        fed.append(fed[-1] + feed)
+    accounts = [Account(T + d * DAY, fed[d], stock, 0.0) for d in days]
+    held = 0
+    for _ in range(200):
+        fit = fit_feed([survey_of(rng, T + d * DAY, biomass[d] / stock, cv, fish) for d in days], accounts)
+        lo, hi = fit.fcr_ci
+        held += (lo is None or lo <= fcr) and (hi is None or fcr <= hi)
+    assert held / 200 >= 0.90                   # 200 draws at 95 %: sd 1.5 %; 0.90 is 3.2 sd below
