@@ -90,6 +90,7 @@ def run(seed: int, days: int, fish: int, window_d: float, model: str, biased: bo
     table, temp = rations.tables[tank.species], rations.water_temp_c(TANK)
     biomass_err, ration_err, truth = [], [], []          # truth: (t, mean g, biomass g, feed g, dead g) at surveys
     fed = dead_g = 0.0
+    entered = 0                                          # deaths entered as mortality so far
     for d in range(days + 1):
         day = T0 + d * DAY
         t = day + 6 * 3600
@@ -112,12 +113,12 @@ def run(seed: int, days: int, fish: int, window_d: float, model: str, biased: bo
             length, weight = survey.draw(stock, rng)
             store.add_survey(TANK, ts, tank.species, "bench", length, weight)
             truth.append((ts, stock.mean_g, stock.biomass_g, fed, dead_g))
-        before = stock.deaths
         stock.advance(day + DAY - 1)
-        if stock.deaths > before:
-            dead_g += (stock.deaths - before) * stock.mean_g
-            store.add_stock_event(t=day + DAY - 1, tank=TANK, kind="mortality", count=stock.deaths - before,
+        if stock.deaths > entered:             # the day's dead, counted at its end as a farm worker would
+            dead_g += (stock.deaths - entered) * stock.mean_g
+            store.add_stock_event(t=day + DAY - 1, tank=TANK, kind="mortality", count=stock.deaths - entered,
                                   to_tank=None, who="bench")
+            entered = stock.deaths
             rations.restocked(TANK, day + DAY - 1)
     out = {"biomass": biomass_err, "ration": ration_err}
     out |= judge_fit(fitted_figures(cfg, store, TANK, truth[-1][0]), truth)
