@@ -23,7 +23,7 @@ runs of 14 and 60 days:
   the last two surveys (what `fishfarm report` showed before).
 
 Run: ``.venv/bin/python bench/bench_rations.py``; BENCH_RATIONS_SEEDS (default 40),
-BENCH_RATIONS_FISH (default "30,62,120"), BENCH_RATIONS_WINDOWS (days, default "21,28,42"),
+BENCH_RATIONS_FISH (default "30,62,120"), BENCH_RATIONS_WINDOWS (days, default "28,56"),
 BENCH_RATIONS_MODELS (``[feeding] growth_model``s, default "feed,sgr").
 """
 from __future__ import annotations
@@ -49,7 +49,7 @@ from devices.sim.stock import SimStock, SimStockParams  # noqa: E402
 
 SEEDS = int(os.environ.get("BENCH_RATIONS_SEEDS", "40"))
 FISH = [int(x) for x in os.environ.get("BENCH_RATIONS_FISH", "30,62,120").split(",")]
-WINDOWS = [float(x) for x in os.environ.get("BENCH_RATIONS_WINDOWS", "21,28,42").split(",")]
+WINDOWS = [float(x) for x in os.environ.get("BENCH_RATIONS_WINDOWS", "28,56").split(",")]
 MODELS = os.environ.get("BENCH_RATIONS_MODELS", "feed,sgr").split(",")
 RUN_DAYS = (14, 60)
 DETECT_GAMMA = 4.4
