@@ -128,9 +128,14 @@ def _accounts(cfg, store, tank_id: str, t_first: float, times: list[float], weig
 
 
 def _feed_fit(cfg, store, tank_id: str, fit: GrowthFit, rows) -> FeedFit | None:
+    """The feed model's fit, or None where it cannot stand (module docstring of controller/growth.py):
+    no feed between the surveys, or a fitted biomass that is not positive (data it does not fit)."""
     times = [r.t for r in rows]
-    return fit_feed([Weighing(r.t, r.mean_weight_g, r.cv_pct, r.count) for r in rows],
+    feed = fit_feed([Weighing(r.t, r.mean_weight_g, r.cv_pct, r.count) for r in rows],
                     _accounts(cfg, store, tank_id, times[0], times, fit.weight_g))
+    if feed is None or min(feed.biomass_g(feed.first), feed.biomass_g(feed.last)) <= 0:
+        return None
+    return feed
 
 
 def fitted_weight(cfg, store, tank_id: str, t: float) -> tuple[float, dict, str] | None:
@@ -144,8 +149,9 @@ def fitted_weight(cfg, store, tank_id: str, t: float) -> tuple[float, dict, str]
         feed = _feed_fit(cfg, store, tank_id, fit, rows)
         if feed is not None:
             [now] = _accounts(cfg, store, tank_id, feed.first.t, [t], fit.weight_g)
-            return (feed.weight_g(now), feed.summary(now),
-                    f"{feed.fcr or math.inf:.2f} FCR fitted to {feed.surveys} surveys and the feed since")
+            if now.stock > 0 and feed.biomass_g(now) > 0:
+                return (feed.weight_g(now), feed.summary(now),
+                        f"{feed.fcr or math.inf:.2f} FCR fitted to {feed.surveys} surveys and the feed since")
     return fit.weight_g(t), fit.summary(t), f"{fit.sgr_pct:.2f} %/day fitted to {fit.surveys} surveys"
 
 

@@ -147,3 +147,15 @@ def test_the_feed_model_s_stated_95_pct_interval_holds_the_true_fcr_19_times_in_
         lo, hi = fit.fcr_ci
         held += (lo is None or lo <= fcr) and (hi is None or fcr <= hi)
     assert held / 200 >= 0.90                   # 200 draws at 95 %: sd 1.5 %; 0.90 is 3.2 sd below
+
+
+def test_without_feed_in_the_ledger_the_feed_model_gives_way_to_a_constant_sgr(tmp_path):
+    from controller.config import load_config
+    from controller.production import fitted_weight
+    cfg = load_config("config/farm.toml")                     # growth_model "feed"
+    store = Store(tmp_path / "n.db")
+    for d, w in ((0, 20.0), (7, 23.0)):                          # surveys recorded, feeds not (another system)
+        store.add_survey("T1", T + d * DAY, "sparus_aurata", f"s{d}", [10.0] * 3, [w * 0.9, w, w * 1.1])
+    weight, summary, how = fitted_weight(cfg, store, "T1", T + 10 * DAY)
+    assert summary["model"] == "sgr" and "%/day" in how
+    assert weight == pytest.approx(23.0 * (23.0 / 20.0) ** (3 / 7))

@@ -158,3 +158,23 @@ def test_a_chart_is_found_beside_farm_toml_first_then_among_those_shipped(tmp_pa
     missing = moved.model_copy(update={"feeding": moved.feeding.model_copy(update={"tables": ["nowhere.toml"]})})
     with pytest.raises(BadInput, match="nowhere.toml: no such file"):
         Rations(missing, load_species(), Store(tmp_path / "c.db"))
+
+
+def test_the_ration_rests_on_the_surveys_pooled_not_on_the_newest_alone(rations):
+    """Three weekly surveys on a 2 %/day growth, the newest reading 10 % heavy, each of the same
+    spread and count: with a constant-SGR fit the ration's mean weight three days on is the least
+    squares line through the three ln means (numpy's polyfit here), not the newest mean grown."""
+    import numpy as np
+    cfg = rations.cfg.model_copy(update={"feeding": rations.cfg.feeding.model_copy(update={"growth_model": "sgr"})})
+    pooled = Rations(cfg, load_species(), rations.store)
+    spread = np.array([0.8, 0.9, 1.0, 1.1, 1.2])                 # the same CV in every survey
+    days = np.array([0.0, 7.0, 14.0])
+    means = 20 * np.exp(0.02 * days) * np.array([1.0, 1.0, 1.1])
+    for d, m in zip(days, means, strict=True):
+        pooled.store.add_survey("T1", T + d * DAY, "sparus_aurata", f"s{d}", [10.0] * 5, list(m * spread))
+    slope, icpt = np.polyfit(days, np.log(means), 1)
+    plan = pooled.plan("T1", T + 17 * DAY)
+    assert plan.source == "survey" and "fitted to 3 surveys" in plan.note
+    assert plan.mean_weight_g == pytest.approx(np.exp(icpt + slope * 17))
+    assert plan.mean_weight_g < means[-1] * np.exp(slope * 3)    # the heavy reading is not taken whole
+    assert plan.growth["model"] == "sgr" and plan.growth["weight_ci_pct"] > 0
