@@ -204,6 +204,18 @@ class Rations:
         return Ration(tank_id, date, row["grams"], row["pellet_mm"],
                       self.store.fed_g(tank_id, date), self.store.committed_g(tank_id, date), row["source"])
 
+    def payload(self, tank_id: str, t: float) -> dict:
+        """``farm/{site}/tank/{tank}/ration``; a planned ration adds (optional fields) the mean weight
+        it rests on and that weight's 95 % half-width, % (``weight_ci_pct``, with a survey)."""
+        r = self.today(tank_id, t)
+        out = ration_payload(r)
+        if r.source in PLANNED:
+            basis = self.basis(tank_id, t)
+            out["mean_weight_g"] = round(basis.mean_weight_g, 2)
+            if basis.growth is not None:
+                out["weight_ci_pct"] = round(basis.growth["weight_ci_pct"], 2)
+        return out
+
     def set(self, tank_id: str, t: float, grams: float, source: str) -> Ration:
         current = self.today(tank_id, t)
         self.store.set_ration(tank_id, current.date, grams, current.pellet_mm, source, t)

@@ -20,8 +20,6 @@ import json
 import logging
 from datetime import UTC, datetime
 
-from controller.feeding.rations import ration_payload
-
 log = logging.getLogger(__name__)
 GRADING = "grading"
 
@@ -42,7 +40,8 @@ class SurveyWatch:
             survey = newest[0]
             self.taken[tank.id] = survey.id
             fresh.append(tank.id)
-            self.publish(f"tank/{tank.id}/ration", ration_payload(self.rations.replan(tank.id, now)))
+            self.rations.replan(tank.id, now)
+            self.publish(f"tank/{tank.id}/ration", self.rations.payload(tank.id, now))
             self.publish(f"tank/{tank.id}/survey", survey_payload(survey))
             self._grading(tank.id, survey)
             self.figures[tank.id] = figures = self._figures(tank.id, survey)

@@ -3,6 +3,7 @@ ration planned again and published, the survey published, the grading alarm rais
 from __future__ import annotations
 
 import json
+import math
 
 import pytest
 
@@ -51,6 +52,9 @@ def test_a_new_survey_sets_the_ration_is_published_once_and_a_spread_stock_raise
     [survey] = published.on("tank/T1/survey")
     assert survey["count"] == 4 and survey["weight_g"] == {"mean": 42.5} and survey["t"].startswith("2026-")
     cv = 100 * (sum((w - 42.5) ** 2 for w in (20, 30, 40, 80)) / 3) ** 0.5 / 42.5     # 61 %: above 30 %
+    # the weight it rests on (10 s grown) and its 95 % half-width: 1.96 · CV / √n on the log scale
+    assert ration["mean_weight_g"] == pytest.approx(42.5, rel=1e-4)
+    assert ration["weight_ci_pct"] == pytest.approx(100 * math.expm1(1.96 * cv / 100 / 2), abs=0.01)
     [alarm] = [a for a in alarms.active.of("grading/T1")]
     assert f"weight CV {cv:.1f} %" in alarm.text and "grade the stock" in alarm.text
     # a later, even survey clears it; its OUT.json is gone: the ledger's summary is published
