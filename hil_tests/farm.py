@@ -163,13 +163,21 @@ class HilFarm:
         self.ctl_proc = self._spawn(["run", "--config", str(self.dir / "controller.toml"), "--no-console",
                                      *self.clock_args()], "controller.log")
 
-    def start_workers(self, n: int) -> None:
+    def start_workers(self, n: int, timeout_s: float = 60.0) -> None:
         """``n`` vision workers (``fishfarm worker``), separate processes reaching the controller's
-        Zenoh endpoint as a farm's would: the survey stops measure their pairs there."""
+        Zenoh endpoint as a farm's would: the survey stops measure their pairs there. Returns once
+        each has loaded (it says so, retrying until the controller listens): started before the
+        farm, their imports do not starve its first minutes on a fast clock."""
         for i in range(n):
             self.workers.append(self._spawn(["worker", "--connect", f"tcp/127.0.0.1:{self.zenoh_port}",
                                              "--site", self.config.get("site", "demo"), "--id", f"hil-{i}"],
                                             f"worker-{i}.log"))
+        deadline = time.time() + timeout_s
+        while not all(self.log(f"worker-{i}.log") for i in range(n)):
+            self.check_alive()
+            if time.time() > deadline:
+                raise RuntimeError("vision workers did not start")
+            time.sleep(0.05)
 
     def wait_controller_up(self, timeout_s: float = 60.0) -> float:
         """Wait until the controller says it is up; returns the farm time it was seen."""

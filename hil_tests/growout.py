@@ -100,9 +100,9 @@ def run(workdir: Path, days: float, *, slow: float = SLOW, fast: float = FAST, w
     entered: dict = {}
     day_walls = []
     try:
+        farm.start_workers(workers)
         farm.start_sim()
         farm.start_controller()
-        farm.start_workers(workers)
         up = farm.wait_controller_up()
         end = up + days * 86400.0
         day, mark = up, time.monotonic()
@@ -192,21 +192,25 @@ def judge(farm: HilFarm, up: float, end: float) -> dict:
             intervals.append(_interval(tank, iv, truth_at(stock, tank, a["t"]), truth_at(stock, tank, b["t"]),
                                        (b["t"] - a["t"]) / 86400.0))
     spans = visits((farm.dir / "controller.log").read_text())
-    waits, during = [], []
+    waits, during, surveyed = [], [], []
     db = store.db
     raised = {r["id"]: r["t"] for r in db.execute("SELECT id, t FROM demand")}
-    for f in db.execute("SELECT demand_id, t_intent FROM feed WHERE demand_id IS NOT NULL AND phase != 'aborted'"):
+    heard = heard_late(farm)
+    served = "SELECT demand_id, t_intent, tank FROM feed WHERE demand_id IS NOT NULL AND phase != 'aborted'"
+    for f in db.execute(served):
         t0, t1 = raised[f["demand_id"]], f["t_intent"]
         waits.append(t1 - t0)
-        if any(a < t1 and t0 < b for a, b in spans):
-            during.append(t1 - t0)
+        if any(a < t1 and t0 < b for a, b in spans):   # less the time its contacts took to be heard
+            during.append(t1 - t0 - max((h for tank, t, h in heard if tank == f["tank"] and abs(t - t0) < 5.0),
+                                        default=0.0))
+            surveyed.append(sum(max(0.0, min(b, t1) - max(a, t0)) for a, b in spans))
     store.close()
     waits.sort()
     with farm.ledger() as ledger:
         verdict = judge_feeding(ledger, [r for r in truth if r["t"] >= up + WARMUP_S or r["kind"] == "auger_run"],
                                 end, since=up + WARMUP_S, stalls=farm.stalls())
     with farm.ledger() as ledger:
-        feeding = sort_problems(ledger, verdict.problems, heard_late(farm), PER_FEED_S + PORTION_G / AUGER_G_S)
+        feeding = sort_problems(ledger, verdict.problems, heard, PER_FEED_S + PORTION_G / AUGER_G_S)
     # the simulator's lookahead: every episode found the clock slow when it started
     fast = [f"{r['tank']} at {r['t']:.0f}" for r in truth if r["kind"] == "episode_start" and r["t"] < end - 60
             and (farm.watch.speed_after(r["t"]) or 0.0) >= farm.clock.fast]
@@ -214,9 +218,13 @@ def judge(farm: HilFarm, up: float, end: float) -> dict:
             "demands": {"served": len(waits), "p50_s": round(waits[len(waits) // 2], 1) if waits else None,
                         "max_s": round(waits[-1], 1) if waits else None,
                         "during_survey_visits": len(during), "max_during_visits_s": round(max(during), 1)
-                        if during else None, "over_60_during_visits": sum(w > 60 for w in during)},
+                        if during else None, "over_60_during_visits": sum(w > 60 for w in during),
+                        # of those waits, the farm seconds the robot spent surveying: what a survey cost them
+                        "max_surveying_while_waiting_s": round(max(surveyed), 1) if surveyed else None,
+                        "over_60_because_of_survey": sum(s > 60 for s in surveyed)},
             "survey_visits": len(spans), "feeding": {"summary": verdict.summary(), **feeding,
                                                      "false_demands": len(verdict.false_demands),
+                                                     "detected_within_180": verdict.detected_within(180),
                                                      "feeds": verdict.feeds, "runs_compared": verdict.runs_compared}}
 
 
@@ -234,7 +242,8 @@ def heard_late(farm: HilFarm) -> list[tuple[str, float, float]]:
 def sort_problems(ledger, problems: list[str], heard: list[tuple[str, float, float]], per_feed_s: float,
                   expiry_s: float = 600.0) -> dict:
     """The farm-day judge's problems sorted: ``queued`` (a late feed no later than the feeds ahead
-    of it take: the meal times, when all eight tanks ask together), ``heard_late`` (late, or expired,
+    of it take, or a demand that expired while the robot served that many: the meal times, when
+    all eight tanks ask together), ``heard_late`` (late, or expired,
     only by the time its demand's contacts took to be heard: a fast clock meanwhile, contacts
     nobody foresaw — turbulence, a night's false demand), ``ration_lowered`` (a day's ration planned
     again lower after that day's feeds: a survey, a stock event or the water's temperature),
@@ -261,7 +270,12 @@ def _kind(ledger, text: str, heard, per_feed_s: float, expiry_s: float) -> str |
             return "heard_late"
         return "queued" if ahead > 0 and wait <= per_feed_s * (ahead + 1) else None
     if m := EXPIRED.match(text):
-        return "heard_late" if late(m[2], float(m[3])) >= expiry_s - 60.0 else None
+        t = float(m[3])
+        if late(m[2], t) >= expiry_s - 60.0:
+            return "heard_late"
+        ahead = ledger.execute("SELECT count(*) FROM feed WHERE tank != ? AND t_intent BETWEEN ? AND ?",
+                               (m[2], t, t + expiry_s)).fetchone()[0]
+        return "queued" if ahead * per_feed_s >= expiry_s else None     # the robot served others all along
     if m := OVER_RATION.match(text):
         planned = ledger.execute("SELECT t FROM ration WHERE tank = ? AND date = ?", (m[1], m[2])).fetchone()
         last = ledger.execute("SELECT max(t_intent) FROM feed WHERE tank = ? AND date = ?", (m[1], m[2])).fetchone()
