@@ -52,7 +52,7 @@ STATE_LINE = re.compile(r"^(\S+Z) INFO\s+fishfarm\.feeder: feeder: (\w+)")
 HEARD_LINE = re.compile(r"^(\S+Z) INFO\s+fishfarm: demand from (\w+) at [\d.]+ contacts/s, heard ([\d.]+) s after")
 LATE_FEED = re.compile(r"^feed (\w+) for (\w+) started ([\d.]+) s after its demand \((\d+) other feeds between\)$")
 # a feed ahead in the queue holds the robot at most this long besides its portion's auger run: the
-# rail's length at 1 m/s there and back, the gate and the load cell settling (test_elastic_clock's)
+# rail's length at 1 m/s there and back, the gate and the load cell settling
 PER_FEED_S = 45.0
 EXPIRED = re.compile(r"^demand (\d+) for (\w+) at ([\d.]+) never served \(expired\)$")
 OVER_RATION = re.compile(r"^(\w+) fed [\d.]+ g on ([\d-]+), ration [\d.]+ g$")
