@@ -200,10 +200,10 @@ def judge(farm: HilFarm, up: float, end: float) -> dict:
     for f in db.execute(served):
         t0, t1 = raised[f["demand_id"]], f["t_intent"]
         waits.append(t1 - t0)
-        if any(a < t1 and t0 < b for a, b in spans):   # less the time its contacts took to be heard
-            during.append(t1 - t0 - max((h for tank, t, h in heard if tank == f["tank"] and abs(t - t0) < 5.0),
-                                        default=0.0))
-            surveyed.append(sum(max(0.0, min(b, t1) - max(a, t0)) for a, b in spans))
+        if any(a < t1 and t0 < b for a, b in spans):   # less the time it took to be heard (raised)
+            late = max((h for tank, t, h in heard if tank == f["tank"] and abs(t - t0) < 5.0), default=0.0)
+            during.append(t1 - t0 - late)
+            surveyed.append(sum(max(0.0, min(b, t1) - max(a, t0 + late)) for a, b in spans))
     store.close()
     waits.sort()
     with farm.ledger() as ledger:
@@ -219,7 +219,8 @@ def judge(farm: HilFarm, up: float, end: float) -> dict:
                         "max_s": round(waits[-1], 1) if waits else None,
                         "during_survey_visits": len(during), "max_during_visits_s": round(max(during), 1)
                         if during else None, "over_60_during_visits": sum(w > 60 for w in during),
-                        # of those waits, the farm seconds the robot spent surveying: what a survey cost them
+                        # the farm seconds the robot spent surveying once the demand was raised: what a
+                        # survey cost it (the filter dates a slow fish's demand back to its contacts)
                         "max_surveying_while_waiting_s": round(max(surveyed), 1) if surveyed else None,
                         "over_60_because_of_survey": sum(s > 60 for s in surveyed)},
             "survey_visits": len(spans), "feeding": {"summary": verdict.summary(), **feeding,
