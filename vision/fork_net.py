@@ -1,0 +1,161 @@
+"""A learned fork locator: a small CNN that, given a fork hypothesis (a point, an axis towards the
+head and a fin span), looks at a crop aligned with that axis and answers where the caudal fork's
+innermost point is in it, the fin's axis there, and how sure it is that a fork is in the crop.
+
+The crop is the hypothesis' own frame (``u`` along the axis towards the head, ``v`` across), in
+units of its span ``S``: u in [U0, U1], v in [-V1, V1], sampled on a GRID_W x GRID_H grid at the
+pyramid level whose pixel matches the grid step (so big fish cost no more than small ones). The
+window reaches well behind the hypothesis: proposals from bodies' ends fall 0.1-0.3 of the length
+(0.3-1 span) ahead of the fork (``vision.bodies``). Each crop is normalised by its own mean and
+spread (per channel mean, one spread), so the water's colour and the light do not matter.
+
+The model (``vision/models/fork_net.onnx``) is trained on rendered crops of seeds >= 100000 only
+(tools/fork_net_data.py, tools/train_fork_net.py); inference is OpenCV's dnn module, so the
+project needs no torch. Outputs: a heatmap over the crop at half its resolution (its soft-argmax
+is the fork), and a logit (fork here) with the axis' turn (sin, cos) from the crop's axis.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from functools import lru_cache
+from importlib import resources
+
+import cv2
+import numpy as np
+
+from vision.fins import Fins, sample_frames_raw
+
+GRID_W, GRID_H = 64, 32
+U0, U1, V1 = -1.6, 1.0, 0.65            # the crop's window, in spans of the hypothesis
+MODEL = "fork_net.onnx"
+BATCH = 256
+
+
+@dataclass
+class NetForks:
+    """The net's answer per hypothesis (rows align with the input)."""
+
+    xy: np.ndarray          # (N, 2) the fork, full-resolution px
+    angle: np.ndarray       # (N,) the fin's axis towards the head, rad
+    confidence: np.ndarray  # (N,) 0..1: a fork is in the crop
+
+
+def grid_px(span: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The crop's sample offsets along (N, GRID_W) and across (N, GRID_H) the axis, in px."""
+    us = U0 + (np.arange(GRID_W) + 0.5) * (U1 - U0) / GRID_W
+    vs = -V1 + (np.arange(GRID_H) + 0.5) * (2 * V1) / GRID_H
+    span = np.asarray(span, float)[:, None]
+    return us[None] * span, vs[None] * span
+
+
+def crops(pyr: list[np.ndarray], fins: Fins) -> np.ndarray:
+    """(N, 3, GRID_H, GRID_W) float32 normalised crops of every hypothesis (grey images give three
+    equal channels)."""
+    return normalise(raw_crops(pyr, fins).transpose(0, 3, 1, 2))
+
+
+def raw_crops(pyr: list[np.ndarray], fins: Fins) -> np.ndarray:
+    """(N, GRID_H, GRID_W, 3) uint8 crops as sampled (grey: three equal channels)."""
+    N = len(fins)
+    out = np.zeros((N, GRID_H, GRID_W, 3), np.uint8)
+    if N == 0:
+        return out
+    step = fins.span_px * (U1 - U0) / GRID_W
+    lev = np.clip(np.floor(np.log2(np.maximum(step, 1.0))).astype(int), 0, len(pyr) - 1)
+    axes = np.c_[np.cos(fins.angle), np.sin(fins.angle)]
+    for k in np.unique(lev):                          # a few pyramid levels, each in one remap
+        idx = np.flatnonzero(lev == k)
+        f = 2.0 ** -k
+        xs, ys = grid_px(fins.span_px[idx] * f)
+        P, _ = sample_frames_raw(pyr[k], (fins.xy[idx] + 0.5) * f - 0.5, axes[idx], xs, ys)
+        P = np.asarray(P).reshape(len(idx), GRID_H, GRID_W, -1)
+        out[idx] = np.repeat(P, 3, axis=3) if P.shape[3] == 1 else P
+    return out
+
+
+def normalise(c: np.ndarray) -> np.ndarray:
+    """Each crop less its channels' means, over its overall spread (+4 grey levels: flat water
+    stays flat instead of amplified noise)."""
+    c = c.astype(np.float32)
+    c = c - c.mean(axis=(2, 3), keepdims=True)
+    return (c / (c.std(axis=(1, 2, 3), keepdims=True) + 4.0)).astype(np.float32)
+
+
+@lru_cache(maxsize=1)
+def _net() -> cv2.dnn.Net:
+    data = resources.files("vision.models").joinpath(MODEL).read_bytes()
+    net = cv2.dnn.readNetFromONNX(np.frombuffer(data, np.uint8))
+    return net
+
+
+def run(batch: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The raw outputs for crops (N, 3, H, W): heatmap logits (N, H/2, W/2), head (N, 3)."""
+    net = _net()
+    heats, heads = [], []
+    for k in range(0, len(batch), BATCH):
+        net.setInput(np.ascontiguousarray(batch[k:k + BATCH]))
+        h, d = net.forward(["heat", "head"])
+        heats.append(h.reshape(len(h), GRID_H // 2, GRID_W // 2))
+        heads.append(d.reshape(len(d), 3))
+    if not heats:
+        return np.zeros((0, GRID_H // 2, GRID_W // 2), np.float32), np.zeros((0, 3), np.float32)
+    return np.concatenate(heats), np.concatenate(heads)
+
+
+def soft_argmax(heat: np.ndarray) -> np.ndarray:
+    """(N, h, w) logits -> (N, 2) expected (u, v) in spans of the crop's window."""
+    N, h, w = heat.shape
+    z = heat.reshape(N, -1)
+    p = np.exp(z - z.max(axis=1, keepdims=True))
+    p = (p / p.sum(axis=1, keepdims=True)).reshape(N, h, w)
+    us = U0 + (np.arange(w) + 0.5) * (U1 - U0) / w
+    vs = -V1 + (np.arange(h) + 0.5) * (2 * V1) / h
+    return np.c_[(p.sum(axis=1) * us).sum(axis=1), (p.sum(axis=2) * vs).sum(axis=1)]
+
+
+def locate(pyr: list[np.ndarray], fins: Fins, passes: int = 2, again_above: float = 0.1) -> NetForks:
+    """The net's fork for every hypothesis; each pass after the first starts from the previous
+    answer (the fork ``RECENTRE`` spans behind the crop's centre, the net's axis), for the
+    hypotheses whose confidence is at least ``again_above`` (the others keep their answer)."""
+    xy, ang = fins.xy.copy(), fins.angle.copy()
+    conf = np.zeros(len(fins))
+    todo = np.arange(len(fins))
+    cur = fins
+    for k in range(passes):
+        heat, head = run(crops(pyr, cur))
+        uv = soft_argmax(heat)
+        axes = np.c_[np.cos(cur.angle), np.sin(cur.angle)]
+        normal = np.c_[-axes[:, 1], axes[:, 0]]
+        S = cur.span_px[:, None]
+        xy[todo] = cur.xy + uv[:, :1] * S * axes + uv[:, 1:] * S * normal
+        ang[todo] = cur.angle + np.arctan2(head[:, 1], head[:, 2])
+        conf[todo] = 1.0 / (1.0 + np.exp(-head[:, 0]))
+        todo = todo[conf[todo] >= again_above]
+        if k + 1 == passes or len(todo) == 0:
+            break
+        back = np.c_[np.cos(ang[todo]), np.sin(ang[todo])]
+        sub = fins.take(todo)
+        cur = Fins(xy[todo] + RECENTRE * sub.span_px[:, None] * back, ang[todo], sub.span_px, sub.score,
+                   sub.polarity, sub.body)
+    return NetForks(xy, ang, conf)
+
+
+RECENTRE = 0.3      # spans: the hypothesis of a later pass lies this far ahead of the previous fork
+
+
+def levels(pyr: list[np.ndarray], fins: Fins) -> tuple[np.ndarray, np.ndarray]:
+    """Fish and water colour (N, C) at each fork: medians just ahead of it on the axis (the
+    caudal peduncle, 0.1-0.35 span) and behind it (0.35-0.6 span: water between or past the lobes),
+    as ``vision.fork`` measures them."""
+    N = len(fins)
+    C = pyr[0].shape[2] if pyr[0].ndim == 3 else 1
+    if N == 0:
+        return np.zeros((0, C)), np.zeros((0, C))
+    axes = np.c_[np.cos(fins.angle), np.sin(fins.angle)]
+    S = fins.span_px[:, None]
+    ys = np.linspace(-0.1, 0.1, 5)[None] * S
+    out = []
+    for lo, hi in ((0.1, 0.35), (-0.6, -0.35)):
+        P, _ = sample_frames_raw(pyr[0], fins.xy, axes, np.linspace(lo, hi, 6)[None] * S, ys)
+        out.append(np.median(np.asarray(P, float).reshape(N, -1, C), axis=1))
+    return out[0], out[1]
