@@ -113,14 +113,29 @@ def soft_argmax(heat: np.ndarray) -> np.ndarray:
     return np.c_[(p.sum(axis=1) * us).sum(axis=1), (p.sum(axis=2) * vs).sum(axis=1)]
 
 
-def locate(pyr: list[np.ndarray], fins: Fins, passes: int = 2, again_above: float = 0.1) -> NetForks:
+def distinct(xy: np.ndarray, angle: np.ndarray, span: np.ndarray, rank: np.ndarray, cell: float) -> np.ndarray:
+    """Indices of one hypothesis per cell of position (``cell`` spans), axis (20 degrees) and span
+    (a fifth of an octave), the best-ranked of each, in input order: the net looks at a window
+    of several spans, so near-duplicates would only cost time."""
+    if len(xy) == 0:
+        return np.zeros(0, int)
+    order = np.argsort(-np.asarray(rank), kind="stable")
+    step = cell * span[order, None]
+    key = np.c_[np.floor(xy[order] / step), np.round(angle[order] / (np.pi / 9)) % 18,
+                np.round(5 * np.log2(np.maximum(span[order], 1.0)))].astype(np.int64)
+    _, first = np.unique(key, axis=0, return_index=True)
+    return np.sort(order[first])
+
+
+def locate(pyr: list[np.ndarray], fins: Fins, passes: int = 2, again_above: float = 0.3) -> NetForks:
     """The net's fork for every hypothesis; each pass after the first starts from the previous
     answer (the fork ``RECENTRE`` spans behind the crop's centre, the net's axis), for the
-    hypotheses whose confidence is at least ``again_above`` (the others keep their answer)."""
+    hypotheses whose confidence is at least ``again_above``, one per fork (the others keep their
+    answer; a duplicate's confidence is 0)."""
     xy, ang = fins.xy.copy(), fins.angle.copy()
     conf = np.zeros(len(fins))
-    todo = np.arange(len(fins))
-    cur = fins
+    todo = distinct(fins.xy, fins.angle, fins.span_px, fins.score, 0.2)
+    cur = fins.take(todo)
     for k in range(passes):
         heat, head = run(crops(pyr, cur))
         uv = soft_argmax(heat)
@@ -130,8 +145,13 @@ def locate(pyr: list[np.ndarray], fins: Fins, passes: int = 2, again_above: floa
         xy[todo] = cur.xy + uv[:, :1] * S * axes + uv[:, 1:] * S * normal
         ang[todo] = cur.angle + np.arctan2(head[:, 1], head[:, 2])
         conf[todo] = 1.0 / (1.0 + np.exp(-head[:, 0]))
-        todo = todo[conf[todo] >= again_above]
-        if k + 1 == passes or len(todo) == 0:
+        if k + 1 == passes:
+            break
+        sure = todo[conf[todo] >= again_above]
+        keep = sure[distinct(xy[sure], ang[sure], fins.span_px[sure], conf[sure], 0.05)]
+        conf[np.setdiff1d(todo, keep)] = 0.0
+        todo = keep
+        if len(todo) == 0:
             break
         back = np.c_[np.cos(ang[todo]), np.sin(ang[todo])]
         sub = fins.take(todo)
