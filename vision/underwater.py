@@ -35,6 +35,9 @@ pass, or the second keeping the first's fork where it shows none: more located, 
 40-scene diagnosis (the second pass's arm fit is what ``t_fork_shape`` trusts). The score, not the
 locator, decides what the survey keeps, and it separates right from wrong poorly (Spearman 0.18
 with the length error).
+
+The learned fork locator (``Params.fork_net``) raises recall on every seed set but not at precision
+>= 0.95 on both bench sets, so it is off; its figures are in ``vision.fork_net``.
 """
 from __future__ import annotations
 
@@ -196,14 +199,8 @@ def _locate(pyr: list[np.ndarray], hyps: Fins, p: Params):
     confidence or None), the fins scored on eq. (13). Classical (``vision.fork``, twice: again from
     the fork) or learned (``vision.fork_net``, ``Params.fork_net``)."""
     if p.fork_net:
-        nf = fork_net.locate(pyr, hyps)
-        ok = np.flatnonzero(nf.confidence >= p.net_min_conf)
-        h = hyps.take(ok)
-        located = Fins(nf.xy[ok], nf.angle[ok], h.span_px, h.score, h.polarity, h.body)
-        fish, water = fork_net.levels(pyr, located)
-        located.polarity = np.sign((fish - water).sum(axis=1))
-        located.score = fin_scores(pyr, located)
-        return located, fish, water, np.zeros(len(ok)), nf.confidence[ok]
+        located, fish, water, conf = fork_net.located(pyr, hyps, p.net_min_conf)
+        return located, fish, water, np.zeros(len(conf)), conf
     forks = locate_forks(pyr, hyps)
     forks = locate_forks(pyr, forks.fins.take(np.flatnonzero(forks.ok)))        # again, from the fork
     ok = np.flatnonzero(forks.ok)
