@@ -25,18 +25,23 @@ axis' loss weighted 0.5 instead of 5 the turn was never learnt (8 degrees off st
 
 In the survey (``vision.underwater.Params.fork_net``; 2026-12-02, bench/bench_survey_underwater.py
 --fish 200, the machine shared and loaded 5-10, so speed as ratios in the same run): main's
-classical locator gives recall / precision / weight MAPE 0.261 / 0.966 / 2.30 % (seeds 0+),
-0.215 / 0.957 / 2.01 % (1000+), 0.150 / 0.868 / 1.88 % (tuning seeds 200000+); the net (10
-epochs, the model kept) 0.315 / 0.905 / 2.18 %, 0.255 / 0.946 / 1.99 %, 0.240 / 0.915 / 2.12 %;
-with ``min_score=0.04`` 0.300 / 0.928, 0.245 / 0.962, 0.230 / 0.925; an earlier 5-epoch model
-0.325 / 0.945, 0.260 / 0.914, 0.245 / 0.948 (0.235 / 0.962 with ``min_score=0.04``). Recall
-rises on every set (+0.04-0.09), precision moves by a few reports either way around 0.95, so
-the net stays off. The funnel (bench/diag_underwater.py, seeds 200000-200029, 48 fully visible
-fish): located 17 -> 25, found 9 -> 14; the rest is lost to snouts and post-filters, where the
-correct reports dropped fall to many different terms (``t_fill``, residuals, ``t_snout_edge``),
-no one knob. Cost: ~1 M multiply-adds a crop, one crop per distinct hypothesis (of 100-400 an
-image) and a second for the confident ones; the bench's ratio (against the baseline timed in its own
-run) 0.33 / 0.36 on main (seeds 0+ / 1000+), 0.39-0.45 / 0.37-0.43 with the net; the fork stage ~1.5x.
+classical locator gives recall / precision / weight MAPE 0.261 / 0.966 / 2.30 % (seeds 0+), 0.215 /
+0.957 / 2.01 % (1000+), 0.150 / 0.868 / 1.88 % (tuning seeds 200000+); the net (10 epochs, the model
+kept) 0.315 / 0.905 / 2.18 %, 0.255 / 0.946 / 1.99 %, 0.240 / 0.915 / 2.12 %; with
+``min_score=0.04`` 0.300 / 0.928, 0.245 / 0.962, 0.230 / 0.925; an earlier 5-epoch model 0.325 /
+0.945, 0.260 / 0.914, 0.245 / 0.948 (0.235 / 0.962 with ``min_score=0.04``). Recall rises on every
+set (+0.04-0.09), precision moves by a few reports either way around 0.95, so the net stays off. A
+larger tuning set, seeds 201000+ (300 fish, load 1.8): main 0.257 / 0.952 / 2.38 %, ratio 0.278; the
+net 0.320 / 0.943 / 1.95 %, ratio 0.358. Pooled over the four sets, the precision is 212 / 225 =
+0.942 (main) against 274 / 295 = 0.929 (net): a difference of the order of its own sampling error
+(~0.015 at these counts). The funnel (4-epoch model; bench/diag_underwater.py, seeds 200000+, 48 fully
+visible fish): located 17 -> 25, found 9 -> 14; the rest is lost to snouts and post-filters, where
+the correct reports dropped fall to many different terms (``t_fill``, residuals, ``t_snout_edge``),
+no one knob. Cost: ~1 M multiply-adds a crop, one crop per distinct hypothesis (of 100-400 an image)
+and a second for the confident ones; the bench's ratio (against the baseline timed in its own run)
+0.33 / 0.36 on main (seeds 0+ / 1000+), 0.39-0.45 / 0.37-0.43 with the net; the fork stage ~1.5x. In
+one process, alternating on the same 12 scenes (seeds 300100+): CPU per pair 135 -> 197 ms (1.46x),
+the fork stage 59 -> 101 ms.
 """
 from __future__ import annotations
 
