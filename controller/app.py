@@ -20,7 +20,7 @@ from controller.config import Config, validate_section
 from controller.demand import Demand, DemandFilter, DemandParams, SensorFault, SensorRecovered, SlowFishUndetectable
 from controller.farm_setup import CLEANER_KINDS, build_device, check_farm
 from controller.feeding.estop import EstopLane, Latch, log_latch
-from controller.feeding.rations import Rations, load_species, ration_payload
+from controller.feeding.rations import Rations, load_species
 from controller.feeding.robot import FeedingRobot, Job
 from controller.overrides import Overrides
 from controller.scada.service import Scada
@@ -376,7 +376,7 @@ class Controller(Stopping):
             await self.clock.asleep(HOUSEKEEPING_S)
 
     def publish_ration(self, tank_id: str) -> None:
-        self.bus.publish(f"tank/{tank_id}/ration", ration_payload(self.rations.today(tank_id, self.clock.now())))
+        self.bus.publish(f"tank/{tank_id}/ration", self.rations.payload(tank_id, self.clock.now()))
 
     async def _state_loop(self) -> None:
         while not self.stopping.is_set():

@@ -106,6 +106,10 @@ class FeedingConfig(Strict):
                               "relative to farm.toml; a species without one is fed by its species.toml rows")
     survey_max_age_d: float = Field(14.0, gt=0, le=365, description="older surveys: the weight is projected")
     grading_cv_pct: float = Field(30.0, gt=0, le=200, description="weight CV above which a tank wants grading")
+    growth_window_d: float = Field(56.0, gt=0, le=365, description="surveys pooled in the growth fit: those "
+                                   "this many days before the newest (controller/growth.py)")
+    growth_model: Literal["feed", "sgr"] = Field("feed", description="the growth fitted to the surveys: "
+                                                 "feed given / FCR, or a constant SGR (controller/growth.py)")
 
     @model_validator(mode="after")
     def _portions_fit(self):

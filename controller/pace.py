@@ -2,9 +2,10 @@
 
 Busy (the slow speed) while the robot is anything but idle (homing, moving, dispensing,
 refilling, surveying, a fault, an e-stop) or a demand waits or a survey is under way; otherwise
-idle until the next scheduled survey hour of any tank, whose clock then slows by itself at that
-hour. Each hour stays slow for ``GRACE_S`` after it, so the idle robot, which looks for due
-surveys every 30 farm s, has found it before the clock may speed on. Other periodic work
+idle until the next survey hour of any tank whose survey falls due then (a weekly survey's hour
+on its other six days needs no slow minute); the clock then slows by itself at that hour. Each
+hour stays slow for ``GRACE_S`` after it, so the idle robot, which looks for due surveys every 30
+farm s, has found it before the clock may speed on. Other periodic work
 (housekeeping, thermometer reads) keeps no fine time when nothing happens and needs no word.
 A survey stop runs at a tenth of the slow speed: its wall time is rendering and measuring, so a
 slower clock costs no wall and keeps the survey to a real one's farm minutes.
@@ -12,22 +13,54 @@ slower clock costs no wall and keeps the survey to a real one's farm minutes.
 from __future__ import annotations
 
 import asyncio
+import math
+import time
 
-from controller.surveys.schedule import _first_at
+from controller.surveys.schedule import DAY_S, _day, _first_at
 
 GRACE_S = 60.0           # farm s a survey hour stays slow
 SURVEY_SHARE = 0.1       # a survey stop at this share of the slow speed (below)
 PERIOD_S = 0.005         # wall s between looks: bounds how soon the clock speeds up, not when it slows
+NEWEST_S = 1.0           # wall s a tank's newest survey time is kept before the ledger is asked again
 
 
-def next_survey_hour(cfg, now: float) -> float | None:
-    """The first tank survey hour at or after ``now - GRACE_S`` (any tank's, due or not)."""
+def next_survey_hour(cfg, now: float, newest=None, since: float | None = None) -> float | None:
+    """The first tank survey hour at or after ``now - GRACE_S``: any tank's; with ``newest`` (tank
+    id -> farm time of its newest survey, None if never) only hours on which the tank's survey is
+    due (a weekly survey's other six days need no slow minute), ``since`` the schedule's start."""
     hours = []
     for tank in cfg.tanks:
         if tank.survey is not None:
             hh, mm = (int(x) for x in tank.survey.at.split(":"))
-            hours.append(_first_at(hh * 3600 + mm * 60, now - GRACE_S, cfg.utc_offset_h))
+            hour = _first_at(hh * 3600 + mm * 60, now - GRACE_S, cfg.utc_offset_h)
+            if newest is not None:
+                hour = max(hour, _due_at(tank.survey, hh * 3600 + mm * 60, newest(tank.id), since, cfg.utc_offset_h))
+            hours.append(hour)
     return min(hours, default=None)
+
+
+def _due_at(plan, at_s: float, last: float | None, since: float | None, utc_offset_h: float) -> float:
+    """The hour a tank's survey falls due (the schedule's rule, controller/surveys/schedule.py)."""
+    if last is None:
+        return -math.inf if since is None else _first_at(at_s, since, utc_offset_h)
+    return (_day(last, utc_offset_h) + plan.every_days) * DAY_S + at_s - utc_offset_h * 3600.0
+
+
+class NewestSurveys:
+    """Each tank's newest survey time from the ledger, asked again once the survey stop records one
+    or ``NEWEST_S`` of wall have passed (a survey another process recorded): not 200 times a second."""
+
+    def __init__(self, stops):
+        self.stops, self.known, self.asked_at, self.recorded = stops, {}, -math.inf, -1
+
+    def __call__(self, tank: str) -> float | None:
+        now = time.monotonic()
+        if len(self.stops.stop.recorded) != self.recorded or now - self.asked_at > NEWEST_S:
+            self.known, self.asked_at, self.recorded = {}, now, len(self.stops.stop.recorded)
+        if tank not in self.known:
+            rows = self.stops.schedule.store.surveys(tank, limit=1)
+            self.known[tank] = rows[0].t if rows else None
+        return self.known[tank]
 
 
 def busy_with(robot) -> str | None:
@@ -46,9 +79,10 @@ def busy_with(robot) -> str | None:
     return None                       # land hours late and the schedule start the survey again
 
 
-def declare(controller) -> None:
+def declare(controller, newest=None) -> None:
     clock = controller.clock
-    why = busy_with(getattr(controller, "robot", None))
+    robot = getattr(controller, "robot", None)
+    why = busy_with(robot)
     if why in ("surveying", "survey measuring"):
         # a survey's wall time is its rendering and measuring, whatever the clock: at the slow
         # speed 40 pairs spanned 4-5 farm hours (into the fish's morning under load); at a tenth
@@ -58,11 +92,17 @@ def declare(controller) -> None:
         clock.busy(why=why)
     else:
         now = clock.now()
-        hour = next_survey_hour(controller.cfg, now)
+        stops = getattr(robot, "surveys", None)
+        since = stops.schedule.started if newest is not None and stops is not None else None
+        hour = next_survey_hour(controller.cfg, now, newest if since is not None else None, since)
         clock.idle_until(now + 365 * 86400.0 if hour is None else hour, why="next survey")
 
 
 async def pace(controller, period_s: float = PERIOD_S) -> None:
+    newest = None
     while True:
-        declare(controller)
+        stops = getattr(getattr(controller, "robot", None), "surveys", None)
+        if newest is None and stops is not None:
+            newest = NewestSurveys(stops)
+        declare(controller, newest)
         await asyncio.sleep(period_s)

@@ -12,7 +12,14 @@ config's count and the stock events; ``days`` apart):
   when G ≤ 0: a loss is not a conversion);
 - condition factor      K = 100 · W / L³ per fish (g, cm), the survey's mean;
 - size uniformity       CV = sd / mean of weight (%), and whether it calls for grading;
-- projection: the days to a target weight at the last SGR, and the date.
+- projection: the days to a target weight at the fitted SGR (below; the last interval's without
+  a fit), from the fitted weight at the newest survey, and the date.
+
+Beside them, the same figures from the tank's growth fitted to every survey of a window
+(controller/growth.py): SGR with its 95 % interval, and FCR = feed ÷ the gain between the fitted
+weights at the window's first and last survey (the same moves of fish counted), with its interval.
+The window: the surveys since the last harvest or transfer of the tank (they change which fish are
+in it: a fit across one mixes two stocks) and within ``[feeding] growth_window_d`` of the newest.
 """
 from __future__ import annotations
 
@@ -21,6 +28,8 @@ import time
 from dataclasses import dataclass
 
 import numpy as np
+
+from controller.growth import Account, FeedFit, GrowthFit, Weighing, conversion, fit_feed, fit_growth
 
 DAY_S = 86_400.0
 
@@ -84,6 +93,90 @@ def interval(p1: SurveyPoint, p2: SurveyPoint, feed_g: float, events, tank: str)
     return Interval(p1.t, p2.t, days, sgr, feed_g, gain, feed_g / gain if gain > 0 else None)
 
 
+BREAKS = ("harvest", "transfer")        # stock events after which the fit starts again
+
+
+def growth_window(store, tank_id: str, t: float, window_d: float) -> list:
+    """The surveys the growth fit pools at ``t``, oldest first (module docstring)."""
+    rows = store.surveys(tank_id, until=t)
+    if not rows:
+        return []
+    moved = [e["t"] for e in store.stock_events()
+             if e["kind"] in BREAKS and e["t"] <= t and tank_id in (e["tank"], e["to_tank"])]
+    start = max([rows[0].t - window_d * DAY_S, *moved])
+    return sorted((r for r in rows if r.t >= start), key=lambda r: r.t) or [rows[0]]
+
+
+def tank_growth(store, tank_id: str, t: float, window_d: float,
+                prior_sgr_pct: float | None = None) -> tuple[GrowthFit, list] | None:
+    """The tank's growth fit at ``t`` and the surveys it rests on; None before any survey."""
+    rows = growth_window(store, tank_id, t, window_d)
+    fit = fit_growth([Weighing(r.t, r.mean_weight_g, r.cv_pct, r.count) for r in rows], prior_sgr_pct)
+    return None if fit is None else (fit, rows)
+
+
+def _accounts(cfg, store, tank_id: str, t_first: float, times: list[float], weight_at) -> list[Account]:
+    """The ledger at each of ``times`` since ``t_first`` (growth.Account); the fish that moved are
+    weighed at ``weight_at(t)``."""
+    base, events = cfg.tank(tank_id).stock, [dict(e) for e in store.stock_events()]
+    out = []
+    for t in times:
+        left = sum(((e["count"] if e["tank"] == tank_id else 0) - (e["count"] if e["to_tank"] == tank_id else 0))
+                   * weight_at(e["t"]) for e in events if t_first < e["t"] <= t)
+        out.append(Account(t, store.fed_between(tank_id, t_first, t), stock_at(base, events, tank_id, t), left))
+    return out
+
+
+def _feed_fit(cfg, store, tank_id: str, fit: GrowthFit, rows) -> FeedFit | None:
+    """The feed model's fit, or None where it cannot stand (module docstring of controller/growth.py):
+    no feed between the surveys, or a fitted biomass that is not positive (data it does not fit)."""
+    times = [r.t for r in rows]
+    feed = fit_feed([Weighing(r.t, r.mean_weight_g, r.cv_pct, r.count) for r in rows],
+                    _accounts(cfg, store, tank_id, times[0], times, fit.weight_g))
+    if feed is None or min(feed.biomass_g(feed.first), feed.biomass_g(feed.last)) <= 0:
+        return None
+    return feed
+
+
+def fitted_weight(cfg, store, tank_id: str, t: float) -> tuple[float, dict, str] | None:
+    """The tank's mean weight at ``t`` from its growth fit (``[feeding] growth_model``), the fit's
+    summary and how it was had; None without a measured growth (fewer than two surveys)."""
+    got = tank_growth(store, tank_id, t, cfg.feeding.growth_window_d)
+    if got is None or not got[0].measured:
+        return None
+    fit, rows = got
+    if cfg.feeding.growth_model == "feed":
+        feed = _feed_fit(cfg, store, tank_id, fit, rows)
+        if feed is not None:
+            [now] = _accounts(cfg, store, tank_id, feed.first.t, [t], fit.weight_g)
+            if now.stock > 0 and feed.biomass_g(now) > 0:
+                return (feed.weight_g(now), feed.summary(now),
+                        f"{feed.fcr or math.inf:.2f} FCR fitted to {feed.surveys} surveys and the feed since")
+    return fit.weight_g(t), fit.summary(t), f"{fit.sgr_pct:.2f} %/day fitted to {fit.surveys} surveys"
+
+
+def fitted_figures(cfg, store, tank_id: str, t: float) -> dict | None:
+    """SGR and FCR over the fit's window, with their 95 % intervals (module docstring)."""
+    got = tank_growth(store, tank_id, t, cfg.feeding.growth_window_d)
+    if got is None or not got[0].measured:
+        return None
+    fit, rows = got
+    t1, t2 = fit.t_first, fit.t_last
+    when = {"since": iso_day(t1), "t_first": t1, "t_last": t2}
+    if cfg.feeding.growth_model == "feed":
+        feed = _feed_fit(cfg, store, tank_id, fit, rows)
+        if feed is not None:
+            return {**feed.summary(feed.last), **when}
+    base, events = cfg.tank(tank_id).stock, [dict(e) for e in store.stock_events()]
+    terms = [(stock_at(base, events, tank_id, t2), t2), (-stock_at(base, events, tank_id, t1), t1)]
+    for e in events:
+        if t1 < e["t"] <= t2:
+            terms.append(((e["count"] if e["tank"] == tank_id else 0)
+                          - (e["count"] if e["to_tank"] == tank_id else 0), e["t"]))
+    conv = conversion(fit, store.fed_between(tank_id, t1, t2), terms)
+    return {**fit.summary(t2), **conv.summary(), **when}
+
+
 def days_to(target_g: float, weight_g: float, sgr_pct: float) -> float | None:
     """Days from ``weight_g`` to ``target_g`` at ``sgr_pct``; 0 when there already, None when the
     fish are not growing."""
@@ -120,12 +213,15 @@ def tank_figures(cfg, store, tank_id: str, since: float | None = None, target_g:
     if points:
         newest = points[-1]
         out["grading"] = needs_grading(newest.cv_pct, cfg.feeding.grading_cv_pct)
+        fit = out["fit"] = fitted_figures(cfg, store, tank_id, newest.t)
         target = target_g if target_g is not None else tank.target_weight_g
-        if target is not None and intervals:
-            sgr = intervals[-1]["sgr_pct"]
-            days = days_to(target, newest.mean_weight_g, sgr)
+        if target is not None and intervals:       # from the fitted growth: pooled, it is the steadier
+            sgr, weight = ((fit["sgr_pct_day"], fit["weight_g"]) if fit is not None
+                           else (intervals[-1]["sgr_pct"], newest.mean_weight_g))
+            days = days_to(target, weight, sgr)
             out["projection"] = {"target_g": target, "sgr_pct": sgr, "days": days,
-                                 "date": None if days is None else iso_day(newest.t + days * DAY_S)}
+                                 "date": None if days is None else iso_day(newest.t + days * DAY_S),
+                                 "basis": "fit" if fit is not None else "last interval"}
     return out
 
 

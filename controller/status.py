@@ -61,4 +61,16 @@ def _weights(c, tank_id: str, now: float) -> dict:
             "water_temp_c": None if temp is None else round(temp.celsius, 2),
             "water_temp_source": None if temp is None else temp.source,
             "last_survey_t": f.get("last_survey_t"), "weight_cv_pct": f.get("weight_cv_pct"),
-            "sgr_pct_day": f.get("sgr_pct_day"), "fcr": f.get("fcr")}
+            "sgr_pct_day": f.get("sgr_pct_day"), "fcr": f.get("fcr"), **_fitted(basis, f.get("fit"))}
+
+
+def _fitted(basis, fit: dict | None) -> dict:
+    """The growth fit's figures (optional fields): the ration weight's 95 % interval today, SGR and
+    FCR over the fit's window with theirs."""
+    out = {}
+    if basis.growth is not None:
+        out["weight_ci_pct"] = round(basis.growth["weight_ci_pct"], 2)
+    if fit is not None:
+        out |= {"sgr_fit_pct_day": fit["sgr_pct_day"], "sgr_fit_ci_pct_day": fit["sgr_ci_pct_day"],
+                "fcr_fit": fit["fcr"], "fcr_fit_ci": fit["fcr_ci"], "fit_surveys": fit["surveys"]}
+    return out

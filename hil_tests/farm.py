@@ -105,6 +105,7 @@ class HilFarm:
                 section["port"] = 0            # any free port: runs must not collide with the demo
         self.sim_proc: subprocess.Popen | None = None
         self.ctl_proc: subprocess.Popen | None = None
+        self.workers: list[subprocess.Popen] = []
         self.restarts = 0
         self.stop_s: float | None = None       # wall seconds the controller took to stop on SIGTERM
         self.truth_path = self.dir / "truth.jsonl"
@@ -162,6 +163,22 @@ class HilFarm:
         self.ctl_proc = self._spawn(["run", "--config", str(self.dir / "controller.toml"), "--no-console",
                                      *self.clock_args()], "controller.log")
 
+    def start_workers(self, n: int, timeout_s: float = 60.0) -> None:
+        """``n`` vision workers (``fishfarm worker``), separate processes reaching the controller's
+        Zenoh endpoint as a farm's would: the survey stops measure their pairs there. Returns once
+        each has loaded (it says so, retrying until the controller listens): started before the
+        farm, their imports do not starve its first minutes on a fast clock."""
+        for i in range(n):
+            self.workers.append(self._spawn(["worker", "--connect", f"tcp/127.0.0.1:{self.zenoh_port}",
+                                             "--site", self.config.get("site", "demo"), "--id", f"hil-{i}"],
+                                            f"worker-{i}.log"))
+        deadline = time.time() + timeout_s
+        while not all(self.log(f"worker-{i}.log") for i in range(n)):
+            self.check_alive()
+            if time.time() > deadline:
+                raise RuntimeError("vision workers did not start")
+            time.sleep(0.05)
+
     def wait_controller_up(self, timeout_s: float = 60.0) -> float:
         """Wait until the controller says it is up; returns the farm time it was seen."""
         deadline = time.time() + timeout_s
@@ -182,7 +199,8 @@ class HilFarm:
     def check_alive(self) -> None:
         """Both processes run; a controller this harness killed (and has not restarted) is not missed."""
         killed = self.ctl_proc is not None and self.ctl_proc.returncode == -signal.SIGKILL
-        for name, proc in (("sim", self.sim_proc), ("controller", None if killed else self.ctl_proc)):
+        workers = [(f"worker-{i}", w) for i, w in enumerate(self.workers)]
+        for name, proc in (("sim", self.sim_proc), ("controller", None if killed else self.ctl_proc), *workers):
             if proc is not None and proc.poll() is not None:
                 raise RuntimeError(f"{name} exited with {proc.returncode}:\n{self.log(name + '.log')}")
 
@@ -204,6 +222,15 @@ class HilFarm:
                 self.stop_s = time.monotonic() - sent
                 if rc != 0:
                     problem = f"the controller exited {rc} on SIGTERM, after {self.stop_s:.2f} s"
+        for proc in self.workers:
+            if proc.poll() is None:
+                proc.send_signal(signal.SIGTERM)
+        for proc in self.workers:
+            try:
+                proc.wait(timeout=15)
+            except subprocess.TimeoutExpired:
+                proc.kill()
+                proc.wait()
         if self.sim_proc is not None and self.sim_proc.poll() is None:
             self.sim_proc.send_signal(signal.SIGTERM)
             try:

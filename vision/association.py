@@ -41,6 +41,11 @@ class View:
     arm_rms: np.ndarray
     comps: list = field(default_factory=list)       # silhouettes' (labels, stats) on the working image
     scale: tuple[float, float] = (1.0, 1.0)         # full-resolution px per working px
+    confidence: np.ndarray | None = None            # (N,) the learned locator's, 0..1 (None: not used)
+
+    def sure(self) -> np.ndarray:
+        """Each fork's confidence (1 where the learned locator did not place it)."""
+        return np.ones(len(self.fins)) if self.confidence is None else self.confidence
 
 
 @dataclass

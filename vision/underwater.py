@@ -35,6 +35,9 @@ pass, or the second keeping the first's fork where it shows none: more located, 
 40-scene diagnosis (the second pass's arm fit is what ``t_fork_shape`` trusts). The score, not the
 locator, decides what the survey keeps, and it separates right from wrong poorly (Spearman 0.18
 with the length error).
+
+The learned fork locator (``Params.fork_net``) raises recall on every seed set but not at precision
+>= 0.95 on both bench sets, so it is off; its figures are in ``vision.fork_net``.
 """
 from __future__ import annotations
 
@@ -44,6 +47,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
+from vision import fork_net
 from vision.association import (
     View,
     camera_frame,
@@ -93,6 +97,9 @@ class Params:
     outlines: bool = True           # fork proposals from silhouettes against the local background
     outline_k: tuple[float, ...] = (2.0, 4.0)   # ... thresholds, in local background spreads
     outline_ends: tuple[float, ...] = (-0.12, -0.02)   # ... outline ends shifted by these shares of its length
+    fork_net: bool = False          # forks located by the learned locator (vision.fork_net), not vision.fork
+    net_min_conf: float = 0.5       # ... where its confidence is at least this
+    net_weight: float = 1.0         # ... which enters the score raised to this power
     min_fill: float = 0.0           # the least share of the fork-snout segment inside a silhouette (term 0 there)
 
 
@@ -120,7 +127,11 @@ def _channels(img: np.ndarray) -> np.ndarray:
     return img
 
 
-def _view(img: np.ndarray, setup: SurveySetup, p: Params, clock: _Clock, trace: dict | None = None) -> View:
+def proposals(img: np.ndarray, setup: SurveySetup, p: Params = Params(), clock: _Clock | None = None,
+              trace: dict | None = None) -> tuple[list[np.ndarray], Fins, list, tuple[float, float]]:
+    """The image pyramid, the fork hypotheses of every proposer (bodies' ends, eq. 13's bank,
+    silhouettes), the silhouettes' components and the working image's scale, for one image."""
+    clock = _Clock(None) if clock is None else clock
     img = np.asarray(img)
     H, W = img.shape[:2]
     pyr = pyramid(img)
@@ -165,16 +176,37 @@ def _view(img: np.ndarray, setup: SurveySetup, p: Params, clock: _Clock, trace: 
     clock.lap("fins")
     if trace is not None:
         trace.setdefault("proposed", []).append(hyps.xy.copy())
+    return pyr, hyps, comps, (sx, sy)
+
+
+def _view(img: np.ndarray, setup: SurveySetup, p: Params, clock: _Clock, trace: dict | None = None) -> View:
+    pyr, hyps, comps, scale = proposals(img, setup, p, clock, trace)
+    located, fish, water, arm, conf = _locate(pyr, hyps, p)
+    # the same fork from several hypotheses: the best (the net's confidence, else eq. 13's score)
+    keep = suppress(located if conf is None else _scored(located, conf), p.max_fins, 0.1)
+    fins = located.take(keep)
+    clock.lap("fork")
+    return View(pyr, fins, fish[keep], water[keep], arm[keep], comps, scale,
+                None if conf is None else conf[keep])
+
+
+def _scored(f: Fins, score: np.ndarray) -> Fins:
+    return Fins(f.xy, f.angle, f.span_px, score, f.polarity, f.body)
+
+
+def _locate(pyr: list[np.ndarray], hyps: Fins, p: Params):
+    """The forks at the hypotheses that show one: (fins, fish level, water level, arm RMS,
+    confidence or None), the fins scored on eq. (13). Classical (``vision.fork``, twice: again from
+    the fork) or learned (``vision.fork_net``, ``Params.fork_net``)."""
+    if p.fork_net:
+        located, fish, water, conf = fork_net.located(pyr, hyps, p.net_min_conf)
+        return located, fish, water, np.zeros(len(conf)), conf
     forks = locate_forks(pyr, hyps)
     forks = locate_forks(pyr, forks.fins.take(np.flatnonzero(forks.ok)))        # again, from the fork
     ok = np.flatnonzero(forks.ok)
     located = forks.fins.take(ok)
-    fish, water, arm = forks.fish_level[ok], forks.water_level[ok], forks.arm_rms[ok]
     located.score = fin_scores(pyr, located)              # eq. (13), where the forks are
-    keep = suppress(located, p.max_fins, 0.1)             # the same fork from several hypotheses: the best
-    fins = located.take(keep)
-    clock.lap("fork")
-    return View(pyr, fins, fish[keep], water[keep], arm[keep], comps, (sx, sy))
+    return located, forks.fish_level[ok], forks.water_level[ok], forks.arm_rms[ok], None
 
 
 def _transfer(calib, v1: View, v2: View, pairs, p: Params) -> tuple[View, View]:
@@ -187,16 +219,12 @@ def _transfer(calib, v1: View, v2: View, pairs, p: Params) -> tuple[View, View]:
             continue
         hyp = transfer_forks(Ps, Pd, views[src], views[dst], lone, p.near_mm, p.far_mm)
         v = views[dst]
-        forks = locate_forks(v.pyr, hyp)
-        forks = locate_forks(v.pyr, forks.fins.take(np.flatnonzero(forks.ok)))
-        ok = np.flatnonzero(forks.ok)
-        if len(ok) == 0:
+        new, fish, water, arm, conf = _locate(v.pyr, hyp, p)
+        if len(new) == 0:
             continue
-        new = forks.fins.take(ok)
-        new.score = fin_scores(v.pyr, new)
-        views[dst] = View(v.pyr, concat([v.fins, new]), np.vstack([v.fish_level, forks.fish_level[ok]]),
-                          np.vstack([v.water_level, forks.water_level[ok]]), np.r_[v.arm_rms, forks.arm_rms[ok]],
-                          v.comps, v.scale)
+        views[dst] = View(v.pyr, concat([v.fins, new]), np.vstack([v.fish_level, fish]),
+                          np.vstack([v.water_level, water]), np.r_[v.arm_rms, arm], v.comps, v.scale,
+                          None if conf is None else np.r_[v.sure(), conf])
     return views[0], views[1]
 
 
@@ -337,6 +365,7 @@ def _measurements(rows, pairs, f1, f2, v1, v2, fork_mm, fork_res, ch, calib, geo
         "t_tilt": np.clip(1 - (ch.tilt_deg / geo.max_tilt_deg) ** 2, 0, 1),
         "t_size": np.clip(len_px / (p.good_length_px * width / 1280.0), 0, 1),
         "t_fork_shape": np.exp(-(np.maximum(v1.arm_rms[pairs.i], v2.arm_rms[pairs.j]) / 0.03) ** 2),
+        "t_fork_net": np.minimum(v1.sure()[pairs.i], v2.sure()[pairs.j]) ** p.net_weight,
         # the length against the body's region it was found from: a snout taken past the real one
         # (into a fish ahead) or short of it (a shade across the head) disagrees
         # (whether the faint fin is part of that region or not moves it by ~20 %: no penalty there)

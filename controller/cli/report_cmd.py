@@ -3,8 +3,9 @@
 
 A tank's production figures from the ledger (controller/production.py): each survey (fish, mean
 weight, CV, condition factor, stock), between consecutive surveys the growth (SGR), feed given,
-biomass gain and FCR, size uniformity against ``[feeding] grading_cv_pct``, and the projection to
-the target weight (``--target`` or the tank's ``target_weight_g``) at the last SGR. ``--png``
+biomass gain and FCR, the same fitted to the surveys of the growth window with their 95 %
+intervals, size uniformity against ``[feeding] grading_cv_pct``, and the projection to the target
+weight (``--target`` or the tank's ``target_weight_g``) at the fitted SGR. ``--png``
 draws weight over time with each survey's histogram, the projection and the feed per day. Reads
 the ledger only; a running controller may keep writing it. Bad input exits 2 with one line.
 """
@@ -29,6 +30,12 @@ def text(report: dict) -> str:
         fcr = "n/a (no gain)" if i["fcr"] is None else f"{i['fcr']:.2f}"
         lines.append(f"  {iso_day(i['t1'])} -> {iso_day(i['t2'])} ({i['days']:.1f} d): SGR {i['sgr_pct']:.2f} %/day, "
                      f"feed {i['feed_g']:.0f} g, biomass gain {i['gain_g']:.0f} g, FCR {fcr}")
+    f = report.get("fit")
+    if f is not None:
+        lo, hi = (_bound(x) for x in f["fcr_ci"])
+        fcr = "n/a (no gain)" if f["fcr"] is None else f"{f['fcr']:.2f} ({lo}-{hi})"
+        lines.append(f"  fitted to {f['surveys']} surveys since {f['since']} ({f['days']:.1f} d, {f['fish']} fish): "
+                     f"SGR {f['sgr_pct_day']:.2f} ± {f['sgr_ci_pct_day']:.2f} %/day, FCR {fcr} (95 %)")
     if "grading" in report:
         cv = report["surveys"][-1]["cv_pct"] or 0
         verdict = "GRADE: above" if report["grading"] else "within"
@@ -40,6 +47,10 @@ def text(report: dict) -> str:
     if not report["surveys"]:
         lines.append("  no survey in the ledger for this tank")
     return "\n".join(lines)
+
+
+def _bound(x: float | None) -> str:
+    return "unbounded" if x is None else f"{x:.2f}"
 
 
 @click.command()

@@ -19,7 +19,6 @@ import math
 
 from controller.feed_outcome import SUSPECT, reconcile, went_backwards
 from controller.feeding.estop import Halted
-from controller.feeding.rations import ration_payload
 from devices.errors import DeviceFault, DeviceTimeout
 
 log = logging.getLogger("fishfarm.feeder")
@@ -205,5 +204,4 @@ class Dispensing:
         self.publish(f"tank/{feed.tank}/feed", payload, reliable=True)
 
     def publish_ration(self, tank: str) -> None:
-        ration = self.rations.today(tank, self.clock.now())
-        self.publish(f"tank/{tank}/ration", ration_payload(ration))
+        self.publish(f"tank/{tank}/ration", self.rations.payload(tank, self.clock.now()))

@@ -2,9 +2,12 @@
 
 The stock is the config's count plus the stock events in the store (mortality, harvests,
 transfers). The weights come from the tank's latest weight survey in the ledger, each fish fed by
-its own weight class (controller/feeding/feeding_table.py) at the tank's water temperature; a
-survey older than ``[feeding] survey_max_age_d`` has its weights projected to today (at the growth
-measured between the last two surveys, else the chart's expected growth) and the ration says so;
+its own weight class (controller/feeding/feeding_table.py) at the tank's water temperature, its
+weights scaled to the mean weight the tank's growth fit (controller/growth.py: every survey of the
+window pooled, ln W linear in time) gives for today — a survey is days old when the ration is
+planned and one survey's mean is noisy (~4 % for 30 fish). With one survey in the window the chart's
+expected growth projects it (not projected when the chart has none). A survey older than
+``[feeding] survey_max_age_d`` is projected the same way and the ration says so (``projected``);
 with no survey, the config's mean weight. A ration is fixed for a farm day when first asked for
 (row in the store), so a restart or a config edit mid-day does not move the goalposts; a new survey
 or a stock event plans it again, an operator's ration stands.
@@ -27,6 +30,8 @@ from controller.feeding.feeding_table import (
     ration_from_weights,
     table_from_species,
 )
+from controller.growth import Z95, Weighing
+from controller.production import fitted_weight
 from devices.clock import farm_date
 
 DAY_S = 86_400.0
@@ -88,6 +93,7 @@ class Plan:
     source: str                     # config | survey | projected
     mean_weight_g: float
     note: str
+    growth: dict | None = None      # the growth fit today's weight comes from (GrowthFit.summary)
 
 
 def ration_payload(r: Ration) -> dict:
@@ -154,33 +160,38 @@ class Rations:
         """Today's ration from the stock and the weights the ledger knows at ``t`` (module docstring)."""
         tank = self.cfg.tank(tank_id)
         table, temp, stock = self.tables[tank.species], self.water_temp_c(tank_id), self.stock(tank_id)
-        weights, source, note = self._weights(tank_id, t, table, temp)
+        weights, source, note, growth = self._weights(tank_id, t, table, temp)
         plan = ration_from_weights(weights, stock, temp, table)
         grams = plan.grams
         if tank.feeding_rate_pct is not None:          # the operator's rate for this tank, on its biomass
             grams = plan.biomass_g * tank.feeding_rate_pct / 100.0
-        return Plan(grams, plan.pellet_mm, source, plan.mean_weight_g, note)
+        return Plan(grams, plan.pellet_mm, source, plan.mean_weight_g, note, growth)
 
-    def _weights(self, tank_id: str, t: float, table: FeedingTable, temp: float) -> tuple[np.ndarray, str, str]:
-        last = self.store.surveys(tank_id, until=t, limit=2)
-        if not last:
+    def _weights(self, tank_id: str, t: float, table: FeedingTable,
+                 temp: float) -> tuple[np.ndarray, str, str, dict | None]:
+        """The newest survey's fish, scaled to the growth fit's mean weight today (module docstring)."""
+        newest = self.store.surveys(tank_id, until=t, limit=1)
+        if not newest:
             w = self.cfg.tank(tank_id).mean_weight_g
-            return np.array([w]), "config", f"no survey: the config's mean weight {w:g} g"
-        s = last[0]
+            return np.array([w]), "config", f"no survey: the config's mean weight {w:g} g", None
+        s = newest[0]
         weights = self.store.survey_weights(s.id)
         age_d = (t - s.t) / DAY_S
+        source = "survey" if age_d <= self.cfg.feeding.survey_max_age_d else "projected"
         when = f"survey of {self.date(s.t)} ({s.count} fish, mean {s.mean_weight_g:.1f} g)"
-        if age_d <= self.cfg.feeding.survey_max_age_d:
-            return weights, "survey", when
-        sgr = None
-        if len(last) == 2 and s.t - last[1].t >= DAY_S:    # growth measured between the last two
-            sgr = 100.0 * math.log(s.mean_weight_g / last[1].mean_weight_g) / ((s.t - last[1].t) / DAY_S)
-        projected = project_weight(s.mean_weight_g, age_d, temp, table, sgr)
-        if projected is None:
-            return weights, "projected", f"{when}, {age_d:.0f} days old; no growth known: not projected"
-        how = f"{sgr:.2f} %/day measured" if sgr is not None else "the feeding chart's growth"
-        return (weights * projected / s.mean_weight_g, "projected",
-                f"{when}, {age_d:.0f} days old: projected to {projected:.1f} g at {how}")
+        fitted = fitted_weight(self.cfg, self.store, tank_id, t)
+        if fitted is not None:
+            now, growth, how = fitted
+        else:                           # one survey: the chart's growth, class by class as the fish grow
+            now = project_weight(s.mean_weight_g, max(0.0, age_d), temp, table)
+            if now is None:
+                return weights, source, f"{when}, {age_d:.1f} days old; no growth known: not projected", None
+            one = Weighing(s.t, s.mean_weight_g, s.cv_pct, s.count)
+            growth, how = {"model": "chart", "weight_g": now, "weight_ci_pct": 100 * math.expm1(Z95 * one.log_se),
+                           "surveys": 1, "measured": False}, "the feeding chart's growth"
+        return (weights * now / s.mean_weight_g, source,
+                f"{when}, {age_d:.1f} days old: {now:.1f} g (±{growth['weight_ci_pct']:.1f} %) today at {how}",
+                growth)
 
     def today(self, tank_id: str, t: float) -> Ration:
         date = self.date(t)
@@ -192,6 +203,18 @@ class Rations:
             row = self.store.ration(tank_id, date)
         return Ration(tank_id, date, row["grams"], row["pellet_mm"],
                       self.store.fed_g(tank_id, date), self.store.committed_g(tank_id, date), row["source"])
+
+    def payload(self, tank_id: str, t: float) -> dict:
+        """``farm/{site}/tank/{tank}/ration``; a planned ration adds (optional fields) the mean weight
+        it rests on and that weight's 95 % half-width, % (``weight_ci_pct``, with a survey)."""
+        r = self.today(tank_id, t)
+        out = ration_payload(r)
+        if r.source in PLANNED:
+            basis = self.basis(tank_id, t)
+            out["mean_weight_g"] = round(basis.mean_weight_g, 2)
+            if basis.growth is not None:
+                out["weight_ci_pct"] = round(basis.growth["weight_ci_pct"], 2)
+        return out
 
     def set(self, tank_id: str, t: float, grams: float, source: str) -> Ration:
         current = self.today(tank_id, t)

@@ -168,6 +168,20 @@ TABLE: tuple[Row, ...] = (
     Row("water", "water_temp_source", IR, 1, "u16", 1, "", "R", "where that temperature comes from: 0 a probe's "
         "fresh reading, 1 the configured figure (no probe, or its reading is stale or at fault)",
         lambda v: {"sensor": 0, "config": 1}.get(v.tank.get("water_temp_source"))),
+    # -- per tank, config order: its growth fitted to the surveys of the window (controller/growth.py) --
+    Row("growth", "sgr_fit_pct_day", IR, 0, "i16", 0.01, "%/day", "R", "specific growth rate fitted to the "
+        "surveys of the growth window", _t("sgr_fit_pct_day")),
+    Row("growth", "sgr_fit_ci_pct_day", IR, 1, "u16", 0.01, "%/day", "R", "half-width of that SGR's 95 % interval",
+        _t("sgr_fit_ci_pct_day")),
+    Row("growth", "fcr_fit", IR, 2, "u16", 0.01, "", "R", "feed conversion ratio over the growth window "
+        "(feed / biomass gain)", _t("fcr_fit")),
+    Row("growth", "fcr_fit_low", IR, 3, "u16", 0.01, "", "R", "low end of that FCR's 95 % interval",
+        lambda v: (v.tank.get("fcr_fit_ci") or [None, None])[0]),
+    Row("growth", "fcr_fit_high", IR, 4, "u16", 0.01, "", "R", "high end of that FCR's 95 % interval (no value: "
+        "unbounded)", lambda v: (v.tank.get("fcr_fit_ci") or [None, None])[1]),
+    Row("growth", "weight_ci_pct", IR, 5, "u16", 0.1, "%", "R", "half-width of the 95 % interval of the mean "
+        "weight the ration uses", _t("weight_ci_pct")),
+    Row("growth", "fit_surveys", IR, 6, "u16", 1, "", "R", "surveys in the growth fit", _t("fit_surveys")),
 )
 
 # (base address, stride) of each block in each table; a block's rows sit at base + index * stride + offset
@@ -180,8 +194,9 @@ BLOCKS: dict[str, dict[str, tuple[int, int]]] = {
     "tank": {IR: (100, 20), HR: (100, 4), COIL: (100, 1)},
     "survey": {COIL: (1100, 1)},
     "water": {IR: (10000, 2)},       # far past the tank block: 495 tanks before they meet
+    "growth": {IR: (11000, 8)},      # past the water block's 500 tanks
 }
-PER_TANK = ("tank", "survey", "water")
+PER_TANK = ("tank", "survey", "water", "growth")
 FIXED_SLOTS = ("estop", "feeder", "ledger", "dispenser_counters", "sim", "controller", "scada")
 
 

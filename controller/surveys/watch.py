@@ -11,15 +11,14 @@ it has not taken up yet (and at start, for the newest of each tank):
 - the tank's grading alarm (``grading/{tank}``) is raised when the weight CV is above
   ``[feeding] grading_cv_pct``, cleared when a later survey is within it;
 - its production figures between its last two surveys (controller/production.py) are published on
-  ``farm/{site}/tank/{tank}/figures`` and kept for the status snapshot and the SCADA map.
+  ``farm/{site}/tank/{tank}/figures`` and kept for the status snapshot and the SCADA map, with
+  (``fit``) SGR and FCR fitted to every survey of the growth window and their 95 % intervals.
 """
 from __future__ import annotations
 
 import json
 import logging
 from datetime import UTC, datetime
-
-from controller.feeding.rations import ration_payload
 
 log = logging.getLogger(__name__)
 GRADING = "grading"
@@ -41,7 +40,8 @@ class SurveyWatch:
             survey = newest[0]
             self.taken[tank.id] = survey.id
             fresh.append(tank.id)
-            self.publish(f"tank/{tank.id}/ration", ration_payload(self.rations.replan(tank.id, now)))
+            self.rations.replan(tank.id, now)
+            self.publish(f"tank/{tank.id}/ration", self.rations.payload(tank.id, now))
             self.publish(f"tank/{tank.id}/survey", survey_payload(survey))
             self._grading(tank.id, survey)
             self.figures[tank.id] = figures = self._figures(tank.id, survey)
@@ -57,7 +57,7 @@ class SurveyWatch:
                 "condition_k": f["surveys"][-1]["k"] if f["surveys"] else None,
                 "sgr_pct_day": last.get("sgr_pct"), "fcr": last.get("fcr"), "feed_g": last.get("feed_g"),
                 "gain_g": last.get("gain_g"), "days": last.get("days"), "grading": f.get("grading"),
-                "projection": f.get("projection")}
+                "projection": f.get("projection"), "fit": f.get("fit")}
 
     def _grading(self, tank_id: str, survey) -> None:
         limit = self.cfg.feeding.grading_cv_pct

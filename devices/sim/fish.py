@@ -40,6 +40,8 @@ class SimFishParams(BaseModel):
     model_config = ConfigDict(extra="forbid", frozen=True)
     ration_pct_day: float = Field(2.5, gt=0, le=20, description="appetite, % of biomass a day")
     hunger_threshold_g: float = Field(60.0, gt=0, description="hunger that starts an episode")
+    meals_per_day: float | None = Field(None, gt=0, le=48, description="the threshold is this share of a day's "
+                                        "appetite instead (it grows with the fish): a farm's few large meals")
     initial_hunger: float = Field(0.5, ge=0, le=2, description="hunger at start, × threshold")
     sated_fraction: float = Field(0.25, ge=0, lt=1)
     rate_hz: tuple[float, float] = (0.1, 2.0)
@@ -75,7 +77,7 @@ class SimTank:
         self.stock = None                                   # devices/sim/stock.SimStock: the fish grow
         self.species = tank_cfg.species
         self.weight0_g = tank_cfg.mean_weight_g
-        self.hunger_g = params.initial_hunger * params.hunger_threshold_g
+        self.hunger_g = params.initial_hunger * self.threshold_g
         self.rate_hz = 0.0                                  # > 0 while the fish ask
         self._give_up = self._next_fish = math.inf
         self.heeded_t = -math.inf                          # the episode's start or its last meal
@@ -97,6 +99,14 @@ class SimTank:
         return max(biomass, 1e-9) * self.p.ration_pct_day / 100 / 86400
 
     @property
+    def threshold_g(self) -> float:
+        """Hunger that starts an episode: ``hunger_threshold_g``, or with ``meals_per_day`` that share
+        of a day's appetite (a grow-out's fish, fed a few large meals that grow with them)."""
+        if self.p.meals_per_day is None:
+            return self.p.hunger_threshold_g
+        return self.appetite_g_s * 86400.0 / self.p.meals_per_day
+
+    @property
     def asking(self) -> bool:
         return self.rate_hz > 0
 
@@ -105,7 +115,7 @@ class SimTank:
         before the tank has begun): hunger grows at a known pace, so the simulator knows it ahead."""
         if self.asking or not hasattr(self, "t"):
             return now
-        need = max(0.0, self.p.hunger_threshold_g - self.hunger_g)
+        need = max(0.0, self.threshold_g - self.hunger_g)
         return self._by_day(max(self._rest_until, self.t + need / self.appetite_g_s))
 
     def unheeded_until(self) -> float:
@@ -129,7 +139,7 @@ class SimTank:
         self.heeded_t = t
         if self.truth is not None:
             self.truth.write("fed", t, tank=self.id, grams=round(grams, 3))
-        if self.asking and self.hunger_g <= self.p.sated_fraction * self.p.hunger_threshold_g:
+        if self.asking and self.hunger_g <= self.p.sated_fraction * self.threshold_g:
             self._end_episode(t, "fed")
 
     # -- fish ---------------------------------------------------------------------------------
@@ -149,7 +159,7 @@ class SimTank:
                     self._end_episode(end, "gave up")
                     self._rest_until = end + self.p.rest_s
             else:
-                need = self.p.hunger_threshold_g - self.hunger_g
+                need = self.threshold_g - self.hunger_g
                 start = self._by_day(max(self._rest_until, self.t + max(0.0, need) / self.appetite_g_s))
                 end = min(t, start)
                 self.hunger_g += self.appetite_g_s * (end - self.t)

@@ -62,6 +62,13 @@ def test_the_figures_between_two_surveys_follow_their_definitions(farm, capsys):
     days = 100 * math.log(400 / 30) / sgr
     assert r["projection"]["days"] == pytest.approx(days)
     assert [d[2] for d in r["feed_per_day"]] == [1000.0] * 5
+    # fitted to both surveys: the same growth; its 95 % interval from each survey's standard error
+    # (CV 0 counts as 5 %: a sampled CV is not trusted below), 1.96 · √(se1² + se2²) / days
+    fit = r["fit"]
+    assert fit["sgr_pct_day"] == pytest.approx(sgr) and fit["fcr"] == pytest.approx(3000 / gain)
+    assert fit["sgr_ci_pct_day"] == pytest.approx(100 * 1.96 * math.hypot(0.05 / 50**0.5, 0.05 / 40**0.5) / 10,
+                                                  rel=1e-3)
+    assert fit["fcr_ci"][0] < fit["fcr"] < fit["fcr_ci"][1] and r["projection"]["basis"] == "fit"
 
 
 def test_the_text_report_and_its_page(farm, capsys):
@@ -70,6 +77,7 @@ def test_the_text_report_and_its_page(farm, capsys):
     code, out, _ = run(capsys, "report", "--tank", "T1", "--config", str(path / "farm.toml"), "--png", str(png))
     assert code == 0 and png.stat().st_size > 10_000
     assert "SGR 4.05 %/day" in out and "FCR" in out and "uniformity: CV 0.0 % (within 30 %)" in out
+    assert "fitted to 2 surveys since 2026-05-28 (10.0 d, 90 fish): SGR 4.05 ± " in out
     assert f"written: {png}" in out
 
 

@@ -66,3 +66,17 @@ def test_a_survey_stop_runs_at_a_tenth_of_the_slow_speed_and_the_rest_as_busy_or
     assert c.said == [("busy", 600.0 * SURVEY_SHARE, "surveying"), ("busy", 600.0 * SURVEY_SHARE, "survey measuring"),
                       ("busy", None, "moving"),
                       ("idle", LOCAL_MIDNIGHT + 20.5 * 3600, "next survey")]
+
+
+def test_with_the_ledger_s_newest_surveys_only_the_hours_a_survey_falls_due_slow_the_clock():
+    c = NS(utc_offset_h=1.0, tanks=[NS(id="T1", survey=NS(at="20:30", every_days=7)),
+                                    NS(id="T2", survey=NS(at="03:30", every_days=7))])
+    at_noon = LOCAL_MIDNIGHT + 12 * 3600
+    newest = {"T1": LOCAL_MIDNIGHT - 2 * 86400 + 20.6 * 3600,     # two days ago: due in five days
+              "T2": None}                                            # never: from its first hour after the start
+    hour = next_survey_hour(c, at_noon, newest.get, since=at_noon - 3600)
+    assert hour == LOCAL_MIDNIGHT + 27.5 * 3600                      # T2 tonight; T1's 20:30 passes fast
+    newest["T2"] = LOCAL_MIDNIGHT - 86400 + 3.6 * 3600                # T2 surveyed yesterday too
+    assert next_survey_hour(c, at_noon, newest.get, since=at_noon - 3600) == LOCAL_MIDNIGHT + (5 * 24 + 20.5) * 3600
+    newest["T1"] = LOCAL_MIDNIGHT - 9 * 86400                        # overdue: every hour of it, as before
+    assert next_survey_hour(c, at_noon, newest.get, since=at_noon - 3600) == LOCAL_MIDNIGHT + 20.5 * 3600

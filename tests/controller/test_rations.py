@@ -62,7 +62,7 @@ def species_rate(rations, w: float) -> float:
 
 def test_a_fresh_survey_feeds_each_fish_by_its_own_class(rations):
     weights = [4.0, 12.0, 12.0, 30.0, 90.0]                     # five classes of the species' table
-    rations.store.add_survey("T1", T - DAY, "sparus_aurata", "test", [8.0] * 5, weights)
+    rations.store.add_survey("T1", T, "sparus_aurata", "test", [8.0] * 5, weights)    # not grown yet
     r = rations.today("T1", T)
     stock = rations.cfg.tank("T1").stock
     assert r.source == "survey"
@@ -78,7 +78,7 @@ def test_a_stale_survey_is_projected_at_the_growth_measured_between_the_last_two
     plan = rations.plan("T1", T)                                # 30 days > 14: projected
     grown = [w * 1.25 ** 3 for w in second]                    # the same growth for three more periods
     stock = rations.cfg.tank("T1").stock
-    assert plan.source == "projected" and "projected to" in plan.note and "measured" in plan.note
+    assert plan.source == "projected" and "fitted to 2 surveys" in plan.note
     assert plan.mean_weight_g == pytest.approx(sum(grown) / 3)
     assert plan.grams == pytest.approx(stock * sum(w * species_rate(rations, w) for w in grown) / 3 / 100)
 
@@ -158,3 +158,23 @@ def test_a_chart_is_found_beside_farm_toml_first_then_among_those_shipped(tmp_pa
     missing = moved.model_copy(update={"feeding": moved.feeding.model_copy(update={"tables": ["nowhere.toml"]})})
     with pytest.raises(BadInput, match="nowhere.toml: no such file"):
         Rations(missing, load_species(), Store(tmp_path / "c.db"))
+
+
+def test_the_ration_rests_on_the_surveys_pooled_not_on_the_newest_alone(rations):
+    """Three weekly surveys on a 2 %/day growth, the newest reading 10 % heavy, each of the same
+    spread and count: with a constant-SGR fit the ration's mean weight three days on is the least
+    squares line through the three ln means (numpy's polyfit here), not the newest mean grown."""
+    import numpy as np
+    cfg = rations.cfg.model_copy(update={"feeding": rations.cfg.feeding.model_copy(update={"growth_model": "sgr"})})
+    pooled = Rations(cfg, load_species(), rations.store)
+    spread = np.array([0.8, 0.9, 1.0, 1.1, 1.2])                 # the same CV in every survey
+    days = np.array([0.0, 7.0, 14.0])
+    means = 20 * np.exp(0.02 * days) * np.array([1.0, 1.0, 1.1])
+    for d, m in zip(days, means, strict=True):
+        pooled.store.add_survey("T1", T + d * DAY, "sparus_aurata", f"s{d}", [10.0] * 5, list(m * spread))
+    slope, icpt = np.polyfit(days, np.log(means), 1)
+    plan = pooled.plan("T1", T + 17 * DAY)
+    assert plan.source == "survey" and "fitted to 3 surveys" in plan.note
+    assert plan.mean_weight_g == pytest.approx(np.exp(icpt + slope * 17))
+    assert plan.mean_weight_g < means[-1] * np.exp(slope * 3)    # the heavy reading is not taken whole
+    assert plan.growth["model"] == "sgr" and plan.growth["weight_ci_pct"] > 0

@@ -58,7 +58,7 @@ def test_every_value_has_its_own_words_and_a_documented_form():
 def test_tank_blocks_follow_the_documented_stride():
     cfg = load_config(ROOT / "config" / "farm.toml")
     rows = {(r["type"], r["name"]): int(r["address"]) for r in map_rows()}
-    for block in ("tank", "survey", "water"):        # survey coils, water registers: per-tank blocks of their own
+    for block in ("tank", "survey", "water", "growth"):    # survey coils, water, growth: per-tank blocks of their own
         names = {r.name for r in rm.TABLE if r.block == block}
         for kind, (base, stride) in rm.BLOCKS[block].items():
             for i, t in enumerate(cfg.tanks):

@@ -45,9 +45,20 @@ def random_status(rng: random.Random, tanks: list[str], slots: list[str]) -> dic
                           "weight_cv_pct": maybe(rng.randint(0, 2000) / 10),
                           "sgr_pct_day": maybe(rng.randint(-500, 2000) / 100),
                           "fcr": maybe(rng.randint(0, 600) / 100),
+                          # the growth fit's: an FCR interval may be unbounded above (None)
+                          "sgr_fit_pct_day": maybe(rng.randint(-500, 2000) / 100),
+                          "sgr_fit_ci_pct_day": maybe(rng.randint(0, 500) / 100),
+                          "fcr_fit": maybe(rng.randint(0, 600) / 100),
+                          "fcr_fit_ci": maybe([rng.randint(0, 300) / 100, maybe(rng.randint(300, 900) / 100)]),
+                          "weight_ci_pct": maybe(rng.randint(0, 500) / 10), "fit_surveys": maybe(rng.randint(2, 9)),
                           # the water: hundredths of a degree, below freezing to a hot summer
                           "water_temp_c": maybe(rng.randint(-500, 4000) / 100),
                           "water_temp_source": maybe(rng.choice(["sensor", "config"]))} for t in tanks}}
+
+
+def hundredths(x):
+    """An i16/u16 register at scale 0.01: the raw word (two's complement when negative)."""
+    return None if x is None else round(x * 100) & 0xFFFF
 
 
 def expected(row: dict, st: dict, tanks: list[str], word_order: str, read_only: bool):
@@ -81,7 +92,13 @@ def expected(row: dict, st: dict, tanks: list[str], word_order: str, read_only: 
                  "sgr_pct_day": None if t["sgr_pct_day"] is None else round(t["sgr_pct_day"] * 100) & 0xFFFF,
                  "fcr": None if t["fcr"] is None else round(t["fcr"] * 100),
                  "water_temp_c": None if t["water_temp_c"] is None else round(t["water_temp_c"] * 100) & 0xFFFF,
-                 "water_temp_source": {None: None, "sensor": 0, "config": 1}[t["water_temp_source"]]}[field]
+                 "water_temp_source": {None: None, "sensor": 0, "config": 1}[t["water_temp_source"]],
+                 "sgr_fit_pct_day": hundredths(t["sgr_fit_pct_day"]), "sgr_fit_ci_pct_day": hundredths(
+                     t["sgr_fit_ci_pct_day"]), "fcr_fit": hundredths(t["fcr_fit"]),
+                 "fcr_fit_low": hundredths((t["fcr_fit_ci"] or [None, None])[0]),
+                 "fcr_fit_high": hundredths((t["fcr_fit_ci"] or [None, None])[1]),
+                 "weight_ci_pct": None if t["weight_ci_pct"] is None else round(t["weight_ci_pct"] * 10),
+                 "fit_surveys": t["fit_surveys"]}[field]
     elif a:
         slot, field = a.groups()
         mine = [x for x in st["alarms"] if in_slot(x, slot)]

@@ -3,6 +3,7 @@ ration planned again and published, the survey published, the grading alarm rais
 from __future__ import annotations
 
 import json
+import math
 
 import pytest
 
@@ -51,6 +52,9 @@ def test_a_new_survey_sets_the_ration_is_published_once_and_a_spread_stock_raise
     [survey] = published.on("tank/T1/survey")
     assert survey["count"] == 4 and survey["weight_g"] == {"mean": 42.5} and survey["t"].startswith("2026-")
     cv = 100 * (sum((w - 42.5) ** 2 for w in (20, 30, 40, 80)) / 3) ** 0.5 / 42.5     # 61 %: above 30 %
+    # the weight it rests on (10 s grown) and its 95 % half-width: 1.96 · CV / √n on the log scale
+    assert ration["mean_weight_g"] == pytest.approx(42.5, rel=1e-4)
+    assert ration["weight_ci_pct"] == pytest.approx(100 * math.expm1(1.96 * cv / 100 / 2), abs=0.01)
     [alarm] = [a for a in alarms.active.of("grading/T1")]
     assert f"weight CV {cv:.1f} %" in alarm.text and "grade the stock" in alarm.text
     # a later, even survey clears it; its OUT.json is gone: the ledger's summary is published
@@ -91,6 +95,11 @@ def test_the_figures_between_the_last_two_surveys_are_published_and_shown_in_sta
     shown = _weights(c, "T1", T + 10 * day + 5)
     assert shown["mean_weight_g"] == 25 and shown["ration_basis"] == "survey"
     assert shown["sgr_pct_day"] == fig["sgr_pct_day"] and shown["fcr"] == fig["fcr"]
+    # two surveys: the fitted growth is the interval's, and so are its FCR's feed and gain
+    assert fig["fit"]["sgr_pct_day"] == pytest.approx(fig["sgr_pct_day"]) and fig["fit"]["surveys"] == 2
+    assert fig["fit"]["fcr"] == pytest.approx(fig["fcr"]) and fig["fit"]["fcr_ci"][0] < fig["fcr"]
+    assert shown["sgr_fit_pct_day"] == fig["fit"]["sgr_pct_day"] and shown["fcr_fit"] == fig["fit"]["fcr"]
+    assert shown["weight_ci_pct"] > 0
     never = _weights(c, "T4", T)
     assert never["ration_basis"] == "config" and never["mean_weight_g"] == cfg.tank("T4").mean_weight_g
     assert never["last_survey_t"] is None and never["fcr"] is None

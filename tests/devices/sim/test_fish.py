@@ -153,3 +153,22 @@ def test_the_fish_are_heeded_from_their_start_and_each_meal_and_unfed_start_agai
     t.contacts_until(T0 + 5_000.0)                       # nobody feeds them: they give up and rest
     again = [r["t"] for r in kinds(truth, "episode_start")][1]
     assert again >= start + 300.0 + 900.0
+
+
+def test_fish_fed_a_few_meals_a_day_ask_when_a_meal_s_share_of_the_appetite_is_due():
+    """``meals_per_day``: the threshold is that share of a day's appetite (a farm's few large meals),
+    and each meal, eaten whole, sates them until the next one is due; the prediction still holds."""
+    t, truth = tank(initial_hunger=0.0, turbulence_hz=0.0, bursts_per_hour=0.0, meals_per_day=4.0)
+    meal = APPETITE * 86400 / 4                           # 270 g for T1's 43.2 kg at 2.5 % a day
+    assert t.threshold_g == pytest.approx(meal)
+    predicted = t.next_episode(T0 + 1.0)
+    assert predicted == pytest.approx(T0 + 6 * 3600, abs=0.01)
+    t.contacts_until(T0 + 6 * 3600 + 30)
+    assert t.asking and kinds(truth, "episode_start")[0]["t"] == pytest.approx(predicted, abs=1e-3)
+    t.feed(0.5 * meal, T0 + 6 * 3600 + 30)                # half a meal: they ask on
+    assert t.asking
+    t.feed(0.5 * meal, T0 + 6 * 3600 + 60)
+    assert not t.asking
+    assert kinds(truth, "episode_end")[0]["why"] == "fed"
+    # the minute they asked is part of the next meal's hunger: due six hours after the last start
+    assert t.next_episode(T0 + 6 * 3600 + 61) == pytest.approx(T0 + 12 * 3600, abs=0.01)

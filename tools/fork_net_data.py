@@ -1,0 +1,150 @@
+"""Training crops for the learned fork locator (``vision.fork_net``), from rendered underwater pairs.
+
+Run (the project's venv): ``.venv/bin/python tools/fork_net_data.py --seed0 100000 --scenes 1500
+--out /tmp/forks.npz``. Seeds must be >= 100000: the benches use 0+ and 1000+, and nothing is trained
+or tuned on those. Deterministic for a seed range (the jitter's generator is seeded from it).
+
+Per view of each scene, crops (``fork_net.raw_crops``) of:
+- the pipeline's own fork hypotheses (``vision.underwater.proposals``): the distribution the net
+  meets in the survey; every one near a true fork, a share (``--neg-share``) of the others;
+- jittered hypotheses round each clearly visible fish's true fork: ahead of it by -0.05..0.35 of
+  its length along its axis and +-0.1 across, span 0.3 of the length x exp(+-0.29) (the proposals'
+  errors, vision/bodies.py), axis turned by up to +-25 degrees;
+- hard negatives: the same fish's fork with the axis reversed (the fin seen from behind), its
+  snout end, its middle; and random points, axes and spans.
+Label: a crop is positive when a clearly visible fish (< 25 % hidden in that view) has its fork
+inside the crop (0.08 span from its edges), its axis within 40 degrees of the crop's and a span
+0.6-1.7x the crop's; the target is that fork (u, v in spans) and the axis' turn. Crops with the
+fork of a partly hidden fish in them are left out (whether its fork shows is unknown).
+"""
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
+from devices.sim.fish_scene import underwater_scene  # noqa: E402
+from vision import fork_net  # noqa: E402
+from vision.fins import SPAN_OF_FL, Fins  # noqa: E402
+from vision.survey_types import SurveySetup  # noqa: E402
+from vision.underwater import proposals  # noqa: E402
+
+FIRST_SEED = 100000
+CLEAR = 0.25            # hidden share under which a fish's fork is taken as visible
+MARGIN = 0.08           # spans inside the crop's edges
+
+
+def _wrap(a):
+    return (a + np.pi) % (2 * np.pi) - np.pi
+
+
+def labels(h: Fins, forks: np.ndarray, axis: np.ndarray, length: np.ndarray, clear: np.ndarray):
+    """Per hypothesis: (keep, positive, u, v, turn, length / span)."""
+    N = len(h)
+    keep, pos = np.ones(N, bool), np.zeros(N, bool)
+    u, v, turn, rel = np.zeros(N), np.zeros(N), np.zeros(N), np.zeros(N)
+    if len(forks) == 0:
+        return keep, pos, u, v, turn, rel
+    a = np.c_[np.cos(h.angle), np.sin(h.angle)]
+    d = forks[None] - h.xy[:, None]                                            # (N, F, 2)
+    du = (d[..., 0] * a[:, None, 0] + d[..., 1] * a[:, None, 1]) / h.span_px[:, None]
+    dv = (-d[..., 0] * a[:, None, 1] + d[..., 1] * a[:, None, 0]) / h.span_px[:, None]
+    inside = (du > fork_net.U0 + MARGIN) & (du < fork_net.U1 - MARGIN) & (np.abs(dv) < fork_net.V1 - MARGIN)
+    dt = _wrap(axis[None] - h.angle[:, None])
+    scale = SPAN_OF_FL * length[None] / h.span_px[:, None]
+    fits = inside & (np.abs(dt) < np.radians(40)) & (scale > 0.6) & (scale < 1.7)
+    keep = ~(inside & ~clear[None]).any(axis=1)
+    dist = np.where(fits & clear[None], np.hypot(du + 0.3, dv), np.inf)
+    best = dist.argmin(axis=1)
+    pos = np.isfinite(dist[np.arange(N), best])
+    r = np.arange(N)
+    return keep, pos, du[r, best], dv[r, best], dt[r, best], (length[best] / h.span_px)
+
+
+def jittered(rng, forks, axis, length, n):
+    """n hypotheses round each fork, as the proposals are off."""
+    F = len(forks)
+    if F == 0:
+        return Fins.empty()
+    k = np.repeat(np.arange(F), n)
+    L = length[k]
+    ang = axis[k] + np.radians(rng.uniform(-25, 25, len(k)))
+    a = np.c_[np.cos(axis[k]), np.sin(axis[k])]
+    nrm = np.c_[-a[:, 1], a[:, 0]]
+    xy = (forks[k] + (rng.uniform(-0.05, 0.35, len(k)) * L)[:, None] * a
+          + (rng.uniform(-0.1, 0.1, len(k)) * L)[:, None] * nrm)
+    span = SPAN_OF_FL * L * np.exp(rng.uniform(-0.29, 0.22, len(k)))
+    z = np.zeros(len(k))
+    return Fins(xy, ang, span, z, z.copy())
+
+
+def hard_negatives(rng, forks, snouts, axis, length, shape):
+    F = len(forks)
+    H, W = shape[:2]
+    z = np.zeros
+    parts = []
+    if F:
+        a = np.c_[np.cos(axis), np.sin(axis)]
+        span = SPAN_OF_FL * length * np.exp(rng.uniform(-0.29, 0.22, F))
+        back = forks - (rng.uniform(0.0, 0.3, F) * length)[:, None] * a        # fin seen from behind
+        parts.append(Fins(back, axis + np.pi + np.radians(rng.uniform(-20, 20, F)), span, z(F), z(F)))
+        snout = snouts + (rng.uniform(-0.05, 0.2, F) * length)[:, None] * a    # the head end
+        parts.append(Fins(snout, axis + np.pi + np.radians(rng.uniform(-20, 20, F)), span, z(F), z(F)))
+        mid = forks + (rng.uniform(0.35, 0.7, F) * length)[:, None] * a
+        parts.append(Fins(mid, axis + rng.choice([0, np.pi], F), span, z(F), z(F)))
+    R = 4
+    parts.append(Fins(np.c_[rng.uniform(0, W, R), rng.uniform(0, H, R)], rng.uniform(-np.pi, np.pi, R),
+                      rng.uniform(15, 150, R), z(R), z(R)))
+    return Fins(*(np.concatenate([getattr(p, f) for p in parts]) for f in ("xy", "angle", "span_px", "score",
+                                                                              "polarity")))
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--seed0", type=int, default=FIRST_SEED)
+    ap.add_argument("--scenes", type=int, default=1500)
+    ap.add_argument("--neg-share", type=float, default=0.15)
+    ap.add_argument("--jitter", type=int, default=4)
+    ap.add_argument("--out", required=True)
+    args = ap.parse_args()
+    if args.seed0 < FIRST_SEED:
+        sys.exit(f"fork_net_data: --seed0: {args.seed0} is below {FIRST_SEED} (the benches' seeds)")
+    rng = np.random.default_rng(args.seed0)
+    setup = SurveySetup(up_world=(0.0, 0.0, 1.0))
+    X, Y, meta = [], [], []
+    for seed in range(args.seed0, args.seed0 + args.scenes):
+        sc = underwater_scene(np.random.default_rng(seed))
+        for c, img in enumerate((sc.left, sc.right)):
+            pyr, hyps = proposals(img, setup)[:2]
+            fl = sc.fish
+            forks = np.array([f.fork_px[c] for f in fl]).reshape(-1, 2)
+            snouts = np.array([f.snout_px[c] for f in fl]).reshape(-1, 2)
+            d = snouts - forks
+            axis, length = np.arctan2(d[:, 1], d[:, 0]), np.hypot(d[:, 0], d[:, 1])
+            H, W = img.shape[:2]
+            in_img = (forks[:, 0] > 2) & (forks[:, 0] < W - 3) & (forks[:, 1] > 2) & (forks[:, 1] < H - 3)
+            clear = np.array([f.hidden[c] < CLEAR for f in fl], bool) & in_img & (length > 20)
+            good = np.flatnonzero(clear)
+            for src, h in ((0, hyps), (1, jittered(rng, forks[good], axis[good], length[good], args.jitter)),
+                           (2, hard_negatives(rng, forks[good], snouts[good], axis[good], length[good], img.shape))):
+                keep, pos, u, v, t, rel = labels(h, forks, axis, length, clear)
+                if src == 0:
+                    keep &= pos | (rng.random(len(h)) < args.neg_share)
+                idx = np.flatnonzero(keep)
+                if len(idx) == 0:
+                    continue
+                X.append(fork_net.raw_crops(pyr, h.take(idx)))
+                Y.append(np.c_[pos[idx], u[idx], v[idx], t[idx], rel[idx]].astype(np.float32))
+                meta.append(np.array([[seed, c, src]] * len(idx), np.int32))
+        if (seed - args.seed0) % 100 == 99:
+            n = sum(len(y) for y in Y)
+            p = sum(int(y[:, 0].sum()) for y in Y)
+            print(f"{seed - args.seed0 + 1} scenes, {n} crops, {p} positive", flush=True)
+    np.savez_compressed(args.out, x=np.concatenate(X), y=np.concatenate(Y), meta=np.concatenate(meta))
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,223 @@
+"""A learned fork locator: a small CNN that, given a fork hypothesis (a point, an axis towards the
+head and a fin span), looks at a crop aligned with that axis and answers where the caudal fork's
+innermost point is in it, the fin's axis there, and how sure it is that a fork is in the crop.
+
+The crop is the hypothesis' own frame (``u`` along the axis towards the head, ``v`` across), in
+units of its span ``S``: u in [U0, U1], v in [-V1, V1], sampled on a GRID_W x GRID_H grid at the
+pyramid level whose pixel matches the grid step (so big fish cost no more than small ones). The
+window reaches well behind the hypothesis: proposals from bodies' ends fall 0.1-0.3 of the length
+(0.3-1 span) ahead of the fork (``vision.bodies``). Each crop is normalised by its own mean and
+spread (per channel mean, one spread), so the water's colour and the light do not matter.
+
+The model (``vision/models/fork_net.onnx``, 10.4k parameters, ~1 M multiply-adds a crop) is
+trained on rendered crops of seeds >= 100000 only (tools/fork_net_data.py, tools/train_fork_net.py);
+inference is OpenCV's dnn module, so the project needs no torch. Outputs: a heatmap over the crop at
+half its resolution (its soft-argmax is the fork), and a logit (fork here) with the axis' turn
+(sin, cos) from the crop's axis.
+
+Measured (2026-12-02). Training: 250k crops of 1,400 scenes (seeds 100000-101399), 10 epochs of
+60k, ~20 min on one shared core. On the crops of 100 held-out scenes (101400-101499), from one
+pass: the survey's own hypotheses near a true fork put it within 3 % of the fish's length for
+89.7 % (median error 0.88 %), jittered starts (up to 0.35 of the length ahead, 25 degrees and
++-25 % of scale off) 76 %; 9.6 % of the negatives score over 0.5. For comparison, the classical
+locator (``vision.fork``) started on the TRUE fork and axis places 55 % within 3 %. With the
+axis' loss weighted 0.5 instead of 5 the turn was never learnt (8 degrees off stayed ~7 off).
+
+In the survey (``vision.underwater.Params.fork_net``; 2026-12-02, bench/bench_survey_underwater.py
+--fish 200, the machine shared and loaded 5-10, so speed as ratios in the same run): main's
+classical locator gives recall / precision / weight MAPE 0.261 / 0.966 / 2.30 % (seeds 0+), 0.215 /
+0.957 / 2.01 % (1000+), 0.150 / 0.868 / 1.88 % (tuning seeds 200000+); the net (10 epochs, the model
+kept) 0.315 / 0.905 / 2.18 %, 0.255 / 0.946 / 1.99 %, 0.240 / 0.915 / 2.12 %; with
+``min_score=0.04`` 0.300 / 0.928, 0.245 / 0.962, 0.230 / 0.925; an earlier 5-epoch model 0.325 /
+0.945, 0.260 / 0.914, 0.245 / 0.948 (0.235 / 0.962 with ``min_score=0.04``). Recall rises on every
+set (+0.04-0.09), precision moves by a few reports either way around 0.95, so the net stays off. A
+larger tuning set, seeds 201000+ (300 fish, load 1.8): main 0.257 / 0.952 / 2.38 %, ratio 0.278; the
+net 0.320 / 0.943 / 1.95 %, ratio 0.358. Pooled over the four sets, the precision is 212 / 225 =
+0.942 (main) against 274 / 295 = 0.929 (net): a difference of the order of its own sampling error
+(~0.015 at these counts). The funnel (4-epoch model; bench/diag_underwater.py, seeds 200000+, 48 fully
+visible fish): located 17 -> 25, found 9 -> 14; the rest is lost to snouts and post-filters, where
+the correct reports dropped fall to many different terms (``t_fill``, residuals, ``t_snout_edge``),
+no one knob. Cost: ~1 M multiply-adds a crop, one crop per distinct hypothesis (of 100-400 an image)
+and a second for the confident ones; the bench's ratio (against the baseline timed in its own run)
+0.33 / 0.36 on main (seeds 0+ / 1000+), 0.39-0.45 / 0.37-0.43 with the net; the fork stage ~1.5x. In
+one process, alternating on the same 12 scenes (seeds 300100+): CPU per pair 135 -> 197 ms (1.46x),
+the fork stage 59 -> 101 ms.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from functools import lru_cache
+from importlib import resources
+
+import cv2
+import numpy as np
+
+from vision.fins import Fins, fin_scores, sample_frames_raw
+
+GRID_W, GRID_H = 64, 32
+U0, U1, V1 = -1.6, 1.0, 0.65            # the crop's window, in spans of the hypothesis
+MODEL = "fork_net.onnx"
+BATCH = 256
+
+
+@dataclass
+class NetForks:
+    """The net's answer per hypothesis (rows align with the input)."""
+
+    xy: np.ndarray          # (N, 2) the fork, full-resolution px
+    angle: np.ndarray       # (N,) the fin's axis towards the head, rad
+    confidence: np.ndarray  # (N,) 0..1: a fork is in the crop
+
+
+def grid_px(span: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The crop's sample offsets along (N, GRID_W) and across (N, GRID_H) the axis, in px."""
+    us = U0 + (np.arange(GRID_W) + 0.5) * (U1 - U0) / GRID_W
+    vs = -V1 + (np.arange(GRID_H) + 0.5) * (2 * V1) / GRID_H
+    span = np.asarray(span, float)[:, None]
+    return us[None] * span, vs[None] * span
+
+
+def crops(pyr: list[np.ndarray], fins: Fins) -> np.ndarray:
+    """(N, 3, GRID_H, GRID_W) float32 normalised crops of every hypothesis (grey images give three
+    equal channels)."""
+    return normalise(raw_crops(pyr, fins).transpose(0, 3, 1, 2))
+
+
+def raw_crops(pyr: list[np.ndarray], fins: Fins) -> np.ndarray:
+    """(N, GRID_H, GRID_W, 3) uint8 crops as sampled (grey: three equal channels)."""
+    N = len(fins)
+    out = np.zeros((N, GRID_H, GRID_W, 3), np.uint8)
+    if N == 0:
+        return out
+    step = fins.span_px * (U1 - U0) / GRID_W
+    lev = np.clip(np.floor(np.log2(np.maximum(step, 1.0))).astype(int), 0, len(pyr) - 1)
+    axes = np.c_[np.cos(fins.angle), np.sin(fins.angle)]
+    for k in np.unique(lev):                          # a few pyramid levels, each in one remap
+        idx = np.flatnonzero(lev == k)
+        f = 2.0 ** -k
+        xs, ys = grid_px(fins.span_px[idx] * f)
+        P, _ = sample_frames_raw(pyr[k], (fins.xy[idx] + 0.5) * f - 0.5, axes[idx], xs, ys)
+        P = np.asarray(P).reshape(len(idx), GRID_H, GRID_W, -1)
+        out[idx] = np.repeat(P, 3, axis=3) if P.shape[3] == 1 else P
+    return out
+
+
+def normalise(c: np.ndarray) -> np.ndarray:
+    """Each crop less its channels' means, over its overall spread (+4 grey levels: flat water
+    stays flat instead of amplified noise)."""
+    c = c.astype(np.float32)
+    c = c - c.mean(axis=(2, 3), keepdims=True)
+    return (c / (c.std(axis=(1, 2, 3), keepdims=True) + 4.0)).astype(np.float32)
+
+
+@lru_cache(maxsize=1)
+def _net() -> cv2.dnn.Net:
+    data = resources.files("vision.models").joinpath(MODEL).read_bytes()
+    net = cv2.dnn.readNetFromONNX(np.frombuffer(data, np.uint8))
+    return net
+
+
+def run(batch: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The raw outputs for crops (N, 3, H, W): heatmap logits (N, H/2, W/2), head (N, 3)."""
+    net = _net()
+    heats, heads = [], []
+    for k in range(0, len(batch), BATCH):
+        net.setInput(np.ascontiguousarray(batch[k:k + BATCH]))
+        h, d = net.forward(["heat", "head"])
+        heats.append(h.reshape(len(h), GRID_H // 2, GRID_W // 2))
+        heads.append(d.reshape(len(d), 3))
+    if not heats:
+        return np.zeros((0, GRID_H // 2, GRID_W // 2), np.float32), np.zeros((0, 3), np.float32)
+    return np.concatenate(heats), np.concatenate(heads)
+
+
+def soft_argmax(heat: np.ndarray) -> np.ndarray:
+    """(N, h, w) logits -> (N, 2) expected (u, v) in spans of the crop's window."""
+    N, h, w = heat.shape
+    z = heat.reshape(N, -1)
+    p = np.exp(z - z.max(axis=1, keepdims=True))
+    p = (p / p.sum(axis=1, keepdims=True)).reshape(N, h, w)
+    us = U0 + (np.arange(w) + 0.5) * (U1 - U0) / w
+    vs = -V1 + (np.arange(h) + 0.5) * (2 * V1) / h
+    return np.c_[(p.sum(axis=1) * us).sum(axis=1), (p.sum(axis=2) * vs).sum(axis=1)]
+
+
+def distinct(xy: np.ndarray, angle: np.ndarray, span: np.ndarray, rank: np.ndarray, cell: float) -> np.ndarray:
+    """Indices of one hypothesis per cell of position (``cell`` spans), axis (20 degrees) and span
+    (a fifth of an octave), the best-ranked of each, in input order: the net looks at a window
+    of several spans, so near-duplicates would only cost time."""
+    if len(xy) == 0:
+        return np.zeros(0, int)
+    order = np.argsort(-np.asarray(rank), kind="stable")
+    step = cell * span[order, None]
+    key = np.c_[np.floor(xy[order] / step), np.round(angle[order] / (np.pi / 9)) % 18,
+                np.round(5 * np.log2(np.maximum(span[order], 1.0)))].astype(np.int64)
+    _, first = np.unique(key, axis=0, return_index=True)
+    return np.sort(order[first])
+
+
+def locate(pyr: list[np.ndarray], fins: Fins, passes: int = 2, again_above: float = 0.3) -> NetForks:
+    """The net's fork for every hypothesis; each pass after the first starts from the previous
+    answer (the fork ``RECENTRE`` spans behind the crop's centre, the net's axis), for the
+    hypotheses whose confidence is at least ``again_above``, one per fork (the others keep their
+    answer; a duplicate's confidence is 0)."""
+    xy, ang = fins.xy.copy(), fins.angle.copy()
+    conf = np.zeros(len(fins))
+    todo = distinct(fins.xy, fins.angle, fins.span_px, fins.score, 0.2)
+    cur = fins.take(todo)
+    for k in range(passes):
+        heat, head = run(crops(pyr, cur))
+        uv = soft_argmax(heat)
+        axes = np.c_[np.cos(cur.angle), np.sin(cur.angle)]
+        normal = np.c_[-axes[:, 1], axes[:, 0]]
+        S = cur.span_px[:, None]
+        xy[todo] = cur.xy + uv[:, :1] * S * axes + uv[:, 1:] * S * normal
+        ang[todo] = cur.angle + np.arctan2(head[:, 1], head[:, 2])
+        conf[todo] = 1.0 / (1.0 + np.exp(-head[:, 0]))
+        if k + 1 == passes:
+            break
+        sure = todo[conf[todo] >= again_above]
+        keep = sure[distinct(xy[sure], ang[sure], fins.span_px[sure], conf[sure], 0.05)]
+        conf[np.setdiff1d(todo, keep)] = 0.0
+        todo = keep
+        if len(todo) == 0:
+            break
+        back = np.c_[np.cos(ang[todo]), np.sin(ang[todo])]
+        sub = fins.take(todo)
+        cur = Fins(xy[todo] + RECENTRE * sub.span_px[:, None] * back, ang[todo], sub.span_px, sub.score,
+                   sub.polarity, sub.body)
+    return NetForks(xy, ang, conf)
+
+
+RECENTRE = 0.3      # spans: the hypothesis of a later pass lies this far ahead of the previous fork
+
+
+def levels(pyr: list[np.ndarray], fins: Fins) -> tuple[np.ndarray, np.ndarray]:
+    """Fish and water colour (N, C) at each fork: medians just ahead of it on the axis (the
+    caudal peduncle, 0.1-0.35 span) and behind it (0.35-0.6 span: water between or past the lobes),
+    as ``vision.fork`` measures them."""
+    N = len(fins)
+    C = pyr[0].shape[2] if pyr[0].ndim == 3 else 1
+    if N == 0:
+        return np.zeros((0, C)), np.zeros((0, C))
+    axes = np.c_[np.cos(fins.angle), np.sin(fins.angle)]
+    S = fins.span_px[:, None]
+    ys = np.linspace(-0.1, 0.1, 5)[None] * S
+    out = []
+    for lo, hi in ((0.1, 0.35), (-0.6, -0.35)):
+        P, _ = sample_frames_raw(pyr[0], fins.xy, axes, np.linspace(lo, hi, 6)[None] * S, ys)
+        out.append(np.median(np.asarray(P, float).reshape(N, -1, C), axis=1))
+    return out[0], out[1]
+
+
+def located(pyr: list[np.ndarray], hyps: Fins, min_conf: float) -> tuple[Fins, np.ndarray, np.ndarray, np.ndarray]:
+    """The forks the net is at least ``min_conf`` sure of: (fins scored on eq. 13, fish level,
+    water level, confidence); polarity from the levels."""
+    nf = locate(pyr, hyps)
+    ok = np.flatnonzero(nf.confidence >= min_conf)
+    h = hyps.take(ok)
+    out = Fins(nf.xy[ok], nf.angle[ok], h.span_px, h.score, h.polarity, h.body)
+    fish, water = levels(pyr, out)
+    out.polarity = np.sign((fish - water).sum(axis=1))
+    out.score = fin_scores(pyr, out)
+    return out, fish, water, nf.confidence[ok]
