@@ -5,7 +5,10 @@ elastic clock. Goal: 60 farm days in <= 10 min of wall.
 Figures (one JSON object): ``wall_s`` and ``wall_per_day_s``; ``wall_by_reason`` (where the wall
 went: fast, fish asking, the robot's states, surveying); ``surveys`` (per survey the controller's
 mean weight and biomass against the simulator's: goal within 5 %); ``intervals`` (per pair of a
-tank's consecutive surveys the reported FCR and SGR against the simulator's: goal within 5 %);
+tank's consecutive surveys the reported FCR and SGR against the simulator's); ``rations`` (per
+ration planned from a survey, the biomass it rests on — the tank's growth fit that day — against the
+simulator's: goal within 5 %); ``fits`` (per tank the SGR and FCR fitted to its surveys against the
+simulator's over the fit's window: goal within 5 %);
 ``demands`` (every served demand's wait; those overlapping a survey visit: none over 60 s);
 ``feeding`` (the farm-day judge: hil_tests/evidence.py).
 

@@ -13,9 +13,12 @@ What makes it cheap enough, each a setting of this farm (``overrides``), not of 
   10 farm s for the water to settle (the survey stop runs at a tenth of the slow speed: 60 s of
   settling were a wall second a visit), two vision workers measuring while the simulator renders.
 
-The judge (``judge``) compares the controller's figures with the simulator's truth: per survey the
-biomass the rations rest on, per pair of a tank's consecutive surveys FCR and SGR, and every
-served demand's wait, those overlapping a survey visit apart.
+The judge (``judge``) compares the controller's figures with the simulator's truth: per survey its
+biomass (stock x the survey's mean), per pair of a tank's consecutive surveys FCR and SGR, per
+planned ration the biomass it rests on (``rations``: stock x the mean weight of the tank's growth fit
+that day, what ``Rations.plan`` gives from the ledger as it stood), per tank the SGR and FCR fitted
+to its surveys (``fits``, over the fit's window), and every served demand's wait, those
+overlapping a survey visit apart.
 """
 from __future__ import annotations
 
@@ -31,7 +34,8 @@ from datetime import datetime
 from pathlib import Path
 
 from controller.config import load_config
-from controller.production import tank_figures
+from controller.feeding.rations import Rations, load_species
+from controller.production import stock_at, tank_figures
 from controller.store import Store
 from hil_tests.evidence import judge as judge_feeding
 from hil_tests.farm import HilFarm, merge
@@ -191,6 +195,13 @@ def judge(farm: HilFarm, up: float, end: float) -> dict:
                               strict=False):
             intervals.append(_interval(tank, iv, truth_at(stock, tank, a["t"]), truth_at(stock, tank, b["t"]),
                                        (b["t"] - a["t"]) / 86400.0))
+    rations, fits = ration_bases(cfg, store, stock), []
+    for tank in (t.id for t in cfg.tanks):
+        fit = tank_figures(cfg, store, tank).get("fit")
+        if fit is not None:
+            fits.append({**_interval(tank, {"fcr": fit.get("fcr"), "sgr_pct": fit["sgr_pct_day"]},
+                                     truth_at(stock, tank, fit["t_first"]), truth_at(stock, tank, fit["t_last"]),
+                                     (fit["t_last"] - fit["t_first"]) / 86400.0), "surveys": fit["surveys"]})
     spans = visits((farm.dir / "controller.log").read_text())
     waits, during, surveyed = [], [], []
     db = store.db
@@ -214,7 +225,8 @@ def judge(farm: HilFarm, up: float, end: float) -> dict:
     # the simulator's lookahead: every episode found the clock slow when it started
     fast = [f"{r['tank']} at {r['t']:.0f}" for r in truth if r["kind"] == "episode_start" and r["t"] < end - 60
             and (farm.watch.speed_after(r["t"]) or 0.0) >= farm.clock.fast]
-    return {"surveys": surveys, "intervals": intervals, "episodes_started_fast": fast,
+    return {"surveys": surveys, "intervals": intervals, "rations": rations, "fits": fits,
+            "episodes_started_fast": fast,
             "demands": {"served": len(waits), "p50_s": round(waits[len(waits) // 2], 1) if waits else None,
                         "max_s": round(waits[-1], 1) if waits else None,
                         "during_survey_visits": len(during), "max_during_visits_s": round(max(during), 1)
@@ -227,6 +239,20 @@ def judge(farm: HilFarm, up: float, end: float) -> dict:
                                                      "false_demands": len(verdict.false_demands),
                                                      "detected_within_180": verdict.detected_within(180),
                                                      "feeds": verdict.feeds, "runs_compared": verdict.runs_compared}}
+
+
+def ration_bases(cfg, store: Store, stock: dict) -> list[dict]:
+    """Every ration planned from a survey: the biomass it rests on (the stock then x the mean weight
+    ``Rations.plan`` gives from the ledger as it stood at the planning) against the true biomass."""
+    plans, events, out = Rations(cfg, load_species(), store), [dict(e) for e in store.stock_events()], []
+    rows = store.db.execute("SELECT tank, date, t FROM ration WHERE source IN ('survey', 'projected') ORDER BY t")
+    for tank, date, t in rows.fetchall():
+        mean_g = plans.plan(tank, t).mean_weight_g
+        biomass = stock_at(cfg.tank(tank).stock, events, tank, t) * mean_g
+        true = truth_at(stock, tank, t)
+        out.append({"tank": tank, "date": date, "mean_g": round(mean_g, 2), "true_mean_g": true["mean_g"],
+                    "biomass_err_pct": pct(biomass, true["biomass_g"])})
+    return out
 
 
 def heard_late(farm: HilFarm) -> list[tuple[str, float, float]]:
