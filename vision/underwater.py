@@ -102,8 +102,6 @@ class Params:
     net_weight: float = 1.0         # ... which enters the score raised to this power
     min_fill: float = 0.0           # the least share of the fork-snout segment inside a silhouette (term 0 there)
     max_fork_residual_px: float = np.inf    # post-filter: the forks' triangulation residual
-    net_confirm: float = 0.0        # the net's forks located again classically: beyond this share of the
-                                    # span away (or none found), t_fork_shape 0 (0: off, t_fork_shape 1)
 
 
 class _Clock:
@@ -203,23 +201,13 @@ def _locate(pyr: list[np.ndarray], hyps: Fins, p: Params):
     the fork) or learned (``vision.fork_net``, ``Params.fork_net``)."""
     if p.fork_net:
         located, fish, water, conf = fork_net.located(pyr, hyps, p.net_min_conf)
-        return located, fish, water, _confirmed(pyr, located, p.net_confirm), conf
+        return located, fish, water, np.zeros(len(conf)), conf
     forks = locate_forks(pyr, hyps)
     forks = locate_forks(pyr, forks.fins.take(np.flatnonzero(forks.ok)))        # again, from the fork
     ok = np.flatnonzero(forks.ok)
     located = forks.fins.take(ok)
     located.score = fin_scores(pyr, located)              # eq. (13), where the forks are
     return located, forks.fish_level[ok], forks.water_level[ok], forks.arm_rms[ok], None
-
-
-def _confirmed(pyr: list[np.ndarray], located: Fins, within: float) -> np.ndarray:
-    """Arm RMS for the net's forks: the classical locator's, started from the net's fork, where it
-    finds one within ``within`` spans of it; infinite (no fork shape) where it does not."""
-    if within <= 0 or len(located) == 0:
-        return np.zeros(len(located))
-    forks = locate_forks(pyr, located)
-    off = np.linalg.norm(forks.fins.xy - located.xy, axis=1) / located.span_px
-    return np.where(forks.ok & (off <= within), forks.arm_rms, np.inf)
 
 
 def _transfer(calib, v1: View, v2: View, pairs, p: Params) -> tuple[View, View]:
