@@ -101,6 +101,7 @@ class Params:
     net_min_conf: float = 0.5       # ... where its confidence is at least this
     net_weight: float = 1.0         # ... which enters the score raised to this power
     min_fill: float = 0.0           # the least share of the fork-snout segment inside a silhouette (term 0 there)
+    max_fork_residual_px: float = np.inf    # post-filter: the forks' triangulation residual
 
 
 class _Clock:
@@ -381,7 +382,8 @@ def _measurements(rows, pairs, f1, f2, v1, v2, fork_mm, fork_res, ch, calib, geo
     # post-filter: an end the other image's best match along its epipolar line puts elsewhere
     # is on the wrong structure there, and its depth with it
     epi = np.maximum(fork_epi, snout_epi) / np.maximum(len_px, 1e-6)
-    rows = rows[(score[rows] >= p.min_score) & (epi[rows] <= p.max_epipolar)]
+    rows = rows[(score[rows] >= p.min_score) & (epi[rows] <= p.max_epipolar)
+                & (fork_res[rows] <= p.max_fork_residual_px)]
     for r in _unique_snouts(rows, ch, score):
         q = {k: float(v[r]) for k, v in raw.items()} | {k: float(v[r]) for k, v in terms.items()}
         fish.append(FishMeasurement(snout_mm=ch.mm[r].copy(), fork_mm=fork_mm[r].copy(),

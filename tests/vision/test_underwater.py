@@ -3,6 +3,8 @@ forked tail, independent of the renderer): fish it reports are where the drawn f
 within 1.5 %, wild lengths score low; no fish, grey input, other image sizes."""
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
@@ -10,6 +12,7 @@ from devices.sim.stereo_rig import convergent_rig
 from tests.vision.fish_drawing import underwater_pair, water
 from vision.survey import measure_pair
 from vision.survey_types import FishGeometry, SurveySetup
+from vision.underwater import Params, measure_underwater
 
 SETUP = SurveySetup(up_world=(0.0, 0.0, 1.0))
 
@@ -117,3 +120,20 @@ def test_each_reported_end_is_where_the_other_image_best_matches_it(results):
     for f in reported:
         assert max(f.quality["fork_epi_px"], f.quality["snout_epi_px"]) <= 0.03 * f.quality["length_px"] + 1e-9
         assert 0.0 <= f.quality["body_fill"] <= 1.0
+
+
+def test_fork_residual_filter_drops_exactly_the_fish_above_it():
+    """``max_fork_residual_px``: at the median residual of the unfiltered fish, those above it go and
+    the others are reported as before (none of these shared a snout with a dropped one)."""
+    rig = rig_of()
+    everyone = [f for seed in range(3) for f in measure_underwater(
+        *underwater_pair(np.random.default_rng(seed), rig, n_fish=3)[:2], rig.calibration(), SETUP)]
+    limit = float(np.median([f.quality["fork_residual_px"] for f in everyone]))
+    assert any(f.quality["fork_residual_px"] > limit for f in everyone)         # some go, some stay
+    for seed in range(3):
+        left, right, _ = underwater_pair(np.random.default_rng(seed), rig, n_fish=3)
+        before = measure_underwater(left, right, rig.calibration(), SETUP)
+        after = measure_underwater(left, right, rig.calibration(), SETUP,
+                                   params=replace(Params(), max_fork_residual_px=limit))
+        kept = [f for f in before if f.quality["fork_residual_px"] <= limit]
+        assert [f.snout_mm.tolist() for f in after] == [f.snout_mm.tolist() for f in kept]
