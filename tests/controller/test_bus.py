@@ -276,9 +276,14 @@ def test_close_twice_then_publish_refused(loop):
 
 def _udp_ports_of_this_process() -> set[int]:
     """Local ports of the UDP sockets this process holds (multicast scouting binds 7446)."""
-    inodes = {os.readlink(f"/proc/self/fd/{fd}")[8:-1] for fd in os.listdir("/proc/self/fd")
-              if os.path.exists(f"/proc/self/fd/{fd}")
-              and os.readlink(f"/proc/self/fd/{fd}").startswith("socket:[")}
+    inodes = set()
+    for fd in os.listdir("/proc/self/fd"):
+        try:                                 # Zenoh's threads open and close fds meanwhile
+            link = os.readlink(f"/proc/self/fd/{fd}")
+        except FileNotFoundError:
+            continue
+        if link.startswith("socket:["):
+            inodes.add(link[8:-1])
     ports = set()
     for table in ("/proc/self/net/udp", "/proc/self/net/udp6"):
         with open(table) as f:
