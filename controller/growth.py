@@ -121,16 +121,25 @@ def fit_growth(weighings: list[Weighing], prior_sgr_pct: float | None = None) ->
         slope = 0.0 if prior_sgr_pct is None else prior_sgr_pct / 100.0
         return GrowthFit(t_ref, ln_w, slope, ((1.0 / float(np.sum(inv_var)), 0.0), (0.0, 0.0)),
                          float(t[0]), float(t[-1]), len(pts), fish, 1.0, Z95, False)
-    sxx = float(np.sum(inv_var * x * x))
-    ln_w = float(np.sum(inv_var * y) / np.sum(inv_var))
-    slope = float(np.sum(inv_var * x * y) / sxx)
-    resid = y - ln_w - slope * x
-    dof = len(pts) - 2
-    chi2 = float(np.sum(inv_var * resid**2))
-    ratio = chi2 / dof if dof > 0 else 0.0
+    (ln_w, slope), cov, scale, q = _weighted_fit(np.column_stack([np.ones_like(x), x]), y, inv_var)
+    return GrowthFit(t_ref, float(ln_w), float(slope), _pairs(cov), float(t[0]), float(t[-1]), len(pts), fish,
+                     scale, q, True)
+
+
+def _weighted_fit(X: np.ndarray, y: np.ndarray, inv_var: np.ndarray):
+    """Weighted least squares of ``y`` (n,) on ``X`` (n, 2): (coefficients, covariance, scatter,
+    quantile of the 95 % intervals). The covariance is scaled by χ²/dof when the points scatter
+    more than their errors allow, and the intervals then use Student's t (module docstring)."""
+    cov = np.linalg.inv(X.T @ (X * inv_var[:, None]))
+    beta = cov @ (X.T @ (inv_var * y))
+    dof = len(y) - 2
+    ratio = float(np.sum(inv_var * (y - X @ beta) ** 2)) / dof if dof > 0 else 0.0
     scale, q = (math.sqrt(ratio), float(stats.t.ppf(0.975, dof))) if ratio > 1.0 else (1.0, Z95)
-    cov = ((scale**2 / float(np.sum(inv_var)), 0.0), (0.0, scale**2 / sxx))
-    return GrowthFit(t_ref, ln_w, slope, cov, float(t[0]), float(t[-1]), len(pts), fish, scale, q, True)
+    return beta, cov * scale**2, scale, q
+
+
+def _pairs(cov: np.ndarray) -> tuple[tuple[float, float], tuple[float, float]]:
+    return (float(cov[0, 0]), float(cov[0, 1])), (float(cov[1, 0]), float(cov[1, 1]))
 
 
 @dataclass(frozen=True)
@@ -232,7 +241,6 @@ class FeedFit:
         lo, hi = self.per_feed - half, self.per_feed + half
         return (1.0 / hi if hi > 0 else None, 1.0 / lo if lo > 0 else None)
 
-
     def summary(self, now: Account | None = None) -> dict:
         lo, hi = self.fcr_ci
         out = {"model": "feed", "sgr_pct_day": self.sgr_pct, "sgr_ci_pct_day": self.sgr_ci_pct,
@@ -255,12 +263,6 @@ def fit_feed(weighings: list[Weighing], accounts: list[Account]) -> FeedFit | No
     y = np.array([w.mean_weight_g * a.stock + a.left_g for w, a in zip(weighings, accounts, strict=True)])
     inv_var = 1.0 / np.array([w.mean_weight_g * a.stock * w.log_se
                               for w, a in zip(weighings, accounts, strict=True)]) ** 2
-    X = np.column_stack([np.ones_like(feed), feed])
-    cov = np.linalg.inv(X.T @ (X * inv_var[:, None]))
-    beta = cov @ (X.T @ (inv_var * y))
-    dof = len(y) - 2
-    ratio = float(np.sum(inv_var * (y - X @ beta) ** 2)) / dof if dof > 0 else 0.0
-    scale, q = (math.sqrt(ratio), float(stats.t.ppf(0.975, dof))) if ratio > 1.0 else (1.0, Z95)
-    cov = cov * scale**2
-    return FeedFit(float(beta[0]), float(beta[1]), ((cov[0, 0], cov[0, 1]), (cov[1, 0], cov[1, 1])),
+    beta, cov, scale, q = _weighted_fit(np.column_stack([np.ones_like(feed), feed]), y, inv_var)
+    return FeedFit(float(beta[0]), float(beta[1]), _pairs(cov),
                    accounts[0], accounts[-1], len(y), int(sum(w.count for w in weighings)), scale, q)

@@ -16,7 +16,7 @@ import asyncio
 import math
 import time
 
-from controller.surveys.schedule import DAY_S, _day, _first_at
+from controller.surveys.schedule import _first_at, due_from
 
 GRACE_S = 60.0           # farm s a survey hour stays slow
 SURVEY_SHARE = 0.1       # a survey stop at this share of the slow speed (below)
@@ -34,16 +34,10 @@ def next_survey_hour(cfg, now: float, newest=None, since: float | None = None) -
             hh, mm = (int(x) for x in tank.survey.at.split(":"))
             hour = _first_at(hh * 3600 + mm * 60, now - GRACE_S, cfg.utc_offset_h)
             if newest is not None:
-                hour = max(hour, _due_at(tank.survey, hh * 3600 + mm * 60, newest(tank.id), since, cfg.utc_offset_h))
+                hour = max(hour, due_from(tank.survey.every_days, tank.survey.at, newest(tank.id),
+                                          cfg.utc_offset_h, since))
             hours.append(hour)
     return min(hours, default=None)
-
-
-def _due_at(plan, at_s: float, last: float | None, since: float | None, utc_offset_h: float) -> float:
-    """The hour a tank's survey falls due (the schedule's rule, controller/surveys/schedule.py)."""
-    if last is None:
-        return -math.inf if since is None else _first_at(at_s, since, utc_offset_h)
-    return (_day(last, utc_offset_h) + plan.every_days) * DAY_S + at_s - utc_offset_h * 3600.0
 
 
 class NewestSurveys:

@@ -61,14 +61,15 @@ def condition_factor(lengths_cm, weights_g) -> float:
     return float(np.mean(100.0 * weight / length**3)) if length.size else math.nan
 
 
+def fish_out(event, tank: str) -> int:
+    """The fish a stock event (t, tank, count, to_tank: out of ``tank``, into ``to_tank``) takes out
+    of ``tank``, less those it brings in."""
+    return (event["count"] if event["tank"] == tank else 0) - (event["count"] if event["to_tank"] == tank else 0)
+
+
 def stock_at(base: int, events, tank: str, t: float) -> int:
-    """The tank's fish at farm time ``t``: ``base`` (the config's count) plus the stock events up to
-    ``t`` (rows with t, tank, count, to_tank: out of ``tank``, into ``to_tank``)."""
-    n = base
-    for e in events:
-        if e["t"] <= t:
-            n += (e["count"] if e["to_tank"] == tank else 0) - (e["count"] if e["tank"] == tank else 0)
-    return n
+    """The tank's fish at farm time ``t``: ``base`` (the config's count) less the stock events' up to ``t``."""
+    return base - sum(fish_out(e, tank) for e in events if e["t"] <= t)
 
 
 def weight_at(t: float, p1: SurveyPoint, p2: SurveyPoint) -> float:
@@ -84,11 +85,7 @@ def interval(p1: SurveyPoint, p2: SurveyPoint, feed_g: float, events, tank: str)
     if days <= 0:
         raise ValueError("the second survey must come after the first")
     sgr = 100.0 * (math.log(p2.mean_weight_g) - math.log(p1.mean_weight_g)) / days
-    moved = 0.0
-    for e in events:
-        if p1.t < e["t"] <= p2.t:
-            w = weight_at(e["t"], p1, p2)
-            moved += (e["count"] if e["tank"] == tank else 0) * w - (e["count"] if e["to_tank"] == tank else 0) * w
+    moved = sum(fish_out(e, tank) * weight_at(e["t"], p1, p2) for e in events if p1.t < e["t"] <= p2.t)
     gain = p2.stock * p2.mean_weight_g - p1.stock * p1.mean_weight_g + moved
     return Interval(p1.t, p2.t, days, sgr, feed_g, gain, feed_g / gain if gain > 0 else None)
 
@@ -121,8 +118,7 @@ def _accounts(cfg, store, tank_id: str, t_first: float, times: list[float], weig
     base, events = cfg.tank(tank_id).stock, [dict(e) for e in store.stock_events()]
     out = []
     for t in times:
-        left = sum(((e["count"] if e["tank"] == tank_id else 0) - (e["count"] if e["to_tank"] == tank_id else 0))
-                   * weight_at(e["t"]) for e in events if t_first < e["t"] <= t)
+        left = sum(fish_out(e, tank_id) * weight_at(e["t"]) for e in events if t_first < e["t"] <= t)
         out.append(Account(t, store.fed_between(tank_id, t_first, t), stock_at(base, events, tank_id, t), left))
     return out
 
@@ -169,10 +165,7 @@ def fitted_figures(cfg, store, tank_id: str, t: float) -> dict | None:
             return {**feed.summary(feed.last), **when}
     base, events = cfg.tank(tank_id).stock, [dict(e) for e in store.stock_events()]
     terms = [(stock_at(base, events, tank_id, t2), t2), (-stock_at(base, events, tank_id, t1), t1)]
-    for e in events:
-        if t1 < e["t"] <= t2:
-            terms.append(((e["count"] if e["tank"] == tank_id else 0)
-                          - (e["count"] if e["to_tank"] == tank_id else 0), e["t"]))
+    terms += [(fish_out(e, tank_id), e["t"]) for e in events if t1 < e["t"] <= t2]
     conv = conversion(fit, store.fed_between(tank_id, t1, t2), terms)
     return {**fit.summary(t2), **conv.summary(), **when}
 

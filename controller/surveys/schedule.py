@@ -30,14 +30,21 @@ def due(every_days: int, at: str, last_t: float | None, now: float, utc_offset_h
     """A survey every ``every_days`` farm days from ``at`` local time on: due at ``now``? A tank
     never surveyed is due from the first ``at`` at or after ``since`` (the schedule's start: a
     controller started by day surveys at the tank's hour, not at once) — from today's without it."""
+    return now >= due_from(every_days, at, last_t, utc_offset_h, since if since is not None or last_t is not None
+                           else _local_midnight(now, utc_offset_h))
+
+
+def due_from(every_days: int, at: str, last_t: float | None, utc_offset_h: float, since: float) -> float:
+    """The farm time from which that survey is due: the hour ``every_days`` farm days after the day
+    of ``last_t`` (an overdue day waits for no hour), or the first hour at or after ``since``."""
     hh, mm = (int(x) for x in at.split(":"))
-    if last_t is None and since is not None:
-        return now >= _first_at(hh * 3600 + mm * 60, since, utc_offset_h)
-    local = now + utc_offset_h * 3600.0
-    day, time_of_day = divmod(local, DAY_S)
-    if time_of_day < hh * 3600 + mm * 60 and (last_t is None or day - _day(last_t, utc_offset_h) <= every_days):
-        return False                           # not yet today's hour (an overdue day waits for no hour)
-    return last_t is None or day - _day(last_t, utc_offset_h) >= every_days
+    if last_t is None:
+        return _first_at(hh * 3600 + mm * 60, since, utc_offset_h)
+    return (_day(last_t, utc_offset_h) + every_days) * DAY_S + hh * 3600 + mm * 60 - utc_offset_h * 3600.0
+
+
+def _local_midnight(t: float, utc_offset_h: float) -> float:
+    return _day(t, utc_offset_h) * DAY_S - utc_offset_h * 3600.0
 
 
 def _first_at(at_s: float, t: float, utc_offset_h: float) -> float:
