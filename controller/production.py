@@ -17,7 +17,8 @@ config's count and the stock events; ``days`` apart):
 
 Beside them, the same figures from the tank's growth fitted to every survey of a window
 (controller/growth.py): SGR with its 95 % interval, and FCR = feed ÷ the gain between the fitted
-weights at the window's first and last survey (the same moves of fish counted), with its interval.
+weights at the window's first and last survey (the same moves of fish counted), with its interval,
+and the fitted weight across the window with its 95 % interval (``curve``: [t, g, ± %] rows).
 The window: the surveys since the last harvest or transfer of the tank (they change which fish are
 in it: a fit across one mixes two stocks) and within ``[feeding] growth_window_d`` of the newest.
 """
@@ -90,6 +91,7 @@ def interval(p1: SurveyPoint, p2: SurveyPoint, feed_g: float, events, tank: str)
     return Interval(p1.t, p2.t, days, sgr, feed_g, gain, feed_g / gain if gain > 0 else None)
 
 
+CURVE_POINTS = 60                       # the fitted growth drawn across its window (report's "curve")
 BREAKS = ("harvest", "transfer")        # stock events after which the fit starts again
 
 
@@ -159,10 +161,14 @@ def fitted_figures(cfg, store, tank_id: str, t: float) -> dict | None:
     fit, rows = got
     t1, t2 = fit.t_first, fit.t_last
     when = {"since": iso_day(t1), "t_first": t1, "t_last": t2}
+    times = [float(t) for t in np.linspace(t1, t2, CURVE_POINTS)]
     if cfg.feeding.growth_model == "feed":
         feed = _feed_fit(cfg, store, tank_id, fit, rows)
         if feed is not None:
-            return {**feed.summary(feed.last), **when}
+            accounts = _accounts(cfg, store, tank_id, feed.first.t, times, fit.weight_g)
+            curve = [[a.t, feed.weight_g(a), feed.weight_ci_pct(a)] for a in accounts]
+            return {**feed.summary(feed.last), **when, "curve": curve}
+    when["curve"] = [[t, fit.weight_g(t), fit.weight_ci_pct(t)] for t in times]
     base, events = cfg.tank(tank_id).stock, [dict(e) for e in store.stock_events()]
     terms = [(stock_at(base, events, tank_id, t2), t2), (-stock_at(base, events, tank_id, t1), t1)]
     terms += [(fish_out(e, tank_id), e["t"]) for e in events if t1 < e["t"] <= t2]
@@ -212,7 +218,7 @@ def tank_figures(cfg, store, tank_id: str, since: float | None = None, target_g:
             sgr, weight = ((fit["sgr_pct_day"], fit["weight_g"]) if fit is not None
                            else (intervals[-1]["sgr_pct"], newest.mean_weight_g))
             days = days_to(target, weight, sgr)
-            out["projection"] = {"target_g": target, "sgr_pct": sgr, "days": days,
+            out["projection"] = {"target_g": target, "sgr_pct": sgr, "days": days, "weight_g": weight,
                                  "date": None if days is None else iso_day(newest.t + days * DAY_S),
                                  "basis": "fit" if fit is not None else "last interval"}
     return out

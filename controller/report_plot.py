@@ -31,16 +31,23 @@ def draw_report(path: str, report: dict) -> None:
             label = f"{s['mean_weight_g']:.0f} g\nCV {s['cv_pct'] or 0:.0f} %\nn={s['fish']}"
             ax.annotate(label, (d, s["mean_weight_g"]), textcoords="offset points", xytext=(-8, 8), ha="right",
                         fontsize=8)
+    _draw_fit(ax, report.get("fit"), t0)
     p = report.get("projection")
     if p is not None and p["days"] is not None and surveys:
         d_end = days[-1] + p["days"]
         ts = np.linspace(days[-1], d_end, 50)
-        ax.plot(ts, surveys[-1]["mean_weight_g"] * np.exp(p["sgr_pct"] / 100 * (ts - days[-1])), "--",
+        start = p.get("weight_g", surveys[-1]["mean_weight_g"])      # the fitted weight it grows from
+        ax.plot(ts, start * np.exp(p["sgr_pct"] / 100 * (ts - days[-1])), "--",
                 color="#c0392b", label=f"projection at {p['sgr_pct']:.2f} %/day: {p['target_g']:g} g on {p['date']}")
         ax.axhline(p["target_g"], color="#c0392b", lw=0.6, ls=":")
     ax.set_ylabel("weight (g)")
     title = f"tank {report['tank']} ({report['species']})"
-    if report["intervals"]:
+    fit = report.get("fit")
+    if fit is not None:                  # pooled over the window: what a manager plans on
+        fcr = "n/a" if fit["fcr"] is None else f"{fit['fcr']:.2f}"
+        title += (f": SGR {fit['sgr_pct_day']:.2f} ± {fit['sgr_ci_pct_day']:.2f} %/day, FCR {fcr}"
+                  f" fitted over {fit['days']:.0f} days")
+    elif report["intervals"]:
         last = report["intervals"][-1]
         fcr = "n/a" if last["fcr"] is None else f"{last['fcr']:.2f}"
         title += f": SGR {last['sgr_pct']:.2f} %/day, FCR {fcr} since the survey before"
@@ -55,3 +62,15 @@ def draw_report(path: str, report: dict) -> None:
     feed_ax.set_ylabel("feed (kg/day)")
     feed_ax.set_xlabel("days since the first survey" if surveys else "days")
     save_figure(fig, path)
+
+
+def _draw_fit(ax, fit: dict | None, t0: float) -> None:
+    """The growth fitted to the window's surveys, with its 95 % band: what the rations rest on."""
+    if not fit or not fit.get("curve"):
+        return
+    t, w, ci = np.asarray(fit["curve"], float).T
+    d = (t - t0) / DAY_S
+    lo, hi = w / (1 + ci / 100), w * (1 + ci / 100)      # the interval is symmetric in log weight
+    ax.fill_between(d, lo, hi, color="#f5b041", alpha=0.25, lw=0)
+    ax.plot(d, w, "-", color="#d68910", lw=1.5,
+            label=f"fitted growth ({fit['model']} model, {fit['surveys']} surveys), 95 % band")

@@ -69,6 +69,30 @@ def test_the_figures_between_two_surveys_follow_their_definitions(farm, capsys):
     assert fit["sgr_ci_pct_day"] == pytest.approx(100 * 1.96 * math.hypot(0.05 / 50**0.5, 0.05 / 40**0.5) / 10,
                                                   rel=1e-3)
     assert fit["fcr_ci"][0] < fit["fcr"] < fit["fcr_ci"][1] and r["projection"]["basis"] == "fit"
+    # the fitted weight across the window: two surveys, two parameters, so through both means
+    t, w, ci = zip(*fit["curve"], strict=True)
+    assert (t[0], t[-1]) == (T1, T1 + 10 * DAY) and list(t) == sorted(t)
+    assert (w[0], w[-1]) == (pytest.approx(20), pytest.approx(30)) and all(c > 0 for c in ci)
+    # the projection grows from the fitted weight at the newest survey to the target on its day
+    p = r["projection"]
+    assert p["weight_g"] == pytest.approx(w[-1])
+    assert p["weight_g"] * math.exp(p["sgr_pct"] / 100 * p["days"]) == pytest.approx(400)
+
+
+def test_the_page_draws_the_fitted_growth_and_its_band():
+    from controller.plotting import pyplot
+    from controller.report_plot import _draw_fit
+    fig, ax = pyplot().subplots()
+    curve = [[T1 + d * DAY, 20.0 * 1.02**d, 5.0] for d in range(11)]
+    _draw_fit(ax, {"curve": curve, "model": "sgr", "surveys": 3}, T1)
+    [line] = ax.lines
+    assert list(line.get_xdata()) == pytest.approx(list(range(11)))
+    assert list(line.get_ydata()) == pytest.approx([c[1] for c in curve])
+    [band] = ax.collections                                      # 95 %: w / 1.05 .. w · 1.05
+    ys = band.get_paths()[0].vertices[:, 1]
+    assert ys.min() == pytest.approx(20 / 1.05) and ys.max() == pytest.approx(20 * 1.02**10 * 1.05)
+    _draw_fit(ax, None, T1)                                      # no fit: nothing more drawn
+    assert len(ax.lines) == 1
 
 
 def test_the_text_report_and_its_page(farm, capsys):

@@ -119,6 +119,12 @@ def test_fitted_figures_of_a_ledger_follow_the_generating_growth(tmp_path, model
     fig = fitted_figures(cfg, store, "T1", T + 15 * DAY)
     assert fig["model"] == model and fig["surveys"] == 3 and fig["days"] == 14
     assert fig["sgr_pct_day"] == pytest.approx(sgr) and fig["fcr"] == pytest.approx(fcr)
+    # the curve the report draws: the generating weight at the window's ends (between them, the
+    # feed model steps with each day's feed; a constant SGR is the generating curve throughout)
+    days, weights = [(c[0] - T) / DAY for c in fig["curve"]], [c[1] for c in fig["curve"]]
+    assert (days[0], days[-1]) == (0, 14) and weights[0] == pytest.approx(w(0)) and weights[-1] == pytest.approx(w(14))
+    if model == "sgr":
+        assert weights == pytest.approx([w(d) for d in days])
     # an hour after day 15's feed: the feed model counts the day's growth as fed, a constant SGR
     # grows continuously
     weight, summary, _ = fitted_weight(cfg, store, "T1", T + 15 * DAY + 7200)
