@@ -1,0 +1,137 @@
+"""Where the underwater survey's length bias comes from, by the fish's length in image pixels.
+
+For each configuration (camera size, fish size) rendered scenes are measured and every report the
+bench counts correct (``bench_survey_underwater.assign``) is compared with its fish's truth, end by
+end and view by view, in the image: each end's error along the fish's true axis (px, positive =
+outward: the snout beyond the true tip, the fork behind the true notch, so a positive sum reads
+long) and across it, the image length error (px) and the 3-D length error (%). Results are binned
+by the true length in the image (mean of the two views): 40-80, 80-160, 160-320, 320+ px.
+Prints one JSON object.
+
+Run: ``.venv/bin/python bench/diag_length_bias.py [--scenes 30] [--seed0 200000]
+[--sizes 1280x960,640x480] [--lengths 9,25,drawn] [--params "..."]``
+(``drawn``: the scene's own species and sizes; a number: sparus_aurata of that mean fork length,
+as the carriage's survey of a nursery tank renders it; the camera's focal length scales with its
+width, as ``devices.sim.stereo_camera`` does.)
+"""
+from __future__ import annotations
+
+import os
+
+for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ.setdefault(_var, "1")
+
+import argparse  # noqa: E402
+import json  # noqa: E402
+import sys  # noqa: E402
+from pathlib import Path  # noqa: E402
+
+import cv2  # noqa: E402
+import numpy as np  # noqa: E402
+
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
+from bench.bench_survey_underwater import assign, parse_params  # noqa: E402
+from devices.sim.fish_scene import underwater_rig, underwater_scene  # noqa: E402
+from vision.survey_types import SurveySetup  # noqa: E402
+from vision.underwater import Params, measure_underwater  # noqa: E402
+
+BINS = (40.0, 80.0, 160.0, 320.0)
+
+
+def end_errors(r, t) -> dict:
+    """Per view (0 left, 1 right): each end's error along/across the true axis (px, outward
+    positive), the image length error (px) and the true image length (px)."""
+    out = {"snout_along": [], "snout_across": [], "fork_along": [], "fork_across": [], "len_px_err": [],
+           "len_px": []}
+    for c in (0, 1):
+        axis = t.fork_px[c] - t.snout_px[c]
+        n = float(np.linalg.norm(axis))
+        a = axis / n
+        perp = np.array([-a[1], a[0]])
+        es, ef = r.snout_px[c] - t.snout_px[c], r.fork_px[c] - t.fork_px[c]
+        out["snout_along"].append(float(-es @ a))
+        out["snout_across"].append(float(es @ perp))
+        out["fork_along"].append(float(ef @ a))
+        out["fork_across"].append(float(ef @ perp))
+        out["len_px_err"].append(float(np.linalg.norm(r.fork_px[c] - r.snout_px[c])) - n)
+        out["len_px"].append(n)
+    return out
+
+
+def run(size: tuple[int, int], length: str, scenes: int, seed0: int, params: Params) -> list[dict]:
+    w, h = size
+    rig = underwater_rig(image_size=(w, h), focal_px=1400.0 * w / 1280)
+    setup = SurveySetup(up_world=(0.0, 0.0, 1.0))
+    rows = []
+    for seed in range(seed0, seed0 + scenes):
+        cond = {} if length == "drawn" else {"species": "sparus_aurata", "mean_length_cm": float(length)}
+        sc = underwater_scene(np.random.default_rng(seed), rig, **cond)
+        fish = measure_underwater(sc.left, sc.right, sc.rig.calibration(), setup, params=params)
+        for k, ti, _, le in assign(fish, sc.fish, sc.rig.centres[0]):
+            if ti < 0:
+                continue
+            e = end_errors(fish[k], sc.fish[ti])
+            e["len_pct"] = 100 * le
+            e["view_len_px"] = float(np.mean(e["len_px"]))
+            rows.append(e)
+    return rows
+
+
+def _stat(v: list[float]) -> dict:
+    v = np.asarray(v, float)
+    if len(v) == 0:
+        return {}
+    return {"mean": round(float(v.mean()), 3), "median": round(float(np.median(v)), 3),
+            "se": round(float(v.std(ddof=1) / np.sqrt(len(v))), 3) if len(v) > 1 else None}
+
+
+def summary(rows: list[dict]) -> dict:
+    """Per bin of image length: the ends' errors (both views pooled; per view too for the ends
+    along the axis), the image length error in px and % of the image length, the 3-D length error."""
+    out = {}
+    edges = (*BINS, np.inf)
+    for lo, hi in zip(edges[:-1], edges[1:], strict=True):
+        sel = [r for r in rows if lo <= r["view_len_px"] < hi]
+        if not sel:
+            continue
+        name = f"{int(lo)}-{int(hi)}" if np.isfinite(hi) else f"{int(lo)}+"
+        b = {"reports": len(sel)}
+        for key in ("snout_along", "snout_across", "fork_along", "fork_across", "len_px_err"):
+            b[key] = _stat([x for r in sel for x in r[key]])
+        for key in ("snout_along", "fork_along"):
+            for c, view in ((0, "left"), (1, "right")):
+                b[f"{key}_{view}"] = _stat([r[key][c] for r in sel])["mean"]
+        b["len_px_err_pct"] = _stat([100 * e / n for r in sel for e, n in zip(r["len_px_err"], r["len_px"],
+                                                                                strict=True)])
+        b["len_pct"] = _stat([r["len_pct"] for r in sel])
+        out[name] = b
+    return out
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--scenes", type=int, default=30)
+    ap.add_argument("--seed0", type=int, default=200000)
+    ap.add_argument("--sizes", default="1280x960,640x480")
+    ap.add_argument("--lengths", default="9,25,drawn")
+    ap.add_argument("--params", default="")
+    args = ap.parse_args()
+    params = parse_params(args.params) or Params()
+    cv2.setNumThreads(1)
+    out = {"scenes": args.scenes, "seed0": args.seed0, "params": args.params, "configs": {}}
+    pooled = []
+    for s in args.sizes.split(","):
+        size = tuple(int(x) for x in s.split("x"))
+        for length in args.lengths.split(","):
+            rows = run(size, length, args.scenes, args.seed0, params)
+            pooled += rows
+            out["configs"][f"{s}_{length}"] = {"reports": len(rows),
+                                               "len_pct": _stat([r["len_pct"] for r in rows]),
+                                               "bins": summary(rows)}
+    out["pooled_bins"] = summary(pooled)
+    out["load"] = os.getloadavg()[0]
+    print(json.dumps(out))
+
+
+if __name__ == "__main__":
+    main()
