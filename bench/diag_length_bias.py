@@ -22,7 +22,9 @@ for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ.setdefault(_var, "1")
 
 import argparse  # noqa: E402
+import ast  # noqa: E402
 import json  # noqa: E402
+import re  # noqa: E402
 import sys  # noqa: E402
 from pathlib import Path  # noqa: E402
 
@@ -31,6 +33,7 @@ import numpy as np  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 from bench.bench_survey_underwater import assign, parse_params  # noqa: E402
+from devices.sim import fish_render  # noqa: E402
 from devices.sim.fish_scene import underwater_rig, underwater_scene  # noqa: E402
 from vision.survey_types import SurveySetup  # noqa: E402
 from vision.underwater import Params, measure_underwater  # noqa: E402
@@ -58,14 +61,15 @@ def end_errors(r, t) -> dict:
     return out
 
 
-def run(size: tuple[int, int], length: str, scenes: int, seed0: int, params: Params) -> list[dict]:
+def run(size: tuple[int, int], length: str, scenes: int, seed0: int, params: Params,
+        fixed: dict | None = None) -> list[dict]:
     w, h = size
     rig = underwater_rig(image_size=(w, h), focal_px=1400.0 * w / 1280)
     setup = SurveySetup(up_world=(0.0, 0.0, 1.0))
     rows = []
     for seed in range(seed0, seed0 + scenes):
         cond = {} if length == "drawn" else {"species": "sparus_aurata", "mean_length_cm": float(length)}
-        sc = underwater_scene(np.random.default_rng(seed), rig, **cond)
+        sc = underwater_scene(np.random.default_rng(seed), rig, **cond, **(fixed or {}))
         fish = measure_underwater(sc.left, sc.right, sc.rig.calibration(), setup, params=params)
         for k, ti, _, le in assign(fish, sc.fish, sc.rig.centres[0]):
             if ti < 0:
@@ -108,6 +112,15 @@ def summary(rows: list[dict]) -> dict:
     return out
 
 
+def _conditions(text: str) -> dict:
+    """Scene conditions from 'name=value,...' (values as Python literals)."""
+    out = {}
+    for item in filter(None, re.split(r",(?=\s*\w+\s*=)", text)):
+        key, value = item.split("=")
+        out[key.strip()] = ast.literal_eval(value.strip())
+    return out
+
+
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--scenes", type=int, default=30)
@@ -115,15 +128,22 @@ def main() -> None:
     ap.add_argument("--sizes", default="1280x960,640x480")
     ap.add_argument("--lengths", default="9,25,drawn")
     ap.add_argument("--params", default="")
+    ap.add_argument("--coverage", type=int, default=1,
+                    help="fish drawn with their area coverage at this supersampling (devices.sim.fish_render.COVERAGE)")
+    ap.add_argument("--conditions", default="", help="scene conditions fixed, e.g. 'blur_gain=0.0,noise_sd=1.0'")
     args = ap.parse_args()
     params = parse_params(args.params) or Params()
+    fixed = _conditions(args.conditions)
+    fish_render.COVERAGE = args.coverage
     cv2.setNumThreads(1)
-    out = {"scenes": args.scenes, "seed0": args.seed0, "params": args.params, "configs": {}}
+    out = {"scenes": args.scenes, "seed0": args.seed0, "params": args.params, "conditions": fixed,
+           "coverage": args.coverage,
+           "configs": {}}
     pooled = []
     for s in args.sizes.split(","):
         size = tuple(int(x) for x in s.split("x"))
         for length in args.lengths.split(","):
-            rows = run(size, length, args.scenes, args.seed0, params)
+            rows = run(size, length, args.scenes, args.seed0, params, fixed)
             pooled += rows
             out["configs"][f"{s}_{length}"] = {"reports": len(rows),
                                                "len_pct": _stat([r["len_pct"] for r in rows]),
