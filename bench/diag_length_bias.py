@@ -35,6 +35,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 from bench.bench_survey_underwater import assign, parse_params  # noqa: E402
 from devices.sim import fish_render  # noqa: E402
 from devices.sim.fish_scene import underwater_rig, underwater_scene  # noqa: E402
+from vision.fins import SPAN_OF_FL, Fins  # noqa: E402
+from vision.fork import locate_forks, pyramid  # noqa: E402
 from vision.survey_types import SurveySetup  # noqa: E402
 from vision.underwater import Params, measure_underwater  # noqa: E402
 
@@ -81,6 +83,37 @@ def run(size: tuple[int, int], length: str, scenes: int, seed0: int, params: Par
     return rows
 
 
+def locator_rows(size: tuple[int, int], length: str, scenes: int, seed0: int, fixed: dict | None = None) -> list[dict]:
+    """The fork locator alone, as the survey runs it (twice: again from its own fork), started on
+    each fully visible fish's true fork and axis with the span SPAN_OF_FL of its image length:
+    its error along the true axis (px, positive behind the notch), per view."""
+    w, h = size
+    rig = underwater_rig(image_size=(w, h), focal_px=1400.0 * w / 1280)
+    rows = []
+    for seed in range(seed0, seed0 + scenes):
+        cond = {} if length == "drawn" else {"species": "sparus_aurata", "mean_length_cm": float(length)}
+        sc = underwater_scene(np.random.default_rng(seed), rig, **cond, **(fixed or {}))
+        vis = [t for t in sc.fish if t.fully_visible]
+        for c, img in enumerate((sc.left, sc.right)):
+            if not vis:
+                continue
+            fork = np.array([t.fork_px[c] for t in vis])
+            head = np.array([t.snout_px[c] for t in vis]) - fork
+            n = np.linalg.norm(head, axis=1)
+            fins = Fins(fork.copy(), np.arctan2(head[:, 1], head[:, 0]), SPAN_OF_FL * n, np.zeros(len(vis)),
+                        np.ones(len(vis)))
+            pyr = pyramid(img)
+            first = locate_forks(pyr, fins)
+            again = locate_forks(pyr, first.fins.take(np.flatnonzero(first.ok)))
+            ok = np.flatnonzero(first.ok)[again.ok]
+            e = again.fins.xy[again.ok] - fork[ok]
+            a = -head[ok] / n[ok, None]
+            for k in range(len(ok)):
+                rows.append({"fork_along": [float(e[k] @ a[k])], "view_len_px": float(n[ok[k]]),
+                             "fork_across": [float(e[k] @ [-a[k, 1], a[k, 0]])]})
+    return rows
+
+
 def _stat(v: list[float]) -> dict:
     v = np.asarray(v, float)
     if len(v) == 0:
@@ -121,6 +154,19 @@ def _conditions(text: str) -> dict:
     return out
 
 
+def locator_summary(rows: list[dict]) -> dict:
+    out = {}
+    edges = (*BINS, np.inf)
+    for lo, hi in zip(edges[:-1], edges[1:], strict=True):
+        sel = [r for r in rows if lo <= r["view_len_px"] < hi]
+        if sel:
+            name = f"{int(lo)}-{int(hi)}" if np.isfinite(hi) else f"{int(lo)}+"
+            near = [r["fork_along"][0] for r in sel if abs(r["fork_along"][0]) <= 0.03 * r["view_len_px"]]
+            out[name] = {"views": len(sel), "within_3pct": len(near), "fork_along_within": _stat(near),
+                         "fork_across": _stat([r["fork_across"][0] for r in sel])}
+    return out
+
+
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--scenes", type=int, default=30)
@@ -128,6 +174,8 @@ def main() -> None:
     ap.add_argument("--sizes", default="1280x960,640x480")
     ap.add_argument("--lengths", default="9,25,drawn")
     ap.add_argument("--params", default="")
+    ap.add_argument("--locator", action="store_true", help="also the fork locator alone, from the true forks")
+    ap.add_argument("--pipeline", type=int, default=1, help="0: the locator alone (with --locator)")
     ap.add_argument("--coverage", type=int, default=1,
                     help="fish drawn with their area coverage at this supersampling (devices.sim.fish_render.COVERAGE)")
     ap.add_argument("--conditions", default="", help="scene conditions fixed, e.g. 'blur_gain=0.0,noise_sd=1.0'")
@@ -143,12 +191,18 @@ def main() -> None:
     for s in args.sizes.split(","):
         size = tuple(int(x) for x in s.split("x"))
         for length in args.lengths.split(","):
-            rows = run(size, length, args.scenes, args.seed0, params, fixed)
+            rows = run(size, length, args.scenes, args.seed0, params, fixed) if args.pipeline else []
             pooled += rows
             out["configs"][f"{s}_{length}"] = {"reports": len(rows),
                                                "len_pct": _stat([r["len_pct"] for r in rows]),
                                                "bins": summary(rows)}
     out["pooled_bins"] = summary(pooled)
+    if args.locator:
+        loc = []
+        for s in args.sizes.split(","):
+            for length in args.lengths.split(","):
+                loc += locator_rows(tuple(int(x) for x in s.split("x")), length, args.scenes, args.seed0, fixed)
+        out["locator_from_truth"] = locator_summary(loc)
     out["load"] = os.getloadavg()[0]
     print(json.dumps(out))
 

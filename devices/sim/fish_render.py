@@ -19,7 +19,8 @@ _ONE = 1 << SHIFT
 # OpenCV fills every pixel whose centre lies within ~0.5 px of a polygon (an edge at x = 10.25
 # fills pixel 10): each drawn fish is ~0.5 px too big all round and the caudal notch's narrow end
 # is filled in. COVERAGE > 1 (diagnostics only, bench/diag_length_bias.py): the fish's opacity is
-# its area coverage instead, drawn at COVERAGE x resolution and averaged (left over: 0.5/COVERAGE px).
+# its area coverage instead, drawn at COVERAGE x resolution and averaged (left over: 0.5/COVERAGE px),
+# and the blur applied to the fish as seen (colour x coverage), as optics do.
 COVERAGE = 1
 
 
@@ -230,10 +231,18 @@ def draw_fish(frame: np.ndarray, ranks: np.ndarray, rank: int, p: Posed, px: np.
     trans = float(np.exp(-rng_mm / visibility_mm))
     sl = np.s_[cy0:cy1, cx0:cx1]
     colour = cv2.addWeighted(colour, trans, veil[sl], 1.0 - trans, 0.0)
-    alpha = cv2.GaussianBlur(alpha, (0, 0), max(blur_px, 0.45))    # a soft edge even in focus
-    if blur_px > 0.5:
-        colour = cv2.GaussianBlur(colour, (0, 0), blur_px)
-    frame[sl] = cv2.blendLinear(colour, frame[sl], alpha, 1.0 - alpha)
+    if COVERAGE > 1:
+        # the optics blur the fish as seen (colour x coverage), not its opacity alone: outside
+        # the masks ``colour`` is black, which the blurred opacity would spread into the water
+        sigma = max(blur_px, 0.45)
+        seen = cv2.GaussianBlur(colour * alpha[..., None], (0, 0), sigma)
+        alpha = cv2.GaussianBlur(alpha, (0, 0), sigma)
+        frame[sl] = seen + frame[sl] * (1.0 - alpha)[..., None]
+    else:
+        alpha = cv2.GaussianBlur(alpha, (0, 0), max(blur_px, 0.45))    # a soft edge even in focus
+        if blur_px > 0.5:
+            colour = cv2.GaussianBlur(colour, (0, 0), blur_px)
+        frame[sl] = cv2.blendLinear(colour, frame[sl], alpha, 1.0 - alpha)
     covered = (body > 0) | (fin > 0)
     ranks[sl][covered] = rank
     return Drawn(int(np.count_nonzero(covered)), inside)
