@@ -19,7 +19,7 @@ _ONE = 1 << SHIFT
 # OpenCV fills every pixel whose centre lies within ~0.5 px of a polygon (an edge at x = 10.25
 # fills pixel 10): each drawn fish is ~0.5 px too big all round and the caudal notch's narrow end
 # is filled in. COVERAGE > 1 (diagnostics only, bench/diag_length_bias.py): the fish's opacity is
-# its area coverage instead, drawn at COVERAGE x resolution and averaged (left over: 0.5/COVERAGE px),
+# its area coverage instead, drawn at COVERAGE x resolution and averaged (left over: ~0.1 px an edge at 8),
 # and the blur applied to the fish as seen (colour x coverage), as optics do.
 COVERAGE = 1
 
