@@ -23,7 +23,7 @@ import numpy as np
 
 from vision.calib_file import StereoCalibration
 from vision.epipolar import epipolar_lines, fundamental_from_projections
-from vision.fins import Fins, at_level, sample_frames, sample_frames_raw
+from vision.fins import Fins, sample_frames, sample_frames_raw
 from vision.match_geometry import segments_by_range
 from vision.triangulation import normalise_projection, triangulate_calibrated, undistort_pixels
 
@@ -80,7 +80,7 @@ def _patches(v: View, f: Fins | None = None) -> np.ndarray:
         idx = np.flatnonzero(lev == k)
         s = 2.0 ** -k
         off = t[None] * (f.span_px[idx] * s)[:, None]
-        p, cut = sample_frames_raw(v.pyr[k], at_level(f.xy[idx], k), axes[idx], off, off)
+        p, cut = sample_frames_raw(v.pyr[k], (f.xy[idx] + 0.5) * s - 0.5, axes[idx], off, off)
         if p.dtype != np.uint8:
             np.nan_to_num(p, copy=False)     # a neighbourhood cut by the frame: its missing part counts as 0
         p = p.astype(np.float32, copy=False)
@@ -235,7 +235,7 @@ def patch_ncc(pyr1: list[np.ndarray], pyr2: list[np.ndarray], pts1: np.ndarray, 
         for k in np.unique(lev):
             idx = np.flatnonzero(lev == k)
             f = 2.0 ** -k
-            w = sample_frames(pyr[k], at_level(flat[idx], k), axes[idx], t[idx] * f, t[idx] * f)
+            w = sample_frames(pyr[k], (flat[idx] + 0.5) * f - 0.5, axes[idx], t[idx] * f, t[idx] * f)
             v[idx] = w.reshape(len(idx), -1)
         bad = np.isnan(v).any(axis=1)
         v[bad] = 0.0

@@ -178,14 +178,6 @@ def suppress(fins: Fins, max_fins: int, reach_of_span: float = 0.5) -> np.ndarra
 _REMAP_ROWS = 32767
 
 
-def at_level(xy: np.ndarray, k: int) -> np.ndarray:
-    """Full-resolution pixels ``xy`` in level ``k`` of a cv2.pyrDown pyramid (vision.fork.pyramid):
-    pyrDown's pixel i is centred on pixel 2i of the level below (its 5-tap kernel is), so the
-    coordinates simply halve. (The box convention (x + 0.5) / 2 - 0.5 is cv2.resize INTER_AREA's;
-    used here it read each level 2^(k-1) - 0.5 px up and left of the point asked for.)"""
-    return np.asarray(xy, float) * 2.0 ** -k
-
-
 def sample_frames(img: np.ndarray, centres: np.ndarray, axes: np.ndarray, xs: np.ndarray,
                   ys: np.ndarray) -> np.ndarray:
     """Bilinear samples (N, ny, nx) of img in each candidate's own frame: the point centre + x axis
@@ -276,7 +268,7 @@ def fin_scores(pyr: list[np.ndarray], fins: Fins, bank: Bank | None = None) -> n
     for k in np.unique(lev):
         idx = np.flatnonzero(lev == k)
         f = 2.0 ** -k
-        w = sample_frames(pyr[k], at_level(fins.xy[idx], k), axes[idx], t[idx] * f, t[idx] * f)
+        w = sample_frames(pyr[k], (fins.xy[idx] + 0.5) * f - 0.5, axes[idx], t[idx] * f, t[idx] * f)
         win[idx] = w.mean(axis=3) if w.ndim == 4 else w
     win = np.nan_to_num(win, nan=float(np.nanmean(win)) if np.isfinite(win).any() else 0.0)
     e = np.stack([emboss(w)[1:-1, 1:-1].ravel() for w in win]) if bank.highpass else win[:, 1:-1, 1:-1].reshape(N, -1)

@@ -38,7 +38,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from vision.fins import Fins, at_level, sample_frames_raw
+from vision.fins import Fins, sample_frames_raw
 
 SAMPLES = 40            # grid steps per fin span
 SHALLOW_SLOPE = 0.12    # arms flatter than this: a square-cut or shallow tail
@@ -210,7 +210,7 @@ def _locate(pyr: list[np.ndarray], fins: Fins, min_contrast: float, min_slope: f
         f = 2.0 ** -k
         off = t[None] * (S[idx] * f)[:, None]
         # the samples as remap gives them (uint8: no float copy of the grids), NaN only where used
-        P, out = sample_frames_raw(pyr[k], at_level(fins.xy[idx], k), axes[idx], off, off)
+        P, out = sample_frames_raw(pyr[k], (fins.xy[idx] + 0.5) * f - 0.5, axes[idx], off, off)
         P = P.reshape(len(idx), len(t), len(t), C)
         Pn = P[:, near].astype(np.float32)
         if out is not None:

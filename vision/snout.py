@@ -26,7 +26,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from vision.fins import at_level, sample_frames
+from vision.fins import sample_frames
 from vision.fork import nan_median
 
 SAMPLES = 240           # profile samples over the search range
@@ -113,7 +113,7 @@ def _along(pyr, xy, angle, half_band_px, fish_level, water_level, lo_px, hi_px, 
     for lv in np.unique(lev):
         idx = np.flatnonzero(lev == lv)
         f = 2.0 ** -lv
-        band = sample_frames(pyr[lv], at_level(xy[idx], lv), axes[idx], xs[idx] * f, ys[idx] * f)
+        band = sample_frames(pyr[lv], (xy[idx] + 0.5) * f - 0.5, axes[idx], xs[idx] * f, ys[idx] * f)
         # np.median's value across the rows (NaN where any is NaN)
         prof[idx] = median_across(band.reshape(len(idx), ACROSS, SAMPLES + 1, C))
     # unlike the water by more than half the fin's own contrast: fish (> 0)
@@ -201,7 +201,7 @@ def refine_tips(pyr: list[np.ndarray], tips: np.ndarray, angle: np.ndarray, leng
     for lv in np.unique(lev):
         idx = np.flatnonzero(lev == lv)
         f = 2.0 ** -lv
-        win[idx] = sample_frames(pyr[lv], at_level(tips[idx], lv), axes[idx], along[idx] * f,
+        win[idx] = sample_frames(pyr[lv], (tips[idx] + 0.5) * f - 0.5, axes[idx], along[idx] * f,
                                  across[idx] * f).reshape(len(idx), samples, samples, C)
     # local levels: the water ahead of the tip, the head behind it (the notch's water can be
     # another colour: light changes with depth along a tilted fish)
