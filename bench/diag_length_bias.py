@@ -9,7 +9,11 @@ by the true length in the image (mean of the two views): 40-80, 80-160, 160-320,
 Prints one JSON object.
 
 Run: ``.venv/bin/python bench/diag_length_bias.py [--scenes 30] [--seed0 200000]
-[--sizes 1280x960,640x480] [--lengths 9,25,drawn] [--params "..."]``
+[--sizes 1280x960,640x480] [--lengths 9,25,drawn] [--params "..."] [--conditions "blur_gain=0.0"]
+[--coverage 4] [--locator] [--pipeline 0]``
+``--coverage``: fish drawn with their area coverage (``devices.sim.fish_render.COVERAGE``; OpenCV's
+fill draws them ~0.5 px too big all round). ``--locator``: also the fork locator alone, started on
+each fully visible fish's true fork (``locator_from_truth``: errors of the forks it places within 3 %).
 (``drawn``: the scene's own species and sizes; a number: sparus_aurata of that mean fork length,
 as the carriage's survey of a nursery tank renders it; the camera's focal length scales with its
 width, as ``devices.sim.stereo_camera`` does.)
