@@ -30,6 +30,11 @@ Measured and left out (each locates a few more forks; in the survey each adds wr
 ``vision.underwater``): each arm fitted again without its outlying rows (from true starts 60 -> 62
 within 3 %; from starts 4 % and ~6 degrees off, 43 -> 46); a grid 0.75x the span tried where the
 first shows no fork (one pass from true starts: 64 -> 73 within 3 %, the fork stage ~1.4x).
+Along the axis (bench/diag_length_bias.py): unbiased on a V notch drawn with exact coverage (+0.1
+px at 45-70 px fish, tests/vision/test_fork_subpixel.py); behind the renderer's notch, whose edges
+close into a slit (x ~ |y|^0.77), by +0.6 / +0.9 / +1.0 px for fish of 40-80 / 80-160 / 160-320 px
+drawn with their coverage. Fitting whichever apex power fits best (no preference for a V) halves
+that but cost precision on the survey bench (seeds 1000+: 0.957 -> 0.929).
 """
 from __future__ import annotations
 

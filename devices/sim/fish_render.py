@@ -16,6 +16,12 @@ import numpy as np
 
 SHIFT = 3                          # fixed-point bits for sub-pixel polygon vertices
 _ONE = 1 << SHIFT
+# OpenCV fills every pixel whose centre lies within ~0.5 px of a polygon (an edge at x = 10.25
+# fills pixel 10): each drawn fish is ~0.5 px too big all round and the caudal notch's narrow end
+# is filled in. COVERAGE > 1 (diagnostics only, bench/diag_length_bias.py): the fish's opacity is
+# its area coverage instead, drawn at COVERAGE x resolution and averaged (left over: ~0.1 px an edge at 8),
+# and the blur applied to the fish as seen (colour x coverage), as optics do.
+COVERAGE = 1
 
 
 def project(rig, world: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -218,17 +224,36 @@ def draw_fish(frame: np.ndarray, ranks: np.ndarray, rank: int, p: Posed, px: np.
         rays = 1.0 + p.ray_contrast * _wave((ph, pw), origin, snout_px, fork_px, 0.0, p.fin_rays)[is_fin]
         colour[is_fin] = fin_col * rays[:, None]
     alpha = np.maximum(bodyf, is_fin * np.float32(p.fin_alpha))
+    if COVERAGE > 1:
+        body_c = _coverage((ph, pw), fixed[p.body[visible]], COVERAGE)
+        alpha = body_c + (1 - body_c) * _coverage((ph, pw), fixed[p.fins], COVERAGE) * np.float32(p.fin_alpha)
     rng_mm = float(np.linalg.norm(p.verts.mean(axis=0) - cam_centre))
     trans = float(np.exp(-rng_mm / visibility_mm))
     sl = np.s_[cy0:cy1, cx0:cx1]
     colour = cv2.addWeighted(colour, trans, veil[sl], 1.0 - trans, 0.0)
-    alpha = cv2.GaussianBlur(alpha, (0, 0), max(blur_px, 0.45))    # a soft edge even in focus
-    if blur_px > 0.5:
-        colour = cv2.GaussianBlur(colour, (0, 0), blur_px)
-    frame[sl] = cv2.blendLinear(colour, frame[sl], alpha, 1.0 - alpha)
+    if COVERAGE > 1:
+        # the optics blur the fish as seen (colour x coverage), not its opacity alone: outside
+        # the masks ``colour`` is black, which the blurred opacity would spread into the water
+        sigma = max(blur_px, 0.45)
+        seen = cv2.GaussianBlur(colour * alpha[..., None], (0, 0), sigma)
+        alpha = cv2.GaussianBlur(alpha, (0, 0), sigma)
+        frame[sl] = seen + frame[sl] * (1.0 - alpha)[..., None]
+    else:
+        alpha = cv2.GaussianBlur(alpha, (0, 0), max(blur_px, 0.45))    # a soft edge even in focus
+        if blur_px > 0.5:
+            colour = cv2.GaussianBlur(colour, (0, 0), blur_px)
+        frame[sl] = cv2.blendLinear(colour, frame[sl], alpha, 1.0 - alpha)
     covered = (body > 0) | (fin > 0)
     ranks[sl][covered] = rank
     return Drawn(int(np.count_nonzero(covered)), inside)
+
+
+def _coverage(shape: tuple[int, int], tri: np.ndarray, s: int) -> np.ndarray:
+    """Share (0..1 float32) of each pixel the triangles (fixed point) cover, from a fill at ``s`` x
+    resolution (sub-pixel centres: x_s = s x + (s - 1) / 2) averaged back."""
+    big = np.zeros((shape[0] * s, shape[1] * s), np.uint8)
+    cv2.fillPoly(big, tri * s + _ONE * (s - 1) // 2, 255, lineType=cv2.LINE_8, shift=SHIFT)
+    return cv2.resize(big, (shape[1], shape[0]), interpolation=cv2.INTER_AREA).astype(np.float32) / 255
 
 
 SHADE_Q = 4                        # shades are soft: drawn at a quarter of the resolution
