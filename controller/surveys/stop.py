@@ -6,7 +6,8 @@ A stop never holds a feeding demand back: a visit captures one pair at a time an
 as a demand is waiting (``interrupted``) — from the settle wait, from a wait for a frame, between
 pairs. The survey (``SurveySession``) outlives the visit: the robot comes back, lets the water
 settle again and captures the rest. Pairs are measured off the loop (a thread each, at most
-``IN_FLIGHT`` at once) while the next is captured; measuring the last ones needs no robot, so the
+``IN_FLIGHT`` at once, or ``measure.in_flight()`` when the measuring is elsewhere: vision workers)
+while the next is captured; measuring the last ones needs no robot, so the
 robot is free once the last pair is captured, and the survey is recorded when they are measured.
 
 Measuring goes through ``measure_pairs`` only: same shape as ``runner.measure_all`` (jobs, calib,
@@ -34,7 +35,7 @@ from vision.survey_stats import summarise
 log = logging.getLogger("fishfarm.survey")
 OUTLIER_SD = 5.0           # robust SDs from the median length beyond which a "fish" is a measuring error
 OUTLIER_MIN_FISH = 10      # fewer: nothing is called an outlier
-IN_FLIGHT = 2              # pairs measuring at once: the robot's own CPU stays free for the loop
+IN_FLIGHT = 2              # pairs measuring at once here: the robot's own CPU stays free for the loop
 Z95 = 1.96
 
 
@@ -89,6 +90,9 @@ class SurveyStop:
         self.cfg, self.s = cfg, cfg.surveys
         self.clock, self.camera, self.store, self.alarms = clock, camera, store, alarms
         self.species, self.measure = species, measure          # tank -> SurveySpecies
+        # pairs measuring at once: measured here, IN_FLIGHT; by vision workers, as many as they take
+        # (2 each): the stream's frames are taken as they come instead of rendered and dropped
+        self.in_flight = getattr(measure, "in_flight", lambda: IN_FLIGHT)
         self.setups = {tank: sp.setup(self.s.setup, None) for tank, sp in species.items()}
         self._power: asyncio.Future | None = None          # the cameras' last start or stop, in order
         self.finishing: set[asyncio.Task] = set()
@@ -134,7 +138,7 @@ class SurveyStop:
                 if pair.t < session.last_pair_t + self.s.pair_interval_s:
                     continue
                 self._measure(session, pair)
-                while len(session.measuring) >= IN_FLIGHT and not interrupted():
+                while len(session.measuring) >= self.in_flight() and not interrupted():
                     await _first(asyncio.wait(set(session.measuring)), wake)
             self.alarms.clear(f"device/{self.camera.name}", "survey camera back")
             outcome = "captured"

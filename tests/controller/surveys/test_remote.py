@@ -20,9 +20,11 @@ import zenoh
 from controller.cli import main as fishfarm_main
 from controller.errors import BadInput
 from controller.surveys import wire
-from controller.surveys.frames import PairJob
+from controller.surveys.frames import PairJob, decode_pair
 from controller.surveys.remote import connect, measure_remote
 from controller.surveys.runner import measure_all
+from controller.surveys.stop import IN_FLIGHT
+from controller.surveys.wiring import workers_or_here
 from controller.surveys.worker import node_key
 from devices.sim.fish_scene import underwater_rig, underwater_scene
 from tests.controller.zenoh_farm import free_port
@@ -130,7 +132,7 @@ def test_two_workers_measure_exactly_what_the_local_runner_does(rendered, hub, w
 
 
 def test_decoded_frames_travel_losslessly(rendered, hub, workers):
-    # video jobs carry arrays: they go as PNG, and the worker measures the very same pixels
+    # video jobs carry arrays: they go encoded (BMP), and the worker measures the very same pixels
     items, calib, local, _ = rendered
     session, endpoint, site = hub
     workers.start(endpoint, site, "wv")
@@ -140,6 +142,40 @@ def test_decoded_frames_travel_losslessly(rendered, hub, workers):
     results = list(measure_remote(arrays, calib, SETUP, session=session, site=site))
     same(results, local[:3])
     assert {r.worker for r in results} == {"wv"}
+
+
+@pytest.mark.parametrize("channels", [1, 3])
+def test_a_decoded_frame_goes_as_its_very_pixels_at_the_cost_of_a_copy(channels):
+    # grey and colour views, odd sizes, smooth (a compressor would shrink them): what the worker
+    # decodes is what the survey held, and the blob is the raw pixels plus a header (no
+    # compression to spend the survey's CPU on)
+    rng = np.random.default_rng(3)
+    shape = (37, 53) if channels == 1 else (37, 53, 3)
+    ramp = np.indices(shape).sum(axis=0).astype(np.uint8)
+    left, right = ramp, ramp + rng.integers(0, 2, shape, dtype=np.uint8)
+    blobs, names = wire.job_blobs(PairJob(0, "video frame 0", left=left, right=right))
+    got_left, got_right, _ = decode_pair(blobs, names)
+    assert np.array_equal(got_left, left) and np.array_equal(got_right, right)
+    assert all(left.size <= len(b) <= left.size + 2048 for b in blobs)
+
+
+def test_the_survey_stop_keeps_two_pairs_in_flight_per_worker_up(hub, workers):
+    # the stop takes frames as fast as the workers up take pairs (2 each), and keeps its own 2
+    # when none is up and it measures here
+    session, endpoint, site = hub
+    measure = workers_or_here(session, site)
+    assert measure.in_flight() == IN_FLIGHT == 2
+    workers.start(endpoint, site, "wi1")
+    workers.start(endpoint, site, "wi2")
+    workers.wait_alive(session, site, "wi1", "wi2")
+    deadline = time.monotonic() + WAIT_S
+    while measure.in_flight() != 4:
+        assert time.monotonic() < deadline, measure.in_flight()
+        time.sleep(0.05)
+    workers.stop()                                # killed: their tokens go with their sessions
+    while measure.in_flight() != 2:
+        assert time.monotonic() < deadline, measure.in_flight()
+        time.sleep(0.05)
 
 
 def test_a_worker_killed_mid_survey_loses_no_frame_and_repeats_none(rendered, hub, workers, caplog):

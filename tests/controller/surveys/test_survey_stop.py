@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import asyncio
 import json
+import threading
 import time
 
 import numpy as np
@@ -129,6 +130,47 @@ def test_a_survey_stop_settles_captures_its_pairs_at_the_tank_and_is_recorded(tm
     assert all(t >= arrived + 30.0 - 1.0 for t, _ in camera.pairs)          # after the water settled
     assert ["moving", "surveying", "idle"] == [s for s in states if s in ("moving", "surveying", "idle")][-3:]
     assert fresh == ["T2"] and ration.source == "survey"
+
+
+class HeldMeasure(MeasureDouble):
+    """Each pair held until the test lets go, counting how many are measuring at once; with
+    ``in_flight`` it says how many it takes (as the vision workers' measure does)."""
+
+    def __init__(self, in_flight=None):
+        super().__init__()
+        if in_flight is not None:
+            self.in_flight = lambda: in_flight
+        self.measuring = self.most = 0
+        self.lock, self.go = threading.Lock(), threading.Event()
+
+    def __call__(self, jobs, calib, setup):
+        with self.lock:
+            self.measuring += 1
+            self.most = max(self.most, self.measuring)
+        self.go.wait(60.0)
+        with self.lock:
+            self.measuring -= 1
+        yield from super().__call__(jobs, calib, setup)
+
+
+@pytest.mark.parametrize("in_flight, want", [(None, 2), (4, 4)])
+def test_the_stop_keeps_as_many_pairs_measuring_as_its_measure_takes(tmp_path, in_flight, want):
+    async def main():
+        async with rig(tmp_path) as r:
+            await r.until(lambda: r.robot.state == "idle", what="homed")
+            stops, camera, measure, _ = await attach(r, tmp_path, measure=HeldMeasure(in_flight), ci_pct=0.1)
+            stops.request("T2", pairs=8)
+            await r.until(lambda: measure.most >= want, what=f"{want} pairs measuring")
+            read = len(camera.pairs)
+            until = r.clock.now() + 30.0                   # 6 more frames' time: none read meanwhile
+            await r.until(lambda: r.clock.now() >= until, 60.0, what="30 farm s")
+            held = (measure.most, len(camera.pairs) - read)
+            measure.go.set()
+            survey = await recorded(r, stops, "T2")
+            return held, survey
+    (most, read_meanwhile), survey = run(main())
+    assert most == want and read_meanwhile == 0
+    assert survey.count == 8 * 3
 
 
 def test_a_demand_preempts_the_survey_within_60_s_and_the_survey_resumes(tmp_path):

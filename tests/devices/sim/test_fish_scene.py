@@ -8,7 +8,7 @@ from devices.sim.fish_conditions import underwater_conditions
 from devices.sim.fish_paint import render_pair
 from devices.sim.fish_scene import SurveyScene, surface_rig, surface_scene, swim, underwater_rig, underwater_scene
 from devices.sim.fish_species import SPECIES
-from devices.sim.fish_stock import make_fish
+from devices.sim.fish_stock import clear_of, make_fish, segment_distances
 
 SMALL = dict(image_size=(640, 480), focal_px=700.0)
 TINY = dict(image_size=(320, 240), focal_px=350.0)     # same view, quicker
@@ -264,3 +264,34 @@ def test_the_two_cameras_sensor_noise_is_independent():
     ncc = cv2.matchTemplate(res[1], patch, cv2.TM_CCOEFF_NORMED)
     assert ncc.max() < 0.3
     assert cv2.matchTemplate(res[0], patch, cv2.TM_CCOEFF_NORMED).max() > 0.99     # the probe can see a match
+
+
+def test_a_fish_s_body_segment_follows_its_pose_and_clearance_is_the_sampled_distance():
+    # the segment is cached per pose: moved, turned or bent, the fish answers for its new pose;
+    # clearance against several fish at once is the brute-force distance between 12 points on each
+    rng = np.random.default_rng(4)
+    sp = SPECIES["sparus_aurata"]
+    fishes = [make_fish(rng, i, sp, 150.0, 0.05) for i in range(4)]
+    for f in fishes:
+        f.centre, f.heading = rng.uniform(-200, 200, 3), float(rng.uniform(-3, 3))
+    a = fishes[0]
+    s0, f0, _ = a.segment_radius()
+    a.centre = a.centre + [30.0, 0.0, 0.0]
+    s1, f1, _ = a.segment_radius()
+    assert np.allclose(s1 - s0, [30.0, 0.0, 0.0]) and np.allclose(f1 - f0, [30.0, 0.0, 0.0])
+    a.heading += np.pi
+    s2, f2, _ = a.segment_radius()
+    assert np.allclose((s2 + f2) / 2, (s1 + f1) / 2) and np.allclose(s2 - f2, f1 - s1)
+
+    def brute(p, q):
+        t = np.arange(12) / 11.0
+        pa = [p[0] + (p[1] - p[0]) * x for x in t]
+        pb = [q[0] + (q[1] - q[0]) * x for x in t]
+        return min(float(np.sqrt(((u - v) ** 2).sum())) for u in pa for v in pb)
+    segs = [f.segment_radius() for f in fishes]
+    want = all(brute(segs[0], q) >= 0.9 * (segs[0][2] + q[2]) for q in segs[1:])
+    assert clear_of(a, fishes[1:]) == want
+    a.centre = fishes[1].centre.copy()                 # on top of another: never clear
+    assert not clear_of(a, fishes[1:])
+    got = segment_distances(*a.segment_radius()[:2], *(np.array([s[i] for s in segs[1:]]) for i in (0, 1)))
+    assert np.allclose(got, [brute(a.segment_radius(), q) for q in segs[1:]])
