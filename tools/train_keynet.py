@@ -8,8 +8,10 @@ Not part of the project's dependencies or its suite: torch lives in a separate v
     .venv/bin/python tools/keynet_data.py --seed0 101000 --scenes 1000 --out /tmp/kn_1.npz    on a free core)
     .venv-train/bin/python tools/train_keynet.py --data /tmp/kn_0.npz /tmp/kn_1.npz \
         --out vision/models/fish_keypoints.onnx --minutes 30 --threads 2
-Seed-fixed (torch, numpy); the last ``--val-images`` images are held out and their figures printed
-(JSON lines) after every epoch.
+Seed-fixed (torch, numpy); the last ``--val-images`` images of the first data file are held out and
+their figures printed (JSON lines) after every epoch. Further ``--data`` names may be glob patterns;
+files matching them are added at each epoch's start (the generators may still be running: then
+the run is reproducible only given the same arrival of files).
 
 Targets (CenterNet-style, output stride 4): a heatmap each for snout tips and forks, a Gaussian at
 every end of a clear fish (inside the frame, < 10 % hidden in that view: the bench's fully visible,
@@ -39,7 +41,7 @@ from torch import nn
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 from vision import fish_keypoints as fk  # noqa: E402
 
-CROP_H, CROP_W = 192, 256
+CROP_H, CROP_W = 160, 224
 STRIDE = fk.STRIDE
 CLEAR = 0.10
 
@@ -210,6 +212,18 @@ def export(model, path):
                       dynamo=False)
 
 
+def _more(patterns, loaded, X, FISH):
+    """Data files written since the last epoch (a generator may still be running), added once each."""
+    for path in sorted({str(q) for p in patterns for q in Path(p).parent.glob(Path(p).name)} - loaded):
+        if time.time() - Path(path).stat().st_mtime < 20:         # maybe still being written
+            continue
+        d = np.load(path)
+        X, FISH = np.concatenate([X, d["x"]]), np.concatenate([FISH, d["fish"]])
+        loaded.add(path)
+        print(json.dumps({"loaded": path, "train_images": len(X)}), flush=True)
+    return X, FISH
+
+
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--data", nargs="+", required=True)
@@ -224,11 +238,10 @@ def main() -> None:
     torch.set_num_threads(args.threads)
     cv2.setNumThreads(1)
     rng = np.random.default_rng(0)
-    data = [np.load(p) for p in args.data]
-    X = np.concatenate([d["x"] for d in data])
-    FISH = np.concatenate([d["fish"] for d in data])
-    Xv, Fv = X[-args.val_images:], FISH[-args.val_images:]
-    X, FISH = X[:-args.val_images], FISH[:-args.val_images]
+    first = np.load(args.data[0])
+    Xv, Fv = first["x"][-args.val_images:], first["fish"][-args.val_images:]
+    X, FISH = first["x"][:-args.val_images], first["fish"][:-args.val_images]
+    loaded = {args.data[0]}
     model = KeyNet()
     print(json.dumps({"params": sum(p.numel() for p in model.parameters()), "train_images": len(X)}), flush=True)
     opt = torch.optim.AdamW(model.parameters(), lr=args.lr, weight_decay=1e-4)
@@ -236,6 +249,7 @@ def main() -> None:
     budget = 60 * args.minutes
     step, epoch = 0, 0
     while time.time() - t0 < budget:
+        X, FISH = _more(args.data, loaded, X, FISH)
         order = rng.permutation(len(X))
         tot = 0.0
         for k in range(0, len(order) - args.batch + 1, args.batch):

@@ -135,12 +135,13 @@ def detect(img: np.ndarray, width: int = 320, thr: float = 0.2) -> FishKeypoints
     return decode(out, STRIDE, scale, thr)
 
 
-def hypotheses(kp: FishKeypoints) -> Fins:
-    """The net's forks as fork hypotheses for the full-resolution locators: the axis towards their
-    snouts, the fin's span from the length between them."""
+def hypotheses(kp: FishKeypoints, ahead: float = 0.0) -> Fins:
+    """The net's forks as fork hypotheses for the full-resolution locators, moved ``ahead`` of the
+    length towards their snouts: the axis towards their snouts, the fin's span from the length."""
     z = np.zeros(len(kp))
-    return Fins(kp.fork_xy.copy(), kp.angle.copy(), SPAN_OF_FL * np.maximum(kp.length_px, 8.0), kp.fork_conf.copy(),
-                z, kp.angle.copy())
+    axis = np.c_[np.cos(kp.angle), np.sin(kp.angle)]
+    return Fins(kp.fork_xy + (ahead * kp.length_px)[:, None] * axis, kp.angle.copy(),
+                SPAN_OF_FL * np.maximum(kp.length_px, 8.0), kp.fork_conf.copy(), z, kp.angle.copy())
 
 
 def near(kp: FishKeypoints, xy: np.ndarray, reach: float = 0.1) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -157,3 +158,13 @@ def near(kp: FishKeypoints, xy: np.ndarray, reach: float = 0.1) -> tuple[np.ndar
     ok = np.isfinite(d[np.arange(N), best])
     conf[ok], snout[ok], sconf[ok] = kp.fork_conf[best[ok]], kp.snout_xy[best[ok]], kp.snout_conf[best[ok]]
     return conf, snout, sconf
+
+
+def agreement(kp: FishKeypoints, fork_xy: np.ndarray, snout_xy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """For fish measured with these ends (N, 2 each): the net's confidence in the fork (``near``),
+    and how well its snout for that fork agrees with the measured one, 0..1 (1 at the same point,
+    ~0.37 at 5 % of the length apart; 0 where the net has no fork there)."""
+    conf, snout, _ = near(kp, fork_xy)
+    L = np.maximum(np.linalg.norm(np.asarray(snout_xy, float) - fork_xy, axis=1), 1.0)
+    d = np.linalg.norm(snout - snout_xy, axis=1) / L
+    return conf, np.where(np.isfinite(d), np.exp(-(np.nan_to_num(d, nan=1.0) / 0.05) ** 2), 0.0)

@@ -108,7 +108,10 @@ class Params:
     kp_classical: bool = True       # ... beside the classical proposers (False: the net's only)
     kp_width: int = 320             # ... which sees the image this wide
     kp_min_conf: float = 0.2        # ... its peaks at least this sure
+    kp_offsets: tuple[float, ...] = (0.0,)  # ... a hypothesis at each fork shifted by these shares of its
+                                    # length towards its snout
     kp_floor: float = 1.0           # ... its fork confidence enters the score as floor + (1 - floor) x conf
+    kp_snout_floor: float = 1.0     # ... and its snout's agreement with the chosen one likewise
     kp_snouts: bool = True          # ... its snout paired with each fork is a snout candidate
 
 
@@ -154,7 +157,7 @@ def proposals(img: np.ndarray, setup: SurveySetup, p: Params = Params(), clock: 
     hyps, kp = Fins.empty(), None
     if p.keypoints:
         kp = fish_keypoints.detect(img, p.kp_width, p.kp_min_conf)
-        hyps = fish_keypoints.hypotheses(kp)
+        hyps = concat([fish_keypoints.hypotheses(kp, off) for off in p.kp_offsets])
         clock.lap("keypoints")
     dist = None
     classical = p.kp_classical or not p.keypoints
@@ -362,9 +365,11 @@ def measure_underwater(left: np.ndarray, right: np.ndarray, calib: StereoCalibra
     snout_epi = np.maximum(np.linalg.norm(s12[:, 0] - ch.px2, axis=1), np.linalg.norm(s21[:, 0] - ch.px1, axis=1))
     if trace is not None:
         trace["associated"] = (f1.xy.copy(), f2.xy.copy(), ch.px1.copy(), ch.px2.copy(), keep.copy())
-    sure = np.minimum(fish_keypoints.near(kp1, f1.xy)[0], fish_keypoints.near(kp2, f2.xy)[0]) if params.keypoints \
-        else np.ones(len(f1))
+    sure = agree = np.ones(len(f1))
+    if params.keypoints:
+        (c1, a1), (c2, a2) = fish_keypoints.agreement(kp1, f1.xy, ch.px1), fish_keypoints.agreement(kp2, f2.xy, ch.px2)
+        sure, agree = np.minimum(c1, c2), np.minimum(a1, a2)
     out = measurements(np.flatnonzero(keep), pairs, f1, f2, v1, v2, fork_mm, fork_res, ch, calib, geo, params,
-                       left.shape[1], expected, view, fork_epi, snout_epi, sure)
+                       left.shape[1], expected, view, fork_epi, snout_epi, sure, agree)
     clock.lap("associate")
     return out

@@ -11,7 +11,8 @@ from vision.survey_types import FishMeasurement
 
 def measurements(rows, pairs, f1, f2, v1, v2, fork_mm, fork_res, ch, calib, geo, p,
                   width: int, expected: np.ndarray, view: np.ndarray, fork_epi: np.ndarray,
-                  snout_epi: np.ndarray, keypoint_conf: np.ndarray) -> list[FishMeasurement]:
+                  snout_epi: np.ndarray, keypoint_conf: np.ndarray,
+                  keypoint_snout: np.ndarray) -> list[FishMeasurement]:
     if len(rows) == 0:
         return []
     c1 = -np.linalg.solve(calib.P1[:, :3], calib.P1[:, 3])
@@ -38,6 +39,7 @@ def measurements(rows, pairs, f1, f2, v1, v2, fork_mm, fork_res, ch, calib, geo,
         "t_snout_view": view,
         # the keypoint net's confidence in both forks (``Params.kp_floor``: 1 leaves the score alone)
         "t_keypoints": p.kp_floor + (1 - p.kp_floor) * keypoint_conf,
+        "t_keypoint_snout": p.kp_snout_floor + (1 - p.kp_snout_floor) * keypoint_snout,
         "t_body": np.exp(-(np.maximum(np.abs(np.log(np.maximum(ch.length_mm, 1e-6) / expected)) - 0.2, 0) / 0.15) ** 2),
     }
     score = np.prod(np.stack(list(terms.values())), axis=0)
