@@ -129,7 +129,7 @@ def decode(out: np.ndarray, stride: int, scale: float, thr: float = 0.2) -> Fish
                          np.hypot(d[:, 0], d[:, 1]), snout_xy, to_px(s_cell), sconf)
 
 
-def detect(img: np.ndarray, width: int = 320, thr: float = 0.2) -> FishKeypoints:
+def detect(img: np.ndarray, width: int = 320, thr: float = 0.05) -> FishKeypoints:
     """Snouts and forks in an image (grey or BGR uint8, any size), full-resolution px."""
     out, scale = maps(img, width)
     return decode(out, STRIDE, scale, thr)

@@ -107,7 +107,8 @@ class Params:
                                     # (vision.fish_keypoints) over the whole image
     kp_classical: bool = True       # ... beside the classical proposers (False: the net's only)
     kp_width: int = 320             # ... which sees the image this wide
-    kp_min_conf: float = 0.2        # ... its peaks at least this sure
+    kp_min_conf: float = 0.05       # ... its peaks at least this sure (tuning seeds 200000+: forks within
+                                    # 10 % of the length for 65 % of clear fish at 0.05, 46 % at 0.1)
     kp_offsets: tuple[float, ...] = (0.0,)  # ... a hypothesis at each fork shifted by these shares of its
                                     # length towards its snout
     kp_floor: float = 1.0           # ... its fork confidence enters the score as floor + (1 - floor) x conf
