@@ -171,7 +171,7 @@ def proposals(img: np.ndarray, setup: SurveySetup, p: Params = Params(), clock: 
         ends, length = concat([f[0] for f in found]), np.concatenate([f[1] for f in found])
         # a region's end is the caudal peduncle when the fin is too faint to be in it (the region is
         # then ~0.87 of the fork length), or the lobe tips when it is not
-        hyps = concat([_shifted(ends, length, off) for off in p.end_offsets])
+        hyps = concat([hyps] + [_shifted(ends, length, off) for off in p.end_offsets])
     n_bank = int(round(p.bank_per_mpix * H * W / 1e6))
     if n_bank > 0 and classical:
         if dist is None:

@@ -110,3 +110,24 @@ def test_grey_one_channel_and_tiny_images():
         fk.detect(np.zeros((4, 4, 3), np.uint8))
     with pytest.raises(ValueError, match="shape"):
         fk.detect(np.zeros((50, 50, 2), np.uint8))
+
+
+def test_survey_with_the_net_reports_fish_where_rendered_fish_are():
+    from vision.survey_types import SurveySetup
+    from vision.underwater import Params, measure_underwater
+    setup = SurveySetup(up_world=(0.0, 0.0, 1.0))
+    p = Params(keypoints=True, kp_floor=0.5, kp_snout_floor=0.5)
+    reports = near = 0
+    for seed in SEEDS:
+        sc = underwater_scene(np.random.default_rng(seed))
+        timings: dict[str, float] = {}
+        for f in measure_underwater(sc.left, sc.right, sc.rig.calibration(), setup, timings, p):
+            assert 0.5 <= f.quality["t_keypoints"] <= 1.0 and 0.5 <= f.quality["t_keypoint_snout"] <= 1.0
+            errs = [np.linalg.norm(f.fork_px[0] - t.fork_px[0]) / np.linalg.norm(t.snout_px[0] - t.fork_px[0])
+                    for t in sc.fish]
+            reports += 1
+            near += min(errs) <= 0.03
+        assert timings["keypoints"] > 0
+    assert reports >= 3 and near >= 0.75 * reports
+    tiny = np.zeros((20, 30, 3), np.uint8)
+    assert measure_underwater(tiny, tiny, sc.rig.calibration(), setup, params=p) == []
