@@ -10,8 +10,26 @@ offset within its cell, 6-7 each fork's vector to its snout, 8-9 the fork's offs
 nearest where the fork points, confirmed by that snout pointing back.
 
 Its points are coarse (a cell is 16 px at 1280 wide): the survey uses them as fork hypotheses for
-the full-resolution locators and as snout candidates refined there (``vision.underwater``).
-Inference is OpenCV's dnn module, so the project needs no torch.
+the full-resolution locators and as snout candidates refined there (``vision.underwater``,
+``Params.keypoints``, on). Inference is OpenCV's dnn module, so the project needs no torch.
+
+Measured (2026-12-02, issue 7; the machine shared, load 4-14). Model: 27.7k parameters, ~50 M
+multiply-adds at 320x240; trained 40 min on one loaded core (3,458 steps of 16 crops 160x224;
+1,000 scenes, seeds 100000-101399; tools/train_keynet.py). The training stopped far from
+converged: its heatmaps stay low (held-out peaks over 0.3 at 8 % of the forks), so peaks are taken
+from 0.05. Cost: ~9 ms CPU an image at 320 wide (14.5 ms at 384) in cv2.dnn, one thread.
+As a proposer (tuning seeds 200000-200011, 48 clear views, 320 wide, peaks from 0.05, ~21 forks an
+image): the fork within 10 % of the length for 65 % of clear fish (46 % from 0.1, 25 % from 0.2),
+within 5 % for 48 %, within 3 % for 25 %; of those within 5 %, the paired snout within 5 % for 43 %;
+384 wide was no better (70 % / 39 % / 23 %). On seeds 400000+ (the tests): 96 % within 10 %.
+In the survey (the classical proposers kept beside it, the classical locator, the net's snouts as
+candidates, the score untouched): bench/diag_underwater.py, seeds 0-19, 38 fish: no proposal
+within 10 % 13 -> 3, but located 15 -> 17 (the classical locator is now the loss: 18), found 7 -> 6;
+with the learned locator too (``fork_net=True``) located 27, found 9. bench/bench_survey_underwater.py
+--fish 200, recall / precision / weight MAPE: seeds 0+ 0.261 / 0.966 / 2.30 % -> 0.276 / 0.968 /
+2.12 %; 1000+ 0.215 / 0.957 / 2.01 % -> 0.240 / 0.980 / 2.29 %; CPU per pair (median) 137 -> 161 /
+170 ms. A step change needs the net trained to convergence (its peaks as locations) and a locator
+that keeps what it proposes.
 """
 from __future__ import annotations
 
