@@ -27,9 +27,12 @@ candidates, the score untouched): bench/diag_underwater.py, seeds 0-19, 38 fish:
 within 10 % 13 -> 3, but located 15 -> 17 (the classical locator is now the loss: 18), found 7 -> 6;
 with the learned locator too (``fork_net=True``) located 27, found 9. bench/bench_survey_underwater.py
 --fish 200, recall / precision / weight MAPE: seeds 0+ 0.261 / 0.966 / 2.30 % -> 0.276 / 0.968 /
-2.12 %; 1000+ 0.215 / 0.957 / 2.01 % -> 0.240 / 0.980 / 2.29 %; CPU per pair (median) 137 -> 161 /
-170 ms. A step change needs the net trained to convergence (its peaks as locations) and a locator
-that keeps what it proposes.
+2.12 %; 1000+ 0.215 / 0.957 / 2.01 % -> 0.240 / 0.980 / 2.29 %; tuning seeds 200000+ 0.150 / 0.868
+(main, ``vision.fork_net``'s figure) -> 0.180 / 0.907; CPU per pair (median) 137 -> 161 / 170 ms
+(load 7-9; the bench's ratio 0.349 -> 0.353, 0.304 -> 0.361). With the learned locator as well
+(``fork_net=True``, measured once, not tuned): 0.320 / 0.932 and 0.300 / 0.969, ratio ~0.46: the
+most recall yet, precision under 0.95 on seeds 0+, so it stays off. A step change needs the net
+trained to convergence (its peaks as locations) and a locator that keeps what it proposes.
 """
 from __future__ import annotations
 
