@@ -4,10 +4,13 @@ tools/keynet_data.py and export it to ONNX for OpenCV's dnn module.
 Not part of the project's dependencies or its suite: torch lives in a separate venv,
     /root/.pyenv/versions/3.11.7/bin/python -m venv .venv-train
     .venv-train/bin/pip install torch==2.13.0 numpy opencv-python-headless onnx
-    .venv/bin/python tools/keynet_data.py --seed0 100000 --scenes 1000 --out /tmp/kn_0.npz   (~6 min each
-    .venv/bin/python tools/keynet_data.py --seed0 101000 --scenes 1000 --out /tmp/kn_1.npz    on a free core)
-    .venv-train/bin/python tools/train_keynet.py --data /tmp/kn_0.npz /tmp/kn_1.npz \
-        --out vision/models/fish_keypoints.onnx --minutes 30 --threads 2
+    .venv/bin/python tools/keynet_data.py --seed0 S --scenes 200 --out /tmp/kn_A_K.npz   (~1 min per 100
+        scenes on a free core), the packaged model's files: S = 101000 (kn_1_0), 101200 (kn_1_1),
+        100000, 100200, 100400, 100600 (kn_0_0 .. kn_0_3)
+    .venv-train/bin/python tools/train_keynet.py --data /tmp/kn_1_0.npz '/tmp/kn_[01]_[0-9].npz' \
+        --out vision/models/fish_keypoints.onnx --minutes 40 --threads 1 --batch 16 --val-images 60
+(the packaged model: those commands, 2026-12-02, with the generators still running as it trained,
+the machine loaded 4-14: 3,458 steps, held-out heatmaps still low -- it wants more training).
 Seed-fixed (torch, numpy); the last ``--val-images`` images of the first data file are held out and
 their figures printed (JSON lines) after every epoch. Further ``--data`` names may be glob patterns;
 files matching them are added at each epoch's start (the generators may still be running: then
