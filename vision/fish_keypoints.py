@@ -15,7 +15,7 @@ the full-resolution locators and as snout candidates refined there (``vision.und
 
 Measured (2026-12-02, issue 7; the machine shared, load 4-14). Model: 27.7k parameters, ~50 M
 multiply-adds at 320x240; trained 40 min on one loaded core (3,458 steps of 16 crops 160x224;
-1,000 scenes, seeds 100000-101399; tools/train_keynet.py). The training stopped far from
+1,200 scenes, seeds 100000-100799 and 101000-101399; tools/train_keynet.py). The training stopped far from
 converged: its heatmaps stay low (held-out peaks over 0.3 at 8 % of the forks), so peaks are taken
 from 0.05. Cost: ~9 ms CPU an image at 320 wide (14.5 ms at 384) in cv2.dnn, one thread.
 As a proposer (tuning seeds 200000-200011, 48 clear views, 320 wide, peaks from 0.05, ~21 forks an
