@@ -1,0 +1,191 @@
+"""A learned full-image fish keypoint detector: snout tips and caudal forks over the whole
+(downscaled) image, each fork paired with its own snout.
+
+A small fully-convolutional net (``vision/models/fish_keypoints.onnx``; tools/train_keynet.py,
+trained on rendered pairs of seeds >= 100000 only) sees the image at ``width`` px (320 by default)
+and answers at a quarter of that (``STRIDE``), CenterNet-style, ``CHANNELS`` maps:
+0 snout heatmap, 1 fork heatmap (logits), 2-3 each snout's vector to its fork, 4-5 the snout's
+offset within its cell, 6-7 each fork's vector to its snout, 8-9 the fork's offset. The vectors
+(in output cells / ``VEC_SCALE``) make pairing a fork with its own snout a look-up: the snout peak
+nearest where the fork points, confirmed by that snout pointing back.
+
+Its points are coarse (a cell is 16 px at 1280 wide): the survey uses them as fork hypotheses for
+the full-resolution locators and as snout candidates refined there (``vision.underwater``,
+``Params.keypoints``, on). Inference is OpenCV's dnn module, so the project needs no torch.
+
+Measured (2026-12-02, issue 7; the machine shared, load 4-14). Model: 27.7k parameters, ~50 M
+multiply-adds at 320x240; trained 40 min on one loaded core (3,458 steps of 16 crops 160x224;
+1,200 scenes, seeds 100000-100799 and 101000-101399; tools/train_keynet.py). The training stopped far from
+converged: its heatmaps stay low (held-out peaks over 0.3 at 8 % of the forks), so peaks are taken
+from 0.05. Cost: ~9 ms CPU an image at 320 wide (14.5 ms at 384) in cv2.dnn, one thread.
+As a proposer (tuning seeds 200000-200011, 48 clear views, 320 wide, peaks from 0.05, ~21 forks an
+image): the fork within 10 % of the length for 65 % of clear fish (46 % from 0.1, 25 % from 0.2),
+within 5 % for 48 %, within 3 % for 25 %; of those within 5 %, the paired snout within 5 % for 43 %;
+384 wide was no better (70 % / 39 % / 23 %). On seeds 400000+ (the tests): 96 % within 10 %.
+In the survey (the classical proposers kept beside it, the classical locator, the net's snouts as
+candidates, the score untouched): bench/diag_underwater.py, seeds 0-19, 38 fish: no proposal
+within 10 % 13 -> 3, but located 15 -> 17 (the classical locator is now the loss: 18), found 7 -> 6;
+with the learned locator too (``fork_net=True``) located 27, found 9. bench/bench_survey_underwater.py
+--fish 200, recall / precision / weight MAPE: seeds 0+ 0.261 / 0.966 / 2.30 % -> 0.276 / 0.968 /
+2.12 %; 1000+ 0.215 / 0.957 / 2.01 % -> 0.240 / 0.980 / 2.29 %; tuning seeds 200000+ 0.150 / 0.868
+(main, ``vision.fork_net``'s figure) -> 0.180 / 0.907; CPU per pair (median) 137 -> 161 / 170 ms
+(load 7-9; the bench's ratio 0.349 -> 0.353, 0.304 -> 0.361). With the learned locator as well
+(``fork_net=True``, measured once, not tuned): 0.320 / 0.932 and 0.300 / 0.969, ratio ~0.46: the
+most recall yet, precision under 0.95 on seeds 0+, so it stays off. A step change needs the net
+trained to convergence (its peaks as locations) and a locator that keeps what it proposes.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from functools import lru_cache
+from importlib import resources
+
+import cv2
+import numpy as np
+
+from vision.fins import SPAN_OF_FL, Fins
+
+MODEL = "fish_keypoints.onnx"
+STRIDE = 4
+CHANNELS = 10
+VEC_SCALE = 16.0        # output cells per unit of the vector maps
+MULTIPLE = 8            # the net's input sides are padded to a multiple of this
+
+
+@dataclass
+class FishKeypoints:
+    """One image's answer, full-resolution px. Per fork (N rows): its snout (the paired peak, else
+    where the fork points), the axis from fork to snout and the length between them."""
+
+    fork_xy: np.ndarray         # (N, 2)
+    fork_conf: np.ndarray       # (N,) 0..1
+    snout_xy: np.ndarray        # (N, 2)
+    snout_conf: np.ndarray      # (N,) the paired snout peak's, 0 where none was paired
+    angle: np.ndarray           # (N,) rad, image direction from the fork towards the snout
+    length_px: np.ndarray       # (N,)
+    paired_snout_xy: np.ndarray   # (N, 2) alias of snout_xy kept for the training script's figures
+    snouts_xy: np.ndarray       # (M, 2) every snout peak
+    snouts_conf: np.ndarray     # (M,)
+
+    def __len__(self) -> int:
+        return len(self.fork_xy)
+
+
+def normalise(img: np.ndarray) -> np.ndarray:
+    """(H, W, 3) -> (3, H, W) float32: less its channels' means, over its overall spread (+4 grey
+    levels): the water's colour and the light's level drop out."""
+    x = np.asarray(img, np.float32)
+    x = x - x.reshape(-1, 3).mean(axis=0)
+    x = x / (x.std() + 4.0)
+    return np.ascontiguousarray(x.transpose(2, 0, 1))
+
+
+@lru_cache(maxsize=1)
+def _net() -> cv2.dnn.Net:
+    data = resources.files("vision.models").joinpath(MODEL).read_bytes()
+    return cv2.dnn.readNetFromONNX(np.frombuffer(data, np.uint8))
+
+
+def net_input(img: np.ndarray, width: int) -> tuple[np.ndarray, float]:
+    """The image at ``width`` px wide (colour; grey repeated), normalised and padded to the net's
+    multiple: (1, 3, h, w) and full-resolution px per input px."""
+    img = np.asarray(img)
+    if img.ndim == 2:
+        img = img[..., None]
+    if img.ndim != 3 or img.shape[2] not in (1, 3, 4) or min(img.shape[:2]) < 8:
+        raise ValueError(f"expected a grey or colour image at least 8 px a side, got shape {img.shape}")
+    img = np.repeat(img, 3, axis=2) if img.shape[2] == 1 else img[..., :3]
+    H, W = img.shape[:2]
+    scale = W / width
+    small = cv2.resize(img, (width, max(MULTIPLE, round(H / scale))), interpolation=cv2.INTER_AREA)
+    x = normalise(small)
+    ph, pw = -x.shape[1] % MULTIPLE, -x.shape[2] % MULTIPLE
+    if ph or pw:
+        x = np.pad(x, ((0, 0), (0, ph), (0, pw)), mode="edge")
+    return x[None], scale
+
+
+def maps(img: np.ndarray, width: int = 320) -> tuple[np.ndarray, float]:
+    """The net's raw maps (CHANNELS, h, w) for an image, and full-resolution px per input px."""
+    x, scale = net_input(img, width)
+    net = _net()
+    net.setInput(x)
+    return net.forward()[0], scale
+
+
+def _peaks(heat: np.ndarray, thr: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Local maxima (3x3) of a probability map over thr: rows, cols, values."""
+    top = cv2.dilate(heat, np.ones((3, 3), np.uint8))
+    r, c = np.nonzero((heat >= top) & (heat >= thr))
+    return r, c, heat[r, c]
+
+
+def decode(out: np.ndarray, stride: int, scale: float, thr: float = 0.2) -> FishKeypoints:
+    """Peaks of the maps ``out`` (CHANNELS, h, w) as full-resolution points (``scale`` px per input
+    px), each fork paired with the snout peak nearest where it points (within a fifth of the length,
+    at least 1.5 cells) that points back to within the same."""
+    prob = 1.0 / (1.0 + np.exp(-out[:2].astype(np.float32)))
+    to_px = lambda p: ((p + 0.5) * stride - 0.5 + 0.5) * scale - 0.5   # noqa: E731 -- cells -> input -> full px
+    sr, sc, sconf = _peaks(np.ascontiguousarray(prob[0]), thr)
+    fr, fc, fconf = _peaks(np.ascontiguousarray(prob[1]), thr)
+    s_cell = np.c_[sc + out[4, sr, sc], sr + out[5, sr, sc]]
+    f_cell = np.c_[fc + out[8, fr, fc], fr + out[9, fr, fc]]
+    to_snout = np.c_[out[6, fr, fc], out[7, fr, fc]] * VEC_SCALE
+    to_fork = np.c_[out[2, sr, sc], out[3, sr, sc]] * VEC_SCALE
+    aim = f_cell + to_snout
+    L = np.linalg.norm(to_snout, axis=1)
+    snout_cell, snout_conf = aim.copy(), np.zeros(len(f_cell))
+    if len(f_cell) and len(s_cell):
+        gate = np.maximum(0.2 * L, 1.5)[:, None]
+        d = np.linalg.norm(aim[:, None] - s_cell[None], axis=2)                          # (N, M)
+        back = np.linalg.norm(s_cell[None] + to_fork[None] - f_cell[:, None], axis=2)
+        cost = np.where((d < gate) & (back < gate), d + back, np.inf)
+        best = cost.argmin(axis=1)
+        ok = np.isfinite(cost[np.arange(len(best)), best])
+        snout_cell[ok] = s_cell[best[ok]]
+        snout_conf[ok] = sconf[best[ok]]
+    fork_xy, snout_xy = to_px(f_cell), to_px(snout_cell)
+    d = snout_xy - fork_xy
+    return FishKeypoints(fork_xy, fconf, snout_xy, snout_conf, np.arctan2(d[:, 1], d[:, 0]),
+                         np.hypot(d[:, 0], d[:, 1]), snout_xy, to_px(s_cell), sconf)
+
+
+def detect(img: np.ndarray, width: int = 320, thr: float = 0.05) -> FishKeypoints:
+    """Snouts and forks in an image (grey or BGR uint8, any size), full-resolution px."""
+    out, scale = maps(img, width)
+    return decode(out, STRIDE, scale, thr)
+
+
+def hypotheses(kp: FishKeypoints, ahead: float = 0.0) -> Fins:
+    """The net's forks as fork hypotheses for the full-resolution locators, moved ``ahead`` of the
+    length towards their snouts: the axis towards their snouts, the fin's span from the length."""
+    z = np.zeros(len(kp))
+    axis = np.c_[np.cos(kp.angle), np.sin(kp.angle)]
+    return Fins(kp.fork_xy + (ahead * kp.length_px)[:, None] * axis, kp.angle.copy(),
+                SPAN_OF_FL * np.maximum(kp.length_px, 8.0), kp.fork_conf.copy(), z, kp.angle.copy())
+
+
+def near(kp: FishKeypoints, xy: np.ndarray, reach: float = 0.1) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """For forks located at ``xy`` (N, 2): the confidence of the net's fork nearest each within
+    ``reach`` of that fork's length (at least 6 px; 0 where none), its snout (NaN where none) and
+    that snout's confidence."""
+    N = len(xy)
+    conf, snout, sconf = np.zeros(N), np.full((N, 2), np.nan), np.zeros(N)
+    if N == 0 or len(kp) == 0:
+        return conf, snout, sconf
+    d = np.linalg.norm(np.asarray(xy, float)[:, None] - kp.fork_xy[None], axis=2)       # (N, K)
+    d = np.where(d <= np.maximum(reach * kp.length_px, 6.0)[None], d, np.inf)
+    best = d.argmin(axis=1)
+    ok = np.isfinite(d[np.arange(N), best])
+    conf[ok], snout[ok], sconf[ok] = kp.fork_conf[best[ok]], kp.snout_xy[best[ok]], kp.snout_conf[best[ok]]
+    return conf, snout, sconf
+
+
+def agreement(kp: FishKeypoints, fork_xy: np.ndarray, snout_xy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """For fish measured with these ends (N, 2 each): the net's confidence in the fork (``near``),
+    and how well its snout for that fork agrees with the measured one, 0..1 (1 at the same point,
+    ~0.37 at 5 % of the length apart; 0 where the net has no fork there)."""
+    conf, snout, _ = near(kp, fork_xy)
+    L = np.maximum(np.linalg.norm(np.asarray(snout_xy, float) - fork_xy, axis=1), 1.0)
+    d = np.linalg.norm(snout - snout_xy, axis=1) / L
+    return conf, np.where(np.isfinite(d), np.exp(-(np.nan_to_num(d, nan=1.0) / 0.05) ** 2), 0.0)
