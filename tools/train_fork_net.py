@@ -29,16 +29,12 @@ import torch.nn.functional as F
 from torch import nn
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
+from tools.torch_parts import sep_conv as _sep  # noqa: E402
 from vision import fork_net  # noqa: E402
 
 H, W = fork_net.GRID_H, fork_net.GRID_W
 HH, HW = H // 2, W // 2
 ANGLE_WEIGHT = 5.0      # at 0.5 the axis' turn stayed near 0 (8 degrees off stayed ~7 off after 4 epochs)
-
-
-def _sep(cin, cout, stride=1, dil=1):
-    return nn.Sequential(nn.Conv2d(cin, cin, 3, stride, dil, dil, groups=cin, bias=False), nn.BatchNorm2d(cin),
-                         nn.ReLU(), nn.Conv2d(cin, cout, 1, bias=False), nn.BatchNorm2d(cout), nn.ReLU())
 
 
 class ForkNet(nn.Module):

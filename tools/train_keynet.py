@@ -42,16 +42,12 @@ import torch.nn.functional as F
 from torch import nn
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
+from tools.torch_parts import sep_conv as _sep  # noqa: E402
 from vision import fish_keypoints as fk  # noqa: E402
 
 CROP_H, CROP_W = 160, 224
 STRIDE = fk.STRIDE
 CLEAR = 0.10
-
-
-def _sep(cin, cout, stride=1, dil=1):
-    return nn.Sequential(nn.Conv2d(cin, cin, 3, stride, dil, dil, groups=cin, bias=False), nn.BatchNorm2d(cin),
-                         nn.ReLU(), nn.Conv2d(cin, cout, 1, bias=False), nn.BatchNorm2d(cout), nn.ReLU())
 
 
 class KeyNet(nn.Module):
