@@ -180,7 +180,7 @@ def main() -> None:
     ap.add_argument("--params", default="")
     ap.add_argument("--locator", action="store_true", help="also the fork locator alone, from the true forks")
     ap.add_argument("--pipeline", type=int, default=1, help="0: the locator alone (with --locator)")
-    ap.add_argument("--coverage", type=int, default=1,
+    ap.add_argument("--coverage", type=int, default=fish_render.COVERAGE,
                     help="fish drawn with their area coverage at this supersampling (devices.sim.fish_render.COVERAGE)")
     ap.add_argument("--conditions", default="", help="scene conditions fixed, e.g. 'blur_gain=0.0,noise_sd=1.0'")
     args = ap.parse_args()

@@ -18,10 +18,13 @@ SHIFT = 3                          # fixed-point bits for sub-pixel polygon vert
 _ONE = 1 << SHIFT
 # OpenCV fills every pixel whose centre lies within ~0.5 px of a polygon (an edge at x = 10.25
 # fills pixel 10): each drawn fish is ~0.5 px too big all round and the caudal notch's narrow end
-# is filled in. COVERAGE > 1 (diagnostics only, bench/diag_length_bias.py): the fish's opacity is
-# its area coverage instead, drawn at COVERAGE x resolution and averaged (left over: ~0.1 px an edge at 8),
-# and the blur applied to the fish as seen (colour x coverage), as optics do.
-COVERAGE = 1
+# is filled in, so a rendered fish read ~+1 % long at 100 px, +2 % at 50 px, against its own
+# truth. A sensor integrates light over each pixel: with COVERAGE > 1 the fish's opacity is its
+# area coverage, drawn at COVERAGE x resolution and averaged (left over: ~0.2 px an edge at 4,
+# ~0.1 at 8; 4 costs ~+18 % of a still's CPU), and the blur applied to the fish as seen (colour x
+# coverage), as optics do. 1: OpenCV's fill (the renderer before 2026-12-02; bench/diag_length_bias.py
+# --coverage compares).
+COVERAGE = 4
 
 
 def project(rig, world: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

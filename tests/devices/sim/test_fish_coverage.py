@@ -51,14 +51,14 @@ def test_coverage_switch_draws_fish_no_bigger_than_their_outline():
     rig = underwater_rig(image_size=(320, 240), focal_px=350.0)
     cond = dict(n_fish=1, blur_gain=0.0, noise_sd=0.0, jpeg_quality=None, clutter="none", bubbles=0,
                 particles=0, vignette=0.0, sun_rays=0.0, fish_gain=2.0)
-    dark = []
+    dark, default = [], fish_render.COVERAGE
     try:
         for cov in (1, 8):
             fish_render.COVERAGE = cov
             sc = underwater_scene(np.random.default_rng(11), rig, **cond)
             dark.append(sc.left.astype(float))
     finally:
-        fish_render.COVERAGE = 1
+        fish_render.COVERAGE = default
     empty = underwater_scene(np.random.default_rng(11), rig, **(cond | {"n_fish": 0})).left.astype(float)
     drawn = [np.abs(d - empty).sum() for d in dark]
     assert drawn[1] < drawn[0]
