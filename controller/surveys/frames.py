@@ -48,6 +48,10 @@ class Source:
     every: int = 1                          # video: one frame surveyed in ``every``
 
 
+# what OpenCV's codecs here read; the workers' frames travel as BMP (controller/surveys/wire.py)
+IMAGE_KINDS = "PNG, JPEG, BMP or TIFF"
+
+
 # ---- reading one pair ------------------------------------------------------------------------
 
 def _imread(path: str, flags: int = cv2.IMREAD_ANYCOLOR) -> np.ndarray:
@@ -60,7 +64,7 @@ def _imread(path: str, flags: int = cv2.IMREAD_ANYCOLOR) -> np.ndarray:
         raise BadInput(path, None, "empty file")
     img = cv2.imread(path, flags)
     if img is None or img.size == 0:
-        raise BadInput(path, None, "not a readable image (PNG or JPEG expected)")
+        raise BadInput(path, None, f"not a readable image ({IMAGE_KINDS} expected)")
     return img
 
 
@@ -92,7 +96,7 @@ def _imdecode(data: bytes, name: str, flags: int = cv2.IMREAD_ANYCOLOR) -> np.nd
         raise BadInput(name, None, "empty file")
     img = cv2.imdecode(np.frombuffer(data, np.uint8), flags)
     if img is None or img.size == 0:
-        raise BadInput(name, None, "not a readable image (PNG or JPEG expected)")
+        raise BadInput(name, None, f"not a readable image ({IMAGE_KINDS} expected)")
     return img
 
 
