@@ -78,6 +78,8 @@ def test_a_process_killed_mid_transaction_leaves_a_consistent_ledger(tmp_path):
                 break
         child.send_signal(signal.SIGKILL)         # mid-loop: most of its time is spent in a commit
         child.wait(10)
+        for line in child.stdout:                 # what it committed and said before the kill landed
+            reported = max(reported, int(line))   # (a loaded machine delivers the signal late)
         child.stdout.close()
         assert child.returncode == -signal.SIGKILL
         s = Store(path)
