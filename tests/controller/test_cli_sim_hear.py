@@ -2,18 +2,12 @@
 from __future__ import annotations
 
 import math
-import socket
 import time
 
 import zenoh
 
 from controller.cli.sim_cmd import DemandsHeard
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
+from tests.controller.zenoh_farm import free_port
 
 
 class StillClock:
