@@ -22,8 +22,9 @@ so ``now()`` is also held monotonic within a process.
 Sleepers: a wake that falls inside the current segment's fast part is exact (a later segment can
 only slow it, which wakes the sleeper early and it looks again); any other wake is slept in slices
 of ``SLICE_S`` wall, as the speed may rise meanwhile (overshoot at most SLICE_S x fast). While the
-farm runs fast nobody needs fine time, so naps are at least ``FAST_NAP_S`` of wall then: periodic
-farm-second ticks (housekeeping every 5 farm s) do not become busy loops at 10,000x.
+farm runs fast nobody needs fine time, so naps are at least ``FAST_NAP_S`` of wall then (5 ms, the
+slow slice's length: no later a wake than a slice already is): periodic farm-second ticks
+(housekeeping every 5 farm s, the idle robot's look every 30) do not become busy loops at 30,000x.
 """
 from __future__ import annotations
 
@@ -48,7 +49,10 @@ HEAD = struct.Struct("<4sIQdddddddI4x")
 SLOT = struct.Struct("<16siId16s")           # name, pid, kind, value, why (for the record)
 NSLOTS = 16
 SLICE_S = 0.005                              # wall: a sleeper's longest nap while the speed may rise
-FAST_NAP_S = 0.001                           # wall: a sleeper's shortest nap while the farm runs fast
+FAST_NAP_S = 0.005                           # wall: a sleeper's shortest nap while the farm runs fast: at
+                                             # 1 ms the idle robot's look (ledger queries) and housekeeping
+                                             # ran 1,000 times a wall second each, more of the controller's
+                                             # CPU than the contacts of a fast span; no longer than SLICE_S
 EMPTY, BUSY, IDLE, AWAITED = 0, 1, 2, 3
 GEN_AT = 8                                   # byte offset of the sequence counter
 SEG_AT = 16                                  # byte offset of the segment (5 doubles)

@@ -122,6 +122,11 @@ class HilFarm:
         return ["--speed", repr(self.speed), "--epoch-wall", repr(self.epoch_wall),
                 "--epoch-farm", repr(self.epoch_farm)]
 
+    def hear_args(self) -> list[str]:
+        """On an elastic clock the simulator hears the controller's demands: fish it has heard hold
+        the clock no longer (devices/sim/pace.py)."""
+        return ["--hear", f"tcp/127.0.0.1:{self.zenoh_port}"] if self.clock is not None else []
+
     def farm_now(self) -> float:
         if self.clock is not None:
             return self.clock.now()
@@ -144,7 +149,8 @@ class HilFarm:
         sim_cfg.write_text(tomli_w.dumps(self.config))
         endpoints = self.dir / "endpoints.json"
         self.sim_proc = self._spawn(["sim", "--config", str(sim_cfg), "--endpoints", str(endpoints),
-                                     "--truth", str(self.truth_path), *self.clock_args()], "sim.log")
+                                     "--truth", str(self.truth_path), *self.clock_args(), *self.hear_args()],
+                                    "sim.log")
         deadline = time.time() + timeout_s
         while not endpoints.exists():
             if self.sim_proc.poll() is not None or time.time() > deadline:

@@ -9,8 +9,10 @@ from __future__ import annotations
 import asyncio
 import json
 import logging
+import math
 import os
 import signal
+import threading
 from pathlib import Path
 
 import click
@@ -29,9 +31,12 @@ import click
 @click.option("--clock", "clock_path", type=click.Path(dir_okay=False, exists=True), default=None,
               help="an elastic clock file (devices/elastic_clock.py) shared with the controller: "
                    "replaces --speed/--epoch-*")
+@click.option("--hear", "hear", default=None, metavar="tcp/HOST:PORT",
+              help="with --clock: the controller's Zenoh endpoint; fish asking hold the clock slow only "
+                   "until a demand for their tank is heard there (devices/sim/pace.py)")
 @click.option("--log-level", default="warning", show_default=True,
               type=click.Choice(["debug", "info", "warning", "error"], case_sensitive=False))
-def sim(config_path, endpoints, truth, speed, epoch_wall, epoch_farm, clock_path, log_level):
+def sim(config_path, endpoints, truth, speed, epoch_wall, epoch_farm, clock_path, hear, log_level):
     """Simulated farm: fish, contact hub, rail drive, dispenser, pond cleaner's thrusters and tower
     camera. SIGUSR1 power-cycles the dispenser."""
     from controller.config import load_config
@@ -57,16 +62,20 @@ def sim(config_path, endpoints, truth, speed, epoch_wall, epoch_farm, clock_path
             loop.add_signal_handler(sig, stop.set)
         # SIGUSR1: the dispenser loses power and comes back (counters reset), as after a site power cut
         loop.add_signal_handler(signal.SIGUSR1, lambda: farm.dispenser and farm.dispenser.power_cycle())
+        ears = None
         try:
             found = await farm.start()
             tmp = Path(endpoints).with_suffix(".tmp")
             tmp.write_text(json.dumps(found, indent=2))
             os.replace(tmp, endpoints)            # readers never see half a file
-            pacer = asyncio.create_task(_pace(farm)) if clock_path is not None else None
+            ears = DemandsHeard(hear, cfg.site, clock) if clock_path is not None and hear else None
+            pacer = asyncio.create_task(_pace(farm, ears)) if clock_path is not None else None
             await stop.wait()
             if pacer is not None:
                 pacer.cancel()
         finally:
+            if ears is not None:
+                ears.close()
             await farm.stop()
 
     asyncio.run(main())
@@ -85,10 +94,46 @@ def elastic(path: str, slot: str):
     return clock
 
 
-async def _pace(farm) -> None:
+async def _pace(farm, ears=None) -> None:
     """Fish asking or not; a pond's cleaner is always busy (it moves by the tower camera's frames)."""
     from devices.sim.pace import pace
     if getattr(farm, "pond", None) is not None:
         farm.clock.busy()
         return
-    await pace(farm.clock, list(farm.tanks.values()))
+    await pace(farm.clock, list(farm.tanks.values()), heard=ears)
+
+
+class DemandsHeard:
+    """The farm time each tank's last demand was heard on the controller's bus (``farm/{site}/tank/
+    {tank}/demand``): the simulator's pacer lets go of fish the controller has heard. A client
+    session opened in a thread, retried while the controller is not up yet; until then nothing
+    is heard and fish hold the clock for their whole attention span, as without it."""
+
+    def __init__(self, connect: str, site: str, clock):
+        self.connect, self.site, self.clock = connect, site, clock
+        self.heard: dict[str, float] = {}
+        self.session = self.sub = None
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._open, name="sim-hear-demands", daemon=True)
+        self._thread.start()
+
+    def __call__(self, tank: str) -> float:
+        return self.heard.get(tank, -math.inf)
+
+    def _open(self) -> None:
+        from controller.cli.worker_cmd import _open
+        session = _open(self.connect, None, None, self._stop, "fishfarm sim --hear")
+        if session is None:
+            return
+        self.session = session
+        self.sub = session.declare_subscriber(f"farm/{self.site}/tank/*/demand", self._on_demand)
+
+    def _on_demand(self, sample) -> None:
+        # on Zenoh's thread: one dict store, read by the pacer on the loop
+        self.heard[str(sample.key_expr).split("/")[3]] = self.clock.now()
+
+    def close(self) -> None:
+        self._stop.set()
+        self._thread.join(timeout=5)
+        if self.session is not None:
+            self.session.close()

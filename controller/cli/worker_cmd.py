@@ -56,7 +56,7 @@ def _from_config(path: str, connect: str | None, site: str | None) -> tuple[str 
     return connect, site or cfg.site
 
 
-def _open(connect: str, user, password, stop: threading.Event):
+def _open(connect: str, user, password, stop: threading.Event, who: str = "fishfarm worker"):
     """A client session, retried every RETRY_S while nobody listens at ``connect``."""
     import zenoh
 
@@ -68,7 +68,7 @@ def _open(connect: str, user, password, stop: threading.Event):
         except zenoh.ZError as exc:
             if not said:      # once: a worker started before the controller is normal
                 why = _why_unreachable(connect, user, _one_line(exc))
-                click.echo(f"fishfarm worker: {why}; retrying every {RETRY_S:g} s", err=True)
+                click.echo(f"{who}: {why}; retrying every {RETRY_S:g} s", err=True)
                 said = True
             stop.wait(RETRY_S)
     return None

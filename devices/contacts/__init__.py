@@ -37,8 +37,9 @@ class ContactSensors(Device):
     malformed: int = 0
     stream_t: float | None = None
     """Farm time up to which the hub has reported everything: its latest stamp (contact or
-    heartbeat; a hub sends in time order). Time-driven judgements (a dead sensor, a drained
-    demand) use this, not the local clock, so a line's latency never reorders the evidence."""
+    heartbeat; a hub sends in time order) once read() has handed out every contact up to it.
+    Time-driven judgements (a dead sensor, a drained demand) use this, not the local clock, so a
+    line's latency never reorders the evidence."""
 
     @abc.abstractmethod
     async def _read(self) -> list[Contact]: ...

@@ -70,6 +70,7 @@ class SerialContactHub(ContactSensors):
         self._fd = -1
         self._partial = b""
         self._batch: list[Contact] = []
+        self._parsed_t: float | None = None  # the newest stamp parsed (``stream_t`` once read)
         self._error: str | None = None
         self._seq: int | None = None
         self._wake = asyncio.Event()
@@ -129,7 +130,12 @@ class SerialContactHub(ContactSensors):
             finally:
                 waiter.cancel()
         out, self._batch = self._batch, []
+        self._heard_up_to(self._parsed_t)          # the reader has every contact up to there now
         return out
+
+    def _heard_up_to(self, t: float | None) -> None:
+        if t is not None and (self.stream_t is None or t > self.stream_t):
+            self.stream_t = t
 
     # -- on the loop, when the port has bytes -----------------------------------------------------
     def _readable(self) -> None:
@@ -169,8 +175,14 @@ class SerialContactHub(ContactSensors):
             t = int(m[4] or m[6]) / 1000.0
             if m[3] is not None:
                 batch.append(Contact(t, m[3].decode()))
-            if self.stream_t is None or t > self.stream_t:
-                self.stream_t = t
+            if self._parsed_t is None or t > self._parsed_t:
+                self._parsed_t = t
+        if not batch:
+            # only heartbeats: nothing waits to be read. Contacts waiting hold ``stream_t`` back
+            # until read() hands them out: a filter judging time up to a stamp parsed past them
+            # would close their bins first and count them all in a later one (on a fast farm
+            # clock, a batch of hundreds of farm seconds of turbulence in one bin: a false demand)
+            self._heard_up_to(self._parsed_t)
         return good
 
     def _down(self, why: str) -> None:

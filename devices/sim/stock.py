@@ -79,10 +79,23 @@ class SimStock:
                 self.period = period
                 self._record(end)
 
+    @property
+    def w(self) -> np.ndarray:
+        """The sampled fish's weights, g."""
+        return self._w
+
+    @w.setter
+    def w(self, value: np.ndarray) -> None:
+        # the fish change only when fed or when some die: their mean is asked for each time the
+        # simulator looks ahead for the next episode (every 5 ms of wall, for every tank)
+        self._w, self._mean = value, None
+
     # -- what a camera and a judge see -------------------------------------------------------
     @property
     def mean_g(self) -> float:
-        return float(self.w.mean()) if self.count else 0.0
+        if self._mean is None:
+            self._mean = float(self._w.mean()) if self.count else 0.0
+        return self._mean
 
     @property
     def biomass_g(self) -> float:

@@ -91,6 +91,38 @@ def test_lines_waiting_in_the_port_after_a_stall_are_not_silence():
     assert asyncio.run(main()).sensor == "T1-a"
 
 
+def test_stream_time_passes_contacts_only_once_they_are_read():
+    """``stream_t`` is what time-driven judgements go by: parsed past contacts that wait for
+    read(), it would let the filter close their bins before it is given them."""
+    async def main():
+        master, slave = os.openpty()
+        tty.setraw(slave)
+        dev = driver(os.ttyname(slave), ManualClock(), timeout=5.0)
+        await dev.open()
+        seen = []
+
+        async def parsed(n_lines):
+            while dev.lines < n_lines:
+                await asyncio.sleep(0.005)
+            seen.append(dev.stream_t)
+        os.write(master, heartbeat_line(0, 900.0))
+        await asyncio.wait_for(parsed(1), 5)                 # heartbeats alone: heard at once
+        os.write(master, contact_line(1, "T1-a", 1000.0) + contact_line(2, "T1-b", 1100.0)
+                 + heartbeat_line(3, 1300.0))
+        await asyncio.wait_for(parsed(4), 5)                 # contacts waiting: not past them
+        got = await asyncio.wait_for(dev.read(), 5)
+        seen.append(dev.stream_t)                            # handed out: up to the newest stamp
+        os.write(master, heartbeat_line(4, 1400.0))
+        await asyncio.wait_for(parsed(5), 5)
+        await dev.close()
+        os.close(master)
+        os.close(slave)
+        return seen, got
+    seen, got = asyncio.run(main())
+    assert [c.t for c in got] == [1000.0, 1100.0]
+    assert seen == [900.0, 900.0, 1300.0, 1400.0]
+
+
 def test_silence_is_link_down_and_a_fresh_driver_reopens():
     async def main():
         master, slave = os.openpty()

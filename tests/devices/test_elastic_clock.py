@@ -175,7 +175,7 @@ def test_short_naps_are_floored_only_while_the_farm_runs_fast(path, wall):
     sim.idle_until(START + 1e9)
     ctl.idle_until(START + 1e9)
     naps.clear()
-    sleeper.sleep(0.5)                         # fast: 50 us of wall would spin; one 1 ms nap
+    sleeper.sleep(0.5)                         # fast: 50 us of wall would spin; one floored nap
     assert naps == [pytest.approx(FAST_NAP_S)]
 
 

@@ -15,6 +15,7 @@ class Tank:
     start: float
     heeded_t: float = START
     again: float = START + 10_000.0
+    id: str = "T1"
 
     def next_episode(self, now: float) -> float:
         return now if self.asking else self.start
@@ -56,3 +57,24 @@ def test_fish_asking_unfed_past_the_attention_span_wait_for_their_next_start(tmp
     ignored = Tank(True, 0.0, heeded_t=START - ATTENTION_S - 1.0, again=START + 2_000.0)
     declare(c, [Tank(False, START + 5_000.0), ignored])
     assert (mine(c).kind, mine(c).value, mine(c).why) == (IDLE, START + 2_000.0 - LEAD_S, "unheeded fish")
+
+
+def test_fish_the_controller_has_heard_since_their_start_or_meal_hold_the_clock_no_longer(tmp_path):
+    c = clock(tmp_path)                        # now() is START
+    asking = Tank(True, 0.0, heeded_t=START - 30.0, again=START + 2_000.0)
+    declare(c, [asking], heard=lambda tank: START - 40.0)    # heard before their last meal: not this ask
+    assert (mine(c).kind, mine(c).why) == (BUSY, "fish asking")
+    declare(c, [asking], heard=lambda tank: START - 10.0)    # heard since: the controller holds it if it acts
+    assert (mine(c).kind, mine(c).value) == (IDLE, START + 2_000.0 - LEAD_S)
+
+
+def test_a_heard_tank_does_not_release_another_that_still_asks_unheard(tmp_path):
+    c = clock(tmp_path)
+    heard_at = {"A": START - 5.0}
+    a = Tank(True, 0.0, heeded_t=START - 20.0, id="A")
+    b = Tank(True, 0.0, heeded_t=START - 20.0, id="B")
+    declare(c, [a, b], heard=lambda tank: heard_at.get(tank, float("-inf")))
+    assert mine(c).kind == BUSY
+    heard_at["B"] = START - 1.0
+    declare(c, [a, b], heard=lambda tank: heard_at.get(tank, float("-inf")))
+    assert mine(c).kind == IDLE
