@@ -39,9 +39,9 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 from bench.bench_survey_underwater import assign  # noqa: E402
 from bench.diag_length_bias import end_errors  # noqa: E402
 from controller.surveys.species import survey_species  # noqa: E402
-from controller.surveys.stop import implausible  # noqa: E402
 from devices.sim.fish_scene import underwater_rig, underwater_scene  # noqa: E402
 from vision.survey import measure_pair  # noqa: E402
+from vision.survey_stats import implausible  # noqa: E402
 
 SPECIES = "sparus_aurata"
 WEIGHT_CV = 0.20            # devices.sim.stock's weight_cv_pct at the start
