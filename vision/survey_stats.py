@@ -15,11 +15,13 @@ MAX_BINS = 30                                   # wider classes rather than more
 BOOT_CHUNK = 4_000_000                          # resampled indices held at once (memory, not speed)
 # A "fish" longer than PLAUSIBLE_LONG or shorter than PLAUSIBLE_SHORT times the survey's median length
 # is a measuring error (two fish taken for one, a snout on the wrong fish): one stock's fork lengths
-# are one hump with a CV of ~5-15 % (weight CV up to ~45 %, ungraded), so 1.5x is > 3.3 SDs above
-# even then and 0.55x 3 SDs below, while the long one's weight (a L^b: 3.4x the median's) would add
-# ~40 % to the mean of a 6-fish survey. The band needs no spread of its own, so it holds from 3 fish
-# (the median is then a real fish unless two of three are errors).
-PLAUSIBLE_LONG = 1.5
+# are one hump with a CV of ~5-15 % (weight CV up to ~45 %, ungraded), so 1.4x is 4 SDs above at 10 %
+# (2.7 at 15 %: 0.4 % of such a stock's fish) and 0.55x 3 SDs below even then, while the long one's
+# weight (a L^b: 2.8x the median's) adds ~35 % to the mean of a 5-fish survey. The band needs no
+# spread of its own, so it holds from 3 fish (the median is then a real fish unless two of three are
+# errors). Rendered grow-out surveys of 12 g fish (bench/diag_growout_survey.py, seeds 200000+) read
+# +34 % and +42 % on a false pairing 1.45x and a 2.99x the median among 5-7 fish.
+PLAUSIBLE_LONG = 1.4
 PLAUSIBLE_SHORT = 0.55
 PLAUSIBLE_MIN_FISH = 3
 OUTLIER_SD = 5.0           # with more fish, also: robust SDs (1.4826 MAD) from the median length
