@@ -18,7 +18,7 @@ survey error into per-fish bias on the found fish, size selection, and the rest 
 the outlier rule).
 
 Run: ``.venv/bin/python bench/diag_growout_survey.py [--weights 12,20,35,60,100,150] [--surveys 6]
-[--seed0 200000] [--pairs 16] [--size 640x480]`` (tune on seeds >= 200000).
+[--seed0 200000] [--pairs 16] [--size 640x480] [--params "good_length_px=1.0"]`` (tune on seeds >= 200000).
 """
 from __future__ import annotations
 
@@ -36,12 +36,13 @@ import cv2  # noqa: E402
 import numpy as np  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
-from bench.bench_survey_underwater import assign  # noqa: E402
+from bench.bench_survey_underwater import assign, parse_params  # noqa: E402
 from bench.diag_length_bias import end_errors  # noqa: E402
 from controller.surveys.species import survey_species  # noqa: E402
 from devices.sim.fish_scene import underwater_rig, underwater_scene  # noqa: E402
 from vision.survey import measure_pair  # noqa: E402
 from vision.survey_stats import implausible  # noqa: E402
+from vision.underwater import measure_underwater  # noqa: E402
 
 SPECIES = "sparus_aurata"
 WEIGHT_CV = 0.20            # devices.sim.stock's weight_cv_pct at the start
@@ -66,7 +67,7 @@ def served(left: np.ndarray, right: np.ndarray) -> tuple[np.ndarray, np.ndarray]
     return img[:, :w], img[:, w:]
 
 
-def survey(seed: int, mean_g: float, rig, setup, sp, pairs: int) -> dict:
+def survey(seed: int, mean_g: float, rig, setup, sp, pairs: int, params=None) -> dict:
     """One survey of ``pairs`` stills: its reports, their truths and the survey stop's mean."""
     rng = np.random.default_rng(seed)
     length, cv = tank_sizes(rng, mean_g, sp.weight.a, sp.weight.b)
@@ -77,13 +78,17 @@ def survey(seed: int, mean_g: float, rig, setup, sp, pairs: int) -> dict:
         sc = underwater_scene(rng, rig, n_fish=n, jpeg_quality=None, species=SPECIES, mean_length_cm=length,
                               length_cv=cv)
         left, right = served(sc.left, sc.right)
-        fish = measure_pair(left, right, calib, setup)
+        fish = measure_pair(left, right, calib, setup) if params is None else \
+            measure_underwater(left, right, calib, setup, params=params)
         vis = [t for t in sc.fish if t.fully_visible]
         shown += [t.weight_g for t in vis]
         matched = {k: ti for k, ti, _, _ in assign(fish, sc.fish, sc.rig.centres[0])}
         found = set(matched.values())
         for k, f in enumerate(fish):
-            row = {"length_cm": f.length_cm, "score": float(f.score)}
+            mid = (np.asarray(f.snout_mm) + np.asarray(f.fork_mm)) / 2
+            row = {"length_cm": f.length_cm, "score": float(f.score),
+                   "px": float(np.mean(np.linalg.norm(f.snout_px - f.fork_px, axis=1))),
+                   "range_mm": float(np.linalg.norm(mid - sc.rig.centres[0]))}
             ti = matched[k]
             if ti >= 0:
                 t = sc.fish[ti]
@@ -100,7 +105,31 @@ def survey(seed: int, mean_g: float, rig, setup, sp, pairs: int) -> dict:
     w = sp.weight.weight_g(lengths[~far])
     mean = float(w.mean()) if len(w) else float("nan")
     return {"reports": reports, "mean_g": mean, "n": int((~far).sum()), "rejected": int(far.sum()),
+            "cuts": cuts(reports, sp, float(calib.K1[0, 0])),
             "shown_mean_g": float(np.mean(shown)) if shown else float("nan")}
+
+
+CUT_PX = (40.0, 50.0, 60.0, 80.0)
+
+
+def cuts(reports: list[dict], sp, focal: float) -> dict:
+    """The survey's mean weight keeping only fish (a) at least ``p`` px long in the image, (b) near
+    enough that a fish of the survey's median length would be (a cut on range alone does not
+    select on length)."""
+    rows = [r for r in reports if "length_cm" in r]
+    if not rows:
+        return {}
+    L = np.array([r["length_cm"] for r in rows])
+    keep = ~implausible(L)
+    px = np.array([r["px"] for r in rows])
+    rng_mm = np.array([r["range_mm"] for r in rows])
+    med = float(np.median(L[keep])) if keep.any() else float("nan")
+    out = {}
+    for p in CUT_PX:
+        for name, sel in (("px", px >= p), ("range", focal * 10 * med / rng_mm >= p)):
+            k = keep & sel
+            out[f"{name}{int(p)}"] = [float(sp.weight.weight_g(L[k]).mean()) if k.any() else float("nan"), int(k.sum())]
+    return out
 
 
 def _stat(v) -> dict:
@@ -123,8 +152,8 @@ def fish_bins(rows: list[dict]) -> dict:
     return out
 
 
-def one_weight(mean_g: float, surveys: int, seed0: int, rig, setup, sp, pairs: int) -> dict:
-    runs = [survey(seed0 + k, mean_g, rig, setup, sp, pairs) for k in range(surveys)]
+def one_weight(mean_g: float, surveys: int, seed0: int, rig, setup, sp, pairs: int, params=None) -> dict:
+    runs = [survey(seed0 + k, mean_g, rig, setup, sp, pairs, params) for k in range(surveys)]
     rows = [r for s in runs for r in s["reports"]]
     matched = [r for r in rows if "true_cm" in r]
     reported = [r for r in rows if "length_cm" in r]
@@ -143,7 +172,12 @@ def one_weight(mean_g: float, surveys: int, seed0: int, rig, setup, sp, pairs: i
     selection = 100 * (wt(found_cm).mean() / wt(vis_cm).mean() - 1) if found_cm else float("nan")
     rendered = 100 * (wt(vis_cm).mean() / mean_g - 1)
     errs = [100 * (s["mean_g"] / mean_g - 1) for s in runs]
-    return {"mean_g": mean_g, "surveys": surveys,
+    cut = {}
+    for key in runs[0]["cuts"]:
+        e = [100 * (s["cuts"][key][0] / mean_g - 1) for s in runs if s["cuts"] and np.isfinite(s["cuts"][key][0])]
+        cut[key] = {"mean_err_pct": _stat(e), "fish": round(float(np.mean([s["cuts"][key][1] for s in runs
+                                                                              if s["cuts"]])), 1)}
+    return {"mean_g": mean_g, "surveys": surveys, "cuts": cut,
             "survey": {"mean_err_pct": _stat(errs), "vs_shown_pct": _stat([100 * (s["mean_g"] / s["shown_mean_g"] - 1)
                                                                             for s in runs]),
                        "fish_per_survey": round(float(np.mean([s["n"] for s in runs])), 1),
@@ -179,6 +213,7 @@ def main() -> None:
     ap.add_argument("--seed0", type=int, default=200000)
     ap.add_argument("--pairs", type=int, default=16)
     ap.add_argument("--size", default="640x480")
+    ap.add_argument("--params", default="", help="vision.underwater.Params fields, e.g. 'min_score=0.04'")
     args = ap.parse_args()
     cv2.setNumThreads(1)
     w, h = (int(x) for x in args.size.split("x"))
@@ -187,7 +222,8 @@ def main() -> None:
     setup = sp.setup("underwater", None)
     out = {"size": args.size, "seed0": args.seed0, "surveys": args.surveys, "pairs": args.pairs, "weights": []}
     for k, g in enumerate(float(x) for x in args.weights.split(",")):
-        out["weights"].append(one_weight(g, args.surveys, args.seed0 + 1000 * k, rig, setup, sp, args.pairs))
+        out["weights"].append(one_weight(g, args.surveys, args.seed0 + 1000 * k, rig, setup, sp, args.pairs,
+                                         parse_params(args.params)))
     out["load"] = os.getloadavg()
     print(json.dumps(out))
 
