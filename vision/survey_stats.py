@@ -13,12 +13,44 @@ import numpy as np
 LENGTH_STEPS_CM = (0.5, 1.0, 2.0, 5.0, 10.0)     # 0.5 cm classes, as a farm measuring board reads
 MAX_BINS = 30                                   # wider classes rather than more than this
 BOOT_CHUNK = 4_000_000                          # resampled indices held at once (memory, not speed)
+# A "fish" longer than PLAUSIBLE_LONG or shorter than PLAUSIBLE_SHORT times the survey's median length
+# is a measuring error (two fish taken for one, a snout on the wrong fish): one stock's fork lengths
+# are one hump with a CV of ~5-15 % (weight CV up to ~45 %, ungraded), so 1.4x is 4 SDs above at 10 %
+# (2.7 at 15 %: 0.4 % of such a stock's fish) and 0.55x 3 SDs below even then, while the long one's
+# weight (a L^b: 2.8x the median's) adds ~35 % to the mean of a 5-fish survey. The band needs no
+# spread of its own, so it holds from 3 fish (the median is then a real fish unless two of three are
+# errors). Rendered grow-out surveys of 12 g fish (bench/diag_growout_survey.py, seeds 200000+) read
+# +34 % and +42 % on a false pairing 1.45x and a 2.99x the median among 5-7 fish.
+PLAUSIBLE_LONG = 1.4
+PLAUSIBLE_SHORT = 0.55
+PLAUSIBLE_MIN_FISH = 3
+OUTLIER_SD = 5.0           # with more fish, also: robust SDs (1.4826 MAD) from the median length
+OUTLIER_MIN_FISH = 10      # ... from this many fish (fewer: the MAD is itself too noisy)
 
 
 def condition_k(lengths_cm: np.ndarray, weights_g: np.ndarray) -> np.ndarray:
     """Fulton's condition factor K = 100 W / L^3 (W g, L cm) per fish."""
     lengths_cm = np.asarray(lengths_cm, dtype=float)
     return 100.0 * np.asarray(weights_g, dtype=float) / np.power(lengths_cm, 3)
+
+
+def implausible(lengths_cm) -> np.ndarray:
+    """(N,) bool, the lengths a survey leaves out as measuring errors: from PLAUSIBLE_MIN_FISH fish,
+    those outside PLAUSIBLE_SHORT..PLAUSIBLE_LONG of the median; from OUTLIER_MIN_FISH, also those OUTLIER_SD robust
+    SDs from it. One wild length among few fish is what makes a small survey read several times heavy."""
+    lengths = np.asarray(lengths_cm, dtype=float).reshape(-1)
+    far = np.zeros(len(lengths), bool)
+    if len(lengths) < PLAUSIBLE_MIN_FISH:
+        return far
+    median = float(np.median(lengths))
+    if median <= 0:
+        return far
+    far = (lengths > PLAUSIBLE_LONG * median) | (lengths < PLAUSIBLE_SHORT * median)
+    if len(lengths) >= OUTLIER_MIN_FISH:
+        spread = 1.4826 * float(np.median(np.abs(lengths - median)))
+        if spread > 0:
+            far |= np.abs(lengths - median) > OUTLIER_SD * spread
+    return far
 
 
 def _round_step(span: float, bins: int) -> float:

@@ -30,11 +30,9 @@ from controller.surveys.frames import PairJob
 from controller.surveys.outputs import fish_entry
 from controller.surveys.runner import PairResult, measure_all
 from devices.errors import DeviceError
-from vision.survey_stats import summarise
+from vision.survey_stats import implausible, summarise
 
 log = logging.getLogger("fishfarm.survey")
-OUTLIER_SD = 5.0           # robust SDs from the median length beyond which a "fish" is a measuring error
-OUTLIER_MIN_FISH = 10      # fewer: nothing is called an outlier
 IN_FLIGHT = 2              # pairs measuring at once here: the robot's own CPU stays free for the loop
 Z95 = 1.96
 
@@ -43,18 +41,6 @@ def measure_pairs(jobs: Iterable[PairJob], calib, setup) -> Iterator[PairResult]
     """Every pair measured, in order: the survey stop's one call into the vision (here, in this
     process; remote vision workers take the same arguments)."""
     return measure_all(jobs, calib, setup, workers=1)
-
-
-def implausible(lengths: np.ndarray) -> np.ndarray:
-    """(N,) bool, the lengths left out: one stock's fork lengths are one hump (CV ~10 %); a "fish"
-    ``OUTLIER_SD`` robust SDs (1.4826 MAD) from the median is a stereo match gone wrong (two fish
-    taken for one), and at W = a L^b one 35 cm error among 9 cm fish doubles the mean weight."""
-    far = np.zeros(len(lengths), bool)
-    if len(lengths) < OUTLIER_MIN_FISH:
-        return far
-    median = float(np.median(lengths))
-    spread = 1.4826 * float(np.median(np.abs(lengths - median)))
-    return far if spread <= 0 else np.abs(lengths - median) > OUTLIER_SD * spread
 
 
 @dataclass

@@ -4,7 +4,7 @@ import math
 import numpy as np
 import pytest
 
-from vision.survey_stats import bootstrap_means, condition_k, summarise
+from vision.survey_stats import bootstrap_means, condition_k, implausible, summarise
 
 
 def rng(seed=1):
@@ -105,3 +105,33 @@ def test_refuses_mismatched_or_non_finite_input():
         summarise([1, 2], [1], rng=rng())
     with pytest.raises(ValueError):
         summarise([1, np.nan], [1, 2], rng=rng())
+
+
+@pytest.mark.parametrize("n", [3, 4, 6, 9, 10, 30])
+def test_a_wild_length_among_few_fish_is_implausible(n):
+    """One stock's fork lengths (a hump, CV 8 %) and one length three times the stock's: a stereo
+    match across two fish. Only the wild one is left out, however few the fish."""
+    stock = rng(n).normal(10.0, 0.8, n - 1)
+    far = implausible(np.append(stock, 30.0))
+    assert far[-1] and not far[:-1].any()
+    if n > 3:       # (of three, a fragment makes the shorter real fish the median: the other may be 1.4x it)
+        far = implausible(np.append(stock, 3.0))               # a fish a third as long: a fragment
+        assert far[-1] and not far[:-1].any()
+
+
+def test_two_fish_are_never_called_implausible():
+    """Which of two is the error cannot be told."""
+    assert not implausible([10.0, 30.0]).any()
+
+
+@pytest.mark.parametrize("cv, lost", [(0.05, 0.001), (0.10, 0.001), (0.15, 0.01)])
+def test_a_one_hump_stock_loses_almost_none_of_its_fish(cv, lost):
+    """Real fish of a graded stock (length CV 5-10 %) are kept, and all but a few of an ungraded
+    one (15 %): surveys of 3-40 fish."""
+    gen = rng(7)
+    kept = total = 0
+    for _ in range(1000):
+        lengths = gen.normal(12.0, cv * 12.0, int(gen.integers(3, 41)))
+        kept += int((~implausible(lengths)).sum())
+        total += len(lengths)
+    assert 1 - kept / total < lost

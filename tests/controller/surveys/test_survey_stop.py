@@ -256,12 +256,14 @@ def test_an_estop_while_surveying_latches_the_devices_and_the_survey_resumes_aft
     assert survey.count == 5 * 3 and camera.starts == 2     # the e-stop closed the streams; reopened after
 
 
-def test_a_length_far_from_the_stock_s_is_left_out_as_a_measuring_error(tmp_path):
-    """Two fish taken for one measure ~35 cm among 9 cm fish: W = a L^b would double the mean."""
+@pytest.mark.parametrize("pairs", [6, 2])
+def test_a_length_far_from_the_stock_s_is_left_out_as_a_measuring_error(tmp_path, pairs):
+    """Two fish taken for one measure ~35 cm among 9 cm fish: W = a L^b would double the mean of
+    18 fish, and multiply that of a small survey (6 fish: the grow-out's first ones) several times."""
     class WithErrors(MeasureDouble):
         def __call__(self, jobs, calib, setup):
             for result in super().__call__(jobs, calib, setup):
-                if result.frame == 2:                 # a stereo match gone wrong, in the third pair
+                if result.frame == pairs - 1:         # a stereo match gone wrong, in the last pair
                     snout = np.array([0.0, 1000.0, -500.0])
                     result.fish.append(FishMeasurement(snout, snout + [350.0, 0.0, 0.0], np.zeros((2, 2)),
                                                        np.zeros((2, 2)), 0.5))
@@ -271,10 +273,10 @@ def test_a_length_far_from_the_stock_s_is_left_out_as_a_measuring_error(tmp_path
         async with rig(tmp_path) as r:
             await r.until(lambda: r.robot.state == "idle", what="homed")
             stops, _, measure, sp = await attach(r, tmp_path, measure=WithErrors(mean_cm=9.0), ci_pct=0.1)
-            stops.request("T1", pairs=6)
+            stops.request("T1", pairs=pairs)
             return await recorded(r, stops, "T1"), measure, sp
     survey, measure, sp = run(main())
-    truth = np.array(measure.lengths)                         # the 18 drawn from the stock, not the error
-    assert survey.count == 18 and survey.mean_weight_g == pytest.approx(np.mean(sp.weight.weight_g(truth)))
+    truth = np.array(measure.lengths)                         # those drawn from the stock, not the error
+    assert survey.count == 3 * pairs and survey.mean_weight_g == pytest.approx(np.mean(sp.weight.weight_g(truth)))
     doc = json.loads(open(survey.source).read())
     assert doc["rejected_lengths_cm"] == [35.0] and sum(f["outlier"] for f in doc["fish"]) == 1
