@@ -11,6 +11,12 @@ Not part of the project's dependencies or its suite: torch lives in a separate v
         --out vision/models/fish_keypoints.onnx --minutes 40 --threads 1 --batch 16 --val-images 60
 (the packaged model: those commands, 2026-12-02, with the generators still running as it trained,
 the machine loaded 4-14: 3,458 steps, held-out heatmaps still low -- it wants more training).
+``--init`` continues from an exported model (its batch norms, folded into the convolutions by the
+export, are split out again so training starts from the same function). Continued 2026-12-03
+(issue 7): seeds 101000-101199 (first, the same held-out images), 100000-100799, 101200-101399,
+``--init vision/models/fish_keypoints.onnx --minutes 62 --threads 1 --batch 16 --val-images 60
+--lr 2e-3``, load 3-11: 7,065 more steps; held-out forks (peak over 0.3 within 4 %) 8 % -> 24 %,
+snouts 3 % -> 19 %, the loss 2.9 -> ~2.2 and still falling (figures in ``vision.fish_keypoints``).
 Seed-fixed (torch, numpy); the last ``--val-images`` images of the first data file are held out and
 their figures printed (JSON lines) after every epoch. Further ``--data`` names may be glob patterns;
 files matching them are added at each epoch's start (the generators may still be running: then
