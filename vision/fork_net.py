@@ -155,7 +155,7 @@ def run(batch: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 def soft_argmax(heat: np.ndarray) -> np.ndarray:
     """(N, h, w) logits -> (N, 2) expected (u, v) in spans of the crop's window."""
     N, h, w = heat.shape
-    z = heat.reshape(N, -1)
+    z = heat.reshape(N, h * w)              # (-1 cannot be inferred for no crops)
     p = np.exp(z - z.max(axis=1, keepdims=True))
     p = (p / p.sum(axis=1, keepdims=True)).reshape(N, h, w)
     us = U0 + (np.arange(w) + 0.5) * (U1 - U0) / w

@@ -40,8 +40,16 @@ The keypoint net over the whole image (``vision.fish_keypoints``, ``Params.keypo
 proposes forks beside the classical proposers and a snout per fork: proposals stop being the
 largest loss (38 fish of seeds 0-19: 13 -> 3 without one), recall rises on both bench sets at
 precision >= 0.95 (figures in that module). The learned fork locator (``Params.fork_net``)
-raises recall on every seed set but not at precision >= 0.95 on both bench sets, so it is off;
-its figures are in ``vision.fork_net``.
+raises recall on every seed set but not at precision >= 0.95 on both bench sets with the packaged
+keypoint net, so it is off; its figures are in ``vision.fork_net``. A keypoint net trained ~3x as
+long (2026-12-03, not packaged; figures in ``vision.fish_keypoints``) with the classical locator
+gains nothing: the locator drops what it proposes (seeds 0-39: 71 proposed, 39 located with either
+net). With ``fork_net=True, kp_floor=0.4`` it reaches 0.345 / 0.961 / 2.49 % (seeds 0+) and 0.285 /
+0.968 / 1.60 % (1000+) against today's 0.291 / 0.969 / 1.90 % and 0.240 / 0.962 / 1.45 %, but one
+drawn fish of tests/vision/test_underwater.py then measures 1.51 % long (the learned locator places
+less exactly), so neither is on. Keeping the net's own fork where the classical locator drops one
+the net is sure of (conf >= 0.1-0.5, at the net's point or refined by ``vision.fork_net``) located
+2-4 more of 71 on tuning seeds 200000-200039 and found none more (the post-filters drop them).
 """
 from __future__ import annotations
 

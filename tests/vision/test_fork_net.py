@@ -54,6 +54,7 @@ def test_model_loads_and_answers_in_shape():
     uv = fork_net.soft_argmax(heat)
     assert np.all((uv[:, 0] >= fork_net.U0) & (uv[:, 0] <= fork_net.U1) & (np.abs(uv[:, 1]) <= fork_net.V1))
     assert fork_net.run(x[:0])[0].shape == (0, fork_net.GRID_H // 2, fork_net.GRID_W // 2)
+    assert fork_net.soft_argmax(fork_net.run(x[:0])[0]).shape == (0, 2)      # an image with no hypothesis
 
 
 def rendered_fish(seeds):
