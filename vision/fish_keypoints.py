@@ -50,7 +50,8 @@ most recall yet at precision >= 0.95 on both sets, at 1.26x the CPU (bench ratio
 130 -> 177 ms a pair, side by side, load 2-3; the fork stage 36 -> 82 ms, this net's ~20 ms as
 before). Not adopted: the learned locator measures one drawn fish of tests/vision/test_underwater.py
 1.51 % long (its bound 1.5 %). With the packaged net the same settings give 0.325 / 0.958 and
-0.275 / 0.933.
+0.275 / 0.933. The retrained weights are kept as tools/models/fish_keypoints_candidate.onnx (the
+next training's ``--init``, or this file's model once the learned locator is taken up).
 """
 from __future__ import annotations
 
