@@ -57,6 +57,7 @@ log = logging.getLogger("fishfarm.survey")
 DISCOVER_S = 1.0
 TIMEOUT_S = 30.0           # a pair takes well under a second; this is for a hung worker
 PER_WORKER = 2
+HISTORY_QUIET_S = 0.01     # wall: the liveliness history is in once no token came for this long
 # The survey stop sends each pair in a call of its own, so a dispatch's own load count starts at
 # zero every time: ties are broken by a turn that moves on with each dispatch of this process,
 # or every pair would go to the same worker (measured: one of two workers did 1 % of a grow-out's).
@@ -161,7 +162,17 @@ class _Dispatch:
                 self._handle(self.events.get(timeout=left))
             except queue.Empty:
                 return False
-        return True
+        # the other workers' tokens of the liveliness history come in one by one: taken as they
+        # are until a quiet spell, or the first worker heard would get every job of a dispatch
+        # (the survey stop makes one a pair, so its turns would not share the pairs out)
+        quiet_until = min(deadline, time.monotonic() + HISTORY_QUIET_S)
+        while (left := quiet_until - time.monotonic()) > 0:
+            try:
+                self._handle(self.events.get(timeout=left))
+            except queue.Empty:
+                break
+            quiet_until = min(deadline, time.monotonic() + HISTORY_QUIET_S)
+        return bool(self.usable())
 
     def _exclude(self, worker: str, why: str) -> None:
         if worker not in self.excluded:
