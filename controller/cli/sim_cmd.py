@@ -121,8 +121,8 @@ class DemandsHeard:
         return self.heard.get(tank, -math.inf)
 
     def _open(self) -> None:
-        from controller.cli.worker_cmd import _open
-        session = _open(self.connect, None, None, self._stop, "fishfarm sim --hear")
+        from controller.cli.worker_cmd import open_client
+        session = open_client(self.connect, None, None, self._stop, "fishfarm sim --hear")
         if session is None:
             return
         self.session = session

@@ -56,7 +56,7 @@ def _from_config(path: str, connect: str | None, site: str | None) -> tuple[str 
     return connect, site or cfg.site
 
 
-def _open(connect: str, user, password, stop: threading.Event, who: str = "fishfarm worker"):
+def open_client(connect: str, user, password, stop: threading.Event, who: str = "fishfarm worker"):
     """A client session, retried every RETRY_S while nobody listens at ``connect``."""
     import zenoh
 
@@ -110,7 +110,7 @@ def worker(connect, site, config_path, worker_id, cpu, user, password, duration,
         timer = threading.Timer(duration, stop.set)
         timer.daemon = True
         timer.start()
-    session = _open(connect, user, password, stop)
+    session = open_client(connect, user, password, stop)
     if session is None:
         return 0
     served = None

@@ -25,8 +25,11 @@ from __future__ import annotations
 import asyncio
 import math
 
-LEAD_S = 5.0             # farm s of slow time before an episode's first contact (the start is exact: a
-                         # later one only comes of deaths lowering the appetite, which errs late)
+LEAD_S = 5.0             # farm s of slow time before an episode's first contact (the start is exact
+                         # between meals but for deaths: they lower the appetite and, with meals_per_day,
+                         # the hunger that starts an episode with it, which brings the start a little
+                         # earlier -- at 0.05 %/day well under a second an hour, inside this lead while
+                         # the pacer looks every PERIOD_S)
 PERIOD_S = 0.005         # wall s between looks
 ATTENTION_S = 180.0      # farm s fish asking hold the clock slow after their start or last meal
 
