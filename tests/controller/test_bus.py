@@ -445,7 +445,14 @@ def test_a_stalled_subscriber_never_blocks_a_reliable_publish(loop):
         assert time.monotonic() - started < 2.0          # ~6 MB queued behind a stall, never waited for
         release.set()
         assert server.flush(WAIT_S)
-        assert wait_for(lambda: len(got) == n) and got == list(range(n))
+        # a loaded machine may deliver slowly: fail on loss (no progress for WAIT_S), not on pace
+        while len(got) < n:
+            seen = len(got)
+            if not wait_for(lambda seen=seen: len(got) > seen):
+                break
+        missing = sorted(set(range(n)) - set(got))
+        assert got == list(range(n)), (f"{len(got)} of {n} delivered, in order: {got == sorted(got)}; "
+                                       f"missing {len(missing)} from {missing[:1]} to {missing[-1:]}")
     finally:
         release.set()
         stalled.close()
