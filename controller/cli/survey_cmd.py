@@ -209,4 +209,7 @@ def survey(calib_path, species, setup, pairs, rgs, directory, video, rg_video, e
     w = summary["weight_g"]
     mean = "n/a" if w["mean"] is None else f"{w['mean']:.1f} g"
     ci = "" if not w["ci"] else f" (95 % CI {w['ci'][0]:.1f}-{w['ci'][1]:.1f})"
-    click.echo(f"{summary['count']} fish in {summary['frames']} pairs: mean weight {mean}{ci}", err=True)
+    rejected = summary["rejected_lengths_cm"]
+    shown = ", ".join(f"{x:.1f}" for x in rejected[:5]) + (" ..." if len(rejected) > 5 else "")
+    left_out = f"; {len(rejected)} left out as measuring errors ({shown} cm)" if rejected else ""
+    click.echo(f"{summary['count']} fish in {summary['frames']} pairs: mean weight {mean}{ci}{left_out}", err=True)

@@ -76,13 +76,16 @@ class SurveyFiles:
                    *entry["snout_px"][0], *entry["snout_px"][1], *entry["fork_px"][0], *entry["fork_px"][1]]
             self._csv.write(",".join("" if v is None else str(v) for v in row) + "\n")
 
-    def finish(self, head: dict, tail: dict) -> None:
-        """OUT.json = ``head`` fields, the spooled ``fish`` list, then ``tail`` fields."""
+    def finish(self, head: dict, tail: dict, outlier_tracks: set[int] = frozenset()) -> None:
+        """OUT.json = ``head`` fields, the spooled ``fish`` list (each entry's ``outlier``: its
+        track is in ``outlier_tracks``), then ``tail`` fields."""
         out = self._out
         out.write("{" + json.dumps(head, allow_nan=False)[1:-1] + ',\n "fish": [')
         self._spool.seek(0)
         for i, line in enumerate(self._spool):
-            out.write(("\n  " if i == 0 else ",\n  ") + line.rstrip("\n"))
+            entry = json.loads(line)
+            entry["outlier"] = entry["track"] in outlier_tracks
+            out.write(("\n  " if i == 0 else ",\n  ") + json.dumps(entry, allow_nan=False))
         out.write("\n ],\n " + json.dumps(tail, allow_nan=False, indent=1)[1:].lstrip() + "\n")
         out.close()
         os.replace(self._tmp_path, self.json_path)

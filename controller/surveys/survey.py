@@ -5,6 +5,9 @@ Weights are W = a L^b with the species' (or the stock's) coefficients. The stati
 entry per fish in independent stills, and one per track in video: a fish lingering in front of
 the cameras for 50 frames counts once, at the robust mean of its sightings' lengths
 (vision.tracking.FishTracker). The ``fish`` list stays per frame, each entry with its ``track``.
+A length the survey's others make implausible (vision.survey_stats.implausible: a stereo match gone
+wrong) is left out of the statistics, as the controller's survey stop does: OUT.json lists it in
+``rejected_lengths_cm`` and marks its entries ``outlier``.
 """
 from __future__ import annotations
 
@@ -19,7 +22,7 @@ from controller.surveys.outputs import SurveyFiles, fish_entry
 from controller.surveys.runner import MEASURE, Measure, PairResult, measure_all
 from controller.surveys.species import SurveySpecies
 from vision.calib_file import StereoCalibration
-from vision.survey_stats import summarise
+from vision.survey_stats import implausible, summarise
 from vision.survey_types import SurveySetup
 
 
@@ -71,13 +74,20 @@ class _Tracks:
         self.lengths.extend(f.length_cm for f in fish)
         return list(range(first, first + len(fish)))
 
-    def lengths_cm(self) -> np.ndarray:
+    def lengths_cm(self) -> tuple[np.ndarray, np.ndarray]:
+        """(ids, lengths) of the entries the statistics may use: every fish in stills, the
+        confirmed tracks in video; lengths that are not a positive number left out."""
         if self.tracker is not None:
             tracks = self.tracker.finish()
             self.tracks_seen = len(tracks)
-            return np.array([t.length_cm for t in tracks if len(t.frames) >= self.min_sightings], dtype=float)
-        self.tracks_seen = len(self.lengths)
-        return np.asarray(self.lengths, dtype=float)
+            kept = [t for t in tracks if len(t.frames) >= self.min_sightings]
+            ids = np.array([int(t.id) for t in kept], dtype=int)
+            lengths = np.array([t.length_cm for t in kept], dtype=float)
+        else:
+            self.tracks_seen = len(self.lengths)
+            ids, lengths = np.arange(len(self.lengths)), np.asarray(self.lengths, dtype=float)
+        usable = np.isfinite(lengths) & (lengths > 0)
+        return ids[usable], lengths[usable]
 
 
 def _results(source: Source, calib: StereoCalibration, opts: SurveyOptions):
@@ -110,8 +120,9 @@ def run_survey(source: Source, calib: StereoCalibration, opts: SurveyOptions,
             if opts.on_pair:
                 opts.on_pair(result)
         wall = time.perf_counter() - started
-        lengths = tracks.lengths_cm()
-        lengths = lengths[np.isfinite(lengths) & (lengths > 0)]
+        ids, lengths = tracks.lengths_cm()
+        far = implausible(lengths)
+        rejected, lengths = lengths[far], lengths[~far]
         stats = summarise(lengths, weight.weight_g(lengths), rng=np.random.default_rng(opts.seed))
         if opts.record is not None:
             opts.record(lengths, weight.weight_g(lengths))
@@ -121,11 +132,11 @@ def run_survey(source: Source, calib: StereoCalibration, opts: SurveyOptions,
                 "statistics_per": tracks.per, "fish_entries": files.entries,
                 "tracks": {"seen": tracks.tracks_seen, "min_sightings": tracks.min_sightings},
                 "species_name": opts.species.name, "coefficients": opts.species.coefficients(),
-                "seed": opts.seed,
+                "seed": opts.seed, "rejected_lengths_cm": [round(float(x), 2) for x in rejected],
                 "stage_ms": {k: round(1e3 * v / frames, 3) for k, v in sorted(stage_s.items())} if frames else {},
                 "wall_s": round(wall, 3), "pairs_per_s": round(frames / wall, 2) if wall > 0 and frames else None,
                 **opts.extra}
-        files.finish(head, tail)
+        files.finish(head, tail, outlier_tracks={int(i) for i in ids[far]})
     finally:
         files.close()
     return {**head, **tail}

@@ -210,3 +210,22 @@ def test_a_survey_recorded_for_a_tank_sets_its_ration(farm, tmp_path):
     (tmp_path / "farm.toml").write_text(tomli_w.dumps(raw))
     bad = run(*common(d, "--dir", d / "pairs", "--json", tmp_path / "y.json", "--config", cfg_path, "--tank", "T1"))
     assert bad.returncode == 2 and "T1 holds dicentrarchus_labrax, not sparus_aurata" in bad.stderr
+
+
+def test_a_wild_length_is_left_out_and_said(farm, tmp_path):
+    d, _ = farm
+    rig = convergent_rig()
+    lengths_mm = [100.0, 104.0, 108.0, 112.0, 250.0]        # one 2.3x the median: two fish taken for one
+    (tmp_path / "pairs").mkdir()
+    for i, length in enumerate(lengths_mm):
+        axis = np.array([1.0, 0.0, 0.0])
+        fish = [(rig.target + axis * length / 2, rig.target - axis * length / 2)]
+        for side, img in zip("LR", standin.draw_fish(rig, fish), strict=True):
+            cv2.imwrite(str(tmp_path / "pairs" / f"p{i}_{side}.png"), img)
+    r = run(*common(d, "--dir", tmp_path / "pairs", "--json", tmp_path / "out.json"))
+    assert r.returncode == 0, r.stderr
+    doc = json.loads((tmp_path / "out.json").read_text())
+    assert doc["count"] == 4 and doc["rejected_lengths_cm"] == [pytest.approx(25.0, abs=0.1)]
+    assert [f["outlier"] for f in sorted(doc["fish"], key=lambda f: f["length_cm"])] == [False] * 4 + [True]
+    assert doc["length_cm"]["mean"] == pytest.approx(np.mean(lengths_mm[:4]) / 10, abs=0.05)
+    assert "4 fish in 5 pairs" in r.stderr and "1 left out as measuring errors (25.0 cm)" in r.stderr

@@ -148,3 +148,38 @@ def test_video_statistics_use_one_entry_per_track(tmp_path, monkeypatch):
     truth = sorted(np.linalg.norm(s - f) / 10 for s, f in fish)
     assert sorted(doc["length_cm"]["histogram"]["edges"])[0] <= truth[0]
     assert doc["length_cm"]["mean"] == pytest.approx(np.mean(truth), rel=0.02)   # MJPG blurs the dots a little
+
+
+def test_implausible_lengths_are_left_out_of_the_statistics_and_marked(tmp_path):
+    """The controller's rule (vision.survey_stats.implausible) holds for `fishfarm survey` too: the
+    statistics, the recorded lengths and the count leave them out; OUT.json lists and marks them."""
+    from controller.surveys.frames import PairJob
+    from vision.survey_stats import PLAUSIBLE_LONG, PLAUSIBLE_SHORT
+    levels = [10, 11, 12, 13, 30, 3]                    # slow_by_level: one fish a pair, level cm long
+    median = float(np.median(levels))
+    wild = {lv for lv in levels if not PLAUSIBLE_SHORT * median <= lv <= PLAUSIBLE_LONG * median}
+    assert wild == {30, 3}                              # one past each end of the band
+    jobs = (PairJob(i, f"p{i}", left=np.full((4, 4), lv, np.uint8), right=np.full((4, 4), lv, np.uint8))
+            for i, lv in enumerate(levels))
+    calib = convergent_rig(image_size=(4, 4)).calibration()
+    recorded = []
+    summary = run_survey(Source(jobs, None), calib,
+                         options(f"{STANDIN}:slow_by_level", record=lambda ls, ws: recorded.append(list(ls))),
+                         str(tmp_path / "o.json"))
+    doc = json.loads((tmp_path / "o.json").read_text())
+    kept = [lv for lv in levels if lv not in wild]
+    assert doc["count"] == summary["count"] == len(kept)
+    assert doc["length_cm"]["mean"] == pytest.approx(np.mean(kept), abs=0.01)
+    assert sorted(doc["rejected_lengths_cm"]) == sorted(wild)
+    assert {f["length_cm"]: f["outlier"] for f in doc["fish"]} == {lv: lv in wild for lv in levels}
+    assert recorded == [pytest.approx(kept)]
+
+
+def test_two_fish_are_never_judged_by_each_other(tmp_path):
+    from controller.surveys.frames import PairJob
+    jobs = (PairJob(i, f"p{i}", left=np.full((4, 4), lv, np.uint8), right=np.full((4, 4), lv, np.uint8))
+            for i, lv in enumerate([5, 39]))
+    run_survey(Source(jobs, None), convergent_rig(image_size=(4, 4)).calibration(),
+               options(f"{STANDIN}:slow_by_level"), str(tmp_path / "o.json"))
+    doc = json.loads((tmp_path / "o.json").read_text())
+    assert doc["count"] == 2 and doc["rejected_lengths_cm"] == [] and not any(f["outlier"] for f in doc["fish"])
