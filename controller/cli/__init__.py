@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import importlib
 import os
+import signal
 import sys
 
 import click
@@ -87,7 +88,17 @@ def main(argv=None) -> int:
         return 1
 
 
+def _terminated(signum, _frame) -> None:
+    """SIGTERM or SIGHUP ends a command as Ctrl-C does, through its clean-up (a survey's workers
+    stopped, no half-written output left); a second one ends it at once. Commands that serve
+    (run, sim, worker) install their own handlers over this one."""
+    signal.signal(signum, signal.SIG_DFL)
+    raise SystemExit(128 + signum)
+
+
 def entry() -> None:
+    for sig in (signal.SIGTERM, signal.SIGHUP):
+        signal.signal(sig, _terminated)
     sys.exit(main())
 
 

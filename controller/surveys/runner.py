@@ -5,17 +5,26 @@ the pairs are the parallelism, and OpenCV's own threads would only fight over th
 At most ``2 x workers`` pairs are in flight, so memory stays flat whatever the length of the
 footage; results are yielded strictly in frame order (the tracker needs them in order).
 
+A survey that ends early (a signal, a bad frame, its consumer gone) terminates its workers rather
+than waiting for the pairs they hold; a survey process killed outright (SIGKILL: no chance to)
+is outlived by none: each worker watches it and exits once it is gone (a worker's parent is the
+forkserver, so the kernel's parent-death signal cannot say it), and the shared frames are a file
+without a name, gone with the last process that maps it.
+
 ``measure`` is the per-pair function, ``vision.survey.measure_pair`` unless a test or a caller
 hands another with the same signature (a "module:function" string or a top-level function: it
 travels to the workers by name).
 """
 from __future__ import annotations
 
+import contextlib
 import importlib
 import math
 import multiprocessing
 import os
+import select
 import tempfile
+import threading
 import time
 from collections import deque
 from collections.abc import Callable, Iterable, Iterator
@@ -94,9 +103,16 @@ class FrameRing:
 
     def _open(self, slot_bytes: int) -> None:
         where = "/dev/shm" if os.path.isdir("/dev/shm") else None
-        self.file = tempfile.NamedTemporaryFile(prefix="fishfarm-survey-", dir=where)
+        # a file with no name, reached through this process's descriptor: nothing is left behind
+        # in /dev/shm whenever this process dies (SIGKILL included); a named one where no /proc
+        self.file = tempfile.TemporaryFile(prefix="fishfarm-survey-", dir=where)
+        self.path = f"/proc/{os.getpid()}/fd/{self.file.fileno()}"
+        if not os.path.exists(self.path):
+            self.file.close()
+            self.file = tempfile.NamedTemporaryFile(prefix="fishfarm-survey-", dir=where)
+            self.path = self.file.name
         self.file.truncate(self.slots * slot_bytes)
-        self.map = np.memmap(self.file.name, np.uint8, "r+", shape=(self.slots, slot_bytes))
+        self.map = np.memmap(self.file, np.uint8, "r+", shape=(self.slots, slot_bytes))
 
     def put(self, job: PairJob) -> PairJob:
         left, right = np.ascontiguousarray(job.left), np.ascontiguousarray(job.right)
@@ -111,7 +127,7 @@ class FrameRing:
         row[:left.nbytes] = left.reshape(-1)
         row[left.nbytes:size] = right.reshape(-1)
         return PairJob(job.frame, job.where, job.paths, read_s=job.read_s,
-                       shared=(self.file.name, slot * self.map.shape[1], left.shape, right.shape))
+                       shared=(self.path, slot * self.map.shape[1], left.shape, right.shape))
 
     def close(self) -> None:
         if self.file is not None:
@@ -123,10 +139,48 @@ _work: PairWork | None = None
 _maps: dict[str, np.memmap] = {}
 
 
-def _init_worker(calib, setup, measure) -> None:
+def _init_worker(calib, setup, measure, survey_pid: int | None = None) -> None:
     global _work
     cv2.setNumThreads(1)
     _work = PairWork(calib, setup, measure)
+    if survey_pid is not None:
+        threading.Thread(target=_outlive_no_survey, args=(survey_pid,), name="survey-watch", daemon=True).start()
+
+
+def _outlive_no_survey(pid: int) -> None:
+    """Return never; end this worker once process ``pid`` is gone."""
+    try:
+        fd = os.pidfd_open(pid)            # readable when the process ends; no pid reuse to fear
+    except ProcessLookupError:
+        fd = -1
+    except (AttributeError, OSError):      # no pidfd (not Linux 5.3+): ask every second
+        fd = None
+    if fd is None:
+        while _alive(pid):
+            time.sleep(1.0)
+    elif fd >= 0:
+        select.select([fd], [], [])
+    os._exit(0)
+
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    return True
+
+
+def _stop_workers(pool: ProcessPoolExecutor) -> None:
+    """Terminate a pool's workers now, whatever they hold (3.14 says it: terminate_workers)."""
+    if hasattr(pool, "terminate_workers"):
+        pool.terminate_workers()
+        return
+    for proc in list((getattr(pool, "_processes", None) or {}).values()):
+        with contextlib.suppress(Exception):
+            proc.terminate()
 
 
 def _run(job: PairJob) -> PairResult:
@@ -177,9 +231,10 @@ def measure_all(jobs: Iterable[PairJob], calib: StereoCalibration, setup: Survey
     for var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
         os.environ.setdefault(var, "1")
     pool = ProcessPoolExecutor(workers, mp_context=ctx, initializer=_init_worker,
-                               initargs=(calib, setup, measure))
+                               initargs=(calib, setup, measure, os.getpid()))
     pending: deque = deque()
     ring = FrameRing(2 * workers)
+    finished = False
     try:
         for job in jobs:
             pending.append(pool.submit(_run, ring.put(job) if job.left is not None else job))
@@ -187,8 +242,11 @@ def measure_all(jobs: Iterable[PairJob], calib: StereoCalibration, setup: Survey
                 yield pending.popleft().result()
         while pending:
             yield pending.popleft().result()
+        finished = True
     finally:
         for f in pending:
             f.cancel()
-        pool.shutdown(wait=True, cancel_futures=True)
+        if not finished:            # abandoned: the pairs in flight are not waited for
+            _stop_workers(pool)
+        pool.shutdown(wait=finished, cancel_futures=True)
         ring.close()

@@ -109,8 +109,9 @@ def run_survey(source: Source, calib: StereoCalibration, opts: SurveyOptions,
     stage_s: dict[str, float] = {}
     frames = 0
     started = time.perf_counter()
+    results = _results(source, calib, opts)
     try:
-        for result in _results(source, calib, opts):
+        for result in results:
             frames += 1
             for stage, s in result.timings.items():
                 stage_s[stage] = stage_s.get(stage, 0.0) + s
@@ -138,5 +139,8 @@ def run_survey(source: Source, calib: StereoCalibration, opts: SurveyOptions,
                 **opts.extra}
         files.finish(head, tail, outlier_tracks={int(i) for i in ids[far]})
     finally:
+        close = getattr(results, "close", None)
+        if close is not None:           # a survey ended early stops its workers now, not when collected
+            close()
         files.close()
     return {**head, **tail}

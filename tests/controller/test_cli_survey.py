@@ -1,9 +1,12 @@
 """``fishfarm survey`` as outside scripts run it: a subprocess, images in, OUT.json out. The per-pair
 pipeline is a stand-in (hidden --measure) reading fish drawn as dots at their true projections."""
+import contextlib
 import json
 import os
+import signal
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import cv2
@@ -229,3 +232,82 @@ def test_a_wild_length_is_left_out_and_said(farm, tmp_path):
     assert [f["outlier"] for f in sorted(doc["fish"], key=lambda f: f["length_cm"])] == [False] * 4 + [True]
     assert doc["length_cm"]["mean"] == pytest.approx(np.mean(lengths_mm[:4]) / 10, abs=0.05)
     assert "4 fish in 5 pairs" in r.stderr and "1 left out as measuring errors (25.0 cm)" in r.stderr
+
+
+def _marked(mark: str) -> list[int]:
+    """Processes whose environment carries FISHFARM_TEST_MARK=mark: a survey, its forkserver, its workers."""
+    out = []
+    for entry in Path("/proc").iterdir():
+        if entry.name.isdigit():
+            try:
+                if f"FISHFARM_TEST_MARK={mark}".encode() in (entry / "environ").read_bytes().split(b"\0"):
+                    out.append(int(entry.name))
+            except OSError:             # gone meanwhile, or not ours to read
+                pass
+    return out
+
+
+def _shared_frames(pids: list[int]) -> set[str]:
+    """The survey's shared-memory frame files (/dev/shm, not multiprocessing's semaphores) that the
+    processes ``pids`` have mapped, as /proc/PID/maps names them ("... (deleted)": no name left)."""
+    out = set()
+    for pid in pids:
+        with contextlib.suppress(OSError):
+            out |= {line.split(None, 5)[-1] for line in Path(f"/proc/{pid}/maps").read_text().splitlines()
+                    if "/dev/shm/" in line and "/dev/shm/sem." not in line}
+    return out
+
+
+def _until(condition, timeout_s: float = 30.0) -> bool:
+    deadline = time.monotonic() + timeout_s
+    while not condition():
+        if time.monotonic() > deadline:
+            return False
+        time.sleep(0.02)
+    return True
+
+
+@pytest.fixture
+def hanging_survey(farm, tmp_path):
+    """`fishfarm survey` of an RG video (frames decoded here, handed over in shared memory) whose 2
+    workers hang in every pair; yields (process, out.json path, mark) once the workers hold frames."""
+    d, _ = farm
+    frame = cv2.imread(str(d / "rg0.png"))
+    writer = cv2.VideoWriter(str(tmp_path / "rg.mp4"), cv2.VideoWriter_fourcc(*"mp4v"), 25.0,
+                             (frame.shape[1], frame.shape[0]))
+    for _ in range(20):
+        writer.write(frame)
+    writer.release()
+    mark = f"{os.getpid()}-{time.monotonic_ns()}"
+    env = {**os.environ, "PYTHONPATH": str(ROOT), "FISHFARM_TEST_HANG": "1", "FISHFARM_TEST_MARK": mark}
+    out = tmp_path / "o.json"
+    p = subprocess.Popen([FISHFARM, "survey", *map(str, common(d, "--rg-video", tmp_path / "rg.mp4", "--json", out,
+                                                               "--workers", "2")),
+                          "--measure", "tests.controller.surveys.standin:measure_or_hang"],
+                         stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, env=env)
+    try:
+        assert _until(lambda: _shared_frames([q for q in _marked(mark) if q != p.pid])), "no worker took a frame"
+        yield p, out, mark
+    finally:
+        for pid in _marked(mark):
+            with contextlib.suppress(OSError):
+                os.kill(pid, signal.SIGKILL)
+        p.wait(10)
+
+
+@pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGHUP, signal.SIGINT])
+def test_a_signal_ends_a_survey_at_once_its_workers_with_it_and_leaves_no_output(hanging_survey, sig):
+    p, out, mark = hanging_survey
+    p.send_signal(sig)
+    assert p.wait(10) == 128 + sig                  # not waiting an hour for the pairs in flight
+    assert _until(lambda: not _marked(mark)), "a worker outlived its survey"
+    assert not out.exists() and not out.with_name(out.name + ".part").exists()
+
+
+def test_a_survey_killed_outright_is_outlived_by_no_worker_nor_its_shared_frames(hanging_survey):
+    p, _, mark = hanging_survey
+    frames = _shared_frames(_marked(mark))
+    assert frames and all(f.endswith("(deleted)") for f in frames), frames     # nothing named to leave behind
+    p.kill()
+    assert p.wait(10) == -signal.SIGKILL
+    assert _until(lambda: not _marked(mark)), "a worker outlived its survey"
