@@ -2,6 +2,7 @@
 setup. Pure computation; reading frames, config and writing results is the command line's job."""
 from __future__ import annotations
 
+import cv2
 import numpy as np
 
 from vision.calib_file import StereoCalibration
@@ -15,6 +16,7 @@ def measure_pair(left: np.ndarray, right: np.ndarray, calib: StereoCalibration, 
     ``timings``, if given, receives seconds spent per stage (added to what it holds)."""
     if left.shape[:2] != right.shape[:2]:
         raise ValueError(f"left and right images differ in size: {left.shape[:2]} vs {right.shape[:2]}")
+    left, right = same_kind(left, right)
     if setup.setup == "underwater":
         from vision.underwater import measure_underwater
         return measure_underwater(left, right, calib, setup, timings)
@@ -22,3 +24,29 @@ def measure_pair(left: np.ndarray, right: np.ndarray, calib: StereoCalibration, 
         from vision.surface import measure_surface
         return measure_surface(left, right, calib, setup, timings)
     raise ValueError(f"unknown setup {setup.setup!r}")
+
+
+def _plain(img: np.ndarray) -> np.ndarray:
+    """Grey (H, W) or BGR (H, W, 3): a single channel squeezed, an alpha channel dropped."""
+    img = np.asarray(img)
+    if img.ndim == 3 and img.shape[2] == 1:
+        return img[..., 0]
+    if img.ndim == 3 and img.shape[2] == 4:
+        return np.ascontiguousarray(img[..., :3])
+    if img.ndim not in (2, 3) or (img.ndim == 3 and img.shape[2] != 3):
+        raise ValueError(f"expected a grey (H, W) or colour (H, W, 3) image, got shape {img.shape}")
+    return img
+
+
+def same_kind(left: np.ndarray, right: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The pair as two images of one kind: where one camera gives grey and the other colour (a mono
+    and a colour camera, or one view saved as grey), both are measured grey -- patches compared
+    across the views must have the same channels."""
+    left, right = _plain(left), _plain(right)
+    if left.ndim == right.ndim:
+        return left, right
+    return _grey(left), _grey(right)
+
+
+def _grey(img: np.ndarray) -> np.ndarray:
+    return img if img.ndim == 2 else cv2.cvtColor(img, cv2.COLOR_BGR2GRAY)
