@@ -169,7 +169,7 @@ def _remote(endpoint: str, site: str, user: str | None, password: str | None):
 @click.option("--site", default="demo", show_default=True, help="farm site of the vision workers (--workers ENDPOINT)")
 @click.option("--user", default=None, help="Zenoh user name at --workers ENDPOINT (a deployment's router)")
 @click.option("--password", default=None, help="its Zenoh password")
-@click.option("--seed", type=int, default=1, show_default=True, help="seed of the bootstrap interval")
+@click.option("--seed", type=click.IntRange(min=0), default=1, show_default=True, help="seed of the bootstrap interval")
 @click.option("--measure", default=None, hidden=True, help="module:function measuring a pair (tests)")
 def survey(calib_path, species, setup, pairs, rgs, directory, video, rg_video, every, max_frames, json_path,
            plot_path, csv_path, config_path, stock, tank_id, up, workers, site, user, password, seed, measure):

@@ -105,6 +105,14 @@ def test_unknown_species_lists_the_known_ones(farm):
     one_line_exit_2(r, "--species", "unknown species 'tuna'", "sparus_aurata", "salmo_salar")
 
 
+@pytest.mark.parametrize("option, value", [("--seed", "-1"), ("--every", "0"), ("--max-frames", "-3"),
+                                           ("--workers", "0"), ("--up", "0,0,0"), ("--up", "nan,0,1")])
+def test_out_of_range_options_exit_2_naming_the_option(farm, option, value):
+    d, _ = farm
+    r = run(*common(d, "--dir", d / "pairs", "--json", d / "x.json", option, value))
+    one_line_exit_2(r, option, value)
+
+
 def test_pairs_of_different_sizes(farm, tmp_path):
     d, _ = farm
     small = tmp_path / "small.png"
