@@ -12,6 +12,7 @@ the ledger only; a running controller may keep writing it. Bad input exits 2 wit
 from __future__ import annotations
 
 import json
+import math
 import time
 from pathlib import Path
 
@@ -69,8 +70,8 @@ def report(tank_id, since, target_g, png_path, as_json, config_path) -> None:
     cfg = load_config(config_path)
     if tank_id not in {t.id for t in cfg.tanks}:
         raise BadInput(config_path, "--tank", f"no tank {tank_id!r} (tanks: {', '.join(t.id for t in cfg.tanks)})")
-    if target_g is not None and not target_g > 0:
-        raise BadInput("--target", None, f"must be a weight above 0 g, not {target_g:g}")
+    if target_g is not None and not 0 < target_g < math.inf:
+        raise BadInput("--target", None, f"must be a finite weight above 0 g, not {target_g:g}")
     start = parse_since(since, time.time()) if since else None
     if not Path(cfg.store.path).exists():
         raise BadInput(cfg.store.path, None, "no ledger there (the controller has not run with this config)")

@@ -117,7 +117,10 @@ def test_a_spread_stock_is_flagged_for_grading(farm, capsys):
 @pytest.mark.parametrize(("args", "fault"), [
     (["--tank", "T99"], "--tank: no tank 'T99'"),
     (["--tank", "T1", "--since", "yesterdayish"], "--since"),
-    (["--tank", "T1", "--target", "-5"], "--target: must be a weight above 0 g"),
+    (["--tank", "T1", "--target", "-5"], "--target: must be a finite weight above 0 g, not -5"),
+    (["--tank", "T1", "--target", "0"], "--target: must be a finite weight above 0 g, not 0"),
+    (["--tank", "T1", "--target", "inf"], "--target: must be a finite weight above 0 g, not inf"),
+    (["--tank", "T1", "--target", "nan"], "--target: must be a finite weight above 0 g, not nan"),
 ])
 def test_bad_input_is_one_line_and_exit_2(farm, capsys, args, fault):
     path, _ = farm
