@@ -86,6 +86,10 @@ def query_reply(store, cfg, key: str, params: dict, now: float) -> dict:
     tanks = [t.id for t in cfg.tanks]
     if tank not in tanks:
         return {"ok": False, "error": f"no tank {tank!r} (tanks: {', '.join(tanks)})"}
+    glued = [k for k, v in params.items() if isinstance(v, str) and "&" in v and "=" in v]
+    if glued:           # a URL's habit: Zenoh took "7d&until=1d" for the value of since
+        return {"ok": False, "error": f"{glued[0]}: {params[glued[0]]!r}: a selector's parameters are "
+                                      "separated by ';', not '&' (since=7d;until=2026-07-01)"}
     unknown = sorted(set(params) - {"since", "until"})
     if unknown:
         return {"ok": False, "error": f"unknown parameter {unknown[0]!r}: since, until"}

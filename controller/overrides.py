@@ -79,7 +79,7 @@ class Overrides:
         bus.overrides(handlers, lenient=("estop",), urgent={"estop": lambda: self.c.trip_estop("operator e-stop")},
                       refused=self.refused_on_wire)
         bus.queryable("status", self.status, lenient=True)
-        bus.queryable("history/*/*", self.history, lenient=True, selector=True)
+        bus.queryable("history/*/*", self.history, selector=True)     # a range it cannot read: refused, not ignored
 
     def _from_zenoh(self, command: str):
         async def handle(payload, user: str | None = None) -> dict:

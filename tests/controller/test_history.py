@@ -65,7 +65,8 @@ def test_the_queryable_s_answers_and_refusals(ledger):
                                ("history/weather/T1", {}, "'weather' is not one of surveys, fish"),
                                ("history/surveys/T1", {"from": "x"}, "unknown parameter 'from'"),
                                ("history/surveys/T1", {"since": "last tuesday"}, "since: 'last tuesday'"),
-                               ("history/surveys/T1", {"until": "7d"}, "until: '7d' is not an ISO time")]:
+                               ("history/surveys/T1", {"until": "7d"}, "until: '7d' is not an ISO time"),
+                               ("history/surveys/T1", {"since": "7d&until=1d"}, "separated by ';', not '&'")]:
         reply = query_reply(ledger, cfg, key, params, T)
         assert reply["ok"] is False and fault in reply["error"], (key, reply)
 

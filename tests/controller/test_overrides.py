@@ -19,7 +19,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from controller.alarms import TEXT_MAX
-from controller.bus import Bus
+from controller.bus import Bus, decode
 from controller.config import BusConfig
 from controller.override_models import COUNT_MAX, SOURCE_MAX
 from controller.overrides import OPERATOR_MAX, RATION_MAX_G, REASON_MAX, Overrides
@@ -343,3 +343,8 @@ def test_the_history_queryable_serves_the_ledger_over_zenoh(served):
     assert client.query("history/fish/T1?since=30m")[0]["rows"] == []
     [refused] = client.query("history/fish/T9")
     assert refused["ok"] is False and "no tank 'T9'" in refused["error"]
+    assert client.query("history/fish/T1", {"since": "30m"})[0]["rows"] == []      # the range in the payload
+    for garbage in (b"since=2h", b"[1, 2]", b"\xff\xfe"):     # a range it cannot read is refused, not ignored
+        [reply] = client.session.get(client.key("history/fish/T1"), payload=garbage, timeout=2.0)
+        answer = decode(reply.ok.payload)
+        assert answer["ok"] is False and answer["error"], (garbage, answer)
