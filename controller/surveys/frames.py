@@ -62,10 +62,25 @@ def _imread(path: str, flags: int = cv2.IMREAD_ANYCOLOR) -> np.ndarray:
         raise BadInput(path, None, "is a directory, expected an image")
     if p.stat().st_size == 0:
         raise BadInput(path, None, "empty file")
-    img = cv2.imread(path, flags)
-    if img is None or img.size == 0:
-        raise BadInput(path, None, f"not a readable image ({IMAGE_KINDS} expected)")
-    return img
+    try:
+        data = p.read_bytes()
+    except OSError as exc:
+        raise BadInput(path, None, f"cannot be read: {exc.strerror or exc}") from None
+    return _imdecode(data, path, flags)
+
+
+def _truncated(data: bytes) -> str | None:
+    """Why an image file was cut short, or None. OpenCV decodes a JPEG cut in the middle of its
+    scan as far as it goes (the rest grey) with only libjpeg's note on stderr, and a survey would
+    measure that; a cut PNG fails with libpng's line on stderr beside ours."""
+    if data[:2] == b"\xff\xd8":
+        # in a scan 0xFF is always followed by 0x00 or a restart marker: FF D9 after the last
+        # start of scan is the end of the image, wherever an EXIF thumbnail puts its own
+        if data.find(b"\xff\xd9", max(data.rfind(b"\xff\xda"), 0)) < 0:
+            return "truncated JPEG (no end-of-image marker after its last scan)"
+    elif data[:8] == b"\x89PNG\r\n\x1a\n" and data.rfind(b"IEND") < 0:
+        return "truncated PNG (no IEND chunk)"
+    return None
 
 
 def split_rg(img: np.ndarray, where: str) -> tuple[np.ndarray, np.ndarray, str | None]:
@@ -94,6 +109,9 @@ def check_same_size(left: np.ndarray, right: np.ndarray, left_name: str, right_n
 def _imdecode(data: bytes, name: str, flags: int = cv2.IMREAD_ANYCOLOR) -> np.ndarray:
     if not data:
         raise BadInput(name, None, "empty file")
+    why = _truncated(data)
+    if why:
+        raise BadInput(name, None, why)
     img = cv2.imdecode(np.frombuffer(data, np.uint8), flags)
     if img is None or img.size == 0:
         raise BadInput(name, None, f"not a readable image ({IMAGE_KINDS} expected)")

@@ -46,6 +46,43 @@ def test_unreadable_or_empty_images_are_named(tmp_path, content, fault):
         read_pair(job)
 
 
+def _encoded(ext: str, **params) -> bytes:
+    flags = [v for kv in params.items() for v in (getattr(cv2, kv[0]), kv[1])]
+    ok, data = cv2.imencode(ext, grey(96, 128), flags)
+    assert ok
+    return data.tobytes()
+
+
+@pytest.mark.parametrize("ext, params, fault", [
+    (".jpg", {}, "truncated JPEG"),
+    (".jpg", {"IMWRITE_JPEG_PROGRESSIVE": 1}, "truncated JPEG"),     # several scans: cut in the last
+    (".png", {}, "truncated PNG"),
+])
+@pytest.mark.parametrize("keep", [0.3, 0.6, 0.99])
+def test_an_image_cut_short_is_named_not_measured_half_grey(tmp_path, ext, params, fault, keep):
+    whole = _encoded(ext, **params)
+    a = write(tmp_path / "a.png", grey(96, 128))
+    cut = tmp_path / f"cut{ext}"
+    cut.write_bytes(whole[:max(16, int(len(whole) * keep))])
+    with pytest.raises(BadInput, match=rf"cut{ext}: {fault}"):
+        read_pair(next(still_source([(a, str(cut))]).jobs))
+
+
+def test_whole_images_with_a_thumbnail_or_a_trailer_are_read(tmp_path):
+    """An EXIF-like thumbnail (a whole JPEG, end marker and all, before the main scan) and bytes
+    after the end (camera trailers) are no truncation; the image reads as written."""
+    main = _encoded(".jpg")
+    thumb = _encoded(".jpg")
+    app1 = b"Exif\x00\x00" + thumb
+    with_thumb = main[:2] + b"\xff\xe1" + (len(app1) + 2).to_bytes(2, "big") + app1 + main[2:]
+    for name, data in (("thumb.jpg", with_thumb), ("trailer.jpg", main + b"\x00" * 64 + b"TRAILER"),
+                       ("trailer.png", _encoded(".png") + b"\x00" * 16)):
+        (tmp_path / name).write_bytes(data)
+        left, right, _ = read_pair(next(still_source([(str(tmp_path / name), str(tmp_path / name))]).jobs))
+        assert left.shape == (96, 128) and np.array_equal(left, right)
+        assert np.abs(left.astype(int) - grey(96, 128)).max() <= (0 if name.endswith(".png") else 60)
+
+
 def test_left_and_right_of_different_sizes(tmp_path):
     a, b = write(tmp_path / "a.png", grey()), write(tmp_path / "b.png", grey(50, 64))
     with pytest.raises(BadInput, match=r"b.png: 64x50 pixels, but the left image .*a.png is 64x48"):
