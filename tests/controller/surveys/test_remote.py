@@ -339,8 +339,11 @@ def test_survey_command_refuses_a_bad_workers_value(capsys):
 def test_worker_command_refuses_bad_options(capsys):
     assert fishfarm_main(["worker", "--cpu", "9999"]) == 2
     assert fishfarm_main(["worker", "--site", "a/b"]) == 2
+    for seconds in ("nan", "inf", "-1"):                # (nan would serve for ever, inf overflow the timer)
+        assert fishfarm_main(["worker", "--duration", seconds]) == 2
     err = capsys.readouterr().err.strip().splitlines()
-    assert len(err) == 2 and "--cpu" in err[0] and "--site" in err[1]
+    assert len(err) == 5 and "--cpu" in err[0] and "--site" in err[1]
+    assert all("--duration" in line and s in line for line, s in zip(err[2:], ("nan", "inf", "-1"), strict=True))
 
 
 def test_the_controller_measures_through_its_own_bus_session(rendered, workers):
