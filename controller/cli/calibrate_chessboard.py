@@ -14,6 +14,7 @@ from pathlib import Path
 
 import click
 
+from controller.cli.params import Finite
 from controller.errors import BadInput
 
 
@@ -91,7 +92,7 @@ def _report(result, lefts, rights, out: str) -> None:
 @click.option("--right", "right_glob", required=True, help="Glob of camera 2 (right) images.")
 @click.option("--pattern", default="9x6", show_default=True, callback=_pattern,
               help="Inner corners of the board, COLSxROWS.")
-@click.option("--square-mm", type=click.FloatRange(min=0, min_open=True), required=True,
+@click.option("--square-mm", type=Finite(min=0, min_open=True), required=True,
               help="Side of one square, mm.")
 @click.option("--out", required=True, type=click.Path(dir_okay=False), help="CALIB.json to write.")
 def chessboard(left_glob, right_glob, pattern, square_mm, out):

@@ -13,6 +13,7 @@ import re
 
 import click
 
+from controller.cli.params import Finite
 from controller.errors import BadInput
 from controller.text import printable
 
@@ -35,7 +36,7 @@ def _connection_options(f):
         click.option("--ca", default=None, type=click.Path(exists=True, dir_okay=False),
                      help="certificate (PEM) that signed the controller's, for a tls/HOST:PORT endpoint."),
         click.option("--site", default="demo", show_default=True, help="farm site, as in farm.toml."),
-        click.option("--timeout", "timeout_s", default=2.0, show_default=True, type=click.FloatRange(0.1, 60),
+        click.option("--timeout", "timeout_s", default=2.0, show_default=True, type=Finite(0.1, 60),
                      help="seconds to wait for the connection and for the reply."),
     ]):
         f = option(f)

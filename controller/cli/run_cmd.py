@@ -6,6 +6,7 @@ import logging
 
 import click
 
+from controller.cli.params import SPEED, Finite
 from controller.errors import BadInput
 
 
@@ -37,12 +38,12 @@ def setup_logging(clock, level: str) -> None:
 @click.command()
 @click.option("--config", "config_path", default="config/farm.toml", show_default=True,
               type=click.Path(dir_okay=False), help="farm.toml")
-@click.option("--duration", type=click.FloatRange(min=0, min_open=True), default=None,
+@click.option("--duration", type=Finite(min=0, min_open=True), default=None,
               help="stop after S farm seconds (default: run until stopped)")
-@click.option("--speed", type=click.FloatRange(min=0, min_open=True), default=1.0, show_default=True,
+@click.option("--speed", type=SPEED, default=1.0, show_default=True,
               help="simulated time runs X times faster than real time (simulated devices only)")
-@click.option("--epoch-wall", type=float, default=None, hidden=True)
-@click.option("--epoch-farm", type=float, default=None, hidden=True)
+@click.option("--epoch-wall", type=Finite(), default=None, hidden=True)
+@click.option("--epoch-farm", type=Finite(), default=None, hidden=True)
 @click.option("--clock", "clock_path", type=click.Path(dir_okay=False, exists=True), default=None, hidden=True,
               help="an elastic clock file shared with the simulator (devices/elastic_clock.py)")
 @click.option("--log-level", default="info", show_default=True,

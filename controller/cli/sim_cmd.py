@@ -17,6 +17,8 @@ from pathlib import Path
 
 import click
 
+from controller.cli.params import SPEED, Finite
+
 
 @click.command()
 @click.option("--config", "config_path", default="config/farm.toml", show_default=True,
@@ -25,9 +27,9 @@ import click
               help="write the real-driver config section of every simulated device here (JSON)")
 @click.option("--truth", type=click.Path(dir_okay=False), default=None,
               help="append the ground truth of the run here (JSON lines)")
-@click.option("--speed", type=click.FloatRange(min=0, min_open=True), default=1.0, show_default=True)
-@click.option("--epoch-wall", type=float, default=None, help="wall time at which farm time is --epoch-farm")
-@click.option("--epoch-farm", type=float, default=None)
+@click.option("--speed", type=SPEED, default=1.0, show_default=True)
+@click.option("--epoch-wall", type=Finite(), default=None, help="wall time at which farm time is --epoch-farm")
+@click.option("--epoch-farm", type=Finite(), default=None)
 @click.option("--clock", "clock_path", type=click.Path(dir_okay=False, exists=True), default=None,
               help="an elastic clock file (devices/elastic_clock.py) shared with the controller: "
                    "replaces --speed/--epoch-*")

@@ -26,6 +26,7 @@ import numpy as np
 
 from controller.cli.csvio import _read_text as read_text
 from controller.cli.csvio import number
+from controller.cli.params import Finite
 from controller.errors import BadInput
 
 HEADER = ("frame", "t_s", "file")
@@ -123,7 +124,7 @@ def replay(frames: list[tuple[int, float, Path, int]], H: np.ndarray, csv_path: 
 @click.option("--tower", "tower_path", required=True, metavar="TOWER.json", help="pixel -> pond homography")
 @click.option("--json", "json_path", required=True, metavar="OUT.json", help="the float's track, one entry a frame")
 @click.option("--lost-after", "lost_after_s", default=4.0, show_default=True,
-              type=click.FloatRange(min=0, min_open=True), metavar="S",
+              type=Finite(min=0, min_open=True), metavar="S",
               help="seconds without a fix before the float is reported lost")
 def track(frames_dir: str, tower_path: str, json_path: str, lost_after_s: float) -> None:
     """Replay tower camera frames through float detection and tracking; write the track."""

@@ -17,7 +17,6 @@ import os
 for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ.setdefault(_var, "1")          # before numpy loads: a worker is one thread of maths
 
-import math  # noqa: E402
 import re  # noqa: E402
 import signal  # noqa: E402
 import socket  # noqa: E402
@@ -27,6 +26,7 @@ import time  # noqa: E402
 
 import click  # noqa: E402
 
+from controller.cli.params import Finite  # noqa: E402
 from controller.errors import BadInput  # noqa: E402
 
 DEFAULT_CONNECT = "tcp/127.0.0.1:7447"
@@ -45,12 +45,6 @@ def _cpus(text: str | None) -> set[int] | None:
     if not cpus or not cpus <= have:
         raise BadInput("--cpu", None, f"cores {sorted(cpus)} not all available (this process may use {sorted(have)})")
     return cpus
-
-
-def _finite(seconds: float | None) -> float | None:
-    if seconds is not None and not math.isfinite(seconds):
-        raise click.BadParameter(f"{seconds} is not a number of seconds")
-    return seconds
 
 
 def _from_config(path: str, connect: str | None, site: str | None) -> tuple[str | None, str | None]:
@@ -90,8 +84,7 @@ def open_client(connect: str, user, password, stop: threading.Event, who: str = 
 @click.option("--cpu", "cpu", default=None, metavar="0[,1...]", help="pin to these CPU cores")
 @click.option("--user", default=None, help="Zenoh user name (deployments with authentication)")
 @click.option("--password", default=None, help="Zenoh password")
-@click.option("--duration", type=click.FloatRange(min=0), default=None, callback=lambda _c, _p, v: _finite(v),
-              help="serve this many seconds, then stop")
+@click.option("--duration", type=Finite(min=0), default=None, help="serve this many seconds, then stop")
 @click.option("--measure", default=None, hidden=True, help="module:function measuring a pair (tests)")
 def worker(connect, site, config_path, worker_id, cpu, user, password, duration, measure):
     """Serve stereo-pair measurements to the farm's surveys (Zenoh queryable)."""
