@@ -89,16 +89,16 @@ def main(argv=None) -> int:
 
 
 def _terminated(signum, _frame) -> None:
-    """SIGTERM or SIGHUP ends a command as Ctrl-C does, through its clean-up (a survey's workers
-    stopped, no half-written output left); a second one ends it at once. Commands that serve
-    (run, sim, worker) install their own handlers over this one."""
+    """SIGTERM ends a command as Ctrl-C does, through its clean-up (a survey's workers stopped, no
+    half-written output left); a second one ends it at once. Commands that serve (run, sim,
+    worker) install their own handlers over this one once they start. (SIGHUP keeps its default:
+    raised at a random point of a server it could leave Zenoh's threads holding the process.)"""
     signal.signal(signum, signal.SIG_DFL)
     raise SystemExit(128 + signum)
 
 
 def entry() -> None:
-    for sig in (signal.SIGTERM, signal.SIGHUP):
-        signal.signal(sig, _terminated)
+    signal.signal(signal.SIGTERM, _terminated)
     sys.exit(main())
 
 

@@ -303,7 +303,7 @@ def hanging_survey(farm, tmp_path):
         p.wait(10)
 
 
-@pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGHUP, signal.SIGINT])
+@pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGINT])
 def test_a_signal_ends_a_survey_at_once_its_workers_with_it_and_leaves_no_output(hanging_survey, sig):
     p, out, mark = hanging_survey
     p.send_signal(sig)
@@ -312,10 +312,11 @@ def test_a_signal_ends_a_survey_at_once_its_workers_with_it_and_leaves_no_output
     assert not out.exists() and not out.with_name(out.name + ".part").exists()
 
 
-def test_a_survey_killed_outright_is_outlived_by_no_worker_nor_its_shared_frames(hanging_survey):
+@pytest.mark.parametrize("sig", [signal.SIGKILL, signal.SIGHUP])     # SIGHUP: its default action
+def test_a_survey_killed_outright_is_outlived_by_no_worker_nor_its_shared_frames(hanging_survey, sig):
     p, _, mark = hanging_survey
     frames = _shared_frames(_marked(mark))
     assert frames and all(f.endswith("(deleted)") for f in frames), frames     # nothing named to leave behind
-    p.kill()
-    assert p.wait(10) == -signal.SIGKILL
+    p.send_signal(sig)
+    assert p.wait(10) == -sig
     assert _until(lambda: not _marked(mark)), "a worker outlived its survey"
