@@ -292,7 +292,9 @@ def hanging_survey(farm, tmp_path):
     p = subprocess.Popen([FISHFARM, "survey", *map(str, common(d, "--rg-video", tmp_path / "rg.mp4", "--json", out,
                                                                "--workers", "2")),
                           "--measure", "tests.controller.surveys.standin:measure_or_hang"],
-                         stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, env=env)
+                         stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, env=env,
+                         # as from a terminal, whatever this run's (nohup ignores SIGHUP for its children)
+                         preexec_fn=lambda: signal.signal(signal.SIGHUP, signal.SIG_DFL))
     try:
         assert _until(lambda: _shared_frames([q for q in _marked(mark) if q != p.pid])), "no worker took a frame"
         yield p, out, mark
