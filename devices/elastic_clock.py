@@ -110,7 +110,8 @@ def create(path: str | Path, *, slow: float, fast: float, farm_start: float,
     os.replace(tmp, path)
 
 
-def _alive(pid: int) -> bool:
+def process_alive(pid: int) -> bool:
+    """Whether process ``pid`` exists (one of another user's counts)."""
     try:
         os.kill(pid, 0)
     except ProcessLookupError:
@@ -125,7 +126,7 @@ class ElasticClock:
     shared clock file, with ``claim`` / ``busy`` / ``idle_until`` for this process's slot."""
 
     def __init__(self, path: str | Path, wall_time: Callable[[], float] = time.time,
-                 alive: Callable[[int], bool] = _alive, pause: Callable[[float], None] = time.sleep):
+                 alive: Callable[[int], bool] = process_alive, pause: Callable[[float], None] = time.sleep):
         """``wall_time``, ``alive`` (is that pid running), ``pause`` (a blocking nap): injectable for tests."""
         self.path = str(path)
         self._time, self._alive, self._pause = wall_time, alive, pause

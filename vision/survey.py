@@ -6,7 +6,7 @@ import cv2
 import numpy as np
 
 from vision.calib_file import StereoCalibration
-from vision.survey_types import FishMeasurement, SurveySetup
+from vision.survey_types import FishMeasurement, SurveySetup, plain_image
 
 
 def measure_pair(left: np.ndarray, right: np.ndarray, calib: StereoCalibration, setup: SurveySetup,
@@ -26,23 +26,11 @@ def measure_pair(left: np.ndarray, right: np.ndarray, calib: StereoCalibration, 
     raise ValueError(f"unknown setup {setup.setup!r}")
 
 
-def _plain(img: np.ndarray) -> np.ndarray:
-    """Grey (H, W) or BGR (H, W, 3): a single channel squeezed, an alpha channel dropped."""
-    img = np.asarray(img)
-    if img.ndim == 3 and img.shape[2] == 1:
-        return img[..., 0]
-    if img.ndim == 3 and img.shape[2] == 4:
-        return np.ascontiguousarray(img[..., :3])
-    if img.ndim not in (2, 3) or (img.ndim == 3 and img.shape[2] != 3):
-        raise ValueError(f"expected a grey (H, W) or colour (H, W, 3) image, got shape {img.shape}")
-    return img
-
-
 def same_kind(left: np.ndarray, right: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """The pair as two images of one kind: where one camera gives grey and the other colour (a mono
     and a colour camera, or one view saved as grey), both are measured grey -- patches compared
     across the views must have the same channels."""
-    left, right = _plain(left), _plain(right)
+    left, right = plain_image(left), plain_image(right)
     if left.ndim == right.ndim:
         return left, right
     return _grey(left), _grey(right)

@@ -15,6 +15,18 @@ import numpy as np
 Setup = Literal["underwater", "surface"]
 
 
+def plain_image(img: np.ndarray) -> np.ndarray:
+    """Grey (H, W) or BGR (H, W, 3): a single channel squeezed, an alpha channel dropped."""
+    img = np.asarray(img)
+    if img.ndim == 3 and img.shape[2] == 1:
+        return img[..., 0]
+    if img.ndim == 3 and img.shape[2] == 4:
+        return np.ascontiguousarray(img[..., :3])
+    if img.ndim not in (2, 3) or (img.ndim == 3 and img.shape[2] != 3):
+        raise ValueError(f"expected a grey (H, W) or colour (H, W, 3) image, got shape {img.shape}")
+    return img
+
+
 @dataclass(frozen=True)
 class LengthWeight:
     """W = a * L^b, L fork length in cm, W in g (the paper's section 4.3)."""

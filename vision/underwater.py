@@ -78,7 +78,7 @@ from vision.illumination import water_distance
 from vision.silhouettes import background_distance, components, outline_forks, silhouette_tips
 from vision.silhouettes import fish_masks as outline_masks
 from vision.snout import Snouts, find_snouts, refine_tips
-from vision.survey_types import FishMeasurement, SurveySetup
+from vision.survey_types import FishMeasurement, SurveySetup, plain_image
 from vision.triangulation import triangulate_calibrated
 from vision.underwater_score import measurements
 
@@ -138,18 +138,6 @@ class _Clock:
         if self.timings is not None:
             self.timings[stage] = self.timings.get(stage, 0.0) + now - self.t
         self.t = now
-
-
-def _channels(img: np.ndarray) -> np.ndarray:
-    """Grey (H, W) or colour (H, W, 3): an alpha channel dropped, a single channel squeezed."""
-    img = np.asarray(img)
-    if img.ndim == 3 and img.shape[2] == 1:
-        return img[..., 0]
-    if img.ndim == 3 and img.shape[2] == 4:
-        return np.ascontiguousarray(img[..., :3])
-    if img.ndim not in (2, 3):
-        raise ValueError(f"expected a grey (H, W) or colour (H, W, 3) image, got shape {img.shape}")
-    return img
 
 
 def proposals(img: np.ndarray, setup: SurveySetup, p: Params = Params(), clock: _Clock | None = None,
@@ -289,7 +277,7 @@ def measure_underwater(left: np.ndarray, right: np.ndarray, calib: StereoCalibra
     """Fish measured in one underwater pair (grey or BGR uint8, any size); [] when there are none.
     ``trace`` (diagnostics, bench/diag_underwater.py) receives each stage's points."""
     clock = _Clock(timings)
-    left, right = _channels(left), _channels(right)
+    left, right = plain_image(left), plain_image(right)
     if left.size == 0 or min(left.shape[:2]) < 32:
         return []
     v1, kp1 = _view(left, setup, params, clock, trace)

@@ -36,6 +36,7 @@ import numpy as np
 
 from controller.errors import BadInput
 from controller.surveys.frames import PairJob, read_pair
+from devices.elastic_clock import process_alive
 from vision.calib_file import CalibrationError, StereoCalibration, check_image_size
 from vision.survey_types import FishMeasurement, SurveySetup
 
@@ -156,21 +157,11 @@ def _outlive_no_survey(pid: int) -> None:
     except (AttributeError, OSError):      # no pidfd (not Linux 5.3+): ask every second
         fd = None
     if fd is None:
-        while _alive(pid):
+        while process_alive(pid):
             time.sleep(1.0)
     elif fd >= 0:
         select.select([fd], [], [])
     os._exit(0)
-
-
-def _alive(pid: int) -> bool:
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return False
-    except PermissionError:
-        return True
-    return True
 
 
 def _stop_workers(pool: ProcessPoolExecutor) -> None:
