@@ -37,7 +37,7 @@ import queue
 import time
 import uuid
 from collections import defaultdict, deque
-from collections.abc import Iterable, Iterator
+from collections.abc import Callable, Iterable, Iterator
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 
@@ -67,14 +67,19 @@ _TURNS = itertools.count()
 def measure_remote(jobs: Iterable[PairJob], calib: StereoCalibration, setup: SurveySetup, *,
                    session: zenoh.Session, site: str = "demo", measure: str = MEASURE,
                    discover_s: float = DISCOVER_S, timeout_s: float = TIMEOUT_S, per_worker: int = PER_WORKER,
-                   local_workers: int | None = None, announce: bool = True) -> Iterator[PairResult]:
+                   local_workers: int | None = None, announce: bool = True,
+                   known: Callable[[], set[str]] | None = None) -> Iterator[PairResult]:
     """Every job measured, in order, by the workers on ``session``'s network (or here, if none;
-    said at info level unless ``announce`` is False: the survey stop asks once a pair)."""
+    said at info level unless ``announce`` is False: the survey stop asks once a pair).
+    ``known``: the workers a long-lived liveliness subscriber has heard alive (the survey stop's):
+    with some, the dispatch starts at once, every one of them in its turns, instead of waiting for
+    a quiet spell in its own subscriber's history (in which, on a loaded machine, the second
+    worker's token can come after the spell: every pair of the survey to the first)."""
     if not isinstance(measure, str):
         raise TypeError("measure travels by name to the workers: give 'module:function'")
     dispatch = _Dispatch(session, site, calib, setup, measure, timeout_s, per_worker)
     try:
-        if not dispatch.discover(discover_s):
+        if not dispatch.discover(discover_s, known() if known is not None else ()):
             (log.info if announce else log.debug)("no vision worker on farm/%s: measuring here", site)
             yield from measure_all(jobs, calib, setup, measure=measure, workers=local_workers)
             return
@@ -152,7 +157,10 @@ class _Dispatch:
     def usable(self) -> list[str]:
         return [w for w in self.live if w not in self.excluded]
 
-    def discover(self, within_s: float) -> bool:
+    def discover(self, within_s: float, known=()) -> bool:
+        self.live.update(known)
+        if self.usable():
+            return True
         deadline = time.monotonic() + within_s
         while not self.usable():
             left = deadline - time.monotonic()

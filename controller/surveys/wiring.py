@@ -104,7 +104,7 @@ def workers_or_here(session, site: str, discover_s: float = WORKERS_DISCOVER_S):
 
     def measure(jobs, calib, setup):
         return measure_remote(jobs, calib, setup, session=session, site=site, discover_s=discover_s,
-                              local_workers=1, announce=False)
+                              local_workers=1, announce=False, known=live.copy)
     measure.in_flight = lambda: max(IN_FLIGHT, PER_WORKER * len(live))
     measure.tokens = session.liveliness().declare_subscriber(f"{prefix}*", on_token, history=True)
     return measure
