@@ -78,7 +78,9 @@ class SerialContactHub(ContactSensors):
 
     async def _open(self) -> None:
         try:
-            self._ser = serial.serial_for_url(self.config.port, baudrate=self.config.baudrate, timeout=0)
+            # exclusive: a port another process reads (devices.serial_lock) is refused, not shared
+            self._ser = serial.serial_for_url(self.config.port, baudrate=self.config.baudrate, timeout=0,
+                                              exclusive=True)
             self._ser.reset_input_buffer()            # stale lines from before we listened
         except (serial.SerialException, OSError, ValueError) as exc:
             raise LinkDown(self.name, f"cannot open {self.config.port}: {exc}") from None

@@ -26,6 +26,7 @@ from typing import Any
 import can
 from pydantic import Field, model_validator
 
+from devices import serial_lock
 from devices.base import Section
 from devices.errors import DeviceFault, DeviceTimeout, LinkDown
 from devices.rail import RailDrive, RailStatus
@@ -125,6 +126,7 @@ class CanRailDrive(RailDrive):
         super().__init__(name, config, clock)
         self._bus: can.BusABC | None = None
         self._notifier: LinkNotifier | None = None
+        self._port_lock: int | None = None     # devices.serial_lock: the slcan port held for this process
         self._link_error: str | None = None
         self._latest: RailStatus | None = None
         self._last_rx = time.monotonic()       # wall: silence is a property of the link
@@ -154,11 +156,17 @@ class CanRailDrive(RailDrive):
             kwargs.setdefault("timeout", 0.02)
         filters = [{"can_id": base + node, "can_mask": 0x7FF, "extended": False}
                    for base in (STATUS_BASE, REPLY_BASE)]
+        try:   # the port's lock first: nothing is written to a port another process holds
+            lock = serial_lock.hold(str(cfg.channel).split("@")[0]) if cfg.interface == "slcan" else None
+        except OSError as exc:
+            raise LinkDown(self.name, f"cannot open CAN {cfg.interface} {cfg.channel}: {exc}") from None
         try:   # opening an slcan adapter blocks (serial open, setup commands): keep it off the loop
             bus = await asyncio.to_thread(can.Bus, interface=cfg.interface, channel=cfg.channel,
                                           bitrate=cfg.bitrate, can_filters=filters, **kwargs)
         except (can.CanError, OSError, ValueError, TypeError, ImportError) as exc:
+            serial_lock.release(lock)
             raise LinkDown(self.name, f"cannot open CAN {cfg.interface} {cfg.channel}: {exc}") from None
+        self._port_lock = lock
         self._bus, self._link_error = bus, None
         self._last_rx = time.monotonic()
         self._latest = None
@@ -186,11 +194,16 @@ class CanRailDrive(RailDrive):
                 port = getattr(bus, "serialPortOrig", None)
                 if port is not None:
                     port.close()
+        serial_lock.release(self._port_lock)
+        self._port_lock = None
         self._wake()
 
     def _on_link_error(self, exc: Exception) -> None:
-        log.warning("%s: CAN link lost: %s", self.name, exc)
-        self._link_error = f"{type(exc).__name__}: {exc}"
+        # python-can's "Could not read from serial device" hides the serial port's own reason
+        # (EIO: unplugged; readiness without data: another reader) in its cause
+        cause = f" ({exc.__cause__})" if exc.__cause__ is not None else ""
+        log.warning("%s: CAN link lost: %s%s", self.name, exc, cause)
+        self._link_error = f"{type(exc).__name__}: {exc}{cause}"
         self._drop_link(self._link_error)
 
     # --- the e-stop lane (any thread) --------------------------------------------------------

@@ -85,7 +85,8 @@ class SerialThrusters(Thrusters):
         cfg = self.config
         try:
             self._ser = serial.serial_for_url(cfg.port, baudrate=cfg.baudrate, timeout=READ_TIMEOUT_S,
-                                              write_timeout=cfg.estop_timeout_s)   # for fd-less URLs
+                                              write_timeout=cfg.estop_timeout_s,   # for fd-less URLs
+                                              exclusive=True)     # never a port another process reads
             self._ser.reset_input_buffer()
             with contextlib.suppress(AttributeError, NotImplementedError):
                 os.set_blocking(self._ser.fileno(), False)      # _put waits with its own bound
