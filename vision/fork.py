@@ -110,8 +110,8 @@ POWERS = np.array([0.75, 1.0, 1.5])
 # another power must beat a V's misfit by this factor. 2.0 (halve it) before 2026-12-03: 1.2 moves
 # the grow-out's 640x480 forks 0.05-0.13 px nearer the rendered notch (0.66 -> 0.59 px behind it at
 # 40-60 px fish; bench/diag_growout_survey.py, seeds 200000+), the underwater bench unchanged (seeds
-# 0+ and 1000+, to three decimals); 1.0 (no preference) reads a drawn V notch 1.3 px short of its
-# apex in one view (tests/vision/test_underwater.py, a fish +1.86 % long).
+# 0+ and 1000+, to three decimals); 1.0 (no preference) places a drawn V notch's apex 1.3 px off in
+# one view (tests/vision/test_underwater.py, a fish +1.86 % long).
 PREFER_V = np.where(POWERS == 1.0, 1.0, 1.2)
 
 
