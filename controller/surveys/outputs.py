@@ -22,7 +22,7 @@ from vision.survey_types import FishMeasurement
 CSV_HEADER = ("frame", "track", "length_cm", "weight_g", "condition_k", "score",
               "snout_x_mm", "snout_y_mm", "snout_z_mm", "fork_x_mm", "fork_y_mm", "fork_z_mm",
               "snout_u1_px", "snout_v1_px", "snout_u2_px", "snout_v2_px",
-              "fork_u1_px", "fork_v1_px", "fork_u2_px", "fork_v2_px")
+              "fork_u1_px", "fork_v1_px", "fork_u2_px", "fork_v2_px", "outlier")
 
 
 def _finite(x: float, digits: int) -> float | None:
@@ -55,7 +55,8 @@ def _writable(path: str, what: str):
 
 
 class SurveyFiles:
-    """OUT.json (+ FISH.csv) of one survey, written as fish come and finished by ``close``."""
+    """OUT.json (+ FISH.csv) of one survey: fish spooled as they come, both files written by
+    ``finish`` (then each entry's ``outlier`` is known); ``close`` after a failure."""
 
     def __init__(self, json_path: str, csv_path: str | None = None):
         self.json_path = json_path
@@ -70,11 +71,13 @@ class SurveyFiles:
     def add(self, entry: dict) -> None:
         self._spool.write(json.dumps(entry, allow_nan=False) + "\n")
         self.entries += 1
-        if self._csv:
-            row = [entry["frame"], entry["track"], entry["length_cm"], entry["weight_g"], entry["condition_k"],
-                   entry["score"], *entry["snout_mm"], *entry["fork_mm"],
-                   *entry["snout_px"][0], *entry["snout_px"][1], *entry["fork_px"][0], *entry["fork_px"][1]]
-            self._csv.write(",".join("" if v is None else str(v) for v in row) + "\n")
+
+    def _csv_row(self, entry: dict) -> None:
+        row = [entry["frame"], entry["track"], entry["length_cm"], entry["weight_g"], entry["condition_k"],
+               entry["score"], *entry["snout_mm"], *entry["fork_mm"],
+               *entry["snout_px"][0], *entry["snout_px"][1], *entry["fork_px"][0], *entry["fork_px"][1],
+               int(entry["outlier"])]
+        self._csv.write(",".join("" if v is None else str(v) for v in row) + "\n")
 
     def finish(self, head: dict, tail: dict, outlier_tracks: set[int] = frozenset()) -> None:
         """OUT.json = ``head`` fields, the spooled ``fish`` list (each entry's ``outlier``: its
@@ -86,6 +89,8 @@ class SurveyFiles:
             entry = json.loads(line)
             entry["outlier"] = entry["track"] in outlier_tracks
             out.write(("\n  " if i == 0 else ",\n  ") + json.dumps(entry, allow_nan=False))
+            if self._csv:           # (rows at the end, when the outliers are known)
+                self._csv_row(entry)
         out.write("\n ],\n " + json.dumps(tail, allow_nan=False, indent=1)[1:].lstrip() + "\n")
         out.close()
         os.replace(self._tmp_path, self.json_path)

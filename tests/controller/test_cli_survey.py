@@ -233,11 +233,16 @@ def test_a_wild_length_is_left_out_and_said(farm, tmp_path):
         fish = [(rig.target + axis * length / 2, rig.target - axis * length / 2)]
         for side, img in zip("LR", standin.draw_fish(rig, fish), strict=True):
             cv2.imwrite(str(tmp_path / "pairs" / f"p{i}_{side}.png"), img)
-    r = run(*common(d, "--dir", tmp_path / "pairs", "--json", tmp_path / "out.json"))
+    r = run(*common(d, "--dir", tmp_path / "pairs", "--json", tmp_path / "out.json", "--csv", tmp_path / "fish.csv"))
     assert r.returncode == 0, r.stderr
     doc = json.loads((tmp_path / "out.json").read_text())
     assert doc["count"] == 4 and doc["rejected_lengths_cm"] == [pytest.approx(25.0, abs=0.1)]
     assert [f["outlier"] for f in sorted(doc["fish"], key=lambda f: f["length_cm"])] == [False] * 4 + [True]
+    rows = [r.split(",") for r in (tmp_path / "fish.csv").read_text().splitlines()]
+    assert rows[0][-1] == "outlier" and len(rows) == 6
+    by_length = sorted(doc["fish"], key=lambda f: f["length_cm"])
+    assert sorted((float(r[2]), r[-1]) for r in rows[1:]) == [
+        (pytest.approx(f["length_cm"]), str(int(f["outlier"]))) for f in by_length]
     assert doc["length_cm"]["mean"] == pytest.approx(np.mean(lengths_mm[:4]) / 10, abs=0.05)
     assert "4 fish in 5 pairs" in r.stderr and "1 left out as measuring errors (25.0 cm)" in r.stderr
 
