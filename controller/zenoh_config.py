@@ -7,6 +7,7 @@ from __future__ import annotations
 import json
 import re
 import socket
+import sys
 
 import zenoh
 
@@ -105,3 +106,23 @@ def _why_unreachable(connect: str, user: str | None, detail: str) -> str:
     if user:
         return f"{connect} refused the session: authentication failed for user {user!r}"
     return f"{connect} refused the session (does it require --user/--password?)"
+
+
+CLIENT_RETRY_S = 1.0      # wall: a client waiting for a listener asks again this often
+
+
+def open_client(connect: str, user: str | None, password: str | None, stop, who: str):
+    """A client session, retried every CLIENT_RETRY_S while nobody listens at ``connect`` (said
+    once on stderr, as ``who``: a worker or simulator started before the controller is normal);
+    None once ``stop`` (a threading.Event) is set."""
+    said = False
+    while not stop.is_set():
+        try:
+            return zenoh.open(client_config(connect, user, password, timeout_s=2.0))
+        except zenoh.ZError as exc:
+            if not said:
+                why = _why_unreachable(connect, user, _one_line(exc))
+                print(f"{who}: {why}; retrying every {CLIENT_RETRY_S:g} s", file=sys.stderr, flush=True)
+                said = True
+            stop.wait(CLIENT_RETRY_S)
+    return None

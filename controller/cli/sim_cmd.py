@@ -123,7 +123,7 @@ class DemandsHeard:
         return self.heard.get(tank, -math.inf)
 
     def _open(self) -> None:
-        from controller.cli.worker_cmd import open_client
+        from controller.zenoh_config import open_client
         session = open_client(self.connect, None, None, self._stop, "fishfarm sim --hear")
         if session is None:
             return

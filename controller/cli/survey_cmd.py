@@ -130,7 +130,7 @@ class _WorkersType(click.ParamType):
 
 
 _WORKERS = _WorkersType()
-# workers waiting for a listener retry every second (worker_cmd.RETRY_S): a survey that has just
+# workers waiting for a listener retry every second (zenoh_config.CLIENT_RETRY_S): a survey that has just
 # started listening gives them this long to join before it measures here
 HUB_DISCOVER_S = 5.0
 

@@ -30,7 +30,6 @@ from controller.cli.params import Finite  # noqa: E402
 from controller.errors import BadInput  # noqa: E402
 
 DEFAULT_CONNECT = "tcp/127.0.0.1:7447"
-RETRY_S = 1.0
 _ID = re.compile(r"^[A-Za-z0-9_.-]{1,64}$")
 
 
@@ -55,24 +54,6 @@ def _from_config(path: str, connect: str | None, site: str | None) -> tuple[str 
             raise BadInput(path, "bus.listen", "empty: give --connect")
         connect = cfg.bus.listen[0]
     return connect, site or cfg.site
-
-
-def open_client(connect: str, user, password, stop: threading.Event, who: str = "fishfarm worker"):
-    """A client session, retried every RETRY_S while nobody listens at ``connect``."""
-    import zenoh
-
-    from controller.zenoh_config import _one_line, _why_unreachable, client_config
-    said = False
-    while not stop.is_set():
-        try:
-            return zenoh.open(client_config(connect, user, password, timeout_s=2.0))
-        except zenoh.ZError as exc:
-            if not said:      # once: a worker started before the controller is normal
-                why = _why_unreachable(connect, user, _one_line(exc))
-                click.echo(f"{who}: {why}; retrying every {RETRY_S:g} s", err=True)
-                said = True
-            stop.wait(RETRY_S)
-    return None
 
 
 @click.command()
@@ -111,7 +92,8 @@ def worker(connect, site, config_path, worker_id, cpu, user, password, duration,
         timer = threading.Timer(duration, stop.set)
         timer.daemon = True
         timer.start()
-    session = open_client(connect, user, password, stop)
+    from controller.zenoh_config import open_client
+    session = open_client(connect, user, password, stop, "fishfarm worker")
     if session is None:
         return 0
     served = None

@@ -139,8 +139,6 @@ def run_survey(source: Source, calib: StereoCalibration, opts: SurveyOptions,
                 **opts.extra}
         files.finish(head, tail, outlier_tracks={int(i) for i in ids[far]})
     finally:
-        close = getattr(results, "close", None)
-        if close is not None:           # a survey ended early stops its workers now, not when collected
-            close()
+        results.close()                 # a survey ended early stops its workers now, not when collected
         files.close()
     return {**head, **tail}
