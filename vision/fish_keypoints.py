@@ -50,8 +50,11 @@ most recall yet at precision >= 0.95 on both sets, at 1.26x the CPU (bench ratio
 130 -> 177 ms a pair, side by side, load 2-3; the fork stage 36 -> 82 ms, this net's ~20 ms as
 before). Not adopted: the learned locator measures one drawn fish of tests/vision/test_underwater.py
 1.51 % long (its bound 1.5 %). With the packaged net the same settings give 0.325 / 0.958 and
-0.275 / 0.933. The retrained weights are kept as tools/models/fish_keypoints_candidate.onnx (the
-next training's ``--init``, or this file's model once the learned locator is taken up).
+0.275 / 0.933. The retrained weights were kept as tools/models/fish_keypoints_candidate.onnx.
+
+Packaged since 2026-12-03 (the retrained weights), with the learned locator and the learned score
+(``Params.fork_net``, ``Params.learned_score``): the test above was drawn by cv2.fillPoly, ~0.5 px too
+big all round; drawn with area coverage (tests/vision/fish_drawing.py) every vision test passes.
 """
 from __future__ import annotations
 

@@ -110,7 +110,7 @@ class Params:
     outlines: bool = True           # fork proposals from silhouettes against the local background
     outline_k: tuple[float, ...] = (2.0, 4.0)   # ... thresholds, in local background spreads
     outline_ends: tuple[float, ...] = (-0.12, -0.02)   # ... outline ends shifted by these shares of its length
-    fork_net: bool = False          # forks located by the learned locator (vision.fork_net), not vision.fork
+    fork_net: bool = True           # forks located by the learned locator (vision.fork_net), not vision.fork
     net_min_conf: float = 0.5       # ... where its confidence is at least this
     net_weight: float = 1.0         # ... which enters the score raised to this power
     min_fill: float = 0.0           # the least share of the fork-snout segment inside a silhouette (term 0 there)
@@ -126,6 +126,10 @@ class Params:
     kp_floor: float = 1.0           # ... its fork confidence enters the score as floor + (1 - floor) x conf
     kp_snout_floor: float = 1.0     # ... and its snout's agreement with the chosen one likewise
     kp_snouts: bool = True          # ... its snout paired with each fork is a snout candidate
+    learned_score: bool = True      # the score is the fitted chance the report is right (vision.learned_score),
+                                    # not the product of terms (kept as quality "hand_score")
+    min_chance: float = 0.7         # ... post-filter then: a fish less likely right than this is dropped
+                                    # (0.7: the hand-made score's precision on the tuning seeds 200000+)
 
 
 class _Clock:

@@ -1,10 +1,12 @@
 """The survey's last stage for one pair: the quality score of every associated fish (the product of
 terms, each 1 when that part of the measurement is as good as it gets; ``vision.underwater``'s
-docstring), the post-filters, and one fish per snout."""
+docstring; or, with ``Params.learned_score``, the fitted chance that the report is right,
+``vision.learned_score``), the post-filters, and one fish per snout."""
 from __future__ import annotations
 
 import numpy as np
 
+from vision import learned_score
 from vision.silhouettes import body_fill
 from vision.survey_types import FishMeasurement
 
@@ -46,12 +48,19 @@ def measurements(rows, pairs, f1, f2, v1, v2, fork_mm, fork_res, ch, calib, geo,
     raw = {"stereo_ncc": pairs.ncc, "fork_residual_px": fork_res, "snout_residual_px": ch.residual_px,
            "tilt_deg": ch.tilt_deg, "range_mm": rng_mm, "length_px": len_px,
            "fin_ncc": np.minimum(f1.score, f2.score), "snout_edge": ch.strength, "body_length_mm": expected,
-           "body_fill": fill, "fork_epi_px": fork_epi, "snout_epi_px": snout_epi}
+           "body_fill": fill, "fork_epi_px": fork_epi, "snout_epi_px": snout_epi,
+           "fork_net_conf": np.minimum(v1.sure()[pairs.i], v2.sure()[pairs.j]), "kp_fork_conf": keypoint_conf,
+           "kp_snout_agree": keypoint_snout}
+    raw["hand_score"] = score
+    min_score = p.min_score
+    if p.learned_score:
+        score = learned_score.chance(raw | terms | {"length_mm": ch.length_mm})
+        min_score = p.min_chance
     fish = []
     # post-filter: an end the other image's best match along its epipolar line puts elsewhere
     # is on the wrong structure there, and its depth with it
     epi = np.maximum(fork_epi, snout_epi) / np.maximum(len_px, 1e-6)
-    rows = rows[(score[rows] >= p.min_score) & (epi[rows] <= p.max_epipolar)
+    rows = rows[(score[rows] >= min_score) & (epi[rows] <= p.max_epipolar)
                 & (fork_res[rows] <= p.max_fork_residual_px)]
     for r in _unique_snouts(rows, ch, score):
         q = {k: float(v[r]) for k, v in raw.items()} | {k: float(v[r]) for k, v in terms.items()}

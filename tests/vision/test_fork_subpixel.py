@@ -7,19 +7,9 @@ import cv2
 import numpy as np
 import pytest
 
-from tests.vision.fish_drawing import fish_outline
+from tests.vision.fish_drawing import covered, fish_outline
 from vision.fins import SPAN_OF_FL, Fins
 from vision.fork import locate_forks, pyramid
-
-SUPER = 8        # sub-samples a pixel per side for the exact coverage
-
-
-def covered(shape: tuple[int, int], pts: np.ndarray) -> np.ndarray:
-    """Share of each pixel (pixel centres at integers) the polygon ``pts`` covers, to 1/(2 SUPER) px."""
-    big = np.zeros((shape[0] * SUPER, shape[1] * SUPER), np.uint8)
-    q = np.rint((pts * SUPER + (SUPER - 1) / 2) * 16).astype(np.int32)
-    cv2.fillPoly(big, [q], 255, lineType=cv2.LINE_8, shift=4)
-    return cv2.resize(big, (shape[1], shape[0]), interpolation=cv2.INTER_AREA).astype(np.float32) / 255
 
 
 def fish_image(rng: np.random.Generator, length_px: float, size: int = 160):

@@ -10,6 +10,7 @@ import pytest
 
 from devices.sim.stereo_rig import convergent_rig
 from tests.vision.fish_drawing import underwater_pair, water
+from vision import learned_score
 from vision.survey import measure_pair
 from vision.survey_types import FishGeometry, SurveySetup
 from vision.underwater import Params, measure_underwater
@@ -137,3 +138,35 @@ def test_fork_residual_filter_drops_exactly_the_fish_above_it():
                                    params=replace(Params(), max_fork_residual_px=limit))
         kept = [f for f in before if f.quality["fork_residual_px"] <= limit]
         assert [f.snout_mm.tolist() for f in after] == [f.snout_mm.tolist() for f in kept]
+
+
+def test_the_score_is_the_fitted_chance_of_the_reports_own_figures(results):
+    """``learned_score``: each fish's score is ``vision.learned_score.chance`` of the figures it
+    reports (a user can recompute it), every fish at least ``min_chance``; the hand-made product of
+    terms is kept beside it as ``hand_score``."""
+    reported = [f for fish, _, _ in results for f in fish]
+    assert reported
+    q = {k: np.array([f.quality[k] for f in reported]) for k in reported[0].quality}
+    q["length_mm"] = np.array([10 * f.length_cm for f in reported])
+    assert np.allclose(learned_score.chance(q), [f.score for f in reported], atol=1e-9)
+    assert min(f.score for f in reported) >= Params().min_chance
+    assert all(0 < f.quality["hand_score"] <= 1 for f in reported)
+
+
+def test_a_lower_min_chance_keeps_every_fish_and_adds_only_less_likely_ones():
+    rig = rig_of()
+    for seed in range(3):
+        left, right, _ = underwater_pair(np.random.default_rng(seed), rig, n_fish=3)
+        strict = measure_underwater(left, right, rig.calibration(), SETUP)
+        loose = measure_underwater(left, right, rig.calibration(), SETUP, params=replace(Params(), min_chance=0.0))
+        kept = {tuple(f.snout_mm) for f in strict}
+        assert kept <= {tuple(f.snout_mm) for f in loose}
+        assert all(f.score < Params().min_chance for f in loose if tuple(f.snout_mm) not in kept)
+
+
+def test_the_packaged_score_model_is_complete():
+    m = learned_score.load()
+    n = len(m["names"])
+    assert n and set(m["names"]) <= set(learned_score.FEATURES)
+    assert len(m["mean"]) == len(m["sd"]) == len(m["weights"]) == n
+    assert all(s > 0 for s in m["sd"]) and np.all(np.isfinite(m["weights"]))
