@@ -1,8 +1,8 @@
 """Fit ``vision.learned_score``'s logistic model on reports from tools/score_data.py and write it
-as JSON (``vision/models/fish_score.json``).
+as a Python module (``vision/models/fish_score.py``: vision reads no files).
 
 Run: ``.venv/bin/python tools/fit_score.py --data /tmp/score_a.npz /tmp/score_b.npz
---val /tmp/score_c.npz --out vision/models/fish_score.json`` (seconds; scipy's L-BFGS on the
+--val /tmp/score_c.npz --out vision/models/fish_score.py`` (seconds; scipy's L-BFGS on the
 L2-penalised log loss of standardised features). Prints, on the ``--val`` reports, the share of
 fully visible fish found at precision 0.95 and 0.97 when reports are kept from the best down, by
 the hand-made score and by the fitted chance (JSON).
@@ -72,7 +72,8 @@ def main() -> None:
     mean, sd = x.mean(axis=0), x.std(axis=0) + 1e-9
     w, b = fit((x - mean) / sd, q["right"], args.l2)
     model = {"names": names, "mean": mean.tolist(), "sd": sd.tolist(), "weights": w.tolist(), "bias": b,
-             "fitted_on": [Path(p).name for p in args.data], "reports": int(len(x)), "l2": args.l2}
+             "fitted_on": f"rendered underwater scenes, seeds {int(q['seed'].min())}-{int(q['seed'].max())}",
+             "reports": int(len(x)), "right": int(q["right"].sum()), "l2": args.l2}
     report = {"reports": len(x), "right": int(q["right"].sum()),
               "weights": {n: round(float(v), 3) for n, v in zip(names, w, strict=True)}}
     if args.val:
@@ -82,7 +83,8 @@ def main() -> None:
             report[name] = {str(p): recall_at(s, right, found, visible, p) for p in (0.95, 0.97)}
         report["val_upper_bound_recall"] = round(float(found.sum() / max(visible, 1)), 3)
     if args.out:
-        Path(args.out).write_text(json.dumps(model, indent=1) + "\n")
+        Path(args.out).write_text('"""vision.learned_score\'s fitted model, written by tools/fit_score.py '
+                                  '(do not edit by hand)."""\n\nMODEL = ' + json.dumps(model, indent=1) + "\n")
     print(json.dumps(report))
 
 

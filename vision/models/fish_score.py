@@ -1,4 +1,6 @@
-{
+"""vision.learned_score's fitted model, written by tools/fit_score.py (do not edit by hand)."""
+
+MODEL = {
  "names": [
   "stereo_ncc",
   "fork_residual",
@@ -76,10 +78,8 @@
   0.0
  ],
  "bias": -2.7144248655201872,
- "fitted_on": [
-  "t_a.npz",
-  "t_b.npz"
- ],
+ "fitted_on": "rendered underwater scenes, seeds 300000-300499",
  "reports": 2113,
+ "right": 664,
  "l2": 0.001
 }
