@@ -65,6 +65,8 @@ def main() -> None:
     ap.add_argument("--out")
     ap.add_argument("--l2", type=float, default=1e-3)
     ap.add_argument("--features", default=",".join(FEATURES))
+    ap.add_argument("--precisions", type=lambda v: [float(x) for x in v.split(",")], default=[0.95, 0.97],
+                    help="the recall and threshold printed at each of these precisions on --val")
     args = ap.parse_args()
     names = args.features.split(",")
     q, _ = load(args.data)
@@ -80,7 +82,7 @@ def main() -> None:
         v, visible = load(args.val)
         right, found = v["right"] == 1, (v["right"] == 1) & (v["visible"] == 1)
         for name, s in (("hand_made", v["score"]), ("learned", chance(v, model))):
-            report[name] = {str(p): recall_at(s, right, found, visible, p) for p in (0.95, 0.97)}
+            report[name] = {str(p): recall_at(s, right, found, visible, p) for p in args.precisions}
         report["val_upper_bound_recall"] = round(float(found.sum() / max(visible, 1)), 3)
     if args.out:
         Path(args.out).write_text('"""vision.learned_score\'s fitted model, written by tools/fit_score.py '

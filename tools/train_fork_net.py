@@ -9,6 +9,12 @@ Not part of the project's dependencies or its suite: torch lives in a separate v
     .venv-train/bin/python tools/train_fork_net.py --data /tmp/a.npz /tmp/b.npz --out vision/models/fork_net.onnx \
         --epochs 10 --per-epoch 60000 --minutes 32 --threads 1
 (the packaged model: those commands, 2026-12-02, 20 min of training on a loaded machine).
+The snout locator (``vision.snout_net``) is the same net trained on tools/snout_net_data.py's crops:
+    .venv/bin/python tools/snout_net_data.py --seed0 102000 --scenes 450 --out /tmp/sn_a.npz
+    .venv/bin/python tools/snout_net_data.py --seed0 102450 --scenes 300 --out /tmp/sn_b.npz
+    .venv-train/bin/python tools/train_fork_net.py --data /tmp/sn_a.npz /tmp/sn_b.npz \
+        --out vision/models/snout_net.onnx --epochs 8 --per-epoch 60000 --minutes 17 --threads 2 --val-scenes 60
+(2026-12-03: 219 s).
 Seed-fixed (torch, numpy); the last ``--val-scenes`` scenes of the data are held out and their
 figures printed (JSON lines) after every epoch. Two threads (the machine is shared).
 

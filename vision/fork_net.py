@@ -131,16 +131,17 @@ def normalise(c: np.ndarray) -> np.ndarray:
     return (c / (c.std(axis=(1, 2, 3), keepdims=True) + 4.0)).astype(np.float32)
 
 
-@lru_cache(maxsize=1)
-def _net() -> cv2.dnn.Net:
-    data = resources.files("vision.models").joinpath(MODEL).read_bytes()
+@lru_cache(maxsize=2)
+def _net(model: str) -> cv2.dnn.Net:
+    data = resources.files("vision.models").joinpath(model).read_bytes()
     net = cv2.dnn.readNetFromONNX(np.frombuffer(data, np.uint8))
     return net
 
 
-def run(batch: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """The raw outputs for crops (N, 3, H, W): heatmap logits (N, H/2, W/2), head (N, 3)."""
-    net = _net()
+def run(batch: np.ndarray, model: str = MODEL) -> tuple[np.ndarray, np.ndarray]:
+    """The raw outputs for crops (N, 3, H, W): heatmap logits (N, H/2, W/2), head (N, 3), of the
+    fork net or another net of its shape (``vision.snout_net``)."""
+    net = _net(model)
     heats, heads = [], []
     for k in range(0, len(batch), BATCH):
         net.setInput(np.ascontiguousarray(batch[k:k + BATCH]))

@@ -59,7 +59,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from vision import fish_keypoints, fork_net
+from vision import fish_keypoints, fork_net, snout_net
 from vision.association import (
     View,
     camera_frame,
@@ -126,10 +126,12 @@ class Params:
     kp_floor: float = 1.0           # ... its fork confidence enters the score as floor + (1 - floor) x conf
     kp_snout_floor: float = 1.0     # ... and its snout's agreement with the chosen one likewise
     kp_snouts: bool = True          # ... its snout paired with each fork is a snout candidate
+    snout_net: bool = True          # snout candidates moved to the learned snout locator's tip (vision.snout_net)
+    snout_net_min: float = 0.5      # ... where it is at least this sure
     learned_score: bool = True      # the score is the fitted chance the report is right (vision.learned_score),
                                     # not the product of terms (kept as quality "hand_score")
-    min_chance: float = 0.7         # ... post-filter then: a fish less likely right than this is dropped
-                                    # (0.7: the hand-made score's precision on the tuning seeds 200000+)
+    min_chance: float = 0.75        # ... post-filter then: a fish less likely right than this is dropped
+                                    # (0.75: the hand-made default's precision, ~0.9, on the tuning seeds 200000+)
 
 
 class _Clock:
@@ -325,6 +327,12 @@ def measure_underwater(left: np.ndarray, right: np.ndarray, calib: StereoCalibra
             sn[c] = Snouts(np.concatenate([sn[c].dist_px, np.linalg.norm(tips - f.xy[:, None], axis=2)], axis=1),
                            np.concatenate([sn[c].xy, tips], axis=1),
                            np.concatenate([sn[c].strength, strength[:, None]], axis=1))
+    if params.snout_net:
+        # each candidate moved to the tip the learned snout locator finds from it, where it is sure
+        for c, f in enumerate((f1, f2)):
+            tips, conf = snout_net.refine((v1, v2)[c].pyr, f.xy, sn[c].xy)
+            moved = np.where((conf >= params.snout_net_min)[..., None], tips, sn[c].xy)
+            sn[c] = Snouts(np.linalg.norm(moved - f.xy[:, None], axis=2), moved, sn[c].strength)
     clock.lap("snout")
     up = np.asarray(setup.up_world if setup.up_world is not None else camera_frame(calib.P1)[1], float)
     up = up / np.linalg.norm(up)
@@ -374,7 +382,12 @@ def measure_underwater(left: np.ndarray, right: np.ndarray, calib: StereoCalibra
     if params.keypoints:
         (c1, a1), (c2, a2) = fish_keypoints.agreement(kp1, f1.xy, ch.px1), fish_keypoints.agreement(kp2, f2.xy, ch.px2)
         sure, agree = np.minimum(c1, c2), np.minimum(a1, a2)
+    snout_sure = np.ones(len(f1))
+    if params.snout_net:
+        # how sure the learned locator is of each chosen snout, in the worse view
+        snout_sure = np.minimum(*(snout_net.refine(v.pyr, f.xy, px[:, None], passes=1)[1][:, 0]
+                                  for v, f, px in ((v1, f1, ch.px1), (v2, f2, ch.px2))))
     out = measurements(np.flatnonzero(keep), pairs, f1, f2, v1, v2, fork_mm, fork_res, ch, calib, geo, params,
-                       left.shape[1], expected, view, fork_epi, snout_epi, sure, agree)
+                       left.shape[1], expected, view, fork_epi, snout_epi, sure, agree, snout_sure)
     clock.lap("associate")
     return out

@@ -14,7 +14,7 @@ from vision.survey_types import FishMeasurement
 def measurements(rows, pairs, f1, f2, v1, v2, fork_mm, fork_res, ch, calib, geo, p,
                   width: int, expected: np.ndarray, view: np.ndarray, fork_epi: np.ndarray,
                   snout_epi: np.ndarray, keypoint_conf: np.ndarray,
-                  keypoint_snout: np.ndarray) -> list[FishMeasurement]:
+                  keypoint_snout: np.ndarray, snout_net_conf: np.ndarray) -> list[FishMeasurement]:
     if len(rows) == 0:
         return []
     c1 = -np.linalg.solve(calib.P1[:, :3], calib.P1[:, 3])
@@ -50,7 +50,7 @@ def measurements(rows, pairs, f1, f2, v1, v2, fork_mm, fork_res, ch, calib, geo,
            "fin_ncc": np.minimum(f1.score, f2.score), "snout_edge": ch.strength, "body_length_mm": expected,
            "body_fill": fill, "fork_epi_px": fork_epi, "snout_epi_px": snout_epi,
            "fork_net_conf": np.minimum(v1.sure()[pairs.i], v2.sure()[pairs.j]), "kp_fork_conf": keypoint_conf,
-           "kp_snout_agree": keypoint_snout}
+           "kp_snout_agree": keypoint_snout, "snout_net_conf": snout_net_conf}
     raw["hand_score"] = score
     min_score = p.min_score
     if p.learned_score:

@@ -1,0 +1,67 @@
+"""The learned snout locator (``vision.snout_net``) on fish drawn from the contract's words
+(tests/vision/fish_drawing.py: an ellipse body, not the renderer's fish it was trained on), from
+candidates off the tip as the survey's are: it answers the tip."""
+from __future__ import annotations
+
+import numpy as np
+
+from tests.vision.fish_drawing import draw_fish_2d, water
+from vision import snout_net
+from vision.fork import pyramid
+
+
+def scene(rng, n=6, size=(720, 960)):
+    """Fish of 120-280 px at any heading, dark on light water or light on dark, apart from each other:
+    (image uint8, forks (n, 2), snouts (n, 2))."""
+    img = water(*size, rng, top=rng.uniform(60, 190), bottom=rng.uniform(60, 190))
+    forks, snouts = [], []
+    for k in range(n):
+        L = rng.uniform(120, 280)
+        a = rng.uniform(-np.pi, np.pi)
+        centre = np.array([160 + (k % 3) * 320, 180 + (k // 3) * 360], float)
+        fork = centre - 0.5 * L * np.array([np.cos(a), np.sin(a)])
+        value = 30.0 if img[int(centre[1]), int(centre[0])] > 120 else 220.0
+        snouts.append(draw_fish_2d(img, fork, a, L, value))
+        forks.append(fork)
+    noisy = img + rng.normal(0, 2.0, img.shape)
+    return np.clip(np.rint(noisy), 0, 255).astype(np.uint8), np.array(forks), np.array(snouts)
+
+
+def off_the_tip(rng, forks, snouts, k=4):
+    """k candidates a fish (n, k, 2): 0-8 % of the length into the body or ahead of it, +-4 % across."""
+    d = forks - snouts
+    L = np.linalg.norm(d, axis=1)
+    ax = d / L[:, None]
+    nrm = np.c_[-ax[:, 1], ax[:, 0]]
+    along = rng.uniform(-0.04, 0.08, (len(L), k)) * L[:, None]
+    across = rng.uniform(-0.04, 0.04, (len(L), k)) * L[:, None]
+    return snouts[:, None] + along[..., None] * ax[:, None] + across[..., None] * nrm[:, None]
+
+
+def test_candidates_off_the_tip_are_moved_onto_it():
+    errors, sure = [], []
+    for seed in range(4):
+        rng = np.random.default_rng(seed)
+        img, forks, snouts = scene(rng)
+        cand = off_the_tip(rng, forks, snouts)
+        tips, conf = snout_net.refine(pyramid(img), forks, cand)
+        L = np.linalg.norm(forks - snouts, axis=1)
+        errors.append(np.linalg.norm(tips - snouts[:, None], axis=2) / L[:, None])
+        sure.append(conf)
+    errors, sure = np.concatenate(errors).ravel(), np.concatenate(sure).ravel()
+    assert np.mean(errors <= 0.03) >= 0.8, (np.mean(errors <= 0.03), np.median(errors))
+    assert np.median(sure) >= 0.5
+
+
+def test_no_candidate_gives_no_tip_and_shapes_are_kept():
+    rng = np.random.default_rng(9)
+    img, forks, snouts = scene(rng, n=3)
+    cand = off_the_tip(rng, forks, snouts, k=3)
+    cand[1, :] = np.nan
+    cand[0, 2] = np.nan
+    tips, conf = snout_net.refine(pyramid(img), forks, cand)
+    assert tips.shape == (3, 3, 2) and conf.shape == (3, 3)
+    assert np.all(np.isnan(tips[1])) and np.all(conf[1] == 0) and np.isnan(tips[0, 2]).all() and conf[0, 2] == 0
+    assert np.all(np.isfinite(tips[2]))
+    empty, none = snout_net.refine(pyramid(img), forks[:0], cand[:0])
+    assert empty.shape == (0, 3, 2) and none.shape == (0, 3)

@@ -1,0 +1,93 @@
+"""Training crops for the learned snout locator (``vision.fork_net``'s net, trained on snouts:
+``vision/models/snout_net.onnx``), from rendered underwater pairs.
+
+Run (the project's venv): ``.venv/bin/python tools/snout_net_data.py --seed0 102000 --scenes 600
+--out /tmp/snouts.npz``. Seeds must be >= 100000 (the benches use 0+ and 1000+). Deterministic for
+a seed range.
+
+The fork locator's crop seen from the other end: a hypothesis is a point near a snout, its axis
+pointing into the body (towards the fork) and a span of ``SPAN_OF_FL`` x the length, so the crop
+reaches well ahead of the snout into the water and back over the head. Per view of each scene:
+- jittered hypotheses round each clearly visible fish's true snout (as the survey's snout
+  candidates are off: -0.06..0.12 of the length along the axis, +-0.06 across, the axis turned by
+  up to +-15 degrees, the span x exp(+-0.25));
+- hard negatives (``fork_net_data.hard_negatives`` with the ends swapped: the tail end, the fish's
+  middle, the head seen from behind) and random points.
+Labels as ``fork_net_data.labels`` with snouts for forks: the target is the snout (u, v in spans)
+and the axis' turn; crops with the snout of a partly hidden fish in them are left out.
+"""
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
+from devices.sim.fish_scene import underwater_scene  # noqa: E402
+from tools.fork_net_data import CLEAR, FIRST_SEED, hard_negatives, labels  # noqa: E402
+from vision import fork_net  # noqa: E402
+from vision.fins import SPAN_OF_FL, Fins  # noqa: E402
+from vision.fork import pyramid  # noqa: E402
+
+
+def jittered(rng, snouts, axis, length, n):
+    """n hypotheses round each snout (``axis``: from the snout into the body)."""
+    S = len(snouts)
+    if S == 0:
+        return Fins.empty()
+    k = np.repeat(np.arange(S), n)
+    L = length[k]
+    a = np.c_[np.cos(axis[k]), np.sin(axis[k])]
+    nrm = np.c_[-a[:, 1], a[:, 0]]
+    xy = (snouts[k] + (rng.uniform(-0.06, 0.12, len(k)) * L)[:, None] * a
+          + (rng.uniform(-0.06, 0.06, len(k)) * L)[:, None] * nrm)
+    ang = axis[k] + np.radians(rng.uniform(-15, 15, len(k)))
+    span = SPAN_OF_FL * L * np.exp(rng.uniform(-0.25, 0.25, len(k)))
+    z = np.zeros(len(k))
+    return Fins(xy, ang, span, z, z.copy())
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--seed0", type=int, default=102000)
+    ap.add_argument("--scenes", type=int, default=600)
+    ap.add_argument("--jitter", type=int, default=6)
+    ap.add_argument("--out", required=True)
+    args = ap.parse_args()
+    if args.seed0 < FIRST_SEED:
+        sys.exit(f"snout_net_data: --seed0: {args.seed0} is below {FIRST_SEED} (the benches' seeds)")
+    rng = np.random.default_rng(args.seed0)
+    X, Y, meta = [], [], []
+    for seed in range(args.seed0, args.seed0 + args.scenes):
+        sc = underwater_scene(np.random.default_rng(seed))
+        for c, img in enumerate((sc.left, sc.right)):
+            pyr = pyramid(img)
+            fl = sc.fish
+            snouts = np.array([f.snout_px[c] for f in fl]).reshape(-1, 2)
+            forks = np.array([f.fork_px[c] for f in fl]).reshape(-1, 2)
+            d = forks - snouts
+            axis, length = np.arctan2(d[:, 1], d[:, 0]), np.hypot(d[:, 0], d[:, 1])
+            H, W = img.shape[:2]
+            in_img = (snouts[:, 0] > 2) & (snouts[:, 0] < W - 3) & (snouts[:, 1] > 2) & (snouts[:, 1] < H - 3)
+            clear = np.array([f.hidden[c] < CLEAR for f in fl], bool) & in_img & (length > 20)
+            good = np.flatnonzero(clear)
+            for src, h in ((1, jittered(rng, snouts[good], axis[good], length[good], args.jitter)),
+                           (2, hard_negatives(rng, snouts[good], forks[good], axis[good], length[good], img.shape))):
+                keep, pos, u, v, t, rel = labels(h, snouts, axis, length, clear)
+                idx = np.flatnonzero(keep)
+                if len(idx) == 0:
+                    continue
+                X.append(fork_net.raw_crops(pyr, h.take(idx)))
+                Y.append(np.c_[pos[idx], u[idx], v[idx], t[idx], rel[idx]].astype(np.float32))
+                meta.append(np.array([[seed, c, src]] * len(idx), np.int32))
+        if (seed - args.seed0) % 100 == 99:
+            n = sum(len(y) for y in Y)
+            p = sum(int(y[:, 0].sum()) for y in Y)
+            print(f"{seed - args.seed0 + 1} scenes, {n} crops, {p} positive", flush=True)
+    np.savez_compressed(args.out, x=np.concatenate(X), y=np.concatenate(Y), meta=np.concatenate(meta))
+
+
+if __name__ == "__main__":
+    main()
