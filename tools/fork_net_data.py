@@ -102,6 +102,30 @@ def hard_negatives(rng, forks, snouts, axis, length, shape):
                                                                               "polarity")))
 
 
+class Crops:
+    """The crops gathered so far, their labels (positive, u, v, turn, length / span) and where
+    each came from (seed, view, source)."""
+
+    def __init__(self):
+        self.x, self.y, self.meta = [], [], []
+
+    def add(self, pyr, h: Fins, keep: np.ndarray, label: tuple, where: tuple) -> None:
+        idx = np.flatnonzero(keep)
+        if len(idx) == 0:
+            return
+        self.x.append(fork_net.raw_crops(pyr, h.take(idx)))
+        self.y.append(np.stack([np.asarray(a)[idx] for a in label], axis=1).astype(np.float32))
+        self.meta.append(np.array([list(where)] * len(idx), np.int32))
+
+    def progress(self, scenes: int) -> None:
+        if scenes % 100 == 0:
+            n, p = sum(len(y) for y in self.y), sum(int(y[:, 0].sum()) for y in self.y)
+            print(f"{scenes} scenes, {n} crops, {p} positive", flush=True)
+
+    def save(self, path: str) -> None:
+        np.savez_compressed(path, x=np.concatenate(self.x), y=np.concatenate(self.y), meta=np.concatenate(self.meta))
+
+
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--seed0", type=int, default=FIRST_SEED)
@@ -114,7 +138,7 @@ def main() -> None:
         sys.exit(f"fork_net_data: --seed0: {args.seed0} is below {FIRST_SEED} (the benches' seeds)")
     rng = np.random.default_rng(args.seed0)
     setup = SurveySetup(up_world=(0.0, 0.0, 1.0))
-    X, Y, meta = [], [], []
+    out = Crops()
     for seed in range(args.seed0, args.seed0 + args.scenes):
         sc = underwater_scene(np.random.default_rng(seed))
         for c, img in enumerate((sc.left, sc.right)):
@@ -133,17 +157,9 @@ def main() -> None:
                 keep, pos, u, v, t, rel = labels(h, forks, axis, length, clear)
                 if src == 0:
                     keep &= pos | (rng.random(len(h)) < args.neg_share)
-                idx = np.flatnonzero(keep)
-                if len(idx) == 0:
-                    continue
-                X.append(fork_net.raw_crops(pyr, h.take(idx)))
-                Y.append(np.c_[pos[idx], u[idx], v[idx], t[idx], rel[idx]].astype(np.float32))
-                meta.append(np.array([[seed, c, src]] * len(idx), np.int32))
-        if (seed - args.seed0) % 100 == 99:
-            n = sum(len(y) for y in Y)
-            p = sum(int(y[:, 0].sum()) for y in Y)
-            print(f"{seed - args.seed0 + 1} scenes, {n} crops, {p} positive", flush=True)
-    np.savez_compressed(args.out, x=np.concatenate(X), y=np.concatenate(Y), meta=np.concatenate(meta))
+                out.add(pyr, h, keep, (pos, u, v, t, rel), (seed, c, src))
+        out.progress(seed - args.seed0 + 1)
+    out.save(args.out)
 
 
 if __name__ == "__main__":

@@ -26,8 +26,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 from devices.sim.fish_scene import underwater_scene  # noqa: E402
-from tools.fork_net_data import CLEAR, FIRST_SEED, hard_negatives, labels  # noqa: E402
-from vision import fork_net  # noqa: E402
+from tools.fork_net_data import CLEAR, FIRST_SEED, Crops, hard_negatives, labels  # noqa: E402
 from vision.fins import SPAN_OF_FL, Fins  # noqa: E402
 from vision.fork import pyramid  # noqa: E402
 
@@ -59,7 +58,7 @@ def main() -> None:
     if args.seed0 < FIRST_SEED:
         sys.exit(f"snout_net_data: --seed0: {args.seed0} is below {FIRST_SEED} (the benches' seeds)")
     rng = np.random.default_rng(args.seed0)
-    X, Y, meta = [], [], []
+    out = Crops()
     for seed in range(args.seed0, args.seed0 + args.scenes):
         sc = underwater_scene(np.random.default_rng(seed))
         for c, img in enumerate((sc.left, sc.right)):
@@ -76,17 +75,9 @@ def main() -> None:
             for src, h in ((1, jittered(rng, snouts[good], axis[good], length[good], args.jitter)),
                            (2, hard_negatives(rng, snouts[good], forks[good], axis[good], length[good], img.shape))):
                 keep, pos, u, v, t, rel = labels(h, snouts, axis, length, clear)
-                idx = np.flatnonzero(keep)
-                if len(idx) == 0:
-                    continue
-                X.append(fork_net.raw_crops(pyr, h.take(idx)))
-                Y.append(np.c_[pos[idx], u[idx], v[idx], t[idx], rel[idx]].astype(np.float32))
-                meta.append(np.array([[seed, c, src]] * len(idx), np.int32))
-        if (seed - args.seed0) % 100 == 99:
-            n = sum(len(y) for y in Y)
-            p = sum(int(y[:, 0].sum()) for y in Y)
-            print(f"{seed - args.seed0 + 1} scenes, {n} crops, {p} positive", flush=True)
-    np.savez_compressed(args.out, x=np.concatenate(X), y=np.concatenate(Y), meta=np.concatenate(meta))
+                out.add(pyr, h, keep, (pos, u, v, t, rel), (seed, c, src))
+        out.progress(seed - args.seed0 + 1)
+    out.save(args.out)
 
 
 if __name__ == "__main__":
