@@ -9,9 +9,12 @@ image looked for along their epipolar line in the other, triangulation), ``snout
 silhouettes' far ends and tips), ``associate`` (snout pairing in 3-D, each end checked along its
 epipolar line, filters, score).
 
-The score (0..1) is the product of terms, each 1 when that part of the measurement is as good as it
-gets and falling towards 0 as it becomes doubtful; ``FishMeasurement.quality`` holds the raw
-figures and the terms. Misplaced points show up as weak stereo evidence (NCC), epipolar residuals
+The score (0..1) is the fitted chance that the report is right (``vision.learned_score``, since
+2026-12-03; before, and still in ``quality`` as ``hand_score``, the product of terms, each 1 when
+that part of the measurement is as good as it gets and falling towards 0 as it becomes doubtful);
+``FishMeasurement.quality`` holds the raw figures and the terms. Forks and snouts are placed by
+the learned locators by default (``vision.fork_net``, ``vision.snout_net``).
+Misplaced points show up as weak stereo evidence (NCC), epipolar residuals
 (a snout or fork matched to the wrong structure does not triangulate cleanly), a weak snout edge,
 an axis tilted towards the species' limit, or a fish too small in the image for pixel errors to
 stay small against its length.
