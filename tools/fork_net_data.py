@@ -102,6 +102,20 @@ def hard_negatives(rng, forks, snouts, axis, length, shape):
                                                                               "polarity")))
 
 
+def ends(fish, c: int, shape, end: str):
+    """The rendered fish's ``end`` ("fork" or "snout") and other end in view ``c`` (N, 2 each), the
+    axis from that end to the other (N,), the length (N,), and which are clear: inside the image by
+    2 px, under CLEAR hidden there, over 20 px long."""
+    here = np.array([getattr(f, f"{end}_px")[c] for f in fish]).reshape(-1, 2)
+    there = np.array([f.snout_px[c] if end == "fork" else f.fork_px[c] for f in fish]).reshape(-1, 2)
+    d = there - here
+    axis, length = np.arctan2(d[:, 1], d[:, 0]), np.hypot(d[:, 0], d[:, 1])
+    H, W = shape[:2]
+    inside = (here[:, 0] > 2) & (here[:, 0] < W - 3) & (here[:, 1] > 2) & (here[:, 1] < H - 3)
+    clear = np.array([f.hidden[c] < CLEAR for f in fish], bool) & inside & (length > 20)
+    return here, there, axis, length, clear
+
+
 class Crops:
     """The crops gathered so far, their labels (positive, u, v, turn, length / span) and where
     each came from (seed, view, source)."""
@@ -143,14 +157,7 @@ def main() -> None:
         sc = underwater_scene(np.random.default_rng(seed))
         for c, img in enumerate((sc.left, sc.right)):
             pyr, hyps = proposals(img, setup)[:2]
-            fl = sc.fish
-            forks = np.array([f.fork_px[c] for f in fl]).reshape(-1, 2)
-            snouts = np.array([f.snout_px[c] for f in fl]).reshape(-1, 2)
-            d = snouts - forks
-            axis, length = np.arctan2(d[:, 1], d[:, 0]), np.hypot(d[:, 0], d[:, 1])
-            H, W = img.shape[:2]
-            in_img = (forks[:, 0] > 2) & (forks[:, 0] < W - 3) & (forks[:, 1] > 2) & (forks[:, 1] < H - 3)
-            clear = np.array([f.hidden[c] < CLEAR for f in fl], bool) & in_img & (length > 20)
+            forks, snouts, axis, length, clear = ends(sc.fish, c, img.shape, "fork")
             good = np.flatnonzero(clear)
             for src, h in ((0, hyps), (1, jittered(rng, forks[good], axis[good], length[good], args.jitter)),
                            (2, hard_negatives(rng, forks[good], snouts[good], axis[good], length[good], img.shape))):

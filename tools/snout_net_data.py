@@ -26,7 +26,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 from devices.sim.fish_scene import underwater_scene  # noqa: E402
-from tools.fork_net_data import CLEAR, FIRST_SEED, Crops, hard_negatives, labels  # noqa: E402
+from tools.fork_net_data import FIRST_SEED, Crops, ends, hard_negatives, labels  # noqa: E402
 from vision.fins import SPAN_OF_FL, Fins  # noqa: E402
 from vision.fork import pyramid  # noqa: E402
 
@@ -63,14 +63,7 @@ def main() -> None:
         sc = underwater_scene(np.random.default_rng(seed))
         for c, img in enumerate((sc.left, sc.right)):
             pyr = pyramid(img)
-            fl = sc.fish
-            snouts = np.array([f.snout_px[c] for f in fl]).reshape(-1, 2)
-            forks = np.array([f.fork_px[c] for f in fl]).reshape(-1, 2)
-            d = forks - snouts
-            axis, length = np.arctan2(d[:, 1], d[:, 0]), np.hypot(d[:, 0], d[:, 1])
-            H, W = img.shape[:2]
-            in_img = (snouts[:, 0] > 2) & (snouts[:, 0] < W - 3) & (snouts[:, 1] > 2) & (snouts[:, 1] < H - 3)
-            clear = np.array([f.hidden[c] < CLEAR for f in fl], bool) & in_img & (length > 20)
+            snouts, forks, axis, length, clear = ends(sc.fish, c, img.shape, "snout")
             good = np.flatnonzero(clear)
             for src, h in ((1, jittered(rng, snouts[good], axis[good], length[good], args.jitter)),
                            (2, hard_negatives(rng, snouts[good], forks[good], axis[good], length[good], img.shape))):

@@ -182,6 +182,18 @@ def distinct(xy: np.ndarray, angle: np.ndarray, span: np.ndarray, rank: np.ndarr
     return np.sort(order[first])
 
 
+def answer(pyr: list[np.ndarray], fins: Fins, model: str = MODEL) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """One pass of the net over the hypotheses' crops, in the image: the point it finds (N, 2),
+    the axis there (N,) and its confidence (N,) 0..1."""
+    heat, head = run(crops(pyr, fins), model)
+    uv = soft_argmax(heat)
+    axes = np.c_[np.cos(fins.angle), np.sin(fins.angle)]
+    normal = np.c_[-axes[:, 1], axes[:, 0]]
+    S = fins.span_px[:, None]
+    xy = fins.xy + uv[:, :1] * S * axes + uv[:, 1:] * S * normal
+    return xy, fins.angle + np.arctan2(head[:, 1], head[:, 2]), 1.0 / (1.0 + np.exp(-head[:, 0]))
+
+
 def locate(pyr: list[np.ndarray], fins: Fins, passes: int = 2, again_above: float = 0.3) -> NetForks:
     """The net's fork for every hypothesis; each pass after the first starts from the previous
     answer (the fork ``RECENTRE`` spans behind the crop's centre, the net's axis), for the
@@ -192,14 +204,7 @@ def locate(pyr: list[np.ndarray], fins: Fins, passes: int = 2, again_above: floa
     todo = distinct(fins.xy, fins.angle, fins.span_px, fins.score, 0.2)
     cur = fins.take(todo)
     for k in range(passes):
-        heat, head = run(crops(pyr, cur))
-        uv = soft_argmax(heat)
-        axes = np.c_[np.cos(cur.angle), np.sin(cur.angle)]
-        normal = np.c_[-axes[:, 1], axes[:, 0]]
-        S = cur.span_px[:, None]
-        xy[todo] = cur.xy + uv[:, :1] * S * axes + uv[:, 1:] * S * normal
-        ang[todo] = cur.angle + np.arctan2(head[:, 1], head[:, 2])
-        conf[todo] = 1.0 / (1.0 + np.exp(-head[:, 0]))
+        xy[todo], ang[todo], conf[todo] = answer(pyr, cur)
         if k + 1 == passes:
             break
         sure = todo[conf[todo] >= again_above]

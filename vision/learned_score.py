@@ -43,9 +43,8 @@ FEATURES = {
     "fork_net_conf": lambda q: q["fork_net_conf"],
     "kp_fork_conf": lambda q: q["kp_fork_conf"],
     "kp_snout_agree": lambda q: q["kp_snout_agree"],
-    "snout_net_conf": lambda q: q.get("snout_net_conf", np.ones_like(q["kp_snout_agree"])),
+    "snout_net_conf": lambda q: q["snout_net_conf"],
     "snout_view": lambda q: q["t_snout_view"],
-    "fork_shape": lambda q: q["t_fork_shape"],
 }
 
 

@@ -46,14 +46,7 @@ def refine(pyr: list[np.ndarray], fork_xy: np.ndarray, pts: np.ndarray, passes: 
     angle = np.arctan2(d[:, 1], d[:, 0])
     z = np.zeros(len(has))
     for _ in range(passes):
-        cur = Fins(xy, angle, span, z, z)
-        heat, head = fork_net.run(fork_net.crops(pyr, cur), MODEL)
-        uv = fork_net.soft_argmax(heat)
-        axes = np.c_[np.cos(angle), np.sin(angle)]
-        normal = np.c_[-axes[:, 1], axes[:, 0]]
-        xy = xy + uv[:, :1] * span[:, None] * axes + uv[:, 1:] * span[:, None] * normal
-        angle = angle + np.arctan2(head[:, 1], head[:, 2])
-        c = 1.0 / (1.0 + np.exp(-head[:, 0]))
+        xy, angle, c = fork_net.answer(pyr, Fins(xy, angle, span, z, z), MODEL)
     tips[has] = xy
     conf[has] = c
     return tips.reshape(N, K, 2), conf.reshape(N, K)
