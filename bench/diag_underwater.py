@@ -103,6 +103,7 @@ def main() -> None:
     setup = SurveySetup(up_world=(0.0, 0.0, 1.0))
     lost = {s: 0 for s in STAGES} | {"found": 0}
     visible = 0
+    sized: list[tuple[float, str]] = []
     for seed in range(args.seed0, args.seed0 + args.scenes):
         sc = underwater_scene(np.random.default_rng(seed))
         tr: dict = {}
@@ -111,14 +112,28 @@ def main() -> None:
         for i, t in enumerate(sc.fish):
             if t.fully_visible:
                 visible += 1
-                lost[fish_stage(t, tr, i in hits)] += 1
+                stage = fish_stage(t, tr, i in hits)
+                lost[stage] += 1
+                sized.append((float(np.linalg.norm(t.snout_px[0] - t.fork_px[0])), stage))
     passed, out = visible, {}
     for s in STAGES:
         passed -= lost[s]
         out[s] = {"lost": lost[s], "passed": passed}
     print(json.dumps({"scenes": args.scenes, "seed0": args.seed0, "params": changes, "fully_visible": visible,
                       "stages": out,
-                      "found": lost["found"]}))
+                      "found": lost["found"], "by_length_px": _by_length(sized)}))
+
+
+def _by_length(sized: list[tuple[float, str]]) -> list[dict]:
+    """Where the fish of each third of the image lengths (left image) are lost."""
+    px = np.array([p for p, _ in sized])
+    edges = np.quantile(px, [0, 1 / 3, 2 / 3, 1]) if len(px) else np.zeros(4)
+    out = []
+    for lo, hi in zip(edges[:-1], edges[1:], strict=True):
+        stages = [s for p, s in sized if lo <= p <= hi]
+        out.append({"from": round(float(lo), 1), "to": round(float(hi), 1), "fish": len(stages)}
+                   | {s: stages.count(s) for s in (*STAGES, "found")})
+    return out
 
 
 if __name__ == "__main__":

@@ -130,9 +130,13 @@ def raw_crops(pyr: list[np.ndarray], fins: Fins) -> np.ndarray:
 def normalise(c: np.ndarray) -> np.ndarray:
     """Each crop less its channels' means, over its overall spread (+4 grey levels: flat water
     stays flat instead of amplified noise)."""
-    c = c.astype(np.float32)
-    c = c - c.mean(axis=(2, 3), keepdims=True)
-    return (c / (c.std(axis=(1, 2, 3), keepdims=True) + 4.0)).astype(np.float32)
+    N, C, H, W = c.shape
+    # contiguous before the float copy: the reductions over a transposed view cost ~7x
+    x = np.ascontiguousarray(c).reshape(N, C, H * W).astype(np.float32)
+    x -= x.mean(axis=2, keepdims=True)
+    spread = np.sqrt(np.einsum("nci,nci->n", x, x) / (C * H * W))
+    x *= (1.0 / (spread + 4.0)).astype(np.float32)[:, None, None]
+    return x.reshape(N, C, H, W)
 
 
 @lru_cache(maxsize=2)

@@ -131,3 +131,14 @@ def test_survey_with_the_net_reports_fish_where_rendered_fish_are():
     assert reports >= 3 and near >= 0.75 * reports
     tiny = np.zeros((20, 30, 3), np.uint8)
     assert measure_underwater(tiny, tiny, sc.rig.calibration(), setup, params=p) == []
+
+
+def test_the_net_input_is_the_image_less_its_channel_means_over_its_spread():
+    rng = np.random.default_rng(3)
+    img = rng.integers(0, 256, (37, 53, 3)).astype(np.uint8)
+    x = img.astype(np.float64).transpose(2, 0, 1)
+    centred = x - x.mean(axis=(1, 2), keepdims=True)
+    out = fk.normalise(img)
+    assert out.dtype == np.float32 and out.flags["C_CONTIGUOUS"]
+    assert np.allclose(out, centred / (centred.std() + 4.0), atol=1e-5)
+    assert np.all(fk.normalise(np.full((8, 8, 3), 200, np.uint8)) == 0)

@@ -121,3 +121,19 @@ def test_survey_with_the_net_reports_forks_where_rendered_fish_have_them():
             reports += 1
             near += min(errs) <= 0.03
     assert reports >= 3 and near >= 0.75 * reports
+
+
+def test_normalised_crops_are_centred_per_channel_and_scaled_by_their_overall_spread():
+    """Each crop less its channels' means over its spread + 4, for uint8 crops as sampled (NHWC,
+    handed over transposed) as for float ones."""
+    rng = np.random.default_rng(11)
+    raw = rng.integers(0, 256, (5, fork_net.GRID_H, fork_net.GRID_W, 3)).astype(np.uint8)
+    raw[0] = 90                                                       # a flat crop stays flat
+    for c in (raw.transpose(0, 3, 1, 2), raw.transpose(0, 3, 1, 2).astype(np.float64)):
+        out = fork_net.normalise(c)
+        assert out.dtype == np.float32 and out.shape == c.shape
+        x = c.astype(np.float64)
+        centred = x - x.mean(axis=(2, 3), keepdims=True)
+        spread = np.sqrt((centred ** 2).mean(axis=(1, 2, 3), keepdims=True))
+        assert np.allclose(out, centred / (spread + 4.0), atol=1e-5)
+        assert np.all(out[0] == 0)
