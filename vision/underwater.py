@@ -366,19 +366,8 @@ def measure_underwater(left: np.ndarray, right: np.ndarray, calib: StereoCalibra
         moved = same.any(axis=1)
         view = np.where(moved, np.clip((np.where(same, tn, 0).max(axis=1) - 0.5) / 0.4, 0, 1), 1.0)
     keep = ch.ok & np.all(np.isfinite(fork_mm), axis=1) & (fork_res <= gate)
-    # each end looked for again along its epipolar line in the other image, by likeness alone: a
-    # fork or snout paired with the wrong structure on that line (another fin, a fin's edge) is
-    # not where the other image's best match is
-    near, far = np.maximum(depth - 0.8 * expected, 1.0), depth + 0.8 * expected
-    lo_d, hi_d = np.maximum(depth - 0.5 * expected, 1.0), depth + 0.5 * expected
-    fwd = transfer_forks(calib.P1, calib.P2, v1, v2, pairs.i, lo_d, hi_d)
-    bwd = transfer_forks(calib.P2, calib.P1, v2, v1, pairs.j, lo_d, hi_d)
-    fork_epi = np.maximum(np.linalg.norm(fwd.xy - f2.xy, axis=1), np.linalg.norm(bwd.xy - f1.xy, axis=1))
-    s12, _ = transfer_snouts(calib.P1, calib.P2, v1, v2, ch.px1[:, None], f1.body_angle(), f2.body_angle(),
-                             0.5 * f1.span_px, near, far)
-    s21, _ = transfer_snouts(calib.P2, calib.P1, v2, v1, ch.px2[:, None], f2.body_angle(), f1.body_angle(),
-                             0.5 * f2.span_px, near, far)
-    snout_epi = np.maximum(np.linalg.norm(s12[:, 0] - ch.px2, axis=1), np.linalg.norm(s21[:, 0] - ch.px1, axis=1))
+    rows = np.flatnonzero(keep)
+    fork_epi, snout_epi = _epipolar_checks(calib, v1, v2, pairs, f1, f2, ch, depth, expected, rows)
     if trace is not None:
         trace["associated"] = (f1.xy.copy(), f2.xy.copy(), ch.px1.copy(), ch.px2.copy(), keep.copy())
     sure = agree = np.ones(len(f1))
@@ -386,11 +375,36 @@ def measure_underwater(left: np.ndarray, right: np.ndarray, calib: StereoCalibra
         (c1, a1), (c2, a2) = fish_keypoints.agreement(kp1, f1.xy, ch.px1), fish_keypoints.agreement(kp2, f2.xy, ch.px2)
         sure, agree = np.minimum(c1, c2), np.minimum(a1, a2)
     snout_sure = np.ones(len(f1))
-    if params.snout_net:
+    if params.snout_net and len(rows):
         # how sure the learned locator is of each chosen snout, in the worse view
-        snout_sure = np.minimum(*(snout_net.refine(v.pyr, f.xy, px[:, None], passes=1)[1][:, 0]
-                                  for v, f, px in ((v1, f1, ch.px1), (v2, f2, ch.px2))))
-    out = measurements(np.flatnonzero(keep), pairs, f1, f2, v1, v2, fork_mm, fork_res, ch, calib, geo, params,
+        snout_sure[rows] = np.minimum(*(snout_net.refine(v.pyr, f.xy[rows], px[rows, None], passes=1)[1][:, 0]
+                                        for v, f, px in ((v1, f1, ch.px1), (v2, f2, ch.px2))))
+    out = measurements(rows, pairs, f1, f2, v1, v2, fork_mm, fork_res, ch, calib, geo, params,
                        left.shape[1], expected, view, fork_epi, snout_epi, sure, agree, snout_sure)
     clock.lap("associate")
     return out
+
+
+def _epipolar_checks(calib, v1: View, v2: View, pairs, f1: Fins, f2: Fins, ch, depth: np.ndarray,
+                     expected: np.ndarray, rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """How far (px) each kept pair's fork and snout are from where the other image's best match
+    along the epipolar line puts them, the worse view: a fork or snout paired with the wrong
+    structure on that line (another fin, a fin's edge) is not there. Only ``rows`` are looked
+    for (the others are dropped anyway: 0 there)."""
+    fork_epi, snout_epi = np.zeros(len(f1)), np.zeros(len(f1))
+    if len(rows) == 0:
+        return fork_epi, snout_epi
+    depth, expected = depth[rows], expected[rows]
+    a, b = f1.take(rows), f2.take(rows)
+    near, far = np.maximum(depth - 0.8 * expected, 1.0), depth + 0.8 * expected
+    lo_d, hi_d = np.maximum(depth - 0.5 * expected, 1.0), depth + 0.5 * expected
+    fwd = transfer_forks(calib.P1, calib.P2, v1, v2, pairs.i[rows], lo_d, hi_d)
+    bwd = transfer_forks(calib.P2, calib.P1, v2, v1, pairs.j[rows], lo_d, hi_d)
+    fork_epi[rows] = np.maximum(np.linalg.norm(fwd.xy - b.xy, axis=1), np.linalg.norm(bwd.xy - a.xy, axis=1))
+    px1, px2 = ch.px1[rows], ch.px2[rows]
+    s12, _ = transfer_snouts(calib.P1, calib.P2, v1, v2, px1[:, None], a.body_angle(), b.body_angle(),
+                             0.5 * a.span_px, near, far)
+    s21, _ = transfer_snouts(calib.P2, calib.P1, v2, v1, px2[:, None], b.body_angle(), a.body_angle(),
+                             0.5 * b.span_px, near, far)
+    snout_epi[rows] = np.maximum(np.linalg.norm(s12[:, 0] - px2, axis=1), np.linalg.norm(s21[:, 0] - px1, axis=1))
+    return fork_epi, snout_epi
