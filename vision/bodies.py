@@ -16,7 +16,7 @@ every proposer of ``vision.underwater`` counted): in 19 views the nearest propos
 fish's axis but 0.1-0.3 of its length ahead of the fork -- the half-transparent fin and a thin
 peduncle are not in the region (the 3x3 opening at the 320 px working width cuts a peduncle under
 ~12 full-resolution px deep), so the region ends at the peduncle or short of it and the shifted
-ends (``Params.end_offsets``, back to 0.17 of the region) do not reach the notch; in 15 no
+ends (``Params.end_offsets``, then back to 0.17 of the region) do not reach the notch; in 15 no
 proposal is within 0.3 of the length (the fish merged with a fish it touches or overlaps into one
 region whose ends are elsewhere, or cut up by a reef behind it); in 3 the proposals are beside the
 axis (a region's axis tilted by an adjoining fish or the fish's shadow). Shifting the ends back
