@@ -1,6 +1,8 @@
 """Underwater survey benchmark: accuracy and speed of ``measure_pair`` on rendered stereo pairs.
 
-Run: ``.venv/bin/python bench/bench_survey_underwater.py [--fish 200] [--seed0 0]``; prints one JSON object.
+Run: ``.venv/bin/python bench/bench_survey_underwater.py [--fish 200] [--seed0 0] [--params ...]
+[--size 1280x960] [--focal 1400]``; prints one JSON object (``--size 1920x1080 --focal 2100``: a
+camera nothing was trained or tuned on).
 
 Scenes: ``devices.sim.fish_scene.underwater_scene`` with every condition drawn per seed (species,
 sizes, range 0.6-2 m, water colour and turbidity, light, clutter, bubbles, noise, blur), seeds

@@ -15,6 +15,7 @@ fractions of the fish's fork length in that image):
 ``filtered``  a report the bench counts correct (bench_survey_underwater.assign): lost here, the fish
              was dropped by the post-filters (score, epipolar consistency, one fish per snout) or
              its 3-D placement is outside the bench's tolerance.
+``by_length_px``: the same funnel for each third of the fish by their length in the left image.
 """
 from __future__ import annotations
 
