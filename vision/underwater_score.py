@@ -22,6 +22,7 @@ def measurements(rows, pairs, f1, f2, v1, v2, fork_mm, fork_res, ch, calib, geo,
     len_px = 0.5 * (np.linalg.norm(ch.px1 - f1.xy, axis=1) + np.linalg.norm(ch.px2 - f2.xy, axis=1))
     fill = np.minimum(body_fill(v1.comps, *v1.scale, f1.xy, ch.px1), body_fill(v2.comps, *v2.scale, f2.xy, ch.px2)) \
         if p.outlines else np.ones(len(f1))
+    net_sure = np.minimum(v1.sure()[pairs.i], v2.sure()[pairs.j])     # the fork locator's, the worse view
     terms = {
         "t_fill": np.clip((fill - p.min_fill) / (1 - p.min_fill), 0, 1) if p.min_fill < 1 else np.ones(len(f1)),
         "t_stereo": np.clip((pairs.ncc - 0.4) / 0.5, 0, 1),
@@ -34,7 +35,7 @@ def measurements(rows, pairs, f1, f2, v1, v2, fork_mm, fork_res, ch, calib, geo,
         "t_tilt": np.clip(1 - (ch.tilt_deg / geo.max_tilt_deg) ** 2, 0, 1),
         "t_size": np.clip(len_px / (p.good_length_px * width / 1280.0), 0, 1),
         "t_fork_shape": np.exp(-(np.maximum(v1.arm_rms[pairs.i], v2.arm_rms[pairs.j]) / 0.03) ** 2),
-        "t_fork_net": np.minimum(v1.sure()[pairs.i], v2.sure()[pairs.j]) ** p.net_weight,
+        "t_fork_net": net_sure ** p.net_weight,
         # the length against the body's region it was found from: a snout taken past the real one
         # (into a fish ahead) or short of it (a shade across the head) disagrees
         # (whether the faint fin is part of that region or not moves it by ~20 %: no penalty there)
@@ -49,7 +50,7 @@ def measurements(rows, pairs, f1, f2, v1, v2, fork_mm, fork_res, ch, calib, geo,
            "tilt_deg": ch.tilt_deg, "range_mm": rng_mm, "length_px": len_px,
            "fin_ncc": np.minimum(f1.score, f2.score), "snout_edge": ch.strength, "body_length_mm": expected,
            "body_fill": fill, "fork_epi_px": fork_epi, "snout_epi_px": snout_epi,
-           "fork_net_conf": np.minimum(v1.sure()[pairs.i], v2.sure()[pairs.j]), "kp_fork_conf": keypoint_conf,
+           "fork_net_conf": net_sure, "kp_fork_conf": keypoint_conf,
            "kp_snout_agree": keypoint_snout, "snout_net_conf": snout_net_conf}
     raw["hand_score"] = score
     min_score = p.min_score
