@@ -1,5 +1,5 @@
 """Train the learned fork locator (``vision.fork_net``) on crops from tools/fork_net_data.py and
-export it to ONNX for OpenCV's dnn module.
+export it to ONNX (run by ONNX Runtime).
 
 Not part of the project's dependencies or its suite: torch lives in a separate venv,
     /root/.pyenv/versions/3.11.7/bin/python -m venv .venv-train

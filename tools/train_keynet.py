@@ -1,5 +1,5 @@
 """Train the full-image fish keypoint net (``vision.fish_keypoints``) on images from
-tools/keynet_data.py and export it to ONNX for OpenCV's dnn module.
+tools/keynet_data.py and export it to ONNX (run by ONNX Runtime).
 
 Not part of the project's dependencies or its suite: torch lives in a separate venv,
     /root/.pyenv/versions/3.11.7/bin/python -m venv .venv-train

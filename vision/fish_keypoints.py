@@ -11,13 +11,14 @@ nearest where the fork points, confirmed by that snout pointing back.
 
 Its points are coarse (a cell is 16 px at 1280 wide): the survey uses them as fork hypotheses for
 the full-resolution locators and as snout candidates refined there (``vision.underwater``,
-``Params.keypoints``, on). Inference is OpenCV's dnn module, so the project needs no torch.
+``Params.keypoints``, on). Inference is ONNX Runtime (``vision.onnx_nets``), so the project needs no torch.
 
 Measured (2026-12-02, issue 7; the machine shared, load 4-14). Model: 27.7k parameters, ~50 M
 multiply-adds at 320x240; trained 40 min on one loaded core (3,458 steps of 16 crops 160x224;
 1,200 scenes, seeds 100000-100799 and 101000-101399; tools/train_keynet.py). The training stopped far from
 converged: its heatmaps stay low (held-out peaks over 0.3 at 8 % of the forks), so peaks are taken
-from 0.05. Cost: ~9 ms CPU an image at 320 wide (14.5 ms at 384) in cv2.dnn, one thread.
+from 0.05. Cost: ~9 ms CPU an image at 320 wide (14.5 ms at 384) in cv2.dnn, one thread; ~2.4 ms
+in ONNX Runtime (2026-12-03, a 1280x960 image, resizing included).
 As a proposer (tuning seeds 200000-200011, 48 clear views, 320 wide, peaks from 0.05, ~21 forks an
 image): the fork within 10 % of the length for 65 % of clear fish (46 % from 0.1, 25 % from 0.2),
 within 5 % for 48 %, within 3 % for 25 %; of those within 5 %, the paired snout within 5 % for 43 %;
@@ -59,12 +60,11 @@ big all round; drawn with area coverage (tests/vision/fish_drawing.py) every vis
 from __future__ import annotations
 
 from dataclasses import dataclass
-from functools import lru_cache
-from importlib import resources
 
 import cv2
 import numpy as np
 
+from vision import onnx_nets
 from vision.fins import SPAN_OF_FL, Fins
 
 MODEL = "fish_keypoints.onnx"
@@ -103,12 +103,6 @@ def normalise(img: np.ndarray) -> np.ndarray:
     return x
 
 
-@lru_cache(maxsize=1)
-def _net() -> cv2.dnn.Net:
-    data = resources.files("vision.models").joinpath(MODEL).read_bytes()
-    return cv2.dnn.readNetFromONNX(np.frombuffer(data, np.uint8))
-
-
 def net_input(img: np.ndarray, width: int) -> tuple[np.ndarray, float]:
     """The image at ``width`` px wide (colour; grey repeated), normalised and padded to the net's
     multiple: (1, 3, h, w) and full-resolution px per input px."""
@@ -131,9 +125,7 @@ def net_input(img: np.ndarray, width: int) -> tuple[np.ndarray, float]:
 def maps(img: np.ndarray, width: int = 320) -> tuple[np.ndarray, float]:
     """The net's raw maps (CHANNELS, h, w) for an image, and full-resolution px per input px."""
     x, scale = net_input(img, width)
-    net = _net()
-    net.setInput(x)
-    return net.forward()[0], scale
+    return onnx_nets.forward(MODEL, x)[0][0], scale
 
 
 def _peaks(heat: np.ndarray, thr: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

@@ -11,7 +11,7 @@ spread (per channel mean, one spread), so the water's colour and the light do no
 
 The model (``vision/models/fork_net.onnx``, 10.4k parameters, ~1 M multiply-adds a crop) is
 trained on rendered crops of seeds >= 100000 only (tools/fork_net_data.py, tools/train_fork_net.py);
-inference is OpenCV's dnn module, so the project needs no torch. Outputs: a heatmap over the crop at
+inference is ONNX Runtime (``vision.onnx_nets``), so the project needs no torch. Outputs: a heatmap over the crop at
 half its resolution (its soft-argmax is the fork), and a logit (fork here) with the axis' turn
 (sin, cos) from the crop's axis.
 
@@ -71,12 +71,10 @@ On by default since 2026-12-03: that test fish was drawn ~0.5 px too big all rou
 from __future__ import annotations
 
 from dataclasses import dataclass
-from functools import lru_cache
-from importlib import resources
 
-import cv2
 import numpy as np
 
+from vision import onnx_nets
 from vision.fins import Fins, fin_scores, sample_frames_raw
 
 GRID_W, GRID_H = 64, 32
@@ -139,21 +137,12 @@ def normalise(c: np.ndarray) -> np.ndarray:
     return x.reshape(N, C, H, W)
 
 
-@lru_cache(maxsize=2)
-def _net(model: str) -> cv2.dnn.Net:
-    data = resources.files("vision.models").joinpath(model).read_bytes()
-    net = cv2.dnn.readNetFromONNX(np.frombuffer(data, np.uint8))
-    return net
-
-
 def run(batch: np.ndarray, model: str = MODEL) -> tuple[np.ndarray, np.ndarray]:
     """The raw outputs for crops (N, 3, H, W): heatmap logits (N, H/2, W/2), head (N, 3), of the
     fork net or another net of its shape (``vision.snout_net``)."""
-    net = _net(model)
     heats, heads = [], []
     for k in range(0, len(batch), BATCH):
-        net.setInput(np.ascontiguousarray(batch[k:k + BATCH]))
-        h, d = net.forward(["heat", "head"])
+        h, d = onnx_nets.forward(model, batch[k:k + BATCH], ["heat", "head"])
         heats.append(h.reshape(len(h), GRID_H // 2, GRID_W // 2))
         heads.append(d.reshape(len(d), 3))
     if not heats:

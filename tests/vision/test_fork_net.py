@@ -57,6 +57,17 @@ def test_model_loads_and_answers_in_shape():
     assert fork_net.soft_argmax(fork_net.run(x[:0])[0]).shape == (0, 2)      # an image with no hypothesis
 
 
+def test_crops_over_several_forward_passes_answer_as_each_crop_alone_in_order():
+    n = 2 * fork_net.BATCH + 3
+    x = np.random.default_rng(1).standard_normal((n, 3, fork_net.GRID_H, fork_net.GRID_W)).astype(np.float32)
+    heat, head = fork_net.run(x)
+    pick = [0, fork_net.BATCH - 1, fork_net.BATCH, n - 1]
+    for i in pick:
+        h1, d1 = fork_net.run(x[i:i + 1])
+        assert np.allclose(heat[i], h1[0], atol=1e-4) and np.allclose(head[i], d1[0], atol=1e-4)
+    assert not np.allclose(head[pick[0]], head[pick[-1]], atol=1e-3)      # different crops, different answers
+
+
 def rendered_fish(seeds):
     """(pyramid, fork, snout, length px) of every clearly visible fish in each view."""
     out = []
