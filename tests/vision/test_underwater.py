@@ -173,3 +173,39 @@ def test_the_packaged_score_model_is_complete():
     assert len(m["mean"]) == len(m["sd"]) == len(m["weights"]) == n
     # every feature varied in the data it was fitted on (a constant one would be dead weight)
     assert all(s > 1e-6 for s in m["sd"]) and np.all(np.isfinite(m["weights"]))
+
+
+@pytest.mark.parametrize("min_conf", [0.0, 0.9, 1.01])
+def test_only_lone_forks_the_locator_is_sure_of_are_looked_for_in_the_other_image(monkeypatch, min_conf):
+    """``transfer_min_conf``: the forks searched for along their epipolar line are exactly the
+    unpaired ones whose confidence reaches it (none above 1)."""
+    from vision import association, underwater
+    first, checked, lone = [], [], []
+    real_transfer, real_match = underwater.transfer_forks, association.match_forks
+
+    def transfer(P_src, P_dst, src, dst, idx, near, far, *a):
+        if len(first) == 1:             # before the second pairing: the lone forks' transfers
+            used = first[0].i if P_src is calib.P1 else first[0].j
+            unpaired = np.setdiff1d(np.arange(len(src.fins)), used)
+            checked.append((np.sort(idx).tolist(), unpaired[src.sure()[unpaired] >= min_conf].tolist()))
+        return real_transfer(P_src, P_dst, src, dst, idx, near, far, *a)
+
+    def match(calib, v1, v2, band):
+        first.append(real_match(calib, v1, v2, band))
+        if len(first) == 1:
+            lone.extend([len(v1.fins) - len(first[0].i), len(v2.fins) - len(first[0].j)])
+        return first[-1]
+
+    monkeypatch.setattr(underwater, "transfer_forks", transfer)
+    monkeypatch.setattr(underwater, "match_forks", match)
+    rig = rig_of()
+    calib = rig.calibration()
+    left, right, _ = underwater_pair(np.random.default_rng(4), rig, n_fish=3)
+    measure_underwater(left, right, calib, SETUP, params=replace(Params(), transfer_min_conf=min_conf))
+    assert lone[0] > 0 and lone[1] > 0        # both views hold forks the other did not pair
+    for got, wanted in checked:
+        assert got == wanted
+    # a view whose every lone fork is below the bar is not searched at all
+    assert len(checked) == sum(1 for got, _ in checked if got)
+    if min_conf > 1:
+        assert checked == []
