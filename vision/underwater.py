@@ -64,6 +64,7 @@ import numpy as np
 
 from vision import fish_keypoints, fork_net, snout_net
 from vision.association import (
+    ForkPairs,
     View,
     camera_frame,
     match_forks,
@@ -108,6 +109,9 @@ class Params:
     transfer_min_conf: float = 0.9  # ... where the learned locator is at least this sure of it (2026-12-03:
                                     # the same recall and precision on three bench sets at ~10 % less CPU a
                                     # pair than 0; of 171 forks transfers added in 40 scenes, 7 were reported)
+    pair_min_conf: float = 0.9      # fork pairs the learned locator is less sure of in either view are not
+                                    # measured (2026-12-03: at min_chance 0.75 the same fish are reported on
+                                    # three bench sets, ~5 % less CPU a pair; lower it with min_chance)
     transfer_snouts: bool = True    # each left snout candidate is looked for along its epipolar line on the
                                     # right (off: ~9 % less CPU, recall -0.005 / -0.015 on the bench sets)
     near_mm: float = 300.0          # working range of the rig for that search (from the camera)
@@ -308,6 +312,10 @@ def measure_underwater(left: np.ndarray, right: np.ndarray, calib: StereoCalibra
     if trace is not None:
         trace["located"] = [v1.fins.xy.copy(), v2.fins.xy.copy()]
         trace["pairs"] = (v1.fins.xy[pairs.i].copy(), v2.fins.xy[pairs.j].copy())
+    if params.pair_min_conf > 0:
+        # before the snouts, which cost most for each pair, and the score, which drops these anyway
+        ok = np.minimum(v1.sure()[pairs.i], v2.sure()[pairs.j]) >= params.pair_min_conf
+        pairs = ForkPairs(pairs.i[ok], pairs.j[ok], pairs.ncc[ok], pairs.line_px[ok])
     if len(pairs.i) == 0:
         clock.lap("stereo")
         return []

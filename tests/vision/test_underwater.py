@@ -209,3 +209,20 @@ def test_only_lone_forks_the_locator_is_sure_of_are_looked_for_in_the_other_imag
     assert len(checked) == sum(1 for got, _ in checked if got)
     if min_conf > 1:
         assert checked == []
+
+
+def test_fork_pairs_below_pair_min_conf_are_dropped_and_the_rest_measured_as_before():
+    """``pair_min_conf``: with the score's filter off, the reports are exactly those made without the
+    bar whose fork locator confidence (the worse view) reaches it, with the same lengths."""
+    from devices.sim.fish_scene import underwater_scene
+    low = 0
+    for seed in range(4):
+        sc = underwater_scene(np.random.default_rng(seed))
+        everyone = measure_underwater(sc.left, sc.right, sc.rig.calibration(), SETUP,
+                                      params=replace(Params(), min_chance=0.0, pair_min_conf=0.0))
+        barred = measure_underwater(sc.left, sc.right, sc.rig.calibration(), SETUP,
+                                    params=replace(Params(), min_chance=0.0, pair_min_conf=0.9))
+        low += sum(f.quality["fork_net_conf"] < 0.9 for f in everyone)
+        kept = [f for f in everyone if f.quality["fork_net_conf"] >= 0.9]
+        assert [round(f.length_cm, 6) for f in barred] == [round(f.length_cm, 6) for f in kept]
+    assert low > 0                  # the bar dropped something
