@@ -64,7 +64,6 @@ import numpy as np
 
 from vision import fish_keypoints, fork_net, snout_net
 from vision.association import (
-    ForkPairs,
     View,
     camera_frame,
     match_forks,
@@ -106,12 +105,6 @@ class Params:
     max_epipolar: float = 0.03      # post-filter: each end within this share of the length of the other
                                     # image's best match along its epipolar line
     transfer: bool = True           # a fork found in one image only is looked for along its epipolar line
-    transfer_min_conf: float = 0.9  # ... where the learned locator is at least this sure of it (2026-12-03:
-                                    # the same recall and precision on three bench sets at ~10 % less CPU a
-                                    # pair than 0; of 171 forks transfers added in 40 scenes, 7 were reported)
-    pair_min_conf: float = 0.9      # fork pairs the learned locator is less sure of in either view are not
-                                    # measured (2026-12-03: at min_chance 0.75 the same fish are reported on
-                                    # three bench sets, ~5 % less CPU a pair; lower it with min_chance)
     transfer_snouts: bool = True    # each left snout candidate is looked for along its epipolar line on the
                                     # right (off: ~9 % less CPU, recall -0.005 / -0.015 on the bench sets)
     near_mm: float = 300.0          # working range of the rig for that search (from the camera)
@@ -125,7 +118,10 @@ class Params:
     outline_k: tuple[float, ...] = (2.0, 4.0)   # ... thresholds, in local background spreads
     outline_ends: tuple[float, ...] = (-0.12, -0.02)   # ... outline ends shifted by these shares of its length
     fork_net: bool = True           # forks located by the learned locator (vision.fork_net), not vision.fork
-    net_min_conf: float = 0.5       # ... where its confidence is at least this
+    net_min_conf: float = 0.9       # ... where its confidence is at least this (2026-12-03, 0.5 -> 0.9: the
+                                    # same reports on three bench sets and at 1920x1080, one more fish on seeds
+                                    # 1000+, ~15 % less CPU a pair: the score kept no fork pair below 0.9 at
+                                    # min_chance 0.75, and its forks were most of what transfers and snouts cost)
     net_weight: float = 1.0         # ... which enters the score raised to this power
     min_fill: float = 0.0           # the least share of the fork-snout segment inside a silhouette (term 0 there)
     max_fork_residual_px: float = np.inf    # post-filter: the forks' triangulation residual
@@ -252,11 +248,10 @@ def _transfer(calib, v1: View, v2: View, pairs, p: Params) -> tuple[View, View]:
     """Forks located in one image only: look for each in the other along its epipolar line
     (``association.transfer_forks``), locate it there, and add what is found to that view (a fork
     added to the right image is looked for back in the left too: that found one more fish of 200
-    on the bench's seeds 1000+ than leaving it, 2026-12-03)."""
+    on the bench's seeds 1000+ than not, 2026-12-03)."""
     views = [v1, v2]
     for src, dst, Ps, Pd, used in ((0, 1, calib.P1, calib.P2, pairs.i), (1, 0, calib.P2, calib.P1, pairs.j)):
         lone = np.setdiff1d(np.arange(len(views[src].fins)), used)
-        lone = lone[views[src].sure()[lone] >= p.transfer_min_conf]
         if len(lone) == 0:
             continue
         hyp = transfer_forks(Ps, Pd, views[src], views[dst], lone, p.near_mm, p.far_mm)
@@ -312,10 +307,6 @@ def measure_underwater(left: np.ndarray, right: np.ndarray, calib: StereoCalibra
     if trace is not None:
         trace["located"] = [v1.fins.xy.copy(), v2.fins.xy.copy()]
         trace["pairs"] = (v1.fins.xy[pairs.i].copy(), v2.fins.xy[pairs.j].copy())
-    if params.pair_min_conf > 0:
-        # before the snouts, which cost most for each pair, and the score, which drops these anyway
-        ok = np.minimum(v1.sure()[pairs.i], v2.sure()[pairs.j]) >= params.pair_min_conf
-        pairs = ForkPairs(pairs.i[ok], pairs.j[ok], pairs.ncc[ok], pairs.line_px[ok])
     if len(pairs.i) == 0:
         clock.lap("stereo")
         return []
