@@ -30,6 +30,7 @@ import cv2
 import numpy as np
 
 from vision.fins import SPAN_OF_FL, Fins
+from vision.labels import regions
 
 
 def fish_masks(dist: np.ndarray, ks: tuple[float, ...] = (3.0,), otsu_share: float = 1.0) -> list[np.ndarray]:
@@ -59,7 +60,7 @@ def body_ends(mask: np.ndarray, sx: float, sy: float, min_len_px: float, min_elo
     long (working-image px), in full-resolution px (``sx``, ``sy``: full / working). Returns the
     hypotheses (2 per body: end, angle towards the other end, span 0.3 of the length) and, per
     hypothesis, the body length in full-resolution px."""
-    n, labels, stats, _ = cv2.connectedComponentsWithStats(mask, connectivity=8)
+    n, labels, stats, _ = regions(mask)
     big = np.flatnonzero((np.maximum(stats[:, cv2.CC_STAT_WIDTH], stats[:, cv2.CC_STAT_HEIGHT]) >= min_len_px)
                          & (np.arange(n) > 0))
     big = big[np.argsort(-stats[big, cv2.CC_STAT_AREA])][:max_bodies]

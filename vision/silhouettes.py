@@ -32,6 +32,7 @@ import cv2
 import numpy as np
 
 from vision.fins import SPAN_OF_FL, Fins
+from vision.labels import regions
 
 
 def _lab(img: np.ndarray) -> np.ndarray:
@@ -175,7 +176,7 @@ def outline_forks(mask: np.ndarray, sx: float, sy: float, min_len_px: float, min
 
 def components(masks: list[np.ndarray]) -> list[tuple[np.ndarray, np.ndarray]]:
     """(labels, stats) of every mask's 8-connected components."""
-    return [cv2.connectedComponentsWithStats(m, connectivity=8)[1:3] for m in masks]
+    return [regions(m)[1:3] for m in masks]
 
 
 def silhouette_tips(comps: list[tuple[np.ndarray, np.ndarray]], sx: float, sy: float, xy: np.ndarray,

@@ -19,6 +19,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
+from vision.labels import regions
 from vision.surface_prep import Contrast
 
 
@@ -74,7 +75,7 @@ def _grow(c: Contrast, p: RegionParams, sign: float):
     def pool(mask):                 # 0/255 averaged over 2x2: non-zero where any of the four is set
         return (cv2.resize(mask.view(np.uint8) * np.uint8(255), size, interpolation=cv2.INTER_AREA) > 0).view(np.uint8)
     weak, strong = pool(work > grow_t), pool(work > seed_t)
-    n, labels, stats, _ = cv2.connectedComponentsWithStats(weak, connectivity=8)
+    n, labels, stats, _ = regions(weak)
     seeded = np.bincount(labels[strong > 0], minlength=n) > 0
     seeded[0] = False
     w, h, area = (stats[:, k].astype(float) for k in (cv2.CC_STAT_WIDTH, cv2.CC_STAT_HEIGHT, cv2.CC_STAT_AREA))
@@ -183,7 +184,7 @@ def _cut_at_waist(mask: np.ndarray, min_elongation: float, slices: int = 24) -> 
     for side in (s < cut, s >= cut):
         m = np.zeros_like(mask)
         m[ys[side], xs[side]] = 1
-        n, lab, stats, _ = cv2.connectedComponentsWithStats(m, connectivity=8)
+        n, lab, stats, _ = regions(m)
         if n > 1:
             parts.append((lab == 1 + int(np.argmax(stats[1:, cv2.CC_STAT_AREA]))).astype(np.uint8))
     if len(parts) < 2 or any(_elongation(m) < min_elongation for m in parts):
@@ -200,7 +201,7 @@ def _trim(part: np.ndarray) -> np.ndarray:
     body = cv2.morphologyEx(part, cv2.MORPH_OPEN, disk)
     reach = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 3, 2 * r + 3))
     kept = part & cv2.dilate(body, reach)
-    n, lab, stats, _ = cv2.connectedComponentsWithStats(kept, connectivity=8)
+    n, lab, stats, _ = regions(kept)
     if n <= 1:
         return kept
     return (lab == 1 + int(np.argmax(stats[1:, cv2.CC_STAT_AREA]))).astype(np.uint8)
