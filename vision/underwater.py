@@ -107,6 +107,9 @@ class Params:
     transfer: bool = True           # a fork found in one image only is looked for along its epipolar line
     transfer_snouts: bool = True    # each left snout candidate is looked for along its epipolar line on the
                                     # right (off: ~9 % less CPU, recall -0.005 / -0.015 on the bench sets)
+    transfer_snout_min: float = 0.9  # ... where the learned snout locator is at least this sure of it
+                                    # (2026-12-03: as many fish on the bench sets, one more on the tuning
+                                    # seeds, ~1-2 % less CPU than 0)
     near_mm: float = 300.0          # working range of the rig for that search (from the camera)
     far_mm: float = 4000.0
     bank_per_mpix: float = 8.0      # eq. (13)'s best fork proposals per megapixel (0: off; 10 at 1280x960)
@@ -339,10 +342,12 @@ def measure_underwater(left: np.ndarray, right: np.ndarray, calib: StereoCalibra
             sn[c] = Snouts(np.concatenate([sn[c].dist_px, np.linalg.norm(tips - f.xy[:, None], axis=2)], axis=1),
                            np.concatenate([sn[c].xy, tips], axis=1),
                            np.concatenate([sn[c].strength, strength[:, None]], axis=1))
+    left_sure = np.ones(sn[0].xy.shape[:2])
     if params.snout_net:
         # each candidate moved to the tip the learned snout locator finds from it, where it is sure
         for c, f in enumerate((f1, f2)):
             tips, conf = snout_net.refine((v1, v2)[c].pyr, f.xy, sn[c].xy)
+            left_sure = conf if c == 0 else left_sure
             moved = np.where((conf >= params.snout_net_min)[..., None], tips, sn[c].xy)
             sn[c] = Snouts(np.linalg.norm(moved - f.xy[:, None], axis=2), moved, sn[c].strength)
     clock.lap("snout")
@@ -357,9 +362,11 @@ def measure_underwater(left: np.ndarray, right: np.ndarray, calib: StereoCalibra
         trace["snouts"] = (px1.copy(), px2.copy())
     if params.transfer_snouts:
         # each left candidate also looked for along its epipolar line in the right image, within the
-        # (kept only where a tip is seen there: a point on a line is no snout by itself)
-        # species' reach of the fork: a snout the right profile missed is still paired
-        t2, tn = transfer_snouts(calib.P1, calib.P2, v1, v2, px1, f1.body_angle(), f2.body_angle(),
+        # species' reach of the fork: a snout the right profile missed is still paired (kept only
+        # where a tip is seen there: a point on a line is no snout by itself). Not the candidates
+        # the snout locator doubts: a fish would rest on a doubtful snout anyway
+        src = np.where((left_sure >= params.transfer_snout_min)[..., None], px1, np.nan)
+        t2, tn = transfer_snouts(calib.P1, calib.P2, v1, v2, src, f1.body_angle(), f2.body_angle(),
                                  0.5 * f1.span_px, np.maximum(depth - 0.8 * expected, 1.0), depth + 0.8 * expected)
         t2, found = _tips(v2, f2, t2, pairs.j)
         px1, s1 = np.concatenate([px1, px1], axis=1), np.concatenate([s1, s1], axis=1)

@@ -188,3 +188,32 @@ def test_no_fish_rests_on_a_fork_the_locator_is_less_sure_of_than_net_min_conf()
             assert all(f.quality["fork_net_conf"] >= bar for f in fish)
             low += sum(f.quality["fork_net_conf"] < 0.9 for f in fish)
     assert low > 0
+
+
+@pytest.mark.parametrize("bar", [0.0, 0.9])
+def test_left_snouts_the_snout_locator_doubts_are_not_looked_for_on_the_right(monkeypatch, bar):
+    """``transfer_snout_min``: the left snout candidates searched for along their epipolar lines are
+    exactly those the learned snout locator (its first answer, on the left image) is that sure of."""
+    from devices.sim.fish_scene import underwater_scene
+    from vision import snout_net, underwater
+    answers, searched = [], []
+    real_refine, real_transfer = snout_net.refine, underwater.transfer_snouts
+
+    def refine(pyr, fork_xy, pts, passes=2):
+        out = real_refine(pyr, fork_xy, pts, passes)
+        answers.append((pts.copy(), out[1].copy()))
+        return out
+
+    def transfer(P1, P2, left, right, px1, *a):
+        searched.append(px1.copy())
+        return real_transfer(P1, P2, left, right, px1, *a)
+
+    monkeypatch.setattr(snout_net, "refine", refine)
+    monkeypatch.setattr(underwater, "transfer_snouts", transfer)
+    sc = underwater_scene(np.random.default_rng(3))
+    measure_underwater(sc.left, sc.right, sc.rig.calibration(), SETUP, params=replace(Params(), transfer_snout_min=bar))
+    pts, conf = answers[0]                       # the left image's candidates, before any is moved
+    has = np.all(np.isfinite(pts), axis=2)
+    wanted = has & (conf >= bar)
+    assert np.array_equal(np.all(np.isfinite(searched[0]), axis=2), wanted)
+    assert has.sum() > wanted.sum() or bar == 0.0      # at 0.9 some candidate was left out
