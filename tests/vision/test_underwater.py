@@ -193,7 +193,8 @@ def test_no_fish_rests_on_a_fork_the_locator_is_less_sure_of_than_net_min_conf()
 @pytest.mark.parametrize("bar", [0.0, 0.9])
 def test_left_snouts_the_snout_locator_doubts_are_not_looked_for_on_the_right(monkeypatch, bar):
     """``transfer_snout_min``: the left snout candidates searched for along their epipolar lines are
-    exactly those the learned snout locator (its first answer, on the left image) is that sure of."""
+    exactly those the learned snout locator (its first answer, on the left image) is that sure of
+    (and, as every candidate kept, ``snout_net_min`` sure)."""
     from devices.sim.fish_scene import underwater_scene
     from vision import snout_net, underwater
     answers, searched = [], []
@@ -214,6 +215,7 @@ def test_left_snouts_the_snout_locator_doubts_are_not_looked_for_on_the_right(mo
     measure_underwater(sc.left, sc.right, sc.rig.calibration(), SETUP, params=replace(Params(), transfer_snout_min=bar))
     pts, conf = answers[0]                       # the left image's candidates, before any is moved
     has = np.all(np.isfinite(pts), axis=2)
-    wanted = has & (conf >= bar)
+    kept = has & (conf >= Params().snout_net_min)
+    wanted = kept & (conf >= bar)
     assert np.array_equal(np.all(np.isfinite(searched[0]), axis=2), wanted)
-    assert has.sum() > wanted.sum() or bar == 0.0      # at 0.9 some candidate was left out
+    assert kept.sum() > wanted.sum() or bar == 0.0      # at 0.9 some kept candidate was left out
