@@ -111,10 +111,11 @@ def net_input(img: np.ndarray, width: int) -> tuple[np.ndarray, float]:
         img = img[..., None]
     if img.ndim != 3 or img.shape[2] not in (1, 3, 4) or min(img.shape[:2]) < 8:
         raise ValueError(f"expected a grey or colour image at least 8 px a side, got shape {img.shape}")
-    img = np.repeat(img, 3, axis=2) if img.shape[2] == 1 else img[..., :3]
     H, W = img.shape[:2]
     scale = W / width
-    small = cv2.resize(img, (width, max(MULTIPLE, round(H / scale))), interpolation=cv2.INTER_AREA)
+    # grey repeated after resizing: the same pixels for a third of the work
+    small = cv2.resize(img[..., :3], (width, max(MULTIPLE, round(H / scale))), interpolation=cv2.INTER_AREA)
+    small = np.repeat(small.reshape(small.shape[0], small.shape[1], -1), 3, axis=2) if img.shape[2] == 1 else small
     x = normalise(small)
     ph, pw = -x.shape[1] % MULTIPLE, -x.shape[2] % MULTIPLE
     if ph or pw:

@@ -142,3 +142,11 @@ def test_the_net_input_is_the_image_less_its_channel_means_over_its_spread():
     assert out.dtype == np.float32 and out.flags["C_CONTIGUOUS"]
     assert np.allclose(out, centred / (centred.std() + 4.0), atol=1e-5)
     assert np.all(fk.normalise(np.full((8, 8, 3), 200, np.uint8)) == 0)
+
+
+@pytest.mark.parametrize("shape", [(960, 1280), (481, 643), (300, 400, 1)])
+def test_a_grey_image_is_seen_as_the_colour_image_of_three_equal_channels(shape):
+    grey = np.random.default_rng(2).integers(0, 256, shape).astype(np.uint8)
+    colour = np.repeat(grey.reshape(shape[0], shape[1], 1), 3, axis=2)
+    (x_grey, s_grey), (x_colour, s_colour) = fk.net_input(grey, 320), fk.net_input(colour, 320)
+    assert s_grey == s_colour and np.array_equal(x_grey, x_colour)
