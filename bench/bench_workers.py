@@ -42,7 +42,6 @@ for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
 import argparse  # noqa: E402
 import json  # noqa: E402
 import signal  # noqa: E402
-import socket  # noqa: E402
 import subprocess  # noqa: E402
 import sys  # noqa: E402
 import tempfile  # noqa: E402
@@ -57,18 +56,13 @@ from controller.surveys.remote import connect, measure_remote  # noqa: E402
 from controller.surveys.runner import measure_all  # noqa: E402
 from controller.surveys.worker import node_key  # noqa: E402
 from devices.sim.fish_scene import underwater_rig, underwater_scene  # noqa: E402
+from hil_tests.ports import free_port  # noqa: E402
 from vision.survey_types import SurveySetup  # noqa: E402
 
 FISHFARM = str(Path(sys.executable).with_name("fishfarm"))
 SETUP = SurveySetup(up_world=(0.0, 0.0, 1.0))
 SITE = "bench"
 LINK_BYTES_S = 125e6          # 1 Gbit/s
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 def render(folder: Path, n: int) -> tuple[list[tuple[str, str]], object]:

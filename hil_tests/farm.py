@@ -11,7 +11,6 @@ from __future__ import annotations
 import json
 import os
 import signal
-import socket
 import sqlite3
 import subprocess
 import sys
@@ -21,6 +20,7 @@ from pathlib import Path
 
 import tomli_w
 
+from hil_tests.ports import free_port
 from hil_tests.stalls import StallWitness
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -29,12 +29,6 @@ CLEANER_SIM = ("pond", "thrusters", "tower_camera")
 SURVEY_KINDS = ("stereo_camera",)
 FARM_START = 1_780_016_400.0          # 2026-05-29 01:00 UTC = 02:00 local (utc_offset_h = 1)
 STOP_LIMIT_S = 10.0                   # the controller ends within 5 s of SIGTERM; slack for a loaded machine
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 def merge(base: dict, extra: dict) -> dict:

@@ -22,16 +22,11 @@ from pathlib import Path
 import tomli_w
 
 from hil_tests.farm import without_cleaner  # the demo farm's feeder alone
+from hil_tests.ports import free_port
 
 ROOT = Path(__file__).resolve().parents[2]
 SIM_PID = re.compile(r"fishfarm sim, pid (\d+)")
 PHASES = ("starting", "absent_device", "silent_device", "feeding", "sim_died")
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 def proc_start(pid: int) -> str | None:

@@ -126,16 +126,14 @@ def test_over_zenoh_a_hundred_retries_are_one_message(ledger):
     arrive (reliable, in order), the 99 refreshes in between do not."""
     import asyncio
     import queue
-    import socket
     import threading
     import time
 
     from controller.bus import Bus
     from controller.config import BusConfig
+    from hil_tests.ports import free_port
 
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        endpoint = f"tcp/127.0.0.1:{s.getsockname()[1]}"
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
     loop = asyncio.new_event_loop()
     thread = threading.Thread(target=loop.run_forever, daemon=True)
     thread.start()

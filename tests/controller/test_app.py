@@ -2,7 +2,6 @@
 an operator over real Zenoh: status, refusals, an e-stop with an unreadable payload, a manual feed."""
 import asyncio
 import json
-import socket
 import tomllib
 
 import tomli_w
@@ -12,12 +11,7 @@ from controller.bus import Bus
 from controller.config import load_config
 from devices.clock import ScaledClock
 from hil_tests.farm import without_cleaner  # the demo farm's feeder alone
-
-
-def free_port():
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
+from hil_tests.ports import free_port
 
 
 def test_operator_drives_the_controller_over_zenoh(tmp_path):

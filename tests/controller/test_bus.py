@@ -5,7 +5,6 @@ import asyncio
 import json
 import os
 import queue
-import socket
 import threading
 import time
 
@@ -15,14 +14,9 @@ import zenoh
 from controller.bus import Bus, BusUnreachable, decode, encode
 from controller.config import BusConfig
 from controller.errors import BadInput
+from hil_tests.ports import free_port
 
 WAIT_S = 10.0  # upper bound on waiting for a condition; passing tests take milliseconds
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 def wait_for(condition, timeout_s: float = WAIT_S) -> bool:

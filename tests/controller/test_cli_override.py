@@ -5,7 +5,6 @@ from __future__ import annotations
 import asyncio
 import json
 import os
-import socket
 import subprocess
 import sys
 import threading
@@ -17,6 +16,7 @@ from controller.bus import Bus
 from controller.cli.override_cmd import parse_args, render_status
 from controller.config import BusConfig
 from controller.errors import BadInput
+from hil_tests.ports import free_port
 
 FISHFARM = str(Path(sys.executable).with_name("fishfarm"))
 # the shape controller.app.Controller.status() answers with
@@ -36,12 +36,6 @@ T1    yes     120/420       2.0 mm
 T2    -       380/380       3.0 mm
 feeder: dispensing (position_m 3.0, hopper_g 5200)
 ALARM warning sensor/T2-b: tank T2: sensor T2-b stuck"""
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 @pytest.fixture(scope="module")

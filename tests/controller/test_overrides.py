@@ -11,7 +11,6 @@ import asyncio
 import json
 import logging
 import math
-import socket
 import threading
 
 import pytest
@@ -25,15 +24,10 @@ from controller.override_models import COUNT_MAX, SOURCE_MAX
 from controller.overrides import OPERATOR_MAX, RATION_MAX_G, REASON_MAX, Overrides
 from controller.store import Store
 from controller.text import has_control, printable
+from hil_tests.ports import free_port
 from tests.controller.override_rig import FEEDING, TANKS, Farm
 
 WAIT_S = 10.0
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 @pytest.fixture(scope="module")

@@ -17,7 +17,6 @@ from __future__ import annotations
 import asyncio
 import json
 import os
-import socket
 import threading
 import time
 import tomllib
@@ -32,6 +31,7 @@ from controller.bus import Bus
 from controller.config import load_config
 from devices.clock import ScaledClock
 from hil_tests.farm import without_cleaner  # the demo farm's feeder alone
+from hil_tests.ports import free_port
 
 TARGET = int(os.environ.get("STORM_PAYLOADS", 10_000))
 FAMILIES = 10                                    # per batch, ~10 payloads each, sent at once
@@ -39,12 +39,6 @@ EXAMPLES = 20                                    # batches per hypothesis run
 WAIT_S = 20.0
 OPERATOR_MAX, REASON_MAX, RATION_MAX_G, COUNT_MAX = 64, 200, 1_000_000.0, 10_000_000   # README's limits
 STUBS = ("start-survey", "cleaner-start", "cleaner-stop", "cleaner-return")
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 @pytest.fixture(scope="module")

@@ -7,7 +7,6 @@ from __future__ import annotations
 import asyncio
 import json
 import queue
-import socket
 import sys
 import threading
 import time
@@ -18,6 +17,7 @@ from controller.bus import Bus
 from controller.cli import main as fishfarm_main
 from controller.cli.credentials_cmd import read
 from controller.config import BusConfig
+from hil_tests.ports import free_port
 
 ROOT = Path(__file__).resolve().parents[2]
 ZDIR = ROOT / "config" / "zenoh"
@@ -27,12 +27,6 @@ WAIT_S = 10.0
 PEOPLE = {"ana": "operators", "erin": "engineers", "vic": "viewers"}
 ROLE_OF = {"viewer": "viewer", "operator": "operator", "engineer": "engineer", "controller": None,
            "ana": "operator", "erin": "engineer", "vic": "viewer"}
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 @dataclass

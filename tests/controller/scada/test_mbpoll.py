@@ -2,7 +2,6 @@
 every device simulated) and writes the writable ones; the values agree with `status`."""
 import math
 import re
-import socket
 import subprocess
 import sys
 import time
@@ -12,17 +11,12 @@ import pytest
 import tomli_w
 
 from controller.bus import Bus
+from hil_tests.ports import free_port
 
 from .conftest import ROOT, map_rows
 from .tooling import mbpoll
 
 TYPE = {"coil": "0", "discrete input": "1", "input register": "3", "holding register": "4"}
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 def poll(port: int, row: dict, *values) -> tuple[int, str, str]:
