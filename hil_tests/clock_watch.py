@@ -19,6 +19,8 @@ class ClockWatch:
         self.wall = defaultdict(float)
         self.farm = defaultdict(float)
         self.samples: list[tuple[float, float, float]] = []      # (wall, farm, speed)
+        self.segments: list = []                                   # each segment seen, in order
+        self._last: tuple[float, float, str] | None = None
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._run, name="clock-watch", daemon=True)
 
@@ -38,15 +40,34 @@ class ClockWatch:
         return " + ".join(busy) if busy else "slow (at the lookahead limit)"
 
     def _run(self) -> None:
-        w0, f0 = time.time(), self.clock.now()
-        why = self.reason()
-        self.samples.append((w0, f0, self.clock.speed))
+        self.sample()
         while not self._stop.wait(self.period_s):
-            w1, f1 = time.time(), self.clock.now()
-            self.samples.append((w1, f1, self.clock.speed))
+            self.sample()
+
+    def sample(self, wall: float | None = None) -> None:
+        """One look at the clock (the thread's; a test may look itself, at a wall instant it sets)."""
+        w1, f1 = time.time() if wall is None else wall, self.clock.now()
+        self.samples.append((w1, f1, self.clock.speed))
+        self._note_segment()
+        if self._last is not None:
+            w0, f0, why = self._last
             self.wall[why] += w1 - w0
             self.farm[why] += f1 - f0
-            w0, f0, why = w1, f1, self.reason()
+        self._last = (w1, f1, self.reason())
+
+    def _note_segment(self) -> None:
+        seg = self.clock.segment()
+        if not self.segments or seg != self.segments[-1]:
+            self.segments.append(seg)
+
+    def speed_at(self, farm_t: float) -> float | None:
+        """The clock's speed at farm instant ``farm_t``: that of the newest segment seen anchored at or
+        before it (each segment starts at the farm time of its writing, so later ones anchor later;
+        None: none seen yet). A sample's speed is that of the sample's own instant, up to
+        ``period_s`` of wall later: 6 farm s at 600x, long enough for the clock to speed up again
+        after a fish episode whose demand was turned down a second after its start."""
+        i = bisect.bisect_right(self.segments, farm_t, key=lambda g: g.farm0)
+        return self.segments[i - 1].speed_at(farm_t) if i else None
 
     def speed_after(self, farm_t: float) -> float | None:
         """The speed of the first sample at or after farm instant ``farm_t`` (None: none yet)."""

@@ -1,0 +1,66 @@
+"""The clock watch judges the clock's speed at a farm instant by the segment in force then, not by
+its next sample: at 600x a sample 10 ms of wall later is 6 farm s later, and a fish episode whose
+demand the controller turns down a second after its start lets the clock speed up before it."""
+from __future__ import annotations
+
+from devices.elastic_clock import ElasticClock, create
+from hil_tests.clock_watch import ClockWatch
+
+SLOW, FAST, START = 600.0, 60_000.0, 1_780_000_000.0
+
+
+class Wall:
+    def __init__(self, t: float = 1_000.0):
+        self.t = t
+
+    def __call__(self) -> float:
+        return self.t
+
+
+def farm(tmp_path):
+    wall = Wall()
+    create(tmp_path / "clock", slow=SLOW, fast=FAST, farm_start=START, wall_time=wall)
+    sim, ctl = (ElasticClock(tmp_path / "clock", wall_time=wall, alive=lambda pid: True) for _ in range(2))
+    sim.claim("sim")
+    ctl.claim("controller")
+    return wall, sim, ctl, ClockWatch(ctl)
+
+
+def go_to(wall, clock, farm_t):
+    """Move the wall to where the clock reads ``farm_t`` (within the current segment)."""
+    seg = clock.segment()
+    lo, hi = wall.t, wall.t + 10.0
+    for _ in range(100):
+        mid = (lo + hi) / 2
+        lo, hi = (mid, hi) if seg.farm_at(mid) < farm_t else (lo, mid)
+    wall.t = hi
+
+
+def test_an_episode_started_slow_reads_slow_though_the_clock_sped_up_a_second_later(tmp_path):
+    wall, sim, ctl, watch = farm(tmp_path)
+    start = START + 20_000.0
+    ctl.idle_until(START + 1e6, why="next survey")
+    sim.idle_until(start - 5.0, why="next episode")          # the simulator's lead before the start
+    watch.sample(wall.t)
+    go_to(wall, ctl, start - 3.0)                             # slow by itself at the limit
+    watch.sample(wall.t)
+    sim.busy(why="fish asking")                               # the episode starts
+    go_to(wall, ctl, start + 1.2)
+    sim.idle_until(start + 7_200.0, why="unheeded fish")      # a demand heard, turned down: nobody busy
+    go_to(wall, ctl, start + 400.0)
+    watch.sample(wall.t)                                      # the next look: already fast
+    assert watch.speed_after(start) == FAST                   # what the old judgement read
+    assert watch.speed_at(start) == SLOW
+    assert watch.speed_at(start - 100.0) == FAST and watch.speed_at(start + 300.0) == FAST
+
+
+def test_an_episode_the_clock_ran_through_fast_reads_fast(tmp_path):
+    wall, sim, ctl, watch = farm(tmp_path)
+    start = START + 20_000.0
+    ctl.idle_until(START + 1e6)
+    sim.idle_until(start + 600.0)                             # a lookahead that missed the start
+    watch.sample(wall.t)
+    go_to(wall, ctl, start + 300.0)
+    watch.sample(wall.t)
+    assert watch.speed_at(start) == FAST
+    assert watch.speed_at(START - 1.0) is None                # before anything was seen
