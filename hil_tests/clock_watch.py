@@ -61,13 +61,21 @@ class ClockWatch:
             self.segments.append(seg)
 
     def speed_at(self, farm_t: float) -> float | None:
-        """The clock's speed at farm instant ``farm_t``: that of the newest segment seen anchored at or
-        before it (each segment starts at the farm time of its writing, so later ones anchor later;
-        None: none seen yet). A sample's speed is that of the sample's own instant, up to
-        ``period_s`` of wall later: 6 farm s at 600x, long enough for the clock to speed up again
-        after a fish episode whose demand was turned down a second after its start."""
+        """The clock's speed at farm instant ``farm_t`` by the newest segment seen anchored at or before
+        it (each segment starts at the farm time of its writing; None: none seen yet). A segment that
+        lived less than ``period_s`` of wall is never seen, so this may be an older one's word."""
         i = bisect.bisect_right(self.segments, farm_t, key=lambda g: g.farm0)
         return self.segments[i - 1].speed_at(farm_t) if i else None
+
+    def ran_fast_at(self, farm_t: float) -> bool:
+        """Whether the clock ran fast through farm instant ``farm_t``: the segment seen in force then
+        and the first sample after it both say so. Either alone misreads (2026-12-03, the 60-day
+        grow-out): the next sample comes up to ``period_s`` of wall later, 6 farm s at 600x, after a
+        fish episode's demand turned down a second after its start has let the clock speed up again;
+        a segment the simulator wrote in the last ``period_s`` before an episode (its lookahead moved
+        to the start) is unseen, so the segment seen is an older, faster one."""
+        fast = self.clock.fast
+        return (self.speed_at(farm_t) or 0.0) >= fast and (self.speed_after(farm_t) or 0.0) >= fast
 
     def speed_after(self, farm_t: float) -> float | None:
         """The speed of the first sample at or after farm instant ``farm_t`` (None: none yet)."""

@@ -229,7 +229,7 @@ def judge(farm: HilFarm, up: float, end: float) -> dict:
         feeding = sort_problems(ledger, verdict.problems, heard, PER_FEED_S + PORTION_G / AUGER_G_S)
     # the simulator's lookahead: every episode found the clock slow when it started
     fast = [f"{r['tank']} at {r['t']:.0f}" for r in truth if r["kind"] == "episode_start" and r["t"] < end - 60
-            and (farm.watch.speed_at(r["t"]) or 0.0) >= farm.clock.fast]
+            and farm.watch.ran_fast_at(r["t"])]
     return {"surveys": surveys, "intervals": intervals, "rations": rations, "fits": fits,
             "episodes_started_fast": fast,
             "demands": {"served": len(waits), "p50_s": round(waits[len(waits) // 2], 1) if waits else None,

@@ -1,6 +1,8 @@
-"""The clock watch judges the clock's speed at a farm instant by the segment in force then, not by
-its next sample: at 600x a sample 10 ms of wall later is 6 farm s later, and a fish episode whose
-demand the controller turns down a second after its start lets the clock speed up before it."""
+"""The clock watch judges whether the clock ran fast through a farm instant (a fish episode's start)
+by both the segment seen in force then and its next sample, each of which alone misreads: at 600x
+the next sample is up to 6 farm s later, after a demand turned down a second after the start has
+let the clock speed up; and a segment written in the last 10 ms of wall before the start (the
+simulator's lookahead moved to it) is never seen, so the one seen is an older, faster one."""
 from __future__ import annotations
 
 from devices.elastic_clock import ElasticClock, create
@@ -49,9 +51,27 @@ def test_an_episode_started_slow_reads_slow_though_the_clock_sped_up_a_second_la
     sim.idle_until(start + 7_200.0, why="unheeded fish")      # a demand heard, turned down: nobody busy
     go_to(wall, ctl, start + 400.0)
     watch.sample(wall.t)                                      # the next look: already fast
-    assert watch.speed_after(start) == FAST                   # what the old judgement read
+    assert watch.speed_after(start) == FAST                   # the next sample alone misreads
     assert watch.speed_at(start) == SLOW
     assert watch.speed_at(start - 100.0) == FAST and watch.speed_at(start + 300.0) == FAST
+    assert not watch.ran_fast_at(start)
+
+
+def test_an_episode_whose_slowing_segment_went_unseen_reads_slow(tmp_path):
+    wall, sim, ctl, watch = farm(tmp_path)
+    start = START + 20_000.0
+    ctl.idle_until(START + 1e6)
+    sim.idle_until(start + 3_000.0)                           # the lookahead as it stood
+    watch.sample(wall.t)
+    go_to(wall, ctl, start - 200.0)
+    sim.idle_until(start - 5.0)                               # moved to the start: no look sees this
+    go_to(wall, ctl, start + 0.5)                             # the simulator's next look after the start
+    sim.busy(why="fish asking")                               # the episode, served: slow for a while
+    go_to(wall, ctl, start + 4.0)
+    watch.sample(wall.t)
+    assert watch.speed_at(start) == FAST                      # the segment seen alone misreads
+    assert watch.speed_after(start) == SLOW
+    assert not watch.ran_fast_at(start)
 
 
 def test_an_episode_the_clock_ran_through_fast_reads_fast(tmp_path):
@@ -63,4 +83,5 @@ def test_an_episode_the_clock_ran_through_fast_reads_fast(tmp_path):
     go_to(wall, ctl, start + 300.0)
     watch.sample(wall.t)
     assert watch.speed_at(start) == FAST
+    assert watch.ran_fast_at(start)
     assert watch.speed_at(START - 1.0) is None                # before anything was seen
