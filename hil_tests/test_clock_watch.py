@@ -7,16 +7,9 @@ from __future__ import annotations
 
 from devices.elastic_clock import ElasticClock, create
 from hil_tests.clock_watch import ClockWatch
+from tests.devices.test_elastic_clock import Wall  # a wall clock a test moves by hand
 
 SLOW, FAST, START = 600.0, 60_000.0, 1_780_000_000.0
-
-
-class Wall:
-    def __init__(self, t: float = 1_000.0):
-        self.t = t
-
-    def __call__(self) -> float:
-        return self.t
 
 
 def farm(tmp_path):
