@@ -10,7 +10,7 @@ import threading
 import time
 from collections import defaultdict
 
-from devices.elastic_clock import BUSY, ElasticClock
+from devices.elastic_clock import BUSY, ElasticClock, Segment
 
 
 class ClockWatch:
@@ -19,7 +19,7 @@ class ClockWatch:
         self.wall = defaultdict(float)
         self.farm = defaultdict(float)
         self.samples: list[tuple[float, float, float]] = []      # (wall, farm, speed)
-        self.segments: list = []                                   # each segment seen, in order
+        self.segments: list[Segment] = []                          # each segment seen, in order
         self._last: tuple[float, float, str] | None = None
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._run, name="clock-watch", daemon=True)

@@ -344,13 +344,14 @@ def measure_underwater(left: np.ndarray, right: np.ndarray, calib: StereoCalibra
             sn[c] = Snouts(np.concatenate([sn[c].dist_px, np.linalg.norm(tips - f.xy[:, None], axis=2)], axis=1),
                            np.concatenate([sn[c].xy, tips], axis=1),
                            np.concatenate([sn[c].strength, strength[:, None]], axis=1))
-    left_sure = np.ones(sn[0].xy.shape[:2])
+    left_sure = np.ones(sn[0].xy.shape[:2])       # the snout locator's confidence in each left candidate
     if params.snout_net:
         # each candidate moved to the tip the learned snout locator finds from it where it is sure,
         # dropped where it is not
         for c, f in enumerate((f1, f2)):
             tips, conf = snout_net.refine((v1, v2)[c].pyr, f.xy, sn[c].xy)
-            left_sure = conf if c == 0 else left_sure
+            if c == 0:
+                left_sure = conf
             moved = np.where((conf >= params.snout_net_min)[..., None], tips, np.nan)
             sn[c] = Snouts(np.linalg.norm(moved - f.xy[:, None], axis=2), moved, sn[c].strength)
     clock.lap("snout")
