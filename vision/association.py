@@ -73,7 +73,7 @@ def _patches(v: View, f: Fins | None = None) -> np.ndarray:
     C = v.pyr[0].shape[2] if v.pyr[0].ndim == 3 else 1
     step = f.span_px / PATCH
     lev = np.clip(np.floor(np.log2(np.maximum(step, 1.0))).astype(int), 0, len(v.pyr) - 1)
-    axes = np.c_[np.cos(f.angle), np.sin(f.angle)]
+    axes = np.column_stack((np.cos(f.angle), np.sin(f.angle)))
     levels = np.unique(lev)
     out = None if len(levels) == 1 else np.empty((len(f), PATCH * PATCH * C), np.float32)
     for k in levels:
@@ -146,7 +146,7 @@ def snout_search_range(calib: StereoCalibration, fork_mm: np.ndarray, span_px: n
     fin's span suggests."""
     f, _ = camera_frame(calib.P1)
     P = normalise_projection(calib.P1)
-    depth = np.c_[fork_mm, np.ones(len(fork_mm))] @ P[2]
+    depth = np.column_stack((fork_mm, np.ones(len(fork_mm)))) @ P[2]
     depth = np.maximum(depth, 1e-6)
     lo = 0.4 * min_len_mm * f / depth
     hi = np.minimum(1.15 * max_len_mm * f / depth, 3.0 * span_px / span_of_fl)
@@ -227,7 +227,7 @@ def patch_ncc(pyr1: list[np.ndarray], pyr2: list[np.ndarray], pts1: np.ndarray, 
     for pyr, pts, ang in ((pyr1, pts1, angle1), (pyr2, pts2, angle2)):
         flat = np.nan_to_num(pts.reshape(-1, 2), nan=-1e4)
         a = np.repeat(ang, K)
-        axes = np.c_[np.cos(a), np.sin(a)]
+        axes = np.column_stack((np.cos(a), np.sin(a)))
         step = np.repeat(np.asarray(size_px, float), K) / n
         lev = np.clip(np.floor(np.log2(np.maximum(step, 1.0))).astype(int), 0, len(pyr) - 1)
         C = pyr[0].shape[2] if pyr[0].ndim == 3 else 1

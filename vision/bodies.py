@@ -80,11 +80,10 @@ def body_ends(mask: np.ndarray, sx: float, sy: float, min_len_px: float, min_elo
         dx, dy = xs - cx[gi], ys - cy[gi]
         dof = np.maximum(cnt - 1, 1)
         sxx, sxy, syy = (np.bincount(gi, a * b, B) / dof for a, b in ((dx, dx), (dx, dy), (dy, dy)))
-        evals, evecs = np.linalg.eigh(np.stack([np.c_[sxx, sxy], np.c_[sxy, syy]], axis=1))
+        evals, evecs = np.linalg.eigh(np.stack([np.column_stack((sxx, sxy)), np.column_stack((sxy, syy))], axis=1))
         axis = evecs[:, :, 1]                                                   # (B, 2)
         t = dx * axis[gi, 0] + dy * axis[gi, 1]
-        srt = t[np.lexsort((t, gi))]
-        start = np.r_[0, np.cumsum(cnt[:-1])].astype(np.int64)
+        srt, start = _sorted_by_body(t, gi, cnt.astype(np.int64))
         lo, hi = (_quantile_sorted(srt, start, cnt.astype(np.int64), q) for q in (0.002, 0.998))
         for b in range(B):                                                      # a few dozen bodies
             if evals[b, 0] <= 0 or np.sqrt(evals[b, 1] / evals[b, 0]) < min_elong or hi[b] - lo[b] < min_len_px:
@@ -103,6 +102,18 @@ def body_ends(mask: np.ndarray, sx: float, sy: float, min_len_px: float, min_elo
     ang = np.array(ang)
     fins = Fins(np.array(xy), ang, SPAN_OF_FL * length, np.ones(len(xy)), np.ones(len(xy)), ang.copy())
     return fins, length
+
+
+def _sorted_by_body(t: np.ndarray, body: np.ndarray, count: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The values ``t`` grouped by ``body`` (0..B-1, ``count`` of each), ascending within each group,
+    and where each group starts: np.lexsort((t, body))'s order, ~10x faster (a radix sort of the
+    small body numbers, then numpy's vectorised sort of each body's values; a few dozen bodies)."""
+    small = np.int16 if len(count) < 2**15 else np.int64
+    grouped = t[np.argsort(body.astype(small), kind="stable")]
+    start = np.concatenate(([0], np.cumsum(count)))
+    for b in range(len(count)):
+        grouped[start[b]:start[b + 1]].sort()
+    return grouped, start[:-1]
 
 
 def _quantile_sorted(values: np.ndarray, start: np.ndarray, count: np.ndarray, q: float) -> np.ndarray:

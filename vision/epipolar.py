@@ -34,7 +34,7 @@ def fundamental_from_projections(P1: np.ndarray, P2: np.ndarray) -> np.ndarray:
 def epipolar_lines(F: np.ndarray, pts1: np.ndarray) -> np.ndarray:
     """Lines (N, 3) in image 2, normalised so a^2 + b^2 = 1, for points (N, 2) of image 1."""
     pts1 = np.asarray(pts1, dtype=float).reshape(-1, 2)
-    lines = np.c_[pts1, np.ones(len(pts1))] @ F.T
+    lines = np.column_stack((pts1, np.ones(len(pts1)))) @ F.T
     return lines / np.hypot(lines[:, 0], lines[:, 1])[:, None]
 
 
@@ -81,7 +81,7 @@ def _unit_directions(m21: np.ndarray, P1: np.ndarray, pts1: np.ndarray) -> np.nd
     # adj(T1hat) = det(T1hat) T1hat^-1 and T1hat^-1 (u1, v1, 1) points to the front of camera 1 when
     # P1 gives positive depths (our convention): the sign of det turns M21 m1 towards "farther",
     # for a left-handed world frame (det < 0) as well as a right-handed one.
-    d = np.c_[pts1, np.ones(len(pts1))] @ m21.T
+    d = np.column_stack((pts1, np.ones(len(pts1)))) @ m21.T
     d *= np.sign(np.linalg.det(np.asarray(P1, float)[:, :3]))
     return d / np.hypot(d[:, 0], d[:, 1])[:, None]
 
@@ -104,11 +104,11 @@ def epipolar_lines_m21(P1: np.ndarray, P2: np.ndarray, pts1: np.ndarray) -> np.n
     pts1 = np.asarray(pts1, dtype=float).reshape(-1, 2)
     e2, vanishing = _m21_factors(P1, P2)
     direction = _unit_directions(_towards(e2) @ vanishing, P1, pts1)
-    normal = np.c_[-direction[:, 1], direction[:, 0]]
+    normal = np.column_stack((-direction[:, 1], direction[:, 0]))
     if abs(e2[2]) > 1e-9 * np.hypot(e2[0], e2[1]):
         anchor = np.broadcast_to(e2, (len(pts1), 3))
     else:
-        anchor = np.c_[pts1, np.ones(len(pts1))] @ vanishing.T
+        anchor = np.column_stack((pts1, np.ones(len(pts1)))) @ vanishing.T
     with np.errstate(divide="ignore", invalid="ignore"):
         c = -np.einsum("ij,ij->i", normal, anchor[:, :2]) / anchor[:, 2]
-    return np.c_[normal, c]
+    return np.column_stack((normal, c))

@@ -199,8 +199,9 @@ def sample_frames_raw(img: np.ndarray, centres: np.ndarray, axes: np.ndarray, xs
     centres = np.asarray(centres, float).reshape(-1, 2)
     axes = np.asarray(axes, float).reshape(-1, 2)
     N = len(centres)
-    xs = np.broadcast_to(np.asarray(xs, float), (N, np.shape(xs)[-1]))
-    ys = np.broadcast_to(np.asarray(ys, float), (N, np.shape(ys)[-1]))
+    # shared offsets stay (1, n): they broadcast in the sums below (np.broadcast_to's call costs more)
+    xs, ys = np.asarray(xs, float), np.asarray(ys, float)
+    xs, ys = xs.reshape(-1, xs.shape[-1]), ys.reshape(-1, ys.shape[-1])
     ny, nx = ys.shape[1], xs.shape[1]
     img = np.asarray(img)
     if N == 0:
@@ -208,17 +209,17 @@ def sample_frames_raw(img: np.ndarray, centres: np.ndarray, axes: np.ndarray, xs
     if N * ny >= _REMAP_ROWS:
         # cv2.remap takes maps of fewer than 32767 rows: many candidates go in batches
         step = max(1, (_REMAP_ROWS - 1) // ny)
+        xs, ys = np.broadcast_to(xs, (N, nx)), np.broadcast_to(ys, (N, ny))
         parts = [sample_frames_raw(img, centres[k:k + step], axes[k:k + step], xs[k:k + step], ys[k:k + step])
                  for k in range(0, N, step)]
         offs = None
         if any(o is not None for _, o in parts):
             offs = np.concatenate([np.zeros(p.shape[:3], bool) if o is None else o for p, o in parts])
         return np.concatenate([p for p, _ in parts]), offs
-    normal = np.stack([-axes[:, 1], axes[:, 0]], axis=1)
     maps, lo, hi = [], [], []
-    for k in range(2):
+    for k, normal in ((0, -axes[:, 1, None]), (1, axes[:, 0, None])):   # normal: the axis turned +90
         along = centres[:, k, None] + xs * axes[:, k, None]              # (N, nx), float64
-        across = ys * normal[:, k, None]                                 # (N, ny)
+        across = ys * normal                                             # (N, ny)
         m = np.empty((N, ny, nx), np.float32)    # summed in float64, rounded once, no float64 copy
         np.add(along[:, None, :], across[:, :, None], out=m, casting="same_kind")
         maps.append(m.reshape(N * ny, nx))
@@ -264,7 +265,7 @@ def fin_scores(pyr: list[np.ndarray], fins: Fins, bank: Bank | None = None) -> n
     t = (np.arange(n) - (n - 1) / 2)[None] * px[:, None]
     lev = np.clip(np.floor(np.log2(np.maximum(px, 1.0))).astype(int), 0, len(pyr) - 1)
     win = np.full((N, n, n), np.nan, np.float32)
-    axes = np.c_[np.cos(fins.angle), np.sin(fins.angle)]
+    axes = np.column_stack((np.cos(fins.angle), np.sin(fins.angle)))
     for k in np.unique(lev):
         idx = np.flatnonzero(lev == k)
         f = 2.0 ** -k
@@ -318,7 +319,8 @@ def bank_proposals(img: np.ndarray, sx: float, sy: float, k: int, n_levels: int 
         pk = np.flatnonzero((sc > 0) & (sc >= mx[gy, gx]))
         pk = pk[np.argsort(-sc[pk], kind="stable")[: 2 * k]]
         f2 = 2.0 ** lv
-        xy = np.c_[((xs[pk] + 0.5) * f2 - 0.5 + 0.5) * sx - 0.5, ((ys[pk] + 0.5) * f2 - 0.5 + 0.5) * sy - 0.5]
+        xy = np.column_stack((((xs[pk] + 0.5) * f2 - 0.5 + 0.5) * sx - 0.5,
+                              ((ys[pk] + 0.5) * f2 - 0.5 + 0.5) * sy - 0.5))
         out.append(Fins(xy, bank.angle[best[pk]], bank.span[best[pk]] * f2 * sx, sc[pk], np.ones(len(pk))))
         level = cv2.pyrDown(level)
     if not out:

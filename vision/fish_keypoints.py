@@ -144,10 +144,10 @@ def decode(out: np.ndarray, stride: int, scale: float, thr: float = 0.2) -> Fish
     to_px = lambda p: ((p + 0.5) * stride - 0.5 + 0.5) * scale - 0.5   # noqa: E731 -- cells -> input -> full px
     sr, sc, sconf = _peaks(np.ascontiguousarray(prob[0]), thr)
     fr, fc, fconf = _peaks(np.ascontiguousarray(prob[1]), thr)
-    s_cell = np.c_[sc + out[4, sr, sc], sr + out[5, sr, sc]]
-    f_cell = np.c_[fc + out[8, fr, fc], fr + out[9, fr, fc]]
-    to_snout = np.c_[out[6, fr, fc], out[7, fr, fc]] * VEC_SCALE
-    to_fork = np.c_[out[2, sr, sc], out[3, sr, sc]] * VEC_SCALE
+    s_cell = np.column_stack((sc + out[4, sr, sc], sr + out[5, sr, sc]))
+    f_cell = np.column_stack((fc + out[8, fr, fc], fr + out[9, fr, fc]))
+    to_snout = np.column_stack((out[6, fr, fc], out[7, fr, fc])) * VEC_SCALE
+    to_fork = np.column_stack((out[2, sr, sc], out[3, sr, sc])) * VEC_SCALE
     aim = f_cell + to_snout
     L = np.linalg.norm(to_snout, axis=1)
     snout_cell, snout_conf = aim.copy(), np.zeros(len(f_cell))
@@ -176,7 +176,7 @@ def hypotheses(kp: FishKeypoints, ahead: float = 0.0) -> Fins:
     """The net's forks as fork hypotheses for the full-resolution locators, moved ``ahead`` of the
     length towards their snouts: the axis towards their snouts, the fin's span from the length."""
     z = np.zeros(len(kp))
-    axis = np.c_[np.cos(kp.angle), np.sin(kp.angle)]
+    axis = np.column_stack((np.cos(kp.angle), np.sin(kp.angle)))
     return Fins(kp.fork_xy + (ahead * kp.length_px)[:, None] * axis, kp.angle.copy(),
                 SPAN_OF_FL * np.maximum(kp.length_px, 8.0), kp.fork_conf.copy(), z, kp.angle.copy())
 

@@ -205,7 +205,7 @@ def _locate(pyr: list[np.ndarray], fins: Fins, min_contrast: float, min_slope: f
     t = np.linspace(-0.6, 0.6, int(1.2 * SAMPLES) + 1)              # in spans
     S = fins.span_px
     g = S / SAMPLES
-    axes = np.c_[np.cos(fins.angle), np.sin(fins.angle)]
+    axes = np.column_stack((np.cos(fins.angle), np.sin(fins.angle)))
     C = pyr[0].shape[2] if pyr[0].ndim == 3 else 1
     lev = np.clip(np.floor(np.log2(np.maximum(g, 1.0))).astype(int), 0, len(pyr) - 1)
     ahead = (t >= 0.1) & (t <= 0.35)
@@ -299,7 +299,7 @@ def _notch(s: np.ndarray, t: np.ndarray, first: np.ndarray, has: np.ndarray, fin
     fits' RMS (N,) in spans. ``which``: the rows of ``s`` these candidates are (default all)."""
     N = len(fins)
     S = fins.span_px
-    axes = np.c_[np.cos(fins.angle), np.sin(fins.angle)]
+    axes = np.column_stack((np.cos(fins.angle), np.sin(fins.angle)))
     j = np.clip(first, 1, len(t) - 1)
     n = np.arange(len(s))[:, None] if which is None else np.asarray(which)[:, None]
     r = np.arange(s.shape[1])[None]
@@ -351,11 +351,11 @@ def _notch(s: np.ndarray, t: np.ndarray, first: np.ndarray, has: np.ndarray, fin
     ok &= np.isfinite(xv)
 
     # bisector of the arms, pointing back into the notch; the axis is its opposite
-    d1 = np.c_[b1, np.ones(N)] / np.hypot(b1, 1)[:, None]
-    d2 = np.c_[-b2, -np.ones(N)] / np.hypot(b2, 1)[:, None]
+    d1 = np.column_stack((b1, np.ones(N))) / np.hypot(b1, 1)[:, None]
+    d2 = np.column_stack((-b2, -np.ones(N))) / np.hypot(b2, 1)[:, None]
     back = d1 + d2
     back /= np.maximum(np.linalg.norm(back, axis=1), 1e-9)[:, None]
-    normal = np.c_[-axes[:, 1], axes[:, 0]]
+    normal = np.column_stack((-axes[:, 1], axes[:, 0]))
     new_axis = -(back[:, :1] * axes + back[:, 1:] * normal)
     with np.errstate(invalid="ignore"):
         xy = fins.xy + (xv * S)[:, None] * axes + (yv * S)[:, None] * normal

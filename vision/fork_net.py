@@ -114,7 +114,7 @@ def raw_crops(pyr: list[np.ndarray], fins: Fins) -> np.ndarray:
         return out
     step = fins.span_px * (U1 - U0) / GRID_W
     lev = np.clip(np.floor(np.log2(np.maximum(step, 1.0))).astype(int), 0, len(pyr) - 1)
-    axes = np.c_[np.cos(fins.angle), np.sin(fins.angle)]
+    axes = np.column_stack((np.cos(fins.angle), np.sin(fins.angle)))
     for k in np.unique(lev):                          # a few pyramid levels, each in one remap
         idx = np.flatnonzero(lev == k)
         f = 2.0 ** -k
@@ -158,7 +158,7 @@ def soft_argmax(heat: np.ndarray) -> np.ndarray:
     p = (p / p.sum(axis=1, keepdims=True)).reshape(N, h, w)
     us = U0 + (np.arange(w) + 0.5) * (U1 - U0) / w
     vs = -V1 + (np.arange(h) + 0.5) * (2 * V1) / h
-    return np.c_[(p.sum(axis=1) * us).sum(axis=1), (p.sum(axis=2) * vs).sum(axis=1)]
+    return np.column_stack(((p.sum(axis=1) * us).sum(axis=1), (p.sum(axis=2) * vs).sum(axis=1)))
 
 
 def distinct(xy: np.ndarray, angle: np.ndarray, span: np.ndarray, rank: np.ndarray, cell: float) -> np.ndarray:
@@ -169,8 +169,8 @@ def distinct(xy: np.ndarray, angle: np.ndarray, span: np.ndarray, rank: np.ndarr
         return np.zeros(0, int)
     order = np.argsort(-np.asarray(rank), kind="stable")
     step = cell * span[order, None]
-    key = np.c_[np.floor(xy[order] / step), np.round(angle[order] / (np.pi / 9)) % 18,
-                np.round(5 * np.log2(np.maximum(span[order], 1.0)))].astype(np.int64)
+    key = np.column_stack((np.floor(xy[order] / step), np.round(angle[order] / (np.pi / 9)) % 18,
+                np.round(5 * np.log2(np.maximum(span[order], 1.0))))).astype(np.int64)
     _, first = np.unique(key, axis=0, return_index=True)
     return np.sort(order[first])
 
@@ -180,8 +180,8 @@ def answer(pyr: list[np.ndarray], fins: Fins, model: str = MODEL) -> tuple[np.nd
     the axis there (N,) and its confidence (N,) 0..1."""
     heat, head = run(crops(pyr, fins), model)
     uv = soft_argmax(heat)
-    axes = np.c_[np.cos(fins.angle), np.sin(fins.angle)]
-    normal = np.c_[-axes[:, 1], axes[:, 0]]
+    axes = np.column_stack((np.cos(fins.angle), np.sin(fins.angle)))
+    normal = np.column_stack((-axes[:, 1], axes[:, 0]))
     S = fins.span_px[:, None]
     xy = fins.xy + uv[:, :1] * S * axes + uv[:, 1:] * S * normal
     return xy, fins.angle + np.arctan2(head[:, 1], head[:, 2]), 1.0 / (1.0 + np.exp(-head[:, 0]))
@@ -206,7 +206,7 @@ def locate(pyr: list[np.ndarray], fins: Fins, passes: int = 2, again_above: floa
         todo = keep
         if len(todo) == 0:
             break
-        back = np.c_[np.cos(ang[todo]), np.sin(ang[todo])]
+        back = np.column_stack((np.cos(ang[todo]), np.sin(ang[todo])))
         sub = fins.take(todo)
         cur = Fins(xy[todo] + RECENTRE * sub.span_px[:, None] * back, ang[todo], sub.span_px, sub.score,
                    sub.polarity, sub.body)
@@ -224,7 +224,7 @@ def levels(pyr: list[np.ndarray], fins: Fins) -> tuple[np.ndarray, np.ndarray]:
     C = pyr[0].shape[2] if pyr[0].ndim == 3 else 1
     if N == 0:
         return np.zeros((0, C)), np.zeros((0, C))
-    axes = np.c_[np.cos(fins.angle), np.sin(fins.angle)]
+    axes = np.column_stack((np.cos(fins.angle), np.sin(fins.angle)))
     S = fins.span_px[:, None]
     ys = np.linspace(-0.1, 0.1, 5)[None] * S
     out = []

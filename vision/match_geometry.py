@@ -16,9 +16,9 @@ _REMAP_ROWS = 32_000           # cv2.remap refuses maps of SHRT_MAX rows or more
 
 def _unit_dirs(lines: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Unit directions (N, 2) of lines (N, 3) and normals (the directions turned +90 degrees)."""
-    d = np.c_[lines[:, 1], -lines[:, 0]]
+    d = np.column_stack((lines[:, 1], -lines[:, 0]))
     d /= np.hypot(d[:, 0], d[:, 1])[:, None]
-    return d, np.c_[-d[:, 1], d[:, 0]]
+    return d, np.column_stack((-d[:, 1], d[:, 0]))
 
 
 def line_frames(F: np.ndarray, pts1: np.ndarray):
@@ -38,7 +38,7 @@ def line_frames(F: np.ndarray, pts1: np.ndarray):
     n2[flip] *= -1
     offset = lines[:, 0] * pts1[:, 0] + lines[:, 1] * pts1[:, 1] + lines[:, 2]
     origin = pts1 - offset[:, None] * lines[:, :2]
-    d1, n1 = _unit_dirs(np.c_[origin, np.ones(len(origin))] @ F)        # l1 = F^T x2, x2 on l2
+    d1, n1 = _unit_dirs(np.column_stack((origin, np.ones(len(origin)))) @ F)        # l1 = F^T x2, x2 on l2
     flip = np.einsum("nd,nd->n", d1, d2) < 0
     d1[flip] *= -1
     n1[flip] *= -1
@@ -63,7 +63,7 @@ def segments_by_range(P1: np.ndarray, P2: np.ndarray, pts1: np.ndarray, near_mm:
     P2 = np.asarray(P2, dtype=float)
     pts1 = np.asarray(pts1, dtype=float).reshape(-1, 2)
     centre = camera_centre(P1)
-    rays = np.linalg.solve(P1[:, :3], np.c_[pts1, np.ones(len(pts1))].T).T
+    rays = np.linalg.solve(P1[:, :3], np.column_stack((pts1, np.ones(len(pts1)))).T).T
     # X = C + lam * ray images to lam * (u, v, 1): lam is its depth up to P1's positive scale, so
     # lam > 0 is in front of camera 1 in a left-handed world frame as much as in a right-handed one
     rays /= np.linalg.norm(rays, axis=1)[:, None]

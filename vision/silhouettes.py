@@ -191,7 +191,7 @@ def silhouette_tips(comps: list[tuple[np.ndarray, np.ndarray]], sx: float, sy: f
         return out
     scale = np.array([sx, sy])
     p0 = (np.asarray(xy, float) + 0.5) / scale - 0.5
-    d = np.c_[np.cos(angle), np.sin(angle)] / scale
+    d = np.column_stack((np.cos(angle), np.sin(angle))) / scale
     d /= np.linalg.norm(d, axis=1, keepdims=True)
     reach = np.asarray(span_px, float) / (0.5 * (sx + sy))
     steps = np.array([0.3, 0.6, 1.0, 1.5])
@@ -209,7 +209,7 @@ def silhouette_tips(comps: list[tuple[np.ndarray, np.ndarray]], sx: float, sy: f
             first[n] = nz[0]
             x0, y0, bw, bh = stats[first[n], :4]
             ys, xs = np.nonzero(lab[y0:y0 + bh, x0:x0 + bw] == first[n])
-            rel = np.c_[xs + x0, ys + y0] - p0[n]
+            rel = np.column_stack((xs + x0, ys + y0)) - p0[n]
             dist = np.linalg.norm(rel, axis=1)
             ahead = rel @ d[n] >= cos_min * dist
             if not ahead.any():

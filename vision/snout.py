@@ -74,7 +74,7 @@ def find_snouts(pyr: list[np.ndarray], xy: np.ndarray, angle: np.ndarray, half_b
     edge = (best == 0) | (best == A - 1)
     dist[edge] = np.nan
     strength[edge] = 0.0
-    axes = np.c_[np.cos(angle), np.sin(angle)]
+    axes = np.column_stack((np.cos(angle), np.sin(angle)))
     pts = xy[:, None] + dist[..., None] * axes[:, None]
     # the tip itself, off the axis by up to half the fan's step
     flat = pts.reshape(-1, 2)
@@ -98,7 +98,7 @@ def _along(pyr, xy, angle, half_band_px, fish_level, water_level, lo_px, hi_px, 
     fin's contrast (N,)."""
     N = len(xy)
     dist = np.full((N, k), np.nan)
-    axes = np.c_[np.cos(angle), np.sin(angle)]
+    axes = np.column_stack((np.cos(angle), np.sin(angle)))
     lo = np.maximum(np.asarray(lo_px, float), 1.0)
     hi = np.maximum(np.asarray(hi_px, float), lo + 2.0)
     u = np.linspace(0.0, 1.0, SAMPLES + 1)
@@ -122,8 +122,8 @@ def _along(pyr, xy, angle, half_band_px, fish_level, water_level, lo_px, hi_px, 
     inside = np.isfinite(s)
     fishy = np.where(inside, s > 0, False).astype(float)
     watery = np.where(inside, s < 0, False).astype(float)           # off the image: maybe more fish
-    c_f = np.c_[np.zeros(N), np.cumsum(fishy, axis=1)]
-    c_w = np.c_[np.zeros(N), np.cumsum(watery, axis=1)]
+    c_f = np.column_stack((np.zeros(N), np.cumsum(fishy, axis=1)))
+    c_w = np.column_stack((np.zeros(N), np.cumsum(watery, axis=1)))
     i = np.arange(SAMPLES + 1)
     start = np.round(0.1 * lo / step).astype(int)                    # skip the fin itself
     m = np.maximum(np.round(0.1 * (lo + hi) / 2 / step).astype(int), 3)
@@ -194,7 +194,7 @@ def refine_tips(pyr: list[np.ndarray], tips: np.ndarray, angle: np.ndarray, leng
     along = u[None] * (0.06 * length_px)[:, None]
     across = u[None] * (0.1 * length_px)[:, None]
     step = 0.12 * length_px / (samples - 1)
-    axes = np.c_[np.cos(angle), np.sin(angle)]
+    axes = np.column_stack((np.cos(angle), np.sin(angle)))
     C = pyr[0].shape[2] if pyr[0].ndim == 3 else 1
     win = np.full((M, samples, samples, C), np.nan, np.float32)
     lev = np.clip(np.floor(np.log2(np.maximum(step, 1.0))).astype(int), 0, len(pyr) - 1)
@@ -244,6 +244,6 @@ def refine_tips(pyr: list[np.ndarray], tips: np.ndarray, angle: np.ndarray, leng
     # a tip is a cap: curving back on both sides, its front row inside the window (a slanted side
     # of the body has its front-most row at the window's edge)
     ok &= np.isfinite(xv) & (np.abs(xv) <= 1.0) & (contrast >= 3.0) & (c2 < 0) & (np.abs(yb) < 0.85)
-    normal = np.c_[-axes[:, 1], axes[:, 0]]
+    normal = np.column_stack((-axes[:, 1], axes[:, 0]))
     out = tips + (xv * 0.06 * length_px)[:, None] * axes + (yv * 0.1 * length_px)[:, None] * normal
     return np.where(ok[:, None], out, tips), ok

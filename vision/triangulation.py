@@ -32,7 +32,7 @@ def normalise_projection(P: np.ndarray, points: np.ndarray | None = None) -> np.
     P = np.asarray(P, dtype=float)
     P = P / np.linalg.norm(P[2, :3])
     if points is not None:
-        depth = np.c_[points, np.ones(len(points))] @ P[2]
+        depth = np.column_stack((points, np.ones(len(points)))) @ P[2]
         sign = np.sign(np.median(depth))
     else:
         sign = np.sign(np.linalg.det(P[:, :3]))

@@ -265,8 +265,8 @@ def _transfer(calib, v1: View, v2: View, pairs, p: Params) -> tuple[View, View]:
         if len(new) == 0:
             continue
         views[dst] = View(v.pyr, concat([v.fins, new]), np.vstack([v.fish_level, fish]),
-                          np.vstack([v.water_level, water]), np.r_[v.arm_rms, arm], v.comps, v.scale,
-                          None if conf is None else np.r_[v.sure(), conf])
+                          np.vstack([v.water_level, water]), np.concatenate([v.arm_rms, arm]), v.comps, v.scale,
+                          None if conf is None else np.concatenate([v.sure(), conf]))
     return views[0], views[1]
 
 
@@ -289,7 +289,7 @@ def _tips(v: View, f: Fins, pts: np.ndarray, idx: np.ndarray) -> tuple[np.ndarra
 
 
 def _shifted(fins: Fins, length: np.ndarray, frac: float) -> Fins:
-    axes = np.c_[np.cos(fins.angle), np.sin(fins.angle)]
+    axes = np.column_stack((np.cos(fins.angle), np.sin(fins.angle)))
     return Fins(fins.xy + (frac * length)[:, None] * axes, fins.angle, 1.15 * fins.span_px, fins.score,
                 fins.polarity, fins.body)
 
