@@ -34,6 +34,8 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
+from vision import order_stats
+
 # the emboss kernel, zero-sum (a pure high-pass): a directional derivative along the diagonal
 EMBOSS = np.array([[-1, -1, 0], [-1, 0, 1], [0, 1, 1]], dtype=np.float32)
 
@@ -298,7 +300,7 @@ def bank_proposals(img: np.ndarray, sx: float, sy: float, k: int, n_levels: int 
         f = emboss(level) if bank.highpass else level
         energy = cv2.boxFilter(f * f, -1, (bank.size, bank.size), normalize=True)
         grid = energy[h:-h:stride, h:-h:stride]
-        thr = float(np.quantile(grid, 1.0 - keep))
+        thr = order_stats.quantile(grid, 1.0 - keep)
         gy, gx = np.nonzero(grid >= max(thr, 1e-6))
         ys, xs = gy * stride + h, gx * stride + h
         if len(ys) == 0:                          # flat water: nothing to score

