@@ -17,7 +17,6 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from scipy import stats
 
 DAY_S = 86_400.0
 Z95 = 1.959963984540054
@@ -134,7 +133,10 @@ def _weighted_fit(X: np.ndarray, y: np.ndarray, inv_var: np.ndarray):
     beta = cov @ (X.T @ (inv_var * y))
     dof = len(y) - 2
     ratio = float(np.sum(inv_var * (y - X @ beta) ** 2)) / dof if dof > 0 else 0.0
-    scale, q = (math.sqrt(ratio), float(stats.t.ppf(0.975, dof))) if ratio > 1.0 else (1.0, Z95)
+    if not ratio > 1.0:             # (NaN too)
+        return beta, cov, 1.0, Z95
+    from scipy import stats         # here: ~0.4 s to import, which a survey's start need not wait for
+    scale, q = math.sqrt(ratio), float(stats.t.ppf(0.975, dof))
     return beta, cov * scale**2, scale, q
 
 

@@ -11,6 +11,9 @@ wrong) is left out of the statistics, as the controller's survey stop does: OUT.
 """
 from __future__ import annotations
 
+import contextlib
+import importlib
+import threading
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -45,6 +48,12 @@ class SurveyOptions:
 CONFIRMING_RATE = 5.0
 
 
+def _import_quietly(module: str) -> None:
+    """Import ``module`` ahead of its use; a failure is left for that use to report."""
+    with contextlib.suppress(Exception):
+        importlib.import_module(module)
+
+
 class _Tracks:
     """Track ids: in video a fish is followed across frames (vision.tracking); in stills each fish
     is its own.
@@ -54,18 +63,27 @@ class _Tracks:
     CONFIRMING_RATE a second or more."""
 
     def __init__(self, fps: float | None, every: int = 1):
-        self.tracker = None
+        self.fps, self.every = fps, every
+        self._tracker = None
         self.lengths: list[float] = []
         self.min_sightings = 1
         self.tracks_seen = 0
         if fps is not None:
-            from vision.tracking import CONFIRMED, FishTracker  # imported here: stills never need it
-            self.tracker = FishTracker(fps)
-            self.min_sightings = CONFIRMED if fps / max(every, 1) >= CONFIRMING_RATE else 1
+            # the tracker's imports (filterpy, scipy: ~0.4 s of CPU) on a thread, while the workers
+            # start and measure the first pairs, instead of before the survey can start them
+            threading.Thread(target=_import_quietly, args=("vision.tracking",), name="survey-import").start()
 
     @property
     def per(self) -> str:
-        return "track" if self.tracker is not None else "fish"
+        return "track" if self.fps is not None else "fish"
+
+    @property
+    def tracker(self):
+        if self._tracker is None and self.fps is not None:
+            from vision.tracking import CONFIRMED, FishTracker  # imported here: stills never need it
+            self._tracker = FishTracker(self.fps)
+            self.min_sightings = CONFIRMED if self.fps / max(self.every, 1) >= CONFIRMING_RATE else 1
+        return self._tracker
 
     def update(self, frame: int, fish: list) -> list[int]:
         if self.tracker is not None:
