@@ -13,7 +13,8 @@ without a name, gone with the last process that maps it.
 
 ``measure`` is the per-pair function, ``vision.survey.measure_pair`` unless a test or a caller
 hands another with the same signature (a "module:function" string or a top-level function: it
-travels to the workers by name).
+travels to the workers by name). It must not write into its frames: decoded frames reach the
+workers read-only (a shared slot carries a later pair next).
 """
 from __future__ import annotations
 
@@ -179,7 +180,10 @@ def _run(job: PairJob) -> PairResult:
         path, offset, lshape, rshape = job.shared
         if path not in _maps:
             _maps.clear()
-            _maps[path] = np.memmap(path, np.uint8, "c")      # copy-on-write: a detector may scribble
+            # read-only: a detector writing into its frames is refused. Copy-on-write would let it,
+            # and the pages it wrote stay private to this worker's map, so later pairs in the slot
+            # would be measured on its writing instead of their own frames
+            _maps[path] = np.memmap(path, np.uint8, "r")
         m = _maps[path]
         nl, nr = math.prod(lshape), math.prod(rshape)
         job.left = m[offset:offset + nl].reshape(lshape)

@@ -81,6 +81,22 @@ def test_results_come_back_in_frame_order_from_a_pool(tmp_path):
     assert summary["frames"] == 8
 
 
+def test_a_detector_cannot_spoil_the_shared_frames_later_pairs_reuse(tmp_path):
+    # 12 decoded pairs through 4 shared slots: each slot carries three pairs in turn. A detector
+    # painting its frames must not paint what a later pair in that slot is measured on
+    from controller.surveys.frames import PairJob
+    levels = [11, 12, 13, 14, 15, 16, 17, 18, 19, 20, 21, 22]
+    jobs = (PairJob(i, f"p{i}", left=np.full((6, 8), lv, np.uint8), right=np.full((6, 8), lv, np.uint8))
+            for i, lv in enumerate(levels))
+    calib = convergent_rig(image_size=(8, 6)).calibration()
+    run_survey(Source(jobs, None), calib, options(f"{STANDIN}:scribbles", workers=2), str(tmp_path / "o.json"))
+    doc = json.loads((tmp_path / "o.json").read_text())
+    assert [f["length_cm"] for f in doc["fish"]] == pytest.approx(levels)
+    # shared frames come read-only: the detector is refused, not left to write where others read
+    assert [f["quality"]["shared_memory"] for f in doc["fish"]] == [1] * 12
+    assert [f["quality"]["wrote"] for f in doc["fish"]] == [0] * 12
+
+
 def test_an_empty_survey_is_count_zero(tmp_path):
     rig = convergent_rig()
     items, _ = stills(tmp_path, rig, np.random.default_rng(1), [0, 0])
