@@ -300,6 +300,12 @@ class Store(Records, CleanerRecords, SurveyRecords):
         run_s = sum(r["run_s"] for r in rows)
         return (sum(r["grams"] for r in rows) / run_s if run_s > 0 else None), len(rows)
 
+    def delivery_ratios(self, note: str, last: int) -> list[float]:
+        """Grams delivered / grams aimed for the last runs closed with ``note``, newest first."""
+        rows = self.db.execute("SELECT grams, target_g FROM feed WHERE phase = 'done' AND note = ? AND run_s > 1 "
+                               "AND target_g > 0 ORDER BY seq DESC LIMIT ?", (note, last)).fetchall()
+        return [r["grams"] / r["target_g"] for r in rows]
+
     def feeds(self) -> list[Feed]:
         return [Feed(**dict(r)) for r in self.db.execute("SELECT * FROM feed ORDER BY seq")]
 
