@@ -84,6 +84,28 @@ def test_edge_on_fin_fork_placed_from_the_fin_base_by_the_species_ratio(heading_
     assert np.linalg.norm(g.fork - (snout + 1.12 * L * np.array([np.cos(h), np.sin(h)]))) < 0.04 * L
 
 
+@pytest.mark.parametrize("heading_deg", [35, 160, 250])
+def test_a_peduncle_too_thin_for_the_outline_still_ends_the_body(heading_deg):
+    # seen from above the body tapers into a caudal peduncle ~2.4 px wide: blur takes its edge below
+    # the outline's level, but it is body (as dark) up to the fin base, where the edge-on fin (pale) begins
+    rng = np.random.default_rng(heading_deg)
+    L, snout, h = 150.0, np.array([560.0, 470.0]), np.radians(heading_deg)
+    img = floor(rng=rng)
+    x = np.linspace(0, 0.87 * L, 60)
+    half = np.maximum(0.09 * L * np.sin(np.pi * np.clip(x / (0.8 * L), 0, 1) ** 0.7), 1.2)
+    top = np.column_stack((x, half))
+    draw(img, place(np.vstack([top, top[::-1] * [1, -1]]), snout, h))
+    line = np.zeros(img.shape, np.uint8)
+    ends = np.round(place(np.array([[0.87 * L, 0.0], [1.12 * L, 0.0]]), snout, h)).astype(int)
+    cv2.line(line, tuple(ends[0]), tuple(ends[1]), 255, 1, cv2.LINE_AA)
+    img *= 1 - 0.2 * line.astype(np.float32) / 255                 # the fin, edge-on and pale
+    f, = detect_fish(finish(img), base_ratio=0.87)
+    fork = snout + L * np.array([np.cos(h), np.sin(h)])
+    assert np.linalg.norm(f.snout - snout) < 0.02 * L
+    # the outline alone ends ~0.75 L: the species' ratio then put the fork at ~0.86 L
+    assert np.linalg.norm(f.fork - fork) < 0.03 * L and not f.fork_seen
+
+
 def test_sizes_pale_and_dark_fish_under_the_lamp_gradient():
     rng = np.random.default_rng(5)
     fish = [((150, 150), 0.2, 60, 0.3), ((700, 200), 2.0, 220, 0.6), ((300, 700), -0.4, 120, 0.25),
