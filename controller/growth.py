@@ -135,7 +135,7 @@ def _weighted_fit(X: np.ndarray, y: np.ndarray, inv_var: np.ndarray):
     ratio = float(np.sum(inv_var * (y - X @ beta) ** 2)) / dof if dof > 0 else 0.0
     if not ratio > 1.0:             # (NaN too)
         return beta, cov, 1.0, Z95
-    from scipy import stats         # here: ~0.4 s to import, which a survey's start need not wait for
+    from scipy import stats  # here: ~0.4 s to import, which a survey's start need not wait for
     scale, q = math.sqrt(ratio), float(stats.t.ppf(0.975, dof))
     return beta, cov * scale**2, scale, q
 
