@@ -1,5 +1,7 @@
 """Fit ``vision.learned_score``'s logistic model on reports from tools/score_data.py and write it
-as a Python module (``vision/models/fish_score.py``: vision reads no files).
+as a Python module (``vision/models/fish_score.py``: vision reads no files); with ``--setup surface``
+``vision.surface_score``'s, on reports from tools/surface_score_data.py
+(``vision/models/surface_score.py``).
 
 Run: ``.venv/bin/python tools/fit_score.py --data /tmp/score_a.npz /tmp/score_b.npz
 --val /tmp/score_c.npz --out vision/models/fish_score.py`` (seconds; scipy's L-BFGS on the
@@ -18,7 +20,7 @@ import numpy as np
 from scipy.optimize import minimize
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
-from vision.learned_score import FEATURES, chance, features  # noqa: E402
+from vision import learned_score, surface_score  # noqa: E402
 
 
 def load(paths: list[str]) -> tuple[dict[str, np.ndarray], int]:
@@ -64,28 +66,31 @@ def main() -> None:
     ap.add_argument("--val", nargs="*", default=[])
     ap.add_argument("--out")
     ap.add_argument("--l2", type=float, default=1e-3)
-    ap.add_argument("--features", default=",".join(FEATURES))
+    ap.add_argument("--setup", choices=["underwater", "surface"], default="underwater",
+                    help="whose model: vision.learned_score's or vision.surface_score's features")
+    ap.add_argument("--features", help="comma-separated names of the setup's FEATURES (default: all)")
     ap.add_argument("--precisions", type=lambda v: [float(x) for x in v.split(",")], default=[0.95, 0.97],
                     help="the recall and threshold printed at each of these precisions on --val")
     args = ap.parse_args()
-    names = args.features.split(",")
+    scoring = surface_score if args.setup == "surface" else learned_score
+    names = args.features.split(",") if args.features else list(scoring.FEATURES)
     q, _ = load(args.data)
-    x = features(q, names)
+    x = np.stack([np.asarray(scoring.FEATURES[n](q), float) for n in names], axis=1)
     mean, sd = x.mean(axis=0), x.std(axis=0) + 1e-9
     w, b = fit((x - mean) / sd, q["right"], args.l2)
     model = {"names": names, "mean": mean.tolist(), "sd": sd.tolist(), "weights": w.tolist(), "bias": b,
-             "fitted_on": f"rendered underwater scenes, seeds {int(q['seed'].min())}-{int(q['seed'].max())}",
+             "fitted_on": f"rendered {args.setup} scenes, seeds {int(q['seed'].min())}-{int(q['seed'].max())}",
              "reports": int(len(x)), "right": int(q["right"].sum()), "l2": args.l2}
     report = {"reports": len(x), "right": int(q["right"].sum()),
               "weights": {n: round(float(v), 3) for n, v in zip(names, w, strict=True)}}
     if args.val:
         v, visible = load(args.val)
         right, found = v["right"] == 1, (v["right"] == 1) & (v["visible"] == 1)
-        for name, s in (("hand_made", v["score"]), ("learned", chance(v, model))):
+        for name, s in (("hand_made", v["score"]), ("learned", scoring.chance(v, model))):
             report[name] = {str(p): recall_at(s, right, found, visible, p) for p in args.precisions}
         report["val_upper_bound_recall"] = round(float(found.sum() / max(visible, 1)), 3)
     if args.out:
-        Path(args.out).write_text('"""vision.learned_score\'s fitted model, written by tools/fit_score.py '
+        Path(args.out).write_text(f'"""{scoring.__name__}\'s fitted model, written by tools/fit_score.py '
                                   '(do not edit by hand)."""\n\nMODEL = ' + json.dumps(model, indent=1) + "\n")
     print(json.dumps(report))
 

@@ -7,7 +7,7 @@ labelled right or wrong by the bench's rule (snout and fork within 3 % of a true
 across the line of sight, 10 % along it). Its answer is a probability: a farmer's "keep reports
 above 0.5" means what it says on scenes like those.
 
-``features`` documents the inputs: raw figures of ``FishMeasurement.quality`` and the
+``FEATURES`` documents the inputs: raw figures of ``FishMeasurement.quality`` and the
 measured length, each transformed so that a linear model can use it (logs of residuals and of
 distances as shares of the length). Shapes: every input (N,), the result (N,).
 """
@@ -48,11 +48,6 @@ FEATURES = {
 }
 
 
-def features(q: dict[str, np.ndarray], names: list[str]) -> np.ndarray:
-    """(N, len(names)) float64: the named ``FEATURES`` of the figures ``q``."""
-    return np.stack([np.asarray(FEATURES[n](q), float) for n in names], axis=1)
-
-
 @lru_cache(maxsize=4)
 def load(name: str = MODEL) -> dict:
     """The fitted model (a module's ``MODEL``): names, mean, sd, weights, bias, and how it was fitted."""
@@ -61,7 +56,14 @@ def load(name: str = MODEL) -> dict:
 
 def chance(q: dict[str, np.ndarray], model: dict | None = None) -> np.ndarray:
     """(N,) 0..1: the chance each report is right (``q``: its figures, each (N,))."""
-    m = load() if model is None else model
-    x = (features(q, m["names"]) - np.asarray(m["mean"])) / np.asarray(m["sd"])
+    return fitted_chance(q, FEATURES, MODEL if model is None else model)
+
+
+def fitted_chance(q: dict[str, np.ndarray], table: dict, model: dict | str) -> np.ndarray:
+    """A logistic model's answer: ``model`` (or the module naming it) over the named features of
+    ``table`` (name -> transform of the figures ``q``)."""
+    m = load(model) if isinstance(model, str) else model
+    x = np.stack([np.asarray(table[n](q), float) for n in m["names"]], axis=1)
+    x = (x - np.asarray(m["mean"])) / np.asarray(m["sd"])
     z = x @ np.asarray(m["weights"]) + m["bias"]
     return 1.0 / (1.0 + np.exp(-np.clip(z, -40, 40)))

@@ -19,7 +19,9 @@ the view more sure of itself decides.
 direction from the tank towards the cameras, i.e. minus the mean of the two optical axes: cameras
 over a tank look down, so the image-up of the underwater default would lie in the water surface.
 
-Score (0..1), the product of the terms kept in ``quality``: epipolar residual of snout and fork
+Score (0..1): the fitted chance the report is right (``vision.surface_score``), from the figures
+kept in ``quality``. A fish is reported when the hand-made score, the product of the terms kept
+in ``quality`` (``hand_score``), is at least MIN_SCORE (its terms veto): epipolar residual of snout and fork
 (``q_epipolar``), axis tilt against the surface (``q_tilt``), straightness of the body through the
 intermediate points in the left view (``q_straight``; a fish bent sideways has a fork length
 shorter than its body),
@@ -37,6 +39,7 @@ import time
 
 import numpy as np
 
+from vision import surface_score
 from vision.calib_file import StereoCalibration
 from vision.epipolar import fundamental_from_projections
 from vision.surface_prep import contrast_map
@@ -46,7 +49,8 @@ from vision.surface_stereo import body_crossings, candidate_pairs, ends_on_axis,
 from vision.survey_types import FishMeasurement, SurveySetup
 from vision.triangulation import triangulate_calibrated
 
-MIN_SCORE = 0.05        # below this a "fish" is noise: not reported
+MIN_SCORE = 0.05        # below this hand-made score a "fish" is noise: not reported (its terms veto:
+                        # a fork the views disagree on, a bent or tilted body)
 # the right view's own fork against the left fork's epipolar line, per unit of length: the scale of
 # q_fork_views. 0.06 -> 0.02 on the bench's 30 tanks: reports 86 -> 65, recall 0.139 -> 0.130,
 # precision 0.349 -> 0.431 (image 0.663 -> 0.800): a fork 3.5 % of the length off is not reported
@@ -170,13 +174,13 @@ def _measure(setup: SurveySetup, a: Fish2D, b: Fish2D, pts1, pts2, head, solid, 
         "q_views": float(np.clip((views - 0.6) / 0.3, 0, 1)),
         "q_match": float(np.clip(np.nan_to_num(ncc, nan=0.6).min(), 0.5, 1.0)) * 2 - 1,
     }
-    score = float(np.prod(list(q.values())))
+    hand = float(np.prod(list(q.values())))
     q.update({"epipolar_px": epi, "mid_epipolar_px": float(np.sqrt(np.mean(res[2:] ** 2))), "tilt_deg": tilt,
               "body_mm": body_mm, "straightness": straight, "head_conf": float(head),
               "ncc_snout": float(np.nan_to_num(ncc[0])), "ncc_fork": float(np.nan_to_num(ncc[1])),
               "fork_depth": float(min(a.fork_depth, b.fork_depth)), "length_px": a.length_px,
-              "fork_gap": fork_gap})
-    return FishMeasurement(S, K, np.array([pts1[0], pts2[0]]), np.array([pts1[1], pts2[1]]), score, q)
+              "fork_gap": fork_gap, "hand_score": hand})
+    return FishMeasurement(S, K, np.array([pts1[0], pts2[0]]), np.array([pts1[1], pts2[1]]), hand, q)
 
 
 def _patch(fish: list[Fish2D]) -> int:
@@ -190,7 +194,8 @@ def measure_surface(left: np.ndarray, right: np.ndarray, calib: StereoCalibratio
                     timings: dict[str, float] | None = None) -> list[FishMeasurement]:
     """Fish measured in one pair seen from above (see module docstring). Never raises on a frame
     without fish: returns []."""
-    return [m for m in surface_stages(left, right, calib, setup, timings)["measured"] if m.score >= MIN_SCORE]
+    return [m for m in surface_stages(left, right, calib, setup, timings)["measured"]
+            if m.quality["hand_score"] >= MIN_SCORE]
 
 
 def surface_stages(left: np.ndarray, right: np.ndarray, calib: StereoCalibration, setup: SurveySetup,
@@ -247,5 +252,10 @@ def surface_stages(left: np.ndarray, right: np.ndarray, calib: StereoCalibration
         m = _measure(setup, a, b, pts1, pts2, head, solid, ncc[2 * k:2 * k + 2], gaps[k])
         out["measured"].append(m)
         out["measured_pair"].append(k)
+    if out["measured"]:
+        # the score: the fitted chance the report is right (vision.surface_score), from its figures
+        q = {k: np.array([m.quality[k] for m in out["measured"]]) for k in out["measured"][0].quality}
+        for m, c in zip(out["measured"], surface_score.chance(q), strict=True):
+            m.score = float(c)
     _tick(timings, "stereo", t0)
     return out

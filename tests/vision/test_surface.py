@@ -18,7 +18,8 @@ from tests.vision.test_surface_drawing import (
     top_rig,
     world_fish,
 )
-from vision.surface import detect_fish, measure_surface, surface_stages, up_direction
+from vision import surface_score
+from vision.surface import MIN_SCORE, detect_fish, measure_surface, surface_stages, up_direction
 from vision.survey import measure_pair
 from vision.survey_types import FishGeometry, SurveySetup
 
@@ -214,6 +215,24 @@ def test_tilted_and_implausible_fish_dropped_and_tilt_lowers_the_score():
     assert found[1].score < found[0].score
     narrow = SurveySetup(setup="surface", geometry=FishGeometry(min_length_cm=13, max_length_cm=40))
     assert measure_surface(left, right, rig.calibration(), narrow) == []
+
+
+def test_the_score_is_the_fitted_chance_of_the_reports_own_figures():
+    """Each fish's score is ``vision.surface_score.chance`` of the figures it reports (a user can
+    recompute it); the reporting cut stays the hand-made product of terms (``hand_score``), whose
+    terms veto (a fork the views disagree on, a tilted or bent body)."""
+    fish = [dict(length_mm=120, snout_xy=(-150, 0), heading=0.0, depth_mm=150, tilt_deg=0),
+            dict(length_mm=100, snout_xy=(100, -150), heading=1.0, depth_mm=200, tilt_deg=12),
+            dict(length_mm=90, snout_xy=(0, 150), heading=2.5, depth_mm=100)]
+    left, right, rig, _ = stereo_tank(np.random.default_rng(21), fish)
+    measured = surface_stages(left, right, rig.calibration(), SETUP)["measured"]
+    reported = measure_surface(left, right, rig.calibration(), SETUP)
+    assert len(reported) == 3
+    q = {k: np.array([m.quality[k] for m in measured]) for k in measured[0].quality}
+    assert np.allclose(surface_score.chance(q), [m.score for m in measured], atol=1e-12)
+    assert all(0 <= m.score <= 1 for m in measured)
+    assert [m.snout_mm.tolist() for m in reported] == \
+        [m.snout_mm.tolist() for m in measured if m.quality["hand_score"] >= MIN_SCORE]
 
 
 def test_two_fish_on_one_epipolar_band_are_not_crossed():
