@@ -75,7 +75,7 @@ def main() -> None:
     scoring = surface_score if args.setup == "surface" else learned_score
     names = args.features.split(",") if args.features else list(scoring.FEATURES)
     q, _ = load(args.data)
-    x = np.stack([np.asarray(scoring.FEATURES[n](q), float) for n in names], axis=1)
+    x = learned_score.features(q, names, scoring.FEATURES)
     mean, sd = x.mean(axis=0), x.std(axis=0) + 1e-9
     w, b = fit((x - mean) / sd, q["right"], args.l2)
     model = {"names": names, "mean": mean.tolist(), "sd": sd.tolist(), "weights": w.tolist(), "bias": b,

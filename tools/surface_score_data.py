@@ -47,7 +47,7 @@ def main() -> None:
         found = surface_stages(sc.left, sc.right, sc.rig.calibration(), setup)["measured"]
         visible += sum(t.fully_visible for t in sc.fish)
         hit: set[int] = set()
-        for m in sorted(found, key=lambda m: -m.quality.get("hand_score", m.score)):
+        for m in sorted(found, key=lambda m: -m.quality["hand_score"]):
             i, kind, err = _match(m, sc.fish, sc.rig.centres[0])
             right = kind == "ok" and i not in hit       # a fish reported twice: right once
             if right:
@@ -55,7 +55,7 @@ def main() -> None:
             t = sc.fish[i] if i is not None else None
             keys = keys or sorted(m.quality)
             rows.append([seed, -1 if i is None else i, int(right), int(t is not None and t.fully_visible),
-                         m.quality.get("hand_score", m.score), err,
+                         m.quality["hand_score"], err,
                          np.nan if t is None else m.length_cm / t.length_cm - 1, m.length_cm]
                         + [m.quality[k] for k in keys])
     np.savez(args.out, rows=np.array(rows, float).reshape(len(rows), -1), keys=np.array(HEAD + (keys or [])),

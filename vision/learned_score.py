@@ -7,7 +7,7 @@ labelled right or wrong by the bench's rule (snout and fork within 3 % of a true
 across the line of sight, 10 % along it). Its answer is a probability: a farmer's "keep reports
 above 0.5" means what it says on scenes like those.
 
-``FEATURES`` documents the inputs: raw figures of ``FishMeasurement.quality`` and the
+``FEATURES`` (``features``) documents the inputs: raw figures of ``FishMeasurement.quality`` and the
 measured length, each transformed so that a linear model can use it (logs of residuals and of
 distances as shares of the length). Shapes: every input (N,), the result (N,).
 """
@@ -59,11 +59,15 @@ def chance(q: dict[str, np.ndarray], model: dict | None = None) -> np.ndarray:
     return fitted_chance(q, FEATURES, MODEL if model is None else model)
 
 
+def features(q: dict[str, np.ndarray], names: list[str], table: dict = FEATURES) -> np.ndarray:
+    """(N, len(names)) float64: the named features of ``table`` (name -> transform) of the figures ``q``."""
+    return np.stack([np.asarray(table[n](q), float) for n in names], axis=1)
+
+
 def fitted_chance(q: dict[str, np.ndarray], table: dict, model: dict | str) -> np.ndarray:
     """A logistic model's answer: ``model`` (or the module naming it) over the named features of
     ``table`` (name -> transform of the figures ``q``)."""
     m = load(model) if isinstance(model, str) else model
-    x = np.stack([np.asarray(table[n](q), float) for n in m["names"]], axis=1)
-    x = (x - np.asarray(m["mean"])) / np.asarray(m["sd"])
+    x = (features(q, m["names"], table) - np.asarray(m["mean"])) / np.asarray(m["sd"])
     z = x @ np.asarray(m["weights"]) + m["bias"]
     return 1.0 / (1.0 + np.exp(-np.clip(z, -40, 40)))
