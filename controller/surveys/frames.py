@@ -13,6 +13,7 @@ different sizes, a directory without pairs, a video that cannot be opened or end
 """
 from __future__ import annotations
 
+import os
 import re
 import time
 from collections.abc import Iterator
@@ -214,6 +215,9 @@ def directory_items(directory: str) -> list[tuple[str, ...]]:
 
 def _open_video(path: str) -> cv2.VideoCapture:
     _exists(path)
+    # FFmpeg's own complaints ("moov atom not found") would precede our one-line error; a user
+    # who wants them sets the variable. It is read when the first capture opens.
+    os.environ.setdefault("OPENCV_FFMPEG_LOGLEVEL", "-8")
     cap = cv2.VideoCapture(path)
     if not cap.isOpened():
         raise BadInput(path, None, "cannot open as a video")

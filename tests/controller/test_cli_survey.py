@@ -90,6 +90,14 @@ def test_no_fish_is_an_empty_survey_not_an_error(farm):
     assert doc["count"] == 0 and doc["fish"] == [] and doc["weight_g"]["mean"] is None
 
 
+def make_mp4(path, frame, n):
+    writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"mp4v"), 25.0, (frame.shape[1], frame.shape[0]))
+    for _ in range(n):
+        writer.write(frame)
+    writer.release()
+    return path
+
+
 def one_line_exit_2(r, *words):
     assert r.returncode == 2, (r.returncode, r.stderr)
     lines = r.stderr.strip().splitlines()
@@ -141,6 +149,16 @@ def test_missing_files_and_empty_directories(farm, tmp_path):
     one_line_exit_2(run("--calib", tmp_path / "none.json", "--species", "sparus_aurata", "--setup", "underwater",
                         "--dir", d / "pairs", "--json", tmp_path / "x.json"), "none.json: no such file")
     one_line_exit_2(run(*common(d, "--json", tmp_path / "x.json")), "give exactly one input")
+
+
+def test_a_file_that_is_no_video_is_one_line_without_ffmpegs_own_complaint(farm, tmp_path):
+    # FFmpeg prints "moov atom not found" for a broken mp4 unless told not to
+    d, _ = farm
+    left = make_mp4(tmp_path / "left.mp4", cv2.imread(str(d / "pairs/p0_L.png")), 3)
+    broken = tmp_path / "right.mp4"
+    broken.write_bytes(Path(left).read_bytes()[:40])
+    one_line_exit_2(run(*common(d, "--video", left, broken, "--json", tmp_path / "x.json")),
+                    "right.mp4: cannot open as a video")
 
 
 def test_without_the_pipeline_merged_it_says_so_in_one_line(farm, tmp_path):
@@ -285,12 +303,7 @@ def hanging_survey(farm, tmp_path):
     """`fishfarm survey` of an RG video (frames decoded here, handed over in shared memory) whose 2
     workers hang in every pair; yields (process, out.json path, mark) once the workers hold frames."""
     d, _ = farm
-    frame = cv2.imread(str(d / "rg0.png"))
-    writer = cv2.VideoWriter(str(tmp_path / "rg.mp4"), cv2.VideoWriter_fourcc(*"mp4v"), 25.0,
-                             (frame.shape[1], frame.shape[0]))
-    for _ in range(20):
-        writer.write(frame)
-    writer.release()
+    make_mp4(tmp_path / "rg.mp4", cv2.imread(str(d / "rg0.png")), 20)
     mark = f"{os.getpid()}-{time.monotonic_ns()}"
     env = {**os.environ, "PYTHONPATH": str(ROOT), "FISHFARM_TEST_HANG": "1", "FISHFARM_TEST_MARK": mark}
     out = tmp_path / "o.json"
