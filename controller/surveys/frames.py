@@ -24,6 +24,7 @@ import cv2
 import numpy as np
 
 from controller.errors import BadInput
+from controller.surveys.png import DamagedPNG, decode_png
 
 IMAGE_SUFFIXES = {".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff"}
 BLUE_EMPTY_MAX = 16.0           # mean blue level an RG frame may carry (JPEG bleed, sensor offset)
@@ -113,7 +114,12 @@ def _imdecode(data: bytes, name: str, flags: int = cv2.IMREAD_ANYCOLOR) -> np.nd
     why = _truncated(data)
     if why:
         raise BadInput(name, None, why)
-    img = cv2.imdecode(np.frombuffer(data, np.uint8), flags)
+    try:
+        img = decode_png(data, colour=flags == cv2.IMREAD_COLOR)
+    except DamagedPNG as exc:
+        raise BadInput(name, None, f"damaged PNG ({exc})") from None
+    if img is None:
+        img = cv2.imdecode(np.frombuffer(data, np.uint8), flags)
     if img is None or img.size == 0:
         raise BadInput(name, None, f"not a readable image ({IMAGE_KINDS} expected)")
     return img
