@@ -12,7 +12,7 @@ denominator) the stages it passes, in order (``stages``: how many fish are still
   image_ok                    the paired, refined end pixels within 3 % in both views;
   solid_ok                    the 3-D ends each within 3 % of the length of the true ends (the
                               bench's rule), before the score cut;
-  reported_ok                 the same, with the hand-made score kept (>= MIN_SCORE).
+  reported_ok                 the same, reported (``vision.surface.reported``: both scores' floors).
 
 ``each_stage_alone``: how many fish pass each stage whatever happened before it (e.g. right_ends
 with the left view failed).
@@ -38,7 +38,7 @@ import numpy as np  # noqa: E402
 
 from devices.sim.fish_scene import surface_scene  # noqa: E402
 from devices.sim.fish_species import SPECIES  # noqa: E402
-from vision.surface import MIN_SCORE, surface_stages  # noqa: E402
+from vision.surface import reported, surface_stages  # noqa: E402
 from vision.survey_types import FishGeometry, SurveySetup  # noqa: E402
 
 TOL = 0.03
@@ -134,7 +134,7 @@ def run(scenes: int, seed: int) -> dict:
         hit = set()
         for pk, (i, j) in enumerate(st["pairs"]):
             m = by_pair.get(pk)
-            if m is None or m.quality["hand_score"] < MIN_SCORE:
+            if m is None or not reported(m):
                 continue
             fails["reported"] += 1
             ti, tj = al[i][0], ar[j][0]
@@ -162,7 +162,7 @@ def run(scenes: int, seed: int) -> dict:
             ms = [m for m in ms if m is not None]
             passed["image_ok"] = any(_ok_img(m, t) for m in ms)
             passed["solid_ok"] = any(_ok3d(m, t) for m in ms)
-            passed["reported_ok"] = any(_ok3d(m, t) and m.quality["hand_score"] >= MIN_SCORE for m in ms)
+            passed["reported_ok"] = any(_ok3d(m, t) and reported(m) for m in ms)
             for m in ms:
                 if _ok_img(m, t):
                     frame3d.append(_frame3d(m, t, up))

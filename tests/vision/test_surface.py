@@ -19,7 +19,7 @@ from tests.vision.test_surface_drawing import (
     world_fish,
 )
 from vision import surface_score
-from vision.surface import MIN_SCORE, detect_fish, measure_surface, surface_stages, up_direction
+from vision.surface import MIN_CHANCE, MIN_SCORE, detect_fish, measure_surface, surface_stages, up_direction
 from vision.survey import measure_pair
 from vision.survey_types import FishGeometry, SurveySetup
 
@@ -219,8 +219,8 @@ def test_tilted_and_implausible_fish_dropped_and_tilt_lowers_the_score():
 
 def test_the_score_is_the_fitted_chance_of_the_reports_own_figures():
     """Each fish's score is ``vision.surface_score.chance`` of the figures it reports (a user can
-    recompute it); the reporting cut stays the hand-made product of terms (``hand_score``), whose
-    terms veto (a fork the views disagree on, a tilted or bent body)."""
+    recompute it); what is reported clears the hand-made product of terms (``hand_score``), whose
+    terms veto (a fork the views disagree on, a tilted or bent body), and the chance's own floor."""
     fish = [dict(length_mm=120, snout_xy=(-150, 0), heading=0.0, depth_mm=150, tilt_deg=0),
             dict(length_mm=100, snout_xy=(100, -150), heading=1.0, depth_mm=200, tilt_deg=12),
             dict(length_mm=90, snout_xy=(0, 150), heading=2.5, depth_mm=100)]
@@ -232,7 +232,7 @@ def test_the_score_is_the_fitted_chance_of_the_reports_own_figures():
     assert np.allclose(surface_score.chance(q), [m.score for m in measured], atol=1e-12)
     assert all(0 <= m.score <= 1 for m in measured)
     assert [m.snout_mm.tolist() for m in reported] == \
-        [m.snout_mm.tolist() for m in measured if m.quality["hand_score"] >= MIN_SCORE]
+        [m.snout_mm.tolist() for m in measured if m.quality["hand_score"] >= MIN_SCORE and m.score >= MIN_CHANCE]
 
 
 def test_two_fish_on_one_epipolar_band_are_not_crossed():
