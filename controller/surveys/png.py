@@ -16,6 +16,7 @@ import numpy as np
 
 SIGNATURE = b"\x89PNG\r\n\x1a\n"
 GREY, RGB = 0, 2                     # IHDR colour types
+MAX_PIXELS = 1 << 30                 # OpenCV's CV_IO_MAX_IMAGE_PIXELS default
 
 
 class DamagedPNG(ValueError):
@@ -43,6 +44,9 @@ def decode_png(data: bytes, colour: bool) -> np.ndarray | None:
     Raises DamagedPNG when libpng cannot decode it."""
     if not data.startswith(SIGNATURE) or len(data) < 33 or data[12:16] != b"IHDR":
         return None
+    width, height = int.from_bytes(data[16:20], "big"), int.from_bytes(data[20:24], "big")
+    if width * height > MAX_PIXELS:
+        return None                 # OpenCV refuses it by name; libpng would allocate it all
     # ~50 ms to import: only a survey of PNG stills pays it
     import imagecodecs
 

@@ -121,6 +121,17 @@ def test_orientation_is_why_an_exif_png_is_left_to_opencv():
     assert as_opencv(data, True).shape[:2] == (31, 23)      # OpenCV turned it
 
 
+def test_a_png_declaring_more_pixels_than_opencv_reads_is_left_to_opencv_unallocated():
+    # 40000 x 40000 x 3 would be 4.5 GB; OpenCV refuses over 2^30 pixels by name
+    img = np.zeros((10, 40000, 3), np.uint8)
+    ihdr = struct.pack(">IIBBBBB", 40000, 40000, 8, 2, 0, 0, 0)
+    data = (b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", ihdr)
+            + chunk(b"IDAT", zlib.compress(b"".join(b"\0" + row.tobytes() for row in img))) + chunk(b"IEND", b""))
+    assert decode_png(data, False) is None
+    with pytest.raises(cv2.error, match="CV_IO_MAX_IMAGE_PIXELS"):
+        as_opencv(data, False)
+
+
 def test_a_damaged_png_is_named_by_libpngs_reason_and_other_formats_pass_through():
     img = np.random.default_rng(7).integers(0, 256, (64, 64, 3), np.uint8)
     data = bytearray(opencv_png(img, 1))
