@@ -36,11 +36,13 @@ def _read(path: str):
     import cv2
     import numpy as np
 
+    from controller.image_io import opencv_decode
+
     try:
         data = np.fromfile(path, dtype=np.uint8)
     except OSError as exc:
         raise BadInput(path, None, f"cannot read: {exc.strerror or exc}") from None
-    img = cv2.imdecode(data, cv2.IMREAD_GRAYSCALE) if data.size else None
+    img = opencv_decode(data, path, cv2.IMREAD_GRAYSCALE, "PNG/JPEG") if data.size else None
     if img is None:
         raise BadInput(path, None, "not a readable image (PNG/JPEG expected)")
     return img

@@ -96,9 +96,15 @@ def read_frames(folder: str) -> list[tuple[int, float, Path, int]]:
 
 def read_image(path: Path, where: str) -> np.ndarray:
     import cv2
+
+    from controller.image_io import opencv_decode
     if not path.is_file():
         raise BadInput(str(path), None, f"no such file ({where})")
-    image = cv2.imread(str(path), cv2.IMREAD_COLOR)
+    try:
+        data = path.read_bytes()
+    except OSError as exc:
+        raise BadInput(str(path), None, f"cannot be read: {exc.strerror or exc} ({where})") from None
+    image = opencv_decode(data, str(path), cv2.IMREAD_COLOR, "PNG")
     if image is None or image.size == 0:
         raise BadInput(str(path), None, f"cannot read it as an image ({where})")
     return image

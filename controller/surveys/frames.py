@@ -24,6 +24,7 @@ import cv2
 import numpy as np
 
 from controller.errors import BadInput
+from controller.image_io import opencv_decode
 from controller.surveys.png import DamagedPNG, decode_png
 
 IMAGE_SUFFIXES = {".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff"}
@@ -119,21 +120,10 @@ def _imdecode(data: bytes, name: str, flags: int = cv2.IMREAD_ANYCOLOR) -> np.nd
     except DamagedPNG as exc:
         raise BadInput(name, None, f"damaged PNG ({exc})") from None
     if img is None:
-        img = _opencv_decode(data, name, flags)
+        img = opencv_decode(data, name, flags, IMAGE_KINDS)
     if img is None or img.size == 0:
         raise BadInput(name, None, f"not a readable image ({IMAGE_KINDS} expected)")
     return img
-
-
-def _opencv_decode(data: bytes, name: str, flags: int) -> np.ndarray | None:
-    try:
-        return cv2.imdecode(np.frombuffer(data, np.uint8), flags)
-    except cv2.error as exc:        # OpenCV raises, rather than returning None, on a size it refuses
-        if "CV_IO_MAX_IMAGE_PIXELS" in str(exc):
-            raise BadInput(name, None, "too large: over 2^30 pixels, OpenCV's limit "
-                           "(CV_IO_MAX_IMAGE_PIXELS)") from None
-        raise BadInput(name, None, f"not a readable image ({IMAGE_KINDS} expected; OpenCV: "
-                       f"{getattr(exc, 'err', '') or 'error'})") from None
 
 
 def decode_pair(blobs: tuple[bytes, ...], names: tuple[str, ...]) -> tuple[np.ndarray, np.ndarray, str | None]:

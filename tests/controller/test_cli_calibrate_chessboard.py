@@ -11,6 +11,7 @@ import pytest
 
 from controller.cli.calib_io import load_calibration
 from devices.sim.stereo_scene import board_session, random_texture
+from tests.controller.huge_images import huge_jpeg, huge_png
 from tests.vision.shared_data import SHARED_DATA, needs_data, require
 
 REPO = Path(__file__).resolve().parents[2]
@@ -87,6 +88,16 @@ def test_unreadable_image(rendered, tmp_path):
         (tmp_path / f"R{i}.png").write_bytes((rendered / f"R0{i}.png").read_bytes())
     (tmp_path / "R1.png").write_bytes(b"not a picture at all")
     assert_bad_input(fishfarm(*args(tmp_path, tmp_path / "c.json")), "R1.png", "not a readable image")
+
+
+def test_an_image_declaring_more_pixels_than_opencv_reads(rendered, tmp_path):
+    for name, data in (("L1.png", huge_png()), ("L1.jpg", huge_jpeg())):
+        folder = tmp_path / name
+        folder.mkdir()
+        (folder / name).write_bytes(data)
+        (folder / "R1.png").write_bytes((rendered / "R01.png").read_bytes())
+        assert_bad_input(fishfarm(*args(folder, tmp_path / "c.json", left="L1.*", right="R1.png")),
+                         name, "too large: over 2^30 pixels")
 
 
 def test_image_size_mismatch(rendered, tmp_path):

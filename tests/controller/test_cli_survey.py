@@ -7,7 +7,6 @@ import signal
 import subprocess
 import sys
 import time
-import zlib
 from pathlib import Path
 
 import cv2
@@ -15,6 +14,7 @@ import numpy as np
 import pytest
 
 from devices.sim.stereo_rig import convergent_rig
+from tests.controller.huge_images import huge_jpeg, huge_png
 from tests.controller.surveys import standin
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -163,26 +163,12 @@ def test_a_file_that_is_no_video_is_one_line_without_ffmpegs_own_complaint(farm,
 
 
 def test_a_still_declaring_more_pixels_than_opencv_reads_is_one_line(farm, tmp_path):
-    # the header alone says 40000 x 40000 (PNG) or 60000 x 60000 (JPEG); OpenCV raises, not None
     d, _ = farm
-    png = tmp_path / "huge.png"
-    png.write_bytes(handmade_png_header(40000, 40000))
-    jpeg = bytearray(cv2.imencode(".jpg", np.zeros((8, 8, 3), np.uint8))[1].tobytes())
-    sof = jpeg.find(b"\xff\xc0")
-    jpeg[sof + 5:sof + 9] = (60000).to_bytes(2, "big") * 2
-    (tmp_path / "huge.jpg").write_bytes(bytes(jpeg))
+    (tmp_path / "huge.png").write_bytes(huge_png())
+    (tmp_path / "huge.jpg").write_bytes(huge_jpeg())
     for name in ("huge.png", "huge.jpg"):
         one_line_exit_2(run(*common(d, "--pair", tmp_path / name, d / "pairs/p0_R.png", "--json", tmp_path / "x.json")),
                         f"{name}: too large: over 2^30 pixels")
-
-
-def handmade_png_header(width, height):
-    """A PNG whose IHDR declares the size and whose IDAT holds ten rows of it (PNG spec, 11.2)."""
-    def chunk(kind, body):
-        return len(body).to_bytes(4, "big") + kind + body + zlib.crc32(kind + body).to_bytes(4, "big")
-    ihdr = width.to_bytes(4, "big") + height.to_bytes(4, "big") + bytes([8, 2, 0, 0, 0])
-    rows = zlib.compress(b"\0" * (1 + 3 * width) * 10)
-    return b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", ihdr) + chunk(b"IDAT", rows) + chunk(b"IEND", b"")
 
 
 def test_without_the_pipeline_merged_it_says_so_in_one_line(farm, tmp_path):

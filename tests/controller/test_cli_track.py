@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 
 from controller.cli import main
+from tests.controller.huge_images import huge_png
 from tests.vision import float_drawing as fd
 
 FISHFARM = str(Path(sys.executable).parent / "fishfarm")
@@ -147,6 +148,16 @@ def test_an_unreadable_or_missing_frame_exits_2_naming_it(capsys, clip, tmp_path
     (d / "f001.png").write_bytes((clip / "f001.png").read_bytes())
     refused(capsys, ["--frames", d, "--tower", clip / "tower.json", "--json", out], d / "f002.png",
             f"no such file ({d / 'frames.csv'} line 4)", out)
+
+
+def test_a_frame_declaring_more_pixels_than_opencv_reads_exits_2_naming_it(capsys, clip, tmp_path):
+    d = tmp_path / "clip"
+    d.mkdir()
+    (d / "f000.png").write_bytes(huge_png())
+    (d / "frames.csv").write_text("frame,t_s,file\n0,0.0,f000.png\n")
+    out = tmp_path / "OUT.json"
+    refused(capsys, ["--frames", d, "--tower", clip / "tower.json", "--json", out], d / "f000.png",
+            "too large: over 2^30 pixels", out)
 
 
 def test_frames_of_another_size_in_one_clip_and_an_empty_clip(capsys, clip, tmp_path):
