@@ -12,11 +12,12 @@ from vision.survey_types import FishMeasurement
 
 
 def measurements(rows, pairs, f1, f2, v1, v2, fork_mm, fork_res, ch, calib, geo, p,
-                  width: int, expected: np.ndarray, view: np.ndarray, fork_epi: np.ndarray,
-                  snout_epi: np.ndarray, keypoint_conf: np.ndarray,
+                  width: int, expected: np.ndarray, view: np.ndarray, epipolar: tuple[np.ndarray, ...],
+                  keypoint_conf: np.ndarray,
                   keypoint_snout: np.ndarray, snout_net_conf: np.ndarray) -> list[FishMeasurement]:
     if len(rows) == 0:
         return []
+    fork_epi, snout_epi, fork_best, snout_best = epipolar
     c1 = -np.linalg.solve(calib.P1[:, :3], calib.P1[:, 3])
     rng_mm = np.linalg.norm(fork_mm - c1, axis=1)
     len_px = 0.5 * (np.linalg.norm(ch.px1 - f1.xy, axis=1) + np.linalg.norm(ch.px2 - f2.xy, axis=1))
@@ -50,6 +51,7 @@ def measurements(rows, pairs, f1, f2, v1, v2, fork_mm, fork_res, ch, calib, geo,
            "tilt_deg": ch.tilt_deg, "range_mm": rng_mm, "length_px": len_px,
            "fin_ncc": np.minimum(f1.score, f2.score), "snout_edge": ch.strength, "body_length_mm": expected,
            "body_fill": fill, "fork_epi_px": fork_epi, "snout_epi_px": snout_epi,
+           "fork_epi_best_px": fork_best, "snout_epi_best_px": snout_best,
            "fork_net_conf": net_sure, "kp_fork_conf": keypoint_conf,
            "kp_snout_agree": keypoint_snout, "snout_net_conf": snout_net_conf}
     raw["hand_score"] = score
@@ -59,8 +61,11 @@ def measurements(rows, pairs, f1, f2, v1, v2, fork_mm, fork_res, ch, calib, geo,
         min_score = p.min_chance
     fish = []
     # post-filter: an end the other image's best match along its epipolar line puts elsewhere
-    # is on the wrong structure there, and its depth with it
-    epi = np.maximum(fork_epi, snout_epi) / np.maximum(len_px, 1e-6)
+    # is on the wrong structure there, and its depth with it. From either view: a wrong end is
+    # elsewhere from both, while a right one lying along the line (a fish swimming along the
+    # baseline) can be matched a little along its own body from one view
+    epi = np.maximum(*((fork_best, snout_best) if p.epipolar_either else (fork_epi, snout_epi)))
+    epi = epi / np.maximum(len_px, 1e-6)
     rows = rows[(score[rows] >= min_score) & (epi[rows] <= p.max_epipolar)
                 & (fork_res[rows] <= p.max_fork_residual_px)]
     for r in _unique_snouts(rows, ch, score):
