@@ -76,10 +76,20 @@ def test_plain_pngs_from_pillow_with_its_ancillary_chunks_match_opencv(img, colo
     assert got is not None and np.array_equal(got, as_opencv(data, colour))
 
 
+# colour-management chunks a camera may write: neither OpenCV nor the fast path applies them
+ANCILLARY = [b"",
+             chunk(b"gAMA", struct.pack(">I", 45455)),                   # 1/2.2
+             chunk(b"gAMA", struct.pack(">I", 100000)) + chunk(b"sRGB", b"\0"),
+             chunk(b"sBIT", bytes([5, 6, 5])),
+             chunk(b"cHRM", struct.pack(">8I", 31270, 32900, 64000, 33000, 30000, 60000, 15000, 6000))]
+
+
 @settings(max_examples=40, deadline=None)
-@given(img=images, interlace=st.booleans(), colour=st.booleans())
-def test_handmade_pngs_interlaced_or_not_read_as_opencv_reads_them(img, interlace, colour):
-    data = handmade_png(img, interlace)
+@given(img=images, interlace=st.booleans(), colour=st.booleans(), extra=st.sampled_from(ANCILLARY))
+def test_handmade_pngs_interlaced_or_not_read_as_opencv_reads_them(img, interlace, colour, extra):
+    if img.ndim == 2 and extra.startswith(struct.pack(">I", 3) + b"sBIT"):
+        extra = chunk(b"sBIT", bytes([5]))                              # grey: one significant-bits byte
+    data = handmade_png(img, interlace, extra)
     got = decode_png(data, colour)
     assert (got is None) == interlace                 # Adam7 is left to OpenCV
     assert np.array_equal(as_opencv(data, colour), img if img.ndim == 3 or not colour
