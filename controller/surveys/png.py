@@ -6,8 +6,9 @@ kinds (8-bit grey or RGB, not interlaced, no transparency, no EXIF orientation: 
 OpenCV write) are returned as ``cv2.imdecode`` returns them, bit for bit (BGR order); any other
 kind is left to OpenCV, so 16-bit, palette, alpha and rotated stills keep OpenCV's meaning.
 
-A damaged PNG is named by libpng's own reason ("IDAT: CRC error") in one line, where OpenCV would
-print libpng's line on stderr beside ours and say only that the file is unreadable.
+A damaged plain PNG is named by libpng's own reason ("IDAT: CRC error") in one line, where OpenCV
+would print libpng's line on stderr beside ours and say only that the file is unreadable. The other
+kinds are not decoded here at all (their header says which they are), so none is decoded twice.
 """
 from __future__ import annotations
 
@@ -47,6 +48,11 @@ def decode_png(data: bytes, colour: bool) -> np.ndarray | None:
     width, height = int.from_bytes(data[16:20], "big"), int.from_bytes(data[20:24], "big")
     if width * height > MAX_PIXELS:
         return None                 # OpenCV refuses it by name; libpng would allocate it all
+    depth, kind, interlace = data[24], data[25], data[28]
+    # eXIf may rotate the picture (OpenCV applies its orientation); transparency (tRNS) comes
+    # back as a fourth channel and fails the shape checks below
+    if depth != 8 or interlace != 0 or kind not in (GREY, RGB) or _has_chunk(data, b"eXIf"):
+        return None
     # ~50 ms to import: only a survey of PNG stills pays it
     import imagecodecs
 
@@ -54,11 +60,7 @@ def decode_png(data: bytes, colour: bool) -> np.ndarray | None:
         img = imagecodecs.png_decode(data)
     except imagecodecs.PngError as exc:
         raise DamagedPNG(str(exc) or "libpng could not decode it") from None
-    depth, kind, interlace = data[24], data[25], data[28]
-    plain = depth == 8 and interlace == 0 and kind in (GREY, RGB) and img.dtype == np.uint8
-    # eXIf may rotate the picture (OpenCV applies its orientation); transparency (tRNS) comes
-    # back as a fourth channel and fails the shape checks below
-    if not plain or _has_chunk(data, b"eXIf"):
+    if img.dtype != np.uint8:
         return None
     if kind == RGB and img.ndim == 3 and img.shape[2] == 3:
         return cv2.cvtColor(img, cv2.COLOR_RGB2BGR)

@@ -8,10 +8,13 @@ import cv2
 import numpy as np
 
 
+def chunk(kind: bytes, body: bytes) -> bytes:
+    """A PNG chunk (PNG spec, 5.3): length, type, data, CRC over type and data."""
+    return len(body).to_bytes(4, "big") + kind + body + zlib.crc32(kind + body).to_bytes(4, "big")
+
+
 def huge_png(width: int = 40000, height: int = 40000) -> bytes:
     """A PNG whose IHDR declares the size and whose IDAT holds ten rows of it (PNG spec, 11.2)."""
-    def chunk(kind: bytes, body: bytes) -> bytes:
-        return len(body).to_bytes(4, "big") + kind + body + zlib.crc32(kind + body).to_bytes(4, "big")
     ihdr = width.to_bytes(4, "big") + height.to_bytes(4, "big") + bytes([8, 2, 0, 0, 0])
     rows = zlib.compress(b"\0" * (1 + 3 * width) * 10)
     return b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", ihdr) + chunk(b"IDAT", rows) + chunk(b"IEND", b"")

@@ -14,13 +14,10 @@ from hypothesis import strategies as st
 from PIL import Image, PngImagePlugin
 
 from controller.surveys.png import DamagedPNG, decode_png
+from tests.controller.huge_images import chunk, huge_png
 
 # PNG spec 2nd ed., 8.2: Adam7 passes as (x0, y0, dx, dy)
 ADAM7 = ((0, 0, 8, 8), (4, 0, 8, 8), (0, 4, 4, 8), (2, 0, 4, 4), (0, 2, 2, 4), (1, 0, 2, 2), (0, 1, 1, 2))
-
-
-def chunk(kind: bytes, body: bytes) -> bytes:
-    return struct.pack(">I", len(body)) + kind + body + struct.pack(">I", zlib.crc32(kind + body))
 
 
 def handmade_png(img: np.ndarray, interlace: bool, extra: bytes = b"") -> bytes:
@@ -133,10 +130,7 @@ def test_orientation_is_why_an_exif_png_is_left_to_opencv():
 
 def test_a_png_declaring_more_pixels_than_opencv_reads_is_left_to_opencv_unallocated():
     # 40000 x 40000 x 3 would be 4.5 GB; OpenCV refuses over 2^30 pixels by name
-    img = np.zeros((10, 40000, 3), np.uint8)
-    ihdr = struct.pack(">IIBBBBB", 40000, 40000, 8, 2, 0, 0, 0)
-    data = (b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", ihdr)
-            + chunk(b"IDAT", zlib.compress(b"".join(b"\0" + row.tobytes() for row in img))) + chunk(b"IEND", b""))
+    data = huge_png(40000, 40000)
     assert decode_png(data, False) is None
     with pytest.raises(cv2.error, match="CV_IO_MAX_IMAGE_PIXELS"):
         as_opencv(data, False)
