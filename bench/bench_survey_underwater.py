@@ -24,7 +24,8 @@ the mean true weight (``weight_g``, with scatter) of the fully visible fish.
 
 Score vs error: Spearman correlation of the score with the absolute length error (reports with no
 true fish within tolerance get the error to the nearest true fish's length, or 100 %), and the
-length error of the top-scored 80 % vs all.
+length error of the top-scored 80 % vs all. Recall is also given by the fish's length in the image
+and in cm (terciles) and by species (``recall_by_species``).
 
 Speed: process CPU time per pair (single thread: OpenCV and BLAS pinned to one), median (stages:
 the pipeline's own wall-clock ``timings``, inflated when the machine is loaded), beside the issue's
@@ -140,6 +141,13 @@ def terciles(size: list[float], found: list[bool]) -> list[dict]:
              "recall": round(float(found[part == k].mean()), 3) if (part == k).any() else None} for k in range(3)]
 
 
+def by_species(species: list[str], found: list[bool]) -> dict[str, dict]:
+    """Fully visible fish and the share found, per species."""
+    sp, hit = np.array(species), np.array(found, bool)
+    return {k: {"fish": int((sp == k).sum()), "recall": round(float(hit[sp == k].mean()), 3)}
+            for k in sorted(set(species))}
+
+
 def spearman(a, b) -> float:
     if len(a) < 3:
         return float("nan")
@@ -164,6 +172,7 @@ def main() -> None:
     w_err, len_errs, scores, rep_w, true_w = [], [], [], [], []
     pair_w = []                                     # (reported, true) weight of each correct report
     vis_px, vis_cm, vis_found = [], [], []          # every fully visible fish: its size, whether found
+    vis_species = []
     stage_ms: dict[str, list[float]] = {}
     total_ms, base_ms = [], []
     seed = args.seed0
@@ -215,6 +224,7 @@ def main() -> None:
                 vis_px.append(float(np.mean(np.linalg.norm(t.snout_px - t.fork_px, axis=1))))
                 vis_cm.append(t.length_cm)
                 vis_found.append(i in hit)
+                vis_species.append(t.species)
     scores, len_errs = np.array(scores), np.array(len_errs)
     top = scores >= np.quantile(scores, 0.2) if len(scores) else np.zeros(0, bool)
     med = {k: round(float(np.median(v)), 2) for k, v in stage_ms.items()}
@@ -250,6 +260,7 @@ def main() -> None:
         # two views; cm), and how much longer the found fish are than the visible ones
         "recall_by_tercile_px": terciles(vis_px, vis_found),
         "recall_by_tercile_cm": terciles(vis_cm, vis_found),
+        "recall_by_species": by_species(vis_species, vis_found),
         "found_vs_visible_length_pct": round(100 * (np.mean(np.array(vis_cm)[np.array(vis_found, bool)])
                                                     / np.mean(vis_cm) - 1), 2) if any(vis_found) else None,
     }

@@ -33,12 +33,14 @@ def main() -> None:
     ap.add_argument("--scenes", type=int, default=1200)
     ap.add_argument("--width", type=int, default=384)
     ap.add_argument("--out", required=True)
+    ap.add_argument("--species", help="every scene of this species (devices.sim.fish_species)")
     args = ap.parse_args()
     if args.seed0 < FIRST_SEED:
         sys.exit(f"keynet_data: --seed0: {args.seed0} is below {FIRST_SEED} (the benches' seeds)")
     imgs, fish = [], []
     for seed in range(args.seed0, args.seed0 + args.scenes):
-        sc = underwater_scene(np.random.default_rng(seed))
+        given = {"species": args.species} if args.species else {}
+        sc = underwater_scene(np.random.default_rng(seed), **given)
         for c, img in enumerate((sc.left, sc.right)):
             H, W = img.shape[:2]
             s = args.width / W
