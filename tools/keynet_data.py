@@ -2,7 +2,8 @@
 underwater pairs.
 
 Run (the project's venv): ``.venv/bin/python tools/keynet_data.py --seed0 100000 --scenes 1200
---out /tmp/kn_a.npz``. Seeds must be >= 100000: the benches use 0+ and 1000+, and nothing is trained
+--out /tmp/kn_a.npz [--species oreochromis_niloticus]`` (``--species``: every scene of that species).
+Seeds must be >= 100000: the benches use 0+ and 1000+, and nothing is trained
 or tuned on those. Deterministic for a seed range.
 
 Per view (left and right) of each scene: the image at the net's stored size (``--width``, INTER_AREA,
