@@ -68,9 +68,17 @@ survey (bench/bench_survey_underwater.py, reported / right, packaged -> retraine
 precision at 1920x1080 0.955 -> 0.926 (under the goal's 0.95) and tilapia's recall unchanged (0.34
 on 200000+). The score refitted on its reports (500 and 1,500 scenes, seeds 300000+) brought
 1920x1080 only to 0.941 / 0.932, losing fish elsewhere (521 / 503 right); peaks from 0.1 or 0.2
-instead of 0.05: 0.932 / 0.944. Not adopted: the survey's losses lie past the proposer (the
-locator's 0.9 gate, pairing across the views), and the new proposals' wrong pairs are ones the
-score cannot tell.
+instead of 0.05: 0.932 / 0.944; ``min_chance`` 0.9: 0.952 at 1920x1080 but fewer right than packaged
+(120, 151 on 200000+). Two fresh sets: 1920x1080 seeds 6000+ 139 right at 0.979 -> 156 at 0.975,
+1280x960 seeds 2000+ (--fish 250) 124 at 0.984 -> 137 at 0.979; over all six sets 770 -> 830 right,
+wrong 20 -> 32, weight MAPE ~0.3 points higher on each (2.22-2.73 % -> 2.41-2.89 %). On the grow-out's
+640x480 stills (bench/diag_growout_survey.py, 12 and 35 g): 30.8 -> 36.3 and 43.0 -> 47.0 fish a
+survey, survey mean +3.95 -> +3.37 % and +3.51 -> +2.35 %. Not adopted: at 1920x1080 seeds 5000+ it
+breaks the precision goal the packaged net meets, the survey's losses lie past the proposer (the
+locator, pairing across the views; bench/diag_underwater.py seeds 200000-200059: 49 -> 54 found of
+107), and the score, fitted on the packaged net's figures, does not rank its extra reports. Kept as
+tools/models/fish_keypoints_candidate.onnx (the next training's ``--init``, or packaged with a score
+fitted to it at a precision that holds).
 """
 from __future__ import annotations
 
