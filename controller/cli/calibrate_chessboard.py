@@ -100,9 +100,11 @@ def _report(result, lefts, rights, out: str) -> None:
 def chessboard(left_glob, right_glob, pattern, square_mm, out):
     """Stereo calibration from pairs of chessboard views (pairs by sorted file name)."""
     from controller.cli.calib_io import save_calibration
+    from controller.cli.output_paths import check_outputs
     from vision.chessboard import NotEnoughPairs, calibrate_pairs, find_corners
 
     lefts, rights = _files(left_glob, "--left"), _files(right_glob, "--right")
+    check_outputs({"--out": out}, lefts + rights)
     if len(lefts) != len(rights):
         raise BadInput(right_glob, "--right", f"{len(rights)} files, but --left matches {len(lefts)}: "
                                               "images pair up in sorted order")

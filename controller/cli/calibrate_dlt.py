@@ -31,9 +31,11 @@ GRID_HEADER = ("x_mm", "y_mm", "z_mm", "u1", "v1", "u2", "v2")
 def dlt(points_path: str, out_path: str, report_path: str | None, linear_only: bool) -> None:
     """Calibrate both cameras from >= 6 non-coplanar grid points (Ayache's DLT)."""
     from controller.cli.calib_io import save_calibration
+    from controller.cli.output_paths import check_outputs
     from vision.calib_file import StereoCalibration
     from vision.dlt import CalibrationInputError, calibrate_stereo
 
+    check_outputs({"--out": out_path, "--report": report_path}, [points_path])
     grid = read_table(points_path, GRID_HEADER)
     try:
         P1, P2, report = calibrate_stereo(grid[:, :3], grid[:, 3:5], grid[:, 5:7], refine=not linear_only)

@@ -252,10 +252,12 @@ def _report(calib, fmt: str, paths, out: str) -> None:
 def import_(inputs, out, fmt, units, image_size, pixel_origin, y_up):
     """Import a stereo calibration from OpenCV, StereoMorph (DLT-11) or a plain 3x4 pair."""
     from controller.cli.calib_io import save_calibration
+    from controller.cli.output_paths import check_outputs
     from vision import calib_import as ci
     from vision.calib_file import CalibrationError
 
     paths = list(inputs)
+    check_outputs({"--out": out}, paths)
     first = paths[0]
     text = None if fmt == "opencv" or Path(first).suffix.lower() in (".yml", ".yaml", ".xml") \
         else _read_text(first)

@@ -25,8 +25,9 @@ LIST_AT_MOST = 12      # points listed one by one up to this many
 @click.option("--out", "out_path", required=True, metavar="TOWER.json", help="where to write H")
 def tower(points_path: str, out_path: str) -> None:
     """Map the tower camera's pixels to the pond plane from >= 4 surveyed points (homography)."""
+    from controller.cli.output_paths import check_outputs
     from vision.tower import TowerInputError, fit_tower
-
+    check_outputs({"--out": out_path}, [points_path])
     ref = read_table(points_path, REF_HEADER)
     try:
         fit = fit_tower(ref[:, :2], ref[:, 2:])

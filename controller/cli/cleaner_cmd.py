@@ -31,8 +31,10 @@ def cleaner() -> None:
 def map_cmd(png_path: str, config_path: str) -> None:
     """Draw the coverage map and the path the cleaner followed."""
     from controller.cleaning.setup import fingerprint
+    from controller.cli.output_paths import check_outputs
     from controller.config import load_config
     cfg = load_config(config_path)
+    check_outputs({"--png": png_path}, [config_path, cfg.store.path])
     s = cfg.cleaning
     if s is None:
         raise BadInput(config_path, "cleaning", "no [cleaning] section: this farm has no pond cleaner")

@@ -120,6 +120,8 @@ def _farm(config: str):
               help="take tanks, sensors and [demand] parameters from the farm's config")
 def demand(events_path: str, json_path: str, config: str | None) -> None:
     """Replay a contact log through the demand filter; write the demands and sensor faults."""
+    from controller.cli.output_paths import check_outputs
+    check_outputs({"--json": json_path}, [events_path, config])
     params, tanks = _farm(config) if config else (None, None)
     events, filt = replay(events_path, params, tanks)
     out = to_json(events)

@@ -26,11 +26,13 @@ from controller.errors import BadInput
 @click.option("--config", "config_path", default="config/farm.toml", show_default=True, metavar="farm.toml")
 def history(tank_id, what, since, until, csv_path, config_path) -> None:
     """A tank's surveys, fish, rations, stock events or feeds, as CSV."""
+    from controller.cli.output_paths import check_outputs
     from controller.config import load_config
     from controller.history import history as rows_of
     from controller.history import parse_time
     from controller.store import Store
     cfg = load_config(config_path)
+    check_outputs({"--csv": csv_path}, [config_path, cfg.store.path])
     if tank_id not in {t.id for t in cfg.tanks}:
         raise BadInput(config_path, "--tank", f"no tank {tank_id!r} (tanks: {', '.join(t.id for t in cfg.tanks)})")
     now = time.time()

@@ -64,10 +64,12 @@ def _bound(x: float | None) -> str:
 def report(tank_id, since, target_g, png_path, as_json, config_path) -> None:
     """A tank's growth, feed conversion, uniformity and projection, between its surveys."""
     from controller.cli.audit_cmd import parse_since
+    from controller.cli.output_paths import check_outputs
     from controller.config import load_config
     from controller.production import tank_figures
     from controller.store import Store
     cfg = load_config(config_path)
+    check_outputs({"--png": png_path}, [config_path, cfg.store.path])
     if tank_id not in {t.id for t in cfg.tanks}:
         raise BadInput(config_path, "--tank", f"no tank {tank_id!r} (tanks: {', '.join(t.id for t in cfg.tanks)})")
     if target_g is not None and not 0 < target_g < math.inf:

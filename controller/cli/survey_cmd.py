@@ -53,6 +53,12 @@ def _source(pairs, rgs, directory, video, rg_video, every, max_frames):
     return frames.video_source(tuple(video) if video else (rg_video,), every, max_frames)
 
 
+def _input_files(pairs, rgs, directory, video, rg_video) -> list[str]:
+    from controller.surveys import frames
+    items = frames.directory_items(directory) if directory else [*pairs, *((r,) for r in rgs)]
+    return [f for item in items for f in item] + list(video or ()) + ([rg_video] if rg_video else [])
+
+
 class _Progress:
     """A rich progress bar on a terminal; silence in a pipe or a log. The first warning is printed,
     the others counted (an RG video with a faint blue channel would say it on every frame)."""
@@ -109,6 +115,7 @@ def _recorder(config_path: str, tank_id: str, species: str, json_path: str):
             store.add_survey(tank_id, time.time(), species, json_path, lengths, weights)
         finally:
             store.close()
+    record.ledger = cfg.store.path
     return record
 
 
@@ -175,6 +182,8 @@ def survey(calib_path, species, setup, pairs, rgs, directory, video, rg_video, e
            plot_path, csv_path, config_path, stock, tank_id, up, workers, site, user, password, seed, measure):
     """Fish lengths and weights from stereo pairs, with the survey's statistics."""
     from controller.cli.calib_io import load_calibration
+    from controller.cli.output_paths import check_outputs
+    from controller.surveys.outputs import check_writable
     from controller.surveys.runner import MEASURE
     from controller.surveys.species import survey_species, with_stock
     from controller.surveys.survey import SurveyOptions, run_survey
@@ -184,12 +193,15 @@ def survey(calib_path, species, setup, pairs, rgs, directory, video, rg_video, e
         sp = with_stock(sp, config_path or "config/farm.toml", stock)
     elif config_path and not tank_id:
         raise click.UsageError("--config is read for --stock NAME or --tank T only: give one of them too")
-    record = _recorder(config_path or "config/farm.toml", tank_id, species, json_path) if tank_id else None
+    config_path = config_path or ("config/farm.toml" if (stock or tank_id) else None)
+    record = _recorder(config_path, tank_id, species, json_path) if tank_id else None
     calib = load_calibration(calib_path)
     up_world = _up(up)
     source = _source(pairs, rgs, directory, video, rg_video, every, max_frames)
+    check_outputs({"--json": json_path, "--csv": csv_path, "--plot": plot_path},
+                  [calib_path, config_path, getattr(record, "ledger", None),
+                   *_input_files(pairs, rgs, directory, video, rg_video)])
     if plot_path:
-        from controller.surveys.outputs import check_writable
         check_writable(plot_path, "the plot")
     if (user is not None or password is not None) and not isinstance(workers, str):
         raise BadInput("--user", None, "a login is for --workers tcp/HOST:PORT (a deployment's router)")

@@ -136,8 +136,10 @@ def track(frames_dir: str, tower_path: str, json_path: str, lost_after_s: float)
     """Replay tower camera frames through float detection and tracking; write the track."""
     import cv2
     cv2.setNumThreads(1)
+    from controller.cli.output_paths import check_outputs
     H = load_tower(tower_path)
     frames = read_frames(frames_dir)
+    check_outputs({"--json": json_path}, [tower_path, Path(frames_dir) / "frames.csv", *(f[2] for f in frames)])
     entries = replay(frames, H, str(Path(frames_dir) / "frames.csv"), lost_after_s=lost_after_s)
     try:
         Path(json_path).write_text(json.dumps({"track": entries}, indent=1) + "\n", encoding="utf-8")

@@ -22,8 +22,9 @@ OUT_HEADER = ("x_mm", "y_mm", "z_mm", "residual_px")
 def triangulate(calib_path: str, pairs_path: str, out_path: str | None) -> None:
     """3-D points of matched pixel pairs, with the reprojection residual in pixels."""
     from controller.cli.calib_io import load_calibration
+    from controller.cli.output_paths import check_outputs
     from vision.triangulation import triangulate_calibrated
-
+    check_outputs({"--out": out_path}, [calib_path, pairs_path])
     calib = load_calibration(calib_path)
     pairs = read_table(pairs_path, PAIRS_HEADER)
     points, residual = triangulate_calibrated(calib, pairs[:, :2], pairs[:, 2:4])

@@ -152,6 +152,31 @@ def test_missing_files_and_empty_directories(farm, tmp_path):
     one_line_exit_2(run(*common(d, "--json", tmp_path / "x.json")), "give exactly one input")
 
 
+@pytest.mark.parametrize("option", ["--json", "--csv", "--plot"])
+def test_an_output_that_is_a_directory_another_output_or_an_input_is_refused_before_the_survey(farm, tmp_path,
+                                                                                                option):
+    d, _ = farm
+    calib, left = tmp_path / "calib.json", tmp_path / "p_L.png"
+    calib.write_bytes((d / "calib.json").read_bytes())
+    left.write_bytes((d / "pairs/p0_L.png").read_bytes())
+    before = {p: p.read_bytes() for p in (calib, left)}
+    outputs = {"--json": tmp_path / "out.json", "--csv": tmp_path / "fish.csv", "--plot": tmp_path / "hist.png"}
+    (tmp_path / "a_dir").mkdir()
+    other = next(o for o in outputs if o != option)
+    clashes = [(tmp_path / "a_dir", [f"a_dir: {option}: a directory, not a file"]),
+               # either option may be named first
+               (tmp_path / "." / outputs[other].name, [outputs[other].name, ": the same file as --", option, other]),
+               (calib, [f"calib.json: {option}: an input of this command"]),
+               (left, [f"p_L.png: {option}: an input of this command"])]
+    for path, words in clashes:
+        given = {**outputs, option: path}
+        r = run("--calib", calib, "--species", "sparus_aurata", "--setup", "underwater",
+                "--pair", left, d / "pairs/p0_R.png", *(x for o in given.items() for x in o))
+        one_line_exit_2(r, *words)
+        assert {p: p.read_bytes() for p in (calib, left)} == before
+        assert sorted(p.name for p in tmp_path.iterdir()) == ["a_dir", "calib.json", "p_L.png"]
+
+
 def test_a_file_that_is_no_video_is_one_line_without_ffmpegs_own_complaint(farm, tmp_path):
     # FFmpeg prints "moov atom not found" for a broken mp4 unless told not to
     d, _ = farm

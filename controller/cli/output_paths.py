@@ -1,0 +1,28 @@
+"""Each file a command writes is a file of its own, refused before any work: not a directory, not
+another of the command's outputs, not one of its inputs (``--out GRID.csv`` would replace the grid
+with its calibration; ``--json CALIB.json`` would lose the calibration)."""
+from __future__ import annotations
+
+import os
+from collections.abc import Iterable
+from pathlib import Path
+
+from controller.errors import BadInput
+
+
+def check_outputs(outputs: dict[str, str | Path | None], inputs: Iterable[str | Path | None]) -> None:
+    """``outputs``: option -> path (None: not given); ``inputs``: every file the command reads.
+    BadInput naming the path, the option and the fault."""
+    given = {os.path.realpath(p) for p in inputs if p}
+    seen: dict[str, str] = {}
+    for option, path in outputs.items():
+        if not path:
+            continue
+        if Path(path).is_dir():
+            raise BadInput(str(path), option, "a directory, not a file")
+        real = os.path.realpath(path)
+        if real in seen:
+            raise BadInput(str(path), option, f"the same file as {seen[real]}")
+        if real in given:
+            raise BadInput(str(path), option, "an input of this command: it would be written over")
+        seen[real] = option

@@ -1,0 +1,76 @@
+"""Every command that writes a file refuses, before any work, an output that is a directory, another
+of its outputs or one of its inputs: exit 2, one line naming the path, the option and the fault,
+every input as it was and nothing written."""
+import tomllib
+from pathlib import Path
+
+import pytest
+import tomli_w
+
+from controller.cli import main
+
+TOWER = '{"H": [[0.01, 0, 0], [0, 0.01, 0], [0, 0, 1]]}'
+
+
+def _inputs(d: Path) -> dict[str, Path]:
+    """The files the commands below read; contents only where a command reads them before its
+    outputs are checked (the config, the tower camera's files)."""
+    raw = tomllib.loads(Path("config/farm.toml").read_text())
+    raw["store"] = {"path": str(d / "ledger.db")}
+    files = {"farm.toml": tomli_w.dumps(raw), "tower.json": TOWER, "frames/frames.csv": "frame,t_s,file\n",
+             "grid.csv": "x", "ref.csv": "x", "calib.json": "x", "pairs.csv": "x", "contacts.csv": "x",
+             "stereo.yml": "x", "L1.png": "x", "R1.png": "x", "ledger.db": "x"}
+    for name, text in files.items():
+        (d / name).parent.mkdir(exist_ok=True)
+        (d / name).write_text(text)
+    return {name: d / name for name in files}
+
+
+# command line with {out} for the output under test, the output's option, the inputs it may not name
+COMMANDS = [
+    ("calibrate dlt --points {grid.csv} --out {out}", "--out", ["grid.csv"]),
+    ("calibrate dlt --points {grid.csv} --out c.json --report {out}", "--report", ["grid.csv"]),
+    ("calibrate tower --points {ref.csv} --out {out}", "--out", ["ref.csv"]),
+    ("calibrate chessboard --left {d}/L*.png --right {d}/R*.png --square-mm 25 --out {out}", "--out",
+     ["L1.png", "R1.png"]),
+    ("calibrate import --in {stereo.yml} --out {out}", "--out", ["stereo.yml"]),
+    ("triangulate --calib {calib.json} --pairs {pairs.csv} --out {out}", "--out", ["calib.json", "pairs.csv"]),
+    ("demand --events {contacts.csv} --config {farm.toml} --json {out}", "--json", ["contacts.csv", "farm.toml"]),
+    ("track --frames {d}/frames --tower {tower.json} --json {out}", "--json", ["tower.json", "frames/frames.csv"]),
+    ("report --tank T1 --config {farm.toml} --png {out}", "--png", ["farm.toml", "ledger.db"]),
+    ("history --tank T1 --what surveys --config {farm.toml} --csv {out}", "--csv", ["farm.toml", "ledger.db"]),
+    ("cleaner map --config {farm.toml} --png {out}", "--png", ["farm.toml", "ledger.db"]),
+]
+
+
+def _refused(capsys, d, line, out, *words):
+    files = _inputs(d)
+    before = {p: p.read_bytes() for p in files.values()}
+    listing = sorted(d.rglob("*"))
+    for name, path in {**files, "d": d, "out": out}.items():
+        line = line.replace("{" + name + "}", str(path))
+    rc = main(line.split())
+    err = capsys.readouterr().err
+    assert rc == 2, err
+    assert err.count("\n") == 1 and "Traceback" not in err, err
+    for w in words:
+        assert w in err, err
+    assert {p: p.read_bytes() for p in files.values()} == before
+    assert sorted(d.rglob("*")) == listing
+
+
+@pytest.mark.parametrize("line, option, inputs", COMMANDS, ids=[c[0].split(" -")[0] + " " + c[1] for c in COMMANDS])
+def test_an_output_naming_an_input_or_a_directory_is_refused_before_any_work(tmp_path, capsys, line, option, inputs):
+    for name in inputs:
+        # spelt another way than the input, so the paths are compared as files, not as strings
+        _refused(capsys, tmp_path, line, tmp_path / "." / name, f"{name}: {option}: an input of this command")
+    (tmp_path / "a_dir").mkdir()
+    if "chessboard" in line or "import" in line:    # click's own check of the option (dir_okay=False)
+        _refused(capsys, tmp_path, line, tmp_path / "a_dir", option, "a_dir", "directory")
+    else:
+        _refused(capsys, tmp_path, line, tmp_path / "a_dir", f"a_dir: {option}: a directory, not a file")
+
+
+def test_two_outputs_naming_one_file(tmp_path, capsys):
+    _refused(capsys, tmp_path, "calibrate dlt --points {grid.csv} --out {d}/c.json --report {out}",
+             tmp_path / "." / "c.json", "c.json: --report: the same file as --out")
