@@ -150,12 +150,16 @@ def _p34_json(path: str, text: str):
 
 
 def _node_array(node) -> np.ndarray | None:
-    """A matrix node (!!opencv-matrix / type_id="opencv-matrix"), a list of numbers or a number."""
+    """A matrix node (!!opencv-matrix / type_id="opencv-matrix"), a list of numbers, a list of
+    equally long lists of numbers (rows, as a JSON file written by hand has them) or a number."""
     if node.isSeq():
         items = [node.at(i) for i in range(node.size())]
-        if not all(i.isReal() or i.isInt() for i in items):
+        if all(i.isReal() or i.isInt() for i in items):
+            return np.array([i.real() for i in items], dtype=float)
+        rows = [_node_array(i) if i.isSeq() else None for i in items]
+        if not rows or any(r is None or r.ndim != 1 or len(r) != len(rows[0]) for r in rows):
             return None
-        return np.array([i.real() for i in items], dtype=float)
+        return np.array(rows)
     if node.isReal() or node.isInt():
         return np.array(node.real(), dtype=float)
     if node.isMap():
@@ -213,8 +217,23 @@ def _detect(path: str, text: str | None) -> str:
     if suffix in (".yml", ".yaml", ".xml") or head.startswith(("%YAML", "<?xml", "<opencv_storage")):
         return "opencv"
     if suffix == ".json" or head.startswith("{"):
-        return "p34"
+        return "opencv" if _opencv_json(text) else "p34"
     return "table"
+
+
+def _opencv_json(text: str | None) -> bool:
+    """JSON as OpenCV's FileStorage writes it (its matrices typed "opencv-matrix"; any P1/P2 there
+    are stereoRectify's), or a plain object naming K1/K2/R/T and no P1/P2."""
+    try:
+        doc = json.loads(text or "")
+    except ValueError:
+        return False
+    if not isinstance(doc, dict):
+        return False
+    if any(isinstance(v, dict) and v.get("type_id") == "opencv-matrix" for v in doc.values()):
+        return True
+    known = {_key(n) for field in ("K1", "K2", "R", "T") for n in OPENCV_NAMES[field]}
+    return not {"P1", "P2"} & set(doc) and any(_key(k) in known for k in doc)
 
 
 def _report(calib, fmt: str, paths, out: str) -> None:

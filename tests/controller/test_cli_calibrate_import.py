@@ -79,7 +79,7 @@ LONG_NAMES = {"K1": "cameraMatrix1", "D1": "distCoeffs1", "K2": "cameraMatrix2",
               "R": "R", "T": "T"}
 
 
-@pytest.mark.parametrize("ext", ["yml", "xml"])
+@pytest.mark.parametrize("ext", ["yml", "xml", "json"])   # FileStorage writes JSON too
 @pytest.mark.parametrize("names,size", [(M_NAMES, "wh"), (K_NAMES, "seq"), (LONG_NAMES, None)])
 def test_opencv_files_of_each_naming(tmp_path, ext, names, size):
     src = tmp_path / f"stereo.{ext}"
@@ -93,6 +93,23 @@ def test_opencv_files_of_each_naming(tmp_path, ext, names, size):
     np.testing.assert_allclose(calib.T, T, atol=1e-9)
     assert calib.extra["method"] == "import" and calib.extra["units"] == "mm"
     assert_reconstructs(out, CAMERA1)
+
+
+def test_a_json_file_written_by_hand_with_opencvs_names_and_rows_of_numbers(tmp_path):
+    src = tmp_path / "rig.json"
+    src.write_text(json.dumps({"cameraMatrix1": RIG.K1.tolist(), "distCoeffs1": RIG.D1.tolist(),
+                               "cameraMatrix2": RIG.K2.tolist(), "distCoeffs2": RIG.D2.tolist(),
+                               "R": R.tolist(), "T": T.tolist(), "imageSize": [1280, 960]}))
+    out = tmp_path / "CALIB.json"
+    code, stdout, err = run("--in", str(src), "--out", str(out))
+    assert code == 0, err
+    assert "as opencv" in stdout
+    assert load_calibration(out).image_size == (1280, 960)
+    assert_reconstructs(out, CAMERA1)
+    ragged = tmp_path / "ragged.json"
+    ragged.write_text(json.dumps({"K1": [[1, 0, 640], [0, 1]], "K2": RIG.K2.tolist(), "R": R.tolist(),
+                                  "T": T.tolist()}))
+    assert_bad(["--in", str(ragged), "--out", str(out)], "ragged.json", "K1", "not a matrix or a list of numbers")
 
 
 @pytest.mark.parametrize("units", ["cm", "m"])
