@@ -239,7 +239,12 @@ def _frame_count(cap: cv2.VideoCapture) -> int | None:
 def video_source(paths: tuple[str, ...], every: int = 1, max_frames: int | None = None) -> Source:
     """Two synchronised videos (left, right) or one RG video (a 1-tuple), decoded in order."""
     caps = [_open_video(p) for p in paths]
-    fps = float(caps[0].get(cv2.CAP_PROP_FPS) or 0.0) or 25.0
+    rates = [float(c.get(cv2.CAP_PROP_FPS) or 0.0) for c in caps]
+    if len(caps) == 2 and min(rates) > 0 and abs(rates[1] - rates[0]) > 0.01 * rates[0]:
+        # frame i of one is not frame i of the other: every pair would pair two moments
+        raise BadInput(paths[1], None, f"{rates[1]:g} frames/s, but {paths[0]} is {rates[0]:g}: "
+                                       "not synchronised frame by frame")
+    fps = rates[0] or 25.0
     counts = [_frame_count(c) for c in caps]
     known = [c for c in counts if c is not None]
     total = None

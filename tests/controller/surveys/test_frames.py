@@ -131,8 +131,8 @@ def test_directory_pairs_in_sorted_order_else_png_rg_frames(tmp_path):
         directory_items(str(tmp_path / "none"))
 
 
-def make_video(path: Path, frames: int, size=(64, 48), rg=False) -> str:
-    out = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"MJPG"), 25.0, size)
+def make_video(path: Path, frames: int, size=(64, 48), rg=False, fps=25.0) -> str:
+    out = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"MJPG"), fps, size)
     assert out.isOpened()
     for i in range(frames):
         img = np.zeros((size[1], size[0], 3), np.uint8)
@@ -172,6 +172,17 @@ def test_a_video_that_ends_early_is_named(tmp_path):
     with pytest.raises(BadInput, match=r"rg.avi: --max-frames: the video ends after 12 frames \(6 pairs\), "
                                        r"before --max-frames 7"):
         list(video_source((rg,), every=2, max_frames=7).jobs)
+
+
+@pytest.mark.parametrize("fps_right, refused", [(10.0, True), (24.0, True), (26.0, True), (25.0, False),
+                                                (25.2, False), (24.8, False)])
+def test_two_videos_at_different_frame_rates_are_refused_before_any_frame(tmp_path, fps_right, refused):
+    a, b = make_video(tmp_path / "l.avi", 6), make_video(tmp_path / "r.avi", 6, fps=fps_right)
+    if refused:
+        with pytest.raises(BadInput, match=rf"r.avi: {fps_right:g} frames/s, but .*l.avi is 25: not synchronised"):
+            video_source((a, b))
+    else:       # within 1 %: a container's rounding (29.97 written as 30), not another camera rate
+        assert len(list(video_source((a, b)).jobs)) == 6
 
 
 def test_missing_or_unopenable_video(tmp_path):
