@@ -15,12 +15,20 @@ def pyplot():
     return plt
 
 
+def check_figure_name(path: str, option: str) -> None:
+    """Before any work: a page's name must say a format matplotlib writes (none: PNG)."""
+    from matplotlib.backend_bases import FigureCanvasBase
+    kinds = FigureCanvasBase.get_supported_filetypes()
+    suffix = Path(path).suffix[1:].lower()
+    if suffix and suffix not in kinds:
+        raise BadInput(path, option, f"cannot draw a .{suffix} picture (formats: {', '.join(sorted(kinds))})")
+
+
 def save_figure(fig, path: str, *, dpi: int = 110) -> None:
     """Write ``fig`` to ``path`` (its directory made) and close it, whatever happens."""
+    from controller.atomic_files import replace_atomically
     try:
-        Path(path).parent.mkdir(parents=True, exist_ok=True)
-        fig.savefig(path, dpi=dpi)
-    except OSError as exc:
-        raise BadInput(path, None, f"cannot write: {exc.strerror or exc}") from None
+        # the format from the name asked for: the file is written under another name first
+        replace_atomically(path, lambda tmp: fig.savefig(tmp, dpi=dpi, format=Path(path).suffix[1:].lower() or "png"))
     finally:
         pyplot().close(fig)

@@ -26,9 +26,5 @@ def load_calibration(path: str | Path) -> StereoCalibration:
 
 
 def save_calibration(calib: StereoCalibration, path: str | Path) -> None:
-    path = Path(path)
-    try:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        path.write_text(json.dumps(calib.to_json(), indent=2) + "\n", encoding="utf-8")
-    except OSError as exc:
-        raise BadInput(str(path), None, f"cannot write: {exc}") from None
+    from controller.atomic_files import write_text_atomically
+    write_text_atomically(path, json.dumps(calib.to_json(), indent=2) + "\n")

@@ -9,7 +9,6 @@ over its extent; below 0.05 the grid is refused, exit 2), and the same errors ou
 from __future__ import annotations
 
 import json
-from pathlib import Path
 
 import click
 import numpy as np
@@ -47,9 +46,7 @@ def dlt(points_path: str, out_path: str, report_path: str | None, linear_only: b
                                      "validation": report.to_json()})
     save_calibration(calib, out_path)
     if report_path is not None:
-        try:
-            Path(report_path).write_text(json.dumps(report.to_json(), indent=2) + "\n", encoding="utf-8")
-        except OSError as exc:
-            raise BadInput(report_path, None, f"cannot write: {exc.strerror or exc}") from None
+        from controller.atomic_files import write_text_atomically
+        write_text_atomically(report_path, json.dumps(report.to_json(), indent=2) + "\n")
     click.echo(report.text())
     click.echo(f"written: {out_path}")

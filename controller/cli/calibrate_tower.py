@@ -8,7 +8,6 @@ point when there are few). Bad input exits 2 with one line naming the file, the 
 from __future__ import annotations
 
 import json
-from pathlib import Path
 
 import click
 
@@ -34,10 +33,8 @@ def tower(points_path: str, out_path: str) -> None:
     except TowerInputError as exc:
         raise BadInput(points_path, None, str(exc)) from None
     doc = {"H": fit.H.tolist(), "rms_m": fit.rms_m, "max_m": fit.max_m, "points": len(ref)}
-    try:
-        Path(out_path).write_text(json.dumps(doc, indent=2) + "\n", encoding="utf-8")
-    except OSError as exc:
-        raise BadInput(out_path, None, f"cannot write: {exc.strerror or exc}") from None
+    from controller.atomic_files import write_text_atomically
+    write_text_atomically(out_path, json.dumps(doc, indent=2) + "\n")
     if len(ref) <= LIST_AT_MOST:
         for k, ((u, v, x, y), r) in enumerate(zip(ref, fit.residuals_m, strict=True), 1):
             click.echo(f"point {k}: ({u:.1f}, {v:.1f}) px -> ({x:.3f}, {y:.3f}) m: error {r:.3f} m")

@@ -33,8 +33,10 @@ def map_cmd(png_path: str, config_path: str) -> None:
     from controller.cleaning.setup import fingerprint
     from controller.cli.output_paths import check_outputs
     from controller.config import load_config
+    from controller.plotting import check_figure_name
     cfg = load_config(config_path)
     check_outputs({"--png": png_path}, [config_path, cfg.store.path])
+    check_figure_name(png_path, "--png")
     s = cfg.cleaning
     if s is None:
         raise BadInput(config_path, "cleaning", "no [cleaning] section: this farm has no pond cleaner")

@@ -16,6 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
+from controller.atomic_files import replace_atomically
 from controller.errors import BadInput
 
 
@@ -97,11 +98,10 @@ def write_table(path: str | Path | None, header: Sequence[str], data: np.ndarray
             devnull = os.open(os.devnull, os.O_WRONLY)
             os.dup2(devnull, sys.stdout.fileno())
         return
-    try:
-        with open(path, "w", encoding="utf-8", newline="") as fh:
+    def write(tmp: str) -> None:
+        with open(tmp, "w", encoding="utf-8", newline="") as fh:
             _write(fh, header, data, fmt)
-    except OSError as exc:
-        raise BadInput(str(path), None, f"cannot write: {exc.strerror or exc}") from None
+    replace_atomically(path, write)
 
 
 def _write(fh, header: Sequence[str], data: np.ndarray, fmt: str) -> None:

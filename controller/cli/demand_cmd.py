@@ -20,7 +20,6 @@ from __future__ import annotations
 import csv
 import json
 import math
-from pathlib import Path
 
 import click
 
@@ -125,10 +124,8 @@ def demand(events_path: str, json_path: str, config: str | None) -> None:
     params, tanks = _farm(config) if config else (None, None)
     events, filt = replay(events_path, params, tanks)
     out = to_json(events)
-    try:
-        Path(json_path).write_text(json.dumps(out, indent=1) + "\n", encoding="utf-8")
-    except OSError as exc:
-        raise BadInput(json_path, None, f"cannot write: {exc.strerror or exc}") from None
+    from controller.atomic_files import write_text_atomically
+    write_text_atomically(json_path, json.dumps(out, indent=1) + "\n")
     if filt.ignored:
         names = ", ".join(f"{t}/{s}" for t, s in sorted(filt.unknown)[:10])
         more = "" if len(filt.unknown) <= 10 else f" and {len(filt.unknown) - 10} more"

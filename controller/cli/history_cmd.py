@@ -45,17 +45,19 @@ def history(tank_id, what, since, until, csv_path, config_path) -> None:
         columns, rows, truncated = rows_of(store, what, tank_id, start, end)
     finally:
         store.close()
-    try:
-        out = open(csv_path, "w", newline="", encoding="utf-8") if csv_path else sys.stdout
-    except OSError as exc:
-        raise BadInput(csv_path, None, f"cannot write: {exc.strerror or exc}") from None
-    try:
+    def write(out) -> None:
         writer = csv.writer(out)
         writer.writerow(columns)
         writer.writerows(rows)
-    finally:
-        if csv_path:
-            out.close()
+    if csv_path:
+        from controller.atomic_files import replace_atomically
+
+        def to_file(tmp: str) -> None:
+            with open(tmp, "w", newline="", encoding="utf-8") as fh:
+                write(fh)
+        replace_atomically(csv_path, to_file)
+    else:
+        write(sys.stdout)
     if csv_path:
         more = " (the first of more: narrow the range)" if truncated else ""
         click.echo(f"{len(rows)} rows{more}: {csv_path}", err=True)

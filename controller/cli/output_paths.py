@@ -25,4 +25,16 @@ def check_outputs(outputs: dict[str, str | Path | None], inputs: Iterable[str | 
             raise BadInput(str(path), option, f"the same file as {seen[real]}")
         if real in given:
             raise BadInput(str(path), option, "an input of this command: it would be written over")
+        _check_directory(Path(real), str(path), option)
         seen[real] = option
+
+
+def _check_directory(real: Path, path: str, option: str) -> None:
+    """The file's directory exists or can be made there (nothing is made yet)."""
+    parent = real.parent
+    while not parent.exists():
+        parent = parent.parent
+    if not parent.is_dir():
+        raise BadInput(path, option, f"cannot write: {parent} is a file, not a directory")
+    if not os.access(parent, os.W_OK | os.X_OK):
+        raise BadInput(path, option, f"cannot write: no permission in {parent}")

@@ -70,6 +70,9 @@ def report(tank_id, since, target_g, png_path, as_json, config_path) -> None:
     from controller.store import Store
     cfg = load_config(config_path)
     check_outputs({"--png": png_path}, [config_path, cfg.store.path])
+    if png_path:
+        from controller.plotting import check_figure_name
+        check_figure_name(png_path, "--png")
     if tank_id not in {t.id for t in cfg.tanks}:
         raise BadInput(config_path, "--tank", f"no tank {tank_id!r} (tanks: {', '.join(t.id for t in cfg.tanks)})")
     if target_g is not None and not 0 < target_g < math.inf:

@@ -202,6 +202,8 @@ def survey(calib_path, species, setup, pairs, rgs, directory, video, rg_video, e
                   [calib_path, config_path, getattr(record, "ledger", None),
                    *_input_files(pairs, rgs, directory, video, rg_video)])
     if plot_path:
+        from controller.plotting import check_figure_name
+        check_figure_name(plot_path, "--plot")
         check_writable(plot_path, "the plot")
     if (user is not None or password is not None) and not isinstance(workers, str):
         raise BadInput("--user", None, "a login is for --workers tcp/HOST:PORT (a deployment's router)")

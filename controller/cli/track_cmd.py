@@ -141,10 +141,8 @@ def track(frames_dir: str, tower_path: str, json_path: str, lost_after_s: float)
     frames = read_frames(frames_dir)
     check_outputs({"--json": json_path}, [tower_path, Path(frames_dir) / "frames.csv", *(f[2] for f in frames)])
     entries = replay(frames, H, str(Path(frames_dir) / "frames.csv"), lost_after_s=lost_after_s)
-    try:
-        Path(json_path).write_text(json.dumps({"track": entries}, indent=1) + "\n", encoding="utf-8")
-    except OSError as exc:
-        raise BadInput(json_path, None, f"cannot write: {exc.strerror or exc}") from None
+    from controller.atomic_files import write_text_atomically
+    write_text_atomically(json_path, json.dumps({"track": entries}, indent=1) + "\n")
     states = [e["state"] for e in entries]
     click.echo(f"{len(entries)} frames: tracking {states.count('tracking')}, predicted {states.count('predicted')}, "
                f"lost {states.count('lost')}; written: {json_path}")

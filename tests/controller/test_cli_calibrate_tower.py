@@ -75,6 +75,9 @@ def test_missing_file_and_unwritable_out_exit_2(tmp_path):
     result = run("calibrate", "tower", "--points", tmp_path / "absent.csv", "--out", tmp_path / "T.json")
     assert result.returncode == 2 and result.stderr.strip() == f"fishfarm: {tmp_path / 'absent.csv'}: no such file"
     ref = write(tmp_path / "REF.csv", ref_text(POND))
-    bad_out = tmp_path / "no" / "such" / "TOWER.json"
+    (tmp_path / "file").write_text("not a directory")
+    bad_out = tmp_path / "file" / "TOWER.json"
     result = run("calibrate", "tower", "--points", ref, "--out", bad_out)
-    assert result.returncode == 2 and result.stderr.strip().startswith(f"fishfarm: {bad_out}: cannot write")
+    assert result.returncode == 2 and result.stderr.strip().startswith(f"fishfarm: {bad_out}: --out: cannot write")
+    made = tmp_path / "new" / "dir" / "TOWER.json"            # a directory missing is made
+    assert run("calibrate", "tower", "--points", ref, "--out", made).returncode == 0 and made.exists()

@@ -1,6 +1,7 @@
 """Every command that writes a file refuses, before any work, an output that is a directory, another
 of its outputs or one of its inputs: exit 2, one line naming the path, the option and the fault,
 every input as it was and nothing written."""
+import json
 import tomllib
 from pathlib import Path
 
@@ -8,17 +9,19 @@ import pytest
 import tomli_w
 
 from controller.cli import main
+from devices.sim.stereo_rig import convergent_rig
 
 TOWER = '{"H": [[0.01, 0, 0], [0, 0.01, 0], [0, 0, 1]]}'
 
 
 def _inputs(d: Path) -> dict[str, Path]:
     """The files the commands below read; contents only where a command reads them before its
-    outputs are checked (the config, the tower camera's files)."""
+    outputs are checked (the config, the tower camera's files, the survey's calibration)."""
     raw = tomllib.loads(Path("config/farm.toml").read_text())
     raw["store"] = {"path": str(d / "ledger.db")}
+    calib = json.dumps(convergent_rig().calibration().to_json())
     files = {"farm.toml": tomli_w.dumps(raw), "tower.json": TOWER, "frames/frames.csv": "frame,t_s,file\n",
-             "grid.csv": "x", "ref.csv": "x", "calib.json": "x", "pairs.csv": "x", "contacts.csv": "x",
+             "grid.csv": "x", "ref.csv": "x", "calib.json": calib, "pairs.csv": "x", "contacts.csv": "x",
              "stereo.yml": "x", "L1.png": "x", "R1.png": "x", "ledger.db": "x"}
     for name, text in files.items():
         (d / name).parent.mkdir(exist_ok=True)
@@ -74,3 +77,15 @@ def test_an_output_naming_an_input_or_a_directory_is_refused_before_any_work(tmp
 def test_two_outputs_naming_one_file(tmp_path, capsys):
     _refused(capsys, tmp_path, "calibrate dlt --points {grid.csv} --out {d}/c.json --report {out}",
              tmp_path / "." / "c.json", "c.json: --report: the same file as --out")
+
+
+@pytest.mark.parametrize("line, option", [
+    ("report --tank T1 --config {farm.toml} --png {out}", "--png"),
+    ("cleaner map --config {farm.toml} --png {out}", "--png"),
+    ("survey --calib {calib.json} --species sparus_aurata --setup underwater --pair {L1.png} {R1.png} "
+     "--json {d}/out.json --plot {out}", "--plot"),
+])
+def test_a_picture_named_in_a_format_matplotlib_cannot_draw_is_refused_before_any_work(tmp_path, capsys, line,
+                                                                                       option):
+    _refused(capsys, tmp_path, line, tmp_path / "page.xyz", f"page.xyz: {option}: cannot draw a .xyz picture",
+             "png", "svg")

@@ -1,0 +1,50 @@
+"""Outputs appear whole or not at all: a write failing or interrupted halfway leaves the file that
+was there before, and nothing beside it."""
+import os
+from pathlib import Path
+
+import pytest
+
+from controller.atomic_files import replace_atomically, write_text_atomically
+from controller.errors import BadInput
+from controller.plotting import pyplot, save_figure
+
+
+def _half_then(exc):
+    def write(tmp):
+        Path(tmp).write_text('{"P1": [[1, 0')       # half a file, then the failure
+        raise exc
+    return write
+
+
+@pytest.mark.parametrize("exc, raised", [(OSError(28, "No space left on device"), BadInput),
+                                         (KeyboardInterrupt(), KeyboardInterrupt)])
+def test_a_write_failing_halfway_leaves_the_old_file_and_nothing_else(tmp_path, exc, raised):
+    out = tmp_path / "CALIB.json"
+    out.write_text("the calibration before")
+    with pytest.raises(raised) as got:
+        replace_atomically(out, _half_then(exc))
+    if raised is BadInput:
+        assert str(got.value) == f"{out}: cannot write: No space left on device"
+    assert out.read_text() == "the calibration before"
+    assert [p.name for p in tmp_path.iterdir()] == ["CALIB.json"]
+
+
+def test_a_new_file_has_the_users_umask_and_its_directory_is_made(tmp_path):
+    old = os.umask(0o027)
+    try:
+        write_text_atomically(tmp_path / "new" / "x.json", "{}\n")
+        (tmp_path / "plain.json").write_text("{}\n")
+    finally:
+        os.umask(old)
+    assert (tmp_path / "new" / "x.json").read_text() == "{}\n"
+    assert (tmp_path / "new" / "x.json").stat().st_mode == (tmp_path / "plain.json").stat().st_mode
+    assert [p.name for p in (tmp_path / "new").iterdir()] == ["x.json"]
+
+
+@pytest.mark.parametrize("name, magic", [("hist.png", b"\x89PNG"), ("hist.pdf", b"%PDF"), ("hist", b"\x89PNG")])
+def test_a_figure_is_written_in_the_format_its_name_asks_for(tmp_path, name, magic):
+    fig = pyplot().figure()
+    save_figure(fig, str(tmp_path / name))
+    assert (tmp_path / name).read_bytes().startswith(magic)
+    assert [p.name for p in tmp_path.iterdir()] == [name]
