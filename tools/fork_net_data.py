@@ -23,10 +23,11 @@ import argparse
 import sys
 from pathlib import Path
 
+import cv2
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
-from devices.sim.fish_scene import underwater_scene  # noqa: E402
+from devices.sim.fish_scene import underwater_rig, underwater_scene  # noqa: E402
 from vision import fork_net  # noqa: E402
 from vision.fins import SPAN_OF_FL, Fins  # noqa: E402
 from vision.survey_types import SurveySetup  # noqa: E402
@@ -146,16 +147,25 @@ def main() -> None:
     ap.add_argument("--scenes", type=int, default=1500)
     ap.add_argument("--neg-share", type=float, default=0.15)
     ap.add_argument("--jitter", type=int, default=4)
+    ap.add_argument("--size", default="1280x960", help="the rig's image size WxH (focal 1400 px at 1280 wide, "
+                                                       "scaled with the width: smaller fish in smaller images)")
+    ap.add_argument("--jpeg", type=int, default=None, help="each view through a JPEG round trip at this quality "
+                                                           "(a streaming camera's)")
     ap.add_argument("--out", required=True)
     args = ap.parse_args()
     if args.seed0 < FIRST_SEED:
         sys.exit(f"fork_net_data: --seed0: {args.seed0} is below {FIRST_SEED} (the benches' seeds)")
     rng = np.random.default_rng(args.seed0)
     setup = SurveySetup(up_world=(0.0, 0.0, 1.0))
+    w, h = (int(v) for v in args.size.lower().split("x"))
+    rig = underwater_rig(image_size=(w, h), focal_px=1400.0 * w / 1280)
     out = Crops()
     for seed in range(args.seed0, args.seed0 + args.scenes):
-        sc = underwater_scene(np.random.default_rng(seed))
+        sc = underwater_scene(np.random.default_rng(seed), rig=rig)
         for c, img in enumerate((sc.left, sc.right)):
+            if args.jpeg is not None:
+                jpeg = cv2.imencode(".jpg", img, [cv2.IMWRITE_JPEG_QUALITY, args.jpeg])[1]
+                img = cv2.imdecode(jpeg, cv2.IMREAD_UNCHANGED)
             pyr, hyps = proposals(img, setup)[:2]
             forks, snouts, axis, length, clear = ends(sc.fish, c, img.shape, "fork")
             good = np.flatnonzero(clear)
