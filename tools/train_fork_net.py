@@ -8,7 +8,10 @@ Not part of the project's dependencies or its suite: torch lives in a separate v
     .venv/bin/python tools/fork_net_data.py --seed0 100750 --scenes 750 --out /tmp/b.npz    on a free core)
     .venv-train/bin/python tools/train_fork_net.py --data /tmp/a.npz /tmp/b.npz --out vision/models/fork_net.onnx \
         --epochs 10 --per-epoch 60000 --minutes 32 --threads 1
-(the packaged model: those commands, 2026-12-02, 20 min of training on a loaded machine).
+(the packaged model: those commands, 2026-12-02, 20 min of training on a loaded machine). Small fish:
+``tools/fork_net_data.py --size 640x480 --jpeg 95`` renders smaller images through a camera's JPEG
+(tools/models/fork_net_candidate.onnx, 2026-12-04: that data besides the above, ``--epochs 20
+--per-epoch 100000``; vision/fork_net.py has its figures).
 The snout locator (``vision.snout_net``) is the same net trained on tools/snout_net_data.py's crops:
     .venv/bin/python tools/snout_net_data.py --seed0 102000 --scenes 450 --out /tmp/sn_a.npz
     .venv/bin/python tools/snout_net_data.py --seed0 102450 --scenes 300 --out /tmp/sn_b.npz

@@ -67,6 +67,21 @@ are coarser: 10 good of 12 with length errors up to 1.51 % (classical 8 of 10, u
 On by default since 2026-12-03: that test fish was drawn ~0.5 px too big all round by cv2.fillPoly
 (drawn with area coverage now, every vision test passes), and with the learned score
 (``vision.learned_score``) the net's reports reach precision >= 0.95 on both bench sets (README).
+
+Trained for small fish too (2026-12-04, issue 10's grow-out; not packaged): the packaged model
+places the fork 0.6 px behind the notch on fish under 40 px (0.16 px over 80 px), +2.3 % in weight
+on the grow-out's 640x480 stills of 12 g fish. Retrained from scratch on the packaged data (seeds
+100000-101499 at 1280x960) and 1,000 scenes at 640x480 and 480x360 through a JPEG q95 round trip
+(105000-105999; tools/fork_net_data.py ``--size --jpeg``), 20 epochs of 100k crops, 15 min on one
+core. Held out (480x360, 105900+): forks within 3 % 87.5 -> 91.2 %, median error 0.90 -> 0.71 %.
+bench/diag_growout_survey.py (6 surveys a weight): per-fish bias in the survey mean +2.26 / +1.12 /
++0.42 / -0.47 % -> +1.77 / +0.84 / +0.13 / -0.40 % (12 / 35 / 60 / 150 g). The six bench sets
+(seeds 200000+, 0+, 1000+, 2000+ at 1280x960; 5000+, 6000+ at 1920x1080 focal 2100): right 770 ->
+789, weight MAPE lower on every set (2.22-2.73 -> 1.95-2.30 %), median length error ~0.7 -> ~0.55 %,
+but wrong reports 20 -> 29 (pooled precision 0.975 -> 0.965; 1920x1080 seeds 5000+ 0.955 -> 0.936,
+lengths over 10 % off 4 -> 7). With the score refitted to it (seeds 300000-300999): 808 right,
+precision 0.962, 0.941 on 5000+; ``min_chance`` 0.875 there 0.938. Not adopted while it breaks
+the precision the packaged model holds on every set; kept as tools/models/fork_net_candidate.onnx.
 """
 from __future__ import annotations
 
