@@ -60,8 +60,8 @@ big all round; drawn with area coverage (tests/vision/fish_drawing.py) every vis
 Trained on again (2026-12-04, issue 7; not packaged): from the packaged weights, 63 min on one core,
 22,544 steps of 16 crops at a peak rate of 2e-3, on 3,200 scenes (seeds 100000-100399 and
 101000-103799; 102000-102199 of Nile tilapia alone, the species it missed most, tools/keynet_data.py
-``--species``; held out, the last 60 images of 101000-101199). Held-out peaks over 0.3 within 4 %: forks 24 -> 58 %, snouts
-19 -> 45 %, false forks 26 -> 9 %, fork-snout pairs right 57 -> 77 %: a far better proposer. In the
+``--species``; held out, the last 60 images of 101000-101199). Held-out peaks over 0.3 within 4 %:
+forks 24 -> 58 %, snouts 19 -> 45 %, false forks 26 -> 9 %, fork-snout pairs right 57 -> 77 %: a far better proposer. In the
 survey (bench/bench_survey_underwater.py, reported / right, packaged -> retrained): seeds 200000+
 (--fish 300) 161 / 158 -> 177 / 170, 0+ 123 / 118 -> 131 / 127, 1000+ 106 / 105 -> 106 / 103,
 1920x1080 (focal 2100, seeds 5000+) 132 / 126 -> 148 / 137: 507 -> 537 fish measured right, but
