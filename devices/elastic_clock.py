@@ -131,9 +131,14 @@ class ElasticClock:
         self.path = str(path)
         self._time, self._alive, self._pause = wall_time, alive, pause
         self._fd = os.open(self.path, os.O_RDWR)
-        self._map = mmap.mmap(self._fd, HEAD.size + NSLOTS * SLOT.size)
+        size, need = os.fstat(self._fd).st_size, HEAD.size + NSLOTS * SLOT.size
+        if size < need:             # (mmap's own complaint names neither the file nor the fault)
+            os.close(self._fd)
+            raise ValueError(f"{self.path}: not a fishfarm clock file ({size} bytes, a clock file has {need})")
+        self._map = mmap.mmap(self._fd, need)
         magic, version, *_rest = HEAD.unpack_from(self._map, 0)
         if magic != MAGIC or version != VERSION:
+            self.close()
             raise ValueError(f"{self.path}: not a fishfarm clock file (magic {magic!r}, version {version})")
         _m, _v, _g, *_seg, self.slow, self.fast, _n = HEAD.unpack_from(self._map, 0)
         self._last = -math.inf

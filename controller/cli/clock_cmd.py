@@ -63,8 +63,10 @@ def _state(show: str) -> dict:
     kinds = {BUSY: "busy", IDLE: "idle", AWAITED: "awaited"}
     try:
         c = ElasticClock(show)
+    except FileNotFoundError:
+        raise BadInput("--show", None, f"{show}: no such file") from None
     except (OSError, ValueError) as exc:
-        raise BadInput(show, None, str(exc)) from None
+        raise BadInput("--show", None, str(exc)) from None
     try:
         seg, now = c.segment(), c.now()
         return {"farm_time": _iso(now), "speed": c.speed, "slow": c.slow, "fast": c.fast,

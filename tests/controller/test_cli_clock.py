@@ -58,3 +58,10 @@ def test_show_refuses_what_is_no_clock(tmp_path, capsys):
     assert fishfarm_main(["clock"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 3 and str(tmp_path / "x") in err[0] and "missing" in err[1] and "--out" in err[2]
+    assert err[1] == f"fishfarm: --show: {tmp_path / 'missing'}: no such file"
+    for size in (0, 11, 847):           # shorter than a clock file: named, not mmap's own complaint
+        (tmp_path / "short").write_bytes(b"x" * size)
+        assert fishfarm_main(["clock", "--show", str(tmp_path / "short")]) == 2
+        line = capsys.readouterr().err.strip()
+        assert line == (f"fishfarm: --show: {tmp_path / 'short'}: not a fishfarm clock file ({size} bytes, "
+                        "a clock file has 848)")
