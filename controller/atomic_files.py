@@ -20,6 +20,8 @@ def replace_atomically(path: str | Path, write: Callable[[str], None]) -> None:
     try:
         target.parent.mkdir(parents=True, exist_ok=True)
         write(str(tmp))
+        if target.is_file():        # a file replaced keeps its permissions (a CALIB.json made private)
+            os.chmod(tmp, target.stat().st_mode & 0o7777)
         os.replace(tmp, target)
     except OSError as exc:
         raise BadInput(str(path), None, f"cannot write: {exc.strerror or exc}") from None

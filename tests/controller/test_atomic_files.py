@@ -48,3 +48,11 @@ def test_a_figure_is_written_in_the_format_its_name_asks_for(tmp_path, name, mag
     save_figure(fig, str(tmp_path / name))
     assert (tmp_path / name).read_bytes().startswith(magic)
     assert [p.name for p in tmp_path.iterdir()] == [name]
+
+
+def test_a_file_replaced_keeps_its_permissions(tmp_path):
+    out = tmp_path / "CALIB.json"
+    out.write_text("before")
+    out.chmod(0o600)
+    write_text_atomically(out, "after")
+    assert out.read_text() == "after" and out.stat().st_mode & 0o777 == 0o600
