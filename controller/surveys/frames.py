@@ -242,6 +242,8 @@ def video_source(paths: tuple[str, ...], every: int = 1, max_frames: int | None 
     rates = [float(c.get(cv2.CAP_PROP_FPS) or 0.0) for c in caps]
     if len(caps) == 2 and min(rates) > 0 and abs(rates[1] - rates[0]) > 0.01 * rates[0]:
         # frame i of one is not frame i of the other: every pair would pair two moments
+        for c in caps:
+            c.release()
         raise BadInput(paths[1], None, f"{rates[1]:g} frames/s, but {paths[0]} is {rates[0]:g}: "
                                        "not synchronised frame by frame")
     fps = rates[0] or 25.0
