@@ -186,11 +186,12 @@ def still_source(items: list[tuple[str, ...]], every: int = 1, max_frames: int |
     return Source(jobs, len(chosen))
 
 
-_SIDE = re.compile(r"^(?P<stem>.*)_(?P<side>[LR])$")
+_SIDE = re.compile(r"^(?P<stem>.*)_(?P<side>[LRlr])$")     # _l / _r too: a common naming
 
 
 def directory_items(directory: str) -> list[tuple[str, ...]]:
-    """``*_L.*`` / ``*_R.*`` pairs in sorted order, or else every ``*.png`` as an RG frame."""
+    """``*_L.*`` / ``*_R.*`` pairs (``_l`` / ``_r`` too) in sorted order, or else every ``*.png`` as
+    an RG frame."""
     d = Path(directory)
     if not d.exists():
         raise BadInput(directory, None, "no such directory")
@@ -201,7 +202,11 @@ def directory_items(directory: str) -> list[tuple[str, ...]]:
     for p in files:
         m = _SIDE.match(p.stem)
         if m:
-            sides.setdefault(m["stem"], {})[m["side"]] = p
+            side, got = m["side"].upper(), sides.setdefault(m["stem"], {})
+            if side in got:         # a_L.png beside a_L.jpg or a_l.png: which one is meant is unknown
+                raise BadInput(str(p), None, f"a second {'left' if side == 'L' else 'right'} image for "
+                                             f"'{m['stem']}', beside {got[side].name}")
+            got[side] = p
     if sides:
         items = []
         for stem in sorted(sides):

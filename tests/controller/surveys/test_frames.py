@@ -131,6 +131,17 @@ def test_directory_pairs_in_sorted_order_else_png_rg_frames(tmp_path):
         directory_items(str(tmp_path / "none"))
 
 
+def test_directory_pairs_named_l_r_in_lower_case_and_two_images_for_one_side_refused(tmp_path):
+    for left, right in (("a_l.PNG", "a_r.PNG"), ("b_L.jpg", "b_r.jpg")):
+        write(tmp_path / left, grey())
+        write(tmp_path / right, grey())
+    assert [tuple(Path(p).name for p in item) for item in directory_items(str(tmp_path))] == \
+        [("a_l.PNG", "a_r.PNG"), ("b_L.jpg", "b_r.jpg")]
+    write(tmp_path / "b_R.png", grey())       # a second right image for b: which is meant?
+    with pytest.raises(BadInput, match=r"b_r\.jpg: a second right image for 'b', beside b_R\.png$"):
+        directory_items(str(tmp_path))
+
+
 def make_video(path: Path, frames: int, size=(64, 48), rg=False, fps=25.0) -> str:
     out = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"MJPG"), fps, size)
     assert out.isOpened()
