@@ -37,6 +37,7 @@ def _up(text: str | None) -> tuple[float, float, float] | None:
 
 
 def _source(pairs, rgs, directory, video, rg_video, every, max_frames):
+    """The survey's frames, and every file they are read from (a directory listed once)."""
     from controller.surveys import frames
     given = [name for name, v in (("--pair", pairs), ("--rg", rgs), ("--dir", directory), ("--video", video),
                                   ("--rg-video", rg_video)) if v]
@@ -44,19 +45,11 @@ def _source(pairs, rgs, directory, video, rg_video, every, max_frames):
         got = f" (got {', '.join(given)})" if given else ""
         raise click.UsageError("give exactly one input: --pair L R (repeatable), --rg FRAME (repeatable), "
                                f"--dir DIR, --video L R or --rg-video F{got}")
-    if pairs:
-        return frames.still_source([tuple(p) for p in pairs], every, max_frames)
-    if rgs:
-        return frames.still_source([(p,) for p in rgs], every, max_frames)
-    if directory:
-        return frames.still_source(frames.directory_items(directory), every, max_frames)
-    return frames.video_source(tuple(video) if video else (rg_video,), every, max_frames)
-
-
-def _input_files(pairs, rgs, directory, video, rg_video) -> list[str]:
-    from controller.surveys import frames
-    items = frames.directory_items(directory) if directory else [*pairs, *((r,) for r in rgs)]
-    return [f for item in items for f in item] + list(video or ()) + ([rg_video] if rg_video else [])
+    if video or rg_video:
+        paths = tuple(video) if video else (rg_video,)
+        return frames.video_source(paths, every, max_frames), list(paths)
+    items = [tuple(p) for p in pairs] or [(p,) for p in rgs] or frames.directory_items(directory)
+    return frames.still_source(items, every, max_frames), [f for item in items for f in item]
 
 
 class _Progress:
@@ -183,7 +176,6 @@ def survey(calib_path, species, setup, pairs, rgs, directory, video, rg_video, e
     """Fish lengths and weights from stereo pairs, with the survey's statistics."""
     from controller.cli.calib_io import load_calibration
     from controller.cli.output_paths import check_outputs
-    from controller.surveys.outputs import check_writable
     from controller.surveys.runner import MEASURE
     from controller.surveys.species import survey_species, with_stock
     from controller.surveys.survey import SurveyOptions, run_survey
@@ -197,14 +189,13 @@ def survey(calib_path, species, setup, pairs, rgs, directory, video, rg_video, e
     record = _recorder(config_path, tank_id, species, json_path) if tank_id else None
     calib = load_calibration(calib_path)
     up_world = _up(up)
-    source = _source(pairs, rgs, directory, video, rg_video, every, max_frames)
+    source, files = _source(pairs, rgs, directory, video, rg_video, every, max_frames)
+    # (the page is written by renaming a new file into place: its directory is what must be writable)
     check_outputs({"--json": json_path, "--csv": csv_path, "--plot": plot_path},
-                  [calib_path, config_path, getattr(record, "ledger", None),
-                   *_input_files(pairs, rgs, directory, video, rg_video)])
+                  [calib_path, config_path, getattr(record, "ledger", None), *files])
     if plot_path:
         from controller.plotting import check_figure_name
         check_figure_name(plot_path, "--plot")
-        check_writable(plot_path, "the plot")
     if (user is not None or password is not None) and not isinstance(workers, str):
         raise BadInput("--user", None, "a login is for --workers tcp/HOST:PORT (a deployment's router)")
     remote, session = _remote(workers, site, user, password) if isinstance(workers, str) else (None, None)

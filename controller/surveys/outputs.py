@@ -3,8 +3,9 @@ histogram page (``--plot``).
 
 The fish list of a long video does not stay in memory: entries are spooled to a temporary file
 as they come and copied into OUT.json at the end, which is written beside its final name and
-renamed into place (a reader never sees half a file). Every output is opened before the first
-pair is measured, so an unwritable path fails at once, not after an hour of footage.
+renamed into place (a reader never sees half a file). OUT.json and FISH.csv are opened before the
+first pair is measured, and the page's directory checked (controller/cli/output_paths.py), so an
+unwritable path fails at once, not after an hour of footage.
 """
 from __future__ import annotations
 
@@ -104,20 +105,3 @@ class SurveyFiles:
         if not self._out.closed:
             self._out.close()
             Path(self._tmp_path).unlink(missing_ok=True)
-
-
-def check_writable(path: str, what: str) -> None:
-    """Fail before the survey, not after it, on an output that cannot be written."""
-    existed = Path(path).exists()
-    _writable_append(path, what)
-    if not existed:
-        Path(path).unlink(missing_ok=True)
-
-
-def _writable_append(path: str, what: str) -> None:
-    try:
-        Path(path).parent.mkdir(parents=True, exist_ok=True)
-        with open(path, "a", encoding="utf-8"):
-            pass
-    except OSError as exc:
-        raise BadInput(path, None, f"cannot write {what}: {exc.strerror or exc}") from None

@@ -67,6 +67,9 @@ def test_an_output_naming_an_input_or_a_directory_is_refused_before_any_work(tmp
     for name in inputs:
         # spelt another way than the input, so the paths are compared as files, not as strings
         _refused(capsys, tmp_path, line, tmp_path / "." / name, f"{name}: {option}: an input of this command")
+    # a directory that cannot be made: a file stands where it would be
+    _refused(capsys, tmp_path, line, tmp_path / "ref.csv" / "out.x",
+             f"out.x: {option}: cannot write: {tmp_path / 'ref.csv'} is a file, not a directory")
     (tmp_path / "a_dir").mkdir()
     if "chessboard" in line or "import" in line:    # click's own check of the option (dir_okay=False)
         _refused(capsys, tmp_path, line, tmp_path / "a_dir", option, "a_dir", "directory")
