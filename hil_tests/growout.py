@@ -9,8 +9,8 @@ What makes it cheap enough, each a setting of this farm (``overrides``), not of 
   that share of a day's appetite, growing with the fish), each one portion (``portion_g`` up to
   2.5 kg through a 40 g/s auger, as a farm's feeder blows them): the clock is slow for a few dozen
   meals a day instead of ~200 60-g portions;
-- **surveys**: ``PAIRS`` pairs a survey, the simulated cameras as fast as they render (30 fps cap),
-  10 farm s for the water to settle (the survey stop runs at a tenth of the slow speed: 60 s of
+- **surveys**: ``PAIRS`` pairs a survey, the simulated cameras at ``SIZE`` as fast as they render
+  (30 fps cap), 10 farm s for the water to settle (the survey stop runs at a tenth of the slow speed: 60 s of
   settling were a wall second a visit), two vision workers measuring while the simulator renders.
 
 The judge (``judge``) compares the controller's figures with the simulator's truth: per survey its
@@ -48,7 +48,7 @@ SLOW, FAST = 600.0, 60000.0      # the elastic clock's speeds (README "The elast
 MEALS_PER_DAY = 4.0
 PAIRS = 16
 FPS = 6.0
-SIZE = (640, 480)
+SIZE = (960, 720)                # not 640x480: its small fish read heavy (README "The grow-out's cameras")
 AUGER_G_S = 100.0
 PORTION_G = 500.0
 APPETITE_PCT = 1.6
