@@ -2,22 +2,21 @@
 histogram page (``--plot``).
 
 The fish list of a long video does not stay in memory: entries are spooled to a temporary file
-as they come and copied into OUT.json at the end, which is written beside its final name and
-renamed into place (a reader never sees half a file). OUT.json and FISH.csv are opened before the
-first pair is measured, and the page's directory checked (controller/cli/output_paths.py), so an
-unwritable path fails at once, not after an hour of footage.
+as they come and copied into OUT.json at the end. OUT.json and FISH.csv are written beside their
+final names and renamed into place (a reader never sees half a file; a survey that fails or is
+stopped leaves the files that were there as they were). Both are opened before the first pair is
+measured, and the page's directory checked (controller/cli/output_paths.py), so an unwritable path
+fails at once, not after an hour of footage.
 """
 from __future__ import annotations
 
 import json
 import math
-import os
 import tempfile
-from pathlib import Path
 
 import numpy as np
 
-from controller.errors import BadInput
+from controller.atomic_files import PendingFile
 from vision.survey_types import FishMeasurement
 
 CSV_HEADER = ("frame", "track", "length_cm", "weight_g", "condition_k", "score",
@@ -47,25 +46,16 @@ def fish_entry(frame: int, track: int, fish: FishMeasurement, weight_g: float) -
             "quality": {str(k): _finite(v, 4) for k, v in fish.quality.items()}}
 
 
-def _writable(path: str, what: str):
-    try:
-        Path(path).parent.mkdir(parents=True, exist_ok=True)
-        return open(path, "w", encoding="utf-8", newline="")
-    except OSError as exc:
-        raise BadInput(path, None, f"cannot write {what}: {exc.strerror or exc}") from None
-
-
 class SurveyFiles:
     """OUT.json (+ FISH.csv) of one survey: fish spooled as they come, both files written by
     ``finish`` (then each entry's ``outlier`` is known); ``close`` after a failure."""
 
     def __init__(self, json_path: str, csv_path: str | None = None):
-        self.json_path = json_path
-        self._tmp_path = f"{json_path}.part"
-        self._out = _writable(self._tmp_path, "OUT.json")
+        self._json = PendingFile(json_path, "OUT.json")
         self._spool = tempfile.TemporaryFile("w+", encoding="utf-8")
         self.entries = 0
-        self._csv = _writable(csv_path, "the CSV") if csv_path else None
+        self._csv_file = PendingFile(csv_path, "the CSV") if csv_path else None
+        self._csv = self._csv_file.file if self._csv_file else None
         if self._csv:
             self._csv.write(",".join(CSV_HEADER) + "\n")
 
@@ -83,7 +73,7 @@ class SurveyFiles:
     def finish(self, head: dict, tail: dict, outlier_tracks: set[int] = frozenset()) -> None:
         """OUT.json = ``head`` fields, the spooled ``fish`` list (each entry's ``outlier``: its
         track is in ``outlier_tracks``), then ``tail`` fields."""
-        out = self._out
+        out = self._json.file
         out.write("{" + json.dumps(head, allow_nan=False)[1:-1] + ',\n "fish": [')
         self._spool.seek(0)
         for i, line in enumerate(self._spool):
@@ -93,15 +83,14 @@ class SurveyFiles:
             if self._csv:           # (rows at the end, when the outliers are known)
                 self._csv_row(entry)
         out.write("\n ],\n " + json.dumps(tail, allow_nan=False, indent=1)[1:].lstrip() + "\n")
-        out.close()
-        os.replace(self._tmp_path, self.json_path)
+        if self._csv_file:
+            self._csv_file.commit()
+        self._json.commit()
         self.close()
 
     def close(self) -> None:
-        """Safe to call twice; a survey that failed leaves no OUT.json behind (nor a .part)."""
+        """Safe to call twice; after a failure, neither file replaces what was there (no .part left)."""
         self._spool.close()
-        if self._csv and not self._csv.closed:
-            self._csv.close()
-        if not self._out.closed:
-            self._out.close()
-            Path(self._tmp_path).unlink(missing_ok=True)
+        for pending in (self._json, self._csv_file):
+            if pending:
+                pending.discard()

@@ -5,7 +5,7 @@ from pathlib import Path
 
 import pytest
 
-from controller.atomic_files import replace_atomically, write_text_atomically
+from controller.atomic_files import PendingFile, replace_atomically, write_text_atomically
 from controller.errors import BadInput
 from controller.plotting import pyplot, save_figure
 
@@ -56,3 +56,35 @@ def test_a_file_replaced_keeps_its_permissions(tmp_path):
     out.chmod(0o600)
     write_text_atomically(out, "after")
     assert out.read_text() == "after" and out.stat().st_mode & 0o777 == 0o600
+
+
+def test_a_pending_file_takes_its_name_on_commit_only_keeping_the_old_ones_permissions(tmp_path):
+    out = tmp_path / "FISH.csv"
+    out.write_text("last week's fish")
+    out.chmod(0o640)
+    pending = PendingFile(out, "the CSV")
+    pending.file.write("frame,length_cm\n")
+    assert out.read_text() == "last week's fish"           # a reader sees the old file until the end
+    pending.commit()
+    pending.commit()
+    pending.discard()                                       # (after a commit: nothing to undo)
+    assert out.read_text() == "frame,length_cm\n" and out.stat().st_mode & 0o777 == 0o640
+    assert [p.name for p in tmp_path.iterdir()] == ["FISH.csv"]
+
+
+def test_a_pending_file_discarded_leaves_the_old_file_and_nothing_beside_it(tmp_path):
+    out = tmp_path / "new" / "OUT.json"
+    out.parent.mkdir()
+    out.write_text("before")
+    pending = PendingFile(out, "OUT.json")
+    pending.file.write('{"fish": [')
+    pending.discard()
+    pending.discard()
+    assert out.read_text() == "before" and [p.name for p in out.parent.iterdir()] == ["OUT.json"]
+
+
+def test_a_pending_file_where_none_can_be_written_is_refused_at_once(tmp_path):
+    (tmp_path / "file").write_text("")
+    with pytest.raises(BadInput) as got:
+        PendingFile(tmp_path / "file" / "OUT.json", "OUT.json")
+    assert str(got.value).startswith(f"{tmp_path / 'file' / 'OUT.json'}: cannot write OUT.json: ")

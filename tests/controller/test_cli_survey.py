@@ -342,8 +342,10 @@ def hanging_survey(farm, tmp_path):
     mark = f"{os.getpid()}-{time.monotonic_ns()}"
     env = {**os.environ, "PYTHONPATH": str(ROOT), "FISHFARM_TEST_HANG": "1", "FISHFARM_TEST_MARK": mark}
     out = tmp_path / "o.json"
+    out.write_text("a survey's OUT.json of last week")
+    out.with_suffix(".csv").write_text("its FISH.csv")
     p = subprocess.Popen([FISHFARM, "survey", *map(str, common(d, "--rg-video", tmp_path / "rg.mp4", "--json", out,
-                                                               "--workers", "2")),
+                                                               "--csv", out.with_suffix(".csv"), "--workers", "2")),
                           "--measure", "tests.controller.surveys.standin:measure_or_hang"],
                          stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, env=env,
                          # as from a terminal, whatever this run's (nohup ignores SIGHUP for its children)
@@ -359,12 +361,15 @@ def hanging_survey(farm, tmp_path):
 
 
 @pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGINT])
-def test_a_signal_ends_a_survey_at_once_its_workers_with_it_and_leaves_no_output(hanging_survey, sig):
+def test_a_signal_ends_a_survey_at_once_its_workers_with_it_and_leaves_the_old_outputs(hanging_survey, sig):
     p, out, mark = hanging_survey
     p.send_signal(sig)
     assert p.wait(10) == 128 + sig                  # not waiting an hour for the pairs in flight
     assert _until(lambda: not _marked(mark)), "a worker outlived its survey"
-    assert not out.exists() and not out.with_name(out.name + ".part").exists()
+    # last week's files as they were (the CSV was truncated to its header here), no part-file left
+    assert out.read_text() == "a survey's OUT.json of last week"
+    assert out.with_suffix(".csv").read_text() == "its FISH.csv"
+    assert sorted(f.name for f in out.parent.iterdir()) == ["o.csv", "o.json", "rg.mp4"]
 
 
 @pytest.mark.parametrize("sig", [signal.SIGKILL, signal.SIGHUP])     # SIGHUP: its default action
