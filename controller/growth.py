@@ -168,6 +168,14 @@ class Conversion:
         return {"fcr": self.fcr, "fcr_ci": [lo, hi], "feed_g": self.feed_g, "gain_g": self.gain_g}
 
 
+def net_conversion(feed_g: float, gain_g: float, died_g: float) -> dict:
+    """The net (economic) FCR beside the biological one: the feed over the biomass gained less the
+    weight of the fish that died meanwhile — the growth the farm keeps. ``fcr`` (the biological)
+    counts the dead fish's growth too: what the feed made, the fish's own conversion."""
+    net = gain_g - died_g
+    return {"fcr_net": feed_g / net if net > 0 else None, "died_g": died_g}
+
+
 def conversion(fit: GrowthFit, feed_g: float, terms: list[tuple[float, float]]) -> Conversion:
     """``terms``: (fish, t) whose fitted weight adds to the gain — +N at the window's end, −N at its
     start, +fish that left (mortality, harvests) and −fish that came, each at the time it moved."""
@@ -183,11 +191,12 @@ def conversion(fit: GrowthFit, feed_g: float, terms: list[tuple[float, float]]) 
 class Account:
     """The ledger at ``t``, counted from the window's first survey: feed given since, the stock
     then, and the weight of the fish that left since (mortality, harvests) less that of those
-    that came."""
+    that came; of it, the weight of those that died."""
     t: float
     feed_g: float
     stock: int
     left_g: float
+    died_g: float = 0.0              # the part of ``left_g`` that died (not harvested nor moved)
 
 
 @dataclass(frozen=True)
@@ -249,6 +258,7 @@ class FeedFit:
                "surveys": self.surveys, "fish": self.fish, "days": self.days, "scatter": self.scatter,
                "measured": True, "fcr": self.fcr, "fcr_ci": [lo, hi], "feed_g": self.last.feed_g - self.first.feed_g,
                "gain_g": self.biomass_g(self.last) - self.biomass_g(self.first) + self.last.left_g - self.first.left_g}
+        out |= net_conversion(out["feed_g"], out["gain_g"], self.last.died_g - self.first.died_g)
         if now is not None:
             out |= {"weight_g": self.weight_g(now), "weight_ci_pct": self.weight_ci_pct(now)}
         return out

@@ -9,7 +9,9 @@ config's count and the stock events; ``days`` apart):
   fish had then, W(t) growing exponentially from W1 to W2): the growth the feed made, whether the
   fish are still in the tank or not;
 - feed conversion ratio FCR = feed given / G   (the grams of the feed rows done between them; none
-  when G ≤ 0: a loss is not a conversion);
+  when G ≤ 0: a loss is not a conversion) — the biological ratio, the fish's own conversion; beside
+  it the net (economic) ratio ``fcr_net`` = feed given / (G − Σ fish that died · W(t)): the growth
+  the farm keeps, the dead fish's left out;
 - condition factor      K = 100 · W / L³ per fish (g, cm), the survey's mean;
 - size uniformity       CV = sd / mean of weight (%), and whether it calls for grading;
 - projection: the days to a target weight at the fitted SGR (below; the last interval's without
@@ -30,7 +32,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from controller.growth import Account, FeedFit, GrowthFit, Weighing, conversion, fit_feed, fit_growth
+from controller.growth import Account, FeedFit, GrowthFit, Weighing, conversion, fit_feed, fit_growth, net_conversion
 
 DAY_S = 86_400.0
 
@@ -54,6 +56,8 @@ class Interval:
     feed_g: float
     gain_g: float
     fcr: float | None
+    fcr_net: float | None = None       # the feed over the gain less the dead fish's weight
+    died_g: float = 0.0
 
 
 def condition_factor(lengths_cm, weights_g) -> float:
@@ -86,9 +90,12 @@ def interval(p1: SurveyPoint, p2: SurveyPoint, feed_g: float, events, tank: str)
     if days <= 0:
         raise ValueError("the second survey must come after the first")
     sgr = 100.0 * (math.log(p2.mean_weight_g) - math.log(p1.mean_weight_g)) / days
-    moved = sum(fish_out(e, tank) * weight_at(e["t"], p1, p2) for e in events if p1.t < e["t"] <= p2.t)
+    between = [e for e in events if p1.t < e["t"] <= p2.t]
+    moved = sum(fish_out(e, tank) * weight_at(e["t"], p1, p2) for e in between)
     gain = p2.stock * p2.mean_weight_g - p1.stock * p1.mean_weight_g + moved
-    return Interval(p1.t, p2.t, days, sgr, feed_g, gain, feed_g / gain if gain > 0 else None)
+    died = sum(fish_out(e, tank) * weight_at(e["t"], p1, p2) for e in between if e["kind"] == "mortality")
+    net = net_conversion(feed_g, gain, died)
+    return Interval(p1.t, p2.t, days, sgr, feed_g, gain, feed_g / gain if gain > 0 else None, net["fcr_net"], died)
 
 
 CURVE_POINTS = 60                       # the fitted growth drawn across its window (report's "curve")
@@ -120,8 +127,9 @@ def _accounts(cfg, store, tank_id: str, t_first: float, times: list[float], weig
     base, events = cfg.tank(tank_id).stock, [dict(e) for e in store.stock_events()]
     out = []
     for t in times:
-        left = sum(fish_out(e, tank_id) * weight_at(e["t"]) for e in events if t_first < e["t"] <= t)
-        out.append(Account(t, store.fed_between(tank_id, t_first, t), stock_at(base, events, tank_id, t), left))
+        moved = [(e, fish_out(e, tank_id) * weight_at(e["t"])) for e in events if t_first < e["t"] <= t]
+        out.append(Account(t, store.fed_between(tank_id, t_first, t), stock_at(base, events, tank_id, t),
+                           sum(g for _, g in moved), sum(g for e, g in moved if e["kind"] == "mortality")))
     return out
 
 
@@ -173,7 +181,9 @@ def fitted_figures(cfg, store, tank_id: str, t: float) -> dict | None:
     terms = [(stock_at(base, events, tank_id, t2), t2), (-stock_at(base, events, tank_id, t1), t1)]
     terms += [(fish_out(e, tank_id), e["t"]) for e in events if t1 < e["t"] <= t2]
     conv = conversion(fit, store.fed_between(tank_id, t1, t2), terms)
-    return {**fit.summary(t2), **conv.summary(), **when}
+    died = sum(fish_out(e, tank_id) * fit.weight_g(e["t"]) for e in events
+               if t1 < e["t"] <= t2 and e["kind"] == "mortality")
+    return {**fit.summary(t2), **conv.summary(), **net_conversion(conv.feed_g, conv.gain_g, died), **when}
 
 
 def days_to(target_g: float, weight_g: float, sgr_pct: float) -> float | None:

@@ -72,5 +72,6 @@ def _fitted(basis, fit: dict | None) -> dict:
         out["weight_ci_pct"] = round(basis.growth["weight_ci_pct"], 2)
     if fit is not None:
         out |= {"sgr_fit_pct_day": fit["sgr_pct_day"], "sgr_fit_ci_pct_day": fit["sgr_ci_pct_day"],
-                "fcr_fit": fit["fcr"], "fcr_fit_ci": fit["fcr_ci"], "fit_surveys": fit["surveys"]}
+                "fcr_fit": fit["fcr"], "fcr_fit_ci": fit["fcr_ci"], "fcr_net_fit": fit.get("fcr_net"),
+                "fit_surveys": fit["surveys"]}
     return out

@@ -3,11 +3,12 @@
 
 A tank's production figures from the ledger (controller/production.py): each survey (fish, mean
 weight, CV, condition factor, stock), between consecutive surveys the growth (SGR), feed given,
-biomass gain and FCR, the same fitted to the surveys of the growth window with their 95 %
-intervals, size uniformity against ``[feeding] grading_cv_pct``, and the projection to the target
-weight (``--target`` or the tank's ``target_weight_g``) at the fitted SGR. ``--png``
-draws weight over time with each survey's histogram, the projection and the feed per day. Reads
-the ledger only; a running controller may keep writing it. Bad input exits 2 with one line.
+biomass gain and FCR (the biological; the net beside it where fish died), the same fitted to the
+surveys of the growth window with their 95 % intervals, size uniformity against ``[feeding]
+grading_cv_pct``, and the projection to the target weight (``--target`` or the tank's
+``target_weight_g``) at the fitted SGR. ``--png`` draws weight over time with each survey's
+histogram, the projection and the feed per day. Reads the ledger only; a running controller may
+keep writing it. Bad input exits 2 with one line.
 """
 from __future__ import annotations
 
@@ -22,21 +23,29 @@ from controller.errors import BadInput
 from controller.production import iso_day
 
 
+def _net(figures: dict) -> str:
+    """The net FCR beside the biological one, where fish died meanwhile (controller/production.py)."""
+    if not figures.get("died_g"):
+        return ""
+    net = figures.get("fcr_net")
+    return ", net n/a (no gain kept)" if net is None else f", net {net:.2f} ({figures['died_g']:.0f} g died)"
+
+
 def text(report: dict) -> str:
     lines = [f"{report['tank']} ({report['species']}): {len(report['surveys'])} surveys"]
     for s in report["surveys"]:
         lines.append(f"  survey {s['date']}: {s['fish']} fish, mean {s['mean_weight_g']:.1f} g, "
                      f"CV {s['cv_pct'] or 0:.1f} %, K {s['k']:.2f}, stock {s['stock']}")
     for i in report["intervals"]:
-        fcr = "n/a (no gain)" if i["fcr"] is None else f"{i['fcr']:.2f}"
+        fcr = "n/a (no gain)" if i["fcr"] is None else f"{i['fcr']:.2f}{_net(i)}"
         lines.append(f"  {iso_day(i['t1'])} -> {iso_day(i['t2'])} ({i['days']:.1f} d): SGR {i['sgr_pct']:.2f} %/day, "
                      f"feed {i['feed_g']:.0f} g, biomass gain {i['gain_g']:.0f} g, FCR {fcr}")
     f = report.get("fit")
     if f is not None:
         lo, hi = (_bound(x) for x in f["fcr_ci"])
-        fcr = "n/a (no gain)" if f["fcr"] is None else f"{f['fcr']:.2f} ({lo}-{hi})"
+        fcr = "n/a (no gain)" if f["fcr"] is None else f"{f['fcr']:.2f} ({lo}-{hi}, 95 %){_net(f)}"
         lines.append(f"  fitted to {f['surveys']} surveys since {f['since']} ({f['days']:.1f} d, {f['fish']} fish): "
-                     f"SGR {f['sgr_pct_day']:.2f} ± {f['sgr_ci_pct_day']:.2f} %/day, FCR {fcr} (95 %)")
+                     f"SGR {f['sgr_pct_day']:.2f} ± {f['sgr_ci_pct_day']:.2f} %/day, FCR {fcr}")
     if "grading" in report:
         cv = report["surveys"][-1]["cv_pct"] or 0
         verdict = "GRADE: above" if report["grading"] else "within"

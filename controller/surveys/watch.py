@@ -55,7 +55,8 @@ class SurveyWatch:
         return {"t": _iso(survey.t), "last_survey_t": _iso(survey.t), "fish": survey.count,
                 "mean_weight_g": survey.mean_weight_g, "weight_cv_pct": survey.cv_pct,
                 "condition_k": f["surveys"][-1]["k"] if f["surveys"] else None,
-                "sgr_pct_day": last.get("sgr_pct"), "fcr": last.get("fcr"), "feed_g": last.get("feed_g"),
+                "sgr_pct_day": last.get("sgr_pct"), "fcr": last.get("fcr"), "fcr_net": last.get("fcr_net"),
+                "feed_g": last.get("feed_g"),
                 "gain_g": last.get("gain_g"), "days": last.get("days"), "grading": f.get("grading"),
                 "projection": f.get("projection"), "fit": f.get("fit")}
 

@@ -13,7 +13,8 @@ the whole count (each is ``count / sample`` fish): the weights a camera sees are
 count itself is exact: deaths are drawn for the whole count, and the same share of the sample goes.
 Deaths are written to the truth log (``mortality``: tank, count) as a farm worker would count them,
 and a ``stock`` record closes every farm day, or every ``record_s`` (count, biomass, mean and CV of
-weight, food eaten).
+weight, food eaten, deaths and the weight they had: ``eaten_g`` over the gain of the biomass plus
+``died_g`` is ``fcr``, the biological ratio; over the biomass's gain alone, the net one).
 """
 from __future__ import annotations
 
@@ -55,6 +56,8 @@ class SimStock:
         self.period = math.floor(t0 / params.record_s)
         self.eaten_g = 0.0                                        # since t0
         self.deaths = 0
+        self.died_g = 0.0           # since t0: the dead fish's weight when they died (what the food
+                                    # had made of them too: the biological FCR's share of the gain)
 
     # -- what the world does to it ------------------------------------------------------------
     def feed(self, grams: float, t: float) -> None:
@@ -112,6 +115,7 @@ class SimStock:
         dead = int(self.rng.binomial(self.count, q))
         if not dead:
             return
+        self.died_g += dead * self.mean_g                 # deaths strike at random, whatever the size
         gone = self.rng.random(len(self.w)) < dead / self.count    # the same share of the sample
         if gone.all():
             gone[self.rng.integers(len(self.w))] = False
@@ -126,4 +130,4 @@ class SimStock:
             cv = float(self.w.std() / self.w.mean() * 100) if self.count else 0.0
             self.truth.write("stock", t, tank=self.id, count=self.count, biomass_g=round(self.biomass_g, 1),
                              mean_g=round(self.mean_g, 3), cv_pct=round(cv, 2), eaten_g=round(self.eaten_g, 1),
-                             deaths=self.deaths)
+                             deaths=self.deaths, died_g=round(self.died_g, 1))

@@ -1,6 +1,7 @@
 """``fishfarm report``: a tank's figures between surveys, worked out here from their definitions
 (SGR = 100·ln(W2/W1)/days; gain = N2·W2 − N1·W1 + fish out weighed when they left; FCR = feed /
-gain; K = 100·W/L³; days to target = 100·ln(target/W)/SGR) on a ledger written through the store."""
+gain, net FCR = feed / (gain − the dead fish's weight); K = 100·W/L³; days to target =
+100·ln(target/W)/SGR) on a ledger written through the store."""
 from __future__ import annotations
 
 import json
@@ -55,6 +56,8 @@ def test_the_figures_between_two_surveys_follow_their_definitions(farm, capsys):
     assert i["sgr_pct"] == pytest.approx(sgr) and i["days"] == pytest.approx(10)
     assert i["feed_g"] == 3000                                     # the three done feeds between
     assert i["gain_g"] == pytest.approx(gain) and i["fcr"] == pytest.approx(3000 / gain)
+    # the net FCR: the growth the farm kept, the dead fish's weight left out of the gain
+    assert i["died_g"] == pytest.approx(100 * w_mid) and i["fcr_net"] == pytest.approx(3000 / (gain - 100 * w_mid))
     s1, s2 = r["surveys"]
     assert (s1["stock"], s2["stock"]) == (stock, stock - 100)
     assert s1["k"] == pytest.approx(100 * 20 / 12**3) and s2["k"] == pytest.approx(100 * 30 / 13.5**3)
@@ -66,6 +69,7 @@ def test_the_figures_between_two_surveys_follow_their_definitions(farm, capsys):
     # (CV 0 counts as 5 %: a sampled CV is not trusted below), 1.96 · √(se1² + se2²) / days
     fit = r["fit"]
     assert fit["sgr_pct_day"] == pytest.approx(sgr) and fit["fcr"] == pytest.approx(3000 / gain)
+    assert fit["fcr_net"] == pytest.approx(3000 / (gain - 100 * w_mid))
     assert fit["sgr_ci_pct_day"] == pytest.approx(100 * 1.96 * math.hypot(0.05 / 50**0.5, 0.05 / 40**0.5) / 10,
                                                   rel=1e-3)
     assert fit["fcr_ci"][0] < fit["fcr"] < fit["fcr_ci"][1] and r["projection"]["basis"] == "fit"
@@ -96,11 +100,14 @@ def test_the_page_draws_the_fitted_growth_and_its_band():
 
 
 def test_the_text_report_and_its_page(farm, capsys):
-    path, _ = farm
+    path, stock = farm
     png = path / "report.png"
     code, out, _ = run(capsys, "report", "--tank", "T1", "--config", str(path / "farm.toml"), "--png", str(png))
     assert code == 0 and png.stat().st_size > 10_000
-    assert "SGR 4.05 %/day" in out and "FCR" in out and "uniformity: CV 0.0 % (within 30 %)" in out
+    died = 100 * 20 * (30 / 20) ** 0.5
+    gain = (stock - 100) * 30 - stock * 20 + died
+    assert f"FCR {3000 / gain:.2f}, net {3000 / (gain - died):.2f} ({died:.0f} g died)" in out
+    assert "SGR 4.05 %/day" in out and "uniformity: CV 0.0 % (within 30 %)" in out
     assert "fitted to 2 surveys since 2026-05-28 (10.0 d, 90 fish): SGR 4.05 ± " in out
     assert f"written: {png}" in out
 

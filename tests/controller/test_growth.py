@@ -132,6 +132,33 @@ def test_fitted_figures_of_a_ledger_follow_the_generating_growth(tmp_path, model
     assert summary["model"] == model and summary["weight_g"] == weight
 
 
+@pytest.mark.parametrize("model", ["feed", "sgr"])
+def test_the_fitted_net_fcr_leaves_out_the_weight_of_the_fish_that_died(tmp_path, model):
+    from controller.config import load_config
+    cfg = load_config("config/farm.toml")
+    cfg = cfg.model_copy(update={"feeding": cfg.feeding.model_copy(update={"growth_model": model})})
+    store = Store(tmp_path / "m.db")
+    stock0, sgr, fcr, dead_a_day = cfg.tank("T1").stock, 1.5, 1.3, 4
+    w = lambda d: 20 * math.exp(sgr / 100 * d)                  # noqa: E731
+    for d in (0, 7, 14):
+        store.add_survey("T1", T + d * DAY, "sparus_aurata", f"s{d}", [10.0] * 4,
+                         [w(d) * f for f in (0.8, 0.9, 1.1, 1.2)])
+    for d in range(15):
+        alive = stock0 - dead_a_day * d                         # each day's dead go at noon, fed that morning
+        f = store.add_intent(tank="T1", date=f"d{d}", t=T + d * DAY + 3600, target_g=1, run_s=1,
+                             cycles_before=0, source="t")
+        store.close_feed(f.id, "done", fcr * alive * (w(d + 1) - w(d)), T + d * DAY + 3600)
+        store.add_stock_event(t=T + (d + 0.5) * DAY, tank="T1", kind="mortality", count=dead_a_day,
+                              to_tank=None, who="t")
+    fig = fitted_figures(cfg, store, "T1", T + 14 * DAY + 60)
+    died = sum(dead_a_day * w(d + 0.5) for d in range(14))
+    assert fig["fcr"] == pytest.approx(fcr, rel=0.02)          # the biological: what the feed made
+    assert fig["died_g"] == pytest.approx(died, rel=0.02)
+    assert fig["fcr_net"] == pytest.approx(fig["feed_g"] / (fig["gain_g"] - fig["died_g"]))
+    net = fig["feed_g"] / (fig["gain_g"] - died)
+    assert fig["fcr_net"] == pytest.approx(net, rel=0.005) and net > fcr * 1.02
+
+
 @settings(max_examples=6, deadline=None)
 @given(w0=st.floats(2, 300), rate=st.floats(0.01, 0.04), fcr=st.floats(0.9, 2.5), surveys=st.integers(3, 9),
        fish=st.integers(20, 150), cv=st.floats(10, 35), seed=st.integers(0, 2**31))

@@ -10,8 +10,9 @@ from controller.production import SurveyPoint, days_to, interval, stock_at, weig
 DAY = 86_400.0
 
 
-def ev(t, tank, count, to_tank=None):
-    return {"t": t, "tank": tank, "count": count, "to_tank": to_tank}
+def ev(t, tank, count, to_tank=None, kind=None):
+    return {"t": t, "tank": tank, "count": count, "to_tank": to_tank,
+            "kind": kind or ("transfer" if to_tank else "mortality")}
 
 
 def test_transfers_in_and_out_count_at_the_weight_the_fish_had_when_they_moved():
@@ -28,6 +29,19 @@ def test_transfers_in_and_out_count_at_the_weight_the_fish_had_when_they_moved()
     assert i.sgr_pct == pytest.approx(100 * math.log(1.6) / 20)
     assert stock_at(1000, events, "A", 6 * DAY) == 700 and stock_at(1000, events, "A", 16 * DAY) == 900
     assert stock_at(500, events, "B", 6 * DAY) == 800 and stock_at(500, events, "B", 11 * DAY) == 750
+
+
+def test_the_net_fcr_leaves_out_the_growth_of_the_fish_that_died_not_of_those_harvested():
+    p1 = SurveyPoint(0.0, 50.0, 10.0, 1.5, 40, 1000)
+    p2 = SurveyPoint(20 * DAY, 80.0, 10.0, 1.5, 40, 880)
+    events = [ev(10 * DAY, "A", 20), ev(15 * DAY, "A", 100, kind="harvest"), ev(12 * DAY, "B", 7)]
+    i = interval(p1, p2, 40_000.0, events, "A")
+    w10, w15 = 50 * (80 / 50) ** 0.5, 50 * (80 / 50) ** 0.75
+    gain = 880 * 80 - 1000 * 50 + 20 * w10 + 100 * w15
+    assert i.fcr == pytest.approx(40_000 / gain) and i.died_g == pytest.approx(20 * w10)
+    assert i.fcr_net == pytest.approx(40_000 / (gain - 20 * w10)) and i.fcr_net > i.fcr
+    none_died = interval(p1, p2, 40_000.0, events[1:], "A")
+    assert none_died.fcr_net == none_died.fcr and none_died.died_g == 0.0
 
 
 def test_a_loss_is_no_conversion_and_shrinking_fish_never_reach_a_target():

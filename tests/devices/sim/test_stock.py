@@ -61,6 +61,23 @@ def test_deaths_follow_the_rate_and_the_sample_follows_the_count():
     assert all(r["t"] % DAY_S == 0 for r in days)          # each closes a farm day (UTC)
 
 
+def test_the_food_over_the_gain_with_the_dead_fishs_weight_is_the_fcr_and_without_it_more():
+    truth = TruthLog(None)
+    s = SimStock("T1", 20_000, 18.0, SimStockParams(mortality_pct_day=0.5, sample=20_000, fcr=1.4),
+                 np.random.default_rng(5), T0, truth)
+    b0 = s.biomass_g
+    for day in range(42):
+        for meal in range(4):
+            s.feed(s.biomass_g * 0.005, T0 + day * DAY_S + (meal + 1) * 4 * 3600)
+    s.advance((math.floor(T0 / DAY_S) + 43) * DAY_S)        # to a farm day's end: its record written
+    died = [r["died_g"] for r in truth.records if r["kind"] == "stock"]
+    assert died == sorted(died) and died[-1] == pytest.approx(s.died_g, abs=0.1) and s.deaths > 3000
+    # the dead fish weighed what the stock's mean was when they died: between the start's and the end's
+    assert 18.0 * s.deaths < s.died_g < s.mean_g * s.deaths
+    assert s.eaten_g / (s.biomass_g - b0 + s.died_g) == pytest.approx(1.4, rel=0.01)      # biological
+    assert s.eaten_g / (s.biomass_g - b0) > 1.4 * 1.1                                      # net: the dead lost
+
+
 def test_a_tank_asks_for_more_as_its_fish_grow():
     cfg = load_config("config/farm.toml")
     tank = SimTank(cfg.tank("T1"), SimFishParams(), np.random.default_rng(0))
