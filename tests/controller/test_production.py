@@ -42,6 +42,11 @@ def test_the_net_fcr_leaves_out_the_growth_of_the_fish_that_died_not_of_those_ha
     assert i.fcr_net == pytest.approx(40_000 / (gain - 20 * w10)) and i.fcr_net > i.fcr
     none_died = interval(p1, p2, 40_000.0, events[1:], "A")
     assert none_died.fcr_net == none_died.fcr and none_died.died_g == 0.0
+    # more fish died than the tank kept of its growth: a conversion, but no net one
+    worse = interval(p1, SurveyPoint(20 * DAY, 80.0, 10.0, 1.5, 40, 450), 40_000.0, [ev(10 * DAY, "A", 550)], "A")
+    assert worse.fcr is not None and worse.fcr_net is None
+    from controller.cli.report_cmd import _net
+    assert _net(worse.__dict__) == ", net n/a (no gain kept)" and _net(none_died.__dict__) == ""
 
 
 def test_a_loss_is_no_conversion_and_shrinking_fish_never_reach_a_target():

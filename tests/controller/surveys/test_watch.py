@@ -99,6 +99,8 @@ def test_the_figures_between_the_last_two_surveys_are_published_and_shown_in_sta
     assert fig["fit"]["sgr_pct_day"] == pytest.approx(fig["sgr_pct_day"]) and fig["fit"]["surveys"] == 2
     assert fig["fit"]["fcr"] == pytest.approx(fig["fcr"]) and fig["fit"]["fcr_ci"][0] < fig["fcr"]
     assert shown["sgr_fit_pct_day"] == fig["fit"]["sgr_pct_day"] and shown["fcr_fit"] == fig["fit"]["fcr"]
+    # no fish died: the net FCR is the biological one, published and shown beside it
+    assert fig["fcr_net"] == fig["fcr"] and shown["fcr_net_fit"] == pytest.approx(fig["fit"]["fcr"])
     assert shown["weight_ci_pct"] > 0
     never = _weights(c, "T4", T)
     assert never["ration_basis"] == "config" and never["mean_weight_g"] == cfg.tank("T4").mean_weight_g
