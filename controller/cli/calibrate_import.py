@@ -9,9 +9,11 @@ Formats (``auto`` decides from the content):
   K1 M1 cameraMatrix1 camera_matrix1 ...; D1 distCoeffs1 ...; R; T; image_width + image_height or
   imageSize / image_size [w, h]. Rectified P1/P2 in such files are ignored: they are for rectified
   images, not the camera's own pixels.
-- stereomorph: 11 DLT coefficients per camera, one column per camera (StereoMorph's cal_coeffs),
-  with or without a header row and row names, separated by spaces, tabs, commas or semicolons;
-  2 rows of 11 are read as one row per camera.
+- stereomorph: StereoMorph's own calibration file (``calibrateCameras``' calibration.txt: its
+  cal.coeff, img.size and the unit of sq.size; controller/cli/stereomorph_file.py), or a table of
+  11 DLT coefficients per camera, one column per camera (StereoMorph's cal_coeffs), with or
+  without a header row and row names, separated by spaces, tabs, commas or semicolons; 2 rows of
+  11 are read as one row per camera.
 - p34: two 3x4 matrices, P1 then P2 row by row (24 numbers, any separators); or JSON with P1, P2
   (and image_size; other fields are ignored).
 Bad input exits 2 with one line naming the file, the field and the fault (controller.errors.BadInput).
@@ -25,6 +27,7 @@ from pathlib import Path
 import click
 import numpy as np
 
+from controller.cli.stereomorph_file import is_stereomorph_file, read_stereomorph
 from controller.errors import BadInput
 from vision.calib_import import UNITS_MM
 
@@ -261,8 +264,9 @@ def _report(calib, fmt: str, paths, out: str) -> None:
               help="Calibration file; repeat for OpenCV files split in two (intrinsics + extrinsics).")
 @click.option("--out", required=True, type=click.Path(dir_okay=False), metavar="CALIB.json")
 @click.option("--format", "fmt", type=click.Choice(FORMATS), default="auto", show_default=True)
-@click.option("--units", type=click.Choice(list(UNITS_MM)), default="mm", show_default=True,
-              help="World unit of the file: OpenCV's T (the board's square unit), DLT and 3x4 worlds.")
+@click.option("--units", type=click.Choice(list(UNITS_MM)), default=None,
+              help="World unit of the file: OpenCV's T (the board's square unit), DLT and 3x4 worlds "
+                   "[default: a StereoMorph calibration file's square unit, else mm].")
 @click.option("--image-size", callback=_size_option, metavar="WxH",
               help="Frame size the calibration was made for (overrides the file's).")
 @click.option("--pixel-origin", type=click.Choice(["zero", "corner", "one"]), default="zero", show_default=True,
@@ -281,6 +285,15 @@ def import_(inputs, out, fmt, units, image_size, pixel_origin, y_up):
     text = None if fmt == "opencv" or Path(first).suffix.lower() in (".yml", ".yaml", ".xml") \
         else _read_text(first)
     kind = _detect(first, text) if fmt == "auto" else fmt
+    stereomorph = None
+    if kind in ("table", "stereomorph") and is_stereomorph_file(text):
+        stereomorph = read_stereomorph(first, text, tuple(UNITS_MM))
+        kind = "stereomorph"
+        if units and stereomorph.units and units != stereomorph.units:
+            raise BadInput(first, "--units", f"{units}, where the file's sq.size says {stereomorph.units}")
+        units = units or stereomorph.units
+        image_size = image_size or stereomorph.image_size
+    units = units or "mm"
     if kind != "opencv" and len(paths) > 1:
         raise BadInput(paths[1], "--in", "only OpenCV files may be given in parts")
     if kind == "opencv" and (pixel_origin != "zero" or y_up):
@@ -308,6 +321,10 @@ def import_(inputs, out, fmt, units, image_size, pixel_origin, y_up):
                 height = size[1] if size else None
                 pixel = ci.pixel_transform(pixel_origin, y_up, height)
                 calib = ci.from_projections(P1, P2, mm_per_unit=mm, pixel=pixel, image_size=size, extra=extra)
+            elif stereomorph is not None:
+                calib = ci.from_dlt11(stereomorph.coefficients, mm_per_unit=mm,
+                                      pixel=ci.pixel_transform(pixel_origin, y_up, height),
+                                      image_size=image_size, extra=extra)
             else:
                 rows = _strip_row_index(_numbers_table(first, text))
                 pixel = ci.pixel_transform(pixel_origin, y_up, height)

@@ -182,6 +182,86 @@ def test_stereomorph_one_based_pixels(tmp_path):
     assert_reconstructs(out, WORLD, rig=PLAIN, atol=1e-4)
 
 
+def _xml4r_matrix(name: str, values, cols=None, rows=None) -> str:
+    """An R matrix as StereoMorph's list2XML4R writes it: tab-indented, names optional."""
+    values = np.asarray(values)
+    head = (f"\t<{name} type=matrix rownames={'TRUE' if rows else 'FALSE'} colnames={'TRUE' if cols else 'FALSE'} "
+            f"nrow={values.shape[0]} ncol={values.shape[1]} as.numeric=TRUE >")
+    lines = ["\t\t" + ("\t" if rows else "") + "\t".join(cols)] if cols else []
+    for i, row in enumerate(values):
+        lines.append("\t\t" + (f"{rows[i]}\t" if rows else "") + "\t".join(repr(float(v)) for v in row))
+    return "\n".join([head, *lines, f"\t</{name}>"])
+
+
+def write_stereomorph_calibration(path: Path, coeff: np.ndarray, *, square: str = "2.5 cm",
+                                  sizes=((1280, 960), (1280, 960)), extra: str = "") -> None:
+    """StereoMorph's calibrateCameras output (calibration.txt): XML4R elements, most of them of no
+    use to a DLT import (corner counts, file names, errors), the coefficients among them."""
+    views = ["cam_L", "cam_R", "cam_T"][:coeff.shape[1]]
+    path.write_text("\n".join([
+        "<calibration type=list>",
+        "\t<img.type type=vector names=FALSE length=1 as.numeric=FALSE >video</img.type>",
+        _xml4r_matrix("img.size", sizes, cols=["w", "h"], rows=views[:len(sizes)]),
+        "\t<img.fpaths type=vector names=FALSE length=2 as.numeric=FALSE >",
+        "\t\tcal/cam_L.mp4", "\t\tcal/cam_R.mp4", "\t</img.fpaths>",
+        f"\t<sq.size type=vector names=FALSE length=1 as.numeric=FALSE >{square}</sq.size>",
+        "\t<nx type=vector names=FALSE length=1 as.numeric=TRUE >9</nx>",
+        _xml4r_matrix("cal.coeff", coeff, cols=views),
+        "\t<mean.reconstruct.rmse type=vector names=FALSE length=1 as.numeric=TRUE >0.84</mean.reconstruct.rmse>",
+        "\t<coefficient.rmse type=vector names=FALSE length=2 as.numeric=TRUE >", "\t\t1.7", "\t\t1.4",
+        "\t</coefficient.rmse>", extra, "</calibration>", ""]), encoding="utf-8")
+
+
+@pytest.mark.parametrize("square, units_per_mm", [("2.5 cm", 0.1), ("52.45 mm", 1.0), ("0.03 m", 0.001)])
+def test_stereomorphs_own_calibration_file_with_its_unit_and_image_size(tmp_path, square, units_per_mm):
+    src = tmp_path / "calibration.txt"
+    write_stereomorph_calibration(src, _dlt_columns(units_per_mm=units_per_mm), square=square)
+    out = tmp_path / "CALIB.json"
+    code, stdout, err = run("--in", str(src), "--out", str(out))
+    assert code == 0, err
+    assert "as stereomorph" in stdout and "image size: 1280x960" in stdout
+    assert_reconstructs(out, WORLD, rig=PLAIN, atol=1e-4)              # the square's unit: the world's
+    saved = json.loads(out.read_text())
+    assert saved["image_size"] == [1280, 960] and saved["units"] == square.split()[1]
+    # the same unit given: taken; another: refused (the file says what it is)
+    assert run("--in", str(src), "--out", str(out), "--units", square.split()[1])[0] == 0
+    other = "in" if square.split()[1] != "in" else "mm"
+    assert_bad(["--in", str(src), "--out", str(out), "--units", other], "calibration.txt", "--units",
+               f"sq.size says {square.split()[1]}")
+
+
+@pytest.mark.parametrize("change, field, fault", [
+    (dict(extra="\t<undistort.params type=matrix rownames=FALSE colnames=FALSE nrow=1 ncol=1 as.numeric=TRUE >"
+                 "\n\t\t0.1\n\t</undistort.params>"), "undistort.params", "undistort = FALSE"),
+    (dict(sizes=((1280, 960), (1920, 1080))), "img.size", "the views differ (cam_L 1280x960, cam_R 1920x1080)"),
+    (dict(square="3 ft"), "sq.size", "unit 'ft' is not one of"),
+    (dict(coeff3=True), "cal.coeff", "3 views (cam_L, cam_R, cam_T)"),
+    (dict(short=True), "cal.coeff", "10 rows: expected the 11 DLT coefficients"),
+    (dict(nan=True), "cal.coeff", "finite"),
+])
+def test_a_stereomorph_calibration_file_it_cannot_use_is_refused_by_field(tmp_path, change, field, fault):
+    coeff = _dlt_columns()
+    if change.pop("coeff3", False):
+        coeff = np.column_stack([coeff, coeff[:, 0]])
+    if change.pop("short", False):
+        coeff = coeff[:10]
+    if change.pop("nan", False):
+        coeff = coeff.copy()
+        coeff[3, 1] = np.nan
+    src = tmp_path / "calibration.txt"
+    write_stereomorph_calibration(src, coeff, **change)
+    out = tmp_path / "CALIB.json"
+    assert_bad(["--in", str(src), "--out", str(out)], "calibration.txt", field, fault)
+    assert not out.exists()
+
+
+def test_a_stereomorph_calibration_not_finished_names_what_is_missing(tmp_path):
+    src = tmp_path / "calibration.txt"
+    src.write_text("<calibration type=list>\n\t<nx type=vector names=FALSE length=1 as.numeric=TRUE >9</nx>\n"
+                   "</calibration>\n", encoding="utf-8")
+    assert_bad(["--in", str(src), "--out", str(tmp_path / "c.json")], "calibration.txt", "cal.coeff", "missing")
+
+
 @pytest.mark.parametrize("style", ["text", "json"])
 def test_plain_3x4_pair(tmp_path, style):
     if style == "text":
