@@ -36,7 +36,7 @@ def _up(text: str | None) -> tuple[float, float, float] | None:
     return (v[0] / norm, v[1] / norm, v[2] / norm)
 
 
-def _source(pairs, rgs, directory, video, rg_video, every, max_frames):
+def _source(pairs, rgs, directory, video, rg_video, every, max_frames, sync_offset=0):
     """The survey's frames, and every file they are read from (a directory listed once)."""
     from controller.surveys import frames
     given = [name for name, v in (("--pair", pairs), ("--rg", rgs), ("--dir", directory), ("--video", video),
@@ -45,9 +45,11 @@ def _source(pairs, rgs, directory, video, rg_video, every, max_frames):
         got = f" (got {', '.join(given)})" if given else ""
         raise click.UsageError("give exactly one input: --pair L R (repeatable), --rg FRAME (repeatable), "
                                f"--dir DIR, --video L R or --rg-video F{got}")
+    if sync_offset and not video:
+        raise BadInput("--sync-offset", None, "is for two videos (--video LEFT RIGHT)")
     if video or rg_video:
         paths = tuple(video) if video else (rg_video,)
-        return frames.video_source(paths, every, max_frames), list(paths)
+        return frames.video_source(paths, every, max_frames, sync_offset), list(paths)
     items = [tuple(p) for p in pairs] or [(p,) for p in rgs] or frames.directory_items(directory)
     return frames.still_source(items, every, max_frames), [f for item in items for f in item]
 
@@ -155,6 +157,8 @@ def _remote(endpoint: str, site: str, user: str | None, password: str | None):
 @click.option("--dir", "directory", metavar="DIR", help="*_L.*/*_R.* pairs or *.png RG frames, sorted")
 @click.option("--video", nargs=2, metavar="LEFT RIGHT", default=None, help="two synchronised video files")
 @click.option("--rg-video", metavar="FILE", help="one RG video")
+@click.option("--sync-offset", type=int, default=0, metavar="N",
+              help="--video: the right video's frame k + N shows the left's frame k (N < 0: the left started later)")
 @click.option("--every", type=click.IntRange(min=1), default=1, show_default=True, help="survey every N-th frame")
 @click.option("--max-frames", type=click.IntRange(min=1), default=None, help="survey at most M pairs")
 @click.option("--json", "json_path", required=True, metavar="OUT.json")
@@ -171,8 +175,9 @@ def _remote(endpoint: str, site: str, user: str | None, password: str | None):
 @click.option("--password", default=None, help="its Zenoh password")
 @click.option("--seed", type=click.IntRange(min=0), default=1, show_default=True, help="seed of the bootstrap interval")
 @click.option("--measure", default=None, hidden=True, help="module:function measuring a pair (tests)")
-def survey(calib_path, species, setup, pairs, rgs, directory, video, rg_video, every, max_frames, json_path,
-           plot_path, csv_path, config_path, stock, tank_id, up, workers, site, user, password, seed, measure):
+def survey(calib_path, species, setup, pairs, rgs, directory, video, rg_video, sync_offset, every, max_frames,
+           json_path, plot_path, csv_path, config_path, stock, tank_id, up, workers, site, user, password, seed,
+           measure):
     """Fish lengths and weights from stereo pairs, with the survey's statistics."""
     from controller.cli.calib_io import load_calibration
     from controller.cli.output_paths import check_outputs
@@ -189,7 +194,7 @@ def survey(calib_path, species, setup, pairs, rgs, directory, video, rg_video, e
     record = _recorder(config_path, tank_id, species, json_path) if tank_id else None
     calib = load_calibration(calib_path)
     up_world = _up(up)
-    source, files = _source(pairs, rgs, directory, video, rg_video, every, max_frames)
+    source, files = _source(pairs, rgs, directory, video, rg_video, every, max_frames, sync_offset)
     # (the page is written by renaming a new file into place: its directory is what must be writable)
     check_outputs({"--json": json_path, "--csv": csv_path, "--plot": plot_path},
                   [calib_path, config_path, getattr(record, "ledger", None), *files])

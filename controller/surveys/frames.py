@@ -241,8 +241,13 @@ def _frame_count(cap: cv2.VideoCapture) -> int | None:
     return n if n > 0 else None
 
 
-def video_source(paths: tuple[str, ...], every: int = 1, max_frames: int | None = None) -> Source:
-    """Two synchronised videos (left, right) or one RG video (a 1-tuple), decoded in order."""
+def video_source(paths: tuple[str, ...], every: int = 1, max_frames: int | None = None,
+                 sync_offset: int = 0) -> Source:
+    """Two synchronised videos (left, right) or one RG video (a 1-tuple), decoded in order.
+    ``sync_offset`` N: the right video's frame k + N shows the left's frame k (cameras started
+    apart; N < 0: the left started later). Frames are numbered as the left video's."""
+    if sync_offset and len(paths) != 2:
+        raise BadInput("--sync-offset", None, "is for two videos (--video LEFT RIGHT)")
     caps = [_open_video(p) for p in paths]
     rates = [float(c.get(cv2.CAP_PROP_FPS) or 0.0) for c in caps]
     if len(caps) == 2 and min(rates) > 0 and abs(rates[1] - rates[0]) > 0.01 * rates[0]:
@@ -252,39 +257,58 @@ def video_source(paths: tuple[str, ...], every: int = 1, max_frames: int | None 
         raise BadInput(paths[1], None, f"{rates[1]:g} frames/s, but {paths[0]} is {rates[0]:g}: "
                                        "not synchronised frame by frame")
     fps = rates[0] or 25.0
+    skips = [max(0, -sync_offset), max(0, sync_offset)][:len(caps)]
     counts = [_frame_count(c) for c in caps]
-    known = [c for c in counts if c is not None]
+    for cap, path, skip in zip(caps, paths, skips, strict=True):
+        _skip(caps, cap, path, skip)
+    known = [c - skip for c, skip in zip(counts, skips, strict=True) if c is not None]
     total = None
     if len(known) == len(caps):
-        total = -(-min(known) // every)
+        total = -(-max(0, min(known)) // every)
         if max_frames is not None:
             total = min(total, max_frames)
-    return Source(_video_jobs(caps, paths, every, max_frames), total, fps, every=every)
+    return Source(_video_jobs(caps, paths, every, max_frames, first=skips[0], offset=sync_offset), total, fps,
+                  every=every)
+
+
+def _skip(caps: list[cv2.VideoCapture], cap: cv2.VideoCapture, path: str, frames: int) -> None:
+    """Pass over the first ``frames`` of a video (--sync-offset); one that has fewer is refused."""
+    for k in range(frames):
+        if not cap.grab():
+            for c in caps:
+                c.release()
+            raise BadInput(path, "--sync-offset", f"skips {frames} frames, but the video has {k}")
 
 
 def _video_jobs(caps: list[cv2.VideoCapture], paths: tuple[str, ...], every: int,
-                max_frames: int | None) -> Iterator[PairJob]:
+                max_frames: int | None, first: int = 0, offset: int = 0) -> Iterator[PairJob]:
+    """Pairs from the left video's frame ``first`` on (numbered as the left's), the right's frame
+    ``offset`` ahead of it."""
     name = " + ".join(paths)
-    i = done = 0
+    i, done = first, 0
     try:
         while max_frames is None or done < max_frames:
             t0 = time.perf_counter()
-            keep = i % every == 0
+            keep = (i - first) % every == 0
             # grab() skips the colour conversion of frames --every leaves out
             got = [c.read()[1] if keep else (True if c.grab() else None) for c in caps]
             ended = [g is None or g is False for g in got]
             if all(ended):
-                if i == 0:
-                    raise BadInput(paths[0], None, "no frames")
+                if i == first:
+                    raise BadInput(paths[0], None, "no frames" + (" after --sync-offset" if first else ""))
                 if max_frames is not None:
                     raise BadInput(name, "--max-frames", f"the video ends after {i} frames ({done} pairs), "
                                                          f"before --max-frames {max_frames}")
                 return
             if any(ended):
-                short = paths[ended.index(True)]
-                other = paths[ended.index(False)]
-                raise BadInput(short, None, f"ends at frame {i}, but {other} goes on: the videos are not "
-                                            "the same length (not synchronised?)")
+                k = ended.index(True)
+                own = i + (offset if k == 1 else 0)             # the frame in that video's own count
+                if own == max(0, -offset if k == 0 else offset):
+                    raise BadInput(paths[k], None, "no frames" + (" after --sync-offset" if offset else ""))
+                overlap = f"; --max-frames {done} surveys the pairs both hold" if done else ""
+                raise BadInput(paths[k], None, f"ends at frame {own}, but {paths[1 - k]} goes on: the videos are "
+                                               f"not the same length (not synchronised? --sync-offset N pairs the "
+                                               f"right's frame k + N with the left's k{overlap})")
             if keep:
                 if len(caps) == 1:
                     left, right, _ = split_rg(got[0], f"{paths[0]} frame {i}")

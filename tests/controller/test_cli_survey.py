@@ -122,6 +122,13 @@ def test_out_of_range_options_exit_2_naming_the_option(farm, option, value):
     one_line_exit_2(r, option, value)
 
 
+def test_a_sync_offset_for_anything_but_two_videos_exits_2(farm):
+    d, _ = farm
+    r = run(*common(d, "--dir", d / "pairs", "--json", d / "x.json", "--sync-offset", "2"))
+    one_line_exit_2(r, "--sync-offset", "is for two videos (--video LEFT RIGHT)")
+    assert not (d / "x.json").exists()
+
+
 def test_pairs_of_different_sizes(farm, tmp_path):
     d, _ = farm
     small = tmp_path / "small.png"

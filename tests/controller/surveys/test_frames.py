@@ -142,12 +142,14 @@ def test_directory_pairs_named_l_r_in_lower_case_and_two_images_for_one_side_ref
         directory_items(str(tmp_path))
 
 
-def make_video(path: Path, frames: int, size=(64, 48), rg=False, fps=25.0) -> str:
+def make_video(path: Path, frames: int, size=(64, 48), rg=False, fps=25.0, started=0) -> str:
+    """A video whose frame i shows the moment i + ``started`` (its level, 8 a moment: a camera started
+    ``started`` frames late shows the moment 0 at its frame -started)."""
     out = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"MJPG"), fps, size)
     assert out.isOpened()
     for i in range(frames):
         img = np.zeros((size[1], size[0], 3), np.uint8)
-        img[:, :, 2 if rg else 1] = 8 * i        # frame number readable back from the picture
+        img[:, :, 2 if rg else 1] = 8 * (i + started)       # the moment, readable back from the picture
         img[:, :, 1 if rg else 2] = 100
         out.write(img)
     out.release()
@@ -183,6 +185,34 @@ def test_a_video_that_ends_early_is_named(tmp_path):
     with pytest.raises(BadInput, match=r"rg.avi: --max-frames: the video ends after 12 frames \(6 pairs\), "
                                        r"before --max-frames 7"):
         list(video_source((rg,), every=2, max_frames=7).jobs)
+
+
+@pytest.mark.parametrize("offset", [3, -4])
+def test_sync_offset_pairs_the_same_moments_numbered_as_the_left_video(tmp_path, offset):
+    # the right camera started `offset` frames before the left (its frame k + offset = the left's k);
+    # negative: the left one started first
+    left = make_video(tmp_path / "l.avi", 24, started=4)
+    right = make_video(tmp_path / "r.avi", 24 + offset, started=4 - offset)
+    src = video_source((left, right), every=2, sync_offset=offset)
+    jobs = list(src.jobs)
+    first = max(0, -offset)
+    assert [j.frame for j in jobs] == list(range(first, 24, 2)) and src.total == len(jobs)
+    moments = [level(j.left[..., 1]) / 8 - 4 for j in jobs]
+    assert moments == pytest.approx([j.frame for j in jobs], abs=0.4)                  # the left's own frames
+    assert [level(j.right[..., 1]) for j in jobs] == pytest.approx([level(j.left[..., 1]) for j in jobs], abs=3)
+    # without it the pairs are two moments apart, and the lengths differ: named, the remedy with it
+    with pytest.raises(BadInput, match=r"ends at frame \d+, but .* goes on: .*--sync-offset N .*--max-frames \d+"):
+        list(video_source((left, right)).jobs)
+
+
+def test_a_sync_offset_beyond_a_video_or_for_stills_is_refused(tmp_path):
+    left, right = make_video(tmp_path / "l.avi", 6), make_video(tmp_path / "r.avi", 6)
+    with pytest.raises(BadInput, match=r"r.avi: --sync-offset: skips 9 frames, but the video has 6"):
+        video_source((left, right), sync_offset=9)
+    with pytest.raises(BadInput, match=r"l.avi: no frames after --sync-offset"):
+        list(video_source((left, right), sync_offset=-6).jobs)
+    with pytest.raises(BadInput, match=r"--sync-offset: is for two videos"):
+        video_source((make_video(tmp_path / "rg.avi", 4, rg=True),), sync_offset=1)
 
 
 @pytest.mark.parametrize("fps_right, refused", [(10.0, True), (24.0, True), (26.0, True), (25.0, False),
