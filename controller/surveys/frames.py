@@ -189,15 +189,23 @@ def still_source(items: list[tuple[str, ...]], every: int = 1, max_frames: int |
 _SIDE = re.compile(r"^(?P<stem>.*)_(?P<side>[LRlr])$")     # _l / _r too: a common naming
 
 
+_SIDE_DIR = re.compile(r"^(?:.*[_\-. ])?(?P<side>l|r|left|right)$", re.IGNORECASE)
+
+
 def directory_items(directory: str) -> list[tuple[str, ...]]:
     """``*_L.*`` / ``*_R.*`` pairs (``_l`` / ``_r`` too) in sorted order, or else every ``*.png`` as
-    an RG frame."""
+    an RG frame; a directory without images, two folders of one view each (``*_L`` / ``*_R``,
+    ``left`` / ``right``: StereoMorph's layout), their images paired by name."""
     d = Path(directory)
     if not d.exists():
         raise BadInput(directory, None, "no such directory")
     if not d.is_dir():
         raise BadInput(directory, None, "not a directory")
     files = sorted(p for p in d.iterdir() if p.is_file() and p.suffix.lower() in IMAGE_SUFFIXES)
+    if not files:
+        views = _view_folders(d)
+        if views is not None:
+            return _folder_pairs(*views)
     sides: dict[str, dict[str, Path]] = {}
     for p in files:
         m = _SIDE.match(p.stem)
@@ -219,8 +227,45 @@ def directory_items(directory: str) -> list[tuple[str, ...]]:
         return items
     rg = [(str(p),) for p in files if p.suffix.lower() == ".png"]
     if not rg:
-        raise BadInput(directory, None, "no pairs (*_L.* with *_R.*) and no *.png RG frames")
+        raise BadInput(directory, None, "no pairs (*_L.* with *_R.*, or folders *_L and *_R) and no *.png RG frames")
     return rg
+
+
+def _view_folders(d: Path) -> tuple[Path, Path] | None:
+    """The left and right views' folders in ``d``; None when it holds none."""
+    found: dict[str, Path] = {}
+    for sub in sorted(p for p in d.iterdir() if p.is_dir()):
+        m = _SIDE_DIR.match(sub.name)
+        if m:
+            side = m["side"][0].upper()
+            if side in found:
+                raise BadInput(str(sub), None, f"a second {'left' if side == 'L' else 'right'} view's folder, "
+                                               f"beside {found[side].name}")
+            found[side] = sub
+    if len(found) == 1:
+        [(side, only)] = found.items()
+        raise BadInput(str(only), None, f"no {'right' if side == 'L' else 'left'} view's folder beside it")
+    return (found["L"], found["R"]) if found else None
+
+
+def _folder_pairs(left: Path, right: Path) -> list[tuple[str, ...]]:
+    """The two views' images paired by name (``008428.jpeg`` in each), in sorted order."""
+    views = []
+    for folder in (left, right):
+        named: dict[str, Path] = {}
+        for p in sorted(q for q in folder.iterdir() if q.is_file() and q.suffix.lower() in IMAGE_SUFFIXES):
+            if p.stem in named:
+                raise BadInput(str(p), None, f"a second image for '{p.stem}', beside {named[p.stem].name}")
+            named[p.stem] = p
+        views.append(named)
+    for (have, folder), other in (((views[0], right), views[1]), ((views[1], left), views[0])):
+        lone = sorted(set(have) - set(other))
+        if lone:
+            raise BadInput(str(have[lone[0]]), None, f"no image named {lone[0]}.* in {folder} to pair it with"
+                                                     + (f" ({len(lone) - 1} more alone)" if len(lone) > 1 else ""))
+    if not views[0]:
+        raise BadInput(str(left), None, "no images")
+    return [(str(views[0][k]), str(views[1][k])) for k in sorted(views[0])]
 
 
 # ---- video -----------------------------------------------------------------------------------

@@ -142,6 +142,46 @@ def test_directory_pairs_named_l_r_in_lower_case_and_two_images_for_one_side_ref
         directory_items(str(tmp_path))
 
 
+@pytest.mark.parametrize("left, right", [("H7_L", "H7_R"), ("left", "right"), ("L", "R"), ("cam 1-l", "cam 1-r")])
+def test_a_directory_of_two_view_folders_pairs_their_images_by_name(tmp_path, left, right):
+    # StereoMorph's layout: Images/H7_L/008428.jpeg beside Images/H7_R/008428.jpeg
+    for folder in (left, right):
+        for name in ("008430.jpeg", "008428.jpeg", "008610.png"):
+            (tmp_path / folder).mkdir(exist_ok=True)
+            write(tmp_path / folder / name, grey())
+    (tmp_path / left / "notes.txt").write_text("digitized by A.B.")
+    (tmp_path / "H7_Shapes_2D").mkdir()                         # another folder of the project: not a view
+    items = directory_items(str(tmp_path))
+    assert [tuple(Path(p).relative_to(tmp_path).as_posix() for p in item) for item in items] == [
+        (f"{left}/{n}", f"{right}/{n}") for n in ("008428.jpeg", "008430.jpeg", "008610.png")]
+
+
+def test_images_beside_view_folders_are_what_is_surveyed(tmp_path):
+    (tmp_path / "H7_L").mkdir()
+    write(tmp_path / "H7_L" / "1.png", grey())
+    write(tmp_path / "a_L.png", grey())
+    write(tmp_path / "a_R.png", grey())
+    assert [tuple(Path(p).name for p in item) for item in directory_items(str(tmp_path))] == [("a_L.png", "a_R.png")]
+
+
+@pytest.mark.parametrize("layout, fault", [
+    ({"H7_L": ["1.jpg", "2.jpg"], "H7_R": ["1.jpg"]}, r"H7_L/2\.jpg: no image named 2\.\* in .*H7_R to pair it with$"),
+    ({"H7_L": ["1.jpg"], "H7_R": ["1.jpg", "3.jpg", "4.jpg"]},
+     r"H7_R/3\.jpg: no image named 3\.\* in .*H7_L to pair it with \(1 more alone\)$"),
+    ({"H7_L": ["1.jpg"]}, r"H7_L: no right view's folder beside it$"),
+    ({"H7_L": ["1.jpg"], "left": ["1.jpg"], "H7_R": ["1.jpg"]}, r"left: a second left view's folder, beside H7_L$"),
+    ({"H7_L": ["1.jpg", "1.png"], "H7_R": ["1.jpg"]}, r"H7_L/1\.png: a second image for '1', beside 1\.jpg$"),
+    ({"H7_L": [], "H7_R": []}, r"H7_L: no images$"),
+])
+def test_view_folders_that_do_not_pair_are_named(tmp_path, layout, fault):
+    for folder, names in layout.items():
+        (tmp_path / folder).mkdir()
+        for name in names:
+            write(tmp_path / folder / name, grey())
+    with pytest.raises(BadInput, match=fault):
+        directory_items(str(tmp_path))
+
+
 def make_video(path: Path, frames: int, size=(64, 48), rg=False, fps=25.0, started=0) -> str:
     """A video whose frame i shows the moment i + ``started`` (its level, 8 a moment: a camera started
     ``started`` frames late shows the moment 0 at its frame -started)."""
