@@ -73,7 +73,7 @@ def read_frames(folder: str) -> list[tuple[int, float, Path, int]]:
         raise BadInput(where, None, f"empty file (expected header '{','.join(HEADER)}')")
     if tuple(c.strip() for c in header) != HEADER:
         raise BadInput(where, "header", f"expected '{','.join(HEADER)}', found '{','.join(header)}'")
-    rows, prev = [], -math.inf
+    rows, prev, seen = [], -math.inf, {}
     for lineno, cells in enumerate(reader, start=2):
         if not "".join(cells).strip():
             continue
@@ -82,6 +82,9 @@ def read_frames(folder: str) -> list[tuple[int, float, Path, int]]:
         frame = number(cells[0], where, lineno, "frame")
         if frame != int(frame) or frame < 0:
             raise BadInput(where, f"line {lineno}, column frame", f"not a frame number: {cells[0].strip()!r}")
+        if int(frame) in seen:          # OUT.json names each entry by its frame: two would be one
+            raise BadInput(where, f"line {lineno}, column frame", f"frame {int(frame)} again (line {seen[int(frame)]})")
+        seen[int(frame)] = lineno
         t = number(cells[1], where, lineno, "t_s")
         if t < prev:
             raise BadInput(where, f"line {lineno}, column t_s",

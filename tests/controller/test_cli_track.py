@@ -125,6 +125,8 @@ def test_missing_tower_file_and_folder(capsys, clip, tmp_path):
     ("frame,t_s,file\n0,1.0,f000.png\n1,0.5,f001.png\n", "line 3, column t_s: 0.5 is earlier than the row before"),
     ("frame,t_s,file\n0,0.0,f000.png\n1,0.1\n", "line 3: 2 fields, expected 3"),
     ("frame,t_s,file\n0,0.0,f000.png\n1,0.1, \n", "line 3, column file: empty"),
+    ("frame,t_s,file\n7,0.0,f000.png\n8,0.1,f001.png\n7,0.2,f001.png\n",
+     "line 4, column frame: frame 7 again (line 2)"),
 ])
 def test_a_malformed_frames_csv_is_named_by_line_and_column(capsys, clip, tmp_path, body, fault):
     d = tmp_path / "clip"
