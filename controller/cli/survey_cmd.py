@@ -154,7 +154,8 @@ def _remote(endpoint: str, site: str, user: str | None, password: str | None):
 @click.option("--setup", required=True, type=click.Choice(["underwater", "surface"]))
 @click.option("--pair", "pairs", nargs=2, multiple=True, metavar="LEFT RIGHT", help="a stereo pair (repeatable)")
 @click.option("--rg", "rgs", multiple=True, metavar="FRAME", help="an RG frame: left in red, right in green")
-@click.option("--dir", "directory", metavar="DIR", help="*_L.*/*_R.* pairs or *.png RG frames, sorted")
+@click.option("--dir", "directory", metavar="DIR",
+              help="*_L.*/*_R.* pairs, *.png RG frames, or folders *_L/*_R of images paired by name")
 @click.option("--video", nargs=2, metavar="LEFT RIGHT", default=None, help="two synchronised video files")
 @click.option("--rg-video", metavar="FILE", help="one RG video")
 @click.option("--sync-offset", type=int, default=0, metavar="N",
