@@ -151,7 +151,7 @@ TABLE: tuple[Row, ...] = (
     Row("tank", "sgr_pct_day", IR, 18, "i16", 0.01, "%/day", "R", "specific growth rate between the last two "
         "surveys", _t("sgr_pct_day")),
     Row("tank", "fcr", IR, 19, "u16", 0.01, "", "R", "feed conversion ratio between the last two surveys "
-        "(feed / biomass gain)", _t("fcr")),
+        "(feed / biomass gain; the dead fish's growth counted: biological)", _t("fcr")),
     Row("tank", "feed_now_g", HR, 0, "u16", 1, "g", "W", "write grams: feed this tank now (feeding.min_portion_g "
         "to feeding.portion_g, else 03); reads 0", write=_FEED),
     Row("tank", "set_ration_g", HR, 1, "f32", 1, "g", "R/W", f"today's ration; write to set it (0 to {RATION_MAX_G:g}, "
@@ -174,7 +174,7 @@ TABLE: tuple[Row, ...] = (
     Row("growth", "sgr_fit_ci_pct_day", IR, 1, "u16", 0.01, "%/day", "R", "half-width of that SGR's 95 % interval",
         _t("sgr_fit_ci_pct_day")),
     Row("growth", "fcr_fit", IR, 2, "u16", 0.01, "", "R", "feed conversion ratio over the growth window "
-        "(feed / biomass gain)", _t("fcr_fit")),
+        "(feed / biomass gain; biological)", _t("fcr_fit")),
     Row("growth", "fcr_fit_low", IR, 3, "u16", 0.01, "", "R", "low end of that FCR's 95 % interval",
         lambda v: (v.tank.get("fcr_fit_ci") or [None, None])[0]),
     Row("growth", "fcr_fit_high", IR, 4, "u16", 0.01, "", "R", "high end of that FCR's 95 % interval (no value: "
@@ -182,6 +182,8 @@ TABLE: tuple[Row, ...] = (
     Row("growth", "weight_ci_pct", IR, 5, "u16", 0.1, "%", "R", "half-width of the 95 % interval of the mean "
         "weight the ration uses", _t("weight_ci_pct")),
     Row("growth", "fit_surveys", IR, 6, "u16", 1, "", "R", "surveys in the growth fit", _t("fit_surveys")),
+    Row("growth", "fcr_net_fit", IR, 7, "u16", 0.01, "", "R", "net feed conversion ratio over the growth window "
+        "(feed / the biomass gain the farm kept: the dead fish's left out)", _t("fcr_net_fit")),
 )
 
 # (base address, stride) of each block in each table; a block's rows sit at base + index * stride + offset

@@ -50,6 +50,7 @@ def random_status(rng: random.Random, tanks: list[str], slots: list[str]) -> dic
                           "sgr_fit_ci_pct_day": maybe(rng.randint(0, 500) / 100),
                           "fcr_fit": maybe(rng.randint(0, 600) / 100),
                           "fcr_fit_ci": maybe([rng.randint(0, 300) / 100, maybe(rng.randint(300, 900) / 100)]),
+                          "fcr_net_fit": maybe(rng.randint(0, 600) / 100),
                           "weight_ci_pct": maybe(rng.randint(0, 500) / 10), "fit_surveys": maybe(rng.randint(2, 9)),
                           # the water: hundredths of a degree, below freezing to a hot summer
                           "water_temp_c": maybe(rng.randint(-500, 4000) / 100),
@@ -98,7 +99,7 @@ def expected(row: dict, st: dict, tanks: list[str], word_order: str, read_only: 
                  "fcr_fit_low": hundredths((t["fcr_fit_ci"] or [None, None])[0]),
                  "fcr_fit_high": hundredths((t["fcr_fit_ci"] or [None, None])[1]),
                  "weight_ci_pct": None if t["weight_ci_pct"] is None else round(t["weight_ci_pct"] * 10),
-                 "fit_surveys": t["fit_surveys"]}[field]
+                 "fit_surveys": t["fit_surveys"], "fcr_net_fit": hundredths(t["fcr_net_fit"])}[field]
     elif a:
         slot, field = a.groups()
         mine = [x for x in st["alarms"] if in_slot(x, slot)]
