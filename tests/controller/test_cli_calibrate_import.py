@@ -255,6 +255,14 @@ def test_a_stereomorph_calibration_file_it_cannot_use_is_refused_by_field(tmp_pa
     assert not out.exists()
 
 
+def test_stereomorphs_calibration_file_read_as_another_format_names_it(tmp_path):
+    src = tmp_path / "calibration.txt"
+    write_stereomorph_calibration(src, _dlt_columns())
+    assert_bad(["--in", str(src), "--out", str(tmp_path / "c.json"), "--format", "p34"], "calibration.txt",
+               "--format", "StereoMorph's calibration file")
+    assert run("--in", str(src), "--out", str(tmp_path / "c.json"), "--format", "stereomorph")[0] == 0
+
+
 def test_a_stereomorph_calibration_not_finished_names_what_is_missing(tmp_path):
     src = tmp_path / "calibration.txt"
     src.write_text("<calibration type=list>\n\t<nx type=vector names=FALSE length=1 as.numeric=TRUE >9</nx>\n"
