@@ -7,22 +7,31 @@ import contextlib
 import os
 from collections.abc import Callable
 from pathlib import Path
+from typing import TextIO
 
 from controller.errors import BadInput
+
+
+def _beside(target: Path) -> Path:
+    # an ordinary open of this name, not mkstemp: the file gets the user's umask like any other
+    return target.with_name(f".{target.name}.{os.getpid()}.part")
+
+
+def _take_name(tmp: Path, target: Path) -> None:
+    if target.is_file():            # a file replaced keeps its permissions (a CALIB.json made private)
+        os.chmod(tmp, target.stat().st_mode & 0o7777)
+    os.replace(tmp, target)
 
 
 def replace_atomically(path: str | Path, write: Callable[[str], None]) -> None:
     """``write(tmp)`` fills a file beside ``path`` (same directory, so the rename is atomic), which
     then takes its name. OSError becomes BadInput naming ``path``."""
     target = Path(path)
-    # an ordinary open, not mkstemp: the file gets the user's umask like any other they write
-    tmp = target.with_name(f".{target.name}.{os.getpid()}.part")
+    tmp = _beside(target)
     try:
         target.parent.mkdir(parents=True, exist_ok=True)
         write(str(tmp))
-        if target.is_file():        # a file replaced keeps its permissions (a CALIB.json made private)
-            os.chmod(tmp, target.stat().st_mode & 0o7777)
-        os.replace(tmp, target)
+        _take_name(tmp, target)
     except OSError as exc:
         raise BadInput(str(path), None, f"cannot write: {exc.strerror or exc}") from None
     finally:
@@ -30,8 +39,16 @@ def replace_atomically(path: str | Path, write: Callable[[str], None]) -> None:
             tmp.unlink(missing_ok=True)
 
 
+def write_file_atomically(path: str | Path, fill: Callable[[TextIO], None]) -> None:
+    """``fill(fh)`` writes the text of ``path`` (UTF-8, newlines as written) into the file beside it."""
+    def write(tmp: str) -> None:
+        with open(tmp, "w", encoding="utf-8", newline="") as fh:
+            fill(fh)
+    replace_atomically(path, write)
+
+
 def write_text_atomically(path: str | Path, text: str) -> None:
-    replace_atomically(path, lambda tmp: Path(tmp).write_text(text, encoding="utf-8"))
+    write_file_atomically(path, lambda fh: fh.write(text))
 
 
 class PendingFile:
@@ -42,7 +59,7 @@ class PendingFile:
 
     def __init__(self, path: str | Path, what: str):
         self.path = Path(path)
-        self.tmp = self.path.with_name(f".{self.path.name}.{os.getpid()}.part")
+        self.tmp = _beside(self.path)
         try:
             self.path.parent.mkdir(parents=True, exist_ok=True)
             self.file = open(self.tmp, "w", encoding="utf-8", newline="")
@@ -54,9 +71,7 @@ class PendingFile:
             return
         self.file.close()
         try:
-            if self.path.is_file():
-                os.chmod(self.tmp, self.path.stat().st_mode & 0o7777)
-            os.replace(self.tmp, self.path)
+            _take_name(self.tmp, self.path)
         except OSError as exc:
             self.discard()
             raise BadInput(str(self.path), None, f"cannot write: {exc.strerror or exc}") from None

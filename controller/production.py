@@ -90,10 +90,9 @@ def interval(p1: SurveyPoint, p2: SurveyPoint, feed_g: float, events, tank: str)
     if days <= 0:
         raise ValueError("the second survey must come after the first")
     sgr = 100.0 * (math.log(p2.mean_weight_g) - math.log(p1.mean_weight_g)) / days
-    between = [e for e in events if p1.t < e["t"] <= p2.t]
-    moved = sum(fish_out(e, tank) * weight_at(e["t"], p1, p2) for e in between)
-    gain = p2.stock * p2.mean_weight_g - p1.stock * p1.mean_weight_g + moved
-    died = sum(fish_out(e, tank) * weight_at(e["t"], p1, p2) for e in between if e["kind"] == "mortality")
+    moved = [(e["kind"], fish_out(e, tank) * weight_at(e["t"], p1, p2)) for e in events if p1.t < e["t"] <= p2.t]
+    gain = p2.stock * p2.mean_weight_g - p1.stock * p1.mean_weight_g + sum(g for _, g in moved)
+    died = sum(g for kind, g in moved if kind == "mortality")
     net = net_conversion(feed_g, gain, died)
     return Interval(p1.t, p2.t, days, sgr, feed_g, gain, feed_g / gain if gain > 0 else None, net["fcr_net"], died)
 

@@ -286,10 +286,10 @@ def import_(inputs, out, fmt, units, image_size, pixel_origin, y_up):
         else _read_text(first)
     kind = _detect(first, text) if fmt == "auto" else fmt
     stereomorph = None
-    if kind == "p34" and is_stereomorph_file(text):
-        raise BadInput(first, "--format", "p34, but this is StereoMorph's calibration file: "
-                                          "--format stereomorph or auto")
-    if kind in ("table", "stereomorph") and is_stereomorph_file(text):
+    if kind in ("table", "stereomorph", "p34") and is_stereomorph_file(text):
+        if kind == "p34":
+            raise BadInput(first, "--format", "p34, but this is StereoMorph's calibration file: "
+                                              "--format stereomorph or auto")
         stereomorph = read_stereomorph(first, text, tuple(UNITS_MM))
         kind = "stereomorph"
         if units and stereomorph.units and units != stereomorph.units:

@@ -16,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
-from controller.atomic_files import replace_atomically
+from controller.atomic_files import write_file_atomically
 from controller.errors import BadInput
 
 
@@ -98,10 +98,7 @@ def write_table(path: str | Path | None, header: Sequence[str], data: np.ndarray
             devnull = os.open(os.devnull, os.O_WRONLY)
             os.dup2(devnull, sys.stdout.fileno())
         return
-    def write(tmp: str) -> None:
-        with open(tmp, "w", encoding="utf-8", newline="") as fh:
-            _write(fh, header, data, fmt)
-    replace_atomically(path, write)
+    write_file_atomically(path, lambda fh: _write(fh, header, data, fmt))
 
 
 def _write(fh, header: Sequence[str], data: np.ndarray, fmt: str) -> None:

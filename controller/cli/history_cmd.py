@@ -45,19 +45,15 @@ def history(tank_id, what, since, until, csv_path, config_path) -> None:
         columns, rows, truncated = rows_of(store, what, tank_id, start, end)
     finally:
         store.close()
+
     def write(out) -> None:
         writer = csv.writer(out)
         writer.writerow(columns)
         writer.writerows(rows)
-    if csv_path:
-        from controller.atomic_files import replace_atomically
-
-        def to_file(tmp: str) -> None:
-            with open(tmp, "w", newline="", encoding="utf-8") as fh:
-                write(fh)
-        replace_atomically(csv_path, to_file)
-    else:
+    if not csv_path:
         write(sys.stdout)
-    if csv_path:
+    else:
+        from controller.atomic_files import write_file_atomically
+        write_file_atomically(csv_path, write)
         more = " (the first of more: narrow the range)" if truncated else ""
         click.echo(f"{len(rows)} rows{more}: {csv_path}", err=True)

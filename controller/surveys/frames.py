@@ -338,9 +338,9 @@ def _video_jobs(caps: list[cv2.VideoCapture], paths: tuple[str, ...], every: int
             # grab() skips the colour conversion of frames --every leaves out
             got = [c.read()[1] if keep else (True if c.grab() else None) for c in caps]
             ended = [g is None or g is False for g in got]
+            if any(ended) and i == first:      # (whichever ended had none past --sync-offset's skip)
+                raise BadInput(paths[ended.index(True)], None, "no frames" + (" after --sync-offset" if offset else ""))
             if all(ended):
-                if i == first:
-                    raise BadInput(paths[0], None, "no frames" + (" after --sync-offset" if first else ""))
                 if max_frames is not None:
                     raise BadInput(name, "--max-frames", f"the video ends after {i} frames ({done} pairs), "
                                                          f"before --max-frames {max_frames}")
@@ -348,8 +348,6 @@ def _video_jobs(caps: list[cv2.VideoCapture], paths: tuple[str, ...], every: int
             if any(ended):
                 k = ended.index(True)
                 own = i + (offset if k == 1 else 0)             # the frame in that video's own count
-                if own == max(0, -offset if k == 0 else offset):
-                    raise BadInput(paths[k], None, "no frames" + (" after --sync-offset" if offset else ""))
                 overlap = f"; --max-frames {done} surveys the pairs both hold" if done else ""
                 raise BadInput(paths[k], None, f"ends at frame {own}, but {paths[1 - k]} goes on: the videos are "
                                                f"not the same length (not synchronised? --sync-offset N pairs the "
