@@ -48,6 +48,8 @@ import tempfile  # noqa: E402
 import time  # noqa: E402
 from pathlib import Path  # noqa: E402
 
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))   # hil_tests: `make bench` runs the file
+
 import cv2  # noqa: E402
 import numpy as np  # noqa: E402
 
