@@ -82,6 +82,12 @@ but wrong reports 20 -> 29 (pooled precision 0.975 -> 0.965; 1920x1080 seeds 500
 lengths over 10 % off 4 -> 7). With the score refitted to it (seeds 300000-300999): 808 right,
 precision 0.962, 0.941 on 5000+; ``min_chance`` 0.875 there 0.938. Not adopted while it breaks
 the precision the packaged model holds on every set; kept as tools/models/fork_net_candidate.onnx.
+
+Each crop answered twice, as seen and mirrored across its axis (the logits averaged, the axis' turn
+mirrored back; 2026-12-04, not kept): correct reports / precision on the bench sets (seeds 0+ / 1000+)
+118 / 0.959 and 105 / 0.991 as packaged; mirrored in both locators 123 / 0.969 and 104 / 0.972, in
+the fork locator alone 121 / 0.976 and 100 / 0.990, in the snout locator alone 120 / 0.952 and 103 /
+0.972: no gain beyond the sets' sampling, for up to twice the nets' cost.
 """
 from __future__ import annotations
 
