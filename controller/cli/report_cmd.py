@@ -32,7 +32,9 @@ def _net(figures: dict) -> str:
 
 
 def text(report: dict) -> str:
-    lines = [f"{report['tank']} ({report['species']}): {len(report['surveys'])} surveys"]
+    empty = report.get("empty_surveys") or []
+    lines = [f"{report['tank']} ({report['species']}): {len(report['surveys'])} surveys"
+             + (f" that counted fish, {len(empty)} that counted none" if empty else "")]
     for s in report["surveys"]:
         lines.append(f"  survey {s['date']}: {s['fish']} fish, mean {s['mean_weight_g']:.1f} g, "
                      f"CV {s['cv_pct'] or 0:.1f} %, K {s['k']:.2f}, stock {s['stock']}")
@@ -54,7 +56,12 @@ def text(report: dict) -> str:
     if p is not None:
         when = "not growing: no date" if p["days"] is None else f"in {p['days']:.0f} days, {p['date']}"
         lines.append(f"  projection: {p['target_g']:g} g at {p['sgr_pct']:.2f} %/day {when}")
-    if not report["surveys"]:
+    if empty:
+        after = [e for e in empty if report["surveys"] and e["t"] > report["surveys"][-1]["t"]]
+        lines.append(f"  no fish counted: newest {empty[-1]['date']}"
+                     + (f", {len(after)} since the last survey that counted fish" if after else "")
+                     + " (cameras blocked or fouled, lights, turbid water?)")
+    if not report["surveys"] and not empty:
         lines.append("  no survey in the ledger for this tank")
     return "\n".join(lines)
 

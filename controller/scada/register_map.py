@@ -145,7 +145,7 @@ TABLE: tuple[Row, ...] = (
     Row("tank", "last_survey_t", IR, 14, "u32", 1, "s", "R", "last weight survey, Unix seconds UTC",
         _t("last_survey_unix")),
     Row("tank", "alarm_severity", IR, 16, "u16", 1, "", "R", "highest standing severity of the tank's sensor, "
-        "demand and grading alarms (0 none .. 3 critical)", _t("alarm_severity")),
+        "demand, grading and survey alarms (0 none .. 3 critical)", _t("alarm_severity")),
     Row("tank", "weight_cv_pct", IR, 17, "u16", 0.1, "%", "R", "size uniformity: weight CV of the last survey",
         _t("weight_cv_pct")),
     Row("tank", "sgr_pct_day", IR, 18, "i16", 0.01, "%/day", "R", "specific growth rate between the last two "
@@ -205,7 +205,7 @@ FIXED_SLOTS = ("estop", "feeder", "ledger", "dispenser_counters", "sim", "contro
 def alarm_slots(cfg) -> list[str]:
     """The alarm sources known at start, each a slot: an alarm belongs to slot S when its source is S
     or starts with ``S/`` (``controller`` holds ``controller/robot.run`` and its kin). A tank's
-    sensor, demand and grading alarms are in the tank's block (``alarm_severity``)."""
+    sensor, demand, grading and survey alarms are in the tank's block (``alarm_severity``)."""
     slots = list(FIXED_SLOTS) + [f"device/{name}" for name in cfg.devices]
     return slots[:MAX_SLOTS]
 

@@ -51,7 +51,7 @@ def prepare(status: dict, lay: Layout) -> dict:
     s["t_unix"] = unix(s.get("t"))
     sensors = {}
     if lay.cfg is not None:
-        sensors = {t.id: {f"sensor/{x}" for x in t.sensors} | {f"demand/{t.id}", f"grading/{t.id}"}
+        sensors = {t.id: {f"sensor/{x}" for x in t.sensors} | {f"demand/{t.id}", f"grading/{t.id}", f"survey/{t.id}"}
                    for t in lay.cfg.tanks}
     tanks = {}
     for tank_id in lay.tanks:

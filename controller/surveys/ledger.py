@@ -94,9 +94,11 @@ class SurveyRecords:
         return int(sid)
 
     def surveys(self, tank: str, *, since: float | None = None, until: float | None = None,
-                with_fish: bool = False, limit: int | None = None) -> list[SurveyRow]:
-        """The tank's surveys with fish counted, newest first (``limit``: only that many)."""
-        sql = "SELECT * FROM survey WHERE tank = ? AND count > 0"
+                with_fish: bool = False, limit: int | None = None, counted: bool | None = True) -> list[SurveyRow]:
+        """The tank's surveys that counted fish, newest first (``limit``: only that many); ``counted``
+        False: those that counted none (cameras blocked, lights off, turbid water), None: both."""
+        sql = "SELECT * FROM survey WHERE tank = ?" + {True: " AND count > 0", False: " AND count = 0",
+                                                       None: ""}[counted]
         args: list = [tank]
         if since is not None:
             sql, args = sql + " AND t >= ?", [*args, since]

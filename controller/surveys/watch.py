@@ -10,6 +10,10 @@ it has not taken up yet (and at start, for the newest of each tank):
   ledger's summary of it in OUT.json's shape;
 - the tank's grading alarm (``grading/{tank}``) is raised when the weight CV is above
   ``[feeding] grading_cv_pct``, cleared when a later survey is within it;
+- a survey that counted no fish (cameras blocked or fouled, the lights, turbid water) is published
+  all the same (count 0: an empty survey is a result) and raises the tank's ``survey/{tank}``
+  warning (kind ``no_fish``) until a later survey counts fish; nothing is planned from it: the
+  ration stays on the surveys that counted fish, and says "projected" once they are old;
 - its production figures between its last two surveys (controller/production.py) are published on
   ``farm/{site}/tank/{tank}/figures`` and kept for the status snapshot and the SCADA map, with
   (``fit``) SGR and FCR fitted to every survey of the growth window and their 95 % intervals.
@@ -22,31 +26,54 @@ from datetime import UTC, datetime
 
 log = logging.getLogger(__name__)
 GRADING = "grading"
+NO_FISH = "no_fish"
 
 
 class SurveyWatch:
     def __init__(self, cfg, store, rations, alarms, publish):
         self.cfg, self.store, self.rations, self.alarms, self.publish = cfg, store, rations, alarms, publish
         self.taken: dict[str, int] = {}        # tank -> id of the survey last taken up
+        self.empty: dict[str, int] = {}        # tank -> id of the survey that counted no fish, last seen
         self.figures: dict[str, dict] = {}      # tank -> the latest figures (status, SCADA)
 
     def check(self, now: float) -> list[str]:
-        """Take up each tank's newest survey not yet seen; returns the tanks that had one."""
+        """Take up each tank's newest survey not yet seen; returns the tanks that had one (that
+        counted fish: an empty one only publishes and warns)."""
         fresh = []
         for tank in self.cfg.tanks:
-            newest = self.store.surveys(tank.id, until=now, limit=1)
-            if not newest or self.taken.get(tank.id) == newest[0].id:
-                continue
-            survey = newest[0]
-            self.taken[tank.id] = survey.id
-            fresh.append(tank.id)
-            self.rations.replan(tank.id, now)
-            self.publish(f"tank/{tank.id}/ration", self.rations.payload(tank.id, now))
-            self.publish(f"tank/{tank.id}/survey", survey_payload(survey))
-            self._grading(tank.id, survey)
-            self.figures[tank.id] = figures = self._figures(tank.id, survey)
-            self.publish(f"tank/{tank.id}/figures", figures)
+            [last] = self.store.surveys(tank.id, until=now, limit=1, counted=None) or [None]
+            counted = last if last is None or last.count > 0 else \
+                next(iter(self.store.surveys(tank.id, until=now, limit=1)), None)
+            if counted is not None and self.taken.get(tank.id) != counted.id:
+                self._take_up(tank.id, counted, now)
+                fresh.append(tank.id)
+            if last is not None and last.count == 0:
+                self._empty(tank.id, last, counted)
+            elif last is not None:
+                self.alarms.clear(f"survey/{tank.id}", f"tank {tank.id}: the survey of {_iso(last.t)} "
+                                  f"counted {last.count} fish", kind=NO_FISH)
         return fresh
+
+    def _take_up(self, tank_id: str, survey, now: float) -> None:
+        self.taken[tank_id] = survey.id
+        self.rations.replan(tank_id, now)
+        self.publish(f"tank/{tank_id}/ration", self.rations.payload(tank_id, now))
+        self.publish(f"tank/{tank_id}/survey", survey_payload(survey))
+        self._grading(tank_id, survey)
+        self.figures[tank_id] = figures = self._figures(tank_id, survey)
+        self.publish(f"tank/{tank_id}/figures", figures)
+
+    def _empty(self, tank_id: str, last, counted) -> None:
+        """``last``, the tank's newest survey, counted no fish: published once, and the no-fish
+        warning raised (``counted``: the newest survey that did count fish, or None)."""
+        if self.empty.get(tank_id) == last.id:
+            return
+        self.empty[tank_id] = last.id
+        self.publish(f"tank/{tank_id}/survey", survey_payload(last))
+        rests = f"the survey of {_iso(counted.t)}" if counted is not None else "the configured weight"
+        self.alarms.raise_(f"survey/{tank_id}", f"tank {tank_id}: the survey of {_iso(last.t)} counted no fish "
+                           f"(cameras blocked or fouled, lights, turbid water?); the ration rests on {rests}",
+                           kind=NO_FISH)
 
     def _figures(self, tank_id: str, survey) -> dict:
         from controller.production import tank_figures

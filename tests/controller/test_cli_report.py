@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import json
 import math
+import time
 
 import pytest
 import tomli_w
@@ -149,3 +150,22 @@ def test_no_ledger_is_an_error_naming_it(tmp_path, capsys):
     (tmp_path / "farm.toml").write_text(tomli_w.dumps(raw))
     code, _, err = run(capsys, "report", "--tank", "T1", "--config", str(tmp_path / "farm.toml"))
     assert code == 2 and "none.db: no ledger there" in err
+
+
+def test_surveys_that_counted_no_fish_are_reported_not_taken_for_none(farm, capsys):
+    path, _ = farm
+    store = Store(path / "ledger.db")
+    store.add_survey("T1", T1 + 12 * DAY, "sparus_aurata", "blocked", [], [])
+    store.add_survey("T1", T1 + 19 * DAY, "sparus_aurata", "blocked again", [], [])
+    store.add_survey("T3", T1, "sparus_aurata", "dark", [], [])
+    store.close()
+    code, out, _ = run(capsys, "report", "--tank", "T1", "--config", str(path / "farm.toml"))
+    assert code == 0 and out.startswith("T1 (sparus_aurata): 2 surveys that counted fish, 2 that counted none\n")
+    newest = time.strftime("%Y-%m-%d", time.gmtime(T1 + 19 * DAY))
+    assert f"no fish counted: newest {newest}, 2 since the last survey that counted fish" in out
+    assert "fitted to 2 surveys" in out                      # the figures rest on the two that counted
+    code, out, _ = run(capsys, "report", "--tank", "T3", "--config", str(path / "farm.toml"), "--json")
+    data = json.loads(out)
+    assert data["surveys"] == [] and [e["source"] for e in data["empty_surveys"]] == ["dark"]
+    code, out, _ = run(capsys, "report", "--tank", "T3", "--config", str(path / "farm.toml"))
+    assert "0 surveys that counted fish, 1 that counted none" in out and "no survey in the ledger" not in out

@@ -28,8 +28,8 @@ def random_status(rng: random.Random, tanks: list[str], slots: list[str]) -> dic
         return struct.unpack(">f", struct.pack(">f", rng.uniform(lo, hi)))[0]
 
     alarms = []
-    for source in rng.sample(slots + ["sensor/T1-a", "demand/T2", "grading/T3", "controller/robot.run", "elsewhere"],
-                             6):
+    for source in rng.sample(slots + ["sensor/T1-a", "demand/T2", "grading/T3", "survey/T1", "survey",
+                                         "controller/robot.run", "elsewhere"], 6):
         alarms.append({"source": source, "kind": "general", "severity": rng.choice(SEVERITIES),
                        "acked": rng.random() < 0.5})
     return {"t": "2026-06-01T12:00:00.000Z", "uptime_s": rng.uniform(0, 1e6),
@@ -87,7 +87,7 @@ def expected(row: dict, st: dict, tanks: list[str], word_order: str, read_only: 
                  "stock": t["stock"], "last_survey_t": None if t["last_survey_t"] is None else 1780128000,
                  "alarm_severity": sev([x for x in st["alarms"] if x["source"] in
                                         (f"sensor/{tank}-a", f"sensor/{tank}-b", f"demand/{tank}",
-                                         f"grading/{tank}")]),
+                                         f"grading/{tank}", f"survey/{tank}")]),
                  # raw words: value / scale, a negative i16 in two's complement
                  "weight_cv_pct": None if t["weight_cv_pct"] is None else round(t["weight_cv_pct"] * 10),
                  "sgr_pct_day": None if t["sgr_pct_day"] is None else round(t["sgr_pct_day"] * 100) & 0xFFFF,

@@ -105,3 +105,44 @@ def test_the_figures_between_the_last_two_surveys_are_published_and_shown_in_sta
     never = _weights(c, "T4", T)
     assert never["ration_basis"] == "config" and never["mean_weight_g"] == cfg.tank("T4").mean_weight_g
     assert never["last_survey_t"] is None and never["fcr"] is None
+
+
+def test_a_survey_that_counts_no_fish_is_published_warns_and_plans_nothing_until_one_counts_again(farm, tmp_path):
+    """Cameras blocked or fouled, the lights off, turbid water: the survey is a result (count 0), the
+    operator is told, and the ration keeps resting on the last survey that counted fish."""
+    cfg, store, rations, alarms, published, watch = farm
+    store.add_survey("T1", T, "sparus_aurata", "a", [10.0, 11.0], [20.0, 24.0])
+    assert watch.check(T + 1) == ["T1"]
+    ration, figures = published.on("tank/T1/ration")[-1], published.on("tank/T1/figures")[-1]
+    out = tmp_path / "empty.json"
+    out.write_text(json.dumps({"species": "sparus_aurata", "count": 0, "fish": [], "frames": 100}))
+    store.add_survey("T1", T + 100, "sparus_aurata", str(out), [], [])
+    before = len(published)
+    assert watch.check(T + 200) == [] and watch.check(T + 300) == []
+    new = published[before:]
+    assert [s for s, _ in new] == ["tank/T1/survey", "alarm/survey/T1"]     # once; no ration, no figures
+    assert new[0][1]["count"] == 0 and new[0][1]["frames"] == 100 and new[0][1]["t"].startswith("2026-")
+    [alarm] = alarms.active.of("survey/T1")
+    assert alarm.kind == "no_fish" and alarm.severity == "warning"
+    assert "counted no fish" in alarm.text and "rests on the survey of 2026-05-28T" in alarm.text
+    assert rations.today("T1", T + 300).grams == pytest.approx(ration["grams"], abs=0.05)
+    assert watch.figures["T1"] == figures
+    # a second empty one is published too; one that counts fish clears the warning and is planned from
+    store.add_survey("T1", T + 400, "sparus_aurata", "gone.json", [], [])
+    assert watch.check(T + 500) == [] and published.on("tank/T1/survey")[-1]["t"] > new[0][1]["t"]
+    store.add_survey("T1", T + 600, "sparus_aurata", "b", [12.0], [30.0])
+    assert watch.check(T + 700) == ["T1"] and list(alarms.active.of("survey/T1")) == []
+    assert published.on("tank/T1/ration")[-1]["grams"] != pytest.approx(ration["grams"])
+
+
+def test_a_tank_whose_every_survey_counted_no_fish_warns_from_start_and_rests_on_the_config(farm):
+    cfg, store, rations, alarms, published, watch = farm
+    store.add_survey("T3", T, "sparus_aurata", "x", [], [])
+    assert watch.check(T + 10) == []
+    [alarm] = alarms.active.of("survey/T3")
+    assert "rests on the configured weight" in alarm.text
+    assert published.on("tank/T3/ration") == [] and len(published.on("tank/T3/survey")) == 1
+    # a restarted controller: the warning still stands, the survey is published again, nothing else
+    again = SurveyWatch(cfg, store, rations, alarms, published)
+    assert again.check(T + 20) == [] and len(published.on("tank/T3/survey")) == 2
+    assert len(list(alarms.active.of("survey/T3"))) == 1
