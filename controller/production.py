@@ -120,6 +120,30 @@ def tank_growth(store, tank_id: str, t: float, window_d: float,
     return None if fit is None else (fit, rows)
 
 
+OFF_GROWTH_Z = 3.29         # the normal's two-sided 0.1 %: a survey this unlikely under the growth so far is flagged
+
+
+def against_growth(store, tank_id: str, survey, window_d: float) -> dict | None:
+    """How ``survey`` (a ledger row) reads against the growth fitted to the tank's surveys before it
+    (the same window as the rations'): ``off_pct`` its mean weight above (+) or below (−) the fitted
+    weight at its time, ``band_pct`` the half-width beyond which that is flagged (``off``): the two
+    uncertainties together (the fit's at that time, scaled up where the surveys scatter beyond their
+    errors, and the survey's CV/√n) times ``OFF_GROWTH_Z``. The normal's quantile, not Student's t:
+    with two to four surveys before, t's 0.1 % would flag nothing short of a factor of ten. A fish's
+    weight does not jump within a week; a camera knocked out of its calibration does. None without a
+    measured growth before it (fewer than two surveys)."""
+    rows = [r for r in growth_window(store, tank_id, survey.t, window_d) if r.id != survey.id and r.t <= survey.t]
+    fit = fit_growth([Weighing(r.t, r.mean_weight_g, r.cv_pct, r.count) for r in rows])
+    if fit is None or not fit.measured or not survey.mean_weight_g:
+        return None
+    own = Weighing(survey.t, survey.mean_weight_g, survey.cv_pct, survey.count).log_se
+    d, se = math.log(survey.mean_weight_g) - fit.ln_weight(survey.t), math.hypot(fit.log_se_at(survey.t), own)
+    q = OFF_GROWTH_Z
+    # the band on the side the survey lies (on the log scale, so the two sides differ in %)
+    return {"off_pct": 100.0 * math.expm1(d), "band_pct": 100.0 * math.expm1(math.copysign(q * se, d)),
+            "off": bool(abs(d) > q * se), "surveys": fit.surveys, "fitted_g": fit.weight_g(survey.t)}
+
+
 def _accounts(cfg, store, tank_id: str, t_first: float, times: list[float], weight_at) -> list[Account]:
     """The ledger at each of ``times`` since ``t_first`` (growth.Account); the fish that moved are
     weighed at ``weight_at(t)``."""

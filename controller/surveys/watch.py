@@ -14,6 +14,10 @@ it has not taken up yet (and at start, for the newest of each tank):
   all the same (count 0: an empty survey is a result) and raises the tank's ``survey/{tank}``
   warning (kind ``no_fish``) until a later survey counts fish; nothing is planned from it: the
   ration stays on the surveys that counted fish, and says "projected" once they are old;
+- a survey whose mean weight is off the growth fitted to the surveys before it by more than the two
+  uncertainties allow (``production.against_growth``, in the figures as ``against_growth``) raises
+  ``survey/{tank}`` (kind ``off_growth``) until a later one follows it; the ration follows it all the
+  same (a manager may set one by hand);
 - its production figures between its last two surveys (controller/production.py) are published on
   ``farm/{site}/tank/{tank}/figures`` and kept for the status snapshot and the SCADA map, with
   (``fit``) SGR and FCR fitted to every survey of the growth window and their 95 % intervals.
@@ -27,6 +31,7 @@ from datetime import UTC, datetime
 log = logging.getLogger(__name__)
 GRADING = "grading"
 NO_FISH = "no_fish"
+OFF_GROWTH = "off_growth"
 
 
 class SurveyWatch:
@@ -61,7 +66,25 @@ class SurveyWatch:
         self.publish(f"tank/{tank_id}/survey", survey_payload(survey))
         self._grading(tank_id, survey)
         self.figures[tank_id] = figures = self._figures(tank_id, survey)
+        self._against_growth(tank_id, survey, figures)
         self.publish(f"tank/{tank_id}/figures", figures)
+
+    def _against_growth(self, tank_id: str, survey, figures: dict) -> None:
+        """The survey against the tank's growth before it (``production.against_growth``): in the
+        figures, and the ``survey/{tank}`` warning (kind ``off_growth``) while the newest is off it."""
+        from controller.production import against_growth
+        got = figures["against_growth"] = against_growth(self.store, tank_id, survey,
+                                                         self.cfg.feeding.growth_window_d)
+        when = _iso(survey.t)
+        if got is None or not got["off"]:
+            self.alarms.clear(f"survey/{tank_id}", f"tank {tank_id}: the survey of {when} follows its growth",
+                              kind=OFF_GROWTH)
+            return
+        side = "heavier" if got["off_pct"] > 0 else "lighter"
+        text = (f"tank {tank_id}: the survey of {when} reads {abs(got['off_pct']):.1f} % {side} than the growth "
+                f"of the {got['surveys']} surveys before it (beyond {abs(got['band_pct']):.1f} %): a camera moved "
+                f"or its calibration out of date, another stock? The ration follows it")
+        self.alarms.raise_(f"survey/{tank_id}", text, kind=OFF_GROWTH)
 
     def _empty(self, tank_id: str, last, counted) -> None:
         """``last``, the tank's newest survey, counted no fish: published once, and the no-fish

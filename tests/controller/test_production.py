@@ -63,3 +63,47 @@ def test_weight_between_surveys_grows_exponentially_from_one_mean_to_the_next():
     p1, p2 = SurveyPoint(0.0, 10.0, 0, 1, 1, 1), SurveyPoint(10.0, 40.0, 0, 1, 1, 1)
     assert weight_at(0.0, p1, p2) == 10.0 and weight_at(10.0, p1, p2) == pytest.approx(40.0)
     assert weight_at(5.0, p1, p2) == pytest.approx(20.0) and weight_at(99.0, p1, p2) == pytest.approx(40.0)
+
+
+@pytest.mark.parametrize(("jump", "flagged"), [(1.001, False), (1.06, False), (0.94, False), (1.35, True),
+                                               (0.72, True)])
+def test_a_survey_is_weighed_against_the_growth_of_the_surveys_before_it(tmp_path, jump, flagged):
+    """Four weekly surveys on W = 20·e^(0.02·day) (on the line: no scatter to scale by), then a fifth
+    at ``jump`` times the curve. The band is worked out here: the weighted fit's variance of ln W at
+    the fifth survey's day (numpy's polyfit, unscaled covariance) with the survey's own (CV/√n)²,
+    times the normal's 0.1 % two-sided quantile."""
+    import numpy as np
+
+    from controller.production import OFF_GROWTH_Z, against_growth
+    from controller.store import Store
+    store = Store(tmp_path / "ledger.db")
+    day, t0, n, cv = 86_400.0, 1_780_000_000.0, 60, 20.0
+    days = [0.0, 7.0, 14.0, 21.0]
+    for d in days:
+        mean = 20.0 * math.exp(0.02 * d)
+        # a survey of 60 fish whose CV (sample sd over mean) is 20 %: weights symmetric about the mean
+        spread = 0.2 * mean * math.sqrt((n - 1) / n)
+        store.add_survey("T1", t0 + d * day, "sparus_aurata", "x", [10.0] * n,
+                         [mean + spread * (1 if i % 2 else -1) for i in range(n)])
+    w5 = 20.0 * math.exp(0.02 * 28.0) * jump
+    sid = store.add_survey("T1", t0 + 28 * day, "sparus_aurata", "x", [10.0] * n,
+                           [w5 * (1 + 0.2 * math.sqrt((n - 1) / n) * (1 if i % 2 else -1)) for i in range(n)])
+    survey = next(r for r in store.surveys("T1") if r.id == sid)
+    got = against_growth(store, "T1", survey, 56.0)
+    se = cv / 100 / math.sqrt(n)
+    _, cov = np.polyfit(days, np.log([20.0 * math.exp(0.02 * d) for d in days]), 1, w=[1 / se] * 4, cov="unscaled")
+    fit_var = np.array([28.0, 1.0]) @ cov @ np.array([28.0, 1.0])
+    band = OFF_GROWTH_Z * math.sqrt(fit_var + se**2)
+    assert got["surveys"] == 4 and got["off"] is flagged
+    assert got["off_pct"] == pytest.approx(100 * (jump - 1), abs=1e-6)
+    assert got["band_pct"] == pytest.approx(100 * math.expm1(math.copysign(band, jump - 1)), rel=1e-6)
+    assert got["fitted_g"] == pytest.approx(20.0 * math.exp(0.02 * 28.0), rel=1e-9)
+
+
+def test_no_growth_to_weigh_a_survey_against_before_two_surveys(tmp_path):
+    from controller.production import against_growth
+    from controller.store import Store
+    store = Store(tmp_path / "ledger.db")
+    store.add_survey("T1", 1_780_000_000.0, "sparus_aurata", "x", [10.0] * 5, [20.0] * 5)
+    sid = store.add_survey("T1", 1_780_600_000.0, "sparus_aurata", "x", [10.0] * 5, [80.0] * 5)
+    assert against_growth(store, "T1", next(r for r in store.surveys("T1") if r.id == sid), 56.0) is None

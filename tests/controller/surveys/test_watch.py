@@ -146,3 +146,29 @@ def test_a_tank_whose_every_survey_counted_no_fish_warns_from_start_and_rests_on
     again = SurveyWatch(cfg, store, rations, alarms, published)
     assert again.check(T + 20) == [] and len(published.on("tank/T3/survey")) == 2
     assert len(list(alarms.active.of("survey/T3"))) == 1
+
+
+def test_a_survey_off_the_growth_so_far_warns_in_the_figures_and_an_alarm_until_one_follows_it(farm):
+    """Weekly surveys on 20·e^(0.02·day), then one 40 % heavier (a camera knocked out of its
+    calibration reads every fish long): flagged, its ration follows it; the next on the curve clears."""
+    cfg, store, rations, alarms, published, watch = farm
+    day = 86_400.0
+
+    def survey(d, factor=1.0):
+        mean = 20.0 * math.exp(0.02 * d) * factor
+        store.add_survey("T2", T + d * day, "sparus_aurata", "x", [10.0] * 40,
+                         [mean * (1 + 0.15 * (1 if i % 2 else -1)) for i in range(40)])
+        return watch.check(T + d * day + 1)
+    for d in (0, 7, 14):
+        assert survey(d) == ["T2"]
+    assert published.on("tank/T2/figures")[-1]["against_growth"]["off"] is False
+    assert list(alarms.active.of("survey/T2")) == []
+    assert survey(21, 1.4) == ["T2"]
+    fig = published.on("tank/T2/figures")[-1]
+    assert fig["against_growth"]["off"] is True and fig["against_growth"]["off_pct"] == pytest.approx(40.0)
+    [alarm] = alarms.active.of("survey/T2")
+    assert alarm.kind == "off_growth"
+    assert "reads 40.0 % heavier than the growth of the 3 surveys before it" in alarm.text
+    assert published.on("tank/T2/ration")[-1]["mean_weight_g"] > 20.0 * math.exp(0.02 * 21)   # followed
+    survey(28)
+    assert list(alarms.active.of("survey/T2")) == []
