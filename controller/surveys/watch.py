@@ -93,7 +93,8 @@ class SurveyWatch:
             return
         self.empty[tank_id] = last.id
         self.publish(f"tank/{tank_id}/survey", survey_payload(last))
-        rests = f"the survey of {_iso(counted.t)}" if counted is not None else "the configured weight"
+        rests = f"the surveys that counted fish (newest {_iso(counted.t)})" if counted is not None \
+            else "the configured weight"
         self.alarms.raise_(f"survey/{tank_id}", f"tank {tank_id}: the survey of {_iso(last.t)} counted no fish "
                            f"(cameras blocked or fouled, lights, turbid water?); the ration rests on {rests}",
                            kind=NO_FISH)
