@@ -229,11 +229,15 @@ def judge(farm: HilFarm, up: float, end: float) -> dict:
                                 end, since=up + WARMUP_S, stalls=farm.stalls())
     with farm.ledger() as ledger:
         feeding = sort_problems(ledger, verdict.problems, heard, PER_FEED_S + PORTION_G / AUGER_G_S)
+        # the surveys' warnings the controller raised (each raise that is news is a history row): honest cameras
+        # over a whole grow-out should raise next to none
+        survey_alarms = [f"{r['source']} {r['kind']}: {r['text']}" for r in ledger.execute(
+            "SELECT source, kind, text FROM alarm WHERE source LIKE 'survey/%' AND active = 1 ORDER BY id")]
     # the simulator's lookahead: every episode found the clock slow when it started
     fast = [f"{r['tank']} at {r['t']:.0f}" for r in truth if r["kind"] == "episode_start" and r["t"] < end - 60
             and farm.watch.ran_fast_at(r["t"])]
     return {"surveys": surveys, "intervals": intervals, "rations": rations, "fits": fits,
-            "episodes_started_fast": fast,
+            "episodes_started_fast": fast, "survey_alarms": survey_alarms,
             "demands": {"served": len(waits), "p50_s": round(waits[len(waits) // 2], 1) if waits else None,
                         "max_s": round(waits[-1], 1) if waits else None,
                         "during_survey_visits": len(during), "max_during_visits_s": round(max(during), 1)
