@@ -233,11 +233,14 @@ def judge(farm: HilFarm, up: float, end: float) -> dict:
         # over a whole grow-out should raise next to none
         survey_alarms = [f"{r['source']} {r['kind']}: {r['text']}" for r in ledger.execute(
             "SELECT source, kind, text FROM alarm WHERE source LIKE 'survey/%' AND active = 1 ORDER BY id")]
+        # surveys that counted no fish (the figures' survey lists leave them out)
+        empty_surveys = [f"{r['tank']} at {r['t']:.0f}" for r in ledger.execute(
+            "SELECT tank, t FROM survey WHERE count = 0 ORDER BY t")]
     # the simulator's lookahead: every episode found the clock slow when it started
     fast = [f"{r['tank']} at {r['t']:.0f}" for r in truth if r["kind"] == "episode_start" and r["t"] < end - 60
             and farm.watch.ran_fast_at(r["t"])]
     return {"surveys": surveys, "intervals": intervals, "rations": rations, "fits": fits,
-            "episodes_started_fast": fast, "survey_alarms": survey_alarms,
+            "episodes_started_fast": fast, "survey_alarms": survey_alarms, "empty_surveys": empty_surveys,
             "demands": {"served": len(waits), "p50_s": round(waits[len(waits) // 2], 1) if waits else None,
                         "max_s": round(waits[-1], 1) if waits else None,
                         "during_survey_visits": len(during), "max_during_visits_s": round(max(during), 1)
