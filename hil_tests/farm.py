@@ -94,9 +94,12 @@ class HilFarm:
         elif not surveys:
             base = without_surveys(base)
         self.config = merge(base, overrides or {})
+        tank_ids = {t["id"] for t in self.config.get("tanks", [])}
         for section in self.config.get("devices", {}).values():
             if section.get("kind") == "dispenser":
                 section["port"] = 0            # any free port: runs must not collide with the demo
+            if isinstance(section.get("probes"), dict):   # a farm of other tanks: the demo's probes of its own go
+                section["probes"] = {k: v for k, v in section["probes"].items() if k == "supply" or k in tank_ids}
         self.sim_proc: subprocess.Popen | None = None
         self.ctl_proc: subprocess.Popen | None = None
         self.workers: list[subprocess.Popen] = []
