@@ -13,6 +13,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from vision.survey_types import FishMeasurement
 from vision.tracking import FishTracker, Track, robust_length_cm
@@ -387,3 +389,16 @@ def test_renderer_swims_count_each_fish_in_view_once(setup, seed):
     assert splits <= 0.05 * score.fish, (splits, score.fish, score.counted_twice)
     errors = np.abs(score.length_error)         # a short track may keep a misplaced end's length
     assert np.quantile(errors, 0.9) < 0.015 and errors.max() < 0.06
+
+
+@settings(max_examples=300, deadline=None)
+@given(st.lists(st.one_of(st.floats(50.0, 900.0), st.sampled_from([200.0, 200.5, 201.0])), min_size=1, max_size=80))
+def test_a_track_s_reference_length_is_the_median_of_its_sightings_after_each(lengths):
+    """The length gate's reference: np.median of every sighting so far, bit for bit (kept in order
+    as they come, so a fish in view for an hour costs no more a sighting than one seen for a second)."""
+    from vision.tracking import _Open
+    track = _Open(0, 0, np.zeros(3), np.array([1.0, 0.0, 0.0]), lengths[0], 0.5, 1.0, 1.0)
+    assert track.reference_length_mm() == lengths[0]
+    for i, length in enumerate(lengths[1:], start=1):
+        track.add(i, np.array([1.0, 0.0, 0.0]), length, 0.5)
+        assert track.reference_length_mm() == float(np.median(lengths[:i + 1]))
