@@ -218,5 +218,6 @@ def stills_and_video(args, pairs, calib, calib_path: str, measure: str, tmp: str
             "goal_ratio": 0.16, "goal_met": best["ratio_to_baseline"] <= 0.16,
             "stills_steady": steady, "goal_met_steady": steady["ratio_to_baseline"] <= 0.16, "video_60s": video}
 
+
 if __name__ == "__main__":
     main()

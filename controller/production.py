@@ -136,16 +136,16 @@ def against_growth(store, tank_id: str, survey, window_d: float) -> dict | None:
     with two to four surveys before, t's 0.1 % would flag nothing short of a factor of ten. A fish's
     weight does not jump within a week; a camera knocked out of its calibration does. None without a
     measured growth before it (fewer than two surveys)."""
-    rows = [r for r in growth_window(store, tank_id, survey.t, window_d) if r.id != survey.id and r.t <= survey.t]
+    rows = [r for r in growth_window(store, tank_id, survey.t, window_d) if r.id != survey.id]
     fit = fit_growth([Weighing(r.t, r.mean_weight_g, r.cv_pct, r.count) for r in rows])
     if fit is None or not fit.measured or not survey.mean_weight_g:
         return None
     own = Weighing(survey.t, survey.mean_weight_g, survey.cv_pct, survey.count).log_se
-    d, se = math.log(survey.mean_weight_g) - fit.ln_weight(survey.t), math.hypot(fit.log_se_at(survey.t), own)
-    q = OFF_GROWTH_Z
+    d = math.log(survey.mean_weight_g) - fit.ln_weight(survey.t)
+    band = OFF_GROWTH_Z * math.hypot(fit.log_se_at(survey.t), own)
     # the band on the side the survey lies (on the log scale, so the two sides differ in %)
-    return {"off_pct": 100.0 * math.expm1(d), "band_pct": 100.0 * math.expm1(math.copysign(q * se, d)),
-            "off": bool(abs(d) > q * se), "surveys": fit.surveys, "fitted_g": fit.weight_g(survey.t)}
+    return {"off_pct": 100.0 * math.expm1(d), "band_pct": 100.0 * math.expm1(math.copysign(band, d)),
+            "off": bool(abs(d) > band), "surveys": fit.surveys, "fitted_g": fit.weight_g(survey.t)}
 
 
 def _accounts(cfg, store, tank_id: str, t_first: float, times: list[float], weight_at) -> list[Account]:

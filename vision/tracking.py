@@ -138,7 +138,7 @@ class _Open:
         # np.median of every sighting, each time, made a fish that stays in view quadratic: an hour's
         # clip (90,000 frames) of 4 fixed fish had not been surveyed after 12 min. Kept in order instead
         # (a C memmove per sighting), the middle one or two read off, np.median's value bit for bit:
-        # the hour in 4.8 min, the 3-minute clip's rate
+        # the hour in 4.5 min, the 3-minute clip's rate
         bisect.insort(self.sorted_mm, length_mm)
         n = len(self.sorted_mm)
         mid = self.sorted_mm[n // 2]

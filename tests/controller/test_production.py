@@ -71,7 +71,7 @@ def test_a_survey_is_weighed_against_the_growth_of_the_surveys_before_it(tmp_pat
     """Four weekly surveys on W = 20·e^(0.02·day) (on the line: no scatter to scale by), then a fifth
     at ``jump`` times the curve. The band is worked out here: the weighted fit's variance of ln W at
     the fifth survey's day (numpy's polyfit, unscaled covariance) with the survey's own (CV/√n)²,
-    times the normal's 0.1 % two-sided quantile."""
+    times OFF_GROWTH_Z standard errors."""
     import numpy as np
 
     from controller.production import OFF_GROWTH_Z, against_growth
