@@ -8,7 +8,11 @@ after the controller started for a tank never surveyed. An operator's ``start-su
 The robot asks ``next()`` only when no feeding demand waits (feeding comes first), so a survey
 never runs during feeding. A tank is skipped while paused (an operator's pause: grading, a
 treatment) or fasting (an operator's ration of 0 g today); its survey waits for the resume. A
-survey that failed (the camera) is tried again ``retry_s`` later. One survey at a time: an
+survey that failed (the camera) or counted no fish (lights off, a fouled lens, turbid water) is
+tried again ``retry_s`` later; after a second such visit in a row, at the tank's own survey hour
+(``at``) each day, at least ``retry_s`` on, until a survey counts fish or an operator asks for
+one: cameras that stay blind would otherwise send the robot there every ``retry_s``, day and
+night, through the feeding hours the survey hours keep clear of. One survey at a time: an
 unfinished one (preempted by demands) is resumed before any other is started. A captured survey
 holds its tank until its record lands (its last pairs are measured after the robot has left): the
 ledger dates the next survey from that record, so a slow measurement must not look like no survey.
@@ -63,6 +67,7 @@ class SurveySchedule:
         self.current: SurveySession | None = None
         self.asked: OrderedDict[str, SurveySession] = OrderedDict()    # operators' requests, in order
         self.not_before: dict[str, float] = {}                          # tank -> retry after a failure
+        self.misses: dict[str, int] = {}            # tank -> visits in a row that failed or counted no fish
         self.recording: dict[str, SurveySession] = {}                   # tank -> captured, not yet recorded
         self.started = clock.now()            # a tank never surveyed waits for its first hour after it
 
@@ -75,6 +80,7 @@ class SurveySchedule:
             return f"a survey of {tank} is asked for already"
         self.asked[tank] = SurveySession(tank, pairs or self.cfg.surveys.pairs, "operator", self.clock.now())
         self.not_before.pop(tank, None)
+        self.misses.pop(tank, None)
         return None
 
     def held(self, tank: str, paused: set[str], now: float) -> str | None:
@@ -119,12 +125,28 @@ class SurveySchedule:
         if outcome == "captured":
             self.recording[session.tank] = session
         else:
-            self.not_before[session.tank] = now + self.cfg.surveys.retry_s
+            self._missed(session.tank, now, "failed")
 
     def recorded(self, session: SurveySession, now: float) -> None:
         """A captured survey's record has landed in the ledger (or failed to): its tank may be
         surveyed again once the ledger says it is due."""
         if self.recording.get(session.tank) is session:
             del self.recording[session.tank]
-        # a survey that measured no fish is not one the ledger dates the next from: not at once again
-        self.not_before[session.tank] = now + self.cfg.surveys.retry_s
+        if self.store.surveys(session.tank, since=session.t, limit=1):
+            self.misses.pop(session.tank, None)
+            # the ledger dates the next survey from this one
+            self.not_before[session.tank] = now + self.cfg.surveys.retry_s
+        else:
+            self._missed(session.tank, now, "counted no fish")
+
+    def _missed(self, tank: str, now: float, what: str) -> None:
+        """A visit that failed or counted no fish: the tank's next try (module docstring)."""
+        misses = self.misses[tank] = self.misses.get(tank, 0) + 1
+        retry = now + self.cfg.surveys.retry_s
+        plan = self.cfg.tank(tank).survey
+        if misses >= 2 and plan is not None:
+            hh, mm = (int(x) for x in plan.at.split(":"))
+            retry = _first_at(hh * 3600 + mm * 60, retry, self.cfg.utc_offset_h)
+        self.not_before[tank] = retry
+        log.warning("survey of %s %s (%d in a row): tried again in %.1f h", tank, what, misses,
+                    (retry - now) / 3600.0)

@@ -145,6 +145,58 @@ def test_a_captured_survey_that_recorded_no_fish_waits_retry_s_not_a_week(parts)
     assert schedule.next(set(), clock.now()).tank == "T1"
 
 
+def _night_tank(tmp_path, offset_h: float):
+    cfg = Config(tanks=[TankConfig(id="T1", stock=1000, mean_weight_g=20, position_m=3, sensors=["a"],
+                                   survey=SurveySchedule(every_days=7, at="22:00", pairs=12))],
+                 path="<test>", utc_offset_h=offset_h, devices={"stereo": {"kind": "stereo_camera", "driver": "sim"}})
+    store = Store(tmp_path / "ledger.db")
+    clock = ManualClock(t=t("2026-06-01T21:00") - offset_h * 3600)
+    return cfg, store, Schedule(cfg, store, Rations(cfg, load_species(), store), clock), clock
+
+
+@pytest.mark.parametrize("offset_h", [0.0, 5.5, -3.0])
+def test_blind_cameras_are_tried_again_once_then_at_the_tank_s_hour_each_day(tmp_path, offset_h):
+    """A tank whose visits count no fish or fail: tried again ``retry_s`` on, then only at its own
+    (night) survey hour each day — never every hour through the feeding day — until a survey counts
+    fish (then weekly again) or an operator asks for one (then ``retry_s`` again)."""
+    cfg, store, schedule, clock = _night_tank(tmp_path, offset_h)
+    local = lambda iso: t(iso) - offset_h * 3600              # noqa: E731  (farm local time -> farm time)
+
+    def visit(at: str, outcome: str, fish: list[float] | None = None):
+        clock.t = local(at)
+        session = schedule.next(set(), clock.now())
+        assert session is not None and session.tank == "T1", at
+        schedule.ended(session, outcome, clock.now())
+        if outcome == "captured":
+            store.add_survey("T1", clock.now(), "sparus_aurata", "test", fish or [], [25.0] * len(fish or []))
+            schedule.recorded(session, clock.now())
+        return session
+
+    def idle(start: str, hours: float):
+        for h in range(int(hours * 4)):
+            clock.t = local(start) + h * 900
+            assert schedule.next(set(), clock.now()) is None, datetime.fromtimestamp(clock.t + offset_h * 3600, UTC)
+
+    visit("2026-06-01T22:00", "captured")                     # no fish: once more an hour on
+    idle("2026-06-01T22:00", 1)
+    visit("2026-06-01T23:00", "captured")                     # again: the next night at its hour
+    idle("2026-06-01T23:00", 23)
+    visit("2026-06-02T22:00", "failed")
+    idle("2026-06-02T22:00", 24)
+    visit("2026-06-03T22:00", "captured", [10.0, 11.0])      # fish: weekly from this survey
+    idle("2026-06-03T22:00", 24 * 7)
+    visit("2026-06-10T22:00", "captured")
+    idle("2026-06-10T22:00", 1)
+    visit("2026-06-10T23:00", "failed")
+    clock.t = local("2026-06-11T09:00")
+    assert schedule.held("T1", set(), clock.now()) == "retry later"
+    assert schedule.request("T1") is None                     # an operator's: at once, and retry_s after
+    visit("2026-06-11T09:00", "captured")
+    idle("2026-06-11T09:00", 1)
+    assert schedule.next(set(), local("2026-06-11T10:00")).tank == "T1"
+    store.close()
+
+
 def test_an_operator_survey_goes_first_once_per_tank(parts):
     cfg, store, rations, clock = parts
     schedule = Schedule(cfg, store, rations, clock)
