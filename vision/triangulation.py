@@ -127,12 +127,18 @@ def triangulate(P1: np.ndarray, P2: np.ndarray, pts1: np.ndarray, pts2: np.ndarr
     return np.ascontiguousarray(X.T), residual
 
 
+# cv2.undistortPoints' fixed-point iterations: its default 5 leaves an action camera's corners (k1 -0.32 at
+# f 900 px, 1920x1080) 1-3 px off, metres in depth; 40 converge to 1e-12 px there, ~0.7 us a point
+UNDISTORT_ITERATIONS = 40
+
+
 def undistort_pixels(pts: np.ndarray, K: np.ndarray, D: np.ndarray | None) -> np.ndarray:
     """Ideal pinhole pixels (N, 2) of distorted pixels, in the same camera matrix K."""
     pts = np.asarray(pts, dtype=float).reshape(-1, 2)
     if D is None or len(pts) == 0:
         return pts
-    return cv2.undistortPoints(pts.reshape(-1, 1, 2), K, np.asarray(D, float), P=K).reshape(-1, 2)
+    return cv2.undistortPoints(pts.reshape(-1, 1, 2), K, np.asarray(D, float), R=None, P=K,
+                               criteria=(cv2.TERM_CRITERIA_COUNT, UNDISTORT_ITERATIONS, 0.0)).reshape(-1, 2)
 
 
 def triangulate_calibrated(calib, pts1: np.ndarray, pts2: np.ndarray,
