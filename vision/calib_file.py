@@ -61,6 +61,7 @@ class StereoCalibration:
         return out
 
 
+MAX_IMAGE_PX = 100_000          # a side longer is no camera's: a unit or a typo
 _SHAPES = {"P1": (3, 4), "P2": (3, 4), "K1": (3, 3), "K2": (3, 3), "R": (3, 3), "T": (3,)}
 
 
@@ -126,8 +127,9 @@ def calibration_from_json(data: object) -> StereoCalibration:
     size = data.get("image_size")
     if size is not None:
         if (not isinstance(size, list) or len(size) != 2
-                or not all(isinstance(s, int) and s > 0 for s in size)):
-            raise CalibrationError("image_size", "expected [width, height] in pixels")
+                or not all(isinstance(s, int) and not isinstance(s, bool) and 0 < s <= MAX_IMAGE_PX for s in size)):
+            raise CalibrationError("image_size",
+                                   f"expected [width, height] in pixels (whole numbers 1..{MAX_IMAGE_PX})")
         size = (size[0], size[1])
     rms = data.get("rms_px")
     if rms is not None and not (isinstance(rms, (int, float)) and math.isfinite(rms)):

@@ -68,7 +68,17 @@ def _checked(data: dict) -> StereoCalibration:
 
 
 def _size(image_size) -> list[int] | None:
-    return None if image_size is None else [int(image_size[0]), int(image_size[1])]
+    """[width, height] of whole pixels (the range is calibration_from_json's to check); a fraction,
+    a flag or a non-number is refused, not truncated."""
+    if image_size is None:
+        return None
+    out = []
+    for v in image_size:
+        if isinstance(v, (bool, np.bool_)) or not isinstance(v, (int, float, np.integer, np.floating)) \
+                or not np.isfinite(v) or v != round(v):
+            raise CalibrationError("image_size", f"{v!r}: not a whole number of pixels")
+        out.append(int(v))
+    return out
 
 
 def from_projections(P1: np.ndarray, P2: np.ndarray, *, mm_per_unit: float = 1.0,

@@ -1,14 +1,17 @@
 """``fishfarm calibrate import``: a stereo calibration made by another tool, into CALIB.json.
 
     fishfarm calibrate import --in FILE [--in FILE2] --out CALIB.json [--format auto|opencv|stereomorph|p34]
-        [--units mm|cm|m|in] [--image-size WxH] [--pixel-origin zero|corner|one] [--y-up]
+        [--units mm|cm|m|in | --square-mm MM] [--image-size WxH] [--pixel-origin zero|corner|one] [--y-up]
 
 Formats (``auto`` decides from the content):
 - opencv: cv2.FileStorage YAML or XML from stereoCalibrate; several files are merged (OpenCV's
   stereo_calib sample writes intrinsics.yml and extrinsics.yml). Names are matched without case:
   K1 M1 cameraMatrix1 camera_matrix1 ...; D1 distCoeffs1 ...; R; T; image_width + image_height or
   imageSize / image_size [w, h]. Rectified P1/P2 in such files are ignored: they are for rectified
-  images, not the camera's own pixels.
+  images, not the camera's own pixels. gzip'd FileStorage files (.yml.gz) are read as they are. A
+  JSON object with K1/K2/R/T is OpenCV's too where it has no P1/P2, or has stereoRectify's Q, R1
+  or R2 beside them; with P1/P2 and none of those it is CALIB.json's own form (p34). T in board
+  squares (OpenCV's stereo_calib sample): ``--square-mm`` the square's side.
 - stereomorph: StereoMorph's own calibration file (``calibrateCameras``' calibration.txt: its
   cal.coeff, img.size and the unit of sq.size; controller/cli/stereomorph_file.py), or a table of
   11 DLT coefficients per camera, one column per camera (StereoMorph's cal_coeffs), with or
@@ -32,6 +35,8 @@ from controller.errors import BadInput
 from vision.calib_import import UNITS_MM
 
 FORMATS = ("auto", "opencv", "stereomorph", "p34")
+RECTIFIED = {"q", "r1", "r2"}              # stereoRectify's outputs (keys as _key gives them)
+GZIP_MAGIC = b"\x1f\x8b"
 PLAUSIBLE_BASELINE_MM = (20.0, 3000.0)     # outside: most likely a wrong --units (warned, not refused)
 # CALIB.json field -> names other tools give it (compared without case, "_" and "-")
 OPENCV_NAMES = {
@@ -147,7 +152,7 @@ def _p34_json(path: str, text: str):
             raise BadInput(path, name, "not a numeric 3x4 matrix") from None
     size = data.get("image_size")
     if size is not None and not (isinstance(size, list) and len(size) == 2
-                                 and all(isinstance(s, int) and s > 0 for s in size)):
+                                 and all(isinstance(s, int) and not isinstance(s, bool) and s > 0 for s in size)):
         raise BadInput(path, "image_size", "expected [width, height] in pixels")
     return mats[0], mats[1], None if size is None else tuple(size)
 
@@ -208,10 +213,19 @@ def _opencv_size(found: dict, source: dict):
         size = found["image_size"].reshape(-1)
         if size.size != 2:
             raise BadInput(source["image_size"], None, f"{size.size} values, expected [width, height]")
-        return int(size[0]), int(size[1])
+        return float(size[0]), float(size[1])          # whole pixels: vision.calib_import checks
     if "image_width" in found and "image_height" in found:
-        return int(found["image_width"].reshape(-1)[0]), int(found["image_height"].reshape(-1)[0])
+        return float(found["image_width"].reshape(-1)[0]), float(found["image_height"].reshape(-1)[0])
     return None
+
+
+def _gzipped(path: str) -> bool:
+    """A gzip'd file (FileStorage reads .yml.gz / .xml.gz as they are)."""
+    try:
+        with open(path, "rb") as f:
+            return f.read(2) == GZIP_MAGIC
+    except OSError:
+        return False                       # _read_text or FileStorage names the fault
 
 
 def _detect(path: str, text: str | None) -> str:
@@ -236,7 +250,11 @@ def _opencv_json(text: str | None) -> bool:
     if any(isinstance(v, dict) and v.get("type_id") == "opencv-matrix" for v in doc.values()):
         return True
     known = {_key(n) for field in ("K1", "K2", "R", "T") for n in OPENCV_NAMES[field]}
-    return not {"P1", "P2"} & set(doc) and any(_key(k) in known for k in doc)
+    if not any(_key(k) in known for k in doc):
+        return False
+    # P1/P2 beside stereoRectify's own products (Q, R1, R2) are rectified: the cameras are in K, D, R, T.
+    # Without them, P1/P2 with K/R/T is CALIB.json's own form: the projections are the calibration
+    return not {"P1", "P2"} & set(doc) or bool(RECTIFIED & {_key(k) for k in doc})
 
 
 def _report(calib, fmt: str, paths, out: str) -> None:
@@ -267,12 +285,15 @@ def _report(calib, fmt: str, paths, out: str) -> None:
 @click.option("--units", type=click.Choice(list(UNITS_MM)), default=None,
               help="World unit of the file: OpenCV's T (the board's square unit), DLT and 3x4 worlds "
                    "[default: a StereoMorph calibration file's square unit, else mm].")
+@click.option("--square-mm", type=click.FloatRange(min=0, min_open=True), default=None, metavar="MM",
+              help="The file's world unit is a calibration board's square this many mm wide (OpenCV's "
+                   "stereo_calib sample, squareSize 1, gives T in squares); instead of --units.")
 @click.option("--image-size", callback=_size_option, metavar="WxH",
               help="Frame size the calibration was made for (overrides the file's).")
 @click.option("--pixel-origin", type=click.Choice(["zero", "corner", "one"]), default="zero", show_default=True,
               help="stereomorph/p34: top-left pixel centre at (0,0) as OpenCV, (0.5,0.5), or (1,1).")
 @click.option("--y-up", is_flag=True, help="stereomorph/p34: v grows upwards (needs the image size).")
-def import_(inputs, out, fmt, units, image_size, pixel_origin, y_up):
+def import_(inputs, out, fmt, units, square_mm, image_size, pixel_origin, y_up):
     """Import a stereo calibration from OpenCV, StereoMorph (DLT-11) or a plain 3x4 pair."""
     from controller.cli.calib_io import save_calibration
     from controller.cli.output_paths import check_outputs
@@ -282,9 +303,15 @@ def import_(inputs, out, fmt, units, image_size, pixel_origin, y_up):
     paths = list(inputs)
     check_outputs({"--out": out}, paths)
     first = paths[0]
-    text = None if fmt == "opencv" or Path(first).suffix.lower() in (".yml", ".yaml", ".xml") \
+    if square_mm is not None and units is not None:
+        raise BadInput(first, "--square-mm", "give the world unit once: --units or --square-mm")
+    gzipped = _gzipped(first)
+    if gzipped and fmt not in ("auto", "opencv"):
+        raise BadInput(first, "--format", f"{fmt}, but the file is gzip'd: only OpenCV FileStorage files "
+                                          "are read compressed")
+    text = None if fmt == "opencv" or gzipped or Path(first).suffix.lower() in (".yml", ".yaml", ".xml") \
         else _read_text(first)
-    kind = _detect(first, text) if fmt == "auto" else fmt
+    kind = "opencv" if gzipped else _detect(first, text) if fmt == "auto" else fmt
     stereomorph = None
     if kind in ("table", "stereomorph", "p34") and is_stereomorph_file(text):
         if kind == "p34":
@@ -294,6 +321,8 @@ def import_(inputs, out, fmt, units, image_size, pixel_origin, y_up):
         kind = "stereomorph"
         if units and stereomorph.units and units != stereomorph.units:
             raise BadInput(first, "--units", f"{units}, where the file's sq.size says {stereomorph.units}")
+        if square_mm is not None and stereomorph.units:
+            raise BadInput(first, "--square-mm", f"the file's sq.size gives its unit ({stereomorph.units})")
         units = units or stereomorph.units
         image_size = image_size or stereomorph.image_size
     units = units or "mm"
@@ -301,9 +330,9 @@ def import_(inputs, out, fmt, units, image_size, pixel_origin, y_up):
         raise BadInput(paths[1], "--in", "only OpenCV files may be given in parts")
     if kind == "opencv" and (pixel_origin != "zero" or y_up):
         raise BadInput(first, "--pixel-origin/--y-up", "OpenCV files are in OpenCV's pixel convention already")
-    mm = UNITS_MM[units]
+    mm = UNITS_MM[units] if square_mm is None else square_mm
     extra = {"method": "import", "format": kind if kind != "table" else "auto", "source": [Path(p).name for p in paths],
-             "units": units}
+             "units": units if square_mm is None else f"square of {square_mm:g} mm"}
     where = first
     try:
         if kind == "opencv":

@@ -138,6 +138,71 @@ def test_opencv_intrinsics_and_extrinsics_in_two_files(tmp_path):
     assert_bad(["--in", str(intr), "--out", str(out)], "intrinsics.yml", "R", "missing")
 
 
+def test_a_json_dump_of_stereo_calibrate_and_stereo_rectify_is_read_for_its_cameras(tmp_path):
+    """json.dump of stereoCalibrate + stereoRectify (K D R T R1 R2 P1 P2 Q): the P1/P2 are the
+    rectified cameras', not these pixels'; without stereoRectify's products P1/P2 are CALIB.json's."""
+    size = (1280, 960)
+    R1, R2, P1, P2, Q, _, _ = cv2.stereoRectify(RIG.K1, RIG.D1, RIG.K2, RIG.D2, size, R, T.reshape(3, 1))
+    doc = {"K1": RIG.K1.tolist(), "D1": RIG.D1.tolist(), "K2": RIG.K2.tolist(), "D2": RIG.D2.tolist(),
+           "R": R.tolist(), "T": T.tolist(), "P1": P1.tolist(), "P2": P2.tolist()}
+    out = tmp_path / "CALIB.json"
+    for extra in ({"R1": R1.tolist()}, {"R2": R2.tolist()}, {"Q": Q.tolist()}):
+        src = tmp_path / "rectified.json"
+        src.write_text(json.dumps(doc | extra))
+        code, stdout, err = run("--in", str(src), "--out", str(out))
+        assert code == 0 and "as opencv" in stdout, (extra.keys(), err)
+        assert_reconstructs(out, CAMERA1)
+    ours = tmp_path / "ours.json"                 # CALIB.json's own form: P1/P2 with K, D, R, T
+    ours.write_text(json.dumps({"P1": PLAIN.P1.tolist(), "P2": PLAIN.P2.tolist(), "K1": PLAIN.K1.tolist(),
+                                "K2": PLAIN.K2.tolist(), "R": R.tolist(), "T": T.tolist()}))
+    code, stdout, err = run("--in", str(ours), "--out", str(out))
+    assert code == 0 and "as p34" in stdout, err
+    assert_reconstructs(out, WORLD, rig=PLAIN, atol=1e-6)
+
+
+def test_a_gzipped_filestorage_file_is_read_as_it_is(tmp_path):
+    import gzip
+    plain = tmp_path / "stereo.yml"
+    write_opencv(plain, M_NAMES)
+    packed = tmp_path / "stereo.yml.gz"
+    packed.write_bytes(gzip.compress(plain.read_bytes()))
+    out = tmp_path / "CALIB.json"
+    code, stdout, err = run("--in", str(packed), "--out", str(out))
+    assert code == 0 and "as opencv" in stdout, err
+    assert_reconstructs(out, CAMERA1)
+    assert_bad(["--in", str(packed), "--out", str(tmp_path / "x.json"), "--format", "p34"],
+               "stereo.yml.gz", "--format", "gzip")
+
+
+@pytest.mark.parametrize("square_mm", [1.0, 25.0, 52.45])
+def test_opencv_translation_in_board_squares_with_the_square_s_size(tmp_path, square_mm):
+    """OpenCV's stereo_calib sample calibrates with squareSize 1: T in squares."""
+    src = tmp_path / "extrinsics.yml"
+    write_opencv(src, M_NAMES, units_per_mm=1.0 / square_mm)
+    out = tmp_path / "CALIB.json"
+    code, stdout, err = run("--in", str(src), "--out", str(out), "--square-mm", f"{square_mm}")
+    assert code == 0 and "baseline: 400.0 mm" in stdout, err
+    assert load_calibration(out).extra["units"] == f"square of {square_mm:g} mm"
+    assert_reconstructs(out, CAMERA1)
+    assert_bad(["--in", str(src), "--out", str(out), "--square-mm", "25", "--units", "cm"], "--square-mm",
+               "--units")
+
+
+@pytest.mark.parametrize("size, fault", [("[1280.5, 960]", "1280.5"), ("[1e30, 960]", "1..100000"),
+                                         ("[0, 960]", "1..100000"), ("[true, 960]", "image_size")])
+def test_an_image_size_that_is_not_whole_pixels_is_refused(tmp_path, size, fault):
+    src = tmp_path / "rig.json"
+    cams = ", ".join(f'"{k}": {json.dumps(v.tolist())}' for k, v in (("K1", RIG.K1), ("K2", RIG.K2), ("R", R),
+                                                                     ("T", T)))
+    src.write_text(f'{{{cams}, "imageSize": {size}}}')
+    if "true" not in size:                      # (FileStorage reads JSON's true as 1)
+        assert_bad(["--in", str(src), "--out", str(tmp_path / "o.json")], "rig.json", "image_size", fault)
+    p34 = tmp_path / "p.json"
+    p34.write_text(f'{{"P1": {json.dumps(PLAIN.P1.tolist())}, "P2": {json.dumps(PLAIN.P2.tolist())}, '
+                   f'"image_size": {size}}}')
+    assert_bad(["--in", str(p34), "--out", str(tmp_path / "o.json")], "p.json", "image_size")
+
+
 def _dlt_columns(units_per_mm: float = 1.0, pixel_shift: float = 0.0) -> np.ndarray:
     """StereoMorph's cal_coeffs: 11 rows x 2 cameras, the world in its unit, pixels shifted."""
     to_unit = np.diag([1 / units_per_mm] * 3 + [1.0])
