@@ -22,6 +22,7 @@ import time
 
 from pymodbus.constants import ExcCodes
 from pymodbus.exceptions import NoSuchIdException
+from pymodbus.pdu import DecodePDU, ExceptionResponse, ModbusPDU
 from pymodbus.pdu.device import ModbusDeviceIdentification
 from pymodbus.server import ModbusTcpServer
 from pymodbus.server.requesthandler import ServerRequestHandler
@@ -45,6 +46,41 @@ def broken_mbap(buf: bytes) -> bool:
         return False
     length = int.from_bytes(buf[4:6], "big")
     return buf[2:4] != b"\x00\x00" or not 2 <= length <= 254
+
+
+class _Refused(ModbusPDU):
+    """A request answered with an exception before any store sees it: its own function code + 0x80
+    (pymodbus answers what it cannot decode with a bare 0x80, which no client can match)."""
+
+    def __init__(self, function_code: int, code: ExcCodes):
+        super().__init__()
+        self.function_code, self.code = function_code, code
+
+    async def datastore_update(self, context, device_id: int) -> ModbusPDU:
+        if device_id not in context.device_ids():
+            raise NoSuchIdException(f"unit {device_id}")       # 0B first, as for any request
+        return ExceptionResponse(self.function_code, self.code)
+
+
+class StrictDecoder(DecodePDU):
+    """pymodbus's request decoder, held to the Modbus spec: FC 5 takes only 0xFF00 (on) or 0x0000
+    (off) — pymodbus reads any other value as on, so 0x0001 to the reset coil released the e-stop —
+    else exception 03; a request of a known function that does not decode (a quantity of 0 or over
+    the function's limit, a byte count that does not match) 03; an unknown function 01."""
+
+    def __init__(self):
+        super().__init__(True)
+
+    def decode(self, frame: bytes) -> ModbusPDU | None:
+        if not frame:
+            return None
+        fc = frame[0]
+        if fc == 5 and len(frame) >= 5 and frame[3:5] not in (b"\xff\x00", b"\x00\x00"):
+            return _Refused(fc, ExcCodes.ILLEGAL_VALUE)
+        pdu = super().decode(frame)
+        if pdu is None and fc < 0x80:
+            return _Refused(fc, ExcCodes.ILLEGAL_VALUE if fc in self.pdu_table else ExcCodes.ILLEGAL_FUNCTION)
+        return pdu
 
 
 class ScadaStore:
@@ -147,6 +183,7 @@ class ScadaServer(ModbusTcpServer):
         super().__init__(SimDevice(scada_cfg.unit, simdata=SimData(0, datatype=DataType.REGISTERS)),
                          address=(scada_cfg.listen, scada_cfg.port), identity=identity)
         self.context = store
+        self.decoder = StrictDecoder()       # each connection's framer takes it when it opens
         self.scada = scada_cfg
         self.refused = self.broken = self.idled = 0
         self.refusing = False

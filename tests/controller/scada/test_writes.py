@@ -109,6 +109,27 @@ def test_refusals(serve):
         c.close()
 
 
+@pytest.mark.parametrize("raw", [0x0001, 0x1234, 0x00FF, 0xFF01, 0xFFFF, 0x8000])
+def test_a_coil_written_with_a_value_modbus_does_not_allow_is_refused_with_03(serve, raw):
+    """FC 5 takes 0xFF00 (on) or 0x0000 (off) only (Modbus Application Protocol 1.1b3, 6.5); pymodbus
+    read any other value as on: 0x0001 to the reset coil released the e-stop."""
+    stand_in = StandIn()
+    srv = serve(stand_in)
+    c = Mbap(srv.port)
+    try:
+        for (table, address), row in WRITABLE.items():
+            if table != "coil":
+                continue
+            got, data = c.call(5, struct.pack(">HH", address, raw))
+            assert (got, data[:1]) == (0x85, b"\x03"), (row["name"], hex(raw))
+        assert stand_in.calls == [] and stand_in.trips == []
+        assert c.write("coil", 1, [1]) is None                  # 0xFF00 to reset: taken
+        srv.call(lambda: None)
+        assert [call[0] for call in stand_in.calls] == ["reset"]
+    finally:
+        c.close()
+
+
 def test_read_only_refuses_every_write(serve):
     stand_in = StandIn()
     srv = serve(stand_in, read_only=True)
