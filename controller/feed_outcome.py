@@ -41,6 +41,7 @@ class Reconciled:
     phase: str          # done | aborted | wait (the auger is still running) | suspect
     grams: float | None
     note: str
+    no_run_seen: bool = False   # decided from no sign of the run: a START still on the wire may overturn it
 
 
 def went_backwards(cycles_before: int, cycles_now: int) -> bool:
@@ -54,8 +55,9 @@ def reconcile(feed: Feed, state, *, accepted: bool = False, hopper_tolerance_g: 
 
     The device counts completed runs and remembers the tag and load-cell grams of the last
     one. Our run happened iff the counter moved past ``cycles_before`` and the last tag is
-    ours; it never started iff the counter has not moved, the auger is still and the load cell
-    has not dropped since the intent. ``accepted``: the device acknowledged our START, so "never
+    ours; it never started iff the counter has not moved from a count above 0, the auger is still
+    and the load cell has not dropped since the intent (from 0 a power-on since, which resets the
+    counter, cannot be told from no run). ``accepted``: the device acknowledged our START, so "never
     started" cannot be true. Anything else is ``suspect``: food may have left, and nobody can
     say how much from here. An ``aborted`` result for a START that may still be on the wire is
     the caller's to confirm (see ``Dispensing._wait_run_end``).
@@ -76,7 +78,12 @@ def reconcile(feed: Feed, state, *, accepted: bool = False, hopper_tolerance_g: 
                               + _hopper_hint(feed, state))
         if accepted:
             return Reconciled(feed, SUSPECT, None, "the dispenser accepted the start but counted no run")
-        return Reconciled(feed, "aborted", None, "auger never started")
+        if feed.cycles_before == 0:
+            # 0 -> 0 is also a run then a power-on (a power cut, a new PLC, a simulator started anew
+            # with the controller): the counters cannot tell, and a refilled hopper hides the load cell's
+            return Reconciled(feed, SUSPECT, None, "the dispenser counts no run, and had counted none before "
+                              "the intent: a run then a power-on would read the same", no_run_seen=True)
+        return Reconciled(feed, "aborted", None, "auger never started", no_run_seen=True)
     if state.last_tag == feed.tag and moved == 1:
         note = "jammed; load cell grams" if state.jammed else "reconciled from dispenser counters"
         return Reconciled(feed, "done", state.last_grams, note)

@@ -160,8 +160,7 @@ class Dispensing:
         while True:
             state = await self.read()
             result = reconcile(feed, state, accepted=accepted)
-            if result.phase not in ("wait", "aborted") or (result.phase == "aborted"
-                                                           and self.clock.now() >= believe_from):
+            if result.phase != "wait" and (not result.no_run_seen or self.clock.now() >= believe_from):
                 return state, result
             if self.clock.now() > deadline:
                 raise DeviceTimeout(self.dispenser.name, f"auger run {feed.tag} did not end")
