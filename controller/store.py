@@ -133,6 +133,29 @@ class Store(Records, CleanerRecords, SurveyRecords):
                 why = exc.strerror if isinstance(exc, OSError) and exc.strerror else str(exc)
             raise BadInput("store.path", str(path), f"cannot open the ledger: {why}") from None
 
+    @classmethod
+    def reader(cls, path: str | Path) -> Store:
+        """The ledger opened read-only (``fishfarm report``, ``history``): nothing written, no schema
+        added to a file that is not a ledger. BadInput when it is not one of this program's schema."""
+        self = cls.__new__(cls)
+        self.path, self._lock, self.db = Path(path), threading.RLock(), None
+        try:
+            self.db = sqlite3.connect(f"file:{self.path.resolve()}?mode=ro", uri=True, isolation_level=None,
+                                      check_same_thread=False)
+            self.db.row_factory = sqlite3.Row
+            version = self.db.execute("PRAGMA user_version").fetchone()[0]
+        except sqlite3.Error as exc:
+            self.close()
+            raise BadInput(str(path), None, f"cannot read the ledger: {exc}") from None
+        if version != len(MIGRATIONS):
+            self.close()
+            why = ("not a fishfarm ledger (no schema in it)" if version == 0 else
+                   f"ledger schema {version}, this program reads {len(MIGRATIONS)}: "
+                   + ("start the controller once to bring it up to date" if version < len(MIGRATIONS)
+                      else "a newer program wrote it"))
+            raise BadInput(str(path), None, why)
+        return self
+
     # -- schema ---------------------------------------------------------------
     def _migrate(self) -> None:
         with self._lock:

@@ -40,7 +40,7 @@ def history(tank_id, what, since, until, csv_path, config_path) -> None:
     end = parse_time(until, "--until", now, durations=False) if until else None
     if not Path(cfg.store.path).exists():
         raise BadInput(cfg.store.path, None, "no ledger there (the controller has not run with this config)")
-    store = Store(cfg.store.path)
+    store = Store.reader(cfg.store.path)
     try:
         columns, rows, truncated = rows_of(store, what, tank_id, start, end)
     finally:

@@ -96,7 +96,7 @@ def report(tank_id, since, target_g, png_path, as_json, config_path) -> None:
     start = parse_since(since, time.time()) if since else None
     if not Path(cfg.store.path).exists():
         raise BadInput(cfg.store.path, None, "no ledger there (the controller has not run with this config)")
-    store = Store(cfg.store.path)
+    store = Store.reader(cfg.store.path)
     try:
         data = tank_figures(cfg, store, tank_id, start, target_g)
     finally:

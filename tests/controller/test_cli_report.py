@@ -169,3 +169,35 @@ def test_surveys_that_counted_no_fish_are_reported_not_taken_for_none(farm, caps
     assert data["surveys"] == [] and [e["source"] for e in data["empty_surveys"]] == ["dark"]
     code, out, _ = run(capsys, "report", "--tank", "T3", "--config", str(path / "farm.toml"))
     assert "0 surveys that counted fish, 1 that counted none" in out and "no survey in the ledger" not in out
+
+
+@pytest.mark.parametrize("command", ["report", "history"])
+@pytest.mark.parametrize("content", ["empty", "other sqlite", "text", "older schema"])
+def test_a_file_that_is_not_a_ledger_is_refused_and_left_as_it_was(tmp_path, capsys, command, content):
+    """report and history read the ledger only: pointed at another file they exit 2 naming it and
+    write nothing into it (they used to add the ledger's 12 tables to any SQLite or empty file)."""
+    import sqlite3
+    import tomllib
+    path = tmp_path / "x.db"
+    if content == "text":
+        path.write_text("not a database\n")
+    elif content != "empty":
+        db = sqlite3.connect(path)
+        db.execute("CREATE TABLE foo (a)")
+        if content == "older schema":
+            db.execute("PRAGMA user_version = 2")
+        db.commit()
+        db.close()
+    else:
+        path.write_bytes(b"")
+    before = path.read_bytes()
+    raw = tomllib.loads(open("config/farm.toml").read())
+    raw["store"] = {"path": str(path)}
+    (tmp_path / "farm.toml").write_text(tomli_w.dumps(raw))
+    args = ["--tank", "T1", "--config", str(tmp_path / "farm.toml")]
+    code, _, err = run(capsys, command, *args, *(["--what", "surveys"] if command == "history" else []))
+    assert code == 2 and err.count("\n") == 1 and "x.db" in err, err
+    assert {"empty": "not a fishfarm ledger", "other sqlite": "not a fishfarm ledger", "text": "cannot read",
+            "older schema": "start the controller once"}[content] in err
+    assert path.read_bytes() == before
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["farm.toml", "x.db"]     # no -wal, -shm either
