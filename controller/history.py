@@ -46,13 +46,17 @@ def parse_time(text, name: str, now: float, *, durations: bool) -> float:
     text = str(text).strip()
     try:
         value = float(text)
-        if math.isfinite(value):
-            return value
     except ValueError:
-        pass
+        value = None
     m = DURATION.match(text) if durations else None
     if m:
-        return now - float(m.group(1)) * UNIT_S[m.group(2)]
+        value = now - float(m.group(1)) * UNIT_S[m.group(2)]
+    if value is not None:
+        # a number too big for a float (310 digits and more) is not read as an ISO date either:
+        # fromisoformat took '1111...' for 1111-11-11 and every row came back
+        if not math.isfinite(value):
+            raise BadInput(name, None, f"{text[:60]!r}: not a time a float can hold")
+        return value
     try:
         when = dt.datetime.fromisoformat(text.replace("z", "Z"))
     except ValueError:

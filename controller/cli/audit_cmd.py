@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import datetime as dt
 import json
+import math
 import sqlite3
 import sys
 import time
@@ -33,7 +34,10 @@ def parse_since(text: str, now: float) -> float:
     """Unix seconds from an ISO time or a duration back from ``now``; BadInput naming --since."""
     m = _DURATION.match(text)
     if m:
-        return now - float(m.group(1)) * _UNIT_S[m.group(2)]
+        back = float(m.group(1)) * _UNIT_S[m.group(2)]
+        if not math.isfinite(back):
+            raise BadInput("--since", None, f"{text[:60]!r}: not a duration a float can hold")
+        return now - back
     try:
         when = dt.datetime.fromisoformat(text.strip().replace("z", "Z"))
     except ValueError:

@@ -210,7 +210,8 @@ class SurveyStop:
         return sid
 
     def _write_out_json(self, session: SurveySession, t: float, lengths, weights) -> str:
-        stats = summarise(lengths, weights, rng=np.random.default_rng(session.captured))
+        # how many more fish the farm's own precision ([surveys] ci_pct) wanted, not the CLI's 2 %
+        stats = summarise(lengths, weights, rng=np.random.default_rng(session.captured), target=self.s.ci_pct / 100)
         doc = {"species": self.species[session.tank].key, "setup": self.s.setup, "frames": session.captured,
                "fish": session.entries, "count": stats["count"], "length_cm": stats["length_cm"],
                "weight_g": stats["weight_g"], "precision": stats["precision"], "tank": session.tank,

@@ -131,3 +131,8 @@ def test_parse_since():
     assert parse_since("1970-01-01T00:01:00+01:00", 0.0) == -3540.0
     with pytest.raises(BadInput):
         parse_since("", 0.0)
+
+
+def test_a_duration_no_float_holds_is_refused():
+    with pytest.raises(BadInput, match="--since"):
+        parse_since("1" * 400 + "d", 1_780_000_000.0)

@@ -9,6 +9,7 @@ import tomli_w
 
 from controller.cli import main
 from controller.config import load_config
+from controller.errors import BadInput
 from controller.history import history, parse_time, query_reply
 from controller.store import Store
 
@@ -55,6 +56,14 @@ def test_each_kind_of_row_for_the_tank_oldest_first_within_the_range(ledger):
 def test_times_are_iso_unix_seconds_or_a_span_back(text, durations, want):
     now = T + 7 * DAY if text == "7d" else T
     assert parse_time(text, "since", now, durations=durations) == pytest.approx(want)
+
+
+@pytest.mark.parametrize("text", ["1" * 310, "1" * 5000, "9" * 400 + ".5", "1e400", "-1e400", "inf", "nan",
+                                  "1" * 400 + "d"])
+def test_a_number_no_float_holds_is_refused_not_read_as_a_date(text):
+    """Python's fromisoformat reads '1111...' as 1111-11-11 (every row since then came back)."""
+    with pytest.raises(BadInput, match="since"):
+        parse_time(text, "since", T, durations=True)
 
 
 def test_the_queryable_s_answers_and_refusals(ledger):

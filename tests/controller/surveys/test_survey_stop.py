@@ -7,8 +7,10 @@ from __future__ import annotations
 
 import asyncio
 import json
+import math
 import threading
 import time
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -130,6 +132,11 @@ def test_a_survey_stop_settles_captures_its_pairs_at_the_tank_and_is_recorded(tm
     assert all(t >= arrived + 30.0 - 1.0 for t, _ in camera.pairs)          # after the water settled
     assert ["moving", "surveying", "idle"] == [s for s in states if s in ("moving", "surveying", "idle")][-3:]
     assert fresh == ["T2"] and ration.source == "survey"
+    # OUT.json's precision is against the farm's ci_pct (0.1 % here), not the survey command's 2 %
+    precision = json.loads(Path(survey.source).read_text())["precision"]
+    assert precision["target_pct"] == pytest.approx(0.1)
+    n, half = survey.count, precision["half_width_pct"]
+    assert precision["fish_needed"] == max(n, math.ceil(n * (half / 0.1) ** 2)) > 100 * n
 
 
 class HeldMeasure(MeasureDouble):
