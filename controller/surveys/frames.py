@@ -40,6 +40,7 @@ class PairJob:
     right: np.ndarray | None = None
     read_s: float = 0.0                     # seconds the parent spent decoding it
     shared: tuple | None = None             # (file, offset, left shape, right shape): arrays in a shared map
+    warning: str | None = None              # what decoding it noticed (an RG video's blue channel)
 
 
 @dataclass
@@ -152,7 +153,7 @@ def file_bytes(path: str) -> bytes:
 def read_pair(job: PairJob) -> tuple[np.ndarray, np.ndarray, str | None]:
     """(left, right, warning) of a job, decoding its files if it names them."""
     if job.left is not None:
-        return job.left, job.right, None
+        return job.left, job.right, job.warning
     if len(job.paths) == 1:
         return split_rg(_imread(job.paths[0], cv2.IMREAD_COLOR), job.paths[0])
     left, right = _imread(job.paths[0]), _imread(job.paths[1])
@@ -353,12 +354,14 @@ def _video_jobs(caps: list[cv2.VideoCapture], paths: tuple[str, ...], every: int
                                                f"not the same length (not synchronised? --sync-offset N pairs the "
                                                f"right's frame k + N with the left's k{overlap})")
             if keep:
+                warning = None
                 if len(caps) == 1:
-                    left, right, _ = split_rg(got[0], f"{paths[0]} frame {i}")
+                    left, right, warning = split_rg(got[0], f"{paths[0]} frame {i}")
                 else:
                     left, right = got
                     check_same_size(left, right, paths[0], paths[1])
-                yield PairJob(i, f"{name} frame {i}", left=left, right=right, read_s=time.perf_counter() - t0)
+                yield PairJob(i, f"{name} frame {i}", left=left, right=right, read_s=time.perf_counter() - t0,
+                              warning=warning)
                 done += 1
             i += 1
     finally:

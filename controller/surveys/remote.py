@@ -328,7 +328,7 @@ class _Dispatch:
         served = sum(timings.get(k, 0.0) for k in ("wait", "calib", "decode", "measure"))
         timings["encode"] = rec.encode_s
         timings["transport"] = max(0.0, rtt - served)
-        warning = reply.get("warning") if isinstance(reply.get("warning"), str) else None
+        warning = reply.get("warning") if isinstance(reply.get("warning"), str) else rec.job.warning
         return PairResult(rec.job.frame, rec.job.where, reply["fish"], timings, warning, worker=worker)
 
     def close(self) -> None:

@@ -129,7 +129,7 @@ class FrameRing:
         row[:left.nbytes] = left.reshape(-1)
         row[left.nbytes:size] = right.reshape(-1)
         return PairJob(job.frame, job.where, job.paths, read_s=job.read_s,
-                       shared=(self.path, slot * self.map.shape[1], left.shape, right.shape))
+                       shared=(self.path, slot * self.map.shape[1], left.shape, right.shape), warning=job.warning)
 
     def close(self) -> None:
         if self.file is not None:

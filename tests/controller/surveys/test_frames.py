@@ -1,3 +1,4 @@
+import re
 from pathlib import Path
 
 import cv2
@@ -182,7 +183,7 @@ def test_view_folders_that_do_not_pair_are_named(tmp_path, layout, fault):
         directory_items(str(tmp_path))
 
 
-def make_video(path: Path, frames: int, size=(64, 48), rg=False, fps=25.0, started=0) -> str:
+def make_video(path: Path, frames: int, size=(64, 48), rg=False, fps=25.0, started=0, blue=0) -> str:
     """A video whose frame i shows the moment i + ``started`` (its level, 8 a moment: a camera started
     ``started`` frames late shows the moment 0 at its frame -started)."""
     out = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"MJPG"), fps, size)
@@ -191,6 +192,7 @@ def make_video(path: Path, frames: int, size=(64, 48), rg=False, fps=25.0, start
         img = np.zeros((size[1], size[0], 3), np.uint8)
         img[:, :, 2 if rg else 1] = 8 * (i + started)       # the moment, readable back from the picture
         img[:, :, 1 if rg else 2] = 100
+        img[:, :, 0] = blue
         out.write(img)
     out.release()
     return str(path)
@@ -215,6 +217,17 @@ def test_rg_video_is_split_into_left_red_and_right_green(tmp_path):
     jobs = list(video_source((make_video(tmp_path / "rg.avi", 4, rg=True),)).jobs)
     assert len(jobs) == 4 and jobs[2].left.ndim == 2
     assert level(jobs[2].left) == pytest.approx(16, abs=3) and level(jobs[2].right) == pytest.approx(100, abs=3)
+
+
+def test_an_rg_video_s_blue_channel_is_checked_as_an_rg_still_s(tmp_path):
+    """Each frame's warning travels with its job, read where the pair is (as a still's does)."""
+    clean = list(video_source((make_video(tmp_path / "rg.avi", 3, rg=True),)).jobs)
+    assert [read_pair(j)[2] for j in clean] == [None] * 3
+    bled = list(video_source((make_video(tmp_path / "blue.avi", 3, rg=True, blue=60),)).jobs)
+    warnings = [read_pair(j)[2] for j in bled]
+    assert all(w is not None and re.search(r"blue channel not empty \(mean level (5[5-9]|6[0-5])\)", w)
+               for w in warnings), warnings                # MJPG's 60, give or take its rounding
+    assert [w.split(":")[0] for w in warnings] == [f"{tmp_path}/blue.avi frame {i}" for i in range(3)]
 
 
 def test_a_video_that_ends_early_is_named(tmp_path):
