@@ -107,7 +107,13 @@ def read_image(path: Path, where: str) -> np.ndarray:
         data = path.read_bytes()
     except OSError as exc:
         raise BadInput(str(path), None, f"cannot be read: {exc.strerror or exc} ({where})") from None
-    image = opencv_decode(data, str(path), cv2.IMREAD_COLOR, "PNG")
+    try:
+        image = opencv_decode(data, str(path), cv2.IMREAD_COLOR, "PNG")
+    except BadInput as exc:                   # what the codec said, and where the frame is listed
+        said = str(exc).removeprefix(f"{path}: ")
+        if said.startswith("too large"):
+            raise
+        raise BadInput(str(path), None, f"cannot read it as an image ({where}): {said}") from None
     if image is None or image.size == 0:
         raise BadInput(str(path), None, f"cannot read it as an image ({where})")
     return image

@@ -203,6 +203,24 @@ def test_a_still_declaring_more_pixels_than_opencv_reads_is_one_line(farm, tmp_p
                         f"{name}: too large: over 2^30 pixels")
 
 
+def test_a_still_its_codec_reports_damaged_is_one_line_not_a_survey_of_the_smear(farm, tmp_path):
+    """A JPEG with 64 bytes zeroed mid-scan: OpenCV decodes it (libjpeg's note on stderr) and the
+    survey measured the smear; a 16-bit PNG with a CRC error: libpng's line beside ours."""
+    d, _ = farm
+    left = cv2.imread(str(d / "pairs/p0_L.png"))
+    jpg = bytearray(cv2.imencode(".jpg", left, [cv2.IMWRITE_JPEG_QUALITY, 95])[1].tobytes())
+    jpg[len(jpg) // 2:len(jpg) // 2 + 64] = bytes(64)
+    (tmp_path / "mid.jpg").write_bytes(bytes(jpg))
+    png = bytearray(cv2.imencode(".png", left.astype(np.uint16) * 257)[1].tobytes())
+    png[len(png) // 2] ^= 0xFF
+    (tmp_path / "crc16.png").write_bytes(bytes(png))
+    for name, said in (("mid.jpg", "damaged image (its decoder: Corrupt JPEG data"),
+                       ("crc16.png", "its decoder: libpng error: IDAT")):
+        got = run(*common(d, "--pair", tmp_path / name, d / "pairs/p0_R.png", "--json", tmp_path / "x.json"))
+        one_line_exit_2(got, f"{name}: ")
+        assert said in got.stderr, got.stderr
+
+
 def test_without_the_pipeline_merged_it_says_so_in_one_line(farm, tmp_path):
     """Until vision.underwater lands, the real command fails as an internal error, not as bad input."""
     d, _ = farm
