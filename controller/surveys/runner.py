@@ -221,6 +221,8 @@ def measure_all(jobs: Iterable[PairJob], calib: StereoCalibration, setup: Survey
     # forkserver: workers start from a clean interpreter, not a fork of one holding threads
     # (the progress bar's) and OpenCV's thread pool
     ctx = multiprocessing.get_context("forkserver")
+    # (before the forkserver starts: a worker started as a signalled survey exits dies quietly)
+    ctx.set_forkserver_preload(["controller.surveys.worker_start"])
     # one BLAS thread per worker too: with a pair per core, threaded matrix products only contend
     # (measured ~10x slower under load); the forkserver starts with this environment
     for var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
