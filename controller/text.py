@@ -9,11 +9,18 @@ from __future__ import annotations
 import re
 
 # C0 and C1 controls, DEL, Unicode line/paragraph separators, the bidirectional overrides and
-# marks (text that displays in another order than it reads), the invisible ones (zero-width
-# space and joiners, word joiner, BOM: an operator "\u200b" shows as nobody) and lone
-# surrogates (JSON's "\ud800": no UTF-8)
-CONTROL = re.compile("[\x00-\x1f\x7f-\x9f\u061c\u200b-\u200f\u2028\u2029\u202a-\u202e\u2060\u2066-\u2069"
-                     "\ufeff\ud800-\udfff]")
+# marks (text that displays in another order than it reads), the invisible ones (an operator
+# "bob\u2063\u00ad" shows as "bob"): every format character (Unicode category Cf: zero-width
+# space and joiners, word joiner, BOM, soft hyphen, invisible operators, the tag block, Egyptian and
+# musical format controls), every default-ignorable code point (variation selectors, the Hangul
+# and Mongolian fillers, combining grapheme joiner) and the braille blank; and lone surrogates
+# (JSON's "\ud800": no UTF-8). tests/controller/test_text.py checks the Cf list against Python's
+# own Unicode tables.
+CONTROL = re.compile("[\x00-\x1f\x7f-\x9f\u00ad\u034f\u0600-\u0605\u061c\u06dd\u070f\u0890\u0891\u08e2"
+                     "\u115f\u1160\u17b4\u17b5\u180b-\u180f\u200b-\u200f\u2028-\u202e\u2060-\u206f"
+                     "\u2800\u3164\ufe00-\ufe0f\ufeff\uffa0\ufff0-\ufffb\ud800-\udfff"
+                     "\U000110bd\U000110cd\U00013430-\U0001343f\U0001bca0-\U0001bca3"
+                     "\U0001d173-\U0001d17a\U000e0000-\U000e0fff]")
 ELLIPSIS = "…"
 
 

@@ -26,3 +26,21 @@ def test_invisible_characters_count_as_control_characters():
         assert has_control(f"ana{char}"), repr(char)
         assert printable(char, 10) == f"\\u{ord(char):04x}"
     assert not has_control("Ana Pérez, 水産")
+
+
+def test_every_format_character_and_default_ignorable_counts_as_control():
+    """Python's own Unicode tables: every format character (category Cf, 170 in Unicode 15: soft
+    hyphen, invisible operators, the tag block...) and the default-ignorable and blank-looking ones
+    a name can hide in ("bob\\u2063\\u00ad" shows as "bob"); escaped where shown, with no surrogate
+    halves left in the escape."""
+    import sys
+    import unicodedata
+    format_chars = [chr(c) for c in range(sys.maxunicode + 1) if unicodedata.category(chr(c)) == "Cf"]
+    assert len(format_chars) >= 160
+    others = "\u034f\u115f\u1160\u17b4\u17b5\u180b\u180f\u2800\u3164\ufe00\ufe0f\uffa0\U000e0100\U000e01ef"
+    for char in [*format_chars, *others]:
+        assert has_control(f"bob{char}"), f"U+{ord(char):04X}"
+        shown = printable(char, 20)
+        assert shown.isprintable() and not has_control(shown), f"U+{ord(char):04X}"
+    for fine in ("Ana Pérez", "水産 太郎", "Ólafur Þórsson", "Zoë-Chloé", "محمد", "שרה", "Ñandú 🐟"):
+        assert not has_control(fine), fine
