@@ -65,10 +65,14 @@ def as_json(pairs: list[tuple[str, str]]) -> bytes:
 
 # ---------------------------------------------------------------- what is valid
 
-operators = st.text(st.characters(codec="utf-8", exclude_categories=("Cc", "Cs", "Zl", "Zp", "Cf")),
-                    min_size=1, max_size=OPERATOR_MAX)
-reasons = st.text(st.characters(codec="utf-8", exclude_categories=("Cc", "Cs", "Zl", "Zp", "Cf")),
-                  max_size=REASON_MAX)
+# README "Operator guide": no controls, no format characters (Cf), no variation selectors, fillers or
+# braille blank (nor unassigned code points: the default-ignorable blocks hold some)
+INVISIBLE = ("\u034f\u115f\u1160\u17b4\u17b5\u180b\u180c\u180d\u180f\u2800\u3164\uffa0"
+             + "".join(map(chr, range(0xFE00, 0xFE10))) + "".join(map(chr, range(0xE0100, 0xE01F0))))
+TEXT_CHARS = st.characters(codec="utf-8", exclude_categories=("Cc", "Cs", "Zl", "Zp", "Cf", "Cn"),
+                           exclude_characters=INVISIBLE)
+operators = st.text(TEXT_CHARS, min_size=1, max_size=OPERATOR_MAX)
+reasons = st.text(TEXT_CHARS, max_size=REASON_MAX)
 numbers_in = lambda lo, hi: st.one_of(st.floats(lo, hi), st.integers(int(lo) + 1, int(hi)))  # noqa: E731
 
 ORIGINAL = {  # command -> field -> strategy of a valid value: the commands that act on the robot
