@@ -57,7 +57,9 @@ def _weights(c, tank_id: str, now: float) -> dict:
     f = watch.figures.get(tank_id, {}) if watch is not None else {}
     water = getattr(c, "water", None)
     temp = water.temperature(tank_id, now) if water is not None else None
-    return {"mean_weight_g": round(basis.mean_weight_g, 2), "ration_basis": basis.source,
+    # today's ration's own basis, as its topic says it ("operator" once an operator set it); the mean
+    # weight is the tank's estimate all the same
+    return {"mean_weight_g": round(basis.mean_weight_g, 2), "ration_basis": c.rations.today(tank_id, now).source,
             "water_temp_c": None if temp is None else round(temp.celsius, 2),
             "water_temp_source": None if temp is None else temp.source,
             "last_survey_t": f.get("last_survey_t"), "weight_cv_pct": f.get("weight_cv_pct"),

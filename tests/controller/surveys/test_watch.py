@@ -104,6 +104,11 @@ def test_the_figures_between_the_last_two_surveys_are_published_and_shown_in_sta
     assert shown["weight_ci_pct"] > 0
     never = _weights(c, "T4", T)
     assert never["ration_basis"] == "config" and never["mean_weight_g"] == cfg.tank("T4").mean_weight_g
+    # an operator's ration: status says so, as the ration's topic does
+    rations.set("T1", T + 10 * day + 6, 500.0, "operator")
+    set_by_hand = _weights(c, "T1", T + 10 * day + 7)
+    assert set_by_hand["ration_basis"] == "operator" == rations.payload("T1", T + 10 * day + 7)["basis"]
+    assert set_by_hand["mean_weight_g"] == 25
     assert never["last_survey_t"] is None and never["fcr"] is None
 
 
