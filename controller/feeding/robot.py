@@ -78,6 +78,7 @@ class FeedingRobot(Recovering):
         self._wake = asyncio.Event()          # a demand came, or an operator acted
         self._operator = asyncio.Event()      # an operator acted: only this cuts a back-off short
         self._estop_released = False
+        self.manual_asked = False             # an operator asked for manual while the robot was busy
         self._action: asyncio.Task | None = None
         self.surveys = None                   # controller/surveys/wiring.py's SurveyStops, when a camera is set up
         initial = "estop" if "estop" in alarms.active else "homing"
@@ -126,6 +127,7 @@ class FeedingRobot(Recovering):
     def _stopped(self, reason: str) -> None:
         """The robot's side of an e-stop already tripped: state, courtesy cancel, alarm."""
         self._cancel_action()
+        self.manual_asked = False             # a reset starts afresh: no hands-on asked before the stop
         if self.state != "estop":
             self.estop()
             self.alarms.raise_("estop", self.lane.alarm_text(reason), "critical", kind="latched")
@@ -155,11 +157,20 @@ class FeedingRobot(Recovering):
         return None
 
     def set_manual(self, on: bool) -> str | None:
+        """Hands on (``on``) or off; an error, or None. Asked while the robot is busy (homing, moving,
+        dispensing, refilling, surveying), manual comes once that job ends: a move or a portion is not
+        cut short (a survey or a refill is: they leave as they do for a demand), and nothing else
+        starts meanwhile. ``manual_asked`` says it is coming; hands off before it withdraws it."""
         if on and self.state in ("idle", "fault"):
             self._cancel_action()            # hands on: nothing of ours may move
+            self.manual_asked = False
             self.take_manual()
+        elif on and self.state in ACTIVE:
+            self.manual_asked = True
         elif not on and self.state == "manual":
             self.release_manual()
+        elif not on and self.manual_asked:
+            self.manual_asked = False
         elif on != (self.state == "manual"):
             return f"cannot {'take' if on else 'release'} manual control in state {self.state}"
         self._poke()
@@ -195,6 +206,9 @@ class FeedingRobot(Recovering):
     async def _step(self) -> None:
         if self.state == "homing":
             await self._home()
+        elif self.state == "idle" and self.manual_asked:
+            self.manual_asked = False        # the job under way when it was asked is done
+            self.take_manual()
         elif self.state == "idle":
             await self._idle()
         elif self.state == "fault":
@@ -280,7 +294,7 @@ class FeedingRobot(Recovering):
         self.go()
         await self._move_to(self.cfg.tank(session.tank).position_m)
         self.arrive_survey()
-        await self.surveys.visit(session, lambda: bool(self.pending), self._wake)
+        await self.surveys.visit(session, lambda: bool(self.pending) or self.manual_asked, self._wake)
         self.surveyed()
 
     async def _refill(self) -> None:
@@ -293,7 +307,7 @@ class FeedingRobot(Recovering):
         try:
             deadline = self.clock.now() + self.feeding.refill_timeout_s
             while (state := await self.dispensing.read()).hopper_g < full:
-                if self.pending and state.hopper_g >= self.feeding.refill_below_g:
+                if (self.pending or self.manual_asked) and state.hopper_g >= self.feeding.refill_below_g:
                     break                      # enough for the fish waiting now; top up later
                 if self.clock.now() > deadline:
                     raise DeviceTimeout(self.dispenser.name,

@@ -327,3 +327,46 @@ def test_demands_do_not_cut_a_back_off_short(tmp_path):
             await r.until(lambda: r.robot.state != "fault", farm_s=600, what="retry")
             assert r.clock.now() - fault_at >= 290.0
     run(main())
+
+
+@pytest.mark.parametrize("busy", ["moving", "dispensing", "refilling"])
+def test_manual_asked_while_busy_comes_once_the_job_ends_and_nothing_starts_meanwhile(tmp_path, busy):
+    """An operator's hands-on while the robot works: the move or the portion is not cut short, the
+    refill leaves as for a demand, then the robot is in manual and serves nothing else; hands off
+    before that withdraws it."""
+    async def main():
+        hopper = {"hopper_start_g": 100.0} if busy == "refilling" else {}
+        async with rig(tmp_path, speed=20.0, dispenser=hopper, rail={"start_m": 6.0}) as r:
+            await _reach(r, busy)
+            assert r.robot.set_manual(True) is None and r.robot.manual_asked
+            r.demand("T1")                                  # fish asking meanwhile: not served
+            await r.until(lambda: r.robot.state == "manual", what="manual after the job")
+            assert not r.robot.manual_asked
+            feeds = r.store.feeds()
+            assert all(f.phase == "done" for f in feeds) and "T1" not in {f.tank for f in feeds}
+            assert not (await r.dispenser.read()).running and not (await r.dispenser.read()).refilling
+            if busy != "refilling":
+                assert [f.tank for f in feeds][-1] == "T2"     # the portion under way was given whole
+            assert r.robot.set_manual(False) is None
+            await r.until(lambda: "T1" in {f.tank for f in r.store.feeds()}, what="T1 served after")
+            # asked and withdrawn before the job ended: the robot carries on
+            served = len(r.store.feeds())
+            await r.until(lambda: r.robot.state == "idle", what="idle")
+            r.demand("T2")
+            await r.until(lambda: r.robot.state in ("moving", "dispensing"), what="busy again")
+            assert r.robot.set_manual(True) is None and r.robot.set_manual(False) is None
+            assert not r.robot.manual_asked
+            await r.until(lambda: len(r.store.feeds()) > served, what="T2 served again")
+            assert r.robot.state != "manual"
+    run(main())
+
+
+def test_an_estop_drops_a_manual_asked_for(tmp_path):
+    async def main():
+        async with rig(tmp_path, speed=20.0, rail={"start_m": 6.0}) as r:
+            await _reach(r, "moving")
+            assert r.robot.set_manual(True) is None and r.robot.manual_asked
+            await r.robot.emergency_stop("test")
+            assert r.robot.state == "estop" and not r.robot.manual_asked
+            assert r.robot.set_manual(True) == "cannot take manual control in state estop"
+    run(main())
