@@ -98,7 +98,7 @@ class _Tracks:
         if self.tracker is not None:
             tracks = self.tracker.finish()
             self.tracks_seen = len(tracks)
-            kept = [t for t in tracks if len(t.frames) >= self.min_sightings]
+            kept = [t for t in tracks if t.count >= self.min_sightings]
             ids = np.array([int(t.id) for t in kept], dtype=int)
             lengths = np.array([t.length_cm for t in kept], dtype=float)
         else:

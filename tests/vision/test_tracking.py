@@ -147,7 +147,7 @@ def run(swim: Swim, **kw) -> tuple[list[Track], Score]:
     seen_count = Counter(who for truth in swim.truth for who in truth if who >= 0)
     counted, false_tracks, impure, errors, owner = Counter(), 0, 0, [], {}
     for t in tracks:
-        assert t.count == len(sightings[t.id]) == len(t.lengths_cm)
+        assert t.count == len(sightings[t.id])
         if t.count < MIN_COUNT:
             continue
         who, n = Counter(sightings[t.id]).most_common(1)[0]
@@ -173,7 +173,8 @@ def test_one_fish_swimming_is_one_track_with_its_length():
     swim = observe(np.random.default_rng(1), [wander(np.random.default_rng(2), 320.0, 250)], p_seen=1.0)
     tracks, score = run(swim)
     assert len(tracks) == 1 and score.counted == Counter({0: 1})
-    assert tracks[0].frames == swim.frames and tracks[0].count == len(swim.frames)
+    assert (tracks[0].first_frame, tracks[0].last_frame, tracks[0].count) == (swim.frames[0], swim.frames[-1],
+                                                                           len(swim.frames))
     assert abs(score.length_error[0]) < 0.005
     assert 0.5 <= tracks[0].score <= 1.0
 
@@ -189,7 +190,8 @@ def test_frames_must_increase_and_empty_frames_are_fine():
             tracker.update(frame, [f])
     assert tracker.update(4, []) == []
     tracks = tracker.finish()
-    assert [(t.id, t.frames, t.length_cm) for t in tracks] == [(0, [3], pytest.approx(30.0))]
+    assert [(t.id, t.count, t.first_frame, t.last_frame, t.length_cm) for t in tracks] == [
+        (0, 1, 3, 3, pytest.approx(30.0))]
     assert tracker.finish() == [] and tracker.update(0, []) == []       # empty again: a new video
 
 
@@ -242,7 +244,7 @@ def test_two_fish_crossing_keep_one_track_each(angle_deg, lengths):
         fish.append(straight(length, start, yaw, 1.0, n))
     for seed in range(5):
         tracks, score = run(observe(np.random.default_rng(seed), fish, noise_mm=4.0))
-        assert score.counted == Counter({0: 1, 1: 1}), (seed, [(t.id, t.frames) for t in tracks])
+        assert score.counted == Counter({0: 1, 1: 1}), (seed, [(t.id, t.first_frame, t.last_frame) for t in tracks])
         assert score.impure == 0 and score.false_tracks == 0
         assert max(map(abs, score.length_error)) < 0.01
 
@@ -278,7 +280,7 @@ def test_a_fish_gone_longer_than_max_missed_becomes_a_new_track():
     fish = [straight(300.0, [-500.0, 1300.0, -800.0], 0.0, 1.0, 100)]
     swim = observe(np.random.default_rng(3), fish, p_seen=1.0, hidden={0: range(40, 60)})
     tracks, _ = run(swim, max_missed=10)
-    assert [t.frames[0] for t in tracks] == [0, 60]
+    assert [(t.first_frame, t.last_frame) for t in tracks] == [(0, 39), (60, 99)]
     tracks, score = run(swim, max_missed=25)
     assert len(tracks) == 1 and score.counted == Counter({0: 1})
 
@@ -382,9 +384,9 @@ def test_renderer_swims_count_each_fish_in_view_once(setup, seed):
             by_fish.setdefault(score.owner[t.id], []).append(t)
     splits = 0
     for who, ts in by_fish.items():
-        ts.sort(key=lambda t: t.frames[0])
+        ts.sort(key=lambda t: t.first_frame)
         for a, b in zip(ts, ts[1:], strict=False):
-            frames = [f for f in visible[who] if a.frames[-1] <= f <= b.frames[0]]
+            frames = [f for f in visible[who] if a.last_frame <= f <= b.first_frame]
             splits += len(frames) < 2 or int(np.diff(frames).max()) <= 15
     assert splits <= 0.05 * score.fish, (splits, score.fish, score.counted_twice)
     errors = np.abs(score.length_error)         # a short track may keep a misplaced end's length
@@ -402,3 +404,40 @@ def test_a_track_s_reference_length_is_the_median_of_its_sightings_after_each(le
     for i, length in enumerate(lengths[1:], start=1):
         track.add(i, np.array([1.0, 0.0, 0.0]), length, 0.5)
         assert track.reference_length_mm() == float(np.median(lengths[:i + 1]))
+
+
+@settings(max_examples=200, deadline=None)
+@given(st.lists(st.floats(50.0, 900.0), min_size=1, max_size=80))
+def test_a_long_track_keeps_a_bounded_sample_and_its_median(lengths):
+    """Beyond MAX_SIGHTINGS (16 here) a track keeps that many sightings, each later one replacing a
+    random one; the reference stays np.median of what is kept, bit for bit, and the count is exact."""
+    import vision.tracking as tracking
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(tracking, "MAX_SIGHTINGS", 16)
+        track = tracking._Open(7, 0, np.zeros(3), np.array([1.0, 0.0, 0.0]), lengths[0], 0.5, 1.0, 1.0)
+        for i, length in enumerate(lengths[1:], start=1):
+            track.add(i, np.array([1.0, 0.0, 0.0]), length, 0.5)
+            kept = list(track.lengths_mm)
+            assert len(kept) == min(i + 1, 16) and track.count == i + 1
+            assert list(track.sorted_mm) == sorted(kept)
+            assert track.reference_length_mm() == float(np.median(kept))
+            assert Counter(kept) <= Counter(lengths[:i + 1])      # each kept length was seen
+
+
+def test_a_fish_in_view_for_long_is_sampled_over_the_whole_stay():
+    """A fish seen 20,000 times whose reading drifts 300 -> 330 mm (the sample is uniform over the
+    stay, not its first sightings: those would give ~302 mm) keeps MAX_SIGHTINGS of them; its track's
+    count, frames and score (the mean of every sighting's) are exact."""
+    from vision.tracking import MAX_SIGHTINGS, _Open
+    n = 20_000
+    lengths = np.linspace(300.0, 330.0, n)
+    scores = np.where(np.arange(n) % 2 == 0, 0.2, 0.8)
+    track = _Open(3, 100, np.zeros(3), np.array([1.0, 0.0, 0.0]), lengths[0], scores[0], 1.0, 1.0)
+    for i in range(1, n):
+        track.add(100 + i, np.array([1.0, 0.0, 0.0]), lengths[i], scores[i])
+    assert len(track.lengths_mm) == len(track.scores) == len(track.sorted_mm) == MAX_SIGHTINGS
+    assert abs(track.reference_length_mm() - 315.0) < 0.6          # the sample median's sd: ~0.2 mm
+    done = track.close()
+    assert (done.count, done.first_frame, done.last_frame) == (n, 100, 100 + n - 1)
+    assert done.score == pytest.approx(0.5)
+    assert abs(done.length_cm - 31.5) < 0.06

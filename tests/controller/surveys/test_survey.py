@@ -1,7 +1,10 @@
 """The survey library entry with stand-ins for the per-pair pipeline (tests/controller/surveys/standin.py)."""
 import json
+import subprocess
 import sys
+import textwrap
 import types
+from pathlib import Path
 
 import cv2
 import numpy as np
@@ -129,7 +132,7 @@ def test_video_statistics_use_one_entry_per_track(tmp_path, monkeypatch):
     """With vision.tracking present, a fish seen in many frames counts once, at its track's length."""
     class Track:
         def __init__(self, i, lengths):
-            self.id, self.length_cm, self.frames = i, float(np.median(lengths)), list(range(len(lengths)))
+            self.id, self.length_cm, self.count = i, float(np.median(lengths)), len(lengths)
 
     class FishTracker:
         def __init__(self, fps):
@@ -199,3 +202,25 @@ def test_two_fish_are_never_judged_by_each_other(tmp_path):
                options(f"{STANDIN}:slow_by_level"), str(tmp_path / "o.json"))
     doc = json.loads((tmp_path / "o.json").read_text())
     assert doc["count"] == 2 and doc["rejected_lengths_cm"] == [] and not any(f["outlier"] for f in doc["fish"])
+
+
+def test_a_worker_started_as_its_survey_ends_dies_without_a_traceback():
+    """The forkserver's preload (controller.surveys.worker_start): a worker that cannot rebuild the
+    pool's semaphore (the survey, signalled, unlinked it as it exited) exits quietly; any other
+    error is printed as before. Run as the forkserver's child would meet it: sys.excepthook."""
+    code = textwrap.dedent("""
+        import sys, multiprocessing.synchronize as s
+        import controller.surveys.worker_start
+        try:
+            s.SemLock.__new__(s.SemLock).__setstate__((0, 1, 1, "/fishfarm-survey-gone"))
+        except FileNotFoundError:
+            sys.excepthook(*sys.exc_info())
+        try:
+            open("/fishfarm/no/such/file")
+        except FileNotFoundError:
+            sys.excepthook(*sys.exc_info())
+    """)
+    got = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60,
+                         cwd=str(Path(__file__).resolve().parents[3]))
+    assert got.stderr.count("Traceback") == 1 and "synchronize.py" not in got.stderr, got.stderr
+    assert "/fishfarm/no/such/file" in got.stderr
