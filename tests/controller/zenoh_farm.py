@@ -26,7 +26,7 @@ WAIT_S = 10.0
 # person -> role: added to the role's subject beside the role's own login
 PEOPLE = {"ana": "operators", "erin": "engineers", "vic": "viewers"}
 ROLE_OF = {"viewer": "viewer", "operator": "operator", "engineer": "engineer", "controller": None,
-           "ana": "operator", "erin": "engineer", "vic": "viewer"}
+           "ana": "operator", "erin": "engineer", "vic": "viewer", "worker": "worker"}
 
 
 @dataclass
