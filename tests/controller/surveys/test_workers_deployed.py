@@ -101,13 +101,15 @@ def test_no_other_login_can_pose_as_a_worker(farm, stolen):
     assert forged == []
 
 
-def test_the_worker_login_reaches_nothing_but_its_jobs(farm):
+def test_the_worker_login_reaches_nothing_but_its_jobs_and_the_estop(farm):
+    """(E-stop is open to every authenticated login: a vision worker's machine too.)"""
     heard = []
     farm.bus.session.declare_queryable(calib_key("demo", "abc"), lambda q: q.reply(q.key_expr, b"calibration"))
     with session(farm, "worker") as w:
         w.declare_subscriber("farm/**", lambda s: heard.append(str(s.key_expr)))
         assert answers(w, "farm/demo/status") == []
-        assert answers(w, "farm/demo/override/estop", b"{}") == []
+        assert answers(w, "farm/demo/override/reset", b"{}") == []
+        assert answers(w, "farm/demo/override/estop", b"{}") != []
         assert answers(w, "farm/demo/history/surveys/T1") == []
         w.put("farm/demo/alarm/feeder", b'{"forged": true}')
         # what it may do, a round trip behind the rest on its link
