@@ -78,7 +78,9 @@ exponentially weighted over ``background_tau_s``, is e^(-55 b) under Poisson tur
 lower confidence bound (one s.d.) gives b with a margin. Unlike a mean count, the share of empty
 spans hardly moves when undetected slow episodes (contacts for minutes) or bursts pass. It is
 clipped to [floor, 4 × max] and starts at ``turbulence_max_hz``, so a fresh filter is
-conservative (an hour of measuring brings it to the tank's own).
+conservative (an hour of measuring brings it to the tank's own); for the first ``PRIOR_S`` of
+measuring it is at most that (the prior's own lower bound was the grid's top: a fresh filter, after
+every restart, missed episodes below ~0.5 /s; 2026-12-04).
 
 *The beat.* Fish bumping at a steady pace are far from Poisson, which the count ignores. m
 cycles of a lattice of period P in ``beat_period_s`` (2–12 s), one contact each within ±δP of
@@ -159,6 +161,7 @@ FISH_MAX_HZ = 2.0       # the contract's fastest fish
 RUN_GAP_S = 1.0         # contacts closer than this continue a run (a burst's tail goes with it)
 BURST_S = 10.0          # the contract's longest chatter burst: a run lasting longer is not one
 RAISE_GAP_PACES = 3.0   # the raising contact follows the one before within this many paces
+PRIOR_S = 900.0         # the background prior: this long at the contract's bound (turbulence_max_hz)
 
 
 class DemandFilter(BurstRules):
@@ -219,7 +222,7 @@ class DemandFilter(BurstRules):
         ts.raw += 1
         if ts.raw >= self._chatter:
             self._chatter_bin(ts)
-        slot = int(t * self._inv_slot)
+        slot = math.floor(t * self._inv_slot)      # (floor: t may be negative, "start anywhere")
         if slot > ts.slot:
             ts.slot = slot
             ts.occ += 1
@@ -392,6 +395,7 @@ class DemandFilter(BurstRules):
         if not ts.demanding:                        # background: is the span of the window empty?
             ts.bg_n = ts.bg_n * self._alpha + (ts.vsum == 0)
             ts.bg_t = ts.bg_t * self._alpha + 1.0
+            ts.bg_seen += 1
         if ts.vals[h]:                              # a non-chatter bin with healthy contacts
             ts.active += 1
         ts.cur = ts.raw = ts.occ = 0
@@ -405,6 +409,11 @@ class DemandFilter(BurstRules):
         share, n_eff = ts.bg_n / ts.bg_t, max(1.0, ts.bg_t / len(ts.vals))
         lo = share - math.sqrt(share * (1.0 - share) / n_eff) - 0.5 / n_eff
         b = -math.log(max(lo, 1e-9)) / self._span
+        if ts.bg_seen * self._bin < PRIOR_S:
+            # the prior alone is the contract's bound, not its lower confidence bound: 15 min of pseudo
+            # spans at 0.05 /s bound b at the grid's top (4x), k ~26 busy seconds a minute, and every
+            # episode in a tank's first minutes after a (re)start went unraised below ~0.5 /s
+            b = min(b, self.params.turbulence_max_hz)
         return min(max(self.params.turbulence_floor_hz, b), self._b_grid[-1])
 
     # -- sensors ------------------------------------------------------------------------------
@@ -423,7 +432,7 @@ class DemandFilter(BurstRules):
 
     def _new_tank(self, tank: str) -> TankWindow:
         p = self.params
-        t0 = 900.0 / p.bin_s                        # the prior: 15 min at the contract's bound
+        t0 = PRIOR_S / p.bin_s                      # the prior: 15 min at the contract's bound
         ts = TankWindow(tank, self._n, 0, t0 * math.exp(-p.turbulence_max_hz * self._span), t0,
                    Beats(self._window, p.beat_single_s, p.beat_period_s[0], p.beat_search_nodes, self._beat_bin))
         self._thresholds(ts)

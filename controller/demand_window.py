@@ -23,13 +23,13 @@ class TankWindow:
                  "raws", "head", "vsum", "rsum", "m_old", "p1", "p2", "k", "bg_n", "bg_t",
                  "demanding", "last_raise", "fresh", "recent", "active", "last_t", "prev_c", "tail",
                  "run_cur", "run_prev", "run_len", "run_t0", "cap", "run_n", "run_cnt",
-                 "occ", "occs", "osum", "beats", "grid_i", "told", "active_ew")
+                 "occ", "occs", "osum", "beats", "grid_i", "told", "active_ew", "bg_seen")
 
     def __init__(self, name: str, n_bins: int, k: int, bg_n: float, bg_t: float, beats: Beats):
         self.name = name
         self.sensors: dict[str, Sensor] = {}
         self.bin_end = -math.inf
-        self.slot = -1
+        self.slot = -math.inf                      # no second counted yet (t may be negative)
         self.cur = self.raw = 0                     # current bin: occupied slots, contacts
         self.excl = self.excl_next = False
         self.vals = [0] * (n_bins - 1)              # complete bins in the window (ring)
@@ -37,6 +37,7 @@ class TankWindow:
         self.head = 0
         self.vsum = self.rsum = self.m_old = self.p1 = self.p2 = 0
         self.k, self.bg_n, self.bg_t = k, bg_n, bg_t
+        self.bg_seen = 0                            # background bins measured (the prior's not among them)
         self.cap = 1 << 30                          # busy seconds a run may count in its first BURST_S
         self.demanding, self.last_raise, self.fresh = False, -math.inf, 0
         self.recent: list[float] = []

@@ -489,3 +489,32 @@ def test_a_run_of_two_contacts_counts_two_once_it_has_ended(run, counted):
     before = f.score("T1")[0]
     f.on_contact(t1 + 50.5, "T1", "b")                 # the run has ended
     assert (before, f.score("T1")[0]) == (3, counted)
+
+
+@pytest.mark.parametrize("rate, least", [(0.3, 0.9), (0.5, 1.0), (1.0, 1.0)])
+def test_an_episode_in_a_fresh_filter_s_first_minutes_is_caught_as_at_the_contract_s_bound(rate, least):
+    """A tank's first contacts are an episode (a log that starts with one, a controller restarted
+    while fish ask): the filter knows only its prior, the contract's turbulence bound (0.05 /s, k 13
+    busy seconds: ideal recall 0.99 at 0.3 /s). Its lower confidence bound had put b at 4x that (k ~26)
+    and missed every episode below ~0.5 /s there."""
+    caught = 0
+    for seed in range(30):
+        stream = cs.fish_demand(np.random.default_rng(1000 + seed), "T1", ("a", "b"), T0, 300.0, rate)
+        late, outside = check_episodes(stream, replay(stream, until=T0 + 300.0)[0])
+        caught += not late
+        assert outside == []
+    assert caught >= least * 30, caught
+
+
+def test_times_before_zero_are_times_like_any_other():
+    """DESIGN: t_s may start anywhere. The same stream shifted by whole hours below zero raises the
+    same demands at the same offsets (a second's slot was int(t), so no negative second counted)."""
+    rng = np.random.default_rng(12)
+    base = cs.merge(cs.turbulence(rng, "T1", ("a", "b"), T0, T0 + 2 * HOUR, 0.02),
+                    cs.fish_demand(rng, "T1", ("a", "b"), T0 + HOUR, 300, 0.6))
+    want = [round(d.t - T0, 6) for d in demands(replay(base, until=T0 + 2 * HOUR)[0])]
+    assert want and any(HOUR <= t <= HOUR + 60 for t in want)
+    for shift in (-T0 - 10 * HOUR, -T0 - HOUR, -2 * T0):
+        moved = cs.Stream(base.t + shift, base.tank, base.sensor, base.source)
+        got = [round(d.t - T0 - shift, 6) for d in demands(replay(moved, until=T0 + shift + 2 * HOUR)[0])]
+        assert got == pytest.approx(want, abs=1e-6), shift
