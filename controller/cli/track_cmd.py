@@ -47,15 +47,23 @@ def load_tower(path: str) -> np.ndarray:
         raise BadInput(path, None, f"cannot read: {exc.strerror or exc}") from None
     if not isinstance(doc, dict) or "H" not in doc:
         raise BadInput(path, "H", 'missing (expected {"H": 3x3})')
+    rows = doc["H"]
+    # numbers only: numpy would read "1.0" and true as 1.0
+    if not (isinstance(rows, list) and all(isinstance(r, list) for r in rows)
+            and all(isinstance(v, (int, float)) and not isinstance(v, bool) for r in rows for v in r)):
+        raise BadInput(path, "H", "expected a 3x3 array of numbers")
     try:
-        H = np.array(doc["H"], dtype=float)
+        H = np.array(rows, dtype=float)
     except (TypeError, ValueError):
         raise BadInput(path, "H", "expected a 3x3 array of numbers") from None
     if H.shape != (3, 3):
         raise BadInput(path, "H", f"expected a 3x3 array of numbers, got shape {H.shape}")
     if not np.all(np.isfinite(H)):
         raise BadInput(path, "H", "a value is not a finite number")
-    if abs(np.linalg.det(H)) <= DET_TOL * np.linalg.norm(H) ** 3:
+    scale = float(np.abs(H).max())
+    if scale > 0:
+        H = H / scale          # a homography is defined up to scale: 1e120 x H is H (and no overflow)
+    if scale == 0 or abs(np.linalg.det(H)) <= DET_TOL * np.linalg.norm(H) ** 3:
         raise BadInput(path, "H", "singular: not a homography (it maps the image onto a line or a point)")
     return H
 

@@ -91,6 +91,8 @@ def refused(capsys, args, where, fault, out):
     ('{"H": [[1, 0, 0], [0, 1, 0]]}', "H: expected a 3x3 array of numbers, got shape (2, 3)"),
     ('{"H": [[1, 0, 0], [0, 1, 0], [0, 0]]}', "H: expected a 3x3 array of numbers"),
     ('{"H": [[1, 0, "a"], [0, 1, 0], [0, 0, 1]]}', "H: expected a 3x3 array of numbers"),
+    ('{"H": [[1, 0, "1.0"], [0, 1, 0], [0, 0, 1]]}', "H: expected a 3x3 array of numbers"),   # numpy reads it
+    ('{"H": [[true, 0, 0], [0, 1, 0], [0, 0, 1]]}', "H: expected a 3x3 array of numbers"),
     ('{"H": [[1, 0, NaN], [0, 1, 0], [0, 0, 1]]}', "H: a value is not a finite number"),
     ('{"H": [[1, 0, Infinity], [0, 1, 0], [0, 0, 1]]}', "H: a value is not a finite number"),
     ('{"H": [[1, 2, 3], [2, 4, 6], [0, 0, 1]]}', "H: singular"),
@@ -101,6 +103,24 @@ def test_a_tower_file_that_is_not_a_homography_exits_2(capsys, clip, tmp_path, t
     tower.write_text(text)
     out = tmp_path / "OUT.json"
     refused(capsys, ["--frames", clip, "--tower", tower, "--json", out], tower, fault, out)
+
+
+@pytest.mark.parametrize("scale", [1e-120, 1e120, -1.0])
+def test_a_homography_at_any_scale_is_the_same_homography(clip, tmp_path, capsys, scale):
+    """H is defined up to scale: 1e120 x H tracks as H (it overflowed into 'singular' with numpy's
+    warnings on stderr)."""
+    H = np.array(json.loads((clip / "tower.json").read_text())["H"], float)
+    tower = tmp_path / "scaled.json"
+    tower.write_text(json.dumps({"H": (H * scale).tolist()}))
+    outs = []
+    for name, t in (("a", clip / "tower.json"), ("b", tower)):
+        assert main(["track", "--frames", str(clip), "--tower", str(t), "--json", str(tmp_path / f"{name}.json")]) == 0
+        outs.append(json.loads((tmp_path / f"{name}.json").read_text())["track"])
+    assert capsys.readouterr().err == ""
+    for a, b in zip(*outs, strict=True):
+        assert a["state"] == b["state"]
+        if a["x_m"] is not None:
+            assert (a["x_m"], a["y_m"]) == pytest.approx((b["x_m"], b["y_m"]), abs=1e-9)
 
 
 def test_missing_tower_file_and_folder(capsys, clip, tmp_path):
