@@ -91,6 +91,13 @@ def check_grid(world: np.ndarray, pixels: tuple[np.ndarray, ...] = (),
             "points well off a single plane")
     if len(np.unique(world, axis=0)) < MIN_POINTS:
         raise CalibrationInputError(f"fewer than {MIN_POINTS} distinct world points")
+    _, first, inverse = np.unique(world, axis=0, return_index=True, return_inverse=True)
+    again = np.flatnonzero(first[inverse.ravel()] != np.arange(len(world)))
+    if len(again):
+        # a point listed twice: a distance of 0 between them in the report (its relative error NaN)
+        # and a weight of two in the fit
+        j = int(again[0])
+        raise CalibrationInputError(f"points {int(first[inverse.ravel()[j]]) + 1} and {j + 1} are the same world point")
     for i, px in enumerate(pixels, start=1):
         ps = np.linalg.svd(px - px.mean(axis=0), compute_uv=False)
         if ps[0] == 0 or ps[1] <= 1e-6 * ps[0]:

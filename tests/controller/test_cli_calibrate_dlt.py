@@ -148,6 +148,9 @@ def _dlt_case(name):
         layers = np.vstack([WORLD[:50], WORLD[:50] + [0.0, 5.0, 0.0]])
         text = [GRID_HEADER] + [",".join(f"{v:.4f}" for v in r) for r in _grid_rows(layers)]
         return "\n".join(text), ["coplanar", "thickness 2.5 mm", "extent of 143.6 mm", "at least 0.05"]
+    if name == "repeated":       # a point listed twice: its report's distance 0 made NaN, Infinity in JSON
+        bad = good + [good[3], good[9]]
+        return "\n".join(bad), ["points 3 and", "are the same world point"]
     if name == "collinear":
         line = np.outer(np.linspace(0, 1, 10), [300.0, 200.0, 100.0])
         text = [GRID_HEADER] + [",".join(f"{v:.4f}" for v in r) for r in _grid_rows(line)]
@@ -165,7 +168,7 @@ def assert_one_line(result, *words):
 
 
 @pytest.mark.parametrize("case", ["empty", "header", "text_cell", "nan_cell", "short_row", "five_points",
-                                  "coplanar", "thin", "collinear"])
+                                  "coplanar", "thin", "collinear", "repeated"])
 def test_bad_grid_exits_2_with_one_line_naming_file_and_fault(case, tmp_path):
     text, words = _dlt_case(case)
     grid = tmp_path / "GRID.csv"
