@@ -101,6 +101,7 @@ def chessboard(left_glob, right_glob, pattern, square_mm, out):
     """Stereo calibration from pairs of chessboard views (pairs by sorted file name)."""
     from controller.cli.calib_io import save_calibration
     from controller.cli.output_paths import check_outputs
+    from vision.calib_file import CalibrationError, calibration_from_json
     from vision.chessboard import NotEnoughPairs, calibrate_pairs, find_corners
 
     lefts, rights = _files(left_glob, "--left"), _files(right_glob, "--right")
@@ -123,5 +124,10 @@ def chessboard(left_glob, right_glob, pattern, square_mm, out):
     calib.extra = {"method": "chessboard", "pattern": list(pattern), "square_mm": square_mm,
                    "epipolar_px": result.epipolar_px,
                    "pairs_used": sum(p.used for p in result.pairs), "pairs_given": len(result.pairs)}
+    try:        # what every command checks on reading it: a file it writes must be one they take
+        calibration_from_json(calib.to_json())
+    except CalibrationError as exc:
+        same = " (are --left and --right the same camera's views?)" if exc.field in ("P2", "T") else ""
+        raise BadInput(where, exc.field, f"{exc.fault}{same}") from None
     save_calibration(calib, out)
     _report(result, lefts, rights, out)

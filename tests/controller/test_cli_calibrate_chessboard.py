@@ -72,6 +72,15 @@ def test_real_images(tmp_path):
     assert np.linalg.norm(calib.T) / 25 == pytest.approx(3.33, abs=0.03)   # OpenCV's sample: 3.34
 
 
+def test_the_same_views_given_as_left_and_right_are_refused_not_written(rendered, tmp_path):
+    """A calibration of one camera against itself has no baseline: every command refuses such a
+    CALIB.json, so the calibration that would write it says so instead (it exited 0)."""
+    out = tmp_path / "c.json"
+    assert_bad_input(fishfarm(*args(rendered, out, right="L*.png")), "P2", "no baseline",
+                     "the same camera's views")
+    assert not out.exists()
+
+
 def test_no_file_matches_the_glob(rendered, tmp_path):
     assert_bad_input(fishfarm(*args(rendered, tmp_path / "c.json", left="X*.png")), "X*.png", "--left",
                      "no files match")
