@@ -114,6 +114,14 @@ def fit_tower(px: np.ndarray, pond_m: np.ndarray) -> TowerFit:
     H = H / H[2, 2]
     if abs(np.linalg.det(H)) < DET_TOL * np.linalg.norm(H) ** 3:
         raise TowerInputError("the homography is singular")
+    w = np.c_[px, np.ones(len(px))] @ H[2]
+    if not (np.all(w > 0) or np.all(w < 0)):
+        # w is affine in the pixel: one sign at every point is one sign over their hull. Opposite
+        # signs put the homography's horizon among the points: the pond seen folded over, which no
+        # camera sees (two points' pond positions swapped?). Fit exactly, it passed as RMS 0
+        odd = int(np.flatnonzero(np.sign(w) != np.sign(np.median(w)))[0]) if np.median(w) else int(np.argmin(w))
+        raise TowerInputError(f"no camera sees the pond so: the fit's horizon runs among the points (point "
+                              f"{odd + 1} lies beyond it); are two points' pond positions swapped?")
     residuals = np.linalg.norm(to_pond(H, px) - pond, axis=1)
     if not np.all(np.isfinite(residuals)):
         raise TowerInputError("a reference pixel maps to infinity (on the horizon)")

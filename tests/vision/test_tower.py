@@ -104,3 +104,22 @@ def test_mismatched_shapes_are_refused():
 def test_to_pond_of_the_horizon_is_not_finite():
     H = np.array([[1.0, 0, 0], [0, 1.0, 0], [0, 1.0, -100.0]])
     assert not np.all(np.isfinite(to_pond(H, [[5.0, 100.0]])))
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_two_corners_swapped_on_the_pond_are_refused_as_no_camera_s_view(seed):
+    """Four image corners whose pond positions two of are swapped fit a homography exactly (RMS 0),
+    but one that folds the pond over: its horizon runs among the points. Refused, naming a point;
+    the true four (and any 20 seen by a real tower camera) pass."""
+    rng = np.random.default_rng(100 + seed)
+    H_true, G = tower_camera(rng)
+    corners_px = np.array([[200.0, 200.0], [1700.0, 200.0], [1700.0, 900.0], [200.0, 900.0]])
+    corners_pond = to_pond(H_true, corners_px)
+    assert fit_tower(corners_px, corners_pond).max_m < 1e-4
+    for i, j in ((0, 1), (1, 2), (0, 3)):        # neighbours swapped: a bow tie
+        swapped = corners_pond.copy()
+        swapped[[i, j]] = swapped[[j, i]]
+        with pytest.raises(TowerInputError, match=r"horizon runs among the points \(point \d lies beyond it\)"):
+            fit_tower(corners_px, swapped)
+    pond, px = pond_points(rng, 20, G)
+    assert fit_tower(px, pond).max_m < 1e-6
