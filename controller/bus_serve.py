@@ -44,6 +44,15 @@ def decode(data: zenoh.ZBytes | bytes | None) -> dict:
     return parse_object(bytes(data.to_bytes() if isinstance(data, zenoh.ZBytes) else data or b""))
 
 
+
+class RefusedOnWire(LookupError):
+    """A query refused before any handler (an unknown command, a bad user key): ``notify(payload)``
+    tells the audit, with the payload as received (None when unreadable)."""
+
+    def __init__(self, error: str, notify):
+        super().__init__(error)
+        self.notify = notify
+
 class Serving:
     """Mixin of ``Bus``: needs ``session``, ``key()``, ``_suffix()``, ``identified``,
     ``_handler_loop()`` and ``_keep()``."""
@@ -81,22 +90,21 @@ class Serving:
         now = dict(urgent or {})
         loop = self._handler_loop()
 
-        def tell(command: str, error: str, user: str | None = None) -> None:
+        def tell(command: str, error: str, user: str | None = None, payload=None) -> None:
             if refused is not None:
                 with contextlib.suppress(RuntimeError):     # the loop is closed: the process is ending
-                    loop.call_soon_threadsafe(refused, command, error, user)
+                    loop.call_soon_threadsafe(refused, command, error, user, payload)
 
         def resolve(suffix: str):
             base, user = user_of(suffix)
             command = base.split("/", 1)[1]
-            if command not in table:
-                error = f"unknown command {command!r}; known: {', '.join(sorted(table))}"
-                tell(command, error)
-                raise LookupError(error)
             if user is not None and not USER.match(user):
                 error = f"user {user!r}: letters, digits, _ . - only"
-                tell(command, error)
-                raise LookupError(error)
+                raise RefusedOnWire(error, lambda payload: tell(command, error, None, payload))
+            if command not in table:
+                error = f"unknown command {command!r}; known: {', '.join(sorted(table))}"
+                who = user if self.identified else None
+                raise RefusedOnWire(error, lambda payload: tell(command, error, who, payload))
             user = user if self.identified else None
             return (table[command], command in forgiving, now.get(command), user,
                     lambda error: tell(command, error, user))
@@ -127,6 +135,12 @@ class Serving:
         try:
             handler, lenient, urgent, user, refused, *selector = resolve(self._suffix(key))
         except LookupError as exc:
+            if isinstance(exc, RefusedOnWire):       # audited with what the payload claims, if readable
+                try:
+                    payload = decode(query.payload)
+                except Exception:  # noqa: BLE001 - whatever a hostile payload raises: kept as none
+                    payload = None
+                exc.notify(payload)
             return self._reply(query, {"ok": False, "error": str(exc)})
         if selector:
             params = {k: v for k, v in dict(query.parameters).items() if k != "_time"}

@@ -122,10 +122,11 @@ class Overrides:
         self._audit(t=t, user=user, command=name, payload=payload, origin=origin, reply=reply)
         return reply
 
-    def refused_on_wire(self, command: str, error: str, user: str | None = None) -> None:
+    def refused_on_wire(self, command: str, error: str, user: str | None = None, payload=None) -> None:
         """The bus refused a query before any handler saw it (an unknown command, an unreadable
-        payload): audited all the same. Called on the loop."""
-        self._audit(t=self.c.clock.now(), user=user, command=printable(command, 64), payload=None,
+        payload): audited all the same, with the operator the payload claims and the payload as
+        received where it was readable. Called on the loop."""
+        self._audit(t=self.c.clock.now(), user=user, command=printable(command, 64), payload=payload,
                     origin="zenoh", reply={"ok": False, "error": error})
 
     def _audit(self, *, t, user, command, payload, origin, reply) -> None:

@@ -302,15 +302,19 @@ def _audited(farm, n: int) -> list[dict]:
 def test_what_the_bus_refuses_before_any_handler_is_audited_too(served):
     farm, client = served
     before = len(farm.store.audit())
-    assert ask(client, "launch", b"{}")["error"].startswith("unknown command 'launch'")
+    launch = b'{"operator": "carol", "reason": "because"}'
+    assert ask(client, "launch", launch)["error"].startswith("unknown command 'launch'")
     assert ask(client, "feed", b"\xff{oops")["error"] == "payload is not UTF-8"
     assert ask(client, "ration", b'{"tank": "T1", "grams": 1, "grams": 2}')["error"] == "grams: duplicate key"
     assert ask(client, "estop", b"\xff{oops") == {"ok": True, "confirmed": True}   # never refused
     rows = _audited(farm, 4)
     assert len(farm.store.audit()) == before + 4
     assert [(r["command"], r["payload"], r["ok"], r["result"][:20]) for r in rows] == [
-        ("launch", None, 0, "unknown command 'lau"), ("feed", None, 0, "payload is not UTF-8"),
+        ("launch", '{"operator":"carol","reason":"because"}', 0, "unknown command 'lau"),
+        ("feed", None, 0, "payload is not UTF-8"),
         ("ration", None, 0, "grams: duplicate key"), ("estop", "{}", 1, "ok")]
+    # the operator the unknown command's payload claims is kept, as for any refused command
+    assert rows[0]["operator"] == "carol"
 
 
 def test_a_handler_hands_the_authenticated_user_to_the_audit(tmp_path):
