@@ -13,7 +13,7 @@ import json
 import click
 import numpy as np
 
-from controller.cli.csvio import read_table
+from controller.cli.csvio import PIXELS_MAX, WORLD_MAX, read_table
 from controller.errors import BadInput
 
 GRID_HEADER = ("x_mm", "y_mm", "z_mm", "u1", "v1", "u2", "v2")
@@ -35,7 +35,7 @@ def dlt(points_path: str, out_path: str, report_path: str | None, linear_only: b
     from vision.dlt import CalibrationInputError, calibrate_stereo
 
     check_outputs({"--out": out_path, "--report": report_path}, [points_path])
-    grid = read_table(points_path, GRID_HEADER)
+    grid = read_table(points_path, GRID_HEADER, limit=[WORLD_MAX] * 3 + [PIXELS_MAX] * 4)
     try:
         P1, P2, report = calibrate_stereo(grid[:, :3], grid[:, 3:5], grid[:, 5:7], refine=not linear_only)
     except CalibrationInputError as exc:

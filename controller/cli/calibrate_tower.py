@@ -11,7 +11,7 @@ import json
 
 import click
 
-from controller.cli.csvio import read_table
+from controller.cli.csvio import PIXELS_MAX, WORLD_MAX, read_table
 from controller.errors import BadInput
 
 REF_HEADER = ("u", "v", "x_m", "y_m")
@@ -27,7 +27,7 @@ def tower(points_path: str, out_path: str) -> None:
     from controller.cli.output_paths import check_outputs
     from vision.tower import TowerInputError, fit_tower
     check_outputs({"--out": out_path}, [points_path])
-    ref = read_table(points_path, REF_HEADER)
+    ref = read_table(points_path, REF_HEADER, limit=[PIXELS_MAX] * 2 + [WORLD_MAX] * 2)
     try:
         fit = fit_tower(ref[:, :2], ref[:, 2:])
     except TowerInputError as exc:

@@ -19,6 +19,10 @@ import numpy as np
 from controller.atomic_files import write_file_atomically
 from controller.errors import BadInput
 
+# the most a pixel in these files may be either way (no image is a million pixels wide), and a world
+# coordinate (mm or m: site coordinates, a UTM easting in mm, stay well within); beyond, a typo
+PIXELS_MAX = 1e6
+WORLD_MAX = 1e12
 
 def _read_text(path: str | Path) -> str:
     try:
@@ -62,13 +66,28 @@ def _scan(where: str, lines: list[str], header: Sequence[str]) -> np.ndarray:
     return np.array(rows, dtype=float).reshape(-1, len(header))
 
 
-def read_table(path: str | Path, header: Sequence[str]) -> np.ndarray:
+def read_table(path: str | Path, header: Sequence[str], limit: float | Sequence[float] | None = None) -> np.ndarray:
     """Float array (rows, len(header)) of a CSV whose first line is exactly ``header``.
 
     Blank lines are skipped; a file with a header and no rows gives a (0, k) array. Empty file,
-    other header, wrong field count, non-numeric, NaN or infinite cells: BadInput naming the file,
-    the line and the column.
+    other header, wrong field count, non-numeric, NaN or infinite cells, and with ``limit`` (one
+    for all columns, or one per column) a cell beyond ±limit (1e300 px is finite, and overflows
+    what is computed from it): BadInput naming the file, the line and the column.
     """
+    data = _read_table(path, header)
+    if limit is not None and data.size:
+        bound = np.broadcast_to(np.asarray(limit, dtype=float), (len(header),))
+        beyond = np.argwhere(np.abs(data) > bound)
+        if len(beyond):
+            r, c = (int(x) for x in beyond[0])
+            lines = _read_text(path).splitlines()
+            lineno = [i for i, line in enumerate(lines[1:], start=2) if line.strip()][r]
+            raise BadInput(str(path), f"line {lineno}", f"column {header[c]}: {data[r, c]:g} is out of range "
+                                                        f"(at most {bound[c]:g} either way)")
+    return data
+
+
+def _read_table(path: str | Path, header: Sequence[str]) -> np.ndarray:
     where = str(path)
     text = _read_text(path)
     lines = text.splitlines()

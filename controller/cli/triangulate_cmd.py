@@ -9,7 +9,7 @@ from __future__ import annotations
 import click
 import numpy as np
 
-from controller.cli.csvio import read_table, write_table
+from controller.cli.csvio import PIXELS_MAX, read_table, write_table
 
 PAIRS_HEADER = ("u1", "v1", "u2", "v2")
 OUT_HEADER = ("x_mm", "y_mm", "z_mm", "residual_px")
@@ -26,6 +26,6 @@ def triangulate(calib_path: str, pairs_path: str, out_path: str | None) -> None:
     from vision.triangulation import triangulate_calibrated
     check_outputs({"--out": out_path}, [calib_path, pairs_path])
     calib = load_calibration(calib_path)
-    pairs = read_table(pairs_path, PAIRS_HEADER)
+    pairs = read_table(pairs_path, PAIRS_HEADER, limit=PIXELS_MAX)
     points, residual = triangulate_calibrated(calib, pairs[:, :2], pairs[:, 2:4])
     write_table(out_path, OUT_HEADER, np.c_[points, residual])

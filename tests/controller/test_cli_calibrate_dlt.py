@@ -148,6 +148,12 @@ def _dlt_case(name):
         layers = np.vstack([WORLD[:50], WORLD[:50] + [0.0, 5.0, 0.0]])
         text = [GRID_HEADER] + [",".join(f"{v:.4f}" for v in r) for r in _grid_rows(layers)]
         return "\n".join(text), ["coplanar", "thickness 2.5 mm", "extent of 143.6 mm", "at least 0.05"]
+    if name == "huge_pixel":
+        bad = good.copy()
+        cells = bad[4].split(",")
+        cells[5] = "1e308"
+        bad[4] = ",".join(cells)
+        return "\n".join(bad), ["line 5", "column u2", "out of range"]
     if name == "repeated":       # a point listed twice: its report's distance 0 made NaN, Infinity in JSON
         bad = good + [good[3], good[9]]
         return "\n".join(bad), ["points 3 and", "are the same world point"]
@@ -168,7 +174,7 @@ def assert_one_line(result, *words):
 
 
 @pytest.mark.parametrize("case", ["empty", "header", "text_cell", "nan_cell", "short_row", "five_points",
-                                  "coplanar", "thin", "collinear", "repeated"])
+                                  "coplanar", "thin", "collinear", "repeated", "huge_pixel"])
 def test_bad_grid_exits_2_with_one_line_naming_file_and_fault(case, tmp_path):
     text, words = _dlt_case(case)
     grid = tmp_path / "GRID.csv"
@@ -232,6 +238,9 @@ def test_bad_calibration_file(case, tmp_path):
     ("u1,v1,u2\n1,2,3\n", ["header", "u1,v1,u2,v2"]),
     ("u1,v1,u2,v2\n1,2,3,4\n1,2,NaN,4\n", ["line 3", "column u2", "finite"]),
     ("u1,v1,u2,v2\n1,2,3,x4\n", ["line 2", "column v2", "'x4'"]),
+    # finite, but beyond any image: NaN rows and numpy's overflow warnings before
+    ("u1,v1,u2,v2\n1,2,3,4\n\n1,2,1e300,4\n", ["line 4", "column u2", "1e+300 is out of range"]),
+    ("u1,v1,u2,v2\n-2e6,2,3,4\n", ["line 2", "column u1", "-2e+06 is out of range"]),
 ])
 def test_bad_pairs_file(calibrated, tmp_path, text, words):
     pairs = tmp_path / "PAIRS.csv"

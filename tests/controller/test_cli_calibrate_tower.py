@@ -55,6 +55,8 @@ def test_writes_h_and_prints_the_error_in_metres(tmp_path):
     (HEADER + "\n1,2,3,4\n5,6,abc,8\n", "line 3, column x_m: not a number: 'abc'"),
     (HEADER + "\n1,2,3,4\n5,nan,7,8\n", "line 3, column v: nan is not a finite number"),
     (HEADER + "\n1,2,3,4\n5,6,7\n", "line 3: 3 fields, expected 4"),
+    (HEADER + "\n1,2,3,4\n1e308,100,3,4\n", "line 3: column u: 1e+308 is out of range"),   # it read
+    # "points 2 and 3 are the same in the image", after numpy's overflow warnings
     (ref_text(POND[[0, 1, 2, 3, 0]]), "points 1 and 5 are the same in the image"),
     (ref_text(np.array([[0.0, 0.0], [5.0, 1.0], [10.0, 2.0], [15.0, 3.0], [20.0, 4.0]]),
               px=pixels(POND[:5])), "all 5 points lie on one line on the pond"),
