@@ -24,6 +24,7 @@ from controller.errors import BadInput
 PIXELS_MAX = 1e6
 WORLD_MAX = 1e12
 
+
 def _read_text(path: str | Path) -> str:
     try:
         return Path(path).read_text(encoding="utf-8-sig")
