@@ -44,7 +44,6 @@ def decode(data: zenoh.ZBytes | bytes | None) -> dict:
     return parse_object(bytes(data.to_bytes() if isinstance(data, zenoh.ZBytes) else data or b""))
 
 
-
 class RefusedOnWire(LookupError):
     """A query refused before any handler (an unknown command, a bad user key): ``notify(payload)``
     tells the audit, with the payload as received (None when unreadable)."""
@@ -52,6 +51,7 @@ class RefusedOnWire(LookupError):
     def __init__(self, error: str, notify):
         super().__init__(error)
         self.notify = notify
+
 
 class Serving:
     """Mixin of ``Bus``: needs ``session``, ``key()``, ``_suffix()``, ``identified``,
