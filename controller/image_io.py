@@ -31,12 +31,14 @@ from controller.errors import BadInput
 DAMAGE = re.compile(r"Corrupt JPEG data(?!: \d+ extraneous bytes)|Premature end of JPEG|Bogus|Not a JPEG"
                     r"|libpng error|imdecode_|[Uu]nexpected end|TIFF.*[Ee]rror|[Ee]rror.*TIFF")
 _CAUGHT = threading.Lock()          # fd 2 is the process's: one capture at a time
+_sink = None                        # the file fd 2 writes to meanwhile: one per process, emptied each time
 
 
 @contextlib.contextmanager
 def native_stderr():
     """What native code writes to file descriptor 2 meanwhile: the list holds it once the block
     is left. Where fd 2 cannot be redirected the block just runs and the list stays empty."""
+    global _sink
     caught: list[str] = []
     with _CAUGHT:
         try:
@@ -45,15 +47,18 @@ def native_stderr():
         except (OSError, ValueError):
             yield caught
             return
-        with tempfile.TemporaryFile() as tmp:
-            os.dup2(tmp.fileno(), 2)
-            try:
-                yield caught
-            finally:
-                os.dup2(saved, 2)
-                os.close(saved)
-                tmp.seek(0)
-                caught.append(tmp.read().decode("utf-8", "replace"))
+        if _sink is None:       # (a new file each decode cost a BMP pair's decode ~25 %)
+            _sink = tempfile.TemporaryFile()
+        _sink.seek(0)
+        _sink.truncate()
+        os.dup2(_sink.fileno(), 2)
+        try:
+            yield caught
+        finally:
+            os.dup2(saved, 2)
+            os.close(saved)
+            _sink.seek(0)
+            caught.append(_sink.read().decode("utf-8", "replace"))
 
 
 def _said(text: str) -> str:

@@ -215,9 +215,9 @@ class Overrides:
     async def manual(self, payload, by: str | None = None) -> dict:
         cmd, robot = parse(Manual, payload), self._robot()
         log.warning("manual=%s by %s: %s", cmd.on, by or cmd.operator, cmd.reason)
-        asked, busy = getattr(robot, "manual_asked", False), robot.state
+        asked, busy = robot.manual_asked, robot.state
         reply = self._result(robot.set_manual(cmd.on))
-        if reply.get("ok") and getattr(robot, "manual_asked", False):
+        if reply.get("ok") and robot.manual_asked:
             reply["note"] = f"manual once the robot's current job ends (it is {busy})"
         elif reply.get("ok") and asked and not cmd.on:
             reply["note"] = "the manual control asked for is withdrawn"

@@ -20,7 +20,7 @@ def farm_status(c) -> dict:
                           "demand_t": None if job is None else c.clock.iso(job.t),
                           "fed_g": round(r.fed_g, 1), "ration_g": round(r.grams, 1),
                           "pellet_mm": r.pellet_mm, "stock": c.rations.stock(tank.id),
-                          "paused": tank.id in paused, **_weights(c, tank.id, now)}
+                          "paused": tank.id in paused, **_weights(c, tank.id, now, r)}
         demand = getattr(c, "filter", None)     # absent while the controller starts
         note = demand.slow_fish(tank.id) if demand is not None and tank.id in demand.tanks else None
         if note is not None:
@@ -50,8 +50,10 @@ def farm_status(c) -> dict:
     return out
 
 
-def _weights(c, tank_id: str, now: float) -> dict:
-    """What the tank's ration rests on, and its last survey's figures (None before any)."""
+def _weights(c, tank_id: str, now: float, ration=None) -> dict:
+    """What the tank's ration rests on, and its last survey's figures (None before any); ``ration``:
+    today's (``Rations.today``), where the caller has it already."""
+    ration = ration if ration is not None else c.rations.today(tank_id, now)
     basis = c.rations.basis(tank_id, now)
     watch = getattr(c, "surveys", None)
     f = watch.figures.get(tank_id, {}) if watch is not None else {}
@@ -59,7 +61,7 @@ def _weights(c, tank_id: str, now: float) -> dict:
     temp = water.temperature(tank_id, now) if water is not None else None
     # today's ration's own basis, as its topic says it ("operator" once an operator set it); the mean
     # weight is the tank's estimate all the same
-    return {"mean_weight_g": round(basis.mean_weight_g, 2), "ration_basis": c.rations.today(tank_id, now).source,
+    return {"mean_weight_g": round(basis.mean_weight_g, 2), "ration_basis": ration.source,
             "water_temp_c": None if temp is None else round(temp.celsius, 2),
             "water_temp_source": None if temp is None else temp.source,
             "last_survey_t": f.get("last_survey_t"), "weight_cv_pct": f.get("weight_cv_pct"),

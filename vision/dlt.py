@@ -89,15 +89,14 @@ def check_grid(world: np.ndarray, pixels: tuple[np.ndarray, ...] = (),
             f"(nearly) coplanar world points: off-plane thickness {shape['thickness_mm']:.3g} mm RMS over an "
             f"extent of {extent:.4g} mm RMS (ratio {shape['thickness_ratio']:.3f}, {need}); the DLT needs "
             "points well off a single plane")
-    if len(np.unique(world, axis=0)) < MIN_POINTS:
-        raise CalibrationInputError(f"fewer than {MIN_POINTS} distinct world points")
+    # a point listed twice (and so any set of fewer than MIN_POINTS distinct ones): a distance of 0
+    # between them in the report (its relative error NaN) and a weight of two in the fit
     _, first, inverse = np.unique(world, axis=0, return_index=True, return_inverse=True)
-    again = np.flatnonzero(first[inverse.ravel()] != np.arange(len(world)))
+    first_of = first[inverse.ravel()]                    # each point's first listing
+    again = np.flatnonzero(first_of != np.arange(len(world)))
     if len(again):
-        # a point listed twice: a distance of 0 between them in the report (its relative error NaN)
-        # and a weight of two in the fit
         j = int(again[0])
-        raise CalibrationInputError(f"points {int(first[inverse.ravel()[j]]) + 1} and {j + 1} are the same world point")
+        raise CalibrationInputError(f"points {int(first_of[j]) + 1} and {j + 1} are the same world point")
     for i, px in enumerate(pixels, start=1):
         ps = np.linalg.svd(px - px.mean(axis=0), compute_uv=False)
         if ps[0] == 0 or ps[1] <= 1e-6 * ps[0]:

@@ -119,7 +119,8 @@ def fit_tower(px: np.ndarray, pond_m: np.ndarray) -> TowerFit:
         # w is affine in the pixel: one sign at every point is one sign over their hull. Opposite
         # signs put the homography's horizon among the points: the pond seen folded over, which no
         # camera sees (two points' pond positions swapped?). Fit exactly, it passed as RMS 0
-        odd = int(np.flatnonzero(np.sign(w) != np.sign(np.median(w)))[0]) if np.median(w) else int(np.argmin(w))
+        side = 1.0 if np.sum(w > 0) >= np.sum(w < 0) else -1.0       # the side most points lie on
+        odd = int(np.flatnonzero(side * w <= 0)[0])
         raise TowerInputError(f"no camera sees the pond so: the fit's horizon runs among the points (point "
                               f"{odd + 1} lies beyond it); are two points' pond positions swapped?")
     residuals = np.linalg.norm(to_pond(H, px) - pond, axis=1)

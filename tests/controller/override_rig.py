@@ -25,6 +25,8 @@ class Robot:
     def on_demand(self, job):
         self.calls.append(("on_demand", job.tank, job.grams, job.source))
 
+    manual_asked = False
+
     def set_manual(self, on):
         self.calls.append(("set_manual", on))
 
