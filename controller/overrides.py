@@ -122,12 +122,14 @@ class Overrides:
         self._audit(t=t, user=user, command=name, payload=payload, origin=origin, reply=reply)
         return reply
 
-    def refused_on_wire(self, command: str, error: str, user: str | None = None, payload=None) -> None:
+    def refused_on_wire(self, command: str, error: str, user: str | None = None, payload=None, *,
+                        origin: str = "zenoh") -> None:
         """The bus refused a query before any handler saw it (an unknown command, an unreadable
-        payload): audited all the same, with the operator the payload claims and the payload as
-        received where it was readable. Called on the loop."""
+        payload), or the SCADA's map a write (an address not writable, a value out of range):
+        audited all the same, with the operator the payload claims and the payload as received
+        where it was readable. Called on the loop."""
         self._audit(t=self.c.clock.now(), user=user, command=printable(command, 64), payload=payload,
-                    origin="zenoh", reply={"ok": False, "error": error})
+                    origin=origin, reply={"ok": False, "error": error})
 
     def _audit(self, *, t, user, command, payload, origin, reply) -> None:
         """Queue the row; the queue is written in one transaction just after this loop turn (the

@@ -12,6 +12,7 @@ from __future__ import annotations
 import asyncio
 import logging
 import math
+from dataclasses import dataclass
 
 from pymodbus.constants import ExcCodes
 
@@ -19,6 +20,16 @@ from controller.scada.register_map import COIL, Entry, Layout, decode
 from controller.scada.snapshot import in_slot
 
 log = logging.getLogger("fishfarm.scada")
+
+
+MAX_AUDITED = 16        # values of a refused write kept in the audit
+
+
+@dataclass(frozen=True)
+class Refusal:
+    code: ExcCodes
+    command: str         # the override the write meant ("write" where it meant none)
+    error: str
 
 
 class Guard:
@@ -31,20 +42,24 @@ class Guard:
         self._tasks: set[asyncio.Task] = set()
 
     # -- checking -----------------------------------------------------------------------------
-    def check(self, kind: str, address: int, values: list) -> list[tuple[Entry, object]] | ExcCodes:
-        """The (entry, value) pairs a write means, or the exception code that refuses all of it."""
+    def check(self, kind: str, address: int, values: list) -> list[tuple[Entry, object]] | Refusal:
+        """The (entry, value) pairs a write means, or the refusal of all of it."""
         if self.scada.read_only:
-            return ExcCodes.ILLEGAL_ADDRESS
+            return Refusal(ExcCodes.ILLEGAL_ADDRESS, "write", "the SCADA server is read-only")
         at, plan, i = self.writable.get(kind, {}), [], 0
         if not values:
-            return ExcCodes.ILLEGAL_VALUE
+            return Refusal(ExcCodes.ILLEGAL_VALUE, "write", "no value")
         while i < len(values):
             e = at.get(address + i)
-            if e is None or i + e.words > len(values):       # not writable, or half a 32-bit value
-                return ExcCodes.ILLEGAL_ADDRESS
+            if e is None:
+                return Refusal(ExcCodes.ILLEGAL_ADDRESS, "write", f"{kind} {address + i}: not writable")
+            if i + e.words > len(values):
+                return Refusal(ExcCodes.ILLEGAL_ADDRESS, e.row.write.command,
+                               f"{e.name}: half of a {e.words}-word value")
             value = self._value(e, values[i:i + e.words])
             if value is None:
-                return ExcCodes.ILLEGAL_VALUE
+                return Refusal(ExcCodes.ILLEGAL_VALUE, e.row.write.command,
+                               f"{e.name}: value {values[i:i + e.words]} not accepted")
             plan.append((e, value))
             i += e.words
         return plan
@@ -69,9 +84,14 @@ class Guard:
                     tripped: bool = False) -> ExcCodes | None:
         """``tripped``: the connection already tripped the latches for this very frame."""
         plan = self.check(kind, address, values)
-        if isinstance(plan, ExcCodes):
+        if isinstance(plan, Refusal):
             self.refused += 1
-            return plan
+            # audited as every refusal is, with the write as received (its first words)
+            self.controller.overrides.refused_on_wire(
+                plan.command, f"{plan.error} (exception {int(plan.code):02X})", self.scada.identity,
+                {"table": kind, "address": address, "values": [int(v) for v in values[:MAX_AUDITED]]},
+                origin=f"modbus {peer}")
+            return plan.code
         self.accepted += 1
         origin = f"modbus {peer}"
         for i, (entry, value) in enumerate(plan):

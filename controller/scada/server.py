@@ -15,18 +15,20 @@ the peer for the audit. Connections beyond ``max_connections`` are closed at onc
 from __future__ import annotations
 
 import asyncio
+import collections
 import contextlib
 import contextvars
 import logging
 import time
 
 from pymodbus.constants import ExcCodes
-from pymodbus.exceptions import NoSuchIdException
+from pymodbus.exceptions import ModbusIOException, NoSuchIdException
 from pymodbus.pdu import DecodePDU, ExceptionResponse, ModbusPDU
 from pymodbus.pdu.device import ModbusDeviceIdentification
 from pymodbus.server import ModbusTcpServer
 from pymodbus.server.requesthandler import ServerRequestHandler
 from pymodbus.simulator import DataType, SimData, SimDevice
+from pymodbus.transaction import TransactionManager
 
 from controller.scada.guard import Guard
 from controller.scada.register_map import COIL, DI, HR, IR, Layout
@@ -37,6 +39,11 @@ PEER: contextvars.ContextVar = contextvars.ContextVar("scada_peer", default=None
 ECHO: contextvars.ContextVar[list | None] = contextvars.ContextVar("scada_echo", default=None)
 READ_KIND = {1: COIL, 2: DI, 3: HR, 4: IR, 23: HR}
 WRITE_KIND = {5: COIL, 15: COIL, 6: HR, 16: HR, 23: HR}
+# the functions the map answers: reads, writes, and the device's identification (43). pymodbus's
+# others (diagnostics, event counters, file records, FIFO queues) would answer from its own
+# counters or invented data; a SCADA asking for them gets exception 01
+SERVED = frozenset({*READ_KIND, *WRITE_KIND, 43})
+PIPELINE_MAX = 64        # requests one connection may have waiting; beyond, the rest wait in its buffer
 
 
 def broken_mbap(buf: bytes) -> bool:
@@ -75,10 +82,12 @@ class StrictDecoder(DecodePDU):
         if not frame:
             return None
         fc = frame[0]
+        if fc not in SERVED:
+            return _Refused(fc & 0x7F, ExcCodes.ILLEGAL_FUNCTION)
         if fc == 5 and len(frame) >= 5 and frame[3:5] not in (b"\xff\x00", b"\x00\x00"):
             return _Refused(fc, ExcCodes.ILLEGAL_VALUE)
         pdu = super().decode(frame)
-        if pdu is None and fc < 0x80:
+        if pdu is None:
             return _Refused(fc, ExcCodes.ILLEGAL_VALUE if fc in self.pdu_table else ExcCodes.ILLEGAL_FUNCTION)
         return pdu
 
@@ -124,18 +133,26 @@ class ScadaStore:
 
 
 class _Connection(ServerRequestHandler):
+    """One client. Every complete frame a read brings is taken (a client may send its next request
+    before the last one's reply: Modbus TCP allows it) and answered in order, one at a time, each
+    with its own transaction id; pymodbus alone took the first and dropped the rest when it replied."""
     peer = "?"
     last_heard = 0.0
-    tripped = False
+    frame_started: float | None = None       # when the frame now cut short began to arrive
+    tripped = 0                              # e-stop frames tripped on arrival, not yet acted on
 
     def take_trip(self) -> bool:
         """Whether this request's e-stop was tripped on arrival (then the guard does not again)."""
-        tripped, self.tripped = self.tripped, False
-        return tripped
+        if self.tripped:
+            self.tripped -= 1
+            return True
+        return False
 
     def callback_connected(self) -> None:
         super().callback_connected()
         self.last_heard = time.monotonic()
+        self.waiting: collections.deque = collections.deque()
+        self.answering: asyncio.Task | None = None
         with contextlib.suppress(Exception):
             host, port = self.transport.get_extra_info("peername")[:2]
             self.peer = f"{host}:{port}"
@@ -150,27 +167,99 @@ class _Connection(ServerRequestHandler):
         else:
             server.refusing = False
 
+    def callback_disconnected(self, exc: Exception | None) -> None:
+        super().callback_disconnected(exc)
+        if self.answering is not None:
+            self.answering.cancel()
+        self.waiting.clear()
+
+    def datagram_received(self, data: bytes, addr: tuple | None) -> None:
+        # pymodbus's own emptied the buffer whole once it held more than one frame's 260 bytes
+        self.recv_buffer += data
+        self.recv_buffer = self.recv_buffer[self.callback_data(self.recv_buffer, addr):]
+
     def callback_data(self, data: bytes, addr: tuple | None = None) -> int:
-        self.last_heard = time.monotonic()
-        if broken_mbap(data):
-            self.server.broken += 1
-            log.debug("scada: %s sent a broken MBAP header; dropped", self.peer)
-            self.close()
-            return len(data)
-        if self.server.urgent is not None and self.server.estop_frame(data):
-            self.tripped = True
-            self.server.urgent()       # the latches now, before pymodbus schedules the request
+        """Takes the complete frames at the front of ``data`` (the connection's whole buffer);
+        returns how many bytes they were. With PIPELINE_MAX requests waiting, the connection stops
+        reading (TCP holds the client back) until they are answered."""
+        now = self.last_heard = time.monotonic()
+        used = 0
+        while used < len(data):
+            rest = data[used:]
+            if broken_mbap(rest):
+                self.server.broken += 1
+                log.debug("scada: %s sent a broken MBAP header; dropped", self.peer)
+                self.close()
+                return len(data)
+            if len(rest) >= 6 and self.server.urgent is not None and self.server.estop_frame(
+                    rest[:6 + int.from_bytes(rest[4:6], "big")]):
+                self.tripped += 1
+                self.server.urgent()       # the latches now, before pymodbus parses the request
+            n = self._take(rest, addr)
+            if n is None:
+                return len(data)
+            if n == 0:
+                break
+            used += n
+        if used:
+            self.frame_started = None
+        if used < len(data) and self.frame_started is None:
+            self.frame_started = now      # a frame begun: it has idle_timeout_s to arrive whole
+        if len(self.waiting) >= PIPELINE_MAX and self.transport is not None:
+            self.transport.pause_reading()
+        if self.waiting and self.answering is None:
+            self.answering = asyncio.ensure_future(self._answer_waiting())
+        return used
+
+    def _take(self, frame: bytes, addr) -> int | None:
+        """One frame off the front: its length (0: not whole yet); None when the connection is closed."""
         try:
-            return super().callback_data(data, addr)
+            used = TransactionManager.callback_data(self, frame, addr)
+        except ModbusIOException as exc:         # as pymodbus answers it
+            self.waiting.append((ExceptionResponse(exc.fcode or 0, ExcCodes.ILLEGAL_FUNCTION,
+                                                   device_id=exc.dev_id, transaction=exc.transaction_id), addr))
+            return len(frame)
         except Exception as exc:     # a frame pymodbus cannot take apart: this client only loses
             self.server.broken += 1
             log.debug("scada: %s: undecodable frame (%s); dropped", self.peer, exc)
             self.close()
-            return len(data)
+            return None
+        if self.last_pdu is not None:
+            self.waiting.append((self.last_pdu, addr))
+            self.last_pdu = None
+        return used
 
-    async def handle_request(self):
-        PEER.set(self)           # this request's task only: the store names the peer in the audit
-        await super().handle_request()
+    async def _answer_waiting(self) -> None:
+        try:
+            while self.waiting:
+                request, addr = self.waiting.popleft()
+                # a task of its own per request: the audit's peer and a write's echo are its alone
+                await asyncio.ensure_future(self._answer(request, addr))
+                if len(self.waiting) == PIPELINE_MAX // 2 and self.transport is not None:
+                    self.transport.resume_reading()
+        finally:
+            self.answering = None
+
+    async def _answer(self, request: ModbusPDU, addr) -> None:
+        if isinstance(request, ExceptionResponse):
+            self.server_send(request, addr)
+            return
+        PEER.set(self)
+        try:
+            response = await request.datastore_update(self.server.context, request.dev_id)
+        except NoSuchIdException:
+            response = ExceptionResponse(request.function_code, ExcCodes.GATEWAY_NO_RESPONSE)
+        except Exception:        # a bug: this request answers 04, the server goes on
+            log.exception("scada: %s: request fc %d failed", self.peer, request.function_code)
+            response = ExceptionResponse(request.function_code, ExcCodes.DEVICE_FAILURE)
+        response.transaction_id, response.dev_id = request.transaction_id, request.dev_id
+        self.server_send(response, addr)
+
+    def send(self, data: bytes, addr: tuple | None = None) -> None:
+        # pymodbus empties the receive buffer as it replies: the next request's first bytes with it
+        kept = self.recv_buffer
+        super().send(data, addr)
+        self.recv_buffer = kept
 
 
 class ScadaServer(ModbusTcpServer):
@@ -206,13 +295,15 @@ class ScadaServer(ModbusTcpServer):
         return sockets[0].getsockname()[1] if sockets else None
 
     def drop_idle(self, now: float | None = None) -> int:
-        """Close the connections silent for ``idle_timeout_s``: a half-open one holds no slot for good."""
+        """Close the connections silent for ``idle_timeout_s``, or that long on one frame: a half-open or
+        trickling one holds no slot for good."""
         now = time.monotonic() if now is None else now
         dropped = 0
         for conn in list(self.active_connections.values()):
-            if now - getattr(conn, "last_heard", now) > self.scada.idle_timeout_s:
-                log.debug("scada: %s idle for %.0f s; dropped", getattr(conn, "peer", "?"),
-                          now - conn.last_heard)
+            # silent, or trickling one frame (a byte every few seconds held a slot for good)
+            since = min(getattr(conn, "last_heard", now), getattr(conn, "frame_started", None) or now)
+            if now - since > self.scada.idle_timeout_s:
+                log.debug("scada: %s idle or mid-frame for %.0f s; dropped", getattr(conn, "peer", "?"), now - since)
                 conn.close()
                 dropped += 1
         self.idled += dropped

@@ -44,10 +44,12 @@ def in_slot(source: str, slot: str) -> bool:
 
 
 def prepare(status: dict, lay: Layout) -> dict:
-    """The status with what the map reads besides: Unix times, biomass, each tank's alarm severity."""
+    """The status with what the map reads besides: Unix times, biomass, each tank's alarm severity;
+    its alarms the standing ones only."""
     s = dict(status)
     s.setdefault("feeder", {})
-    s.setdefault("alarms", [])
+    # the map speaks of standing alarms; status also lists the cleared ones not yet acknowledged
+    s["alarms"] = [a for a in s.get("alarms") or [] if a.get("active", True)]
     s["t_unix"] = unix(s.get("t"))
     sensors = {}
     if lay.cfg is not None:

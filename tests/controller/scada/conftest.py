@@ -30,6 +30,7 @@ class StandIn:
                                   "alarms": []}
         self.trips: list[str] = []
         self.calls: list[tuple] = []
+        self.refusals: list[tuple] = []      # writes the map refused, as audited
         self.refuse = set(refuse)
         self.overrides = self
 
@@ -38,6 +39,9 @@ class StandIn:
 
     def trip_estop(self, reason: str) -> None:
         self.trips.append(reason)
+
+    def refused_on_wire(self, command, error, user=None, payload=None, *, origin="zenoh") -> None:
+        self.refusals.append((command, error, user, payload, origin))
 
     async def apply(self, command, payload, *, user=None, origin="zenoh") -> dict:
         self.calls.append((command, payload, user, origin))

@@ -209,3 +209,106 @@ def test_garbage_on_one_connection_leaves_the_others_their_rate(serve):
           f"({dirty[0] / dirty[1]:.0f} vs {clean[0] / clean[1]:.0f})")
     assert ratio >= 0.8, f"garbage cost the other connections {100 * (1 - ratio):.0f} % of their reads"
     assert srv.scada.server.broken > 0                 # it was garbage, and it was dropped
+
+
+def _frame(tid: int, fc: int, body: bytes, unit: int = 1) -> bytes:
+    return struct.pack(">HHHB", tid, 0, len(body) + 2, unit) + bytes([fc]) + body
+
+
+def _reply(sock: socket.socket) -> tuple[int, int, bytes]:
+    """(transaction id, function code, data) of the next reply."""
+    head = b""
+    while len(head) < 7:
+        chunk = sock.recv(7 - len(head))
+        assert chunk, "closed by the server"
+        head += chunk
+    tid, _, length, _ = struct.unpack(">HHHB", head)
+    body = b""
+    while len(body) < length - 1:
+        chunk = sock.recv(length - 1 - len(body))
+        assert chunk, "closed by the server"
+        body += chunk
+    return tid, body[0], body[1:]
+
+
+def test_pipelined_requests_are_each_answered_in_order_an_estop_among_them_acting(serve):
+    """Modbus TCP lets a client send its next request before the last reply: pymodbus took the first
+    frame of a read and dropped the rest as it replied, an e-stop write among them included."""
+    from .conftest import StandIn
+    stand_in = StandIn()
+    srv = serve(stand_in)
+    s = socket.create_connection(("127.0.0.1", srv.port), timeout=10)
+    try:
+        s.sendall(_frame(1, 4, struct.pack(">HH", 0, 4)) + _frame(2, 5, struct.pack(">HH", 0, 0xFF00))
+                  + _frame(3, 1, struct.pack(">HH", 0, 1)))
+        replies = [_reply(s) for _ in range(3)]
+        assert [(tid, fc) for tid, fc, _ in replies] == [(1, 4), (2, 5), (3, 1)]
+        assert replies[1][2] == struct.pack(">HH", 0, 0xFF00)          # the write echoed
+        srv.call(lambda: None)
+        assert stand_in.trips == ["modbus e-stop by scada"]              # on arrival, once
+        assert [call[0] for call in stand_in.calls] == ["estop"]
+        # more frames in one send than a connection queues: every one answered, in order
+        many = [_frame(tid, 4, struct.pack(">HH", tid % 7, 1 + tid % 3)) for tid in range(10, 210)]
+        s.sendall(b"".join(many))
+        got = [_reply(s) for _ in many]
+        assert [(tid, fc, len(data)) for tid, fc, data in got] == [(tid, 4, 1 + 2 * (1 + tid % 3))
+                                                                   for tid in range(10, 210)]
+    finally:
+        s.close()
+
+
+def test_a_request_cut_across_a_reply_is_still_whole(serve):
+    """A frame whose first bytes came with the previous request is not lost when that one is answered
+    (pymodbus emptied the receive buffer as it replied)."""
+    srv = serve()
+    s = socket.create_connection(("127.0.0.1", srv.port), timeout=10)
+    s.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+    try:
+        second = _frame(8, 3, struct.pack(">HH", 100, 2))
+        for cut in range(1, len(second)):
+            s.sendall(_frame(7, 4, struct.pack(">HH", 0, 1)) + second[:cut])
+            assert _reply(s)[:2] == (7, 4)
+            s.sendall(second[cut:])
+            assert _reply(s)[:2] == (8, 3), f"cut at byte {cut}"
+    finally:
+        s.close()
+
+
+def test_a_frame_trickled_a_byte_at_a_time_is_dropped_after_the_idle_timeout(serve):
+    """Bytes that never make a whole frame hold no slot for good: any byte used to count as heard."""
+    srv = serve(idle_timeout_s=1.5)
+    slow = socket.create_connection(("127.0.0.1", srv.port))
+    try:
+        slow.sendall(b"\x00\x01\x00\x00\x00\xfe\x01")       # a header promising 253 bytes of PDU
+        slow.settimeout(0.25)
+        began = time.monotonic()
+        closed = False
+        while not closed and time.monotonic() - began < 8:
+            try:
+                slow.send(b"\x03")                 # a byte every 0.25 s: never silent for 1.5 s
+                closed = slow.recv(64) == b""
+            except TimeoutError:
+                pass
+            except (ConnectionResetError, BrokenPipeError):
+                closed = True
+        assert closed, "a trickling frame kept its connection for 8 s"
+        assert srv.scada.server.idled >= 1
+    finally:
+        slow.close()
+
+
+def test_functions_the_map_does_not_serve_are_refused_with_01(serve):
+    """pymodbus answers diagnostics, event counters and FIFO queues from its own counters or
+    invented data (FC 24 read 0, 1, 2, 3); the map serves reads, writes and the identification."""
+    srv = serve()
+    c = Mbap(srv.port)
+    try:
+        for fc, body in ((7, b""), (8, b"\x00\x00\x12\x34"), (11, b""), (12, b""), (17, b""),
+                         (22, struct.pack(">HHH", 100, 0xFFFF, 0)), (24, struct.pack(">H", 100)),
+                         (20, b"\x07\x06\x00\x01\x00\x00\x00\x01"), (0x84, b"\x02")):
+            got, data = c.call(fc, body)
+            assert (got, data[0]) == (fc | 0x80, 1), fc
+        got, data = c.call(43, b"\x0e\x01\x00")                       # the identification still answers
+        assert got == 43 and b"fishfarm" in data
+    finally:
+        c.close()

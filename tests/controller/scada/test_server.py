@@ -30,8 +30,9 @@ def random_status(rng: random.Random, tanks: list[str], slots: list[str]) -> dic
     alarms = []
     for source in rng.sample(slots + ["sensor/T1-a", "demand/T2", "grading/T3", "survey/T1", "survey",
                                          "controller/robot.run", "elsewhere"], 6):
+        # status also lists cleared alarms not yet acknowledged: the map's are the standing ones
         alarms.append({"source": source, "kind": "general", "severity": rng.choice(SEVERITIES),
-                       "acked": rng.random() < 0.5})
+                       "acked": rng.random() < 0.5, "active": rng.random() < 0.7})
     return {"t": "2026-06-01T12:00:00.000Z", "uptime_s": rng.uniform(0, 1e6),
             "feeder": {"state": rng.choice(feeder_states()), "position_m": maybe(f32(0, 100)),
                        "hopper_g": maybe(f32(0, 8000))},
@@ -74,6 +75,8 @@ def expected(row: dict, st: dict, tanks: list[str], word_order: str, read_only: 
     def in_slot(a, slot):
         return a["source"] == slot or a["source"].startswith(slot + "/")
 
+    standing = [x for x in st["alarms"] if x["active"]]
+
     m = re.fullmatch(r"tank\.([^.]+)\.(.+)", name)
     a = re.fullmatch(r"alarm\.(.+)\.(severity|active|unacked)", name)
     if m:
@@ -85,7 +88,7 @@ def expected(row: dict, st: dict, tanks: list[str], word_order: str, read_only: 
                  "biomass_kg": None if t["stock"] is None or t["mean_weight_g"] is None
                  else t["stock"] * t["mean_weight_g"] / 1000,
                  "stock": t["stock"], "last_survey_t": None if t["last_survey_t"] is None else 1780128000,
-                 "alarm_severity": sev([x for x in st["alarms"] if x["source"] in
+                 "alarm_severity": sev([x for x in standing if x["source"] in
                                         (f"sensor/{tank}-a", f"sensor/{tank}-b", f"demand/{tank}",
                                          f"grading/{tank}", f"survey/{tank}")]),
                  # raw words: value / scale, a negative i16 in two's complement
@@ -102,7 +105,7 @@ def expected(row: dict, st: dict, tanks: list[str], word_order: str, read_only: 
                  "fit_surveys": t["fit_surveys"], "fcr_net_fit": hundredths(t["fcr_net_fit"])}[field]
     elif a:
         slot, field = a.groups()
-        mine = [x for x in st["alarms"] if in_slot(x, slot)]
+        mine = [x for x in standing if in_slot(x, slot)]
         value = {"severity": sev(mine), "active": bool(mine), "unacked": any(not x["acked"] for x in mine)}[field]
     else:
         f = st["feeder"]
@@ -111,9 +114,9 @@ def expected(row: dict, st: dict, tanks: list[str], word_order: str, read_only: 
                  "estop": f["state"] == "estop", "estop_latched": f["state"] == "estop",
                  "ready": f["state"] != "starting", "writes_enabled": not read_only,
                  "feeder.state": feeder_states().index(f["state"]), "feeder.position_m": f["position_m"],
-                 "feeder.hopper_g": f["hopper_g"], "alarms.active": len(st["alarms"]),
-                 "alarms.unacked": sum(not x["acked"] for x in st["alarms"]),
-                 "alarms.highest": sev(st["alarms"])}.get(name)   # cleaner.*: reserved, no value
+                 "feeder.hopper_g": f["hopper_g"], "alarms.active": len(standing),
+                 "alarms.unacked": sum(not x["acked"] for x in standing),
+                 "alarms.highest": sev(standing)}.get(name)   # cleaner.*: reserved, no value
     return value
 
 

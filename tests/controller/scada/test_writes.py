@@ -105,6 +105,21 @@ def test_refusals(serve):
         assert c.write("coil", 3, [1]) == ("exception", 2)                              # nothing there
         assert c.write("holding register", 0, [1]) == ("exception", 2)
         assert [call[0] for call in stand_in.calls] == ["feed"] and stand_in.trips == []
+        # each refusal of the map's is audited as the controller's own are: what the write meant,
+        # why, by whom, from where, and the words as received
+        audited = [(cmd, err.split(":")[0], user, payload["address"], payload["values"], origin.split(" ")[0])
+                   for cmd, err, user, payload, origin in stand_in.refusals]
+        assert audited == [
+            ("feed", "tank.T1.feed_now_g", "scada", 100, [int(PORTION[0]) - 1], "modbus"),
+            ("feed", "tank.T1.feed_now_g", "scada", 100, [int(PORTION[1]) + 1], "modbus"),
+            ("ration", "tank.T1.set_ration_g", "scada", 101, [0x7FC0, 0], "modbus"),
+            ("ration", "tank.T1.set_ration_g", "scada", 101, f32_words(-1.0, "big"), "modbus"),
+            ("ration", "tank.T1.set_ration_g", "scada", 101, [0x4000], "modbus"),
+            ("write", "holding register 102", "scada", 102, [0, 0], "modbus"),
+            ("estop", "estop", "scada", 0, [0], "modbus"),
+            ("write", "coil 3", "scada", 3, [1], "modbus"),
+            ("write", "holding register 0", "scada", 0, [1], "modbus")]
+        assert all(err.endswith(("(exception 02)", "(exception 03)")) for _, err, *_ in stand_in.refusals)
     finally:
         c.close()
 
