@@ -104,10 +104,10 @@ def _recorder(config_path: str, tank_id: str, species: str, json_path: str):
         raise BadInput(config_path, "--tank", f"{tank_id} holds {tank.species}, not {species}")
     Store(cfg.store.path).close()
 
-    def record(lengths, weights) -> None:
+    def record(lengths, weights, scores) -> None:
         store = Store(cfg.store.path)
         try:
-            store.add_survey(tank_id, time.time(), species, json_path, lengths, weights)
+            store.add_survey(tank_id, time.time(), species, json_path, lengths, weights, scores)
         finally:
             store.close()
     record.ledger = cfg.store.path

@@ -21,6 +21,7 @@ import json
 import logging
 import math
 from collections.abc import Callable, Iterable, Iterator
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -29,12 +30,18 @@ import numpy as np
 from controller.surveys.frames import PairJob
 from controller.surveys.outputs import fish_entry
 from controller.surveys.runner import PairResult, measure_all
-from devices.errors import DeviceError
+from devices.errors import DeviceError, DeviceTimeout
 from vision.survey_stats import implausible, summarise
 
 log = logging.getLogger("fishfarm.survey")
 IN_FLIGHT = 2              # pairs measuring at once here: the robot's own CPU stays free for the loop
 Z95 = 1.96
+# Backstops, wall seconds, for waits each bounded below them (a camera's open and read timeouts, a
+# vision worker's 30 s): a wait that outlives one anyway (a hung driver, a lost thread) fails the
+# visit, alarmed and retried, or leaves its pair out, logged, instead of holding the robot at the
+# tank for good (a probe saw a survey hold it two farm days, every other tank's survey behind it)
+START_WALL_S = 60.0
+MEASURE_WALL_S = 120.0
 
 
 def measure_pairs(jobs: Iterable[PairJob], calib, setup) -> Iterator[PairResult]:
@@ -55,7 +62,7 @@ class SurveySession:
     last_pair_t: float = -math.inf
     lengths: list[float] = field(default_factory=list)
     entries: list[dict] = field(default_factory=list)
-    measuring: set = field(default_factory=set)
+    measuring: dict = field(default_factory=dict)            # task -> (frame, loop time it began)
     visits: int = 0
     failed: str | None = None
     rejected: list[float] = field(default_factory=list)      # lengths left out as measuring errors
@@ -81,6 +88,10 @@ class SurveyStop:
         self.in_flight = getattr(measure, "in_flight", lambda: IN_FLIGHT)
         self.setups = {tank: sp.setup(self.s.setup, None) for tank, sp in species.items()}
         self._power: asyncio.Future | None = None          # the cameras' last start or stop, in order
+        # measuring threads of their own: the default executor's few (the cameras' opens and closes
+        # run there) are never all held by pairs a slow worker has
+        self.pool = ThreadPoolExecutor(max_workers=8, thread_name_prefix="survey-measure")
+        self.start_wall_s, self.measure_wall_s = START_WALL_S, MEASURE_WALL_S
         self.finishing: set[asyncio.Task] = set()
         self.recorded: list[int] = []                      # survey ids, in order
 
@@ -100,7 +111,11 @@ class SurveyStop:
         settled_at = self.clock.now() + self.s.settle_s
         try:
             opening = self._chain(self.camera.start)       # after the last stop; it may take seconds
-            await _first(asyncio.shield(opening), wake)
+            try:
+                await _first(asyncio.wait_for(asyncio.shield(opening), self.start_wall_s), wake)
+            except TimeoutError:
+                raise DeviceTimeout(self.camera.name,
+                                    f"the cameras did not start within {self.start_wall_s:g} s") from None
             if not opening.done():
                 outcome = "preempted"
                 return outcome
@@ -124,8 +139,9 @@ class SurveyStop:
                 if pair.t < session.last_pair_t + self.s.pair_interval_s:
                     continue
                 self._measure(session, pair)
-                while len(session.measuring) >= self.in_flight() and not interrupted():
-                    await _first(asyncio.wait(set(session.measuring)), wake)
+                while session.measuring and len(session.measuring) >= self.in_flight() and not interrupted():
+                    await _first(asyncio.wait(set(session.measuring), timeout=self._left(session)), wake)
+                    self._abandon_late(session)
             self.alarms.clear(f"device/{self.camera.name}", "survey camera back")
             outcome = "captured"
             return outcome
@@ -150,7 +166,10 @@ class SurveyStop:
 
         async def run():
             if before is not None:
-                await asyncio.gather(before, return_exceptions=True)
+                await asyncio.wait({before}, timeout=self.start_wall_s)
+                if not before.done():
+                    log.warning("%s: the cameras' last start or stop has not ended in %g s; going on",
+                                self.camera.name, self.start_wall_s)
             return await step()
         self._power = task = asyncio.ensure_future(run())
         task.add_done_callback(_retrieved)
@@ -162,13 +181,28 @@ class SurveyStop:
         session.last_pair_t = pair.t
         job = PairJob(frame, f"{self.camera.name} pair {frame}", left=pair.left, right=pair.right)
         calib, setup = self.camera.calibration, self.setups[session.tank]
-        task = asyncio.ensure_future(asyncio.to_thread(lambda: list(self.measure(iter([job]), calib, setup))))
-        session.measuring.add(task)
+        loop = asyncio.get_running_loop()
+        task = loop.run_in_executor(self.pool, lambda: list(self.measure(iter([job]), calib, setup)))
+        session.measuring[task] = (frame, loop.time())
         task.add_done_callback(lambda t: self._measured(session, t))
 
-    def _measured(self, session: SurveySession, task: asyncio.Task) -> None:
-        session.measuring.discard(task)
-        if task.cancelled():
+    def _left(self, session: SurveySession) -> float:
+        """Wall seconds until the oldest pair measuring is late (``measure_wall_s``)."""
+        began = min(b for _, b in session.measuring.values())
+        return max(0.0, began + self.measure_wall_s - asyncio.get_running_loop().time())
+
+    def _abandon_late(self, session: SurveySession) -> None:
+        """Pairs measuring for ``measure_wall_s`` are left out of the survey: their thread runs on,
+        its result unused."""
+        now = asyncio.get_running_loop().time()
+        for task, (frame, began) in list(session.measuring.items()):
+            if now - began >= self.measure_wall_s:
+                del session.measuring[task]
+                log.warning("survey of %s: pair %d not measured within %g s; left out", session.tank, frame,
+                            self.measure_wall_s)
+
+    def _measured(self, session: SurveySession, task: asyncio.Future) -> None:
+        if session.measuring.pop(task, None) is None or task.cancelled():    # left out as late, or cancelled
             return
         if task.exception() is not None:
             log.warning("survey of %s: a pair not measured: %s", session.tank, task.exception())
@@ -189,7 +223,8 @@ class SurveyStop:
 
     async def _record(self, session: SurveySession) -> int:
         while session.measuring:
-            await asyncio.wait(set(session.measuring))
+            await asyncio.wait(set(session.measuring), timeout=self._left(session))
+            self._abandon_late(session)
         t = self.clock.now()
         measured = np.asarray(session.lengths, float)
         far = implausible(measured)
@@ -203,7 +238,9 @@ class SurveyStop:
         sp = self.species[session.tank]
         weights = sp.weight.weight_g(lengths)
         path = self._write_out_json(session, t, lengths, weights)
-        sid = self.store.add_survey(session.tank, t, sp.key, path, lengths, weights)
+        scores = [math.nan if e["score"] is None else e["score"] for e, out in zip(session.entries, far, strict=True)
+                  if not out]
+        sid = self.store.add_survey(session.tank, t, sp.key, path, lengths, weights, scores)
         self.recorded.append(sid)
         log.info("survey of %s recorded: %d pairs in %d visit(s), %d fish, mean %.1f g", session.tank,
                  session.captured, session.visits, len(lengths), float(weights.mean()) if len(lengths) else math.nan)
@@ -231,6 +268,7 @@ class SurveyStop:
     async def close(self) -> None:
         for task in [*self.finishing]:
             task.cancel()
+        self.pool.shutdown(wait=False, cancel_futures=True)
         with contextlib.suppress(Exception):
             await self.camera.stop()
 

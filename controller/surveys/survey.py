@@ -66,6 +66,7 @@ class _Tracks:
         self.fps, self.every = fps, every
         self._tracker = None
         self.lengths: list[float] = []
+        self.scores: list[float] = []
         self.min_sightings = 1
         self.tracks_seen = 0
         if fps is not None:
@@ -90,22 +91,26 @@ class _Tracks:
             return [int(i) for i in self.tracker.update(frame, fish)]
         first = len(self.lengths)
         self.lengths.extend(f.length_cm for f in fish)
+        self.scores.extend(f.score for f in fish)
         return list(range(first, first + len(fish)))
 
-    def lengths_cm(self) -> tuple[np.ndarray, np.ndarray]:
-        """(ids, lengths) of the entries the statistics may use: every fish in stills, the
-        confirmed tracks in video; lengths that are not a positive number left out."""
+    def lengths_cm(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(ids, lengths, scores) of the entries the statistics may use: every fish in stills, the
+        confirmed tracks in video (a track's score: its sightings' mean); lengths that are not a
+        positive number left out."""
         if self.tracker is not None:
             tracks = self.tracker.finish()
             self.tracks_seen = len(tracks)
             kept = [t for t in tracks if t.count >= self.min_sightings]
             ids = np.array([int(t.id) for t in kept], dtype=int)
             lengths = np.array([t.length_cm for t in kept], dtype=float)
+            scores = np.array([t.score for t in kept], dtype=float)
         else:
             self.tracks_seen = len(self.lengths)
             ids, lengths = np.arange(len(self.lengths)), np.asarray(self.lengths, dtype=float)
+            scores = np.asarray(self.scores, dtype=float)
         usable = np.isfinite(lengths) & (lengths > 0)
-        return ids[usable], lengths[usable]
+        return ids[usable], lengths[usable], scores[usable]
 
 
 def _results(source: Source, calib: StereoCalibration, opts: SurveyOptions):
@@ -139,12 +144,12 @@ def run_survey(source: Source, calib: StereoCalibration, opts: SurveyOptions,
             if opts.on_pair:
                 opts.on_pair(result)
         wall = time.perf_counter() - started
-        ids, lengths = tracks.lengths_cm()
+        ids, lengths, scores = tracks.lengths_cm()
         far = implausible(lengths)
         rejected, lengths = lengths[far], lengths[~far]
         stats = summarise(lengths, weight.weight_g(lengths), rng=np.random.default_rng(opts.seed))
         if opts.record is not None:
-            opts.record(lengths, weight.weight_g(lengths))
+            opts.record(lengths, weight.weight_g(lengths), scores[~far])
         head = {"species": opts.species.key, "setup": opts.setup.setup, "frames": frames}
         tail = {"count": stats["count"], "length_cm": stats["length_cm"], "weight_g": stats["weight_g"],
                 "condition_k": stats["condition_k"], "precision": stats["precision"],

@@ -289,6 +289,10 @@ def test_a_survey_recorded_for_a_tank_sets_its_ration(farm, tmp_path):
     [s] = store.surveys("T2")
     assert s.count == doc["count"] == 6 and s.source == str(tmp_path / "out.json")
     assert s.mean_weight_g == pytest.approx(doc["weight_g"]["mean"], rel=1e-6)
+    # every fish's score kept beside its length (history/fish and `fishfarm history` read it)
+    rows = store.db.execute("SELECT length_cm, score FROM survey_fish WHERE survey = ? ORDER BY rowid",
+                            (s.id,)).fetchall()
+    assert [(round(a, 3), round(b, 4)) for a, b in rows] == [(f["length_cm"], f["score"]) for f in doc["fish"]]
     rations = Rations(load_config(str(cfg_path)), load_species(), store)
     assert rations.plan("T2", s.t + 60).source == "survey"
     # refused before anything is measured: another species' tank, a tank that is not there

@@ -133,6 +133,7 @@ def test_video_statistics_use_one_entry_per_track(tmp_path, monkeypatch):
     class Track:
         def __init__(self, i, lengths):
             self.id, self.length_cm, self.count = i, float(np.median(lengths)), len(lengths)
+            self.score = 0.5
 
     class FishTracker:
         def __init__(self, fps):
@@ -183,7 +184,7 @@ def test_implausible_lengths_are_left_out_of_the_statistics_and_marked(tmp_path)
     calib = convergent_rig(image_size=(4, 4)).calibration()
     recorded = []
     summary = run_survey(Source(jobs, None), calib,
-                         options(f"{STANDIN}:slow_by_level", record=lambda ls, ws: recorded.append(list(ls))),
+                         options(f"{STANDIN}:slow_by_level", record=lambda ls, ws, scores: recorded.append(list(ls))),
                          str(tmp_path / "o.json"))
     doc = json.loads((tmp_path / "o.json").read_text())
     kept = [lv for lv in levels if lv not in wild]

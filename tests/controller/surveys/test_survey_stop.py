@@ -120,8 +120,12 @@ def test_a_survey_stop_settles_captures_its_pairs_at_the_tank_and_is_recorded(tm
             states = r.published.states()
             watch = SurveyWatch(r.robot.cfg, r.store, r.rations, r.alarms, r.published)
             fresh = watch.check(r.clock.now())
-            return survey, camera, measure, sp, states, arrived, asked, fresh, r.rations.today("T2", r.clock.now())
-    survey, camera, measure, sp, states, arrived, asked, fresh, ration = run(main())
+            scores = [row[0] for row in r.store.db.execute("SELECT score FROM survey_fish WHERE survey = ?",
+                                                               (survey.id,))]
+            return (survey, camera, measure, sp, states, arrived, asked, fresh, r.rations.today("T2", r.clock.now()),
+                    scores)
+    survey, camera, measure, sp, states, arrived, asked, fresh, ration, scores = run(main())
+    assert scores == [0.9] * survey.count                     # each fish's score kept with it
     truth = np.array(measure.lengths)
     assert survey.count == 8 * 3 == len(truth)
     assert survey.mean_length_cm == pytest.approx(truth.mean())
@@ -287,3 +291,66 @@ def test_a_length_far_from_the_stock_s_is_left_out_as_a_measuring_error(tmp_path
     assert survey.count == 3 * pairs and survey.mean_weight_g == pytest.approx(np.mean(sp.weight.weight_g(truth)))
     doc = json.loads(open(survey.source).read())
     assert doc["rejected_lengths_cm"] == [35.0] and sum(f["outlier"] for f in doc["fish"]) == 1
+
+
+class CameraThatNeverStarts(CameraDouble):
+    """A driver whose stream open hangs past every timeout of its own (a lost thread, a hung link)."""
+
+    async def _start(self):
+        self.starts += 1
+        await asyncio.Event().wait()
+
+
+def test_cameras_that_never_start_fail_the_visit_alarmed_instead_of_holding_the_robot(tmp_path):
+    """A probe saw a survey hold the robot at a tank for two farm days, every other survey behind
+    it: the visit waited for the cameras' start with nothing but a demand to end the wait."""
+    async def main():
+        async with rig(tmp_path) as r:
+            await r.until(lambda: r.robot.state == "idle", what="homed")
+            stops, _, _, _ = await attach(r, tmp_path, ci_pct=0.1)
+            camera = CameraThatNeverStarts(r.clock, r.rail)
+            await camera.open()
+            stops.stop.camera = camera
+            stops.stop.start_wall_s = 0.5
+            stops.request("T2", pairs=4)
+            await r.until(lambda: r.robot.state == "surveying", what="surveying")
+            await r.until(lambda: r.alarms.active.of("device/stereo"), 600.0, what="the camera alarmed")
+            await r.until(lambda: r.robot.state == "idle", 600.0, what="the robot free again")
+            return [a.text for a in r.alarms.active.of("device/stereo")], camera.starts, r.store.surveys("T2")
+    texts, starts, surveys = run(main())
+    assert starts == 1 and surveys == []
+    assert any("did not start within 0.5 s" in t for t in texts), texts
+
+
+class MeasureThatHangsOnce(MeasureDouble):
+    """The first pair's measuring never ends (a worker's reply lost past its own timeout)."""
+
+    def __init__(self):
+        super().__init__()
+        self.calls, self.release = 0, threading.Event()
+
+    def __call__(self, jobs, calib, setup):
+        self.calls += 1
+        if self.calls == 1:
+            self.release.wait(60.0)
+            return
+        yield from super().__call__(jobs, calib, setup)
+
+
+def test_a_pair_whose_measuring_never_ends_is_left_out_and_the_survey_recorded(tmp_path):
+    async def main():
+        measure = MeasureThatHangsOnce()
+        try:
+            async with rig(tmp_path) as r:
+                await r.until(lambda: r.robot.state == "idle", what="homed")
+                stops, camera, _, _ = await attach(r, tmp_path, measure=measure, ci_pct=0.1)
+                stops.stop.measure_wall_s = 0.5
+                stops.request("T2", pairs=5)
+                survey = await recorded(r, stops, "T2", 900.0)
+                return survey, measure
+        finally:
+            measure.release.set()
+    survey, measure = run(main())
+    assert measure.calls == 5
+    assert survey.count == 4 * 3 == len(measure.lengths)          # the hung pair's fish: none
+    assert survey.mean_length_cm == pytest.approx(np.mean(measure.lengths))
