@@ -3,13 +3,38 @@ device from its config section (through its kind's ``BACKENDS`` table)."""
 from __future__ import annotations
 
 import importlib
+import math
 
 from controller.config import Config, validate_section
 from controller.errors import BadInput
+from controller.feeding.dispensing import FULL_SHARE, UNMEASURED
+from controller.feeding.rations import load_tables
 from controller.water import check_thermometer
 from devices.sections import backends as device_backends
 
 CLEANER_KINDS = ("thrusters", "tower_camera")
+
+
+def check_hopper(cfg: Config) -> None:
+    """A full hopper holds a portion with room for the auger's overshoot (its most, while its rate
+    is a guess): else no refill is ever enough and the robot goes back to the box for good."""
+    f = cfg.feeding
+    most = FULL_SHARE * f.hopper_capacity_g / (1 + UNMEASURED)
+    if f.portion_g > most:
+        raise BadInput(cfg.path, "feeding.portion_g",
+                       f"{f.portion_g:g} g does not fit a full hopper ({FULL_SHARE:.0%} of hopper_capacity_g "
+                       f"{f.hopper_capacity_g:g} g) with room for the auger's overshoot ({UNMEASURED:.0%} until its "
+                       f"rate is measured): at most {math.floor(most):g} g")
+
+
+def check_stocks(cfg: Config, species: dict) -> None:
+    """``[stocks.NAME]``: each one's keys and its species, though only ``survey --stock`` uses them."""
+    from controller.surveys.species import StockSection
+    for name, section in cfg.stocks.items():
+        stock = validate_section(StockSection, section, cfg.path, f"stocks.{name}")
+        if stock.species not in species:
+            raise BadInput(cfg.path, f"stocks.{name}.species",
+                           f"unknown species {stock.species!r} (known: {', '.join(sorted(species))})")
 
 
 def build_device(name: str, section: dict, clock, where: str):
@@ -21,11 +46,15 @@ def build_device(name: str, section: dict, clock, where: str):
 
 
 def check_farm(cfg: Config, species: dict) -> None:
-    """What the sections cannot check alone: every tank's species is known, one device of each kind."""
+    """What the sections cannot check alone: every tank's species is known, the feeding charts are
+    for known species, a portion fits the hopper, the stocks' sections, one device of each kind."""
     for i, tank in enumerate(cfg.tanks):
         if tank.species not in species:
             raise BadInput(cfg.path, f"tanks.{i}.species",
                            f"unknown species {tank.species!r} (known: {', '.join(sorted(species))})")
+    load_tables(cfg, species)
+    check_hopper(cfg)
+    check_stocks(cfg, species)
     for kind in ("contacts", "rail", "dispenser"):
         found = [name for name, s in cfg.devices.items() if s["kind"] == kind]
         if len(found) != 1:

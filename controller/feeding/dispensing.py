@@ -30,6 +30,7 @@ SPREAD_SDS = 6.0        # ... or this many standard deviations of its measured d
 SPREAD_RUNS = 200       # ... over its last this many measured runs (from this many: MIN_SPREAD_RUNS)
 MIN_SPREAD_RUNS = 20
 UNMEASURED = 0.5        # ... and this much while its rate is still a guess (never less than the spread's)
+FULL_SHARE = 0.98       # a refill fills the hopper to this share of hopper_capacity_g
 MEASURED_RUNS = 3       # runs before the learned rate is trusted
 POLL_WALL_S = 0.0005    # dispenser polling once a run should have ended
 MEASURED = "measured"   # note of a run that ended as timed: its grams teach the rate

@@ -19,7 +19,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from controller.config import Config, load_toml, validate_section
 from controller.errors import BadInput
@@ -42,7 +42,7 @@ class FeedingRow(BaseModel):
     model_config = ConfigDict(extra="forbid", frozen=True)
     up_to_g: float = Field(gt=0)
     rate_pct: float = Field(gt=0, le=20)
-    pellet_mm: float = Field(gt=0)
+    pellet_mm: float = Field(gt=0, le=50)
 
 
 class Species(BaseModel):
@@ -53,6 +53,14 @@ class Species(BaseModel):
     source: str | None = Field(None, description="where a, b come from")
     feeding: list[FeedingRow] = Field(min_length=1)
     survey: dict = Field({}, description="body shape for weight surveys: controller/surveys/species.py checks it")
+
+    @model_validator(mode="after")
+    def _rows_in_order(self):
+        # a species without a chart is fed by these rows, looked up as a chart's classes are
+        ups = [r.up_to_g for r in self.feeding]
+        if any(b <= a for a, b in zip(ups, ups[1:], strict=False)):
+            raise ValueError(f"feeding rows' up_to_g must increase strictly, not {ups}")
+        return self
 
     def row(self, mean_weight_g: float) -> FeedingRow:
         for row in self.feeding:
@@ -111,7 +119,7 @@ class Rations:
         for tank in cfg.tanks:
             if tank.species not in species:
                 raise ValueError(f"tank {tank.id}: unknown species {tank.species!r}")
-        self.tables = load_tables(cfg)
+        self.tables = load_tables(cfg, species)
         self.water = None                     # controller.water.WaterTemperatures, once devices are up
         self._plans: dict[tuple[str, str], Plan] = {}     # (tank, farm day) -> what today's plan rests on
         for key in {tank.species for tank in cfg.tanks} - self.tables.keys():
@@ -229,16 +237,24 @@ class Rations:
         return grams if grams >= self.cfg.feeding.min_portion_g else 0.0
 
 
-def load_tables(cfg: Config) -> dict[str, FeedingTable]:
+def load_tables(cfg: Config, species: dict | None = None) -> dict[str, FeedingTable]:
     """``[feeding] tables``: one chart per species. A relative path is looked for beside farm.toml,
-    then among the charts shipped with fishfarm (its config/ directory, as species.toml)."""
+    then among the charts shipped with fishfarm (its config/ directory, as species.toml). With
+    ``species`` (species.toml's), a chart for a species not there is refused: a typo would leave
+    the chart unused and the tanks fed by the species' rows instead."""
     base = Path(cfg.path).parent if Path(cfg.path).is_file() else Path.cwd()
     tables: dict[str, FeedingTable] = {}
     for i, name in enumerate(cfg.feeding.tables):
         path = Path(name)
         if not path.is_absolute():
             path = base / name if (base / name).is_file() or not (SHIPPED / name).is_file() else SHIPPED / name
+        if not path.is_file():
+            raise BadInput(cfg.path, f"feeding.tables.{i}", f"{path}: no such file")
         table = load_feeding_table(path)
+        if species is not None and table.species not in species:
+            raise BadInput(cfg.path, f"feeding.tables.{i}", f"{path.name} is a chart for {table.species!r}, a "
+                                                             f"species species.toml does not know (known: "
+                                                             f"{', '.join(sorted(species))})")
         if table.species in tables:
             raise BadInput(cfg.path, f"feeding.tables.{i}", f"a second table for {table.species!r}")
         tables[table.species] = table

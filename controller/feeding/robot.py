@@ -21,7 +21,7 @@ from dataclasses import dataclass
 
 from transitions import Machine
 
-from controller.feeding.dispensing import AugerJammed, Dispensing
+from controller.feeding.dispensing import FULL_SHARE, AugerJammed, Dispensing
 from controller.feeding.estop import EstopLane, Halted, log_latch
 from controller.feeding.planner import Stop, next_stop
 from controller.feeding.recovery import Recovering
@@ -301,13 +301,16 @@ class FeedingRobot(Recovering):
         self.go()
         await self._move_to(self.feeding.food_box_m)
         self.arrive_box()
-        full = self.feeding.hopper_capacity_g * 0.98
+        full = self.feeding.hopper_capacity_g * FULL_SHARE
+        # what a portion needs: a refill cut short for the fish waiting always holds one (cut at
+        # refill_below_g alone, a portion above it sent the robot back to the box for good)
+        enough = max(self.feeding.refill_below_g, self.feeding.portion_g * (1 + self.dispensing.overshoot))
         self._halt_if_tripped()
         await self.dispenser.set_refill(True)
         try:
             deadline = self.clock.now() + self.feeding.refill_timeout_s
             while (state := await self.dispensing.read()).hopper_g < full:
-                if (self.pending or self.manual_asked) and state.hopper_g >= self.feeding.refill_below_g:
+                if (self.pending or self.manual_asked) and state.hopper_g >= enough:
                     break                      # enough for the fish waiting now; top up later
                 if self.clock.now() > deadline:
                     raise DeviceTimeout(self.dispenser.name,

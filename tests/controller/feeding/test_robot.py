@@ -370,3 +370,22 @@ def test_an_estop_drops_a_manual_asked_for(tmp_path):
             assert r.robot.state == "estop" and not r.robot.manual_asked
             assert r.robot.set_manual(True) == "cannot take manual control in state estop"
     run(main())
+
+
+def test_a_refill_cut_short_for_a_waiting_demand_holds_that_demand_s_portion(tmp_path):
+    """A refill stops early for fish waiting once the hopper holds enough: refill_below_g was
+    enough, so with a portion larger than that the robot left the box short of it and began a new
+    refill at once, again and again, until the gate's moments open added up to the portion."""
+    async def main():
+        async with rig(tmp_path, feeding={"portion_g": 2000.0, "refill_below_g": 500.0},
+                       dispenser={"hopper_start_g": 30.0}) as r:
+            r.rations.set("T1", r.clock.now(), 10_000.0, "operator")
+            await r.until(lambda: r.robot.state == "refilling", what="refilling")
+            r.demand("T1")
+            await r.until(lambda: r.store.fed_g("T1", r.rations.date(r.clock.now())) > 0, 600.0, what="T1 fed")
+            states = r.published.states()
+            return r.store.feeds()[0].target_g, states[:states.index("dispensing")]
+    target, before = run(main())
+    assert target > 500.0
+    # one refill, to a hopper that holds the portion: not a trip to the box and back per half-second
+    assert before.count("refilling") == 1, before
