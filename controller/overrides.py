@@ -16,7 +16,7 @@ from __future__ import annotations
 import asyncio
 import logging
 
-from controller.feeding.robot import Job
+from controller.feeding.robot import CONFIRM_WAIT_S, Job
 from controller.override_models import (  # noqa: F401
     AUDIT_TEXT_MAX,
     OPERATOR_MAX,
@@ -70,6 +70,7 @@ class Overrides:
     def __init__(self, controller):
         self.c = controller
         self._rows: list[dict] = []      # audit rows not written yet (this loop turn's)
+        self._resetting = asyncio.Lock()
         self._act = {name: getattr(self, name.replace("-", "_")) for name in COMMANDS if name not in NOT_YET}
 
     def declare(self, bus) -> None:
@@ -182,17 +183,27 @@ class Overrides:
 
     async def reset(self, payload, by: str | None = None) -> dict:
         """The feeder's reset, and the cleaner's when it is in ``estop`` (its thrusters' latch is
-        released and confirmed before it leaves ``estop``)."""
+        released and confirmed before it leaves ``estop``). Refused while the e-stop it would
+        release is still being confirmed (a reset 5 ms after an e-stop released stops no device had
+        shown: the thrusters never stopped); one reset at a time (a second one, while the first
+        waited for the thrusters, was refused for a latch the first had released)."""
         cmd, robot = parse(Bare, payload), self._robot()
-        log.warning("reset by %s: %s", by or cmd.operator, cmd.reason)
-        feeder = robot.operator_reset()
-        cleaner = getattr(self.c, "cleaner", None)
-        if cleaner is None or cleaner.state != "estop":
-            return self._result(feeder)
-        error = await cleaner.operator_reset()
-        if error is not None:
-            return {"ok": False, "error": error}
-        return {"ok": True} if feeder is None or feeder.startswith("nothing to reset") else self._result(feeder)
+        lane = getattr(self.c, "lane", None)
+        if robot.state == "estop" and lane is not None and lane.confirming(CONFIRM_WAIT_S):
+            raise Refused(f"reset: the e-stop is not confirmed by every device yet; reset once it is "
+                          f"(within {CONFIRM_WAIT_S:g} s, or the estop alarm names the device)")
+        async with self._resetting:
+            log.warning("reset by %s: %s", by or cmd.operator, cmd.reason)
+            feeder = robot.operator_reset()
+            cleaner = getattr(self.c, "cleaner", None)
+            if cleaner is None or cleaner.state != "estop":
+                if feeder is not None and feeder.startswith("nothing to reset") and cleaner is not None:
+                    feeder += f" (the cleaner is {cleaner.state})"
+                return self._result(feeder)
+            error = await cleaner.operator_reset()
+            if error is not None:
+                return {"ok": False, "error": error}
+            return {"ok": True} if feeder is None or feeder.startswith("nothing to reset") else self._result(feeder)
 
     async def cleaner_start(self, payload, by: str | None = None) -> dict:
         """Start cleaning (resuming the saved map and path, or a fresh run once the last finished)."""

@@ -28,6 +28,7 @@ from __future__ import annotations
 import asyncio
 import concurrent.futures
 import logging
+import math
 import threading
 import time
 from collections.abc import Callable
@@ -121,6 +122,7 @@ class EstopLane:
         self._reports: list[Report] = []
         self.unconfirmed: dict[str, str] = {}      # device -> why its latch is not confirmed
         self._first: tuple | None = None           # (gen, {device: (sent at, reply)}) from trip()
+        self._tripped_at = -math.inf               # monotonic time of the standing trip
 
     @property
     def DEVICES(self) -> tuple[str, ...]:        # noqa: N802 - the names the feeder's code knew
@@ -158,6 +160,7 @@ class EstopLane:
             first = not self._tripped
             if first:
                 self._tripped = True               # the token first: nothing may start from here on
+                self._tripped_at = time.monotonic()
                 self._gen += 1
                 self.reason = reason
                 if self._confirmed.done():
@@ -177,6 +180,12 @@ class EstopLane:
             self._first = (gen, first)            # the lane goes on from here
         self._wake.set()
         return confirmed
+
+    def confirming(self, within_s: float) -> bool:
+        """A trip younger than ``within_s`` (wall) whose latches are not all confirmed yet: a reset
+        now would release stops no device has shown (its ESTOPs still in flight are cut)."""
+        return (self._tripped and not self._confirmed.done()
+                and time.monotonic() - self._tripped_at < within_s)
 
     def release(self) -> None:
         """The operator reset: stop asserting the latches. Returns once no ESTOP is in flight."""

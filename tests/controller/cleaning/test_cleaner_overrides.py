@@ -17,8 +17,14 @@ class Robot:
 
     def __init__(self, lane):
         self.lane = lane
+        self.resets = 0
+
+    @property
+    def state(self):
+        return "estop" if self.lane.tripped else "idle"
 
     def operator_reset(self):
+        self.resets += 1
         if not self.lane.tripped:
             return "nothing to reset in state idle"
         self.lane.release()
@@ -26,7 +32,7 @@ class Robot:
 
 
 def controller(rig, cleaner="rig"):
-    return SimpleNamespace(cfg=SimpleNamespace(cleaning=object()), clock=rig.clock, store=rig.store,
+    return SimpleNamespace(cfg=SimpleNamespace(cleaning=object()), clock=rig.clock, store=rig.store, lane=rig.lane,
                            robot=Robot(rig.lane), cleaner=rig.cleaner if cleaner == "rig" else cleaner)
 
 
@@ -69,8 +75,50 @@ def test_reset_releases_the_thrusters_latch_with_the_feeders(tmp_path):
             assert r.cleaner.state == "estop" and r.thrusters.latched
             assert await o.apply("reset", {"operator": "ana"}) == {"ok": True}
             assert not r.thrusters.latched and not r.lane.tripped and r.cleaner.state == "localising"
-            assert await o.apply("reset", {}) == {"ok": False, "error": "nothing to reset in state idle"}
+            assert await o.apply("reset", {}) == {"ok": False, "error": "nothing to reset in state idle "
+                                                                         "(the cleaner is localising)"}
     run(main())
+
+
+def test_two_resets_at_once_release_once_and_the_other_is_told_there_is_nothing_to_reset(tmp_path):
+    """The second reset came while the first waited for the thrusters' release, and was refused
+    for a latch the first had released already."""
+    async def main():
+        async with Rig(tmp_path, state="localising", mission="clean") as r:
+            o = Overrides(controller(r))
+            await r.frames(poses(PATH[:3]))
+            tripper = threading.Thread(target=r.lane.trip, args=("test",))
+            tripper.start()
+            tripper.join(5)
+            await r.frames(poses(PATH[3:5]))
+            assert r.cleaner.state == "estop"
+            return await asyncio.gather(o.apply("reset", {"operator": "ana"}), o.apply("reset", {"operator": "bo"}))
+    first, second = run(main())
+    assert first == {"ok": True}
+    assert second == {"ok": False, "error": "nothing to reset in state idle (the cleaner is localising)"}
+
+
+def test_a_reset_before_the_estop_is_confirmed_is_refused_and_releases_nothing(tmp_path):
+    """A reset 5 ms after an e-stop cut the stops still in flight: the thrusters never stopped, and
+    the e-stop answered "not confirmed" with no alarm left standing (a probe's race)."""
+    class Confirming:
+        tripped, released = True, False
+
+        def confirming(self, within_s):
+            return within_s > 0
+
+    async def main():
+        async with Rig(tmp_path, state="localising", mission="clean") as r:
+            c = controller(r)
+            c.lane = Confirming()
+            c.robot = SimpleNamespace(state="estop", operator_reset=lambda: pytest.fail("the feeder was reset"))
+            reply = await Overrides(c).apply("reset", {"operator": "ana"})
+            await asyncio.sleep(0)                     # the audit is written just after the reply
+            return reply, r.store.audit()
+    reply, audit = run(main())
+    assert reply == {"ok": False, "error": "reset: the e-stop is not confirmed by every device yet; reset once it "
+                                           "is (within 1 s, or the estop alarm names the device)"}
+    assert [(a["command"], a["ok"]) for a in audit] == [("reset", 0)]
 
 
 @pytest.mark.parametrize("command", ["cleaner-start", "cleaner-stop", "cleaner-return"])

@@ -182,8 +182,10 @@ def test_unconfirmed_latch_is_reported_retried_and_release_stops_the_sends():
     while dispenser.calls == calls and time.monotonic() < deadline:
         time.sleep(0.005)
     assert dispenser.calls > calls
+    # a reset asks whether the stop is still being confirmed: yes within the window it gives, no after
+    assert lane.confirming(60.0) and not lane.confirming(0.0)
     lane.release()
-    assert not lane.tripped
+    assert not lane.tripped and not lane.confirming(60.0)
     calls = dispenser.calls
     time.sleep(0.1)
     assert dispenser.calls == calls                             # and stops once released
