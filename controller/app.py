@@ -228,10 +228,11 @@ class Controller(Stopping):
     def _one(self, kind: str):
         return next(d for d in self.devices.values() if d.kind == kind)
 
-    async def _open(self, device) -> None:
+    async def _open(self, device, failed=None) -> None:
         """Open a device, retrying with back-off until it opens or the controller stops: a farm's
         controller often starts before every PLC is up. The loss is alarmed once (on the first
-        failure), the recovery once; the retries between are logged at debug level only."""
+        failure, when ``failed(why)`` is told too), the recovery once; the retries between are
+        logged at debug level only."""
         for attempt in itertools.count():
             if self.stopping.is_set():
                 return
@@ -243,6 +244,8 @@ class Controller(Stopping):
             except DeviceError as exc:
                 if attempt == 0:
                     self.alarms.raise_(f"device/{device.name}", f"cannot open: {exc.text}", kind="unreachable")
+                    if failed is not None:
+                        failed(f"cannot open: {exc.text}")
                 else:
                     log.debug("%s: open attempt %d failed: %s", device.name, attempt + 1, exc.text)
                 await self._pause(OPEN_BACKOFF_S[min(attempt, len(OPEN_BACKOFF_S) - 1)])
@@ -269,7 +272,9 @@ class Controller(Stopping):
             self.publish_ration(tank)
 
     async def _cleaner_loop(self) -> None:
-        await asyncio.gather(*(self._open(self._one(kind)) for kind in CLEANER_KINDS))
+        # a camera or thrusters that do not open put the cleaner in fault (it said localising)
+        await asyncio.gather(*(self._open(device, failed=lambda why, d=device: self.cleaner.unavailable(d.name, why))
+                               for device in map(self._one, CLEANER_KINDS)))
         if not self.stopping.is_set():
             await self.cleaner.run()
 

@@ -280,6 +280,11 @@ class Cleaner:
         return not self.lane.tripped and status is not None and not status.estop
 
     # -- devices going and coming ---------------------------------------------------
+    def unavailable(self, name: str, why: str) -> None:
+        """A device of the cleaner's that has not opened yet: ``fault`` until it is up (its first
+        frame or status brings it back), as for one lost while running."""
+        self._device_down(name, why)
+
     def _device_down(self, name: str, why: str) -> None:
         self._down[name] = why
         self.alarms.raise_(f"device/{name}", why, kind="unreachable")   # logged once, repeats counted

@@ -30,6 +30,7 @@ from controller.cli.params import Finite
 from controller.errors import BadInput
 
 HEADER = ("frame", "t_s", "file")
+T_MAX_S = 1e11          # seconds either side of the origin (3,000 years): a time beyond is no time
 DET_TOL = 1e-12        # |det H| / |H|^3 under which H counts as singular (as vision.tower)
 
 
@@ -94,6 +95,9 @@ def read_frames(folder: str) -> list[tuple[int, float, Path, int]]:
             raise BadInput(where, f"line {lineno}, column frame", f"frame {int(frame)} again (line {seen[int(frame)]})")
         seen[int(frame)] = lineno
         t = number(cells[1], where, lineno, "t_s")
+        if abs(t) > T_MAX_S:             # the filter's step to the power of 4 overflowed from ~1e77
+            raise BadInput(where, f"line {lineno}, column t_s", f"{cells[1].strip()}: beyond {T_MAX_S:g} s, "
+                                                                "not a time in seconds")
         if t < prev:
             raise BadInput(where, f"line {lineno}, column t_s",
                            f"{cells[1].strip()} is earlier than the row before ({prev:g}): rows must be in time order")

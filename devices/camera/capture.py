@@ -5,8 +5,13 @@ buffers never fill with old frames) and keeps only the newest, stamped with farm
 arrival. ``read()`` on the loop waits for a frame newer than the last it returned. The source
 failing to open, or a read failing (the server gone, the connection reset, no data for
 ``read_timeout_s``), is a lost link: ``read()`` raises LinkDown while the thread reconnects with
-back-off (``reconnect_s``); the loss and the recovery are logged once each. A video file that
-ends is a source gone too; with ``loop_file`` it starts over instead.
+back-off (``reconnect_s``); the loss and the recovery are logged once each.
+
+A video file is played at its own frame rate in farm time (``CAP_PROP_FPS``, 25 when it does not
+say): decoded as fast as it goes, a 30 s clip passed in under a second and the float moved thirty
+times too fast. A file that ends is gone for good (LinkDown from then on, logged once): reopened,
+it replayed old footage to the steering and flapped lost/back every second; with ``loop_file``
+it starts over instead.
 """
 from __future__ import annotations
 
@@ -27,6 +32,7 @@ from devices.errors import DeviceTimeout, LinkDown
 
 log = logging.getLogger(__name__)
 
+FILE_FPS = 25.0          # a video file's frame rate when it does not give one
 APIS = {"any": cv2.CAP_ANY, "ffmpeg": cv2.CAP_FFMPEG, "gstreamer": cv2.CAP_GSTREAMER, "v4l2": cv2.CAP_V4L2}
 
 
@@ -107,6 +113,7 @@ class CaptureCamera(TowerCamera):
         self._down: str | None = None             # why the source is gone, None while it streams
         self._returned = 0                         # seq of the last frame read() returned
         self._stop = threading.Event()
+        self._ended = False                        # a video file played to its end: gone for good
         self._thread: threading.Thread | None = None
         self._loop: asyncio.AbstractEventLoop | None = None
         self._news: asyncio.Event | None = None
@@ -162,9 +169,15 @@ class CaptureCamera(TowerCamera):
             cap = None
             if why is not None:
                 self._mark_down(why)
+            if self._ended:
+                return
 
     def _stream(self, cap: cv2.VideoCapture) -> str | None:
         """Read until the source fails (its reason) or the camera closes (None)."""
+        file = isinstance(self.config.source, str) and os.path.isfile(self.config.source)
+        fps = cap.get(cv2.CAP_PROP_FPS) if file else 0.0
+        frame_farm_s = 1.0 / fps if 0.1 <= fps <= 1000 else 1.0 / FILE_FPS
+        due = time.monotonic()
         while not self._stop.is_set():
             ok, image = cap.read()
             if self._stop.is_set():
@@ -172,7 +185,14 @@ class CaptureCamera(TowerCamera):
             if not ok or image is None:
                 if self.config.loop_file and self.received and cap.set(cv2.CAP_PROP_POS_FRAMES, 0):
                     continue
+                if file and self.received:
+                    self._ended = True
+                    return f"{self.config.source!r}: the video file ended"
                 return f"{self.config.source!r}: no frame (source gone or silent)"
+            if file:                 # each frame at its time: a file is not a live source
+                due = max(due + self.clock.wall(frame_farm_s), time.monotonic() - 1.0)
+                if self._stop.wait(max(0.0, due - time.monotonic())):
+                    return None
             self._arrived(image)
         return None
 

@@ -143,6 +143,9 @@ def test_missing_tower_file_and_folder(capsys, clip, tmp_path):
     ("frame,t_s,file\n0,0.0,f000.png\n1.5,0.1,f001.png\n", "line 3, column frame: not a frame number: '1.5'"),
     ("frame,t_s,file\n-1,0.0,f000.png\n", "line 2, column frame: not a frame number: '-1'"),
     ("frame,t_s,file\n0,1.0,f000.png\n1,0.5,f001.png\n", "line 3, column t_s: 0.5 is earlier than the row before"),
+    # the Kalman step to the 4th power overflowed (an internal error, exit 1) from ~1e77
+    ("frame,t_s,file\n0,0,f000.png\n1,1e155,f001.png\n", "line 3, column t_s: 1e155: beyond 1e+11 s"),
+    ("frame,t_s,file\n0,-2e11,f000.png\n1,0,f001.png\n", "line 2, column t_s: -2e11: beyond 1e+11 s"),
     ("frame,t_s,file\n0,0.0,f000.png\n1,0.1\n", "line 3: 2 fields, expected 3"),
     ("frame,t_s,file\n0,0.0,f000.png\n1,0.1, \n", "line 3, column file: empty"),
     ("frame,t_s,file\n7,0.0,f000.png\n8,0.1,f001.png\n7,0.2,f001.png\n",

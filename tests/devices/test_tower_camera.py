@@ -261,3 +261,49 @@ def test_a_frame_whose_rendering_began_before_the_client_came_is_not_its_first()
         return scene, came, unstamp(first.image)
     scene, came, first = asyncio.run(main())
     assert scene.began[first - 1] >= came
+
+
+def _clip(path, frames: int, fps: float) -> None:
+    out = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"MJPG"), fps, (W, H))
+    scene = Scene()
+    for i in range(frames):
+        out.write(scene(i))
+    out.release()
+
+
+@pytest.mark.parametrize("loop_file", [False, True])
+def test_a_video_file_plays_at_its_own_frame_rate_and_ends_for_good(tmp_path, loop_file):
+    """A probe's 30 s clip was decoded in 0.8 s (the float moved thirty times too fast), then
+    reopened and replayed at its end, lost and back every second, steering on old footage."""
+    from devices.clock import ScaledClock
+    clip = tmp_path / "dock.avi"
+    _clip(clip, frames=12, fps=10.0)
+    clock = ScaledClock.starting(2.0)              # 0.1 farm s a frame: 50 ms of wall
+
+    async def main():
+        dev = camera(str(clip), clock, loop_file=loop_file)
+        await dev.open()
+        seen = []
+        try:
+            while len(seen) < 30:
+                try:
+                    f = await dev.read()
+                except LinkDown as exc:
+                    return seen, str(exc), dev
+                seen.append((f.seq, f.t, unstamp(f.image)))
+            return seen, None, dev
+        finally:
+            await asyncio.sleep(0.3)                # what a reconnect would take (reconnect_s 0.05, 0.1)
+            received = dev.received
+            await dev.close()
+            dev.received_after = received
+    seen, ended, dev = asyncio.run(main())
+    (s0, t0, _), (s1, t1, _) = seen[0], seen[-1]
+    per_frame = (t1 - t0) / (s1 - s0)
+    assert per_frame == pytest.approx(0.1, rel=0.35), seen      # the clip's own 10 fps, in farm time
+    if loop_file:
+        assert ended is None and [n for _, _, n in seen[:24]] == list(range(1, 13)) * 2
+    else:
+        assert [n for _, _, n in seen] == list(range(1, len(seen) + 1)) and len(seen) >= 10
+        assert "the video file ended" in ended
+        assert dev.received_after == 12                       # never reopened: no frame came again

@@ -444,3 +444,19 @@ def test_without_a_mopup_the_lanes_end_in_returning_and_the_phase_says_lanes_whi
             await r.frames(poses(PATH[3:]))
             assert r.cleaner.state == "returning"
     run(main())
+
+
+def test_a_camera_that_has_not_opened_yet_holds_the_cleaner_in_fault_until_its_frames_come(tmp_path):
+    """The controller's start tells the cleaner of a device that does not open (it said localising
+    for as long as the camera stayed away)."""
+    async def main():
+        r = Rig(tmp_path, state="localising", mission="clean")
+        r.cleaner.unavailable(r.camera.name, "cannot open: no such file")
+        state = r.cleaner.state
+        async with r:
+            await r.frames(poses(PATH[:4]))
+            return state, r.cleaner.state, [a["active"] for a in r.store.alarms()
+                                            if a["source"] == f"device/{r.camera.name}"], r.states()
+    before, after, alarm, states = run(main())
+    assert before == "fault" and after == "cleaning"
+    assert alarm == [1, 0] and states[-2:] == ["localising", "cleaning"]
