@@ -123,7 +123,8 @@ class SetRation(Command):
 
 class Settle(Command):
     """An operator's word on a suspect feed: the grams that went in (0 with a reason: none)."""
-    id: str = Field(min_length=1, max_length=64)
+    # one line, as every text an operator sends (a storm's id with a newline reached the handler)
+    id: Annotated[str, Field(min_length=1, max_length=64), AfterValidator(_one_line)]
     grams: float = Field(ge=0, le=5000)
 
 

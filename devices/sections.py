@@ -7,6 +7,7 @@ imports controller/. ``controller.config`` re-exports ``validate_section``.
 from __future__ import annotations
 
 import importlib
+import json
 from typing import Any
 
 from pydantic import BaseModel, ValidationError
@@ -28,9 +29,18 @@ def _loc(err: dict) -> str:
 
 
 def validate_section(model: type[BaseModel], data: Any, where: str, prefix: str = ""):
-    """Validate ``data`` against ``model``; on failure raise BadInput naming file, key and reason."""
+    """Validate ``data`` against ``model``; on failure raise BadInput naming file, key and reason.
+
+    Strictly, as JSON: a TOML ``true`` is no number (``port = true`` bound port 1), a string is no
+    number nor a boolean (``read_only = "yes"``), a whole float is no count (``stock = 2400.0``),
+    while an array still makes a tuple and an integer a float. Data JSON cannot carry (a TOML
+    date, a NaN) is validated as Python objects: refused where it is read."""
     try:
-        return model.model_validate(data)
+        text = json.dumps(data, allow_nan=False)
+    except (TypeError, ValueError):
+        text = None
+    try:
+        return model.model_validate(data) if text is None else model.model_validate_json(text, strict=True)
     except ValidationError as exc:
         err = exc.errors()[0]
         key = ".".join(p for p in (prefix, _loc(err)) if p) or "(top level)"
@@ -39,6 +49,7 @@ def validate_section(model: type[BaseModel], data: Any, where: str, prefix: str 
             msg = "unknown key"
         elif msg.startswith("Value error, "):
             msg = msg[len("Value error, "):]
+        msg = msg.replace("Input should be an object", "Input should be a table")    # TOML's word
         raise BadInput(where, key, msg) from None
 
 

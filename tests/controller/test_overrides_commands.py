@@ -267,3 +267,13 @@ def test_the_override_command_line_sends_names_as_strings():
     from controller.cli.override_cmd import parse_args
     assert parse_args(["tank=12", "to=14", "count=3", "source=7", "kind=1", "all=true"]) == {
         "tank": "12", "to": "14", "count": 3, "source": "7", "kind": "1", "all": True}
+
+
+@pytest.mark.parametrize("control", ["\n", "\r", "\x1b", "\u200b", "\u2028"])
+def test_a_settle_id_is_one_line_like_every_text_an_operator_sends(control):
+    """An id with a newline got past the model (to the handler's 'needs a reason'): found by the
+    storm of generated payloads."""
+    from controller.override_models import Refused, Settle, parse
+    with pytest.raises(Refused, match="^id: control characters"):
+        parse(Settle, {"id": f"1a{control}b", "grams": 0.0})
+    assert parse(Settle, {"id": "1a2b", "grams": 0.0}).id == "1a2b"

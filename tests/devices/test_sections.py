@@ -19,14 +19,39 @@ class Part(BaseModel):
 @pytest.mark.parametrize("data, line", [
     ({"rate": 1}, "farm.toml: sim.part.rate: unknown key"),
     ({"rate_g_s": 0}, "farm.toml: sim.part.rate_g_s: Input should be greater than 0"),
-    ({"nested": {"a": "x"}}, "farm.toml: sim.part.nested.a: Input should be a valid integer, "
-                             "unable to parse string as an integer"),
-    ([], "farm.toml: sim.part: Input should be a valid dictionary or instance of Part"),
+    ({"nested": {"a": "x"}}, "farm.toml: sim.part.nested.a: Input should be a valid integer"),
+    ([], "farm.toml: sim.part: Input should be a table"),
+    # nothing converted behind the operator's back (a probe's `port = true` bound port 1)
+    ({"rate_g_s": True}, "farm.toml: sim.part.rate_g_s: Input should be a valid number"),
+    ({"rate_g_s": "10"}, "farm.toml: sim.part.rate_g_s: Input should be a valid number"),
+    ({"nested": {"a": 2.0}}, "farm.toml: sim.part.nested.a: Input should be a valid integer"),
+    ({"nested": {"a": False}}, "farm.toml: sim.part.nested.a: Input should be a valid integer"),
 ])
 def test_a_bad_section_is_one_line_naming_file_key_and_fault(data, line):
     with pytest.raises(BadInput) as err:
         validate_section(Part, data, "farm.toml", "sim.part")
     assert str(err.value) == line
+
+
+class Flags(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+    on: bool = False
+    pair: tuple[float, float] = (0.0, 1.0)
+    names: list[str] = []
+
+
+@pytest.mark.parametrize("data, fault", [({"on": "yes"}, "on: Input should be a valid boolean"),
+                                         ({"on": 0}, "on: Input should be a valid boolean"),
+                                         ({"names": ["a", 1]}, "names.1: Input should be a valid string")])
+def test_booleans_and_strings_are_taken_only_as_themselves(data, fault):
+    with pytest.raises(BadInput) as err:
+        validate_section(Flags, data, "farm.toml")
+    assert str(err.value) == f"farm.toml: {fault}"
+
+
+def test_an_array_still_makes_a_tuple_and_an_integer_a_float():
+    assert validate_section(Flags, {"pair": [1, 2.5], "on": True}, "farm.toml") == Flags(pair=(1.0, 2.5), on=True)
+    assert validate_section(Part, {"rate_g_s": 3}, "farm.toml").rate_g_s == 3.0
 
 
 def test_the_controller_raises_and_catches_the_same_bad_input():
@@ -46,4 +71,4 @@ def test_a_section_model_is_the_backend_s_own():
 def test_a_whole_section_of_the_wrong_type_is_named_once():
     with pytest.raises(BadInput) as err:
         validate_section(Part, 5, "farm.toml")
-    assert str(err.value) == "farm.toml: (top level): Input should be a valid dictionary or instance of Part"
+    assert str(err.value) == "farm.toml: (top level): Input should be a table"
