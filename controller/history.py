@@ -15,7 +15,11 @@ import re
 
 from controller.errors import BadInput
 
-DURATION = re.compile(r"^\s*(\d+(?:\.\d+)?)\s*(s|m|h|d|w)\s*$")
+DURATION = re.compile(r"^\s*(\d+(?:\.\d+)?)\s*(s|m|h|d|w)\s*$", re.ASCII)
+# Unix seconds as written in ASCII (float() also reads "١٢" and "1_000"); eight digits alone are
+# ISO's basic date (20261204), not seconds of 1970
+SECONDS = re.compile(r"^[+-]?(\d+\.?\d*|\.\d+)([eE][+-]?\d+)?$", re.ASCII)
+BASIC_DATE = re.compile(r"^\d{8}$", re.ASCII)
 UNIT_S = {"s": 1, "m": 60, "h": 3600, "d": 86400, "w": 7 * 86400}
 MAX_ROWS = 100_000
 COLUMNS = {
@@ -44,10 +48,7 @@ WHAT = tuple(COLUMNS)
 def parse_time(text, name: str, now: float, *, durations: bool) -> float:
     """Unix seconds from ISO, Unix seconds or (``durations``) a span back from ``now``."""
     text = str(text).strip()
-    try:
-        value = float(text)
-    except ValueError:
-        value = None
+    value = float(text) if SECONDS.match(text) and not BASIC_DATE.match(text) else None
     m = DURATION.match(text) if durations else None
     if m:
         value = now - float(m.group(1)) * UNIT_S[m.group(2)]
@@ -74,6 +75,8 @@ def history(store, what: str, tank: str, since: float | None = None, until: floa
     """(columns, rows, truncated): the rows oldest first, ``time`` as ISO."""
     if what not in COLUMNS:
         raise BadInput("what", None, f"{what!r} is not one of {', '.join(WHAT)}")
+    if since is not None and until is not None and since > until:
+        raise BadInput("since", None, f"{iso(since)} is after until ({iso(until)}): no time lies between")
     args = {"tank": tank, "since": -math.inf if since is None else since,
             "until": math.inf if until is None else until}
     cur = store.db.execute(_SQL[what] + f" LIMIT {MAX_ROWS + 1}", args)

@@ -94,6 +94,9 @@ class Overrides:
         """``history/{what}/{tank}?since=...;until=...`` (controller/history.py); the range may
         come in the payload instead ({"since": ..., "until": ...})."""
         from controller.history import query_reply
+        both = sorted(set(params) & set(payload))
+        if both:              # which one was meant? (the payload won without a word)
+            return {"ok": False, "error": f"{both[0]}: given in the selector and in the payload: give it once"}
         return query_reply(self.c.store, self.c.cfg, key, {**params, **payload}, self.c.clock.now())
 
     # ------------------------------------------------------------ the one entry

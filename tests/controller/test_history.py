@@ -52,14 +52,17 @@ def test_each_kind_of_row_for_the_tank_oldest_first_within_the_range(ledger):
 
 @pytest.mark.parametrize(("text", "durations", "want"), [
     ("1780000000", False, T), ("2026-05-28T20:26:40", False, T), ("2026-05-28T22:26:40+02:00", False, T),
-    ("2026-05-28T20:26:40Z", False, T), ("7d", True, T + 7 * DAY - 7 * DAY), ("36h", True, T - 1.5 * DAY)])
+    ("2026-05-28T20:26:40Z", False, T), ("7d", True, T + 7 * DAY - 7 * DAY), ("36h", True, T - 1.5 * DAY),
+    # eight digits alone are ISO's basic date, not seconds of 1970 (every row came back)
+    ("20260528", False, T - (20 * 3600 + 26 * 60 + 40)), ("1.78e9", False, 1.78e9)])
 def test_times_are_iso_unix_seconds_or_a_span_back(text, durations, want):
     now = T + 7 * DAY if text == "7d" else T
     assert parse_time(text, "since", now, durations=durations) == pytest.approx(want)
 
 
 @pytest.mark.parametrize("text", ["1" * 310, "1" * 5000, "9" * 400 + ".5", "1e400", "-1e400", "inf", "nan",
-                                  "1" * 400 + "d"])
+                                  "1" * 400 + "d",
+                                  "\u0663", "1_000", "\u0661\u0662d"])     # numbers Python reads, not ASCII
 def test_a_number_no_float_holds_is_refused_not_read_as_a_date(text):
     """Python's fromisoformat reads '1111...' as 1111-11-11 (every row since then came back)."""
     with pytest.raises(BadInput, match="since"):
@@ -75,7 +78,9 @@ def test_the_queryable_s_answers_and_refusals(ledger):
                                ("history/surveys/T1", {"from": "x"}, "unknown parameter 'from'"),
                                ("history/surveys/T1", {"since": "last tuesday"}, "since: 'last tuesday'"),
                                ("history/surveys/T1", {"until": "7d"}, "until: '7d' is not an ISO time"),
-                               ("history/surveys/T1", {"since": "7d&until=1d"}, "separated by ';', not '&'")]:
+                               ("history/surveys/T1", {"since": "7d&until=1d"}, "separated by ';', not '&'"),
+                               ("history/surveys/T1", {"since": "2027-01-01", "until": "2020-01-01"},
+                                "since: 2027-01-01T00:00:00Z is after until (2020-01-01T00:00:00Z)")]:
         reply = query_reply(ledger, cfg, key, params, T)
         assert reply["ok"] is False and fault in reply["error"], (key, reply)
 
@@ -99,3 +104,17 @@ def test_fishfarm_history_writes_csv_with_units_in_the_headers(ledger, tmp_path,
                  str(tmp_path / "farm.toml")])
     err = capsys.readouterr().err
     assert code == 2 and "--since: 'soon'" in err and err.count("\n") == 1
+
+
+def test_a_range_given_in_both_the_selector_and_the_payload_is_refused(ledger):
+    """The payload's won without a word: which one the asker meant is theirs to say."""
+    import asyncio
+    from types import SimpleNamespace
+
+    from controller.overrides import Overrides
+    c = SimpleNamespace(store=ledger, cfg=load_config("config/farm.toml"), clock=SimpleNamespace(now=lambda: T))
+    ask = Overrides(c).history
+    both = asyncio.run(ask({"since": "30d"}, key="history/surveys/T1", params={"since": "1d"}))
+    assert both == {"ok": False, "error": "since: given in the selector and in the payload: give it once"}
+    apart = asyncio.run(ask({"until": "2026-07-01"}, key="history/surveys/T1", params={"since": "2026-06-01"}))
+    assert apart["ok"] and len(apart["rows"]) == 1
