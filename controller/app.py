@@ -190,11 +190,15 @@ class Controller(Stopping):
     async def run(self) -> None:
         self._starting = starting = asyncio.create_task(self.start())
         stopping = asyncio.create_task(self.stopping.wait())
+        wall = None if self.duration_s is None else self.clock.wall(self.duration_s)
         try:
-            await asyncio.wait({starting, stopping}, return_when=asyncio.FIRST_COMPLETED)
-            if starting.done() and not self.stopping.is_set():
+            # a start still waiting for a device when the whole run's time has passed ends too (it
+            # retried a device that never opened for good, --duration or not)
+            await asyncio.wait({starting, stopping}, timeout=wall, return_when=asyncio.FIRST_COMPLETED)
+            if not starting.done() and not self.stopping.is_set():
+                log.warning("stopping: --duration passed while the controller was still starting")
+            elif starting.done() and not self.stopping.is_set():
                 starting.result()                     # a start-up fault surfaces here
-                wall = None if self.duration_s is None else self.clock.wall(self.duration_s)
                 await asyncio.wait({stopping}, timeout=wall)
         finally:
             stopping.cancel()

@@ -88,3 +88,15 @@ def test_a_bad_key_in_any_section_is_one_line_before_the_simulator_starts(tmp_pa
     assert r.returncode == 2, r.stderr
     lines = r.stderr.strip().splitlines()
     assert len(lines) == 1 and f"{key}:" in lines[0], lines
+
+
+def test_duration_ends_a_run_whose_devices_never_open(tmp_path):
+    """A device that never opens kept the start retrying: --duration 2 ran until killed at 60 s."""
+    cfg = tmp_path / "farm.toml"
+    cfg.write_text(f'[store]\npath = "{tmp_path / "ledger.db"}"\n' + TANK
+                   + '[devices.contacts]\nkind = "contacts"\ndriver = "serial"\nport = "/dev/no-such-hub"\n'
+                   + '[devices.rail]\nkind = "rail"\ndriver = "can"\ninterface = "virtual"\nchannel = "nobody"\n'
+                   + '[devices.dispenser]\nkind = "dispenser"\ndriver = "modbus"\nhost = "127.0.0.1"\nport = 9\n')
+    r = fishfarm("run", "--config", str(cfg), "--no-console", "--duration", "2", timeout=60)
+    assert r.returncode == 0, r.stderr
+    assert "--duration passed while the controller was still starting" in r.stderr
