@@ -69,6 +69,15 @@ class SourceLink(Section):
 
 class Config(SourceLink):
     source: str | int = Field(description="an RTSP/HTTP URL, a video file, or a device index (0, 1, ...)")
+
+    @field_validator("source")
+    @classmethod
+    def _some_source(cls, source: str | int) -> str | int:
+        if isinstance(source, str) and not source.strip():
+            raise ValueError("empty: an RTSP/HTTP URL, a video file or a device index")
+        if isinstance(source, int) and source < 0:
+            raise ValueError(f"device index {source}: 0 or more")
+        return source
     read_timeout_s: float = Field(2.0, gt=0, le=60, description="wall seconds without a frame = gone")
     loop_file: bool = False
 

@@ -52,7 +52,7 @@ def heartbeat_line(seq: int, t: float) -> bytes:
 
 
 class Config(Section):
-    port: str = Field(description="serial device (/dev/ttyUSB0, a pty), or a pyserial URL backed by a "
+    port: str = Field(min_length=1, description="serial device (/dev/ttyUSB0, a pty), or a pyserial URL backed by a "
                                   "file descriptor (socket://, hwgrep://); not loop:// or rfc2217://")
     baudrate: int = Field(115200, gt=0)
     silence_timeout_s: float = Field(3.0, gt=0, description="wall seconds without a valid line")

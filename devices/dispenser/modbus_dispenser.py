@@ -99,7 +99,7 @@ class DeviceRefused(DeviceFault):
 
 
 class Config(Section):
-    host: str = "127.0.0.1"
+    host: str = Field("127.0.0.1", min_length=1)
     port: int = Field(502, ge=1, le=65535)
     unit: int = Field(1, ge=0, le=247)
     timeout_s: float = Field(1.0, gt=0, le=60, description="wall seconds to wait for one reply")

@@ -24,7 +24,7 @@ import time
 from typing import Any
 
 import can
-from pydantic import Field, model_validator
+from pydantic import Field, field_validator, model_validator
 
 from devices import serial_lock
 from devices.base import Section
@@ -103,14 +103,22 @@ SLCAN_BITRATES = (10_000, 20_000, 50_000, 100_000, 125_000, 250_000, 500_000, 75
 
 class Config(Section):
     interface: str = Field("slcan", description='"virtual", "slcan" or any python-can interface')
-    channel: str = Field(description="serial port for slcan, channel name for virtual/socketcan")
-    bitrate: int = 500_000
+    channel: str = Field(min_length=1, description="serial port for slcan, channel name for virtual/socketcan")
+    bitrate: int = Field(500_000, ge=1_000, le=8_000_000)
     node_id: int = Field(1, ge=1, le=127)
-    status_timeout_s: float = Field(0.5, gt=0, description="wall seconds without a status frame = silence")
-    command_timeout_s: float = Field(0.5, gt=0, description="wall seconds to wait for a reply")
+    status_timeout_s: float = Field(0.5, gt=0, le=60, description="wall seconds without a status frame = silence")
+    command_timeout_s: float = Field(0.5, gt=0, le=60, description="wall seconds to wait for a reply")
     move_speed_m_s: float = Field(0.0, ge=0, le=65.0, description="0: the drive's maximum")
-    sleep_after_open_s: float = Field(0.0, ge=0, description="slcan: 2 for adapters that reset on open")
+    sleep_after_open_s: float = Field(0.0, ge=0, le=60, description="slcan: 2 for adapters that reset on open")
     options: dict[str, Any] = Field({}, description="further keyword arguments for can.Bus")
+
+    @field_validator("interface")
+    @classmethod
+    def _known_interface(cls, interface: str) -> str:
+        # a typo was an alarm retried for good ("Unknown interface type"), not bad input
+        if interface not in can.VALID_INTERFACES:
+            raise ValueError(f"interface must be one of python-can's: {', '.join(sorted(can.VALID_INTERFACES))}")
+        return interface
 
     @model_validator(mode="after")
     def _slcan_bitrate(self):

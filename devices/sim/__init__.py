@@ -10,9 +10,10 @@ real driver.
 """
 from __future__ import annotations
 
-from pydantic import Field
+from pydantic import Field, field_validator
 
 from devices.base import Section
+from devices.thermometer.modbus_thermometer import check_probes
 
 
 class SimContactsSection(Section):
@@ -20,13 +21,13 @@ class SimContactsSection(Section):
 
 
 class SimRailSection(Section):
-    node_id: int = 1
+    node_id: int = Field(1, ge=1, le=127)
 
 
 class SimDispenserSection(Section):
-    host: str = "127.0.0.1"
-    port: int = 0          # 0: any free port, reported by the sim process
-    unit: int = 1
+    host: str = Field("127.0.0.1", min_length=1)
+    port: int = Field(0, ge=0, le=65535, description="0: any free port, reported by the sim process")
+    unit: int = Field(1, ge=0, le=247)
 
 
 class SimThrustersSection(Section):
@@ -38,23 +39,28 @@ class SimThrustersSection(Section):
 class SimTowerCameraSection(Section):
     """The simulated tower camera (``[sim.tower_camera]``: size, frame rate) over the pond (``[sim.pond]``)."""
 
-    host: str = "127.0.0.1"
+    host: str = Field("127.0.0.1", min_length=1)
     port: int = Field(0, ge=0, le=65535, description="0: any free port, reported by the sim process")
 
 
 class SimThermometerSection(Section):
     """The simulated water temperature transmitter over the water model (``[sim.thermometer]``)."""
 
-    host: str = "127.0.0.1"
+    host: str = Field("127.0.0.1", min_length=1)
     port: int = Field(0, ge=0, le=65535, description="0: any free port, reported by the sim process")
-    unit: int = 1
+    unit: int = Field(1, ge=0, le=247)
     probes: dict[str, int] = Field(description="probe name -> channel, as the real transmitter's")
+
+    @field_validator("probes")
+    @classmethod
+    def _channels(cls, probes: dict[str, int]) -> dict[str, int]:
+        return check_probes(probes)
 
 
 class SimStereoCameraSection(Section):
     """The simulated survey cameras on the carriage (``[sim.stereo_camera]``: size, rate, fish)."""
 
-    host: str = "127.0.0.1"
+    host: str = Field("127.0.0.1", min_length=1)
     port: int = Field(0, ge=0, le=65535, description="0: any free port, reported by the sim process")
 
 

@@ -29,6 +29,14 @@ class Config(SourceLink):
     calib: str = Field(min_length=1, description="CALIB.json of the rig (fishfarm calibrate ...)")
     read_timeout_s: float = Field(5.0, gt=0, le=60, description="wall seconds without a frame = gone")
 
+    @field_validator("sources")
+    @classmethod
+    def _some_sources(cls, sources: list[str | int]) -> list[str | int]:
+        for i, source in enumerate(sources):
+            if (isinstance(source, str) and not source.strip()) or (isinstance(source, int) and source < 0):
+                raise ValueError(f"sources.{i}: {source!r} is no URL, video file or device index")
+        return sources
+
     @field_validator("calib")
     @classmethod
     def _calib(cls, path: str) -> str:

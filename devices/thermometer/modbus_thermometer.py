@@ -26,8 +26,24 @@ OPEN, SHORT = 0x7FFF, 0x8000
 MAX_CHANNELS = 64
 
 
+def check_probes(probes: dict[str, int]) -> dict[str, int]:
+    """Probe name -> channel: at least one, each channel on the transmitter, none shared (the
+    simulated transmitter's section checks the same)."""
+    if not probes:
+        raise ValueError("at least one probe")
+    for name, channel in probes.items():
+        if not 0 <= channel < MAX_CHANNELS:
+            raise ValueError(f"probe {name!r}: channel {channel} outside 0..{MAX_CHANNELS - 1}")
+    seen: dict[int, str] = {}
+    for name, channel in probes.items():
+        if channel in seen:
+            raise ValueError(f"probes {seen[channel]!r} and {name!r} share channel {channel}")
+        seen[channel] = name
+    return probes
+
+
 class Config(Section):
-    host: str = "127.0.0.1"
+    host: str = Field("127.0.0.1", min_length=1)
     port: int = Field(502, ge=1, le=65535)
     unit: int = Field(1, ge=0, le=247)
     first_register: int = Field(1, ge=0, le=65535 - MAX_CHANNELS, description="input register of channel 0")
@@ -39,17 +55,7 @@ class Config(Section):
     @field_validator("probes")
     @classmethod
     def _channels(cls, probes: dict[str, int]) -> dict[str, int]:
-        if not probes:
-            raise ValueError("at least one probe")
-        for name, channel in probes.items():
-            if not 0 <= channel < MAX_CHANNELS:
-                raise ValueError(f"probe {name!r}: channel {channel} outside 0..{MAX_CHANNELS - 1}")
-        seen: dict[int, str] = {}
-        for name, channel in probes.items():
-            if channel in seen:
-                raise ValueError(f"probes {seen[channel]!r} and {name!r} share channel {channel}")
-            seen[channel] = name
-        return probes
+        return check_probes(probes)
 
     @field_validator("span_c")
     @classmethod

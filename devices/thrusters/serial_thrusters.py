@@ -38,7 +38,7 @@ READ_TIMEOUT_S = 0.05       # the reader thread's longest nap: how soon close() 
 
 
 class Config(Section):
-    port: str = Field(description="serial device (/dev/ttyUSB0, a pty) or a pyserial URL")
+    port: str = Field(min_length=1, description="serial device (/dev/ttyUSB0, a pty) or a pyserial URL")
     baudrate: int = Field(115200, gt=0)
     status_timeout_s: float = Field(0.5, gt=0, le=60, description="wall seconds without a status = silence")
     command_timeout_s: float = Field(0.5, gt=0, le=60, description="wall seconds to wait for a reply")

@@ -72,3 +72,25 @@ def test_a_whole_section_of_the_wrong_type_is_named_once():
     with pytest.raises(BadInput) as err:
         validate_section(Part, 5, "farm.toml")
     assert str(err.value) == "farm.toml: (top level): Input should be a table"
+
+
+@pytest.mark.parametrize("kind, driver, data, fault", [
+    # each was taken, and failed only once the simulator or the driver was up (an internal error,
+    # an alarm retried for good, or OpenCV warnings flooding stderr)
+    ("dispenser", "sim", {"port": -1}, "devices.d.port: Input should be greater than or equal to 0"),
+    ("dispenser", "sim", {"unit": -3}, "devices.d.unit: Input should be greater than or equal to 0"),
+    ("rail", "sim", {"node_id": 999}, "devices.d.node_id: Input should be less than or equal to 127"),
+    ("thermometer", "sim", {"probes": {"T1": 70000}}, "devices.d.probes: probe 'T1': channel 70000 outside"),
+    ("thermometer", "sim", {"probes": {"supply": -1}}, "devices.d.probes: probe 'supply': channel -1 outside"),
+    ("dispenser", "modbus", {"host": ""}, "devices.d.host: String should have at least 1 character"),
+    ("contacts", "serial", {"port": ""}, "devices.d.port: String should have at least 1 character"),
+    ("rail", "can", {"channel": "x", "interface": "bogus"}, "devices.d.interface: interface must be one of"),
+    ("rail", "can", {"channel": "x", "interface": "virtual", "status_timeout_s": 1e12},
+     "devices.d.status_timeout_s: Input should be less than or equal to 60"),
+    ("tower_camera", "capture", {"source": " "}, "devices.d.source: empty"),
+])
+def test_device_sections_refuse_what_their_device_cannot_be(kind, driver, data, fault):
+    with pytest.raises(BadInput) as err:
+        validate_section(section_model(kind, driver), {"kind": kind, "driver": driver, **data}, "farm.toml",
+                         "devices.d")
+    assert str(err.value).startswith(f"farm.toml: {fault}"), str(err.value)
