@@ -200,13 +200,15 @@ BLOCKS: dict[str, dict[str, tuple[int, int]]] = {
 }
 PER_TANK = ("tank", "survey", "water", "growth")
 FIXED_SLOTS = ("estop", "feeder", "ledger", "dispenser_counters", "sim", "controller", "scada")
+LATER_SLOTS = ("water", "survey")     # after the devices' (added later: the slots before kept their addresses)
 
 
 def alarm_slots(cfg) -> list[str]:
     """The alarm sources known at start, each a slot: an alarm belongs to slot S when its source is S
-    or starts with ``S/`` (``controller`` holds ``controller/robot.run`` and its kin). A tank's
-    sensor, demand, grading and survey alarms are in the tank's block (``alarm_severity``)."""
-    slots = list(FIXED_SLOTS) + [f"device/{name}" for name in cfg.devices]
+    or starts with ``S/`` (``controller`` holds ``controller/robot.run`` and its kin; ``water`` the
+    probes' faults; ``survey`` a failed survey's). A tank's sensor, demand, grading and survey
+    alarms are in the tank's block (``alarm_severity``)."""
+    slots = list(FIXED_SLOTS) + [f"device/{name}" for name in cfg.devices] + list(LATER_SLOTS)
     return slots[:MAX_SLOTS]
 
 
@@ -288,19 +290,29 @@ def _check(entries: list[Entry]) -> None:
 
 
 # -- values <-> words -------------------------------------------------------------------------------
+FLT_MAX = 3.4028234663852886e38
+
+
 def encode(dtype: str, value, scale: float = 1.0, word_order: str = "big") -> list[int]:
-    """A value as the words on the wire; None (or a value the type cannot hold) as "no value"."""
+    """A value as the words on the wire; None or NaN as "no value". A number beyond what the type
+    holds reads as the type's end (saturated, as a PLC's analogue input does): "no value" is for
+    what the controller does not know, and an FCR of 700 is known (it read 0xFFFF)."""
     if dtype == "bool":
         return [int(bool(value))]
     if dtype == "f32":
         x = math.nan if value is None else float(value) / scale
+        if abs(x) > FLT_MAX:                            # struct cannot pack it; inf stays inf
+            x = math.copysign(math.inf if math.isinf(x) else FLT_MAX, x)
         hi, lo = struct.unpack(">HH", struct.pack(">f", x))
         return [hi, lo] if word_order == "big" else [lo, hi]
-    raw = None if value is None or isinstance(value, float) and not math.isfinite(value) else round(value / scale)
     lo_lim, hi_lim = {"u16": (0, 0xFFFE), "i16": (-0x7FFF, 0x7FFF), "u32": (0, 0xFFFF_FFFE),
                       "i32": (-0x7FFF_FFFF, 0x7FFF_FFFF)}[dtype]
-    if raw is None or not lo_lim <= raw <= hi_lim:
+    if value is None or isinstance(value, float) and math.isnan(value):
         raw = NO_VALUE[dtype]
+    elif isinstance(value, float) and math.isinf(value):
+        raw = hi_lim if value > 0 else lo_lim
+    else:
+        raw = min(max(round(value / scale), lo_lim), hi_lim)
     if dtype in ("u16", "i16"):
         return [raw & 0xFFFF]
     raw &= 0xFFFF_FFFF

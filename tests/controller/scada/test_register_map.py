@@ -94,7 +94,22 @@ def test_no_value_markers(order):
     assert math.isnan(struct.unpack(">f", struct.pack(">HH", *words("f32", 0, "big")[:0],
                                                        *(rm.encode("f32", None, 1, "big"))))[0])
     assert rm.decode("f32", rm.encode("f32", None, 1, order), 1, order) is None
-    assert rm.encode("u16", 70000) == [0xFFFF]        # beyond the type: "no value", not a wrapped number
+    assert rm.encode("u16", math.nan) == [0xFFFF]
+
+
+@pytest.mark.parametrize("order", ["big", "little"])
+def test_a_known_number_beyond_its_register_reads_as_the_register_s_end(order):
+    """An FCR of 700 (a tiny gain between surveys a day apart) read "no value", which the map keeps
+    for what the controller does not know: it saturates, as a PLC's analogue input does."""
+    assert rm.encode("u16", 700, 0.01) == [0xFFFE] and rm.encode("u16", -0.5, 0.01) == [0]
+    assert rm.encode("i16", -400, 0.01) == [(-0x7FFF) & 0xFFFF] and rm.encode("i16", 400, 0.01) == [0x7FFF]
+    assert rm.encode("u32", 5e9, 1, order) == words("u32", 0xFFFF_FFFE, order)
+    assert rm.encode("i32", -1e12, 1, order) == words("i32", -0x7FFF_FFFF & 0xFFFF_FFFF, order)
+    assert rm.encode("u16", math.inf) == [0xFFFE] and rm.encode("i16", -math.inf) == [(-0x7FFF) & 0xFFFF]
+    assert rm.decode("u16", rm.encode("u16", 70000)) == 0xFFFE       # never wrapped, never the marker
+    big = rm.decode("f32", rm.encode("f32", 1e39, 1, order), 1, order)
+    assert big == pytest.approx(rm.FLT_MAX) and rm.decode("f32", rm.encode("f32", -math.inf, 1, order), 1,
+                                                           order) == -math.inf
 
 
 @pytest.mark.parametrize("key,value", [("colour", 1), ("word_order", "middle"), ("unit", 0), ("max_connections", 0),
