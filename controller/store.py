@@ -25,7 +25,7 @@ from controller.cleaning.ledger import MIGRATION_5, CleanerRecords
 from controller.errors import BadInput
 from controller.feed_outcome import Feed, next_tag
 from controller.records import MIGRATION_4, Records
-from controller.surveys.ledger import MIGRATION_6, SurveyRecords
+from controller.surveys.ledger import MIGRATION_6, MIGRATION_7, SurveyRecords
 
 MIGRATIONS = [
     """
@@ -104,6 +104,8 @@ MIGRATIONS = [
     MIGRATION_5,
     # 5 -> 6: weight surveys and every fish they counted (controller.surveys.ledger)
     MIGRATION_6,
+    # 6 -> 7: the operators' survey requests still open (controller.surveys.ledger)
+    MIGRATION_7,
 ]
 
 class Store(Records, CleanerRecords, SurveyRecords):

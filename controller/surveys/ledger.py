@@ -41,6 +41,16 @@ MIGRATION_6 = """
 """
 """5 -> 6: weight surveys and every fish they measured."""
 
+MIGRATION_7 = """
+    CREATE TABLE survey_asked (
+        tank   TEXT PRIMARY KEY,
+        t      REAL NOT NULL,
+        pairs  INTEGER NOT NULL
+    )
+"""
+"""6 -> 7: the surveys operators asked for and that have not been recorded or given up yet: a
+restart asks them again (a kill lost them, and the operator had been told ok)."""
+
 
 @dataclass(frozen=True)
 class SurveyRow:
@@ -59,6 +69,19 @@ class SurveyRow:
 class SurveyRecords:
     db: sqlite3.Connection
     _lock: threading.RLock
+
+    def ask_survey(self, tank: str, t: float, pairs: int) -> None:
+        with self._lock:
+            self.db.execute("INSERT OR REPLACE INTO survey_asked (tank, t, pairs) VALUES (?, ?, ?)", (tank, t, pairs))
+
+    def survey_answered(self, tank: str) -> None:
+        """An operator's survey of ``tank`` recorded, or given up: not asked again after a restart."""
+        with self._lock:
+            self.db.execute("DELETE FROM survey_asked WHERE tank = ?", (tank,))
+
+    def surveys_asked(self) -> list[tuple[str, float, int]]:
+        """(tank, asked at, pairs) of the operators' surveys still open, oldest first."""
+        return [tuple(r) for r in self.db.execute("SELECT tank, t, pairs FROM survey_asked ORDER BY t, rowid")]
 
     def add_survey(self, tank: str, t: float, species: str, source: str, lengths_cm, weights_g,
                    scores=None) -> int:

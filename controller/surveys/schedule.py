@@ -70,6 +70,14 @@ class SurveySchedule:
         self.misses: dict[str, int] = {}            # tank -> visits in a row that failed or counted no fish
         self.recording: dict[str, SurveySession] = {}                   # tank -> captured, not yet recorded
         self.started = clock.now()            # a tank never surveyed waits for its first hour after it
+        known = {t.id for t in cfg.tanks}
+        for tank, t, pairs in store.surveys_asked():           # asked before a restart: asked still
+            if tank in known:
+                self.asked[tank] = SurveySession(tank, pairs, "operator", t)
+                log.warning("survey of %s asked for before the restart: asked again (pairs captured then are "
+                            "not kept)", tank)
+            else:
+                store.survey_answered(tank)
 
     def request(self, tank: str, pairs: int | None = None) -> str | None:
         """An operator's survey of ``tank`` now (after any demand waiting). A note when one is
@@ -78,7 +86,8 @@ class SurveySchedule:
             return f"a survey of {tank} is under way ({self.current.captured} of {self.current.pairs} pairs)"
         if tank in self.asked:
             return f"a survey of {tank} is asked for already"
-        self.asked[tank] = SurveySession(tank, pairs or self.cfg.surveys.pairs, "operator", self.clock.now())
+        self.asked[tank] = session = SurveySession(tank, pairs or self.cfg.surveys.pairs, "operator", self.clock.now())
+        self.store.ask_survey(tank, session.t, session.pairs)
         self.not_before.pop(tank, None)
         self.misses.pop(tank, None)
         return None
@@ -125,6 +134,7 @@ class SurveySchedule:
         if outcome == "captured":
             self.recording[session.tank] = session
         else:
+            self._answered(session)
             self._missed(session.tank, now, "failed")
 
     def recorded(self, session: SurveySession, now: float) -> None:
@@ -132,12 +142,17 @@ class SurveySchedule:
         surveyed again once the ledger says it is due."""
         if self.recording.get(session.tank) is session:
             del self.recording[session.tank]
+        self._answered(session)
         if self.store.surveys(session.tank, since=session.t, limit=1):
             self.misses.pop(session.tank, None)
             # the ledger dates the next survey from this one
             self.not_before[session.tank] = now + self.cfg.surveys.retry_s
         else:
             self._missed(session.tank, now, "counted no fish")
+
+    def _answered(self, session: SurveySession) -> None:
+        if session.why == "operator" and session.tank not in self.asked:    # not asked anew meanwhile
+            self.store.survey_answered(session.tank)
 
     def _missed(self, tank: str, now: float, what: str) -> None:
         """A visit that failed or counted no fish: the tank's next try (module docstring)."""

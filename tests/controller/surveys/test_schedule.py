@@ -207,6 +207,28 @@ def test_an_operator_survey_goes_first_once_per_tank(parts):
     assert schedule.request("T3").startswith("a survey of T3 is under way")
 
 
+def test_an_operator_s_survey_outlives_a_restart_until_it_is_recorded_or_given_up(parts):
+    """A controller killed mid-survey forgot the survey under way and those queued, though each
+    operator had been told ok."""
+    cfg, store, rations, clock = parts
+    before = Schedule(cfg, store, rations, clock)
+    assert before.request("T3", pairs=7) is None and before.request("T1") is None
+    under_way = before.next(set(), clock.now())
+    assert under_way.tank == "T3"
+    clock.advance(60.0)
+    after = Schedule(cfg, store, rations, clock)                # the restart: the same ledger
+    assert [(s.tank, s.pairs, s.why) for s in after.asked.values()] == [("T3", 7, "operator"),
+                                                                       ("T1", cfg.surveys.pairs, "operator")]
+    t3 = after.next(set(), clock.now())
+    after.ended(t3, "captured", clock.now())
+    store.add_survey("T3", clock.now(), "sparus_aurata", "test", [10.0], [20.0])
+    after.recorded(t3, clock.now())                             # recorded: not asked again
+    t1 = after.next(set(), clock.now())
+    after.ended(t1, "failed", clock.now())                      # given up (alarmed, retried by the schedule)
+    assert store.surveys_asked() == []
+    assert Schedule(cfg, store, rations, clock).asked == {}
+
+
 def test_the_robot_s_camera_is_named_or_the_only_one():
     cfg = config()
     assert survey_camera_name(cfg) == "stereo"
