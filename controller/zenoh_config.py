@@ -42,6 +42,9 @@ def client_config(connect: str, user: str | None = None, password: str | None = 
     """A short-lived tool's session: connect to one endpoint, listen nowhere, scout nothing.
     ``ca``: the certificate (PEM) that signed a ``tls/...`` endpoint's. A malformed endpoint is
     BadInput naming --connect."""
+    port = re.fullmatch(r"(?:tcp|tls|udp|quic)/.*:(\d+)(?:#.*)?", connect)
+    if port is not None and not 1 <= int(port.group(1)) <= 65535:      # Zenoh took it, then retried for good
+        raise BadInput("--connect", None, f"{connect}: port {port.group(1)} is outside 1..65535")
     zc = zenoh.Config()
     settings = {"mode": mode, "connect/endpoints": [connect], "listen/endpoints": [],
                 "scouting/multicast/enabled": False, "scouting/gossip/enabled": False,
@@ -103,9 +106,13 @@ def _why_unreachable(connect: str, user: str | None, detail: str) -> str:
     if connect.startswith("tls/"):
         return (f"{connect} refused the session: its certificate is not signed by --ca, or "
                 + (f"authentication failed for user {user!r}" if user else "it requires --user/--password"))
+    # a node that takes the connection but opens no session: it refused us, or it does not answer
+    # at all (a controller frozen or overloaded: the kernel accepts for it)
     if user:
-        return f"{connect} refused the session: authentication failed for user {user!r}"
-    return f"{connect} refused the session (does it require --user/--password?)"
+        return (f"{connect} opened no session: authentication failed for user {user!r}, or nothing there "
+                "answers (a frozen or overloaded controller)")
+    return (f"{connect} opened no session: it requires --user/--password, or nothing there answers "
+            "(a frozen or overloaded controller)")
 
 
 CLIENT_RETRY_S = 1.0      # wall: a client waiting for a listener asks again this often

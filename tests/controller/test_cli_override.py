@@ -110,6 +110,9 @@ def test_unknown_command_is_refused_by_the_controller(controller):
     (["override", "feed", "operator=bob"], "--operator"),
     (["override", "Feed/*"], "COMMAND"),
     (["override", "estop", "--connect", "127.0.0.1:7447"], "--connect"),
+    (["override", "estop", "--connect", "tcp/127.0.0.1:99999"], "--connect: tcp/127.0.0.1:99999: port 99999 is "
+                                                                 "outside 1..65535"),
+    (["status", "--connect", "tcp/127.0.0.1:0"], "--connect: tcp/127.0.0.1:0: port 0"),
     (["status", "--site", "de mo"], "--site"),
 ])
 def test_bad_input_exits_2_with_one_line(controller, args, names):
@@ -126,6 +129,19 @@ def test_nobody_listening_exits_2_saying_so():
     proc = fishfarm("override", "estop", "--connect", f"tcp/127.0.0.1:{port}", "--timeout", "0.5")
     assert proc.returncode == 2
     assert f"could not connect to tcp/127.0.0.1:{port}" in one_line_error(proc)
+
+
+def test_a_listener_that_never_answers_is_not_said_to_have_refused():
+    """A SIGSTOPped controller: the kernel takes the connection, nothing answers. It was reported as
+    'refused the session (does it require --user/--password?)' on a farm with no logins."""
+    import socket
+    with socket.socket() as frozen:
+        frozen.bind(("127.0.0.1", 0))
+        frozen.listen()
+        port = frozen.getsockname()[1]
+        proc = fishfarm("override", "estop", "--connect", f"tcp/127.0.0.1:{port}", "--timeout", "0.5")
+    assert proc.returncode == 2
+    assert "nothing there answers (a frozen or overloaded controller)" in one_line_error(proc)
 
 
 def test_wrong_site_gets_no_reply_exit_2(controller):
