@@ -37,6 +37,7 @@ from controller.override_models import (  # noqa: F401
     parse,
     payload_text,
 )
+from controller.payload import json_kind
 from controller.text import printable
 
 log = logging.getLogger("fishfarm.override")
@@ -113,7 +114,7 @@ class Overrides:
             if name not in COMMANDS:
                 raise Refused(f"command: unknown command {printable(name, 64)!r}; known: {', '.join(COMMANDS)}")
             if payload is not None and not isinstance(payload, dict) and name != "estop":
-                raise Refused(f"payload: must be a JSON object, not {type(payload).__name__}")
+                raise Refused(f"payload: must be a JSON object, not {json_kind(payload)}")
             if name in NOT_YET:
                 parse(Tank if name == "start-survey" else Bare, payload)
                 raise Refused(f"not available yet: {NOT_YET[name]}")

@@ -30,6 +30,8 @@ def parse_object(raw: bytes) -> dict:
     try:
         value = json.loads(text, parse_constant=_no_constant, object_pairs_hook=_unique_keys)
     except json.JSONDecodeError as exc:
+        if exc.doc in _CONSTANTS:        # raised where the constant's place is not known: found here
+            exc = json.JSONDecodeError(exc.msg, text, _constant_at(text))
         raise ValueError(f"payload is not JSON: {exc}") from None
     except RecursionError:  # _check_depth should have caught it; never let it reach a Zenoh thread
         raise ValueError(f"payload: nested deeper than {MAX_DEPTH} levels") from None
@@ -38,8 +40,18 @@ def parse_object(raw: bytes) -> dict:
     except ValueError as exc:  # e.g. an integer of more than 4,300 digits
         raise ValueError(f"payload is not JSON: {exc}") from None
     if not isinstance(value, dict):
-        raise ValueError(f"payload must be a JSON object, got {type(value).__name__}")
+        raise ValueError(f"payload must be a JSON object, got {json_kind(value)}")
     return value
+
+
+def json_kind(value) -> str:
+    """What a decoded JSON value is, in JSON's words (not Python's NoneType, list, str)."""
+    if value is None:
+        return "null"
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    return {dict: "an object", list: "an array", str: "a string", int: "a number", float: "a number"}.get(
+        type(value), type(value).__name__)
 
 
 class _DuplicateKey(ValueError):
@@ -68,5 +80,14 @@ def _check_depth(text: str) -> None:
         raise ValueError(f"payload: nested deeper than {MAX_DEPTH} levels")
 
 
+_CONSTANTS = ("NaN", "Infinity", "-Infinity")
+_TOKENS = re.compile(r'"(?:\\.|[^"\\])*"|(NaN|-?Infinity)')
+
+
 def _no_constant(name: str):
     raise json.JSONDecodeError(f"{name} is not JSON", name, 0)
+
+
+def _constant_at(text: str) -> int:
+    """Where the first NaN or Infinity outside a string is (0 if none is)."""
+    return next((m.start(1) for m in _TOKENS.finditer(text) if m.group(1)), 0)

@@ -165,8 +165,14 @@ def _tanks(snapshot: dict) -> list[dict]:
 
 
 def _num(value, unit: str = "") -> str:
+    """A number as an operator reads it: an integer whole (a state code 1, not 1.0), a small
+    fraction to two significant digits (coverage 0.0012, not 0.0)."""
     if isinstance(value, bool) or not isinstance(value, int | float):
         return "-"
+    if isinstance(value, int):
+        return f"{value}{unit}"
+    if 0 < abs(value) < 0.05:
+        return f"{value:.2g}{unit}"
     return f"{value:.0f}{unit}" if abs(value) >= 10 else f"{value:.1f}{unit}"
 
 

@@ -479,3 +479,17 @@ def test_a_selector_queryable_hears_the_concrete_key_and_the_selector_s_paramete
     assert calls[-1] == ("history/fish/T2", {}, {"since": "7d"})
     assert client.query("history/*/T1") == [] and client.query("history/**") == []     # nobody answers a wildcard
     assert len(calls) == 2
+
+
+@pytest.mark.parametrize("raw, error", [
+    (b"null", "payload must be a JSON object, got null"), (b"[1]", "payload must be a JSON object, got an array"),
+    (b'"x"', "payload must be a JSON object, got a string"), (b"3.5", "payload must be a JSON object, got a number"),
+    (b'{"reason": NaN}', "payload is not JSON: NaN is not JSON: line 1 column 12 (char 11)"),
+    (b'{"a": "NaN",\n "b": -Infinity}', "payload is not JSON: -Infinity is not JSON: line 2 column 7 (char 19)"),
+])
+def test_a_payload_refusal_speaks_json_and_points_at_the_fault(raw, error):
+    """It said 'got NoneType' (Python's word), and put every NaN at line 1 column 1."""
+    from controller.payload import parse_object
+    with pytest.raises(ValueError) as err:
+        parse_object(raw)
+    assert str(err.value) == error

@@ -178,7 +178,10 @@ def test_status_table_reads_the_snapshot():
     assert render_status(SNAPSHOT) == TABLE
     # a snapshot it does not fully know still renders, with dashes
     sparse = render_status({"tanks": {"T9": {"fed_g": 3}}, "feeder": "?"})
-    assert "T9" in sparse and "3.0/-" in sparse
+    assert "T9" in sparse and "3/-" in sparse
+    # integers whole, a small share not rounded away (it said coverage 0.0, state_code 1.0)
+    cleaner = render_status({"cleaner": {"state": "localising", "coverage": 0.0012, "path_index": 0, "state_code": 1}})
+    assert "cleaner: localising (coverage 0.0012, path_index 0, state_code 1)" in cleaner
 
 
 def test_status_table_escapes_what_it_prints():

@@ -144,8 +144,8 @@ def test_a_count_that_is_no_count_of_these_fish_is_refused(farm, command, count,
     ("cleaner-stop", {"operator": "ana"},
      "command: no pond cleaner in this controller (farm.toml has no [cleaning] section)"),
     ("cleaner-return", {"speed": 1}, "speed: unknown field"),
-    ("reset", [1, 2], "payload: must be a JSON object, not list"),
-    ("feed", "T1 40", "payload: must be a JSON object, not str"),
+    ("reset", [1, 2], "payload: must be a JSON object, not an array"),
+    ("feed", "T1 40", "payload: must be a JSON object, not a string"),
     ("launch", {}, "command: unknown command 'launch'; known: " + ", ".join(COMMANDS)),
 ])
 def test_refusals_name_their_field_and_change_nothing(farm, command, payload, error):
