@@ -47,6 +47,9 @@ def sim(config_path, endpoints, truth, speed, epoch_wall, epoch_farm, clock_path
     from devices.sim.world import SimFarm
 
     logging.basicConfig(level=log_level.upper(), format="sim %(levelname)s %(name)s: %(message)s")
+    # pymodbus writes a client gone mid-reply at ERROR with hex dumps of its frames: the simulated
+    # PLCs' lines ended up in the controller's log at every e-stop (the controller's run does the same)
+    logging.getLogger("pymodbus").setLevel(logging.CRITICAL if log_level.upper() != "DEBUG" else logging.DEBUG)
     cfg = load_config(config_path)
     if clock_path is not None:
         clock = elastic(clock_path, "sim")
