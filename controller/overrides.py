@@ -308,7 +308,14 @@ class Overrides:
         if cmd.tank in self.c.store.paused_tanks():
             raise Refused(f"tank: {cmd.tank} is paused (resume it first)")
         note = stops.request(cmd.tank)
-        log.warning("start-survey %s by %s: %s", cmd.tank, by or cmd.operator, cmd.reason)
+        log.warning("start-survey %s by %s%s", cmd.tank, by or cmd.operator, f": {cmd.reason}" if cmd.reason else "")
+        if note is None:      # asked: what will hold it back, said now (a bare ok read as "under way")
+            robot, now = self._robot(), self.c.clock.now()
+            ration = self.c.rations.today(cmd.tank, now)
+            if robot.state == "estop":
+                note = "asked for: it starts once the e-stop is reset"
+            elif ration.source == "operator" and ration.grams == 0:
+                note = f"asked for: {cmd.tank} is fasting today (an operator's 0 g ration): it waits for tomorrow"
         return {"ok": True} if note is None else {"ok": True, "note": note}
 
     async def ack(self, payload, by: str | None = None) -> dict:

@@ -268,3 +268,27 @@ def test_start_survey_over_zenoh_or_modbus_asks_the_robot_and_is_audited(tmp_pat
     assert [(r["user"], r["ok"], r["origin"]) for r in rows] == [("ana", 1, "zenoh"), (None, 1, "modbus 127.0.0.1:5"),
                                                                   (None, 0, "zenoh")]
     store.close()
+
+
+def test_start_survey_says_what_will_hold_it_back(tmp_path):
+    """Taken with a bare ok while the robot was e-stopped, or for a tank fasting today: it waits."""
+    store = Store(tmp_path / "ledger.db")
+    farm = Farm(store)
+    stops = SurveyStops(farm.cfg, farm.clock, camera=None, store=store, rations=farm.rations, alarms=farm.alarms,
+                        species={})
+    stops.poke = lambda: None
+    farm.survey_stops = stops
+
+    async def go():
+        o = Overrides(farm)
+        farm.rations.set("T2", farm.clock.now(), 0.0, "operator")
+        fasting = await o.apply("start-survey", {"tank": "T2"})
+        farm.robot.state = "estop"
+        stopped = await o.apply("start-survey", {"tank": "T1"})
+        return fasting, stopped
+    fasting, stopped = asyncio.run(go())
+    assert fasting == {"ok": True, "note": "asked for: T2 is fasting today (an operator's 0 g ration): it waits "
+                                           "for tomorrow"}
+    assert stopped == {"ok": True, "note": "asked for: it starts once the e-stop is reset"}
+    assert list(stops.schedule.asked) == ["T2", "T1"]
+    store.close()
