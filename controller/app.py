@@ -33,7 +33,7 @@ from controller.surveys.watch import SurveyWatch
 from controller.surveys.wiring import build_survey_stops, survey_camera_name
 from controller.water import WaterTemperatures
 from devices.errors import DeviceError
-from devices.sim.world import SimSection
+from devices.sim.world import check_sim
 
 log = logging.getLogger("fishfarm")
 
@@ -73,7 +73,7 @@ class Controller(Stopping):
             from controller.cleaning.setup import prepare
             self.cleaning = prepare(cfg)          # geometry, dock, tower, plan: bad input now, not at start
         if any(s["driver"] == "sim" for s in cfg.devices.values()):
-            validate_section(SimSection, cfg.sim, cfg.path, "sim")
+            check_sim(cfg)                        # [sim] and each sub-section
         survey_camera_name(cfg)                   # scheduled surveys without a camera: bad input now
         self.survey_stops = None
 

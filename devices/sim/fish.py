@@ -27,7 +27,7 @@ import math
 from typing import Literal
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from devices.sim import contact_streams as cs
 
@@ -57,6 +57,17 @@ class SimFishParams(BaseModel):
     stuck_rate_hz: float = Field(5.0, gt=0)
     feeding_hours: tuple[float, float] | None = Field(None, description="local hours [from, to) the fish ask "
                                                       "for food in (fish feed by day); None: round the clock")
+
+    @model_validator(mode="after")
+    def _spans(self):
+        # a negative rate drew from log(-1): fish that never asked for food, and no word said
+        for name in ("rate_hz", "duration_s", "fault_s"):
+            lo, hi = getattr(self, name)
+            if not 0 < lo <= hi:
+                raise ValueError(f"{name} must be [low, high] with 0 < low <= high, not [{lo:g}, {hi:g}]")
+        if self.feeding_hours is not None and not all(0 <= h <= 24 for h in self.feeding_hours):
+            raise ValueError(f"feeding_hours must lie in 0..24, not {list(self.feeding_hours)}")
+        return self
 
 
 class SimTank:

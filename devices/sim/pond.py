@@ -11,6 +11,7 @@ its velocity. Both paths take one lock. The truth log gets the robot's pose ever
 from __future__ import annotations
 
 import asyncio
+import dataclasses
 import math
 import threading
 from collections.abc import Callable
@@ -130,6 +131,24 @@ def _cleaning(cfg: Any, key: str):
     return section.get(key) if isinstance(section, dict) else getattr(section, key, None)
 
 
+def check_robot(robot: dict, where: str) -> CleanerParams:  # noqa: F821 - imported inside
+    """``[sim.pond] robot``: pond_physics.CleanerParams fields, each a finite number (its current
+    a pair); BadInput naming the key (``speed = 1`` was a TypeError from the simulator)."""
+    from devices.sim.pond_physics import CleanerParams
+    fields = {f.name: f for f in dataclasses.fields(CleanerParams)}
+    for key, value in robot.items():
+        if key not in fields:
+            raise BadInput(where, f"sim.pond.robot.{key}", f"unknown key (keys: {', '.join(fields)})")
+        numbers = value if key == "current_m_s" else [value]
+        if (key == "current_m_s" and (not isinstance(value, list | tuple) or len(value) != 2)) or not all(
+                isinstance(x, int | float) and not isinstance(x, bool) and math.isfinite(x) for x in numbers):
+            raise BadInput(where, f"sim.pond.robot.{key}",
+                           "must be two finite numbers" if key == "current_m_s" else "must be a finite number")
+        if key not in ("current_m_s", "slip", "force_noise_n") and value <= 0:
+            raise BadInput(where, f"sim.pond.robot.{key}", f"must be above 0, not {value}")
+    return CleanerParams(**{k: tuple(v) if k == "current_m_s" else float(v) for k, v in robot.items()})
+
+
 def pond_params(cfg: Any, raw: dict, where: str) -> SimPondParams:
     """``[sim.pond]`` with the outline and keep-outs filled from ``[cleaning]`` where not given."""
     params = validate_section(SimPondParams, raw, where, "sim.pond")
@@ -167,10 +186,10 @@ def build_pond(cfg: Any, raw: dict, clock, thrust: Thrust, *, camera: dict | Non
                where: str = "farm.toml") -> SimPond:
     """The pond of the config: physics (devices/sim/pond_physics.py) and, when ``camera`` gives its
     ``width``/``height``, the tower's view of it (devices/sim/pond_view.py)."""
-    from devices.sim.pond_physics import CleanerParams, PondRobot
+    from devices.sim.pond_physics import PondRobot
     params = pond_params(cfg, raw, where)
     try:
-        robot_params = CleanerParams(**params.robot)
+        robot_params = check_robot(params.robot, where)
     except (TypeError, ValueError) as exc:
         raise BadInput(where, "sim.pond.robot", str(exc)) from None
     x, y, heading = start_pose(params, getattr(robot_params, "body_radius_m", 0.0))

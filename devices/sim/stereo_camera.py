@@ -18,7 +18,7 @@ from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from devices.sim.fish_scene import underwater_rig, underwater_scene
 from devices.sim.fish_species import SPECIES
@@ -37,6 +37,13 @@ class SimStereoCameraParams(BaseModel):
     fish_in_view: tuple[int, int] = Field((8, 16), description="fish per still, drawn uniformly")
     jpeg_quality: int = Field(95, ge=10, le=100)
     seed: int = 0
+
+    @model_validator(mode="after")
+    def _fish_span(self):
+        lo, hi = self.fish_in_view
+        if not 0 <= lo <= hi <= 200:
+            raise ValueError(f"fish_in_view must be [low, high] with 0 <= low <= high <= 200, not [{lo}, {hi}]")
+        return self
 
 
 class TankView:

@@ -51,6 +51,29 @@ class SimSection(BaseModel):
     soak_days: float = Field(0.0, ge=0, description="reserved")
 
 
+def check_sim(cfg: Any) -> SimSection:
+    """``[sim]`` and each of its sub-sections, before anything starts (``fishfarm run`` checks them
+    at load: a sub-section's fault was the simulator's exit after the controller had started it).
+    A sub-section no simulated device uses is checked all the same: a typo is a typo."""
+    from devices.sim.contact_hub import SimHubParams
+    from devices.sim.fish import SimFishParams
+    from devices.sim.pond import SimPondParams, check_robot
+    from devices.sim.stereo_camera import SimStereoCameraParams
+    from devices.sim.stock import SimStockParams
+    from devices.sim.thermometer import WaterParams
+    from devices.sim.thrusters import SimThrusterParams
+    from devices.sim.tower_camera import SimTowerCameraParams
+    section = validate_section(SimSection, cfg.sim, cfg.path, "sim")
+    models = {"fish": SimFishParams, "stock": SimStockParams, "rail": SimRailParams, "dispenser": SimDispenserParams,
+              "contacts": SimHubParams, "thrusters": SimThrusterParams, "tower_camera": SimTowerCameraParams,
+              "stereo_camera": SimStereoCameraParams, "thermometer": WaterParams, "pond": SimPondParams}
+    for key, model in models.items():
+        params = validate_section(model, getattr(section, key), cfg.path, f"sim.{key}")
+        if key == "pond":
+            check_robot(params.robot, cfg.path)
+    return section
+
+
 class SimFarm:
     """``cfg``: the farm's validated config (controller.config.Config), read for its ``tanks``,
     ``devices``, ``feeding.food_box_m``, ``sim`` and ``path``; devices/ does not import its model."""

@@ -80,7 +80,15 @@ def test_unusable_store_path_exits_2_naming_store_path(tmp_path, store_path):
 
 @pytest.mark.parametrize("section, key", [("[demand]\nwindow = 60\n", "demand.window"),
                                           ("[sim]\nsed = 1\n", "sim.sed"),
-                                          ('[bus]\nlisten = ["nonsense"]\n', "bus.listen")])
+                                          ('[bus]\nlisten = ["nonsense"]\n', "bus.listen"),
+                                          # each [sim.*] sub-section too: they were the simulator's
+                                          # exit after the controller had started it
+                                          ("[sim.fish]\nrate = 1\n", "sim.fish.rate"),
+                                          ("[sim.fish]\nrate_hz = [-1.0, 2.0]\n", "sim.fish"),
+                                          ("[sim.pond]\nrobot = {speed = 1}\n", "sim.pond.robot.speed"),
+                                          ("[sim.stereo_camera]\nfish_in_view = [18, 10]\n", "sim.stereo_camera"),
+                                          ("[sim.tower_camera]\njpeg_quality = 150\n",
+                                           "sim.tower_camera.jpeg_quality")])
 def test_a_bad_key_in_any_section_is_one_line_before_the_simulator_starts(tmp_path, section, key):
     cfg = tmp_path / "farm.toml"
     cfg.write_text(TANK + DEVICES + section)

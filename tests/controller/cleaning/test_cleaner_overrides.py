@@ -40,6 +40,13 @@ def run(coro):
     return asyncio.run(asyncio.wait_for(coro, 30))
 
 
+async def confirmed(lane) -> None:
+    """Until every latch has confirmed the e-stop: a reset before is refused (a loaded machine's
+    lane thread may take more than the test's next step)."""
+    while lane.confirming(60.0):
+        await asyncio.sleep(0.005)
+
+
 def test_operator_commands_move_the_cleaner_and_are_audited(tmp_path):
     async def main():
         async with Rig(tmp_path) as r:
@@ -73,6 +80,7 @@ def test_reset_releases_the_thrusters_latch_with_the_feeders(tmp_path):
             tripper.join(5)
             await r.frames(poses(PATH[3:5]))
             assert r.cleaner.state == "estop" and r.thrusters.latched
+            await confirmed(r.lane)
             assert await o.apply("reset", {"operator": "ana"}) == {"ok": True}
             assert not r.thrusters.latched and not r.lane.tripped and r.cleaner.state == "localising"
             assert await o.apply("reset", {}) == {"ok": False, "error": "nothing to reset in state idle "
@@ -92,6 +100,7 @@ def test_two_resets_at_once_release_once_and_the_other_is_told_there_is_nothing_
             tripper.join(5)
             await r.frames(poses(PATH[3:5]))
             assert r.cleaner.state == "estop"
+            await confirmed(r.lane)
             return await asyncio.gather(o.apply("reset", {"operator": "ana"}), o.apply("reset", {"operator": "bo"}))
     first, second = run(main())
     assert first == {"ok": True}
