@@ -118,7 +118,7 @@ def test_each_role_may_send_what_it_is_allowed_and_nothing_else(farm, login):
 
 def test_the_unauthenticated_cannot_even_estop(farm):
     farm.calls.clear()
-    with pytest.raises(BusUnreachable, match="require --user/--password"):
+    with pytest.raises(BusUnreachable, match="requires --user/--password"):
         Bus.client(farm.endpoint, timeout_s=1.0)
     with pytest.raises(BusUnreachable):
         Bus.client(farm.endpoint, timeout_s=1.0, mode="peer")
@@ -191,7 +191,7 @@ def test_a_refused_command_line_user_reads_one_line_and_exit_2(farm):
                            "send this (access control)\n")
     assert took < 30   # bounded by --timeout, not a hang (process start-up included)
     proc, _ = _fishfarm("status", "--connect", farm.endpoint)
-    assert proc.returncode == 2 and proc.stderr.count("\n") == 1 and "require --user/--password" in proc.stderr
+    assert proc.returncode == 2 and proc.stderr.count("\n") == 1 and "requires --user/--password" in proc.stderr
     proc, _ = _fishfarm("override", "estop", *login)
     assert proc.returncode == 0 and json.loads(proc.stdout) == _reply("estop")[0]
     ana = ["--connect", farm.endpoint, "--user", "ana", "--password", farm.passwords["ana"]]
