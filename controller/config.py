@@ -118,6 +118,9 @@ class FeedingConfig(Strict):
         if self.refill_below_g >= self.hopper_capacity_g:
             raise ValueError(f"refill_below_g ({self.refill_below_g:g}) must be below hopper_capacity_g "
                              f"({self.hopper_capacity_g:g})")
+        if self.water_poll_s >= self.water_max_age_s:
+            raise ValueError(f"water_poll_s ({self.water_poll_s:g}) must be below water_max_age_s "
+                             f"({self.water_max_age_s:g}): each reading would be too old before the next")
         return self
 
 
@@ -218,7 +221,7 @@ def load_config(path: str | Path) -> Config:
     path = Path(path)
     where = str(path)
     try:
-        raw = tomllib.loads(path.read_text(encoding="utf-8"))
+        raw = tomllib.loads(path.read_text(encoding="utf-8-sig"))    # a Windows editor's BOM is no fault
     except FileNotFoundError:
         raise BadInput(where, None, "no such file") from None
     except (OSError, UnicodeDecodeError) as exc:
@@ -257,7 +260,7 @@ def _numbers(value, key: str = ""):
 def load_toml(path: str | Path) -> dict:
     """Any other TOML file of ours (species.toml), with the same one-line errors."""
     try:
-        raw = tomllib.loads(Path(path).read_text(encoding="utf-8"))
+        raw = tomllib.loads(Path(path).read_text(encoding="utf-8-sig"))
     except FileNotFoundError:
         raise BadInput(str(path), None, "no such file") from None
     except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError) as exc:

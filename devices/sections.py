@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import importlib
 import json
+import re
 from typing import Any
 
 from pydantic import BaseModel, ValidationError
@@ -22,6 +23,9 @@ PACKAGES = {"tower_camera": "devices.camera", "stereo_camera": "devices.stereo"}
 def backends(kind: str) -> dict[str, str]:
     """A kind's ``BACKENDS`` table: driver -> ``module:Class``."""
     return dict(importlib.import_module(PACKAGES.get(kind, f"devices.{kind}")).BACKENDS)
+
+
+_NAMED = re.compile(r"^([A-Za-z_][\w-]*(?:\.[\w-]+)+) (.+)$", re.DOTALL)
 
 
 def _loc(err: dict) -> str:
@@ -45,6 +49,10 @@ def validate_section(model: type[BaseModel], data: Any, where: str, prefix: str 
         err = exc.errors()[0]
         key = ".".join(p for p in (prefix, _loc(err)) if p) or "(top level)"
         msg = err["msg"]
+        named = _NAMED.match(msg[len("Value error, "):] if msg.startswith("Value error, ") else "")
+        if not err["loc"] and named:     # a check across keys that names the one at fault first
+            key = ".".join(p for p in (prefix, named.group(1)) if p)
+            msg = "Value error, " + named.group(2)
         if err["type"] == "extra_forbidden":
             msg = "unknown key"
         elif msg.startswith("Value error, "):

@@ -41,7 +41,8 @@ def test_minimal_config_defaults(tmp_path):
     (GOOD + '[feeding]\nportion_gg = 3\n', "feeding.portion_gg: unknown key"),
     (GOOD + '[[tanks]]\nid = "A"\nstock = 1\nmean_weight_g = 1\nposition_m = 2\nsensors = ["B"]\n',
      "tanks: tank id 'A' appears twice"),
-    (GOOD + '[devices.x]\nkind = "laser"\ndriver = "sim"\n', "devices.x.kind must be one of"),
+    (GOOD + '[devices.x]\nkind = "laser"\ndriver = "sim"\n', "devices.x.kind: must be one of"),     # not (top level)
+    (GOOD + "[feeding]\nwater_poll_s = 4000\n", "feeding: water_poll_s (4000) must be below water_max_age_s"),
     (GOOD + '[devices.r]\nkind = "rail"\ndriver = "telepathy"\n', "devices.r.driver: driver must be one of"),
     (GOOD + '[devices.d]\nkind = "dispenser"\ndriver = "sim"\nprot = 5\n', "devices.d.prot: unknown key"),
     ("site = 's1'\n[[tanks]\n", "not valid TOML"),
@@ -52,6 +53,13 @@ def test_bad_config_names_file_key_and_reason(tmp_path, text, where):
         load_config(p)
     msg = str(exc.value)
     assert msg.startswith(str(p)) and where in msg and "\n" not in msg
+
+
+def test_a_byte_order_mark_is_no_fault(tmp_path):
+    """A Windows editor's BOM read as 'Invalid statement (at line 1, column 1)'."""
+    p = tmp_path / "farm.toml"
+    p.write_bytes(b"\xef\xbb\xbf" + GOOD.encode())
+    assert load_config(p).site == "s1"
 
 
 def test_missing_file(tmp_path):
