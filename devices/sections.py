@@ -25,7 +25,8 @@ def backends(kind: str) -> dict[str, str]:
     return dict(importlib.import_module(PACKAGES.get(kind, f"devices.{kind}")).BACKENDS)
 
 
-_NAMED = re.compile(r"^([A-Za-z_][\w-]*(?:\.[\w-]+)+) (.+)$", re.DOTALL)
+# a check across keys whose message begins with the key at fault: a dotted path, or a key "must ..."
+_NAMED = re.compile(r"^([A-Za-z_][\w-]*(?:\.[\w-]+)+) (.+)$|^([A-Za-z_]\w*) (must .+)$", re.DOTALL)
 
 
 def _loc(err: dict) -> str:
@@ -51,8 +52,8 @@ def validate_section(model: type[BaseModel], data: Any, where: str, prefix: str 
         msg = err["msg"]
         named = _NAMED.match(msg[len("Value error, "):] if msg.startswith("Value error, ") else "")
         if not err["loc"] and named:     # a check across keys that names the one at fault first
-            key = ".".join(p for p in (prefix, named.group(1)) if p)
-            msg = "Value error, " + named.group(2)
+            key = ".".join(p for p in (prefix, named.group(1) or named.group(3)) if p)
+            msg = "Value error, " + (named.group(2) or named.group(4))
         if err["type"] == "extra_forbidden":
             msg = "unknown key"
         elif msg.startswith("Value error, "):

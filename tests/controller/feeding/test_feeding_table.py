@@ -58,13 +58,13 @@ def test_a_table_file_loads_and_its_lookups_follow_the_chart(tmp_path):
 
 @pytest.mark.parametrize(("change", "key", "fault"), [
     ({"source": None}, "source", ""),
-    ({"source": "  "}, "(top level)", "source must name"),
+    ({"source": "  "}, "source", "must name"),
     ({"colour": "red"}, "colour", "unknown key"),
-    ({"temperatures_c": [18.0, 14.0, 22.0]}, "(top level)", "increase strictly"),
-    ({"temperatures_c": [14.0, 18.0, 60.0]}, "(top level)", "-5..40"),
+    ({"temperatures_c": [18.0, 14.0, 22.0]}, "temperatures_c", "increase strictly"),
+    ({"temperatures_c": [14.0, 18.0, 60.0]}, "temperatures_c", "-5..40"),
     ({"classes": [TABLE["classes"][1], TABLE["classes"][0]]}, "(top level)", "up_to_g must increase"),
-    ({"classes": [{**TABLE["classes"][0], "rate_pct": [1.0, 2.0]}]}, "(top level)", "classes.0.rate_pct has 2 values"),
-    ({"classes": [{**TABLE["classes"][0], "sgr_pct": [1.0]}]}, "(top level)", "classes.0.sgr_pct has 1 values"),
+    ({"classes": [{**TABLE["classes"][0], "rate_pct": [1.0, 2.0]}]}, "classes.0.rate_pct", "has 2 values"),
+    ({"classes": [{**TABLE["classes"][0], "sgr_pct": [1.0]}]}, "classes.0.sgr_pct", "has 1 values"),
     ({"classes": [{**TABLE["classes"][0], "rate_pct": [1.0, -2.0, 1.0]}]}, "classes.0", "rate_pct must lie"),
     ({"classes": [{**TABLE["classes"][0], "pellet_mm": 0}]}, "classes.0.pellet_mm", "greater than 0"),
     ({"classes": []}, "classes", "at least 1"),
