@@ -260,7 +260,9 @@ class _Dispatch:
             replies = list(self.session.get(f"{node_key(self.site, worker)}/pair", payload=rec.payload,
                                             timeout=self.timeout_s))
             good = [r.ok for r in replies if r.ok is not None]
-            if not good:
+            if not good and not replies and time.perf_counter() - t0 < 0.9 * self.timeout_s:
+                outcome = "gone (no reply, and nobody answering there any more)"      # killed, not slow
+            elif not good:
                 outcome = f"no reply within {self.timeout_s:g} s" if not replies else "error reply"
             else:
                 outcome = wire.decode_reply(bytes(good[0].payload.to_bytes()), rec.id)
