@@ -250,6 +250,9 @@ def tank_figures(cfg, store, tank_id: str, since: float | None = None, target_g:
     out = {"tank": tank_id, "species": tank.species, "surveys": surveys, "intervals": intervals,
            "empty_surveys": empty,
            "grading_cv_pct": cfg.feeding.grading_cv_pct, "feed_per_day": store.feed_per_day(tank_id, since)}
+    if since is not None:
+        out["since"] = iso_day(since)
+        out["surveys_before"] = len(store.surveys(tank_id, until=since))
     if points:
         newest = points[-1]
         out["grading"] = needs_grading(newest.cv_pct, cfg.feeding.grading_cv_pct)

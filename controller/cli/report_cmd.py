@@ -62,7 +62,9 @@ def text(report: dict) -> str:
                      + (f", {len(after)} since the last survey that counted fish" if after else "")
                      + " (cameras blocked or fouled, lights, turbid water?)")
     if not report["surveys"] and not empty:
-        lines.append("  no survey in the ledger for this tank")
+        before = report.get("surveys_before", 0)
+        lines.append(f"  no survey of this tank since {report['since']} ({before} before)" if "since" in report
+                     else "  no survey in the ledger for this tank")
     return "\n".join(lines)
 
 

@@ -143,6 +143,13 @@ def test_a_tank_never_surveyed_says_so(farm, capsys):
     assert code == 0 and "no survey in the ledger for this tank" in out and (path / "empty.png").exists()
 
 
+def test_a_range_with_no_survey_says_how_many_came_before(farm, capsys):
+    """It said 'no survey in the ledger for this tank' of a tank surveyed before --since."""
+    path, _ = farm
+    code, out, _ = run(capsys, "report", "--tank", "T1", "--since", "2099-01-01", "--config", str(path / "farm.toml"))
+    assert code == 0 and "no survey of this tank since 2099-01-01 (2 before)" in out
+
+
 def test_no_ledger_is_an_error_naming_it(tmp_path, capsys):
     import tomllib
     raw = tomllib.loads(open("config/farm.toml").read())
