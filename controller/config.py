@@ -8,6 +8,7 @@ Device sections are validated by the model their kind and driver name in ``devic
 from __future__ import annotations
 
 import math
+import re
 import tomllib
 from pathlib import Path
 from typing import Annotated, Any, Literal
@@ -25,6 +26,8 @@ class Strict(BaseModel):
 
 
 DAY_S = 86_400.0
+_LABEL = r"[A-Za-z0-9](?:[A-Za-z0-9-]{0,61}[A-Za-z0-9])?"
+HOSTNAME = re.compile(rf"(?:{_LABEL}\.)*{_LABEL}\.?")
 SensorId = Annotated[str, Field(pattern=r"^[A-Za-z0-9_.-]{1,32}$")]  # a Zenoh key chunk: sensor/{id}
 
 
@@ -32,7 +35,8 @@ class BusConfig(Strict):
     mode: Literal["peer", "client", "router"] = "peer"
     listen: list[str] = ["tcp/127.0.0.1:7447"]
     connect: list[str] = []
-    config: str | None = Field(None, description="Zenoh JSON5 config file; overrides listen/connect")
+    # an empty path meant no file: a deployment ran without its logins and access control
+    config: str | None = Field(None, min_length=1, description="Zenoh JSON5 config file; overrides listen/connect")
     publish_contacts: bool = True
 
 
@@ -53,6 +57,14 @@ class ScadaConfig(Strict):
     idle_timeout_s: float = Field(60.0, gt=0, le=DAY_S, description="a connection silent this long is dropped")
     max_connections: int = Field(8, ge=1, le=1000, description="connections beyond are closed at once")
     refresh_s: float = Field(0.25, ge=0.01, le=60, description="wall seconds between snapshot refreshes")
+
+    @field_validator("listen")
+    @classmethod
+    def _an_address(cls, listen: str) -> str:
+        # "no such host!" was an alarm retried for good, not bad input
+        if not (HOSTNAME.fullmatch(listen) or re.fullmatch(r"[0-9A-Fa-f:.]+", listen)):
+            raise ValueError(f"{listen!r} is not an IP address or a host name")
+        return listen
 
 
 class SurveySchedule(Strict):

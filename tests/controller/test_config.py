@@ -43,6 +43,8 @@ def test_minimal_config_defaults(tmp_path):
      "tanks: tank id 'A' appears twice"),
     (GOOD + '[devices.x]\nkind = "laser"\ndriver = "sim"\n', "devices.x.kind: must be one of"),     # not (top level)
     (GOOD + "[feeding]\nwater_poll_s = 4000\n", "feeding: water_poll_s (4000) must be below water_max_age_s"),
+    (GOOD + '[scada]\nlisten = "no such host!"\n', "scada.listen: 'no such host!' is not an IP address"),
+    (GOOD + '[bus]\nconfig = ""\n', "bus.config: String should have at least 1 character"),
     (GOOD + '[devices.r]\nkind = "rail"\ndriver = "telepathy"\n', "devices.r.driver: driver must be one of"),
     (GOOD + '[devices.d]\nkind = "dispenser"\ndriver = "sim"\nprot = 5\n', "devices.d.prot: unknown key"),
     ("site = 's1'\n[[tanks]\n", "not valid TOML"),
