@@ -122,6 +122,7 @@ def _search(frame: np.ndarray, H: np.ndarray, params: FloatParams, box: tuple[in
     blues = _discs(H, _mask(hsv, params.blue_hsv, share), origin, scale, params.blue_diameter_m, params)
     oranges = _discs(H, _mask(hsv, params.orange_hsv, share), origin, scale, params.orange_diameter_m, params)
     best, best_score = None, 0.0
+    pairs = []
     for o in oranges:
         for b in blues:
             d = b.centre - o.centre
@@ -129,8 +130,11 @@ def _search(frame: np.ndarray, H: np.ndarray, params: FloatParams, box: tuple[in
             if off >= 1:
                 continue
             score = o.conf * b.conf * (1 - 0.5 * off * off)
+            pairs.append((score, o.centre))
             if score > best_score:
                 best, best_score = (o.centre, d), score
+    if not guided and _two_floats(pairs, best_score, params):
+        return None                  # which is ours? Not a guess: a dropout until one is tracked
     known = True
     if best is None:
         best, best_score = _round_orange(frame, H, params, oranges)
@@ -145,6 +149,16 @@ def _search(frame: np.ndarray, H: np.ndarray, params: FloatParams, box: tuple[in
     c, d = best
     return FloatFix(float(c[0]), float(c[1]), _wrap(math.atan2(d[1], d[0])), float(np.clip(best_score, 0, 1)),
                     known)
+
+
+def _two_floats(pairs: list[tuple[float, np.ndarray]], best_score: float, params: FloatParams) -> bool:
+    """Two whole markers in view, apart and nearly as sure: the search of the whole frame cannot
+    tell the cleaner's (a probe's static second float was tracked with full confidence, 10 m off)."""
+    if len(pairs) < 2:
+        return False
+    _, first = max(pairs, key=lambda p: p[0])
+    return any(score >= 0.5 * best_score and np.linalg.norm(centre - first) > 2 * params.spacing_m
+               for score, centre in pairs)
 
 
 def _round_orange(frame, H, params: FloatParams, oranges: list[_Disc]):

@@ -236,3 +236,18 @@ def test_the_float_over_a_blue_tarp(tarp, distinct):
             assert heading_error(fix.heading_rad, heading) < math.radians(5), fix
         assert fix.heading_known == distinct, fix
         assert detect_float(img, VIEW.H) is None or detect_float(img, VIEW.H).heading_known   # lost: both or none
+
+
+def test_two_whole_floats_in_view_are_no_fix_unless_one_is_tracked():
+    """A static second marker was taken for the cleaner's from the first frame, with full
+    confidence, 10 m off: searched over the whole frame, two floats are a dropout; near the
+    tracked one, it is found."""
+    ours, other = (6.0, 4.0, 0.5), (15.0, 7.0, 2.0)
+    img = fd.water(VIEW, 5)
+    fd.float_marker(img, VIEW, *ours)
+    fd.float_marker(img, VIEW, *other)
+    assert detect_float(img, VIEW.H) is None
+    check(detect_float(img, VIEW.H, near=(6.1, 3.9, 0.8)), ours)
+    lone = fd.water(VIEW, 5)
+    fd.float_marker(lone, VIEW, *ours)
+    check(detect_float(lone, VIEW.H), ours)
