@@ -43,7 +43,11 @@ WRITE_KIND = {5: COIL, 15: COIL, 6: HR, 16: HR, 23: HR}
 # others (diagnostics, event counters, file records, FIFO queues) would answer from its own
 # counters or invented data; a SCADA asking for them gets exception 01
 SERVED = frozenset({*READ_KIND, *WRITE_KIND, 43})
-PIPELINE_MAX = 64        # requests one connection may have waiting; beyond, the rest wait in its buffer
+# Requests one connection may have waiting. Its stream is always read (an e-stop frame behind a
+# flood of writes must reach the latches as it arrives, not once the writes are answered: with
+# reading paused, one sat in the kernel's buffer for minutes); a client further ahead than this is
+# closed, its e-stops among what was read tripped first
+PIPELINE_MAX = 10_000
 
 
 def broken_mbap(buf: bytes) -> bool:
@@ -180,8 +184,8 @@ class _Connection(ServerRequestHandler):
 
     def callback_data(self, data: bytes, addr: tuple | None = None) -> int:
         """Takes the complete frames at the front of ``data`` (the connection's whole buffer);
-        returns how many bytes they were. With PIPELINE_MAX requests waiting, the connection stops
-        reading (TCP holds the client back) until they are answered."""
+        returns how many bytes they were. A client with more than PIPELINE_MAX requests waiting is
+        closed."""
         now = self.last_heard = time.monotonic()
         used = 0
         while used < len(data):
@@ -205,8 +209,12 @@ class _Connection(ServerRequestHandler):
             self.frame_started = None
         if used < len(data) and self.frame_started is None:
             self.frame_started = now      # a frame begun: it has idle_timeout_s to arrive whole
-        if len(self.waiting) >= PIPELINE_MAX and self.transport is not None:
-            self.transport.pause_reading()
+        if len(self.waiting) > PIPELINE_MAX:
+            log.warning("scada: %s has over %d requests waiting; closed", self.peer, PIPELINE_MAX)
+            self.server.broken += 1
+            self.waiting.clear()
+            self.close()
+            return len(data)
         if self.waiting and self.answering is None:
             self.answering = asyncio.ensure_future(self._answer_waiting())
         return used
@@ -235,8 +243,6 @@ class _Connection(ServerRequestHandler):
                 request, addr = self.waiting.popleft()
                 # a task of its own per request: the audit's peer and a write's echo are its alone
                 await asyncio.ensure_future(self._answer(request, addr))
-                if len(self.waiting) == PIPELINE_MAX // 2 and self.transport is not None:
-                    self.transport.resume_reading()
         finally:
             self.answering = None
 
@@ -254,6 +260,7 @@ class _Connection(ServerRequestHandler):
             response = ExceptionResponse(request.function_code, ExcCodes.DEVICE_FAILURE)
         response.transaction_id, response.dev_id = request.transaction_id, request.dev_id
         self.server_send(response, addr)
+        self.last_heard = time.monotonic()        # traffic either way: a client reading its replies is not idle
 
     def send(self, data: bytes, addr: tuple | None = None) -> None:
         # pymodbus empties the receive buffer as it replies: the next request's first bytes with it
@@ -302,6 +309,8 @@ class ScadaServer(ModbusTcpServer):
         for conn in list(self.active_connections.values()):
             # silent, or trickling one frame (a byte every few seconds held a slot for good)
             since = min(getattr(conn, "last_heard", now), getattr(conn, "frame_started", None) or now)
+            if getattr(conn, "waiting", None):      # waiting for our replies, not silent
+                continue
             if now - since > self.scada.idle_timeout_s:
                 log.debug("scada: %s idle or mid-frame for %.0f s; dropped", getattr(conn, "peer", "?"), now - since)
                 conn.close()

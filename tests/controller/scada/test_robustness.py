@@ -312,3 +312,34 @@ def test_functions_the_map_does_not_serve_are_refused_with_01(serve):
         assert got == 43 and b"fishfarm" in data
     finally:
         c.close()
+
+
+def test_an_estop_behind_a_flood_of_pipelined_writes_trips_at_once_and_the_writes_are_all_answered(serve):
+    """An e-stop sent after thousands of writes in one go sat in the kernel's buffer for minutes
+    (reading paused until the writes were answered), and the connection, silent while it waited
+    for its replies, was dropped as idle with the e-stop unread."""
+    from .conftest import StandIn
+
+    class Slow(StandIn):
+        async def apply(self, command, payload, *, user=None, origin="zenoh"):
+            if command == "ration":
+                await asyncio.sleep(0.005)               # each write an override that takes a while
+            return await super().apply(command, payload, user=user, origin=origin)
+
+    import asyncio
+    stand_in = Slow()
+    srv = serve(stand_in, idle_timeout_s=0.5)
+    s = socket.create_connection(("127.0.0.1", srv.port), timeout=30)
+    try:
+        writes = [_frame(tid, 16, struct.pack(">HHBHH", 101, 2, 4, 0x4120, 0)) for tid in range(1, 2001)]   # 10 g
+        sent = time.monotonic()
+        s.sendall(b"".join(writes) + _frame(2001, 5, struct.pack(">HH", 0, 0xFF00)))
+        while not srv.call(lambda: list(stand_in.trips)):
+            assert time.monotonic() - sent < 5.0, "the e-stop waited behind the writes"
+            time.sleep(0.01)
+        tripped_after = sum(call[0] == "ration" for call in srv.call(lambda: list(stand_in.calls)))
+        replies = [_reply(s) for _ in range(2001)]         # over 10 s of writes: never dropped as idle
+        assert [(tid, fc) for tid, fc, _ in replies] == [(tid, 16) for tid in range(1, 2001)] + [(2001, 5)]
+        assert tripped_after < 2000                         # tripped while writes still waited
+    finally:
+        s.close()
