@@ -62,6 +62,7 @@ class Controller(Stopping):
         self._stopped = False
         self.scada: Scada | None = None
         self.started_monotonic = time.monotonic()
+        self.not_opened: set[str] = set()        # devices whose open has failed and not succeeded since
         self.species = load_species()
         check_farm(cfg, self.species)
         # every section is checked before anything starts: a bad key is one line and exit 2, not a
@@ -192,11 +193,16 @@ class Controller(Stopping):
         stopping = asyncio.create_task(self.stopping.wait())
         wall = None if self.duration_s is None else self.clock.wall(self.duration_s)
         try:
-            # a start still waiting for a device when the whole run's time has passed ends too (it
-            # retried a device that never opened for good, --duration or not)
-            await asyncio.wait({starting, stopping}, timeout=wall, return_when=asyncio.FIRST_COMPLETED)
+            # a start still retrying a device that did not open when the whole run's time has passed
+            # ends too (it retried for good, --duration or not); a start only slow (a loaded
+            # simulator) is waited for
+            while True:
+                await asyncio.wait({starting, stopping}, timeout=wall, return_when=asyncio.FIRST_COMPLETED)
+                if starting.done() or self.stopping.is_set() or self.not_opened:
+                    break
             if not starting.done() and not self.stopping.is_set():
-                log.warning("stopping: --duration passed while the controller was still starting")
+                log.warning("stopping: --duration passed while the controller was still starting "
+                            "(%s not opened)", ", ".join(sorted(self.not_opened)))
             elif starting.done() and not self.stopping.is_set():
                 starting.result()                     # a start-up fault surfaces here
                 await asyncio.wait({stopping}, timeout=wall)
@@ -242,10 +248,12 @@ class Controller(Stopping):
                 return
             try:
                 await device.open()
+                self.not_opened.discard(device.name)
                 if self.alarms.clear(f"device/{device.name}", "connected") and attempt:
                     log.info("%s opened after %d attempts", device.name, attempt + 1)
                 return
             except DeviceError as exc:
+                self.not_opened.add(device.name)
                 if attempt == 0:
                     self.alarms.raise_(f"device/{device.name}", f"cannot open: {exc.text}", kind="unreachable")
                     if failed is not None:

@@ -84,9 +84,10 @@ def test_unusable_store_path_exits_2_naming_store_path(tmp_path, store_path):
                                           # each [sim.*] sub-section too: they were the simulator's
                                           # exit after the controller had started it
                                           ("[sim.fish]\nrate = 1\n", "sim.fish.rate"),
-                                          ("[sim.fish]\nrate_hz = [-1.0, 2.0]\n", "sim.fish"),
+                                          ("[sim.fish]\nrate_hz = [-1.0, 2.0]\n", "sim.fish.rate_hz"),
                                           ("[sim.pond]\nrobot = {speed = 1}\n", "sim.pond.robot.speed"),
-                                          ("[sim.stereo_camera]\nfish_in_view = [18, 10]\n", "sim.stereo_camera"),
+                                          ("[sim.stereo_camera]\nfish_in_view = [18, 10]\n",
+                                           "sim.stereo_camera.fish_in_view"),
                                           ("[sim.tower_camera]\njpeg_quality = 150\n",
                                            "sim.tower_camera.jpeg_quality")])
 def test_a_bad_key_in_any_section_is_one_line_before_the_simulator_starts(tmp_path, section, key):
@@ -108,3 +109,13 @@ def test_duration_ends_a_run_whose_devices_never_open(tmp_path):
     r = fishfarm("run", "--config", str(cfg), "--no-console", "--duration", "2", timeout=60)
     assert r.returncode == 0, r.stderr
     assert "--duration passed while the controller was still starting" in r.stderr
+
+
+def test_a_duration_shorter_than_a_slow_start_still_runs_the_controller(tmp_path):
+    """The start is waited for when no device has failed to open: a duration shorter than the
+    simulator's start ended runs that never came up (exit 0, nothing done)."""
+    cfg = tmp_path / "farm.toml"
+    cfg.write_text(f'[store]\npath = "{tmp_path / "ledger.db"}"\n' + TANK + DEVICES)
+    r = fishfarm("run", "--config", str(cfg), "--no-console", "--duration", "0.01", timeout=60)
+    assert r.returncode == 0, r.stderr
+    assert "controller for site demo up" in r.stderr and "still starting" not in r.stderr
