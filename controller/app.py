@@ -22,6 +22,7 @@ from controller.farm_setup import CLEANER_KINDS, build_device, check_farm
 from controller.feeding.estop import EstopLane, Latch, log_latch
 from controller.feeding.rations import Rations, load_species
 from controller.feeding.robot import FeedingRobot, Job
+from controller.hub_clock import HubClock
 from controller.overrides import Overrides
 from controller.scada.service import Scada
 from controller.shutdown import install_signal_handlers
@@ -103,6 +104,7 @@ class Controller(Stopping):
                                    {t.id: list(t.sensors) for t in cfg.tanks})
         self.devices = {name: build_device(name, s, self.clock, cfg.path) for name, s in sections.items()}
         self.contacts = self._one("contacts")
+        self.hub_clock = HubClock(self.clock, self.alarms, self.contacts.name)
         self.rail = self._one("rail")
         self.dispenser = self._one("dispenser")
         self._loop = asyncio.get_running_loop()
@@ -329,9 +331,10 @@ class Controller(Stopping):
                         self.unknown_sensors.add(contact.sensor)
                         log.warning("contact from unknown sensor %r ignored", contact.sensor)
                     continue
+                t = self.hub_clock.stamp(contact.t)
                 if publish is not None:
-                    publish(f"tank/{tank}/contact", {"t": self.clock.iso(contact.t), "sensor": contact.sensor})
-                for event in self.filter.on_contact(contact.t, tank, contact.sensor):
+                    publish(f"tank/{tank}/contact", {"t": self.clock.iso(t), "sensor": contact.sensor})
+                for event in self.filter.on_contact(t, tank, contact.sensor):
                     self._on_filter_event(event)
 
     async def _reopen(self, device) -> None:

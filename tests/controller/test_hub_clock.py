@@ -1,0 +1,73 @@
+"""The contact hub's stamps held to the controller's clock (controller/hub_clock.py): a hub clock
+gone wrong must not blind the demand filter. The contacts are generated here, at 1 a second for two
+minutes (a hungry tank, by the contact sensor model), the stamps spoilt as a probe spoilt them."""
+from __future__ import annotations
+
+from controller.demand import Demand, DemandFilter
+from controller.hub_clock import SKEW_WALL_S, HubClock
+
+T0 = 1_780_000_000.0
+
+
+class Clock:
+    """Farm time as the test sets it; real time's speed (a farm second is a wall second)."""
+
+    def __init__(self, t: float):
+        self.t = t
+
+    def now(self) -> float:
+        return self.t
+
+    def wall(self, farm_s: float) -> float:
+        return farm_s
+
+
+class Alarms:
+    def __init__(self):
+        self.raised, self.cleared = [], []
+
+    def raise_(self, source, text, severity="warning", *, kind="general"):
+        self.raised.append((source, kind, text))
+
+    def clear(self, source, text="cleared", *, kind=None):
+        self.cleared.append((source, kind))
+
+
+def episode(start: float, seconds: float = 120.0):
+    """A hungry tank's contacts, one a second on alternate sensors, as the hub sends them."""
+    return [(start + i, "T1-a" if i % 2 else "T1-b") for i in range(int(seconds))]
+
+
+def demands_within(contacts, stamp, until: float) -> list[float]:
+    """The demand times of ``contacts`` [(true t, hub stamp)] fed in order, as the controller does."""
+    f = DemandFilter(None, {"T1": ["T1-a", "T1-b"]})
+    clock, out = contacts[0][2], []
+    for true_t, hub_t, _, sensor in contacts:
+        clock.t = true_t
+        out += [e.t for e in f.on_time(true_t) if isinstance(e, Demand)]
+        out += [e.t for e in f.on_contact(stamp(hub_t), "T1", sensor) if isinstance(e, Demand)]
+    out += [e.t for e in f.on_time(until) if isinstance(e, Demand)]
+    return out
+
+
+def test_one_stamp_far_ahead_and_a_clock_stepped_back_do_not_blind_the_tank():
+    clock, alarms = Clock(T0), Alarms()
+    hub = HubClock(clock, alarms, "hub")
+    glitch = [(T0 + 10.0, T0 + 610.0, clock, "T1-a")]                   # one line 600 s ahead
+    first = [(t, t, clock, s) for t, s in episode(T0 + 30.0)]
+    stepped = [(t, t - 300.0, clock, s) for t, s in episode(T0 + 1000.0)]   # the hub's clock 300 s back
+    caught = demands_within(glitch + first + stepped, hub.stamp, T0 + 1200.0)
+    in_first = [t for t in caught if T0 + 30 <= t <= T0 + 90]
+    in_stepped = [t for t in caught if T0 + 1000 <= t <= T0 + 1060]
+    assert in_first and in_stepped, caught                            # both within 60 s of their start
+    assert alarms.raised[0][:2] == ("device/hub", "clock") and "+600 s off" in alarms.raised[0][2]
+    assert ("device/hub", "clock") in alarms.cleared                  # stamps agreed in between
+    assert hub.replaced == 1 + 120
+
+
+def test_stamps_within_the_tolerance_are_kept_as_the_hub_gave_them():
+    clock, alarms = Clock(T0), Alarms()
+    hub = HubClock(clock, alarms, "hub")
+    for late in (0.0, 0.5, -SKEW_WALL_S, SKEW_WALL_S):
+        assert hub.stamp(T0 + late) == T0 + late
+    assert alarms.raised == [] and hub.replaced == 0
