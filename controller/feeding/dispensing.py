@@ -39,6 +39,10 @@ START_MARGIN_WALL_S = 0.25   # ... and at least this much wall time (a START sti
 LEDGER, COUNTERS = "ledger", "dispenser_counters"   # alarm sources
 
 
+class Withdrawn(Exception):
+    """The tank was paused before its portion's intent was written: nothing started."""
+
+
 class AugerJammed(DeviceFault):
     """The run jammed part way; ``feed`` is closed with what the load cell saw leave."""
 
@@ -59,6 +63,7 @@ class Dispensing:
         self.hopper_g: float | None = None
         self._seen = store.counters_seen(dispenser.name)     # (cycles, total_g) last seen
         self.halted = lambda: False             # the e-stop's token: the robot sets its own here
+        self.withdrawn = lambda tank: False     # a tank paused since its portion was planned: the robot's
 
     @property
     def overshoot(self) -> float:
@@ -108,6 +113,8 @@ class Dispensing:
         if state.jammed or state.running:
             raise DeviceFault(self.dispenser.name, "jammed" if state.jammed else "auger already running")
         self._check_token("intent")
+        if self.withdrawn(tank):                  # paused while the state was read: nothing is committed
+            raise Withdrawn(tank)
         now = self.clock.now()
         run_s = grams / self.rate_g_s
         feed = self.store.add_intent(tank=tank, date=self.rations.date(now), t=now, target_g=grams, run_s=run_s,

@@ -21,7 +21,7 @@ from dataclasses import dataclass
 
 from transitions import Machine
 
-from controller.feeding.dispensing import FULL_SHARE, AugerJammed, Dispensing
+from controller.feeding.dispensing import FULL_SHARE, AugerJammed, Dispensing, Withdrawn
 from controller.feeding.estop import EstopLane, Halted, log_latch
 from controller.feeding.planner import Stop, next_stop
 from controller.feeding.recovery import Recovering
@@ -72,6 +72,7 @@ class FeedingRobot(Recovering):
         self.lane.listen(self._lane_report)
         self.dispensing = Dispensing(cfg, clock, dispenser, store, rations, alarms, publish)
         self.dispensing.halted = lambda: self.lane.tripped
+        self.dispensing.withdrawn = lambda tank: tank in self.paused
         self.pending: dict[str, Job] = {}
         self.paused: set[str] = set(store.paused_tanks())   # tanks whose demands are not served
         self.failures = 0
@@ -275,12 +276,17 @@ class FeedingRobot(Recovering):
         await self._move_to(self.cfg.tank(job.tank).position_m)
         self.arrive_tank()
         portion = self.dispensing.portion(job.tank, job.grams)   # the day may have turned on the way
-        if portion > 0:
+        if job.tank in self.paused:           # paused on the way: an operator told ok is not fed after all
+            self._finish(job, "paused")
+        elif portion > 0:
             try:
                 self._served(job, await self.dispensing.run(job.tank, portion, job.source, job.demand_id, job.t))
             except AugerJammed as jam:        # part of a portion went in: the demand was served by it
                 self._served(job, jam.feed)
                 raise
+            except Withdrawn:
+                log.info("portion for %s not started: the tank was paused", job.tank)
+                self._finish(job, "paused")
         else:
             self._finish(job, "ration_reached")
         self.dispensed()

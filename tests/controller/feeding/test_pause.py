@@ -44,3 +44,34 @@ def test_pausing_drops_the_waiting_demand_and_a_restart_stays_paused(tmp_path):
             restarted.on_demand(Job("T1", r.clock.now(), late))
             assert restarted.pending == {} and outcome(r, late) == "paused"
     run(main())
+
+
+def test_a_tank_paused_while_the_robot_is_on_its_way_or_reading_the_dispenser_is_not_fed():
+    """A pause accepted while the robot was at the tank reading the dispenser's state was followed
+    by the intent and 58.7 g: only a portion whose intent is written is "on its way"."""
+    import tempfile
+    from pathlib import Path
+
+    async def main(tmp_path, when):
+        async with rig(tmp_path) as r:
+            await r.until(lambda: r.robot.state == "idle", what="homed")
+            read = r.robot.dispensing.read
+
+            async def pausing_read():                # the operator's pause lands during this await
+                state = await read()
+                if when == "reading" and r.robot.state == "dispensing":
+                    r.robot.pause("T2")
+                return state
+            r.robot.dispensing.read = pausing_read
+            asked = r.demand("T2")
+            if when == "moving":
+                await r.until(lambda: r.robot.state == "moving", what="moving")
+                r.robot.pause("T2")
+            await r.until(lambda: outcome(r, asked) == "paused" and r.robot.state == "idle", 300.0,
+                          what="the demand closed paused")
+            await asyncio.sleep(0.05)
+            return [f.tank for f in r.store.feeds()], dict(r.delivered)
+    for when in ("moving", "reading"):
+        with tempfile.TemporaryDirectory() as d:
+            feeds, delivered = run(main(Path(d), when))
+            assert feeds == [] and delivered == {}, when
