@@ -20,6 +20,7 @@ import zenoh
 
 from controller.identity import BY, USER, user_of
 from controller.payload import parse_object
+from controller.text import printable
 from controller.zenoh_config import _one_line
 
 log = logging.getLogger("fishfarm.bus")
@@ -143,6 +144,11 @@ class Serving:
                 exc.notify(payload)
             return self._reply(query, {"ok": False, "error": str(exc)})
         if selector:
+            keys = [part.split("=", 1)[0] for part in str(query.parameters).split(";") if part]
+            twice = sorted({k for k in keys if keys.count(k) > 1})
+            if twice:                 # Zenoh keeps one of them: which one was meant is the asker's to say
+                return self._reply(query, {"ok": False, "error": f"{printable(twice[0], 64)}: given twice in the "
+                                                                 "selector"})
             params = {k: v for k, v in dict(query.parameters).items() if k != "_time"}
             handler = functools.partial(handler, params=params)
         acted = False

@@ -18,7 +18,8 @@ from controller.errors import BadInput
 DURATION = re.compile(r"^\s*(\d+(?:\.\d+)?)\s*(s|m|h|d|w)\s*$", re.ASCII)
 # Unix seconds as written in ASCII (float() also reads "١٢" and "1_000"); eight digits alone are
 # ISO's basic date (20261204), not seconds of 1970
-SECONDS = re.compile(r"^[+-]?(\d+\.?\d*|\.\d+)([eE][+-]?\d+)?$", re.ASCII)
+SECONDS = re.compile(r"^\d+(\.\d+)?$", re.ASCII)
+FIRST_S = 946_684_800.0        # 2000-01-01: no ledger of ours holds anything older (2026120 was a date's typo)
 BASIC_DATE = re.compile(r"^\d{8}$", re.ASCII)
 UNIT_S = {"s": 1, "m": 60, "h": 3600, "d": 86400, "w": 7 * 86400}
 MAX_ROWS = 100_000
@@ -47,8 +48,15 @@ WHAT = tuple(COLUMNS)
 
 def parse_time(text, name: str, now: float, *, durations: bool) -> float:
     """Unix seconds from ISO, Unix seconds or (``durations``) a span back from ``now``."""
-    text = str(text).strip()
-    value = float(text) if SECONDS.match(text) and not BASIC_DATE.match(text) else None
+    if isinstance(text, int | float) and not isinstance(text, bool):      # a JSON number: seconds, however written
+        value = float(text)
+        text = repr(text)
+    else:
+        text = str(text).strip()
+        value = float(text) if SECONDS.match(text) and not BASIC_DATE.match(text) else None
+    if value is not None and math.isfinite(value) and (value < 0 or 0 < value < FIRST_S):
+        raise BadInput(name, None, f"{text[:60]!r}: {iso(value) if value > -1e11 else 'a time'} is before 2000 "
+                                   "(a date's typo?): an ISO time, Unix seconds or a duration")
     m = DURATION.match(text) if durations else None
     if m:
         value = now - float(m.group(1)) * UNIT_S[m.group(2)]

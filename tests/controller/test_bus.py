@@ -479,6 +479,10 @@ def test_a_selector_queryable_hears_the_concrete_key_and_the_selector_s_paramete
     assert calls[-1] == ("history/fish/T2", {}, {"since": "7d"})
     assert client.query("history/*/T1") == [] and client.query("history/**") == []     # nobody answers a wildcard
     assert len(calls) == 2
+    # a parameter given twice: Zenoh keeps one, silently; refused before the handler sees it
+    assert client.query("history/surveys/T1?since=20261205;since=20261201") == [
+        {"ok": False, "error": "since: given twice in the selector"}]
+    assert len(calls) == 2
 
 
 @pytest.mark.parametrize("raw, error", [

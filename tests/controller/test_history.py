@@ -54,7 +54,8 @@ def test_each_kind_of_row_for_the_tank_oldest_first_within_the_range(ledger):
     ("1780000000", False, T), ("2026-05-28T20:26:40", False, T), ("2026-05-28T22:26:40+02:00", False, T),
     ("2026-05-28T20:26:40Z", False, T), ("7d", True, T + 7 * DAY - 7 * DAY), ("36h", True, T - 1.5 * DAY),
     # eight digits alone are ISO's basic date, not seconds of 1970 (every row came back)
-    ("20260528", False, T - (20 * 3600 + 26 * 60 + 40)), ("1.78e9", False, 1.78e9)])
+    ("20260528", False, T - (20 * 3600 + 26 * 60 + 40)), ("1780000000.5", False, T + 0.5),
+    (1780000000, False, T), (1780000000.0, False, T), ("0", False, 0.0)])          # a JSON number: seconds
 def test_times_are_iso_unix_seconds_or_a_span_back(text, durations, want):
     now = T + 7 * DAY if text == "7d" else T
     assert parse_time(text, "since", now, durations=durations) == pytest.approx(want)
@@ -62,7 +63,9 @@ def test_times_are_iso_unix_seconds_or_a_span_back(text, durations, want):
 
 @pytest.mark.parametrize("text", ["1" * 310, "1" * 5000, "9" * 400 + ".5", "1e400", "-1e400", "inf", "nan",
                                   "1" * 400 + "d",
-                                  "\u0663", "1_000", "\u0661\u0662d"])     # numbers Python reads, not ASCII
+                                  "\u0663", "1_000", "\u0661\u0662d",      # numbers Python reads, not ASCII
+                                  "1e9", "+1796405848", "-5",                # not "ASCII digits"
+                                  "2026120", 20261205, 20261205.0])          # before 2000: a date's typo
 def test_a_number_no_float_holds_is_refused_not_read_as_a_date(text):
     """Python's fromisoformat reads '1111...' as 1111-11-11 (every row since then came back)."""
     with pytest.raises(BadInput, match="since"):
