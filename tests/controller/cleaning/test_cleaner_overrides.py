@@ -40,11 +40,20 @@ def run(coro):
     return asyncio.run(asyncio.wait_for(coro, 30))
 
 
-async def confirmed(lane) -> None:
-    """Until every latch has confirmed the e-stop: a reset before is refused (a loaded machine's
-    lane thread may take more than the test's next step)."""
-    while lane.confirming(60.0):
+async def stopped_while_cleaning(r) -> Overrides:
+    """The rig's cleaner e-stopped from another thread while cleaning, every latch confirmed (a
+    reset before is refused: a loaded machine's lane thread may take more than the test's next
+    step); the overrides to reset it with."""
+    o = Overrides(controller(r))
+    await r.frames(poses(PATH[:3]))
+    tripper = threading.Thread(target=r.lane.trip, args=("test",))
+    tripper.start()
+    tripper.join(5)
+    await r.frames(poses(PATH[3:5]))
+    assert r.cleaner.state == "estop"
+    while r.lane.confirming(60.0):
         await asyncio.sleep(0.005)
+    return o
 
 
 def test_operator_commands_move_the_cleaner_and_are_audited(tmp_path):
@@ -73,14 +82,8 @@ def test_operator_commands_move_the_cleaner_and_are_audited(tmp_path):
 def test_reset_releases_the_thrusters_latch_with_the_feeders(tmp_path):
     async def main():
         async with Rig(tmp_path, state="localising", mission="clean") as r:
-            o = Overrides(controller(r))
-            await r.frames(poses(PATH[:3]))
-            tripper = threading.Thread(target=r.lane.trip, args=("test",))
-            tripper.start()
-            tripper.join(5)
-            await r.frames(poses(PATH[3:5]))
-            assert r.cleaner.state == "estop" and r.thrusters.latched
-            await confirmed(r.lane)
+            o = await stopped_while_cleaning(r)
+            assert r.thrusters.latched
             assert await o.apply("reset", {"operator": "ana"}) == {"ok": True}
             assert not r.thrusters.latched and not r.lane.tripped and r.cleaner.state == "localising"
             assert await o.apply("reset", {}) == {"ok": False, "error": "nothing to reset in state idle "
@@ -93,14 +96,7 @@ def test_two_resets_at_once_release_once_and_the_other_is_told_there_is_nothing_
     for a latch the first had released already."""
     async def main():
         async with Rig(tmp_path, state="localising", mission="clean") as r:
-            o = Overrides(controller(r))
-            await r.frames(poses(PATH[:3]))
-            tripper = threading.Thread(target=r.lane.trip, args=("test",))
-            tripper.start()
-            tripper.join(5)
-            await r.frames(poses(PATH[3:5]))
-            assert r.cleaner.state == "estop"
-            await confirmed(r.lane)
+            o = await stopped_while_cleaning(r)
             return await asyncio.gather(o.apply("reset", {"operator": "ana"}), o.apply("reset", {"operator": "bo"}))
     first, second = run(main())
     assert first == {"ok": True}
