@@ -223,10 +223,10 @@ class _Connection(ServerRequestHandler):
         """One frame off the front: its length (0: not whole yet); None when the connection is closed."""
         try:
             used = TransactionManager.callback_data(self, frame, addr)
-        except ModbusIOException as exc:         # as pymodbus answers it
+        except ModbusIOException as exc:         # as pymodbus answers it; that frame only is taken
             self.waiting.append((ExceptionResponse(exc.fcode or 0, ExcCodes.ILLEGAL_FUNCTION,
                                                    device_id=exc.dev_id, transaction=exc.transaction_id), addr))
-            return len(frame)
+            return min(len(frame), 6 + int.from_bytes(frame[4:6], "big"))
         except Exception as exc:     # a frame pymodbus cannot take apart: this client only loses
             self.server.broken += 1
             log.debug("scada: %s: undecodable frame (%s); dropped", self.peer, exc)
