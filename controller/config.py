@@ -208,6 +208,9 @@ class Config(Strict):
             if tank.id in seen:
                 raise ValueError(f"tank id {tank.id!r} appears twice (tanks.{i})")
             seen.add(tank.id)
+            if len(set(tank.sensors)) < len(tank.sensors):
+                twice = next(s for s in tank.sensors if tank.sensors.count(s) > 1)
+                raise ValueError(f"sensor {twice!r} is listed twice in tank {tank.id!r} (tanks.{i})")
             for s in tank.sensors:
                 if s in sensors:
                     raise ValueError(f"sensor {s!r} belongs to two tanks (tanks.{i})")

@@ -238,6 +238,8 @@ class Overrides:
             reply["note"] = f"manual once the robot's current job ends (it is {busy})"
         elif reply.get("ok") and asked and not cmd.on:
             reply["note"] = "the manual control asked for is withdrawn"
+        elif reply.get("ok") and not cmd.on and busy != "manual":
+            reply["note"] = f"nothing to release: the robot is not in manual (it is {busy})"
         return reply
 
     async def feed(self, payload, by: str | None = None) -> dict:

@@ -42,9 +42,10 @@ def setup_logging(clock, level: str) -> None:
               help="stop after S farm seconds (default: run until stopped)")
 @click.option("--speed", type=SPEED, default=1.0, show_default=True,
               help="simulated time runs X times faster than real time (simulated devices only)")
-@click.option("--epoch-wall", type=Finite(), default=None, hidden=True)
-@click.option("--epoch-farm", type=Finite(), default=None, hidden=True)
-@click.option("--clock", "clock_path", type=click.Path(dir_okay=False, exists=True), default=None, hidden=True,
+@click.option("--epoch-wall", type=Finite(), default=None,
+              help="wall time (Unix s) at which farm time is --epoch-farm: a restart continues farm time")
+@click.option("--epoch-farm", type=Finite(), default=None, help="farm time (Unix s) at --epoch-wall")
+@click.option("--clock", "clock_path", type=click.Path(dir_okay=False, exists=True), default=None,
               help="an elastic clock file shared with the simulator (devices/elastic_clock.py)")
 @click.option("--log-level", default="info", show_default=True,
               type=click.Choice(["debug", "info", "warning", "error"], case_sensitive=False))

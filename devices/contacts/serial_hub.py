@@ -164,7 +164,7 @@ class SerialContactHub(ContactSensors):
         batch = self._batch
         for raw in lines:
             m = LINE.fullmatch(raw.rstrip(b"\r"))
-            if m is None or int(m[7], 16) != checksum(m[1]):
+            if m is None or int(m[7], 16) != checksum(m[1]) or int(m[2] or m[5]) > 65535:   # seq: 0..65535
                 if raw.strip():
                     self.malformed += 1
                 continue

@@ -277,3 +277,13 @@ def test_a_settle_id_is_one_line_like_every_text_an_operator_sends(control):
     with pytest.raises(Refused, match="^id: control characters"):
         parse(Settle, {"id": f"1a{control}b", "grams": 0.0})
     assert parse(Settle, {"id": "1a2b", "grams": 0.0}).id == "1a2b"
+
+
+@pytest.mark.parametrize("state", ["estop", "idle", "moving"])
+def test_manual_off_when_the_robot_is_not_in_manual_says_so(farm, state):
+    """It answered a bare ok during an e-stop, as if something had been released."""
+    farm.robot.state = state
+    assert apply(farm, "manual", {"on": False}) == {
+        "ok": True, "note": f"nothing to release: the robot is not in manual (it is {state})"}
+    farm.robot.state = "manual"
+    assert apply(farm, "manual", {"on": False}) == {"ok": True}

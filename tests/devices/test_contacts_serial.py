@@ -263,3 +263,14 @@ def test_sim_tanks_reach_the_driver_whole_and_in_order():
     assert len({sensor for _, sensor in made[:upto_window]}) > 8        # most tanks spoke
     assert len(got) >= upto_window
     assert [(c.t, c.sensor) for c in got] == made[:len(got)]
+
+
+def test_a_sequence_number_beyond_the_protocol_s_16_bits_is_a_malformed_line():
+    """``seq`` is 0..65535 (serial_hub.py's protocol): 99999 was taken as a valid contact."""
+    dev = SerialContactHub("contacts", Config(kind="contacts", driver="serial", port="/dev/null"), None)
+
+    def line(kind: str, seq: int) -> bytes:
+        body = f"C,{seq},T1-a,1780000000000".encode() if kind == "C" else f"H,{seq},1780000000000".encode()
+        return b"$" + body + b"*%02X" % checksum(body)
+    dev._parse([line("C", 65535), line("C", 65536), line("H", 99999), line("C", 0)])
+    assert (dev.lines, dev.malformed, [c.sensor for c in dev._batch]) == (2, 2, ["T1-a", "T1-a"])
