@@ -22,5 +22,9 @@ class Finite(click.FloatRange):
             self.fail(f"{value} is not a finite number", param, ctx)
         return rv
 
+    def _describe_range(self) -> str:
+        # no bounds: no "[x<=None]" in the help
+        return "" if self.min is None and self.max is None else super()._describe_range()
+
 
 SPEED = Finite(min=0, min_open=True, max=MAX_SPEED)
