@@ -59,6 +59,12 @@ def test_unknown_species(tmp_path):
     assert r.stderr.strip().startswith(f"fishfarm: {cfg}: tanks.0.species: unknown species 'tuna'")
 
 
+def BUS() -> str:  # noqa: N802 - a section, like TANK
+    """A [bus] of its own: a run that opens its bus must not meet another test's on 7447."""
+    from hil_tests.ports import free_port
+    return f'[bus]\nlisten = ["tcp/127.0.0.1:{free_port()}"]\n'
+
+
 DEVICES = "".join(f'[devices.{k}]\nkind = "{k}"\ndriver = "sim"\n' for k in ("contacts", "rail", "dispenser"))
 
 
@@ -102,7 +108,7 @@ def test_a_bad_key_in_any_section_is_one_line_before_the_simulator_starts(tmp_pa
 def test_duration_ends_a_run_whose_devices_never_open(tmp_path):
     """A device that never opens kept the start retrying: --duration 2 ran until killed at 60 s."""
     cfg = tmp_path / "farm.toml"
-    cfg.write_text(f'[store]\npath = "{tmp_path / "ledger.db"}"\n' + TANK
+    cfg.write_text(f'[store]\npath = "{tmp_path / "ledger.db"}"\n' + BUS() + TANK
                    + '[devices.contacts]\nkind = "contacts"\ndriver = "serial"\nport = "/dev/no-such-hub"\n'
                    + '[devices.rail]\nkind = "rail"\ndriver = "can"\ninterface = "virtual"\nchannel = "nobody"\n'
                    + '[devices.dispenser]\nkind = "dispenser"\ndriver = "modbus"\nhost = "127.0.0.1"\nport = 9\n')
@@ -115,7 +121,7 @@ def test_a_duration_shorter_than_a_slow_start_still_runs_the_controller(tmp_path
     """The start is waited for when no device has failed to open: a duration shorter than the
     simulator's start ended runs that never came up (exit 0, nothing done)."""
     cfg = tmp_path / "farm.toml"
-    cfg.write_text(f'[store]\npath = "{tmp_path / "ledger.db"}"\n' + TANK + DEVICES)
+    cfg.write_text(f'[store]\npath = "{tmp_path / "ledger.db"}"\n' + BUS() + TANK + DEVICES)
     r = fishfarm("run", "--config", str(cfg), "--no-console", "--duration", "0.01", timeout=60)
     assert r.returncode == 0, r.stderr
     assert "controller for site demo up" in r.stderr and "still starting" not in r.stderr
