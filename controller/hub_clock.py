@@ -23,7 +23,7 @@ class HubClock:
         """The time a contact stamped ``t`` by the hub is counted at."""
         now = self.clock.now()
         skew = t - now
-        if abs(self.clock.wall(abs(skew))) <= SKEW_WALL_S:
+        if self.clock.wall(abs(skew)) <= SKEW_WALL_S:
             if self.off:
                 self.off = False
                 self.alarms.clear(f"device/{self.hub}", "the hub's clock agrees again", kind="clock")

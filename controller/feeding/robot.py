@@ -276,15 +276,13 @@ class FeedingRobot(Recovering):
         await self._move_to(self.cfg.tank(job.tank).position_m)
         self.arrive_tank()
         portion = self.dispensing.portion(job.tank, job.grams)   # the day may have turned on the way
-        if job.tank in self.paused:           # paused on the way: an operator told ok is not fed after all
-            self._finish(job, "paused")
-        elif portion > 0:
+        if portion > 0:
             try:
                 self._served(job, await self.dispensing.run(job.tank, portion, job.source, job.demand_id, job.t))
             except AugerJammed as jam:        # part of a portion went in: the demand was served by it
                 self._served(job, jam.feed)
                 raise
-            except Withdrawn:
+            except Withdrawn:                 # paused on the way or at the tank: not fed after all
                 log.info("portion for %s not started: the tank was paused", job.tank)
                 self._finish(job, "paused")
         else:

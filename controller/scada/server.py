@@ -188,23 +188,23 @@ class _Connection(ServerRequestHandler):
         closed."""
         now = self.last_heard = time.monotonic()
         used = 0
-        while used < len(data):
-            rest = data[used:]
-            if broken_mbap(rest):
+        while used + 6 <= len(data):           # frame by frame, each sliced alone (not the rest: quadratic)
+            head = data[used:used + 6]
+            if broken_mbap(head):
                 self.server.broken += 1
                 log.debug("scada: %s sent a broken MBAP header; dropped", self.peer)
                 self.close()
                 return len(data)
-            if len(rest) >= 6 and self.server.urgent is not None and self.server.estop_frame(
-                    rest[:6 + int.from_bytes(rest[4:6], "big")]):
+            end = used + 6 + int.from_bytes(head[4:6], "big")
+            if end > len(data):
+                break                          # not whole yet
+            frame = data[used:end]
+            if self.server.urgent is not None and self.server.estop_frame(frame):
                 self.tripped += 1
                 self.server.urgent()       # the latches now, before pymodbus parses the request
-            n = self._take(rest, addr)
-            if n is None:
+            if self._take(frame, addr) is None:
                 return len(data)
-            if n == 0:
-                break
-            used += n
+            used = end
         if used:
             self.frame_started = None
         if used < len(data) and self.frame_started is None:
@@ -219,14 +219,14 @@ class _Connection(ServerRequestHandler):
             self.answering = asyncio.ensure_future(self._answer_waiting())
         return used
 
-    def _take(self, frame: bytes, addr) -> int | None:
-        """One frame off the front: its length (0: not whole yet); None when the connection is closed."""
+    def _take(self, frame: bytes, addr) -> bool | None:
+        """One whole frame, queued; None when the connection is closed."""
         try:
-            used = TransactionManager.callback_data(self, frame, addr)
-        except ModbusIOException as exc:         # as pymodbus answers it; that frame only is taken
+            TransactionManager.callback_data(self, frame, addr)
+        except ModbusIOException as exc:         # as pymodbus answers it
             self.waiting.append((ExceptionResponse(exc.fcode or 0, ExcCodes.ILLEGAL_FUNCTION,
                                                    device_id=exc.dev_id, transaction=exc.transaction_id), addr))
-            return min(len(frame), 6 + int.from_bytes(frame[4:6], "big"))
+            return True
         except Exception as exc:     # a frame pymodbus cannot take apart: this client only loses
             self.server.broken += 1
             log.debug("scada: %s: undecodable frame (%s); dropped", self.peer, exc)
@@ -235,7 +235,7 @@ class _Connection(ServerRequestHandler):
         if self.last_pdu is not None:
             self.waiting.append((self.last_pdu, addr))
             self.last_pdu = None
-        return used
+        return True
 
     async def _answer_waiting(self) -> None:
         try:

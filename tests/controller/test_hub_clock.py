@@ -38,11 +38,11 @@ def episode(start: float, seconds: float = 120.0):
     return [(start + i, "T1-a" if i % 2 else "T1-b") for i in range(int(seconds))]
 
 
-def demands_within(contacts, stamp, until: float) -> list[float]:
-    """The demand times of ``contacts`` [(true t, hub stamp)] fed in order, as the controller does."""
+def demands_within(contacts, clock: Clock, stamp, until: float) -> list[float]:
+    """The demand times of ``contacts`` [(true t, hub stamp, sensor)] fed in order, as the controller does."""
     f = DemandFilter(None, {"T1": ["T1-a", "T1-b"]})
-    clock, out = contacts[0][2], []
-    for true_t, hub_t, _, sensor in contacts:
+    out = []
+    for true_t, hub_t, sensor in contacts:
         clock.t = true_t
         out += [e.t for e in f.on_time(true_t) if isinstance(e, Demand)]
         out += [e.t for e in f.on_contact(stamp(hub_t), "T1", sensor) if isinstance(e, Demand)]
@@ -53,10 +53,10 @@ def demands_within(contacts, stamp, until: float) -> list[float]:
 def test_one_stamp_far_ahead_and_a_clock_stepped_back_do_not_blind_the_tank():
     clock, alarms = Clock(T0), Alarms()
     hub = HubClock(clock, alarms, "hub")
-    glitch = [(T0 + 10.0, T0 + 610.0, clock, "T1-a")]                   # one line 600 s ahead
-    first = [(t, t, clock, s) for t, s in episode(T0 + 30.0)]
-    stepped = [(t, t - 300.0, clock, s) for t, s in episode(T0 + 1000.0)]   # the hub's clock 300 s back
-    caught = demands_within(glitch + first + stepped, hub.stamp, T0 + 1200.0)
+    glitch = [(T0 + 10.0, T0 + 610.0, "T1-a")]                          # one line 600 s ahead
+    first = [(t, t, s) for t, s in episode(T0 + 30.0)]
+    stepped = [(t, t - 300.0, s) for t, s in episode(T0 + 1000.0)]         # the hub's clock 300 s back
+    caught = demands_within(glitch + first + stepped, clock, hub.stamp, T0 + 1200.0)
     in_first = [t for t in caught if T0 + 30 <= t <= T0 + 90]
     in_stepped = [t for t in caught if T0 + 1000 <= t <= T0 + 1060]
     assert in_first and in_stepped, caught                            # both within 60 s of their start
