@@ -10,6 +10,7 @@ from __future__ import annotations
 import math
 import re
 import tomllib
+from itertools import pairwise
 from pathlib import Path
 from typing import Annotated, Any, Literal
 
@@ -216,6 +217,19 @@ class Config(Strict):
                     raise ValueError(f"sensor {s!r} belongs to two tanks (tanks.{i})")
                 sensors.add(s)
         return tanks
+
+    @model_validator(mode="after")
+    def _tanks_apart(self):
+        # the robot "at" one tank would be at the other too: a portion for one lands in either
+        near = 2 * self.feeding.position_tolerance_m
+        placed = sorted((t.position_m, i) for i, t in enumerate(self.tanks))
+        for (a, i), (b, j) in pairwise(placed):
+            if b - a < near:
+                k, other = max(i, j), min(i, j)
+                raise ValueError(f"tanks.{k}.position_m puts tank {self.tanks[k].id!r} {b - a:g} m from tank "
+                                 f"{self.tanks[other].id!r}, closer than twice feeding.position_tolerance_m "
+                                 f"({near:g} m): the robot at one would be at both")
+        return self
 
     @model_validator(mode="after")
     def _devices_known(self):

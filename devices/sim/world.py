@@ -14,6 +14,7 @@ import asyncio
 import logging
 import random
 import tempfile
+from itertools import pairwise
 from pathlib import Path
 from typing import Any
 
@@ -71,7 +72,27 @@ def check_sim(cfg: Any) -> SimSection:
         params = validate_section(model, getattr(section, key), cfg.path, f"sim.{key}")
         if key == "pond":
             check_robot(params.robot, cfg.path)
+        if key == "rail" and any(s.get("kind") == "rail" and s.get("driver") == "sim" for s in cfg.devices.values()):
+            _check_on_rail(cfg, params)
     return section
+
+
+def _check_on_rail(cfg: Any, rail: SimRailParams) -> None:
+    """Every tank and the food box lie on the simulated rail, and no two tank mouths overlap (food
+    under the chute would be credited to the first tank found there)."""
+    stops = [(t.position_m, f"tanks.{i}.position_m", f"tank {t.id!r}") for i, t in enumerate(cfg.tanks)]
+    stops.append((cfg.feeding.food_box_m, "feeding.food_box_m", "the food box"))
+    for position, key, what in stops:
+        if position > rail.rail_length_m:
+            raise BadInput(cfg.path, key, f"{what} at {position:g} m is beyond the simulated rail's end "
+                                          f"(sim.rail.rail_length_m = {rail.rail_length_m:g} m)")
+    placed = sorted((t.position_m, i) for i, t in enumerate(cfg.tanks))
+    for (a, i), (b, j) in pairwise(placed):
+        if b - a < 2 * TANK_MOUTH_M:
+            k = max(i, j)
+            raise BadInput(cfg.path, f"tanks.{k}.position_m",
+                           f"tank {cfg.tanks[k].id!r} is {b - a:g} m from tank {cfg.tanks[min(i, j)].id!r}: the "
+                           f"simulated tanks' mouths ({TANK_MOUTH_M:g} m each side) would overlap")
 
 
 class SimFarm:

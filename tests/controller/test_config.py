@@ -49,6 +49,11 @@ def test_minimal_config_defaults(tmp_path):
     (GOOD + '[devices.r]\nkind = "rail"\ndriver = "telepathy"\n', "devices.r.driver: driver must be one of"),
     (GOOD + '[devices.d]\nkind = "dispenser"\ndriver = "sim"\nprot = 5\n', "devices.d.prot: unknown key"),
     ("site = 's1'\n[[tanks]\n", "not valid TOML"),
+    (GOOD + '[[tanks]]\nid = "B"\nstock = 1\nmean_weight_g = 1\nposition_m = 1.05\nsensors = ["B"]\n',
+     "tanks.1.position_m: puts tank 'B' 0.05 m from tank 'A', closer than twice feeding.position_tolerance_m (0.1 m)"),
+    (GOOD.replace("position_m = 1", "position_m = 9") + '[feeding]\nposition_tolerance_m = 0.5\n[[tanks]]\nid = "B"\n'
+     'stock = 1\nmean_weight_g = 1\nposition_m = 8.2\nsensors = ["B"]\n',
+     "tanks.1.position_m: puts tank 'B' 0.8 m from tank 'A'"),
 ])
 def test_bad_config_names_file_key_and_reason(tmp_path, text, where):
     p = write(tmp_path, text)
@@ -56,6 +61,11 @@ def test_bad_config_names_file_key_and_reason(tmp_path, text, where):
         load_config(p)
     msg = str(exc.value)
     assert msg.startswith(str(p)) and where in msg and "\n" not in msg
+
+
+def test_tanks_twice_the_position_tolerance_apart_load(tmp_path):
+    text = GOOD + '[[tanks]]\nid = "B"\nstock = 1\nmean_weight_g = 1\nposition_m = 1.1\nsensors = ["B"]\n'
+    assert [t.position_m for t in load_config(write(tmp_path, text)).tanks] == [1.0, 1.1]
 
 
 def test_a_byte_order_mark_is_no_fault(tmp_path):

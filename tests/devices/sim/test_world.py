@@ -11,10 +11,11 @@ import pytest
 
 from controller.config import Config, FeedingConfig, TankConfig
 from devices.clock import ManualClock
+from devices.errors import BadInput
 from devices.rail.can_frames import Command, Op, Reason
 from devices.sim.dispenser import DispenserPhysics, SimDispenserParams
 from devices.sim.truth import TruthLog
-from devices.sim.world import FOOD_BOX_M, TANK_MOUTH_M, SimFarm
+from devices.sim.world import FOOD_BOX_M, TANK_MOUTH_M, SimFarm, check_sim
 
 RATE, ACCEL, VMAX = 10.0, 0.5, 1.0
 TANKS = {"A": 3.0, "B": 4.0}
@@ -119,3 +120,39 @@ def test_the_old_point_callbacks_still_work():
     physics.set_gate(True)
     clock.advance(1.0)
     assert physics.hopper_g == pytest.approx(6000.0 - RATE * 3.0 + 400.0)
+
+
+def _rail_farm(positions: dict[str, float], food_box_m: float = 0.0, rail: dict | None = None,
+               driver: str = "sim") -> Config:
+    tanks = [TankConfig(id=tid, stock=1000, mean_weight_g=50, position_m=pos, sensors=[f"{tid}-a"])
+             for tid, pos in positions.items()]
+    return Config(tanks=tanks, feeding=FeedingConfig(food_box_m=food_box_m), path="<test>",
+                  devices={"rail": {"kind": "rail", "driver": driver}}, sim={"rail": rail or {}})
+
+
+@pytest.mark.parametrize("positions, box, rail, key", [
+    ({"A": 3.0, "B": 22.5}, 0.0, {}, "tanks.1.position_m: tank 'B' at 22.5 m is beyond the simulated rail's end"),
+    ({"A": 3.0, "B": 9.0}, 8.5, {"rail_length_m": 8.0},
+     "tanks.1.position_m: tank 'B' at 9 m is beyond the simulated rail's end (sim.rail.rail_length_m = 8 m)"),
+    ({"A": 3.0}, 12.0, {"rail_length_m": 10.0}, "feeding.food_box_m: the food box at 12 m is beyond"),
+    ({"A": 5.0, "B": 3.0, "C": 5.0 - 2 * TANK_MOUTH_M + 0.01}, 0.0, {},
+     "tanks.2.position_m: tank 'C' is 0.59 m from tank 'A': the simulated tanks' mouths (0.3 m each side) would"),
+])
+def test_tanks_and_the_food_box_off_the_simulated_rail_or_overlapping_are_refused(positions, box, rail, key):
+    """A tank beyond the rail's soft limit was a robot driving into the limit for good; two tanks
+    whose chute mouths overlap had one's food credited to the other."""
+    with pytest.raises(BadInput) as exc:
+        check_sim(_rail_farm(positions, box, rail))
+    assert str(exc.value).startswith("<test>: ") and key in str(exc.value)
+
+
+@pytest.mark.parametrize("positions, box, rail", [
+    ({"A": 3.0, "B": 22.0}, 22.0, {}),                                  # at the end itself
+    ({"A": 3.0, "B": 3.0 + 2 * TANK_MOUTH_M}, 0.0, {"rail_length_m": 4.0}),   # mouths touching
+])
+def test_tanks_on_the_rail_and_apart_pass(positions, box, rail):
+    check_sim(_rail_farm(positions, box, rail))
+
+
+def test_a_real_rail_is_not_held_to_the_simulated_one():
+    check_sim(_rail_farm({"A": 3.0, "B": 40.0}, driver="can"))
