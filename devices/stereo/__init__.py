@@ -16,6 +16,7 @@ CALIB.json, loaded when the section is validated (a bad file is bad input, not a
 from __future__ import annotations
 
 import abc
+import asyncio
 from dataclasses import dataclass
 
 import numpy as np
@@ -46,18 +47,31 @@ class StereoCamera(Device):
     _streaming: bool = False
 
     async def start(self) -> None:
-        """Start streaming (the survey stop begins). LinkDown when the source cannot be opened."""
+        """Start streaming (the survey stop begins). LinkDown when the source cannot be opened.
+        Starts and stops run one at a time, in the order asked: a second start while the first is
+        still opening the sources waits for it (two at once opened the sources twice and the first
+        streams were never closed: 209 reader threads and 6 GB in one probe's controller), and a
+        stop asked meanwhile stops what that start opened."""
         if not self._opened or self._closed:
             raise RuntimeError(f"{self.name}: start() on a camera that is not open")
-        if not self._streaming:
-            await self._start()
-            self._streaming = True
+        async with self._power():
+            if not self._streaming:
+                await self._start()
+                self._streaming = True
 
     async def stop(self) -> None:
         """Stop streaming; safe to call when not streaming."""
-        if self._streaming:
-            self._streaming = False
-            await self._stop()
+        async with self._power():
+            if self._streaming:
+                self._streaming = False
+                await self._stop()
+
+    def _power(self) -> asyncio.Lock:
+        if self._power_lock is None:
+            self._power_lock = asyncio.Lock()
+        return self._power_lock
+
+    _power_lock: asyncio.Lock | None = None
 
     async def read(self) -> StereoPair:
         """The newest pair not returned before; waits up to the backend's read timeout (wall).

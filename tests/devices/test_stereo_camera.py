@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import asyncio
 import json
+import threading
 import types
 
 import numpy as np
@@ -138,3 +139,41 @@ def test_a_tank_that_keeps_its_fish_as_individuals_is_drawn_from_them():
     assert weight == pytest.approx(tank.stock.w.mean(), rel=0.05)
     assert length == pytest.approx(lengths.mean(), rel=0.02) and cv == pytest.approx(lengths.std() / lengths.mean(),
                                                                                       rel=0.15)
+
+
+def _readers(name: str) -> int:
+    return sum(1 for t in threading.enumerate() if t.name.startswith(f"{name}/") and t.is_alive())
+
+
+def test_starts_and_stops_asked_at_once_open_one_stream_and_leave_none(tmp_path):
+    """A survey visit left while its start was still opening; the next visit's start went on after
+    60 s without waiting longer: two starts at once opened the sources twice, and the first
+    stream was never closed (a probe's controller held 209 reader threads and 6 GB)."""
+    async def main():
+        clock = ManualClock(t=1000.0)
+        params = SimStereoCameraParams(width=W, height=H, fps=20, fish_in_view=(1, 1), focal_px=1400)
+        view = TankView(params, {"T1": a_tank(100, 200.0)}, lambda t: "T1")
+        served = SimTowerCamera(view.render, clock, {"fps": params.fps, "jpeg_quality": 95, **frame_size(params)})
+        served.start()
+        cfg = validate({"kind": "stereo_camera", "driver": "capture", "sources": [served.url],
+                        "layout": "side_by_side", "calib": view.write_calibration(tmp_path / "CALIB.json"),
+                        "api": "ffmpeg"})
+        cam = CaptureStereo("stereo-once", cfg, clock)
+        await cam.open()
+        seen = []
+        try:
+            for _ in range(2):
+                await asyncio.gather(cam.start(), cam.start(), cam.start())
+                seen.append(_readers("stereo-once"))
+                await cam.read()
+                # a stop asked while a start is opening stops what that start opened
+                await asyncio.gather(cam.start(), cam.stop())
+                await asyncio.sleep(0)
+                seen.append((cam.streaming, _readers("stereo-once")))
+                await cam.stop()
+                seen.append(_readers("stereo-once"))
+        finally:
+            await cam.close()
+            served.stop()
+        return seen
+    assert asyncio.run(main()) == [1, (False, 0), 0] * 2
