@@ -23,41 +23,21 @@ Bad input exits 2 with one line naming the file, the field and the fault (contro
 """
 from __future__ import annotations
 
-import json
 import re
 from pathlib import Path
 
 import click
 import numpy as np
 
+from controller.cli.calib_opencv_file import OPENCV_NAMES, opencv_fields, opencv_json, opencv_size
+from controller.cli.calib_tables import dlt_table, numbers_table, p34_json, p34_text, strip_row_index
 from controller.cli.stereomorph_file import is_stereomorph_file, read_stereomorph
 from controller.errors import BadInput
 from vision.calib_import import UNITS_MM
 
 FORMATS = ("auto", "opencv", "stereomorph", "p34")
-RECTIFIED = {"q", "r1", "r2"}              # stereoRectify's outputs (keys as _key gives them)
 GZIP_MAGIC = b"\x1f\x8b"
 PLAUSIBLE_BASELINE_MM = (20.0, 3000.0)     # outside: most likely a wrong --units (warned, not refused)
-# CALIB.json field -> names other tools give it (compared without case, "_" and "-")
-OPENCV_NAMES = {
-    "K1": ("K1", "M1", "cameraMatrix1", "camera_matrix1", "cameraMatrixL", "cameraMatrixLeft",
-           "left_camera_matrix", "leftCameraMatrix", "mtxL", "mtx1", "KL", "K_left"),
-    "D1": ("D1", "distCoeffs1", "dist_coeffs1", "distortion1", "distCoeffsL", "distCoeffsLeft",
-           "left_distortion", "leftDistCoeffs", "distL", "dist1", "DL", "D_left"),
-    "K2": ("K2", "M2", "cameraMatrix2", "camera_matrix2", "cameraMatrixR", "cameraMatrixRight",
-           "right_camera_matrix", "rightCameraMatrix", "mtxR", "mtx2", "KR", "K_right"),
-    "D2": ("D2", "distCoeffs2", "dist_coeffs2", "distortion2", "distCoeffsR", "distCoeffsRight",
-           "right_distortion", "rightDistCoeffs", "distR", "dist2", "DR", "D_right"),
-    "R": ("R", "rotation", "R_stereo", "stereo_R"),
-    "T": ("T", "translation", "T_stereo", "stereo_T"),
-    "image_size": ("imageSize", "image_size", "img_size", "size"),
-    "image_width": ("image_width", "imageWidth", "width"),
-    "image_height": ("image_height", "imageHeight", "height"),
-}
-
-
-def _key(name: str) -> str:
-    return re.sub(r"[_\-]", "", name).lower()
 
 
 def _size_option(ctx, param, value):
@@ -80,145 +60,6 @@ def _read_text(path: str) -> str:
         raise BadInput(path, None, f"cannot read: {exc.strerror or exc}") from None
 
 
-def _number(token: str) -> float | None:
-    try:
-        value = float(token.strip("\"'"))
-    except ValueError:
-        return None
-    return value
-
-
-def _numbers_table(path: str, text: str) -> list[list[float]]:
-    """Rows of numbers: '#' comments and blank lines skipped, a header (no number in it) skipped,
-    a leading row name (quoted, or a word, or R's row index before two columns) dropped."""
-    rows = []
-    for lineno, line in enumerate(text.splitlines(), 1):
-        tokens = [t for t in re.split(r"[\s,;]+", line.split("#", 1)[0].strip()) if t]
-        if not tokens:
-            continue
-        values = [_number(t) for t in tokens]
-        if all(v is None for v in values):
-            if rows:
-                raise BadInput(path, f"line {lineno}", f"no number in {line.strip()[:40]!r} after the data began")
-            continue                                   # a header
-        if values[0] is None or (tokens[0][0] in "\"'"):
-            tokens, values = tokens[1:], values[1:]    # a row name
-        bad = [t for t, v in zip(tokens, values, strict=True) if v is None or not np.isfinite(v)]
-        if bad:
-            raise BadInput(path, f"line {lineno}", f"{bad[0]!r} is not a finite number")
-        rows.append(values)
-    return rows
-
-
-def _strip_row_index(rows: list[list[float]]) -> list[list[float]]:
-    """Rows without R's row index 1..11 (write.table with unquoted row names) before two columns."""
-    if len(rows) == 11 and {len(r) for r in rows} == {3} and [r[0] for r in rows] == list(range(1, 12)):
-        return [r[1:] for r in rows]
-    return rows
-
-
-def _dlt_table(path: str, rows: list[list[float]]) -> np.ndarray:
-    table = np.array(rows, dtype=float) if len({len(r) for r in rows}) == 1 else None
-    if table is not None and table.shape == (2, 11):
-        table = table.T
-    if table is None or table.shape != (11, 2):
-        shape = "ragged rows" if table is None else f"{table.shape[0]} rows x {table.shape[1]} columns"
-        raise BadInput(path, "coefficients", f"{shape}: expected 11 DLT coefficients x 2 cameras "
-                                             "(one column per camera)")
-    return table
-
-
-def _p34_text(path: str, rows: list[list[float]]) -> tuple[np.ndarray, np.ndarray]:
-    values = np.array([v for r in rows for v in r], dtype=float)
-    if values.size != 24:
-        raise BadInput(path, "P1, P2", f"{values.size} numbers: expected 24 (two 3x4 matrices, P1 then P2)")
-    return values[:12].reshape(3, 4), values[12:].reshape(3, 4)
-
-
-def _p34_json(path: str, text: str):
-    try:
-        data = json.loads(text)
-    except json.JSONDecodeError as exc:
-        raise BadInput(path, None, f"not valid JSON: {exc}") from None
-    if not isinstance(data, dict):
-        raise BadInput(path, None, "expected a JSON object with P1 and P2")
-    mats = []
-    for name in ("P1", "P2"):
-        if data.get(name) is None:
-            raise BadInput(path, name, "missing")
-        try:
-            mats.append(np.asarray(data[name], dtype=float))
-        except (TypeError, ValueError):
-            raise BadInput(path, name, "not a numeric 3x4 matrix") from None
-    size = data.get("image_size")
-    if size is not None and not (isinstance(size, list) and len(size) == 2
-                                 and all(isinstance(s, int) and not isinstance(s, bool) and s > 0 for s in size)):
-        raise BadInput(path, "image_size", "expected [width, height] in pixels")
-    return mats[0], mats[1], None if size is None else tuple(size)
-
-
-def _node_array(node) -> np.ndarray | None:
-    """A matrix node (!!opencv-matrix / type_id="opencv-matrix"), a list of numbers, a list of
-    equally long lists of numbers (rows, as a JSON file written by hand has them) or a number."""
-    if node.isSeq():
-        items = [node.at(i) for i in range(node.size())]
-        if all(i.isReal() or i.isInt() for i in items):
-            return np.array([i.real() for i in items], dtype=float)
-        rows = [_node_array(i) if i.isSeq() else None for i in items]
-        if not rows or any(r is None or r.ndim != 1 or len(r) != len(rows[0]) for r in rows):
-            return None
-        return np.array(rows)
-    if node.isReal() or node.isInt():
-        return np.array(node.real(), dtype=float)
-    if node.isMap():
-        try:
-            mat = node.mat()
-        except Exception:         # cv2.error on a map that is not a matrix
-            return None
-        return None if mat is None else np.asarray(mat, dtype=float)
-    return None
-
-
-def _opencv_fields(paths: list[str]) -> tuple[dict, dict]:
-    """CALIB field -> array from one or more FileStorage files; and which file gave each."""
-    import cv2
-
-    found, source = {}, {}
-    for path in paths:
-        if not Path(path).is_file():
-            raise BadInput(path, None, "no such file")
-        try:
-            fs = cv2.FileStorage(path, cv2.FILE_STORAGE_READ)
-        except Exception:         # cv2.error, or SystemError wrapping it, on a malformed file
-            fs = None
-        if fs is None or not fs.isOpened():
-            raise BadInput(path, None, "not an OpenCV FileStorage file (YAML or XML)")
-        try:
-            keys = {_key(k): k for k in fs.root().keys()}
-            for field, names in OPENCV_NAMES.items():
-                key = next((keys[_key(n)] for n in names if _key(n) in keys), None)
-                if key is None or field in found:
-                    continue
-                value = _node_array(fs.getNode(key))
-                if value is None:
-                    raise BadInput(path, key, "not a matrix or a list of numbers")
-                found[field], source[field] = value, f"{path}: {key}"
-        finally:
-            fs.release()
-    return found, source
-
-
-def _opencv_size(found: dict, source: dict):
-    if "image_size" in found:
-        size = found["image_size"].reshape(-1)
-        if size.size != 2:
-            raise BadInput(source["image_size"], None, f"{size.size} values, expected [width, height]")
-        return float(size[0]), float(size[1])          # whole pixels: vision.calib_import checks
-    if "image_width" in found and "image_height" in found:
-        return float(found["image_width"].reshape(-1)[0]), float(found["image_height"].reshape(-1)[0])
-    return None
-
-
 def _gzipped(path: str) -> bool:
     """A gzip'd file (FileStorage reads .yml.gz / .xml.gz as they are)."""
     try:
@@ -234,27 +75,8 @@ def _detect(path: str, text: str | None) -> str:
     if suffix in (".yml", ".yaml", ".xml") or head.startswith(("%YAML", "<?xml", "<opencv_storage")):
         return "opencv"
     if suffix == ".json" or head.startswith("{"):
-        return "opencv" if _opencv_json(text) else "p34"
+        return "opencv" if opencv_json(text) else "p34"
     return "table"
-
-
-def _opencv_json(text: str | None) -> bool:
-    """JSON as OpenCV's FileStorage writes it (its matrices typed "opencv-matrix"; any P1/P2 there
-    are stereoRectify's), or a plain object naming K1/K2/R/T and no P1/P2."""
-    try:
-        doc = json.loads(text or "")
-    except ValueError:
-        return False
-    if not isinstance(doc, dict):
-        return False
-    if any(isinstance(v, dict) and v.get("type_id") == "opencv-matrix" for v in doc.values()):
-        return True
-    known = {_key(n) for field in ("K1", "K2", "R", "T") for n in OPENCV_NAMES[field]}
-    if not any(_key(k) in known for k in doc):
-        return False
-    # P1/P2 beside stereoRectify's own products (Q, R1, R2) are rectified: the cameras are in K, D, R, T.
-    # Without them, P1/P2 with K/R/T is CALIB.json's own form: the projections are the calibration
-    return not {"P1", "P2"} & set(doc) or bool(RECTIFIED & {_key(k) for k in doc})
 
 
 def _report(calib, fmt: str, paths, out: str) -> None:
@@ -336,19 +158,19 @@ def import_(inputs, out, fmt, units, square_mm, image_size, pixel_origin, y_up):
     where = first
     try:
         if kind == "opencv":
-            found, source = _opencv_fields(paths)
+            found, source = opencv_fields(paths)
             missing = [f for f in ("K1", "K2", "R", "T") if f not in found]
             if missing:
                 raise BadInput(", ".join(paths), missing[0],
                                f"missing (looked for {', '.join(OPENCV_NAMES[missing[0]][:4])}, ...)")
-            size = image_size or _opencv_size(found, source)
+            size = image_size or opencv_size(found, source)
             where = " + ".join(paths)
             calib = ci.from_opencv(found["K1"], found.get("D1"), found["K2"], found.get("D2"), found["R"],
                                    found["T"], mm_per_unit=mm, image_size=size, extra=extra)
         else:
             height = image_size[1] if image_size else None
             if kind == "p34" and text.lstrip().startswith("{"):
-                P1, P2, size = _p34_json(first, text)
+                P1, P2, size = p34_json(first, text)
                 size = image_size or size
                 height = size[1] if size else None
                 pixel = ci.pixel_transform(pixel_origin, y_up, height)
@@ -358,7 +180,7 @@ def import_(inputs, out, fmt, units, square_mm, image_size, pixel_origin, y_up):
                                       pixel=ci.pixel_transform(pixel_origin, y_up, height),
                                       image_size=image_size, extra=extra)
             else:
-                rows = _strip_row_index(_numbers_table(first, text))
+                rows = strip_row_index(numbers_table(first, text))
                 pixel = ci.pixel_transform(pixel_origin, y_up, height)
                 n = sum(len(r) for r in rows)
                 if kind == "table":
@@ -368,10 +190,10 @@ def import_(inputs, out, fmt, units, square_mm, image_size, pixel_origin, y_up):
                                                     "or 24 (two 3x4 matrices); give --format")
                     extra["format"] = kind
                 if kind == "stereomorph":
-                    calib = ci.from_dlt11(_dlt_table(first, rows), mm_per_unit=mm, pixel=pixel,
+                    calib = ci.from_dlt11(dlt_table(first, rows), mm_per_unit=mm, pixel=pixel,
                                           image_size=image_size, extra=extra)
                 else:
-                    P1, P2 = _p34_text(first, rows)
+                    P1, P2 = p34_text(first, rows)
                     calib = ci.from_projections(P1, P2, mm_per_unit=mm, pixel=pixel, image_size=image_size,
                                                 extra=extra)
     except CalibrationError as exc:
