@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import json
 import re
-from pathlib import Path
 
 import numpy as np
 
@@ -56,16 +55,15 @@ def node_array(node) -> np.ndarray | None:
     return None
 
 
-def opencv_fields(paths: list[str]) -> tuple[dict, dict]:
-    """CALIB field -> array from one or more FileStorage files; and which file gave each."""
+def opencv_fields(files: list[tuple[str, str]]) -> tuple[dict, dict]:
+    """CALIB field -> array from one or more FileStorage files (path, text: read once by the caller,
+    unpacked if gzip'd); and which file gave each."""
     import cv2
 
     found, source = {}, {}
-    for path in paths:
-        if not Path(path).is_file():
-            raise BadInput(path, None, "no such file")
+    for path, text in files:
         try:
-            fs = cv2.FileStorage(path, cv2.FILE_STORAGE_READ)
+            fs = cv2.FileStorage(text, cv2.FILE_STORAGE_READ | cv2.FILE_STORAGE_MEMORY)
         except Exception:         # cv2.error, or SystemError wrapping it, on a malformed file
             fs = None
         if fs is None or not fs.isOpened():

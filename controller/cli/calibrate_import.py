@@ -3,12 +3,13 @@
     fishfarm calibrate import --in FILE [--in FILE2] --out CALIB.json [--format auto|opencv|stereomorph|p34]
         [--units mm|cm|m|in | --square-mm MM] [--image-size WxH] [--pixel-origin zero|corner|one] [--y-up]
 
-Formats (``auto`` decides from the content):
+Formats (``auto`` decides from the content, not the name; each input is read whole, once, so pipes
+such as /dev/stdin or a shell's <(zcat f) work):
 - opencv: cv2.FileStorage YAML or XML from stereoCalibrate; several files are merged (OpenCV's
   stereo_calib sample writes intrinsics.yml and extrinsics.yml). Names are matched without case:
   K1 M1 cameraMatrix1 camera_matrix1 ...; D1 distCoeffs1 ...; R; T; image_width + image_height or
   imageSize / image_size [w, h]. Rectified P1/P2 in such files are ignored: they are for rectified
-  images, not the camera's own pixels. gzip'd FileStorage files (.yml.gz) are read as they are. A
+  images, not the camera's own pixels. gzip'd FileStorage files are unpacked, whatever their name. A
   JSON object with K1/K2/R/T is OpenCV's too where it has no P1/P2, or has stereoRectify's Q, R1
   or R2 beside them; with P1/P2 and none of those it is CALIB.json's own form (p34). T in board
   squares (OpenCV's stereo_calib sample): ``--square-mm`` the square's side.
@@ -23,7 +24,9 @@ Bad input exits 2 with one line naming the file, the field and the fault (contro
 """
 from __future__ import annotations
 
+import gzip
 import re
+import zlib
 from pathlib import Path
 
 import click
@@ -49,34 +52,47 @@ def _size_option(ctx, param, value):
     return int(m[1]), int(m[2])
 
 
-def _read_text(path: str) -> str:
+def _read_input(path: str) -> tuple[str, bool]:
+    """The input's text and whether it was gzip'd. Read whole, once: a pipe (/dev/stdin, a shell's
+    <(zcat f)) cannot be read twice, so gzip is sniffed in these bytes, by its magic whatever the name."""
     try:
-        return Path(path).read_text(encoding="utf-8-sig")
+        data = Path(path).read_bytes()
     except FileNotFoundError:
         raise BadInput(path, None, "no such file") from None
-    except UnicodeDecodeError:
-        raise BadInput(path, None, "not a text file") from None
     except OSError as exc:
         raise BadInput(path, None, f"cannot read: {exc.strerror or exc}") from None
-
-
-def _gzipped(path: str) -> bool:
-    """A gzip'd file (FileStorage reads .yml.gz / .xml.gz as they are)."""
+    gzipped = data[:2] == GZIP_MAGIC
+    if gzipped:
+        try:
+            data = gzip.decompress(data)
+        except (OSError, EOFError, zlib.error) as exc:
+            raise BadInput(path, None, f"gzip'd, but cannot be unpacked: {exc}") from None
     try:
-        with open(path, "rb") as f:
-            return f.read(2) == GZIP_MAGIC
-    except OSError:
-        return False                       # _read_text or FileStorage names the fault
+        text = data.decode("utf-8-sig")
+    except UnicodeDecodeError:
+        raise BadInput(path, None, "not a text file") from None
+    if not text.strip():
+        raise BadInput(path, None, "empty")
+    return text, gzipped
 
 
-def _detect(path: str, text: str | None) -> str:
-    suffix = Path(path).suffix.lower()
-    head = (text or "").lstrip()[:64]
-    if suffix in (".yml", ".yaml", ".xml") or head.startswith(("%YAML", "<?xml", "<opencv_storage")):
+# the first line of a YAML mapping (FileStorage reads YAML without its '%YAML' header)
+_YAML_KEY = re.compile(r"[A-Za-z_][\w.\-]*\s*:(\s|$)")
+
+
+def _detect(path: str, text: str) -> str:
+    """The format by content (a name says little: StereoMorph's file saved as .xml, a table as .yml)."""
+    head = text.lstrip()[:64]
+    if is_stereomorph_file(text):
+        return "stereomorph"
+    if head.startswith(("%YAML", "<?xml", "<opencv_storage")):
         return "opencv"
-    if suffix == ".json" or head.startswith("{"):
+    if head.startswith("{"):
         return "opencv" if opencv_json(text) else "p34"
-    return "table"
+    if head.startswith("["):
+        raise BadInput(path, None, "a JSON array: expected a JSON object (OpenCV's names, or P1 and P2)")
+    lines = [ln.strip() for ln in text.splitlines() if ln.strip() and not ln.lstrip().startswith(("#", "---"))]
+    return "opencv" if lines and _YAML_KEY.match(lines[0]) else "table"
 
 
 def _report(calib, fmt: str, paths, out: str) -> None:
@@ -127,12 +143,11 @@ def import_(inputs, out, fmt, units, square_mm, image_size, pixel_origin, y_up):
     first = paths[0]
     if square_mm is not None and units is not None:
         raise BadInput(first, "--square-mm", "give the world unit once: --units or --square-mm")
-    gzipped = _gzipped(first)
+    texts = {path: _read_input(path) for path in dict.fromkeys(paths)}
+    text, gzipped = texts[first]
     if gzipped and fmt not in ("auto", "opencv"):
         raise BadInput(first, "--format", f"{fmt}, but the file is gzip'd: only OpenCV FileStorage files "
                                           "are read compressed")
-    text = None if fmt == "opencv" or gzipped or Path(first).suffix.lower() in (".yml", ".yaml", ".xml") \
-        else _read_text(first)
     kind = "opencv" if gzipped else _detect(first, text) if fmt == "auto" else fmt
     stereomorph = None
     if kind in ("table", "stereomorph", "p34") and is_stereomorph_file(text):
@@ -158,7 +173,7 @@ def import_(inputs, out, fmt, units, square_mm, image_size, pixel_origin, y_up):
     where = first
     try:
         if kind == "opencv":
-            found, source = opencv_fields(paths)
+            found, source = opencv_fields([(p, texts[p][0]) for p in paths])
             missing = [f for f in ("K1", "K2", "R", "T") if f not in found]
             if missing:
                 raise BadInput(", ".join(paths), missing[0],
