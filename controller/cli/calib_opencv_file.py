@@ -11,22 +11,43 @@ import numpy as np
 from controller.errors import BadInput
 
 RECTIFIED = {"q", "r1", "r2"}              # stereoRectify's outputs (keys as name_key() gives them)
-# CALIB.json field -> names other tools give it (compared without case, "_" and "-")
-OPENCV_NAMES = {
-    "K1": ("K1", "M1", "cameraMatrix1", "camera_matrix1", "cameraMatrixL", "cameraMatrixLeft",
-           "left_camera_matrix", "leftCameraMatrix", "mtxL", "mtx1", "KL", "K_left"),
-    "D1": ("D1", "distCoeffs1", "dist_coeffs1", "distortion1", "distCoeffsL", "distCoeffsLeft",
-           "left_distortion", "leftDistCoeffs", "distL", "dist1", "DL", "D_left"),
-    "K2": ("K2", "M2", "cameraMatrix2", "camera_matrix2", "cameraMatrixR", "cameraMatrixRight",
-           "right_camera_matrix", "rightCameraMatrix", "mtxR", "mtx2", "KR", "K_right"),
-    "D2": ("D2", "distCoeffs2", "dist_coeffs2", "distortion2", "distCoeffsR", "distCoeffsRight",
-           "right_distortion", "rightDistCoeffs", "distR", "dist2", "DR", "D_right"),
-    "R": ("R", "rotation", "R_stereo", "stereo_R"),
-    "T": ("T", "translation", "T_stereo", "stereo_T"),
-    "image_size": ("imageSize", "image_size", "img_size", "size"),
-    "image_width": ("image_width", "imageWidth", "width"),
-    "image_height": ("image_height", "imageHeight", "height"),
-}
+# The words tools use for a camera matrix and its distortion (OpenCV's stereoCalibrate and samples,
+# ROS, MATLAB exports, hand-written files), each with the camera's tag after it (K1, camera_matrix_left,
+# distCoeffsL) or "left"/"right" before it (left_camera_matrix). One list for K and D alike: a
+# camera matrix found under a name whose distortion was not found lost D silently.
+_K_WORDS = ("K", "M", "cameraMatrix", "camera_matrix", "mtx", "intrinsics", "intrinsic_matrix")
+_D_WORDS = ("D", "distCoeffs", "dist_coeffs", "distortion", "distortion_coefficients", "dist",
+            "distCoeff", "distortion_coeffs")
+_TAGS = {1: ("1", "L", "left"), 2: ("2", "R", "right")}
+_TAGS_FROM_0 = {1: ("0",), 2: ("1",)}       # camera_matrix_0 / _1: cameras counted from 0
+
+
+def _camera_names(words: tuple[str, ...], tags: tuple[str, ...]) -> tuple[str, ...]:
+    return tuple(w + t for t in tags for w in words) + tuple(side + w for side in tags if len(side) > 2
+                                                             for w in words)
+
+
+def field_names(from_zero: bool = False) -> dict[str, tuple[str, ...]]:
+    """CALIB.json field -> names other tools give it (compared as name_key gives them)."""
+    tags = _TAGS_FROM_0 if from_zero else _TAGS
+    return {
+        "K1": _camera_names(_K_WORDS, tags[1]), "D1": _camera_names(_D_WORDS, tags[1]),
+        "K2": _camera_names(_K_WORDS, tags[2]), "D2": _camera_names(_D_WORDS, tags[2]),
+        "R": ("R", "rotation", "R_stereo", "stereo_R"),
+        "T": ("T", "translation", "T_stereo", "stereo_T"),
+        "image_size": ("imageSize", "image_size", "img_size", "size"),
+        "image_width": ("image_width", "imageWidth", "width"),
+        "image_height": ("image_height", "imageHeight", "height"),
+    }
+
+
+OPENCV_NAMES = field_names()
+# a key like these that no field took is distortion this import does not understand: refused, not dropped
+_DISTORTION_LIKE = re.compile(r"dist(?!ance)|distortion")
+_NOT_COEFFICIENTS = re.compile(r"model|type")
+# lens models other than OpenCV's pinhole + Brown-Conrady, as files name them (cv2.fisheye, ROS
+# "equidistant", Kannala-Brandt, omnidirectional): their 4 coefficients are not k1 k2 p1 p2
+_FISHEYE = re.compile(r"fish.?eye|equidistant|kannala|\bkb\d?\b|omni|double.?sphere|unified", re.I)
 
 
 def name_key(name: str) -> str:
@@ -55,31 +76,80 @@ def node_array(node) -> np.ndarray | None:
     return None
 
 
-def opencv_fields(files: list[tuple[str, str]]) -> tuple[dict, dict]:
-    """CALIB field -> array from one or more FileStorage files (path, text: read once by the caller,
-    unpacked if gzip'd); and which file gave each."""
+def _open(path: str, text: str):
     import cv2
 
-    found, source = {}, {}
+    try:
+        fs = cv2.FileStorage(text, cv2.FILE_STORAGE_READ | cv2.FILE_STORAGE_MEMORY)
+    except Exception:         # cv2.error, or SystemError wrapping it, on a malformed file
+        fs = None
+    if fs is None or not fs.isOpened():
+        raise BadInput(path, None, "not an OpenCV FileStorage file (YAML or XML)")
+    return fs
+
+
+def refuse_fisheye(path: str, items) -> None:
+    """(key, value) pairs: a string naming a fisheye model, or a key 'fisheye' set, is refused."""
+    for key, value in items:
+        said = value if isinstance(value, str) else ""
+        flag = "fisheye" in name_key(key) and isinstance(value, (int, float)) and value != 0
+        if _FISHEYE.search(said) or flag:
+            raise BadInput(path, key, f"{value!r}: a fisheye (equidistant) lens model, which is not supported: "
+                                      "only OpenCV's pinhole model (k1, k2, p1, p2[, k3 ...]) can be imported")
+
+
+def _scalars(fs, keys) -> list:
+    out = []
+    for key in keys:
+        node = fs.getNode(key)
+        out.append((key, node.string() if node.isString() else node.real() if node.isReal() or node.isInt()
+                    else None))
+    return out
+
+
+def _file_fields(path: str, fs) -> dict[str, tuple[str, np.ndarray]]:
+    """CALIB field -> (key, array) in one file; two keys for one field refused."""
+    keys = {name_key(k): k for k in fs.root().keys()}
+    from_zero = any(name_key(n) in keys for n in field_names(True)["K1"])
+    out = {}
+    for field, names in field_names(from_zero).items():
+        hits = list(dict.fromkeys(keys[name_key(n)] for n in names if name_key(n) in keys))
+        if len(hits) > 1:
+            raise BadInput(path, f"{hits[0]}, {hits[1]}", f"two names for {field}: give it once")
+        if hits:
+            value = node_array(fs.getNode(hits[0]))
+            if value is None:
+                raise BadInput(path, hits[0], "not a matrix or a list of numbers")
+            out[field] = hits[0], value
+    return out
+
+
+def _unknown_distortion(fs, taken: set[str]) -> list[str]:
+    return [k for k in fs.root().keys() if k not in taken and _DISTORTION_LIKE.search(name_key(k))
+            and not _NOT_COEFFICIENTS.search(name_key(k))]
+
+
+def opencv_fields(files: list[tuple[str, str]]) -> tuple[dict, dict]:
+    """CALIB field -> array from one or more FileStorage files (path, text: read once by the caller,
+    unpacked if gzip'd); and which file gave each. A field in two files must have one value."""
+    found, source, unknown = {}, {}, []
     for path, text in files:
+        fs = _open(path, text)
         try:
-            fs = cv2.FileStorage(text, cv2.FILE_STORAGE_READ | cv2.FILE_STORAGE_MEMORY)
-        except Exception:         # cv2.error, or SystemError wrapping it, on a malformed file
-            fs = None
-        if fs is None or not fs.isOpened():
-            raise BadInput(path, None, "not an OpenCV FileStorage file (YAML or XML)")
-        try:
-            keys = {name_key(k): k for k in fs.root().keys()}
-            for field, names in OPENCV_NAMES.items():
-                key = next((keys[name_key(n)] for n in names if name_key(n) in keys), None)
-                if key is None or field in found:
-                    continue
-                value = node_array(fs.getNode(key))
-                if value is None:
-                    raise BadInput(path, key, "not a matrix or a list of numbers")
-                found[field], source[field] = value, f"{path}: {key}"
+            refuse_fisheye(path, _scalars(fs, fs.root().keys()))
+            fields = _file_fields(path, fs)
+            unknown += [(path, k) for k in _unknown_distortion(fs, {k for k, _ in fields.values()})]
         finally:
             fs.release()
+        for field, (key, value) in fields.items():
+            if field in found and (found[field].shape != value.shape or not np.array_equal(found[field], value)):
+                raise BadInput(path, key, f"also in {source[field]}, with other values: give {field} once")
+            found.setdefault(field, value)
+            source.setdefault(field, f"{path}: {key}")
+    if unknown and {"K1", "K2"} <= set(found) and not {"D1", "D2"} <= set(found):
+        path, key = unknown[0]
+        raise BadInput(path, key, "looks like distortion, but is no name of D1 or D2 (D1, distCoeffs1, "
+                                  "distortion_coefficients_left, ...): rename it, or drop it if it is not")
     return found, source
 
 
@@ -89,7 +159,10 @@ def opencv_size(found: dict, source: dict):
         if size.size != 2:
             raise BadInput(source["image_size"], None, f"{size.size} values, expected [width, height]")
         return float(size[0]), float(size[1])          # whole pixels: vision.calib_import checks
-    if "image_width" in found and "image_height" in found:
+    if "image_width" in found or "image_height" in found:
+        for given, missing in (("image_width", "image_height"), ("image_height", "image_width")):
+            if missing not in found:
+                raise BadInput(source[given].rsplit(": ", 1)[0], missing, f"missing: {given} is given without it")
         return float(found["image_width"].reshape(-1)[0]), float(found["image_height"].reshape(-1)[0])
     return None
 

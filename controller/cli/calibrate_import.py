@@ -6,13 +6,19 @@
 Formats (``auto`` decides from the content, not the name; each input is read whole, once, so pipes
 such as /dev/stdin or a shell's <(zcat f) work):
 - opencv: cv2.FileStorage YAML or XML from stereoCalibrate; several files are merged (OpenCV's
-  stereo_calib sample writes intrinsics.yml and extrinsics.yml). Names are matched without case:
-  K1 M1 cameraMatrix1 camera_matrix1 ...; D1 distCoeffs1 ...; R; T; image_width + image_height or
-  imageSize / image_size [w, h]. Rectified P1/P2 in such files are ignored: they are for rectified
-  images, not the camera's own pixels. gzip'd FileStorage files are unpacked, whatever their name. A
-  JSON object with K1/K2/R/T is OpenCV's too where it has no P1/P2, or has stereoRectify's Q, R1
-  or R2 beside them; with P1/P2 and none of those it is CALIB.json's own form (p34). T in board
-  squares (OpenCV's stereo_calib sample): ``--square-mm`` the square's side.
+  stereo_calib sample writes intrinsics.yml and extrinsics.yml; a field in both must have one
+  value). Names are matched without case or "_" (controller/cli/calib_opencv_file.py), the same
+  words for K and D: K1 M1 cameraMatrix1 camera_matrix_left left_camera_matrix ...; D1 distCoeffs1
+  distortion_coefficients_left ...; cameras counted from 0 (camera_matrix_0) when the file does; R;
+  T; image_width + image_height or imageSize / image_size [w, h]. Refused: two names of one field in
+  a file; a key that looks like distortion but names neither D when a D is missing; a fisheye
+  (equidistant, Kannala-Brandt) model named anywhere (distortion_model: fisheye): its k1..k4 are not
+  the pinhole's k1 k2 p1 p2, and 4 coefficients with no model named are the pinhole's. Rectified
+  P1/P2 in such files are ignored: they are for rectified images, not the camera's own pixels.
+  gzip'd FileStorage files are unpacked, whatever their name. A JSON object with K1/K2/R/T is
+  OpenCV's too where it has no P1/P2, or has stereoRectify's Q, R1 or R2 beside them; with P1/P2
+  and none of those it is CALIB.json's own form (p34). T in board squares (OpenCV's stereo_calib
+  sample): ``--square-mm`` the square's side.
 - stereomorph: StereoMorph's own calibration file (``calibrateCameras``' calibration.txt: its
   cal.coeff, img.size and the unit of sq.size; controller/cli/stereomorph_file.py), or a table of
   11 DLT coefficients per camera, one column per camera (StereoMorph's cal_coeffs), with or
