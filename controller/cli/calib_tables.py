@@ -58,10 +58,25 @@ def dlt_table(path: str, rows: list[list[float]]) -> np.ndarray:
     return table
 
 
+# two 3x4 matrices as tools write them: P1's rows then P2's, one row per matrix, or all on one line.
+# Any other layout of 24 numbers (a 12x2 DLT-12 table, P1 and P2 side by side) is not P1 then P2.
+P34_LAYOUTS = ([4] * 6, [12, 12], [24])
+
+
+def _shape(rows: list[list[float]]) -> str:
+    lengths = [len(r) for r in rows]
+    if len(set(lengths)) == 1:
+        return f"{len(rows)} rows x {lengths[0]} columns"
+    return f"{len(rows)} rows of {', '.join(map(str, lengths))} values"
+
+
 def p34_text(path: str, rows: list[list[float]]) -> tuple[np.ndarray, np.ndarray]:
     values = np.array([v for r in rows for v in r], dtype=float)
     if values.size != 24:
         raise BadInput(path, "P1, P2", f"{values.size} numbers: expected 24 (two 3x4 matrices, P1 then P2)")
+    if [len(r) for r in rows] not in P34_LAYOUTS:
+        raise BadInput(path, "P1, P2", f"{_shape(rows)}: expected two 3x4 matrices as 6 rows of 4 (P1's rows, "
+                                       "then P2's), 2 rows of 12 or one row of 24")
     return values[:12].reshape(3, 4), values[12:].reshape(3, 4)
 
 

@@ -24,7 +24,8 @@ such as /dev/stdin or a shell's <(zcat f) work):
   11 DLT coefficients per camera, one column per camera (StereoMorph's cal_coeffs), with or
   without a header row and row names, separated by spaces, tabs, commas or semicolons; 2 rows of
   11 are read as one row per camera.
-- p34: two 3x4 matrices, P1 then P2 row by row (24 numbers, any separators); or JSON with P1, P2
+- p34: two 3x4 matrices, P1 then P2 row by row (24 numbers, any separators, as 6 rows of 4, 2 rows
+  of 12 or one row of 24; other layouts are refused naming theirs); or JSON with P1, P2
   (and image_size; other fields are ignored).
 Bad input exits 2 with one line naming the file, the field and the fault (controller.errors.BadInput).
 """
