@@ -8,7 +8,8 @@ Reading the files is the command line's (controller/cli/calibrate_import.py); he
 - DLT-11 (StereoMorph, Hedrick's DLTdv and other DLT tools): per camera
   u = (L1 x + L2 y + L3 z + L4) / (L9 x + L10 y + L11 z + 1), v = (L5 x + L6 y + L7 z + L8) / (same),
   i.e. P = [[L1 L2 L3 L4], [L5 L6 L7 L8], [L9 L10 L11 1]] (L12 = 1) in the tool's world unit.
-- A plain pair of 3x4 matrices, pixel <- world unit.
+- A plain pair of 3x4 matrices, pixel <- world unit; or CALIB.json's own form (P1, P2 with any of
+  its optional fields: fishfarm's output read back), every field kept.
 
 Pixels: CALIB.json uses OpenCV's convention (origin at the top-left pixel's centre, u right, v
 down). ``pixel_transform`` maps another tool's convention onto it (origin at the top-left pixel's
@@ -132,3 +133,19 @@ def from_opencv(K1: np.ndarray, D1: np.ndarray | None, K2: np.ndarray, D2: np.nd
     P2 = arrays["K2"] @ np.c_[arrays["R"], T_mm]
     return _checked({"P1": P1, "P2": P2, "K1": arrays["K1"], "D1": D1, "K2": arrays["K2"], "D2": D2,
                      "R": arrays["R"], "T": T_mm, "image_size": _size(image_size), **(extra or {})})
+
+
+def from_calibration(data: dict, *, mm_per_unit: float = 1.0, pixel: np.ndarray | None = None,
+                     image_size: tuple[int, int] | None = None, extra: dict | None = None) -> StereoCalibration:
+    """CALIB.json's own form, every field kept (a calibration read back must be the one written):
+    P1, P2 and T from the world unit into mm, P1/P2 into OpenCV's pixels by ``pixel``. K and D are
+    in OpenCV's pixels already: a ``pixel`` other than I with K1/K2 is the caller's to refuse."""
+    calib = calibration_from_json(data)              # shapes, finite, D only with its K: checked first
+    out = calib.to_json()
+    A = np.eye(3) if pixel is None else pixel
+    out["P1"], out["P2"] = (A @ world_to_mm(P, mm_per_unit) for P in (calib.P1, calib.P2))
+    if calib.T is not None:
+        out["T"] = calib.T * mm_per_unit
+    if image_size is not None:
+        out["image_size"] = _size(image_size)
+    return _checked({**out, **(extra or {})})

@@ -7,6 +7,7 @@ import re
 
 import numpy as np
 
+from controller.cli.calib_opencv_file import OPENCV_NAMES, name_key, refuse_fisheye
 from controller.errors import BadInput
 
 
@@ -80,23 +81,26 @@ def p34_text(path: str, rows: list[list[float]]) -> tuple[np.ndarray, np.ndarray
     return values[:12].reshape(3, 4), values[12:].reshape(3, 4)
 
 
-def p34_json(path: str, text: str):
+def p34_json(path: str, text: str) -> dict:
+    """A JSON object of CALIB.json's form (P1, P2 and its optional fields), checked for what would
+    be silently wrong: another tool's name of a field (not read: its matrix lost), a fisheye model."""
     try:
         data = json.loads(text)
     except json.JSONDecodeError as exc:
         raise BadInput(path, None, f"not valid JSON: {exc}") from None
     if not isinstance(data, dict):
         raise BadInput(path, None, "expected a JSON object with P1 and P2")
-    mats = []
     for name in ("P1", "P2"):
         if data.get(name) is None:
             raise BadInput(path, name, "missing")
-        try:
-            mats.append(np.asarray(data[name], dtype=float))
-        except (TypeError, ValueError):
-            raise BadInput(path, name, "not a numeric 3x4 matrix") from None
     size = data.get("image_size")
     if size is not None and not (isinstance(size, list) and len(size) == 2
                                  and all(isinstance(s, int) and not isinstance(s, bool) and s > 0 for s in size)):
         raise BadInput(path, "image_size", "expected [width, height] in pixels")
-    return mats[0], mats[1], None if size is None else tuple(size)
+    refuse_fisheye(path, [(k, v) for k, v in data.items() if isinstance(v, (str, int, float))])
+    for field, names in OPENCV_NAMES.items():
+        own = "image_size" if field.startswith("image_") else field
+        other = next((k for k in data if k != own and name_key(k) in {name_key(n) for n in names}), None)
+        if other is not None:
+            raise BadInput(path, other, f"another tool's name for {own}: CALIB.json's is {own} (not read as it is)")
+    return data

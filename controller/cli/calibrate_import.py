@@ -25,8 +25,9 @@ such as /dev/stdin or a shell's <(zcat f) work):
   without a header row and row names, separated by spaces, tabs, commas or semicolons; 2 rows of
   11 are read as one row per camera.
 - p34: two 3x4 matrices, P1 then P2 row by row (24 numbers, any separators, as 6 rows of 4, 2 rows
-  of 12 or one row of 24; other layouts are refused naming theirs); or JSON with P1, P2
-  (and image_size; other fields are ignored).
+  of 12 or one row of 24; other layouts are refused naming theirs); or JSON of CALIB.json's form
+  (P1, P2 and any of K1 D1 K2 D2 R T image_size rms_px, other fields kept as they are): fishfarm's
+  own output round-trips. Another tool's name for one of its fields (distCoeffs1) is refused.
 Bad input exits 2 with one line naming the file, the field and the fault (controller.errors.BadInput).
 """
 from __future__ import annotations
@@ -192,11 +193,14 @@ def import_(inputs, out, fmt, units, square_mm, image_size, pixel_origin, y_up):
         else:
             height = image_size[1] if image_size else None
             if kind == "p34" and text.lstrip().startswith("{"):
-                P1, P2, size = p34_json(first, text)
-                size = image_size or size
-                height = size[1] if size else None
-                pixel = ci.pixel_transform(pixel_origin, y_up, height)
-                calib = ci.from_projections(P1, P2, mm_per_unit=mm, pixel=pixel, image_size=size, extra=extra)
+                data = p34_json(first, text)
+                size = image_size or data.get("image_size")
+                has_k = [k for k in ("K1", "K2") if data.get(k) is not None]
+                if has_k and (pixel_origin != "zero" or y_up):
+                    raise BadInput(first, "--pixel-origin/--y-up", f"the file has {has_k[0]}: its K and D are in "
+                                                                   "OpenCV's pixel convention already")
+                pixel = ci.pixel_transform(pixel_origin, y_up, size[1] if size else None)
+                calib = ci.from_calibration(data, mm_per_unit=mm, pixel=pixel, image_size=size, extra=extra)
             elif stereomorph is not None:
                 calib = ci.from_dlt11(stereomorph.coefficients, mm_per_unit=mm,
                                       pixel=ci.pixel_transform(pixel_origin, y_up, height),

@@ -15,6 +15,7 @@ from vision.calib_file import CalibrationError, StereoCalibration, check_image_s
 from vision.calib_import import (
     UNITS_MM,
     dlt11_to_projection,
+    from_calibration,
     from_dlt11,
     from_opencv,
     from_projections,
@@ -162,3 +163,24 @@ def test_without_image_size_the_principal_points_must_be_in_the_frames():
     with pytest.raises(CalibrationError) as err:
         check_image_size(with_k, (300, 300))
     assert err.value.field == "K1"
+
+
+@pytest.mark.parametrize("units", ["mm", "cm"])
+def test_calib_json_s_own_form_keeps_every_field_and_scales_the_world(units):
+    """P1, P2 and T from the world unit to mm; K, D, R, rms_px and other fields as they were."""
+    s = UNITS_MM[units]
+    R = RIG.R2 @ RIG.R1.T
+    T = RIG.t2 - R @ RIG.t1
+    to_unit = np.diag([s] * 3 + [1.0])
+    D = [-0.1, 0.04, 0.0008, -0.0004, 0.0]
+    data = {"P1": (RIG.K1 @ np.c_[np.eye(3), np.zeros(3)] @ to_unit).tolist(),
+            "P2": (RIG.K2 @ np.c_[R, T] @ to_unit).tolist(), "K1": RIG.K1.tolist(), "D1": D,
+            "K2": RIG.K2.tolist(), "D2": D, "R": R.tolist(), "T": (T / s).tolist(), "rms_px": 0.3, "pattern": [9, 6]}
+    calib = from_calibration(data, mm_per_unit=s, extra={"method": "import"})
+    np.testing.assert_allclose(calib.T, T)
+    np.testing.assert_allclose(calib.D1, D)
+    assert calib.rms_px == 0.3 and calib.extra == {"pattern": [9, 6], "method": "import"}
+    X, _ = triangulate(calib.P1, calib.P2, *(project(P, WORLD) for P in (RIG.P1, RIG.P2)))
+    np.testing.assert_allclose(X, _camera1_frame(WORLD), atol=1e-6)
+    with pytest.raises(CalibrationError, match="without K1"):
+        from_calibration({k: v for k, v in data.items() if k != "K1"})
