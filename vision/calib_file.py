@@ -166,9 +166,19 @@ def check_image_size(calib: StereoCalibration, size: tuple[int, int]) -> None:
             raise CalibrationError("image_size", f"calibration made for {cw}x{ch} images, "
                                                  f"the frames are {width}x{height}")
         return
+    outside = principal_point_outside(calib, width, height)
+    if outside is not None:
+        name, u, v = outside
+        raise CalibrationError(name, f"principal point ({u:.0f}, {v:.0f}) outside the {width}x{height} "
+                                     "frames: a calibration for other images (it has no image_size)")
+
+
+def principal_point_outside(calib: StereoCalibration, width: int, height: int) -> tuple[str, float, float] | None:
+    """The first camera whose principal point lies outside width x height pixels, as (the matrix it
+    comes from: K1/K2, else P1/P2, u, v); None when both are inside. Any real camera's is inside."""
     for camera in (1, 2):
         u, v = principal_point(calib, camera)
         if not (0.0 <= u <= width - 1 and 0.0 <= v <= height - 1):
             name = f"K{camera}" if (calib.K1 if camera == 1 else calib.K2) is not None else f"P{camera}"
-            raise CalibrationError(name, f"principal point ({u:.0f}, {v:.0f}) outside the {width}x{height} "
-                                         "frames: a calibration for other images (it has no image_size)")
+            return name, float(u), float(v)
+    return None

@@ -24,7 +24,13 @@ from typing import Literal
 
 import numpy as np
 
-from vision.calib_file import CalibrationError, StereoCalibration, _check_camera_matrix, calibration_from_json
+from vision.calib_file import (
+    CalibrationError,
+    StereoCalibration,
+    _check_camera_matrix,
+    calibration_from_json,
+    principal_point_outside,
+)
 
 UNITS_MM = {"mm": 1.0, "cm": 10.0, "m": 1000.0, "in": 25.4}
 PixelOrigin = Literal["zero", "corner", "one"]
@@ -64,8 +70,16 @@ def world_to_mm(P: np.ndarray, mm_per_unit: float) -> np.ndarray:
 
 
 def _checked(data: dict) -> StereoCalibration:
-    return calibration_from_json({k: v.tolist() if isinstance(v, np.ndarray) else v for k, v in data.items()
-                                  if v is not None})
+    calib = calibration_from_json({k: v.tolist() if isinstance(v, np.ndarray) else v for k, v in data.items()
+                                   if v is not None})
+    if calib.image_size is not None:          # a size that cannot be the frames' (surveys would take them)
+        w, h = calib.image_size
+        outside = principal_point_outside(calib, w, h)
+        if outside is not None:
+            name, u, v = outside
+            raise CalibrationError("image_size", f"{w}x{h} does not contain {name}'s principal point "
+                                                 f"({u:.0f}, {v:.0f}): the calibration is for other images")
+    return calib
 
 
 def _size(image_size) -> list[int] | None:

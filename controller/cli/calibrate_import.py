@@ -28,6 +28,7 @@ such as /dev/stdin or a shell's <(zcat f) work):
   of 12 or one row of 24; other layouts are refused naming theirs); or JSON of CALIB.json's form
   (P1, P2 and any of K1 D1 K2 D2 R T image_size rms_px, other fields kept as they are): fishfarm's
   own output round-trips. Another tool's name for one of its fields (distCoeffs1) is refused.
+An image size (the file's or --image-size) must contain both principal points.
 Bad input exits 2 with one line naming the file, the field and the fault (controller.errors.BadInput).
 """
 from __future__ import annotations
@@ -147,6 +148,7 @@ def import_(inputs, out, fmt, units, square_mm, image_size, pixel_origin, y_up):
     from vision.calib_file import CalibrationError
 
     paths = list(inputs)
+    image_size_option = image_size is not None
     check_outputs({"--out": out}, paths)
     first = paths[0]
     if square_mm is not None and units is not None:
@@ -225,6 +227,7 @@ def import_(inputs, out, fmt, units, square_mm, image_size, pixel_origin, y_up):
     except CalibrationError as exc:
         if exc.field == "image_size" and y_up:
             raise BadInput(where, "--y-up", "needs the image height: give --image-size WxH") from None
-        raise BadInput(where, exc.field, exc.fault) from None
+        field = "--image-size" if exc.field == "image_size" and image_size_option else exc.field
+        raise BadInput(where, field, exc.fault) from None
     save_calibration(calib, out)
     _report(calib, extra["format"], paths, out)

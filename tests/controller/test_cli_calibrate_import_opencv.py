@@ -114,3 +114,17 @@ def test_a_single_cameras_file_is_missing_k1_not_its_distortion(tmp_path):
     src = tmp_path / "left.yaml"
     write_fs(src, {"camera_matrix": RIG.K1, "distortion_model": "plumb_bob", "distortion_coefficients": RIG.D1})
     assert_bad(["--in", str(src), "--out", str(tmp_path / "o.json")], "left.yaml", "K1", "missing")
+
+
+def test_an_image_size_without_both_principal_points_is_refused_naming_its_key(tmp_path):
+    src = tmp_path / "stereo.yml"
+    write_fs(src, rig_items())
+    out = tmp_path / "o.json"
+    cx = RIG.K1[0, 2]
+    assert_bad(["--in", str(src), "--out", str(out), "--image-size", f"{int(cx) - 10}x960"], "stereo.yml",
+               "--image-size", "K1", "principal point")
+    items = rig_items()
+    items["image_width"] = int(cx) - 10
+    write_fs(src, items)
+    assert_bad(["--in", str(src), "--out", str(out)], "stereo.yml", "image_size", "K1", "principal point")
+    assert not out.exists()

@@ -184,3 +184,14 @@ def test_calib_json_s_own_form_keeps_every_field_and_scales_the_world(units):
     np.testing.assert_allclose(X, _camera1_frame(WORLD), atol=1e-6)
     with pytest.raises(CalibrationError, match="without K1"):
         from_calibration({k: v for k, v in data.items() if k != "K1"})
+
+
+@pytest.mark.parametrize("size, camera", [((600, 960), "K1"), ((1280, 400), "K1"), ((100, 100), "K1")])
+def test_an_image_size_must_contain_both_principal_points(size, camera):
+    """The check ran only without an image size: a size that cannot be the frames' was taken."""
+    R = RIG.R2 @ RIG.R1.T
+    with pytest.raises(CalibrationError) as err:
+        from_opencv(RIG.K1, None, RIG.K2, None, R, RIG.t2 - R @ RIG.t1, image_size=size)
+    assert err.value.field == "image_size" and camera in err.value.fault and f"{size[0]}x{size[1]}" in err.value.fault
+    with pytest.raises(CalibrationError, match="P1"):                 # without K: P's principal point
+        from_projections(RIG.P1, RIG.P2, image_size=size)
