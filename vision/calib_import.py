@@ -31,8 +31,10 @@ from vision.calib_file import (
     calibration_from_json,
     principal_point_outside,
 )
+from vision.triangulation import camera_centre
 
 UNITS_MM = {"mm": 1.0, "cm": 10.0, "m": 1000.0, "in": 25.4}
+MAX_BASELINE_MM = 1e9          # 1000 km: beyond, a unit or a typo (and the geometry's sums overflow)
 PixelOrigin = Literal["zero", "corner", "one"]
 # where the tool puts the top-left pixel's centre, in its own coordinates
 _ORIGIN_OFFSET = {"zero": 0.0, "corner": 0.5, "one": 1.0}
@@ -66,12 +68,34 @@ def world_to_mm(P: np.ndarray, mm_per_unit: float) -> np.ndarray:
     """P (pixel <- world in the tool's unit) as pixel <- world mm."""
     if not (np.isfinite(mm_per_unit) and mm_per_unit > 0):
         raise ValueError(f"mm per unit {mm_per_unit}: expected > 0")
-    return np.asarray(P, dtype=float) @ np.diag([1.0 / mm_per_unit] * 3 + [1.0])
+    with np.errstate(all="ignore"):       # an overflow is a P "with NaN or infinity", refused by name
+        return np.asarray(P, dtype=float) @ np.diag([1.0 / mm_per_unit] * 3 + [1.0])
+
+
+def _check_centres(data: dict) -> None:
+    """A camera centre beyond MAX_BASELINE_MM of the origin is a unit or a typo; refused before
+    calibration_from_json, whose baseline check would overflow on it (numpy's warnings on stderr)."""
+    for name in ("P1", "P2"):
+        try:
+            P = np.asarray(data.get(name), dtype=float)
+        except (TypeError, ValueError):
+            continue                          # calibration_from_json names it
+        if P.shape != (3, 4) or not np.all(np.isfinite(P)):
+            continue
+        with np.errstate(all="ignore"):
+            try:
+                far = not np.abs(camera_centre(P)).max() <= MAX_BASELINE_MM
+            except np.linalg.LinAlgError:
+                continue                      # singular: calibration_from_json names it
+        if far:
+            raise CalibrationError(name, f"camera centre farther than {MAX_BASELINE_MM:g} mm from the world's "
+                                         "origin: no rig is that wide (the file's unit?)")
 
 
 def _checked(data: dict) -> StereoCalibration:
-    calib = calibration_from_json({k: v.tolist() if isinstance(v, np.ndarray) else v for k, v in data.items()
-                                   if v is not None})
+    data = {k: v.tolist() if isinstance(v, np.ndarray) else v for k, v in data.items() if v is not None}
+    _check_centres(data)
+    calib = calibration_from_json(data)
     if calib.image_size is not None:          # a size that cannot be the frames' (surveys would take them)
         w, h = calib.image_size
         outside = principal_point_outside(calib, w, h)
@@ -142,9 +166,14 @@ def from_opencv(K1: np.ndarray, D1: np.ndarray | None, K2: np.ndarray, D2: np.nd
     for name in ("K1", "K2"):                 # before P1/P2, which a bad K makes singular
         _check_camera_matrix(arrays[name], name)
     _check_rotation(arrays["R"])
-    T_mm = arrays["T"] * mm_per_unit
-    P1 = arrays["K1"] @ np.c_[np.eye(3), np.zeros(3)]
-    P2 = arrays["K2"] @ np.c_[arrays["R"], T_mm]
+    with np.errstate(all="ignore"):          # an overflow is refused by name below, not warned on stderr
+        T_mm = arrays["T"] * mm_per_unit
+        P1 = arrays["K1"] @ np.c_[np.eye(3), np.zeros(3)]
+        P2 = arrays["K2"] @ np.c_[arrays["R"], T_mm]
+        too_wide = not np.abs(T_mm).max() <= MAX_BASELINE_MM       # inf and nan too
+    if too_wide or not np.all(np.isfinite(P2)):
+        raise CalibrationError("T", f"{np.abs(arrays['T']).max():.3g} x {mm_per_unit:g} mm: no stereo rig is that "
+                                    "wide (the file's unit?)")
     return _checked({"P1": P1, "P2": P2, "K1": arrays["K1"], "D1": D1, "K2": arrays["K2"], "D2": D2,
                      "R": arrays["R"], "T": T_mm, "image_size": _size(image_size), **(extra or {})})
 
@@ -154,6 +183,7 @@ def from_calibration(data: dict, *, mm_per_unit: float = 1.0, pixel: np.ndarray 
     """CALIB.json's own form, every field kept (a calibration read back must be the one written):
     P1, P2 and T from the world unit into mm, P1/P2 into OpenCV's pixels by ``pixel``. K and D are
     in OpenCV's pixels already: a ``pixel`` other than I with K1/K2 is the caller's to refuse."""
+    _check_centres(data)
     calib = calibration_from_json(data)              # shapes, finite, D only with its K: checked first
     out = calib.to_json()
     A = np.eye(3) if pixel is None else pixel

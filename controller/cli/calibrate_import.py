@@ -34,6 +34,7 @@ Bad input exits 2 with one line naming the file, the field and the fault (contro
 from __future__ import annotations
 
 import gzip
+import math
 import re
 import zlib
 from pathlib import Path
@@ -59,6 +60,13 @@ def _size_option(ctx, param, value):
     if not m or min(int(m[1]), int(m[2])) < 1:
         raise click.BadParameter(f"{value!r}: expected WIDTHxHEIGHT in pixels (e.g. 1280x960)")
     return int(m[1]), int(m[2])
+
+
+def _square_mm_option(ctx, param, value):
+    # FloatRange passes nan (no comparison holds) and inf: neither is a board's square
+    if value is not None and not math.isfinite(value):
+        raise click.BadParameter(f"{value}: expected a finite number of mm > 0")
+    return value
 
 
 def _read_input(path: str) -> tuple[str, bool]:
@@ -133,6 +141,7 @@ def _report(calib, fmt: str, paths, out: str) -> None:
               help="World unit of the file: OpenCV's T (the board's square unit), DLT and 3x4 worlds "
                    "[default: a StereoMorph calibration file's square unit, else mm].")
 @click.option("--square-mm", type=click.FloatRange(min=0, min_open=True), default=None, metavar="MM",
+              callback=_square_mm_option,
               help="The file's world unit is a calibration board's square this many mm wide (OpenCV's "
                    "stereo_calib sample, squareSize 1, gives T in squares); instead of --units.")
 @click.option("--image-size", callback=_size_option, metavar="WxH",

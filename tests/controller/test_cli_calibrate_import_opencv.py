@@ -2,12 +2,16 @@
 the tools write them): the names each tool gives K and D, fisheye models, names given twice."""
 from __future__ import annotations
 
+import subprocess
+import sys
+import warnings
+
 import cv2
 import numpy as np
 import pytest
 
 from controller.cli.calib_io import load_calibration
-from tests.controller.test_cli_calibrate_import import CAMERA1, RIG, R, T, assert_bad, assert_reconstructs, run
+from tests.controller.test_cli_calibrate_import import CAMERA1, REPO, RIG, R, T, assert_bad, assert_reconstructs, run
 
 
 def write_fs(path, items: dict) -> None:
@@ -128,3 +132,31 @@ def test_an_image_size_without_both_principal_points_is_refused_naming_its_key(t
     write_fs(src, items)
     assert_bad(["--in", str(src), "--out", str(out)], "stereo.yml", "image_size", "K1", "principal point")
     assert not out.exists()
+
+
+@pytest.mark.parametrize("value", ["nan", "inf", "-inf", "0"])
+def test_square_mm_not_a_finite_size_is_blamed_on_square_mm(tmp_path, value):
+    src = tmp_path / "stereo.yml"
+    write_fs(src, rig_items())
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")                   # numpy's warnings were extra stderr lines
+        assert_bad(["--in", str(src), "--out", str(tmp_path / "o.json"), "--square-mm", value], "--square-mm")
+
+
+@pytest.mark.parametrize("t", [1e308, 1e300])
+def test_a_translation_too_large_is_one_line_naming_t(tmp_path, t):
+    src = tmp_path / "bigT.yml"
+    write_fs(src, {**rig_items(), "T": np.array([-t, 0.0, 0.0])})
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        assert_bad(["--in", str(src), "--out", str(tmp_path / "o.json"), "--units", "m"], "bigT.yml", "T")
+
+
+def test_the_installed_command_says_a_huge_t_in_one_line(tmp_path):
+    src = tmp_path / "bigT.yml"
+    write_fs(src, {**rig_items(), "T": np.array([-1e308, 0.0, 0.0])})
+    done = subprocess.run([sys.executable, "-c", "from controller.cli import entry; entry()", "calibrate", "import",
+                           "--in", str(src), "--out", str(tmp_path / "c.json")],
+                          cwd=REPO, capture_output=True, text=True, timeout=120)
+    assert done.returncode == 2 and len(done.stderr.strip().splitlines()) == 1, done.stderr
+    assert done.stderr.startswith(f"fishfarm: {src}: T: "), done.stderr

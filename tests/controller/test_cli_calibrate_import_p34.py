@@ -3,6 +3,7 @@ K1 D1 K2 D2 R T image_size rms_px) round-trips whole; text tables only in the la
 from __future__ import annotations
 
 import json
+import warnings
 
 import numpy as np
 import pytest
@@ -121,3 +122,18 @@ def test_24_numbers_in_another_layout_are_refused_naming_it(tmp_path, layout, sh
     for fmt in ("auto", "p34"):
         assert_bad(["--in", str(src), "--out", str(tmp_path / "o.json"), "--format", fmt], "P.txt", shape,
                    "6 rows of 4")
+
+
+@pytest.mark.parametrize("style", ["text", "json"])
+def test_a_camera_centre_out_of_any_rigs_reach_is_one_line(tmp_path, style):
+    """Its baseline's norm overflowed: numpy's warning on stderr, then 'same camera centre as P1'."""
+    P2 = PLAIN.P2.copy()
+    P2[:, 3] *= 1e300 / np.abs(P2[:, 3]).max()
+    src = tmp_path / f"big.{'txt' if style == 'text' else 'json'}"
+    if style == "text":
+        src.write_text(_rows((PLAIN.P1, P2), np.vstack))
+    else:
+        src.write_text(json.dumps({"P1": PLAIN.P1.tolist(), "P2": P2.tolist()}))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        assert_bad(["--in", str(src), "--out", str(tmp_path / "o.json")], src.name, "P2", "camera centre")
