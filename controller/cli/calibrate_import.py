@@ -37,6 +37,7 @@ import gzip
 import math
 import re
 import zlib
+from dataclasses import dataclass
 from pathlib import Path
 
 import click
@@ -44,8 +45,9 @@ import numpy as np
 
 from controller.cli.calib_opencv_file import OPENCV_NAMES, opencv_fields, opencv_json, opencv_size
 from controller.cli.calib_tables import dlt_table, numbers_table, p34_json, p34_text, strip_row_index
-from controller.cli.stereomorph_file import is_stereomorph_file, read_stereomorph
+from controller.cli.stereomorph_file import StereoMorphCalibration, is_stereomorph_file, read_stereomorph
 from controller.errors import BadInput
+from vision import calib_import
 from vision.calib_import import UNITS_MM
 
 FORMATS = ("auto", "opencv", "stereomorph", "p34")
@@ -112,6 +114,79 @@ def _detect(path: str, text: str) -> str:
     return "opencv" if lines and _YAML_KEY.match(lines[0]) else "table"
 
 
+def _stereomorph(path: str, text: str, units: str | None, square_mm: float | None) -> StereoMorphCalibration:
+    """StereoMorph's calibration file, whose sq.size names its unit: another --units is refused."""
+    stereomorph = read_stereomorph(path, text, tuple(UNITS_MM))
+    if units and stereomorph.units and units != stereomorph.units:
+        raise BadInput(path, "--units", f"{units}, where the file's sq.size says {stereomorph.units}")
+    if square_mm is not None and stereomorph.units:
+        raise BadInput(path, "--square-mm", f"the file's sq.size gives its unit ({stereomorph.units})")
+    return stereomorph
+
+
+@dataclass
+class _Job:
+    """One import's inputs, read and decided: what the builders below need."""
+    paths: list[str]
+    texts: dict[str, str]
+    stereomorph: StereoMorphCalibration | None
+    image_size: tuple[int, int] | None         # --image-size, or StereoMorph's img.size
+    mm: float                                  # mm per world unit
+    extra: dict
+    pixel_origin: str
+    y_up: bool
+
+    def pixel(self, size=None):
+        size = size or self.image_size
+        return calib_import.pixel_transform(self.pixel_origin, self.y_up, size[1] if size else None)
+
+
+def _from_opencv(job: _Job, kind: str):
+    found, source = opencv_fields([(p, job.texts[p]) for p in job.paths])
+    missing = [f for f in ("K1", "K2", "R", "T") if f not in found]
+    if missing:
+        raise BadInput(", ".join(job.paths), missing[0],
+                       f"missing (looked for {', '.join(OPENCV_NAMES[missing[0]][:4])}, ...)")
+    return calib_import.from_opencv(found["K1"], found.get("D1"), found["K2"], found.get("D2"), found["R"],
+                                    found["T"], mm_per_unit=job.mm,
+                                    image_size=job.image_size or opencv_size(found, source), extra=job.extra)
+
+
+def _from_json(job: _Job, kind: str):
+    first = job.paths[0]
+    data = p34_json(first, job.texts[first])
+    size = job.image_size or data.get("image_size")
+    has_k = [k for k in ("K1", "K2") if data.get(k) is not None]
+    if has_k and (job.pixel_origin != "zero" or job.y_up):
+        raise BadInput(first, "--pixel-origin/--y-up", f"the file has {has_k[0]}: its K and D are in "
+                                                       "OpenCV's pixel convention already")
+    return calib_import.from_calibration(data, mm_per_unit=job.mm, pixel=job.pixel(size), image_size=size,
+                                         extra=job.extra)
+
+
+def _from_stereomorph(job: _Job, kind: str):
+    return calib_import.from_dlt11(job.stereomorph.coefficients, mm_per_unit=job.mm, pixel=job.pixel(),
+                                   image_size=job.image_size, extra=job.extra)
+
+
+def _from_table(job: _Job, kind: str):
+    first = job.paths[0]
+    rows = strip_row_index(numbers_table(first, job.texts[first]))
+    if kind == "table":                 # auto: the count of numbers tells
+        n = sum(len(r) for r in rows)
+        kind = {22: "stereomorph", 24: "p34"}.get(n)
+        if kind is None:
+            raise BadInput(first, None, f"{n} numbers: expected 22 (DLT-11 x 2 cameras, StereoMorph) "
+                                        "or 24 (two 3x4 matrices); give --format")
+        job.extra["format"] = kind
+    if kind == "stereomorph":
+        return calib_import.from_dlt11(dlt_table(first, rows), mm_per_unit=job.mm, pixel=job.pixel(),
+                                       image_size=job.image_size, extra=job.extra)
+    P1, P2 = p34_text(first, rows)
+    return calib_import.from_projections(P1, P2, mm_per_unit=job.mm, pixel=job.pixel(), image_size=job.image_size,
+                                         extra=job.extra)
+
+
 def _report(calib, fmt: str, paths, out: str) -> None:
     from vision.calib_file import principal_point
     from vision.triangulation import camera_centre
@@ -153,7 +228,6 @@ def import_(inputs, out, fmt, units, square_mm, image_size, pixel_origin, y_up):
     """Import a stereo calibration from OpenCV, StereoMorph (DLT-11) or a plain 3x4 pair."""
     from controller.cli.calib_io import save_calibration
     from controller.cli.output_paths import check_outputs
-    from vision import calib_import as ci
     from vision.calib_file import CalibrationError
 
     paths = list(inputs)
@@ -173,12 +247,7 @@ def import_(inputs, out, fmt, units, square_mm, image_size, pixel_origin, y_up):
         if kind == "p34":
             raise BadInput(first, "--format", "p34, but this is StereoMorph's calibration file: "
                                               "--format stereomorph or auto")
-        stereomorph = read_stereomorph(first, text, tuple(UNITS_MM))
-        kind = "stereomorph"
-        if units and stereomorph.units and units != stereomorph.units:
-            raise BadInput(first, "--units", f"{units}, where the file's sq.size says {stereomorph.units}")
-        if square_mm is not None and stereomorph.units:
-            raise BadInput(first, "--square-mm", f"the file's sq.size gives its unit ({stereomorph.units})")
+        stereomorph, kind = _stereomorph(first, text, units, square_mm), "stereomorph"
         units = units or stereomorph.units
         image_size = image_size or stereomorph.image_size
     units = units or "mm"
@@ -189,52 +258,14 @@ def import_(inputs, out, fmt, units, square_mm, image_size, pixel_origin, y_up):
     mm = UNITS_MM[units] if square_mm is None else square_mm
     extra = {"method": "import", "format": kind if kind != "table" else "auto", "source": [Path(p).name for p in paths],
              "units": units if square_mm is None else f"square of {square_mm:g} mm"}
-    where = first
+    job = _Job(paths, {p: t for p, (t, _) in texts.items()}, stereomorph, image_size, mm, extra, pixel_origin, y_up)
+    build = _from_opencv if kind == "opencv" else _from_json if kind == "p34" and text.lstrip().startswith("{") \
+        else _from_stereomorph if stereomorph is not None else _from_table
+    where = " + ".join(paths) if kind == "opencv" else first
     try:
-        if kind == "opencv":
-            found, source = opencv_fields([(p, texts[p][0]) for p in paths])
-            missing = [f for f in ("K1", "K2", "R", "T") if f not in found]
-            if missing:
-                raise BadInput(", ".join(paths), missing[0],
-                               f"missing (looked for {', '.join(OPENCV_NAMES[missing[0]][:4])}, ...)")
-            size = image_size or opencv_size(found, source)
-            where = " + ".join(paths)
-            calib = ci.from_opencv(found["K1"], found.get("D1"), found["K2"], found.get("D2"), found["R"],
-                                   found["T"], mm_per_unit=mm, image_size=size, extra=extra)
-        else:
-            height = image_size[1] if image_size else None
-            if kind == "p34" and text.lstrip().startswith("{"):
-                data = p34_json(first, text)
-                size = image_size or data.get("image_size")
-                has_k = [k for k in ("K1", "K2") if data.get(k) is not None]
-                if has_k and (pixel_origin != "zero" or y_up):
-                    raise BadInput(first, "--pixel-origin/--y-up", f"the file has {has_k[0]}: its K and D are in "
-                                                                   "OpenCV's pixel convention already")
-                pixel = ci.pixel_transform(pixel_origin, y_up, size[1] if size else None)
-                calib = ci.from_calibration(data, mm_per_unit=mm, pixel=pixel, image_size=size, extra=extra)
-            elif stereomorph is not None:
-                calib = ci.from_dlt11(stereomorph.coefficients, mm_per_unit=mm,
-                                      pixel=ci.pixel_transform(pixel_origin, y_up, height),
-                                      image_size=image_size, extra=extra)
-            else:
-                rows = strip_row_index(numbers_table(first, text))
-                pixel = ci.pixel_transform(pixel_origin, y_up, height)
-                n = sum(len(r) for r in rows)
-                if kind == "table":
-                    kind = {22: "stereomorph", 24: "p34"}.get(n)
-                    if kind is None:
-                        raise BadInput(first, None, f"{n} numbers: expected 22 (DLT-11 x 2 cameras, StereoMorph) "
-                                                    "or 24 (two 3x4 matrices); give --format")
-                    extra["format"] = kind
-                if kind == "stereomorph":
-                    calib = ci.from_dlt11(dlt_table(first, rows), mm_per_unit=mm, pixel=pixel,
-                                          image_size=image_size, extra=extra)
-                else:
-                    P1, P2 = p34_text(first, rows)
-                    calib = ci.from_projections(P1, P2, mm_per_unit=mm, pixel=pixel, image_size=image_size,
-                                                extra=extra)
+        calib = build(job, kind)
     except CalibrationError as exc:
-        if exc.field == "image_size" and y_up:
+        if exc.field == "image_size" and y_up and exc.fault.startswith("needed"):   # pixel_transform: no height
             raise BadInput(where, "--y-up", "needs the image height: give --image-size WxH") from None
         field = "--image-size" if exc.field == "image_size" and image_size_option else exc.field
         raise BadInput(where, field, exc.fault) from None
