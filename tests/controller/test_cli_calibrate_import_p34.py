@@ -137,3 +137,12 @@ def test_a_camera_centre_out_of_any_rigs_reach_is_one_line(tmp_path, style):
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         assert_bad(["--in", str(src), "--out", str(tmp_path / "o.json")], src.name, "P2", "camera centre")
+
+
+def test_y_up_with_a_size_too_small_blames_the_size(tmp_path):
+    src = tmp_path / "P.txt"
+    src.write_text(_rows((PLAIN.P1, PLAIN.P2), np.vstack))
+    out = str(tmp_path / "o.json")
+    assert_bad(["--in", str(src), "--out", out, "--y-up"], "P.txt", "--y-up", "--image-size")
+    assert_bad(["--in", str(src), "--out", out, "--y-up", "--image-size", "100x100"], "P.txt", "--image-size",
+               "principal point")
