@@ -1,10 +1,16 @@
 """A command's output file appears whole or not at all: written beside its name, then renamed into
 place. A reader never sees half a file, and a command killed or failing mid-write leaves the file
-that was there before (a CALIB.json being replaced) as it was."""
+that was there before (a CALIB.json being replaced) as it was.
+
+A name that is a symbolic link keeps pointing where it did: the file it names is the one replaced.
+A device or a pipe (``--json /dev/null``, ``--csv /dev/stdout``, a FIFO) is written into, never
+replaced: renaming over it put a plain file where the system's /dev/null had been."""
 from __future__ import annotations
 
 import contextlib
+import io
 import os
+import stat
 from collections.abc import Callable
 from pathlib import Path
 from typing import TextIO
@@ -12,9 +18,22 @@ from typing import TextIO
 from controller.errors import BadInput
 
 
-def _beside(target: Path) -> Path:
+def beside(target: Path) -> Path:
     # an ordinary open of this name, not mkstemp: the file gets the user's umask like any other
     return target.with_name(f".{target.name}.{os.getpid()}.part")
+
+
+def special(target: Path) -> bool:
+    """A device, a pipe or a socket (through any links): written into, not replaced."""
+    try:
+        mode = target.stat().st_mode
+    except OSError:
+        return False
+    return not (stat.S_ISREG(mode) or stat.S_ISDIR(mode))
+
+
+def _real(target: Path) -> Path:
+    return Path(os.path.realpath(target)) if target.is_symlink() else target
 
 
 def _take_name(tmp: Path, target: Path) -> None:
@@ -27,7 +46,14 @@ def replace_atomically(path: str | Path, write: Callable[[str], None]) -> None:
     """``write(tmp)`` fills a file beside ``path`` (same directory, so the rename is atomic), which
     then takes its name. OSError becomes BadInput naming ``path``."""
     target = Path(path)
-    tmp = _beside(target)
+    if special(target):
+        try:
+            write(str(target))
+        except OSError as exc:
+            raise BadInput(str(path), None, f"cannot write: {exc.strerror or exc}") from None
+        return
+    target = _real(target)
+    tmp = beside(target)
     try:
         target.parent.mkdir(parents=True, exist_ok=True)
         write(str(tmp))
@@ -58,8 +84,15 @@ class PendingFile:
     to call twice."""
 
     def __init__(self, path: str | Path, what: str):
-        self.path = Path(path)
-        self.tmp = _beside(self.path)
+        self.path, self.what = Path(path), what
+        self.special = special(self.path)
+        if self.special:             # kept until the commit, which writes it into the device or pipe
+            if not os.access(self.path, os.W_OK):
+                raise BadInput(str(path), None, f"cannot write {what}: permission denied")
+            self.file: TextIO = io.StringIO()
+            return
+        self.path = _real(self.path)
+        self.tmp = beside(self.path)
         try:
             self.path.parent.mkdir(parents=True, exist_ok=True)
             self.file = open(self.tmp, "w", encoding="utf-8", newline="")
@@ -68,6 +101,15 @@ class PendingFile:
 
     def commit(self) -> None:
         if self.file.closed:
+            return
+        if self.special:
+            text = self.file.getvalue()
+            self.file.close()
+            try:
+                with open(self.path, "w", encoding="utf-8", newline="") as fh:
+                    fh.write(text)
+            except OSError as exc:
+                raise BadInput(str(self.path), None, f"cannot write {self.what}: {exc.strerror or exc}") from None
             return
         self.file.close()
         try:
@@ -78,5 +120,7 @@ class PendingFile:
 
     def discard(self) -> None:
         self.file.close()
+        if self.special:
+            return
         with contextlib.suppress(OSError):
             self.tmp.unlink(missing_ok=True)

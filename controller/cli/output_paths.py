@@ -7,6 +7,8 @@ import os
 from collections.abc import Iterable
 from pathlib import Path
 
+from controller.atomic_files import beside
+from controller.atomic_files import special as _special
 from controller.errors import BadInput
 
 
@@ -20,6 +22,10 @@ def check_outputs(outputs: dict[str, str | Path | None], inputs: Iterable[str | 
             continue
         if Path(path).is_dir():
             raise BadInput(str(path), option, "a directory, not a file")
+        if _special(Path(path)):       # /dev/null, /dev/stdout, a FIFO: written into, never replaced
+            if not os.access(path, os.W_OK):
+                raise BadInput(str(path), option, "cannot write: permission denied")
+            continue
         real = os.path.realpath(path)
         if real in seen:
             raise BadInput(str(path), option, f"the same file as {seen[real]}")
@@ -38,3 +44,12 @@ def _check_directory(real: Path, path: str, option: str) -> None:
         raise BadInput(path, option, f"cannot write: {parent} is a file, not a directory")
     if not os.access(parent, os.W_OK | os.X_OK):
         raise BadInput(path, option, f"cannot write: no permission in {parent}")
+    if parent == real.parent:
+        # tried for real: root passes every access() check, and /proc or a read-only mount still
+        # refuse the file (a --plot there failed after an hour's survey, with OUT.json written)
+        trial = beside(real)
+        try:
+            trial.open("w").close()
+            trial.unlink()
+        except OSError as exc:
+            raise BadInput(path, option, f"cannot write: {exc.strerror or exc}") from None

@@ -88,3 +88,62 @@ def test_a_pending_file_where_none_can_be_written_is_refused_at_once(tmp_path):
     with pytest.raises(BadInput) as got:
         PendingFile(tmp_path / "file" / "OUT.json", "OUT.json")
     assert str(got.value).startswith(f"{tmp_path / 'file' / 'OUT.json'}: cannot write OUT.json: ")
+
+
+def _fifo_reader(path: Path):
+    """A reader on the FIFO ``path`` in a thread: returns a function giving what it read."""
+    import threading
+    got: list[bytes] = []
+    thread = threading.Thread(target=lambda: got.append(path.read_bytes()), daemon=True)
+    thread.start()
+
+    def read() -> bytes:
+        thread.join(10)
+        return got[0] if got else b"(nothing read)"
+    return read
+
+
+def test_a_fifo_is_written_into_not_replaced(tmp_path):
+    """``--json myfifo`` (or /dev/null, /dev/stdout) was renamed over: a plain file stood where the
+    pipe or the system's device had been, and the reader got nothing."""
+    fifo = tmp_path / "out.json"
+    os.mkfifo(fifo)
+    read = _fifo_reader(fifo)
+    write_text_atomically(fifo, '{"count": 0}')
+    assert read() == b'{"count": 0}'
+    assert fifo.is_fifo() and [p.name for p in tmp_path.iterdir()] == ["out.json"]
+
+
+def test_a_pending_file_on_a_fifo_is_written_into_on_commit(tmp_path):
+    fifo = tmp_path / "FISH.csv"
+    os.mkfifo(fifo)
+    pending = PendingFile(fifo, "the fish")
+    pending.file.write("fish,length_cm\n1,20.5\n")
+    read = _fifo_reader(fifo)
+    pending.commit()
+    pending.commit()                                # twice is safe
+    assert read() == b"fish,length_cm\n1,20.5\n" and fifo.is_fifo()
+    pending.discard()
+    assert [p.name for p in tmp_path.iterdir()] == ["FISH.csv"]
+
+
+def test_a_link_keeps_pointing_where_it_did_and_its_file_is_replaced(tmp_path):
+    (tmp_path / "real").mkdir()
+    target = tmp_path / "real" / "CALIB.json"
+    target.write_text("old")
+    link = tmp_path / "CALIB.json"
+    link.symlink_to(target)
+    write_text_atomically(link, "new")
+    assert link.is_symlink() and target.read_text() == "new"
+    pending = PendingFile(link, "the survey")
+    pending.file.write("newer")
+    pending.commit()
+    assert link.is_symlink() and target.read_text() == "newer"
+    assert sorted(p.name for p in (tmp_path / "real").iterdir()) == ["CALIB.json"]
+
+
+def test_outputs_into_a_fifo_are_neither_refused_nor_one_file_twice(tmp_path):
+    from controller.cli.output_paths import check_outputs
+    fifo = tmp_path / "sink"
+    os.mkfifo(fifo)
+    check_outputs({"--json": str(fifo), "--csv": str(fifo)}, [])

@@ -70,6 +70,8 @@ def test_an_output_naming_an_input_or_a_directory_is_refused_before_any_work(tmp
     # a directory that cannot be made: a file stands where it would be
     _refused(capsys, tmp_path, line, tmp_path / "ref.csv" / "out.x",
              f"out.x: {option}: cannot write: {tmp_path / 'ref.csv'} is a file, not a directory")
+    # a directory that lets root past access() but takes no file (a --plot there failed after the survey)
+    _refused(capsys, tmp_path, line, Path("/proc/out.x"), f"/proc/out.x: {option}: cannot write")
     (tmp_path / "a_dir").mkdir()
     if "chessboard" in line or "import" in line:    # click's own check of the option (dir_okay=False)
         _refused(capsys, tmp_path, line, tmp_path / "a_dir", option, "a_dir", "directory")
@@ -92,3 +94,9 @@ def test_a_picture_named_in_a_format_matplotlib_cannot_draw_is_refused_before_an
                                                                                        option):
     _refused(capsys, tmp_path, line, tmp_path / "page.xyz", f"page.xyz: {option}: cannot draw a .xyz picture",
              "png", "svg")
+
+
+def test_a_plot_where_no_file_can_be_made_is_refused_before_the_survey_and_its_json(tmp_path, capsys):
+    _refused(capsys, tmp_path, "survey --calib {calib.json} --species sparus_aurata --setup underwater "
+             "--pair {L1.png} {R1.png} --json {d}/out.json --plot {out}", Path("/proc/hist.png"),
+             "/proc/hist.png: --plot: cannot write")
