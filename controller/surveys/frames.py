@@ -202,7 +202,7 @@ def directory_items(directory: str) -> list[tuple[str, ...]]:
         raise BadInput(directory, None, "no such directory")
     if not d.is_dir():
         raise BadInput(directory, None, "not a directory")
-    files = sorted(p for p in d.iterdir() if p.is_file() and p.suffix.lower() in IMAGE_SUFFIXES)
+    files = _images(d)
     if not files:
         views = _view_folders(d)
         if views is not None:
@@ -232,10 +232,17 @@ def directory_items(directory: str) -> list[tuple[str, ...]]:
     return rg
 
 
+def _images(d: Path) -> list[Path]:
+    """The images in ``d``, sorted; hidden files are not (a Mac's ``._a_L.png`` AppleDouble beside
+    every image copied from it aborted the survey as unreadable)."""
+    return sorted(p for p in d.iterdir()
+                  if not p.name.startswith(".") and p.is_file() and p.suffix.lower() in IMAGE_SUFFIXES)
+
+
 def _view_folders(d: Path) -> tuple[Path, Path] | None:
     """The left and right views' folders in ``d``; None when it holds none."""
     found: dict[str, Path] = {}
-    for sub in sorted(p for p in d.iterdir() if p.is_dir()):
+    for sub in sorted(p for p in d.iterdir() if p.is_dir() and not p.name.startswith(".")):
         m = _SIDE_DIR.match(sub.name)
         if m:
             side = m["side"][0].upper()
@@ -254,7 +261,7 @@ def _folder_pairs(left: Path, right: Path) -> list[tuple[str, ...]]:
     views = []
     for folder in (left, right):
         named: dict[str, Path] = {}
-        for p in sorted(q for q in folder.iterdir() if q.is_file() and q.suffix.lower() in IMAGE_SUFFIXES):
+        for p in _images(folder):
             if p.stem in named:
                 raise BadInput(str(p), None, f"a second image for '{p.stem}', beside {named[p.stem].name}")
             named[p.stem] = p

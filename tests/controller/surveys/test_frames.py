@@ -143,6 +143,24 @@ def test_directory_pairs_named_l_r_in_lower_case_and_two_images_for_one_side_ref
         directory_items(str(tmp_path))
 
 
+@pytest.mark.parametrize("layout", ["pairs", "rg", "folders"])
+def test_hidden_files_a_mac_leaves_beside_each_image_are_not_surveyed(tmp_path, layout):
+    """A folder copied from a Mac holds ``._a_L.png`` (AppleDouble, no image) beside each image:
+    the survey stopped on it as unreadable."""
+    names = {"pairs": ["a_L.png", "a_R.png"], "rg": ["f1.png"], "folders": ["H7_L/1.png", "H7_R/1.png"]}[layout]
+    for name in names:
+        path = tmp_path / name
+        path.parent.mkdir(exist_ok=True)
+        write(path, grey())
+        (path.parent / f"._{path.name}").write_bytes(b"\x00\x05\x16\x07\x00\x02\x00\x00Mac OS X")
+    (tmp_path / ".thumbs_L.png").write_bytes(b"not an image")
+    (tmp_path / ".Trashes").mkdir()
+    (tmp_path / ".Trashes" / "x_L.png").write_bytes(b"not an image")
+    items = directory_items(str(tmp_path))
+    assert [tuple(Path(p).relative_to(tmp_path).as_posix() for p in item) for item in items] == \
+        [tuple(names)]
+
+
 @pytest.mark.parametrize("left, right", [("H7_L", "H7_R"), ("left", "right"), ("L", "R"), ("cam 1-l", "cam 1-r")])
 def test_a_directory_of_two_view_folders_pairs_their_images_by_name(tmp_path, left, right):
     # StereoMorph's layout: Images/H7_L/008428.jpeg beside Images/H7_R/008428.jpeg
