@@ -223,4 +223,16 @@ def survey(calib_path, species, setup, pairs, rgs, directory, video, rg_video, s
     rejected = summary["rejected_lengths_cm"]
     shown = ", ".join(f"{x:.1f}" for x in rejected[:5]) + (" ..." if len(rejected) > 5 else "")
     left_out = f"; {len(rejected)} left out as measuring errors ({shown} cm)" if rejected else ""
-    click.echo(f"{summary['count']} fish in {summary['frames']} pairs: mean weight {mean}{ci}{left_out}", err=True)
+    click.echo(f"{summary['count']} fish in {summary['frames']} pairs{_tracked(summary)}: mean weight {mean}{ci}"
+               f"{left_out}", err=True)
+
+
+def _tracked(summary: dict) -> str:
+    """In video, why the count is not the entries': each fish counts once, and only a track of
+    enough sightings counts (the JSON's ``fish`` lists every measurement of every frame)."""
+    tracks = summary.get("tracks") or {}
+    if summary.get("statistics_per") != "track":
+        return ""
+    most = tracks.get("min_sightings", 1)
+    kept = f", those seen in at least {most} pairs counted" if most > 1 else ""
+    return f" ({summary.get('fish_entries', 0)} measurements of {tracks.get('seen', 0)} tracked fish{kept})"

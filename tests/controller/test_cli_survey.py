@@ -409,3 +409,16 @@ def test_a_survey_killed_outright_is_outlived_by_no_worker_nor_its_shared_frames
     p.send_signal(sig)
     assert p.wait(10) == -sig
     assert _until(lambda: not _marked(mark)), "a worker outlived its survey"
+
+
+@pytest.mark.parametrize("per, entries, seen, most, said", [
+    ("fish", 6, 6, 1, ""),
+    ("track", 3, 3, 3, " (3 measurements of 3 tracked fish, those seen in at least 3 pairs counted)"),
+    ("track", 40, 7, 1, " (40 measurements of 7 tracked fish)"),
+])
+def test_a_video_survey_line_says_why_its_count_is_not_its_measurements(per, entries, seen, most, said):
+    """'0 fish in 3 pairs' while the JSON listed 3 measured fish: in video a fish counts once, and
+    at 5 frames a second or more only once seen in 3 pairs."""
+    from controller.cli.survey_cmd import _tracked
+    summary = {"statistics_per": per, "fish_entries": entries, "tracks": {"seen": seen, "min_sightings": most}}
+    assert _tracked(summary) == said
