@@ -74,8 +74,8 @@ class StopWatchdog:
     ``budget_s`` wall seconds, however stuck the event loop is. Arming is one write to a pipe, safe
     from a signal handler (no lock taken)."""
 
-    def __init__(self, budget_s: float = HARD_STOP_S, on_overrun=None):
-        self.budget_s, self.on_overrun = budget_s, on_overrun
+    def __init__(self, budget_s: float = HARD_STOP_S, on_overrun=None, who: str = "fishfarm"):
+        self.budget_s, self.on_overrun, self.who = budget_s, on_overrun, who
         self._r, self._w = os.pipe()
         threading.Thread(target=self._watch, name="fishfarm-stop-watchdog", daemon=True).start()
 
@@ -90,8 +90,8 @@ class StopWatchdog:
             if self.on_overrun is not None:
                 self.on_overrun()
         finally:
-            os.write(2, b"fishfarm: stopping took longer than %g s: exiting at once (code %d)\n"
-                     % (self.budget_s, EXIT_STOP_OVERRUN))
+            os.write(2, b"%s: stopping took longer than %g s: exiting at once (code %d)\n"
+                     % (self.who.encode(), self.budget_s, EXIT_STOP_OVERRUN))
             os._exit(EXIT_STOP_OVERRUN)
 
 
@@ -103,15 +103,7 @@ def install_signal_handlers(controller) -> None:
     another thread (Zenoh's) still wakes the loop: Python writes it to the wakeup socket."""
     loop = asyncio.get_running_loop()
     controller.watchdog = StopWatchdog(HARD_STOP_S, controller.kill_sim)
-    wake_r, wake_w = socket.socketpair()
-    for sock in (wake_r, wake_w):
-        sock.setblocking(False)
-    controller._signal_wakeup = (wake_r, wake_w)       # kept open for the process's lifetime
-
-    def drain() -> None:
-        with contextlib.suppress(OSError):
-            while wake_r.recv(64):
-                pass
+    controller._signal_wakeup = wake_loop_on_signals(loop)
 
     def on_signal(signum, frame):
         for sig in (signal.SIGINT, signal.SIGTERM):
@@ -120,7 +112,24 @@ def install_signal_handlers(controller) -> None:
         with contextlib.suppress(RuntimeError):          # the loop has already closed
             loop.call_soon_threadsafe(controller.begin_stop, signal.Signals(signum).name)
 
-    loop.add_reader(wake_r.fileno(), drain)
-    signal.set_wakeup_fd(wake_w.fileno(), warn_on_full_buffer=False)
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, on_signal)
+
+
+def wake_loop_on_signals(loop) -> tuple[socket.socket, socket.socket]:
+    """Python runs a ``signal.signal`` handler on the main thread, at its next bytecode: a signal
+    the kernel hands to another thread (Zenoh's, a camera's) would wait for the main thread's
+    select to end. A wakeup socket the loop reads ends that select. Returns the pair, to keep open
+    for the process's lifetime."""
+    wake_r, wake_w = socket.socketpair()
+    for sock in (wake_r, wake_w):
+        sock.setblocking(False)
+
+    def drain() -> None:
+        with contextlib.suppress(OSError):
+            while wake_r.recv(64):
+                pass
+
+    loop.add_reader(wake_r.fileno(), drain)
+    signal.set_wakeup_fd(wake_w.fileno(), warn_on_full_buffer=False)
+    return wake_r, wake_w

@@ -7,11 +7,13 @@ writes and joins the same timeline with ``--epoch-wall/--epoch-farm/--speed``.
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import json
 import logging
 import math
 import os
 import signal
+import sys
 import threading
 from pathlib import Path
 
@@ -63,8 +65,7 @@ def sim(config_path, endpoints, truth, speed, epoch_wall, epoch_farm, clock_path
         farm.files_dir = Path(endpoints).parent     # the stereo rig's CALIB.json beside the endpoints
         stop = asyncio.Event()
         loop = asyncio.get_running_loop()
-        for sig in (signal.SIGINT, signal.SIGTERM):
-            loop.add_signal_handler(sig, stop.set)
+        _stop_on_signals(loop, farm, stop)
         # SIGUSR1: the dispenser loses power and comes back (counters reset), as after a site power cut
         loop.add_signal_handler(signal.SIGUSR1, lambda: farm.dispenser and farm.dispenser.power_cycle())
         ears = None
@@ -84,7 +85,43 @@ def sim(config_path, endpoints, truth, speed, epoch_wall, epoch_farm, clock_path
             await farm.stop()
 
     asyncio.run(main())
-    return 0
+    # a frame may still be rendering on a daemon thread (a survey pair takes a second and more):
+    # the interpreter's finalization under it was seen to crash (SIGSEGV) or wait; nothing is left
+    # to flush but the standard streams
+    logging.shutdown()
+    for stream in (sys.stdout, sys.stderr):
+        with contextlib.suppress(Exception):
+            stream.flush()
+    os._exit(0)
+
+
+SIM_STOP_S = 1.0      # wall s from the first signal to the simulator's end at the latest
+
+
+def _stop_on_signals(loop, farm, stop: asyncio.Event) -> None:
+    """SIGINT, SIGTERM (what the controller sends, and PR_SET_PDEATHSIG when the controller dies)
+    and SIGHUP end the simulator within SIM_STOP_S, whatever it is doing: the handler runs between
+    any two bytecodes of the main thread, busy loop or not; it halts the pond's physics and the
+    cameras at once, wakes the loop for the orderly stop (the truth log's closing records), and
+    arms a watchdog that closes the truth log and ends the process if that stop overruns. Later
+    signals change nothing: a SIGKILLed controller's threads each send one as they die."""
+    from controller.shutdown import StopWatchdog, wake_loop_on_signals
+
+    def overrun() -> None:
+        farm.halt()
+        farm.truth.close(timeout_s=0.1)         # every record written is a whole line already
+
+    watchdog = StopWatchdog(SIM_STOP_S, overrun, who="fishfarm sim")
+    farm._signal_wakeup = wake_loop_on_signals(loop)
+
+    def on_signal(signum, frame):
+        watchdog.arm()
+        farm.halt()
+        with contextlib.suppress(RuntimeError):          # the loop has already closed
+            loop.call_soon_threadsafe(stop.set)
+
+    for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP):
+        signal.signal(sig, on_signal)
 
 
 def elastic(path: str, slot: str):

@@ -64,6 +64,12 @@ class SimPond:
         self._next_trace = self.t
         self._lock = threading.Lock()
         self._task: asyncio.Task | None = None
+        self.halted = False                   # set on the way out: no more stepping, whoever asks
+
+    def halt(self) -> None:
+        """Stop stepping now, from any thread: a physics far behind a fast clock (at 600x the demo's
+        pond asks 30,000 steps a wall second) no longer holds the process's stop while it catches up."""
+        self.halted = True
 
     def advance(self, until: float) -> None:
         """Step the physics up to ``until`` (farm s), to within one step."""
@@ -73,7 +79,7 @@ class SimPond:
     def _advance(self, until: float) -> None:
         dt = self.step_s
         robot = self.robot
-        while self.t + dt <= until:
+        while self.t + dt <= until and not self.halted:
             left, right = self.thrust(self.t + dt / 2)
             robot.step(dt, left, right)
             self.steps += 1
@@ -108,6 +114,7 @@ class SimPond:
         self._task = asyncio.create_task(self._run(), name="sim-pond")
 
     async def stop(self) -> None:
+        self.halt()
         await end_task(self._task)
         self._task = None
 

@@ -121,16 +121,23 @@ class SimTowerCamera:
         for th in self._threads:
             th.start()
 
-    def stop(self) -> None:
+    def halt(self) -> None:
+        """No more frames: the producer renders none after the one it is on, every stream ends."""
         self._stop.set()
         with self._cond:
             self._cond.notify_all()
+
+    def stop(self, wait_s: float = 2.0) -> None:
+        """Halt, close the server, and wait at most ``wait_s`` for each thread (they are daemons: a
+        frame still rendering in C, a second and more for the survey cameras' pairs, is left to end
+        with the process)."""
+        self.halt()
         if self._server is not None:
             self._server.shutdown()
             self._server.server_close()
             self._server = None
         for th in self._threads:
-            th.join(2.0)
+            th.join(wait_s)
         self._threads = []
 
     # --- frames -----------------------------------------------------------------------------------

@@ -21,6 +21,7 @@ class TruthLog:
     def __init__(self, path: str | Path | None):
         self._lock = threading.Lock()
         self._fh = None
+        self._closed = False
         if path is not None:
             Path(path).parent.mkdir(parents=True, exist_ok=True)
             self._fh = open(path, "a", encoding="utf-8", buffering=1)
@@ -31,14 +32,23 @@ class TruthLog:
         with self._lock:
             if self._fh is not None:
                 self._fh.write(json.dumps(record) + "\n")
-            else:
+            elif not self._closed:
                 self.records.append(record)
+            # closed: a thread still running on the way out (a camera's frame) writes nothing
 
-    def close(self) -> None:
-        with self._lock:
+    def close(self, timeout_s: float = -1) -> bool:
+        """Flush and close; later writes are dropped. ``timeout_s``: wait at most that long for a
+        write in progress (from a watchdog about to end the process); False if it did not end."""
+        if not self._lock.acquire(timeout=timeout_s):
+            return False
+        try:
+            self._closed = True
             if self._fh is not None:
                 self._fh.close()
                 self._fh = None
+        finally:
+            self._lock.release()
+        return True
 
 
 def read_truth(path: str | Path) -> list[dict]:

@@ -32,6 +32,7 @@ log = logging.getLogger("fishfarm.sim")
 TANK_MOUTH_M = 0.30       # the chute is over a tank when within this of the tank's position
 RECV_WINDOW = "recv_buffer_size;262144"   # the simulated camera's reader: FFmpeg's TCP receive buffer
 FOOD_BOX_M = 0.10         # the hopper fills only this close to the food box
+CAMERA_STOP_S = 0.2       # wall s the stop waits for a camera's threads (a survey pair renders for longer)
 
 
 class SimSection(BaseModel):
@@ -300,13 +301,24 @@ class SimFarm:
         self.hubs.append(hub)
         return {"kind": "contacts", "driver": "serial", "port": hub.port}
 
+    def halt(self) -> None:
+        """From any thread, at once: the pond stops stepping and the cameras rendering, so nothing
+        the stop waits for is busy catching up with a fast clock."""
+        if self.pond is not None:
+            self.pond.halt()
+        for camera in (self.stereo, self.camera):
+            if camera is not None:
+                camera.halt()
+
     async def stop(self) -> None:
+        """Everything stopped within about a second (a frame still rendering is not waited for:
+        its thread is a daemon), the truth log's closing records written."""
+        self.halt()
         if self.thermometer is not None:
             await self.thermometer.stop()
-        if self.stereo is not None:
-            await asyncio.to_thread(self.stereo.stop)
-        if self.camera is not None:
-            await asyncio.to_thread(self.camera.stop)
+        cameras = [c for c in (self.stereo, self.camera) if c is not None]
+        if cameras:
+            await asyncio.gather(*(asyncio.to_thread(c.stop, CAMERA_STOP_S) for c in cameras))
         if self.pond is not None:
             await self.pond.stop()
         if self.thrusters is not None:
