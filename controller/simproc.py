@@ -3,15 +3,19 @@
 It shares the controller's timeline (same epoch and speed). It runs in a session of its own, so
 a terminal's Ctrl-C reaches the controller only: the controller puts its actuators safe first,
 then stops the child (SIGTERM, then SIGKILL) and reaps it. It dies with the controller
-(PR_SET_PDEATHSIG), so even a SIGKILLed controller never leaves a farm simulator behind.
+(PR_SET_PDEATHSIG), so even a SIGKILLed controller never leaves a farm simulator behind; the
+directory of its files, which a killed controller cannot remove, the next controller's start does.
 """
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import ctypes
+import fcntl
 import json
 import logging
 import os
+import shutil
 import signal
 import subprocess
 import sys
@@ -38,15 +42,74 @@ def _dying_with(parent: int):
     return die_with_parent
 
 
+DIR_PREFIX = "fishfarm-sim-"
+OWNER_LOCK = "owner.lock"   # flock()ed by the controller that made the directory, for its lifetime
+
+
+def sweep_leftovers(tmp: str | None = None) -> list[Path]:
+    """Remove the simulator directories of controllers that are gone (killed outright: SIGKILL, a
+    second signal, the stop watchdog); return them. Their owner's lock is the kernel's, released
+    when the process ends however it ends: a directory whose lock this process can take has no
+    owner left. A directory without a lock (being made, or made by an older version) is left."""
+    removed = []
+    base = Path(tmp or tempfile.gettempdir())
+    try:
+        candidates = sorted(base.glob(DIR_PREFIX + "*"))
+    except OSError:
+        return removed
+    for path in candidates:
+        try:
+            if path.is_symlink() or not path.is_dir() or path.stat().st_uid != os.getuid():
+                continue
+            fd = os.open(path / OWNER_LOCK, os.O_RDONLY | os.O_NOFOLLOW | os.O_CLOEXEC)
+        except OSError:
+            continue
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except OSError:
+            os.close(fd)                            # its controller is alive
+            continue
+        try:
+            shutil.rmtree(path)
+            removed.append(path)
+        except OSError as exc:
+            log.debug("simulator directory %s not removed: %s", path, exc)
+        finally:
+            os.close(fd)
+    if removed:
+        log.info("removed %d simulator director%s left by controllers that were killed",
+                 len(removed), "y" if len(removed) == 1 else "ies")
+    return removed
+
+
+def _owned_dir() -> tuple[Path, int]:
+    """A new simulator directory, locked by this process (the lock file is made and locked under
+    another name, then renamed: a sweep never sees it unlocked)."""
+    path = Path(tempfile.mkdtemp(prefix=DIR_PREFIX))
+    fd = os.open(path / (OWNER_LOCK + ".new"), os.O_RDWR | os.O_CREAT | os.O_EXCL | os.O_CLOEXEC, 0o600)
+    fcntl.flock(fd, fcntl.LOCK_EX)
+    os.rename(path / (OWNER_LOCK + ".new"), path / OWNER_LOCK)
+    return path, fd
+
+
 class SimProcess:
     def __init__(self, cfg, clock):
         self.cfg, self.clock = cfg, clock
         self.proc: subprocess.Popen | None = None
-        self._dir = tempfile.TemporaryDirectory(prefix="fishfarm-sim-")
+        sweep_leftovers()
+        self.dir, self._lock_fd = _owned_dir()
+
+    def remove_dir(self) -> None:
+        """The directory and its files removed, its lock let go (once; safe from any thread)."""
+        shutil.rmtree(self.dir, ignore_errors=True)
+        fd, self._lock_fd = self._lock_fd, -1
+        if fd >= 0:
+            with contextlib.suppress(OSError):
+                os.close(fd)
 
     async def start(self) -> dict[str, dict]:
         """Start the simulator; return the real-driver section of every simulated device."""
-        endpoints = Path(self._dir.name) / "endpoints.json"
+        endpoints = self.dir / "endpoints.json"
         args = [sys.executable, "-m", "controller.cli", "sim", "--config", self.cfg.path,
                 "--endpoints", str(endpoints), *self.clock.as_args()]
         truth = os.environ.get("FISHFARM_SIM_TRUTH")
@@ -95,7 +158,7 @@ class SimProcess:
             if self.proc is not None and self.proc.returncode is not None:
                 log.info("simulated devices stopped (exit %d)", self.proc.returncode)
         finally:
-            self._dir.cleanup()
+            self.remove_dir()
 
     async def _ended(self, wall_s: float) -> bool:
         # polled, not proc.wait() on a thread: a thread blocked in wait() would outlive a stop

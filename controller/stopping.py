@@ -83,6 +83,7 @@ class Stopping:
         """From the watchdog's thread, just before the process ends: leave no simulator behind."""
         if self.sim is not None:
             self.sim.kill()
+            self.sim.remove_dir()
 
     async def _settle_stopped_run(self) -> None:
         """A run the stop cut short is booked now from the dispenser's counters (the grams its load
