@@ -1,9 +1,9 @@
 """Stopping the controller process: deadlines for every step, a watchdog, the signal handlers.
 
-"Stop means stop": SIGINT or SIGTERM ends ``fishfarm run`` within HARD_STOP_S from any state. Each
+"Stop means stop": SIGINT, SIGTERM or SIGHUP ends ``fishfarm run`` within HARD_STOP_S from any state. Each
 step of ``Controller.stop`` is bounded by the deadlines below, and a task that ignores its cancel
 (on Python 3.11 ``asyncio.wait_for`` can swallow one, gh-86296) is left behind, not waited for;
-the watchdog ends the process if even that overruns. A second signal gets the default action.
+the watchdog ends the process if even that overruns. A second SIGINT or SIGTERM gets the default action.
 """
 from __future__ import annotations
 
@@ -96,10 +96,14 @@ class StopWatchdog:
 
 
 def install_signal_handlers(controller) -> None:
-    """SIGINT/SIGTERM stop the controller (actuators safe, ledger closed) within HARD_STOP_S; the
-    first one restores the default action, so a second one ends the process at once, whatever it
-    is doing. Plain ``signal.signal`` handlers run between any two bytecodes of the main thread,
-    even while the event loop is busy; they only take lock-free steps. A signal that lands on
+    """SIGINT/SIGTERM/SIGHUP stop the controller (actuators safe, ledger closed) within HARD_STOP_S;
+    the first one restores SIGINT's and SIGTERM's default action, so a second one of those ends the
+    process at once, whatever it is doing. SIGHUP (a closed terminal, a dropped SSH session) is
+    handled like SIGTERM but never becomes a second signal: a hangup comes twice (the shell passes
+    its own on, then the kernel signals the foreground group) and is nobody asking for more haste;
+    the watchdog still ends the stop within HARD_STOP_S. Plain ``signal.signal`` handlers run
+    between any two bytecodes of the main thread, even while the event loop is busy; they only
+    take lock-free steps. A signal that lands on
     another thread (Zenoh's) still wakes the loop: Python writes it to the wakeup socket."""
     loop = asyncio.get_running_loop()
     controller.watchdog = StopWatchdog(HARD_STOP_S, controller.kill_sim)
@@ -112,7 +116,7 @@ def install_signal_handlers(controller) -> None:
         with contextlib.suppress(RuntimeError):          # the loop has already closed
             loop.call_soon_threadsafe(controller.begin_stop, signal.Signals(signum).name)
 
-    for sig in (signal.SIGINT, signal.SIGTERM):
+    for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP):
         signal.signal(sig, on_signal)
 
 

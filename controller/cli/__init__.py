@@ -91,8 +91,10 @@ def main(argv=None) -> int:
 def _terminated(signum, _frame) -> None:
     """SIGTERM ends a command as Ctrl-C does, through its clean-up (a survey's workers stopped, no
     half-written output left); a second one ends it at once. Commands that serve (run, sim,
-    worker) install their own handlers over this one once they start. (SIGHUP keeps its default:
-    raised at a random point of a server it could leave Zenoh's threads holding the process.)"""
+    worker) install their own handlers over this one once they start. (SIGHUP keeps its default
+    here: this SystemExit, raised at a random point of a server, could leave Zenoh's threads
+    holding the process. ``run`` and ``sim`` handle SIGHUP as SIGTERM once they start, with
+    handlers that raise nothing: they wake the loop for the orderly stop, controller/shutdown.py.)"""
     signal.signal(signum, signal.SIG_DFL)
     raise SystemExit(128 + signum)
 

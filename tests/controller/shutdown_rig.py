@@ -103,6 +103,7 @@ class RunningController:
         self.speed = speed if phase not in ("absent_device", "silent_device") else 1.0
         self.proc: subprocess.Popen | None = None
         self.sim_pid: int | None = None
+        self.sim_dir: Path | None = None
         self.sim_start: str | None = None
         self.exit_s: float | None = None
 
@@ -132,6 +133,9 @@ class RunningController:
         self.wait_log(SIM_PID.pattern)
         self.sim_pid = int(SIM_PID.search(self.log())[1])
         self.sim_start = proc_start(self.sim_pid)
+        with open(f"/proc/{self.sim_pid}/cmdline", "rb") as fh:     # its files' directory
+            args = fh.read().decode().split("\0")
+        self.sim_dir = Path(args[args.index("--endpoints") + 1]).parent
 
     def wait_sim_gone(self, timeout_s: float = 5.0) -> bool:
         deadline = time.monotonic() + timeout_s
@@ -201,10 +205,11 @@ class RunningController:
             assert time.monotonic() < deadline, f"no auger run in {timeout_s} s:\n{self.log()[-3000:]}"
             time.sleep(0.01)
 
-    def send(self, sig: int) -> float:
+    def send(self, sig: int, group: bool = False) -> float:
         """SIGINT as a terminal sends it (to the whole foreground group), SIGTERM as a service
-        manager does (to the process). Returns the monotonic time it was sent."""
-        if sig == signal.SIGINT:
+        manager does (to the process); ``group``: to the group whatever the signal (a hangup).
+        Returns the monotonic time it was sent."""
+        if sig == signal.SIGINT or group:
             os.killpg(self.proc.pid, sig)
         else:
             self.proc.send_signal(sig)

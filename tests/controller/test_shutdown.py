@@ -22,7 +22,8 @@ from hil_tests.farm import without_cleaner  # the demo farm's feeder alone
 from tests.controller.shutdown_rig import PHASES, ROOT, RunningController, free_port, proc_state
 
 LIMIT_S = 5.0
-SIGNALS = {"SIGINT-to-group": signal.SIGINT, "SIGTERM": signal.SIGTERM}
+# SIGHUP: a closed terminal or a dropped SSH session; stop means stop there too, not a crash
+SIGNALS = {"SIGINT-to-group": signal.SIGINT, "SIGTERM": signal.SIGTERM, "SIGHUP": signal.SIGHUP}
 
 
 @pytest.fixture
@@ -47,6 +48,7 @@ def test_a_signal_stops_the_controller_within_5_s(controller, sig):
     if controller.sim_pid is not None:
         assert not controller.sim_alive(), f"simulator pid {controller.sim_pid} left behind"
         assert "simulated devices stopped" in log or controller.phase == "sim_died"
+        assert not controller.sim_dir.exists(), f"{controller.sim_dir} left behind"
     if controller.phase != "starting" or controller.db.exists():     # starting: opened after the simulator
         assert controller.ledger_clean() is None, controller.ledger_clean()
     if controller.phase == "starting":
@@ -87,6 +89,23 @@ def test_a_second_signal_ends_it_at_once(controller):
     controller.proc = None
     # PR_SET_PDEATHSIG: the simulator follows its parent, and init reaps it
     assert controller.wait_sim_gone(), f"simulator pid {controller.sim_pid} outlived its controller"
+
+
+@pytest.mark.parametrize("controller", ["feeding"], indirect=True)
+def test_a_hangup_stops_safely_though_it_signals_twice(controller):
+    """A terminal that closes (an SSH session dropped) hangs up the job twice: the shell passes its
+    SIGHUP on, then the kernel sends the foreground group its own. Neither is an operator asking
+    twice: the stop still puts the auger safe, books the run and closes the ledger."""
+    controller.reach()
+    sent = controller.send(signal.SIGHUP, group=True)
+    controller.send(signal.SIGHUP, group=True)
+    rc = controller.wait_exit(sent)
+    log = controller.log()
+    assert rc == 0, f"exit {rc}:\n{log[-3000:]}"
+    assert controller.exit_s < LIMIT_S and "controller stopped in" in log
+    assert not controller.sim_alive() and not controller.sim_dir.exists()
+    assert controller.ledger_clean() is None, controller.ledger_clean()
+    assert_auger_stopped_short(controller)
 
 
 @pytest.mark.parametrize("controller", ["sim_died"], indirect=True)
