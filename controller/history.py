@@ -5,7 +5,8 @@
 ``rations`` (one row a farm day: grams, pellet, what it rested on), ``stock`` (mortality, harvests
 and transfers in or out), ``feeds`` (every feed: intent time, aim, grams measured, outcome).
 ``since``/``until``: an ISO time (2026-06-01T06:00, UTC unless it says) or Unix seconds; ``since``
-also a duration back from now (30m, 12h, 7d). Rows come oldest first, at most ``MAX_ROWS``.
+also a duration back from now (30m, 12h, 7d); none of them before 2000 but 0. Rows come oldest
+first, at most ``MAX_ROWS``.
 """
 from __future__ import annotations
 
@@ -49,23 +50,25 @@ WHAT = tuple(COLUMNS)
 def parse_time(text, name: str, now: float, *, durations: bool) -> float:
     """Unix seconds from ISO, Unix seconds or (``durations``) a span back from ``now``."""
     if isinstance(text, int | float) and not isinstance(text, bool):      # a JSON number: seconds, however written
-        value = float(text)
-        text = repr(text)
+        value, text, span = float(text), repr(text), False
     else:
         text = str(text).strip()
-        value = float(text) if SECONDS.match(text) and not BASIC_DATE.match(text) else None
-    if value is not None and math.isfinite(value) and (value < 0 or 0 < value < FIRST_S):
-        raise BadInput(name, None, f"{text[:60]!r}: {iso(value) if value > -1e11 else 'a time'} is before 2000 "
-                                   "(a date's typo?): an ISO time, Unix seconds or a duration")
-    m = DURATION.match(text) if durations else None
-    if m:
-        value = now - float(m.group(1)) * UNIT_S[m.group(2)]
-    if value is not None:
+        span = bool(durations and DURATION.match(text))
+        value = _read_time(text, name, now, durations)
+    if not math.isfinite(value):
+        raise BadInput(name, None, f"{text[:60]!r}: not a time a float can hold")
+    _refuse_before_2000(value, text, name, span=span, durations=durations)
+    return value
+
+
+def _read_time(text: str, name: str, now: float, durations: bool) -> float:
+    if SECONDS.match(text) and not BASIC_DATE.match(text):
         # a number too big for a float (310 digits and more) is not read as an ISO date either:
         # fromisoformat took '1111...' for 1111-11-11 and every row came back
-        if not math.isfinite(value):
-            raise BadInput(name, None, f"{text[:60]!r}: not a time a float can hold")
-        return value
+        return float(text)
+    m = DURATION.match(text) if durations else None
+    if m:
+        return now - float(m.group(1)) * UNIT_S[m.group(2)]
     try:
         when = dt.datetime.fromisoformat(text.replace("z", "Z"))
     except ValueError:
@@ -73,6 +76,17 @@ def parse_time(text, name: str, now: float, *, durations: bool) -> float:
         raise BadInput(name, None, f"{text[:60]!r} is not an ISO time (2026-06-01T06:00), "
                                    f"Unix seconds{spans}") from None
     return (when if when.tzinfo else when.replace(tzinfo=dt.UTC)).timestamp()
+
+
+def _refuse_before_2000(value: float, text: str, name: str, *, span: bool, durations: bool) -> None:
+    """Every form, not only seconds: 1999-12-31 or 99999999d also brought back every row."""
+    if span and value < FIRST_S:
+        raise BadInput(name, None, f"{text[:60]!r} reaches back before 2000: no ledger holds anything that "
+                                   f"old; leave {name} out for every row")
+    if value < 0 or 0 < value < FIRST_S:        # 0 is the beginning, asked for on purpose
+        forms = "an ISO time, Unix seconds or a duration" if durations else "an ISO time or Unix seconds"
+        raise BadInput(name, None, f"{text[:60]!r}: {iso(value) if value > -1e11 else 'a time'} is before 2000 "
+                                   f"(a date's typo?): {forms}")
 
 
 def iso(t: float) -> str:

@@ -72,6 +72,31 @@ def test_a_number_no_float_holds_is_refused_not_read_as_a_date(text):
         parse_time(text, "since", T, durations=True)
 
 
+@pytest.mark.parametrize(("text", "durations"), [
+    ("1999-12-31", True), ("1999-12-31T23:59:59Z", False), ("2000-01-01T00:30:00+01:00", False),   # ISO
+    ("19991231", True), ("1969-12-31", False), ("0001-01-01", True),                                # basic date, 1969
+    (915_148_800, True), (915_148_800.5, False), ("915148800", True)])          # a JSON number, Unix seconds
+def test_a_time_before_2000_is_refused_as_a_date_s_typo_in_every_form(text, durations):
+    """README: "a time before 2000 other than 0 is refused as a date's typo" (only seconds were)."""
+    with pytest.raises(BadInput, match=r"^since: .* is before 2000 \(a date's typo\?\)"):
+        parse_time(text, "since", T, durations=durations)
+
+
+@pytest.mark.parametrize("text", ["99999999d", "10000d", "1" * 300 + "w"])
+def test_a_duration_reaching_back_before_2000_is_refused_in_one_line(text):
+    with pytest.raises(BadInput, match=r"^since: .* reaches back before 2000") as refused:
+        parse_time(text, "since", T, durations=True)
+    assert "\n" not in str(refused.value)
+
+
+@pytest.mark.parametrize(("text", "durations", "want"), [
+    ("2000-01-01T00:00:00Z", False, 946_684_800.0), ("20000101", False, 946_684_800.0),
+    ("1970-01-01T00:00:00Z", False, 0.0), (0, False, 0.0),                      # 0: "other than 0"
+    ("9000d", True, T - 9000 * DAY)])                                            # 2001: after 2000
+def test_times_from_2000_on_and_0_are_taken(text, durations, want):
+    assert parse_time(text, "since", T, durations=durations) == pytest.approx(want)
+
+
 def test_the_queryable_s_answers_and_refusals(ledger):
     cfg = load_config("config/farm.toml")
     reply = query_reply(ledger, cfg, "history/surveys/T1", {"since": "2026-06-01"}, T)
@@ -82,6 +107,9 @@ def test_the_queryable_s_answers_and_refusals(ledger):
                                ("history/surveys/T1", {"since": "last tuesday"}, "since: 'last tuesday'"),
                                ("history/surveys/T1", {"until": "7d"}, "until: '7d' is not an ISO time"),
                                ("history/surveys/T1", {"since": "7d&until=1d"}, "separated by ';', not '&'"),
+                               ("history/feeds/T1", {"since": "1999-12-31"}, "is before 2000 (a date's typo?)"),
+                               ("history/feeds/T1", {"since": "99999999d"}, "reaches back before 2000"),
+                               ("history/feeds/T1", {"until": 915148800}, "is before 2000 (a date's typo?)"),
                                ("history/surveys/T1", {"since": "2027-01-01", "until": "2020-01-01"},
                                 "since: 2027-01-01T00:00:00Z is after until (2020-01-01T00:00:00Z)")]:
         reply = query_reply(ledger, cfg, key, params, T)
@@ -107,6 +135,9 @@ def test_fishfarm_history_writes_csv_with_units_in_the_headers(ledger, tmp_path,
                  str(tmp_path / "farm.toml")])
     err = capsys.readouterr().err
     assert code == 2 and "--since: 'soon'" in err and err.count("\n") == 1
+    code = main(["history", "--tank", "T1", "--what", "feeds", "--since", "1999-01-01", "--config", cfg])
+    err = capsys.readouterr().err
+    assert code == 2 and "--since: '1999-01-01'" in err and "before 2000" in err and err.count("\n") == 1
 
 
 def test_a_range_given_in_both_the_selector_and_the_payload_is_refused(ledger):
