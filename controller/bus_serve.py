@@ -19,7 +19,7 @@ from collections.abc import Awaitable, Callable, Iterable, Mapping
 import zenoh
 
 from controller.identity import BY, USER, user_of
-from controller.payload import parse_object
+from controller.payload import NotAnObject, Unread, parse_object
 from controller.text import printable
 from controller.zenoh_config import _one_line
 
@@ -47,7 +47,8 @@ def decode(data: zenoh.ZBytes | bytes | None) -> dict:
 
 class RefusedOnWire(LookupError):
     """A query refused before any handler (an unknown command, a bad user key): ``notify(payload)``
-    tells the audit, with the payload as received (None when unreadable)."""
+    tells the audit, with the payload as received (a ``Received`` when JSON but no object, None
+    when unreadable)."""
 
     def __init__(self, error: str, notify):
         super().__init__(error)
@@ -108,7 +109,7 @@ class Serving:
                 raise RefusedOnWire(error, lambda payload: tell(command, error, who, payload))
             user = user if self.identified else None
             return (table[command], command in forgiving, now.get(command), user,
-                    lambda error: tell(command, error, user))
+                    lambda error, payload=None: tell(command, error, user, payload))
         self._serve("override/*", resolve)
         self._serve(f"override/*/{BY}/*", resolve)
 
@@ -139,8 +140,8 @@ class Serving:
             if isinstance(exc, RefusedOnWire):       # audited with what the payload claims, if readable
                 try:
                     payload = decode(query.payload)
-                except Exception:  # noqa: BLE001 - whatever a hostile payload raises: kept as none
-                    payload = None
+                except Exception as bad:  # noqa: BLE001 - whatever a hostile payload raises: kept as none
+                    payload = _received(bad)
                 exc.notify(payload)
             return self._reply(query, {"ok": False, "error": str(exc)})
         if selector:
@@ -164,9 +165,9 @@ class Serving:
             if not lenient:
                 error = str(exc) if isinstance(exc, ValueError) else f"unreadable payload ({type(exc).__name__})"
                 if refused is not None:
-                    refused(error)
+                    refused(error, _received(exc))
                 return self._reply(query, {"ok": False, "error": error})
-            payload = {}
+            payload = Unread(_received(exc))
         try:
             future = asyncio.run_coroutine_threadsafe(_answer(handler, payload, key, user), loop)
         except RuntimeError:  # the loop is closed: the controller is stopping
@@ -185,6 +186,12 @@ class Serving:
             log.debug("reply to %s lost: %s", query.key_expr, _one_line(exc))
         finally:
             query.drop()  # finalises the query: the querier stops waiting now, not at its timeout
+
+
+def _received(exc: BaseException):
+    """What the audit keeps of a payload that did not decode: JSON that is no object, as sent;
+    else none (it was not readable)."""
+    return exc.received if isinstance(exc, NotAnObject) else None
 
 
 def _with_user(handler: Handler) -> Handler:

@@ -12,6 +12,7 @@ from typing import Annotated
 
 from pydantic import AfterValidator, BaseModel, ConfigDict, Field, ValidationError, ValidationInfo, field_validator
 
+from controller.payload import Received, Unread
 from controller.text import has_control, printable
 
 STARTING = "the controller is starting: waiting for its devices"
@@ -182,6 +183,15 @@ def payload_text(payload) -> str:
     except (TypeError, ValueError):
         text = printable(payload, AUDIT_PAYLOAD_MAX)
     return printable(text, AUDIT_PAYLOAD_MAX)
+
+
+def received_text(payload) -> str | None:
+    """The audit's payload: as received, or None when nothing readable came (an ``Unread``)."""
+    if isinstance(payload, Unread):
+        payload = payload.received
+    if isinstance(payload, Received):
+        return payload_text(payload.value)
+    return None if payload is None else payload_text(payload)
 
 
 def claimed(payload) -> str | None:

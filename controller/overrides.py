@@ -36,6 +36,7 @@ from controller.override_models import (  # noqa: F401
     claimed,
     parse,
     payload_text,
+    received_text,
 )
 from controller.payload import json_kind
 from controller.text import printable
@@ -145,7 +146,7 @@ class Overrides:
         self._rows.append(dict(
             t=t, user=printable(user, OPERATOR_MAX) if user is not None else None,
             operator=claimed(payload), command=command,
-            payload=None if payload is None else payload_text(payload),
+            payload=received_text(payload),
             origin=printable(origin, AUDIT_TEXT_MAX), ok=ok,
             result="ok" if ok and "error" not in reply else printable(reply.get("error", ""), AUDIT_TEXT_MAX),
             reply=payload_text(extra) if extra else None))

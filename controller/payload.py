@@ -3,6 +3,7 @@ nesting deeper than a payload of ours can need. Every fault is a ValueError sayi
 (and, for a doubled key, which key), never a RecursionError on a Zenoh thread."""
 from __future__ import annotations
 
+import dataclasses
 import itertools
 import json
 import re
@@ -16,12 +17,38 @@ _NOT_BRACKETS = re.compile(r"[^\[\]{}]+")
 _STEP = {"[": 1, "{": 1, "]": -1, "}": -1}
 
 
+@dataclasses.dataclass(frozen=True)
+class Received:
+    """A payload that was readable JSON but no object (["T3"], "T3", null, 42), as sent: refused
+    (estop: ignored), and kept by the audit. Boxed, as None stands for no payload at all."""
+    value: object
+
+
+class Unread(dict):
+    """The ``{}`` handed on for a payload that was empty, or that a lenient handler (estop) took
+    though it was no object: ``received`` says what came for the audit, a Received, or None when
+    nothing readable did (the audit kept ``{}``, a payload nobody sent)."""
+
+    def __init__(self, received: Received | None = None):
+        super().__init__()
+        self.received = received
+
+
+class NotAnObject(ValueError):
+    """Readable JSON that is not an object; ``received`` keeps it for the audit."""
+
+    def __init__(self, value):
+        super().__init__(f"payload must be a JSON object, got {json_kind(value)}")
+        self.received = Received(value)
+
+
 def parse_object(raw: bytes) -> dict:
-    """A payload as a dict; an empty one is ``{}``. Raises ValueError saying what is wrong:
-    not UTF-8, not JSON, not an object, nested deeper than MAX_DEPTH, or a key given twice
-    (``"grams: duplicate key"``: JSON parsers disagree on which one wins, so neither does)."""
+    """A payload as a dict; an empty one is ``{}`` (an ``Unread``). Raises ValueError saying what
+    is wrong: not UTF-8, not JSON, not an object (``NotAnObject``), nested deeper than MAX_DEPTH,
+    or a key given twice (``"grams: duplicate key"``: JSON parsers disagree on which one wins, so
+    neither does)."""
     if not raw.strip():
-        return {}
+        return Unread()
     try:
         text = raw.decode("utf-8")
     except UnicodeDecodeError:
@@ -40,7 +67,7 @@ def parse_object(raw: bytes) -> dict:
     except ValueError as exc:  # e.g. an integer of more than 4,300 digits
         raise ValueError(f"payload is not JSON: {exc}") from None
     if not isinstance(value, dict):
-        raise ValueError(f"payload must be a JSON object, got {json_kind(value)}")
+        raise NotAnObject(value)
     return value
 
 

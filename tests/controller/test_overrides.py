@@ -289,11 +289,12 @@ def test_a_ration_of_minus_zero_is_zero(served, caplog):
     assert "ration T1 = 0 g" in caplog.text and "-0" not in caplog.text
 
 
-def _audited(farm, n: int) -> list[dict]:
-    """The last ``n`` audit rows, once written (just after the reply, on the controller's loop)."""
+def _audited(farm, n: int, before: int = 0) -> list[dict]:
+    """The last ``n`` audit rows, once written (just after the reply, on the controller's loop):
+    ``before`` rows were there already."""
     for _ in range(1000):
         rows = [dict(r) for r in farm.store.audit()]
-        if len(rows) >= n:
+        if len(rows) >= before + n:
             return rows[-n:]
         threading.Event().wait(0.01)
     raise AssertionError(f"{n} audit rows never written: {rows}")
@@ -307,14 +308,45 @@ def test_what_the_bus_refuses_before_any_handler_is_audited_too(served):
     assert ask(client, "feed", b"\xff{oops")["error"] == "payload is not UTF-8"
     assert ask(client, "ration", b'{"tank": "T1", "grams": 1, "grams": 2}')["error"] == "grams: duplicate key"
     assert ask(client, "estop", b"\xff{oops") == {"ok": True, "confirmed": True}   # never refused
-    rows = _audited(farm, 4)
+    rows = _audited(farm, 4, before)
     assert len(farm.store.audit()) == before + 4
     assert [(r["command"], r["payload"], r["ok"], r["result"][:20]) for r in rows] == [
         ("launch", '{"operator":"carol","reason":"because"}', 0, "unknown command 'lau"),
         ("feed", None, 0, "payload is not UTF-8"),
-        ("ration", None, 0, "grams: duplicate key"), ("estop", "{}", 1, "ok")]
+        ("ration", None, 0, "grams: duplicate key"), ("estop", None, 1, "ok")]
     # the operator the unknown command's payload claims is kept, as for any refused command
     assert rows[0]["operator"] == "carol"
+
+
+def test_a_payload_readable_but_no_object_is_refused_and_audited_as_received(served):
+    """README: the audit keeps "the payload as received ... none when unreadable"; JSON that is
+    no object was readable, yet its row's payload was empty."""
+    farm, client = served
+    before = len(farm.store.audit())
+    sent = [("feed", b'["T3"]'), ("reset", b' "T3" '), ("pause", b"null"), ("ration", b"42"), ("launch", b'["T3"]')]
+    for command, body in sent:
+        assert ask(client, command, body)["ok"] is False
+    rows = _audited(farm, len(sent), before)
+    assert [(r["command"], r["payload"], r["ok"]) for r in rows] == [
+        ("feed", '["T3"]', 0), ("reset", '"T3"', 0), ("pause", "null", 0), ("ration", "42", 0), ("launch", '["T3"]', 0)]
+    assert [r["result"] for r in rows[:4]] == [f"payload must be a JSON object, got {kind}"
+                                               for kind in ("an array", "a string", "null", "a number")]
+
+
+def test_an_estop_is_audited_with_what_it_was_sent_and_still_stops(served):
+    """Empty or unreadable: none (it was audited as ``{}``, a payload nobody sent); JSON that is no
+    object: as sent. Every one of them still trips the latches first and stops, never refused."""
+    farm, client = served
+    before, tripped, stops = len(farm.store.audit()), len(farm.tripped), len(farm.estops)
+    sent = [b"", b"   ", b"{{{{", b"\xff", b'["T3"]', b"null", b'{"operator": "ana"}']
+    for body in sent:
+        assert ask(client, "estop", body) == {"ok": True, "confirmed": True}
+    rows = _audited(farm, len(sent), before)
+    assert [r["payload"] for r in rows] == [None, None, None, None, '["T3"]', "null", '{"operator":"ana"}']
+    assert {(r["command"], r["ok"], r["result"]) for r in rows} == {("estop", 1, "ok")}
+    urgent = farm.tripped[tripped:].count("operator e-stop")           # on the Zenoh thread, before parsing
+    assert urgent == len(sent) and len(farm.estops) == stops + len(sent)
+    assert farm.estops[-2:] == ["operator unknown", "operator ana"]
 
 
 def test_a_handler_hands_the_authenticated_user_to_the_audit(tmp_path):
