@@ -99,7 +99,17 @@ def _terminated(signum, _frame) -> None:
     raise SystemExit(128 + signum)
 
 
+# OpenCV's and FFmpeg's own lines ("[ WARN:4@15.707] global cap_ffmpeg_impl.hpp:435 ... Stream
+# timeout triggered", "[tcp @ 0x...] Connection refused") went straight to the terminal, with no
+# time stamp, every second a camera was lost, through the live console table; our log says when a
+# camera is lost and back. Errors of OpenCV's own still print. OpenCV reads these when it loads or
+# opens its first capture; a user who sets them gets what they ask for.
+NATIVE_LOGS = {"OPENCV_LOG_LEVEL": "ERROR", "OPENCV_FFMPEG_LOGLEVEL": "-8"}     # -8: AV_LOG_QUIET
+
+
 def entry() -> None:
+    for name, value in NATIVE_LOGS.items():     # before any command imports cv2 (the controller,
+        os.environ.setdefault(name, value)      # its simulator and survey workers all start here)
     signal.signal(signal.SIGTERM, _terminated)
     sys.exit(main())
 
