@@ -85,6 +85,7 @@ class Controller(Stopping):
         controller still waiting for a device; the robot starts once every device has opened."""
         cfg = self.cfg
         self.store = Store(cfg.store.path)     # first: an unusable ledger path is bad input, exit 2
+        self.store.claim()                     # ... and so is a ledger another controller runs on
         sections = dict(cfg.devices)
         if any(s["driver"] == "sim" for s in sections.values()):
             self.sim = SimProcess(cfg, self.clock)

@@ -16,6 +16,8 @@ The schema is versioned with ``PRAGMA user_version``; ``MIGRATIONS[i]`` takes ve
 """
 from __future__ import annotations
 
+import fcntl
+import os
 import sqlite3
 import threading
 import uuid
@@ -108,9 +110,15 @@ MIGRATIONS = [
     MIGRATION_7,
 ]
 
+class _Newer(Exception):
+    """The ledger's schema is newer than this program's."""
+
+
 class Store(Records, CleanerRecords, SurveyRecords):
     """One SQLite connection, used from the controller's event loop thread (plus a lock for
     the occasional call from another thread). Every write is its own committed transaction."""
+
+    _claim: int | None = None         # the controller's hold on the ledger (``claim``): a locked file
 
     def __init__(self, path: str | Path):
         self.path = Path(path)
@@ -127,6 +135,9 @@ class Store(Records, CleanerRecords, SurveyRecords):
             self.db.execute("PRAGMA synchronous=FULL")
             self.db.execute("PRAGMA busy_timeout=5000")
             self._migrate()
+        except _Newer as exc:
+            self.close()
+            raise BadInput("store.path", str(path), str(exc)) from None
         except (OSError, sqlite3.Error) as exc:
             self.close()
             if isinstance(exc, FileExistsError):
@@ -163,8 +174,8 @@ class Store(Records, CleanerRecords, SurveyRecords):
         with self._lock:
             version = self.db.execute("PRAGMA user_version").fetchone()[0]
             if version > len(MIGRATIONS):
-                raise RuntimeError(f"{self.path}: schema version {version} is newer than this program "
-                                   f"({len(MIGRATIONS)})")
+                raise _Newer(f"ledger schema {version}, this program reads {len(MIGRATIONS)}: "
+                             "a newer program wrote it")
             for i in range(version, len(MIGRATIONS)):
                 self.db.execute("BEGIN IMMEDIATE")
                 try:
@@ -180,11 +191,40 @@ class Store(Records, CleanerRecords, SurveyRecords):
     def schema_version(self) -> int:
         return self.db.execute("PRAGMA user_version").fetchone()[0]
 
+    def claim(self) -> None:
+        """Hold the ledger for this process's life: one controller per ledger. A second one settled
+        the first's feed in flight as suspect at its start, and the first, resuming, served the
+        same feed again. The hold is a lock on a file beside the ledger, which the kernel releases
+        when the process ends however it ends (a SIGKILL, a power cut), so no stale lock outlives a
+        controller. BadInput naming the holder when another process holds it."""
+        if str(self.path) == ":memory:" or self._claim is not None:
+            return
+        lock = self.path.with_name(self.path.name + ".lock")
+        try:
+            fd = os.open(lock, os.O_RDWR | os.O_CREAT, 0o644)
+        except OSError as exc:
+            raise BadInput("store.path", str(self.path), f"cannot lock the ledger ({lock}): "
+                                                         f"{exc.strerror or exc}") from None
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except OSError:
+            holder = os.read(fd, 64).decode("ascii", "replace").strip() or "another process"
+            os.close(fd)
+            self.close()
+            raise BadInput("store.path", str(self.path), f"another controller ({holder}) runs on this ledger: "
+                                                         "one controller per ledger") from None
+        os.ftruncate(fd, 0)
+        os.write(fd, f"pid {os.getpid()}".encode())
+        self._claim = fd
+
     def close(self) -> None:
         with self._lock:
             if self.db is not None:
                 self.db.close()
                 self.db = None
+            if self._claim is not None:
+                os.close(self._claim)        # the lock goes with it
+                self._claim = None
 
     def _write(self, sql: str, args=()) -> sqlite3.Cursor:
         with self._lock:

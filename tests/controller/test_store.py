@@ -7,6 +7,7 @@ import textwrap
 
 import pytest
 
+from controller.errors import BadInput
 from controller.feed_outcome import next_tag, reconcile
 from controller.store import MIGRATIONS, Store
 from devices.dispenser import DispenserState
@@ -42,8 +43,48 @@ def test_newer_schema_is_refused(tmp_path):
     db = sqlite3.connect(path)
     db.execute(f"PRAGMA user_version = {len(MIGRATIONS) + 1}")
     db.close()
-    with pytest.raises(RuntimeError, match="newer"):
+    with pytest.raises(BadInput) as exc:           # bad input (exit 2), not an internal error (exit 1)
         Store(path)
+    assert str(exc.value) == (f"store.path: {path}: ledger schema {len(MIGRATIONS) + 1}, this program reads "
+                              f"{len(MIGRATIONS)}: a newer program wrote it")
+
+
+HOLDER = textwrap.dedent("""
+    import sys
+    from controller.store import Store
+    Store(sys.argv[1]).claim()
+    print("held", flush=True)
+    sys.stdin.read()
+""")
+
+
+def test_one_controller_per_ledger_and_a_killed_ones_claim_goes_with_it(tmp_path):
+    """A second controller on a ledger settled the first's feed in flight as suspect, and the first,
+    resuming, served that feed again: two auger runs for one request."""
+    path = tmp_path / "ledger.db"
+    holder = subprocess.Popen([sys.executable, "-c", HOLDER, str(path)], stdin=subprocess.PIPE,
+                              stdout=subprocess.PIPE, text=True)
+    try:
+        assert holder.stdout.readline().strip() == "held"
+        second = Store(path)
+        with pytest.raises(BadInput) as exc:
+            second.claim()
+        assert str(exc.value) == (f"store.path: {path}: another controller (pid {holder.pid}) runs on this "
+                                  "ledger: one controller per ledger")
+        assert second.db is None                      # refused: nothing of it left open
+        reader = Store(path)                          # a survey or report beside it still opens the ledger
+        reader.close()
+    finally:
+        holder.send_signal(signal.SIGKILL)
+        holder.wait(10)
+    mine = Store(path)
+    mine.claim()                                      # the kernel dropped the killed one's lock
+    mine.claim()                                      # twice is one claim
+    mine.close()
+    mine.close()
+    again = Store(path)
+    again.claim()                                     # closing let it go
+    again.close()
 
 
 CHILD = textwrap.dedent("""
