@@ -110,6 +110,31 @@ MIGRATIONS = [
     MIGRATION_7,
 ]
 
+def ledger_time(path: str | Path) -> float | None:
+    """The latest farm time the ledger at ``path`` records (demands, feeds, alarms, the audit);
+    None when there is no ledger or nothing in it (a ledger that cannot be read is the Store's to
+    refuse, later)."""
+    if str(path) == ":memory:" or not Path(path).is_file():
+        return None
+    try:
+        db = sqlite3.connect(f"file:{Path(path).resolve()}?mode=ro", uri=True)
+    except sqlite3.Error:
+        return None
+    latest = None
+    try:
+        for table, column in (("demand", "t"), ("feed", "t_intent"), ("feed", "t_closed"), ("alarm", "t"),
+                              ("audit", "t")):
+            try:
+                t = db.execute(f"SELECT MAX({column}) FROM {table}").fetchone()[0]
+            except sqlite3.Error:       # no such table yet (an old schema, not a ledger)
+                continue
+            if t is not None and (latest is None or t > latest):
+                latest = float(t)
+    finally:
+        db.close()
+    return latest
+
+
 class _Newer(Exception):
     """The ledger's schema is newer than this program's."""
 

@@ -44,9 +44,11 @@ def setup_logging(clock, level: str) -> None:
               help="simulated time runs X times faster than real time (simulated devices only)")
 @click.option("--epoch-wall", type=Finite(), default=None,
               help="wall time (Unix s) at which farm time is --epoch-farm: a restart continues farm time")
-@click.option("--epoch-farm", type=Finite(), default=None, help="farm time (Unix s) at --epoch-wall")
+@click.option("--epoch-farm", type=Finite(), default=None,
+              help="farm time (Unix s) at --epoch-wall (alone: farm time starts there now)")
 @click.option("--clock", "clock_path", type=click.Path(dir_okay=False, exists=True), default=None,
-              help="an elastic clock file shared with the simulator (devices/elastic_clock.py)")
+              help="an elastic clock file shared with the simulator (devices/elastic_clock.py), in place of "
+                   "--speed/--epoch-*")
 @click.option("--log-level", default="info", show_default=True,
               type=click.Choice(["debug", "info", "warning", "error"], case_sensitive=False))
 @click.option("--no-console", is_flag=True, help="no live status table, even on a terminal")
@@ -56,18 +58,26 @@ def run(config_path, duration, speed, epoch_wall, epoch_farm, clock_path, log_le
     from controller.config import load_config
     from devices.clock import ScaledClock
 
+    _check_clock_options(speed, epoch_wall, epoch_farm, clock_path)
     cfg = load_config(config_path)
     all_sim = all(s["driver"] == "sim" for s in cfg.devices.values())
     if speed != 1.0 and not all_sim and epoch_wall is None:
         raise BadInput(config_path, "devices", "--speed needs every device simulated (driver = \"sim\")")
+    follows = all_sim and clock_path is None and epoch_wall is None and epoch_farm is None
     if clock_path is not None:
         from controller.cli.sim_cmd import elastic
         clock = elastic(clock_path, "controller")
     elif epoch_wall is not None:
         clock = ScaledClock(speed, epoch_wall, epoch_farm if epoch_farm is not None else epoch_wall)
+    elif epoch_farm is not None:          # farm time starts there now (as `fishfarm sim` takes it)
+        clock = ScaledClock.starting(speed, epoch_farm)
     else:
-        clock = ScaledClock.starting(speed) if speed != 1.0 else ScaledClock.real()
+        clock = ScaledClock.starting(speed) if speed != 1.0 or all_sim else ScaledClock.real()
+    clock, carried = _after_the_ledger(cfg, clock, follows)
     setup_logging(clock, log_level)
+    if carried is not None:
+        logging.getLogger("fishfarm").info("farm time carries on from the ledger's last entry (%s), not the "
+                                           "wall clock: a simulated farm's time never runs back", clock.iso(carried))
 
     async def main():
         controller = Controller(cfg, clock, duration_s=duration)
@@ -84,6 +94,38 @@ def run(config_path, duration, speed, epoch_wall, epoch_farm, clock_path, log_le
 
     _run_to_the_end(main())
     return 0
+
+
+AHEAD_S = 300.0         # a ledger this far (farm s) ahead of the clock: the clock went back
+
+
+def _check_clock_options(speed, epoch_wall, epoch_farm, clock_path) -> None:
+    """Options that cannot all be meant: each was ignored without a word."""
+    if clock_path is not None:
+        given = [o for o, v in (("--speed", speed != 1.0), ("--epoch-wall", epoch_wall is not None),
+                                ("--epoch-farm", epoch_farm is not None)) if v]
+        if given:
+            raise BadInput("--clock", None, f"the clock file sets farm time: not with {' or '.join(given)}")
+
+
+def _after_the_ledger(cfg, clock, follows: bool):
+    """(clock, the ledger time it carries on from or None). A simulated farm's clock with no epoch
+    given starts at the wall clock: restarted on a ledger a faster run had taken days ahead, farm
+    time ran back, and demands of the 'future' were served at once, one of them twice. Such a clock
+    now carries on from the ledger's last entry; any other clock (a farm's wall clock, epochs or a
+    clock file given) that the ledger is ahead of is refused."""
+    from controller.store import ledger_time
+    from devices.clock import ScaledClock
+    latest = ledger_time(cfg.store.path)
+    now = clock.now()
+    if latest is None or latest <= now + (0.0 if follows else AHEAD_S):
+        return clock, None
+    if follows:
+        return ScaledClock.starting(clock.speed, latest), latest
+    raise BadInput("store.path", cfg.store.path,
+                   f"the ledger's last entry ({clock.iso(latest)}) is {(latest - now) / 3600:.1f} h after this "
+                   f"clock's farm time ({clock.iso(now)}): the clock went back (give --epoch-wall/--epoch-farm "
+                   "that carry on from the ledger, or start a new ledger)")
 
 
 def _run_to_the_end(main, leftovers_s: float = 0.5) -> None:

@@ -125,3 +125,70 @@ def test_a_duration_shorter_than_a_slow_start_still_runs_the_controller(tmp_path
     r = fishfarm("run", "--config", str(cfg), "--no-console", "--duration", "0.01", timeout=60)
     assert r.returncode == 0, r.stderr
     assert "controller for site demo up" in r.stderr and "still starting" not in r.stderr
+
+
+@pytest.mark.parametrize("args, said", [
+    (["--speed", "600"], "fishfarm: --clock: the clock file sets farm time: not with --speed"),
+    (["--epoch-wall", "1", "--epoch-farm", "2"], "fishfarm: --clock: the clock file sets farm time: not with "
+                                                  "--epoch-wall or --epoch-farm"),
+])
+def test_a_clock_file_with_speed_or_epochs_is_refused_not_ignored(tmp_path, args, said):
+    clock = tmp_path / "clock"
+    clock.write_text("x")
+    r = fishfarm("run", "--clock", str(clock), *args, "--config", str(tmp_path / "none.toml"))
+    assert r.returncode == 2 and r.stderr.strip() == said
+
+
+def _ledger_at(path, t: float) -> None:
+    from controller.store import Store
+    store = Store(path)
+    store.add_demand("A", t, 0.5)
+    store.close()
+
+
+@pytest.mark.parametrize("ahead_s, follows, carried", [(2 * 86400.0, True, True), (-600.0, True, False),
+                                                        (100.0, False, False)])
+def test_a_simulated_farm_s_clock_carries_on_from_a_ledger_ahead_of_it(tmp_path, ahead_s, follows, carried):
+    """A --speed 600 run restarted on its ledger started at the wall clock again: farm time ran
+    back days, and demands of 'the future' were served at once."""
+    from types import SimpleNamespace
+
+    from controller.cli.run_cmd import _after_the_ledger
+    from devices.clock import ScaledClock
+    clock = ScaledClock.starting(600.0, 1.8e9)
+    _ledger_at(tmp_path / "l.db", 1.8e9 + ahead_s)
+    cfg = SimpleNamespace(store=SimpleNamespace(path=str(tmp_path / "l.db")))
+    got, at = _after_the_ledger(cfg, clock, follows)
+    if carried:
+        assert at == 1.8e9 + ahead_s and got.speed == 600.0
+        assert 1.8e9 + ahead_s <= got.now() < 1.8e9 + ahead_s + 600.0 * 60
+    else:
+        assert got is clock and at is None
+
+
+@pytest.mark.parametrize("ahead_s", [400.0, 3 * 86400.0])
+def test_a_farm_clock_the_ledger_is_ahead_of_is_refused(tmp_path, ahead_s):
+    from types import SimpleNamespace
+
+    from controller.cli.run_cmd import _after_the_ledger
+    from controller.errors import BadInput
+    from devices.clock import ScaledClock
+    clock = ScaledClock(1.0, 1.8e9, 1.8e9)           # a farm's own (explicit) timeline
+    _ledger_at(tmp_path / "l.db", clock.now() + ahead_s)
+    cfg = SimpleNamespace(store=SimpleNamespace(path=str(tmp_path / "l.db")))
+    with pytest.raises(BadInput) as exc:
+        _after_the_ledger(cfg, clock, follows=False)
+    msg = str(exc.value)
+    assert msg.startswith(f"store.path: {tmp_path / 'l.db'}: the ledger's last entry (")
+    assert "the clock went back" in msg
+    assert f"is {ahead_s / 3600:.1f} h after this clock's farm time" in msg
+
+
+def test_no_ledger_yet_changes_nothing(tmp_path):
+    from types import SimpleNamespace
+
+    from controller.cli.run_cmd import _after_the_ledger
+    from devices.clock import ScaledClock
+    clock = ScaledClock.starting(60.0)
+    cfg = SimpleNamespace(store=SimpleNamespace(path=str(tmp_path / "none.db")))
+    assert _after_the_ledger(cfg, clock, follows=True) == (clock, None)
