@@ -7,7 +7,9 @@ from __future__ import annotations
 import json
 import re
 import socket
+import ssl
 import sys
+import time
 
 import zenoh
 
@@ -25,6 +27,7 @@ def session_config(cfg: BusConfig) -> zenoh.Config:
         except (zenoh.ZError, OSError, ValueError) as exc:
             raise BadInput(cfg.config, None, f"not a usable Zenoh config: {_one_line(exc)}") from None
         _own_password(zc, cfg.config)
+        _certificate_in_date(zc, cfg.config)
         acl = json.loads(zc.get_json("access_control"))
         if acl.get("enabled"):
             _set(zc, "access_control", bind_identities(acl, cfg.config), cfg.config, "access_control")
@@ -35,6 +38,29 @@ def session_config(cfg: BusConfig) -> zenoh.Config:
             _set(zc, key if key == "mode" else f"{key}/endpoints", value, "[bus]", f"bus.{key}")
     zc.insert_json5("scouting/multicast/enabled", "false")
     return zc
+
+
+def _certificate_in_date(zc: zenoh.Config, where: str, now: float | None = None) -> None:
+    """The TLS certificate the controller listens with is valid today: an expired one was taken
+    without a word, and then every client was refused (e-stops too), each told the wrong cause."""
+    path = json.loads(zc.get_json("transport/link/tls/listen_certificate"))
+    if not path:
+        return
+    key = "transport.link.tls.listen_certificate"
+    try:
+        cert = ssl._ssl._test_decode_cert(path)       # the stdlib's reader; no X.509 library here
+    except (OSError, ssl.SSLError, AttributeError) as exc:
+        if isinstance(exc, AttributeError):             # a Python without the reader: not checked
+            return
+        raise BadInput(where, key, f"{path}: not a readable PEM certificate ({_one_line(exc)})") from None
+    now = time.time() if now is None else now
+    after, before = ssl.cert_time_to_seconds(cert["notAfter"]), ssl.cert_time_to_seconds(cert["notBefore"])
+    if now > after:
+        raise BadInput(where, key, f"{path} expired on {cert['notAfter']}: no client could connect, "
+                                   "e-stops included (make a new one: README, TLS)")
+    if now < before:
+        raise BadInput(where, key, f"{path} is not valid before {cert['notBefore']}: no client could connect "
+                                   "(is this machine's clock right?)")
 
 
 def client_config(connect: str, user: str | None = None, password: str | None = None,

@@ -64,3 +64,30 @@ def test_tools_reach_the_controller_over_tls_with_the_farm_ca(farm):
                      "--password", farm.passwords["viewer"], "--timeout", "1")
     assert proc.returncode == 2 and proc.stderr.count("\n") == 1
     assert farm.calls == [("feed", "tester", "ana")]
+
+
+@pytest.mark.parametrize("years, said", [(None, None), (3, "expired on"), (-1, "is not valid before")])
+def test_a_listen_certificate_out_of_date_is_refused_at_load(tmp_path, years, said):
+    """An expired certificate was taken without a word: then every client was refused, e-stops
+    included, and each was told its CA or password was wrong."""
+    import time
+
+    import zenoh
+
+    from controller.errors import BadInput
+    from controller.zenoh_config import _certificate_in_date
+    make_certificates(tmp_path)
+    zc = zenoh.Config()
+    zc.insert_json5("transport/link/tls/listen_certificate", json.dumps(str(tmp_path / "controller.pem")))
+    now = None if years is None else time.time() + years * 365.25 * 86400
+    if said is None:
+        _certificate_in_date(zc, "deploy.json5", now)
+        return
+    with pytest.raises(BadInput) as exc:
+        _certificate_in_date(zc, "deploy.json5", now)
+    assert str(exc.value).startswith(f"deploy.json5: transport.link.tls.listen_certificate: "
+                                     f"{tmp_path / 'controller.pem'} {said}")
+    (tmp_path / "junk.pem").write_text("not a certificate")
+    zc.insert_json5("transport/link/tls/listen_certificate", json.dumps(str(tmp_path / "junk.pem")))
+    with pytest.raises(BadInput, match="not a readable PEM certificate"):
+        _certificate_in_date(zc, "deploy.json5")
