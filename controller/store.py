@@ -209,7 +209,10 @@ class Store(Records, CleanerRecords, SurveyRecords):
                     self.db.execute(f"PRAGMA user_version = {i + 1}")
                     self.db.execute("COMMIT")
                 except BaseException:
-                    self.db.execute("ROLLBACK")
+                    # SQLite may have rolled back itself (a full disk): the cause is the one to tell,
+                    # not "cannot rollback - no transaction is active"
+                    if self.db.in_transaction:
+                        self.db.execute("ROLLBACK")
                     raise
 
     @property

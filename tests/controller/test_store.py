@@ -369,3 +369,26 @@ def test_forgotten_counters_are_not_compared(tmp_path):
         assert s.counters_seen("dispenser") is None and s.counters_seen("other") == (3, 10.0)
     finally:
         s.close()
+
+
+FULL = textwrap.dedent("""
+    import resource, signal, sys
+    signal.signal(signal.SIGXFSZ, signal.SIG_IGN)      # a write past the limit fails, as on a full disk
+    resource.setrlimit(resource.RLIMIT_FSIZE, (65536, 65536))
+    from controller.errors import BadInput
+    from controller.store import Store
+    try:
+        Store(sys.argv[1])
+    except BadInput as exc:
+        print(exc)
+""")
+
+
+def test_a_ledger_the_disk_cannot_hold_says_so_not_cannot_rollback(tmp_path):
+    """A full disk at start said 'cannot rollback - no transaction is active': SQLite had rolled
+    the migration back itself, and our ROLLBACK's error hid the cause."""
+    path = tmp_path / "ledger.db"
+    out = subprocess.run([sys.executable, "-c", FULL, str(path)], capture_output=True, text=True, timeout=60)
+    said = out.stdout.strip()
+    assert said.startswith(f"store.path: {path}: cannot open the ledger: "), out
+    assert "rollback" not in said and ("disk" in said or "full" in said), said
