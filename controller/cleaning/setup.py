@@ -12,6 +12,7 @@ import dataclasses
 import hashlib
 import json
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 
@@ -58,6 +59,20 @@ def fingerprint(settings) -> str:
     return hashlib.sha256(json.dumps(keys, sort_keys=True).encode()).hexdigest()[:16]
 
 
+def _tower_file(name: str, where: str) -> str:
+    """TOWER.json as ``[feeding] tables`` are found: beside farm.toml first, then from the working
+    directory (the demo's ``config/TOWER.json``); a copied farm run from elsewhere failed with a bare
+    'config/TOWER.json: no such file'."""
+    path = Path(name)
+    beside = Path(where).parent / path
+    if not path.is_absolute() and beside.is_file():
+        return str(beside)
+    if path.exists() or path.is_absolute():
+        return name
+    raise BadInput(where, "cleaning.tower", f"{name}: no such file (looked beside {Path(where).name} and in "
+                                            "the working directory)")
+
+
 def prepare(cfg) -> Prepared:
     from shapely.geometry import Point
 
@@ -69,7 +84,7 @@ def prepare(cfg) -> Prepared:
         raise BadInput(where, "cleaning.dock", f"({s.dock[0]:g}, {s.dock[1]:g}) is not on the floor a robot of "
                                                f"radius {s.body_radius_m:g} m can reach")
     from controller.cli.track_cmd import load_tower  # the one reader of TOWER.json, `fishfarm track`'s
-    H = load_tower(s.tower)
+    H = load_tower(_tower_file(s.tower, where))
     params = float_params(s.detection, where)
     plan = plan_coverage(geom, brush_m=s.brush_m, body_radius_m=s.body_radius_m, overlap=s.overlap,
                          keepout_margin_m=s.keepout_margin_m, start_xy=s.dock, where=where, key="cleaning")

@@ -107,3 +107,27 @@ def test_the_plan_keeps_its_margin_round_keepouts_and_the_default_keeps_old_maps
         fingerprint(default)
     with pytest.raises(BadInput, match="cleaning.keepout_margin_m"):
         load_config(farm(tmp_path, POND + "keepout_margin_m = -0.1\n"))
+
+
+def test_a_relative_tower_file_is_found_beside_farm_toml_then_from_the_working_directory(tmp_path, monkeypatch):
+    """A copied farm run from another directory failed with a bare 'config/TOWER.json: no such
+    file', while its feeding charts, relative the same way, were found beside farm.toml."""
+    site = tmp_path / "site"
+    (site / "cfg").mkdir(parents=True)
+    (site / "cfg" / "TOWER.json").write_text(json.dumps({"H": [[0.02, 0, 0], [0, 0.02, 0], [0, 0, 1]]}))
+    path = site / "farm.toml"
+    path.write_text(TANK + '[cleaning]\ntower = "cfg/TOWER.json"\n' + POND, encoding="utf-8")
+    elsewhere = tmp_path / "elsewhere"
+    elsewhere.mkdir()
+    monkeypatch.chdir(elsewhere)
+    assert prepare(load_config(path)).H[0, 0] == 0.02                    # beside farm.toml
+    (elsewhere / "cfg").mkdir()
+    (elsewhere / "cfg" / "TOWER.json").write_text(json.dumps({"H": [[0.05, 0, 0], [0, 0.05, 0], [0, 0, 1]]}))
+    assert prepare(load_config(path)).H[0, 0] == 0.02                    # ... before the working directory
+    (site / "cfg" / "TOWER.json").unlink()
+    assert prepare(load_config(path)).H[0, 0] == 0.05                    # the working directory's
+    (elsewhere / "cfg" / "TOWER.json").unlink()
+    with pytest.raises(BadInput) as err:
+        prepare(load_config(path))
+    assert str(err.value) == (f"{path}: cleaning.tower: cfg/TOWER.json: no such file (looked beside farm.toml "
+                              "and in the working directory)")
