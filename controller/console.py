@@ -35,10 +35,40 @@ def cleaner_line(cleaner: dict) -> str:
     return f"cleaner: {cleaner['state']} {where}{cleaned}" + (f", float {tracking}" if tracking else "")
 
 
+def _where(feeder: dict) -> str:
+    """Where the feeder is and what its hopper holds; '-' for what is not known yet (at start)."""
+    def known(v, unit):
+        return "-" if v is None else f"{v} {unit}"
+    return f"at {known(feeder.get('position_m'), 'm')}, hopper {known(feeder.get('hopper_g'), 'g')}"
+
+
+def survey_line(survey: dict) -> str:
+    """The survey under way (pairs captured of those asked, fish measured, visits) and those asked for."""
+    cur = survey.get("current")
+    line = "survey: none under way"
+    if isinstance(cur, dict):
+        n = {k: cur.get(k) if isinstance(cur.get(k), int) and not isinstance(cur.get(k), bool) else "-"
+             for k in ("captured", "pairs", "fish", "visits")}
+        line = (f"survey: {cur.get('tank', '?')} ({cur.get('why', '-')}) {n['captured']}/{n['pairs']} pairs, "
+                f"{n['fish']} fish, {n['visits']} visits")
+    asked = survey.get("asked")
+    if isinstance(asked, list) and asked:
+        line += "; asked: " + ", ".join(str(t) for t in asked)
+    return line
+
+
+def _survey_under_way(status: dict) -> list[str]:
+    """The survey line, while one is under way or asked for (the feeder's 'surveying' says no more)."""
+    survey = status.get("survey")
+    if not isinstance(survey, dict) or (survey.get("current") is None and not survey.get("asked")):
+        return []
+    return [survey_line(survey)]
+
+
 def tank_lines(status: dict) -> list[str]:
     feeder = status["feeder"]
-    lines = [f"{status['t']}  feeder {feeder['state']:<10} at {feeder['position_m']} m, "
-             f"hopper {feeder['hopper_g']} g"]
+    lines = [f"{status['t']}  feeder {feeder['state']:<10} {_where(feeder)}"]
+    lines += [f"  {line}" for line in _survey_under_way(status)]
     if status.get("cleaner") is not None:
         lines.append(f"  {cleaner_line(status['cleaner'])}")
     for tank_id, tank in status["tanks"].items():
@@ -55,8 +85,8 @@ def heading(status: dict) -> list[str]:
     """The table's heading: where and when, then the feeder, then the pond cleaner if there is one.
     Each fits 80 columns for a usual site."""
     feeder = status["feeder"]
-    lines = [f"fishfarm {status['site']}  {status['t']}",
-             f"feeder: {feeder['state']} at {feeder['position_m']} m, hopper {feeder['hopper_g']} g"]
+    lines = [f"fishfarm {status['site']}  {status['t']}", f"feeder: {feeder['state']} {_where(feeder)}",
+             *_survey_under_way(status)]
     if status.get("cleaner") is not None:
         lines.append(cleaner_line(status["cleaner"]))
     return lines

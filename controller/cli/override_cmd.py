@@ -14,6 +14,7 @@ import re
 import click
 
 from controller.cli.params import Finite
+from controller.console import survey_line
 from controller.errors import BadInput
 from controller.text import printable
 
@@ -188,21 +189,6 @@ def _demand(tank: dict) -> str:
     return f"yes {rate:.2f}/s" if isinstance(rate, int | float) and not isinstance(rate, bool) else "yes"
 
 
-def _survey_line(survey: dict) -> str:
-    """The survey under way (pairs captured of those asked, fish measured, visits) and those asked for."""
-    cur = survey.get("current")
-    line = "survey: none under way"
-    if isinstance(cur, dict):
-        n = {k: cur.get(k) if isinstance(cur.get(k), int) and not isinstance(cur.get(k), bool) else "-"
-             for k in ("captured", "pairs", "fish", "visits")}
-        line = (f"survey: {cur.get('tank', '?')} ({cur.get('why', '-')}) {n['captured']}/{n['pairs']} pairs, "
-                f"{n['fish']} fish, {n['visits']} visits")
-    asked = survey.get("asked")
-    if isinstance(asked, list) and asked:
-        line += "; asked: " + ", ".join(str(t) for t in asked)
-    return line
-
-
 def render_status(snapshot: dict) -> str:
     """The status snapshot as text: one row per tank, then feeder, cleaner and active alarms.
     Missing fields show as '-': the table never fails on a snapshot it does not fully know."""
@@ -222,7 +208,7 @@ def render_status(snapshot: dict) -> str:
             lines.append(f"{name}: {part.get('state', '-')}" + (f" ({extras})" if extras else ""))
     survey = snapshot.get("survey")
     if isinstance(survey, dict):
-        lines.append(_survey_line(survey))
+        lines.append(survey_line(survey))
     alarms = [a for a in snapshot.get("alarms") or [] if isinstance(a, dict) and a.get("active", True)]
     for a in alarms:
         lines.append(f"ALARM {a.get('severity', '?')} {a.get('source', '')}: {a.get('text', '')}".rstrip())

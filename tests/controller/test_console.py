@@ -219,3 +219,25 @@ def test_the_water_column_says_whether_the_temperature_was_measured():
     assert "19.2 °C" in row[tanks[0]] and "config" not in row[tanks[0]]
     assert "22.0 °C (config)" in row[tanks[1]]
     assert row[tanks[2]].rstrip("│ ").endswith("-")            # a status without the figure
+
+
+SURVEY = {"current": {"tank": "T4", "why": "schedule", "captured": 12, "pairs": 40, "fish": 25, "visits": 3},
+          "asked": ["T2"]}
+
+
+@pytest.mark.parametrize("width", [80, 160])
+def test_a_survey_under_way_has_its_row_under_the_feeder_and_nothing_unknown_reads_none(width):
+    """The table said only 'feeder: surveying at 8.0 m' (which tank, how far: only fishfarm status
+    knew), and 'feeder: starting at None m, hopper None g' at start."""
+    surveying = {**farm_status(), "feeder": {"state": "surveying", "position_m": 8.0, "hopper_g": 5281.1},
+                 "survey": SURVEY}
+    lines = view_lines(surveying, width)
+    assert lines[1:3] == ["feeder: surveying at 8.0 m, hopper 5281.1 g",
+                          "survey: T4 (schedule) 12/40 pairs, 25 fish, 3 visits; asked: T2"]
+    idle = {**farm_status(), "survey": {"current": None, "asked": []}}
+    assert not any("survey" in line for line in view_lines(idle, width))
+    starting = {**farm_status(), "feeder": {"state": "starting", "position_m": None, "hopper_g": None}}
+    assert view_lines(starting, width)[1] == "feeder: starting at -, hopper -"
+    from controller.console import tank_lines
+    assert tank_lines(surveying)[1] == "  survey: T4 (schedule) 12/40 pairs, 25 fish, 3 visits; asked: T2"
+    assert "None" not in tank_lines(starting)[0]
