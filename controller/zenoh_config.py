@@ -47,11 +47,12 @@ def _certificate_in_date(zc: zenoh.Config, where: str, now: float | None = None)
     if not path:
         return
     key = "transport.link.tls.listen_certificate"
+    decode = getattr(ssl._ssl, "_test_decode_cert", None)    # the stdlib's reader; no X.509 library here
+    if decode is None:                                       # a Python without it: not checked
+        return
     try:
-        cert = ssl._ssl._test_decode_cert(path)       # the stdlib's reader; no X.509 library here
-    except (OSError, ssl.SSLError, AttributeError) as exc:
-        if isinstance(exc, AttributeError):             # a Python without the reader: not checked
-            return
+        cert = decode(path)
+    except (OSError, ssl.SSLError) as exc:
         raise BadInput(where, key, f"{path}: not a readable PEM certificate ({_one_line(exc)})") from None
     now = time.time() if now is None else now
     after, before = ssl.cert_time_to_seconds(cert["notAfter"]), ssl.cert_time_to_seconds(cert["notBefore"])

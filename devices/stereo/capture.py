@@ -96,7 +96,6 @@ class CaptureStereo(StereoCamera):
         pass                                  # nothing streams until a survey starts
 
     async def _start(self) -> None:
-        await self._stop()                    # whatever an earlier start left, never a second stream
         sides = ("left", "right") if len(self.config.sources) == 2 else ("both",)
         self._cams = [CaptureCamera(f"{self.name}/{side}", self._source_config(src), self.clock)
                       for side, src in zip(sides, self.config.sources, strict=True)]
