@@ -40,6 +40,9 @@ Reason = Annotated[str, Field(max_length=REASON_MAX), AfterValidator(_one_line)]
 TankId = Annotated[str, Field(pattern=r"^[A-Za-z0-9_-]{1,32}$")]   # as farm.toml's tank ids
 AlarmName = Annotated[str, Field(min_length=1, max_length=SOURCE_MAX), AfterValidator(_one_line)]
 FishCount = Annotated[int, Field(gt=0, le=COUNT_MAX)]
+RequestId = Annotated[str, Field(pattern=r"^[!-~]{1,64}$")]   # printable ASCII, no space: a UUID fits
+_PATTERNS = {r"^[A-Za-z0-9_-]{1,32}$": "letters, digits, _ and - only (1 to 32)",
+             r"^[!-~]{1,64}$": "printable ASCII without spaces only (1 to 64)"}
 
 _JSON_TYPE = {bool: "a boolean", str: "a string", dict: "an object", list: "an array", type(None): "null",
               int: "a number", float: "a number"}
@@ -74,7 +77,7 @@ def _why(err: dict) -> str:
     if kind == "string_too_short":
         return "must not be empty"
     if kind == "string_pattern_mismatch":
-        return "letters, digits, _ and - only (1 to 32)"
+        return _PATTERNS.get(ctx.get("pattern"), "not of the form asked")
     msg = err["msg"]
     return msg[len("Value error, "):] if msg.startswith("Value error, ") else msg
 
@@ -93,6 +96,7 @@ class Command(BaseModel):
     model_config = ConfigDict(extra="forbid", strict=True, allow_inf_nan=False, frozen=True)
     operator: Operator = "unknown"
     reason: Reason = ""
+    request: RequestId | None = None     # controller.override_requests: sent again, done once
 
 
 class Manual(Command):

@@ -38,6 +38,7 @@ from controller.override_models import (  # noqa: F401
     payload_text,
     received_text,
 )
+from controller.override_requests import Once, request_id
 from controller.payload import json_kind
 from controller.text import printable
 
@@ -74,6 +75,7 @@ class Overrides:
         self._rows: list[dict] = []      # audit rows not written yet (this loop turn's)
         self._resetting = asyncio.Lock()
         self._act = {name: getattr(self, name.replace("-", "_")) for name in COMMANDS if name not in NOT_YET}
+        self._once = Once(lambda: self.c.store, Refused)
 
     def declare(self, bus) -> None:
         # one queryable on override/*: an unknown command is refused with a reason, not left unanswered
@@ -119,7 +121,11 @@ class Overrides:
             if name in NOT_YET:
                 parse(Tank if name == "start-survey" else Bare, payload)
                 raise Refused(f"not available yet: {NOT_YET[name]}")
-            reply = await self._act[name](payload, user)
+            act = self._act[name]
+            if name == "estop":     # an e-stop is carried out every time it comes
+                reply = await act(payload, user)
+            else:
+                reply = await self._once.run(name, request_id(payload), t, lambda: act(payload, user))
         except Refused as exc:
             reply = {"ok": False, "error": str(exc)}
         except Exception as exc:  # a bug: the operator hears of it, the audit keeps it

@@ -26,6 +26,7 @@ from pathlib import Path
 from controller.cleaning.ledger import MIGRATION_5, CleanerRecords
 from controller.errors import BadInput
 from controller.feed_outcome import Feed, next_tag
+from controller.override_requests import MIGRATION_8, RequestRecords
 from controller.records import MIGRATION_4, Records
 from controller.surveys.ledger import MIGRATION_6, MIGRATION_7, SurveyRecords
 
@@ -108,6 +109,9 @@ MIGRATIONS = [
     MIGRATION_6,
     # 6 -> 7: the operators' survey requests still open (controller.surveys.ledger)
     MIGRATION_7,
+    # 7 -> 8: the ids of overrides carried out, so one sent again is not done twice
+    # (controller.override_requests)
+    MIGRATION_8,
 ]
 
 def ledger_time(path: str | Path) -> float | None:
@@ -139,7 +143,7 @@ class _Newer(Exception):
     """The ledger's schema is newer than this program's."""
 
 
-class Store(Records, CleanerRecords, SurveyRecords):
+class Store(Records, CleanerRecords, SurveyRecords, RequestRecords):
     """One SQLite connection, used from the controller's event loop thread (plus a lock for
     the occasional call from another thread). Every write is its own committed transaction."""
 

@@ -10,6 +10,7 @@ import json
 import math
 import os
 import re
+import uuid
 
 import click
 
@@ -24,7 +25,7 @@ _COMMAND = re.compile(r"^[a-z][a-z0-9_-]{0,63}$")
 _SITE = re.compile(r"^[A-Za-z0-9_-]{1,64}$")
 _RESERVED = {"operator": "--operator", "reason": "--reason"}
 # identifiers, whatever they look like: a tank may be called 12, a feed 0123
-_STRINGS = {"tank", "to", "id", "source", "kind"}
+_STRINGS = {"tank", "to", "id", "source", "kind", "request"}
 
 
 def _connection_options(f):
@@ -90,7 +91,7 @@ def _check(site: str, connect: str) -> None:
         raise BadInput("--connect", connect, "expected an endpoint like tcp/127.0.0.1:7447")
 
 
-def _ask(connect, user, password, site, timeout_s, suffix, payload, ca=None) -> dict:
+def _ask(connect, user, password, site, timeout_s, suffix, payload, ca=None, again="") -> dict:
     """One get through a fresh client session; the first reply, or BadInput if nobody answers.
     An override with --user goes to ``override/COMMAND/by/USER``: the key the deployment's access
     control lets only USER query, so the controller knows who sent it (controller/identity.py)."""
@@ -118,7 +119,8 @@ def _ask(connect, user, password, site, timeout_s, suffix, payload, ca=None) -> 
         raise BadInput(f"farm/{site}/{suffix}", None, f"refused: {who} may not send this (access control)")
     if not replies:
         raise BadInput(f"farm/{site}/{suffix}", None,
-                       f"no reply within {timeout_s:g} s (no controller serving this site, or not permitted)")
+                       f"no reply within {timeout_s:g} s (no controller serving this site, or not permitted)"
+                       + again)
     return replies[0]
 
 
@@ -138,7 +140,13 @@ def override(command, args, operator, reason, connect, user, password, ca, site,
     if not _COMMAND.match(command):
         raise BadInput("COMMAND", command, "lower-case letters, digits, _ and - only")
     payload = {"operator": operator, **({"reason": reason} if reason else {}), **parse_args(args)}
-    reply = _ask(connect, user, password, site, timeout_s, f"override/{command}", payload, ca)
+    if command != "estop":
+        # a reply lost on the way must not cost a second mortality or feed: the id to send it
+        # again with is said if none comes (controller.override_requests)
+        payload.setdefault("request", uuid.uuid4().hex)
+    again = (f"; it may have been carried out: add request={payload['request']} to send it again "
+             "without doing it twice") if "request" in payload else ""
+    reply = _ask(connect, user, password, site, timeout_s, f"override/{command}", payload, ca, again)
     click.echo(json.dumps(reply, ensure_ascii=False))
     return 0 if reply.get("ok") is True else 1
 

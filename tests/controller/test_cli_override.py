@@ -5,6 +5,7 @@ from __future__ import annotations
 import asyncio
 import json
 import os
+import re
 import subprocess
 import sys
 import threading
@@ -93,8 +94,28 @@ def test_refusal_exits_1_and_args_become_typed_fields(controller):
                     "--operator", "ana", "--reason", "fish look hungry")
     assert proc.returncode == 1, proc.stderr
     assert json.loads(proc.stdout) == {"ok": False, "error": "feeder is in manual"}
-    assert received == [("feed", {"operator": "ana", "reason": "fish look hungry",
-                                  "tank": "T3", "grams": 40, "rate": 12.5})]
+    [(command, payload)] = received
+    assert re.fullmatch(r"[0-9a-f]{32}", payload.pop("request"))     # an id to send it again by
+    assert (command, payload) == ("feed", {"operator": "ana", "reason": "fish look hungry",
+                                           "tank": "T3", "grams": 40, "rate": 12.5})
+
+
+def test_an_override_without_a_reply_names_the_id_to_send_it_again_by(controller):
+    """The controller may have carried it out and its reply been lost: sending it again under the
+    id named is done once (controller.override_requests)."""
+    endpoint, received = controller
+    received.clear()
+    proc = fishfarm("override", "feed", "tank=T3", "grams=40", "--connect", endpoint, "--site", "elsewhere",
+                    "--timeout", "0.5")
+    assert proc.returncode == 2
+    request = re.search(r"add request=([0-9a-f]{32}) to send it again without doing it twice$",
+                        one_line_error(proc).strip())
+    assert request
+    received.clear()
+    proc = fishfarm("override", "feed", "tank=T3", "grams=40", f"request={request[1]}", "--connect", endpoint)
+    assert received[0][1]["request"] == request[1]                  # as given, a string
+    proc = fishfarm("override", "feed", "tank=T3", "request=12", "--connect", endpoint)
+    assert received[1][1]["request"] == "12"
 
 
 def test_unknown_command_is_refused_by_the_controller(controller):
@@ -196,6 +217,7 @@ def test_booleans_and_tank_ids_travel_typed(controller):
     proc = fishfarm("override", "feed", "tank=12", "grams=40", "on=true", "off=false", "word=yes",
                     "--connect", endpoint)
     assert proc.returncode == 1, proc.stderr
+    received[0][1].pop("request")
     assert received == [("feed", {"operator": "tester", "tank": "12", "grams": 40, "on": True, "off": False,
                                   "word": "yes"})]
 

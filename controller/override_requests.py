@@ -1,0 +1,95 @@
+"""An override sent again is done once: a payload may carry ``request``, an id its sender chose
+(a UUID, say). The first accepted command under an id is remembered in the ledger with its reply;
+the same id again gets that reply, marked ``"repeat": true``, and nothing is done again — so a
+client whose reply was lost (a timeout, a dropped link) can send its mortality, feed or transfer
+again without booking it twice. A repeat that arrives while the first is still being carried out
+waits for the first's reply. Only accepted commands are remembered: a refusal ("the controller is
+starting", "more than the fish in the tank") may be sent again under its id and is tried anew.
+
+The command and its remembered reply are two writes: a controller killed between them (no await
+lies between, so only a kill does it) carries the command out and forgets the id.
+"""
+from __future__ import annotations
+
+import asyncio
+import json
+import sqlite3
+import threading
+from collections.abc import Awaitable, Callable
+
+MIGRATION_8 = """
+    CREATE TABLE override_request (
+        request   TEXT PRIMARY KEY,
+        command   TEXT NOT NULL,
+        t         REAL NOT NULL,
+        reply     TEXT NOT NULL
+    );
+"""
+"""7 -> 8: the ids of overrides carried out, with their replies."""
+
+REQUEST_MAX = 64
+
+
+def request_id(payload: object) -> str | None:
+    """The payload's ``request`` when it is a usable id; its faults are the models' to say."""
+    if not isinstance(payload, dict):
+        return None
+    request = payload.get("request")
+    ok = isinstance(request, str) and 0 < len(request) <= REQUEST_MAX and request.isprintable()
+    return request if ok else None
+
+
+class RequestRecords:
+    """A mixin of ``controller.store.Store``: the remembered requests."""
+    db: sqlite3.Connection
+    _lock: threading.RLock
+
+    def remember_request(self, request: str, command: str, t: float, reply: dict) -> None:
+        self._write("INSERT OR IGNORE INTO override_request (request, command, t, reply) VALUES (?, ?, ?, ?)",
+                    (request, command, t, json.dumps(reply)))
+
+    def request_done(self, request: str) -> tuple[str, dict] | None:
+        row = self.db.execute("SELECT command, reply FROM override_request WHERE request = ?",
+                              (request,)).fetchone()
+        return None if row is None else (row["command"], json.loads(row["reply"]))
+
+
+class Once:
+    """Carries out each request id once (see the module's text)."""
+
+    def __init__(self, ledger: Callable[[], RequestRecords], refused: type[Exception]):
+        self.ledger, self.refused = ledger, refused
+        self._running: dict[str, asyncio.Future] = {}
+
+    async def run(self, command: str, request: str | None, t: float,
+                  act: Callable[[], Awaitable[dict]]) -> dict:
+        if request is None:
+            return await act()
+        running = self._running.get(request)
+        if running is not None:
+            first_command, reply = await asyncio.shield(running)
+            return self._again(command, first_command, reply)
+        done = self.ledger().request_done(request)
+        if done is not None:
+            return self._again(command, *done)
+        future = asyncio.get_running_loop().create_future()
+        self._running[request] = future
+        try:
+            reply = await act()
+            if reply.get("ok") is True:
+                self.ledger().remember_request(request, command, t, reply)
+            future.set_result((command, reply))
+            return reply
+        except BaseException as exc:
+            future.set_exception(exc)
+            future.exception()      # retrieved: a lone first raising is not "never retrieved"
+            raise
+        finally:
+            del self._running[request]
+
+    def _again(self, command: str, first_command: str, reply: dict) -> dict:
+        if first_command != command:
+            raise self.refused(f"request: already the id of a {first_command} override")
+        if reply.get("ok") is not True:        # the first was refused while this copy waited
+            return reply
+        return {**reply, "repeat": True}
