@@ -22,6 +22,7 @@ import logging
 from collections.abc import Iterator, Mapping
 from dataclasses import dataclass, replace
 
+from controller.ledger_writes import LedgerUnwritable
 from controller.text import printable
 
 log = logging.getLogger("fishfarm.alarm")
@@ -105,6 +106,7 @@ class Alarms:
         self.known: dict[tuple[str, str], Alarm] = {}   # every alarm ever raised, standing or cleared
         self._saved_t: dict[tuple[str, str], float] = {}
         self._unsaved: set[tuple[str, str]] = set()      # repeats held back (SAVE_REPEATS_S)
+        self._unwritten: dict[tuple[str, str], bool] = {}  # changes the ledger could not take: history?
         for row in store.alarm_states():
             alarm = Alarm(row["source"], row["severity"], row["text"], row["t"], row["kind"],
                           active=bool(row["active"]), first_t=row["first_t"], last_t=row["last_t"],
@@ -198,20 +200,32 @@ class Alarms:
             return
         self._save(alarm, history)
 
-    def flush(self) -> None:
-        """Write the repeats not written yet (a clean stop calls it before closing the ledger)."""
+    def flush(self) -> bool:
+        """Write the repeats not written yet (a clean stop calls it before closing the ledger), and
+        the changes an unwritable ledger refused. True when nothing is left unwritten."""
+        for key, history in sorted(self._unwritten.items()):
+            self._save(self.known[key], history)
         for key in sorted(self._unsaved):
             self._save(self.known[key])
+        return not self._unwritten
 
     def _save(self, alarm: Alarm, history: bool = False) -> None:
+        """Write the alarm's state. A ledger that cannot take it (a full disk: the ``ledger`` alarm
+        says so) does not stop the alarm: it stands, is published and logged, and a later
+        ``flush`` writes its latest state (with one history row for the changes meanwhile)."""
         self._unsaved.discard(alarm.key)
+        history = self._unwritten.pop(alarm.key, False) or history
+        try:
+            self.store.save_alarm_state(source=alarm.source, kind=alarm.kind, severity=alarm.severity,
+                                        text=alarm.text, active=alarm.active, t=alarm.t,
+                                        first_t=alarm.first_t if alarm.first_t is not None else alarm.t,
+                                        last_t=alarm.last_t if alarm.last_t is not None else alarm.t,
+                                        count=alarm.count, acked_by=alarm.acked_by, acked_t=alarm.acked_t,
+                                        history=history)
+        except LedgerUnwritable:
+            self._unwritten[alarm.key] = history
+            return
         self._saved_t[alarm.key] = alarm.last_t if alarm.last_t is not None else alarm.t
-        self.store.save_alarm_state(source=alarm.source, kind=alarm.kind, severity=alarm.severity,
-                                    text=alarm.text, active=alarm.active, t=alarm.t,
-                                    first_t=alarm.first_t if alarm.first_t is not None else alarm.t,
-                                    last_t=alarm.last_t if alarm.last_t is not None else alarm.t,
-                                    count=alarm.count, acked_by=alarm.acked_by, acked_t=alarm.acked_t,
-                                    history=history)
 
     def _publish(self, alarm: Alarm) -> None:
         self.publish(f"alarm/{alarm.source}", self._fields(alarm), reliable=True)

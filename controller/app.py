@@ -23,6 +23,7 @@ from controller.feeding.estop import EstopLane, Latch, log_latch
 from controller.feeding.rations import Rations, load_species
 from controller.feeding.robot import FeedingRobot, Job
 from controller.hub_clock import HubClock
+from controller.ledger_writes import LedgerUnwritable
 from controller.overrides import Overrides
 from controller.scada.service import Scada
 from controller.shutdown import install_signal_handlers
@@ -225,6 +226,10 @@ class Controller(Stopping):
             except Exception as exc:
                 if self.stopping.is_set():
                     return
+                if isinstance(exc, LedgerUnwritable):     # the ledger alarm says it, once
+                    log.debug("%s: the ledger cannot be written; restarting it", name)
+                    await self._pause(1.0)
+                    continue
                 log.exception("%s crashed; restarting it", name)
                 self.alarms.raise_(f"controller/{name}", f"internal error: {type(exc).__name__}: {exc}",
                                    "critical", kind="crashed")
@@ -369,7 +374,11 @@ class Controller(Stopping):
                 self.clock.busy(why="demand raised")
             log.info("demand from %s at %.1f contacts/s, heard %.1f s after", event.tank, event.rate_hz,
                      self.clock.now() - event.t)
-            demand_id = self.store.add_demand(event.tank, event.t, event.rate_hz)
+            try:
+                demand_id = self.store.add_demand(event.tank, event.t, event.rate_hz)
+            except LedgerUnwritable:          # the ledger alarm stands: a demand unrecorded is not served
+                log.warning("demand from %s not served: the ledger cannot be written", event.tank)
+                return
             self.bus.publish(f"tank/{event.tank}/demand",
                              {"t": self.clock.iso(event.t), "rate_hz": round(event.rate_hz, 3)}, reliable=True)
             self.robot.on_demand(Job(event.tank, event.t, demand_id))
@@ -384,6 +393,7 @@ class Controller(Stopping):
     async def _housekeeping(self) -> None:
         last_date = None
         while not self.stopping.is_set():
+            self._watch_ledger()
             now = self.clock.now()
             heard = self.contacts.stream_t
             for event in self.filter.on_time(now if heard is None else min(now, heard)):
@@ -395,6 +405,19 @@ class Controller(Stopping):
                 for tank in self.cfg.tanks:
                     self.publish_ration(tank.id)
             await self.clock.asleep(HOUSEKEEPING_S)
+
+    def _watch_ledger(self) -> None:
+        """The ``ledger`` alarm (kind ``unwritable``) while the ledger cannot be written (a full
+        disk): raised once, in memory and on the bus, and cleared once what it held back (the
+        alarms' changes) is written again. Nothing is fed meanwhile: no intent can be written."""
+        store, standing = self.store, ("ledger", "unwritable") in self.alarms.active
+        if store.unwritable is not None and not standing:
+            self.alarms.raise_("ledger", f"the ledger cannot be written ({store.unwritable}): nothing is fed, "
+                               "no survey or override is recorded until it can", "critical", kind="unwritable")
+        elif standing and self.alarms.flush() and store.unwritable is None:
+            self.overrides.flush_audit()
+            self.alarms.clear("ledger", "the ledger is written again", kind="unwritable")
+            self.alarms.flush()
 
     def publish_ration(self, tank_id: str) -> None:
         self.bus.publish(f"tank/{tank_id}/ration", self.rations.payload(tank_id, self.clock.now()))

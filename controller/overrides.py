@@ -17,6 +17,7 @@ import asyncio
 import logging
 
 from controller.feeding.robot import CONFIRM_WAIT_S, Job
+from controller.ledger_writes import LedgerUnwritable
 from controller.override_models import (  # noqa: F401
     AUDIT_TEXT_MAX,
     OPERATOR_MAX,
@@ -45,6 +46,7 @@ from controller.text import printable
 log = logging.getLogger("fishfarm.override")
 
 LOG_LINE_MAX = 1000
+AUDIT_HELD_MAX = 10_000      # audit rows held while the ledger cannot be written
 NOT_YET: dict[str, str] = {}
 NO_CAMERA = "no survey camera in this controller (farm.toml has no stereo_camera device)"
 NO_CLEANER = "no pond cleaner in this controller (farm.toml has no [cleaning] section)"
@@ -128,6 +130,8 @@ class Overrides:
                 reply = await self._once.run(name, request_id(payload), t, lambda: act(payload, user))
         except Refused as exc:
             reply = {"ok": False, "error": str(exc)}
+        except LedgerUnwritable as exc:      # said once by the store and the ledger alarm
+            reply = {"ok": False, "error": f"ledger: cannot be written ({exc}); try again once it can"}
         except Exception as exc:  # a bug: the operator hears of it, the audit keeps it
             log.exception("override %s failed", name)
             reply = {"ok": False, "error": f"internal error: {type(exc).__name__}"}
@@ -168,6 +172,13 @@ class Overrides:
             return
         try:
             self.c.store.add_audits(rows)
+        except LedgerUnwritable:
+            # kept, oldest first, for the next flush (the ledger alarm's watch calls it); a flood
+            # while the disk is full keeps its first rows and counts what it drops
+            held = rows + self._rows
+            if len(held) > AUDIT_HELD_MAX:
+                log.error("audit: %d command(s) dropped, the ledger unwritable", len(held) - AUDIT_HELD_MAX)
+            self._rows = held[:AUDIT_HELD_MAX]
         except Exception:   # an audit that cannot be written is loud, and never undoes the command
             log.exception("audit of %d command(s) not written: %s", len(rows),
                           ", ".join(sorted({r["command"] for r in rows})))

@@ -94,16 +94,10 @@ class Records:
 
     def add_audits(self, rows: list[dict]) -> None:
         """Several audit rows (``add_audit``'s fields) in one transaction: one fsync."""
-        with self._lock:
-            self.db.execute("BEGIN IMMEDIATE")
-            try:
-                self.db.executemany(
-                    "INSERT INTO audit (t, user, operator, command, payload, origin, ok, result, reply) "
-                    "VALUES (:t, :user, :operator, :command, :payload, :origin, :ok, :result, :reply)", rows)
-                self.db.execute("COMMIT")
-            except BaseException:
-                self.db.execute("ROLLBACK")
-                raise
+        with self.transaction() as db:
+            db.executemany(
+                "INSERT INTO audit (t, user, operator, command, payload, origin, ok, result, reply) "
+                "VALUES (:t, :user, :operator, :command, :payload, :origin, :ok, :result, :reply)", rows)
 
     def audit(self, *, since: float | None = None, operator: str | None = None) -> list[sqlite3.Row]:
         """Rows oldest first; ``operator`` matches the authenticated user or the claimed name."""
@@ -150,20 +144,13 @@ class Records:
         """An alarm's state now; with ``history``, its row in the ``alarm`` history too, in the
         same commit (raised, severity changed, cleared)."""
         values = tuple(int(v) if isinstance(v, bool) else v for v in (fields[f] for f in ALARM_FIELDS))
-        with self._lock:
-            self.db.execute("BEGIN IMMEDIATE")
-            try:
-                self.db.execute(f"INSERT OR REPLACE INTO alarm_state ({', '.join(ALARM_FIELDS)}) "
-                                f"VALUES ({', '.join('?' * len(ALARM_FIELDS))})", values)
-                if history:
-                    self.db.execute("INSERT INTO alarm (source, kind, t, severity, text, active) "
-                                    "VALUES (?, ?, ?, ?, ?, ?)",
-                                    (fields["source"], fields["kind"], fields["t"], fields["severity"],
-                                     fields["text"], int(fields["active"])))
-                self.db.execute("COMMIT")
-            except BaseException:
-                self.db.execute("ROLLBACK")
-                raise
+        with self.transaction() as db:
+            db.execute(f"INSERT OR REPLACE INTO alarm_state ({', '.join(ALARM_FIELDS)}) "
+                       f"VALUES ({', '.join('?' * len(ALARM_FIELDS))})", values)
+            if history:
+                db.execute("INSERT INTO alarm (source, kind, t, severity, text, active) VALUES (?, ?, ?, ?, ?, ?)",
+                           (fields["source"], fields["kind"], fields["t"], fields["severity"],
+                            fields["text"], int(fields["active"])))
 
     def alarm_states(self) -> list[sqlite3.Row]:
         return self.db.execute("SELECT * FROM alarm_state ORDER BY first_t, source, kind").fetchall()

@@ -26,6 +26,7 @@ from pathlib import Path
 from controller.cleaning.ledger import MIGRATION_5, CleanerRecords
 from controller.errors import BadInput
 from controller.feed_outcome import Feed, next_tag
+from controller.ledger_writes import LedgerUnwritable, LedgerWrites  # noqa: F401
 from controller.override_requests import MIGRATION_8, RequestRecords
 from controller.records import MIGRATION_4, Records
 from controller.surveys.ledger import MIGRATION_6, MIGRATION_7, SurveyRecords
@@ -143,7 +144,7 @@ class _Newer(Exception):
     """The ledger's schema is newer than this program's."""
 
 
-class Store(Records, CleanerRecords, SurveyRecords, RequestRecords):
+class Store(LedgerWrites, Records, CleanerRecords, SurveyRecords, RequestRecords):
     """One SQLite connection, used from the controller's event loop thread (plus a lock for
     the occasional call from another thread). Every write is its own committed transaction."""
 
@@ -258,10 +259,6 @@ class Store(Records, CleanerRecords, SurveyRecords, RequestRecords):
                 os.close(self._claim)        # the lock goes with it
                 self._claim = None
 
-    def _write(self, sql: str, args=()) -> sqlite3.Cursor:
-        with self._lock:
-            return self.db.execute(sql, args)
-
     # -- demands --------------------------------------------------------------
     def add_demand(self, tank: str, t: float, rate_hz: float) -> int:
         return self._write("INSERT INTO demand (tank, t, rate_hz) VALUES (?, ?, ?)",
@@ -287,7 +284,7 @@ class Store(Records, CleanerRecords, SurveyRecords, RequestRecords):
         with self._lock:
             seq, tag = self.next_tag(device_tags)
             feed_id = uuid.uuid4().hex[:16]
-            self.db.execute(
+            self._write(
                 "INSERT INTO feed (id, seq, tank, date, t_intent, target_g, run_s, tag, cycles_before, "
                 "phase, source, demand_id, hopper_before) VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, 'intent', ?, ?, ?)",
                 (feed_id, seq, tank, date, t, target_g, run_s, tag, cycles_before, source, demand_id,
@@ -297,8 +294,8 @@ class Store(Records, CleanerRecords, SurveyRecords, RequestRecords):
     def mark_suspect(self, feed_id: str, note: str) -> Feed:
         """An open intent whose outcome nobody can tell: kept against the ration, awaiting an operator."""
         with self._lock:
-            cur = self.db.execute("UPDATE feed SET phase = 'suspect', note = ? WHERE id = ? AND phase = 'intent'",
-                                  (note, feed_id))
+            cur = self._write("UPDATE feed SET phase = 'suspect', note = ? WHERE id = ? AND phase = 'intent'",
+                              (note, feed_id))
             if cur.rowcount != 1:
                 raise RuntimeError(f"feed {feed_id} is not an open intent")
             return self.feed(feed_id)
@@ -308,7 +305,7 @@ class Store(Records, CleanerRecords, SurveyRecords, RequestRecords):
         phase = "done" if grams > 0 else "aborted"
         with self._lock:
             row = self.db.execute("SELECT note FROM feed WHERE id = ?", (feed_id,)).fetchone()
-            cur = self.db.execute(
+            cur = self._write(
                 "UPDATE feed SET phase = ?, grams = ?, t_closed = ?, settled_by = ?, note = ? "
                 "WHERE id = ? AND phase = 'suspect'",
                 (phase, grams if grams > 0 else None, t, operator,
@@ -341,23 +338,14 @@ class Store(Records, CleanerRecords, SurveyRecords, RequestRecords):
         """Close an intent; with ``served_demand``, mark that demand served in the same commit."""
         if phase not in ("done", "aborted"):
             raise ValueError(phase)
-        with self._lock:
-            self.db.execute("BEGIN IMMEDIATE")
-            try:
-                cur = self.db.execute(
-                    "UPDATE feed SET phase = ?, grams = ?, t_closed = ?, note = ? "
-                    "WHERE id = ? AND phase = 'intent'",
-                    (phase, grams, t, note, feed_id))
-                if cur.rowcount != 1:
-                    raise RuntimeError(f"feed {feed_id} is not an open intent")
-                if served_demand is not None:
-                    self.db.execute("UPDATE demand SET outcome = 'served', feed_id = ? WHERE id = ?",
-                                    (feed_id, served_demand))
-                self.db.execute("COMMIT")
-            except BaseException:
-                self.db.execute("ROLLBACK")
-                raise
-            return self.feed(feed_id)
+        with self.transaction() as db:
+            cur = db.execute("UPDATE feed SET phase = ?, grams = ?, t_closed = ?, note = ? "
+                             "WHERE id = ? AND phase = 'intent'", (phase, grams, t, note, feed_id))
+            if cur.rowcount != 1:
+                raise RuntimeError(f"feed {feed_id} is not an open intent")
+            if served_demand is not None:
+                db.execute("UPDATE demand SET outcome = 'served', feed_id = ? WHERE id = ?", (feed_id, served_demand))
+        return self.feed(feed_id)
 
     def feed(self, feed_id: str) -> Feed:
         row = self.db.execute("SELECT * FROM feed WHERE id = ?", (feed_id,)).fetchone()

@@ -30,6 +30,7 @@ import numpy as np
 from controller.cleaning.ledger import Progress
 from controller.cleaning.machine import STATES, CleanerMachine
 from controller.feeding.estop import Halted
+from controller.ledger_writes import LedgerUnwritable
 from devices.errors import DeviceError, LinkDown
 
 log = logging.getLogger("fishfarm.cleaner")
@@ -408,6 +409,8 @@ class Cleaner:
                             self.state, self.machine.mission, float(self.map.coverage()), self._saved_t)
         try:
             self.store.save_cleaner(progress, trace)
+        except LedgerUnwritable:     # the ledger alarm says it; the trace waits for the next save
+            return
         except Exception:
             log.exception("cleaner: progress not saved")
             return

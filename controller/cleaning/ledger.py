@@ -76,24 +76,18 @@ class CleanerRecords:
 
     def save_cleaner(self, progress: Progress, trace: np.ndarray | None = None) -> None:
         """The progress, and the poses followed since the last save, in one commit."""
-        with self._lock:
-            self.db.execute("BEGIN IMMEDIATE")
-            try:
-                self.db.execute(
-                    "INSERT INTO cleaner (id, fingerprint, run, map, path_index, state, mission, coverage, t) "
-                    "VALUES (1, ?, ?, ?, ?, ?, ?, ?, ?) ON CONFLICT (id) DO UPDATE SET "
-                    "fingerprint = excluded.fingerprint, run = excluded.run, map = excluded.map, "
-                    "path_index = excluded.path_index, state = excluded.state, mission = excluded.mission, "
-                    "coverage = excluded.coverage, t = excluded.t",
-                    (progress.fingerprint, progress.run, progress.map, progress.path_index, progress.state,
-                     progress.mission, progress.coverage, progress.t))
-                if trace is not None and len(trace):
-                    self.db.execute("INSERT INTO cleaner_trace (run, t, xy) VALUES (?, ?, ?)",
-                                    (progress.run, progress.t, np.asarray(trace, "<f4").reshape(-1, 2).tobytes()))
-                self.db.execute("COMMIT")
-            except BaseException:
-                self.db.execute("ROLLBACK")
-                raise
+        with self.transaction() as db:
+            db.execute(
+                "INSERT INTO cleaner (id, fingerprint, run, map, path_index, state, mission, coverage, t) "
+                "VALUES (1, ?, ?, ?, ?, ?, ?, ?, ?) ON CONFLICT (id) DO UPDATE SET "
+                "fingerprint = excluded.fingerprint, run = excluded.run, map = excluded.map, "
+                "path_index = excluded.path_index, state = excluded.state, mission = excluded.mission, "
+                "coverage = excluded.coverage, t = excluded.t",
+                (progress.fingerprint, progress.run, progress.map, progress.path_index, progress.state,
+                 progress.mission, progress.coverage, progress.t))
+            if trace is not None and len(trace):
+                db.execute("INSERT INTO cleaner_trace (run, t, xy) VALUES (?, ?, ?)",
+                           (progress.run, progress.t, np.asarray(trace, "<f4").reshape(-1, 2).tobytes()))
 
     def cleaner_trace(self, run: int) -> np.ndarray:
         """(N, 2) poses (m) the cleaner followed in ``run``, in order."""

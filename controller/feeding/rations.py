@@ -31,6 +31,7 @@ from controller.feeding.feeding_table import (
     table_from_species,
 )
 from controller.growth import Z95, Weighing
+from controller.ledger_writes import LedgerUnwritable
 from controller.production import fitted_weight
 from devices.clock import farm_date
 
@@ -205,10 +206,16 @@ class Rations:
         date = self.date(t)
         row = self.store.ration(tank_id, date)
         if row is None:
-            plan = self.plan(tank_id, t)
+            plan = self._plans.get((tank_id, date)) or self.plan(tank_id, t)
             self._plans[(tank_id, date)] = plan
-            self.store.set_ration(tank_id, date, plan.grams, plan.pellet_mm, plan.source, t)
-            row = self.store.ration(tank_id, date)
+            try:
+                self.store.set_ration(tank_id, date, plan.grams, plan.pellet_mm, plan.source, t)
+            except LedgerUnwritable:
+                # the day's plan stands in memory, and is written once the ledger can take it:
+                # status, SCADA and the ration topic go on showing it (nothing is fed meanwhile)
+                row = {"grams": plan.grams, "pellet_mm": plan.pellet_mm, "source": plan.source}
+            else:
+                row = self.store.ration(tank_id, date)
         return Ration(tank_id, date, row["grams"], row["pellet_mm"],
                       self.store.fed_g(tank_id, date), self.store.committed_g(tank_id, date), row["source"])
 

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import logging
 
+from controller.ledger_writes import LedgerUnwritable
 from devices.errors import DeviceError
 
 log = logging.getLogger("fishfarm.feeder")
@@ -31,7 +32,7 @@ class Recovering:
             self.lane.trip(exc.text)          # latch the other device too
             self._stopped(exc.text)
             return
-        if not isinstance(exc, DeviceError):
+        if not isinstance(exc, DeviceError | LedgerUnwritable):   # the ledger alarm tells that one
             log.error("feeder: unexpected error", exc_info=exc)
         if self.state != "fault":
             self.fail()

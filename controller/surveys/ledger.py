@@ -72,12 +72,12 @@ class SurveyRecords:
 
     def ask_survey(self, tank: str, t: float, pairs: int) -> None:
         with self._lock:
-            self.db.execute("INSERT OR REPLACE INTO survey_asked (tank, t, pairs) VALUES (?, ?, ?)", (tank, t, pairs))
+            self._write("INSERT OR REPLACE INTO survey_asked (tank, t, pairs) VALUES (?, ?, ?)", (tank, t, pairs))
 
     def survey_answered(self, tank: str) -> None:
         """An operator's survey of ``tank`` recorded, or given up: not asked again after a restart."""
         with self._lock:
-            self.db.execute("DELETE FROM survey_asked WHERE tank = ?", (tank,))
+            self._write("DELETE FROM survey_asked WHERE tank = ?", (tank,))
 
     def surveys_asked(self) -> list[tuple[str, float, int]]:
         """(tank, asked at, pairs) of the operators' surveys still open, oldest first."""
@@ -98,22 +98,16 @@ class SurveyRecords:
         mean = float(weight.mean()) if n else None
         sd = float(weight.std(ddof=1)) if n > 1 else (0.0 if n else None)
         cv = 100.0 * sd / mean if n and mean > 0 else None
-        with self._lock:
-            self.db.execute("BEGIN IMMEDIATE")
-            try:
-                cur = self.db.execute(
-                    "INSERT INTO survey (tank, t, species, source, count, mean_weight_g, sd_weight_g, "
-                    "mean_length_cm, cv_pct) VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?)",
-                    (tank, t, species, source, n, mean, sd, float(length.mean()) if n else None, cv))
-                sid = cur.lastrowid
-                self.db.executemany(
-                    "INSERT INTO survey_fish (survey, length_cm, weight_g, score) VALUES (?, ?, ?, ?)",
-                    [(sid, float(a), float(b), None if math.isnan(c) else float(c))
-                     for a, b, c in zip(length, weight, score, strict=True)])
-                self.db.execute("COMMIT")
-            except BaseException:
-                self.db.execute("ROLLBACK")
-                raise
+        with self.transaction() as db:
+            cur = db.execute(
+                "INSERT INTO survey (tank, t, species, source, count, mean_weight_g, sd_weight_g, "
+                "mean_length_cm, cv_pct) VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?)",
+                (tank, t, species, source, n, mean, sd, float(length.mean()) if n else None, cv))
+            sid = cur.lastrowid
+            db.executemany(
+                "INSERT INTO survey_fish (survey, length_cm, weight_g, score) VALUES (?, ?, ?, ?)",
+                [(sid, float(a), float(b), None if math.isnan(c) else float(c))
+                 for a, b, c in zip(length, weight, score, strict=True)])
         return int(sid)
 
     def surveys(self, tank: str, *, since: float | None = None, until: float | None = None,

@@ -11,6 +11,7 @@ import logging
 import zenoh
 
 from controller.errors import BadInput
+from controller.ledger_writes import LedgerUnwritable
 from controller.surveys.schedule import SurveySchedule
 from controller.surveys.stop import SurveySession, SurveyStop
 
@@ -55,7 +56,10 @@ class SurveyStops:
         try:
             outcome = await self.stop.visit(session, interrupted, wake)
         except Exception as exc:       # a bug in a survey never stops the feeding: alarmed, dropped
-            log.exception("survey of %s failed", session.tank)
+            if isinstance(exc, LedgerUnwritable):     # the ledger alarm stands: no traceback
+                log.warning("survey of %s not recorded: the ledger cannot be written", session.tank)
+            else:
+                log.exception("survey of %s failed", session.tank)
             session.failed = f"internal error: {type(exc).__name__}: {exc}"
             self.stop.alarms.raise_("survey", f"survey of {session.tank} failed: {session.failed}", "warning",
                                     kind="failed")
