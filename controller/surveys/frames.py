@@ -217,6 +217,11 @@ def directory_items(directory: str) -> list[tuple[str, ...]]:
                                              f"'{m['stem']}', beside {got[side].name}")
             got[side] = p
     if sides:
+        lone = [p for p in files if not _SIDE.match(p.stem)]
+        if lone:          # an RG frame or a stray image among pairs: left out, the count would rest on less
+            raise BadInput(str(lone[0]), None, f"not one of a pair (*_L.* with *_R.*) beside {len(sides)} pairs"
+                           + (f", nor are {len(lone) - 1} more" if len(lone) > 1 else "")
+                           + ": move it out (RG frames are surveyed from a directory of their own)")
         items = []
         for stem in sorted(sides):
             got = sides[stem]

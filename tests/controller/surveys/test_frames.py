@@ -143,6 +143,25 @@ def test_directory_pairs_named_l_r_in_lower_case_and_two_images_for_one_side_ref
         directory_items(str(tmp_path))
 
 
+@pytest.mark.parametrize("strays", [["rg1.png"], ["rg1.png", "chart.jpg", "zz.tif"]])
+def test_an_image_that_is_no_one_of_a_pair_beside_pairs_is_refused_not_left_out(tmp_path, strays):
+    """An RG frame among pairs was left out without a word: the survey's count rested on less."""
+    for stem in ("a", "b"):
+        write(tmp_path / f"{stem}_L.png", grey())
+        write(tmp_path / f"{stem}_R.png", grey())
+    for name in strays:
+        write(tmp_path / name, grey())
+    first = sorted(strays)[0]
+    more = f", nor are {len(strays) - 1} more" if len(strays) > 1 else ""
+    with pytest.raises(BadInput, match=rf"{first}: not one of a pair \(\*_L\.\* with \*_R\.\*\) beside 2 pairs"
+                                       rf"{more}: move it out"):
+        directory_items(str(tmp_path))
+    (tmp_path / "notes.txt").write_text("not an image")
+    for name in strays:
+        (tmp_path / name).unlink()
+    assert len(directory_items(str(tmp_path))) == 2          # what is no image is no stray
+
+
 @pytest.mark.parametrize("layout", ["pairs", "rg", "folders"])
 def test_hidden_files_a_mac_leaves_beside_each_image_are_not_surveyed(tmp_path, layout):
     """A folder copied from a Mac holds ``._a_L.png`` (AppleDouble, no image) beside each image:
