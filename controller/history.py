@@ -23,6 +23,9 @@ SECONDS = re.compile(r"^\d+(\.\d+)?$", re.ASCII)
 FIRST_S = 946_684_800.0        # 2000-01-01: no ledger of ours holds anything older (2026120 was a date's typo)
 BASIC_DATE = re.compile(r"^\d{8}$", re.ASCII)
 UNIT_S = {"s": 1, "m": 60, "h": 3600, "d": 86400, "w": 7 * 86400}
+# the calendar's ends, years 1 to 9999: no date is written for a time outside them (strftime,
+# fromtimestamp), and 1e20 or 99999999999999999w took the refusal's own message down with it
+CALENDAR_S = (-62_135_596_800.0, 253_402_300_800.0)
 MAX_ROWS = 100_000
 COLUMNS = {
     "surveys": ("time", "survey", "species", "count", "mean_weight_g", "sd_weight_g", "mean_length_cm",
@@ -50,7 +53,10 @@ WHAT = tuple(COLUMNS)
 def parse_time(text, name: str, now: float, *, durations: bool) -> float:
     """Unix seconds from ISO, Unix seconds or (``durations``) a span back from ``now``."""
     if isinstance(text, int | float) and not isinstance(text, bool):      # a JSON number: seconds, however written
-        value, text, span = float(text), repr(text), False
+        try:
+            value, text, span = float(text), repr(text), False
+        except OverflowError:           # a JSON integer of 400 digits (its repr may not be written either)
+            raise BadInput(name, None, "an integer too big for a float: not a time") from None
     else:
         text = str(text).strip()
         span = bool(durations and DURATION.match(text))
@@ -58,6 +64,17 @@ def parse_time(text, name: str, now: float, *, durations: bool) -> float:
     if not math.isfinite(value):
         raise BadInput(name, None, f"{text[:60]!r}: not a time a float can hold")
     _refuse_before_2000(value, text, name, span=span, durations=durations)
+    within_calendar(value, text, name, span=span)
+    return value
+
+
+def within_calendar(value: float, text: str, name: str, *, span: bool) -> float:
+    """``value`` when a date can be written for it, else BadInput naming ``name``."""
+    if not CALENDAR_S[0] <= value < CALENDAR_S[1]:        # NaN too
+        if span:
+            raise BadInput(name, None, f"{text[:60]!r} reaches back before year 1; leave {name} out for everything")
+        where = "before year 1" if value < CALENDAR_S[0] else "after the year 9999"
+        raise BadInput(name, None, f"{text[:60]!r} is {where}: beyond the calendar")
     return value
 
 
@@ -85,8 +102,8 @@ def _refuse_before_2000(value: float, text: str, name: str, *, span: bool, durat
                                    f"old; leave {name} out for every row")
     if value < 0 or 0 < value < FIRST_S:        # 0 is the beginning, asked for on purpose
         forms = "an ISO time, Unix seconds or a duration" if durations else "an ISO time or Unix seconds"
-        raise BadInput(name, None, f"{text[:60]!r}: {iso(value) if value > -1e11 else 'a time'} is before 2000 "
-                                   f"(a date's typo?): {forms}")
+        when = iso(value) if value >= CALENDAR_S[0] else "a time"
+        raise BadInput(name, None, f"{text[:60]!r}: {when} is before 2000 (a date's typo?): {forms}")
 
 
 def iso(t: float) -> str:

@@ -26,6 +26,7 @@ import click
 from controller.errors import BadInput
 from controller.history import DURATION as _DURATION
 from controller.history import UNIT_S as _UNIT_S
+from controller.history import within_calendar
 
 COLUMNS = ("time", "who", "command", "origin", "result", "payload")
 
@@ -37,7 +38,7 @@ def parse_since(text: str, now: float) -> float:
         back = float(m.group(1)) * _UNIT_S[m.group(2)]
         if not math.isfinite(back):
             raise BadInput("--since", None, f"{text[:60]!r}: not a duration a float can hold")
-        return now - back
+        return within_calendar(now - back, text, "--since", span=True)
     try:
         when = dt.datetime.fromisoformat(text.strip().replace("z", "Z"))
     except ValueError:
@@ -45,7 +46,8 @@ def parse_since(text: str, now: float) -> float:
                                         "nor a duration (90s, 30m, 12h, 7d)") from None
     if when.tzinfo is None:
         when = when.replace(tzinfo=dt.UTC)
-    return when.timestamp()
+    # 9999-12-31T23:00-05:00 is in the year 10000 in UTC, where the report's dates end
+    return within_calendar(when.timestamp(), text, "--since", span=False)
 
 
 def _iso(t: float) -> str:

@@ -152,3 +152,76 @@ def test_a_range_given_in_both_the_selector_and_the_payload_is_refused(ledger):
     assert both == {"ok": False, "error": "since: given in the selector and in the payload: give it once"}
     apart = asyncio.run(ask({"until": "2026-07-01"}, key="history/surveys/T1", params={"since": "2026-06-01"}))
     assert apart["ok"] and len(apart["rows"]) == 1
+
+
+@pytest.fixture
+def farm_toml(ledger, tmp_path):
+    import tomllib
+    raw = tomllib.loads(open("config/farm.toml").read())
+    raw["store"] = {"path": str(tmp_path / "ledger.db")}
+    (tmp_path / "farm.toml").write_text(tomli_w.dumps(raw))
+    return str(tmp_path / "farm.toml")
+
+
+# every form the README allows at its extremes: 0 = taken, else the option a one-line refusal names.
+# report and audit take ISO or a duration (any ISO date the calendar holds); history also Unix
+# seconds, and none before 2000 but 0
+EXTREMES = [
+    ("--since", "99999999999999999w", {}), ("--since", "9999999999999d", {}), ("--since", "1" * 400 + "d", {}),
+    ("--since", "0s", {"report": 0, "audit": 0, "history": 0}),
+    ("--since", "0.000001s", {"report": 0, "audit": 0, "history": 0}),
+    ("--since", "0001-01-01", {"report": 0, "audit": 0}), ("--since", "0001-01-01T00:00+01:00", {}),
+    ("--since", "0001-01-01T00:00-23:59", {"report": 0, "audit": 0}),
+    ("--since", "9999-12-31T23:59:59.99", {"report": 0, "audit": 0, "history": 0}),
+    ("--since", "9999-12-31T23:00-05:00", {}), ("--since", "99991231", {"report": 0, "audit": 0, "history": 0}),
+    ("--since", "99999999999999999999", {}), ("--since", "9" * 400, {}), ("--since", "253402300800", {}),
+    ("--since", "253402300799", {"history": 0}),
+    ("--until", "99999999999999999999", {}), ("--until", "253402300800", {}), ("--until", "9" * 400, {}),
+    ("--until", "9999-12-31T23:00-05:00", {}), ("--until", "9999-12-31T23:59:59", {"history": 0}),
+    ("--until", "253402300799.999", {"history": 0}),
+]
+
+
+@pytest.mark.parametrize("command", ["report", "audit", "history"])
+@pytest.mark.parametrize(("option", "text", "taken"), EXTREMES)
+def test_every_time_form_at_its_extremes_is_taken_or_refused_in_one_line(farm_toml, capsys, command, option,
+                                                                            text, taken):
+    """99999999999999999w, 9999999999999d and 1e20 s were an "internal error" (exit 1), an
+    OverflowError or OSError from the date written for them."""
+    if option == "--until" and command != "history":
+        return
+    args = {"report": ["report", "--tank", "T1"], "audit": ["audit"],
+            "history": ["history", "--tank", "T1", "--what", "surveys"]}[command]
+    if option == "--until":
+        args = ["history", "--tank", "T1", "--what", "surveys", "--since", "2026-01-01"]
+    code = main([*args, option, text, "--config", farm_toml])
+    err = capsys.readouterr().err
+    if command in taken:
+        assert code == 0, err
+    else:
+        assert code == 2 and err.startswith(f"fishfarm: {option}: ") and err.count("\n") == 1, err
+
+
+def test_a_since_beyond_the_calendar_before_an_until_is_refused_naming_since(farm_toml, capsys):
+    """The refusal "since is after until" wrote a date for 1e20 s: OverflowError."""
+    code = main(["history", "--tank", "T1", "--what", "fish", "--since", "99999999999999999999", "--until",
+                 "2026-01-01", "--config", farm_toml])
+    err = capsys.readouterr().err
+    assert code == 2 and err == ("fishfarm: --since: '99999999999999999999' is after the year 9999: "
+                                 "beyond the calendar\n")
+
+
+@pytest.mark.parametrize(("params", "fault"), [
+    ({"since": "99999999999999999999", "until": "2026-01-01"}, "since: '99999999999999999999' is after the year 9999"),
+    ({"since": 1e20, "until": 1796400000}, "since: '1e+20' is after the year 9999"),
+    ({"since": 10**400}, "since: an integer too big for a float"),
+    ({"until": 10**5000}, "until: an integer too big for a float"),
+    ({"until": 253402300800}, "until: '253402300800' is after the year 9999"),
+    ({"since": "99999999999999999w"}, "since: '99999999999999999w' reaches back before 2000"),
+    ({"until": "9999-12-31T23:00-05:00"}, "until: '9999-12-31T23:00-05:00' is after the year 9999")])
+def test_the_queryable_refuses_a_time_beyond_the_calendar_naming_the_field(ledger, caplog, params, fault):
+    """It answered "OverflowError: timestamp out of range for platform time_t" and logged a traceback."""
+    cfg = load_config("config/farm.toml")
+    reply = query_reply(ledger, cfg, "history/feeds/T1", params, T)
+    assert reply == {"ok": False, "error": reply["error"]} and reply["error"].startswith(fault), reply
+    assert "Traceback" not in caplog.text
