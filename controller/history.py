@@ -13,6 +13,7 @@ from __future__ import annotations
 import datetime as dt
 import math
 import re
+import time
 
 from controller.errors import BadInput
 
@@ -66,6 +67,14 @@ def parse_time(text, name: str, now: float, *, durations: bool) -> float:
     _refuse_before_2000(value, text, name, span=span, durations=durations)
     within_calendar(value, text, name, span=span)
     return value
+
+
+def ledger_now(path) -> float:
+    """"Now" for a duration the offline commands measure back: the later of the wall clock and the
+    ledger's latest entry. A simulated farm's ledger holds farm time, hours or days ahead of the wall
+    at --speed 60, and "1h" back from the wall clock took in everything."""
+    from controller.store import ledger_time
+    return max(time.time(), ledger_time(path) or -math.inf)
 
 
 def within_calendar(value: float, text: str, name: str, *, span: bool) -> float:

@@ -6,7 +6,8 @@ Every override the controller answered, accepted or refused, e-stop included (co
 when, who (the authenticated user; a name only the payload claimed is shown as "NAME (claimed)"),
 the command, from where, the result and the payload as received (escaped, bounded). ``--since``
 takes an ISO time (``2026-06-01T06:00``, UTC unless it names an offset) or a duration back from
-now (``90s``, ``30m``, ``12h``, ``7d``). ``--operator`` matches the authenticated user or the
+now (``90s``, ``30m``, ``12h``, ``7d``), now being the later of the wall clock and the ledger's
+latest entry (a simulated farm's runs ahead). ``--operator`` matches the authenticated user or the
 claimed name. The ledger is opened read-only: the controller may be running.
 A table on a terminal, tab-separated lines otherwise, a JSON array with ``--json``.
 Bad input (an unreadable --since, no ledger, a ledger without an audit) exits 2 with one line.
@@ -18,7 +19,6 @@ import json
 import math
 import sqlite3
 import sys
-import time
 from pathlib import Path
 
 import click
@@ -26,7 +26,7 @@ import click
 from controller.errors import BadInput
 from controller.history import DURATION as _DURATION
 from controller.history import UNIT_S as _UNIT_S
-from controller.history import within_calendar
+from controller.history import ledger_now, within_calendar
 
 COLUMNS = ("time", "who", "command", "origin", "result", "payload")
 
@@ -107,8 +107,9 @@ def _cells(entry: dict) -> list[str]:
 @click.option("--json", "as_json", is_flag=True, help="print a JSON array.")
 def audit(since, operator, config_path, db, as_json):
     """Print the audit of operator overrides, oldest first."""
-    since_t = parse_since(since, time.time()) if since is not None else None
-    entries = read_audit(_ledger(config_path, db), since_t, operator)
+    path = _ledger(config_path, db)
+    since_t = parse_since(since, ledger_now(path)) if since is not None else None
+    entries = read_audit(path, since_t, operator)
     if as_json:
         click.echo(json.dumps(entries, ensure_ascii=False, indent=1))
     elif sys.stdout.isatty():

@@ -3,13 +3,14 @@
 
 A tank's history from the ledger (controller/history.py), as CSV — to ``--csv`` or stdout — with
 the units in the headers' names. The same rows the controller serves on
-``farm/{site}/history/{what}/{tank}``. Reads the ledger only. Bad input exits 2 with one line.
+``farm/{site}/history/{what}/{tank}``; a ``--since`` duration goes back from the later of the wall
+clock and the ledger's latest entry (the ledger holds farm time).
+Reads the ledger only. Bad input exits 2 with one line.
 """
 from __future__ import annotations
 
 import csv
 import sys
-import time
 from pathlib import Path
 
 import click
@@ -29,13 +30,13 @@ def history(tank_id, what, since, until, csv_path, config_path) -> None:
     from controller.cli.output_paths import check_outputs
     from controller.config import load_config
     from controller.history import history as rows_of
-    from controller.history import parse_time
+    from controller.history import ledger_now, parse_time
     from controller.store import Store
     cfg = load_config(config_path)
     check_outputs({"--csv": csv_path}, [config_path, cfg.store.path])
     if tank_id not in {t.id for t in cfg.tanks}:
         raise BadInput(config_path, "--tank", f"no tank {tank_id!r} (tanks: {', '.join(t.id for t in cfg.tanks)})")
-    now = time.time()
+    now = ledger_now(cfg.store.path)
     start = parse_time(since, "--since", now, durations=True) if since else None
     end = parse_time(until, "--until", now, durations=False) if until else None
     if not Path(cfg.store.path).exists():

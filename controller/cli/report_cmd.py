@@ -7,14 +7,14 @@ biomass gain and FCR (the biological; the net beside it where fish died), the sa
 surveys of the growth window with their 95 % intervals, size uniformity against ``[feeding]
 grading_cv_pct``, and the projection to the target weight (``--target`` or the tank's
 ``target_weight_g``) at the fitted SGR. ``--png`` draws weight over time with each survey's
-histogram, the projection and the feed per day. Reads the ledger only; a running controller may
-keep writing it. Bad input exits 2 with one line.
+histogram, the projection and the feed per day. A ``--since`` duration goes back from the later of
+the wall clock and the ledger's latest entry (controller/history.ledger_now).
+Reads the ledger only; a running controller may keep writing it. Bad input exits 2 with one line.
 """
 from __future__ import annotations
 
 import json
 import math
-import time
 from pathlib import Path
 
 import click
@@ -84,6 +84,7 @@ def report(tank_id, since, target_g, png_path, as_json, config_path) -> None:
     from controller.cli.audit_cmd import parse_since
     from controller.cli.output_paths import check_outputs
     from controller.config import load_config
+    from controller.history import ledger_now
     from controller.production import tank_figures
     from controller.store import Store
     cfg = load_config(config_path)
@@ -95,7 +96,7 @@ def report(tank_id, since, target_g, png_path, as_json, config_path) -> None:
         raise BadInput(config_path, "--tank", f"no tank {tank_id!r} (tanks: {', '.join(t.id for t in cfg.tanks)})")
     if target_g is not None and not 0 < target_g < math.inf:
         raise BadInput("--target", None, f"must be a finite weight above 0 g, not {target_g:g}")
-    start = parse_since(since, time.time()) if since else None
+    start = parse_since(since, ledger_now(cfg.store.path)) if since else None
     if not Path(cfg.store.path).exists():
         raise BadInput(cfg.store.path, None, "no ledger there (the controller has not run with this config)")
     store = Store.reader(cfg.store.path)

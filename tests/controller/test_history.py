@@ -225,3 +225,40 @@ def test_the_queryable_refuses_a_time_beyond_the_calendar_naming_the_field(ledge
     reply = query_reply(ledger, cfg, "history/feeds/T1", params, T)
     assert reply == {"ok": False, "error": reply["error"]} and reply["error"].startswith(fault), reply
     assert "Traceback" not in caplog.text
+
+
+def test_a_duration_is_measured_back_from_the_ledger_s_farm_time_when_it_runs_ahead(tmp_path, capsys):
+    """A --speed 60 demo's ledger is days ahead of the wall clock: "--since 1h" back from the wall
+    returned everything. Two of each, 2 h and 10 min before the ledger's latest entry."""
+    import json
+    import time
+    import tomllib
+    latest = time.time() + 3 * DAY
+    store = Store(tmp_path / "ledger.db")
+    for ago in (2 * 3600, 600):
+        store.add_survey("T1", latest - ago, "sparus_aurata", f"{ago}", [10.0], [20.0])
+        f = store.add_intent(tank="T1", date="2026-05-29", t=latest - ago, target_g=40, run_s=3, cycles_before=0,
+                             source="demand")
+        store.close_feed(f.id, "done", 41.5, latest - ago + 5)
+        store.add_audit(t=latest - ago, user="ana", operator=None, command="ration", payload=None, origin="zenoh",
+                        ok=True, result="ok")
+    store.add_audit(t=latest, user="ana", operator=None, command="feed", payload=None, origin="zenoh", ok=True,
+                    result="ok")
+    store.close()
+    raw = tomllib.loads(open("config/farm.toml").read())
+    raw["store"] = {"path": str(tmp_path / "ledger.db")}
+    (tmp_path / "farm.toml").write_text(tomli_w.dumps(raw))
+    cfg = ["--config", str(tmp_path / "farm.toml")]
+    for what in ("feeds", "surveys"):
+        assert main(["history", "--tank", "T1", "--what", what, "--since", "1h", *cfg]) == 0
+        assert len(capsys.readouterr().out.splitlines()) == 2, what            # the header and the newer
+    assert main(["report", "--tank", "T1", "--since", "30m", "--json", *cfg]) == 0
+    assert [s["t"] for s in json.loads(capsys.readouterr().out)["surveys"]] == [pytest.approx(latest - 600)]
+    assert main(["audit", "--since", "1h", "--json", *cfg]) == 0
+    assert [r["command"] for r in json.loads(capsys.readouterr().out)] == ["ration", "feed"]
+
+
+def test_a_ledger_behind_the_wall_clock_is_measured_back_from_the_wall(farm_toml, capsys):
+    """A real farm's ledger read months later: "1d" is the last day, not the ledger's last."""
+    assert main(["history", "--tank", "T1", "--what", "feeds", "--since", "1d", "--config", farm_toml]) == 0
+    assert capsys.readouterr().out.splitlines()[1:] == []
