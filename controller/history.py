@@ -6,11 +6,12 @@
 and transfers in or out), ``feeds`` (every feed: intent time, aim, grams measured, outcome).
 ``since``/``until``: an ISO time (2026-06-01T06:00, UTC unless it says) or Unix seconds; ``since``
 also a duration back from now (30m, 12h, 7d); none of them before 2000 but 0. Rows come oldest
-first, at most ``MAX_ROWS``.
+first, the queryable's at most ``MAX_ROWS``; the command line's all of them.
 """
 from __future__ import annotations
 
 import datetime as dt
+import itertools
 import math
 import re
 import time
@@ -120,16 +121,37 @@ def iso(t: float) -> str:
 
 
 def history(store, what: str, tank: str, since: float | None = None, until: float | None = None):
-    """(columns, rows, truncated): the rows oldest first, ``time`` as ISO."""
+    """(columns, rows, truncated): the rows oldest first, ``time`` as ISO, at most ``MAX_ROWS`` (a
+    queryable's reply is one message)."""
+    columns, rows = stream(store, what, tank, since, until, limit=MAX_ROWS + 1)
+    try:
+        kept = list(itertools.islice(rows, MAX_ROWS + 1))
+    finally:
+        rows.close()
+    return columns, kept[:MAX_ROWS], len(kept) > MAX_ROWS
+
+
+def stream(store, what: str, tank: str, since: float | None = None, until: float | None = None, *,
+           limit: int | None = None):
+    """(columns, rows): every row oldest first, ``time`` as ISO, read from the ledger as they are
+    consumed (``fishfarm history`` writes 150,000 fish in the memory of one); ``rows.close()``
+    ends the read early."""
     if what not in COLUMNS:
         raise BadInput("what", None, f"{what!r} is not one of {', '.join(WHAT)}")
     if since is not None and until is not None and since > until:
         raise BadInput("since", None, f"{iso(since)} is after until ({iso(until)}): no time lies between")
     args = {"tank": tank, "since": -math.inf if since is None else since,
             "until": math.inf if until is None else until}
-    cur = store.db.execute(_SQL[what] + f" LIMIT {MAX_ROWS + 1}", args)
-    rows = [[iso(r[0]), *r[1:]] for r in cur]
-    return COLUMNS[what], rows[:MAX_ROWS], len(rows) > MAX_ROWS
+    # a LIMIT lets SQLite keep only that many rows in its sort, not the tank's every fish
+    cur = store.db.execute(_SQL[what] + ("" if limit is None else f" LIMIT {int(limit)}"), args)
+
+    def rows():
+        try:
+            for r in cur:
+                yield [iso(r[0]), *r[1:]]
+        finally:
+            cur.close()
+    return COLUMNS[what], rows()
 
 
 def query_reply(store, cfg, key: str, params: dict, now: float) -> dict:

@@ -3,13 +3,15 @@
 
 A tank's history from the ledger (controller/history.py), as CSV — to ``--csv`` or stdout — with
 the units in the headers' names. The same rows the controller serves on
-``farm/{site}/history/{what}/{tank}``; a ``--since`` duration goes back from the later of the wall
-clock and the ledger's latest entry (the ledger holds farm time).
+``farm/{site}/history/{what}/{tank}``, but every one of them: they are streamed from the ledger to
+the file (the queryable's reply stops at 100,000). A ``--since`` duration goes back from the later
+of the wall clock and the ledger's latest entry (the ledger holds farm time).
 Reads the ledger only. Bad input exits 2 with one line.
 """
 from __future__ import annotations
 
 import csv
+import os
 import sys
 from pathlib import Path
 
@@ -29,8 +31,7 @@ def history(tank_id, what, since, until, csv_path, config_path) -> None:
     """A tank's surveys, fish, rations, stock events or feeds, as CSV."""
     from controller.cli.output_paths import check_outputs
     from controller.config import load_config
-    from controller.history import history as rows_of
-    from controller.history import ledger_now, parse_time
+    from controller.history import ledger_now, parse_time, stream
     from controller.store import Store
     cfg = load_config(config_path)
     check_outputs({"--csv": csv_path}, [config_path, cfg.store.path])
@@ -42,19 +43,33 @@ def history(tank_id, what, since, until, csv_path, config_path) -> None:
     if not Path(cfg.store.path).exists():
         raise BadInput(cfg.store.path, None, "no ledger there (the controller has not run with this config)")
     store = Store.reader(cfg.store.path)
+    written, rows = 0, None
     try:
-        columns, rows, truncated = rows_of(store, what, tank_id, start, end)
+        columns, rows = stream(store, what, tank_id, start, end)
+
+        def write(out) -> None:
+            nonlocal written
+            writer = csv.writer(out)
+            writer.writerow(columns)
+            for row in rows:
+                writer.writerow(row)
+                written += 1
+        if not csv_path:
+            _to_stdout(write)
+        else:
+            from controller.atomic_files import write_file_atomically
+            write_file_atomically(csv_path, write)
+            click.echo(f"{written} rows: {csv_path}", err=True)
     finally:
+        if rows is not None:         # the read ends before the ledger closes (`| head` left it midway)
+            rows.close()
         store.close()
 
-    def write(out) -> None:
-        writer = csv.writer(out)
-        writer.writerow(columns)
-        writer.writerows(rows)
-    if not csv_path:
+
+def _to_stdout(write) -> None:
+    try:
         write(sys.stdout)
-    else:
-        from controller.atomic_files import write_file_atomically
-        write_file_atomically(csv_path, write)
-        more = " (the first of more: narrow the range)" if truncated else ""
-        click.echo(f"{len(rows)} rows{more}: {csv_path}", err=True)
+        sys.stdout.flush()
+    except BrokenPipeError:         # `... | head`: the reader left, nothing more to say
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())

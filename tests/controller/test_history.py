@@ -10,7 +10,7 @@ import tomli_w
 from controller.cli import main
 from controller.config import load_config
 from controller.errors import BadInput
-from controller.history import history, parse_time, query_reply
+from controller.history import history, iso, parse_time, query_reply
 from controller.store import Store
 
 T = 1_780_000_000.0                      # 2026-05-28T20:26:40Z
@@ -262,3 +262,44 @@ def test_a_ledger_behind_the_wall_clock_is_measured_back_from_the_wall(farm_toml
     """A real farm's ledger read months later: "1d" is the last day, not the ledger's last."""
     assert main(["history", "--tank", "T1", "--what", "feeds", "--since", "1d", "--config", farm_toml]) == 0
     assert capsys.readouterr().out.splitlines()[1:] == []
+
+
+@pytest.mark.parametrize("to_file", [True, False])
+def test_fishfarm_history_exports_every_row_past_the_queryable_s_limit(ledger, farm_toml, tmp_path, capsys,
+                                                                        monkeypatch, to_file):
+    """The command stopped at MAX_ROWS (a ledger of 150,081 fish gave 100,000, exit 0), and rows
+    of one survey share its time: no narrower range splits them. The queryable's reply keeps it."""
+    import controller.history
+    ledger.add_survey("T1", T + 3 * DAY, "sparus_aurata", "big", [11.0] * 30, [float(w) for w in range(1, 31)])
+    monkeypatch.setattr(controller.history, "MAX_ROWS", 10)
+    out = tmp_path / "fish.csv"
+    code = main(["history", "--tank", "T1", "--what", "fish", "--config", farm_toml,
+                 *(["--csv", str(out)] if to_file else [])])
+    captured = capsys.readouterr()
+    text = out.read_text() if to_file else captured.out
+    rows = list(csv.DictReader(io.StringIO(text)))
+    assert code == 0 and len(rows) == 33
+    assert [float(r["weight_g"]) for r in rows] == [20.0, 30.0, *range(1, 31), 40.0]
+    assert captured.err == (f"33 rows: {out}\n" if to_file else "")
+    reply = query_reply(ledger, load_config("config/farm.toml"), "history/fish/T1", {}, T)
+    assert len(reply["rows"]) == 10 and reply["truncated"] is True
+
+
+def test_the_export_streams_the_ledger_in_bounded_memory(ledger, farm_toml, tmp_path, capsys):
+    """150,000 fish as one list of rows took ~100 MB; streamed, the export's peak does not grow with
+    the rows (tracemalloc counts Python's allocations: the rows, not SQLite's page cache)."""
+    import tracemalloc
+    out = tmp_path / "fish.csv"
+
+    def peak_mib(fish: int) -> float:
+        ledger.add_survey("T3", T + fish, "sparus_aurata", "big", [11.0] * fish, [25.0] * fish)
+        tracemalloc.start()
+        try:
+            assert main(["history", "--tank", "T3", "--what", "fish", "--config", farm_toml, "--csv", str(out),
+                         "--since", iso(T + fish)]) == 0
+            return tracemalloc.get_traced_memory()[1] / 2**20
+        finally:
+            tracemalloc.stop()
+    small, large = peak_mib(2_000), peak_mib(40_000)
+    assert f"40000 rows: {out}" in capsys.readouterr().err
+    assert large < small + 2, (small, large)          # as a list: ~12 MB more
