@@ -3,6 +3,7 @@
 ``read_table`` parses with numpy's C reader (a million rows in well under a second) and, only when
 that fails or finds NaN/inf, re-reads the file line by line to say exactly where the fault is:
 ``FILE: line 7, column u2: not a number: 'abc'``. Faults are ``BadInput`` (exit 2, one line).
+``text_cell`` guards the text cells of the CSV files written with names and reasons in them.
 """
 from __future__ import annotations
 
@@ -23,6 +24,17 @@ from controller.errors import BadInput
 # coordinate (mm or m: site coordinates, a UTM easting in mm, stay well within); beyond, a typo
 PIXELS_MAX = 1e6
 WORLD_MAX = 1e12
+# a spreadsheet takes a cell starting with one of these for a formula (=HYPERLINK(...), +cmd|...):
+# OWASP's list for CSV injection
+FORMULA_START = ("=", "+", "-", "@", "\t", "\r")
+
+
+def text_cell(value):
+    """``value`` as a CSV cell: text a spreadsheet would run as a formula behind a single quote
+    (OWASP), shown as written; numbers as they are (-3.5 stays a number)."""
+    if isinstance(value, str) and value.startswith(FORMULA_START):
+        return "'" + value
+    return value
 
 
 def _read_text(path: str | Path) -> str:

@@ -2,7 +2,8 @@
 [--until ISO] [--csv OUT.csv] [--config farm.toml]``
 
 A tank's history from the ledger (controller/history.py), as CSV — to ``--csv`` or stdout — with
-the units in the headers' names. The same rows the controller serves on
+the units in the headers' names; a text cell a spreadsheet would take for a formula (``=``, ``+``,
+``-``, ``@``, tab, CR first) begins with ``'``. The same rows the controller serves on
 ``farm/{site}/history/{what}/{tank}``, but every one of them: they are streamed from the ledger to
 the file (the queryable's reply stops at 100,000). A ``--since`` duration goes back from the later
 of the wall clock and the ledger's latest entry (the ledger holds farm time).
@@ -29,6 +30,7 @@ from controller.errors import BadInput
 @click.option("--config", "config_path", default="config/farm.toml", show_default=True, metavar="farm.toml")
 def history(tank_id, what, since, until, csv_path, config_path) -> None:
     """A tank's surveys, fish, rations, stock events or feeds, as CSV."""
+    from controller.cli.csvio import text_cell
     from controller.cli.output_paths import check_outputs
     from controller.config import load_config
     from controller.history import ledger_now, parse_time, stream
@@ -52,7 +54,7 @@ def history(tank_id, what, since, until, csv_path, config_path) -> None:
             writer = csv.writer(out)
             writer.writerow(columns)
             for row in rows:
-                writer.writerow(row)
+                writer.writerow([text_cell(c) for c in row])      # an operator's name or reason: text
                 written += 1
         if not csv_path:
             _to_stdout(write)

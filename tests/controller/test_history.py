@@ -303,3 +303,21 @@ def test_the_export_streams_the_ledger_in_bounded_memory(ledger, farm_toml, tmp_
     small, large = peak_mib(2_000), peak_mib(40_000)
     assert f"40000 rows: {out}" in capsys.readouterr().err
     assert large < small + 2, (small, large)          # as a list: ~12 MB more
+
+
+def test_a_text_cell_a_spreadsheet_would_run_as_a_formula_is_quoted(ledger, farm_toml, capsys):
+    """An operator's name or reason beginning with = + - @ (tab, CR) was written as it was: a
+    spreadsheet opening the CSV ran it (OWASP's CSV injection). Numbers are left as numbers."""
+    for i, (who, reason) in enumerate([("=HYPERLINK(\"http://x\")", "+cmd|' /C calc'!A0"), ("-2+3", "@SUM(A1)"),
+                                       ("\tana", "\rgrading"), ("ana", "a=b, -5 g"), ("'bob", "")]):
+        ledger.add_stock_event(t=T + 3 * DAY + i, tank="T1", kind="mortality", count=2 + i,
+                               to_tank=None, who=who, reason=reason)
+    assert main(["history", "--tank", "T1", "--what", "stock", "--since", iso(T + 3 * DAY), "--config",
+                 farm_toml]) == 0
+    rows = list(csv.DictReader(io.StringIO(capsys.readouterr().out)))
+    assert [(r["who"], r["reason"]) for r in rows] == [
+        ("'=HYPERLINK(\"http://x\")", "'+cmd|' /C calc'!A0"), ("'-2+3", "'@SUM(A1)"), ("'\tana", "'\rgrading"),
+        ("ana", "a=b, -5 g"), ("'bob", "")]
+    assert [r["count"] for r in rows] == ["2", "3", "4", "5", "6"]
+    from controller.cli.csvio import text_cell
+    assert [text_cell(v) for v in (-3.5, -2, None, "-3.5")] == [-3.5, -2, None, "'-3.5"]
