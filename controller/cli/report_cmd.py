@@ -31,9 +31,10 @@ def _net(figures: dict) -> str:
     return ", net n/a (no gain kept)" if net is None else f", net {net:.2f} ({figures['died_g']:.0f} g died)"
 
 
-def text(report: dict) -> str:
+def text(report: dict, target_g: float | None = None) -> str:
     empty = report.get("empty_surveys") or []
-    lines = [f"{report['tank']} ({report['species']}): {len(report['surveys'])} surveys"
+    n = len(report["surveys"])
+    lines = [f"{report['tank']} ({report['species']}): {n} survey{'' if n == 1 else 's'}"
              + (f" that counted fish, {len(empty)} that counted none" if empty else "")]
     for s in report["surveys"]:
         lines.append(f"  survey {s['date']}: {s['fish']} fish, mean {s['mean_weight_g']:.1f} g, "
@@ -56,6 +57,9 @@ def text(report: dict) -> str:
     if p is not None:
         when = "not growing: no date" if p["days"] is None else f"in {p['days']:.0f} days, {p['date']}"
         lines.append(f"  projection: {p['target_g']:g} g at {p['sgr_pct']:.2f} %/day {when}")
+    elif target_g is not None and report["surveys"]:         # asked for, and not a word why there was none
+        from controller.report_plot import no_projection
+        lines.append(f"  {no_projection(report, target_g)}")
     if empty:
         after = [e for e in empty if report["surveys"] and e["t"] > report["surveys"][-1]["t"]]
         lines.append(f"  no fish counted: newest {empty[-1]['date']}"
@@ -96,7 +100,8 @@ def report(tank_id, since, target_g, png_path, as_json, config_path) -> None:
         raise BadInput(config_path, "--tank", f"no tank {tank_id!r} (tanks: {', '.join(t.id for t in cfg.tanks)})")
     if target_g is not None and not 0 < target_g < math.inf:
         raise BadInput("--target", None, f"must be a finite weight above 0 g, not {target_g:g}")
-    start = parse_since(since, ledger_now(cfg.store.path)) if since else None
+    now = ledger_now(cfg.store.path)
+    start = parse_since(since, now) if since else None
     if not Path(cfg.store.path).exists():
         raise BadInput(cfg.store.path, None, "no ledger there (the controller has not run with this config)")
     store = Store.reader(cfg.store.path)
@@ -104,9 +109,10 @@ def report(tank_id, since, target_g, png_path, as_json, config_path) -> None:
         data = tank_figures(cfg, store, tank_id, start, target_g)
     finally:
         store.close()
-    click.echo(json.dumps(data) if as_json else text(data))
+    target = target_g if target_g is not None else cfg.tank(tank_id).target_weight_g
+    click.echo(json.dumps(data) if as_json else text(data, target))
     if png_path:
         from controller.report_plot import draw_report
-        draw_report(png_path, data)
+        draw_report(png_path, data, target_g=target, now=now)
         if not as_json:
             click.echo(f"written: {png_path}")

@@ -89,14 +89,14 @@ def test_the_page_draws_the_fitted_growth_and_its_band():
     from controller.report_plot import _draw_fit
     fig, ax = pyplot().subplots()
     curve = [[T1 + d * DAY, 20.0 * 1.02**d, 5.0] for d in range(11)]
-    _draw_fit(ax, {"curve": curve, "model": "sgr", "surveys": 3}, T1)
-    [line] = ax.lines
-    assert list(line.get_xdata()) == pytest.approx(list(range(11)))
+    _draw_fit(ax, {"curve": curve, "model": "sgr", "surveys": 3})
+    [line] = ax.lines                                            # at its dates: days since 1970
+    assert list(line.get_xdata()) == pytest.approx([T1 / DAY + d for d in range(11)])
     assert list(line.get_ydata()) == pytest.approx([c[1] for c in curve])
     [band] = ax.collections                                      # 95 %: w / 1.05 .. w · 1.05
     ys = band.get_paths()[0].vertices[:, 1]
     assert ys.min() == pytest.approx(20 / 1.05) and ys.max() == pytest.approx(20 * 1.02**10 * 1.05)
-    _draw_fit(ax, None, T1)                                      # no fit: nothing more drawn
+    _draw_fit(ax, None)                                          # no fit: nothing more drawn
     assert len(ax.lines) == 1
 
 
@@ -208,3 +208,11 @@ def test_a_file_that_is_not_a_ledger_is_refused_and_left_as_it_was(tmp_path, cap
             "older schema": "start the controller once"}[content] in err
     assert path.read_bytes() == before
     assert sorted(p.name for p in tmp_path.iterdir()) == ["farm.toml", "x.db"]     # no -wal, -shm either
+
+
+def test_a_target_with_one_survey_says_why_there_is_no_projection(farm, capsys):
+    """--target 100 with one survey printed nothing of a projection, and '1 surveys'."""
+    path, _ = farm
+    code, out, _ = run(capsys, "report", "--tank", "T2", "--target", "100", "--config", str(path / "farm.toml"))
+    assert code == 0 and out.startswith("T2 (sparus_aurata): 1 survey\n")
+    assert "  no projection to 100 g: growth needs two surveys, this tank has 1 survey" in out
