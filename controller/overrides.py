@@ -167,6 +167,11 @@ class Overrides:
         self._audit(t=self.c.clock.now(), user=user, command=printable(command, 64), payload=payload,
                     origin=origin, reply={"ok": False, "error": error})
 
+    def noted(self, command: str, payload, reply: dict, *, user: str | None = None, origin: str = "zenoh") -> None:
+        """A command answered without ``apply`` (a SCADA slot's acknowledge with nothing standing
+        in it): audited as every other."""
+        self._audit(t=self.c.clock.now(), user=user, command=command, payload=payload, origin=origin, reply=reply)
+
     def _audit(self, *, t, user, command, payload, origin, reply) -> None:
         """Queue the row; the queue is written in one transaction just after this loop turn (the
         reply goes first). One fsync for all the commands of a turn: a flood of queries costs the

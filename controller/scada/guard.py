@@ -123,6 +123,11 @@ class Guard:
         if command == "ack":            # an alarm slot: each of its standing sources
             status = self.coordinator.last_status or {}
             sources = sorted({a["source"] for a in status.get("alarms", []) if in_slot(a.get("source", ""), e.label)})
+            if not sources:     # a press on a quiet slot: nothing to do, and the audit says so
+                self.controller.overrides.noted("ack", {**base, "slot": e.label},
+                                                {"ok": True, "acked": [], "note": f"nothing in slot {e.label}"},
+                                                user=self.scada.identity, origin=origin)
+                return True
             results = [await self._apply("ack", {**base, "source": s}, origin) for s in sources]
             return all(results)
         return await self._apply(command, base, origin)      # reset

@@ -10,7 +10,8 @@ into the exception response: ``ScadaStore`` is that datastore, built on the map 
 pymodbus's (deprecated) memory blocks. Each connection is a ``ServerRequestHandler``
 subclass that drops a client whose MBAP header cannot be a Modbus TCP frame (pymodbus would wait
 on it for good), notes when it last heard the client (idle connections are dropped), and names
-the peer for the audit. Connections beyond ``max_connections`` are closed at once.
+the peer for the audit. Beyond ``max_connections`` a new connection takes the place of the one
+silent longest (``evict_silent``), or is closed at once when every one is in use.
 """
 from __future__ import annotations
 
@@ -48,6 +49,8 @@ SERVED = frozenset({*READ_KIND, *WRITE_KIND, 43})
 # reading paused, one sat in the kernel's buffer for minutes); a client further ahead than this is
 # closed, its e-stops among what was read tripped first
 PIPELINE_MAX = 10_000
+EVICT_AFTER_S = 2.0           # wall: at the cap, a connection silent this long makes room for a new one
+REFUSED_SAID_EVERY_S = 60.0   # wall: a refusal is logged at most this often (with the count)
 
 
 def broken_mbap(buf: bytes) -> bool:
@@ -109,6 +112,16 @@ class ScadaStore:
         if device_id != self.cfg.unit:
             raise NoSuchIdException(f"unit {device_id}")    # pymodbus answers exception 0B
 
+    def unreadable(self, request: ModbusPDU) -> ExcCodes | None:
+        """A read/write request's (FC 23) read range, checked before its write acts: pymodbus writes
+        first, so a read past the map answered 02 after feeding the tank — and a SCADA that gets an
+        exception sends the write again. None for every other request, and for a range the map has."""
+        count = getattr(request, "read_count", None) if request.function_code == 23 else None
+        if count is None or not 1 <= count <= request.MAX_READ_COUNT:    # a count it cannot take: 03, as ever
+            return None
+        self._unit(request.dev_id)
+        return None if request.read_address + count <= len(self.coordinator.image[HR]) else ExcCodes.ILLEGAL_ADDRESS
+
     async def async_getValues(self, device_id: int, func_code: int, address: int, count: int = 1):
         self._unit(device_id)
         if func_code in (5, 6):          # a single write's reply echoes what was written
@@ -161,15 +174,14 @@ class _Connection(ServerRequestHandler):
             host, port = self.transport.get_extra_info("peername")[:2]
             self.peer = f"{host}:{port}"
         server = self.server
-        if len(server.active_connections) > server.scada.max_connections:
+        if len(server.active_connections) > server.scada.max_connections and not server.evict_silent(self):
             server.refused += 1
-            if not server.refusing:
-                log.warning("scada: %d connections already; refusing %s (and more, silently, until one ends)",
-                            server.scada.max_connections, self.peer)
-            server.refusing = True
+            now = time.monotonic()
+            if now - server.refused_said >= REFUSED_SAID_EVERY_S:     # a storm is one line a minute
+                log.warning("scada: %d connections, none silent for %g s; refusing %s (%d refused so far)",
+                            server.scada.max_connections, server.evict_after_s, self.peer, server.refused)
+                server.refused_said = now
             self.close()
-        else:
-            server.refusing = False
 
     def callback_disconnected(self, exc: Exception | None) -> None:
         super().callback_disconnected(exc)
@@ -252,7 +264,11 @@ class _Connection(ServerRequestHandler):
             return
         PEER.set(self)
         try:
-            response = await request.datastore_update(self.server.context, request.dev_id)
+            unread = self.server.context.unreadable(request)
+            if unread is not None:          # FC 23 writes before it reads: both are checked first
+                response = ExceptionResponse(request.function_code, unread)
+            else:
+                response = await request.datastore_update(self.server.context, request.dev_id)
         except NoSuchIdException:
             response = ExceptionResponse(request.function_code, ExcCodes.GATEWAY_NO_RESPONSE)
         except Exception:        # a bug: this request answers 04, the server goes on
@@ -269,6 +285,14 @@ class _Connection(ServerRequestHandler):
         self.recv_buffer = kept
 
 
+def _silent_since(conn, now: float) -> float:
+    """Since when ``conn`` has been silent, or trickling one frame (a byte every few seconds held a
+    slot for good); ``now`` while it has requests waiting for our replies."""
+    if getattr(conn, "waiting", None):
+        return now
+    return min(getattr(conn, "last_heard", now), getattr(conn, "frame_started", None) or now)
+
+
 class ScadaServer(ModbusTcpServer):
     def __init__(self, store: ScadaStore, scada_cfg, site: str):
         identity = ModbusDeviceIdentification(info_name={
@@ -281,8 +305,8 @@ class ScadaServer(ModbusTcpServer):
         self.context = store
         self.decoder = StrictDecoder()       # each connection's framer takes it when it opens
         self.scada = scada_cfg
-        self.refused = self.broken = self.idled = 0
-        self.refusing = False
+        self.refused = self.broken = self.idled = self.evicted = 0
+        self.refused_said = -REFUSED_SAID_EVERY_S
         self.urgent = None           # set by the service: trips the e-stop latches
         # the one frame acted on before parsing, as Zenoh's estop is: a complete FC 5 writing ON
         # to the e-stop coil, for this unit, with writes allowed — always a write the guard takes
@@ -294,12 +318,35 @@ class ScadaServer(ModbusTcpServer):
         return self._estop is not None and len(data) == 12 and data[2:] == self._estop
 
     def callback_new_connection(self):
-        return _Connection(self, self.trace_packet, self.trace_pdu, self.trace_connect)
+        conn = _Connection(self, self.trace_packet, self.trace_pdu, self.trace_connect)
+        conn.last_heard = time.monotonic()     # just come, not silent: its callback_connected may come later
+        return conn
 
     @property
     def port(self) -> int | None:
         sockets = getattr(self.transport, "sockets", None)
         return sockets[0].getsockname()[1] if sockets else None
+
+    @property
+    def evict_after_s(self) -> float:
+        return min(EVICT_AFTER_S, self.scada.idle_timeout_s / 4)
+
+    def evict_silent(self, newcomer) -> bool:
+        """At the cap, make room for ``newcomer`` by closing the connection silent longest, if it has
+        been silent ``evict_after_s`` (with no request waiting): eight half-open sockets of a crashed
+        HMI refused every other client, e-stops among them, for ``idle_timeout_s`` and on again.
+        A client polling does not go quiet that long; a client closed this way may reconnect."""
+        now = time.monotonic()
+        silent = [c for c in self.active_connections.values()
+                  if c is not newcomer and now - _silent_since(c, now) >= self.evict_after_s]
+        if not silent:
+            return False
+        oldest = min(silent, key=lambda c: _silent_since(c, now))
+        log.info("scada: %d connections; closed %s, silent %.0f s, for %s", self.scada.max_connections,
+                 getattr(oldest, "peer", "?"), now - _silent_since(oldest, now), newcomer.peer)
+        oldest.close()
+        self.evicted += 1
+        return True
 
     def drop_idle(self, now: float | None = None) -> int:
         """Close the connections silent for ``idle_timeout_s``, or that long on one frame: a half-open or
@@ -307,10 +354,7 @@ class ScadaServer(ModbusTcpServer):
         now = time.monotonic() if now is None else now
         dropped = 0
         for conn in list(self.active_connections.values()):
-            # silent, or trickling one frame (a byte every few seconds held a slot for good)
-            since = min(getattr(conn, "last_heard", now), getattr(conn, "frame_started", None) or now)
-            if getattr(conn, "waiting", None):      # waiting for our replies, not silent
-                continue
+            since = _silent_since(conn, now)
             if now - since > self.scada.idle_timeout_s:
                 log.debug("scada: %s idle or mid-frame for %.0f s; dropped", getattr(conn, "peer", "?"), now - since)
                 conn.close()

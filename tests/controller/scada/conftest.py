@@ -31,6 +31,7 @@ class StandIn:
         self.trips: list[str] = []
         self.calls: list[tuple] = []
         self.refusals: list[tuple] = []      # writes the map refused, as audited
+        self.notes: list[tuple] = []         # writes answered without an override, as audited
         self.refuse = set(refuse)
         self.overrides = self
 
@@ -42,6 +43,9 @@ class StandIn:
 
     def refused_on_wire(self, command, error, user=None, payload=None, *, origin="zenoh") -> None:
         self.refusals.append((command, error, user, payload, origin))
+
+    def noted(self, command, payload, reply, *, user=None, origin="zenoh") -> None:
+        self.notes.append((command, payload, reply, user, origin))
 
     async def apply(self, command, payload, *, user=None, origin="zenoh") -> dict:
         self.calls.append((command, payload, user, origin))

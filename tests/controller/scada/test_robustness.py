@@ -147,6 +147,44 @@ def test_connections_are_capped(serve):
         second.close()
 
 
+def test_at_the_cap_a_silent_connection_makes_room_and_an_e_stop_gets_through(serve):
+    """A crashed HMI's half-open sockets (connected, never a byte more) held every slot: an e-stop
+    from another client was refused for idle_timeout_s, and on again. The one silent longest (at
+    least evict_after_s) now makes room; connections in use are never closed for a newcomer."""
+    srv = serve(max_connections=2, idle_timeout_s=600.0)
+    server = srv.scada.server
+    silent = []
+    busy = None
+    try:
+        for _ in range(2):      # one at a time: the server takes new connections in no set order
+            silent.append(socket.create_connection(("127.0.0.1", srv.port)))
+            while len(server.active_connections) < len(silent):
+                time.sleep(0.001)
+        deadline = time.monotonic() + server.evict_after_s
+        while time.monotonic() < deadline - server.evict_after_s / 2:   # not silent long enough: refused
+            third = socket.create_connection(("127.0.0.1", srv.port))
+            assert closed_by_server(third)
+            third.close()
+        while True:        # a slot frees for the newcomer once one is silent for evict_after_s
+            try:
+                busy = Mbap(srv.port)
+                assert busy.write("coil", 0, [1]) is None               # the e-stop coil
+                break
+            except (ConnectionError, OSError):
+                assert time.monotonic() < deadline + 10, "no silent connection made room"
+        assert srv.controller.trips and server.evicted >= 1 and server.idled == 0
+        assert sum(closed_by_server(s, 5.0) for s in silent) >= 1
+        # the newcomer is in use: a fourth connection does not close it
+        fourth = socket.create_connection(("127.0.0.1", srv.port))
+        assert busy.read("input register", 0) is not None and isinstance(busy.read("input register", 0), list)
+        fourth.close()
+    finally:
+        for s in silent:
+            s.close()
+        if busy is not None:
+            busy.close()
+
+
 class Readers:
     """Four SCADA connections polling a tank block as fast as the server answers, counting."""
 

@@ -231,3 +231,49 @@ def test_the_estop_frame_trips_once_and_only_for_this_unit(serve):
         assert stand_in.trips == ["modbus e-stop by scada"]
     finally:
         c.close()
+
+
+def fc23(c: Mbap, read_address: int, read_count: int, write_address: int, values: list[int]):
+    """Read/write multiple registers (FC 23), by hand: None when accepted, else the exception."""
+    body = struct.pack(f">HHHHB{len(values)}H", read_address, read_count, write_address, len(values),
+                       2 * len(values), *values)
+    got, data = c.call(23, body)
+    return ("exception", data[0]) if got & 0x80 else None
+
+
+@pytest.mark.parametrize("read_address, read_count", [(65000, 1), (11060, 10), (0, 0)])
+def test_a_read_write_whose_read_the_map_lacks_does_nothing(serve, read_address, read_count):
+    """pymodbus writes before it reads: a read past the map answered 02 after feeding the tank, and
+    a SCADA that gets an exception sends the write again."""
+    stand_in = StandIn()
+    srv = serve(stand_in)
+    c = Mbap(srv.port)
+    try:
+        want = 3 if read_count == 0 else 2          # a count of 0 does not decode: 03
+        assert fc23(c, read_address, read_count, 100, [int(PORTION[1])]) == ("exception", want)
+        srv.call(lambda: None)
+        assert stand_in.calls == []
+        assert fc23(c, 0, 2, 100, [int(PORTION[1])]) is None          # the same write, a read the map has
+        srv.call(lambda: None)
+        assert [call[0] for call in stand_in.calls] == ["feed"]
+    finally:
+        c.close()
+
+
+def test_an_acknowledge_on_a_quiet_slot_is_answered_and_audited(serve):
+    """Every path audits every command: a slot's acknowledge with nothing standing in it was
+    answered and left no row."""
+    stand_in = StandIn()
+    srv = serve(stand_in)
+    c = Mbap(srv.port)
+    try:
+        slots = [(int(r["address"]), r["name"].split(".")[1]) for r in ROWS
+                 if r["name"].startswith("alarm.") and r["name"].endswith(".ack")]
+        for address, _ in slots:
+            assert c.write("coil", address, [1]) is None
+        srv.call(lambda: None)
+        assert stand_in.calls == []
+        assert [(cmd, p["slot"], reply["acked"], user) for cmd, p, reply, user, _ in stand_in.notes] == [
+            ("ack", slot, [], "scada") for _, slot in slots]
+    finally:
+        c.close()
