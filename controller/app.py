@@ -325,7 +325,8 @@ class Controller(Stopping):
         while not self.stopping.is_set():
             try:
                 batch = await self.contacts.read()
-                self.alarms.clear(f"device/{self.contacts.name}", "contacts back")
+                # only what the loss raised: the hub clock's alarms stand until its stamps agree
+                self.alarms.clear(f"device/{self.contacts.name}", "contacts back", kind="unreachable")
             except DeviceError as exc:
                 self.alarms.raise_(f"device/{self.contacts.name}", exc.text, kind="unreachable")
                 await self._reopen(self.contacts)
@@ -338,6 +339,8 @@ class Controller(Stopping):
                         log.warning("contact from unknown sensor %r ignored", contact.sensor)
                     continue
                 t = self.hub_clock.stamp(contact.t)
+                if t is None:              # stale: a stalled hub's backlog (hub_clock.py)
+                    continue
                 if publish is not None:
                     publish(f"tank/{tank}/contact", {"t": self.clock.iso(t), "sensor": contact.sensor})
                 for event in self.filter.on_contact(t, tank, contact.sensor):

@@ -4,7 +4,7 @@ minutes (a hungry tank, by the contact sensor model), the stamps spoilt as a pro
 from __future__ import annotations
 
 from controller.demand import Demand, DemandFilter
-from controller.hub_clock import SKEW_WALL_S, HubClock
+from controller.hub_clock import LAG_HOLDS_WALL_S, SKEW_WALL_S, HubClock
 
 T0 = 1_780_000_000.0
 
@@ -45,7 +45,9 @@ def demands_within(contacts, clock: Clock, stamp, until: float) -> list[float]:
     for true_t, hub_t, sensor in contacts:
         clock.t = true_t
         out += [e.t for e in f.on_time(true_t) if isinstance(e, Demand)]
-        out += [e.t for e in f.on_contact(stamp(hub_t), "T1", sensor) if isinstance(e, Demand)]
+        counted = stamp(hub_t)
+        if counted is not None:              # None: a stale contact, dropped
+            out += [e.t for e in f.on_contact(counted, "T1", sensor) if isinstance(e, Demand)]
     out += [e.t for e in f.on_time(until) if isinstance(e, Demand)]
     return out
 
@@ -62,7 +64,34 @@ def test_one_stamp_far_ahead_and_a_clock_stepped_back_do_not_blind_the_tank():
     assert in_first and in_stepped, caught                            # both within 60 s of their start
     assert alarms.raised[0][:2] == ("device/hub", "clock") and "+600 s off" in alarms.raised[0][2]
     assert ("device/hub", "clock") in alarms.cleared                  # stamps agreed in between
-    assert hub.replaced == 1 + 120
+    # a lag that holds LAG_HOLDS_WALL_S is a clock set back: what came before it is dropped as late
+    held = int(LAG_HOLDS_WALL_S)
+    assert hub.late == held and hub.replaced == 1 + 120 - held
+    assert [a[1] for a in alarms.raised] == ["clock", "late", "clock"]
+
+
+def test_a_stalled_hubs_backlog_is_dropped_not_made_one_burst_of_demand():
+    """A hub (or its link, or the simulator) stopped 30 s wall at 360x sends three farm hours of
+    contacts at once, correctly stamped. Counted at their arrival they were one burst: a demand for
+    fish that had asked hours before, or never (turbulence spread over hours)."""
+    speed = 360.0
+
+    class Fast(Clock):
+        def wall(self, farm_s: float) -> float:
+            return farm_s / speed
+    clock, alarms = Fast(T0), Alarms()
+    hub = HubClock(clock, alarms, "hub")
+    # an episode long ago and turbulence after it: 3 farm hours of stamps, all arriving at T0 + 3 h
+    stalled = [(T0 + 3 * 3600.0 + i * 1e-3, t, s) for i, (t, s) in enumerate(episode(T0, 120.0) + [
+        (T0 + 600.0 + 60.0 * k, "T1-a") for k in range(170)])]
+    assert demands_within(stalled, clock, hub.stamp, T0 + 3 * 3600.0 + 60.0) == []
+    stale = sum((arrived - stamped) / speed > SKEW_WALL_S for arrived, stamped, _ in stalled)
+    assert stale > 200 and hub.late == stale and hub.replaced == 0     # the last hour's are within tolerance
+    assert alarms.raised[0][:2] == ("device/hub", "late") and "late" in alarms.raised[0][2]
+    # then the fish ask now, on time: judged as ever, and the alarm clears
+    now = [(t, t, s) for t, s in episode(T0 + 3 * 3600.0 + 120.0)]
+    assert demands_within(now, clock, hub.stamp, T0 + 4 * 3600.0)
+    assert ("device/hub", "late") in alarms.cleared and ("device/hub", "clock") not in alarms.cleared
 
 
 def test_stamps_within_the_tolerance_are_kept_as_the_hub_gave_them():
