@@ -6,7 +6,7 @@ import click
 import pytest
 
 from controller.cli import main
-from controller.cli.params import MAX_SPEED, SPEED, Finite
+from controller.cli.params import MAX_RUN_SPEED, MAX_SPEED, SPEED, Finite
 
 FLOAT_OPTIONS = [
     ["run", "--duration"], ["run", "--speed"], ["run", "--epoch-wall"], ["run", "--epoch-farm"],
@@ -27,10 +27,12 @@ def test_nan_and_inf_exit_2_naming_the_option(capsys, words, value):
     assert len(err) == 1 and words[-1] in err[0] and value.lower() in err[0].lower(), err
 
 
-def test_speeds_past_the_clock_s_range_are_refused_and_up_to_it_taken():
-    assert SPEED.convert(str(MAX_SPEED), None, None) == MAX_SPEED
-    with pytest.raises(click.BadParameter):
-        SPEED.convert(str(MAX_SPEED * 1.01), None, None)
+def test_speeds_past_what_a_simulated_farm_keeps_up_with_are_refused_and_up_to_it_taken():
+    assert MAX_RUN_SPEED < MAX_SPEED
+    assert SPEED.convert(str(MAX_RUN_SPEED), None, None) == MAX_RUN_SPEED
+    for past in (MAX_RUN_SPEED * 1.01, 1e5, MAX_SPEED):
+        with pytest.raises(click.BadParameter):
+            SPEED.convert(str(past), None, None)
     with pytest.raises(click.BadParameter):
         SPEED.convert("0", None, None)
 
