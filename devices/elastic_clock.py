@@ -30,6 +30,7 @@ from __future__ import annotations
 
 import asyncio
 import fcntl
+import logging
 import math
 import mmap
 import os
@@ -37,88 +38,47 @@ import struct
 import threading
 import time
 from collections.abc import Callable
-from dataclasses import dataclass
 from pathlib import Path
 
 from devices.clock import iso
+from devices.clock_file import (  # noqa: F401  (the names users of the clock import from here)
+    AWAITED,
+    BUSY,
+    EMPTY,
+    FARM_MAX,
+    FARM_MIN,
+    GEN_AT,
+    HEAD,
+    IDLE,
+    MAGIC,
+    NSLOTS,
+    SEG,
+    SEG_AT,
+    SIZE,
+    SLOT,
+    VERSION,
+    Segment,
+    Slot,
+    check_file,
+    create,
+    decode_slot,
+    process_alive,
+    segment_fault,
+    slot_fault,
+)
+from devices.errors import BadInput
 
-MAGIC = b"FFCK"
-VERSION = 1
-# magic, version, sequence counter, the segment (wall0, farm0, speed, limit, after), slow, fast, slots
-HEAD = struct.Struct("<4sIQdddddddI4x")
-SLOT = struct.Struct("<16siId16s")           # name, pid, kind, value, why (for the record)
-NSLOTS = 16
 SLICE_S = 0.005                              # wall: a sleeper's longest nap while the speed may rise
 FAST_NAP_S = 0.005                           # wall: a sleeper's shortest nap while the farm runs fast: at
                                              # 1 ms the idle robot's look (ledger queries) and housekeeping
                                              # ran 1,000 times a wall second each, more of the controller's
                                              # CPU than the contacts of a fast span; no longer than SLICE_S
-EMPTY, BUSY, IDLE, AWAITED = 0, 1, 2, 3
-GEN_AT = 8                                   # byte offset of the sequence counter
-SEG_AT = 16                                  # byte offset of the segment (5 doubles)
-SEG = struct.Struct("<ddddd")
-
-
-@dataclass(frozen=True)
-class Segment:
-    wall0: float
-    farm0: float
-    speed: float
-    limit: float          # farm time where ``speed`` gives way to ``after``
-    after: float
-
-    def farm_at(self, wall: float) -> float:
-        f = self.farm0 + (wall - self.wall0) * self.speed
-        if f <= self.limit:
-            return f
-        return self.limit + (wall - self.limit_wall()) * self.after
-
-    def limit_wall(self) -> float:
-        return self.wall0 + (self.limit - self.farm0) / self.speed
-
-    def wall_at(self, farm: float) -> float:
-        """The wall instant this segment reaches farm time ``farm``."""
-        if farm <= self.limit:
-            return self.wall0 + (farm - self.farm0) / self.speed
-        return self.limit_wall() + (farm - self.limit) / self.after
-
-    def speed_at(self, farm: float) -> float:
-        return self.speed if farm <= self.limit else self.after
-
-
-@dataclass(frozen=True)
-class Slot:
-    name: str
-    pid: int
-    kind: int
-    value: float
-    why: str = ""
-
-
-def create(path: str | Path, *, slow: float, fast: float, farm_start: float,
-           awaited: tuple[str, ...] = (), wall_time: Callable[[], float] = time.time) -> None:
-    """A new clock file at ``path``: farm time ``farm_start`` now, running at ``slow`` until the
-    ``awaited`` slots' processes declare themselves."""
-    if not 0 < slow <= fast:
-        raise ValueError(f"clock speeds: need 0 < slow <= fast, got slow={slow} fast={fast}")
-    buf = bytearray(HEAD.size + NSLOTS * SLOT.size)
-    HEAD.pack_into(buf, 0, MAGIC, VERSION, 0, wall_time(), farm_start, slow, math.inf, slow, slow, fast, NSLOTS)
-    for i, name in enumerate(awaited):
-        SLOT.pack_into(buf, HEAD.size + i * SLOT.size, name.encode()[:16], 0, AWAITED, 0.0, b"awaited")
-    tmp = Path(f"{path}.tmp")
-    tmp.write_bytes(bytes(buf))
-    os.replace(tmp, path)
-
-
-def process_alive(pid: int) -> bool:
-    """Whether process ``pid`` exists (one of another user's counts)."""
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return False
-    except PermissionError:
-        return True
-    return True
+WRITER_WAIT_S = 0.1                          # wall: how long a reader waits for a live writer mid-write
+                                             # before it reads slow on (once per write: a stopped writer
+                                             # is not waited for at every read)
+SPINS = 200                                  # reads of an odd counter before looking for its writer (a
+                                             # write takes microseconds; 200 reads are ~50 us)
+log = logging.getLogger("fishfarm.clock")
 
 
 class ElasticClock:
@@ -127,24 +87,30 @@ class ElasticClock:
 
     def __init__(self, path: str | Path, wall_time: Callable[[], float] = time.time,
                  alive: Callable[[int], bool] = process_alive, pause: Callable[[float], None] = time.sleep):
-        """``wall_time``, ``alive`` (is that pid running), ``pause`` (a blocking nap): injectable for tests."""
+        """``wall_time``, ``alive`` (is that pid running), ``pause`` (a blocking nap): injectable for tests.
+        BadInput naming the file and the field if it is no sound clock file."""
         self.path = str(path)
         self._time, self._alive, self._pause = wall_time, alive, pause
         self._fd = os.open(self.path, os.O_RDWR)
-        size, need = os.fstat(self._fd).st_size, HEAD.size + NSLOTS * SLOT.size
-        if size < need:             # (mmap's own complaint names neither the file nor the fault)
+        size = os.fstat(self._fd).st_size
+        if size < SIZE:             # (mmap's own complaint names neither the file nor the fault)
             os.close(self._fd)
-            raise ValueError(f"{self.path}: not a fishfarm clock file ({size} bytes, a clock file has {need})")
-        self._map = mmap.mmap(self._fd, need)
-        magic, version, *_rest = HEAD.unpack_from(self._map, 0)
-        if magic != MAGIC or version != VERSION:
-            self.close()
-            raise ValueError(f"{self.path}: not a fishfarm clock file (magic {magic!r}, version {version})")
-        _m, _v, _g, *_seg, self.slow, self.fast, _n = HEAD.unpack_from(self._map, 0)
+            raise BadInput(self.path, None, f"not a fishfarm clock file ({size} bytes, a clock file has {SIZE})")
+        self._map = mmap.mmap(self._fd, SIZE)
         self._last = -math.inf
         self._guard = threading.Lock()
+        self._wlock = threading.Lock()          # this process's writer, held with the flock (below)
         self.slot: int | None = None
-        self._said: tuple[int, float] | None = None
+        self._said: tuple[int, float, str] | None = None
+        self._good: Segment | None = None       # the last sound segment read, and when
+        self._good_w = 0.0
+        self._stale: Segment | None = None      # read meanwhile: slow on from the last sound one
+        try:
+            self.slow, self.fast = check_file(self.path, self._map)
+            self._good, self._good_w = self._first_segment()
+        except BaseException:
+            self.close()
+            raise
 
     def close(self) -> None:
         self._map.close()
@@ -153,15 +119,108 @@ class ElasticClock:
     # -- reading ----------------------------------------------------------------------------
     def _read(self) -> tuple[Segment, float]:
         """The segment and a wall instant it holds at: the wall is read inside the sequence check,
-        so a segment re-drawn after that instant (anchored later) cannot be mixed with it."""
+        so a segment re-drawn after that instant (anchored later) cannot be mixed with it.
+
+        Never loops without end: a counter still odd after SPINS reads, or a segment that is no
+        sound one, is a writer's that died mid-write (SIGKILL between the counter's two steps) if
+        nobody holds the file's lock -- then it is re-drawn from the slots -- or one a live writer
+        is in the middle of; meanwhile the farm runs on at the slow speed from the last sound
+        segment read (slow is always safe)."""
+        read = self._settle(0.0 if self._stale is not None else WRITER_WAIT_S)
+        if read is None:
+            return self._slow_on(), self._time()
+        (self._good, self._good_w), self._stale = read, None
+        return read
+
+    def _settle(self, wait_s: float) -> tuple[Segment, float] | None:
+        """(segment, wall) read soundly, or mended if its writer is dead; None if a live writer
+        holds the file mid-write for longer than ``wait_s`` (descheduled on a loaded machine: a
+        few ms; stopped: for good)."""
+        deadline = None
         while True:
+            if (read := self._try_read()) is not None:
+                return read
+            if (mended := self._mend_if_free()) is not None:
+                return mended
+            now = time.monotonic()
+            deadline = now + wait_s if deadline is None else deadline
+            if now >= deadline:
+                return None
+            time.sleep(0.0001)                 # (lets a writer thread of this process have the GIL)
+
+    def _try_read(self) -> tuple[Segment, float] | None:
+        for _ in range(SPINS):
             g1 = struct.unpack_from("<Q", self._map, GEN_AT)[0]
             if g1 & 1:
                 continue                       # a writer is in the middle: its write takes microseconds
-            seg = SEG.unpack_from(self._map, SEG_AT)
+            raw = SEG.unpack_from(self._map, SEG_AT)
             w = self._time()
             if struct.unpack_from("<Q", self._map, GEN_AT)[0] == g1:
-                return Segment(*seg), w
+                seg = Segment(*raw)
+                return None if segment_fault(seg, w, self.fast) is not None else (seg, w)
+        return None
+
+    def _first_segment(self, wait_s: float = 1.0) -> tuple[Segment, float]:
+        """The segment at opening: read, or mended, or -- a writer holding the file mid-write for
+        ``wait_s`` (stopped: ^Z) -- the file's segment as it is if sound. BadInput if none is."""
+        if (read := self._settle(wait_s)) is not None:
+            return read
+        seg, w = Segment(*SEG.unpack_from(self._map, SEG_AT)), self._time()
+        if (fault := segment_fault(seg, w, self.fast)) is not None:
+            raise BadInput(self.path, "segment", fault)
+        return seg, w
+
+    def _slow_on(self) -> Segment:
+        """The farm time read while the file's segment cannot be: on at the slow speed (or slower,
+        if that segment was) from the last sound segment's last reading -- not extrapolated on that
+        segment's speed, which the writers may have lowered since."""
+        if self._stale is None:
+            f = self._good.farm_at(self._good_w)
+            s = min(self.slow, self._good.speed_at(f))
+            self._stale = Segment(self._good_w, f, s, math.inf, s)
+        return self._stale
+
+    def _mend_if_free(self) -> tuple[Segment, float] | None:
+        """Mend the segment if no writer holds the file (here or elsewhere): (it, a wall instant
+        read under the lock, where no later segment can be anchored); None if a writer holds it."""
+        if not self._wlock.acquire(blocking=False):
+            return None                        # this process is writing (another thread, a signal handler)
+        try:
+            try:
+                fcntl.flock(self._fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            except BlockingIOError:
+                return None                    # a live writer in the middle of its write
+            try:
+                return self._mend(), self._time()
+            finally:
+                fcntl.flock(self._fd, fcntl.LOCK_UN)
+        finally:
+            self._wlock.release()
+
+    def _mend(self) -> Segment:
+        """Under the lock: the segment, re-drawn from the slots if the counter is odd (its writer
+        died mid-write: nobody else can hold the lock) or the segment is no sound one. BadInput if
+        neither the file's segment nor one read before is sound."""
+        gen = struct.unpack_from("<Q", self._map, GEN_AT)[0]
+        seg, w = Segment(*SEG.unpack_from(self._map, SEG_AT)), self._time()
+        fault = segment_fault(seg, w, self.fast)
+        if not gen & 1 and fault is None:
+            return seg
+        base = seg if fault is None else self._good
+        if base is None:
+            raise BadInput(self.path, "segment", fault)
+        odd = gen if gen & 1 else gen + 1
+        struct.pack_into("<Q", self._map, GEN_AT, odd)
+        try:
+            f = max(base.farm_at(w), self._last)
+            speed, limit = self._pace(f)
+            new = Segment(w, f, speed, limit, self.slow)
+            SEG.pack_into(self._map, SEG_AT, new.wall0, new.farm0, new.speed, new.limit, new.after)
+        finally:
+            struct.pack_into("<Q", self._map, GEN_AT, odd + 1)
+        log.warning("%s: %s; re-drawn from the slots at %.6g x", self.path,
+                    "a writer died mid-write" if gen & 1 else f"segment {fault}", new.speed_at(f))
+        return new
 
     def segment(self) -> Segment:
         return self._read()[0]
@@ -220,11 +279,7 @@ class ElasticClock:
         return ["--clock", self.path]
 
     def slots(self) -> list[Slot]:
-        out = []
-        for i in range(NSLOTS):
-            name, pid, kind, value, why = SLOT.unpack_from(self._map, HEAD.size + i * SLOT.size)
-            out.append(Slot(name.rstrip(b"\0").decode(), pid, kind, value, why.rstrip(b"\0").decode()))
-        return out
+        return [decode_slot(SLOT.unpack_from(self._map, HEAD.size + i * SLOT.size)) for i in range(NSLOTS)]
 
     # -- declaring ----------------------------------------------------------------------------
     def claim(self, name: str) -> int:
@@ -234,7 +289,7 @@ class ElasticClock:
             mine = [i for i, s in enumerate(slots) if s.name == name and s.kind != EMPTY]
             free = [i for i, s in enumerate(slots) if s.kind == EMPTY]
             if not (mine or free):
-                raise RuntimeError(f"{self.path}: all {NSLOTS} clock slots are taken")
+                raise BadInput(self.path, "slots", f"all {NSLOTS} are taken by others: no slot for {name!r}")
             self.slot = (mine or free)[0]
             self._write_slot(name, BUSY, self.slow, "starting")
             self._govern()
@@ -243,11 +298,13 @@ class ElasticClock:
 
     def busy(self, max_speed: float | None = None, why: str = "") -> None:
         """Farm time must run at no more than ``max_speed`` (default: the slow speed) from now."""
-        self._declare(BUSY, min(self.slow if max_speed is None else max_speed, self.fast), why)
+        speed = self.slow if max_speed is None or not max_speed > 0 else max_speed
+        self._declare(BUSY, min(speed, self.fast), why)
 
     def idle_until(self, t: float, why: str = "") -> None:
         """Nothing here needs fine time before farm time ``t``."""
-        self._declare(IDLE, t, why)
+        # (a NaN or a time past the farm's last year would read as a spoilt slot)
+        self._declare(IDLE, t if t < FARM_MAX else FARM_MAX - 1.0, why)
 
     def release(self) -> None:
         """This process leaves the farm's timeline (its slot is freed)."""
@@ -275,7 +332,7 @@ class ElasticClock:
     def _govern(self) -> Segment:
         """Under the lock. The counter goes odd before the anchor's wall instant is read: a reader
         that got the old segment read its wall before that instant, where the old one holds."""
-        old = self.segment()
+        old = self._mend()                     # (a dead writer's odd counter: re-drawn first)
         gen = struct.unpack_from("<Q", self._map, GEN_AT)[0]
         struct.pack_into("<Q", self._map, GEN_AT, gen + 1)
         try:
@@ -293,7 +350,12 @@ class ElasticClock:
     def _pace(self, f: float) -> tuple[float, float]:
         """(speed, limit) the slots ask for at farm time ``f``."""
         busy, until = [], []
-        for s in self.slots():
+        for i in range(NSLOTS):
+            raw = SLOT.unpack_from(self._map, HEAD.size + i * SLOT.size)
+            if slot_fault(raw, self.fast) is not None:
+                busy.append(self.slow)         # a slot spoilt since the file was opened: its word is none
+                continue
+            s = decode_slot(raw)
             if s.kind == AWAITED or (s.kind in (BUSY, IDLE) and not self._alive(s.pid)):
                 busy.append(self.slow)
             elif s.kind == BUSY:
@@ -308,20 +370,35 @@ class ElasticClock:
     def _write_slot(self, name: str | None, kind: int, value: float, why: str) -> None:
         at = HEAD.size + self.slot * SLOT.size
         if name is None:
-            name = SLOT.unpack_from(self._map, at)[0].rstrip(b"\0").decode()
-        SLOT.pack_into(self._map, at, name.encode()[:16], os.getpid() if kind != EMPTY else 0, kind, value,
-                       why.encode()[:16])
+            name = decode_slot(SLOT.unpack_from(self._map, at)).name
+        SLOT.pack_into(self._map, at, _utf8(name), os.getpid() if kind != EMPTY else 0, kind, value, _utf8(why))
 
     def _locked(self):
-        return _Flock(self._fd)
+        return _Flock(self._fd, self._wlock)
 
 
 class _Flock:
-    def __init__(self, fd: int):
-        self.fd = fd
+    """The file's exclusive flock, and this process's writer lock with it: the flock is the open
+    file's, so a reader in this process could take it while another thread of it writes."""
+
+    def __init__(self, fd: int, wlock: threading.Lock):
+        self.fd, self.wlock = fd, wlock
 
     def __enter__(self):
-        fcntl.flock(self.fd, fcntl.LOCK_EX)
+        self.wlock.acquire()
+        try:
+            fcntl.flock(self.fd, fcntl.LOCK_EX)
+        except BaseException:
+            self.wlock.release()
+            raise
 
     def __exit__(self, *exc):
-        fcntl.flock(self.fd, fcntl.LOCK_UN)
+        try:
+            fcntl.flock(self.fd, fcntl.LOCK_UN)
+        finally:
+            self.wlock.release()
+
+
+def _utf8(text: str) -> bytes:
+    """At most 16 bytes of ``text``, cut between characters (a cut one is no UTF-8: a spoilt slot)."""
+    return text.encode()[:16].decode(errors="ignore").encode()

@@ -65,7 +65,7 @@ def _state(show: str) -> dict:
         c = ElasticClock(show)
     except FileNotFoundError:
         raise BadInput("--show", None, f"{show}: no such file") from None
-    except (OSError, ValueError) as exc:
+    except (OSError, ValueError, BadInput) as exc:
         raise BadInput("--show", None, str(exc)) from None
     try:
         seg, now = c.segment(), c.now()

@@ -130,9 +130,13 @@ def elastic(path: str, slot: str):
     from devices.elastic_clock import ElasticClock
     try:
         clock = ElasticClock(path)
-    except (OSError, ValueError) as exc:
+    except (OSError, ValueError, BadInput) as exc:
         raise BadInput("--clock", None, str(exc)) from None
-    clock.claim(slot)
+    try:
+        clock.claim(slot)
+    except BadInput as exc:
+        clock.close()
+        raise BadInput("--clock", None, str(exc)) from None
     return clock
 
 

@@ -1,0 +1,210 @@
+"""The elastic clock's file (devices/elastic_clock.py): its layout, the bounds of what it may hold, and
+the checks of what is read from it.
+
+A clock file is shared by every process of one farm and written by all of them, so what is read is
+checked, not trusted: a file cut short is mapped past its end (SIGBUS kills the reader, with no
+line said), a speed of 0 divides by zero, a NaN farm time or one past the year 9999 breaks every
+log line, a slot name that is not UTF-8 breaks every re-draw. Each fault is named by the file and
+the field (``BadInput``, one line, exit 2).
+"""
+from __future__ import annotations
+
+import math
+import os
+import struct
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+
+from devices.errors import BadInput
+
+MAGIC = b"FFCK"
+VERSION = 1
+# magic, version, sequence counter, the segment (wall0, farm0, speed, limit, after), slow, fast, slots
+HEAD = struct.Struct("<4sIQdddddddI4x")
+SLOT = struct.Struct("<16siId16s")           # name, pid, kind, value, why (for the record)
+NSLOTS = 16
+SIZE = HEAD.size + NSLOTS * SLOT.size        # 848 bytes
+EMPTY, BUSY, IDLE, AWAITED = 0, 1, 2, 3
+KINDS = (EMPTY, BUSY, IDLE, AWAITED)
+GEN_AT = 8                                   # byte offset of the sequence counter
+SEG_AT = 16                                  # byte offset of the segment (5 doubles)
+SEG = struct.Struct("<ddddd")
+SLOTS = ("sim", "controller")                # the names the farm's processes claim (fishfarm sim, run)
+
+# every farm instant is a date the clock can print and the ledger holds: before 2000 is a typo
+# (`--farm-start 0`), from 2200 on the clock's arithmetic reaches past the year 9999 within a run
+FARM_MIN = 946_684_800.0                     # 2000-01-01T00:00:00Z
+FARM_MAX = 7_258_118_400.0                   # 2200-01-01T00:00:00Z
+MAX_SPEED = 1e6                              # farm s per wall s (a farm year in ~30 s of wall)
+WALL_AHEAD_S = 5.0                           # a segment anchored further in the wall's future is not a writer's
+
+
+@dataclass(frozen=True)
+class Segment:
+    wall0: float
+    farm0: float
+    speed: float
+    limit: float          # farm time where ``speed`` gives way to ``after``
+    after: float
+
+    def farm_at(self, wall: float) -> float:
+        f = self.farm0 + (wall - self.wall0) * self.speed
+        if f <= self.limit:
+            return f
+        return self.limit + (wall - self.limit_wall()) * self.after
+
+    def limit_wall(self) -> float:
+        return self.wall0 + (self.limit - self.farm0) / self.speed
+
+    def wall_at(self, farm: float) -> float:
+        """The wall instant this segment reaches farm time ``farm``."""
+        if farm <= self.limit:
+            return self.wall0 + (farm - self.farm0) / self.speed
+        return self.limit_wall() + (farm - self.limit) / self.after
+
+    def speed_at(self, farm: float) -> float:
+        return self.speed if farm <= self.limit else self.after
+
+
+@dataclass(frozen=True)
+class Slot:
+    name: str
+    pid: int
+    kind: int
+    value: float
+    why: str = ""
+
+
+def in_farm_range(t: float) -> bool:
+    return FARM_MIN <= t < FARM_MAX
+
+
+def farm_range_fault(t: float) -> str | None:
+    """Why ``t`` cannot be a farm instant, or None."""
+    if in_farm_range(t):
+        return None
+    return f"{t!r} is outside the farm's years 2000-2199 (Unix s {FARM_MIN:.0f} to {FARM_MAX:.0f})"
+
+
+def speed_fault(s: float) -> str | None:
+    if math.isfinite(s) and 0 < s <= MAX_SPEED:
+        return None
+    return f"{s!r}: a speed must be > 0 and at most {MAX_SPEED:g}"
+
+
+def speeds_fault(slow: float, fast: float) -> tuple[str, str] | None:
+    """(field, fault) of a bad pair of speeds, or None."""
+    for name, value in (("slow", slow), ("fast", fast)):
+        if (fault := speed_fault(value)) is not None:
+            return name, fault
+    if slow > fast:
+        return "slow", f"{slow:g} is faster than fast {fast:g}"
+    return None
+
+
+def segment_fault(seg: Segment, wall: float, fast: float) -> str | None:
+    """What is wrong with ``seg`` read at wall instant ``wall`` (None: nothing)."""
+    if not all(math.isfinite(v) for v in (seg.wall0, seg.farm0, seg.speed, seg.after)) or math.isnan(seg.limit):
+        return "not a number"
+    if not (0 < seg.speed <= fast and 0 < seg.after <= fast):
+        return f"speed {seg.speed!r} then {seg.after!r}: not in (0, fast {fast:g}]"
+    if not in_farm_range(seg.farm0):
+        return f"farm time {seg.farm0!r} outside the years 2000-2199"
+    if seg.limit < seg.farm0:
+        return f"limit {seg.limit!r} before its start {seg.farm0!r}"
+    if seg.wall0 > wall + WALL_AHEAD_S:
+        return f"anchored {seg.wall0 - wall:.0f} s in the wall clock's future"
+    return None
+
+
+def slot_fault(raw: tuple, fast: float) -> str | None:
+    """What is wrong with a slot as unpacked from the file (None: nothing)."""
+    name, pid, kind, value, why = raw
+    if kind not in KINDS:
+        return f"kind {kind} (0 to 3)"
+    if kind == EMPTY:
+        return None
+    try:
+        name.rstrip(b"\0").decode()
+        why.rstrip(b"\0").decode()
+    except UnicodeDecodeError:
+        return "name or word not UTF-8"
+    if kind == BUSY and not (math.isfinite(value) and 0 < value <= fast):
+        return f"busy at {value!r}: not in (0, fast {fast:g}]"
+    if kind == IDLE and not (math.isfinite(value) and value < FARM_MAX):
+        return f"idle until {value!r}: not a farm time before 2200"
+    if kind != AWAITED and pid <= 0:
+        return f"pid {pid}"
+    return None
+
+
+def decode_slot(raw: tuple) -> Slot:
+    name, pid, kind, value, why = raw
+    return Slot(name.rstrip(b"\0").decode(errors="replace"), pid, kind, value,
+                why.rstrip(b"\0").decode(errors="replace"))
+
+
+def check_file(path: str, buf) -> tuple[float, float]:
+    """(slow, fast) of the clock file whose first SIZE bytes are ``buf``; BadInput naming the field
+    at fault. The segment is checked by the reader (a dead writer's may be re-drawn)."""
+    magic, version, _gen, *_seg, slow, fast, nslots = HEAD.unpack_from(buf, 0)
+    if magic != MAGIC or version != VERSION:
+        raise BadInput(path, None, f"not a fishfarm clock file (magic {magic!r}, version {version})")
+    if nslots != NSLOTS:
+        raise BadInput(path, "slots", f"{nslots}: a clock file has {NSLOTS}")
+    if (bad := speeds_fault(slow, fast)) is not None:
+        raise BadInput(path, *bad)
+    for i in range(NSLOTS):
+        if (fault := slot_fault(SLOT.unpack_from(buf, HEAD.size + i * SLOT.size), fast)) is not None:
+            raise BadInput(path, f"slot {i}", fault)
+    return slow, fast
+
+
+def is_clock_file(path: str | Path) -> bool:
+    """Whether ``path`` starts as a clock file does (its magic and version)."""
+    try:
+        with open(path, "rb") as fh:
+            head = fh.read(8)
+    except OSError:
+        return False
+    return len(head) == 8 and struct.unpack("<4sI", head) == (MAGIC, VERSION)
+
+
+def layout(*, slow: float, fast: float, farm_start: float, awaited: tuple[str, ...] = (),
+           wall: float) -> bytes:
+    """The bytes of a new clock file: farm time ``farm_start`` at wall instant ``wall``, running
+    at ``slow`` until the ``awaited`` slots' processes declare themselves. ValueError naming the fault."""
+    if (bad := speeds_fault(slow, fast)) is not None:
+        raise ValueError(f"clock speeds: {bad[0]}: {bad[1]}")
+    if (fault := farm_range_fault(farm_start)) is not None:
+        raise ValueError(f"farm start: {fault}")
+    if len(awaited) > NSLOTS or len(set(awaited)) != len(awaited) \
+            or any(not n or len(n.encode()) > 16 for n in awaited):
+        raise ValueError(f"awaited slots {awaited!r}: at most {NSLOTS} different names of 1 to 16 bytes")
+    buf = bytearray(SIZE)
+    HEAD.pack_into(buf, 0, MAGIC, VERSION, 0, wall, farm_start, slow, math.inf, slow, slow, fast, NSLOTS)
+    for i, name in enumerate(awaited):
+        SLOT.pack_into(buf, HEAD.size + i * SLOT.size, name.encode(), 0, AWAITED, 0.0, b"awaited")
+    return bytes(buf)
+
+
+def create(path: str | Path, *, slow: float, fast: float, farm_start: float,
+           awaited: tuple[str, ...] = (), wall_time: Callable[[], float] = time.time) -> None:
+    """A new clock file at ``path`` (see ``layout``), written whole beside it and renamed into place."""
+    data = layout(slow=slow, fast=fast, farm_start=farm_start, awaited=awaited, wall=wall_time())
+    tmp = Path(f"{path}.tmp")
+    tmp.write_bytes(data)
+    os.replace(tmp, path)
+
+
+def process_alive(pid: int) -> bool:
+    """Whether process ``pid`` exists (one of another user's counts)."""
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    return True
