@@ -9,9 +9,11 @@ the field (``BadInput``, one line, exit 2).
 """
 from __future__ import annotations
 
+import fcntl
 import math
 import os
 import struct
+import threading
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -208,3 +210,30 @@ def process_alive(pid: int) -> bool:
     except PermissionError:
         return True
     return True
+
+
+class Flock:
+    """The file's exclusive flock, and this process's writer lock with it: the flock is the open
+    file's, so a reader in this process could take it while another thread of it writes."""
+
+    def __init__(self, fd: int, wlock: threading.Lock):
+        self.fd, self.wlock = fd, wlock
+
+    def __enter__(self):
+        self.wlock.acquire()
+        try:
+            fcntl.flock(self.fd, fcntl.LOCK_EX)
+        except BaseException:
+            self.wlock.release()
+            raise
+
+    def __exit__(self, *exc):
+        try:
+            fcntl.flock(self.fd, fcntl.LOCK_UN)
+        finally:
+            self.wlock.release()
+
+
+def utf8_16(text: str) -> bytes:
+    """At most 16 bytes of ``text``, cut between characters (a cut one is no UTF-8: a spoilt slot)."""
+    return text.encode()[:16].decode(errors="ignore").encode()

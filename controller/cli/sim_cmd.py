@@ -137,6 +137,9 @@ def elastic(path: str, slot: str):
     except BadInput as exc:
         clock.close()
         raise BadInput("--clock", None, str(exc)) from None
+    # a clock file cut short while mapped: this process's own stop (SIGTERM: the controller's stop
+    # path leaves the actuators safe), not the SIGBUS of reading the map past the file's end
+    clock.on_lost = lambda: os.kill(os.getpid(), signal.SIGTERM)
     return clock
 
 

@@ -164,3 +164,31 @@ def test_all_slots_taken_is_bad_input_not_an_internal_error(tmp_path):
     with pytest.raises(BadInput, match="all 16 are taken"):
         c.claim("sim")
     c.close()
+
+
+# A process on the clock file (as `fishfarm run`/`sim` take it), reading on a line from the test
+ON_THE_CLOCK = """
+import signal, sys
+from controller.cli.sim_cmd import elastic
+signal.signal(signal.SIGTERM, lambda *a: print("stop path", flush=True))
+c = elastic(sys.argv[1], "controller")
+print("ready", flush=True)
+sys.stdin.readline()
+a = c.now(); c.busy(why="moving"); c.idle_until(a + 10); b = c.now()
+print("read", b >= a, c.slots() == [], flush=True)
+"""
+
+
+@pytest.mark.parametrize("size", [0, 100])
+def test_a_clock_file_cut_short_stops_the_process_not_sigbus(tmp_path, size):
+    path = tmp_path / "clock"
+    create(path, slow=SLOW, fast=FAST, farm_start=START)
+    proc = subprocess.Popen([sys.executable, "-c", ON_THE_CLOCK, str(path)], cwd=ROOT, text=True,
+                            stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    assert proc.stdout.readline() == "ready\n"
+    os.truncate(path, size)
+    out, err = proc.communicate("go\n", timeout=60)
+    assert proc.returncode == 0, err           # the old reader died of SIGBUS (-7) reading past the end
+    assert out.splitlines() == ["stop path", "read True True"]
+    said = [line for line in err.splitlines() if "shrank" in line]
+    assert len(said) == 1 and f"shrank to {size} bytes" in said[0] and str(path) in said[0]
