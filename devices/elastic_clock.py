@@ -75,6 +75,8 @@ FAST_NAP_S = 0.005                           # wall: a sleeper's shortest nap wh
                                              # 1 ms the idle robot's look (ledger queries) and housekeeping
                                              # ran 1,000 times a wall second each, more of the controller's
                                              # CPU than the contacts of a fast span; no longer than SLICE_S
+CLAIM_WAIT_S = 3.0                           # wall: a slot's live holder is waited for this long (the
+                                             # simulator's stop takes at most 1 s) before claim refuses
 WRITER_WAIT_S = 0.1                          # wall: how long a reader waits for a live writer mid-write
                                              # before it reads slow on (once per write: a stopped writer
                                              # is not waited for at every read)
@@ -290,21 +292,38 @@ class ElasticClock:
         return [decode_slot(SLOT.unpack_from(self._map, HEAD.size + i * SLOT.size)) for i in range(NSLOTS)]
 
     # -- declaring ----------------------------------------------------------------------------
-    def claim(self, name: str) -> int:
-        """This process's slot ``name`` (an awaited one, one a dead process held, or a free one)."""
+    def claim(self, name: str, wait_s: float = CLAIM_WAIT_S) -> int:
+        """This process's slot ``name`` (an awaited one, one a dead process held, or a free one).
+        BadInput naming the file and the pid if a live process of another farm holds it (two farms
+        on one file overwrote each other's word), after ``wait_s`` for it to end (a restarted
+        controller's simulator starts while its predecessor's is still stopping)."""
+        deadline = time.monotonic() + wait_s
+        while (holder := self._claim(name)) is not None:
+            if time.monotonic() >= deadline:
+                raise BadInput(self.path, f"slot {name!r}", f"held by pid {holder}, which is running: one clock "
+                                                            "file per farm (make another with fishfarm clock --out)")
+            time.sleep(0.05)
+        self._said = (BUSY, self.slow, "starting")
+        return self.slot
+
+    def _claim(self, name: str) -> int | None:
+        """Claim the slot; or the pid of the live process (not this one) that holds it."""
         with self._locked():
             if self._shrunk():
                 raise BadInput(self.path, None, self._lost)
             slots = self.slots()
             mine = [i for i, s in enumerate(slots) if s.name == name and s.kind != EMPTY]
+            held = [s.pid for s in slots if s.name == name and s.kind in (BUSY, IDLE)
+                    and s.pid != os.getpid() and self._alive(s.pid)]
+            if held:
+                return held[0]
             free = [i for i, s in enumerate(slots) if s.kind == EMPTY]
             if not (mine or free):
                 raise BadInput(self.path, "slots", f"all {NSLOTS} are taken by others: no slot for {name!r}")
             self.slot = (mine or free)[0]
             self._write_slot(name, BUSY, self.slow, "starting")
             self._govern()
-        self._said = (BUSY, self.slow, "starting")
-        return self.slot
+        return None
 
     def busy(self, max_speed: float | None = None, why: str = "") -> None:
         """Farm time must run at no more than ``max_speed`` (default: the slow speed) from now."""

@@ -8,6 +8,7 @@ import os
 import struct
 import subprocess
 import sys
+import threading
 import time
 from pathlib import Path
 
@@ -192,3 +193,36 @@ def test_a_clock_file_cut_short_stops_the_process_not_sigbus(tmp_path, size):
     assert out.splitlines() == ["stop path", "read True True"]
     said = [line for line in err.splitlines() if "shrank" in line]
     assert len(said) == 1 and f"shrank to {size} bytes" in said[0] and str(path) in said[0]
+
+
+HOLDER = """
+import sys
+from devices.elastic_clock import ElasticClock
+c = ElasticClock(sys.argv[1])
+c.claim("sim")
+c.idle_until(c.now() + 1e6)
+print("holding", flush=True)
+sys.stdin.readline()
+"""
+
+
+def test_a_second_farm_on_one_clock_file_is_refused_naming_the_holder(tmp_path):
+    path = tmp_path / "clock"
+    create(path, slow=SLOW, fast=FAST, farm_start=START, awaited=("sim", "controller"))
+    holder = subprocess.Popen([sys.executable, "-c", HOLDER, str(path)], cwd=ROOT, text=True,
+                              stdin=subprocess.PIPE, stdout=subprocess.PIPE)
+    other = ElasticClock(path)
+    try:
+        assert holder.stdout.readline() == "holding\n"
+        with pytest.raises(BadInput) as err:
+            other.claim("sim", wait_s=0.0)     # the old code took it over and wrote its own word
+        assert str(err.value).startswith(f"{path}: slot 'sim': held by pid {holder.pid}, which is running")
+        assert [(s.name, s.pid) for s in other.slots()[:1]] == [("sim", holder.pid)]   # untouched
+        other.claim("controller")              # reserved by the harness: still claimed
+        holder.stdin.close()                   # the holder ends while a claim waits for it
+        threading.Thread(target=holder.wait, daemon=True).start()   # (reaped: no zombie)
+        assert other.claim("sim", wait_s=60.0) == 0   # a dead process's slot is taken over
+    finally:
+        holder.kill()
+        holder.wait()
+        other.close()
