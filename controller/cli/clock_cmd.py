@@ -41,8 +41,9 @@ def clock(out, show, slow, fast, farm_start, awaited) -> None:
 
 
 def _make(out: str, slow, fast, farm_start, awaited) -> None:
+    from controller.atomic_files import replace_atomically
     from controller.history import parse_time
-    from devices.elastic_clock import NSLOTS, create
+    from devices.clock_file import NSLOTS, layout
     for name, value in (("--slow", slow), ("--fast", fast)):
         if value is None or not math.isfinite(value) or value <= 0:
             raise BadInput(name, None, f"{value}: a speed > 0 is required")
@@ -51,11 +52,37 @@ def _make(out: str, slow, fast, farm_start, awaited) -> None:
     if len(awaited) > NSLOTS or any(not n or len(n.encode()) > 16 for n in awaited):
         raise BadInput("--await", None, f"at most {NSLOTS} names of 1 to 16 bytes")
     start = parse_time(farm_start, "--farm-start", time.time(), durations=False) if farm_start else time.time()
-    path = Path(out)
-    if not path.parent.is_dir():
-        raise BadInput(out, None, "its directory does not exist")
-    create(path, slow=slow, fast=fast, farm_start=start, awaited=tuple(awaited))
+    _check_out(out)
+    data = layout(slow=slow, fast=fast, farm_start=start, awaited=tuple(awaited), wall=time.time())
+    replace_atomically(out, lambda tmp: Path(tmp).write_bytes(data))
     click.echo(f"wrote {out}: farm time {_iso(start)} now, {slow:g}x busy, {fast:g}x idle", err=True)
+
+
+def _check_out(out: str) -> None:
+    """The project's output rules (a directory refused by name; a device or a FIFO written into,
+    never replaced), and a file already there replaced only if it is a clock file no live process
+    is on: renaming over any file put a clock where a config had been."""
+    from controller.atomic_files import special
+    from controller.cli.output_paths import check_outputs
+    from devices.clock_file import BUSY, IDLE, is_clock_file, process_alive
+    check_outputs({"--out": out}, [])
+    path = Path(out)
+    if special(path) or not path.exists():
+        return
+    if not is_clock_file(path):
+        raise BadInput(out, "--out", "exists and is not a clock file: not replaced (remove it first)")
+    live = [s for s in _slots_of(path) if s.kind in (BUSY, IDLE) and s.pid > 0 and process_alive(s.pid)]
+    if live:
+        raise BadInput(out, "--out", f"a farm runs on this clock ({live[0].name!r}: pid {live[0].pid}): "
+                                     "not replaced")
+
+
+def _slots_of(path: Path) -> list:
+    from devices.clock_file import HEAD, NSLOTS, SIZE, SLOT, decode_slot
+    data = path.read_bytes()
+    if len(data) < SIZE:
+        return []
+    return [decode_slot(SLOT.unpack_from(data, HEAD.size + i * SLOT.size)) for i in range(NSLOTS)]
 
 
 def _state(show: str) -> dict:

@@ -2,6 +2,11 @@
 from __future__ import annotations
 
 import json
+import os
+import stat
+import threading
+import tty
+from pathlib import Path
 
 import pytest
 
@@ -65,3 +70,56 @@ def test_show_refuses_what_is_no_clock(tmp_path, capsys):
         line = capsys.readouterr().err.strip()
         assert line == (f"fishfarm: --show: {tmp_path / 'short'}: not a fishfarm clock file ({size} bytes, "
                         "a clock file has 848)")
+
+
+MAKE = ["--slow", "360", "--fast", "8640", "--farm-start", "2026-05-29T16:00:00Z"]
+
+
+def test_out_follows_the_output_rules(tmp_path, capsys):
+    os.mkdir(tmp_path / "d")
+    (tmp_path / "farm.toml").write_text("site = 'demo'\n")
+    for out, says in ((tmp_path / "d", "a directory, not a file"),
+                      (tmp_path / "farm.toml", "exists and is not a clock file"),
+                      (Path("/proc/version"), "")):
+        assert fishfarm_main(["clock", "--out", str(out), *MAKE]) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and str(out) in err[0] and says in err[0] and "internal error" not in err[0]
+    assert (tmp_path / "farm.toml").read_text() == "site = 'demo'\n"   # the old code renamed a clock over it
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["d", "farm.toml"]   # no ..tmp left
+    assert list((tmp_path / "d").iterdir()) == []
+
+
+def test_out_writes_into_a_device_or_a_fifo_never_replaces_it(tmp_path):
+    # a pty, not /dev/null: the old code, run as root, renamed a plain file over /dev/null
+    master, slave = os.openpty()
+    tty.setraw(slave)
+    try:
+        device = os.ttyname(slave)
+        assert fishfarm_main(["clock", "--out", device, *MAKE]) == 0
+        assert stat.S_ISCHR(os.stat(device).st_mode)
+        assert os.read(master, 4096)[:4] == b"FFCK"
+    finally:
+        os.close(master)
+        os.close(slave)
+    fifo = tmp_path / "fifo"
+    os.mkfifo(fifo)
+    got = []
+    reader = threading.Thread(target=lambda: got.append(fifo.read_bytes()))
+    reader.start()
+    assert fishfarm_main(["clock", "--out", str(fifo), *MAKE]) == 0
+    reader.join(timeout=30)
+    assert stat.S_ISFIFO(os.stat(fifo).st_mode)
+    assert len(got[0]) == 848 and got[0][:4] == b"FFCK"
+
+
+def test_out_replaces_a_clock_file_only_while_no_farm_runs_on_it(tmp_path, capsys):
+    path = tmp_path / "clock"
+    assert fishfarm_main(["clock", "--out", str(path), *MAKE]) == 0
+    c = ElasticClock(path)
+    c.claim("controller")                      # (this process: alive)
+    capsys.readouterr()
+    assert fishfarm_main(["clock", "--out", str(path), *MAKE]) == 2
+    assert f"pid {os.getpid()}" in capsys.readouterr().err
+    c.release()
+    c.close()
+    assert fishfarm_main(["clock", "--out", str(path), *MAKE]) == 0
