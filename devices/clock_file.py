@@ -39,6 +39,9 @@ SLOTS = ("sim", "controller")                # the names the farm's processes cl
 # (`--farm-start 0`), from 2200 on the clock's arithmetic reaches past the year 9999 within a run
 FARM_MIN = 946_684_800.0                     # 2000-01-01T00:00:00Z
 FARM_MAX = 7_258_118_400.0                   # 2200-01-01T00:00:00Z
+FARM_SANE = 9.5e10                           # ~year 5000: a segment past it is garbage; one past FARM_MAX
+                                             # is a farm that ran on (1e6x from 2199: 86 wall s), not mended
+                                             # at every read
 MAX_SPEED = 1e6                              # farm s per wall s (a farm year in ~30 s of wall)
 WALL_AHEAD_S = 5.0                           # a segment anchored further in the wall's future is not a writer's
 
@@ -112,8 +115,8 @@ def segment_fault(seg: Segment, wall: float, fast: float) -> str | None:
         return "not a number"
     if not (0 < seg.speed <= fast and 0 < seg.after <= fast):
         return f"speed {seg.speed!r} then {seg.after!r}: not in (0, fast {fast:g}]"
-    if not in_farm_range(seg.farm0):
-        return f"farm time {seg.farm0!r} outside the years 2000-2199"
+    if not FARM_MIN <= seg.farm0 < FARM_SANE:
+        return f"farm time {seg.farm0!r} outside the years 2000-5000"
     if seg.limit < seg.farm0:
         return f"limit {seg.limit!r} before its start {seg.farm0!r}"
     if seg.wall0 > wall + WALL_AHEAD_S:

@@ -43,15 +43,19 @@ def clock(out, show, slow, fast, farm_start, awaited) -> None:
 def _make(out: str, slow, fast, farm_start, awaited) -> None:
     from controller.atomic_files import replace_atomically
     from controller.history import parse_time
-    from devices.clock_file import NSLOTS, layout
+    from devices.clock_file import NSLOTS, farm_range_fault, layout, speed_fault
     for name, value in (("--slow", slow), ("--fast", fast)):
-        if value is None or not math.isfinite(value) or value <= 0:
-            raise BadInput(name, None, f"{value}: a speed > 0 is required")
+        if value is None:
+            raise BadInput(name, None, "required with --out")
+        if (fault := speed_fault(value)) is not None:    # (1e300 was taken, and --show overflowed)
+            raise BadInput(name, None, fault)
     if slow > fast:
         raise BadInput("--slow", None, f"{slow:g} is faster than --fast {fast:g}")
     if len(awaited) > NSLOTS or any(not n or len(n.encode()) > 16 for n in awaited):
         raise BadInput("--await", None, f"at most {NSLOTS} names of 1 to 16 bytes")
     start = parse_time(farm_start, "--farm-start", time.time(), durations=False) if farm_start else time.time()
+    if (fault := farm_range_fault(start)) is not None:   # (0 was taken, 9999-12-31 crashed later)
+        raise BadInput("--farm-start", None, f"{farm_start}: {fault}")
     _check_out(out)
     data = layout(slow=slow, fast=fast, farm_start=start, awaited=tuple(awaited), wall=time.time())
     replace_atomically(out, lambda tmp: Path(tmp).write_bytes(data))

@@ -5,9 +5,11 @@ import math
 
 import click
 
-# farm seconds per wall second at most: a farm year in ~30 s, and farm times stay dates (past
-# ~1e7 a day's run overflows what the clock can print)
-MAX_SPEED = 1e6
+# MAX_SPEED: farm seconds per wall second at most: a farm year in ~30 s, and farm times stay dates
+# (past ~1e7 a day's run overflows what the clock can print); farm instants in the years 2000-2199
+from devices.clock_file import MAX_SPEED, farm_range_fault
+
+__all__ = ["FARM_INSTANT", "MAX_RUN_SPEED", "MAX_SPEED", "SPEED", "Finite"]
 
 
 class Finite(click.FloatRange):
@@ -33,3 +35,19 @@ class Finite(click.FloatRange):
 # never confirmed; at 1e4 the demo farm feeds
 MAX_RUN_SPEED = 1e4
 SPEED = Finite(min=0, min_open=True, max=MAX_RUN_SPEED)
+
+
+class FarmInstant(Finite):
+    """Unix seconds of a farm (or wall) instant in the years 2000-2199: --epoch-farm 1e300 froze farm
+    time, -1e10 ran the farm in 1653, and an instant past 9999 broke every log line."""
+
+    name = "farm instant"
+
+    def convert(self, value, param, ctx):
+        rv = super().convert(value, param, ctx)
+        if (fault := farm_range_fault(rv)) is not None:
+            self.fail(fault, param, ctx)
+        return rv
+
+
+FARM_INSTANT = FarmInstant()

@@ -6,7 +6,7 @@ import logging
 
 import click
 
-from controller.cli.params import SPEED, Finite
+from controller.cli.params import FARM_INSTANT, SPEED, Finite
 from controller.errors import BadInput
 
 
@@ -42,9 +42,9 @@ def setup_logging(clock, level: str) -> None:
               help="stop after S farm seconds (default: run until stopped)")
 @click.option("--speed", type=SPEED, default=1.0, show_default=True,
               help="simulated time runs X times faster than real time (simulated devices only)")
-@click.option("--epoch-wall", type=Finite(), default=None,
+@click.option("--epoch-wall", type=FARM_INSTANT, default=None,
               help="wall time (Unix s) at which farm time is --epoch-farm: a restart continues farm time")
-@click.option("--epoch-farm", type=Finite(), default=None,
+@click.option("--epoch-farm", type=FARM_INSTANT, default=None,
               help="farm time (Unix s) at --epoch-wall (alone: farm time starts there now)")
 @click.option("--clock", "clock_path", type=click.Path(dir_okay=False, exists=True), default=None,
               help="an elastic clock file shared with the simulator (devices/elastic_clock.py), in place of "

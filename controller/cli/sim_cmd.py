@@ -19,7 +19,7 @@ from pathlib import Path
 
 import click
 
-from controller.cli.params import SPEED, Finite
+from controller.cli.params import FARM_INSTANT, SPEED
 
 
 @click.command()
@@ -30,8 +30,8 @@ from controller.cli.params import SPEED, Finite
 @click.option("--truth", type=click.Path(dir_okay=False), default=None,
               help="append the ground truth of the run here (JSON lines)")
 @click.option("--speed", type=SPEED, default=1.0, show_default=True)
-@click.option("--epoch-wall", type=Finite(), default=None, help="wall time at which farm time is --epoch-farm")
-@click.option("--epoch-farm", type=Finite(), default=None)
+@click.option("--epoch-wall", type=FARM_INSTANT, default=None, help="wall time at which farm time is --epoch-farm")
+@click.option("--epoch-farm", type=FARM_INSTANT, default=None)
 @click.option("--clock", "clock_path", type=click.Path(dir_okay=False, exists=True), default=None,
               help="an elastic clock file (devices/elastic_clock.py) shared with the controller: "
                    "replaces --speed/--epoch-*")

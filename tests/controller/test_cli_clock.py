@@ -48,12 +48,31 @@ def test_made_clock_runs_slow_until_the_awaited_speak_then_fast(tmp_path, capsys
     (["--slow", "1", "--fast", "nan"], "--fast"),
     (["--slow", "1", "--fast", "10", "--farm-start", "yesterday"], "--farm-start"),
     (["--slow", "1", "--fast", "10", "--await", "a-name-longer-than-16"], "--await"),
+    (["--slow", "1e300", "--fast", "1e300"], "--slow"),       # taken before; --show overflowed
+    (["--slow", "1", "--fast", "1e300"], "--fast"),
+    (["--slow", "1", "--fast", "10", "--farm-start", "9999-12-31T23:59:59"], "--farm-start"),
+    (["--slow", "1", "--fast", "10", "--farm-start", "253402300800"], "--farm-start"),
+    (["--slow", "1", "--fast", "10", "--farm-start", "0"], "--farm-start"),
+    (["--slow", "1", "--fast", "10", "--farm-start", "1970-01-01"], "--farm-start"),
+    (["--slow", "1", "--fast", "10", "--farm-start", "2200-01-01"], "--farm-start"),
 ])
 def test_bad_clocks_are_refused_in_one_line(tmp_path, capsys, args, names):
     assert fishfarm_main(["clock", "--out", str(tmp_path / "c"), *args]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and names in err[0]
     assert not (tmp_path / "c").exists()
+
+
+@pytest.mark.parametrize("command", ["run", "sim"])
+@pytest.mark.parametrize("flag, value", [("--epoch-farm", "1e300"), ("--epoch-wall", "1e300"),
+                                         ("--epoch-farm", "-1e10"), ("--epoch-wall", "0"),
+                                         ("--epoch-farm", "7258118400")])
+def test_epochs_outside_the_farm_years_are_refused_in_one_line(tmp_path, capsys, command, flag, value):
+    # the old code ran with farm time frozen (1e300), stuck at 1970, or in 1653
+    extra = ["--endpoints", str(tmp_path / "e.json")] if command == "sim" else []
+    assert fishfarm_main([command, "--config", str(tmp_path / "none.toml"), *extra, flag, value]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and flag in err[0] and "2000-2199" in err[0]
 
 
 def test_show_refuses_what_is_no_clock(tmp_path, capsys):

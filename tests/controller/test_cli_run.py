@@ -129,8 +129,8 @@ def test_a_duration_shorter_than_a_slow_start_still_runs_the_controller(tmp_path
 
 @pytest.mark.parametrize("args, said", [
     (["--speed", "600"], "fishfarm: --clock: the clock file sets farm time: not with --speed"),
-    (["--epoch-wall", "1", "--epoch-farm", "2"], "fishfarm: --clock: the clock file sets farm time: not with "
-                                                  "--epoch-wall or --epoch-farm"),
+    (["--epoch-wall", "1780000000", "--epoch-farm", "1780000001"],
+     "fishfarm: --clock: the clock file sets farm time: not with --epoch-wall or --epoch-farm"),
 ])
 def test_a_clock_file_with_speed_or_epochs_is_refused_not_ignored(tmp_path, args, said):
     clock = tmp_path / "clock"
