@@ -7,7 +7,8 @@ The file (devices/elastic_clock.py) is what ``fishfarm sim --clock FILE`` and ``
 --clock FILE`` share: farm time runs at ``--slow`` while any of them is busy and at ``--fast``
 while all are idle. ``--await sim --await controller`` reserves their slots before they start, so
 the clock stays slow until each has said what it needs (as hil_tests/farm.py does). ``--show``
-prints the current segment and every slot as one JSON object. Bad input exits 2 with one line.
+prints the current segment and every slot (``dead``: its process is gone) as one JSON object.
+Bad input exits 2 with one line.
 """
 from __future__ import annotations
 
@@ -43,7 +44,7 @@ def clock(out, show, slow, fast, farm_start, awaited) -> None:
 def _make(out: str, slow, fast, farm_start, awaited) -> None:
     from controller.atomic_files import replace_atomically
     from controller.history import parse_time
-    from devices.clock_file import NSLOTS, farm_range_fault, layout, speed_fault
+    from devices.clock_file import SLOTS, farm_range_fault, layout, speed_fault
     for name, value in (("--slow", slow), ("--fast", fast)):
         if value is None:
             raise BadInput(name, None, "required with --out")
@@ -51,8 +52,12 @@ def _make(out: str, slow, fast, farm_start, awaited) -> None:
             raise BadInput(name, None, fault)
     if slow > fast:
         raise BadInput("--slow", None, f"{slow:g} is faster than --fast {fast:g}")
-    if len(awaited) > NSLOTS or any(not n or len(n.encode()) > 16 for n in awaited):
-        raise BadInput("--await", None, f"at most {NSLOTS} names of 1 to 16 bytes")
+    # a name nobody claims, or one given twice, held the clock slow for good
+    for name in awaited:
+        if name not in SLOTS:
+            raise BadInput("--await", None, f"{name!r}: no process claims it (the farm's are {', '.join(SLOTS)})")
+    if len(set(awaited)) != len(awaited):
+        raise BadInput("--await", None, f"{' '.join(awaited)}: a name given twice")
     start = parse_time(farm_start, "--farm-start", time.time(), durations=False) if farm_start else time.time()
     if (fault := farm_range_fault(start)) is not None:   # (0 was taken, 9999-12-31 crashed later)
         raise BadInput("--farm-start", None, f"{farm_start}: {fault}")
@@ -90,7 +95,7 @@ def _slots_of(path: Path) -> list:
 
 
 def _state(show: str) -> dict:
-    from devices.elastic_clock import AWAITED, BUSY, IDLE, ElasticClock
+    from devices.elastic_clock import AWAITED, BUSY, IDLE, ElasticClock, process_alive
     kinds = {BUSY: "busy", IDLE: "idle", AWAITED: "awaited"}
     try:
         c = ElasticClock(show)
@@ -102,9 +107,14 @@ def _state(show: str) -> dict:
         seg, now = c.segment(), c.now()
         return {"farm_time": _iso(now), "speed": c.speed, "slow": c.slow, "fast": c.fast,
                 "fast_until": None if not math.isfinite(seg.limit) else _iso(seg.limit),
+                "segment": {"wall0": seg.wall0, "farm0": _iso(seg.farm0), "speed": seg.speed,
+                            "limit": None if not math.isfinite(seg.limit) else _iso(seg.limit),
+                            "after": seg.after},
                 "slots": [{"name": s.name, "pid": s.pid, "state": kinds[s.kind],
                            **({"until": _iso(s.value)} if s.kind == IDLE else
                               {"max_speed": s.value} if s.kind == BUSY and s.value > 0 else {}),
+                           # a dead process's word holds the clock slow, whatever it says
+                           **({"dead": True} if s.kind != AWAITED and not process_alive(s.pid) else {}),
                            "why": s.why} for s in c.slots() if s.kind in kinds]}
     finally:
         c.close()

@@ -9,7 +9,7 @@ import click
 # (past ~1e7 a day's run overflows what the clock can print); farm instants in the years 2000-2199
 from devices.clock_file import MAX_SPEED, farm_range_fault
 
-__all__ = ["FARM_INSTANT", "MAX_RUN_SPEED", "MAX_SPEED", "SPEED", "Finite"]
+__all__ = ["FARM_INSTANT", "MAX_RUN_SPEED", "MAX_SPEED", "SPEED", "Finite", "check_clock_options"]
 
 
 class Finite(click.FloatRange):
@@ -51,3 +51,16 @@ class FarmInstant(Finite):
 
 
 FARM_INSTANT = FarmInstant()
+
+
+def check_clock_options(speed, epoch_wall, epoch_farm, clock_path, hear=None) -> None:
+    """Options of ``run`` and ``sim`` that cannot all be meant: each was ignored without a word."""
+    from controller.errors import BadInput
+    if clock_path is not None:
+        given = [o for o, v in (("--speed", speed != 1.0), ("--epoch-wall", epoch_wall is not None),
+                                ("--epoch-farm", epoch_farm is not None)) if v]
+        if given:
+            raise BadInput("--clock", None, f"the clock file sets farm time: not with {' or '.join(given)}")
+    elif hear is not None:
+        raise BadInput("--hear", None, "only with --clock: the simulator hears demands to let an elastic "
+                                       "clock speed on")

@@ -6,7 +6,7 @@ import logging
 
 import click
 
-from controller.cli.params import FARM_INSTANT, SPEED, Finite
+from controller.cli.params import FARM_INSTANT, SPEED, Finite, check_clock_options
 from controller.errors import BadInput
 
 
@@ -58,7 +58,7 @@ def run(config_path, duration, speed, epoch_wall, epoch_farm, clock_path, log_le
     from controller.config import load_config
     from devices.clock import ScaledClock
 
-    _check_clock_options(speed, epoch_wall, epoch_farm, clock_path)
+    check_clock_options(speed, epoch_wall, epoch_farm, clock_path)
     cfg = load_config(config_path)
     all_sim = all(s["driver"] == "sim" for s in cfg.devices.values())
     if speed != 1.0 and not all_sim and epoch_wall is None:
@@ -97,15 +97,6 @@ def run(config_path, duration, speed, epoch_wall, epoch_farm, clock_path, log_le
 
 
 AHEAD_S = 300.0         # a ledger this far (farm s) ahead of the clock: the clock went back
-
-
-def _check_clock_options(speed, epoch_wall, epoch_farm, clock_path) -> None:
-    """Options that cannot all be meant: each was ignored without a word."""
-    if clock_path is not None:
-        given = [o for o, v in (("--speed", speed != 1.0), ("--epoch-wall", epoch_wall is not None),
-                                ("--epoch-farm", epoch_farm is not None)) if v]
-        if given:
-            raise BadInput("--clock", None, f"the clock file sets farm time: not with {' or '.join(given)}")
 
 
 def _after_the_ledger(cfg, clock, follows: bool):

@@ -19,7 +19,7 @@ from pathlib import Path
 
 import click
 
-from controller.cli.params import FARM_INSTANT, SPEED
+from controller.cli.params import FARM_INSTANT, SPEED, check_clock_options
 
 
 @click.command()
@@ -48,6 +48,7 @@ def sim(config_path, endpoints, truth, speed, epoch_wall, epoch_farm, clock_path
     from devices.sim.truth import TruthLog
     from devices.sim.world import SimFarm
 
+    check_clock_options(speed, epoch_wall, epoch_farm, clock_path, hear)
     logging.basicConfig(level=log_level.upper(), format="sim %(levelname)s %(name)s: %(message)s")
     # pymodbus writes a client gone mid-reply at ERROR with hex dumps of its frames: the simulated
     # PLCs' lines ended up in the controller's log at every e-stop (the controller's run does the same)

@@ -4,6 +4,8 @@ from __future__ import annotations
 import json
 import os
 import stat
+import subprocess
+import sys
 import threading
 import tty
 from pathlib import Path
@@ -12,6 +14,8 @@ import pytest
 
 from controller.cli import main as fishfarm_main
 from devices.elastic_clock import ElasticClock
+
+ROOT = Path(__file__).resolve().parents[2]
 
 
 def test_made_clock_runs_slow_until_the_awaited_speak_then_fast(tmp_path, capsys):
@@ -55,6 +59,8 @@ def test_made_clock_runs_slow_until_the_awaited_speak_then_fast(tmp_path, capsys
     (["--slow", "1", "--fast", "10", "--farm-start", "0"], "--farm-start"),
     (["--slow", "1", "--fast", "10", "--farm-start", "1970-01-01"], "--farm-start"),
     (["--slow", "1", "--fast", "10", "--farm-start", "2200-01-01"], "--farm-start"),
+    (["--slow", "1", "--fast", "10", "--await", "simulator"], "--await"),   # nobody claims it: slow for good
+    (["--slow", "1", "--fast", "10", "--await", "sim", "--await", "sim"], "--await"),
 ])
 def test_bad_clocks_are_refused_in_one_line(tmp_path, capsys, args, names):
     assert fishfarm_main(["clock", "--out", str(tmp_path / "c"), *args]) == 2
@@ -73,6 +79,43 @@ def test_epochs_outside_the_farm_years_are_refused_in_one_line(tmp_path, capsys,
     assert fishfarm_main([command, "--config", str(tmp_path / "none.toml"), *extra, flag, value]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and flag in err[0] and "2000-2199" in err[0]
+
+
+@pytest.mark.parametrize("command", ["run", "sim"])
+@pytest.mark.parametrize("args, said", [
+    (["--speed", "60"], "fishfarm: --clock: the clock file sets farm time: not with --speed"),
+    (["--epoch-farm", "1780000000"], "fishfarm: --clock: the clock file sets farm time: not with --epoch-farm"),
+])
+def test_run_and_sim_refuse_a_clock_file_with_speed_or_epochs_alike(tmp_path, capsys, command, args, said):
+    # the simulator ignored them without a word while run refused them
+    clock = tmp_path / "clock"
+    assert fishfarm_main(["clock", "--out", str(clock), *MAKE]) == 0
+    capsys.readouterr()
+    extra = ["--endpoints", str(tmp_path / "e.json")] if command == "sim" else []
+    assert fishfarm_main([command, "--config", str(tmp_path / "none.toml"), *extra, "--clock", str(clock), *args]) == 2
+    assert capsys.readouterr().err.strip() == said
+
+
+def test_sim_refuses_hear_without_a_clock(tmp_path, capsys):
+    assert fishfarm_main(["sim", "--config", str(tmp_path / "none.toml"), "--endpoints", str(tmp_path / "e.json"),
+                          "--hear", "tcp/127.0.0.1:7447"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("fishfarm: --hear: only with --clock")
+
+
+def test_show_prints_the_segment_and_marks_dead_slots(tmp_path, capsys):
+    path = tmp_path / "clock"
+    assert fishfarm_main(["clock", "--out", str(path), *MAKE, "--await", "sim", "--await", "controller"]) == 0
+    gone = subprocess.run([sys.executable, "-c", "import sys\nfrom devices.elastic_clock import ElasticClock\n"
+                           "ElasticClock(sys.argv[1]).claim('sim')", str(path)], cwd=ROOT, timeout=60)
+    assert gone.returncode == 0
+    capsys.readouterr()
+    assert fishfarm_main(["clock", "--show", str(path)]) == 0
+    shown = json.loads(capsys.readouterr().out)
+    assert shown["segment"]["speed"] == 360.0 and shown["segment"]["limit"] is None
+    assert shown["segment"]["farm0"].startswith("2026-05-29")
+    assert [(s["name"], s["state"], s.get("dead", False)) for s in shown["slots"]] == [
+        ("sim", "busy", True), ("controller", "awaited", False)]
 
 
 def test_show_refuses_what_is_no_clock(tmp_path, capsys):
