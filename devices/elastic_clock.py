@@ -46,17 +46,14 @@ from devices.clock_file import (  # noqa: F401  (the names users of the clock im
     BUSY,
     EMPTY,
     FARM_MAX,
-    FARM_MIN,
     GEN_AT,
     HEAD,
     IDLE,
-    MAGIC,
     NSLOTS,
     SEG,
     SEG_AT,
     SIZE,
     SLOT,
-    VERSION,
     Flock,
     Segment,
     Slot,
@@ -108,6 +105,7 @@ class ElasticClock:
         self._said: tuple[int, float, str] | None = None
         self._good: Segment | None = None       # the last sound segment read, and when
         self._good_w = 0.0
+        self._sound: tuple = ()                 # the raw segment last found sound
         self._stale: Segment | None = None      # read meanwhile: slow on from the last sound one
         self._lost: str | None = None           # why the file can no longer be read (cut short)
         self.on_lost: Callable[[], None] | None = None   # called once then (the process's stop)
@@ -132,13 +130,14 @@ class ElasticClock:
         nobody holds the file's lock -- then it is re-drawn from the slots -- or one a live writer
         is in the middle of; meanwhile the farm runs on at the slow speed from the last sound
         segment read (slow is always safe)."""
-        if self._shrunk():
-            return self._slow_on(), self._time()
-        read = self._settle(0.0 if self._stale is not None else WRITER_WAIT_S)
-        if read is None:
-            return self._slow_on(), self._time()
-        (self._good, self._good_w), self._stale = read, None
-        return read
+        if self._lost is None and os.lseek(self._fd, 0, os.SEEK_END) >= SIZE:   # (_shrunk's check, inline)
+            read = self._try_read() or self._settle(0.0 if self._stale is not None else WRITER_WAIT_S)
+            if read is not None:
+                (self._good, self._good_w), self._stale = read, None
+                return read
+        else:
+            self._shrunk()
+        return self._slow_on(), self._time()
 
     def _settle(self, wait_s: float) -> tuple[Segment, float] | None:
         """(segment, wall) read soundly, or mended if its writer is dead; None if a live writer
@@ -165,7 +164,11 @@ class ElasticClock:
             w = self._time()
             if struct.unpack_from("<Q", self._map, GEN_AT)[0] == g1:
                 seg = Segment(*raw)
-                return None if segment_fault(seg, w, self.fast) is not None else (seg, w)
+                if raw != self._sound:         # checked once per segment (its anchor stays in the past)
+                    if segment_fault(seg, w, self.fast) is not None:
+                        return None
+                    self._sound = raw
+                return seg, w
         return None
 
     def _first_segment(self, wait_s: float = 1.0) -> tuple[Segment, float]:
@@ -362,10 +365,8 @@ class ElasticClock:
             return self._slow_on() if self._shrunk() else self._govern()
 
     def _shrunk(self) -> bool:
-        """Whether the file is shorter than a clock file (cut short while mapped: the map's bytes past
-        its end are a SIGBUS that kills the process without a word). Once seen: one line logged,
-        ``on_lost`` called, farm time read on at the slow speed, nothing written. One lseek: ~2 us
-        (a now() ~30 us on a loaded machine)."""
+        """Whether the file is cut short (the map read past its end: a SIGBUS, no line said). Once
+        seen: one line logged, ``on_lost`` called, farm time read on slow, nothing written."""
         if self._lost is not None:
             return True
         size = os.lseek(self._fd, 0, os.SEEK_END)
