@@ -294,12 +294,19 @@ class FeedingRobot(Recovering):
         return None if self.surveys is None else self.surveys.next(self.paused, self.clock.now())
 
     async def _survey(self, session) -> None:
-        """A survey stop (controller/surveys/stop.py): it leaves for any demand that comes."""
+        """A survey stop (controller/surveys/stop.py): it leaves for any demand it would serve."""
         self.go()
         await self._move_to(self.cfg.tank(session.tank).position_m)
         self.arrive_survey()
-        await self.surveys.visit(session, lambda: bool(self.pending) or self.manual_asked, self._wake)
+        await self.surveys.visit(session, lambda: self._servable() or self.manual_asked, self._wake)
         self.surveyed()
+
+    def _servable(self) -> bool:
+        """A demand waits that would be fed: one of a tank that has had its ration is closed
+        ``ration_reached`` once the robot is idle, and must not end a survey visit (in an afternoon
+        of such demands every visit ended within its settle wait, the cameras started and stopped
+        once a wall second, and no survey was made)."""
+        return any(self.dispensing.portion(job.tank, job.grams) > 0 for job in self.pending.values())
 
     async def _refill(self) -> None:
         self.go()

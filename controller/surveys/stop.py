@@ -68,11 +68,15 @@ class SurveySession:
     rejected: list[float] = field(default_factory=list)      # lengths left out as measuring errors
 
     def precise(self, weight, ci_pct: float, min_fish: int) -> bool:
-        """The mean weight's 95 % CI (normal approximation) within ±ci_pct of it."""
-        n = len(self.lengths)
+        """The mean weight's 95 % CI (normal approximation) within ±ci_pct of it, over the lengths
+        the record will keep: one wild length (an 18 cm among 10 cm fish), which the record leaves
+        out as a measuring error, held a survey at its tank for 80 pairs where 18 had sufficed."""
+        measured = np.asarray(self.lengths, float)
+        kept = measured[~implausible(measured)]
+        n = len(kept)
         if n < max(min_fish, 2):
             return False
-        w = weight.weight_g(np.asarray(self.lengths))
+        w = weight.weight_g(kept)
         return Z95 * float(np.std(w, ddof=1)) / math.sqrt(n) <= ci_pct / 100 * float(np.mean(w))
 
 

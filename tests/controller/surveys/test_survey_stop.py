@@ -354,3 +354,55 @@ def test_a_pair_whose_measuring_never_ends_is_left_out_and_the_survey_recorded(t
     assert measure.calls == 5
     assert survey.count == 4 * 3 == len(measure.lengths)          # the hung pair's fish: none
     assert survey.mean_length_cm == pytest.approx(np.mean(measure.lengths))
+
+
+class WildDouble(MeasureDouble):
+    """MeasureDouble whose first fish is a measuring error: 1.8 times the others' mean."""
+
+    def __call__(self, jobs, calib, setup):
+        for result in super().__call__(jobs, calib, setup):
+            if len(self.lengths) == self.per_pair:
+                self.lengths[0] = 1.8 * self.mean
+                first = result.fish[0]
+                result.fish[0] = FishMeasurement(first.snout_mm, first.snout_mm + [10.0 * self.lengths[0], 0.0, 0.0],
+                                                 first.snout_px, first.fork_px, 0.9)
+            yield result
+
+
+def test_a_length_the_record_leaves_out_does_not_hold_the_survey_at_its_tank(tmp_path):
+    """The early stop judged the lengths the record then left out as measuring errors: one wild
+    length held a survey for 80 pairs where 18 sufficed."""
+    async def main():
+        async with rig(tmp_path) as r:
+            await r.until(lambda: r.robot.state == "idle", what="homed")
+            stops, camera, measure, sp = await attach(r, tmp_path, period_s=2.0, min_fish=20,
+                                                      measure=WildDouble(cv=0.02, per_pair=5))
+            stops.request("T1", pairs=200)
+            survey = await recorded(r, stops, "T1", 2000.0)
+            return survey, camera, measure, sp
+    survey, camera, measure, sp = run(main())
+    kept = np.array(measure.lengths[1:survey.count + 1])
+    w = sp.weight.weight_g(kept)
+    # it stops by the first pair at which the kept fish reach 20 and their CI 2 %: a few pairs
+    assert survey.count >= 20 and len(camera.pairs) <= 20, (survey.count, len(camera.pairs))   # ~90 judged whole
+    assert 1.96 * w.std(ddof=1) / np.sqrt(len(w)) <= 0.02 * w.mean() * 1.5
+
+
+def test_a_demand_of_a_tank_that_had_its_ration_does_not_end_a_survey_visit(tmp_path):
+    """Such a demand is closed ``ration_reached`` once the robot is idle: it ended every visit
+    within its settle wait, the cameras started and stopped, and no survey was made."""
+    async def main():
+        async with rig(tmp_path, speed=50.0) as r:
+            await r.until(lambda: r.robot.state == "idle", what="homed")
+            stops, camera, _, _ = await attach(r, tmp_path, period_s=5.0, settle_s=10.0, ci_pct=0.1)
+            today = r.rations.today("T1", r.clock.now())
+            r.store.set_ration("T1", today.date, 0.0, today.pellet_mm, "operator", r.clock.now())
+            stops.request("T2", pairs=6)
+            await r.until(lambda: r.robot.state == "surveying", 300.0, what="at T2")
+            demand = r.demand("T1")                       # fed nothing more today
+            survey = await recorded(r, stops, "T2", 900.0)
+            await r.until(lambda: r.store.db.execute("SELECT outcome FROM demand WHERE id = ?", (demand,))
+                          .fetchone()[0] == "ration_reached", 120.0, what="the demand closed")
+            return survey, camera
+    survey, camera = run(main())
+    assert json.loads(open(survey.source).read())["visits"] == 1 and camera.starts == 1
