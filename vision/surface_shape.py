@@ -15,7 +15,8 @@ direction near the head). The rear point is the innermost point of the caudal fo
 deepest point when a fork is found, else placed from the body's rear end (the caudal fin's base) by
 the species' ratio, or the outline's extreme at the tail end (a fish with an unforked tail: fork
 length = total length). The body's rear end is followed on along a caudal peduncle too thin for the
-outline (``_peduncle_end``). Intermediate points lie on the midline between them.
+outline (``_peduncle_end``), unless what it followed runs on past the fork: a caudal fin as dark as
+the peduncle (``_runs_past_fork``). Intermediate points lie on the midline between them.
 """
 from __future__ import annotations
 
@@ -50,6 +51,9 @@ N_SLICES = 24
 PEDUNCLE_LEVEL = 0.4   # the body's end followed along a thin peduncle to where its ridge falls below
                        # this share of the fish's peak contrast (0: the outline's end) ...
 PEDUNCLE_DROP = 0.6    # ... or below this share of the most it had over the 5 % of the length behind
+FIN_PAST_FORK = 0.09   # a dark run followed past the fork by more than this share of the body is a fin
+                       # (_runs_past_fork): on the bench's tanks (1000-1039) peduncles reached at most
+                       # 0.065 past it; a fin as dark as the peduncle, its lobes 0.13 L past the fork, 0.13-0.15
 N_MID = 15         # midline points: the fish's 3-D line is fitted to them (5 -> 15: 3-D recall x1.3 on the bench)
 
 
@@ -161,6 +165,22 @@ def _peduncle_end(r: Region, base: np.ndarray, tail: np.ndarray, length: float, 
     return base + (along[j - 1] + step * float(np.clip(frac, 0.0, 1.0))) * tail
 
 
+def _runs_past_fork(snout, base, end, base_ratio: float | None, tail: np.ndarray) -> bool:
+    """Whether the dark run ``_peduncle_end`` followed on from the body's end to ``end`` is the
+    caudal fin, not a peduncle: it reaches further than FIN_PAST_FORK of the body past the fork the
+    species' ratio places from ``base``. A peduncle ends at the fin's base, short of the fork; an
+    edge-on fin as dark as the peduncle runs on past the fork to its lobes' tips, and taken for body
+    its tip became the "fin base" and the fork was placed a fin's length further (a fish 1.33 x its
+    length). Ridge, width and darkness do not tell the two apart: on the bench's renders and such a
+    fin, its ridge 0.56-0.74 of the body's just before it and its width 0.22-0.36 of the body's there
+    overlap the peduncles' 0.53-0.99 and 0.36-1.1. Without a ratio the rear point is the fin's end
+    anyway: never."""
+    if base_ratio is None:
+        return False
+    body = float(np.linalg.norm(base - snout))
+    return float((end - base) @ tail) > (1 / base_ratio - 1 + FIN_PAST_FORK) * body
+
+
 def _fork(snout, base, tip, notch, base_ratio: float | None, tail: np.ndarray) -> np.ndarray:
     """The fork point from what the view shows. A notch seen in the fin is the fork, unless the
     species' fin-base ratio puts the fork more than 4 % of the length away from it (a bite out of
@@ -254,7 +274,9 @@ def analyse(r: Region, base_ratio: float | None = None) -> Fish2D | None:
     if (base - by_mass) @ tail_dir > 0.05 * np.linalg.norm(base - snout):
         base = by_mass                # the outline ran on along a dark caudal fin
     if PEDUNCLE_LEVEL > 0:
-        base = _peduncle_end(r, base, tail_dir, L, PEDUNCLE_LEVEL)
+        followed = _peduncle_end(r, base, tail_dir, L, PEDUNCLE_LEVEL)
+        if not _runs_past_fork(snout, base, followed, base_ratio, tail_dir):
+            base = followed           # (else what it followed was a caudal fin as dark as the peduncle)
     tip = _extreme(r.outline, tail_dir)
     notch = fork_i if fork_d > 0 else None
     fork = _fork(snout, base, tip, notch, base_ratio, tail_dir)

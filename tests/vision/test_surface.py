@@ -107,6 +107,26 @@ def test_a_peduncle_too_thin_for_the_outline_still_ends_the_body(heading_deg):
     assert np.linalg.norm(f.fork - fork) < 0.03 * L and not f.fork_seen
 
 
+@pytest.mark.parametrize("heading_deg", [15, 100, 195, 280])
+def test_a_caudal_fin_as_dark_as_the_peduncle_is_not_taken_for_body(heading_deg):
+    # from above the edge-on caudal fin runs on from the peduncle as a thin strip as dark as the body
+    # (one grey), 0.28 L long, its lobes 0.13 L past the fork: the body ends at the fin's base, not
+    # at its tip (taken for the base, the fork placed from it by the ratio came out 1.33 L)
+    rng = np.random.default_rng(heading_deg)
+    L, snout, h = 150.0, np.array([620.0, 460.0]), np.radians(heading_deg)
+    x = np.linspace(0, 0.85 * L, 40)
+    half = 0.075 * L * np.sqrt(1 - x / (0.85 * L)) * (x / (0.85 * L)) ** 0.6 / 0.42 + 0.012 * L
+    fin = [[0.85 * L, 0.007 * L], [1.13 * L, 0.004 * L]]                 # thinner than the peduncle's 0.012 L
+    top = np.vstack([np.c_[x, half], fin])
+    img = floor(rng=rng)
+    draw(img, place(np.vstack([top, top[::-1] * [1, -1]]), snout, h))
+    f, = detect_fish(finish(img), base_ratio=0.85)
+    d = np.array([np.cos(h), np.sin(h)])
+    assert np.linalg.norm(f.snout - snout) < 0.02 * L
+    assert abs((f.base - snout) @ d - 0.85 * L) < 0.03 * L          # the fin's base
+    assert np.linalg.norm(f.fork - (snout + L * d)) < 0.03 * L and not f.fork_seen
+
+
 def test_sizes_pale_and_dark_fish_under_the_lamp_gradient():
     rng = np.random.default_rng(5)
     fish = [((150, 150), 0.2, 60, 0.3), ((700, 200), 2.0, 220, 0.6), ((300, 700), -0.4, 120, 0.25),
