@@ -25,6 +25,7 @@ import numpy as np
 
 from controller.errors import BadInput
 from controller.image_io import opencv_decode
+from controller.surveys.frame_pixels import to_8bit
 from controller.surveys.png import DamagedPNG, decode_png
 
 IMAGE_SUFFIXES = {".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff"}
@@ -120,8 +121,8 @@ def _imdecode(data: bytes, name: str, flags: int = cv2.IMREAD_ANYCOLOR) -> np.nd
         img = decode_png(data, colour=flags == cv2.IMREAD_COLOR)
     except DamagedPNG as exc:
         raise BadInput(name, None, f"damaged PNG ({exc})") from None
-    if img is None:
-        img = opencv_decode(data, name, flags, IMAGE_KINDS)
+    if img is None:      # at its own depth: 16-bit and float stills are made 8-bit by the pair (frame_pixels)
+        img = opencv_decode(data, name, flags | cv2.IMREAD_ANYDEPTH, IMAGE_KINDS)
     if img is None or img.size == 0:
         raise BadInput(name, None, f"not a readable image ({IMAGE_KINDS} expected)")
     return img
@@ -131,8 +132,8 @@ def decode_pair(blobs: tuple[bytes, ...], names: tuple[str, ...]) -> tuple[np.nd
     """``read_pair`` of encoded files that travelled over the bus: (left, right) or one RG frame,
     decoded exactly as the files would be."""
     if len(blobs) == 1:
-        return split_rg(_imdecode(blobs[0], names[0], cv2.IMREAD_COLOR), names[0])
-    left, right = _imdecode(blobs[0], names[0]), _imdecode(blobs[1], names[1])
+        return split_rg(to_8bit([_imdecode(blobs[0], names[0], cv2.IMREAD_COLOR)], [names[0]])[0], names[0])
+    left, right = to_8bit([_imdecode(blobs[0], names[0]), _imdecode(blobs[1], names[1])], list(names))
     check_same_size(left, right, names[0], names[1])
     return left, right, None
 
@@ -155,8 +156,8 @@ def read_pair(job: PairJob) -> tuple[np.ndarray, np.ndarray, str | None]:
     if job.left is not None:
         return job.left, job.right, job.warning
     if len(job.paths) == 1:
-        return split_rg(_imread(job.paths[0], cv2.IMREAD_COLOR), job.paths[0])
-    left, right = _imread(job.paths[0]), _imread(job.paths[1])
+        return split_rg(to_8bit([_imread(job.paths[0], cv2.IMREAD_COLOR)], [job.paths[0]])[0], job.paths[0])
+    left, right = to_8bit([_imread(job.paths[0]), _imread(job.paths[1])], list(job.paths))
     check_same_size(left, right, job.paths[0], job.paths[1])
     return left, right, None
 

@@ -1,0 +1,44 @@
+"""A still's pixels made 8-bit for measuring.
+
+Stills are decoded at their own depth (``cv2.IMREAD_ANYDEPTH``) and brought to 8 bits here.
+A 10- or 12-bit camera stores its values LSB-aligned in a 16-bit PNG or TIFF (0-1023, 0-4095);
+OpenCV's own 16 -> 8 conversion shifts by 8 bits, which left such a frame 0-15 grey: no fish, and
+no word of it. A 16-bit still is scaled by its actual bit depth instead: the smallest 2^k - 1 (k >= 8)
+at or above its largest value, taken over both views of a pair so that the two are scaled alike
+(patches are compared across them). A floating-point still (a 32-bit TIFF) is read when its values
+lie in 0..1 (scaled by 255), else refused naming the values it holds.
+"""
+from __future__ import annotations
+
+import cv2
+import numpy as np
+
+from controller.errors import BadInput
+
+
+def _bits(value: float) -> int:
+    """The smallest k >= 8 with 2^k - 1 >= value."""
+    return max(8, int(value).bit_length())
+
+
+def to_8bit(images: list[np.ndarray], names: list[str]) -> list[np.ndarray]:
+    """The images (one pair, or one RG frame) as uint8, 16-bit ones by their common bit depth and
+    floating-point ones from 0..1 (module docstring). BadInput names a still that cannot be."""
+    wide = [img for img in images if img.dtype == np.uint16]
+    scale16 = 255.0 / (2 ** _bits(max(int(img.max(initial=0)) for img in wide)) - 1) if wide else 1.0
+    out = []
+    for img, name in zip(images, names, strict=True):
+        if img.dtype == np.uint8:
+            out.append(img)
+        elif img.dtype == np.uint16:
+            out.append(cv2.convertScaleAbs(img, alpha=scale16))          # rounds and saturates
+        elif img.dtype.kind == "f":
+            lo, hi = (float(np.min(img)), float(np.max(img))) if img.size else (0.0, 0.0)
+            if not (np.isfinite(lo) and np.isfinite(hi) and 0.0 <= lo and hi <= 1.0):
+                raise BadInput(name, None, f"a floating-point image with values {lo:g} to {hi:g}: "
+                                           "0 to 1 expected (or an 8- or 16-bit image)")
+            out.append(cv2.convertScaleAbs(img.astype(np.float32), alpha=255.0))
+        else:
+            raise BadInput(name, None, f"a {img.dtype.itemsize * 8}-bit {'signed ' if img.dtype.kind == 'i' else ''}"
+                                       "integer image: 8- or 16-bit unsigned (or 0-1 floating-point) expected")
+    return out

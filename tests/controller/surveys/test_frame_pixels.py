@@ -1,0 +1,51 @@
+"""Stills made 8-bit by their own bit depth, and float TIFFs (controller/surveys/frame_pixels.py)."""
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+from controller.errors import BadInput
+from controller.surveys.frames import decode_pair, read_pair, still_source
+
+
+def picture(h=48, w=64, seed=0) -> np.ndarray:
+    rng = np.random.default_rng(seed)
+    img = cv2.GaussianBlur(rng.uniform(0, 255, (h, w, 3)).astype(np.float32), (0, 0), 2)
+    img = cv2.normalize(img, None, 0, 255, cv2.NORM_MINMAX)
+    return np.round(img).astype(np.uint8)
+
+
+def pair_of(tmp_path: Path, left, right, ext=".png"):
+    paths = (str(tmp_path / f"a_L{ext}"), str(tmp_path / f"a_R{ext}"))
+    assert cv2.imwrite(paths[0], left) and cv2.imwrite(paths[1], right)
+    return next(iter(still_source([paths]).jobs)), paths
+
+
+@pytest.mark.parametrize("bits", [10, 12, 16])
+def test_a_16_bit_still_is_scaled_by_its_own_bit_depth_the_same_for_both_views(tmp_path, bits):
+    # a 10- or 12-bit camera's values LSB-aligned in a 16-bit PNG: shifted down by 8 bits they were
+    # 0-3 / 0-15 grey, and the survey found no fish in them without a word
+    top = 2 ** bits - 1
+    left, right = picture(seed=1), picture(seed=2)
+    wide_l = np.round(left.astype(np.float64) * top / 255).astype(np.uint16)
+    wide_r = np.round(right.astype(np.float64) * top / 255 * 0.5).astype(np.uint16)   # a darker view
+    job, paths = pair_of(tmp_path, wide_l, wide_r)
+    got_l, got_r, _ = read_pair(job)
+    assert got_l.dtype == np.uint8 and got_r.dtype == np.uint8
+    assert np.abs(got_l.astype(int) - left).max() <= 1
+    # the right view scaled by the pair's depth (its own maximum is ~half of it): still half as bright
+    assert np.abs(got_r.astype(int) - np.round(right * 0.5)).max() <= 1
+    blobs = tuple(Path(p).read_bytes() for p in paths)
+    assert all(np.array_equal(a, b) for a, b in zip(decode_pair(blobs, paths)[:2], (got_l, got_r), strict=True))
+
+
+def test_a_32_bit_float_tiff_is_read_from_0_to_1_and_other_values_are_refused_naming_them(tmp_path):
+    left, right = picture(seed=3), picture(seed=4)
+    job, _ = pair_of(tmp_path, left.astype(np.float32) / 255, right.astype(np.float32) / 255, ".tif")
+    got_l, got_r, _ = read_pair(job)
+    assert np.abs(got_l.astype(int) - left).max() <= 1 and np.abs(got_r.astype(int) - right).max() <= 1
+    job, _ = pair_of(tmp_path, left.astype(np.float32), right.astype(np.float32), ".tif")      # 0-255 in floats
+    with pytest.raises(BadInput, match=r"a_L.tif: a floating-point image with values \d+ to 255: 0 to 1 expected"):
+        read_pair(job)
+
