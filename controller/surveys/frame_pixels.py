@@ -1,4 +1,4 @@
-"""A still's pixels made 8-bit for measuring.
+"""A still's pixels made 8-bit for measuring, and its size read from its header before decoding.
 
 Stills are decoded at their own depth (``cv2.IMREAD_ANYDEPTH``) and brought to 8 bits here.
 A 10- or 12-bit camera stores its values LSB-aligned in a 16-bit PNG or TIFF (0-1023, 0-4095);
@@ -7,8 +7,16 @@ no word of it. A 16-bit still is scaled by its actual bit depth instead: the sma
 at or above its largest value, taken over both views of a pair so that the two are scaled alike
 (patches are compared across them). A floating-point still (a 32-bit TIFF) is read when its values
 lie in 0..1 (scaled by 255), else refused naming the values it holds.
+
+Size: a frame too big (or small) for the calibration is refused from its header, before an 8000x6000
+pair is decoded (551 MB and 1.8 s only to be refused) -- through Pillow (matplotlib's dependency,
+so always installed), which reads the header alone.
 """
 from __future__ import annotations
+
+import io
+import warnings
+from pathlib import Path
 
 import cv2
 import numpy as np
@@ -42,3 +50,19 @@ def to_8bit(images: list[np.ndarray], names: list[str]) -> list[np.ndarray]:
             raise BadInput(name, None, f"a {img.dtype.itemsize * 8}-bit {'signed ' if img.dtype.kind == 'i' else ''}"
                                        "integer image: 8- or 16-bit unsigned (or 0-1 floating-point) expected")
     return out
+
+
+def header_size(source: str | bytes) -> tuple[int, int] | None:
+    """(width, height) from an image file's header (a path or its bytes), without decoding it;
+    None when Pillow cannot tell (the decoder then has its say)."""
+    try:
+        from PIL import Image
+    except ImportError:                  # (matplotlib brings it; without it the decoded size is checked)
+        return None
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")      # Pillow's decompression-bomb warning: the size is what we want
+            with Image.open(io.BytesIO(source) if isinstance(source, bytes) else Path(source)) as im:
+                return tuple(int(v) for v in im.size)
+    except Exception:  # noqa: BLE001 -- any file Pillow cannot open is left to OpenCV's decoder to name
+        return None

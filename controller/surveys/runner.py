@@ -36,6 +36,7 @@ import cv2
 import numpy as np
 
 from controller.errors import BadInput
+from controller.surveys.frame_pixels import header_size
 from controller.surveys.frames import PairJob, read_pair
 from devices.elastic_clock import process_alive
 from vision.calib_file import CalibrationError, StereoCalibration, check_image_size
@@ -72,6 +73,24 @@ def check_frame_size(calib: StereoCalibration, image, where: str) -> None:
         raise BadInput(where, None, f"does not fit the calibration: {exc}") from None
 
 
+def check_header_size(calib: StereoCalibration, sources, names) -> None:
+    """``check_frame_size`` from the files' headers (paths or bytes), before they are decoded: a
+    frame of the wrong size is refused without decoding it. Only a size that fits neither way round
+    is refused here (an EXIF orientation may turn the decoded frame); the decoded frame is checked
+    again anyway."""
+    for source, name in zip(sources, names, strict=True):
+        size = header_size(source)
+        if size is None:
+            continue
+        try:
+            check_image_size(calib, size)
+        except CalibrationError as exc:
+            try:
+                check_image_size(calib, size[::-1])
+            except CalibrationError:
+                raise BadInput(name, None, f"does not fit the calibration: {exc}") from None
+
+
 class PairWork:
     """What a worker does with one job: read it (if it names files), check it, measure it."""
 
@@ -81,6 +100,8 @@ class PairWork:
     def __call__(self, job: PairJob) -> PairResult:
         c0 = time.process_time()
         t0 = time.perf_counter()
+        if job.paths:
+            check_header_size(self.calib, job.paths, job.paths)
         left, right, warning = read_pair(job)
         timings = {"read": job.read_s + time.perf_counter() - t0}
         check_frame_size(self.calib, left, job.paths[0] if job.paths else job.where)

@@ -27,7 +27,7 @@ import zenoh
 from controller.errors import BadInput
 from controller.surveys import wire
 from controller.surveys.frames import decode_pair
-from controller.surveys.runner import MEASURE, check_frame_size, resolve
+from controller.surveys.runner import MEASURE, check_frame_size, check_header_size, resolve
 from vision.calib_file import CalibrationError, StereoCalibration, calibration_from_json
 
 log = logging.getLogger("fishfarm.worker")
@@ -115,6 +115,7 @@ class Worker:
         names = tuple(str(n) for n in header["names"])
         if len(names) != len(blobs):
             raise wire.WireError("names and images differ in number")
+        check_header_size(calib, blobs, names)
         left, right, warning = decode_pair(blobs, names)
         check_frame_size(calib, left, names[0])
         t2 = time.perf_counter()

@@ -1,4 +1,5 @@
-"""Stills made 8-bit by their own bit depth, and float TIFFs (controller/surveys/frame_pixels.py)."""
+"""Stills made 8-bit by their own bit depth, float TIFFs, and frames refused for their size from
+the header before they are decoded (controller/surveys/frame_pixels.py)."""
 from pathlib import Path
 
 import cv2
@@ -6,7 +7,11 @@ import numpy as np
 import pytest
 
 from controller.errors import BadInput
+from controller.surveys import frames
 from controller.surveys.frames import decode_pair, read_pair, still_source
+from controller.surveys.runner import PairWork, check_header_size
+from devices.sim.stereo_rig import convergent_rig
+from vision.survey_types import SurveySetup
 
 
 def picture(h=48, w=64, seed=0) -> np.ndarray:
@@ -49,3 +54,22 @@ def test_a_32_bit_float_tiff_is_read_from_0_to_1_and_other_values_are_refused_na
     with pytest.raises(BadInput, match=r"a_L.tif: a floating-point image with values \d+ to 255: 0 to 1 expected"):
         read_pair(job)
 
+
+def test_a_frame_of_the_wrong_size_is_refused_from_its_header_before_it_is_decoded(tmp_path, monkeypatch):
+    job, _ = pair_of(tmp_path, picture(960, 1200), picture(960, 1200))     # the calibration's are 1280x960
+    decoded = []
+    monkeypatch.setattr(frames, "_imdecode", lambda *a, **k: decoded.append(a[1]))
+    work = PairWork(convergent_rig().calibration(), SurveySetup(), lambda *a: [])
+    with pytest.raises(BadInput, match=r"a_L.png: does not fit the calibration: image_size: "
+                                       r"calibration made for 1280x960 images, the frames are 1200x960"):
+        work(job)
+    assert decoded == []
+
+
+def test_the_header_check_reads_bytes_as_a_worker_gets_them_and_lets_a_turned_size_through(tmp_path):
+    calib = convergent_rig().calibration()                                  # 1280x960
+    ok, wrong, turned = (cv2.imencode(".png", picture(h, w))[1].tobytes() for h, w in
+                         ((960, 1280), (1500, 2000), (1280, 960)))
+    check_header_size(calib, (ok, turned), ("ok.png", "turned.png"))       # an EXIF turn may fit: decoded, then checked
+    with pytest.raises(BadInput, match=r"big.png: does not fit the calibration: .* the frames are 2000x1500"):
+        check_header_size(calib, (ok, wrong), ("ok.png", "big.png"))
