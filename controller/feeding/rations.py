@@ -147,7 +147,10 @@ class Rations:
         plan = self.plan(tank_id, t)
         self._plans[(tank_id, current.date)] = plan
         if current.source in PLANNED:
-            self.store.set_ration(tank_id, current.date, plan.grams, plan.pellet_mm, plan.source, t)
+            # never below what the day has fed already: a survey recorded after the feeding set the
+            # day's ration under it, and the ration in force when the fish were fed was lost
+            grams = max(plan.grams, current.committed_g)
+            self.store.set_ration(tank_id, current.date, grams, plan.pellet_mm, plan.source, t)
         return self.today(tank_id, t)
 
     def basis(self, tank_id: str, t: float) -> Plan:

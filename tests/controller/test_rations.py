@@ -116,6 +116,19 @@ def test_a_new_survey_plans_the_day_again_but_an_operator_s_ration_stands(ration
     assert rations.replan("T1", T + 180).grams == 123.0
 
 
+def test_a_survey_after_the_day_s_feeding_never_sets_its_ration_below_what_was_fed(rations):
+    before = rations.today("T1", T)
+    fed = 0.8 * before.grams
+    f = rations.store.add_intent(tank="T1", date=before.date, t=T + 10, target_g=fed, run_s=9, cycles_before=0,
+                                 source="demand")
+    rations.store.close_feed(f.id, "done", fed, T + 20)
+    rations.store.add_survey("T1", T + 60, "sparus_aurata", "light", [8.0] * 2, [2.0, 2.0])   # fish far lighter
+    after = rations.replan("T1", T + 60)
+    assert after.source == "survey" and after.grams == pytest.approx(fed) and after.left_g == 0
+    tomorrow = rations.today("T1", T + 86_400)
+    assert tomorrow.grams < 0.5 * before.grams                     # the next day follows the survey
+
+
 def test_a_chart_is_read_at_the_tank_s_water_temperature(tmp_path):
     import tomli_w
 
