@@ -302,11 +302,14 @@ class FeedingRobot(Recovering):
         self.surveyed()
 
     def _servable(self) -> bool:
-        """A demand waits that would be fed: one of a tank that has had its ration is closed
-        ``ration_reached`` once the robot is idle, and must not end a survey visit (in an afternoon
-        of such demands every visit ended within its settle wait, the cameras started and stopped
-        once a wall second, and no survey was made)."""
-        return any(self.dispensing.portion(job.tank, job.grams) > 0 for job in self.pending.values())
+        """Whether a demand waits that would be fed. One of a tank that has had its ration is closed
+        ``ration_reached`` here, as the idle robot closes it, and does not end a survey visit (in an
+        afternoon of such demands every visit ended within its settle wait, the cameras started and
+        stopped once a wall second, and no survey was made)."""
+        for job in list(self.pending.values()):
+            if self.dispensing.portion(job.tank, job.grams) <= 0:
+                self._finish(job, "ration_reached")
+        return bool(self.pending)
 
     async def _refill(self) -> None:
         self.go()
