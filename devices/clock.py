@@ -59,7 +59,11 @@ class ScaledClock:
         return iso(self.now() if t is None else t)
 
     def as_args(self) -> list[str]:
-        """Command-line flags that hand this timeline to a child process."""
+        """Command-line flags that hand this timeline to a child process. The wall clock itself
+        (speed 1, farm time = wall time: ``real()``'s epochs of 0, 1970) goes as ``--speed 1``
+        alone: epochs are held to the farm's years."""
+        if self.speed == 1.0 and self.epoch_wall == self.epoch_farm:
+            return ["--speed", "1.0"]
         return ["--speed", repr(self.speed), "--epoch-wall", repr(self.epoch_wall),
                 "--epoch-farm", repr(self.epoch_farm)]
 
