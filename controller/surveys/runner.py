@@ -79,7 +79,7 @@ def check_header_size(calib: StereoCalibration, sources, names) -> None:
     is refused here (an EXIF orientation may turn the decoded frame); the decoded frame is checked
     again anyway. Two views of different sizes are told as such first, as ``read_pair`` tells them."""
     sizes = [header_size(source) for source in sources]
-    if len(sizes) == 2 and None not in sizes and sizes[0] != sizes[1]:
+    if len(sizes) == 2 and None not in sizes and sizes[0] != sizes[1] and sizes[0] != sizes[1][::-1]:
         (w1, h1), (w2, h2) = sizes
         raise BadInput(names[1], None, f"{w2}x{h2} pixels, but the left image {names[0]} is {w1}x{h1}")
     for size, name in zip(sizes, names, strict=True):

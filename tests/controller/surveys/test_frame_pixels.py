@@ -72,4 +72,6 @@ def test_the_header_check_reads_bytes_as_a_worker_gets_them_and_lets_a_turned_si
                          ((960, 1280), (1500, 2000), (1280, 960)))
     check_header_size(calib, (ok, turned), ("ok.png", "turned.png"))       # an EXIF turn may fit: decoded, then checked
     with pytest.raises(BadInput, match=r"big.png: does not fit the calibration: .* the frames are 2000x1500"):
-        check_header_size(calib, (ok, wrong), ("ok.png", "big.png"))
+        check_header_size(calib, (wrong, wrong), ("big.png", "big_R.png"))
+    with pytest.raises(BadInput, match=r"big.png: 2000x1500 pixels, but the left image ok.png is 1280x960"):
+        check_header_size(calib, (ok, wrong), ("ok.png", "big.png"))          # as the decoded pair is told
