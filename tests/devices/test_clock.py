@@ -7,7 +7,7 @@ import threading
 
 import pytest
 
-from devices.clock import ManualClock
+from devices.clock import ManualClock, ScaledClock
 
 
 class CountingSelector(selectors.DefaultSelector):
@@ -102,3 +102,14 @@ def test_a_sleeper_whose_loop_is_gone_does_not_break_advance():
     asyncio.run(abandon())
     clock.advance(100.0)                             # must not raise on the closed loop
     assert clock.now() == pytest.approx(1_780_000_100.0)
+
+
+def test_the_wall_clock_goes_to_a_child_without_epochs_outside_the_farm_s_years():
+    """``real()``'s epochs are 0 (1970): handed on as flags, the child refused them."""
+    from controller.cli.params import FARM_INSTANT
+    assert ScaledClock.real().as_args() == ["--speed", "1.0"]
+    fast = ScaledClock.starting(60.0, 1_780_000_000.0)
+    args = fast.as_args()
+    assert args[::2] == ["--speed", "--epoch-wall", "--epoch-farm"]
+    for value in args[3::2]:
+        FARM_INSTANT.convert(value, None, None)          # within the farm's years
