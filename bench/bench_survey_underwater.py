@@ -25,7 +25,10 @@ the mean true weight (``weight_g``, with scatter) of the fully visible fish.
 Score vs error: Spearman correlation of the score with the absolute length error (reports with no
 true fish within tolerance get the error to the nearest true fish's length, or 100 %), and the
 length error of the top-scored 80 % vs all. Recall is also given by the fish's length in the image
-and in cm (terciles) and by species (``recall_by_species``).
+and in cm (terciles), by species (``recall_by_species``) and by the way the fish swims in the left
+image (``recall_by_direction``: snout towards +x or -x). ``--mirror``: every scene is measured in its
+mirror image instead (both images flipped left-right, the views swapped, the calibration and the
+truth mirrored with them): a pipeline that treats both directions alike scores the same.
 
 Speed: process CPU time per pair (single thread: OpenCV and BLAS pinned to one), median (stages:
 the pipeline's own wall-clock ``timings``, inflated when the machine is loaded), beside the issue's
@@ -54,6 +57,7 @@ import numpy as np  # noqa: E402
 
 from devices.sim.fish_scene import underwater_rig, underwater_scene  # noqa: E402
 from devices.sim.fish_species import SPECIES  # noqa: E402
+from vision.calib_file import StereoCalibration  # noqa: E402
 from vision.survey import measure_pair  # noqa: E402
 from vision.survey_types import SurveySetup  # noqa: E402
 from vision.underwater import Params, measure_underwater  # noqa: E402
@@ -161,6 +165,26 @@ def by_hidden(hidden: list[float], found: list[bool]) -> dict:
             for name, m in (("none_hidden", h < 0.005), ("partly_hidden", h >= 0.005))}
 
 
+MIRROR = np.diag([-1.0, 1.0, 1.0, 1.0])          # the world mirrored through x = 0
+
+
+def mirrored(sc):
+    """(left, right, calibration, truths, camera 1's centre) of the scene seen in a mirror: both
+    images flipped left-right and swapped (the mirror's left camera is the right one), the world
+    mirrored through x = 0 with them (the rig stays a proper one)."""
+    W = sc.left.shape[1]
+    flip = np.array([[-1.0, 0, W - 1], [0, 1, 0], [0, 0, 1]])
+    c = sc.rig.calibration()
+    calib = StereoCalibration(flip @ c.P2 @ MIRROR, flip @ c.P1 @ MIRROR)
+    R = MIRROR[:3, :3]
+
+    def px(p):
+        return np.array([[W - 1 - p[1, 0], p[1, 1]], [W - 1 - p[0, 0], p[0, 1]]])
+    truths = [dataclasses.replace(t, snout_mm=R @ t.snout_mm, fork_mm=R @ t.fork_mm, snout_px=px(t.snout_px),
+                                  fork_px=px(t.fork_px), hidden=tuple(t.hidden[::-1])) for t in sc.fish]
+    return cv2.flip(sc.right, 1), cv2.flip(sc.left, 1), calib, truths, R @ sc.rig.centres[1]
+
+
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--fish", type=int, default=200)
@@ -170,6 +194,7 @@ def main() -> None:
     ap.add_argument("--size", default="1280x960", help="the rig's image size, WxH (1920x1080: a size "
                     "nothing was trained or tuned on)")
     ap.add_argument("--focal", type=float, default=1400.0, help="the rig's focal length, px")
+    ap.add_argument("--mirror", action="store_true", help="measure each scene's mirror image instead")
     args = ap.parse_args()
     params = parse_params(args.params)
     cv2.setNumThreads(1)
@@ -178,7 +203,7 @@ def main() -> None:
     w_err, len_errs, scores, rep_w, true_w = [], [], [], [], []
     pair_w = []                                     # (reported, true) weight of each correct report
     vis_px, vis_cm, vis_found = [], [], []          # every fully visible fish: its size, whether found
-    vis_species, vis_hidden = [], []
+    vis_species, vis_hidden, vis_dir = [], [], []
     stage_ms: dict[str, list[float]] = {}
     total_ms, base_ms = [], []
     seed = args.seed0
@@ -189,24 +214,23 @@ def main() -> None:
         while visible < args.fish and seed - args.seed0 < args.max_scenes:
             sc = underwater_scene(np.random.default_rng(seed), rig)
             seed += 1
-            calib = sc.rig.calibration()
+            left, right, calib, truths, centre = mirrored(sc) if args.mirror else (
+                sc.left, sc.right, sc.rig.calibration(), sc.fish, sc.rig.centres[0])
             timings: dict[str, float] = {}
             t0 = time.process_time()
-            fish = measure_underwater(sc.left, sc.right, calib, setup, timings, params) if params \
-                else measure_pair(sc.left, sc.right, calib, setup, timings)
+            fish = measure_underwater(left, right, calib, setup, timings, params) if params \
+                else measure_pair(left, right, calib, setup, timings)
             total_ms.append(1e3 * (time.process_time() - t0))
             for k, v in timings.items():
                 stage_ms.setdefault(k, []).append(1e3 * v)
             if len(base_ms) < 15:
-                base_ms.append(1e3 * baseline_s(sc.left, sc.right, Path(tmp)))
+                base_ms.append(1e3 * baseline_s(left, right, Path(tmp)))
             sp = SPECIES[sc.fish[0].species] if sc.fish else None
             if sp:
                 species_seen.add(sp.name)
-            truths = sc.fish
             vis = [i for i, t in enumerate(truths) if t.fully_visible]
             visible += len(vis)
             true_w += [truths[i].weight_g for i in vis]
-            centre = sc.rig.centres[0]
             matches = assign(fish, truths, centre)
             strict_hits = {ti for _, ti, _, _ in assign(fish, truths, centre, strict=True) if ti >= 0}
             correct_strict += len(strict_hits)
@@ -231,6 +255,7 @@ def main() -> None:
                 vis_cm.append(t.length_cm)
                 vis_found.append(i in hit)
                 vis_species.append(t.species)
+                vis_dir.append("+x" if t.snout_px[0, 0] > t.fork_px[0, 0] else "-x")
                 vis_hidden.append(max(t.hidden))
     scores, len_errs = np.array(scores), np.array(len_errs)
     top = scores >= np.quantile(scores, 0.2) if len(scores) else np.zeros(0, bool)
@@ -268,6 +293,7 @@ def main() -> None:
         "recall_by_tercile_px": terciles(vis_px, vis_found),
         "recall_by_tercile_cm": terciles(vis_cm, vis_found),
         "recall_by_species": by_species(vis_species, vis_found),
+        "recall_by_direction": by_species(vis_dir, vis_found), "mirror": args.mirror,
         # the fully visible fish with nothing hidden in either view (< 0.5 % of their pixels) and
         # those with up to the 10 % the definition allows (a lobe under another fish, say)
         "recall_by_hidden": by_hidden(vis_hidden, vis_found),
