@@ -99,6 +99,23 @@ def fork_mask(size: int, angle: float, length: float, notch: float = 0.08, fin_l
 WINDOW_OF_FL = 0.45         # a template window shows this share of the fork length
 
 
+_BINOMIAL = np.array([1, 4, 6, 4, 1], np.float32) / 16
+
+
+def half(img: np.ndarray) -> np.ndarray:
+    """The next pyramid level: Gaussian-smoothed (cv2.pyrDown's kernel) and halved by 2x2 means, so
+    that its pixel j covers full pixels 2j and 2j+1 -- the (x + 0.5) / 2 - 0.5 every sampler here
+    assumes. cv2.pyrDown keeps pixel 2j instead: half a pixel off per level (1.5 px at the fourth
+    of the size), leftward and upward, so a fish and its mirror image were sampled differently (a
+    fork or snout moved towards one end in one direction and the other end in the other)."""
+    img = np.asarray(img)
+    h, w = img.shape[:2]
+    b = cv2.sepFilter2D(img, -1, _BINOMIAL, _BINOMIAL, borderType=cv2.BORDER_REFLECT_101)
+    if h % 2 or w % 2:                            # odd sides: the last row / column repeated
+        b = cv2.copyMakeBorder(b, 0, h % 2, 0, w % 2, cv2.BORDER_REPLICATE)
+    return cv2.resize(b, ((w + 1) // 2, (h + 1) // 2), interpolation=cv2.INTER_AREA)
+
+
 def emboss(img: np.ndarray) -> np.ndarray:
     return cv2.filter2D(np.asarray(img, np.float32), cv2.CV_32F, EMBOSS, borderType=cv2.BORDER_REFLECT)
 
@@ -304,7 +321,7 @@ def bank_proposals(img: np.ndarray, sx: float, sy: float, k: int, n_levels: int 
         gy, gx = np.nonzero(grid >= max(thr, 1e-6))
         ys, xs = gy * stride + h, gx * stride + h
         if len(ys) == 0:                          # flat water: nothing to score
-            level = cv2.pyrDown(level)
+            level = half(level)
             continue
         win = np.lib.stride_tricks.sliding_window_view(f, (bank.size, bank.size))[ys - h, xs - h].reshape(len(ys), -1)
         mean = cv2.boxFilter(f, -1, (bank.size, bank.size), normalize=True)[ys, xs]
@@ -324,7 +341,7 @@ def bank_proposals(img: np.ndarray, sx: float, sy: float, k: int, n_levels: int 
         xy = np.column_stack((((xs[pk] + 0.5) * f2 - 0.5 + 0.5) * sx - 0.5,
                               ((ys[pk] + 0.5) * f2 - 0.5 + 0.5) * sy - 0.5))
         out.append(Fins(xy, bank.angle[best[pk]], bank.span[best[pk]] * f2 * sx, sc[pk], np.ones(len(pk))))
-        level = cv2.pyrDown(level)
+        level = half(level)
     if not out:
         return Fins.empty()
     allf = concat(out)

@@ -40,10 +40,9 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-import cv2
 import numpy as np
 
-from vision.fins import Fins, sample_frames_raw
+from vision.fins import Fins, half, sample_frames_raw
 
 SAMPLES = 40            # grid steps per fin span
 SHALLOW_SLOPE = 0.12    # arms flatter than this: a square-cut or shallow tail
@@ -81,7 +80,7 @@ def pyramid(img: np.ndarray, levels: int = 5) -> list[np.ndarray]:
     for _ in range(levels - 1):
         if min(out[-1].shape[:2]) < 16:
             break
-        out.append(cv2.pyrDown(out[-1]))
+        out.append(half(out[-1]))
     return out
 
 
