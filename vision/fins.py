@@ -197,6 +197,17 @@ def suppress(fins: Fins, max_fins: int, reach_of_span: float = 0.5) -> np.ndarra
 _REMAP_ROWS = 32767
 
 
+def down_side(angle: np.ndarray) -> np.ndarray:
+    """(N,) +1 or -1 per frame of axis ``angle``: the sign that turns the frame's normal (the axis
+    turned +90 degrees, ``sample_frames``) to point down the image. A frame sampled with its ``ys``
+    times this sees a fish's back on the same side whichever way it swims, so a fish and its mirror
+    image give the same samples: with the plain normal, a fish swimming towards -u is seen upside
+    down, and what is scored or learned on the frame (eq. 13's window, the learned locators) answers
+    differently for the two directions (issue 7: a fork net placing 0.90 of one direction's forks
+    and 0.53 of the other's on an outside renderer's fish)."""
+    return np.where(np.cos(np.asarray(angle, float)) >= 0, 1.0, -1.0)
+
+
 def sample_frames(img: np.ndarray, centres: np.ndarray, axes: np.ndarray, xs: np.ndarray,
                   ys: np.ndarray) -> np.ndarray:
     """Bilinear samples (N, ny, nx) of img in each candidate's own frame: the point centre + x axis
@@ -268,7 +279,7 @@ def sample_frames_raw(img: np.ndarray, centres: np.ndarray, axes: np.ndarray, xs
     return out, off
 
 
-def fin_scores(pyr: list[np.ndarray], fins: Fins, bank: Bank | None = None) -> np.ndarray:
+def fin_scores(pyr: list[np.ndarray], fins: Fins, bank: Bank | None = None, upright: bool = False) -> np.ndarray:
     """Eq. (13) where a fork has been located: the best |NCC| (N,) of the bank's templates with the
     fin's own angle, on the emboss-filtered neighbourhood sampled in the fin's frame at the
     templates' scale (the fin's span sets it). 1 = a textbook forked tail."""
@@ -277,18 +288,20 @@ def fin_scores(pyr: list[np.ndarray], fins: Fins, bank: Bank | None = None) -> n
     if N == 0:
         return np.zeros(0)
     n = bank.size + 2
-    upright = np.abs(np.angle(np.exp(1j * bank.angle))) < 1e-6            # templates at angle 0
-    vecs, spans = bank.vectors[upright], bank.span[upright]
+    at_zero = np.abs(np.angle(np.exp(1j * bank.angle))) < 1e-6            # templates at angle 0
+    vecs, spans = bank.vectors[at_zero], bank.span[at_zero]
     # one window per fin at the larger template's scale: its span fills the same share of it
     px = fins.span_px / spans.max()                                         # image px per template px
     t = (np.arange(n) - (n - 1) / 2)[None] * px[:, None]
     lev = np.clip(np.floor(np.log2(np.maximum(px, 1.0))).astype(int), 0, len(pyr) - 1)
     win = np.full((N, n, n), np.nan, np.float32)
     axes = np.column_stack((np.cos(fins.angle), np.sin(fins.angle)))
+    # upright: the window's v down the image, a fish seen the same whichever way it swims
+    across = t * down_side(fins.angle)[:, None] if upright else t
     for k in np.unique(lev):
         idx = np.flatnonzero(lev == k)
         f = 2.0 ** -k
-        w = sample_frames(pyr[k], (fins.xy[idx] + 0.5) * f - 0.5, axes[idx], t[idx] * f, t[idx] * f)
+        w = sample_frames(pyr[k], (fins.xy[idx] + 0.5) * f - 0.5, axes[idx], t[idx] * f, across[idx] * f)
         win[idx] = w.mean(axis=3) if w.ndim == 4 else w
     win = np.nan_to_num(win, nan=float(np.nanmean(win)) if np.isfinite(win).any() else 0.0)
     e = np.stack([emboss(w)[1:-1, 1:-1].ravel() for w in win]) if bank.highpass else win[:, 1:-1, 1:-1].reshape(N, -1)

@@ -88,6 +88,18 @@ mirrored back; 2026-12-04, not kept): correct reports / precision on the bench s
 118 / 0.959 and 105 / 0.991 as packaged; mirrored in both locators 123 / 0.969 and 104 / 0.972, in
 the fork locator alone 121 / 0.976 and 100 / 0.990, in the snout locator alone 120 / 0.952 and 103 /
 0.972: no gain beyond the sets' sampling, for up to twice the nets' cost.
+
+One handedness (2026-12-04, issue 7; ``upright``, off by default): a crop's v runs along the axis
+turned +90 degrees, so a fish swimming towards -x in the image is cropped as the mirror image of
+one swimming towards +x, and the nets, trained on both, answer the two differently on fish unlike
+the renderer's: on an outside renderer's fish (12 scenes, 88 fish a direction, each image and its
+mirror) this net put 0.90 of the forks of fish swimming towards +x within 3 % and sure, 0.53 of the
+same fish mirrored; the snout net 0.66 / 0.27. Upright crops run v down the image
+(``fins.down_side``), so every fish is seen swimming towards +u with its back at -v and a scene and
+its mirror get the same answers: 0.90 / 0.90 and 0.66 / 0.66 there (the snout net's crops take the
+handedness of the fish's heading, not of their own axis, which points into the body). On the
+project's renderer the nets answer both alike either way (0.85 / 0.87), and upright crops add wrong
+reports there (README, "Both swimming directions alike"), so they stay off.
 """
 from __future__ import annotations
 
@@ -96,7 +108,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from vision import onnx_nets
-from vision.fins import Fins, fin_scores, sample_frames_raw
+from vision.fins import Fins, down_side, fin_scores, sample_frames_raw
 
 GRID_W, GRID_H = 64, 32
 U0, U1, V1 = -1.6, 1.0, 0.65            # the crop's window, in spans of the hypothesis
@@ -121,18 +133,22 @@ def grid_px(span: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return us[None] * span, vs[None] * span
 
 
-def crops(pyr: list[np.ndarray], fins: Fins) -> np.ndarray:
+def crops(pyr: list[np.ndarray], fins: Fins, side: np.ndarray | None = None) -> np.ndarray:
     """(N, 3, GRID_H, GRID_W) float32 normalised crops of every hypothesis (grey images give three
     equal channels)."""
-    return normalise(raw_crops(pyr, fins).transpose(0, 3, 1, 2))
+    return normalise(raw_crops(pyr, fins, side).transpose(0, 3, 1, 2))
 
 
-def raw_crops(pyr: list[np.ndarray], fins: Fins) -> np.ndarray:
-    """(N, GRID_H, GRID_W, 3) uint8 crops as sampled (grey: three equal channels)."""
+def raw_crops(pyr: list[np.ndarray], fins: Fins, side: np.ndarray | None = None) -> np.ndarray:
+    """(N, GRID_H, GRID_W, 3) uint8 crops as sampled (grey: three equal channels). ``side`` (N,)
+    +-1: the crop's v is the axis turned +-90 degrees (by default +90, as the nets were trained);
+    ``fins.down_side``: down the image, so a fish swimming towards -u is seen as its mirror image,
+    swimming towards +u, and a scene and its mirror give the same answers."""
     N = len(fins)
     out = np.zeros((N, GRID_H, GRID_W, 3), np.uint8)
     if N == 0:
         return out
+    side = np.ones(N) if side is None else np.asarray(side, float)
     step = fins.span_px * (U1 - U0) / GRID_W
     lev = np.clip(np.floor(np.log2(np.maximum(step, 1.0))).astype(int), 0, len(pyr) - 1)
     axes = np.column_stack((np.cos(fins.angle), np.sin(fins.angle)))
@@ -140,6 +156,7 @@ def raw_crops(pyr: list[np.ndarray], fins: Fins) -> np.ndarray:
         idx = np.flatnonzero(lev == k)
         f = 2.0 ** -k
         xs, ys = grid_px(fins.span_px[idx] * f)
+        ys = ys * side[idx, None]
         P, _ = sample_frames_raw(pyr[k], (fins.xy[idx] + 0.5) * f - 0.5, axes[idx], xs, ys)
         P = np.asarray(P).reshape(len(idx), GRID_H, GRID_W, -1)
         out[idx] = np.repeat(P, 3, axis=3) if P.shape[3] == 1 else P
@@ -196,19 +213,23 @@ def distinct(xy: np.ndarray, angle: np.ndarray, span: np.ndarray, rank: np.ndarr
     return np.sort(order[first])
 
 
-def answer(pyr: list[np.ndarray], fins: Fins, model: str = MODEL) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def answer(pyr: list[np.ndarray], fins: Fins, model: str = MODEL, side: np.ndarray | None = None
+           ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """One pass of the net over the hypotheses' crops, in the image: the point it finds (N, 2),
-    the axis there (N,) and its confidence (N,) 0..1."""
-    heat, head = run(crops(pyr, fins), model)
+    the axis there (N,) and its confidence (N,) 0..1. ``side``: the crops' handedness (``raw_crops``);
+    the crop's v and the axis' turn run that way in the image."""
+    side = np.ones(len(fins)) if side is None else side
+    heat, head = run(crops(pyr, fins, side), model)
     uv = soft_argmax(heat)
     axes = np.column_stack((np.cos(fins.angle), np.sin(fins.angle)))
-    normal = np.column_stack((-axes[:, 1], axes[:, 0]))
+    normal = side[:, None] * np.column_stack((-axes[:, 1], axes[:, 0]))
     S = fins.span_px[:, None]
     xy = fins.xy + uv[:, :1] * S * axes + uv[:, 1:] * S * normal
-    return xy, fins.angle + np.arctan2(head[:, 1], head[:, 2]), 1.0 / (1.0 + np.exp(-head[:, 0]))
+    return xy, fins.angle + side * np.arctan2(head[:, 1], head[:, 2]), 1.0 / (1.0 + np.exp(-head[:, 0]))
 
 
-def locate(pyr: list[np.ndarray], fins: Fins, passes: int = 2, again_above: float = 0.3) -> NetForks:
+def locate(pyr: list[np.ndarray], fins: Fins, passes: int = 2, again_above: float = 0.3,
+           upright: bool = False) -> NetForks:
     """The net's fork for every hypothesis; each pass after the first starts from the previous
     answer (the fork ``RECENTRE`` spans behind the crop's centre, the net's axis), for the
     hypotheses whose confidence is at least ``again_above``, one per fork (the others keep their
@@ -218,7 +239,7 @@ def locate(pyr: list[np.ndarray], fins: Fins, passes: int = 2, again_above: floa
     todo = distinct(fins.xy, fins.angle, fins.span_px, fins.score, 0.2)
     cur = fins.take(todo)
     for k in range(passes):
-        xy[todo], ang[todo], conf[todo] = answer(pyr, cur)
+        xy[todo], ang[todo], conf[todo] = answer(pyr, cur, MODEL, down_side(cur.angle) if upright else None)
         if k + 1 == passes:
             break
         sure = todo[conf[todo] >= again_above]
@@ -255,14 +276,15 @@ def levels(pyr: list[np.ndarray], fins: Fins) -> tuple[np.ndarray, np.ndarray]:
     return out[0], out[1]
 
 
-def located(pyr: list[np.ndarray], hyps: Fins, min_conf: float) -> tuple[Fins, np.ndarray, np.ndarray, np.ndarray]:
+def located(pyr: list[np.ndarray], hyps: Fins, min_conf: float, upright: bool = False
+            ) -> tuple[Fins, np.ndarray, np.ndarray, np.ndarray]:
     """The forks the net is at least ``min_conf`` sure of: (fins scored on eq. 13, fish level,
     water level, confidence); polarity from the levels."""
-    nf = locate(pyr, hyps)
+    nf = locate(pyr, hyps, upright=upright)
     ok = np.flatnonzero(nf.confidence >= min_conf)
     h = hyps.take(ok)
     out = Fins(nf.xy[ok], nf.angle[ok], h.span_px, h.score, h.polarity, h.body)
     fish, water = levels(pyr, out)
     out.polarity = np.sign((fish - water).sum(axis=1))
-    out.score = fin_scores(pyr, out)
+    out.score = fin_scores(pyr, out, upright=upright)
     return out, fish, water, nf.confidence[ok]

@@ -22,12 +22,12 @@ from __future__ import annotations
 import numpy as np
 
 from vision import fork_net
-from vision.fins import SPAN_OF_FL, Fins
+from vision.fins import SPAN_OF_FL, Fins, down_side
 
 MODEL = "snout_net.onnx"
 
 
-def refine(pyr: list[np.ndarray], fork_xy: np.ndarray, pts: np.ndarray, passes: int = 2
+def refine(pyr: list[np.ndarray], fork_xy: np.ndarray, pts: np.ndarray, passes: int = 2, upright: bool = False
            ) -> tuple[np.ndarray, np.ndarray]:
     """The net's snout tip from each candidate ``pts`` (N, K, 2; NaN: none) of the fish whose forks are
     ``fork_xy`` (N, 2): (tips (N, K, 2), confidence (N, K) 0..1; NaN / 0 where there is no candidate).
@@ -46,7 +46,11 @@ def refine(pyr: list[np.ndarray], fork_xy: np.ndarray, pts: np.ndarray, passes: 
     angle = np.arctan2(d[:, 1], d[:, 0])
     z = np.zeros(len(has))
     for _ in range(passes):
-        xy, angle, c = fork_net.answer(pyr, Fins(xy, angle, span, z, z), MODEL)
+        # upright: the crop's axis points into the body, away from the head: its handedness is the head's
+        # (``fins.down_side`` of the fish's own heading), so every fish is seen swimming towards +u,
+        # as the fork locator sees it (of the two, the one the net answers best on an outside
+        # renderer's fish: tips within 3 % and sure 0.66 of them, 0.33 the other way)
+        xy, angle, c = fork_net.answer(pyr, Fins(xy, angle, span, z, z), MODEL, -down_side(angle) if upright else None)
     tips[has] = xy
     conf[has] = c
     return tips.reshape(N, K, 2), conf.reshape(N, K)

@@ -129,12 +129,16 @@ class Params:
                                     # 1000+, ~15 % less CPU a pair: the score kept no fork pair below 0.9 at
                                     # min_chance 0.75, and its forks were most of what transfers and snouts cost)
     net_weight: float = 1.0         # ... which enters the score raised to this power
+    upright: bool = False           # the learned locators' crops and eq. 13's window with v down the image
+                                    # (vision.fins.down_side): both swimming directions alike (README, "Both
+                                    # swimming directions alike": off, it costs precision on the bench sets)
     min_fill: float = 0.0           # the least share of the fork-snout segment inside a silhouette (term 0 there)
     max_fork_residual_px: float = np.inf    # post-filter: the forks' triangulation residual
     keypoints: bool = True          # fork hypotheses and snout candidates from the learned keypoint net
                                     # (vision.fish_keypoints) over the whole image
     kp_classical: bool = True       # ... beside the classical proposers (False: the net's only)
     kp_width: int = 320             # ... which sees the image this wide
+    kp_mirrored: bool = False       # ... and its mirror image too, the maps averaged (fish_keypoints.maps)
     kp_min_conf: float = 0.05       # ... its peaks at least this sure (tuning seeds 200000+: forks within
                                     # 10 % of the length for 65 % of clear fish at 0.05, 46 % at 0.1)
     kp_offsets: tuple[float, ...] = (0.0,)  # ... a hypothesis at each fork shifted by these shares of its
@@ -183,7 +187,7 @@ def proposals(img: np.ndarray, setup: SurveySetup, p: Params = Params(), clock: 
     sx, sy = W / small.shape[1], H / small.shape[0]
     hyps, kp = Fins.empty(), None
     if p.keypoints:
-        kp = fish_keypoints.detect(img, p.kp_width, p.kp_min_conf)
+        kp = fish_keypoints.detect(img, p.kp_width, p.kp_min_conf, p.kp_mirrored)
         hyps = concat([fish_keypoints.hypotheses(kp, off) for off in p.kp_offsets])
         clock.lap("keypoints")
     dist = None
@@ -244,13 +248,13 @@ def _locate(pyr: list[np.ndarray], hyps: Fins, p: Params):
     confidence or None), the fins scored on eq. (13). Classical (``vision.fork``, twice: again from
     the fork) or learned (``vision.fork_net``, ``Params.fork_net``)."""
     if p.fork_net:
-        located, fish, water, conf = fork_net.located(pyr, hyps, p.net_min_conf)
+        located, fish, water, conf = fork_net.located(pyr, hyps, p.net_min_conf, p.upright)
         return located, fish, water, np.zeros(len(conf)), conf
     forks = locate_forks(pyr, hyps)
     forks = locate_forks(pyr, forks.fins.take(np.flatnonzero(forks.ok)))        # again, from the fork
     ok = np.flatnonzero(forks.ok)
     located = forks.fins.take(ok)
-    located.score = fin_scores(pyr, located)              # eq. (13), where the forks are
+    located.score = fin_scores(pyr, located, upright=p.upright)    # eq. (13), where the forks are
     return located, forks.fish_level[ok], forks.water_level[ok], forks.arm_rms[ok], None
 
 
@@ -354,7 +358,7 @@ def measure_underwater(left: np.ndarray, right: np.ndarray, calib: StereoCalibra
         # each candidate moved to the tip the learned snout locator finds from it where it is sure,
         # dropped where it is not
         for c, f in enumerate((f1, f2)):
-            tips, conf = snout_net.refine((v1, v2)[c].pyr, f.xy, sn[c].xy)
+            tips, conf = snout_net.refine((v1, v2)[c].pyr, f.xy, sn[c].xy, upright=params.upright)
             if c == 0:
                 left_sure = conf
             moved = np.where((conf >= params.snout_net_min)[..., None], tips, np.nan)
@@ -403,7 +407,7 @@ def measure_underwater(left: np.ndarray, right: np.ndarray, calib: StereoCalibra
     snout_sure = np.ones(len(f1))
     if params.snout_net and len(rows):
         # how sure the learned locator is of each chosen snout, in the worse view
-        snout_sure[rows] = np.minimum(*(snout_net.refine(v.pyr, f.xy[rows], px[rows, None], passes=1)[1][:, 0]
+        snout_sure[rows] = np.minimum(*(snout_net.refine(v.pyr, f.xy[rows], px[rows, None], 1, params.upright)[1][:, 0]
                                         for v, f, px in ((v1, f1, ch.px1), (v2, f2, ch.px2))))
     out = measurements(rows, pairs, f1, f2, v1, v2, fork_mm, fork_res, ch, calib, geo, params,
                        left.shape[1], expected, view, (fork_epi, snout_epi, fork_best, snout_best), sure, agree,

@@ -226,8 +226,8 @@ def test_left_snouts_the_snout_locator_doubts_are_not_looked_for_on_the_right(mo
     answers, searched = [], []
     real_refine, real_transfer = snout_net.refine, underwater.transfer_snouts
 
-    def refine(pyr, fork_xy, pts, passes=2):
-        out = real_refine(pyr, fork_xy, pts, passes)
+    def refine(pyr, fork_xy, pts, passes=2, upright=False):
+        out = real_refine(pyr, fork_xy, pts, passes, upright)
         answers.append((pts.copy(), out[1].copy()))
         return out
 
