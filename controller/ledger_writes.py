@@ -79,13 +79,9 @@ def _the_files_fault(exc: sqlite3.Error) -> bool:
     """Full, read-only, I/O, locked past the busy timeout, corrupt: not a statement's fault."""
     if isinstance(exc, sqlite3.IntegrityError | sqlite3.ProgrammingError | sqlite3.InterfaceError):
         return False
-    code = getattr(exc, "sqlite_errorcode", None)
-    if code is not None:
-        return code & 0xFF in _FILE_CODES
-    return isinstance(exc, sqlite3.OperationalError) and any(w in str(exc) for w in _FILE_WORDS)
+    return getattr(exc, "sqlite_errorcode", 0) & 0xFF in _FILE_CODES     # extended codes: IOERR_WRITE...
 
 
 _FILE_CODES = {sqlite3.SQLITE_FULL, sqlite3.SQLITE_READONLY, sqlite3.SQLITE_IOERR, sqlite3.SQLITE_BUSY,
                sqlite3.SQLITE_LOCKED, sqlite3.SQLITE_CORRUPT, sqlite3.SQLITE_CANTOPEN, sqlite3.SQLITE_NOTADB,
                sqlite3.SQLITE_PROTOCOL}
-_FILE_WORDS = ("disk is full", "readonly database", "disk I/O error", "database is locked", "malformed")

@@ -40,9 +40,10 @@ Reason = Annotated[str, Field(max_length=REASON_MAX), AfterValidator(_one_line)]
 TankId = Annotated[str, Field(pattern=r"^[A-Za-z0-9_-]{1,32}$")]   # as farm.toml's tank ids
 AlarmName = Annotated[str, Field(min_length=1, max_length=SOURCE_MAX), AfterValidator(_one_line)]
 FishCount = Annotated[int, Field(gt=0, le=COUNT_MAX)]
-RequestId = Annotated[str, Field(pattern=r"^[!-~]{1,64}$")]   # printable ASCII, no space: a UUID fits
+REQUEST_PATTERN = r"^[!-~]{1,64}$"       # printable ASCII, no space: a UUID fits
+RequestId = Annotated[str, Field(pattern=REQUEST_PATTERN)]
 _PATTERNS = {r"^[A-Za-z0-9_-]{1,32}$": "letters, digits, _ and - only (1 to 32)",
-             r"^[!-~]{1,64}$": "printable ASCII without spaces only (1 to 64)"}
+             REQUEST_PATTERN: "printable ASCII without spaces only (1 to 64)"}
 
 _JSON_TYPE = {bool: "a boolean", str: "a string", dict: "an object", list: "an array", type(None): "null",
               int: "a number", float: "a number"}

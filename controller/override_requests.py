@@ -13,9 +13,12 @@ from __future__ import annotations
 
 import asyncio
 import json
+import re
 import sqlite3
 import threading
 from collections.abc import Awaitable, Callable
+
+from controller.override_models import REQUEST_PATTERN
 
 MIGRATION_8 = """
     CREATE TABLE override_request (
@@ -27,16 +30,11 @@ MIGRATION_8 = """
 """
 """7 -> 8: the ids of overrides carried out, with their replies."""
 
-REQUEST_MAX = 64
-
-
 def request_id(payload: object) -> str | None:
-    """The payload's ``request`` when it is a usable id; its faults are the models' to say."""
-    if not isinstance(payload, dict):
-        return None
-    request = payload.get("request")
-    ok = isinstance(request, str) and 0 < len(request) <= REQUEST_MAX and request.isprintable()
-    return request if ok else None
+    """The payload's ``request`` when it is an id the command's model takes (the same pattern);
+    its faults are the model's to say."""
+    request = payload.get("request") if isinstance(payload, dict) else None
+    return request if isinstance(request, str) and re.fullmatch(REQUEST_PATTERN, request) else None
 
 
 class RequestRecords:

@@ -113,7 +113,7 @@ class Overrides:
             return {"ok": False, "error": f"{both[0]}: given in the selector and in the payload: give it once"}
         store, cfg, asked = self.c.store, self.c.cfg, {**params, **payload}
         now = self.c.clock.now()
-        if str(getattr(store, "path", ":memory:")) == ":memory:":     # a test's ledger: no file to open again
+        if str(store.path) == ":memory:":          # a ledger in memory: no file to open again
             return query_reply(store, cfg, key, asked, now)
 
         def answer() -> dict:

@@ -106,8 +106,13 @@ def split_rg(img: np.ndarray, where: str) -> tuple[np.ndarray, np.ndarray, str |
 
 
 def check_same_size(left: np.ndarray, right: np.ndarray, left_name: str, right_name: str) -> None:
-    if left.shape[:2] != right.shape[:2]:
-        (h1, w1), (h2, w2) = left.shape[:2], right.shape[:2]
+    check_same_dims(left.shape[1::-1], right.shape[1::-1], left_name, right_name)
+
+
+def check_same_dims(left: tuple[int, int], right: tuple[int, int], left_name: str, right_name: str) -> None:
+    """Two views' (width, height) alike, else BadInput naming the right one."""
+    if tuple(left) != tuple(right):
+        (w1, h1), (w2, h2) = left, right
         raise BadInput(right_name, None, f"{w2}x{h2} pixels, but the left image {left_name} is {w1}x{h1}")
 
 

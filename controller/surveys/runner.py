@@ -37,7 +37,7 @@ import numpy as np
 
 from controller.errors import BadInput
 from controller.surveys.frame_pixels import header_size
-from controller.surveys.frames import PairJob, read_pair
+from controller.surveys.frames import PairJob, check_same_dims, read_pair
 from devices.elastic_clock import process_alive
 from vision.calib_file import CalibrationError, StereoCalibration, check_image_size
 from vision.survey_types import FishMeasurement, SurveySetup
@@ -79,9 +79,8 @@ def check_header_size(calib: StereoCalibration, sources, names) -> None:
     is refused here (an EXIF orientation may turn the decoded frame); the decoded frame is checked
     again anyway. Two views of different sizes are told as such first, as ``read_pair`` tells them."""
     sizes = [header_size(source) for source in sources]
-    if len(sizes) == 2 and None not in sizes and sizes[0] != sizes[1] and sizes[0] != sizes[1][::-1]:
-        (w1, h1), (w2, h2) = sizes
-        raise BadInput(names[1], None, f"{w2}x{h2} pixels, but the left image {names[0]} is {w1}x{h1}")
+    if len(sizes) == 2 and None not in sizes and sizes[0] != sizes[1][::-1]:     # a turned one may be EXIF's
+        check_same_dims(*sizes, *names)
     for size, name in zip(sizes, names, strict=True):
         if size is None:
             continue
