@@ -15,6 +15,7 @@ from hil_tests.evidence import Verdict, ledger_against_runs, match_runs
 from hil_tests.farm import HilFarm
 
 SPEED = 200.0
+FAST = 7200.0               # the elastic clock between dispenses (devices/elastic_clock.py): a dispense is slow
 KILLS = 25
 POWER_CUT_EVERY = 3          # at every third kill, on average, the dispenser loses power too
 
@@ -51,7 +52,7 @@ def power_cycle_dispenser(farm: HilFarm, timeout_s: float = 10.0) -> None:
 @pytest.mark.hil
 def test_sigkill_and_power_cuts_while_dispensing_neither_lose_nor_repeat(tmp_path):
     rng = random.Random(20)
-    farm = HilFarm(tmp_path, speed=SPEED)
+    farm = HilFarm(tmp_path, speed=SPEED, elastic=(SPEED, FAST))
     killed_open = cuts = 0
     try:
         farm.start_sim()
