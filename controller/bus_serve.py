@@ -81,10 +81,11 @@ class Serving:
                   urgent: Mapping[str, Callable[[], None]] | None = None,
                   refused: Callable[[str, str, str | None], None] | None = None) -> None:
         """Serve ``farm/{site}/override/*`` and ``farm/{site}/override/*/by/*``: dispatch on the
-        command name; an unknown command is refused. Commands in ``lenient`` (estop) are never
-        refused for their payload; those in ``urgent`` first call their function on the Zenoh
-        thread, before anything else. A handler taking a ``user`` keyword gets the user of a
-        ``.../by/USER`` key when this session enforces the ACL (``identified``), else None.
+        command name; an unknown command, and any other key under ``override``, is refused.
+        Commands in ``lenient`` (estop) are never refused for their payload; those in ``urgent``
+        first call their function on the Zenoh thread, before anything else. A handler taking a
+        ``user`` keyword gets the user of a ``.../by/USER`` key when this session enforces the ACL
+        (``identified``), else None.
         ``refused(command, error, user)`` hears, on the loop, of every query refused here before a
         handler saw it (unknown command, unreadable payload): the audit keeps those too."""
         forgiving = set(lenient)
@@ -98,6 +99,13 @@ class Serving:
                     loop.call_soon_threadsafe(refused, command, error, user, payload)
 
         def resolve(suffix: str):
+            chunks = suffix.split("/")
+            if not (len(chunks) == 2 or (len(chunks) == 4 and chunks[2] == BY)):
+                # override/feed/now, a bare override: one queryable answers them all, as it answers
+                # an unknown command, rather than leaving the asker to time out
+                error = (f"{printable(self.key(suffix), 160)!r}: not a command's key; send to "
+                         f"{self.key('override')}/COMMAND (or .../COMMAND/{BY}/USER)")
+                raise RefusedOnWire(error, lambda payload: tell(suffix, error, None, payload))
             base, user = user_of(suffix)
             command = base.split("/", 1)[1]
             if user is not None and not USER.match(user):
@@ -110,8 +118,7 @@ class Serving:
             user = user if self.identified else None
             return (table[command], command in forgiving, now.get(command), user,
                     lambda error, payload=None: tell(command, error, user, payload))
-        self._serve("override/*", resolve)
-        self._serve(f"override/*/{BY}/*", resolve)
+        self._serve("override/**", resolve)
 
     def _serve(self, suffix: str, resolve) -> None:
         loop = self._handler_loop()

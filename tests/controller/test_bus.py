@@ -229,6 +229,10 @@ def test_overrides_dispatch_refuse_unknown_and_ignore_wildcards(pair):
     [reply] = client.query("override/fly", {})
     assert reply["ok"] is False and "unknown command 'fly'" in reply["error"]
     assert client.query("override/**", {}) == [] and client.query("override/*", {}) == []
+    # any other key under override: one refusal naming the key, not a silence to time out on
+    for key in ("override", "override/feed/now", "override/estop/x/y", "override/feed/for/ana", "override/a/b/c/d/e"):
+        [reply] = client.query(key, {"tank": "T1"})
+        assert reply["ok"] is False and f"'{client.key(key)}': not a command's key" in reply["error"], reply
     assert calls == [("feed", {"tank": "T1"})]
     raw = [decode(r.ok.payload) for r in
            client.session.get(client.key("override/estop"), payload=b"oops", timeout=WAIT_S)]
