@@ -352,6 +352,8 @@ class Overrides:
             raise Refused(f"command: {NO_CAMERA}")
         if cmd.tank in self.c.store.paused_tanks():
             raise Refused(f"tank: {cmd.tank} is paused (resume it first)")
+        if self.c.rations.stock(cmd.tank) <= 0:     # harvested or moved out: a visit would count nothing
+            raise Refused(f"tank: {cmd.tank} holds no fish (its stock events took them all)")
         note = stops.request(cmd.tank)
         log.warning("start-survey %s by %s%s", cmd.tank, by or cmd.operator, f": {cmd.reason}" if cmd.reason else "")
         if note is None:      # asked: what will hold it back, said now (a bare ok read as "under way")

@@ -7,7 +7,8 @@ after the controller started for a tank never surveyed. An operator's ``start-su
 
 The robot asks ``next()`` only when no feeding demand waits (feeding comes first), so a survey
 never runs during feeding. A tank is skipped while paused (an operator's pause: grading, a
-treatment) or fasting (an operator's ration of 0 g today); its survey waits for the resume. A
+treatment) or fasting (an operator's ration of 0 g today); its survey waits for the resume. A tank
+whose stock events took all its fish (harvested, moved out) is skipped until fish come back. A
 survey that failed (the camera) or counted no fish (lights off, a fouled lens, turbid water) is
 tried again ``retry_s`` later; after a second such visit in a row, at the tank's own survey hour
 (``at``) each day, at least ``retry_s`` on, until a survey counts fish or an operator asks for
@@ -96,6 +97,8 @@ class SurveySchedule:
         """Why ``tank`` is not surveyed now, or None."""
         if tank in paused:
             return "paused"
+        if self.rations.stock(tank) <= 0:       # harvested or moved out: a visit would count nothing
+            return "no fish"
         ration = self.rations.today(tank, now)
         if ration.source == "operator" and ration.grams == 0:
             return "fasting"

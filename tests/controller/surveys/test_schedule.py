@@ -108,6 +108,21 @@ def test_paused_fasting_and_failed_tanks_are_skipped_until_they_may_be_surveyed(
     assert schedule.next(set(), clock.now()).tank == "T1"
 
 
+def test_a_tank_with_no_fish_left_is_skipped_until_fish_come_back(parts):
+    cfg, store, rations, clock = parts
+    schedule = Schedule(cfg, store, rations, clock)
+    clock.t = t("2026-06-01T12:00")
+    store.add_stock_event(t=clock.now(), tank="T1", kind="harvest", count=1000, to_tank=None, who="ana")
+    rations.restocked("T1", clock.now())
+    assert schedule.held("T1", set(), clock.now()) == "no fish"
+    assert schedule.next(set(), clock.now()).tank == "T2"             # T1 due, but empty
+    schedule.current = None
+    store.add_stock_event(t=clock.now(), tank="T3", kind="transfer", count=10, to_tank="T1", who="ana")
+    rations.restocked("T1", clock.now())
+    assert schedule.held("T1", set(), clock.now()) is None
+    assert schedule.next(set(), clock.now()).tank == "T1"
+
+
 @pytest.mark.parametrize("measuring_s", [0.0, 1.0, 3.0])   # x retry_s: the record lands that long after the visit
 def test_a_captured_survey_is_not_started_again_while_its_record_is_pending(parts, measuring_s):
     cfg, store, rations, clock = parts
@@ -270,14 +285,20 @@ def test_start_survey_over_zenoh_or_modbus_asks_the_robot_and_is_audited(tmp_pat
     store.close()
 
 
-def test_start_survey_says_what_will_hold_it_back(tmp_path):
-    """Taken with a bare ok while the robot was e-stopped, or for a tank fasting today: it waits."""
+def _farm_with_stops(tmp_path):
+    """(store, farm, its survey stops) of a controller stand-in whose robot is asked nothing."""
     store = Store(tmp_path / "ledger.db")
     farm = Farm(store)
     stops = SurveyStops(farm.cfg, farm.clock, camera=None, store=store, rations=farm.rations, alarms=farm.alarms,
                         species={})
     stops.poke = lambda: None
     farm.survey_stops = stops
+    return store, farm, stops
+
+
+def test_start_survey_says_what_will_hold_it_back(tmp_path):
+    """Taken with a bare ok while the robot was e-stopped, or for a tank fasting today: it waits."""
+    store, farm, stops = _farm_with_stops(tmp_path)
 
     async def go():
         o = Overrides(farm)
@@ -291,4 +312,25 @@ def test_start_survey_says_what_will_hold_it_back(tmp_path):
                                            "for tomorrow"}
     assert stopped == {"ok": True, "note": "asked for: it starts once the e-stop is reset"}
     assert list(stops.schedule.asked) == ["T2", "T1"]
+    store.close()
+
+
+def test_start_survey_of_a_tank_with_no_fish_left_is_refused(tmp_path):
+    """All its fish harvested (or moved out): a visit would count nothing and raise the no-fish
+    warning; refused, naming the tank. One fish left is still surveyed."""
+    store, farm, stops = _farm_with_stops(tmp_path)
+    stock = {t.id: t.stock for t in farm.cfg.tanks}
+
+    async def go():
+        o = Overrides(farm)
+        out = [await o.apply("harvest", {"tank": "T1", "count": stock["T1"] - 1, "operator": "ana", "reason": "sold"}),
+               await o.apply("start-survey", {"tank": "T1"})]
+        stops.schedule.asked.clear()
+        out += [await o.apply("transfer", {"tank": "T1", "count": 1, "to": "T2", "operator": "ana", "reason": "x"}),
+                await o.apply("start-survey", {"tank": "T1"}), await o.apply("start-survey", {"tank": "T2"})]
+        return out
+    harvested, one_left, moved, empty, other = asyncio.run(go())
+    assert harvested["ok"] and moved["ok"] and one_left == {"ok": True} and other == {"ok": True}
+    assert empty == {"ok": False, "error": "tank: T1 holds no fish (its stock events took them all)"}
+    assert list(stops.schedule.asked) == ["T2"]
     store.close()
