@@ -76,11 +76,30 @@ class _Refused(ModbusPDU):
         return ExceptionResponse(self.function_code, self.code)
 
 
+# the PDU length of each served function but 43: fixed, or fixed + the byte count at an offset.
+# pymodbus decodes the fields it wants and ignores what follows, so a frame with bytes the MBAP
+# length counts beyond its request (a client's framing bug, two requests run together) was acted on
+_FIXED = {1: 5, 2: 5, 3: 5, 4: 5, 5: 5, 6: 5}
+_COUNTED = {15: (6, 5), 16: (6, 5), 23: (10, 9)}     # fc: (length before the data, byte count's offset)
+
+
+def _whole(frame: bytes) -> bool:
+    """Whether a request PDU is exactly as long as its own fields say (43: pymodbus checks it)."""
+    fc = frame[0]
+    if fc in _FIXED:
+        return len(frame) == _FIXED[fc]
+    if fc in _COUNTED:
+        head, at = _COUNTED[fc]
+        return len(frame) > at and len(frame) == head + frame[at]
+    return True
+
+
 class StrictDecoder(DecodePDU):
     """pymodbus's request decoder, held to the Modbus spec: FC 5 takes only 0xFF00 (on) or 0x0000
     (off) — pymodbus reads any other value as on, so 0x0001 to the reset coil released the e-stop —
     else exception 03; a request of a known function that does not decode (a quantity of 0 or over
-    the function's limit, a byte count that does not match) 03; an unknown function 01."""
+    the function's limit, a byte count that does not match), or is longer or shorter than its
+    fields say, 03; an unknown function 01."""
 
     def __init__(self):
         super().__init__(True)
@@ -92,6 +111,8 @@ class StrictDecoder(DecodePDU):
         if fc not in SERVED:
             return _Refused(fc & 0x7F, ExcCodes.ILLEGAL_FUNCTION)
         if fc == 5 and len(frame) >= 5 and frame[3:5] not in (b"\xff\x00", b"\x00\x00"):
+            return _Refused(fc, ExcCodes.ILLEGAL_VALUE)
+        if not _whole(frame):
             return _Refused(fc, ExcCodes.ILLEGAL_VALUE)
         pdu = super().decode(frame)
         if pdu is None:

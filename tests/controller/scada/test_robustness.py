@@ -106,6 +106,30 @@ def test_a_request_with_a_quantity_its_function_does_not_allow_is_refused_with_0
         c.close()
 
 
+@pytest.mark.parametrize("fc, body", [
+    (5, struct.pack(">HH", 0, 0xFF00) + b"\x00"),              # an e-stop with a byte beyond it
+    (5, struct.pack(">HH", 0, 0xFF00) + b"\xff\x00\x00\x00"),
+    (6, struct.pack(">HH", 100, 20) + b"\x00"), (6, struct.pack(">H", 100) + b"\x00"),
+    (4, struct.pack(">HH", 0, 4) + b"\x01\x02"), (3, struct.pack(">HHB", 0, 1, 0)), (1, struct.pack(">HHH", 0, 1, 0)),
+    (16, struct.pack(">HHBH", 100, 1, 2, 20) + b"\x00\x00"), (15, struct.pack(">HHBB", 0, 1, 1, 1) + b"\x01"),
+    (23, struct.pack(">HHHHBH", 0, 1, 100, 1, 2, 20) + b"\x00")])
+def test_a_request_longer_or_shorter_than_its_fields_say_is_refused_with_03_and_not_acted_on(serve, fc, body):
+    """The MBAP length counts bytes the request's own fields do not (a client's framing bug):
+    pymodbus decoded the fields it wanted and acted, an e-stop among them."""
+    from .conftest import StandIn
+    stand_in = StandIn()
+    srv = serve(stand_in)
+    c = Mbap(srv.port)
+    try:
+        got, data = c.call(fc, body)
+        assert (got, data[0]) == (fc | 0x80, 3)
+        srv.call(lambda: None)
+        assert stand_in.trips == [] and stand_in.calls == []
+        assert isinstance(c.read("input register", 0, 10), list)        # the connection lives
+    finally:
+        c.close()
+
+
 def test_idle_and_half_open_connections_are_dropped(serve):
     srv = serve(idle_timeout_s=0.3)
     silent = socket.create_connection(("127.0.0.1", srv.port))
