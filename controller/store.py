@@ -115,10 +115,19 @@ MIGRATIONS = [
     MIGRATION_8,
 ]
 
+# every farm time the ledger keeps (tests/controller/test_store.py checks no table's is missed)
+LEDGER_TIMES = (("demand", "t"), ("feed", "t_intent"), ("feed", "t_closed"), ("ration", "t"), ("counters", "t"),
+                ("alarm", "t"), ("alarm_state", "t"), ("alarm_state", "first_t"), ("alarm_state", "last_t"),
+                ("alarm_state", "acked_t"), ("audit", "t"), ("stock_event", "t"), ("tank_pause", "t"),
+                ("cleaner", "t"), ("cleaner_trace", "t"), ("survey", "t"), ("survey_asked", "t"),
+                ("override_request", "t"))
+
+
 def ledger_time(path: str | Path) -> float | None:
-    """The latest farm time the ledger at ``path`` records (demands, feeds, alarms, the audit);
-    None when there is no ledger or nothing in it (a ledger that cannot be read is the Store's to
-    refuse, later)."""
+    """The latest farm time the ledger at ``path`` records, in any of its tables (a night of
+    surveys and cleaning writes no demand, feed or alarm: a restart carried on from before the
+    night's survey rows); None when there is no ledger or nothing in it (a ledger that cannot be
+    read is the Store's to refuse, later)."""
     if str(path) == ":memory:" or not Path(path).is_file():
         return None
     try:
@@ -127,8 +136,7 @@ def ledger_time(path: str | Path) -> float | None:
         return None
     latest = None
     try:
-        for table, column in (("demand", "t"), ("feed", "t_intent"), ("feed", "t_closed"), ("alarm", "t"),
-                              ("audit", "t")):
+        for table, column in LEDGER_TIMES:
             try:
                 t = db.execute(f"SELECT MAX({column}) FROM {table}").fetchone()[0]
             except sqlite3.Error:       # no such table yet (an old schema, not a ledger)

@@ -192,3 +192,21 @@ def test_no_ledger_yet_changes_nothing(tmp_path):
     clock = ScaledClock.starting(60.0)
     cfg = SimpleNamespace(store=SimpleNamespace(path=str(tmp_path / "none.db")))
     assert _after_the_ledger(cfg, clock, follows=True) == (clock, None)
+
+
+def test_every_farm_time_the_ledger_keeps_counts_for_where_a_clock_carries_on(tmp_path):
+    """A night of surveys and cleaning writes no demand, feed or alarm: the restarted farm's clock
+    carried on from before the survey rows it had written. Every time column of every table counts
+    (named t, t_*, *_t in the schema), and a survey row alone sets the time."""
+    from controller.store import LEDGER_TIMES, Store, ledger_time
+    store = Store(tmp_path / "l.db")
+    try:
+        schema = {(table, col) for (table,) in store.db.execute("SELECT name FROM sqlite_master WHERE type = 'table'")
+                  for (_, col, *_rest) in store.db.execute(f"PRAGMA table_info({table})")
+                  if col == "t" or col.startswith("t_") or col.endswith("_t")}
+        assert schema and schema == set(LEDGER_TIMES)
+        _ledger_at(tmp_path / "l.db", 1.8e9)
+        store.add_survey("A", 1.8e9 + 3600.0, "sparus_aurata", "night.json", [20.0], [100.0], [0.9])
+    finally:
+        store.close()
+    assert ledger_time(tmp_path / "l.db") == 1.8e9 + 3600.0
