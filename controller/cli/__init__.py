@@ -88,6 +88,14 @@ def main(argv=None) -> int:
         return 1
 
 
+def _interrupted(signum, _frame) -> None:
+    """Ctrl-C as Python's own, except that a second one ends the command at once (its default
+    action), rather than a KeyboardInterrupt in the middle of the first one's clean-up printing a
+    traceback as the interpreter ends."""
+    signal.signal(signum, signal.SIG_DFL)
+    raise KeyboardInterrupt
+
+
 def _terminated(signum, _frame) -> None:
     """SIGTERM ends a command as Ctrl-C does, through its clean-up (a survey's workers stopped, no
     half-written output left); a second one ends it at once. Commands that serve (run, sim,
@@ -111,6 +119,8 @@ def entry() -> None:
     for name, value in NATIVE_LOGS.items():     # before any command imports cv2 (the controller,
         os.environ.setdefault(name, value)      # its simulator and survey workers all start here)
     signal.signal(signal.SIGTERM, _terminated)
+    if signal.getsignal(signal.SIGINT) is signal.default_int_handler:    # not a background job's ignored one
+        signal.signal(signal.SIGINT, _interrupted)
     sys.exit(main())
 
 

@@ -4,6 +4,7 @@ with its calibration; ``--json CALIB.json`` would lose the calibration)."""
 from __future__ import annotations
 
 import os
+import tempfile
 from collections.abc import Iterable
 from pathlib import Path
 
@@ -44,6 +45,13 @@ def _check_directory(real: Path, path: str, option: str) -> None:
         raise BadInput(path, option, f"cannot write: {parent} is a file, not a directory")
     if not os.access(parent, os.W_OK | os.X_OK):
         raise BadInput(path, option, f"cannot write: no permission in {parent}")
+    if parent != real.parent:
+        # the missing folders are made at the end, in ``parent``: tried for real here too (root
+        # passes access() in /proc, where no folder can be made)
+        try:
+            os.rmdir(tempfile.mkdtemp(prefix=".fishfarm-trial-", dir=parent))
+        except OSError as exc:
+            raise BadInput(path, option, f"cannot write: {exc.strerror or exc}") from None
     if parent == real.parent:
         # tried for real: root passes every access() check, and /proc or a read-only mount still
         # refuse the file (a --plot there failed after an hour's survey, with OUT.json written)

@@ -16,6 +16,7 @@ with one line naming the file and the fault; an empty survey (no fish) is a resu
 from __future__ import annotations
 
 import math
+import os
 import sys
 
 import click
@@ -49,7 +50,8 @@ def _source(pairs, rgs, directory, video, rg_video, every, max_frames, sync_offs
         raise BadInput("--sync-offset", None, "is for two videos (--video LEFT RIGHT)")
     if video or rg_video:
         paths = tuple(video) if video else (rg_video,)
-        return frames.video_source(paths, every, max_frames, sync_offset), list(paths)
+        from controller.surveys.video_frames import video_source
+        return video_source(paths, every, max_frames, sync_offset), list(paths)
     items = [tuple(p) for p in pairs] or [(p,) for p in rgs] or frames.directory_items(directory)
     return frames.still_source(items, every, max_frames), [f for item in items for f in item]
 
@@ -69,7 +71,7 @@ class _Progress:
             self.task = self.bar.add_task("pairs", total=total)
             self.bar.start()
 
-    def _say(self, text: str) -> None:
+    def say(self, text: str) -> None:
         if self.bar:
             self.bar.console.print(text, markup=False, highlight=False, soft_wrap=True)  # names may hold [ ]
         else:
@@ -79,13 +81,13 @@ class _Progress:
         if result.warning:
             self.warnings += 1
             if self.warnings == 1:
-                self._say(f"fishfarm survey: warning: {result.warning}")
+                self.say(f"fishfarm survey: warning: {result.warning}")
         if self.bar:
             self.bar.advance(self.task)
 
     def stop(self) -> None:
         if self.warnings > 1:
-            self._say(f"fishfarm survey: warning: the same for {self.warnings - 1} more pairs")
+            self.say(f"fishfarm survey: warning: the same for {self.warnings - 1} more pairs")
         if self.bar:
             self.bar.stop()
 
@@ -107,7 +109,8 @@ def _recorder(config_path: str, tank_id: str, species: str, json_path: str):
     def record(lengths, weights, scores) -> None:
         store = Store(cfg.store.path)
         try:
-            store.add_survey(tank_id, time.time(), species, json_path, lengths, weights, scores)
+            # OUT.json as the controller will open it, from whatever folder it runs in
+            store.add_survey(tank_id, time.time(), species, os.path.abspath(json_path), lengths, weights, scores)
         finally:
             store.close()
     record.ledger = cfg.store.path
@@ -206,17 +209,16 @@ def survey(calib_path, species, setup, pairs, rgs, directory, video, rg_video, s
         raise BadInput("--user", None, "a login is for --workers tcp/HOST:PORT (a deployment's router)")
     remote, session = _remote(workers, site, user, password) if isinstance(workers, str) else (None, None)
     progress = _Progress(source.total)
+    _warn_sparse(source, progress)
     opts = SurveyOptions(sp.setup(setup, up_world), sp, workers=None if remote else workers, seed=seed,
-                         measure=measure or MEASURE, on_pair=progress, record=record, remote=remote)
+                         measure=measure or MEASURE, on_pair=progress, record=record, remote=remote,
+                         before_commit=_plotter(plot_path))
     try:
         summary = run_survey(source, calib, opts, json_path, csv_path)
     finally:
         progress.stop()
         if session is not None:
             session.close()
-    if plot_path:
-        from controller.surveys.plot import plot_survey
-        plot_survey(summary, plot_path)
     w = summary["weight_g"]
     mean = "n/a" if w["mean"] is None else f"{w['mean']:.1f} g"
     ci = "" if not w["ci"] else f" (95 % CI {w['ci'][0]:.1f}-{w['ci'][1]:.1f})"
@@ -225,6 +227,31 @@ def survey(calib_path, species, setup, pairs, rgs, directory, video, rg_video, s
     left_out = f"; {len(rejected)} left out as measuring errors ({shown} cm)" if rejected else ""
     click.echo(f"{summary['count']} fish in {summary['frames']} pairs{_tracked(summary)}: mean weight {mean}{ci}"
                f"{left_out}", err=True)
+
+
+def _warn_sparse(source, progress) -> None:
+    """Video surveyed at fewer than CONFIRMING_RATE pairs a second: a fish swims far between pairs,
+    so the tracker may lose it (counted twice) or join two fish into one track; said once, first."""
+    from controller.surveys.survey import CONFIRMING_RATE
+    if source.fps is None or source.fps / source.every >= CONFIRMING_RATE:
+        return
+    most = max(1, int(source.fps // CONFIRMING_RATE))
+    progress.say(f"fishfarm survey: warning: pairs {source.every / source.fps:.2f} s apart (--every {source.every} at "
+                  f"{source.fps:g} frames/s): a fish may swim out of its track's reach between pairs and be "
+                  f"counted twice, or two fish be joined; --every {most} or less surveys "
+                  f"{CONFIRMING_RATE:g} pairs a second or more")
+
+
+def _plotter(plot_path: str | None):
+    """The page written before OUT.json is put in place and the survey recorded (a page that
+    cannot be written fails the survey as a whole), or None."""
+    if not plot_path:
+        return None
+
+    def plot(summary: dict) -> None:
+        from controller.surveys.plot import plot_survey
+        plot_survey(summary, plot_path)
+    return plot
 
 
 def _tracked(summary: dict) -> str:

@@ -107,7 +107,7 @@ def worker(connect, site, config_path, worker_id, cpu, user, password, duration,
         started = time.monotonic()
         served.serve(stop)
         click.echo(f"fishfarm worker {worker_id}: {served.served} pairs in "
-                   f"{time.monotonic() - started:.0f} s, stopping", err=True)
+                   f"{time.monotonic() - started:.1f} s of serving (after connecting), stopping", err=True)
     finally:
         if served is not None:
             served.close()

@@ -9,13 +9,12 @@ arguments, in sorted order with ``--dir``, or the frame number in the video (``-
 the original numbers: 0, N, 2N, ...).
 
 Faults are ``BadInput`` naming the file: missing, unreadable or empty images, left and right of
-different sizes, a directory without pairs, a video that cannot be opened or ends early.
+different sizes or one picture twice, a directory without pairs. Video: controller/surveys/video_frames.py.
 """
 from __future__ import annotations
 
 import os
 import re
-import time
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
@@ -109,6 +108,27 @@ def check_same_size(left: np.ndarray, right: np.ndarray, left_name: str, right_n
     check_same_dims(left.shape[1::-1], right.shape[1::-1], left_name, right_name)
 
 
+def check_two_views(left: np.ndarray, right: np.ndarray, left_name: str, right_name: str) -> None:
+    """Two views of one pair: the same size, and not one picture twice (the same file or video given
+    for both: its 'fish' are triangulated from a zero disparity into lengths that were never there).
+    Two uniform frames alike (lights off, a capped lens) are a pair with nothing in it, not a fault."""
+    check_same_size(left, right, left_name, right_name)
+    if np.array_equal(left, right) and left.size and not (left == left[0, 0]).all():
+        raise BadInput(right_name, None, f"is the same picture as the left view {left_name}: "
+                                         "a stereo pair is two cameras' views")
+
+
+def check_two_files(left: str, right: str) -> None:
+    """The same file given for both views, refused before anything is read."""
+    try:
+        same = os.path.samefile(left, right)
+    except OSError:                 # one is missing: said where it is opened
+        return
+    if same:
+        raise BadInput(right, None, f"is the same file as the left view {left}: a stereo pair is two "
+                                    "cameras' views")
+
+
 def check_same_dims(left: tuple[int, int], right: tuple[int, int], left_name: str, right_name: str) -> None:
     """Two views' (width, height) alike, else BadInput naming the right one."""
     if tuple(left) != tuple(right):
@@ -139,7 +159,7 @@ def decode_pair(blobs: tuple[bytes, ...], names: tuple[str, ...]) -> tuple[np.nd
     if len(blobs) == 1:
         return split_rg(to_8bit([_imdecode(blobs[0], names[0], cv2.IMREAD_COLOR)], [names[0]])[0], names[0])
     left, right = to_8bit([_imdecode(blobs[0], names[0]), _imdecode(blobs[1], names[1])], list(names))
-    check_same_size(left, right, names[0], names[1])
+    check_two_views(left, right, names[0], names[1])
     return left, right, None
 
 
@@ -163,7 +183,7 @@ def read_pair(job: PairJob) -> tuple[np.ndarray, np.ndarray, str | None]:
     if len(job.paths) == 1:
         return split_rg(to_8bit([_imread(job.paths[0], cv2.IMREAD_COLOR)], [job.paths[0]])[0], job.paths[0])
     left, right = to_8bit([_imread(job.paths[0]), _imread(job.paths[1])], list(job.paths))
-    check_same_size(left, right, job.paths[0], job.paths[1])
+    check_two_views(left, right, job.paths[0], job.paths[1])
     return left, right, None
 
 
@@ -188,6 +208,8 @@ def still_source(items: list[tuple[str, ...]], every: int = 1, max_frames: int |
     for item in items:
         for path in item:
             _exists(path)
+        if len(item) == 2:
+            check_two_files(*item)
     chosen = _select(len(items), every, max_frames)
     jobs = (PairJob(i, " + ".join(items[i]), paths=tuple(items[i])) for i in chosen)
     return Source(jobs, len(chosen))
@@ -285,103 +307,3 @@ def _folder_pairs(left: Path, right: Path) -> list[tuple[str, ...]]:
     if not views[0]:
         raise BadInput(str(left), None, "no images")
     return [(str(views[0][k]), str(views[1][k])) for k in sorted(views[0])]
-
-
-# ---- video -----------------------------------------------------------------------------------
-
-def _open_video(path: str) -> cv2.VideoCapture:
-    _exists(path)
-    # FFmpeg's own complaints ("moov atom not found") would precede our one-line error; a user
-    # who wants them sets the variable. It is read when the first capture opens.
-    os.environ.setdefault("OPENCV_FFMPEG_LOGLEVEL", "-8")
-    cap = cv2.VideoCapture(path)
-    if not cap.isOpened():
-        raise BadInput(path, None, "cannot open as a video")
-    return cap
-
-
-def _frame_count(cap: cv2.VideoCapture) -> int | None:
-    n = int(cap.get(cv2.CAP_PROP_FRAME_COUNT) or 0)
-    return n if n > 0 else None
-
-
-def video_source(paths: tuple[str, ...], every: int = 1, max_frames: int | None = None,
-                 sync_offset: int = 0) -> Source:
-    """Two synchronised videos (left, right) or one RG video (a 1-tuple), decoded in order.
-    ``sync_offset`` N: the right video's frame k + N shows the left's frame k (cameras started
-    apart; N < 0: the left started later). Frames are numbered as the left video's."""
-    if sync_offset and len(paths) != 2:
-        raise BadInput("--sync-offset", None, "is for two videos (--video LEFT RIGHT)")
-    caps = [_open_video(p) for p in paths]
-    rates = [float(c.get(cv2.CAP_PROP_FPS) or 0.0) for c in caps]
-    if len(caps) == 2 and min(rates) > 0 and abs(rates[1] - rates[0]) > 0.01 * rates[0]:
-        # frame i of one is not frame i of the other: every pair would pair two moments
-        for c in caps:
-            c.release()
-        raise BadInput(paths[1], None, f"{rates[1]:g} frames/s, but {paths[0]} is {rates[0]:g}: "
-                                       "not synchronised frame by frame")
-    fps = rates[0] or 25.0
-    skips = [max(0, -sync_offset), max(0, sync_offset)][:len(caps)]
-    counts = [_frame_count(c) for c in caps]
-    for cap, path, skip in zip(caps, paths, skips, strict=True):
-        _skip(caps, cap, path, skip)
-    known = [c - skip for c, skip in zip(counts, skips, strict=True) if c is not None]
-    total = None
-    if len(known) == len(caps):
-        total = -(-max(0, min(known)) // every)
-        if max_frames is not None:
-            total = min(total, max_frames)
-    return Source(_video_jobs(caps, paths, every, max_frames, first=skips[0], offset=sync_offset), total, fps,
-                  every=every)
-
-
-def _skip(caps: list[cv2.VideoCapture], cap: cv2.VideoCapture, path: str, frames: int) -> None:
-    """Pass over the first ``frames`` of a video (--sync-offset); one that has fewer is refused."""
-    for k in range(frames):
-        if not cap.grab():
-            for c in caps:
-                c.release()
-            raise BadInput(path, "--sync-offset", f"skips {frames} frames, but the video has {k}")
-
-
-def _video_jobs(caps: list[cv2.VideoCapture], paths: tuple[str, ...], every: int,
-                max_frames: int | None, first: int = 0, offset: int = 0) -> Iterator[PairJob]:
-    """Pairs from the left video's frame ``first`` on (numbered as the left's), the right's frame
-    ``offset`` ahead of it."""
-    name = " + ".join(paths)
-    i, done = first, 0
-    try:
-        while max_frames is None or done < max_frames:
-            t0 = time.perf_counter()
-            keep = (i - first) % every == 0
-            # grab() skips the colour conversion of frames --every leaves out
-            got = [c.read()[1] if keep else (True if c.grab() else None) for c in caps]
-            ended = [g is None or g is False for g in got]
-            if any(ended) and i == first:      # (whichever ended had none past --sync-offset's skip)
-                raise BadInput(paths[ended.index(True)], None, "no frames" + (" after --sync-offset" if offset else ""))
-            if all(ended):
-                if max_frames is not None:
-                    raise BadInput(name, "--max-frames", f"the video ends after {i} frames ({done} pairs), "
-                                                         f"before --max-frames {max_frames}")
-                return
-            if any(ended):
-                k = ended.index(True)
-                own = i + (offset if k == 1 else 0)             # the frame in that video's own count
-                overlap = f"; --max-frames {done} surveys the pairs both hold" if done else ""
-                raise BadInput(paths[k], None, f"ends at frame {own}, but {paths[1 - k]} goes on: the videos are "
-                                               f"not the same length (not synchronised? --sync-offset N pairs the "
-                                               f"right's frame k + N with the left's k{overlap})")
-            if keep:
-                warning = None
-                if len(caps) == 1:
-                    left, right, warning = split_rg(got[0], f"{paths[0]} frame {i}")
-                else:
-                    left, right = got
-                    check_same_size(left, right, paths[0], paths[1])
-                yield PairJob(i, f"{name} frame {i}", left=left, right=right, read_s=time.perf_counter() - t0,
-                              warning=warning)
-                done += 1
-            i += 1
-    finally:
-        for c in caps:
-            c.release()

@@ -70,15 +70,15 @@ class SurveyFiles:
                int(entry["outlier"])]
         self._csv.write(",".join("" if v is None else str(v) for v in row) + "\n")
 
-    def finish(self, head: dict, tail: dict, outlier_tracks: set[int] = frozenset()) -> None:
+    def finish(self, head: dict, tail: dict, counted_tracks: set[int]) -> None:
         """OUT.json = ``head`` fields, the spooled ``fish`` list (each entry's ``outlier``: its
-        track is in ``outlier_tracks``), then ``tail`` fields."""
+        track is not among ``counted_tracks``, those the statistics rest on), then ``tail`` fields."""
         out = self._json.file
         out.write("{" + json.dumps(head, allow_nan=False)[1:-1] + ',\n "fish": [')
         self._spool.seek(0)
         for i, line in enumerate(self._spool):
             entry = json.loads(line)
-            entry["outlier"] = entry["track"] in outlier_tracks
+            entry["outlier"] = entry["track"] not in counted_tracks
             out.write(("\n  " if i == 0 else ",\n  ") + json.dumps(entry, allow_nan=False))
             if self._csv:           # (rows at the end, when the outliers are known)
                 self._csv_row(entry)

@@ -39,7 +39,12 @@ class SurveyOptions:
     read_in: str = "worker"
     on_pair: Callable[[PairResult], None] | None = None       # progress, warnings
     extra: dict = field(default_factory=dict)                  # more optional OUT.json fields
-    record: Callable[[np.ndarray, np.ndarray], None] | None = None   # (lengths, weights) the statistics use
+    # (lengths, weights, scores) the statistics use, once OUT.json is in place: a survey that fails
+    # records nothing, so a retry does not record it twice
+    record: Callable[[np.ndarray, np.ndarray, np.ndarray], None] | None = None
+    # the summary, before the files are put in place: a page of it (--plot) that cannot be written
+    # fails the survey with nothing replaced and nothing recorded
+    before_commit: Callable[[dict], None] | None = None
     remote: dict | None = None          # measure_remote's keywords (session, site, ...): vision workers
 
 
@@ -72,7 +77,9 @@ class _Tracks:
         if fps is not None:
             # the tracker's imports (filterpy, scipy: ~0.4 s of CPU) on a thread, while the workers
             # start and measure the first pairs, instead of before the survey can start them
-            threading.Thread(target=_import_quietly, args=("vision.tracking",), name="survey-import").start()
+            # (a daemon: a survey stopped by a signal meanwhile does not wait for the import to end)
+            threading.Thread(target=_import_quietly, args=("vision.tracking",), name="survey-import",
+                             daemon=True).start()
 
     @property
     def per(self) -> str:
@@ -148,8 +155,6 @@ def run_survey(source: Source, calib: StereoCalibration, opts: SurveyOptions,
         far = implausible(lengths)
         rejected, lengths = lengths[far], lengths[~far]
         stats = summarise(lengths, weight.weight_g(lengths), rng=np.random.default_rng(opts.seed))
-        if opts.record is not None:
-            opts.record(lengths, weight.weight_g(lengths), scores[~far])
         head = {"species": opts.species.key, "setup": opts.setup.setup, "frames": frames}
         tail = {"count": stats["count"], "length_cm": stats["length_cm"], "weight_g": stats["weight_g"],
                 "condition_k": stats["condition_k"], "precision": stats["precision"],
@@ -160,7 +165,13 @@ def run_survey(source: Source, calib: StereoCalibration, opts: SurveyOptions,
                 "stage_ms": {k: round(1e3 * v / frames, 3) for k, v in sorted(stage_s.items())} if frames else {},
                 "wall_s": round(wall, 3), "pairs_per_s": round(frames / wall, 2) if wall > 0 and frames else None,
                 **opts.extra}
-        files.finish(head, tail, outlier_tracks={int(i) for i in ids[far]})
+        if opts.before_commit is not None:
+            opts.before_commit({**head, **tail})
+        # an entry is an outlier when the statistics left it out: an implausible length, and in
+        # video a track seen too few times to be confirmed (or with no usable length)
+        files.finish(head, tail, counted_tracks={int(i) for i in ids[~far]})
+        if opts.record is not None:
+            opts.record(lengths, weight.weight_g(lengths), scores[~far])
     finally:
         results.close()                 # a survey ended early stops its workers now, not when collected
         files.close()

@@ -305,6 +305,36 @@ def test_a_survey_recorded_for_a_tank_sets_its_ration(farm, tmp_path):
     assert bad.returncode == 2 and "T1 holds dicentrarchus_labrax, not sparus_aurata" in bad.stderr
 
 
+def test_a_survey_that_fails_records_nothing_and_a_recorded_one_names_its_out_json_whole(farm, tmp_path):
+    """A page (--plot) that cannot be written failed the survey after it was recorded and OUT.json put
+    in place: a retry recorded it twice. And OUT.json given relative was recorded relative: a
+    controller running elsewhere could not open it."""
+    import tomllib
+
+    import tomli_w
+
+    from controller.store import Store
+    d, _ = farm
+    raw = tomllib.loads((ROOT / "config" / "farm.toml").read_text())
+    raw["store"] = {"path": str(tmp_path / "ledger.db")}
+    (tmp_path / "farm.toml").write_text(tomli_w.dumps(raw))
+    cfg = ("--config", tmp_path / "farm.toml", "--tank", "T2")
+    bad = run(*common(d, "--dir", d / "pairs", "--json", tmp_path / "o.json", "--plot", "/proc/nope/x.png", *cfg))
+    one_line_exit_2(bad, "/proc/nope/x.png", "cannot write")
+    assert not (tmp_path / "o.json").exists()
+    store = Store(tmp_path / "ledger.db")
+    assert store.surveys("T2") == []
+    store.close()
+    good = subprocess.run([FISHFARM, "survey", *map(str, common(d, "--dir", d / "pairs", "--json", "rel/o.json", *cfg)),
+                           "--measure", DOTS], cwd=tmp_path, capture_output=True, text=True,
+                          env={**os.environ, "PYTHONPATH": str(ROOT)})
+    assert good.returncode == 0, good.stderr
+    store = Store(tmp_path / "ledger.db")
+    [s] = store.surveys("T2")
+    store.close()
+    assert s.source == str(tmp_path / "rel" / "o.json")
+
+
 def test_a_wild_length_is_left_out_and_said(farm, tmp_path):
     d, _ = farm
     rig = convergent_rig()
@@ -421,6 +451,19 @@ def test_a_signal_ends_a_survey_at_once_its_workers_with_it_and_leaves_the_old_o
     assert sorted(f.name for f in out.parent.iterdir()) == ["o.csv", "o.json", "rg.mp4"]
 
 
+def test_a_second_ctrl_c_ends_a_survey_at_once_without_a_traceback(hanging_survey):
+    """The second Ctrl-C came during the first one's clean-up (or the interpreter's end) as a
+    KeyboardInterrupt: 'Exception ignored in: <module threading>' and a traceback, every time."""
+    p, out, mark = hanging_survey
+    p.send_signal(signal.SIGINT)
+    p.send_signal(signal.SIGINT)
+    assert _exit_or_stacks(p, 10) in (130, -signal.SIGINT)     # its clean-up done, or cut short by the second
+    said = p.stderr.read().decode()
+    assert "Traceback" not in said and "Exception ignored" not in said, said
+    assert _until(lambda: not _marked(mark)), "a worker outlived its survey"
+    assert out.read_text() == "a survey's OUT.json of last week"
+
+
 @pytest.mark.parametrize("sig", [signal.SIGKILL, signal.SIGHUP])     # SIGHUP: its default action
 def test_a_survey_killed_outright_is_outlived_by_no_worker_nor_its_shared_frames(hanging_survey, sig):
     p, _, mark = hanging_survey
@@ -442,3 +485,19 @@ def test_a_video_survey_line_says_why_its_count_is_not_its_measurements(per, ent
     from controller.cli.survey_cmd import _tracked
     summary = {"statistics_per": per, "fish_entries": entries, "tracks": {"seen": seen, "min_sightings": most}}
     assert _tracked(summary) == said
+
+
+@pytest.mark.parametrize("every, warned", [(1, False), (5, False), (6, True), (25, True)])
+def test_a_video_surveyed_sparsely_is_warned_of_its_tracks(farm, tmp_path, every, warned):
+    """At 1 pair a second the tracker joined two fish and counted one twice, without a word."""
+    d, _ = farm
+    make_mp4(tmp_path / "rg.mp4", cv2.imread(str(d / "rg0.png")), 26)
+    r = run(*common(d, "--rg-video", tmp_path / "rg.mp4", "--every", every, "--json", tmp_path / "o.json"))
+    assert r.returncode == 0, r.stderr
+    lines = [line for line in r.stderr.splitlines() if line.startswith("fishfarm survey: warning: pairs")]
+    if warned:
+        assert lines == [f"fishfarm survey: warning: pairs {every / 25:.2f} s apart (--every {every} at 25 "
+                         "frames/s): a fish may swim out of its track's reach between pairs and be counted twice, "
+                         "or two fish be joined; --every 5 or less surveys 5 pairs a second or more"], r.stderr
+    else:
+        assert lines == [], r.stderr

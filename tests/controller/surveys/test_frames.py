@@ -6,7 +6,8 @@ import numpy as np
 import pytest
 
 from controller.errors import BadInput
-from controller.surveys.frames import directory_items, read_pair, split_rg, still_source, video_source
+from controller.surveys.frames import directory_items, read_pair, split_rg, still_source
+from controller.surveys.video_frames import video_source
 
 
 def grey(h=48, w=64, level=0):
@@ -21,7 +22,7 @@ def write(path: Path, img) -> str:
 
 
 def test_stills_keep_argument_order_and_every_n_keeps_frame_numbers(tmp_path):
-    items = [(write(tmp_path / f"{i}_L.png", grey(level=i)), write(tmp_path / f"{i}_R.png", grey(level=i)))
+    items = [(write(tmp_path / f"{i}_L.png", grey(level=i)), write(tmp_path / f"{i}_R.png", grey(level=i + 1)))
              for i in range(7)]
     src = still_source(items, every=3)
     jobs = list(src.jobs)
@@ -32,9 +33,9 @@ def test_stills_keep_argument_order_and_every_n_keeps_frame_numbers(tmp_path):
 
 
 def test_a_missing_file_fails_before_anything_is_read(tmp_path):
-    a = write(tmp_path / "a.png", grey())
+    a, b = write(tmp_path / "a.png", grey()), write(tmp_path / "b.png", grey(level=1))
     with pytest.raises(BadInput, match=r"nope.png: no such file"):
-        still_source([(a, a), (a, str(tmp_path / "nope.png"))])
+        still_source([(a, b), (a, str(tmp_path / "nope.png"))])
 
 
 @pytest.mark.parametrize("content, fault", [(b"", "empty file"), (b"not an image", "not a readable image")])
@@ -76,11 +77,12 @@ def test_whole_images_with_a_thumbnail_or_a_trailer_are_read(tmp_path):
     thumb = _encoded(".jpg")
     app1 = b"Exif\x00\x00" + thumb
     with_thumb = main[:2] + b"\xff\xe1" + (len(app1) + 2).to_bytes(2, "big") + app1 + main[2:]
+    other = write(tmp_path / "other.png", grey(96, 128, level=1))
     for name, data in (("thumb.jpg", with_thumb), ("trailer.jpg", main + b"\x00" * 64 + b"TRAILER"),
                        ("trailer.png", _encoded(".png") + b"\x00" * 16)):
         (tmp_path / name).write_bytes(data)
-        left, right, _ = read_pair(next(still_source([(str(tmp_path / name), str(tmp_path / name))]).jobs))
-        assert left.shape == (96, 128) and np.array_equal(left, right)
+        left, right, _ = read_pair(next(still_source([(str(tmp_path / name), other)]).jobs))
+        assert left.shape == (96, 128) == right.shape
         assert np.abs(left.astype(int) - grey(96, 128)).max() <= (0 if name.endswith(".png") else 60)
 
 
@@ -92,7 +94,8 @@ def test_left_and_right_of_different_sizes(tmp_path):
 
 def test_colour_and_grey_pairs_are_read_as_they_are(tmp_path):
     c = write(tmp_path / "c.png", cv2.cvtColor(grey(), cv2.COLOR_GRAY2BGR))
-    left, right, _ = read_pair(next(still_source([(c, c)]).jobs))
+    c2 = write(tmp_path / "c2.png", cv2.cvtColor(grey(level=5), cv2.COLOR_GRAY2BGR))
+    left, right, _ = read_pair(next(still_source([(c, c2)]).jobs))
     assert left.shape == (48, 64, 3) and left.dtype == np.uint8
 
 
@@ -323,3 +326,46 @@ def test_missing_or_unopenable_video(tmp_path):
     junk.write_bytes(b"\0" * 100)
     with pytest.raises(BadInput, match=r"junk.avi: (cannot open as a video|no frames)"):
         list(video_source((str(junk),)).jobs)
+
+
+def test_one_file_or_one_picture_given_for_both_views_is_refused(tmp_path):
+    """Its 'fish' were triangulated from no disparity into lengths that were never there."""
+    a = write(tmp_path / "a.png", grey())
+    copy = write(tmp_path / "copy.png", grey())
+    with pytest.raises(BadInput, match=r"a.png: is the same file as the left view .*a.png"):
+        still_source([(a, a)])
+    with pytest.raises(BadInput, match=r"copy.png: is the same picture as the left view .*a.png"):
+        read_pair(next(still_source([(a, copy)]).jobs))
+    v = make_video(tmp_path / "v.avi", 4, size=(64, 48))
+    with pytest.raises(BadInput, match=r"v.avi: is the same file as the left view"):
+        video_source((v, v))
+    textured = []
+    for name in ("l.avi", "r.avi"):
+        out = cv2.VideoWriter(str(tmp_path / name), cv2.VideoWriter_fourcc(*"MJPG"), 25.0, (64, 48))
+        for _ in range(3):
+            out.write(cv2.cvtColor(grey(), cv2.COLOR_GRAY2BGR))
+        out.release()
+        textured.append(str(tmp_path / name))
+    with pytest.raises(BadInput, match=r"r.avi frame 0: is the same picture as the left view .*l.avi frame 0"):
+        list(video_source(tuple(textured)).jobs)
+    # two dark frames alike (lights off, a capped lens): a pair with nothing in it
+    dark = [write(tmp_path / f"dark_{s}.png", np.zeros((48, 64), np.uint8)) for s in "LR"]
+    left, right, _ = read_pair(next(still_source([tuple(dark)]).jobs))
+    assert not left.any() and not right.any()
+
+
+@pytest.mark.parametrize("rg", [False, True])
+def test_a_video_cut_short_of_its_header_is_refused_not_surveyed_to_its_damaged_end(tmp_path, rg):
+    """A copy interrupted halfway: its header still declares every frame; the frames decoded stop
+    halfway, the last of them perhaps half decoded. Surveyed without a word before."""
+    whole = [make_video(tmp_path / f"{s}.avi", 30, rg=rg, size=(320, 240)) for s in ("lr" if not rg else "l")]
+    cut = []
+    for path in whole:
+        data = Path(path).read_bytes()
+        Path(path + ".cut.avi").write_bytes(data[:len(data) // 2])
+        cut.append(path + ".cut.avi")
+    jobs = video_source(tuple(cut)).jobs
+    with pytest.raises(BadInput, match=r"\.cut\.avi: ends at frame \d+, but its header declares 30 frames: cut short "
+                                       r"or damaged; --max-frames \d+ surveys the pairs before its end"):
+        list(jobs)
+    assert len(list(video_source(tuple(whole)).jobs)) == 30          # whole, it is read to its end

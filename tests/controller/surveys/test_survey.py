@@ -1,4 +1,5 @@
 """The survey library entry with stand-ins for the per-pair pipeline (tests/controller/surveys/standin.py)."""
+import csv
 import json
 import subprocess
 import sys
@@ -11,9 +12,10 @@ import numpy as np
 import pytest
 
 from controller.errors import BadInput
-from controller.surveys.frames import Source, still_source, video_source
+from controller.surveys.frames import Source, still_source
 from controller.surveys.species import survey_species
 from controller.surveys.survey import SurveyOptions, run_survey
+from controller.surveys.video_frames import video_source
 from devices.sim.stereo_rig import convergent_rig
 from tests.controller.surveys import standin
 
@@ -128,12 +130,12 @@ def test_a_calibration_for_other_frames_is_refused_by_name(tmp_path):
         run_survey(still_source(items), calib, options(f"{STANDIN}:dots"), str(tmp_path / "o.json"))
 
 
-def test_video_statistics_use_one_entry_per_track(tmp_path, monkeypatch):
-    """With vision.tracking present, a fish seen in many frames counts once, at its track's length."""
+def _stand_in_tracker(monkeypatch, ids_of):
+    """vision.tracking replaced: a tracker giving the fish of pair ``frame`` the ids ``ids_of(frame,
+    n)``; each track's length the median of its sightings."""
     class Track:
         def __init__(self, i, lengths):
-            self.id, self.length_cm, self.count = i, float(np.median(lengths)), len(lengths)
-            self.score = 0.5
+            self.id, self.length_cm, self.count, self.score = i, float(np.median(lengths)), len(lengths), 0.5
 
     class FishTracker:
         def __init__(self, fps):
@@ -141,7 +143,7 @@ def test_video_statistics_use_one_entry_per_track(tmp_path, monkeypatch):
             self.seen = {}
 
         def update(self, frame, fish):
-            ids = list(range(len(fish)))        # the stand-in's fish keep their order: same fish, same id
+            ids = ids_of(frame, len(fish))
             for i, f in zip(ids, fish, strict=True):
                 self.seen.setdefault(i, []).append(f.length_cm)
             return ids
@@ -150,24 +152,53 @@ def test_video_statistics_use_one_entry_per_track(tmp_path, monkeypatch):
             return [Track(i, v) for i, v in self.seen.items()]
 
     monkeypatch.setitem(sys.modules, "vision.tracking", types.SimpleNamespace(FishTracker=FishTracker, CONFIRMED=3))
+
+
+def _two_fish_videos(tmp_path, frames=6):
+    """(the rig, its two fish, two MJPG videos of them standing still) at 25 frames/s."""
     rig = convergent_rig()
     fish = standin.random_fish(rig, np.random.default_rng(3), 2)
     left, right = standin.draw_fish(rig, fish, colour=True)
     paths = []
     for side, img in (("l", left), ("r", right)):
         out = cv2.VideoWriter(str(tmp_path / f"{side}.avi"), cv2.VideoWriter_fourcc(*"MJPG"), 25.0, rig.image_size)
-        for _ in range(6):
+        for _ in range(frames):
             out.write(img)
         out.release()
         paths.append(str(tmp_path / f"{side}.avi"))
-    summary = run_survey(video_source(tuple(paths)), rig.calibration(), options(f"{STANDIN}:dots"),
-                         str(tmp_path / "o.json"))
+    return rig, fish, tuple(paths)
+
+
+def test_video_statistics_use_one_entry_per_track(tmp_path, monkeypatch):
+    """With vision.tracking present, a fish seen in many frames counts once, at its track's length."""
+    _stand_in_tracker(monkeypatch, lambda frame, n: list(range(n)))    # the stand-in's fish keep their order
+    rig, fish, paths = _two_fish_videos(tmp_path)
+    summary = run_survey(video_source(paths), rig.calibration(), options(f"{STANDIN}:dots"), str(tmp_path / "o.json"))
     doc = json.loads((tmp_path / "o.json").read_text())
     assert len(doc["fish"]) == 12 and doc["count"] == 2 == summary["count"]
     assert doc["statistics_per"] == "track" and {f["track"] for f in doc["fish"]} == {0, 1}
     truth = sorted(np.linalg.norm(s - f) / 10 for s, f in fish)
     assert sorted(doc["length_cm"]["histogram"]["edges"])[0] <= truth[0]
     assert doc["length_cm"]["mean"] == pytest.approx(np.mean(truth), rel=0.02)   # MJPG blurs the dots a little
+
+
+def test_entries_of_a_track_too_short_to_count_are_marked_outlier(tmp_path, monkeypatch):
+    """An unconfirmed track (fewer than CONFIRMED sightings at 5 pairs/s or more) is left out of the
+    statistics: its entries say so (`outlier`), in OUT.json and FISH.csv, so the count and the mean
+    can be rebuilt from the fish list."""
+    # the second fish is track 1 in two pairs, then track 2
+    _stand_in_tracker(monkeypatch, lambda frame, n: [0, 1 if frame < 2 else 2][:n])
+    rig, _, paths = _two_fish_videos(tmp_path)
+    run_survey(video_source(paths), rig.calibration(), options(f"{STANDIN}:dots"), str(tmp_path / "o.json"),
+               str(tmp_path / "f.csv"))
+    doc = json.loads((tmp_path / "o.json").read_text())
+    assert doc["count"] == 2 and doc["tracks"] == {"seen": 3, "min_sightings": 3}
+    assert {(f["track"], f["outlier"]) for f in doc["fish"]} == {(0, False), (1, True), (2, False)}
+    counted = [f["length_cm"] for f in doc["fish"] if not f["outlier"]]
+    assert len({f["track"] for f in doc["fish"] if not f["outlier"]}) == doc["count"] and counted
+    rows = list(csv.reader((tmp_path / "f.csv").read_text().splitlines()))
+    assert sorted((r[1], r[-1]) for r in rows[1:]) == sorted((str(f["track"]), str(int(f["outlier"])))
+                                                             for f in doc["fish"])
 
 
 def test_implausible_lengths_are_left_out_of_the_statistics_and_marked(tmp_path):
@@ -193,6 +224,25 @@ def test_implausible_lengths_are_left_out_of_the_statistics_and_marked(tmp_path)
     assert sorted(doc["rejected_lengths_cm"]) == sorted(wild)
     assert {f["length_cm"]: f["outlier"] for f in doc["fish"]} == {lv: lv in wild for lv in levels}
     assert recorded == [pytest.approx(kept)]
+
+
+def test_a_survey_whose_page_fails_puts_no_file_in_place_and_records_nothing(tmp_path):
+    from controller.surveys.frames import PairJob
+    (tmp_path / "o.json").write_text("last week's")
+    recorded, pages = [], []
+
+    def page(summary):
+        pages.append(summary["count"])
+        raise BadInput("x.png", None, "cannot write: disk full")
+    jobs = (PairJob(i, f"p{i}", left=np.full((4, 4), lv, np.uint8), right=np.full((4, 4), lv, np.uint8))
+            for i, lv in enumerate([10, 11, 12]))
+    opts = options(f"{STANDIN}:slow_by_level", record=lambda *a: recorded.append(a), before_commit=page)
+    with pytest.raises(BadInput, match="disk full"):
+        run_survey(Source(jobs, None), convergent_rig(image_size=(4, 4)).calibration(), opts,
+                   str(tmp_path / "o.json"), str(tmp_path / "f.csv"))
+    assert pages == [3] and recorded == []
+    assert (tmp_path / "o.json").read_text() == "last week's" and not (tmp_path / "f.csv").exists()
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["o.json"]
 
 
 def test_two_fish_are_never_judged_by_each_other(tmp_path):
