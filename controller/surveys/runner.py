@@ -188,6 +188,9 @@ def _outlive_no_survey(pid: int) -> None:
     os._exit(0)
 
 
+MANAGER_JOIN_S = 3.0        # wall: the most an abandoned pool's manager thread is waited for
+
+
 def _stop_workers(pool: ProcessPoolExecutor) -> None:
     """Terminate a pool's workers now, whatever they hold (3.14 says it: terminate_workers)."""
     if hasattr(pool, "terminate_workers"):
@@ -266,7 +269,14 @@ def measure_all(jobs: Iterable[PairJob], calib: StereoCalibration, setup: Survey
     finally:
         for f in pending:
             f.cancel()
+        manager = None
         if not finished:            # abandoned: the pairs in flight are not waited for
             _stop_workers(pool)
+            manager = getattr(pool, "_executor_manager_thread", None)
         pool.shutdown(wait=finished, cancel_futures=True)
+        if manager is not None:
+            # its workers gone, the pool's manager thread ends at once; joined (bounded) so that it
+            # has closed its wake-up pipe before the interpreter's exit writes to it: the two raced
+            # (CPython 3.12), and a Ctrl-C'd survey printed "Exception ignored ... Bad file descriptor"
+            manager.join(timeout=MANAGER_JOIN_S)
         ring.close()

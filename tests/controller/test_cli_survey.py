@@ -444,6 +444,8 @@ def test_a_signal_ends_a_survey_at_once_its_workers_with_it_and_leaves_the_old_o
     p, out, mark = hanging_survey
     p.send_signal(sig)
     assert _exit_or_stacks(p, 10) == 128 + sig      # not waiting an hour for the pairs in flight
+    said = p.stderr.read().decode()
+    assert "Traceback" not in said and "Exception ignored" not in said, said
     assert _until(lambda: not _marked(mark)), "a worker outlived its survey"
     # last week's files as they were (the CSV was truncated to its header here), no part-file left
     assert out.read_text() == "a survey's OUT.json of last week"
