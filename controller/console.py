@@ -51,6 +51,8 @@ def survey_line(survey: dict) -> str:
              for k in ("captured", "pairs", "fish", "visits")}
         line = (f"survey: {cur.get('tank', '?')} ({cur.get('why', '-')}) {n['captured']}/{n['pairs']} pairs, "
                 f"{n['fish']} fish, {n['visits']} visits")
+        if isinstance(cur.get("held"), str):          # not under way now: what holds it
+            line += f", held: {cur['held']}"
     asked = survey.get("asked")
     if isinstance(asked, list) and asked:
         line += "; asked: " + ", ".join(str(t) for t in asked)

@@ -288,6 +288,7 @@ class Overrides:
     async def feed(self, payload, by: str | None = None) -> dict:
         cmd = parse(Feed, payload, {"feeding": self.c.cfg.feeding})
         self._tank(cmd.tank)
+        self._holds_fish(cmd.tank)                # food into an emptied tank: wasted, and counted as fed
         if cmd.tank in self.c.store.paused_tanks():
             raise Refused(f"tank: {cmd.tank} is paused (resume it first)")
         robot = self._robot()
@@ -305,6 +306,8 @@ class Overrides:
     async def ration(self, payload, by: str | None = None) -> dict:
         cmd = parse(SetRation, payload)
         self._tank(cmd.tank)
+        if cmd.grams > 0:                         # (0 g stays possible: nothing to feed is what it says)
+            self._holds_fish(cmd.tank)
         log.warning("ration %s = %.0f g by %s: %s", cmd.tank, cmd.grams, by or cmd.operator, cmd.reason)
         self.c.rations.set(cmd.tank, self.c.clock.now(), cmd.grams, "operator")
         self.c.publish_ration(cmd.tank)
@@ -341,6 +344,11 @@ class Overrides:
         log.warning("resume %s by %s: %s", cmd.tank, by or cmd.operator, cmd.reason)
         return {"ok": True} if was else {"ok": True, "note": f"tank {cmd.tank} was not paused"}
 
+    def _holds_fish(self, tank: str) -> None:
+        """Refused when the tank's stock events took all its fish (harvested, moved out)."""
+        if self.c.rations.stock(tank) <= 0:
+            raise Refused(f"tank: {tank} holds no fish (its stock events took them all)")
+
     async def start_survey(self, payload, by: str | None = None) -> dict:
         """A weight survey of the tank now: the rail robot takes it once no demand waits, and leaves
         it for any demand that comes (controller/surveys/stop.py)."""
@@ -352,8 +360,7 @@ class Overrides:
             raise Refused(f"command: {NO_CAMERA}")
         if cmd.tank in self.c.store.paused_tanks():
             raise Refused(f"tank: {cmd.tank} is paused (resume it first)")
-        if self.c.rations.stock(cmd.tank) <= 0:     # harvested or moved out: a visit would count nothing
-            raise Refused(f"tank: {cmd.tank} holds no fish (its stock events took them all)")
+        self._holds_fish(cmd.tank)                # a visit would count nothing
         note = stops.request(cmd.tank)
         log.warning("start-survey %s by %s%s", cmd.tank, by or cmd.operator, f": {cmd.reason}" if cmd.reason else "")
         if note is None:      # asked: what will hold it back, said now (a bare ok read as "under way")

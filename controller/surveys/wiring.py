@@ -81,8 +81,13 @@ class SurveyStops:
 
     def snapshot(self) -> dict:
         cur = self.schedule.current
+        held = None if cur is None else self.schedule.held(cur.tank, set(self.schedule.store.paused_tanks()),
+                                                           self.clock.now())
+        # "held": why an unfinished survey waits (its tank paused, fasting, emptied), or None: an
+        # operator read a survey held by a pause as one under way
         return {"current": None if cur is None else {"tank": cur.tank, "pairs": cur.pairs, "captured": cur.captured,
-                                                     "fish": len(cur.lengths), "visits": cur.visits, "why": cur.why},
+                                                     "fish": len(cur.lengths), "visits": cur.visits, "why": cur.why,
+                                                     "held": held},
                 "asked": list(self.schedule.asked)}
 
     async def close(self) -> None:

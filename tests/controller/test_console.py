@@ -241,3 +241,11 @@ def test_a_survey_under_way_has_its_row_under_the_feeder_and_nothing_unknown_rea
     from controller.console import tank_lines
     assert tank_lines(surveying)[1] == "  survey: T4 (schedule) 12/40 pairs, 25 fish, 3 visits; asked: T2"
     assert "None" not in tank_lines(starting)[0]
+
+
+def test_a_survey_held_by_its_tank_says_so_not_under_way():
+    """Paused mid-survey, its session stays current: status read as a survey under way."""
+    from controller.console import survey_line
+    held = {"current": {**SURVEY["current"], "held": "paused"}, "asked": []}
+    assert survey_line(held) == "survey: T4 (schedule) 12/40 pairs, 25 fish, 3 visits, held: paused"
+    assert survey_line({**SURVEY, "current": {**SURVEY["current"], "held": None}}).endswith("3 visits; asked: T2")

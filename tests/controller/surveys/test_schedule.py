@@ -328,9 +328,33 @@ def test_start_survey_of_a_tank_with_no_fish_left_is_refused(tmp_path):
         stops.schedule.asked.clear()
         out += [await o.apply("transfer", {"tank": "T1", "count": 1, "to": "T2", "operator": "ana", "reason": "x"}),
                 await o.apply("start-survey", {"tank": "T1"}), await o.apply("start-survey", {"tank": "T2"})]
+        # nor food for it: an operator's feed, or a ration above 0 g (0 g says what is so)
+        out += [await o.apply("feed", {"tank": "T1", "grams": 40, "operator": "ana", "reason": "x"}),
+                await o.apply("ration", {"tank": "T1", "grams": 500, "operator": "ana", "reason": "x"}),
+                await o.apply("ration", {"tank": "T1", "grams": 0, "operator": "ana", "reason": "x"})]
         return out
-    harvested, one_left, moved, empty, other = asyncio.run(go())
+    harvested, one_left, moved, empty, other, feed, ration, nothing = asyncio.run(go())
     assert harvested["ok"] and moved["ok"] and one_left == {"ok": True} and other == {"ok": True}
-    assert empty == {"ok": False, "error": "tank: T1 holds no fish (its stock events took them all)"}
+    refused = {"ok": False, "error": "tank: T1 holds no fish (its stock events took them all)"}
+    assert empty == feed == ration == refused and nothing == {"ok": True}
     assert list(stops.schedule.asked) == ["T2"]
+    store.close()
+
+
+def test_a_survey_held_by_a_pause_says_so_in_the_status(tmp_path):
+    """Its session stays current while its tank is paused: status showed it as under way."""
+    store, farm, stops = _farm_with_stops(tmp_path)
+
+    async def go():
+        o = Overrides(farm)
+        await o.apply("start-survey", {"tank": "T1"})
+        assert stops.schedule.next(set(), farm.clock.now()).tank == "T1"
+        running = stops.snapshot()["current"]["held"]
+        await o.apply("pause", {"tank": "T1", "operator": "ana", "reason": "grading"})
+        paused = stops.snapshot()["current"]
+        await o.apply("resume", {"tank": "T1", "operator": "ana", "reason": "done"})
+        return running, paused, stops.snapshot()["current"]["held"]
+    running, paused, resumed = asyncio.run(go())
+    assert running is None and resumed is None
+    assert (paused["tank"], paused["held"]) == ("T1", "paused")
     store.close()
