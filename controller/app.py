@@ -19,7 +19,7 @@ from controller.bus import Bus, session_config
 from controller.config import Config, validate_section
 from controller.demand import Demand, DemandFilter, DemandParams, SensorFault, SensorRecovered, SlowFishUndetectable
 from controller.farm_setup import CLEANER_KINDS, build_device, check_farm
-from controller.feeding.estop import EstopLane, Latch, log_latch
+from controller.feeding.estop import PROVISIONAL, EstopLane, Latch, log_latch
 from controller.feeding.rations import Rations, load_species
 from controller.feeding.robot import FeedingRobot, Job
 from controller.hub_clock import HubClock
@@ -158,7 +158,7 @@ class Controller(Stopping):
     async def _scada(self) -> None:
         await self.scada.run()
 
-    def trip_estop(self, reason: str = "operator e-stop") -> None:
+    def trip_estop(self, reason: str = PROVISIONAL) -> None:
         """From any thread (the Zenoh thread that got the query): latch the devices now, before
         the loop hears of it. ``emergency_stop`` follows on the loop."""
         if self.lane is not None:

@@ -102,6 +102,11 @@ class DispenserLatch(Latch):
     unconfirmed_why = "its STATE does not show the latch"
 
 
+# The reason an e-stop override trips with on the Zenoh thread, before its payload is read; the
+# override's own reason (its operator and why) replaces it when it follows.
+PROVISIONAL = "operator e-stop"
+
+
 class EstopLane:
     def __init__(self, rail, dispenser, *more: Latch, confirm_within_s: float = 0.25, retry_s: float = 0.02,
                  recheck_s: float = 1.0):
@@ -165,6 +170,8 @@ class EstopLane:
                 self.reason = reason
                 if self._confirmed.done():
                     self._confirmed = concurrent.futures.Future()
+            elif self.reason == PROVISIONAL and reason != PROVISIONAL:
+                self.reason = reason               # the operator's own words, once their payload is read
             confirmed, gen = self._confirmed, self._gen
             if not self._closed and (self._thread is None or not self._thread.is_alive()):
                 self._thread = threading.Thread(target=self._run, name="estop-lane", daemon=True)

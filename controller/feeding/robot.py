@@ -122,6 +122,12 @@ class FeedingRobot(Recovering):
         the lane keeps retrying after that, and the ``estop`` alarm says which did not)."""
         confirmed = self.lane.trip(reason)   # token and latches first; the rest is bookkeeping
         self._stopped(reason)
+        # the loop may have heard of the trip first, under the provisional reason (an override's
+        # e-stop trips on the Zenoh thread before its payload is read): the alarm names the operator
+        text = self.lane.alarm_text(self.lane.reason or reason)
+        standing = self.alarms.active.get(("estop", "latched"))
+        if standing is not None and standing.text != text:
+            self.alarms.raise_("estop", text, "critical", kind="latched")
         done, _ = await asyncio.wait({asyncio.wrap_future(confirmed)}, timeout=CONFIRM_WAIT_S)
         return bool(done)
 

@@ -222,3 +222,30 @@ def test_trip_from_a_thread_without_a_loop_reaches_both_devices_before_it_return
     assert drive_threads == [caller] and dispenser_threads == [caller]
     assert confirmed.result(timeout=2.0) is True
     lane.close()
+
+
+def test_the_estop_alarm_names_the_operator_whose_override_the_loop_heard_of_first(tmp_path):
+    """An override's e-stop trips on the Zenoh thread under a provisional reason before its payload
+    is read; a robot loop that noticed the trip first raised the alarm with that reason, and the
+    operator's own never reached it ('emergency stop: operator e-stop' though the audit said H)."""
+    from controller.feeding.estop import PROVISIONAL
+
+    async def main():
+        async with rig(tmp_path) as r:
+            await r.until(lambda: r.robot.state == "idle", what="homed")
+            r.robot.lane.trip(PROVISIONAL)                        # the Zenoh thread, first
+            await r.until(lambda: r.robot.state == "estop", what="the loop heard of it")
+            first = r.alarms.active[("estop", "latched")].text
+            await r.robot.emergency_stop("operator H: the auger jammed")
+            return first, r.alarms.active[("estop", "latched")].text, r.robot.lane.reason
+    first, then, reason = run(main())
+    assert first.startswith(f"emergency stop: {PROVISIONAL}")
+    assert then.startswith("emergency stop: operator H: the auger jammed") and reason == "operator H: the auger jammed"
+
+
+def test_a_second_estop_does_not_rename_the_first():
+    lane = EstopLane(_DeafRail(), _DeafRail())
+    lane.trip("modbus e-stop by scada")
+    lane.trip("operator H")
+    assert lane.reason == "modbus e-stop by scada"
+    lane.close()
