@@ -18,8 +18,8 @@ class Stopping:
     async def stop(self) -> None:
         """Stop within a few wall seconds whatever the parts do: each step has a deadline,
         and a task that ignores its cancel is left behind, not waited for (on Python 3.11 a cancel
-        can be swallowed). Order: our tasks, actuators safe, devices closed, then the simulated
-        devices' child, the ledger and the bus."""
+        can be swallowed). Order: our tasks, actuators safe, devices closed, the ledger's last
+        rows, the bus, the simulated devices' child, then the stop's farm time and the ledger closed."""
         self.stopping.set()
         if self.watchdog is not None:
             self.watchdog.arm()
@@ -59,7 +59,6 @@ class Stopping:
                     self.overrides.flush_audit()  # this turn's audit rows
                 if hasattr(self, "alarms"):
                     self.alarms.flush()       # repeats counted since their last write
-                self.store.close()
             except Exception:
                 log.exception("ledger: closing failed")
         step("ledger")
@@ -69,10 +68,26 @@ class Stopping:
         if sim is not None:
             await shutdown.ended([sim], shutdown.SIM_STOP_S, "simulated devices' stop")
         step("sim")
+        if hasattr(self, "store"):
+            self._close_ledger()
         # a start refused for bad input says so in one line (the CLI's); nothing ran to report on
         report = log.info if hasattr(self, "store") else log.debug
         report("controller stopped in %.2f s (%s)", time.monotonic() - began,
                ", ".join(f"{name} {s:.2f}" for name, s in took.items()))
+
+    def _close_ledger(self) -> None:
+        """The farm time the stop ended at, then the ledger closed: a simulated farm restarted on it
+        carries on from there (its clock ran on through the stop, past the ledger's last row, and
+        the next run's first lines were dated before this one's last)."""
+        try:
+            self.store.mark_stopped(self.clock.now())
+        except Exception:  # noqa: BLE001 - an unwritable ledger is said already; the stop goes on
+            log.debug("ledger: the stop's farm time not written", exc_info=True)
+        finally:
+            try:
+                self.store.close()
+            except Exception:
+                log.exception("ledger: closing failed")
 
     def begin_stop(self, why: str) -> None:
         if not self.stopping.is_set():

@@ -113,6 +113,14 @@ MIGRATIONS = [
     # 7 -> 8: the ids of overrides carried out, so one sent again is not done twice
     # (controller.override_requests)
     MIGRATION_8,
+    # 8 -> 9: the farm time a controller's stop ended at (a restarted simulated farm carries on
+    # from it: its clock ran on through the stop, past the ledger's last row)
+    """
+    CREATE TABLE farm_clock (
+        id  INTEGER PRIMARY KEY CHECK (id = 1),
+        t   REAL NOT NULL
+    );
+    """,
 ]
 
 # every farm time the ledger keeps (tests/controller/test_store.py checks no table's is missed)
@@ -120,7 +128,7 @@ LEDGER_TIMES = (("demand", "t"), ("feed", "t_intent"), ("feed", "t_closed"), ("r
                 ("alarm", "t"), ("alarm_state", "t"), ("alarm_state", "first_t"), ("alarm_state", "last_t"),
                 ("alarm_state", "acked_t"), ("audit", "t"), ("stock_event", "t"), ("tank_pause", "t"),
                 ("cleaner", "t"), ("cleaner_trace", "t"), ("survey", "t"), ("survey_asked", "t"),
-                ("override_request", "t"))
+                ("override_request", "t"), ("farm_clock", "t"))
 
 
 def ledger_time(path: str | Path) -> float | None:
@@ -266,6 +274,10 @@ class Store(LedgerWrites, Records, CleanerRecords, SurveyRecords, RequestRecords
             if self._claim is not None:
                 os.close(self._claim)        # the lock goes with it
                 self._claim = None
+
+    def mark_stopped(self, t: float) -> None:
+        """The farm time a controller's stop ended at (``ledger_time`` reads it with the rest)."""
+        self._write("INSERT OR REPLACE INTO farm_clock (id, t) VALUES (1, ?)", (t,))
 
     # -- demands --------------------------------------------------------------
     def add_demand(self, tank: str, t: float, rate_hz: float) -> int:

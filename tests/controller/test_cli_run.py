@@ -125,6 +125,14 @@ def test_a_duration_shorter_than_a_slow_start_still_runs_the_controller(tmp_path
     r = fishfarm("run", "--config", str(cfg), "--no-console", "--duration", "0.01", timeout=60)
     assert r.returncode == 0, r.stderr
     assert "controller for site demo up" in r.stderr and "still starting" not in r.stderr
+    # the stop's farm time is the ledger's last: a restart carries on from it, not from before the stop
+    import sqlite3
+
+    from controller.store import ledger_time
+    db = sqlite3.connect(tmp_path / "ledger.db")
+    [(stopped,)] = db.execute("SELECT t FROM farm_clock").fetchall()
+    db.close()
+    assert ledger_time(tmp_path / "ledger.db") == stopped
 
 
 @pytest.mark.parametrize("args, said", [
