@@ -16,7 +16,6 @@ from __future__ import annotations
 import asyncio
 import logging
 
-from controller.feeding.estop import PROVISIONAL
 from controller.feeding.robot import CONFIRM_WAIT_S, Job
 from controller.ledger_writes import LedgerUnwritable
 from controller.override_models import (  # noqa: F401
@@ -87,7 +86,7 @@ class Overrides:
         # one queryable on override/*: an unknown command is refused with a reason, not left unanswered
         handlers = {name: self._from_zenoh(name) for name in COMMANDS}
         # estop also trips the latches on the Zenoh thread itself, before the payload is parsed
-        bus.overrides(handlers, lenient=("estop",), urgent={"estop": lambda: self.c.trip_estop(PROVISIONAL)},
+        bus.overrides(handlers, lenient=("estop",), urgent={"estop": self.c.trip_estop},
                       refused=self.refused_on_wire)
         bus.queryable("status", self.status, lenient=True)
         bus.queryable("history/*/*", self.history, selector=True)     # a range it cannot read: refused, not ignored

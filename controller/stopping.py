@@ -60,7 +60,7 @@ class Stopping:
                 if hasattr(self, "alarms"):
                     self.alarms.flush()       # repeats counted since their last write
             except Exception:
-                log.exception("ledger: closing failed")
+                log.exception("ledger: its last rows not written")
         step("ledger")
         if hasattr(self, "bus") and not await shutdown.in_thread(self.bus.close, shutdown.CLOSE_BUS_S):
             log.warning("bus: Zenoh session did not close in %g s; leaving it", shutdown.CLOSE_BUS_S)

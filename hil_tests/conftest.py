@@ -9,4 +9,3 @@ ROOT = Path(__file__).resolve().parents[1]
 @pytest.fixture(autouse=True)
 def _at_repository_root(monkeypatch):
     monkeypatch.chdir(ROOT)
-

@@ -52,7 +52,7 @@ def _check_directory(real: Path, path: str, option: str) -> None:
             os.rmdir(tempfile.mkdtemp(prefix=".fishfarm-trial-", dir=parent))
         except OSError as exc:
             raise BadInput(path, option, f"cannot write: {exc.strerror or exc}") from None
-    if parent == real.parent:
+    else:
         # tried for real: root passes every access() check, and /proc or a read-only mount still
         # refuse the file (a --plot there failed after an hour's survey, with OUT.json written)
         trial = beside(real)

@@ -126,7 +126,7 @@ class FeedingRobot(Recovering):
         # e-stop trips on the Zenoh thread before its payload is read): the alarm names the operator
         text = self.lane.alarm_text(self.lane.reason or reason)
         standing = self.alarms.active.get(("estop", "latched"))
-        if standing is not None and standing.text != text:
+        if standing is not None and standing.text != text:      # the provisional reason refined
             self.alarms.raise_("estop", text, "critical", kind="latched")
         done, _ = await asyncio.wait({asyncio.wrap_future(confirmed)}, timeout=CONFIRM_WAIT_S)
         return bool(done)
@@ -137,7 +137,9 @@ class FeedingRobot(Recovering):
         self.manual_asked = False             # a reset starts afresh: no hands-on asked before the stop
         if self.state != "estop":
             self.estop()
-            self.alarms.raise_("estop", self.lane.alarm_text(reason), "critical", kind="latched")
+            # the lane's reason: whoever tripped it first (a later e-stop does not rename it)
+            self.alarms.raise_("estop", self.lane.alarm_text(self.lane.reason or reason), "critical",
+                               kind="latched")
 
     def _lane_report(self, device: str, why: str | None) -> None:
         """From the lane's thread: a latch unconfirmed past the bound, or confirmed after all."""

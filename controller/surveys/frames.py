@@ -104,15 +104,11 @@ def split_rg(img: np.ndarray, where: str) -> tuple[np.ndarray, np.ndarray, str |
     return np.ascontiguousarray(red), np.ascontiguousarray(green), warn
 
 
-def check_same_size(left: np.ndarray, right: np.ndarray, left_name: str, right_name: str) -> None:
-    check_same_dims(left.shape[1::-1], right.shape[1::-1], left_name, right_name)
-
-
 def check_two_views(left: np.ndarray, right: np.ndarray, left_name: str, right_name: str) -> None:
     """Two views of one pair: the same size, and not one picture twice (the same file or video given
     for both: its 'fish' are triangulated from a zero disparity into lengths that were never there).
     Two uniform frames alike (lights off, a capped lens) are a pair with nothing in it, not a fault."""
-    check_same_size(left, right, left_name, right_name)
+    check_same_dims(left.shape[1::-1], right.shape[1::-1], left_name, right_name)
     if np.array_equal(left, right) and left.size and not (left == left[0, 0]).all():
         raise BadInput(right_name, None, f"is the same picture as the left view {left_name}: "
                                          "a stereo pair is two cameras' views")

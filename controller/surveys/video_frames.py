@@ -71,11 +71,14 @@ def _skip(caps: list[cv2.VideoCapture], cap: cv2.VideoCapture, path: str, frames
             raise BadInput(path, "--sync-offset", f"skips {frames} frames, but the video has {k}")
 
 
-def _cut_short(read: int, declared: int | None) -> bool:
-    """Whether a video that ended after ``read`` frames is shorter than its header says: a file cut
-    short (a copy interrupted, a recorder's disk full) whose last frame may be half decoded.
+def _check_whole(path: str, read: int, declared: int | None, done: int) -> None:
+    """A video that ended after ``read`` frames, shorter than its header says, is refused: a file
+    cut short (a copy interrupted, a recorder's disk full) whose last frame may be half decoded.
     A container that only estimates its count (from duration x rate) may say a frame or two more."""
-    return declared is not None and read < declared - max(2, declared // 200)
+    if declared is not None and read < declared - max(2, declared // 200):
+        held = f"; --max-frames {done - 1} surveys the pairs before its end" if done > 1 else ""
+        raise BadInput(path, None, f"ends at frame {read}, but its header declares {declared} frames: "
+                                   f"cut short or damaged{held}")
 
 
 def _video_jobs(caps: list[cv2.VideoCapture], paths: tuple[str, ...], every: int,
@@ -96,11 +99,7 @@ def _video_jobs(caps: list[cv2.VideoCapture], paths: tuple[str, ...], every: int
                 raise BadInput(paths[ended.index(True)], None, "no frames" + (" after --sync-offset" if offset else ""))
             if all(ended):
                 for k, count in enumerate(declared or ()):
-                    own = i + (offset if k == 1 else 0)
-                    if _cut_short(own, count):
-                        held = f"; --max-frames {done - 1} surveys the pairs before its end" if done > 1 else ""
-                        raise BadInput(paths[k], None, f"ends at frame {own}, but its header declares {count} "
-                                                       f"frames: cut short or damaged{held}")
+                    _check_whole(paths[k], i + (offset if k == 1 else 0), count, done)
                 if max_frames is not None:
                     raise BadInput(name, "--max-frames", f"the video ends after {i} frames ({done} pairs), "
                                                          f"before --max-frames {max_frames}")
