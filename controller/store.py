@@ -312,13 +312,17 @@ class Store(LedgerWrites, Records, CleanerRecords, SurveyRecords, RequestRecords
             return self.feed(feed_id)
 
     def mark_suspect(self, feed_id: str, note: str) -> Feed:
-        """An open intent whose outcome nobody can tell: kept against the ration, awaiting an operator."""
-        with self._lock:
-            cur = self._write("UPDATE feed SET phase = 'suspect', note = ? WHERE id = ? AND phase = 'intent'",
-                              (note, feed_id))
+        """An open intent whose outcome nobody can tell: kept against the ration, awaiting an
+        operator. Its demand is served by it, in the same commit: food may have gone in for that ask,
+        and fish still hungry ask again (serving the old ask again could feed it twice)."""
+        with self.transaction() as db:
+            cur = db.execute("UPDATE feed SET phase = 'suspect', note = ? WHERE id = ? AND phase = 'intent'",
+                             (note, feed_id))
             if cur.rowcount != 1:
                 raise RuntimeError(f"feed {feed_id} is not an open intent")
-            return self.feed(feed_id)
+            db.execute("UPDATE demand SET outcome = 'served', feed_id = ? WHERE id = "
+                       "(SELECT demand_id FROM feed WHERE id = ?) AND outcome = 'open'", (feed_id, feed_id))
+        return self.feed(feed_id)
 
     def settle_suspect(self, feed_id: str, grams: float, t: float, operator: str, reason: str) -> Feed:
         """An operator's word on a suspect feed: ``grams`` > 0 went in (done), 0 none (aborted)."""

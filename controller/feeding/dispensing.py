@@ -51,6 +51,14 @@ class AugerJammed(DeviceFault):
         self.feed = feed
 
 
+class OutcomeUnknown(DeviceFault):
+    """The run's outcome cannot be told from the counters; ``feed`` is held as suspect."""
+
+    def __init__(self, device: str, text: str, feed):
+        super().__init__(device, text)
+        self.feed = feed
+
+
 class Dispensing:
     def __init__(self, cfg, clock, dispenser, store, rations, alarms, publish):
         self.feeding, self.clock, self.dispenser = cfg.feeding, clock, dispenser
@@ -128,7 +136,8 @@ class Dispensing:
         state, result = await self._wait_run_end(feed, accepted=True)
         closed = self._close(result, demand_id, MEASURED if not state.jammed else "")
         if closed.phase == SUSPECT:
-            raise DeviceFault(self.dispenser.name, f"outcome of auger run {feed.tag} unknown: {result.note}")
+            raise OutcomeUnknown(self.dispenser.name, f"outcome of auger run {feed.tag} unknown: {result.note}",
+                                 closed)
         if closed.phase == "done" and not state.jammed and run_s > 1.0 and closed.grams > 0 \
                 and not self.halted():
             self._learn(closed.grams / run_s)

@@ -21,7 +21,7 @@ from dataclasses import dataclass
 
 from transitions import Machine
 
-from controller.feeding.dispensing import FULL_SHARE, AugerJammed, Dispensing, Withdrawn
+from controller.feeding.dispensing import FULL_SHARE, AugerJammed, Dispensing, OutcomeUnknown, Withdrawn
 from controller.feeding.estop import EstopLane, Halted, log_latch
 from controller.feeding.planner import Stop, next_stop
 from controller.feeding.recovery import Recovering
@@ -287,8 +287,8 @@ class FeedingRobot(Recovering):
         if portion > 0:
             try:
                 self._served(job, await self.dispensing.run(job.tank, portion, job.source, job.demand_id, job.t))
-            except AugerJammed as jam:        # part of a portion went in: the demand was served by it
-                self._served(job, jam.feed)
+            except (AugerJammed, OutcomeUnknown) as fault:   # food went in, or may have: the ask was served
+                self._served(job, fault.feed)
                 raise
             except Withdrawn:                 # paused on the way or at the tank: not fed after all
                 log.info("portion for %s not started: the tank was paused", job.tank)
@@ -360,7 +360,8 @@ class FeedingRobot(Recovering):
             raise Halted("e-stop tripped: command not sent")
 
     def _served(self, job: Job, feed) -> None:
-        if feed.phase == "done" and self.pending.get(job.tank) is job:
+        # a suspect run served its ask too: what it gave is unknown, and fish still hungry ask again
+        if feed.phase in ("done", "suspect") and self.pending.get(job.tank) is job:
             del self.pending[job.tank]
 
     def _finish(self, job: Job, outcome: str) -> None:

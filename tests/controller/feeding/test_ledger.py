@@ -66,10 +66,19 @@ def test_a_power_cut_mid_run_leaves_a_suspect_feed_counted_against_the_ration(tm
             assert ration.committed_g == pytest.approx(ration.fed_g + suspect.target_g)
             # the contract's phases only: the suspect feed is still an intent, flagged
             assert feed_messages(r)[-1] == {**feed_messages(r)[-1], "phase": "intent", "suspect": True}
-            # the fish still asking are served again by a run the counters do see, and the
-            # counters alarm clears once they count forward again
-            await r.until(lambda: r.store.db.execute("SELECT outcome FROM demand WHERE id=?", (demand,))
-                          .fetchone()[0] == "served", what="demand served after the cut")
+            # the cut run served its ask (food may have gone in): that ask is not fed again
+            assert tuple(r.store.db.execute("SELECT outcome, feed_id FROM demand WHERE id=?", (demand,))
+                         .fetchone()) == ("served", suspect.id)
+            assert "T1" not in r.robot.pending
+            runs = len(r.sim.physics.runs)
+            await r.clock.asleep(30.0)
+            assert len(r.sim.physics.runs) == runs and r.store.suspects() == [suspect]
+            # fish still hungry ask again: a run the counters do see, and the counters alarm
+            # clears once they count forward again
+            again = r.demand("T1")
+            await r.until(lambda: r.store.db.execute("SELECT outcome FROM demand WHERE id=?", (again,))
+                          .fetchone()[0] == "served", what="the new ask served")
+            assert len(r.sim.physics.runs) == runs + 1
             await r.until(lambda: COUNTERS not in r.alarms.active, what="counters alarm cleared")
             assert LEDGER in r.alarms.active                            # until an operator settles it
             # the operator settles it over the override
@@ -97,7 +106,7 @@ def test_a_restart_after_a_power_cut_never_books_food_as_aborted(tmp_path, when)
             if when == "after the run":             # cycles_before > 0: the counters go backwards
                 r.demand("T1")
                 await r.until(lambda: not r.robot.pending, what="first run")
-            r.demand("T1")
+            demand = r.demand("T1")
             await r.until(lambda: r.sim.physics.read().running, what="auger on")
             r.task.cancel()                         # the controller dies ...
             await asyncio.gather(r.task, return_exceptions=True)
@@ -113,6 +122,12 @@ def test_a_restart_after_a_power_cut_never_books_food_as_aborted(tmp_path, when)
             assert suspect.tag == last.tag and last.physical_g > 5
             assert [f for f in r.store.feeds() if f.phase == "aborted"] == []
             assert LEDGER in r.alarms.active
+            # its ask was served by it, and is not fed again by the new controller
+            assert tuple(r.store.db.execute("SELECT outcome, feed_id FROM demand WHERE id=?", (demand,))
+                         .fetchone()) == ("served", suspect.id)
+            runs = len(r.sim.physics.runs)
+            await r.clock.asleep(30.0)
+            assert len(r.sim.physics.runs) == runs and not r.robot.pending
             if when == "after the run":
                 assert COUNTERS in r.alarms.active
             else:                                   # 0 -> 0: only the load cell shows food went
@@ -141,18 +156,24 @@ def test_a_lost_ledger_does_not_reuse_the_tag_the_dispenser_remembers(tmp_path):
 
 
 def test_a_start_still_on_the_wire_at_restart_is_settled_as_run(tmp_path):
+    """At 2x the margin for a START still on the wire is its 5 farm s (2.5 wall s): the late START
+    lands 4.5 farm s inside it whatever the machine's load (at 100x the margin is 0.25 wall s, and
+    a loaded machine's connect and write took longer: the run was booked suspect)."""
     async def main():
-        async with rig(tmp_path, run=False) as r:
+        async with rig(tmp_path, run=False, speed=2.0) as r:
             state = await r.dispenser.read()
             feed = intent_now(r, state)
+            late = ModbusDispenser("late", DispenserConfig(kind="dispenser", driver="modbus", port=r.sim.port),
+                                   r.clock)
+            await late.open()
             r.robot = r.new_robot()
             r.task = asyncio.create_task(r.robot.run())
             # the dead controller's START lands after the run's planned end
-            await r.clock.asleep(feed.run_s + 2.0)
-            late = ModbusDispenser("late", DispenserConfig(kind="dispenser", driver="modbus", port=r.sim.port),
-                                   r.clock)
-            async with late:
+            await r.clock.asleep(feed.t_intent + feed.run_s + 0.5 - r.clock.now())
+            try:
                 await late.run_auger(feed.run_s, feed.tag)
+            finally:
+                await late.close()
             await r.until(lambda: r.robot.state == "idle", what="idle after restart")
             [closed] = r.store.feeds()
             assert closed.phase == "done" and len(r.sim.physics.runs) == 1
