@@ -33,7 +33,7 @@ from devices.sim.fish_stock import Fish
 from devices.sim.stereo_rig import StereoRig, convergent_rig
 
 __all__ = ["FishTruth", "SurveyScene", "underwater_rig", "surface_rig", "underwater_scene",
-           "surface_scene", "swim"]
+           "surface_scene", "swim", "underwater_water", "still_in"]
 
 
 @dataclass
@@ -100,6 +100,33 @@ def underwater_scene(rng: np.random.Generator, rig: StereoRig | None = None, n_f
     ``rng`` (see ``fish_conditions.UNDERWATER``); unknown names raise ValueError."""
     rig = underwater_rig() if rig is None else rig
     cond, textures = underwater_conditions(rng, rig, n_fish, conditions)
+    fishes, bubbles = populate(rng, rig, cond)
+    return _scene(rng, rig, fishes, bubbles, cond, textures)
+
+
+def underwater_water(rng: np.random.Generator, rig: StereoRig | None = None, **conditions) -> tuple[dict, dict]:
+    """The water of one camera visit (``underwater_scene``'s conditions, drawn once with their
+    textures: light, turbidity, clutter, background, each camera's noise bank and glints), for
+    the stills ``still_in`` draws in it: a camera held at one tank sees one water while the fish
+    come and go, and the textures are half a still's rendering."""
+    rig = underwater_rig() if rig is None else rig
+    return underwater_conditions(rng, rig, conditions.pop("n_fish", None), conditions)
+
+
+STILL_CONDITIONS = ("n_fish", "mean_length_cm", "length_cv")
+
+
+def still_in(rng: np.random.Generator, rig: StereoRig, water: tuple[dict, dict], **fish) -> SurveyScene:
+    """One still in ``water`` (``underwater_water``): fish placed anew (independent of the last
+    still's), ``fish`` setting this still's ``STILL_CONDITIONS``; the sensor noise cut afresh."""
+    unknown = sorted(set(fish) - set(STILL_CONDITIONS))
+    if unknown:
+        raise ValueError(f"still: {', '.join(unknown)} belong to the water, not a still; "
+                         f"a still sets {', '.join(STILL_CONDITIONS)}")
+    if int(fish.get("n_fish", 0)) < 0:
+        raise ValueError(f"still: n_fish must be >= 0, got {fish['n_fish']}")
+    cond, textures = water
+    cond = {**cond, **fish}
     fishes, bubbles = populate(rng, rig, cond)
     return _scene(rng, rig, fishes, bubbles, cond, textures)
 

@@ -15,7 +15,7 @@ from devices.errors import BadInput
 from devices.sections import section_model, validate_section
 from devices.sim.fish import SimFishParams, SimTank
 from devices.sim.fish_species import SPECIES
-from devices.sim.stereo_camera import SimStereoCameraParams, TankView, frame_size
+from devices.sim.stereo_camera import VISIT_GAP_S, SimStereoCameraParams, TankView, frame_size
 from devices.sim.stereo_rig import convergent_rig
 from devices.sim.stock import SimStock, SimStockParams
 from devices.sim.tower_camera import SimTowerCamera
@@ -121,6 +121,21 @@ def test_pairs_of_the_tank_under_the_carriage_come_through_videocapture(tmp_path
     assert [p.seq for p in pairs] == [1, 2, 3]
     seen = [s for s in view.seen if s[1] == "T1"]
     assert seen and all(w == pytest.approx(200.0, rel=0.1) for _, _, w in seen)     # the stock's fish
+
+
+def test_the_water_is_drawn_once_a_visit():
+    """A visit: frames of one tank at most VISIT_GAP_S apart. Another tank, empty water, a gap (the
+    stream closed between surveys) or a clock set back each draw new water."""
+    where = {"tank": "T1"}
+    tanks = {"T1": a_tank(100, 20.0), "T2": a_tank(100, 40.0)}
+    view = TankView(SimStereoCameraParams(width=W, height=H, fish_in_view=(1, 2)), tanks, lambda t: where["tank"])
+    visits = []
+    for tank, t in [("T1", 0.0), ("T1", 5.0), ("T1", 5.0 + VISIT_GAP_S), ("T2", 130.0), ("T2", 140.0), (None, 150.0),
+                    (None, 151.0), ("T2", 152.0), ("T2", 153.0 + VISIT_GAP_S + 0.5), ("T2", 100.0)]:
+        where["tank"] = tank
+        view.render(t)
+        visits.append(view.visits)
+    assert visits == [1, 1, 1, 2, 2, 3, 3, 4, 5, 6]
 
 
 def test_a_tank_that_keeps_its_fish_as_individuals_is_drawn_from_them():

@@ -6,7 +6,16 @@ import pytest
 from devices.sim.fish_body import build_mesh
 from devices.sim.fish_conditions import underwater_conditions
 from devices.sim.fish_paint import render_pair
-from devices.sim.fish_scene import SurveyScene, surface_rig, surface_scene, swim, underwater_rig, underwater_scene
+from devices.sim.fish_scene import (
+    SurveyScene,
+    still_in,
+    surface_rig,
+    surface_scene,
+    swim,
+    underwater_rig,
+    underwater_scene,
+    underwater_water,
+)
 from devices.sim.fish_species import SPECIES
 from devices.sim.fish_stock import clear_of, make_fish, segment_distances
 
@@ -295,3 +304,34 @@ def test_a_fish_s_body_segment_follows_its_pose_and_clearance_is_the_sampled_dis
     assert not clear_of(a, fishes[1:])
     got = segment_distances(*a.segment_radius()[:2], *(np.array([s[i] for s in segs[1:]]) for i in (0, 1)))
     assert np.allclose(got, [brute(a.segment_radius(), q) for q in segs[1:]])
+
+
+def test_stills_in_one_water_share_it_and_place_their_own_fish():
+    """A camera held at one tank: the water (background, light, turbidity) is the visit's, the fish
+    and the sensor noise each still's own."""
+    rig = underwater_rig(**TINY)
+    rng = np.random.default_rng(5)
+    waters = [underwater_water(rng, rig, species="sparus_aurata", bubbles=0, particles=0) for _ in range(2)]
+    same = [still_in(rng, rig, waters[0], n_fish=0) for _ in range(2)]
+    other = still_in(rng, rig, waters[1], n_fish=0)
+    noise = float(np.abs(same[0].left.astype(float) - same[1].left).mean())
+    assert noise < 0.5 * float(np.abs(same[0].left.astype(float) - other.left).mean())
+    assert not np.array_equal(same[0].left, same[1].left)             # the noise is each still's
+    fish = [still_in(rng, rig, waters[0], n_fish=6, mean_length_cm=20.0, length_cv=0.1) for _ in range(2)]
+    assert all(len(s.fish) == 6 for s in fish)
+    assert all(abs(f.length_cm / 20.0 - 1) < 0.6 for s in fish for f in s.fish)
+    centres = [np.array([f.snout_mm for f in s.fish]) for s in fish]
+    assert not np.allclose(centres[0], centres[1])                    # placed anew
+    drop = {"n_fish", "mean_length_cm", "length_cv"}
+    assert {k: v for k, v in fish[0].conditions.items() if k not in drop} == \
+        {k: v for k, v in same[0].conditions.items() if k not in drop}
+
+
+def test_a_still_sets_only_its_own_fish():
+    rig = underwater_rig(**TINY)
+    rng = np.random.default_rng(6)
+    water = underwater_water(rng, rig)
+    with pytest.raises(ValueError, match="visibility_mm belong to the water"):
+        still_in(rng, rig, water, n_fish=2, visibility_mm=3000.0)
+    with pytest.raises(ValueError, match="n_fish must be >= 0"):
+        still_in(rng, rig, water, n_fish=-1)
