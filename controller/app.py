@@ -55,6 +55,7 @@ class Controller(Stopping):
         self.tasks: list[asyncio.Task] = []
         self.stopping = asyncio.Event()
         self.unknown_sensors: set[str] = set()
+        self.contacts_carried = {"malformed": 0, "lost": 0}   # counted by hub links since replaced
         self.robot: FeedingRobot | None = None
         self.cleaner = None                   # the pond cleaner (controller/cleaning), with [cleaning]
         self.lane: EstopLane | None = None
@@ -367,6 +368,8 @@ class Controller(Stopping):
                     await asyncio.wait_for(fresh.close(), shutdown.CLOSE_DEVICE_S)
                 return
             self.devices[name] = fresh
+            for count in self.contacts_carried:
+                self.contacts_carried[count] += getattr(device, count, 0)
             self.contacts = fresh
             log.info("%s reconnected after %d attempt(s)", name, attempt + 1)
             return

@@ -40,6 +40,8 @@ def farm_status(c) -> dict:
     elif c.cfg.cleaning is not None:
         out["cleaner"] = {"t": c.clock.iso(now), "state": "starting", "x_m": None, "y_m": None,
                           "heading_rad": None, "coverage": None}
+    if getattr(c, "contacts", None) is not None:
+        out["contacts"] = contact_lines(c)
     stops = getattr(c, "survey_stops", None)
     if stops is not None:                 # the survey under way (tank, pairs so far) and those asked for
         out["survey"] = stops.snapshot()
@@ -48,6 +50,15 @@ def farm_status(c) -> dict:
         out["suspect"] = [{"id": f.id, "tank": f.tank, "date": f.date, "t": c.clock.iso(f.t_intent),
                            "target_g": round(f.target_g, 1), "note": f.note} for f in suspects]
     return out
+
+
+def contact_lines(c) -> dict:
+    """The contact hub's line health since the controller started, across reconnections: lines
+    rejected (noise, bad checksum) and missing by sequence number, sensors nobody configured. A
+    noisy line shows here before fish go unheard."""
+    hub, carried = c.contacts, c.contacts_carried
+    return {"device": hub.name, "unknown_sensors": sorted(c.unknown_sensors),
+            **{count: carried[count] + getattr(hub, count, 0) for count in carried}}
 
 
 def _weights(c, tank_id: str, now: float, ration=None) -> dict:

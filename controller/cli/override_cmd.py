@@ -217,6 +217,13 @@ def render_status(snapshot: dict) -> str:
     survey = snapshot.get("survey")
     if isinstance(survey, dict):
         lines.append(survey_line(survey))
+    contacts = snapshot.get("contacts")
+    if isinstance(contacts, dict) and (contacts.get("malformed") or contacts.get("lost")
+                                       or contacts.get("unknown_sensors")):
+        unknown = contacts.get("unknown_sensors")
+        lines.append(f"contacts: {_num(contacts.get('malformed'))} lines rejected, {_num(contacts.get('lost'))} "
+                     "missing" + (f"; unknown sensors {', '.join(map(str, unknown))}"
+                                  if isinstance(unknown, list) and unknown else ""))
     alarms = [a for a in snapshot.get("alarms") or [] if isinstance(a, dict) and a.get("active", True)]
     for a in alarms:
         lines.append(f"ALARM {a.get('severity', '?')} {a.get('source', '')}: {a.get('text', '')}".rstrip())

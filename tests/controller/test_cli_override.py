@@ -197,6 +197,12 @@ def test_parse_args_types():
 
 def test_status_table_reads_the_snapshot():
     assert render_status(SNAPSHOT) == TABLE
+    # the hub's line health shows once anything is wrong with it
+    clean = {"device": "contacts", "unknown_sensors": [], "malformed": 0, "lost": 0}
+    assert render_status({**SNAPSHOT, "contacts": clean}) == TABLE
+    noisy = {**clean, "malformed": 12, "lost": 3, "unknown_sensors": ["T9-a"]}
+    assert "contacts: 12 lines rejected, 3 missing; unknown sensors T9-a" in render_status(
+        {**SNAPSHOT, "contacts": noisy})
     # a snapshot it does not fully know still renders, with dashes
     sparse = render_status({"tanks": {"T9": {"fed_g": 3}}, "feeder": "?"})
     assert "T9" in sparse and "3/-" in sparse
