@@ -13,6 +13,7 @@ import functools
 import inspect
 import json
 import logging
+import math
 import re
 from collections.abc import Awaitable, Callable, Iterable, Mapping
 
@@ -33,10 +34,38 @@ _CHUNK = re.compile(r"^[^/*$#?]+$")  # one concrete key chunk: no wildcard, no s
 
 
 def encode(payload: dict) -> bytes:
-    """JSON, UTF-8. NaN/inf are refused: they are not JSON and other clients would choke on them."""
+    """JSON, UTF-8. NaN/inf are not JSON and other clients would choke on them: a figure that is
+    one goes as null, logged once by where it is (one tank's NaN figure had every status reply
+    refused, for the whole farm)."""
     if not isinstance(payload, dict):
         raise TypeError(f"bus payloads are JSON objects, not {type(payload).__name__}")
-    return json.dumps(payload, ensure_ascii=False, allow_nan=False, separators=(",", ":")).encode()
+    try:
+        return json.dumps(payload, ensure_ascii=False, allow_nan=False, separators=(",", ":")).encode()
+    except ValueError as exc:
+        if "Out of range float" not in str(exc):
+            raise
+    where: list[str] = []
+    clean = _finite(payload, "", where)
+    for path in where:
+        if path not in _NOT_FINITE_SEEN:
+            _NOT_FINITE_SEEN.add(path)
+            log.warning("a figure that is not a number sent as null: %s", path or "(the payload)")
+    return json.dumps(clean, ensure_ascii=False, allow_nan=False, separators=(",", ":")).encode()
+
+
+_NOT_FINITE_SEEN: set[str] = set()
+
+
+def _finite(value, path: str, where: list[str]):
+    """``value`` with every NaN or infinite float as None; their paths appended to ``where``."""
+    if isinstance(value, float) and not math.isfinite(value):
+        where.append(path)
+        return None
+    if isinstance(value, dict):
+        return {k: _finite(v, f"{path}.{k}" if path else str(k), where) for k, v in value.items()}
+    if isinstance(value, list | tuple):
+        return [_finite(v, f"{path}[{i}]", where) for i, v in enumerate(value)]
+    return value
 
 
 def decode(data: zenoh.ZBytes | bytes | None) -> dict:

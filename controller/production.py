@@ -171,9 +171,11 @@ def _feed_fit(cfg, store, tank_id: str, fit: GrowthFit, rows) -> FeedFit | None:
     return feed
 
 
-def fitted_weight(cfg, store, tank_id: str, t: float) -> tuple[float, dict, str] | None:
+def fitted_weight(cfg, store, tank_id: str, t: float) -> tuple[float, dict, str] | None | str:
     """The tank's mean weight at ``t`` from its growth fit (``[feeding] growth_model``), the fit's
-    summary and how it was had; None without a measured growth (fewer than two surveys)."""
+    summary and how it was had; None without a measured growth (fewer than two surveys a day or
+    more apart); a string saying why, for a fit that measures the fish losing weight while fed (a
+    survey that read wrong: extrapolated, it shrank a tank's ration towards nothing)."""
     got = tank_growth(store, tank_id, t, cfg.feeding.growth_window_d)
     if got is None or not got[0].measured:
         return None
@@ -181,10 +183,14 @@ def fitted_weight(cfg, store, tank_id: str, t: float) -> tuple[float, dict, str]
     if cfg.feeding.growth_model == "feed":
         feed = _feed_fit(cfg, store, tank_id, fit, rows)
         if feed is not None:
+            if feed.fcr is None:
+                return f"the surveys' growth not used: fish fed {feed.summary()['feed_g'] / 1000:.1f} kg read lighter"
             [now] = _accounts(cfg, store, tank_id, feed.first.t, [t], fit.weight_g)
             if now.stock > 0 and feed.biomass_g(now) > 0:
                 return (feed.weight_g(now), feed.summary(now),
-                        f"{feed.fcr or math.inf:.2f} FCR fitted to {feed.surveys} surveys and the feed since")
+                        f"{feed.fcr:.2f} FCR fitted to {feed.surveys} surveys and the feed since")
+    if fit.sgr_pct <= 0 and store.fed_between(tank_id, fit.t_first, fit.t_last) > 0:
+        return f"the surveys' growth not used: {fit.sgr_pct:.2f} %/day while fed"
     return fit.weight_g(t), fit.summary(t), f"{fit.sgr_pct:.2f} %/day fitted to {fit.surveys} surveys"
 
 

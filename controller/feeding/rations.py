@@ -192,15 +192,16 @@ class Rations:
         source = "survey" if age_d <= self.cfg.feeding.survey_max_age_d else "projected"
         when = f"survey of {self.date(s.t)} ({s.count} fish, mean {s.mean_weight_g:.1f} g)"
         fitted = fitted_weight(self.cfg, self.store, tank_id, t)
-        if fitted is not None:
+        if isinstance(fitted, tuple):
             now, growth, how = fitted
         else:                           # one survey: the chart's growth, class by class as the fish grow
             now = project_weight(s.mean_weight_g, max(0.0, age_d), temp, table)
+            why = "" if fitted is None else f" ({fitted})"
             if now is None:
-                return weights, source, f"{when}, {age_d:.1f} days old; no growth known: not projected", None
+                return weights, source, f"{when}, {age_d:.1f} days old; no growth known: not projected{why}", None
             one = Weighing(s.t, s.mean_weight_g, s.cv_pct, s.count)
             growth, how = {"model": "chart", "weight_g": now, "weight_ci_pct": 100 * math.expm1(Z95 * one.log_se),
-                           "surveys": 1, "measured": False}, "the feeding chart's growth"
+                           "surveys": 1, "measured": False}, f"the feeding chart's growth{why}"
         return (weights * now / s.mean_weight_g, source,
                 f"{when}, {age_d:.1f} days old: {now:.1f} g (±{growth['weight_ci_pct']:.1f} %) today at {how}",
                 growth)

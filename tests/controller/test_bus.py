@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import asyncio
 import json
+import logging
 import os
 import queue
 import threading
@@ -11,6 +12,7 @@ import time
 import pytest
 import zenoh
 
+from controller import bus_serve
 from controller.bus import Bus, BusUnreachable, decode, encode
 from controller.config import BusConfig
 from controller.errors import BadInput
@@ -61,8 +63,22 @@ def test_codec_round_trip_and_refusals():
                      (b'{"x": NaN}', "not JSON")]:
         with pytest.raises(ValueError, match=why):
             decode(bad)
-    with pytest.raises(ValueError):
-        encode({"grams": float("nan")})
+
+
+
+def test_a_figure_that_is_not_a_number_goes_as_null_logged_once(caplog, monkeypatch):
+    """One tank's NaN figure had every status reply refused, for the whole farm."""
+    monkeypatch.setattr(bus_serve, "_NOT_FINITE_SEEN", set())
+    nan, inf = float("nan"), float("inf")
+    payload = {"grams": nan, "tanks": {"T1": {"sgr": -inf, "curve": [[1.0, nan], [2.0, 3.0]]}}, "ok": 1.5}
+    with caplog.at_level(logging.WARNING, "fishfarm.bus"):
+        assert decode(encode(payload)) == {"grams": None, "ok": 1.5,
+                                           "tanks": {"T1": {"sgr": None, "curve": [[1.0, None], [2.0, 3.0]]}}}
+        encode(payload)
+    said = [r.getMessage() for r in caplog.records]
+    assert sorted(said) == sorted(f"a figure that is not a number sent as null: {p}"
+                                  for p in ("grams", "tanks.T1.sgr", "tanks.T1.curve[0][1]"))
+    assert payload["grams"] != payload["grams"]            # the caller's payload untouched
 
 
 # ---------------------------------------------------------------- publish / subscribe

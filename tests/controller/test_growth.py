@@ -1,4 +1,5 @@
 """The growth fit (controller/growth.py) and its window in the ledger (controller/production.py)."""
+import json
 import math
 
 import numpy as np
@@ -192,3 +193,55 @@ def test_without_feed_in_the_ledger_the_feed_model_gives_way_to_a_constant_sgr(t
     weight, summary, how = fitted_weight(cfg, store, "T1", T + 10 * DAY)
     assert summary["model"] == "sgr" and "%/day" in how
     assert weight == pytest.approx(23.0 * (23.0 / 20.0) ** (3 / 7))
+
+
+def test_surveys_less_than_a_day_apart_measure_no_growth():
+    """Two surveys a minute apart read 752 and 675 g: fitted, an SGR of -13,892 %/day."""
+    fit = fit_growth([Weighing(T, 752.0, 20.0, 7), Weighing(T + 67.0, 675.0, 20.0, 7)], prior_sgr_pct=1.0)
+    assert not fit.measured and fit.sgr_pct == pytest.approx(1.0)
+    assert 675 < fit.weight_g(T + 67.0) < 752
+    fit = fit_growth([Weighing(T, 20.0, 20.0, 30), Weighing(T + 1.5 * DAY, 20.6, 20.0, 30)])
+    assert fit.measured
+
+
+def _fed_daily(store, cfg, days: int, grams: float) -> None:
+    for d in range(days):
+        f = store.add_intent(tank="T1", date=f"d{d}", t=T + d * DAY + 3600, target_g=grams, run_s=1,
+                             cycles_before=0, source="t")
+        store.close_feed(f.id, "done", grams, T + d * DAY + 3600)
+
+
+@pytest.mark.parametrize("model", ["feed", "sgr"])
+def test_fish_fed_yet_read_lighter_are_not_projected_lighter_still(tmp_path, model):
+    """A survey read 20 % heavy, an honest one a week later, the fish fed throughout: the fit
+    measured fed fish losing weight (a negative FCR) and its ration shrank each day they were fed
+    (27 -> 22.5 g planned over three weeks while the fish grew to 48 g). The newest survey grown at
+    the chart's rate is planned on instead, and the ration says why."""
+    from controller.config import load_config
+    from controller.feeding.rations import Rations, load_species
+    cfg = load_config("config/farm.toml")
+    cfg = cfg.model_copy(update={"feeding": cfg.feeding.model_copy(update={"growth_model": model})})
+    store = Store(tmp_path / "h.db")
+    for d, w in ((0, 24.0), (7, 23.0)):
+        store.add_survey("T1", T + d * DAY, "sparus_aurata", f"s{d}", [10.0] * 4, [w * f for f in (0.8, 0.9, 1.1, 1.2)])
+    _fed_daily(store, cfg, 21, 900.0)
+    rations = Rations(cfg, load_species(), store)
+    weights = [rations.plan("T1", T + d * DAY + 7200).mean_weight_g for d in (8, 14, 20)]
+    assert weights[0] >= 23.0 and weights[0] < weights[1] < weights[2]        # growing from the newest
+    assert "the surveys' growth not used" in rations.plan("T1", T + 20 * DAY).note
+
+
+def test_a_survey_of_a_tank_whose_fish_all_died_makes_no_nan(tmp_path):
+    """A survey recorded after a mortality took every fish: the feed fit divided by a stock of 0,
+    and the NaN figures failed every status reply and the report."""
+    from controller.config import load_config
+    from controller.production import tank_figures
+    cfg = load_config("config/farm.toml")
+    store = Store(tmp_path / "z.db")
+    stock = cfg.tank("T1").stock
+    store.add_survey("T1", T, "sparus_aurata", "s0", [10.0] * 4, [18.0, 19.0, 20.0, 21.0])
+    _fed_daily(store, cfg, 3, 500.0)
+    store.add_stock_event(t=T + 3 * DAY, tank="T1", kind="mortality", count=stock, to_tank=None, who="t")
+    store.add_survey("T1", T + 5 * DAY, "sparus_aurata", "s5", [10.0] * 4, [19.0, 20.0, 21.0, 22.0])
+    figures = tank_figures(cfg, store, "T1", target_g=300.0)
+    json.dumps(figures, allow_nan=False)                  # every figure a number or null
