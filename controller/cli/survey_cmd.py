@@ -93,9 +93,8 @@ class _Progress:
 
 
 def _recorder(config_path: str, tank_id: str, species: str, json_path: str):
-    """Checked before any pair is measured: the tank exists and holds ``species``, the ledger opens."""
-    import time
-
+    """Checked before any pair is measured: the tank exists and holds ``species`` (and fish), the
+    ledger opens."""
     from controller.config import load_config
     from controller.store import Store
     cfg = load_config(config_path)
@@ -104,17 +103,40 @@ def _recorder(config_path: str, tank_id: str, species: str, json_path: str):
         raise BadInput(config_path, "--tank", f"no tank {tank_id!r} (tanks: {', '.join(t.id for t in cfg.tanks)})")
     if tank.species != species:
         raise BadInput(config_path, "--tank", f"{tank_id} holds {tank.species}, not {species}")
-    Store(cfg.store.path).close()
+    store = Store(cfg.store.path)
+    try:
+        _holds_fish(store, tank, config_path, _farm_now(cfg.store.path))
+    finally:
+        store.close()
 
     def record(lengths, weights, scores) -> None:
         store = Store(cfg.store.path)
         try:
             # OUT.json as the controller will open it, from whatever folder it runs in
-            store.add_survey(tank_id, time.time(), species, os.path.abspath(json_path), lengths, weights, scores)
+            store.add_survey(tank_id, _farm_now(cfg.store.path), species, os.path.abspath(json_path), lengths,
+                             weights, scores)
         finally:
             store.close()
     record.ledger = cfg.store.path
     return record
+
+
+def _farm_now(ledger) -> float:
+    """The farm's time now: the wall clock's, or the ledger's latest entry where a controller on a
+    sped-up clock has written ahead of it (a survey stamped with the wall's time landed 18 farm hours
+    in the past at --speed 600, before the stock events it follows)."""
+    import time
+
+    from controller.store import ledger_time
+    return max(time.time(), ledger_time(ledger) or 0.0)
+
+
+def _holds_fish(store, tank, config_path: str, t: float) -> None:
+    """A survey of a tank whose stock events took all its fish describes no fish the rations feed
+    (start-survey refuses it too; its NaN once failed every status reply)."""
+    from controller.production import stock_at
+    if stock_at(tank.stock, [dict(e) for e in store.stock_events()], tank.id, t) <= 0:
+        raise BadInput(config_path, "--tank", f"{tank.id} holds no fish (its stock events took them all)")
 
 
 class _WorkersType(click.ParamType):

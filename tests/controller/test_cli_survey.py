@@ -311,6 +311,31 @@ def test_a_survey_recorded_for_a_tank_sets_its_ration(farm, tmp_path):
     assert bad.returncode == 2 and "T1 holds dicentrarchus_labrax, not sparus_aurata" in bad.stderr
 
 
+def test_a_recorded_survey_is_stamped_with_the_farm_s_time_and_an_emptied_tank_refused(farm, tmp_path):
+    """A controller on a sped-up clock writes the ledger ahead of the wall: a survey stamped with the
+    wall's time landed 18 farm hours back, before the stock events it follows. A tank whose stock
+    events took all its fish is refused before anything is measured, as start-survey refuses it."""
+    import time
+
+    from controller.store import Store
+    d, _ = farm
+    cfg_path, raw = _farm_toml(tmp_path)
+    ahead = time.time() + 30 * 86400.0                   # where a farm at --speed 600 may be
+    store = Store(tmp_path / "ledger.db")
+    store.add_stock_event(t=ahead, tank="T3", kind="mortality", count=5, to_tank=None, who="t")
+    store.add_stock_event(t=ahead, tank="T4", kind="harvest", count=raw["tanks"][3]["stock"], to_tank=None, who="t")
+    store.close()
+    ok = run(*common(d, "--dir", d / "pairs", "--json", tmp_path / "a.json", "--config", cfg_path, "--tank", "T3"))
+    assert ok.returncode == 0, ok.stderr
+    bad = run(*common(d, "--dir", d / "pairs", "--json", tmp_path / "b.json", "--config", cfg_path, "--tank", "T4"))
+    one_line_exit_2(bad, "--tank", "T4 holds no fish")
+    assert not (tmp_path / "b.json").exists()
+    store = Store(tmp_path / "ledger.db")
+    [s] = store.surveys("T3")
+    assert ahead <= s.t < ahead + 60 and store.surveys("T4") == []
+    store.close()
+
+
 def test_a_survey_that_fails_records_nothing_and_a_recorded_one_names_its_out_json_whole(farm, tmp_path):
     """A page (--plot) that cannot be written failed the survey after it was recorded and OUT.json put
     in place: a retry recorded it twice. And OUT.json given relative was recorded relative: a
