@@ -112,8 +112,10 @@ class Dispensing:
         self._seen = seen
         self.store.see_counters(self.dispenser.name, state.cycles, state.total_grams, self.clock.now())
 
-    async def run(self, tank: str, grams: float, source: str, demand_id: int | None, raised_t: float):
-        """One portion into the tank under the chute. Returns the closed feed."""
+    async def run(self, tank: str, grams: float, source: str, demand_id: int | None, raised_t: float,
+                  on_intent=None):
+        """One portion into the tank under the chute. Returns the closed feed. ``on_intent(feed)``
+        is told the intent as soon as it is written, before the START."""
         state = await self.read()
         if state.refilling:                       # a gate left open (a crash mid-refill) blocks the auger
             await self.dispenser.set_refill(False)
@@ -129,6 +131,8 @@ class Dispensing:
                                      cycles_before=state.cycles, source=source, demand_id=demand_id,
                                      hopper_before=state.hopper_g, device_tags=(state.last_tag, state.run_tag))
         self._publish_feed(feed)
+        if on_intent is not None:
+            on_intent(feed)
         self._check_token("START")                # right before it, nothing awaited between
         log.info("auger on for %s: %.1f g, %.1f s after the ask", tank, grams, now - raised_t)
         await self.dispenser.run_auger(run_s, feed.tag)

@@ -57,6 +57,7 @@ class Job:
     demand_id: int | None
     source: str = "demand"       # demand | operator
     grams: float | None = None   # operator's asked portion
+    intent: str | None = None    # the feed row written for it: once settled, the job is done whatever failed
 
 
 CONFIRM_WAIT_S = 1.0    # wall seconds an e-stop's caller waits for both latches to confirm
@@ -240,6 +241,10 @@ class FeedingRobot(Recovering):
         for feed in await self.dispensing.settle(waiting):
             if feed.demand_id in waiting:
                 self._served(waiting[feed.demand_id], feed)
+        for job in [j for j in self.pending.values() if j.intent is not None]:
+            # an operator's portion has no demand to close: its own intent says whether it went in
+            # (a START whose reply was lost, settled done from the counters, was fed again)
+            self._served(job, self.store.feed(job.intent))
         self.homed()
 
     async def _idle(self) -> None:
@@ -286,7 +291,8 @@ class FeedingRobot(Recovering):
         portion = self.dispensing.portion(job.tank, job.grams)   # the day may have turned on the way
         if portion > 0:
             try:
-                self._served(job, await self.dispensing.run(job.tank, portion, job.source, job.demand_id, job.t))
+                self._served(job, await self.dispensing.run(job.tank, portion, job.source, job.demand_id, job.t,
+                                                            on_intent=lambda feed: setattr(job, "intent", feed.id)))
             except (AugerJammed, OutcomeUnknown) as fault:   # food went in, or may have: the ask was served
                 self._served(job, fault.feed)
                 raise

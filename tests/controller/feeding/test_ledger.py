@@ -6,10 +6,12 @@ from types import SimpleNamespace
 import pytest
 
 from controller.feeding.dispensing import COUNTERS, LEDGER
+from controller.feeding.robot import Job
 from controller.overrides import Overrides
 from controller.store import Store
 from devices.dispenser.modbus_dispenser import Config as DispenserConfig
 from devices.dispenser.modbus_dispenser import ModbusDispenser
+from devices.errors import DeviceTimeout
 from hil_tests.farm import without_cleaner  # the demo farm's feeder alone
 from tests.controller.feeding.rig import rig
 
@@ -246,3 +248,42 @@ def test_the_simulated_dispenser_forgets_its_counters_on_a_power_cycle():
     dp.start_run(1.0, 7)                      # the tag it forgot is accepted again
     clock.advance(2.0)
     assert dp.read().cycles == 1 and dp.read().last_tag == 7
+
+
+class LostStartReply:
+    """The real dispenser driver whose first START lands on the PLC but whose reply never comes
+    back (the driver gave up on a slow PLC: DeviceTimeout after the START ran)."""
+
+    def __init__(self, real):
+        self.real, self.lost = real, 0
+
+    def __getattr__(self, name):
+        return getattr(self.real, name)
+
+    async def run_auger(self, run_s, tag):
+        await self.real.run_auger(run_s, tag)
+        if not self.lost:
+            self.lost += 1
+            raise DeviceTimeout(self.real.name, "no reply within 1.0 s (1 resends)")
+
+
+@pytest.mark.parametrize("source", ["operator", "demand"])
+def test_a_portion_whose_start_reply_was_lost_is_fed_once(tmp_path, source):
+    """The START ran, its reply was lost: the fault's recovery settles the intent done from the
+    counters, and the job is over. An operator's portion, with no demand to close, was fed again:
+    two auger runs, two done rows, for one request."""
+    async def main():
+        async with rig(tmp_path, wrap=LostStartReply) as r:
+            await r.until(lambda: r.robot.state == "idle", what="homed")
+            if source == "operator":
+                r.robot.on_demand(Job("T1", r.clock.now(), None, "operator", 20.0))
+            else:
+                r.demand("T1")
+            await r.until(lambda: r.dispenser.lost, what="the START's reply lost")
+            await r.until(lambda: not r.robot.pending and r.robot.state == "idle" and not r.store.open_intents(),
+                          what="the portion settled")
+            await r.clock.asleep(60.0)
+            feeds = r.store.feeds()
+            assert [f.phase for f in feeds] == ["done"] and len(r.sim.physics.runs) == 1
+            assert feeds[0].grams == pytest.approx(r.sim.physics.runs[0].measured_g)
+    run(main())
