@@ -4,7 +4,9 @@ the same id again gets that reply, marked ``"repeat": true``, and nothing is don
 client whose reply was lost (a timeout, a dropped link) can send its mortality, feed or transfer
 again without booking it twice. A repeat that arrives while the first is still being carried out
 waits for the first's reply. Only accepted commands are remembered: a refusal ("the controller is
-starting", "more than the fish in the tank") may be sent again under its id and is tried anew.
+starting", "more than the fish in the tank") may be sent again under its id and is tried anew. An
+id already given to a command with other values (``count`` 6 where it was 5) is refused: answered
+"ok" as a repeat, the six dead fish were never booked and their sender was told they were.
 
 The command and its remembered reply are two writes: a controller killed between them (no await
 lies between, so only a kill does it) carries the command out and forgets the id.
@@ -12,6 +14,7 @@ lies between, so only a kill does it) carries the command out and forgets the id
 from __future__ import annotations
 
 import asyncio
+import hashlib
 import json
 import re
 import sqlite3
@@ -52,6 +55,15 @@ class RequestRecords:
         return None if row is None else (row["command"], json.loads(row["reply"]))
 
 
+ASKED = "_asked"      # the remembered reply's key for what was asked (a digest), never sent on
+
+
+def asked(payload: object) -> str:
+    """A digest of what a payload asks, its ``request`` id aside."""
+    rest = {k: v for k, v in payload.items() if k != "request"} if isinstance(payload, dict) else payload
+    return hashlib.sha256(json.dumps(rest, sort_keys=True, default=str).encode()).hexdigest()[:32]
+
+
 class Once:
     """Carries out each request id once (see the module's text)."""
 
@@ -60,23 +72,24 @@ class Once:
         self._running: dict[str, asyncio.Future] = {}
 
     async def run(self, command: str, request: str | None, t: float,
-                  act: Callable[[], Awaitable[dict]]) -> dict:
+                  act: Callable[[], Awaitable[dict]], payload: object = None) -> dict:
         if request is None:
             return await act()
+        digest = asked(payload)
         running = self._running.get(request)
         if running is not None:
             first_command, reply = await asyncio.shield(running)
-            return self._again(command, first_command, reply)
+            return self._again(command, digest, first_command, reply)
         done = self.ledger().request_done(request)
         if done is not None:
-            return self._again(command, *done)
+            return self._again(command, digest, *done)
         future = asyncio.get_running_loop().create_future()
         self._running[request] = future
         try:
             reply = await act()
             if reply.get("ok") is True:
-                self.ledger().remember_request(request, command, t, reply)
-            future.set_result((command, reply))
+                self.ledger().remember_request(request, command, t, {**reply, ASKED: digest})
+            future.set_result((command, {**reply, ASKED: digest}))
             return reply
         except BaseException as exc:
             future.set_exception(exc)
@@ -85,9 +98,14 @@ class Once:
         finally:
             del self._running[request]
 
-    def _again(self, command: str, first_command: str, reply: dict) -> dict:
+    def _again(self, command: str, digest: str, first_command: str, reply: dict) -> dict:
         if first_command != command:
             raise self.refused(f"request: already the id of a {first_command} override")
+        first = reply.get(ASKED)              # none in an id remembered before it was kept
+        reply = {k: v for k, v in reply.items() if k != ASKED}
+        if first is not None and first != digest:
+            raise self.refused(f"request: already the id of a {command} override with other values "
+                               "(a new request needs a new id)")
         if reply.get("ok") is not True:        # the first was refused while this copy waited
             return reply
         return {**reply, "repeat": True}

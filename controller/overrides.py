@@ -147,7 +147,7 @@ class Overrides:
             if name == "estop":     # an e-stop is carried out every time it comes
                 reply = await act(payload, user)
             else:
-                reply = await self._once.run(name, request_id(payload), t, lambda: act(payload, user))
+                reply = await self._once.run(name, request_id(payload), t, lambda: act(payload, user), payload)
         except Refused as exc:
             reply = {"ok": False, "error": str(exc)}
         except LedgerUnwritable as exc:      # said once by the store and the ledger alarm

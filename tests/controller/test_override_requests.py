@@ -85,6 +85,21 @@ def test_an_id_used_by_another_command_is_refused_and_nothing_is_done(farm):
     assert stock_rows(farm) == [("T1", "mortality", 5, None)]
 
 
+def test_an_id_sent_again_with_other_values_is_refused_and_nothing_is_done(farm, tmp_path):
+    """It was answered ok as a repeat: the six dead fish were never booked and their sender was
+    told they were. Kept across a restart; the same values again are still a repeat."""
+    first = send(farm, "mortality", {"tank": "T1", "count": 5, "request": "r-4"})
+    for other in ({"tank": "T1", "count": 6}, {"tank": "T2", "count": 5}):
+        reply = send(farm, "mortality", {**other, "request": "r-4"})
+        assert reply == {"ok": False, "error": "request: already the id of a mortality override with other "
+                                               "values (a new request needs a new id)"}
+    farm.store.close()
+    farm = Farm(Store(tmp_path / "ledger.db"))
+    assert send(farm, "mortality", {"tank": "T1", "count": 6, "request": "r-4"})["ok"] is False
+    assert send(farm, "mortality", {"tank": "T1", "count": 5, "request": "r-4"}) == {**first, "repeat": True}
+    assert stock_rows(farm) == [("T1", "mortality", 5, None)]
+
+
 def test_a_refused_request_is_tried_anew_when_sent_again(farm):
     payload = {"tank": "T1", "count": STOCK + 1, "request": "r-3"}
     assert send(farm, "harvest", payload)["ok"] is False
