@@ -183,6 +183,9 @@ class ModbusDispenser(Dispenser):
         if len(reply.registers) != STATUS_REGS:
             raise ProtocolError(self.name, f"status read returned {len(reply.registers)} registers")
         state = state_from_fields(from_registers(STATUS_FORMAT, reply.registers))
+        if state.resolution_g <= 0:
+            # every gram read as 0: a dispense booked as 0 g, a full hopper read empty and refilled
+            raise ProtocolError(self.name, "status block: RES_MG is 0 mg per count: the load cell cannot be read")
         self._seen = state
         return state
 
@@ -247,6 +250,8 @@ class ModbusDispenser(Dispenser):
                                          c.read_holding_registers(STATUS_ADDR, count=STATUS_REGS,
                                                                   device_id=self.config.unit))
             now = state_from_fields(from_registers(STATUS_FORMAT, reply.registers))
+            if now.resolution_g <= 0:
+                raise ProtocolError(self.name, "status block: RES_MG is 0 mg per count: the load cell cannot be read")
             self._seen = now
             if now.fate(tag) != "not_started":
                 return False                      # it got there the first time: nothing to resend

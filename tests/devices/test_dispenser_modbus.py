@@ -17,13 +17,16 @@ from devices.clock import ScaledClock
 from devices.dispenser.modbus_dispenser import (
     COMMAND_ADDR,
     COMMAND_REG,
+    COMMAND_REGS,
     STATUS_ADDR,
+    STATUS_FORMAT,
     Config,
     DeviceRefused,
     ModbusDispenser,
+    to_registers,
 )
 from devices.dispenser.modbus_dispenser import START as START_CMD
-from devices.errors import DeviceFault, DeviceTimeout, LinkDown
+from devices.errors import DeviceFault, DeviceTimeout, LinkDown, ProtocolError
 from devices.sim.dispenser import SimDispenser, SimDispenserParams
 from devices.sim.truth import TruthLog
 
@@ -417,3 +420,33 @@ def test_a_start_whose_request_was_lost_with_its_connection_is_sent_again_and_ru
         assert state.last_tag == 7 and state.cycles == 1 and _starts(truth, 7) == 1
     truth = TruthLog(None)
     serve(body)
+
+
+@pytest.mark.parametrize("res_mg", [0, 10, 100])
+def test_the_load_cell_s_resolution_is_the_plc_s_and_zero_is_refused(res_mg):
+    """A PLC's own status block (not the simulator's): RES_MG 0 read every gram as 0 — a dispense
+    booked as 0 g, a full hopper read empty and the gate held open to refill it."""
+    from pymodbus.server import ModbusTcpServer
+    from pymodbus.simulator import DataType, SimData, SimDevice
+
+    async def main():
+        fields = to_registers(STATUS_FORMAT, 0, 0, 80_000, 3, 2, 200, 1_000, res_mg)
+        plc = ModbusTcpServer(SimDevice(1, simdata=[
+            SimData(STATUS_ADDR, values=fields, datatype=DataType.REGISTERS),
+            SimData(COMMAND_ADDR, count=COMMAND_REGS, datatype=DataType.REGISTERS)]), address=("127.0.0.1", 0))
+        await plc.serve_forever(background=True)
+        port = plc.transport.sockets[0].getsockname()[1]
+        dispenser = ModbusDispenser("plc", Config(kind="dispenser", driver="modbus", port=port), ScaledClock.real())
+        await dispenser.open()
+        try:
+            if res_mg == 0:
+                with pytest.raises(ProtocolError, match="RES_MG is 0 mg per count"):
+                    await dispenser.read()
+            else:
+                state = await dispenser.read()
+                assert (state.hopper_g, state.last_grams, state.resolution_g) == pytest.approx(
+                    (80_000 * res_mg / 1000, 200 * res_mg / 1000, res_mg / 1000))
+        finally:
+            await dispenser.close()
+            await plc.shutdown()
+    asyncio.run(asyncio.wait_for(main(), 30))
