@@ -138,7 +138,7 @@ class Controller(Stopping):
         if self.stopping.is_set():                # stopped while waiting for a device: start nothing
             return
         self.robot = FeedingRobot(cfg, self.clock, self.rail, self.dispenser, self.store, self.rations,
-                                  self.alarms, self.bus.publish, lane=self.lane)
+                                  self.alarms, self.bus.publish, lane=self.lane, reopen=self._fresh)
         self.robot.surveys = self.survey_stops = build_survey_stops(self)
         if self.estop_before_start is not None:
             await self.robot.emergency_stop(self.estop_before_start)

@@ -21,6 +21,7 @@ import statistics
 
 from controller.feed_outcome import SUSPECT, reconcile, went_backwards
 from controller.feeding.estop import Halted
+from controller.feeding.recovery import DriveEstopped
 from devices.errors import DeviceFault, DeviceTimeout
 
 log = logging.getLogger("fishfarm.feeder")
@@ -120,6 +121,8 @@ class Dispensing:
         if state.refilling:                       # a gate left open (a crash mid-refill) blocks the auger
             await self.dispenser.set_refill(False)
             state = await self.read()
+        if state.estop:                           # latched at its own panel: the START would be refused 04
+            raise DriveEstopped(self.dispenser.name, "the dispenser reports an e-stop (its own button?)")
         if state.jammed or state.running:
             raise DeviceFault(self.dispenser.name, "jammed" if state.jammed else "auger already running")
         self._check_token("intent")

@@ -24,7 +24,7 @@ from transitions import Machine
 from controller.feeding.dispensing import FULL_SHARE, AugerJammed, Dispensing, OutcomeUnknown, Withdrawn
 from controller.feeding.estop import EstopLane, Halted, log_latch
 from controller.feeding.planner import Stop, next_stop
-from controller.feeding.recovery import Recovering
+from controller.feeding.recovery import DriveEstopped, Recovering
 from devices.errors import DeviceError, DeviceTimeout
 
 log = logging.getLogger("fishfarm.feeder")
@@ -64,7 +64,9 @@ CONFIRM_WAIT_S = 1.0    # wall seconds an e-stop's caller waits for both latches
 
 
 class FeedingRobot(Recovering):
-    def __init__(self, cfg, clock, rail, dispenser, store, rations, alarms, publish, lane: EstopLane | None = None):
+    def __init__(self, cfg, clock, rail, dispenser, store, rations, alarms, publish, lane: EstopLane | None = None,
+                 reopen=None):
+        self.reopen = reopen                  # async (device) -> a fresh driver: a lost CAN link is lost for good
         self.cfg, self.feeding = cfg, cfg.feeding
         self.clock, self.rail, self.dispenser = clock, rail, dispenser
         self.store, self.rations, self.alarms, self.publish = store, rations, alarms, publish
@@ -197,6 +199,7 @@ class FeedingRobot(Recovering):
 
     # -- the supervisor ---------------------------------------------------------
     async def run(self) -> None:
+        watch = asyncio.create_task(self._watch_rail())
         try:
             while True:
                 self._action = asyncio.create_task(self._step())
@@ -209,6 +212,7 @@ class FeedingRobot(Recovering):
                 if self.lane.tripped and self.state != "estop":
                     self._stopped(self.lane.reason or "e-stop")   # the loop hears of it late
         finally:                              # cancelled: our action must not outlive us
+            watch.cancel()
             self._cancel_action()
             if self._action is not None:
                 await asyncio.gather(self._action, return_exceptions=True)
@@ -285,6 +289,8 @@ class FeedingRobot(Recovering):
         return self.pending[best.tank]
 
     async def _serve(self, job: Job) -> None:
+        if (await self.dispensing.read()).estop:      # before the carriage moves for it
+            raise DriveEstopped(self.dispenser.name, "the dispenser reports an e-stop (its own button?)")
         self.go()
         await self._move_to(self.cfg.tank(job.tank).position_m)
         self.arrive_tank()

@@ -263,6 +263,16 @@ class SimRailMotor:
         self._settle(t)
         self._enter("fault", Profile.rest(t, self._profile.at(t)[0]), Fault.STALL)
 
+    def press_estop(self) -> None:
+        """The e-stop button on the drive's own panel: it brakes at the e-stop rate and latches
+        until CLEAR_FAULT, as an ESTOP command does; nobody on the bus commanded it."""
+        t = self.clock.now()
+        self._settle(t)
+        p, v = self._profile.at(t)
+        if self._state != "estop":
+            self._latched(t)
+        self._enter("estop", plan_stop(t, p, v, self.params.estop_decel_m_s2), Fault.NONE)
+
     def silence(self) -> None:
         """The drive drops off the bus: no frames out, commands unheard. Motion goes on."""
         self._silent = True

@@ -73,10 +73,11 @@ class Rig:
         self.delivered[tank] = self.delivered.get(tank, 0.0) + grams
 
     async def start(self, run: bool = True, wrap=None):
-        await self.motor.start(BusPort.virtual(self.channel))
         await self.sim.start()
-        self.rail = CanRailDrive("rail", RailConfig(kind="rail", driver="can", interface="virtual",
-                                                    channel=self.channel), self.clock)
+        if getattr(self, "rail", None) is None:   # a subclass may have put the drive elsewhere
+            await self.motor.start(BusPort.virtual(self.channel))
+            self.rail = CanRailDrive("rail", RailConfig(kind="rail", driver="can", interface="virtual",
+                                                        channel=self.channel), self.clock)
         self.dispenser = ModbusDispenser("dispenser", DispenserConfig(kind="dispenser", driver="modbus",
                                                                       port=self.sim.port, timeout_s=0.5),
                                          self.clock)

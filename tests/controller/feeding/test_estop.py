@@ -249,3 +249,61 @@ def test_a_second_estop_does_not_rename_the_first():
     lane.trip("operator H")
     assert lane.reason == "modbus e-stop by scada"
     lane.close()
+
+
+def test_a_drive_estopped_at_its_own_panel_mid_dispense_stops_the_auger(tmp_path):
+    """The auger ran its whole portion: the robot heard of the drive's e-stop at its next move, and
+    took it for a fault first."""
+    async def main():
+        async with rig(tmp_path) as r:
+            await r.until(lambda: r.robot.state == "idle", what="homed")
+            r.demand("T2")
+            await r.until(lambda: r.sim.physics.read().running, what="auger on")
+            pressed = r.clock.now()
+            r.motor.press_estop()
+            await r.until(lambda: r.sim.physics.estop_latched, farm_s=30.0, what="the dispenser latched")
+            assert r.clock.now() - pressed < 0.5 * 100       # within half a wall second at 100x
+            run_ = r.sim.physics.runs[-1]
+            assert run_.t_end <= r.sim.physics.estops[0][0] + 1e-9 and not r.sim.physics.read().running
+            await r.until(lambda: r.robot.state == "estop", what="robot in estop")
+            assert "the drive reports an e-stop" in r.alarms.active[("estop", "latched")].text
+            assert r.motor.state == "estop"
+    run(main())
+
+
+@pytest.mark.parametrize("panel", ["drive", "dispenser"])
+def test_a_device_estopped_at_its_own_panel_while_idle_latches_the_other(tmp_path, panel):
+    """The dispenser's went unnoticed 13 s, then the carriage moved to the tank and a START was sent
+    into the latch; the drive's went unnoticed until the next move."""
+    async def main():
+        async with rig(tmp_path) as r:
+            await r.until(lambda: r.robot.state == "idle", what="homed")
+            at = r.motor.position()
+            if panel == "drive":
+                r.motor.press_estop()
+                await r.until(lambda: r.sim.physics.estop_latched, farm_s=60.0, what="the dispenser latched")
+            else:
+                r.sim.physics.estop()
+                r.demand("T2")                                  # the next job looks first
+                await r.until(lambda: r.motor.state == "estop", farm_s=60.0, what="the drive latched")
+            await r.until(lambda: r.robot.state == "estop", what="robot in estop")
+            assert r.sim.physics.runs == [] and abs(r.motor.position() - at) < 1e-6
+            assert f"the {panel} reports an e-stop" in r.alarms.active[("estop", "latched")].text
+    run(main())
+
+
+def test_a_drive_unheard_while_the_robot_waits_is_a_fault_and_recovers(tmp_path):
+    """CAN silence raised no alarm while the robot was idle: it was found at the next move."""
+    async def main():
+        async with rig(tmp_path) as r:
+            await r.until(lambda: r.robot.state == "idle", what="homed")
+            r.motor.silence()
+            await r.until(lambda: r.robot.state == "fault", farm_s=600.0, what="fault")
+            assert "CAN silence" in r.alarms.active[("feeder", "fault")].text
+            r.motor.resume()
+            await r.until(lambda: r.robot.state == "idle", farm_s=600.0, what="homed again")
+            served = r.demand("T1")                          # the next job done clears the alarm
+            await r.until(lambda: r.store.db.execute("SELECT outcome FROM demand WHERE id=?", (served,))
+                          .fetchone()[0] == "served", farm_s=600.0, what="served")
+            assert ("feeder", "fault") not in r.alarms.active
+    run(main())
