@@ -26,7 +26,9 @@ class ContactSensors(Device):
     kind = "contacts"
 
     async def read(self) -> list[Contact]:
-        """Wait for contacts and return every one received so far (at least one), oldest first.
+        """Wait for contacts and return every one received so far (at least one), oldest first;
+        the first line heard after the device opened returns even without contacts (an empty
+        list: the line is alive, a heartbeat is enough).
 
         Raises LinkDown when the line is lost; malformed lines are counted in
         ``self.malformed`` and skipped, never raised."""

@@ -65,6 +65,7 @@ class SerialContactHub(ContactSensors):
         super().__init__(name, config, clock)
         self.malformed = 0                  # lines rejected (noise, bad checksum)
         self.lost = 0                       # lines missing by sequence number
+        self._greeted = False               # read() has told its caller the line is heard
         self.lines = 0                      # valid lines
         self._ser: serial.Serial | None = None
         self._fd = -1
@@ -110,7 +111,9 @@ class SerialContactHub(ContactSensors):
     async def _read(self) -> list[Contact]:
         loop = asyncio.get_running_loop()
         timeout = self.config.silence_timeout_s
-        while not self._batch:
+        # the first good line heard returns, contacts or none: a heartbeat says the line is back
+        # (its loss alarm stood until a fish bumped a sensor: at night, for hours)
+        while not self._batch and (self._greeted or not self.lines):
             if self._error is not None:
                 raise LinkDown(self.name, self._error)
             left = self._last_line + timeout - loop.time()
@@ -132,6 +135,7 @@ class SerialContactHub(ContactSensors):
             finally:
                 waiter.cancel()
         out, self._batch = self._batch, []
+        self._greeted = True
         self._heard_up_to(self._parsed_t)          # the reader has every contact up to there now
         return out
 

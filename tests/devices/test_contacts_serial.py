@@ -274,3 +274,26 @@ def test_a_sequence_number_beyond_the_protocol_s_16_bits_is_a_malformed_line():
         return b"$" + body + b"*%02X" % checksum(body)
     dev._parse([line("C", 65535), line("C", 65536), line("H", 99999), line("C", 0)])
     assert (dev.lines, dev.malformed, [c.sensor for c in dev._batch]) == (2, 2, ["T1-a", "T1-a"])
+
+
+def test_the_first_line_heard_after_opening_returns_even_a_heartbeat():
+    """The controller clears the hub's loss alarm when a read returns: after a reconnection it
+    stood until a fish bumped a sensor (at night, for hours), heartbeats arriving all along."""
+    async def main():
+        master, slave = os.openpty()
+        tty.setraw(slave)
+        dev = driver(os.ttyname(slave), ManualClock())
+        await dev.open()
+        try:
+            os.write(master, heartbeat_line(1, 1000.0))
+            assert await asyncio.wait_for(dev.read(), 5) == []            # the line is heard
+            os.write(master, heartbeat_line(2, 1001.0))
+            with pytest.raises(asyncio.TimeoutError):                     # then contacts only
+                await asyncio.wait_for(dev.read(), 0.3)
+            os.write(master, contact_line(3, "T1-a", 1002.0))
+            assert [c.sensor for c in await asyncio.wait_for(dev.read(), 5)] == ["T1-a"]
+        finally:
+            await dev.close()
+            os.close(master)
+            os.close(slave)
+    asyncio.run(main())
