@@ -70,8 +70,10 @@ class WaterTemperatures:
             elif self.faults.get(name) != r.fault:
                 self.faults[name] = r.fault
                 if self.alarms is not None:
-                    self.alarms.raise_(self._source(name), f"water probe {name}: {r.fault}; the rations "
-                                       "fall back to the configured temperature", kind="probe")
+                    # the last good reading serves while fresh: the alarm must not say otherwise
+                    self.alarms.raise_(self._source(name), f"water probe {name}: {r.fault}; the rations use "
+                                       f"its last good reading for up to {self.cfg.feeding.water_max_age_s:g} s, "
+                                       "then the configured temperature", kind="probe")
         return [tank for tank, was in before.items()
                 if was == "config" and self.temperature(tank, t).source == "sensor"]
 

@@ -27,7 +27,7 @@ from functools import reduce
 from operator import xor
 
 import serial
-from pydantic import Field
+from pydantic import Field, field_validator
 
 from devices.base import Section
 from devices.contacts import Contact, ContactSensors
@@ -56,6 +56,17 @@ class Config(Section):
                                   "file descriptor (socket://, hwgrep://); not loop:// or rfc2217://")
     baudrate: int = Field(115200, gt=0)
     silence_timeout_s: float = Field(3.0, gt=0, description="wall seconds without a valid line")
+
+    @field_validator("port")
+    @classmethod
+    def _has_a_descriptor(cls, port: str) -> str:
+        # the reader waits on the port's file descriptor: these URLs have none (the controller
+        # started, then alarmed and retried them for good)
+        scheme = port.split("://", 1)[0].lower() if "://" in port else None
+        if scheme in ("loop", "rfc2217", "cp2110"):
+            raise ValueError(f"{scheme}:// has no file descriptor to wait on: give a device path, "
+                             "socket:// or hwgrep://")
+        return port
 
 
 class SerialContactHub(ContactSensors):

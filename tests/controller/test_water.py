@@ -86,6 +86,8 @@ def test_a_stale_or_faulty_probe_falls_back_to_the_config_and_is_alarmed_once(tm
         assert water.temperature("T1").celsius == (own if own is not None else cfg.feeding.water_temp_c)
         standing = [a for a in alarms.listing() if a["source"] == "water/T1"]
         assert len(standing) == 1 and standing[0]["count"] == 1 and "open" in standing[0]["text"]
+        # what it says is what the rations did: the last good reading while fresh (it said the config's)
+        assert "its last good reading for up to 600 s, then the configured temperature" in standing[0]["text"]
         sim.set_fault("T1", None)
         await water.poll_once()
         assert water.temperature("T1").source == "sensor"
