@@ -184,8 +184,13 @@ def test_a_url_without_a_file_descriptor_is_link_down_and_the_port_is_released(m
     real = serial.serial_for_url
     monkeypatch.setattr(serial, "serial_for_url", spy)
 
+    with pytest.raises(ValueError, match="loop:// has no file descriptor"):
+        driver("loop://", ManualClock())                          # refused with the config, first
+    section = Config.model_construct(kind="contacts", driver="serial", port="loop://", baudrate=115200,
+                                     silence_timeout_s=1.0)      # and should one get past it
+
     async def main():
-        dev = driver("loop://", ManualClock())
+        dev = SerialContactHub("contacts", section, ManualClock())
         with pytest.raises(LinkDown, match="loop://") as exc:
             await dev.open()
         await dev.close()
