@@ -77,6 +77,18 @@ def stock_at(base: int, events, tank: str, t: float) -> int:
     return base - sum(fish_out(e, tank) for e in events if e["t"] <= t)
 
 
+def emptied_at(base: int, events, tank: str, t: float) -> float | None:
+    """The last farm time up to ``t`` the tank's stock events took all its fish: its surveys before
+    then describe fish that are gone (a full harvest, then fish moved in, were fed as the harvested
+    ones). None when it has held fish throughout."""
+    stock, last = base, None
+    for e in sorted((e for e in events if e["t"] <= t), key=lambda e: e["t"]):
+        stock -= fish_out(e, tank)
+        if stock <= 0 and fish_out(e, tank) > 0:
+            last = e["t"]
+    return last
+
+
 def weight_at(t: float, p1: SurveyPoint, p2: SurveyPoint) -> float:
     """Exponential growth from one survey's mean weight to the next's."""
     f = min(1.0, max(0.0, (t - p1.t) / (p2.t - p1.t)))
@@ -101,21 +113,28 @@ CURVE_POINTS = 60                       # the fitted growth drawn across its win
 BREAKS = ("harvest", "transfer")        # stock events after which the fit starts again
 
 
-def growth_window(store, tank_id: str, t: float, window_d: float) -> list:
-    """The surveys the growth fit pools at ``t``, oldest first (module docstring)."""
+def growth_window(store, tank_id: str, t: float, window_d: float, base: int | None = None) -> list:
+    """The surveys the growth fit pools at ``t``, oldest first (module docstring); with ``base``
+    (the config's stock) none from before the tank last held no fish."""
     rows = store.surveys(tank_id, until=t)
     if not rows:
         return []
-    moved = [e["t"] for e in store.stock_events()
+    events = [dict(e) for e in store.stock_events()]
+    emptied = None if base is None else emptied_at(base, events, tank_id, t)
+    rows = [r for r in rows if emptied is None or r.t > emptied]      # of fish that are gone: none
+    if not rows:
+        return []
+    moved = [e["t"] for e in events
              if e["kind"] in BREAKS and e["t"] <= t and tank_id in (e["tank"], e["to_tank"])]
     start = max([rows[0].t - window_d * DAY_S, *moved])
     return sorted((r for r in rows if r.t >= start), key=lambda r: r.t) or [rows[0]]
 
 
 def tank_growth(store, tank_id: str, t: float, window_d: float,
-                prior_sgr_pct: float | None = None) -> tuple[GrowthFit, list] | None:
-    """The tank's growth fit at ``t`` and the surveys it rests on; None before any survey."""
-    rows = growth_window(store, tank_id, t, window_d)
+                prior_sgr_pct: float | None = None, base: int | None = None) -> tuple[GrowthFit, list] | None:
+    """The tank's growth fit at ``t`` and the surveys it rests on; None before any survey (of the
+    fish in it now, with ``base``: growth_window)."""
+    rows = growth_window(store, tank_id, t, window_d, base)
     fit = fit_growth([Weighing(r.t, r.mean_weight_g, r.cv_pct, r.count) for r in rows], prior_sgr_pct)
     return None if fit is None else (fit, rows)
 
@@ -176,7 +195,7 @@ def fitted_weight(cfg, store, tank_id: str, t: float) -> tuple[float, dict, str]
     summary and how it was had; None without a measured growth (fewer than two surveys a day or
     more apart); a string saying why, for a fit that measures the fish losing weight while fed (a
     survey that read wrong: extrapolated, it shrank a tank's ration towards nothing)."""
-    got = tank_growth(store, tank_id, t, cfg.feeding.growth_window_d)
+    got = tank_growth(store, tank_id, t, cfg.feeding.growth_window_d, base=cfg.tank(tank_id).stock)
     if got is None or not got[0].measured:
         return None
     fit, rows = got
@@ -196,7 +215,7 @@ def fitted_weight(cfg, store, tank_id: str, t: float) -> tuple[float, dict, str]
 
 def fitted_figures(cfg, store, tank_id: str, t: float) -> dict | None:
     """SGR and FCR over the fit's window, with their 95 % intervals (module docstring)."""
-    got = tank_growth(store, tank_id, t, cfg.feeding.growth_window_d)
+    got = tank_growth(store, tank_id, t, cfg.feeding.growth_window_d, base=cfg.tank(tank_id).stock)
     if got is None or not got[0].measured:
         return None
     fit, rows = got

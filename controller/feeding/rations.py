@@ -32,7 +32,7 @@ from controller.feeding.feeding_table import (
 )
 from controller.growth import Z95, Weighing
 from controller.ledger_writes import LedgerUnwritable
-from controller.production import fitted_weight
+from controller.production import emptied_at, fitted_weight
 from devices.clock import farm_date
 
 DAY_S = 86_400.0
@@ -183,9 +183,17 @@ class Rations:
                  temp: float) -> tuple[np.ndarray, str, str, dict | None]:
         """The newest survey's fish, scaled to the growth fit's mean weight today (module docstring)."""
         newest = self.store.surveys(tank_id, until=t, limit=1)
+        events = [dict(e) for e in self.store.stock_events()]
+        emptied = emptied_at(self.cfg.tank(tank_id).stock, events, tank_id, t)
+        if newest and emptied is not None and newest[0].t <= emptied:
+            moved_in = self._moved_in(tank_id, emptied, events, t, table, temp)
+            if moved_in is not None:
+                return moved_in
+            newest = []                   # its fish are gone, and nobody surveyed those that came
         if not newest:
             w = self.cfg.tank(tank_id).mean_weight_g
-            return np.array([w]), "config", f"no survey: the config's mean weight {w:g} g", None
+            gone = "" if emptied is None else f" (the fish surveyed before {self.date(emptied)} are gone)"
+            return np.array([w]), "config", f"no survey: the config's mean weight {w:g} g{gone}", None
         s = newest[0]
         weights = self.store.survey_weights(s.id)
         age_d = (t - s.t) / DAY_S
@@ -205,6 +213,22 @@ class Rations:
         return (weights * now / s.mean_weight_g, source,
                 f"{when}, {age_d:.1f} days old: {now:.1f} g (±{growth['weight_ci_pct']:.1f} %) today at {how}",
                 growth)
+
+    def _moved_in(self, tank_id: str, emptied: float, events: list[dict], t: float, table, temp: float):
+        """A tank emptied and stocked again by a transfer: the fish of the first transfer in since,
+        as the source tank's newest survey before it saw them, grown at the chart's rate to ``t``
+        (basis ``projected``); None when there is no such transfer or survey."""
+        came = next((e for e in sorted(events, key=lambda e: e["t"])
+                     if e["t"] > emptied and e["to_tank"] == tank_id and e["t"] <= t), None)
+        source = self.store.surveys(came["tank"], until=came["t"], limit=1) if came is not None else []
+        if not source:
+            return None
+        s = source[0]
+        now = project_weight(s.mean_weight_g, max(0.0, (t - s.t) / DAY_S), temp, table) or s.mean_weight_g
+        weights = self.store.survey_weights(s.id)
+        return (weights * now / s.mean_weight_g, "projected",
+                f"fish moved in from {came['tank']} on {self.date(came['t'])}: its survey of {self.date(s.t)} "
+                f"({s.count} fish, mean {s.mean_weight_g:.1f} g) at the chart's growth: {now:.1f} g today", None)
 
     def today(self, tank_id: str, t: float) -> Ration:
         date = self.date(t)

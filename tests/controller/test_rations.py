@@ -191,3 +191,25 @@ def test_the_ration_rests_on_the_surveys_pooled_not_on_the_newest_alone(rations)
     assert plan.mean_weight_g == pytest.approx(np.exp(icpt + slope * 17))
     assert plan.mean_weight_g < means[-1] * np.exp(slope * 3)    # the heavy reading is not taken whole
     assert plan.growth["model"] == "sgr" and plan.growth["weight_ci_pct"] > 0
+
+
+def test_a_tank_emptied_and_stocked_again_is_not_fed_as_the_fish_that_left(rations):
+    """A full harvest, then 100 fish of 18 g moved in from T1: they were fed as the 752 g fish
+    harvested (pellet 4.5 mm). They are fed as T1's survey saw them, grown at the chart's rate; a
+    tank emptied with nobody moved in since goes back to the config's weight."""
+    store, cfg = rations.store, rations.cfg
+    store.add_survey("T4", T, "sparus_aurata", "big", [30.0] * 4, [700.0, 740.0, 760.0, 800.0])
+    store.add_survey("T1", T + 3600, "sparus_aurata", "small", [10.0] * 4, [16.0, 17.0, 19.0, 20.0])
+    assert rations.plan("T4", T + 7200).mean_weight_g > 700
+    store.add_stock_event(t=T + 86400, tank="T4", kind="harvest", count=cfg.tank("T4").stock, to_tank=None, who="t")
+    plan = rations.plan("T4", T + 86400 + 60)
+    assert plan.source == "config" and plan.mean_weight_g == cfg.tank("T4").mean_weight_g
+    assert "are gone" in plan.note
+    store.add_stock_event(t=T + 2 * 86400, tank="T1", kind="transfer", count=100, to_tank="T4", who="t")
+    plan = rations.plan("T4", T + 2 * 86400 + 60)
+    assert plan.source == "projected" and "moved in from T1" in plan.note
+    assert 18.0 <= plan.mean_weight_g <= 18.0 * 1.1            # T1's 18 g fish, two days' chart growth
+    assert plan.pellet_mm <= 2.0
+    store.add_survey("T4", T + 3 * 86400, "sparus_aurata", "new", [10.0] * 4, [18.0, 19.0, 21.0, 22.0])
+    plan = rations.plan("T4", T + 3 * 86400 + 60)               # its own survey again, and only it
+    assert plan.source == "survey" and plan.mean_weight_g == pytest.approx(20.0, rel=0.05)
