@@ -112,6 +112,10 @@ def _recorder(config_path: str, tank_id: str, species: str, json_path: str):
     def record(lengths, weights, scores) -> None:
         store = Store(cfg.store.path)
         try:
+            again = store.same_fish_survey(tank_id, lengths)
+            if again is not None:     # the same pairs surveyed twice: the growth fit would count it twice
+                raise BadInput(config_path, "--tank", f"{tank_id}: these {len(lengths)} fish are already recorded "
+                                                      f"(its survey {again.id}, from {again.source})")
             # OUT.json as the controller will open it, from whatever folder it runs in
             store.add_survey(tank_id, _farm_now(cfg.store.path), species, os.path.abspath(json_path), lengths,
                              weights, scores)

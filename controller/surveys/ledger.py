@@ -133,3 +133,15 @@ class SurveyRecords:
 
     def survey_weights(self, survey_id: int) -> np.ndarray:
         return self.survey_fish(survey_id)[1]
+
+    def same_fish_survey(self, tank: str, lengths_cm) -> SurveyRow | None:
+        """The tank's survey, if any, whose fish have exactly these fork lengths: the same survey
+        recorded again (the same pairs surveyed twice), which the growth fit would count twice."""
+        length = np.sort(np.asarray(lengths_cm, float).ravel())
+        if not len(length):
+            return None
+        for row in self.db.execute("SELECT * FROM survey WHERE tank = ? AND count = ? ORDER BY t DESC",
+                                   (tank, len(length))):
+            if np.allclose(np.sort(self.survey_fish(row["id"])[0]), length, rtol=0, atol=1e-9):
+                return SurveyRow(**dict(row))
+        return None

@@ -336,6 +336,21 @@ def test_a_recorded_survey_is_stamped_with_the_farm_s_time_and_an_emptied_tank_r
     store.close()
 
 
+def test_the_same_fish_recorded_again_is_refused(farm, tmp_path):
+    """The same pairs surveyed twice made two identical surveys, counted twice by the growth fit
+    (an SGR of -0.00 ± 454,543 %/day over 0.0 days in the report)."""
+    from controller.store import Store
+    d, _ = farm
+    cfg = ("--config", _farm_toml(tmp_path)[0], "--tank", "T2")
+    first = run(*common(d, "--dir", d / "pairs", "--json", tmp_path / "a.json", *cfg))
+    assert first.returncode == 0, first.stderr
+    again = run(*common(d, "--dir", d / "pairs", "--json", tmp_path / "b.json", *cfg))
+    one_line_exit_2(again, "--tank", "T2: these 6 fish are already recorded", str(tmp_path / "a.json"))
+    store = Store(tmp_path / "ledger.db")
+    assert len(store.surveys("T2")) == 1
+    store.close()
+
+
 def test_a_survey_that_fails_records_nothing_and_a_recorded_one_names_its_out_json_whole(farm, tmp_path):
     """A page (--plot) that cannot be written failed the survey after it was recorded and OUT.json put
     in place: a retry recorded it twice. And OUT.json given relative was recorded relative: a
