@@ -85,10 +85,9 @@ def _bound(x: float | None) -> str:
 @click.option("--config", "config_path", default="config/farm.toml", show_default=True, metavar="farm.toml")
 def report(tank_id, since, target_g, png_path, as_json, config_path) -> None:
     """A tank's growth, feed conversion, uniformity and projection, between its surveys."""
-    from controller.cli.audit_cmd import parse_since
     from controller.cli.output_paths import check_outputs
     from controller.config import load_config
-    from controller.history import ledger_now
+    from controller.history import ledger_now, parse_time
     from controller.production import tank_figures
     from controller.store import Store
     cfg = load_config(config_path)
@@ -101,7 +100,7 @@ def report(tank_id, since, target_g, png_path, as_json, config_path) -> None:
     if target_g is not None and not 0 < target_g < math.inf:
         raise BadInput("--target", None, f"must be a finite weight above 0 g, not {target_g:g}")
     now = ledger_now(cfg.store.path)
-    start = parse_since(since, now) if since else None
+    start = parse_time(since, "--since", now, durations=True) if since else None   # as history reads it
     if not Path(cfg.store.path).exists():
         raise BadInput(cfg.store.path, None, "no ledger there (the controller has not run with this config)")
     store = Store.reader(cfg.store.path)

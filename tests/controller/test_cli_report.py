@@ -125,6 +125,8 @@ def test_a_spread_stock_is_flagged_for_grading(farm, capsys):
 @pytest.mark.parametrize(("args", "fault"), [
     (["--tank", "T99"], "--tank: no tank 'T99'"),
     (["--tank", "T1", "--since", "yesterdayish"], "--since"),
+    (["--tank", "T1", "--since", "1999-01-01"], "--since: '1999-01-01': 1999-01-01T00:00:00Z is before 2000"),
+    (["--tank", "T1", "--since", "99999d"], "--since: '99999d' reaches back before 2000"),
     (["--tank", "T1", "--target", "-5"], "--target: must be a finite weight above 0 g, not -5"),
     (["--tank", "T1", "--target", "0"], "--target: must be a finite weight above 0 g, not 0"),
     (["--tank", "T1", "--target", "inf"], "--target: must be a finite weight above 0 g, not inf"),
