@@ -193,7 +193,8 @@ def judge(farm: HilFarm, up: float, end: float) -> dict:
         figures = tank_figures(cfg, store, tank)
         for s in figures["surveys"]:
             true = truth_at(stock, tank, s["t"])
-            surveys.append({"tank": tank, "date": s["date"], "fish": s["fish"], "mean_g": round(s["mean_weight_g"], 2),
+            surveys.append({"tank": tank, "date": s["date"], "t": round(s["t"]), "fish": s["fish"],
+                            "mean_g": round(s["mean_weight_g"], 2),
                             "true_mean_g": true["mean_g"], "mean_err_pct": pct(s["mean_weight_g"], true["mean_g"]),
                             "stock": s["stock"], "true_count": true["count"],
                             "biomass_err_pct": pct(s["stock"] * s["mean_weight_g"], true["biomass_g"])})
