@@ -402,6 +402,7 @@ class Controller(Stopping):
             self._watch_ledger()
             now = self.clock.now()
             heard = self.contacts.stream_t
+            self.hub_clock.heard(heard)
             for event in self.filter.on_time(now if heard is None else min(now, heard)):
                 self._on_filter_event(event)
             self.surveys.check(now)

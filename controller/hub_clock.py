@@ -53,6 +53,15 @@ class HubClock:
                                "contacts counted at their arrival", kind="clock")
         return now
 
+    def heard(self, t: float | None) -> None:
+        """The hub's newest stamp, a heartbeat's included (the driver's ``stream_t``): a standing
+        ``clock`` or ``late`` alarm clears once it agrees — without it they stood until a fish
+        bumped a sensor (at night, for hours). Raises nothing: a contact's stamp does that."""
+        if t is None or not (self.off or self._late_said):
+            return
+        if self.clock.wall(abs(t - self.clock.now())) <= SKEW_WALL_S:
+            self._agrees()
+
     def _lag_holds(self, now: float, lag: float) -> bool:
         """Whether contacts have been this far behind, give or take SKEW_WALL_S, for LAG_HOLDS_WALL_S."""
         if self._lag is None or self.clock.wall(abs(lag - self._lag[1])) > SKEW_WALL_S:

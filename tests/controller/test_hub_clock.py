@@ -100,3 +100,26 @@ def test_stamps_within_the_tolerance_are_kept_as_the_hub_gave_them():
     for late in (0.0, 0.5, -SKEW_WALL_S, SKEW_WALL_S):
         assert hub.stamp(T0 + late) == T0 + late
     assert alarms.raised == [] and hub.replaced == 0
+
+
+def test_heartbeats_that_agree_clear_a_standing_alarm_and_raise_none():
+    """The clock and late alarms cleared only with the next contact: at night, with no fish asking,
+    they stood for hours while the hub's heartbeats agreed. A heartbeat's stamp raises nothing."""
+    clock, alarms = Clock(T0), Alarms()
+    hub = HubClock(clock, alarms, "hub")
+    hub.heard(T0 + 600.0)                                 # no alarm standing: nothing, whatever it says
+    hub.heard(None)
+    assert alarms.raised == [] and alarms.cleared == []
+    assert hub.stamp(T0 + 600.0) == T0                    # a contact 600 s ahead: the clock alarm
+    clock.t = T0 + 60.0
+    hub.heard(T0 + 660.0)                                 # heartbeats still ahead: it stands
+    assert alarms.cleared == [] and hub.off
+    hub.heard(T0 + 60.0 + SKEW_WALL_S / 2)                # the hub's clock set right
+    assert alarms.cleared == [("device/hub", "clock")] and not hub.off
+    clock.t = T0 + 3600.0
+    assert hub.stamp(T0 + 3000.0) is None                 # late contacts: the late alarm
+    hub.heard(T0 + 3000.0)
+    assert ("device/hub", "late") not in alarms.cleared
+    hub.heard(T0 + 3600.0)                                # caught up
+    assert alarms.cleared[-1] == ("device/hub", "late")
+    assert [a[1] for a in alarms.raised] == ["clock", "late"]
