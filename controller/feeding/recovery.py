@@ -65,6 +65,9 @@ class Recovering:
                     self._fault(exc)              # a busy robot meets it within its own bounds
                     self._cancel_action()
                 continue
+            except Exception:  # noqa: BLE001 - a watch that died of a bug would watch nothing, unseen
+                log.exception("feeder: looking at the drive's status failed")
+                continue
             unheard_since = None
             if status is not None and status.state == "estop":
                 text = f"{self.rail.name}: the drive reports an e-stop (its own button?)"

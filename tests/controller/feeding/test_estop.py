@@ -307,3 +307,24 @@ def test_a_drive_unheard_while_the_robot_waits_is_a_fault_and_recovers(tmp_path)
                           .fetchone()[0] == "served", farm_s=600.0, what="served")
             assert ("feeder", "fault") not in r.alarms.active
     run(main())
+
+
+def test_the_drive_watch_outlives_a_bug_in_a_look(tmp_path, caplog):
+    """A watch that died of one bad look would watch nothing more, and nobody would know."""
+    async def main():
+        async with rig(tmp_path) as r:
+            await r.until(lambda: r.robot.state == "idle", what="homed")
+            real, looks = r.rail.status, []
+
+            def flaky():
+                looks.append(1)
+                if len(looks) == 1:
+                    raise RuntimeError("a bug")
+                return real()
+            r.rail.status = flaky
+            await r.until(lambda: len(looks) > 1, what="a second look")
+            r.motor.press_estop()
+            await r.until(lambda: r.sim.physics.estop_latched, farm_s=60.0, what="the dispenser latched")
+            assert r.robot.state == "estop"
+    run(main())
+    assert "looking at the drive's status failed" in caplog.text
