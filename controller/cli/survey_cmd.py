@@ -104,8 +104,9 @@ def _recorder(config_path: str, tank_id: str, species: str, json_path: str):
     if tank.species != species:
         raise BadInput(config_path, "--tank", f"{tank_id} holds {tank.species}, not {species}")
     store = Store(cfg.store.path)
-    try:
-        _holds_fish(store, tank, config_path, _farm_now(cfg.store.path))
+    try:           # the stock as the controller counts it (Rations.stock): start-survey refuses it too
+        if tank.stock + store.stock_change(tank_id) <= 0:
+            raise BadInput(config_path, "--tank", f"{tank_id} holds no fish (its stock events took them all)")
     finally:
         store.close()
 
@@ -133,14 +134,6 @@ def _farm_now(ledger) -> float:
 
     from controller.store import ledger_time
     return max(time.time(), ledger_time(ledger) or 0.0)
-
-
-def _holds_fish(store, tank, config_path: str, t: float) -> None:
-    """A survey of a tank whose stock events took all its fish describes no fish the rations feed
-    (start-survey refuses it too; its NaN once failed every status reply)."""
-    from controller.production import stock_at
-    if stock_at(tank.stock, [dict(e) for e in store.stock_events()], tank.id, t) <= 0:
-        raise BadInput(config_path, "--tank", f"{tank.id} holds no fish (its stock events took them all)")
 
 
 class _WorkersType(click.ParamType):

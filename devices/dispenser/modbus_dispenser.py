@@ -182,11 +182,16 @@ class ModbusDispenser(Dispenser):
             STATUS_ADDR, count=STATUS_REGS, device_id=self.config.unit))
         if len(reply.registers) != STATUS_REGS:
             raise ProtocolError(self.name, f"status read returned {len(reply.registers)} registers")
-        state = state_from_fields(from_registers(STATUS_FORMAT, reply.registers))
+        state = self._weighed(reply.registers)
+        self._seen = state
+        return state
+
+    def _weighed(self, registers: list[int]) -> DispenserState:
+        """The status block as the feeder reads grams from it (the e-stop lane reads only STATE)."""
+        state = state_from_fields(from_registers(STATUS_FORMAT, registers))
         if state.resolution_g <= 0:
             # every gram read as 0: a dispense booked as 0 g, a full hopper read empty and refilled
             raise ProtocolError(self.name, "status block: RES_MG is 0 mg per count: the load cell cannot be read")
-        self._seen = state
         return state
 
     async def _run_auger(self, run_s: float, tag: int) -> None:
@@ -249,9 +254,7 @@ class ModbusDispenser(Dispenser):
             reply = await self._exchange("status before resending a start", client, lambda c:
                                          c.read_holding_registers(STATUS_ADDR, count=STATUS_REGS,
                                                                   device_id=self.config.unit))
-            now = state_from_fields(from_registers(STATUS_FORMAT, reply.registers))
-            if now.resolution_g <= 0:
-                raise ProtocolError(self.name, "status block: RES_MG is 0 mg per count: the load cell cannot be read")
+            now = self._weighed(reply.registers)
             self._seen = now
             if now.fate(tag) != "not_started":
                 return False                      # it got there the first time: nothing to resend
