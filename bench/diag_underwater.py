@@ -1,7 +1,8 @@
 """Where the underwater survey loses fish: for every fully visible rendered fish, the first stage
 it does not pass. Prints one JSON object.
 
-Run: ``.venv/bin/python bench/diag_underwater.py [--scenes 20] [--seed0 0] [--params "min_score=0.12"]``
+Run: ``.venv/bin/python bench/diag_underwater.py [--scenes 20] [--seed0 0] [--params "min_score=0.12"]
+[--conditions '{"clutter": "reef"}']`` (``--conditions``: the scenes' conditions given, the rest drawn)
 (``--params``: ``vision.underwater.Params`` fields to change, e.g. ``outlines=False,min_score=0.12,
 max_epipolar=1e9`` for the pipeline before the silhouettes).
 
@@ -93,6 +94,7 @@ def main() -> None:
     ap.add_argument("--scenes", type=int, default=20)
     ap.add_argument("--seed0", type=int, default=0)
     ap.add_argument("--params", default="", help="Params fields, e.g. 'outlines=False,min_score=0.12'")
+    ap.add_argument("--conditions", default="{}", help='scene conditions as JSON, e.g. \'{"clutter": "reef"}\'')
     args = ap.parse_args()
     changes = {}
     # split at the commas that start another field (a tuple's own commas stay)
@@ -106,7 +108,7 @@ def main() -> None:
     visible = 0
     sized: list[tuple[float, str]] = []
     for seed in range(args.seed0, args.seed0 + args.scenes):
-        sc = underwater_scene(np.random.default_rng(seed))
+        sc = underwater_scene(np.random.default_rng(seed), **json.loads(args.conditions))
         tr: dict = {}
         fish = measure_underwater(sc.left, sc.right, sc.rig.calibration(), setup, params=params, trace=tr)
         hits = {ti for _, ti, _, _ in assign(fish, sc.fish, sc.rig.centres[0]) if ti >= 0}
@@ -120,7 +122,8 @@ def main() -> None:
     for s in STAGES:
         passed -= lost[s]
         out[s] = {"lost": lost[s], "passed": passed}
-    print(json.dumps({"scenes": args.scenes, "seed0": args.seed0, "params": changes, "fully_visible": visible,
+    print(json.dumps({"scenes": args.scenes, "seed0": args.seed0, "params": changes,
+                      "conditions": json.loads(args.conditions), "fully_visible": visible,
                       "stages": out,
                       "found": lost["found"], "by_length_px": _by_length(sized)}))
 

@@ -49,6 +49,11 @@ def sim(config_path, endpoints, truth, speed, epoch_wall, epoch_farm, clock_path
     from devices.sim.world import SimFarm
 
     check_clock_options(speed, epoch_wall, epoch_farm, clock_path, hear)
+    import cv2
+    # one thread, as the renderers' budgets are set (bench_pond_view): beside the controller and
+    # the vision workers on the farm's cores, OpenCV's pool only spun, 0.142 against 0.121 CPU s a
+    # survey still at 960x720 (the grow-out's largest cost)
+    cv2.setNumThreads(1)
     logging.basicConfig(level=log_level.upper(), format="sim %(levelname)s %(name)s: %(message)s")
     # pymodbus writes a client gone mid-reply at ERROR with hex dumps of its frames: the simulated
     # PLCs' lines ended up in the controller's log at every e-stop (the controller's run does the same)
