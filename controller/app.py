@@ -86,7 +86,8 @@ class Controller(Stopping):
         """Bring the parts up. The bus and status come first, so operators can see (and e-stop) a
         controller still waiting for a device; the robot starts once every device has opened."""
         cfg = self.cfg
-        self.store = Store(cfg.store.path)     # first: an unusable ledger path is bad input, exit 2
+        # first: an unusable ledger path is bad input, exit 2
+        self.store = Store(cfg.store.path, cfg.surveys.min_weighed_fish)
         self.store.claim()                     # ... and so is a ledger another controller runs on
         sections = dict(cfg.devices)
         if any(s["driver"] == "sim" for s in sections.values()):

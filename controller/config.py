@@ -179,6 +179,9 @@ class SurveysConfig(Strict):
                               "may hold ones taken before the carriage stopped")
     ci_pct: float = Field(2.0, gt=0, le=100, description="stop early once the mean weight's 95 % CI is within ±this")
     min_fish: int = Field(30, ge=2, le=100_000, description="fish measured before the CI may stop a survey")
+    min_weighed_fish: int = Field(10, ge=1, le=100_000,
+                                  description="fewest fish a survey counts to weigh its tank (rations, growth, "
+                                  "figures); one with fewer is kept, published, warned of and tried again")
     retry_s: float = Field(3600.0, gt=0, le=86_400 * 7,
                            description="farm seconds before a failed survey is tried again")
     out_dir: str = Field("var/surveys", min_length=1, description="each survey's OUT.json")

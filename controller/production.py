@@ -269,8 +269,9 @@ def tank_figures(cfg, store, tank_id: str, since: float | None = None, target_g:
                         "cv_pct": s.cv_pct, "k": p.k, "stock": p.stock, "weights_g": [float(w) for w in weights]})
     intervals = [interval(a, b, store.fed_between(tank_id, a.t, b.t), events, tank_id).__dict__
                  for a, b in zip(points, points[1:], strict=False)]
-    # surveys that counted no fish: none of the figures rests on them, but a manager wants to know
-    empty = [{"t": e.t, "date": iso_day(e.t), "source": e.source}
+    # surveys that counted too few fish to weigh the tank (none, or fewer than [surveys]
+    # min_weighed_fish): none of the figures rests on them, but a manager wants to know
+    empty = [{"t": e.t, "date": iso_day(e.t), "source": e.source, "fish": e.count}
              for e in sorted(store.surveys(tank_id, since=since, counted=False), key=lambda s: s.t)]
     out = {"tank": tank_id, "species": tank.species, "surveys": surveys, "intervals": intervals,
            "empty_surveys": empty,

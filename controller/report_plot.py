@@ -213,7 +213,8 @@ def _draw_side(ax, weight_ax, report: dict) -> None:
         lines.append(f"and {_n(len(rows) - TABLE_ROWS, 'earlier survey')}")
     empty = report.get("empty_surveys") or []
     if empty:
-        lines.append(f"{_n(len(empty), 'survey')} counted no fish (newest {empty[-1]['date']})")
+        few = "no fish" if all(not e.get("fish") for e in empty) else "too few fish"
+        lines.append(f"{_n(len(empty), 'survey')} counted {few} (newest {empty[-1]['date']})")
     if rows:
         ax.text(0, y, "Surveys, newest first", transform=ax.transAxes, va="top", fontsize=10, weight="bold")
         ax.text(0, y - 0.05, "\n".join(lines), transform=ax.transAxes, va="top", family="monospace", fontsize=9)

@@ -166,8 +166,9 @@ class Store(LedgerWrites, Records, CleanerRecords, SurveyRecords, RequestRecords
 
     _claim: int | None = None         # the controller's hold on the ledger (``claim``): a locked file
 
-    def __init__(self, path: str | Path):
+    def __init__(self, path: str | Path, min_weighed: int = 1):
         self.path = Path(path)
+        self.min_weighed = min_weighed
         self._lock = threading.RLock()
         self.db = None
         try:
@@ -193,11 +194,12 @@ class Store(LedgerWrites, Records, CleanerRecords, SurveyRecords, RequestRecords
             raise BadInput("store.path", str(path), f"cannot open the ledger: {why}") from None
 
     @classmethod
-    def reader(cls, path: str | Path) -> Store:
+    def reader(cls, path: str | Path, min_weighed: int = 1) -> Store:
         """The ledger opened read-only (``fishfarm report``, ``history``): nothing written, no schema
         added to a file that is not a ledger. BadInput when it is not one of this program's schema."""
         self = cls.__new__(cls)
         self.path, self._lock, self.db = Path(path), threading.RLock(), None
+        self.min_weighed = min_weighed
         try:
             self.db = sqlite3.connect(f"file:{self.path.resolve()}?mode=ro", uri=True, isolation_level=None,
                                       check_same_thread=False)

@@ -187,7 +187,7 @@ def judge(farm: HilFarm, up: float, end: float) -> dict:
         if r["kind"] == "stock":
             stock[r["tank"]].append(r)
     cfg = load_config(farm.dir / "controller.toml")
-    store = Store(farm.db_path)
+    store = Store(farm.db_path, cfg.surveys.min_weighed_fish)
     surveys, intervals = [], []
     for tank in (t.id for t in cfg.tanks):
         figures = tank_figures(cfg, store, tank)
@@ -234,9 +234,10 @@ def judge(farm: HilFarm, up: float, end: float) -> dict:
         # over a whole grow-out should raise next to none
         survey_alarms = [f"{r['source']} {r['kind']}: {r['text']}" for r in ledger.execute(
             "SELECT source, kind, text FROM alarm WHERE source LIKE 'survey/%' AND active = 1 ORDER BY id")]
-        # surveys that counted no fish (the figures' survey lists leave them out)
-        empty_surveys = [f"{r['tank']} at {r['t']:.0f}" for r in ledger.execute(
-            "SELECT tank, t FROM survey WHERE count = 0 ORDER BY t")]
+        # surveys that counted too few fish to weigh their tank, none or a handful (the figures' survey
+        # lists leave them out): "T2 at 1780086984 3"
+        empty_surveys = [f"{r['tank']} at {r['t']:.0f} {r['count']}" for r in ledger.execute(
+            "SELECT tank, t, count FROM survey WHERE count < ? ORDER BY t", (cfg.surveys.min_weighed_fish,))]
     # the simulator's lookahead: every episode found the clock slow when it started
     fast = [f"{r['tank']} at {r['t']:.0f}" for r in truth if r["kind"] == "episode_start" and r["t"] < end - 60
             and farm.watch.ran_fast_at(r["t"])]

@@ -44,7 +44,7 @@ def history(tank_id, what, since, until, csv_path, config_path) -> None:
     end = parse_time(until, "--until", now, durations=False) if until else None
     if not Path(cfg.store.path).exists():
         raise BadInput(cfg.store.path, None, "no ledger there (the controller has not run with this config)")
-    store = Store.reader(cfg.store.path)
+    store = Store.reader(cfg.store.path, cfg.surveys.min_weighed_fish)
     written, rows = 0, None
     try:
         columns, rows = stream(store, what, tank_id, start, end)

@@ -31,11 +31,20 @@ def _net(figures: dict) -> str:
     return ", net n/a (no gain kept)" if net is None else f", net {net:.2f} ({figures['died_g']:.0f} g died)"
 
 
+def _few(empty: list[dict]) -> str:
+    """The surveys that weigh nothing: 'M that counted none', or with some that counted a handful
+    (fewer than [surveys] min_weighed_fish) 'M that counted too few fish to weigh the tank (K none)'."""
+    none = sum(1 for e in empty if not e.get("fish"))
+    if none == len(empty):
+        return f"{len(empty)} that counted none"
+    return f"{len(empty)} that counted too few fish to weigh the tank" + (f" ({none} none)" if none else "")
+
+
 def text(report: dict, target_g: float | None = None) -> str:
     empty = report.get("empty_surveys") or []
     n = len(report["surveys"])
     lines = [f"{report['tank']} ({report['species']}): {n} survey{'' if n == 1 else 's'}"
-             + (f" that counted fish, {len(empty)} that counted none" if empty else "")]
+             + (f" that counted fish, {_few(empty)}" if empty else "")]
     for s in report["surveys"]:
         lines.append(f"  survey {s['date']}: {s['fish']} fish, mean {s['mean_weight_g']:.1f} g, "
                      f"CV {s['cv_pct'] or 0:.1f} %, K {s['k']:.2f}, stock {s['stock']}")
@@ -62,7 +71,10 @@ def text(report: dict, target_g: float | None = None) -> str:
         lines.append(f"  {no_projection(report, target_g)}")
     if empty:
         after = [e for e in empty if report["surveys"] and e["t"] > report["surveys"][-1]["t"]]
-        lines.append(f"  no fish counted: newest {empty[-1]['date']}"
+        newest = empty[-1]
+        head = "no fish counted" if not newest.get("fish") else \
+            f"too few fish to weigh the tank ({newest['fish']})"
+        lines.append(f"  {head}: newest {newest['date']}"
                      + (f", {len(after)} since the last survey that counted fish" if after else "")
                      + " (cameras blocked or fouled, lights, turbid water?)")
     if not report["surveys"] and not empty:
@@ -103,7 +115,7 @@ def report(tank_id, since, target_g, png_path, as_json, config_path) -> None:
     start = parse_time(since, "--since", now, durations=True) if since else None   # as history reads it
     if not Path(cfg.store.path).exists():
         raise BadInput(cfg.store.path, None, "no ledger there (the controller has not run with this config)")
-    store = Store.reader(cfg.store.path)
+    store = Store.reader(cfg.store.path, cfg.surveys.min_weighed_fish)
     try:
         data = tank_figures(cfg, store, tank_id, start, target_g)
     finally:

@@ -103,7 +103,7 @@ def _recorder(config_path: str, tank_id: str, species: str, json_path: str):
         raise BadInput(config_path, "--tank", f"no tank {tank_id!r} (tanks: {', '.join(t.id for t in cfg.tanks)})")
     if tank.species != species:
         raise BadInput(config_path, "--tank", f"{tank_id} holds {tank.species}, not {species}")
-    store = Store(cfg.store.path)
+    store = Store(cfg.store.path, cfg.surveys.min_weighed_fish)
     try:           # the stock as the controller counts it (Rations.stock): start-survey refuses it too
         if tank.stock + store.stock_change(tank_id) <= 0:
             raise BadInput(config_path, "--tank", f"{tank_id} holds no fish (its stock events took them all)")
@@ -111,7 +111,7 @@ def _recorder(config_path: str, tank_id: str, species: str, json_path: str):
         store.close()
 
     def record(lengths, weights, scores) -> None:
-        store = Store(cfg.store.path)
+        store = Store(cfg.store.path, cfg.surveys.min_weighed_fish)
         try:
             again = store.same_fish_survey(tank_id, lengths)
             if again is not None:     # the same pairs surveyed twice: the growth fit would count it twice

@@ -69,6 +69,7 @@ class SurveyRow:
 class SurveyRecords:
     db: sqlite3.Connection
     _lock: threading.RLock
+    min_weighed = 1           # fish a survey counts to weigh its tank: set from [surveys] min_weighed_fish
 
     def ask_survey(self, tank: str, t: float, pairs: int) -> None:
         with self._lock:
@@ -112,11 +113,13 @@ class SurveyRecords:
 
     def surveys(self, tank: str, *, since: float | None = None, until: float | None = None,
                 with_fish: bool = False, limit: int | None = None, counted: bool | None = True) -> list[SurveyRow]:
-        """The tank's surveys that counted fish, newest first (``limit``: only that many); ``counted``
-        False: those that counted none (cameras blocked, lights off, turbid water), None: both."""
-        sql = "SELECT * FROM survey WHERE tank = ?" + {True: " AND count > 0", False: " AND count = 0",
+        """The tank's surveys that weigh it — counted at least ``min_weighed`` fish (``[surveys]
+        min_weighed_fish``; 1 until told) — newest first (``limit``: only that many); ``counted``
+        False: those that counted fewer (none: cameras blocked, lights off, turbid water; a handful:
+        a reef or a murky water hid most fish), None: all."""
+        sql = "SELECT * FROM survey WHERE tank = ?" + {True: " AND count >= ?", False: " AND count < ?",
                                                        None: ""}[counted]
-        args: list = [tank]
+        args: list = [tank] + ([max(1, int(self.min_weighed))] if counted is not None else [])
         if since is not None:
             sql, args = sql + " AND t >= ?", [*args, since]
         if until is not None:

@@ -9,8 +9,9 @@ The robot asks ``next()`` only when no feeding demand waits (feeding comes first
 never runs during feeding. A tank is skipped while paused (an operator's pause: grading, a
 treatment) or fasting (an operator's ration of 0 g today); its survey waits for the resume. A tank
 whose stock events took all its fish (harvested, moved out) is skipped until fish come back. A
-survey that failed (the camera) or counted no fish (lights off, a fouled lens, turbid water) is
-tried again ``retry_s`` later; after a second such visit in a row, at the tank's own survey hour
+survey that failed (the camera) or counted too few fish to weigh its tank (none: lights off, a
+fouled lens, turbid water; fewer than ``[surveys] min_weighed_fish``: most fish hidden) is tried
+again ``retry_s`` later; after a second such visit in a row, at the tank's own survey hour
 (``at``) each day, at least ``retry_s`` on, until a survey counts fish or an operator asks for
 one: cameras that stay blind would otherwise send the robot there every ``retry_s``, day and
 night, through the feeding hours the survey hours keep clear of. One survey at a time: an
@@ -68,7 +69,7 @@ class SurveySchedule:
         self.current: SurveySession | None = None
         self.asked: OrderedDict[str, SurveySession] = OrderedDict()    # operators' requests, in order
         self.not_before: dict[str, float] = {}                          # tank -> retry after a failure
-        self.misses: dict[str, int] = {}            # tank -> visits in a row that failed or counted no fish
+        self.misses: dict[str, int] = {}            # tank -> visits in a row that failed or weighed nothing
         self.recording: dict[str, SurveySession] = {}                   # tank -> captured, not yet recorded
         self.started = clock.now()            # a tank never surveyed waits for its first hour after it
         known = {t.id for t in cfg.tanks}
@@ -151,14 +152,14 @@ class SurveySchedule:
             # the ledger dates the next survey from this one
             self.not_before[session.tank] = now + self.cfg.surveys.retry_s
         else:
-            self._missed(session.tank, now, "counted no fish")
+            self._missed(session.tank, now, f"counted fewer than {self.store.min_weighed} fish")
 
     def _answered(self, session: SurveySession) -> None:
         if session.why == "operator" and session.tank not in self.asked:    # not asked anew meanwhile
             self.store.survey_answered(session.tank)
 
     def _missed(self, tank: str, now: float, what: str) -> None:
-        """A visit that failed or counted no fish: the tank's next try (module docstring)."""
+        """A visit that failed or counted too few fish: the tank's next try (module docstring)."""
         misses = self.misses[tank] = self.misses.get(tank, 0) + 1
         retry = now + self.cfg.surveys.retry_s
         plan = self.cfg.tank(tank).survey

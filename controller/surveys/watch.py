@@ -12,8 +12,10 @@ it has not taken up yet (and at start, for the newest of each tank):
   ``[feeding] grading_cv_pct``, cleared when a later survey is within it;
 - a survey that counted no fish (cameras blocked or fouled, the lights, turbid water) is published
   all the same (count 0: an empty survey is a result) and raises the tank's ``survey/{tank}``
-  warning (kind ``no_fish``) until a later survey counts fish; nothing is planned from it: the
-  ration stays on the surveys that counted fish, and says "projected" once they are old;
+  warning (kind ``no_fish``) until a later survey weighs the tank; nothing is planned from it: the
+  ration stays on the surveys that weigh the tank, and says "projected" once they are old. One that
+  counted fewer than ``[surveys] min_weighed_fish`` (10) is treated alike (kind ``few_fish``): three
+  fish of two thousand, a reef hiding the rest, read a tank 25 % light and its ration followed;
 - a survey whose mean weight is off the growth fitted to the surveys before it by more than the two
   uncertainties allow (``production.against_growth``, in the figures as ``against_growth``) raises
   ``survey/{tank}`` (kind ``off_growth``) until a later one follows it; the ration follows it all the
@@ -31,6 +33,7 @@ from datetime import UTC, datetime
 log = logging.getLogger(__name__)
 GRADING = "grading"
 NO_FISH = "no_fish"
+FEW_FISH = "few_fish"
 OFF_GROWTH = "off_growth"
 
 
@@ -45,18 +48,20 @@ class SurveyWatch:
         """Take up each tank's newest survey not yet seen; returns the tanks that had one (that
         counted fish: an empty one only publishes and warns)."""
         fresh = []
+        least = self.store.min_weighed
         for tank in self.cfg.tanks:
             [last] = self.store.surveys(tank.id, until=now, limit=1, counted=None) or [None]
-            counted = last if last is None or last.count > 0 else \
+            counted = last if last is None or last.count >= least else \
                 next(iter(self.store.surveys(tank.id, until=now, limit=1)), None)
             if counted is not None and self.taken.get(tank.id) != counted.id:
                 self._take_up(tank.id, counted, now)
                 fresh.append(tank.id)
-            if last is not None and last.count == 0:
+            if last is not None and last.count < least:
                 self._empty(tank.id, last, counted)
             elif last is not None:
-                self.alarms.clear(f"survey/{tank.id}", f"tank {tank.id}: the survey of {_iso(last.t)} "
-                                  f"counted {last.count} fish", kind=NO_FISH)
+                for kind in (NO_FISH, FEW_FISH):
+                    self.alarms.clear(f"survey/{tank.id}", f"tank {tank.id}: the survey of {_iso(last.t)} "
+                                      f"counted {last.count} fish", kind=kind)
         return fresh
 
     def _take_up(self, tank_id: str, survey, now: float) -> None:
@@ -87,17 +92,26 @@ class SurveyWatch:
         self.alarms.raise_(f"survey/{tank_id}", text, kind=OFF_GROWTH)
 
     def _empty(self, tank_id: str, last, counted) -> None:
-        """``last``, the tank's newest survey, counted no fish: published once, and the no-fish
-        warning raised (``counted``: the newest survey that did count fish, or None)."""
+        """``last``, the tank's newest survey, counted too few fish to weigh the tank (none, or fewer
+        than ``[surveys] min_weighed_fish``): published once, and the no-fish or few-fish warning
+        raised (``counted``: the newest survey that does weigh it, or None)."""
         if self.empty.get(tank_id) == last.id:
             return
         self.empty[tank_id] = last.id
         self.publish(f"tank/{tank_id}/survey", survey_payload(last))
         rests = f"the surveys that counted fish (newest {_iso(counted.t)})" if counted is not None \
             else "the configured weight"
-        self.alarms.raise_(f"survey/{tank_id}", f"tank {tank_id}: the survey of {_iso(last.t)} counted no fish "
-                           f"(cameras blocked or fouled, lights, turbid water?); the ration rests on {rests}",
-                           kind=NO_FISH)
+        if last.count == 0:
+            what, kind = "counted no fish (cameras blocked or fouled, lights, turbid water?)", NO_FISH
+        else:
+            what = (f"counted {last.count} fish, fewer than the {self.store.min_weighed} that weigh the tank "
+                    f"(a water or a background that hides most fish?): not planned from")
+            kind = FEW_FISH
+        other = FEW_FISH if kind == NO_FISH else NO_FISH
+        self.alarms.clear(f"survey/{tank_id}", f"tank {tank_id}: the survey of {_iso(last.t)} counted "
+                          f"{last.count} fish", kind=other)
+        self.alarms.raise_(f"survey/{tank_id}", f"tank {tank_id}: the survey of {_iso(last.t)} {what}; "
+                           f"the ration rests on {rests}", kind=kind)
 
     def _figures(self, tank_id: str, survey) -> dict:
         from controller.production import tank_figures

@@ -28,7 +28,7 @@ def farm(tmp_path):
     store = Store(tmp_path / "ledger.db")
     store.add_survey("T1", T1, "sparus_aurata", "a", [12.0] * 50, [20.0] * 50)
     store.add_survey("T1", T1 + 10 * DAY, "sparus_aurata", "b", [13.5] * 40, [30.0] * 40)
-    store.add_survey("T2", T1, "sparus_aurata", "other tank", [5.0], [999.0])
+    store.add_survey("T2", T1, "sparus_aurata", "other tank", [5.0] * 10, [999.0] * 10)
     store.add_stock_event(t=T1 + 5 * DAY, tank="T1", kind="mortality", count=100, to_tank=None, who="op", reason="")
     for i, (t, phase) in enumerate([(T1 - 3600, "done"), (T1 + DAY, "done"), (T1 + 2 * DAY, "done"),
                                     (T1 + 9 * DAY, "done"), (T1 + 4 * DAY, "aborted"), (T1 + 11 * DAY, "done")]):
@@ -116,7 +116,7 @@ def test_the_text_report_and_its_page(farm, capsys):
 def test_a_spread_stock_is_flagged_for_grading(farm, capsys):
     path, _ = farm
     store = Store(path / "ledger.db")
-    store.add_survey("T1", T1 + 20 * DAY, "sparus_aurata", "c", [14.0] * 4, [20.0, 30.0, 40.0, 70.0])
+    store.add_survey("T1", T1 + 20 * DAY, "sparus_aurata", "c", [14.0] * 12, [20.0, 30.0, 40.0, 70.0] * 3)
     store.close()
     code, out, _ = run(capsys, "report", "--tank", "T1", "--config", str(path / "farm.toml"))
     assert code == 0 and "GRADE: above 30 %" in out
@@ -178,6 +178,26 @@ def test_surveys_that_counted_no_fish_are_reported_not_taken_for_none(farm, caps
     assert data["surveys"] == [] and [e["source"] for e in data["empty_surveys"]] == ["dark"]
     code, out, _ = run(capsys, "report", "--tank", "T3", "--config", str(path / "farm.toml"))
     assert "0 surveys that counted fish, 1 that counted none" in out and "no survey in the ledger" not in out
+
+
+@pytest.mark.parametrize("few", [1, 9])
+def test_surveys_that_counted_too_few_fish_to_weigh_the_tank_are_reported_apart(farm, capsys, few):
+    """``[surveys] min_weighed_fish`` 10 (farm.toml): a survey of fewer is listed, not figured on."""
+    path, _ = farm
+    store = Store(path / "ledger.db")
+    store.add_survey("T1", T1 + 12 * DAY, "sparus_aurata", "blocked", [], [])
+    store.add_survey("T1", T1 + 19 * DAY, "sparus_aurata", "reef", [14.0] * few, [45.0] * few)
+    store.close()
+    code, out, _ = run(capsys, "report", "--tank", "T1", "--config", str(path / "farm.toml"))
+    assert code == 0 and out.startswith("T1 (sparus_aurata): 2 surveys that counted fish, "
+                                        "2 that counted too few fish to weigh the tank (1 none)\n"), out
+    newest = time.strftime("%Y-%m-%d", time.gmtime(T1 + 19 * DAY))
+    assert f"too few fish to weigh the tank ({few}): newest {newest}, 2 since the last survey" in out
+    assert "fitted to 2 surveys" in out and "45.0 g" not in out
+    code, out, _ = run(capsys, "report", "--tank", "T1", "--config", str(path / "farm.toml"), "--json")
+    data = json.loads(out)
+    assert [s["fish"] for s in data["surveys"]] == [50, 40]
+    assert [(e["source"], e["fish"]) for e in data["empty_surveys"]] == [("blocked", 0), ("reef", few)]
 
 
 @pytest.mark.parametrize("command", ["report", "history"])

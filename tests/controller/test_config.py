@@ -113,6 +113,8 @@ def test_non_finite_numbers_are_refused_in_every_section(tmp_path, text, key):
     (GOOD + "[feeding]\nretry_backoff_s = [5.0, -1.0]\n", "feeding.retry_backoff_s.1: "),
     (GOOD + "[feeding]\nportion_g = 4\nmin_portion_g = 5\n", "feeding: min_portion_g (5) is more than portion_g"),
     (GOOD + "[feeding]\nrefill_below_g = 9000\n", "feeding: refill_below_g (9000) must be below"),
+    (GOOD + "[surveys]\nmin_weighed_fish = 0\n", "surveys.min_weighed_fish: Input should be greater than or equal"),
+    (GOOD + "[surveys]\nmin_weighed_fish = 2.5\n", "surveys.min_weighed_fish: Input should be a valid integer"),
 ])
 def test_numbers_out_of_range_are_refused_naming_the_key(tmp_path, text, key):
     p = write(tmp_path, text)

@@ -236,7 +236,7 @@ def test_a_duration_is_measured_back_from_the_ledger_s_farm_time_when_it_runs_ah
     latest = time.time() + 3 * DAY
     store = Store(tmp_path / "ledger.db")
     for ago in (2 * 3600, 600):
-        store.add_survey("T1", latest - ago, "sparus_aurata", f"{ago}", [10.0], [20.0])
+        store.add_survey("T1", latest - ago, "sparus_aurata", f"{ago}", [10.0] * 10, [20.0] * 10)
         f = store.add_intent(tank="T1", date="2026-05-29", t=latest - ago, target_g=40, run_s=3, cycles_before=0,
                              source="demand")
         store.close_feed(f.id, "done", 41.5, latest - ago + 5)

@@ -160,6 +160,29 @@ def test_a_captured_survey_that_recorded_no_fish_waits_retry_s_not_a_week(parts)
     assert schedule.next(set(), clock.now()).tank == "T1"
 
 
+@pytest.mark.parametrize("fish, weighs", [(1, False), (9, False), (10, True), (25, True)])
+def test_a_captured_survey_that_counted_too_few_fish_to_weigh_the_tank_is_tried_again(tmp_path, fish, weighs):
+    """``min_weighed_fish`` 10: a survey of fewer (a reef hid most fish) is tried again ``retry_s``
+    on, as one that counted none; one of 10 or more dates the next a week on (T2, surveyed daily,
+    paused throughout)."""
+    cfg = config(min_weighed_fish=10)
+    store = Store(tmp_path / "ledger.db", cfg.surveys.min_weighed_fish)
+    clock = ManualClock(t=t("2026-06-01T09:00"))
+    schedule = Schedule(cfg, store, Rations(cfg, load_species(), store), clock)
+    clock.t = t("2026-06-01T10:05")
+    session = schedule.next({"T2"}, clock.now())
+    assert session.tank == "T1"
+    schedule.ended(session, "captured", clock.now())
+    store.add_survey("T1", clock.now() + 60, "sparus_aurata", "x", [10.0] * fish, [20.0] * fish)
+    clock.t += 120
+    schedule.recorded(session, clock.now())
+    clock.t += cfg.surveys.retry_s
+    again = schedule.next({"T2"}, clock.now())
+    assert (again is None) is weighs, again
+    clock.t = t("2026-06-08T10:05")
+    assert schedule.next({"T2"}, clock.now()).tank == "T1"          # a week on, due whichever it was
+
+
 def _night_tank(tmp_path, offset_h: float):
     cfg = Config(tanks=[TankConfig(id="T1", stock=1000, mean_weight_g=20, position_m=3, sensors=["a"],
                                    survey=SurveySchedule(every_days=7, at="22:00", pairs=12))],

@@ -178,3 +178,60 @@ def test_a_survey_off_the_growth_so_far_warns_in_the_figures_and_an_alarm_until_
     assert published.on("tank/T2/ration")[-1]["mean_weight_g"] > 20.0 * math.exp(0.02 * 21)   # followed
     survey(28)
     assert list(alarms.active.of("survey/T2")) == []
+
+
+@pytest.fixture
+def weighing(tmp_path):
+    """The farm's ``[surveys] min_weighed_fish`` (10) in force, as the controller opens its ledger."""
+    cfg = load_config("config/farm.toml")
+    assert cfg.surveys.min_weighed_fish == 10
+    store = Store(tmp_path / "ledger.db", cfg.surveys.min_weighed_fish)
+    published = Published()
+    alarms = Alarms(store, published, ManualClock(T))
+    rations = Rations(cfg, load_species(), store)
+    return cfg, store, rations, alarms, published, SurveyWatch(cfg, store, rations, alarms, published)
+
+
+def even(n: int, mean: float) -> tuple[list[float], list[float]]:
+    return [10.0] * n, [mean * (1 + 0.2 * (1 if i % 2 else -1)) for i in range(n)]
+
+
+@pytest.mark.parametrize("few", [1, 3, 9])
+def test_a_survey_of_too_few_fish_warns_and_plans_nothing_until_one_weighs_the_tank_again(weighing, few):
+    """Three fish of two thousand (a reef behind them hid the rest) read a tank 25 % light: the survey
+    is a result, published and warned of (``few_fish``), but the ration keeps resting on the last
+    survey that weighs the tank; a survey of no fish after it turns the warning into ``no_fish``; one
+    of ``min_weighed_fish`` fish weighs the tank again, clears both and is planned from."""
+    cfg, store, rations, alarms, published, watch = weighing
+    store.add_survey("T1", T, "sparus_aurata", "a", *even(40, 20.0))
+    assert watch.check(T + 1) == ["T1"]
+    ration, figures = published.on("tank/T1/ration")[-1], published.on("tank/T1/figures")[-1]
+    store.add_survey("T1", T + 100, "sparus_aurata", "few.json", *even(few, 15.0))
+    before = len(published)
+    assert watch.check(T + 200) == [] and watch.check(T + 300) == []
+    new = published[before:]
+    assert [s for s, _ in new] == ["tank/T1/survey", "alarm/survey/T1"]       # once; no ration, no figures
+    assert new[0][1]["count"] == few
+    [alarm] = alarms.active.of("survey/T1")
+    assert alarm.kind == "few_fish" and alarm.severity == "warning"
+    assert f"counted {few} fish, fewer than the 10 that weigh the tank" in alarm.text
+    assert "rests on the surveys that counted fish (newest 2026-05-28T" in alarm.text
+    assert rations.today("T1", T + 300).grams == pytest.approx(ration["grams"], abs=0.05)
+    assert rations.payload("T1", T + 300)["mean_weight_g"] == pytest.approx(20.0, rel=1e-3)
+    assert watch.figures["T1"] == figures
+    store.add_survey("T1", T + 400, "sparus_aurata", "none.json", [], [])
+    assert watch.check(T + 500) == []
+    assert [a.kind for a in alarms.active.of("survey/T1")] == ["no_fish"]
+    store.add_survey("T1", T + 600, "sparus_aurata", "b", *even(10, 24.0))
+    assert watch.check(T + 700) == ["T1"] and list(alarms.active.of("survey/T1")) == []
+    assert published.on("tank/T1/ration")[-1]["mean_weight_g"] == pytest.approx(24.0, rel=0.01)
+
+
+def test_a_tank_whose_only_survey_counted_a_handful_rests_on_the_configured_weight(weighing):
+    cfg, store, rations, alarms, published, watch = weighing
+    store.add_survey("T3", T, "sparus_aurata", "x", *even(4, 200.0))
+    assert watch.check(T + 10) == []
+    [alarm] = alarms.active.of("survey/T3")
+    assert alarm.kind == "few_fish" and "rests on the configured weight" in alarm.text
+    payload = rations.payload("T3", T + 10)
+    assert payload["basis"] == "config" and payload["mean_weight_g"] == cfg.tank("T3").mean_weight_g
