@@ -120,6 +120,16 @@ def iso(t: float) -> str:
     return dt.datetime.fromtimestamp(t, dt.UTC).isoformat(timespec="seconds").replace("+00:00", "Z")
 
 
+# A row's time is written to the millisecond, and a bound takes in the rows its own millisecond
+# holds: written to the second, a row's printed time given back as --until left the row out (the
+# ledger keeps the time to the microsecond), and rows of one second could not be put in order.
+HALF_MS = 0.0005
+
+
+def row_time(t: float) -> str:
+    return dt.datetime.fromtimestamp(round(t, 3), dt.UTC).isoformat(timespec="milliseconds").replace("+00:00", "Z")
+
+
 def history(store, what: str, tank: str, since: float | None = None, until: float | None = None):
     """(columns, rows, truncated): the rows oldest first, ``time`` as ISO, at most ``MAX_ROWS`` (a
     queryable's reply is one message)."""
@@ -140,15 +150,15 @@ def stream(store, what: str, tank: str, since: float | None = None, until: float
         raise BadInput("what", None, f"{what!r} is not one of {', '.join(WHAT)}")
     if since is not None and until is not None and since > until:
         raise BadInput("since", None, f"{iso(since)} is after until ({iso(until)}): no time lies between")
-    args = {"tank": tank, "since": -math.inf if since is None else since,
-            "until": math.inf if until is None else until}
+    args = {"tank": tank, "since": -math.inf if since is None else since - HALF_MS,
+            "until": math.inf if until is None else until + HALF_MS}
     # a LIMIT lets SQLite keep only that many rows in its sort, not the tank's every fish
     cur = store.db.execute(_SQL[what] + ("" if limit is None else f" LIMIT {int(limit)}"), args)
 
     def rows():
         try:
             for r in cur:
-                yield [iso(r[0]), *r[1:]]
+                yield [row_time(r[0]), *r[1:]]
         finally:
             cur.close()
     return COLUMNS[what], rows()

@@ -36,7 +36,8 @@ def ledger(tmp_path):
 def test_each_kind_of_row_for_the_tank_oldest_first_within_the_range(ledger):
     cols, rows, more = history(ledger, "surveys", "T1")
     assert cols[:4] == ("time", "survey", "species", "count") and not more
-    assert [r[0] for r in rows] == ["2026-05-28T20:26:40Z", "2026-06-04T20:26:40Z"] and [r[3] for r in rows] == [2, 1]
+    assert [r[0] for r in rows] == ["2026-05-28T20:26:40.000Z", "2026-06-04T20:26:40.000Z"]
+    assert [r[3] for r in rows] == [2, 1]
     _, fish, _ = history(ledger, "fish", "T1", since=T + DAY)
     assert [(r[2], r[3]) for r in fish] == [(13.0, 40.0)]
     _, fish, _ = history(ledger, "fish", "T1", until=T)
@@ -321,3 +322,35 @@ def test_a_text_cell_a_spreadsheet_would_run_as_a_formula_is_quoted(ledger, farm
     assert [r["count"] for r in rows] == ["2", "3", "4", "5", "6"]
     from controller.cli.csvio import text_cell
     assert [text_cell(v) for v in (-3.5, -2, None, "-3.5")] == [-3.5, -2, None, "'-3.5"]
+
+
+@pytest.mark.parametrize("what", ["surveys", "stock", "feeds"])
+def test_a_row_s_printed_time_given_back_as_since_or_until_takes_the_row_in(tmp_path, what):
+    """Rows at microsecond times (as the ledger keeps them), several within one second: each is
+    written to the millisecond, in order, and its written time as --until, --since or both returns
+    it (written to the second, --until of a row's own time left the row out)."""
+    import random
+    rng = random.Random(7)
+    store = Store(tmp_path / "ledger.db")
+    times = sorted(T + rng.choice([0, 1, 5]) + rng.randrange(1_000_000) / 1e6 for _ in range(30))
+    for i, t in enumerate(times):
+        if what == "surveys":
+            store.add_survey("T1", t, "sparus_aurata", f"{i}.json", [10.0 + i], [20.0])
+        elif what == "stock":
+            store.add_stock_event(t=t, tank="T1", kind="mortality", count=1, to_tank=None, who="ana")
+        else:
+            f = store.add_intent(tank="T1", date="2026-05-28", t=t, target_g=40, run_s=3, cycles_before=i,
+                                 source="demand")
+            store.close_feed(f.id, "done", 40.0, t + 1)
+    _, rows, _ = history(store, what, "T1")
+    written = [r[0] for r in rows]
+    assert len(written) == len(times) and written == sorted(written)
+    assert len(set(written)) == len({round(t, 3) for t in times})      # apart to the millisecond
+    for stamp in written:
+        at = parse_time(stamp, "until", T, durations=False)
+        for since, until in ((None, at), (at, None), (at, at)):
+            _, got, _ = history(store, what, "T1", since, until)
+            assert stamp in [r[0] for r in got], (stamp, since, until)
+        _, got, _ = history(store, what, "T1", None, at)
+        assert all(r[0] <= stamp for r in got)
+    store.close()
