@@ -290,7 +290,8 @@ def tank_figures(cfg, store, tank_id: str, since: float | None = None, target_g:
             days = days_to(target, weight, sgr)
             out["projection"] = {"target_g": target, "sgr_pct": sgr, "days": days, "weight_g": weight,
                                  "date": None if days is None else iso_day(newest.t + days * DAY_S),
-                                 "basis": "fit" if fit is not None else "last interval"}
+                                 "basis": "fit" if fit is not None else "last interval",
+                                 "reached": weight >= target}
     return out
 
 

@@ -184,7 +184,7 @@ def no_projection(report: dict, target_g: float | None) -> str | None:
         if p["days"] is None:
             return f"no projection: the fish are not growing (SGR {p['sgr_pct']:.2f} %/day)"
         if p["days"] <= 0:
-            return f"at the target already: {_g(p['target_g'])} or more"
+            return f"no projection: at the target already ({_g(p['weight_g'])}, target {_g(p['target_g'])})"
         return None
     n = len(report["surveys"])
     if target_g is None:

@@ -63,10 +63,10 @@ def text(report: dict, target_g: float | None = None) -> str:
         verdict = "GRADE: above" if report["grading"] else "within"
         lines.append(f"  uniformity: CV {cv:.1f} % ({verdict} {report['grading_cv_pct']:g} %)")
     p = report.get("projection")
-    if p is not None:
+    if p is not None and not p.get("reached"):
         when = "not growing: no date" if p["days"] is None else f"in {p['days']:.0f} days, {p['date']}"
         lines.append(f"  projection: {p['target_g']:g} g at {p['sgr_pct']:.2f} %/day {when}")
-    elif target_g is not None and report["surveys"]:         # asked for, and not a word why there was none
+    elif report["surveys"]:        # why there is none (no target, one survey), or the target reached
         from controller.report_plot import no_projection
         lines.append(f"  {no_projection(report, target_g)}")
     if empty:

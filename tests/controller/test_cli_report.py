@@ -238,3 +238,22 @@ def test_a_target_with_one_survey_says_why_there_is_no_projection(farm, capsys):
     code, out, _ = run(capsys, "report", "--tank", "T2", "--target", "100", "--config", str(path / "farm.toml"))
     assert code == 0 and out.startswith("T2 (sparus_aurata): 1 survey\n")
     assert "  no projection to 100 g: growth needs two surveys, this tank has 1 survey" in out
+
+
+def test_no_target_and_a_target_reached_are_said_in_the_text_as_on_the_page(farm, capsys):
+    """README: the text report names a missing projection's cause too. No target (none given, none
+    in the tank's config) printed no line; a target below the fish's weight printed 'in 0 days' and
+    today's date as when it is reached."""
+    path, _ = farm
+    code, out, _ = run(capsys, "report", "--tank", "T1", "--config", str(path / "farm.toml"))
+    assert code == 0 and "  no projection: no target weight (--target, or the tank's target_weight_g)\n" in out
+    for target in (25, 10):                       # the fitted weight today is ~30 g
+        code, out, _ = run(capsys, "report", "--tank", "T1", "--target", str(target),
+                           "--config", str(path / "farm.toml"))
+        assert code == 0 and f"  no projection: at the target already (30 g, target {target} g)\n" in out, out
+        assert "projection: " not in out.replace("no projection: ", "")
+        code, out, _ = run(capsys, "report", "--tank", "T1", "--target", str(target), "--json",
+                           "--config", str(path / "farm.toml"))
+        assert json.loads(out)["projection"]["reached"] is True
+    code, out, _ = run(capsys, "report", "--tank", "T1", "--target", "400", "--config", str(path / "farm.toml"))
+    assert "  projection: 400 g at " in out and "at the target already" not in out
