@@ -104,6 +104,18 @@ def bootstrap_means(values: np.ndarray, rng: np.random.Generator, n_boot: int = 
     return out
 
 
+def small_sample_factor(n: int, level: float = 0.95) -> float:
+    """How much wider than the percentile bootstrap's a mean's interval from ``n`` values must be:
+    the bootstrap's spread of means is the plug-in sd/sqrt(n) (divisor n, not n - 1), and it takes
+    the normal's quantile where the mean of a few has Student's t with n - 1 degrees of freedom:
+    sqrt(n / (n - 1)) t / z (2 fish: 9.2, 3: 2.7, 5: 1.58, 10: 1.22, 30: 1.06, 100: 1.02). Left out,
+    a "95 %" interval from 2 fish was their two weights and held the stock's mean ~half the time,
+    from 5 fish 83 % (an outside tester's coverage runs, lognormal weights)."""
+    from scipy import stats
+    z = stats.norm.ppf((1 + level) / 2)
+    return float(math.sqrt(n / (n - 1)) * stats.t.ppf((1 + level) / 2, n - 1) / z)
+
+
 def _num(x) -> float | None:
     return float(x) if x is not None and math.isfinite(x) else None
 
@@ -121,7 +133,8 @@ def summarise(lengths_cm, weights_g, *, rng: np.random.Generator, n_boot: int = 
               weight_bins: np.ndarray | None = None) -> dict:
     """The survey's statistics, one entry per fish (stills) or per track (video).
 
-    ``weight_g.ci`` is the percentile bootstrap interval of the mean weight at ``level``;
+    ``weight_g.ci`` is the percentile bootstrap interval of the mean weight at ``level``, widened
+    about the mean by ``small_sample_factor`` (never below 0 g);
     ``precision`` says how many fish in all (and how many more) would bring its half-width to
     ``target`` of the mean, scaling the half-width as 1/sqrt(n). Undefined figures are None.
     """
@@ -143,6 +156,9 @@ def summarise(lengths_cm, weights_g, *, rng: np.random.Generator, n_boot: int = 
     if n >= 2:
         means = bootstrap_means(weights, rng, n_boot)
         lo, hi = np.quantile(means, [(1 - level) / 2, (1 + level) / 2])
+        mean = float(weights.mean())
+        f = small_sample_factor(n, level)
+        lo, hi = max(0.0, mean - f * (mean - lo)), mean + f * (hi - mean)
         ci = [float(lo), float(hi)]
         half = (hi - lo) / 2
         mean = weight["mean"]
