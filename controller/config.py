@@ -189,7 +189,7 @@ class SurveysConfig(Strict):
 
 class Config(Strict):
     site: str = Field("demo", pattern=r"^[A-Za-z0-9_-]{1,64}$")
-    utc_offset_h: float = Field(0.0, ge=-14, le=14, description="rations reset at local midnight")
+    utc_offset_h: float = Field(0.0, ge=-12, le=14, description="rations reset at local midnight")
     bus: BusConfig = BusConfig()
     store: StoreConfig = StoreConfig()
     scada: ScadaConfig | None = None
@@ -202,6 +202,14 @@ class Config(Strict):
     cleaning: CleaningConfig | None = None
     surveys: SurveysConfig = SurveysConfig()
     path: str = "<config>"
+
+    @field_validator("utc_offset_h")
+    @classmethod
+    def _a_zone_s_offset(cls, h: float) -> float:
+        # the world's zones lie -12..+14 h in quarter hours (+5:45 Nepal): 5.123 is a typo
+        if abs(h * 4 - round(h * 4)) > 1e-9:
+            raise ValueError(f"{h:g} h is no time zone's offset: a whole hour, or a half or quarter past")
+        return h
 
     @field_validator("tanks")
     @classmethod

@@ -53,11 +53,21 @@ class FarmInstant(Finite):
 FARM_INSTANT = FarmInstant()
 
 
+def _given(name: str, otherwise: bool) -> bool:
+    """Whether the command line gave option ``name`` (``--speed 1`` is given though it is the
+    default: compared with the default, it passed beside --clock); ``otherwise`` outside a command."""
+    ctx = click.get_current_context(silent=True)
+    if ctx is None or name not in ctx.params:
+        return otherwise
+    from click.core import ParameterSource
+    return ctx.get_parameter_source(name) not in (ParameterSource.DEFAULT, None)
+
+
 def check_clock_options(speed, epoch_wall, epoch_farm, clock_path, hear=None) -> None:
     """Options of ``run`` and ``sim`` that cannot all be meant: each was ignored without a word."""
     from controller.errors import BadInput
     if clock_path is not None:
-        given = [o for o, v in (("--speed", speed != 1.0), ("--epoch-wall", epoch_wall is not None),
+        given = [o for o, v in (("--speed", _given("speed", speed != 1.0)), ("--epoch-wall", epoch_wall is not None),
                                 ("--epoch-farm", epoch_farm is not None)) if v]
         if given:
             raise BadInput("--clock", None, f"the clock file sets farm time: not with {' or '.join(given)}")

@@ -84,6 +84,8 @@ def test_epochs_outside_the_farm_years_are_refused_in_one_line(tmp_path, capsys,
 @pytest.mark.parametrize("command", ["run", "sim"])
 @pytest.mark.parametrize("args, said", [
     (["--speed", "60"], "fishfarm: --clock: the clock file sets farm time: not with --speed"),
+    (["--speed", "1"], "fishfarm: --clock: the clock file sets farm time: not with --speed"),     # the default, given
+    (["--speed", "1.0"], "fishfarm: --clock: the clock file sets farm time: not with --speed"),
     (["--epoch-farm", "1780000000"], "fishfarm: --clock: the clock file sets farm time: not with --epoch-farm"),
 ])
 def test_run_and_sim_refuse_a_clock_file_with_speed_or_epochs_alike(tmp_path, capsys, command, args, said):

@@ -108,6 +108,8 @@ def test_non_finite_numbers_are_refused_in_every_section(tmp_path, text, key):
     (GOOD.replace("stock = 10", "stock = 10_000_000_000"), "tanks.0.stock: "),
     (GOOD.replace('"A1"', '"A/1"'), "tanks.0.sensors.0: "),
     ("utc_offset_h = 15\n" + GOOD, "utc_offset_h: "),
+    ("utc_offset_h = -13\n" + GOOD, "utc_offset_h: Input should be greater than or equal to -12"),
+    ("utc_offset_h = 5.123\n" + GOOD, "utc_offset_h: 5.123 h is no time zone's offset"),
     (GOOD + "[feeding]\nportion_g = 1e300\n", "feeding.portion_g: "),
     (GOOD + "[feeding]\nmove_timeout_s = 1e7\n", "feeding.move_timeout_s: "),
     (GOOD + "[feeding]\nretry_backoff_s = [5.0, -1.0]\n", "feeding.retry_backoff_s.1: "),
@@ -129,3 +131,8 @@ def test_species_file_refuses_non_finite_numbers(tmp_path):
     p.write_text("[sparus_aurata]\na = nan\n")
     with pytest.raises(BadInput, match=r"sparus_aurata\.a: must be a finite number"):
         load_toml(p)
+
+
+@pytest.mark.parametrize("h", [-12, -9.5, -3.5, 0, 5.5, 5.75, 12.75, 14])
+def test_every_zone_s_offset_is_taken(tmp_path, h):
+    assert load_config(write(tmp_path, f"utc_offset_h = {h}\n" + GOOD)).utc_offset_h == h
