@@ -7,6 +7,7 @@ stock of fish: fitted on that stock's hand-weighed sample, better than the speci
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -41,6 +42,9 @@ class SurveyShape(BaseModel):
     def geometry(self) -> FishGeometry:
         return FishGeometry(self.min_length_cm, self.max_length_cm, self.max_tilt_deg, self.depth_to_length,
                             self.fin_base_to_fork)
+
+
+STOCK_SPAN = 3.0         # a stock's weight at a length within this factor of its species' law
 
 
 class StockSection(BaseModel):
@@ -91,5 +95,16 @@ def with_stock(species: SurveySpecies, config_path: str | Path, stock: str) -> S
     if section.species != species.key:
         raise BadInput(where, f"stocks.{stock}.species",
                        f"{section.species!r}, but the survey is of {species.key!r} (--species)")
-    return SurveySpecies(species.key, species.name, LengthWeight(section.a, section.b),
-                         f"farm.toml stocks.{stock}: {section.source}", species.shape)
+    own = LengthWeight(section.a, section.b)
+    # a and b are each within their bounds in nonsense pairs (a = 1e-30 gave every fish 0.0 g; a in
+    # kg is 1000 x light): the stock's fish must weigh what fish of their species might, within a
+    # factor of STOCK_SPAN of the species' law at a middling length (the paper's nursery stock:
+    # a = 0.012 against the species' 0.02263, 0.53 x)
+    mid = math.sqrt(species.shape.min_length_cm * species.shape.max_length_cm)
+    w, typical = float(own.weight_g(mid)), float(species.weight.weight_g(mid))
+    if not 1 / STOCK_SPAN <= w / typical <= STOCK_SPAN:
+        raise BadInput(where, f"stocks.{stock}.a", f"a = {section.a:g}, b = {section.b:g} weigh a {mid:.0f} cm fish "
+                                                   f"{w:.3g} g, {w / typical:.2g} x the {typical:.3g} g of "
+                                                   f"{species.key}'s own law: a unit slip?")
+    return SurveySpecies(species.key, species.name, own, f"farm.toml stocks.{stock}: {section.source}",
+                         species.shape)

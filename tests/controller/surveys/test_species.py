@@ -83,3 +83,22 @@ def test_stock_override_and_its_faults(tmp_path):
         p.write_text(STOCK.replace(bad, key))
         with pytest.raises(BadInput, match=r"farm.toml: stocks.s1.(a|b|colour): "):
             with_stock(survey_species("sparus_aurata"), p, "s1")
+
+
+@pytest.mark.parametrize("a, b, weighs", [
+    ("1e-30", "3.0", False),       # every fish 0.0 g, each figure within its own bounds
+    ("0.0000226", "3.032", False),  # the species' a in kg per cm^b: 1000 x light
+    ("0.9", "3.5", False),
+    ("0.012", "3.032", True),      # the paper's nursery stock (Table I): 0.53 x the species' law
+    ("0.045", "2.9", True),
+    ("0.02263", "3.032", True),
+])
+def test_a_stock_whose_a_and_b_weigh_no_fish_of_its_species_is_refused(tmp_path, a, b, weighs):
+    p = tmp_path / "farm.toml"
+    p.write_text(STOCK.replace("a = 0.015", f"a = {a}").replace("b = 3.0", f"b = {b}"))
+    if weighs:
+        assert with_stock(survey_species("sparus_aurata"), p, "s1").weight.a == float(a)
+        return
+    with pytest.raises(BadInput, match=r"farm.toml: stocks.s1.a: a = .* x the .* g of sparus_aurata's own law") as e:
+        with_stock(survey_species("sparus_aurata"), p, "s1")
+    assert "\n" not in str(e.value)
