@@ -58,6 +58,7 @@ class SurveySession:
     pairs: int
     why: str
     t: float                                   # when it was asked for
+    began: float | None = None                 # when its first visit reached the tank: its time in the ledger
     captured: int = 0
     last_pair_t: float = -math.inf
     lengths: list[float] = field(default_factory=list)
@@ -111,6 +112,8 @@ class SurveyStop:
         is never measured as this tank's fish. Frames wait in a network camera's buffers, so the
         first ``stale_frames`` that arrive after the water settled are dropped as well."""
         session.visits += 1
+        if session.began is None:
+            session.began = self.clock.now()
         outcome = "failed"
         settled_at = self.clock.now() + self.s.settle_s
         try:
@@ -229,7 +232,10 @@ class SurveyStop:
         while session.measuring:
             await asyncio.wait(set(session.measuring), timeout=self._left(session))
             self._abandon_late(session)
-        t = self.clock.now()
+        # dated when the robot came to the tank, not when the last pair was measured: the schedule
+        # counts a tank's next survey from the farm day of this one, and a survey begun at 23:55
+        # and recorded at 00:14 had moved a daily survey to every other day (a weekly one to 8 days)
+        t = session.began if session.began is not None else self.clock.now()
         measured = np.asarray(session.lengths, float)
         far = implausible(measured)
         lengths, rejected = measured[~far], [float(x) for x in measured[far]]

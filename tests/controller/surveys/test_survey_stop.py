@@ -115,6 +115,7 @@ def test_a_survey_stop_settles_captures_its_pairs_at_the_tank_and_is_recorded(tm
             await r.until(lambda: r.robot.state == "surveying", what="surveying")
             arrived = r.clock.now()
             survey = await recorded(r, stops, "T2")
+            done = r.clock.now()
             await r.until(lambda: not stops.schedule.recording, 5.0, what="the schedule told of the record")
             assert stops.schedule.held("T2", set(), r.clock.now()) == "retry later"
             states = r.published.states()
@@ -123,8 +124,11 @@ def test_a_survey_stop_settles_captures_its_pairs_at_the_tank_and_is_recorded(tm
             scores = [row[0] for row in r.store.db.execute("SELECT score FROM survey_fish WHERE survey = ?",
                                                                (survey.id,))]
             return (survey, camera, measure, sp, states, arrived, asked, fresh, r.rations.today("T2", r.clock.now()),
-                    scores)
-    survey, camera, measure, sp, states, arrived, asked, fresh, ration, scores = run(main())
+                    scores, done)
+    survey, camera, measure, sp, states, arrived, asked, fresh, ration, scores, done = run(main())
+    # dated when the robot reached the tank, not when its last pair was measured (~70 farm s on): the
+    # schedule counts from its farm day (begun at 23:55, recorded at 00:14, a daily survey skipped a day)
+    assert asked <= survey.t <= arrived + 0.5 and done - survey.t >= 30.0 + 8 * 5.0
     assert scores == [0.9] * survey.count                     # each fish's score kept with it
     truth = np.array(measure.lengths)
     assert survey.count == 8 * 3 == len(truth)
