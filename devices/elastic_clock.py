@@ -245,9 +245,12 @@ class ElasticClock:
 
     def at(self, wall: float) -> float:
         """Farm time at wall instant ``wall`` (a log record's, just made), on the current segment;
-        an instant before the segment's anchor reads as the anchor (the earlier speed is gone)."""
+        an instant before the segment's anchor reads as the anchor (the earlier speed is gone), and
+        no instant reads before the latest ``now()`` (held monotonic, as ``now`` is)."""
         seg = self.segment()
-        return seg.farm_at(max(wall, seg.wall0))
+        # never before a time now() has given: a segment overwritten with an earlier anchor (a file
+        # another program wrote) had log lines a day behind the ledger and the status
+        return max(seg.farm_at(max(wall, seg.wall0)), self._last)
 
     @property
     def speed(self) -> float:

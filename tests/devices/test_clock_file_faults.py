@@ -226,3 +226,24 @@ def test_a_second_farm_on_one_clock_file_is_refused_naming_the_holder(tmp_path):
         holder.kill()
         holder.wait()
         other.close()
+
+
+def test_a_segment_overwritten_with_an_earlier_anchor_does_not_take_log_times_back(tmp_path):
+    """Another program writes a sound but earlier segment (a day back): now() is held monotonic and
+    so is at(), which stamps the log lines (they read a day behind the ledger and the status)."""
+    path = tmp_path / "clock"
+    create(path, slow=SLOW, fast=FAST, farm_start=START)
+    clock = ElasticClock(path)
+    try:
+        before = clock.now()
+        seg = clock.segment()
+        with open(path, "r+b") as fh:
+            raw = bytearray(fh.read())
+            SEG.pack_into(raw, SEG_AT, seg.wall0, seg.farm0 - 86_400.0, seg.speed, seg.limit, seg.after)
+            fh.seek(0)
+            fh.write(raw)
+        assert clock.segment().farm0 < before - 80_000            # the file reads a day back
+        now = time.time()
+        assert clock.now() >= before and clock.at(now) >= before
+    finally:
+        clock.close()
