@@ -257,3 +257,29 @@ def test_no_target_and_a_target_reached_are_said_in_the_text_as_on_the_page(farm
         assert json.loads(out)["projection"]["reached"] is True
     code, out, _ = run(capsys, "report", "--tank", "T1", "--target", "400", "--config", str(path / "farm.toml"))
     assert "  projection: 400 g at " in out and "at the target already" not in out
+
+
+@pytest.mark.parametrize("offset_h", [5.5, -3.5, 0.0])
+def test_the_report_dates_surveys_by_the_farm_s_day_as_rations_and_feeds_are(tmp_path, capsys, offset_h):
+    """A survey at 18:47 UTC on a +5:30 farm is 00:17 of the next local day: the ration planned from
+    it is that day's, and the report printed the UTC day."""
+    import datetime as dt
+    import tomllib
+    raw = tomllib.loads(open("config/farm.toml").read())
+    raw["store"] = {"path": str(tmp_path / "ledger.db")}
+    raw["utc_offset_h"] = offset_h
+    (tmp_path / "farm.toml").write_text(tomli_w.dumps(raw))
+    t1 = dt.datetime(2026, 12, 10, 18, 47, tzinfo=dt.UTC).timestamp()
+    t2 = dt.datetime(2026, 12, 17, 2, 10, tzinfo=dt.UTC).timestamp()
+    store = Store(tmp_path / "ledger.db")
+    store.add_survey("T1", t1, "sparus_aurata", "a", [12.0] * 20, [20.0] * 20)
+    store.add_survey("T1", t2, "sparus_aurata", "b", [13.0] * 20, [26.0] * 20)
+    store.close()
+    local = [(dt.datetime.fromtimestamp(t, dt.UTC) + dt.timedelta(hours=offset_h)).strftime("%Y-%m-%d")
+             for t in (t1, t2)]
+    code, out, _ = run(capsys, "report", "--tank", "T1", "--config", str(tmp_path / "farm.toml"), "--json")
+    data = json.loads(out)
+    assert code == 0 and [s["date"] for s in data["surveys"]] == local
+    assert (data["intervals"][0]["date1"], data["intervals"][0]["date2"]) == tuple(local)
+    code, out, _ = run(capsys, "report", "--tank", "T1", "--config", str(tmp_path / "farm.toml"))
+    assert f"  survey {local[0]}: 20 fish" in out and f"  {local[0]} -> {local[1]} (" in out
