@@ -9,8 +9,9 @@ of wall time from the controller's clock (whatever the farm clock's speed) is on
 - **ahead**: no contact arrives before it happens: the hub's clock is wrong. The stamp is
   replaced by the time it arrived, and the clock alarmed (``device/{hub}``, kind ``clock``) once,
   cleared once its stamps agree again;
-- **behind, by a lag that holds** for ``LAG_HOLDS_WALL_S`` of arrivals: a clock set back. From then
-  on, as ahead;
+- **behind, by a lag that holds or grows** for ``LAG_HOLDS_WALL_S`` of arrivals: a clock set back,
+  or one running slower than the controller's (a simulator at another ``--speed``). From then on,
+  as ahead;
 - **behind, by a lag that does not hold**: contacts late, not a clock off — a hub (or a link, or a
   simulator) stalled and now sending what it held, its lag shrinking as it catches up. Counted at
   their arrival, hours of contacts made one burst, and fish that had stopped asking were fed (23
@@ -63,8 +64,12 @@ class HubClock:
             self._agrees()
 
     def _lag_holds(self, now: float, lag: float) -> bool:
-        """Whether contacts have been this far behind, give or take SKEW_WALL_S, for LAG_HOLDS_WALL_S."""
-        if self._lag is None or self.clock.wall(abs(lag - self._lag[1])) > SKEW_WALL_S:
+        """Whether contacts have been at least this far behind, less SKEW_WALL_S, for LAG_HOLDS_WALL_S:
+        a lag that holds (a clock set back) or grows (a hub clock slower than ours: a simulator at
+        another --speed, whose contacts were all dropped as late while the lag grew by hours). Only
+        a lag that shrinks is a backlog catching up."""
+        shrunk = None if self._lag is None else self._lag[1] - lag
+        if shrunk is None or (shrunk > 0 and self.clock.wall(shrunk) > SKEW_WALL_S):
             self._lag = (now, lag)
         return self.clock.wall(now - self._lag[0]) >= LAG_HOLDS_WALL_S
 

@@ -123,3 +123,18 @@ def test_heartbeats_that_agree_clear_a_standing_alarm_and_raise_none():
     hub.heard(T0 + 3600.0)                                # caught up
     assert alarms.cleared[-1] == ("device/hub", "late")
     assert [a[1] for a in alarms.raised] == ["clock", "late"]
+
+
+def test_a_hub_clock_slower_than_ours_is_a_clock_off_not_contacts_late_for_ever():
+    """A simulator started at --speed 60 beside a controller at 240: its stamps fall behind by 3 farm
+    s every farm s. Each contact was dropped as late (the lag never held, it grew), the fish asked
+    for four farm hours and were never fed. A lag that grows for LAG_HOLDS_WALL_S is a clock off:
+    alarmed as such, contacts counted at their arrival, and the tank's demand raised."""
+    clock, alarms = Clock(T0), Alarms()
+    hub = HubClock(clock, alarms, "hub")
+    start = T0 + 60.0
+    slow = [(t, start + 0.25 * (t - start), s) for t, s in episode(start, 180.0)]
+    caught = demands_within(slow, clock, hub.stamp, start + 240.0)
+    assert caught and caught[0] <= start + 60.0 + LAG_HOLDS_WALL_S, caught
+    assert [a[1] for a in alarms.raised] == ["late", "clock"], alarms.raised
+    assert hub.replaced > 100 and hub.late < LAG_HOLDS_WALL_S + SKEW_WALL_S + 5
