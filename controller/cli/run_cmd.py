@@ -73,7 +73,7 @@ def run(config_path, duration, speed, epoch_wall, epoch_farm, clock_path, log_le
         clock = ScaledClock.starting(speed, epoch_farm)
     else:
         clock = ScaledClock.starting(speed) if speed != 1.0 or all_sim else ScaledClock.real()
-    clock, carried = _after_the_ledger(cfg, clock, follows)
+    clock, carried = _after_the_ledger(cfg, clock, follows, clock_path is not None)
     setup_logging(clock, log_level)
     if carried is not None:
         logging.getLogger("fishfarm").info("farm time carries on from the ledger's last entry (%s), not the "
@@ -99,7 +99,7 @@ def run(config_path, duration, speed, epoch_wall, epoch_farm, clock_path, log_le
 AHEAD_S = 300.0         # a ledger this far (farm s) ahead of the clock: the clock went back
 
 
-def _after_the_ledger(cfg, clock, follows: bool):
+def _after_the_ledger(cfg, clock, follows: bool, clock_file: bool = False):
     """(clock, the ledger time it carries on from or None). A simulated farm's clock with no epoch
     given starts at the wall clock: restarted on a ledger a faster run had taken days ahead, farm
     time ran back, and demands of the 'future' were served at once, one of them twice. Such a clock
@@ -112,11 +112,19 @@ def _after_the_ledger(cfg, clock, follows: bool):
     if latest is None or latest <= now + (0.0 if follows else AHEAD_S):
         return clock, None
     if follows:
+        from devices.clock_file import farm_range_fault
+        if farm_range_fault(latest + 86_400.0) is not None:
+            # carried on from there, the simulator's --epoch-farm (never given) was refused, naming it
+            raise BadInput("store.path", cfg.store.path,
+                           f"the ledger's last entry ({clock.iso(latest)}) is at the end of the farm's years "
+                           "2000-2199: a simulated farm cannot carry on from it (start a new ledger)")
         return ScaledClock.starting(clock.speed, latest), latest
+    carry = ("a clock file whose farm time starts after it (fishfarm clock --farm-start)" if clock_file
+             else "--epoch-wall/--epoch-farm that carry on from the ledger")
     raise BadInput("store.path", cfg.store.path,
                    f"the ledger's last entry ({clock.iso(latest)}) is {(latest - now) / 3600:.1f} h after this "
-                   f"clock's farm time ({clock.iso(now)}): the clock went back (give --epoch-wall/--epoch-farm "
-                   "that carry on from the ledger, or start a new ledger)")
+                   f"clock's farm time ({clock.iso(now)}): the clock went back (give {carry}, or start a new "
+                   "ledger)")
 
 
 def _run_to_the_end(main, leftovers_s: float = 0.5) -> None:

@@ -192,6 +192,40 @@ def test_a_farm_clock_the_ledger_is_ahead_of_is_refused(tmp_path, ahead_s):
     assert f"is {ahead_s / 3600:.1f} h after this clock's farm time" in msg
 
 
+@pytest.mark.parametrize("clock_file, advice", [(False, "give --epoch-wall/--epoch-farm that carry on"),
+                                                 (True, "give a clock file whose farm time starts after it")])
+def test_the_clock_went_back_advice_fits_the_clock_given(tmp_path, clock_file, advice):
+    """With --clock, the advice named --epoch-wall/--epoch-farm, which --clock refuses."""
+    from types import SimpleNamespace
+
+    from controller.cli.run_cmd import _after_the_ledger
+    from controller.errors import BadInput
+    from devices.clock import ScaledClock
+    clock = ScaledClock(1.0, 1.8e9, 1.8e9)
+    _ledger_at(tmp_path / "l.db", clock.now() + 3600.0)
+    cfg = SimpleNamespace(store=SimpleNamespace(path=str(tmp_path / "l.db")))
+    with pytest.raises(BadInput, match=advice):
+        _after_the_ledger(cfg, clock, False, clock_file)
+
+
+def test_a_ledger_at_the_end_of_the_farm_s_years_is_named_not_a_flag_never_given(tmp_path):
+    """A run given --epoch-farm late in 2199 wrote its ledger there; a plain restart then failed on
+    the simulator's --epoch-farm, a flag the user never gave, and wrote a later entry each time."""
+    from types import SimpleNamespace
+
+    from controller.cli.run_cmd import _after_the_ledger
+    from controller.errors import BadInput
+    from devices.clock import ScaledClock
+    from devices.clock_file import FARM_MAX
+    _ledger_at(tmp_path / "l.db", FARM_MAX - 600.0)
+    cfg = SimpleNamespace(store=SimpleNamespace(path=str(tmp_path / "l.db")))
+    with pytest.raises(BadInput) as exc:
+        _after_the_ledger(cfg, ScaledClock.starting(60.0), True)
+    msg = str(exc.value)
+    assert msg.startswith(f"store.path: {tmp_path / 'l.db'}: the ledger's last entry (") and "2000-2199" in msg
+    assert "--epoch" not in msg and "\n" not in msg
+
+
 def test_no_ledger_yet_changes_nothing(tmp_path):
     from types import SimpleNamespace
 
