@@ -37,6 +37,7 @@ from devices.clock import farm_date
 
 DAY_S = 86_400.0
 PLANNED = ("config", "survey", "projected")    # rations the controller plans (an operator's stands)
+MIX_SAMPLE = 1000       # fish in the sample that mixes a tank's own with fish moved in (each in its share)
 
 
 class FeedingRow(BaseModel):
@@ -173,6 +174,7 @@ class Rations:
         tank = self.cfg.tank(tank_id)
         table, temp, stock = self.tables[tank.species], self.water_temp_c(tank_id), self.stock(tank_id)
         weights, source, note, growth = self._weights(tank_id, t, table, temp)
+        weights, note = self._mixed_with_moved_in(tank_id, t, table, temp, weights, stock, note)
         plan = ration_from_weights(weights, stock, temp, table)
         grams = plan.grams
         if tank.feeding_rate_pct is not None:          # the operator's rate for this tank, on its biomass
@@ -213,6 +215,43 @@ class Rations:
         return (weights * now / s.mean_weight_g, source,
                 f"{when}, {age_d:.1f} days old: {now:.1f} g (±{growth['weight_ci_pct']:.1f} %) today at {how}",
                 growth)
+
+    def _mixed_with_moved_in(self, tank_id: str, t: float, table, temp: float, weights: np.ndarray, stock: int,
+                             note: str) -> tuple[np.ndarray, str]:
+        """``weights`` (the tank's own fish, as its newest survey or the config has them) mixed with
+        the fish moved in since that survey (or ever, with none) from tanks that surveyed them: each
+        transfer's fish as its source's newest survey before it saw them, grown at the chart's rate,
+        in their share of the stock. 200 fish of 204 g moved into 2,400 of 24 g were fed as 24 g
+        fish: the ration rested on 57.6 kg of a 93.6 kg tank. A tank emptied first is fed as its
+        first transfer's fish alone (``_moved_in``); a survey after the transfer sees them all."""
+        newest = self.store.surveys(tank_id, until=t, limit=1)
+        events = [dict(e) for e in self.store.stock_events()]
+        emptied = emptied_at(self.cfg.tank(tank_id).stock, events, tank_id, t)
+        refilled = emptied is not None and (not newest or newest[0].t <= emptied)
+        since = emptied if refilled else (newest[0].t if newest else -math.inf)
+        came = [e for e in sorted(events, key=lambda e: e["t"])
+                if e["kind"] == "transfer" and e["to_tank"] == tank_id and since < e["t"] <= t]
+        if refilled:
+            came = came[1:]                        # the first refilled the tank: it is ``weights``
+        groups, moved = [], 0
+        for e in came:
+            source = self.store.surveys(e["tank"], until=e["t"], limit=1)
+            if not source:
+                continue                           # nobody weighed them: as the tank's own
+            s0 = source[0]
+            now = project_weight(s0.mean_weight_g, max(0.0, (t - s0.t) / DAY_S), temp, table) or s0.mean_weight_g
+            groups.append((int(e["count"]), self.store.survey_weights(s0.id) * now / s0.mean_weight_g, e, now))
+            moved += int(e["count"])
+        if not groups or stock <= 0:
+            return weights, note
+        own = max(stock - moved, 0)
+        # one sample in which each group holds its share of the stock (cycled to length, in order)
+        size = max(MIX_SAMPLE, len(weights), *(len(w) for _, w, _, _ in groups))
+        parts = [np.resize(weights, round(size * own / stock))] if own else []
+        parts += [np.resize(w, max(1, round(size * min(n, stock) / stock))) for n, w, _, _ in groups]
+        said = "; ".join(f"{n} fish moved in from {e['tank']} on {self.date(e['t'])} at {now:.1f} g"
+                         for n, _, e, now in groups)
+        return np.concatenate(parts), f"{note}; {said}"
 
     def _moved_in(self, tank_id: str, emptied: float, events: list[dict], t: float, table, temp: float):
         """A tank emptied and stocked again by a transfer: the fish of the first transfer in since,

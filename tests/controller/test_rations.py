@@ -213,3 +213,33 @@ def test_a_tank_emptied_and_stocked_again_is_not_fed_as_the_fish_that_left(ratio
     store.add_survey("T4", T + 3 * 86400, "sparus_aurata", "new", [10.0] * 4, [18.0, 19.0, 21.0, 22.0])
     plan = rations.plan("T4", T + 3 * 86400 + 60)               # its own survey again, and only it
     assert plan.source == "survey" and plan.mean_weight_g == pytest.approx(20.0, rel=0.05)
+
+
+@pytest.mark.parametrize("surveyed", [False, True])
+def test_fish_moved_into_a_tank_that_still_holds_fish_are_fed_at_their_own_weight(rations, surveyed):
+    """200 fish of ~204 g moved from T1 into T2's 24 g fish were fed as 24 g fish: the ration rested
+    on the config's weight for every fish. Each group is now fed in its share of the stock at its own
+    weight (T2's own: its newest survey or the config); a survey of T2 after the transfer sees them all."""
+    from controller.feeding.feeding_table import ration_from_weights
+    store, cfg = rations.store, rations.cfg
+    big = [190.0, 200.0, 210.0, 216.0]
+    store.add_survey("T1", T, "sparus_aurata", "T1", [20.0] * 4, big)
+    own = [22.0, 23.0, 25.0, 26.0]
+    if surveyed:
+        store.add_survey("T2", T + 60, "sparus_aurata", "T2", [11.0] * 4, own)
+    store.add_stock_event(t=T + 3600, tank="T1", kind="transfer", count=200, to_tank="T2", who="t")
+    t = T + 3600 + 60
+    stock, temp = rations.stock("T2"), rations.water_temp_c("T2")
+    table = rations.tables["sparus_aurata"]
+    mine = own if surveyed else [cfg.tank("T2").mean_weight_g]
+    plan = rations.plan("T2", t)
+    # each group alone, through the public formula, grown as the plan grows them (an hour: ~0)
+    expected = (ration_from_weights(mine, stock - 200, temp, table).grams
+                + ration_from_weights(big, 200, temp, table).grams)
+    assert plan.grams == pytest.approx(expected, rel=0.01)
+    assert plan.mean_weight_g == pytest.approx(((stock - 200) * sum(mine) / len(mine) + 200 * 204.0) / stock,
+                                               rel=0.01)
+    assert "200 fish moved in from T1" in plan.note
+    store.add_survey("T2", T + 7200, "sparus_aurata", "after", [11.0] * 4, own)      # sees them all
+    after = rations.plan("T2", T + 7200 + 60)
+    assert "moved in" not in after.note and after.mean_weight_g == pytest.approx(24.0, rel=0.01)
