@@ -23,6 +23,7 @@ Z95 = 1.959963984540054
 MIN_SPAN_D = 1.0            # surveys closer than this measure no growth: pooled as one (two surveys a
                             # minute apart read 752 and 675 g: an SGR of -13,892 %/day, a ration of 0 g)
 ASSUMED_CV_PCT = 20.0       # a survey of one fish has no CV of its own: a farmed stock's usual spread
+PRIOR_Z = 3.0               # a prior further than this from the data's own fit (both errors) is left out
 MIN_CV_PCT = 5.0            # a survey's CV is itself sampled: below this it would weigh too much
 
 
@@ -266,10 +267,13 @@ class FeedFit:
         return out
 
 
-def fit_feed(weighings: list[Weighing], accounts: list[Account]) -> FeedFit | None:
+def fit_feed(weighings: list[Weighing], accounts: list[Account],
+             prior: tuple[float, float] | None = None) -> FeedFit | None:
     """The feed model's fit (FeedFit) to surveys and the ledger's accounts at their times (same
     order); None unless two surveys of a tank holding fish with feed given between them (a survey
-    of a tank whose fish all left weighs nothing of its biomass)."""
+    of a tank whose fish all left weighs nothing of its biomass). ``prior``: the conversion (gain
+    per gram fed, 1/FCR) the feeding chart expects and its standard error, one more observation of
+    the slope (module docstring of controller/production.py: ``CHART_PRIOR_REL``)."""
     if len(weighings) != len(accounts):
         return None
     kept = [(w, a) for w, a in zip(weighings, accounts, strict=True) if a.stock > 0 and w.mean_weight_g > 0]
@@ -282,6 +286,13 @@ def fit_feed(weighings: list[Weighing], accounts: list[Account]) -> FeedFit | No
     y = np.array([w.mean_weight_g * a.stock + a.left_g for w, a in zip(weighings, accounts, strict=True)])
     inv_var = 1.0 / np.array([w.mean_weight_g * a.stock * w.log_se
                               for w, a in zip(weighings, accounts, strict=True)]) ** 2
-    beta, cov, scale, q = _weighted_fit(np.column_stack([np.ones_like(feed), feed]), y, inv_var)
+    X = np.column_stack([np.ones_like(feed), feed])
+    beta, cov, scale, q = _weighted_fit(X, y, inv_var)
+    # the chart's conversion joins the fit where the surveys and the feed could have it: a ledger
+    # that misses feeds (fish fed by hand, another system) gives a conversion no chart expects, and
+    # held to the chart the fit read a survey of today 11 % off its own mean
+    if prior is not None and abs(beta[1] - prior[0]) <= PRIOR_Z * math.sqrt(cov[1, 1] + prior[1] ** 2):
+        beta, cov, scale, q = _weighted_fit(np.vstack([X, [0.0, 1.0]]), np.append(y, prior[0]),
+                                            np.append(inv_var, 1.0 / prior[1] ** 2))
     return FeedFit(float(beta[0]), float(beta[1]), _pairs(cov),
-                   accounts[0], accounts[-1], len(y), int(sum(w.count for w in weighings)), scale, q)
+                   accounts[0], accounts[-1], len(weighings), int(sum(w.count for w in weighings)), scale, q)

@@ -201,7 +201,7 @@ class Rations:
         age_d = (t - s.t) / DAY_S
         source = "survey" if age_d <= self.cfg.feeding.survey_max_age_d else "projected"
         when = f"survey of {self.date(s.t)} ({s.count} fish, mean {s.mean_weight_g:.1f} g)"
-        fitted = fitted_weight(self.cfg, self.store, tank_id, t)
+        fitted = fitted_weight(self.cfg, self.store, tank_id, t, (table, temp))
         if isinstance(fitted, tuple):
             now, growth, how = fitted
         else:                           # one survey: the chart's growth, class by class as the fish grow
