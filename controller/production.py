@@ -27,12 +27,12 @@ in it: a fit across one mixes two stocks) and within ``[feeding] growth_window_d
 from __future__ import annotations
 
 import math
-import time
 from dataclasses import dataclass
 
 import numpy as np
 
 from controller.growth import Account, FeedFit, GrowthFit, Weighing, conversion, fit_feed, fit_growth, net_conversion
+from devices.clock import farm_date
 
 DAY_S = 86_400.0
 
@@ -245,7 +245,7 @@ def fitted_figures(cfg, store, tank_id: str, t: float) -> dict | None:
         return None
     fit, rows = got
     t1, t2 = fit.t_first, fit.t_last
-    when = {"since": iso_day(t1, cfg.utc_offset_h), "t_first": t1, "t_last": t2}
+    when = {"since": farm_date(t1, cfg.utc_offset_h), "t_first": t1, "t_last": t2}
     times = [float(t) for t in np.linspace(t1, t2, CURVE_POINTS)]
     if cfg.feeding.growth_model == "feed":
         feed = _feed_fit(cfg, store, tank_id, fit, rows)
@@ -290,21 +290,21 @@ def tank_figures(cfg, store, tank_id: str, since: float | None = None, target_g:
         p = SurveyPoint(s.t, s.mean_weight_g, s.cv_pct or 0.0, condition_factor(lengths, weights), s.count,
                         stock_at(tank.stock, events, tank_id, s.t))
         points.append(p)
-        surveys.append({"t": s.t, "date": iso_day(s.t, cfg.utc_offset_h), "fish": s.count,
+        surveys.append({"t": s.t, "date": farm_date(s.t, cfg.utc_offset_h), "fish": s.count,
                         "mean_weight_g": s.mean_weight_g, "cv_pct": s.cv_pct, "k": p.k, "stock": p.stock,
                         "weights_g": [float(w) for w in weights]})
     intervals = [{**interval(a, b, store.fed_between(tank_id, a.t, b.t), events, tank_id).__dict__,
-                  "date1": iso_day(a.t, cfg.utc_offset_h), "date2": iso_day(b.t, cfg.utc_offset_h)}
+                  "date1": farm_date(a.t, cfg.utc_offset_h), "date2": farm_date(b.t, cfg.utc_offset_h)}
                  for a, b in zip(points, points[1:], strict=False)]
     # surveys that counted too few fish to weigh the tank (none, or fewer than [surveys]
     # min_weighed_fish): none of the figures rests on them, but a manager wants to know
-    empty = [{"t": e.t, "date": iso_day(e.t, cfg.utc_offset_h), "source": e.source, "fish": e.count}
+    empty = [{"t": e.t, "date": farm_date(e.t, cfg.utc_offset_h), "source": e.source, "fish": e.count}
              for e in sorted(store.surveys(tank_id, since=since, counted=False), key=lambda s: s.t)]
     out = {"tank": tank_id, "species": tank.species, "surveys": surveys, "intervals": intervals,
            "empty_surveys": empty,
            "grading_cv_pct": cfg.feeding.grading_cv_pct, "feed_per_day": store.feed_per_day(tank_id, since)}
     if since is not None:
-        out["since"] = iso_day(since, cfg.utc_offset_h)
+        out["since"] = farm_date(since, cfg.utc_offset_h)
         out["surveys_before"] = len(store.surveys(tank_id, until=since))
     if points:
         newest = points[-1]
@@ -316,14 +316,8 @@ def tank_figures(cfg, store, tank_id: str, since: float | None = None, target_g:
                            else (intervals[-1]["sgr_pct"], newest.mean_weight_g))
             days = days_to(target, weight, sgr)
             out["projection"] = {"target_g": target, "sgr_pct": sgr, "days": days, "weight_g": weight,
-                                 "date": None if days is None else iso_day(newest.t + days * DAY_S,
+                                 "date": None if days is None else farm_date(newest.t + days * DAY_S,
                                                                            cfg.utc_offset_h),
                                  "basis": "fit" if fit is not None else "last interval",
                                  "reached": weight >= target}
     return out
-
-
-def iso_day(t: float, utc_offset_h: float = 0.0) -> str:
-    """The farm day of ``t``: at the farm's ``utc_offset_h``, as rations and feeds are dated (a
-    survey at 18:47 UTC on a +5:30 farm is the next day's, as the ration planned from it)."""
-    return time.strftime("%Y-%m-%d", time.gmtime(t + utc_offset_h * 3600.0))

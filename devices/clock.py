@@ -145,5 +145,7 @@ def iso(t: float) -> str:
 
 
 def farm_date(t: float, utc_offset_h: float = 0.0) -> str:
-    """The farm's calendar day (YYYY-MM-DD) at farm time ``t``; rations reset at local midnight."""
-    return dt.datetime.fromtimestamp(t + utc_offset_h * 3600.0, dt.UTC).date().isoformat()
+    """The farm's calendar day (YYYY-MM-DD) at farm time ``t``; rations reset at local midnight.
+    (``time.gmtime``, not datetime: a report's --since at the last second of 9999, an hour ahead of
+    UTC, is a day of the year 10000, which datetime refuses.)"""
+    return time.strftime("%Y-%m-%d", time.gmtime(t + utc_offset_h * 3600.0))

@@ -136,7 +136,8 @@ def summarise(lengths_cm, weights_g, *, rng: np.random.Generator, n_boot: int = 
     ``weight_g.ci`` is the percentile bootstrap interval of the mean weight at ``level``, widened
     about the mean by ``small_sample_factor`` (never below 0 g);
     ``precision`` says how many fish in all (and how many more) would bring its half-width to
-    ``target`` of the mean, scaling the half-width as 1/sqrt(n). Undefined figures are None.
+    ``target`` of the mean, scaling the bootstrap's half-width (not widened) as 1/sqrt(n).
+    Undefined figures are None.
     """
     lengths = np.asarray(lengths_cm, dtype=float).reshape(-1)
     weights = np.asarray(weights_g, dtype=float).reshape(-1)
@@ -156,15 +157,18 @@ def summarise(lengths_cm, weights_g, *, rng: np.random.Generator, n_boot: int = 
     if n >= 2:
         means = bootstrap_means(weights, rng, n_boot)
         lo, hi = np.quantile(means, [(1 - level) / 2, (1 + level) / 2])
-        mean = float(weights.mean())
+        mean = weight["mean"]
+        # what the bootstrap's half-width becomes with many fish (the plug-in's n - 1): the interval's
+        # small-sample widening fades as fish are added, so it does not scale with them (from 2 fish
+        # it would have asked for 85 x as many)
+        settled = (hi - lo) / 2 * math.sqrt(n / (n - 1))
         f = small_sample_factor(n, level)
         lo, hi = max(0.0, mean - f * (mean - lo)), mean + f * (hi - mean)
         ci = [float(lo), float(hi)]
         half = (hi - lo) / 2
-        mean = weight["mean"]
         if mean:
             precision["half_width_pct"] = _num(100 * half / mean)
-            needed = max(n, math.ceil(n * (half / (target * mean)) ** 2)) if half > 0 else n
+            needed = n if half <= target * mean else max(n + 1, math.ceil(n * (settled / (target * mean)) ** 2))
             precision.update(fish_needed=int(needed), more_fish=int(needed - n))
     weight["ci"] = ci
     weight["ci_level"] = level

@@ -20,7 +20,6 @@ from pathlib import Path
 import click
 
 from controller.errors import BadInput
-from controller.production import iso_day
 
 
 def _net(figures: dict) -> str:
@@ -50,8 +49,7 @@ def text(report: dict, target_g: float | None = None) -> str:
                      f"CV {s['cv_pct'] or 0:.1f} %, K {s['k']:.2f}, stock {s['stock']}")
     for i in report["intervals"]:
         fcr = "n/a (no gain)" if i["fcr"] is None else f"{i['fcr']:.2f}{_net(i)}"
-        day1, day2 = i.get("date1") or iso_day(i["t1"]), i.get("date2") or iso_day(i["t2"])
-        lines.append(f"  {day1} -> {day2} ({i['days']:.1f} d): SGR {i['sgr_pct']:.2f} %/day, "
+        lines.append(f"  {i['date1']} -> {i['date2']} ({i['days']:.1f} d): SGR {i['sgr_pct']:.2f} %/day, "
                      f"feed {i['feed_g']:.0f} g, biomass gain {i['gain_g']:.0f} g, FCR {fcr}")
     f = report.get("fit")
     if f is not None:

@@ -173,25 +173,35 @@ class Rations:
         """Today's ration from the stock and the weights the ledger knows at ``t`` (module docstring)."""
         tank = self.cfg.tank(tank_id)
         table, temp, stock = self.tables[tank.species], self.water_temp_c(tank_id), self.stock(tank_id)
-        weights, source, note, growth = self._weights(tank_id, t, table, temp)
-        weights, note = self._mixed_with_moved_in(tank_id, t, table, temp, weights, stock, note)
+        newest = self.store.surveys(tank_id, until=t, limit=1)
+        events = [dict(e) for e in self.store.stock_events()]
+        emptied = emptied_at(tank.stock, events, tank_id, t)
+        refilled = emptied is not None and (not newest or newest[0].t <= emptied)   # its surveyed fish gone
+        weights, source, note, growth = self._weights(tank_id, t, table, temp, [] if refilled else newest,
+                                                      events, emptied)
+        weights, note = self._mixed_with_moved_in(tank_id, t, table, temp, weights, stock, note, events,
+                                                  emptied if refilled else (newest[0].t if newest else -math.inf),
+                                                  refilled)
         plan = ration_from_weights(weights, stock, temp, table)
         grams = plan.grams
         if tank.feeding_rate_pct is not None:          # the operator's rate for this tank, on its biomass
             grams = plan.biomass_g * tank.feeding_rate_pct / 100.0
         return Plan(grams, plan.pellet_mm, source, plan.mean_weight_g, note, growth)
 
-    def _weights(self, tank_id: str, t: float, table: FeedingTable,
-                 temp: float) -> tuple[np.ndarray, str, str, dict | None]:
-        """The newest survey's fish, scaled to the growth fit's mean weight today (module docstring)."""
-        newest = self.store.surveys(tank_id, until=t, limit=1)
-        events = [dict(e) for e in self.store.stock_events()]
-        emptied = emptied_at(self.cfg.tank(tank_id).stock, events, tank_id, t)
-        if newest and emptied is not None and newest[0].t <= emptied:
-            moved_in = self._moved_in(tank_id, emptied, events, t, table, temp)
-            if moved_in is not None:
-                return moved_in
-            newest = []                   # its fish are gone, and nobody surveyed those that came
+    def _weights(self, tank_id: str, t: float, table: FeedingTable, temp: float, newest: list, events: list[dict],
+                 emptied: float | None) -> tuple[np.ndarray, str, str, dict | None]:
+        """The newest survey's fish (``newest``: none when the tank was emptied since), scaled to the
+        growth fit's mean weight today (module docstring)."""
+        if not newest and emptied is not None:
+            first = next((e for e in sorted(events, key=lambda e: e["t"])
+                          if e["t"] > emptied and e["to_tank"] == tank_id and e["t"] <= t), None)
+            moved = None if first is None else self._moved_fish(first, t, table, temp)
+            if moved is not None:
+                weights, now, s = moved
+                return (weights, "projected",
+                        f"fish moved in from {first['tank']} on {self.date(first['t'])}: its survey of "
+                        f"{self.date(s.t)} ({s.count} fish, mean {s.mean_weight_g:.1f} g) at the chart's growth: "
+                        f"{now:.1f} g today", None)
         if not newest:
             w = self.cfg.tank(tank_id).mean_weight_g
             gone = "" if emptied is None else f" (the fish surveyed before {self.date(emptied)} are gone)"
@@ -217,57 +227,39 @@ class Rations:
                 growth)
 
     def _mixed_with_moved_in(self, tank_id: str, t: float, table, temp: float, weights: np.ndarray, stock: int,
-                             note: str) -> tuple[np.ndarray, str]:
-        """``weights`` (the tank's own fish, as its newest survey or the config has them) mixed with
-        the fish moved in since that survey (or ever, with none) from tanks that surveyed them: each
-        transfer's fish as its source's newest survey before it saw them, grown at the chart's rate,
-        in their share of the stock. 200 fish of 204 g moved into 2,400 of 24 g were fed as 24 g
-        fish: the ration rested on 57.6 kg of a 93.6 kg tank. A tank emptied first is fed as its
-        first transfer's fish alone (``_moved_in``); a survey after the transfer sees them all."""
-        newest = self.store.surveys(tank_id, until=t, limit=1)
-        events = [dict(e) for e in self.store.stock_events()]
-        emptied = emptied_at(self.cfg.tank(tank_id).stock, events, tank_id, t)
-        refilled = emptied is not None and (not newest or newest[0].t <= emptied)
-        since = emptied if refilled else (newest[0].t if newest else -math.inf)
+                             note: str, events: list[dict], since: float, refilled: bool) -> tuple[np.ndarray, str]:
+        """``weights`` (the tank's own fish, as of ``since``: its newest survey, or the config's, or
+        the first transfer into a tank emptied before — ``refilled``) mixed with the fish moved in
+        after from tanks that surveyed them, each transfer's in its share of the stock
+        (``_moved_fish``). 200 fish of 204 g moved into 2,400 of 24 g were fed as 24 g fish: the
+        ration rested on 57.6 kg of a 93.6 kg tank. A survey after the transfer sees them all."""
         came = [e for e in sorted(events, key=lambda e: e["t"])
                 if e["kind"] == "transfer" and e["to_tank"] == tank_id and since < e["t"] <= t]
         if refilled:
             came = came[1:]                        # the first refilled the tank: it is ``weights``
-        groups, moved = [], 0
-        for e in came:
-            source = self.store.surveys(e["tank"], until=e["t"], limit=1)
-            if not source:
-                continue                           # nobody weighed them: as the tank's own
-            s0 = source[0]
-            now = project_weight(s0.mean_weight_g, max(0.0, (t - s0.t) / DAY_S), temp, table) or s0.mean_weight_g
-            groups.append((int(e["count"]), self.store.survey_weights(s0.id) * now / s0.mean_weight_g, e, now))
-            moved += int(e["count"])
+        groups = [(int(e["count"]), e, moved) for e in came
+                  if (moved := self._moved_fish(e, t, table, temp)) is not None]   # unweighed: as the tank's own
         if not groups or stock <= 0:
             return weights, note
-        own = max(stock - moved, 0)
+        own = max(stock - sum(n for n, _, _ in groups), 0)
         # one sample in which each group holds its share of the stock (cycled to length, in order)
-        size = max(MIX_SAMPLE, len(weights), *(len(w) for _, w, _, _ in groups))
+        size = max(MIX_SAMPLE, len(weights), *(len(m[0]) for _, _, m in groups))
         parts = [np.resize(weights, round(size * own / stock))] if own else []
-        parts += [np.resize(w, max(1, round(size * min(n, stock) / stock))) for n, w, _, _ in groups]
-        said = "; ".join(f"{n} fish moved in from {e['tank']} on {self.date(e['t'])} at {now:.1f} g"
-                         for n, _, e, now in groups)
+        parts += [np.resize(m[0], max(1, round(size * min(n, stock) / stock))) for n, _, m in groups]
+        said = "; ".join(f"{n} fish moved in from {e['tank']} on {self.date(e['t'])} at {m[1]:.1f} g"
+                         for n, e, m in groups)
         return np.concatenate(parts), f"{note}; {said}"
 
-    def _moved_in(self, tank_id: str, emptied: float, events: list[dict], t: float, table, temp: float):
-        """A tank emptied and stocked again by a transfer: the fish of the first transfer in since,
-        as the source tank's newest survey before it saw them, grown at the chart's rate to ``t``
-        (basis ``projected``); None when there is no such transfer or survey."""
-        came = next((e for e in sorted(events, key=lambda e: e["t"])
-                     if e["t"] > emptied and e["to_tank"] == tank_id and e["t"] <= t), None)
-        source = self.store.surveys(came["tank"], until=came["t"], limit=1) if came is not None else []
+    def _moved_fish(self, e: dict, t: float, table, temp: float):
+        """(weights g today, their mean today, the survey) of the fish transfer ``e`` moved: its
+        source tank's newest survey before it, grown at the chart's rate to ``t``; None when the
+        source was never surveyed."""
+        source = self.store.surveys(e["tank"], until=e["t"], limit=1)
         if not source:
             return None
         s = source[0]
         now = project_weight(s.mean_weight_g, max(0.0, (t - s.t) / DAY_S), temp, table) or s.mean_weight_g
-        weights = self.store.survey_weights(s.id)
-        return (weights * now / s.mean_weight_g, "projected",
-                f"fish moved in from {came['tank']} on {self.date(came['t'])}: its survey of {self.date(s.t)} "
-                f"({s.count} fish, mean {s.mean_weight_g:.1f} g) at the chart's growth: {now:.1f} g today", None)
+        return self.store.survey_weights(s.id) * now / s.mean_weight_g, now, s
 
     def today(self, tank_id: str, t: float) -> Ration:
         date = self.date(t)

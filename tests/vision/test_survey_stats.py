@@ -156,3 +156,14 @@ def test_a_one_hump_stock_loses_almost_none_of_its_fish(cv, lost):
         kept += int((~implausible(lengths)).sum())
         total += len(lengths)
     assert 1 - kept / total < lost
+
+
+@pytest.mark.parametrize("n", [3, 5, 8])
+def test_fish_needed_from_a_few_is_not_inflated_by_their_interval_s_widening(n):
+    """The interval of a few fish is widened for their few (x2.7 from 3); the fish needed for +-2 %
+    are what the spread asks for at many fish, (1.96 sd / 2 % of the mean)^2 within sampling (from 2
+    fish the bootstrap's quantiles are the two weights: too coarse for this)."""
+    W = rng(n).normal(50, 10, n)
+    p = summarise(np.full(n, 10.0), W, rng=rng(), n_boot=4000)["precision"]
+    expected = (1.96 * W.std(ddof=1) / (0.02 * W.mean())) ** 2
+    assert p["fish_needed"] == pytest.approx(expected, rel=0.35) and p["more_fish"] > 0
