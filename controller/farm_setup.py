@@ -45,13 +45,19 @@ def build_device(name: str, section: dict, clock, where: str):
     return cls(name, validate_section(cls.Config, section, where, f"devices.{name}"), clock)
 
 
-def check_farm(cfg: Config, species: dict) -> None:
-    """What the sections cannot check alone: every tank's species is known, the feeding charts are
-    for known species, a portion fits the hopper, the stocks' sections, one device of each kind."""
+def check_tank_species(cfg: Config, species: dict) -> None:
+    """Every tank's species is in species.toml: the ration, the figures and the report read its
+    rows, and a misspelt one would be read as another farm's fish (or as none)."""
     for i, tank in enumerate(cfg.tanks):
         if tank.species not in species:
             raise BadInput(cfg.path, f"tanks.{i}.species",
                            f"unknown species {tank.species!r} (known: {', '.join(sorted(species))})")
+
+
+def check_farm(cfg: Config, species: dict) -> None:
+    """What the sections cannot check alone: every tank's species is known, the feeding charts are
+    for known species, a portion fits the hopper, the stocks' sections, one device of each kind."""
+    check_tank_species(cfg, species)
     load_tables(cfg, species)
     check_hopper(cfg)
     check_stocks(cfg, species)

@@ -283,3 +283,18 @@ def test_the_report_dates_surveys_by_the_farm_s_day_as_rations_and_feeds_are(tmp
     assert (data["intervals"][0]["date1"], data["intervals"][0]["date2"]) == tuple(local)
     code, out, _ = run(capsys, "report", "--tank", "T1", "--config", str(tmp_path / "farm.toml"))
     assert f"  survey {local[0]}: 20 fish" in out and f"  {local[0]} -> {local[1]} (" in out
+
+
+@pytest.mark.parametrize("command", ["report", "history"])
+def test_a_misspelt_tank_species_is_refused_as_run_refuses_it(farm, capsys, command):
+    """Both read the tank's species (its rows, its name in the report): a config `run` would refuse
+    was read as it stood, the misspelt name printed as the tank's fish."""
+    import tomllib
+    path, _ = farm
+    raw = tomllib.loads((path / "farm.toml").read_text())
+    raw["tanks"][1]["species"] = "sparus_aurta"
+    (path / "bad.toml").write_text(tomli_w.dumps(raw))
+    code, out, err = run(capsys, command, "--tank", "T1", "--config", str(path / "bad.toml"),
+                         *(["--what", "surveys"] if command == "history" else []))
+    assert code == 2 and out == "" and err.count("\n") == 1
+    assert "bad.toml: tanks.1.species: unknown species 'sparus_aurta'" in err and "sparus_aurata" in err
