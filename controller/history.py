@@ -34,7 +34,7 @@ COLUMNS = {
                 "cv_pct", "source"),
     "fish": ("time", "survey", "length_cm", "weight_g", "score"),
     "rations": ("time", "date", "grams", "pellet_mm", "basis"),
-    "stock": ("time", "kind", "count", "from_tank", "to_tank", "who", "reason"),
+    "stock": ("time", "kind", "count", "from_tank", "to_tank", "who", "reason", "event"),
     "feeds": ("time", "feed", "date", "target_g", "grams", "phase", "source", "note"),
 }
 _SQL = {
@@ -44,7 +44,7 @@ _SQL = {
              "ON s.id = f.survey WHERE s.tank = :tank AND s.t >= :since AND s.t <= :until ORDER BY s.t, s.id, f.rowid"),
     "rations": ("SELECT t, date, grams, pellet_mm, source FROM ration WHERE tank = :tank AND t >= :since "
                 "AND t <= :until ORDER BY date"),
-    "stock": ("SELECT t, kind, count, tank, to_tank, who, reason FROM stock_event WHERE (tank = :tank "
+    "stock": ("SELECT t, kind, count, tank, to_tank, who, reason, id FROM stock_event WHERE (tank = :tank "
               "OR to_tank = :tank) AND t >= :since AND t <= :until ORDER BY t, id"),
     "feeds": ("SELECT t_intent, id, date, target_g, grams, phase, source, note FROM feed WHERE tank = :tank "
               "AND t_intent >= :since AND t_intent <= :until ORDER BY seq"),

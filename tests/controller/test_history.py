@@ -354,3 +354,14 @@ def test_a_row_s_printed_time_given_back_as_since_or_until_takes_the_row_in(tmp_
         _, got, _ = history(store, what, "T1", None, at)
         assert all(r[0] <= stamp for r in got)
     store.close()
+
+
+def test_stock_rows_carry_the_ledger_s_event_id(ledger):
+    """Two deaths entered alike at one millisecond were two rows no one could tell apart, or match
+    to the ledger (the surveys and feeds rows carry theirs): the last column is the event's id."""
+    first = ledger.add_stock_event(t=T + 3 * DAY, tank="T1", kind="mortality", count=2, to_tank=None, who="ana")
+    second = ledger.add_stock_event(t=T + 3 * DAY, tank="T1", kind="mortality", count=2, to_tank=None, who="ana")
+    cols, rows, _ = history(ledger, "stock", "T1")
+    assert cols[-1] == "event" and cols[:7] == ("time", "kind", "count", "from_tank", "to_tank", "who", "reason")
+    ids = [r[-1] for r in rows]
+    assert ids == [e["id"] for e in ledger.stock_events()] and ids[-2:] == [first, second] and first != second
