@@ -300,8 +300,8 @@ def tank_figures(cfg, store, tank_id: str, since: float | None = None, target_g:
     # min_weighed_fish): none of the figures rests on them, but a manager wants to know
     empty = [{"t": e.t, "date": farm_date(e.t, cfg.utc_offset_h), "source": e.source, "fish": e.count}
              for e in sorted(store.surveys(tank_id, since=since, counted=False), key=lambda s: s.t)]
-    out = {"tank": tank_id, "species": tank.species, "surveys": surveys, "intervals": intervals,
-           "empty_surveys": empty,
+    out = {"tank": tank_id, "species": tank.species, "utc_offset_h": cfg.utc_offset_h, "surveys": surveys,
+           "intervals": intervals, "empty_surveys": empty,
            "grading_cv_pct": cfg.feeding.grading_cv_pct, "feed_per_day": store.feed_per_day(tank_id, since)}
     if since is not None:
         out["since"] = farm_date(since, cfg.utc_offset_h)

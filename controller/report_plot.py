@@ -41,12 +41,13 @@ def page(report: dict, *, target_g: float | None = None, now: float | None = Non
     side = fig.add_subplot(grid[1:3, 1])
     side.set_axis_off()
     surveys = report["surveys"]
-    lo, hi, width = _time_axis(report, now)
+    zone = farm_zone(report.get("utc_offset_h", 0.0))
+    lo, hi, width = _time_axis(report, now, zone)
     labels = _draw_weights(ax, surveys, width)
     _draw_fit(ax, report.get("fit"))
-    _draw_feed(feed_ax, report["feed_per_day"])
-    _date_axis(ax, feed_ax, lo, hi)
-    _draw_projection(proj_ax, report, target_g)
+    _draw_feed(feed_ax, report["feed_per_day"], zone)
+    _date_axis(ax, feed_ax, lo, hi, zone)
+    _draw_projection(proj_ax, report, target_g, zone)
     _draw_side(side, ax, report)
     fig.suptitle(_title(report), fontsize=13)
     if not surveys:
@@ -59,11 +60,26 @@ def page(report: dict, *, target_g: float | None = None, now: float | None = Non
     return fig
 
 
-def _time_axis(report: dict, now: float | None) -> tuple[float, float, float]:
+def farm_zone(utc_offset_h: float) -> dt.tzinfo:
+    """The farm's local time (config ``utc_offset_h``): the text report's days are its days, and a
+    page in UTC put a survey at 01:00 local on the day before the one the text gave it."""
+    return dt.timezone(dt.timedelta(hours=utc_offset_h))
+
+
+def _zone_name(zone: dt.tzinfo) -> str:
+    off = zone.utcoffset(None)
+    if not off:
+        return "UTC"
+    minutes = int(off.total_seconds() // 60)
+    sign, minutes = ("+" if minutes > 0 else "-"), abs(minutes)
+    return f"UTC{sign}{minutes // 60}" + (f":{minutes % 60:02d}" if minutes % 60 else "")
+
+
+def _time_axis(report: dict, now: float | None, zone: dt.tzinfo = dt.UTC) -> tuple[float, float, float]:
     """(first, last, histogram width), Unix seconds: the surveys and feed days, at least a week,
     each histogram as wide as 80 % of the gap to the next survey and 15 % of the axis at most."""
     ts = [s["t"] for s in report["surveys"]]
-    points = ts + [_noon(f) for f in report["feed_per_day"]]
+    points = ts + [_noon(f, zone) for f in report["feed_per_day"]]
     if points:
         lo, hi = min(points), max(points)
     else:
@@ -123,38 +139,38 @@ def _draw_fit(ax, fit: dict | None) -> None:
     ax.plot(d, w, "-", color=FIT, lw=1.5, label=f"fitted growth ({fit['model']} model, {_n(fit['surveys'], 'survey')})")
 
 
-def _draw_feed(ax, feed: list) -> None:
+def _draw_feed(ax, feed: list, zone: dt.tzinfo = dt.UTC) -> None:
     grams = [f[2] for f in feed]
     kg = bool(grams) and max(grams) >= 1000
     if feed:
-        ax.bar([_day(_noon(f)) for f in feed], [g / 1000 if kg else g for g in grams], width=0.8, color=FEED)
+        ax.bar([_day(_noon(f, zone)) for f in feed], [g / 1000 if kg else g for g in grams], width=0.8, color=FEED)
     else:
         ax.text(0.5, 0.5, "no feed recorded", transform=ax.transAxes, ha="center", va="center", color="0.4")
         ax.set_yticks([])
     ax.set_ylabel(f"feed ({'kg' if kg else 'g'}/day)")
 
 
-def _dates(axis, most: int) -> None:
-    """Calendar dates a farmer reads: '28 May', the year once at the end."""
+def _dates(axis, most: int, zone: dt.tzinfo = dt.UTC) -> None:
+    """Calendar dates a farmer reads: '28 May', the year once at the end, in the farm's time."""
     import matplotlib.dates as mdates
-    locator = mdates.AutoDateLocator(minticks=2, maxticks=most, tz=dt.UTC)
-    formatter = mdates.ConciseDateFormatter(locator, tz=dt.UTC)
+    locator = mdates.AutoDateLocator(minticks=2, maxticks=most, tz=zone)
+    formatter = mdates.ConciseDateFormatter(locator, tz=zone)
     formatter.formats = formatter.zero_formats = ["%Y", "%b", "%d %b", "%H:%M", "%H:%M", "%S.%f"]
     formatter.offset_formats = ["", "%Y", "%Y", "%Y-%m-%d", "%Y-%m-%d", "%Y-%m-%d %H:%M"]
     axis.set_major_locator(locator)
     axis.set_major_formatter(formatter)
 
 
-def _date_axis(ax, feed_ax, lo: float, hi: float) -> None:
-    _dates(feed_ax.xaxis, 9)
+def _date_axis(ax, feed_ax, lo: float, hi: float, zone: dt.tzinfo = dt.UTC) -> None:
+    _dates(feed_ax.xaxis, 9, zone)
     ax.set_xlim(_day(lo), _day(hi))
     ax.tick_params(labelbottom=False)
-    feed_ax.set_xlabel("farm date (UTC)")
+    feed_ax.set_xlabel(f"farm date ({_zone_name(zone)})")
     ax.grid(axis="x", color="0.9")
     feed_ax.grid(axis="x", color="0.9")
 
 
-def _draw_projection(ax, report: dict, target_g: float | None) -> None:
+def _draw_projection(ax, report: dict, target_g: float | None, zone: dt.tzinfo = dt.UTC) -> None:
     """The path to the target weight on an axis of its own, or why there is none."""
     p, surveys = report.get("projection"), report["surveys"]
     why = no_projection(report, target_g)
@@ -172,7 +188,7 @@ def _draw_projection(ax, report: dict, target_g: float | None) -> None:
     ax.axhline(p["target_g"], color=PROJ, lw=0.6, ls=":")
     ax.set_ylim(0, p["target_g"] * 1.15)
     ax.set_xlim(_day(t0) - 0.05 * p["days"], _day(t0) + 1.08 * p["days"])
-    _dates(ax.xaxis, 4)
+    _dates(ax.xaxis, 4, zone)
     ax.set_ylabel("weight (g)")
     ax.set_title(f"{_g(p['target_g'])} on {p['date']}\nin {_days(p['days'])} at {p['sgr_pct']:.2f} %/day",
                  fontsize=10, color=PROJ)
@@ -292,11 +308,11 @@ def _day(t: float) -> float:
     return mdates.date2num(dt.datetime.fromtimestamp(t, dt.UTC))
 
 
-def _noon(feed_day: tuple) -> float:
-    """A farm day's bar stands at its noon (a day not named by its date: at its first feed)."""
+def _noon(feed_day: tuple, zone: dt.tzinfo = dt.UTC) -> float:
+    """A farm day's bar stands at its local noon (a day not named by its date: at its first feed)."""
     date, first, _ = feed_day
     try:
-        return dt.datetime.fromisoformat(date).replace(hour=12, tzinfo=dt.UTC).timestamp()
+        return dt.datetime.fromisoformat(date).replace(hour=12, tzinfo=zone).timestamp()
     except ValueError:
         return first
 

@@ -298,3 +298,41 @@ def test_a_misspelt_tank_species_is_refused_as_run_refuses_it(farm, capsys, comm
                          *(["--what", "surveys"] if command == "history" else []))
     assert code == 2 and out == "" and err.count("\n") == 1
     assert "bad.toml: tanks.1.species: unknown species 'sparus_aurta'" in err and "sparus_aurata" in err
+
+
+@pytest.mark.parametrize(("offset_h", "name"), [(5.5, "UTC+5:30"), (-3.5, "UTC-3:30"), (10.0, "UTC+10"), (0.0, "UTC")])
+def test_the_page_s_dates_are_the_farm_s_local_days_as_the_text_s(tmp_path, capsys, offset_h, name):
+    """The page's axis was in UTC while the text gave local days: a +10 farm's survey at 20:00 UTC
+    stood on the day before the one the report named. Day ticks fall on local midnight, and each
+    farm day's feed bar on its local noon."""
+    import datetime as dt
+    import tomllib
+
+    import matplotlib.dates as mdates
+
+    from controller.report_plot import page
+    raw = tomllib.loads(open("config/farm.toml").read())
+    raw["store"] = {"path": str(tmp_path / "ledger.db")}
+    raw["utc_offset_h"] = offset_h
+    (tmp_path / "farm.toml").write_text(tomli_w.dumps(raw))
+    t0 = dt.datetime(2026, 12, 10, 20, 0, tzinfo=dt.UTC).timestamp()
+    store = Store(tmp_path / "ledger.db")
+    store.add_survey("T1", t0, "sparus_aurata", "a", [12.0] * 20, [20.0] * 20)
+    store.add_survey("T1", t0 + 9 * DAY, "sparus_aurata", "b", [13.0] * 20, [26.0] * 20)
+    for d in range(1, 9):
+        f = store.add_intent(tank="T1", date=f"2026-12-{10 + d}", t=t0 + d * DAY, target_g=500, run_s=40,
+                             cycles_before=d, source="demand")
+        store.close_feed(f.id, "done", 500.0, t0 + d * DAY + 60)
+    store.close()
+    code, out, _ = run(capsys, "report", "--tank", "T1", "--config", str(tmp_path / "farm.toml"), "--json")
+    data = json.loads(out)
+    assert code == 0 and data["utc_offset_h"] == offset_h
+    fig = page(data, target_g=None)
+    zone = dt.timezone(dt.timedelta(hours=offset_h))
+    feed_ax = fig.axes[1]
+    assert feed_ax.get_xlabel() == f"farm date ({name})"
+    ticks = [mdates.num2date(x, tz=zone) for x in feed_ax.get_xticks()]
+    assert len(ticks) >= 2 and all((t.hour, t.minute) == (0, 0) for t in ticks), ticks
+    bars = [mdates.num2date(p.get_x() + p.get_width() / 2, tz=zone) for p in feed_ax.patches]
+    assert [b.strftime("%Y-%m-%d") for b in bars] == [d for d, _, _ in data["feed_per_day"]]
+    assert all((b.hour, b.minute) == (12, 0) for b in bars)
