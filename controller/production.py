@@ -4,10 +4,12 @@ For surveys 1 and 2 of a tank (mean weights W1, W2 g; stocks N1, N2 at their tim
 config's count and the stock events; ``days`` apart):
 
 - specific growth rate  SGR = 100 · (ln W2 − ln W1) / days          (% a day)
-- biomass gain          G = N2·W2 − N1·W1 + Σ fish out · W(t) − Σ fish in · W(t)
+- biomass gain          G = N2·W2 − N1·W1 + Σ fish out · W(t) − Σ fish in · W'(t)
   (mortality, harvests and transfers between the surveys, each weighed at the weight the tank's
   fish had then, W(t) growing exponentially from W1 to W2): the growth the feed made, whether the
-  fish are still in the tank or not;
+  fish are still in the tank or not. Fish moved in are weighed as their source tank's surveys had
+  them (``moved_in_weights``: W'(t)), not as this tank's: 100 fish of 200 g moved among fish of
+  20 g would otherwise count 18 kg they brought as grown here;
 - feed conversion ratio FCR = feed given / G   (the grams of the feed rows done between them; none
   when G ≤ 0: a loss is not a conversion) — the biological ratio, the fish's own conversion; beside
   it the net (economic) ratio ``fcr_net`` = feed given / (G − Σ fish that died · W(t)): the growth
@@ -95,18 +97,53 @@ def weight_at(t: float, p1: SurveyPoint, p2: SurveyPoint) -> float:
     return p1.mean_weight_g * (p2.mean_weight_g / p1.mean_weight_g) ** f
 
 
-def interval(p1: SurveyPoint, p2: SurveyPoint, feed_g: float, events, tank: str) -> Interval:
+def interval(p1: SurveyPoint, p2: SurveyPoint, feed_g: float, events, tank: str,
+             brought: dict | None = None) -> Interval:
     """The figures between two surveys of ``tank`` (module docstring); ``feed_g``: feed given
-    between them; ``events``: the stock events (all of them: those between count)."""
+    between them; ``events``: the stock events (all of them: those between count); ``brought``:
+    event id -> mean weight (g) of the fish a transfer into ``tank`` brought, where known
+    (``moved_in_weights``; else they are weighed as the tank's own fish)."""
     days = (p2.t - p1.t) / DAY_S
     if days <= 0:
         raise ValueError("the second survey must come after the first")
     sgr = 100.0 * (math.log(p2.mean_weight_g) - math.log(p1.mean_weight_g)) / days
-    moved = [(e["kind"], fish_out(e, tank) * weight_at(e["t"], p1, p2)) for e in events if p1.t < e["t"] <= p2.t]
+    brought = brought or {}
+
+    def weight(e) -> float:
+        if e["to_tank"] == tank and e["tank"] != tank and e.get("id") in brought:
+            return brought[e["id"]]
+        return weight_at(e["t"], p1, p2)
+    moved = [(e["kind"], fish_out(e, tank) * weight(e)) for e in events if p1.t < e["t"] <= p2.t]
     gain = p2.stock * p2.mean_weight_g - p1.stock * p1.mean_weight_g + sum(g for _, g in moved)
     died = sum(g for kind, g in moved if kind == "mortality")
     net = net_conversion(feed_g, gain, died)
     return Interval(p1.t, p2.t, days, sgr, feed_g, gain, feed_g / gain if gain > 0 else None, net["fcr_net"], died)
+
+
+def moved_in_weights(cfg, store, events, tank: str) -> dict[int, float]:
+    """Event id -> mean weight (g) of the fish each transfer into ``tank`` brought, from the
+    source tank's surveys that counted fish: grown between the newest before the transfer and the
+    next after it (exponentially, as ``weight_at``) when the source kept fish through both, else
+    the newest before as it stands. A source never surveyed before the transfer is left out."""
+    out = {}
+    bases = {t.id: t.stock for t in cfg.tanks}
+    for e in events:
+        if e["kind"] != "transfer" or e["to_tank"] != tank or e["tank"] == tank:
+            continue
+        before = store.surveys(e["tank"], until=e["t"], limit=1)
+        if not before:
+            continue
+        s1 = before[0]
+        s2 = min(store.surveys(e["tank"], since=e["t"] + 1e-6), key=lambda s: s.t, default=None)
+        base = bases.get(e["tank"])
+        # the source's next survey is of the same fish only if it was not emptied before it
+        same = s2 is not None and base is not None and (emptied_at(base, events, e["tank"], s2.t) or -math.inf) < s1.t
+        out[e["id"]] = weight_at(e["t"], _point(s1), _point(s2)) if same else s1.mean_weight_g
+    return out
+
+
+def _point(s) -> SurveyPoint:
+    return SurveyPoint(s.t, s.mean_weight_g, s.cv_pct or 0.0, math.nan, s.count, 0)
 
 
 CURVE_POINTS = 60                       # the fitted growth drawn across its window (report's "curve")
@@ -293,7 +330,8 @@ def tank_figures(cfg, store, tank_id: str, since: float | None = None, target_g:
         surveys.append({"t": s.t, "date": farm_date(s.t, cfg.utc_offset_h), "fish": s.count,
                         "mean_weight_g": s.mean_weight_g, "cv_pct": s.cv_pct, "k": p.k, "stock": p.stock,
                         "weights_g": [float(w) for w in weights]})
-    intervals = [{**interval(a, b, store.fed_between(tank_id, a.t, b.t), events, tank_id).__dict__,
+    brought = moved_in_weights(cfg, store, events, tank_id)
+    intervals = [{**interval(a, b, store.fed_between(tank_id, a.t, b.t), events, tank_id, brought).__dict__,
                   "date1": farm_date(a.t, cfg.utc_offset_h), "date2": farm_date(b.t, cfg.utc_offset_h)}
                  for a, b in zip(points, points[1:], strict=False)]
     # surveys that counted too few fish to weigh the tank (none, or fewer than [surveys]

@@ -336,3 +336,36 @@ def test_the_page_s_dates_are_the_farm_s_local_days_as_the_text_s(tmp_path, caps
     bars = [mdates.num2date(p.get_x() + p.get_width() / 2, tz=zone) for p in feed_ax.patches]
     assert [b.strftime("%Y-%m-%d") for b in bars] == [d for d, _, _ in data["feed_per_day"]]
     assert all((b.hour, b.minute) == (12, 0) for b in bars)
+
+
+@pytest.mark.parametrize("source", ["surveyed around", "surveyed before only", "emptied", "never surveyed"])
+def test_fish_moved_in_are_weighed_as_their_source_tank_had_them(tmp_path, capsys, source):
+    """100 fish of ~200 g moved among 2,400 of 20-30 g were weighed at this tank's ~24 g: 17.6 kg
+    they brought counted as grown here, an FCR of a fifth of the truth. They are weighed as the
+    source's surveys had them: grown between the one before and the one after the transfer, or the
+    one before as it stands when the source was emptied (its next survey is of other fish) or not
+    surveyed again; a source never surveyed leaves them at this tank's weight."""
+    import tomllib
+    raw = tomllib.loads(open("config/farm.toml").read())
+    raw["store"] = {"path": str(tmp_path / "ledger.db")}
+    (tmp_path / "farm.toml").write_text(tomli_w.dumps(raw))
+    stock = {t["id"]: t["stock"] for t in raw["tanks"]}
+    store = Store(tmp_path / "ledger.db")
+    store.add_survey("T1", T1, "sparus_aurata", "a", [12.0] * 50, [20.0] * 50)
+    store.add_survey("T1", T1 + 10 * DAY, "sparus_aurata", "b", [13.5] * 50, [30.0] * 50)
+    if source != "never surveyed":
+        store.add_survey("T2", T1 + 2 * DAY, "sparus_aurata", "c", [26.0] * 40, [200.0] * 40)
+    if source in ("surveyed around", "emptied"):
+        store.add_survey("T2", T1 + 12 * DAY, "sparus_aurata", "d", [27.0] * 40, [220.0] * 40)
+    n = stock["T2"] if source == "emptied" else 100
+    store.add_stock_event(t=T1 + 5 * DAY, tank="T2", kind="transfer", count=n, to_tank="T1", who="op", reason="")
+    f = store.add_intent(tank="T1", date="d", t=T1 + DAY, target_g=3000, run_s=80, cycles_before=0, source="demand")
+    store.close_feed(f.id, "done", 3000.0, T1 + DAY + 90)
+    store.close()
+    code, out, _ = run(capsys, "report", "--tank", "T1", "--config", str(tmp_path / "farm.toml"), "--json")
+    [i] = json.loads(out)["intervals"]
+    w_in = {"surveyed around": 200 * (220 / 200) ** (3 / 10), "surveyed before only": 200.0, "emptied": 200.0,
+            "never surveyed": 20 * (30 / 20) ** 0.5}[source]
+    gain = (stock["T1"] + n) * 30 - stock["T1"] * 20 - n * w_in
+    assert code == 0 and i["gain_g"] == pytest.approx(gain)
+    assert i["fcr"] == (pytest.approx(3000 / gain) if gain > 0 else None)
