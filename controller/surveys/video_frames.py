@@ -107,6 +107,8 @@ def _video_jobs(caps: list[cv2.VideoCapture], paths: tuple[str, ...], every: int
             if any(ended):
                 k = ended.index(True)
                 own = i + (offset if k == 1 else 0)             # the frame in that video's own count
+                if declared:            # one cut short: its last frame may be half decoded, not a sync fault
+                    _check_whole(paths[k], own, declared[k], done)
                 overlap = f"; --max-frames {done} surveys the pairs both hold" if done else ""
                 raise BadInput(paths[k], None, f"ends at frame {own}, but {paths[1 - k]} goes on: the videos are "
                                                f"not the same length (not synchronised? --sync-offset N pairs the "

@@ -369,3 +369,22 @@ def test_a_video_cut_short_of_its_header_is_refused_not_surveyed_to_its_damaged_
                                        r"or damaged; --max-frames \d+ surveys the pairs before its end"):
         list(jobs)
     assert len(list(video_source(tuple(whole)).jobs)) == 30          # whole, it is read to its end
+
+
+@pytest.mark.parametrize("cut_side", [0, 1])
+def test_one_of_two_videos_cut_short_is_named_cut_not_unsynchronised(tmp_path, cut_side):
+    """Only one file cut short: it was blamed on synchronisation and its --max-frames advice took in
+    the cut file's last, perhaps half-decoded frame. It is named as cut short, the advice stopping
+    before its last frame."""
+    whole = [make_video(tmp_path / f"{s}.avi", 30, size=(320, 240)) for s in "lr"]
+    data = Path(whole[cut_side]).read_bytes()
+    cut = whole[cut_side] + ".cut.avi"
+    Path(cut).write_bytes(data[:len(data) // 2])
+    pair = list(whole)
+    pair[cut_side] = cut
+    with pytest.raises(BadInput) as caught:
+        list(video_source(tuple(pair)).jobs)
+    msg = str(caught.value)
+    m = re.search(r"\.cut\.avi: ends at frame (\d+), but its header declares 30 frames: cut short or damaged; "
+                  r"--max-frames (\d+) surveys the pairs before its end", msg)
+    assert m and int(m[2]) == int(m[1]) - 1 and "synchronised" not in msg, msg
