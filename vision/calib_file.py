@@ -15,6 +15,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 
+import cv2
 import numpy as np
 
 from vision.triangulation import camera_centre
@@ -107,6 +108,54 @@ def _check_baseline(P1: np.ndarray, P2: np.ndarray) -> None:
                                      "nothing can be triangulated")
 
 
+# how far K1/K2, R and T may stray from P1/P2's own before the file is refused: beyond rounding and
+# a refit's drift, within any real mix-up (another camera's K, a rectified P, mm against m)
+AGREE_FOCAL = 0.02              # focal lengths, relative; the principal point and skew, in focal lengths
+AGREE_ROTATION_DEG = 1.0
+AGREE_T = 0.02                  # of |T|
+
+
+def decompose(P: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(K with a positive diagonal and K[2, 2] = 1, R a rotation, t) with P ~ K [R | t] up to scale."""
+    P = np.asarray(P, float)
+    P = P if np.linalg.det(P[:, :3]) > 0 else -P
+    K, R = cv2.RQDecomp3x3(P[:, :3])[1:3]
+    flip = np.diag(np.sign(np.diag(K)))          # RQ's sign freedom: K's diagonal positive
+    K, R = K @ flip, flip @ R
+    scale = K[2, 2]
+    K = K / scale
+    return K, R, np.linalg.solve(K, P[:, 3] / scale)
+
+
+def _check_agree(mats: dict) -> None:
+    """K1/K2 are the cameras P1/P2 project through (undistortion uses K, triangulation P: two that
+    disagree measure wrong), and R, T camera 2's pose from camera 1 as P1, P2 put them."""
+    poses = [decompose(mats["P1"]), decompose(mats["P2"])]
+    for name, (Kp, _, _) in (("K1", poses[0]), ("K2", poses[1])):
+        K = mats[name]
+        if K is None:
+            continue
+        f = np.array([K[0, 0], K[1, 1]])
+        off = max(np.abs(np.array([Kp[0, 0], Kp[1, 1]]) / f - 1).max(),
+                  np.abs(Kp[:2, 2] - K[:2, 2]).max() / f.min(), abs(Kp[0, 1] - K[0, 1]) / f.min())
+        if not off <= AGREE_FOCAL:
+            p = "P" + name[1]
+            raise CalibrationError(name, f"not {p}'s camera: {p} has fx {Kp[0, 0]:.1f}, fy {Kp[1, 1]:.1f}, "
+                                         f"centre ({Kp[0, 2]:.1f}, {Kp[1, 2]:.1f}) px, {name} "
+                                         f"{K[0, 0]:.1f}, {K[1, 1]:.1f}, ({K[0, 2]:.1f}, {K[1, 2]:.1f})")
+    (_, R1, t1), (_, R2, t2) = poses
+    R, T = R2 @ R1.T, None
+    if mats["R"] is not None:
+        turn = math.degrees(math.acos(np.clip((np.trace(R @ mats["R"].T) - 1) / 2, -1.0, 1.0)))
+        if not turn <= AGREE_ROTATION_DEG:
+            raise CalibrationError("R", f"{turn:.1f} degrees from camera 2's rotation in P1, P2")
+    if mats["T"] is not None:
+        T = t2 - R @ t1
+        if not np.linalg.norm(T - mats["T"]) <= AGREE_T * np.linalg.norm(T):
+            raise CalibrationError("T", f"{np.round(mats['T'], 2).tolist()}, but P1, P2 put camera 2 at "
+                                        f"{np.round(T, 2).tolist()} from camera 1 (same units as P)")
+
+
 def calibration_from_json(data: object) -> StereoCalibration:
     """The calibration in a decoded CALIB.json object; CalibrationError at the first fault."""
     if not isinstance(data, dict):
@@ -124,6 +173,7 @@ def calibration_from_json(data: object) -> StereoCalibration:
     for d, k in (("D1", "K1"), ("D2", "K2")):
         if mats[d] is not None and mats[k] is None:
             raise CalibrationError(d, f"distortion given without {k}")
+    _check_agree(mats)
     size = data.get("image_size")
     if size is not None:
         if (not isinstance(size, list) or len(size) != 2
