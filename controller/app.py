@@ -30,7 +30,7 @@ from controller.shutdown import install_signal_handlers
 from controller.simproc import SimProcess
 from controller.status import farm_status
 from controller.stopping import Stopping
-from controller.store import Store
+from controller.store import CONTROLLER_BUSY_MS, Store
 from controller.surveys.watch import SurveyWatch
 from controller.surveys.wiring import build_survey_stops, survey_camera_name
 from controller.water import WaterTemperatures
@@ -87,7 +87,7 @@ class Controller(Stopping):
         controller still waiting for a device; the robot starts once every device has opened."""
         cfg = self.cfg
         # first: an unusable ledger path is bad input, exit 2
-        self.store = Store(cfg.store.path, cfg.surveys.min_weighed_fish)
+        self.store = Store(cfg.store.path, cfg.surveys.min_weighed_fish, busy_ms=CONTROLLER_BUSY_MS)
         self.store.claim()                     # ... and so is a ledger another controller runs on
         sections = dict(cfg.devices)
         if any(s["driver"] == "sim" for s in sections.values()):

@@ -9,7 +9,10 @@ id already given to a command with other values (``count`` 6 where it was 5) is 
 "ok" as a repeat, the six dead fish were never booked and their sender was told they were.
 
 The command and its remembered reply are two writes: a controller killed between them (no await
-lies between, so only a kill does it) carries the command out and forgets the id.
+lies between, so only a kill does it) carries the command out and forgets the id. A command that
+needs no ledger (a reset, an acknowledge) is carried out while the ledger cannot be written; its
+reply is then "ok" with a ``note`` that the id is not remembered (it was "cannot be written, try
+again", of a reset done).
 """
 from __future__ import annotations
 
@@ -67,8 +70,9 @@ def asked(payload: object) -> str:
 class Once:
     """Carries out each request id once (see the module's text)."""
 
-    def __init__(self, ledger: Callable[[], RequestRecords], refused: type[Exception]):
-        self.ledger, self.refused = ledger, refused
+    def __init__(self, ledger: Callable[[], RequestRecords], refused: type[Exception],
+                 unwritable: type[Exception] = OSError):
+        self.ledger, self.refused, self.unwritable = ledger, refused, unwritable
         self._running: dict[str, asyncio.Future] = {}
 
     async def run(self, command: str, request: str | None, t: float,
@@ -88,7 +92,13 @@ class Once:
         try:
             reply = await act()
             if reply.get("ok") is True:
-                self.ledger().remember_request(request, command, t, {**reply, ASKED: digest})
+                try:
+                    self.ledger().remember_request(request, command, t, {**reply, ASKED: digest})
+                except self.unwritable as exc:
+                    # done all the same (a reset, an acknowledge: nothing of theirs is in the
+                    # ledger): said so, never "cannot be written, try again" of a thing done
+                    reply = {**reply, "note": f"done, but the ledger cannot be written ({exc}): request "
+                                              f"{request} is not remembered; sent again, it is done again"}
             future.set_result((command, {**reply, ASKED: digest}))
             return reply
         except BaseException as exc:

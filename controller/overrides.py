@@ -79,7 +79,7 @@ class Overrides:
         self._rows: list[dict] = []      # audit rows not written yet (this loop turn's)
         self._resetting = asyncio.Lock()
         self._act = {name: getattr(self, name.replace("-", "_")) for name in COMMANDS if name not in NOT_YET}
-        self._once = Once(lambda: self.c.store, Refused)
+        self._once = Once(lambda: self.c.store, Refused, LedgerUnwritable)
         self._historians = asyncio.Semaphore(HISTORY_AT_ONCE)
 
     def declare(self, bus) -> None:

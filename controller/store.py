@@ -156,6 +156,15 @@ def ledger_time(path: str | Path) -> float | None:
     return latest
 
 
+# How long a write waits for another process's write lock. A command line can wait (5 s); the
+# controller writes on its event loop, where every wait holds up everything else: a sqlite3 shell
+# left inside a transaction had each write wait 5 s, status take 10 s and an operator's e-stop
+# answered "Timeout" (its latches set, its reply behind the loop). Locked past this, a write is the
+# ledger unwritable (alarm, retried, nothing fed meanwhile), as a full disk is.
+BUSY_MS = 5000
+CONTROLLER_BUSY_MS = 200
+
+
 class _Newer(Exception):
     """The ledger's schema is newer than this program's."""
 
@@ -166,7 +175,7 @@ class Store(LedgerWrites, Records, CleanerRecords, SurveyRecords, RequestRecords
 
     _claim: int | None = None         # the controller's hold on the ledger (``claim``): a locked file
 
-    def __init__(self, path: str | Path, min_weighed: int = 1):
+    def __init__(self, path: str | Path, min_weighed: int = 1, busy_ms: int = BUSY_MS):
         self.path = Path(path)
         self.min_weighed = min_weighed
         self._lock = threading.RLock()
@@ -180,7 +189,7 @@ class Store(LedgerWrites, Records, CleanerRecords, SurveyRecords, RequestRecords
             if self.db.execute("PRAGMA journal_mode=WAL").fetchone()[0] != "wal" and str(path) != ":memory:":
                 raise sqlite3.OperationalError("cannot use write-ahead logging there")
             self.db.execute("PRAGMA synchronous=FULL")
-            self.db.execute("PRAGMA busy_timeout=5000")
+            self.db.execute(f"PRAGMA busy_timeout={int(busy_ms)}")
             self._migrate()
         except _Newer as exc:
             self.close()

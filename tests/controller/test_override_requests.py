@@ -128,3 +128,25 @@ def test_an_estop_is_carried_out_every_time_whatever_its_request(farm):
     for _ in range(2):
         assert send(farm, "estop", {"request": "e-1"})["ok"] is True
     assert len(farm.estops) == 2
+
+
+def test_a_command_done_while_the_ledger_cannot_remember_its_id_is_answered_done(farm):
+    """A reset needs no ledger and is carried out while the ledger cannot be written (another
+    process's lock, a full disk); remembering its id then fails. It was answered "ledger: cannot be
+    written; try again once it can" — of a reset already done. It is answered ok, with a note that
+    the id is not remembered; a stock event, which is the ledger's, is still refused."""
+    import sqlite3
+    hold = sqlite3.connect(str(farm.store.path), isolation_level=None, timeout=30)
+    farm.store.db.execute("PRAGMA busy_timeout=0")
+    hold.execute("BEGIN IMMEDIATE")
+    try:
+        overrides = Overrides(farm)
+        reply = send(farm, "reset", {"request": "reset-1"}, overrides)
+        assert reply["ok"] is True and "request reset-1 is not remembered" in reply["note"], reply
+        assert farm.robot.calls.count(("operator_reset",)) == 1
+        reply = send(farm, "mortality", {"tank": "T1", "count": 1, "request": "m-1"}, overrides)
+        assert reply["ok"] is False and reply["error"].startswith("ledger: cannot be written"), reply
+    finally:
+        hold.execute("ROLLBACK")
+        hold.close()
+    assert send(farm, "mortality", {"tank": "T1", "count": 1, "request": "m-1"})["ok"] is True
