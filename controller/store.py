@@ -259,7 +259,10 @@ class Store(LedgerWrites, Records, CleanerRecords, SurveyRecords, RequestRecords
         controller. BadInput naming the holder when another process holds it."""
         if str(self.path) == ":memory:" or self._claim is not None:
             return
-        lock = self.path.with_name(self.path.name + ".lock")
+        # beside the file itself: a ledger reached through a symlink is the same ledger (two
+        # controllers ran on one, each holding the lock beside its own name for it)
+        real = self.path.resolve()
+        lock = real.with_name(real.name + ".lock")
         try:
             fd = os.open(lock, os.O_RDWR | os.O_CREAT, 0o644)
         except OSError as exc:

@@ -87,6 +87,31 @@ def test_one_controller_per_ledger_and_a_killed_ones_claim_goes_with_it(tmp_path
     again.close()
 
 
+@pytest.mark.parametrize("how", ["symlink", "symlinked directory", "relative with dots"])
+def test_the_same_ledger_by_another_name_is_the_same_ledger(tmp_path, how):
+    """Reached through a symlink, the ledger was claimed beside the link's name: two controllers
+    ran on one ledger, each holding its own lock."""
+    (tmp_path / "real").mkdir()
+    path = tmp_path / "real" / "ledger.db"
+    other = {"symlink": tmp_path / "link.db", "symlinked directory": tmp_path / "alias" / "ledger.db",
+             "relative with dots": tmp_path / "real" / ".." / "real" / "ledger.db"}[how]
+    if how == "symlink":
+        other.symlink_to(path)
+    elif how == "symlinked directory":
+        (tmp_path / "alias").symlink_to(tmp_path / "real")
+    holder = subprocess.Popen([sys.executable, "-c", HOLDER, str(path)], stdin=subprocess.PIPE,
+                              stdout=subprocess.PIPE, text=True)
+    try:
+        assert holder.stdout.readline().strip() == "held"
+        second = Store(other)
+        with pytest.raises(BadInput) as exc:
+            second.claim()
+        assert f"another controller (pid {holder.pid}) runs on this ledger" in str(exc.value)
+    finally:
+        holder.send_signal(signal.SIGKILL)
+        holder.wait(10)
+
+
 CHILD = textwrap.dedent("""
     import sys
     from controller.store import Store
