@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import fcntl
 import os
+import re
 import sqlite3
 import threading
 import uuid
@@ -26,6 +27,7 @@ from pathlib import Path
 from controller.cleaning.ledger import MIGRATION_5, CleanerRecords
 from controller.errors import BadInput
 from controller.feed_outcome import Feed, next_tag
+from controller.ledger_read import connect_read_only, why_unreadable
 from controller.ledger_writes import LedgerUnwritable, LedgerWrites  # noqa: F401
 from controller.override_requests import MIGRATION_8, RequestRecords
 from controller.records import MIGRATION_4, Records
@@ -166,7 +168,22 @@ CONTROLLER_BUSY_MS = 200
 
 
 class _Newer(Exception):
-    """The ledger's schema is newer than this program's."""
+    """The file is not a ledger this program can use: a newer schema, another program's database,
+    a table missing."""
+
+
+def _refuse_foreign(db: sqlite3.Connection) -> None:
+    """Another program's database (tables in it, no schema version of ours) is not a new ledger:
+    the ledger's tables were added beside its own and the controller ran on it."""
+    if db.execute("PRAGMA user_version").fetchone()[0] != 0:
+        return
+    tables = sorted(r[0] for r in db.execute("SELECT name FROM sqlite_master WHERE type = 'table'"))
+    if tables:
+        raise _Newer(f"not a fishfarm ledger: another program's database (tables "
+                     f"{', '.join(tables[:5])}{', ...' if len(tables) > 5 else ''})")
+
+
+LEDGER_TABLES = frozenset(re.findall(r"CREATE TABLE (?:IF NOT EXISTS )?(\w+)", "\n".join(MIGRATIONS)))
 
 
 class Store(LedgerWrites, Records, CleanerRecords, SurveyRecords, RequestRecords):
@@ -185,6 +202,7 @@ class Store(LedgerWrites, Records, CleanerRecords, SurveyRecords, RequestRecords
                 self.path.parent.mkdir(parents=True, exist_ok=True)
             self.db = sqlite3.connect(str(path), isolation_level=None, check_same_thread=False)
             self.db.row_factory = sqlite3.Row
+            _refuse_foreign(self.db)               # before WAL: another program's file is left as it was
             # WAL needs to write beside the file: an unwritable place fails here, at start, not mid-feed
             if self.db.execute("PRAGMA journal_mode=WAL").fetchone()[0] != "wal" and str(path) != ":memory:":
                 raise sqlite3.OperationalError("cannot use write-ahead logging there")
@@ -210,13 +228,10 @@ class Store(LedgerWrites, Records, CleanerRecords, SurveyRecords, RequestRecords
         self.path, self._lock, self.db = Path(path), threading.RLock(), None
         self.min_weighed = min_weighed
         try:
-            self.db = sqlite3.connect(f"file:{self.path.resolve()}?mode=ro", uri=True, isolation_level=None,
-                                      check_same_thread=False)
-            self.db.row_factory = sqlite3.Row
-            version = self.db.execute("PRAGMA user_version").fetchone()[0]
+            version = self._open_read_only()
         except sqlite3.Error as exc:
             self.close()
-            raise BadInput(str(path), None, f"cannot read the ledger: {exc}") from None
+            raise BadInput(str(path), None, f"cannot read the ledger: {exc}{why_unreadable(self.path)}") from None
         if version != len(MIGRATIONS):
             self.close()
             why = ("not a fishfarm ledger (no schema in it)" if version == 0 else
@@ -225,6 +240,11 @@ class Store(LedgerWrites, Records, CleanerRecords, SurveyRecords, RequestRecords
                       else "a newer program wrote it"))
             raise BadInput(str(path), None, why)
         return self
+
+    def _open_read_only(self) -> int:
+        self.db, version = connect_read_only(self.path)
+        self.db.row_factory = sqlite3.Row
+        return version
 
     # -- schema ---------------------------------------------------------------
     def _migrate(self) -> None:
@@ -246,6 +266,10 @@ class Store(LedgerWrites, Records, CleanerRecords, SurveyRecords, RequestRecords
                     if self.db.in_transaction:
                         self.db.execute("ROLLBACK")
                     raise
+            tables = {r[0] for r in self.db.execute("SELECT name FROM sqlite_master WHERE type = 'table'")}
+            missing = sorted(LEDGER_TABLES - tables)
+            if missing:      # a ledger damaged by hand: refused here, not mid-run by the first write to it
+                raise _Newer(f"ledger damaged: table{'s' if len(missing) > 1 else ''} {', '.join(missing)} missing")
 
     @property
     def schema_version(self) -> int:

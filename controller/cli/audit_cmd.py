@@ -64,10 +64,13 @@ def _ledger(config_path: str, db: str | None) -> str:
 def read_audit(path: str, since: float | None, operator: str | None) -> list[dict]:
     if not Path(path).is_file():
         raise BadInput(path, None, "no such ledger (has the controller run with this config?)")
+    from controller.ledger_read import connect_read_only, why_unreadable
     try:
-        db = sqlite3.connect(f"file:{Path(path).resolve()}?mode=ro", uri=True)
-    except sqlite3.Error as exc:
-        raise BadInput(path, None, f"cannot open the ledger: {exc}") from None
+        db, _ = connect_read_only(Path(path))
+    except sqlite3.OperationalError as exc:
+        raise BadInput(path, None, f"cannot open the ledger: {exc}{why_unreadable(Path(path))}") from None
+    except sqlite3.DatabaseError as exc:
+        raise BadInput(path, None, f"not a ledger: {exc}") from None
     db.row_factory = sqlite3.Row
     try:
         sql, args = "SELECT * FROM audit WHERE 1 = 1", []

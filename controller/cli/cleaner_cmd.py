@@ -69,7 +69,7 @@ def _read_ledger(path: str):
     from controller.store import Store
     if not Path(path).exists():
         raise BadInput(path, None, "no ledger there (the controller has not run with this config)")
-    store = Store(path)
+    store = Store.reader(path)              # read only: a map changes nothing, migrates nothing
     try:
         saved = store.cleaner_progress()
         trace = store.cleaner_trace(saved.run) if saved is not None else None

@@ -200,11 +200,12 @@ def test_surveys_that_counted_too_few_fish_to_weigh_the_tank_are_reported_apart(
     assert [(e["source"], e["fish"]) for e in data["empty_surveys"]] == [("blocked", 0), ("reef", few)]
 
 
-@pytest.mark.parametrize("command", ["report", "history"])
+@pytest.mark.parametrize("command", ["report", "history", "cleaner map"])
 @pytest.mark.parametrize("content", ["empty", "other sqlite", "text", "older schema"])
 def test_a_file_that_is_not_a_ledger_is_refused_and_left_as_it_was(tmp_path, capsys, command, content):
-    """report and history read the ledger only: pointed at another file they exit 2 naming it and
-    write nothing into it (they used to add the ledger's 12 tables to any SQLite or empty file)."""
+    """report, history and the cleaner's map read the ledger only: pointed at another file they exit
+    2 naming it and write nothing into it (they used to add the ledger's 12 tables to any SQLite or
+    empty file; the map migrated an older ledger in place, which report then read as current)."""
     import sqlite3
     import tomllib
     path = tmp_path / "x.db"
@@ -223,8 +224,12 @@ def test_a_file_that_is_not_a_ledger_is_refused_and_left_as_it_was(tmp_path, cap
     raw = tomllib.loads(open("config/farm.toml").read())
     raw["store"] = {"path": str(path)}
     (tmp_path / "farm.toml").write_text(tomli_w.dumps(raw))
-    args = ["--tank", "T1", "--config", str(tmp_path / "farm.toml")]
-    code, _, err = run(capsys, command, *args, *(["--what", "surveys"] if command == "history" else []))
+    if command == "cleaner map":
+        args = ["cleaner", "map", "--png", str(tmp_path / "map.png"), "--config", str(tmp_path / "farm.toml")]
+    else:
+        args = [command, "--tank", "T1", "--config", str(tmp_path / "farm.toml"),
+                *(["--what", "surveys"] if command == "history" else [])]
+    code, _, err = run(capsys, *args)
     assert code == 2 and err.count("\n") == 1 and "x.db" in err, err
     assert {"empty": "not a fishfarm ledger", "other sqlite": "not a fishfarm ledger", "text": "cannot read",
             "older schema": "start the controller once"}[content] in err

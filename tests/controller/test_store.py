@@ -4,6 +4,7 @@ import sqlite3
 import subprocess
 import sys
 import textwrap
+from pathlib import Path
 
 import pytest
 
@@ -417,3 +418,103 @@ def test_a_ledger_the_disk_cannot_hold_says_so_not_cannot_rollback(tmp_path):
     said = out.stdout.strip()
     assert said.startswith(f"store.path: {path}: cannot open the ledger: "), out
     assert "rollback" not in said and ("disk" in said or "full" in said), said
+
+
+READER = textwrap.dedent("""
+    import sys
+    from controller.errors import BadInput
+    from controller.store import Store
+    try:
+        s = Store.reader(sys.argv[1])
+    except BadInput as exc:
+        print("refused:", exc)
+    else:
+        print("surveys", s.db.execute("SELECT COUNT(*) FROM survey").fetchone()[0])
+        s.close()
+""")
+
+
+def _as_another_user(cmd: list[str]) -> list[str]:
+    """``cmd`` as a user who may not write where the ledger is: root stripped of the capabilities
+    that let it write anywhere (the directory is then another user's)."""
+    if os.geteuid() != 0:
+        return cmd
+    import shutil
+    if shutil.which("setpriv") is None:
+        pytest.skip("root, and no setpriv to drop its capabilities")
+    return ["setpriv", "--inh-caps", "-all", "--bounding-set", "-all", "--", *cmd]
+
+
+@pytest.mark.parametrize("left", ["nothing", "a write-ahead log"])
+def test_a_ledger_in_a_directory_the_reader_cannot_write_is_read(tmp_path, left):
+    """The controller a service user, an operator reading: a WAL ledger is read through its -shm
+    index, which SQLite creates beside it, and after a clean stop (which removes -wal and -shm) the
+    readers failed: 'attempt to write a readonly database'. The file alone is read as it stands;
+    with a write-ahead log left beside it (a controller killed), the refusal says why."""
+    import tempfile
+    place = Path(tempfile.mkdtemp(prefix="fishfarm-ro-"))
+    try:
+        path = place / "ledger.db"
+        s = Store(path)
+        s.add_survey("T1", 1_780_000_000.0, "sparus_aurata", "a", [12.0] * 3, [20.0] * 3)
+        s.close()
+        if left != "nothing":
+            keep = Store(path)                          # a writer's WAL, left as a killed controller leaves it
+            keep.add_survey("T1", 1_780_100_000.0, "sparus_aurata", "b", [13.0] * 3, [25.0] * 3)
+            import shutil
+            for end in ("-wal", "-shm"):
+                shutil.copy(f"{path}{end}", f"{path}{end}.keep")
+            keep.close()
+            for end in ("-wal", "-shm"):
+                os.rename(f"{path}{end}.keep", f"{path}{end}")
+            os.remove(f"{path}-shm")                    # the index is the reader's to make, and it cannot
+        assert not Path(f"{path}-shm").exists()
+        if os.geteuid() == 0:
+            for p in (place, *place.iterdir()):
+                os.chown(p, 65534, 65534)
+        place.chmod(0o555)
+        r = subprocess.run(_as_another_user([sys.executable, "-c", READER, str(path)]), capture_output=True,
+                           text=True, timeout=60, cwd=str(Path(__file__).resolve().parents[2]))
+        if left == "nothing":
+            assert r.stdout.strip() == "surveys 1", (r.stdout, r.stderr)
+        else:
+            assert "write-ahead log is beside it" in r.stdout and "not writable for this user" in r.stdout, r
+        assert sorted(p.name for p in place.iterdir()) == sorted(
+            ["ledger.db"] + (["ledger.db-wal"] if left != "nothing" else []))
+    finally:
+        place.chmod(0o700)
+        import shutil
+        shutil.rmtree(place, ignore_errors=True)
+
+
+def test_another_program_s_database_is_refused_and_left_as_it_was(tmp_path):
+    """A file of another program's tables (user_version 0, tables in it) was taken for a new ledger:
+    the controller added its 15 tables beside the customers and ran on it."""
+    path = tmp_path / "shop.db"
+    db = sqlite3.connect(path)
+    db.execute("CREATE TABLE customers (id INTEGER PRIMARY KEY, name TEXT)")
+    db.commit()
+    db.close()
+    before = path.read_bytes()
+    with pytest.raises(BadInput) as exc:
+        Store(path)
+    assert str(exc.value) == f"store.path: {path}: not a fishfarm ledger: another program's database (tables customers)"
+    assert path.read_bytes() == before
+    empty = tmp_path / "empty.db"
+    empty.write_bytes(b"")
+    Store(empty).close()                        # an empty file is a new ledger, as a missing one
+
+
+@pytest.mark.parametrize("table", ["tank_pause", "feed"])
+def test_a_ledger_missing_a_table_is_refused_at_open_naming_it(tmp_path, table):
+    """A ledger of the current schema with a table dropped by hand failed mid-run, as an internal
+    error, after the simulator and the SCADA server had started."""
+    path = tmp_path / "ledger.db"
+    Store(path).close()
+    db = sqlite3.connect(path)
+    db.execute(f"DROP TABLE {table}")
+    db.commit()
+    db.close()
+    with pytest.raises(BadInput) as exc:
+        Store(path)
+    assert str(exc.value) == f"store.path: {path}: ledger damaged: table {table} missing"
