@@ -17,6 +17,8 @@ CREDENTIALS ?= config/zenoh/credentials.txt
 .PHONY: run test bench lint clean mbpoll
 
 $(STAMP): pyproject.toml
+	@$(PY) -c 'import sys; sys.exit(sys.version_info < (3, 12))' 2>/dev/null || { echo "fishfarm needs \
+	Python 3.12 or newer; found $(PY) $(PYVER) (no python3.12/3.13 on PATH or in ~/.pyenv): give PY=/path/to/python3.12" >&2; exit 2; }
 	@if [ -x $(BIN)/python ] && [ "$$($(BIN)/python -c 'import sys; print("%d.%d" % sys.version_info[:2])')" != "$(PYVER)" ]; \
 	    then echo "rebuilding $(VENV) for Python $(PYVER)"; rm -rf $(VENV); fi
 	test -x $(BIN)/python || $(PY) -m venv $(VENV)
