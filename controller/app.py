@@ -20,7 +20,7 @@ from controller.config import Config, validate_section
 from controller.demand import Demand, DemandFilter, DemandParams, SensorFault, SensorRecovered, SlowFishUndetectable
 from controller.farm_setup import CLEANER_KINDS, build_device, check_farm
 from controller.feeding.estop import PROVISIONAL, EstopLane, Latch, log_latch
-from controller.feeding.rations import Rations, load_species
+from controller.feeding.rations import Rations, load_species, species_file
 from controller.feeding.robot import FeedingRobot, Job
 from controller.hub_clock import HubClock
 from controller.ledger_writes import LedgerUnwritable
@@ -66,7 +66,7 @@ class Controller(Stopping):
         self.scada: Scada | None = None
         self.started_monotonic = time.monotonic()
         self.not_opened: set[str] = set()        # devices whose open has failed and not succeeded since
-        self.species = load_species()
+        self.species = load_species(species_file(cfg.path))
         check_farm(cfg, self.species)
         # every section is checked before anything starts: a bad key is one line and exit 2, not a
         # simulator started and stopped around it

@@ -37,8 +37,9 @@ def history(tank_id, what, since, until, csv_path, config_path) -> None:
     from controller.store import Store
     cfg = load_config(config_path)
     from controller.farm_setup import check_tank_species
-    from controller.feeding.rations import load_species
-    check_tank_species(cfg, load_species())      # as `run` refuses it: a misspelt species is another fish
+    from controller.feeding.rations import load_species, species_file
+    # as `run` refuses it: a misspelt species is another fish
+    check_tank_species(cfg, load_species(species_file(config_path)))
     check_outputs({"--csv": csv_path}, [config_path, cfg.store.path])
     if tank_id not in {t.id for t in cfg.tanks}:
         raise BadInput(config_path, "--tank", f"no tank {tank_id!r} (tanks: {', '.join(t.id for t in cfg.tanks)})")

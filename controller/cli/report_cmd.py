@@ -103,8 +103,9 @@ def report(tank_id, since, target_g, png_path, as_json, config_path) -> None:
     from controller.store import Store
     cfg = load_config(config_path)
     from controller.farm_setup import check_tank_species
-    from controller.feeding.rations import load_species
-    check_tank_species(cfg, load_species())      # as `run` refuses it: a misspelt species is another fish
+    from controller.feeding.rations import load_species, species_file
+    # as `run` refuses it: a misspelt species is another fish
+    check_tank_species(cfg, load_species(species_file(config_path)))
     check_outputs({"--png": png_path}, [config_path, cfg.store.path])
     if png_path:
         from controller.plotting import check_figure_name

@@ -204,11 +204,11 @@ def survey(calib_path, species, setup, pairs, rgs, directory, video, rg_video, s
     """Fish lengths and weights from stereo pairs, with the survey's statistics."""
     from controller.cli.calib_io import load_calibration
     from controller.cli.output_paths import check_outputs
+    from controller.feeding.rations import species_file
     from controller.surveys.runner import MEASURE
     from controller.surveys.species import survey_species, with_stock
     from controller.surveys.survey import SurveyOptions, run_survey
-
-    sp = survey_species(species)
+    sp = survey_species(species, species_file(config_path))
     if stock:
         sp = with_stock(sp, config_path or "config/farm.toml", stock)
     elif config_path and not tank_id:

@@ -15,6 +15,7 @@ or a stock event plans it again, an operator's ration stands.
 from __future__ import annotations
 
 import math
+import sys
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -71,8 +72,34 @@ class Species(BaseModel):
         return self.feeding[-1]
 
 
-SHIPPED = Path(__file__).resolve().parents[2] / "config"
+SOURCE_CONFIG = Path(__file__).resolve().parents[2] / "config"
+
+
+def shipped_config(source: Path = SOURCE_CONFIG, prefixes: tuple[str, ...] = (sys.prefix, sys.base_prefix)) -> Path:
+    """Where fishfarm's own species.toml and feeding charts are: the source tree's config/ (a
+    checkout, an editable install), else the copy a wheel installs as data under
+    ``<prefix>/share/fishfarm/config`` (pyproject.toml's data-files; a wheel once had none, and an
+    installed fishfarm could neither run nor survey)."""
+    if (source / "species.toml").is_file():
+        return source
+    for prefix in prefixes:
+        installed = Path(prefix) / "share" / "fishfarm" / "config"
+        if (installed / "species.toml").is_file():
+            return installed
+    return source                   # named in the error of whatever reads it
+
+
+SHIPPED = shipped_config()
 SPECIES_FILE = SHIPPED / "species.toml"
+
+
+def species_file(config_path: str | Path | None = None) -> Path:
+    """The species.toml a farm uses: one beside its farm.toml (a farm's own species), else fishfarm's."""
+    if config_path is not None:
+        beside = Path(config_path).parent / "species.toml"
+        if beside.is_file():
+            return beside
+    return SPECIES_FILE
 
 
 def load_species(path: str | Path = SPECIES_FILE) -> dict[str, Species]:
