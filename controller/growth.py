@@ -157,12 +157,16 @@ class Conversion:
 
     @property
     def fcr(self) -> float | None:
-        return self.feed_g / self.gain_g if self.gain_g > 0 else None
+        """None with no gain (a loss is not a conversion) and with no feed recorded (the fish grew on
+        feed the ledger does not know: hand-fed; it read "FCR 0.00 (0.00-0.00)")."""
+        return self.feed_g / self.gain_g if self.gain_g > 0 and self.feed_g > 0 else None
 
     @property
     def fcr_ci(self) -> tuple[float | None, float | None]:
         """The 95 % interval of FCR from the gain's: (feed / high gain, feed / low gain); None for
-        an end the gain's interval does not bound (it reaches zero or below)."""
+        an end the gain's interval does not bound (it reaches zero or below), or with no feed."""
+        if self.feed_g <= 0:
+            return None, None
         lo_gain, hi_gain = self.gain_g - self.quantile * self.gain_se_g, self.gain_g + self.quantile * self.gain_se_g
         return (self.feed_g / hi_gain if hi_gain > 0 else None, self.feed_g / lo_gain if lo_gain > 0 else None)
 
@@ -176,7 +180,7 @@ def net_conversion(feed_g: float, gain_g: float, died_g: float) -> dict:
     weight of the fish that died meanwhile — the growth the farm keeps. ``fcr`` (the biological)
     counts the dead fish's growth too: what the feed made, the fish's own conversion."""
     net = gain_g - died_g
-    return {"fcr_net": feed_g / net if net > 0 else None, "died_g": died_g}
+    return {"fcr_net": feed_g / net if net > 0 and feed_g > 0 else None, "died_g": died_g}
 
 
 def conversion(fit: GrowthFit, feed_g: float, terms: list[tuple[float, float]]) -> Conversion:

@@ -117,7 +117,8 @@ def interval(p1: SurveyPoint, p2: SurveyPoint, feed_g: float, events, tank: str,
     gain = p2.stock * p2.mean_weight_g - p1.stock * p1.mean_weight_g + sum(g for _, g in moved)
     died = sum(g for kind, g in moved if kind == "mortality")
     net = net_conversion(feed_g, gain, died)
-    return Interval(p1.t, p2.t, days, sgr, feed_g, gain, feed_g / gain if gain > 0 else None, net["fcr_net"], died)
+    fcr = feed_g / gain if gain > 0 and feed_g > 0 else None       # no feed recorded: none to tell
+    return Interval(p1.t, p2.t, days, sgr, feed_g, gain, fcr, net["fcr_net"], died)
 
 
 def moved_in_weights(cfg, store, events, tank: str) -> dict[int, float]:

@@ -20,6 +20,8 @@ from controller.plotting import pyplot, save_figure
 DAY_S = 86_400.0
 MIN_SPAN_D = 7.0          # the shortest time axis: one survey's histogram reads as one, not a wall
 TABLE_ROWS = 12           # surveys listed, the newest; the rest counted
+HISTOGRAMS = 24           # the newest surveys drawn as histograms, the older as their means on the line:
+                          # a histogram each for 1,000 surveys took 30 s to draw (4,000: 6 minutes)
 DPI = 110                 # the page's: the labels are placed with its renderer, in its pixels
 HIST, MEAN, FIT, PROJ, FEED = "#7fb3d5", "#1b4f72", "#d68910", "#c0392b", "#58a55c"
 
@@ -80,6 +82,7 @@ def _time_axis(report: dict, now: float | None, zone: dt.tzinfo = dt.UTC) -> tup
     each histogram as wide as 80 % of the gap to the next survey and 15 % of the axis at most."""
     ts = [s["t"] for s in report["surveys"]]
     points = ts + [_noon(f, zone) for f in report["feed_per_day"]]
+    ts = ts[-HISTOGRAMS:]                       # the histograms drawn: their width
     if points:
         lo, hi = min(points), max(points)
     else:
@@ -103,7 +106,7 @@ def _draw_weights(ax, surveys: list[dict], width: float) -> list[tuple]:
     """The histograms and means; the labels to place, newest first: (x, y, text)."""
     labels = []
     tops = []
-    for s in surveys:
+    for s in surveys[-HISTOGRAMS:]:
         d = _day(s["t"])
         w = np.asarray(s["weights_g"], float)
         top = s["mean_weight_g"]
@@ -116,10 +119,11 @@ def _draw_weights(ax, surveys: list[dict], width: float) -> list[tuple]:
         labels.append((d + width / DAY_S / 2, top,
                        f"{_g(s['mean_weight_g'])}, CV {s['cv_pct'] or 0:.0f} %\n{_n(s['fish'], 'fish')}"))
     if surveys:
-        ax.plot([_day(s["t"]) for s in surveys], [s["mean_weight_g"] for s in surveys], "o-", color=MEAN,
-                label="mean weight")
-        low = min(min(s["weights_g"] or [s["mean_weight_g"]]) for s in surveys)
-        high = max(tops)
+        ax.plot([_day(s["t"]) for s in surveys], [s["mean_weight_g"] for s in surveys],
+                "o-" if len(surveys) <= 4 * HISTOGRAMS else "-", color=MEAN, label="mean weight")
+        low = min(min(s["weights_g"] or [s["mean_weight_g"]]) for s in surveys[-HISTOGRAMS:])
+        low = min(low, *(s["mean_weight_g"] for s in surveys))
+        high = max(*tops, *(s["mean_weight_g"] for s in surveys))
         room = (high - low) or high or 1.0
         ax.set_ylim(max(0.0, low - 0.08 * room), high + 0.25 * room)     # the labels' room above
     else:

@@ -48,13 +48,13 @@ def text(report: dict, target_g: float | None = None) -> str:
         lines.append(f"  survey {s['date']}: {s['fish']} fish, mean {s['mean_weight_g']:.1f} g, "
                      f"CV {s['cv_pct'] or 0:.1f} %, K {s['k']:.2f}, stock {s['stock']}")
     for i in report["intervals"]:
-        fcr = "n/a (no gain)" if i["fcr"] is None else f"{i['fcr']:.2f}{_net(i)}"
+        fcr = _no_fcr(i) if i["fcr"] is None else f"{i['fcr']:.2f}{_net(i)}"
         lines.append(f"  {i['date1']} -> {i['date2']} ({i['days']:.1f} d): SGR {i['sgr_pct']:.2f} %/day, "
                      f"feed {i['feed_g']:.0f} g, biomass gain {i['gain_g']:.0f} g, FCR {fcr}")
     f = report.get("fit")
     if f is not None:
         lo, hi = (_bound(x) for x in f["fcr_ci"])
-        fcr = "n/a (no gain)" if f["fcr"] is None else f"{f['fcr']:.2f} ({lo}-{hi}, 95 %){_net(f)}"
+        fcr = _no_fcr(f) if f["fcr"] is None else f"{f['fcr']:.2f} ({lo}-{hi}, 95 %){_net(f)}"
         lines.append(f"  fitted to {f['surveys']} surveys since {f['since']} ({f['days']:.1f} d, {f['fish']} fish): "
                      f"SGR {f['sgr_pct_day']:.2f} ± {f['sgr_ci_pct_day']:.2f} %/day, FCR {fcr}")
     if "grading" in report:
@@ -81,6 +81,10 @@ def text(report: dict, target_g: float | None = None) -> str:
         lines.append(f"  no survey of this tank since {report['since']} ({before} before)" if "since" in report
                      else "  no survey in the ledger for this tank")
     return "\n".join(lines)
+
+
+def _no_fcr(figures: dict) -> str:
+    return "n/a (no feed recorded)" if not figures.get("feed_g") else "n/a (no gain)"
 
 
 def _bound(x: float | None) -> str:

@@ -8,6 +8,7 @@ import json
 import math
 import time
 
+import numpy as np
 import pytest
 import tomli_w
 
@@ -374,3 +375,43 @@ def test_fish_moved_in_are_weighed_as_their_source_tank_had_them(tmp_path, capsy
     gain = (stock["T1"] + n) * 30 - stock["T1"] * 20 - n * w_in
     assert code == 0 and i["gain_g"] == pytest.approx(gain)
     assert i["fcr"] == (pytest.approx(3000 / gain) if gain > 0 else None)
+
+
+def test_no_feed_recorded_is_no_fcr_not_zero(tmp_path, capsys):
+    """Fish that grew with no feed in the ledger (fed by hand) read "FCR 0.00 (0.00-0.00, 95 %)":
+    a conversion the ledger cannot know. None, and said so; the SCADA and JSON carry null."""
+    import tomllib
+    raw = tomllib.loads(open("config/farm.toml").read())
+    raw["store"] = {"path": str(tmp_path / "ledger.db")}
+    (tmp_path / "farm.toml").write_text(tomli_w.dumps(raw))
+    store = Store(tmp_path / "ledger.db")
+    for d, w in ((0, 20.0), (7, 24.0), (14, 29.0)):
+        store.add_survey("T1", T1 + d * DAY, "sparus_aurata", str(d), [12.0] * 40, [w] * 40)
+    store.close()
+    code, out, _ = run(capsys, "report", "--tank", "T1", "--config", str(tmp_path / "farm.toml"), "--json")
+    data = json.loads(out)
+    assert code == 0 and all(i["feed_g"] == 0 and i["fcr"] is None and i["fcr_net"] is None for i in data["intervals"])
+    assert data["fit"]["fcr"] is None and data["fit"]["fcr_ci"] == [None, None] and data["fit"]["fcr_net"] is None
+    code, out, _ = run(capsys, "report", "--tank", "T1", "--config", str(tmp_path / "farm.toml"))
+    assert "FCR 0.00" not in out and out.count("FCR n/a (no feed recorded)") == 3, out
+
+
+def test_a_page_of_many_surveys_draws_the_newest_as_histograms_and_every_mean(tmp_path):
+    """A histogram for each of 1,000 surveys took 30 s to draw (4,000: six minutes and 1 GB): the
+    newest HISTOGRAMS are drawn as histograms, every survey's mean on the line."""
+    from matplotlib.patches import Rectangle
+
+    from controller.report_plot import HISTOGRAMS, page
+    rng = np.random.default_rng(0)
+    surveys = [{"t": T1 + k * 3 * 3600.0, "date": "d", "fish": 50, "mean_weight_g": 20 + 0.01 * k, "cv_pct": 20.0,
+                "k": 1.5, "stock": 1000, "weights_g": list(rng.normal(20 + 0.01 * k, 4, 50))} for k in range(300)]
+    report = {"tank": "T1", "species": "sparus_aurata", "utc_offset_h": 0.0, "surveys": surveys, "intervals": [],
+              "empty_surveys": [], "grading_cv_pct": 30, "feed_per_day": []}
+    fig = page(report, target_g=None)
+    ax = fig.axes[0]
+    bars = [p for p in ax.patches if isinstance(p, Rectangle)]
+    assert 0 < len(bars) <= HISTOGRAMS * 20
+    lefts = {round(b.get_x(), 6) for b in bars}                   # one histogram stands at each survey drawn
+    assert len(lefts) == HISTOGRAMS
+    [means] = [line for line in ax.lines if len(line.get_xdata()) == len(surveys)]
+    assert list(means.get_ydata()) == pytest.approx([s["mean_weight_g"] for s in surveys])
