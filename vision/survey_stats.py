@@ -24,8 +24,12 @@ BOOT_CHUNK = 4_000_000                          # resampled indices held at once
 PLAUSIBLE_LONG = 1.4
 PLAUSIBLE_SHORT = 0.55
 PLAUSIBLE_MIN_FISH = 3
-OUTLIER_SD = 5.0           # with more fish, also: robust SDs (1.4826 MAD) from the median length
-OUTLIER_MIN_FISH = 10      # ... from this many fish (fewer: the MAD is itself too noisy)
+OUTLIER_SD = 5.0           # from more fish: robust SDs (1.4826 MAD) from the median length
+OUTLIER_MIN_FISH = 10      # ... from this many fish (fewer: the MAD is itself too noisy), in place
+                           # of the fixed band, which from so many fish would cut an ungraded stock's
+                           # largest real fish (lengths 80-160 mm: 3 of 64 measured right left out, the
+                           # mean weight -5 %); a graded one's 5 SDs lie inside the band anyway
+WIDE_LONG, WIDE_SHORT = 2.0, 0.45   # ... and a band no stock spans (two fish taken for one, a fragment)
 
 
 def condition_k(lengths_cm: np.ndarray, weights_g: np.ndarray) -> np.ndarray:
@@ -36,8 +40,9 @@ def condition_k(lengths_cm: np.ndarray, weights_g: np.ndarray) -> np.ndarray:
 
 def implausible(lengths_cm) -> np.ndarray:
     """(N,) bool, the lengths a survey leaves out as measuring errors: from PLAUSIBLE_MIN_FISH fish,
-    those outside PLAUSIBLE_SHORT..PLAUSIBLE_LONG of the median; from OUTLIER_MIN_FISH, also those OUTLIER_SD robust
-    SDs from it. One wild length among few fish is what makes a small survey read several times heavy."""
+    those outside PLAUSIBLE_SHORT..PLAUSIBLE_LONG of the median; from OUTLIER_MIN_FISH, those
+    OUTLIER_SD robust SDs from it or outside WIDE_SHORT..WIDE_LONG of it. One wild length among few
+    fish is what makes a small survey read several times heavy."""
     lengths = np.asarray(lengths_cm, dtype=float).reshape(-1)
     far = np.zeros(len(lengths), bool)
     if len(lengths) < PLAUSIBLE_MIN_FISH:
@@ -45,11 +50,12 @@ def implausible(lengths_cm) -> np.ndarray:
     median = float(np.median(lengths))
     if median <= 0:
         return far
-    far = (lengths > PLAUSIBLE_LONG * median) | (lengths < PLAUSIBLE_SHORT * median)
-    if len(lengths) >= OUTLIER_MIN_FISH:
-        spread = 1.4826 * float(np.median(np.abs(lengths - median)))
-        if spread > 0:
-            far |= np.abs(lengths - median) > OUTLIER_SD * spread
+    if len(lengths) < OUTLIER_MIN_FISH:
+        return (lengths > PLAUSIBLE_LONG * median) | (lengths < PLAUSIBLE_SHORT * median)
+    far = (lengths > WIDE_LONG * median) | (lengths < WIDE_SHORT * median)
+    spread = 1.4826 * float(np.median(np.abs(lengths - median)))
+    if spread > 0:
+        far |= np.abs(lengths - median) > OUTLIER_SD * spread
     return far
 
 
