@@ -184,7 +184,18 @@ class SurveysConfig(Strict):
                                   "figures); one with fewer is kept, published, warned of and tried again")
     retry_s: float = Field(3600.0, gt=0, le=86_400 * 7,
                            description="farm seconds before a failed survey is tried again")
+    floor_mm: float | None = Field(None, gt=0, le=100_000,
+                                   description="surface setup: the tank floor's distance below the left camera, "
+                                   "mm; fish shadows and debris on it are not counted as fish")
     out_dir: str = Field("var/surveys", min_length=1, description="each survey's OUT.json")
+
+    @field_validator("floor_mm")
+    @classmethod
+    def _floor_is_the_surface_setup_s(cls, v, info):
+        if v is not None and info.data.get("setup") != "surface":
+            raise ValueError("the tank floor is the surface setup's (setup = \"surface\"): underwater cameras "
+                             "would ignore it")
+        return v
 
 
 class Config(Strict):

@@ -48,7 +48,7 @@ from vision.surface_regions import RegionParams, find_regions
 from vision.surface_shape import Fish2D, analyse
 from vision.surface_stereo import body_crossings, candidate_pairs, ends_on_axis, fit_axis, fit_axis_robust, refine
 from vision.survey_types import FishMeasurement, SurveySetup
-from vision.triangulation import triangulate_calibrated
+from vision.triangulation import camera_centre, triangulate_calibrated
 
 MIN_SCORE = 0.05        # below this hand-made score a "fish" is noise: not reported (its terms veto:
                         # a fork the views disagree on, a bent or tilted body)
@@ -61,6 +61,13 @@ MIN_CHANCE = 0.02       # nor is a report the fitted score gives under this chan
 # precision 0.349 -> 0.431 (image 0.663 -> 0.800): a fork 3.5 % of the length off is not reported
 FORK_GAP = 0.02
 MIN_SIDE_PX = 32        # an image smaller than this either way holds no measurable fish
+# With the floor's distance known (``SurveySetup.floor_mm``), a "fish" whose snout and fork both lie
+# within this of it (mm, or this share of its length if more) is something on the floor: a fish's
+# shadow under an oblique lamp (a tester's 4 fish were reported as 7, the shadows 10-20 % longer
+# than their fish) or debris (a stick, a leaf). A fish resting upright on the floor has its axis
+# ~15 % of its length above it.
+FLOOR_CLEARANCE_MM = 10.0
+FLOOR_CLEARANCE = 0.05
 
 
 def _tick(timings, stage, t0):
@@ -199,7 +206,20 @@ def measure_surface(left: np.ndarray, right: np.ndarray, calib: StereoCalibratio
                     timings: dict[str, float] | None = None) -> list[FishMeasurement]:
     """Fish measured in one pair seen from above (see module docstring). Never raises on a frame
     without fish: returns []."""
-    return [m for m in surface_stages(left, right, calib, setup, timings)["measured"] if reported(m)]
+    measured = surface_stages(left, right, calib, setup, timings)["measured"]
+    return [m for m in measured if reported(m) and not on_floor(m, calib, setup)]
+
+
+def on_floor(m: FishMeasurement, calib: StereoCalibration, setup: SurveySetup) -> bool:
+    """Whether both ends lie on the tank floor (``SurveySetup.floor_mm`` below camera 1 along "up"):
+    not a fish. Their height above it is kept in ``quality`` (``floor_height_mm``, the higher end)."""
+    if setup.floor_mm is None:
+        return False
+    up = up_direction(calib, setup)
+    centre = camera_centre(np.asarray(calib.P1, float))
+    height = max(float((np.asarray(x) - centre) @ up) + setup.floor_mm for x in (m.snout_mm, m.fork_mm))
+    m.quality["floor_height_mm"] = height
+    return height < max(FLOOR_CLEARANCE_MM, FLOOR_CLEARANCE * 10.0 * m.length_cm)
 
 
 def reported(m: FishMeasurement) -> bool:

@@ -56,13 +56,16 @@ class FishGeometry:
 class SurveySetup:
     """How a pair is processed: the setup, the paper's illumination references (eqs. 11-12) and
     the species geometry. ``up_world``: the water surface's normal in the calibration's world
-    frame; None = the left camera's image-up direction (cameras mounted level)."""
+    frame; None = the left camera's image-up direction (cameras mounted level). ``floor_mm``
+    (surface setup): the tank floor's distance below camera 1 along "up", mm; what lies on it (a
+    fish's shadow, debris) is not reported. None: not known, nothing dropped for it."""
 
     setup: Setup = "underwater"
     mi_ref: float = 120.0
     c_ref: float = 130.0
     geometry: FishGeometry = field(default_factory=FishGeometry)
     up_world: tuple[float, float, float] | None = None
+    floor_mm: float | None = None
 
 
 @dataclass

@@ -21,6 +21,7 @@ import sys
 
 import click
 
+from controller.cli.params import Finite
 from controller.errors import BadInput
 
 
@@ -191,6 +192,9 @@ def _remote(endpoint: str, site: str, user: str | None, password: str | None):
 @click.option("--tank", "tank_id", help="record the survey in the ledger for this tank: its rations follow it")
 @click.option("--stock", help="use this stock's a, b (farm.toml [stocks.NAME]) instead of the species'")
 @click.option("--up", "up", metavar="x,y,z", help="water-surface normal in the calibration's frame")
+@click.option("--floor-mm", "floor_mm", type=Finite(min=0.001, max=100_000), default=None, metavar="MM",
+              help="surface setup: the tank floor's distance below the left camera (along --up); what lies "
+                   "on it (fish shadows, debris) is not counted")
 @click.option("--workers", type=_WORKERS, default=None, metavar="N|tcp/HOST:PORT",
               help="N local processes (default: cores), or the vision workers reached at this Zenoh endpoint")
 @click.option("--site", default="demo", show_default=True, help="farm site of the vision workers (--workers ENDPOINT)")
@@ -199,8 +203,8 @@ def _remote(endpoint: str, site: str, user: str | None, password: str | None):
 @click.option("--seed", type=click.IntRange(min=0), default=1, show_default=True, help="seed of the bootstrap interval")
 @click.option("--measure", default=None, hidden=True, help="module:function measuring a pair (tests)")
 def survey(calib_path, species, setup, pairs, rgs, directory, video, rg_video, sync_offset, every, max_frames,
-           json_path, plot_path, csv_path, config_path, stock, tank_id, up, workers, site, user, password, seed,
-           measure):
+           json_path, plot_path, csv_path, config_path, stock, tank_id, up, floor_mm, workers, site, user, password,
+           seed, measure):
     """Fish lengths and weights from stereo pairs, with the survey's statistics."""
     from controller.cli.calib_io import load_calibration
     from controller.cli.output_paths import check_outputs
@@ -229,7 +233,9 @@ def survey(calib_path, species, setup, pairs, rgs, directory, video, rg_video, s
     remote, session = _remote(workers, site, user, password) if isinstance(workers, str) else (None, None)
     progress = _Progress(source.total)
     _warn_sparse(source, progress)
-    opts = SurveyOptions(sp.setup(setup, up_world), sp, workers=None if remote else workers, seed=seed,
+    if floor_mm is not None and setup != "surface":
+        raise BadInput("--floor-mm", None, "the tank floor is the surface setup's (--setup surface)")
+    opts = SurveyOptions(sp.setup(setup, up_world, floor_mm), sp, workers=None if remote else workers, seed=seed,
                          measure=measure or MEASURE, on_pair=progress, record=record, remote=remote,
                          before_commit=_plotter(plot_path))
     try:

@@ -65,9 +65,10 @@ class SurveySpecies:
     source: str                 # where a, b come from
     shape: SurveyShape
 
-    def setup(self, setup: str, up_world: tuple[float, float, float] | None) -> SurveySetup:
+    def setup(self, setup: str, up_world: tuple[float, float, float] | None,
+              floor_mm: float | None = None) -> SurveySetup:
         return SurveySetup(setup=setup, mi_ref=self.shape.mi_ref, c_ref=self.shape.c_ref,
-                           geometry=self.shape.geometry(), up_world=up_world)
+                           geometry=self.shape.geometry(), up_world=up_world, floor_mm=floor_mm)
 
     def coefficients(self) -> dict:
         """The optional OUT.json field saying which a, b made the weights."""

@@ -91,7 +91,7 @@ class SurveyStop:
         # pairs measuring at once: measured here, IN_FLIGHT; by vision workers, as many as they take
         # (2 each): the stream's frames are taken as they come instead of rendered and dropped
         self.in_flight = getattr(measure, "in_flight", lambda: IN_FLIGHT)
-        self.setups = {tank: sp.setup(self.s.setup, None) for tank, sp in species.items()}
+        self.setups = {tank: sp.setup(self.s.setup, None, self.s.floor_mm) for tank, sp in species.items()}
         self._power: asyncio.Future | None = None          # the cameras' last start or stop, in order
         # measuring threads of their own: the default executor's few (the cameras' opens and closes
         # run there) are never all held by pairs a slow worker has

@@ -65,9 +65,10 @@ def setup_to_json(setup: SurveySetup) -> dict:
 def setup_from_json(data: dict) -> SurveySetup:
     try:
         geometry = FishGeometry(**data["geometry"])
-        up = data.get("up_world")
+        up, floor = data.get("up_world"), data.get("floor_mm")
         return SurveySetup(setup=data["setup"], mi_ref=float(data["mi_ref"]), c_ref=float(data["c_ref"]),
-                           geometry=geometry, up_world=None if up is None else tuple(float(x) for x in up))
+                           geometry=geometry, up_world=None if up is None else tuple(float(x) for x in up),
+                           floor_mm=None if floor is None else float(floor))
     except (KeyError, TypeError, ValueError) as exc:
         raise WireError(f"setup: {exc}") from None
 

@@ -115,7 +115,8 @@ def test_unknown_species_lists_the_known_ones(farm):
 
 
 @pytest.mark.parametrize("option, value", [("--seed", "-1"), ("--every", "0"), ("--max-frames", "-3"),
-                                           ("--workers", "0"), ("--up", "0,0,0"), ("--up", "nan,0,1")])
+                                           ("--workers", "0"), ("--up", "0,0,0"), ("--up", "nan,0,1"),
+                                           ("--floor-mm", "0"), ("--floor-mm", "inf"), ("--floor-mm", "-5")])
 def test_out_of_range_options_exit_2_naming_the_option(farm, option, value):
     d, _ = farm
     r = run(*common(d, "--dir", d / "pairs", "--json", d / "x.json", option, value))
@@ -546,3 +547,11 @@ def test_a_video_surveyed_sparsely_is_warned_of_its_tracks(farm, tmp_path, every
                          "or two fish be joined; --every 5 or less surveys 5 pairs a second or more"], r.stderr
     else:
         assert lines == [], r.stderr
+
+
+def test_a_floor_for_the_underwater_setup_exits_2_naming_it(farm):
+    """The floor's distance is the surface setup's (cameras over a tank): given for underwater
+    cameras it would be silently ignored."""
+    d, _ = farm
+    r = run(*common(d, "--dir", d / "pairs", "--json", d / "x.json", "--floor-mm", "1000"))
+    one_line_exit_2(r, "--floor-mm", "surface setup")

@@ -53,6 +53,8 @@ def test_minimal_config_defaults(tmp_path):
     (GOOD + '[devices.h]\nkind = "contacts"\ndriver = "serial"\nport = "RFC2217://hub:2217"\n',
      "devices.h.port: rfc2217:// has no file descriptor"),
     ("site = 's1'\n[[tanks]\n", "not valid TOML"),
+    (GOOD + "[surveys]\nfloor_mm = 1400\n", "surveys.floor_mm: the tank floor is the surface setup's"),
+    (GOOD + '[surveys]\nsetup = "surface"\nfloor_mm = 0\n', "surveys.floor_mm: "),
     (GOOD + '[[tanks]]\nid = "B"\nstock = 1\nmean_weight_g = 1\nposition_m = 1.05\nsensors = ["B"]\n',
      "tanks.1.position_m: puts tank 'B' 0.05 m from tank 'A', closer than twice feeding.position_tolerance_m (0.1 m)"),
     (GOOD.replace("position_m = 1", "position_m = 9") + '[feeding]\nposition_tolerance_m = 0.5\n[[tanks]]\nid = "B"\n'
@@ -136,3 +138,8 @@ def test_species_file_refuses_non_finite_numbers(tmp_path):
 @pytest.mark.parametrize("h", [-12, -9.5, -3.5, 0, 5.5, 5.75, 12.75, 14])
 def test_every_zone_s_offset_is_taken(tmp_path, h):
     assert load_config(write(tmp_path, f"utc_offset_h = {h}\n" + GOOD)).utc_offset_h == h
+
+
+def test_a_floor_is_taken_for_the_surface_setup(tmp_path):
+    cfg = load_config(write(tmp_path, GOOD + '[surveys]\nsetup = "surface"\nfloor_mm = 1400\n'))
+    assert cfg.surveys.floor_mm == 1400.0 and load_config(write(tmp_path, GOOD)).surveys.floor_mm is None

@@ -299,3 +299,32 @@ def test_a_fork_the_views_disagree_on_is_not_reported():
     doubt = [m for m in measured if np.linalg.norm(m.snout_mm - world_fish(**cut)[1]) < 0.05 * cut["length_mm"]]
     assert len(doubt) == 1 and doubt[0].quality["fork_gap"] > 0.04
     assert doubt[0].quality["q_fork_views"] < 0.05
+
+
+def test_shadows_and_debris_on_a_known_floor_are_not_fish():
+    """Seen from above under an oblique lamp, each fish casts a shadow of its own shape on the floor,
+    stretched, and a stick lies there too: without the floor's distance they are reported as fish (a
+    tester's 4 fish read as 7). With it (``floor_mm``: the floor 400 mm under the water, the cameras
+    1000 mm over it), what lies on the floor is dropped and every fish found is kept."""
+    lamp = np.array([45.0, 30.0])                       # the shadow's offset on the floor, mm
+    shadows = [dict(f, depth_mm=400.0, length_mm=1.1 * f["length_mm"], tilt_deg=0.0, darkness=0.3,
+                    snout_xy=tuple(np.asarray(f["snout_xy"]) + lamp + [0, 250])) for f in FISH[:3]]
+    stick = [dict(length_mm=110.0, snout_xy=(-300.0, -250.0), heading=0.7, depth_mm=400.0, lobe=0.02,
+                  width_frac=0.12, darkness=0.5)]
+    fish = [dict(f, snout_xy=tuple(np.asarray(f["snout_xy"]) + [0, -150])) for f in FISH[:3]]
+    left, right, rig, truths = stereo_tank(np.random.default_rng(21), fish + shadows + stick)
+    calib = rig.calibration()
+    real = truths[:3]
+
+    def is_real(m):
+        return any(np.linalg.norm(m.snout_mm - s) < 0.03 * np.linalg.norm(s - k) for s, k, _, _ in real)
+    blind = measure_surface(left, right, calib, SETUP)
+    assert sum(not is_real(m) for m in blind) >= 2, [m.snout_mm for m in blind]   # the phantoms this is about
+    for up in (None, (0.0, 0.0, 1.0)):
+        seen = measure_surface(left, right, calib, SurveySetup(setup="surface", floor_mm=1400.0, up_world=up))
+        assert all(is_real(m) for m in seen) and len(seen) == sum(is_real(m) for m in blind) >= 1, up
+        assert all(m.quality["floor_height_mm"] > 200 for m in seen)
+    # the floor misplaced by 30 cm (above the fish's depths): a guess, not the tank -- nothing real is
+    # kept that lies below it, but a floor far below everything drops nothing
+    far = measure_surface(left, right, calib, SurveySetup(setup="surface", floor_mm=5000.0))
+    assert len(far) == len(blind)

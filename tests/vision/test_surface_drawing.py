@@ -111,7 +111,7 @@ def stereo_tank(rng: np.random.Generator, fish: list[dict], rig: StereoRig | Non
     imgs = [floor(rig.image_size, rng), floor(rig.image_size, rng, gradient=(190, 95))]
     truths = []
     for f in fish:
-        pts, s, k = world_fish(**f)
+        pts, s, k = world_fish(**{key: v for key, v in f.items() if key != "darkness"})
         for img, poly in zip(imgs, rig.project(pts), strict=False):
             draw(img, poly, darkness=f.get("darkness", 0.45))
         ps, pk = rig.project(np.vstack([s, k]))

@@ -1,3 +1,4 @@
+import json
 import math
 
 import numpy as np
@@ -102,3 +103,14 @@ def test_a_stock_whose_a_and_b_weigh_no_fish_of_its_species_is_refused(tmp_path,
     with pytest.raises(BadInput, match=r"farm.toml: stocks.s1.a: a = .* x the .* g of sparus_aurata's own law") as e:
         with_stock(survey_species("sparus_aurata"), p, "s1")
     assert "\n" not in str(e.value)
+
+
+@pytest.mark.parametrize("floor_mm", [None, 1400.0])
+def test_the_floor_travels_with_the_setup_to_a_worker(floor_mm):
+    """A worker measures with the setup it is sent: the floor's distance must survive the wire, or a
+    survey on workers reports the shadows its own process would drop."""
+    from controller.surveys import wire
+    sp = survey_species("sparus_aurata")
+    setup = sp.setup("surface", (0.0, 0.0, 1.0), floor_mm)
+    again = wire.setup_from_json(json.loads(json.dumps(wire.setup_to_json(setup))))
+    assert again == setup and again.floor_mm == floor_mm
