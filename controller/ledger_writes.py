@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import contextlib
 import logging
+import os
 import sqlite3
 import threading
 import time
@@ -62,7 +63,7 @@ class LedgerWrites:
         """What to raise for ``exc``: LedgerUnwritable when the file is at fault (logged once)."""
         if isinstance(exc, LedgerUnwritable) or not _the_files_fault(exc):
             return exc
-        cause = str(exc) or type(exc).__name__
+        cause = (str(exc) or type(exc).__name__) + _size_limit_reached(getattr(self, "path", None))
         if self.unwritable is None:
             self.unwritable, self.unwritable_since = cause, time.monotonic()
             log.error("ledger: cannot write: %s; nothing is fed until it can be written", cause)
@@ -73,6 +74,19 @@ class LedgerWrites:
             took = time.monotonic() - (self.unwritable_since or time.monotonic())
             log.warning("ledger: written again, after %.0f s unwritable (%s)", took, self.unwritable)
             self.unwritable = self.unwritable_since = None
+
+
+def _size_limit_reached(path) -> str:
+    """Why a write failed, where SQLite says only "disk I/O error": the process's file-size limit
+    (``ulimit -f``; Python ignores its SIGXFSZ, so the write just fails), when a ledger file is at it."""
+    import resource
+    limit = resource.getrlimit(resource.RLIMIT_FSIZE)[0]
+    if path is None or limit == resource.RLIM_INFINITY:
+        return ""
+    sizes = [os.path.getsize(f"{path}{end}") for end in ("", "-wal") if os.path.exists(f"{path}{end}")]
+    if sizes and max(sizes) >= limit - 65_536:
+        return f" (the file-size limit of this process, ulimit -f: {limit} bytes, reached)"
+    return ""
 
 
 def _the_files_fault(exc: sqlite3.Error) -> bool:

@@ -518,3 +518,25 @@ def test_a_ledger_missing_a_table_is_refused_at_open_naming_it(tmp_path, table):
     with pytest.raises(BadInput) as exc:
         Store(path)
     assert str(exc.value) == f"store.path: {path}: ledger damaged: table {table} missing"
+
+
+FILL = textwrap.dedent("""
+    import resource, sys
+    from controller.ledger_writes import LedgerUnwritable
+    from controller.store import Store
+    s = Store(sys.argv[1])
+    resource.setrlimit(resource.RLIMIT_FSIZE, (400_000, resource.RLIM_INFINITY))
+    try:
+        for i in range(10_000):
+            s.add_survey("T1", 1_780_000_000.0 + i, "sparus_aurata", "x" * 200, [12.0] * 50, [20.0] * 50)
+    except LedgerUnwritable as exc:
+        print("unwritable:", exc)
+""")
+
+
+def test_a_file_size_limit_is_named_as_the_cause(tmp_path):
+    """Under `ulimit -f` the ledger's writes failed as "disk I/O error" (Python ignores SIGXFSZ),
+    nothing saying it was the process's file-size limit."""
+    r = subprocess.run([sys.executable, "-c", FILL, str(tmp_path / "ledger.db")], capture_output=True, text=True,
+                       timeout=120, cwd=str(Path(__file__).resolve().parents[2]))
+    assert r.stdout.startswith("unwritable:") and "ulimit -f: 400000 bytes" in r.stdout, (r.stdout, r.stderr)
