@@ -23,6 +23,7 @@ from controller.feeding.estop import PROVISIONAL, EstopLane, Latch, log_latch
 from controller.feeding.rations import Rations, load_species, species_file
 from controller.feeding.robot import FeedingRobot, Job
 from controller.hub_clock import HubClock
+from controller.ledger_config import check_against_ledger
 from controller.ledger_writes import LedgerUnwritable
 from controller.overrides import Overrides
 from controller.scada.service import Scada
@@ -89,6 +90,7 @@ class Controller(Stopping):
         # first: an unusable ledger path is bad input, exit 2
         self.store = Store(cfg.store.path, cfg.surveys.min_weighed_fish, busy_ms=CONTROLLER_BUSY_MS)
         self.store.claim()                     # ... and so is a ledger another controller runs on
+        check_against_ledger(cfg, self.store, self.clock.now())   # ... and a config its events rule out
         sections = dict(cfg.devices)
         if any(s["driver"] == "sim" for s in sections.values()):
             self.sim = SimProcess(cfg, self.clock)

@@ -27,6 +27,7 @@ from pathlib import Path
 from controller.cleaning.ledger import MIGRATION_5, CleanerRecords
 from controller.errors import BadInput
 from controller.feed_outcome import Feed, next_tag
+from controller.ledger_config import MIGRATION_10
 from controller.ledger_read import connect_read_only, why_unreadable
 from controller.ledger_writes import LedgerUnwritable, LedgerWrites  # noqa: F401
 from controller.override_requests import MIGRATION_8, RequestRecords
@@ -123,6 +124,9 @@ MIGRATIONS = [
         t   REAL NOT NULL
     );
     """,
+    # 9 -> 10: what the last start's config said of what the ledger's past is read by (stock,
+    # species, the zone, the SCADA's layout): a change is logged at start (controller.ledger_config)
+    MIGRATION_10,
 ]
 
 # every farm time the ledger keeps (tests/controller/test_store.py checks no table's is missed)

@@ -213,9 +213,15 @@ class Dispensing:
         LookupError when ``feed_id`` is not a suspect feed."""
         closed = self.store.settle_suspect(feed_id, grams, self.clock.now(), operator, reason)
         log.warning("feed %s to %s settled by %s: %.1f g (%s)", feed_id, closed.tank, operator, grams, reason)
-        self._publish_feed(closed)
-        self.publish_ration(closed.tank)
         self._alarm_suspects()
+        self._publish_feed(closed)
+        try:
+            self.publish_ration(closed.tank)
+        except KeyError:
+            # a tank taken out of the config since: no ration of it to publish. (This KeyError, a
+            # LookupError, was answered "not suspect" of a feed settled in the ledger, and the alarm
+            # naming it stood for good.)
+            log.info("feed %s settled for tank %s, which the config no longer has", feed_id, closed.tank)
         return closed
 
     def _alarm_suspects(self) -> None:

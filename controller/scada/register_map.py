@@ -13,9 +13,11 @@ from __future__ import annotations
 
 import csv
 import io
+import json
 import math
 import struct
 import sys
+import zlib
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
@@ -83,6 +85,9 @@ TABLE: tuple[Row, ...] = (
         "1 little (low word first)", lambda v: int(v.word_order == "little")),
     Row("farm", "farm_time", IR, 6, "u32", 1, "s", "R", "the farm clock of the snapshot, Unix seconds UTC",
         lambda v: v.s.get("t_unix")),
+    Row("farm", "layout_crc", IR, 8, "u32", 1, "", "R", "CRC-32 of the tank ids in map order and the alarm "
+        "slots: it changes when a config edit adds, removes or reorders tanks or devices (the blocks move); a "
+        "SCADA checks it against the one its tags were made for", lambda v: v.layout_crc),
     Row("farm", "estop", COIL, 0, "bool", 1, "", "R/W", "e-stop latch: write 1 stops auger and drive at once "
         "(latched, as the Zenoh estop); writing 0 is refused (03): release with reset. Reads 1 while latched",
         lambda v: v.s["feeder"].get("state") == "estop", Write("estop")),
@@ -236,6 +241,11 @@ class Layout:
     slots: list[str]
     extent: dict[str, int]        # per table: addresses 0 .. extent-1 may be read
     cfg: object = None
+
+    @property
+    def crc(self) -> int:
+        """CRC-32 of the tank ids and alarm slots, in map order (``layout_crc``)."""
+        return zlib.crc32(json.dumps([self.tanks, self.slots]).encode())
 
     def by_kind(self, kind: str) -> list[Entry]:
         return [e for e in self.entries if e.kind == kind]

@@ -37,6 +37,7 @@ class View:
     tanks: list
     tank: dict = field(default_factory=dict)
     slot: list = field(default_factory=list)
+    layout_crc: int = 0
 
 
 def in_slot(source: str, slot: str) -> bool:
@@ -75,7 +76,7 @@ def render(status: dict, lay: Layout, *, heartbeat: int, uptime_s: float, word_o
     """Every table's words (bits as 0/1), index = protocol address; reserved words read "no value"."""
     s = prepare(status, lay)
     image = {kind: [0xFFFF if kind in (IR, HR) else 0] * lay.extent[kind] for kind in KINDS}
-    view = View(s, heartbeat, uptime_s, word_order, read_only, lay.tanks)
+    view = View(s, heartbeat, uptime_s, word_order, read_only, lay.tanks, layout_crc=lay.crc)
     slots = {slot: [a for a in s["alarms"] if in_slot(a.get("source", ""), slot)] for slot in lay.slots}
     for e in lay.entries:
         r = e.row

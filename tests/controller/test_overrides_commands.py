@@ -287,3 +287,25 @@ def test_manual_off_when_the_robot_is_not_in_manual_says_so(farm, state):
         "ok": True, "note": f"nothing to release: the robot is not in manual (it is {state})"}
     farm.robot.state = "manual"
     assert apply(farm, "manual", {"on": False}) == {"ok": True}
+
+
+def test_a_suspect_feed_of_a_tank_no_longer_in_the_config_is_settled_and_said_so(farm):
+    """A feed to T8 left suspect by a kill, T8 then taken out of the config: the settle wrote the
+    ledger, then publishing T8's ration raised KeyError -- a LookupError, answered "not suspect" --
+    and the critical alarm naming the feed stood for good, the settle refused every time."""
+    from controller.feeding.dispensing import Dispensing
+    f = farm.store.add_intent(tank="T8", date="2026-06-01", t=100.0, target_g=60, run_s=5, cycles_before=0,
+                              source="demand")
+    farm.store.mark_suspect(f.id, "counters reset")
+    published = []
+    disp = Dispensing(farm.cfg, farm.clock, SimpleNamespace(name="dispenser"), farm.store, farm.rations, farm.alarms,
+                      lambda key, payload, **_: published.append(key))
+    disp._alarm_suspects()
+    assert "ledger" in farm.alarms.active
+    farm.robot.dispensing = disp
+    reply = apply(farm, "settle", {"id": f.id, "grams": 55, "reason": "weighed", "operator": "ana"})
+    assert reply == {"ok": True, "phase": "done"}, reply
+    assert "ledger" not in farm.alarms.active
+    assert "tank/T8/feed" in published and "tank/T8/ration" not in published
+    again = apply(farm, "settle", {"id": f.id, "grams": 55, "reason": "weighed", "operator": "ana"})
+    assert again["ok"] is False and "is not suspect" in again["error"]

@@ -116,8 +116,17 @@ def expected(row: dict, st: dict, tanks: list[str], word_order: str, read_only: 
                  "feeder.state": feeder_states().index(f["state"]), "feeder.position_m": f["position_m"],
                  "feeder.hopper_g": f["hopper_g"], "alarms.active": len(standing),
                  "alarms.unacked": sum(not x["acked"] for x in standing),
-                 "alarms.highest": sev(standing)}.get(name)   # cleaner.*: reserved, no value
+                 "alarms.highest": sev(standing), "layout_crc": layout_crc(tanks)}.get(name)   # cleaner.*: reserved
     return value
+
+
+def layout_crc(tanks: list[str]) -> int:
+    """The CRC-32 of the JSON [tank ids, alarm slots], each in the map's order (by address)."""
+    import json
+    import zlib
+    acks = sorted((int(r["address"]), r["name"]) for r in map_rows() if re.fullmatch(r"alarm\.(.+)\.ack", r["name"]))
+    slots = [re.fullmatch(r"alarm\.(.+)\.ack", n).group(1) for _, n in acks]
+    return zlib.crc32(json.dumps([tanks, slots]).encode())
 
 
 def check_row(row, got, value, word_order):
