@@ -134,7 +134,7 @@ LEDGER_TIMES = (("demand", "t"), ("feed", "t_intent"), ("feed", "t_closed"), ("r
                 ("alarm", "t"), ("alarm_state", "t"), ("alarm_state", "first_t"), ("alarm_state", "last_t"),
                 ("alarm_state", "acked_t"), ("audit", "t"), ("stock_event", "t"), ("tank_pause", "t"),
                 ("cleaner", "t"), ("cleaner_trace", "t"), ("survey", "t"), ("survey_asked", "t"),
-                ("override_request", "t"), ("farm_clock", "t"))
+                ("override_request", "t"), ("farm_clock", "t"), ("config_seen", "t"))
 
 
 def ledger_time(path: str | Path) -> float | None:
