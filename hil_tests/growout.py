@@ -62,6 +62,8 @@ LATE_FEED = re.compile(r"^feed (\w+) for (\w+) started ([\d.]+) s after its dema
 # rail's length at 1 m/s there and back, the gate and the load cell settling
 PER_FEED_S = 45.0
 EXPIRED = re.compile(r"^demand (\d+) for (\w+) at ([\d.]+) never served \(expired\)$")
+OPEN = re.compile(r"^demand (\d+) for (\w+) at ([\d.]+) never served \(open\)$")
+OPEN_AT_END_S = 120.0       # a demand heard this close to the run's end may still be waiting (the judge's own margin)
 OVER_RATION = re.compile(r"^(\w+) fed [\d.]+ g on ([\d-]+), ration [\d.]+ g$")
 
 
@@ -312,6 +314,14 @@ def _kind(ledger, text: str, heard, per_feed_s: float, expiry_s: float) -> str |
         if wait <= 60.0:
             return "heard_late"
         return "queued" if ahead > 0 and wait <= per_feed_s * (ahead + 1) else None
+    if m := OPEN.match(text):
+        # dated back to its first contact (a slow fish's, an hour before), heard just before the stop:
+        # still waiting when the run ended, not left unserved
+        t = float(m[3])
+        end = ledger.execute("SELECT MAX(t) FROM farm_clock").fetchone()[0]
+        if end is not None and t + late(m[2], t) >= end - OPEN_AT_END_S:
+            return "heard_late"
+        return None
     if m := EXPIRED.match(text):
         t = float(m[3])
         if late(m[2], t) >= expiry_s - 60.0:

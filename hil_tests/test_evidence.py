@@ -154,3 +154,18 @@ def test_the_witness_records_a_stop():
     (a, b), = w.farm_spans(epoch_wall=held[0][0], epoch_farm=1000.0, speed=360.0)[-1:]
     assert a == 1000.0 and 0.4 * 360 < b - a < 2.0 * 360
     assert stalled_s([(a, b)], a - 10, a + 10) == 10.0
+
+
+def test_an_open_demand_heard_just_before_the_end_is_sorted_out_one_left_unserved_is_not():
+    """A slow fish's demand is dated back to its first contact (an hour before it was heard): one
+    heard 36 s before the run's end was "never served (open)" and failed the 14-day grow-out."""
+    import sqlite3
+
+    from hil_tests.growout import sort_problems
+    db = sqlite3.connect(":memory:")
+    db.execute("CREATE TABLE farm_clock (id INTEGER PRIMARY KEY, t REAL NOT NULL)")
+    db.execute("INSERT INTO farm_clock VALUES (1, 100000.0)")
+    heard = [("T7", 95600.0, 4364.0), ("T2", 90000.0, 30.0)]
+    out = sort_problems(db, ["demand 590 for T7 at 95600.0 never served (open)",
+                             "demand 12 for T2 at 90000.0 never served (open)"], heard, 70.0)
+    assert out["heard_late"] == 1 and out["problems"] == ["demand 12 for T2 at 90000.0 never served (open)"]
