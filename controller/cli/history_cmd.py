@@ -41,14 +41,22 @@ def history(tank_id, what, since, until, csv_path, config_path) -> None:
     # as `run` refuses it: a misspelt species is another fish
     check_tank_species(cfg, load_species(species_file(config_path)))
     check_outputs({"--csv": csv_path}, [config_path, cfg.store.path])
-    if tank_id not in {t.id for t in cfg.tanks}:
-        raise BadInput(config_path, "--tank", f"no tank {tank_id!r} (tanks: {', '.join(t.id for t in cfg.tanks)})")
+    configured = tank_id in {t.id for t in cfg.tanks}
     now = ledger_now(cfg.store.path)
     start = parse_time(since, "--since", now, durations=True) if since else None
     end = parse_time(until, "--until", now, durations=False) if until else None
     if not Path(cfg.store.path).exists():
+        if not configured:
+            raise BadInput(config_path, "--tank", f"no tank {tank_id!r} (tanks: {', '.join(t.id for t in cfg.tanks)})")
         raise BadInput(cfg.store.path, None, "no ledger there (the controller has not run with this config)")
     store = Store.reader(cfg.store.path, cfg.surveys.min_weighed_fish)
+    if not configured:
+        # a tank taken out of the config (or renamed) keeps its rows: they are read as recorded
+        if not _in_ledger(store, tank_id):
+            store.close()
+            raise BadInput(config_path, "--tank", f"no tank {tank_id!r} (tanks: {', '.join(t.id for t in cfg.tanks)}; "
+                                                  "none of that id in the ledger either)")
+        click.echo(f"tank {tank_id} is not in {config_path}: its ledger rows as recorded", err=True)
     written, rows = 0, None
     try:
         columns, rows = stream(store, what, tank_id, start, end)
@@ -79,3 +87,11 @@ def _to_stdout(write) -> None:
     except BrokenPipeError:         # `... | head`: the reader left, nothing more to say
         devnull = os.open(os.devnull, os.O_WRONLY)
         os.dup2(devnull, sys.stdout.fileno())
+
+
+def _in_ledger(store, tank_id: str) -> bool:
+    """Whether the ledger holds any row of ``tank_id`` (a tank since taken out of the config)."""
+    return any(store.db.execute(sql, (tank_id,) * sql.count("?")).fetchone() for sql in (
+        "SELECT 1 FROM survey WHERE tank = ? LIMIT 1", "SELECT 1 FROM feed WHERE tank = ? LIMIT 1",
+        "SELECT 1 FROM ration WHERE tank = ? LIMIT 1",
+        "SELECT 1 FROM stock_event WHERE tank = ? OR to_tank = ? LIMIT 1"))

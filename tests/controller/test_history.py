@@ -365,3 +365,22 @@ def test_stock_rows_carry_the_ledger_s_event_id(ledger):
     assert cols[-1] == "event" and cols[:7] == ("time", "kind", "count", "from_tank", "to_tank", "who", "reason")
     ids = [r[-1] for r in rows]
     assert ids == [e["id"] for e in ledger.stock_events()] and ids[-2:] == [first, second] and first != second
+
+
+def test_a_tank_taken_out_of_the_config_keeps_its_history_readable(ledger, tmp_path, capsys):
+    """T1 taken out of farm.toml (or renamed): its surveys, feeds and stock events stay in the ledger
+    and `history` refused them ("no tank 'T1'"), so they could not be read without the old config.
+    They are read as recorded, with a line saying so; an id the ledger never held is still refused."""
+    import tomllib
+    raw = tomllib.loads(open("config/farm.toml").read())
+    raw["store"] = {"path": str(tmp_path / "ledger.db")}
+    raw["tanks"] = [t for t in raw["tanks"] if t["id"] != "T1"]
+    (tmp_path / "farm.toml").write_text(tomli_w.dumps(raw))
+    cfg = str(tmp_path / "farm.toml")
+    assert main(["history", "--tank", "T1", "--what", "fish", "--config", cfg]) == 0
+    out, err = capsys.readouterr()
+    assert [float(r["weight_g"]) for r in csv.DictReader(io.StringIO(out))] == [20.0, 30.0, 40.0]
+    assert f"tank T1 is not in {cfg}: its ledger rows as recorded" in err
+    assert main(["history", "--tank", "T99", "--what", "fish", "--config", cfg]) == 2
+    err = capsys.readouterr().err
+    assert "--tank: no tank 'T99'" in err and "none of that id in the ledger either" in err and err.count("\n") == 1
