@@ -15,7 +15,8 @@ again ``retry_s`` later; after a second such visit in a row, at the tank's own s
 (``at``) each day, at least ``retry_s`` on, until a survey counts fish or an operator asks for
 one: cameras that stay blind would otherwise send the robot there every ``retry_s``, day and
 night, through the feeding hours the survey hours keep clear of. One survey at a time: an
-unfinished one (preempted by demands) is resumed before any other is started. A captured survey
+unfinished one (preempted by demands) is resumed before any other is started; one whose tank is
+paused (or fasting, emptied) meanwhile is put aside, its pairs kept, and goes on once it may. A captured survey
 holds its tank until its record lands (its last pairs are measured after the robot has left): the
 ledger dates the next survey from that record, so a slow measurement must not look like no survey.
 """
@@ -112,7 +113,15 @@ class SurveySchedule:
     def next(self, paused: set[str], now: float) -> SurveySession | None:
         """The survey the robot should work on now, or None."""
         if self.current is not None:
-            return self.current if self.held(self.current.tank, paused, now) is None else None
+            why = self.held(self.current.tank, paused, now)
+            if why is None:
+                return self.current
+            # put aside, its pairs kept, until its tank may be surveyed: a grading pause of the tank
+            # under way held every other tank's survey, scheduled ones too, for as long as it lasted
+            log.info("survey of %s put aside (%s, %d of %d pairs): it goes on once it may", self.current.tank,
+                     why, self.current.captured, self.current.pairs)
+            self.asked[self.current.tank] = self.current
+            self.current = None
         for tank, session in self.asked.items():
             if self.held(tank, paused, now) is None:
                 self.current = self.asked.pop(tank)

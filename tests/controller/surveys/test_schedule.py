@@ -381,3 +381,32 @@ def test_a_survey_held_by_a_pause_says_so_in_the_status(tmp_path):
     assert running is None and resumed is None
     assert (paused["tank"], paused["held"]) == ("T1", "paused")
     store.close()
+
+
+@pytest.mark.parametrize("why", ["operator", "schedule"])
+def test_a_survey_whose_tank_is_paused_midway_is_put_aside_not_holding_the_others(parts, why):
+    """An operator paused the tank under way (grading, days): every other survey, scheduled ones
+    too, waited for its resume. It is put aside, its pairs kept, the others go on, and it goes on
+    where it was once the tank may be surveyed again."""
+    cfg, store, rations, clock = parts
+    schedule = Schedule(cfg, store, rations, clock)
+    clock.t = t("2026-06-01T10:05")
+    if why == "operator":
+        schedule.request("T3")
+    first = schedule.next(set(), clock.now())
+    assert (first.tank, first.why) == ("T3" if why == "operator" else "T1", why)
+    first.captured = 4
+    schedule.ended(first, "preempted", clock.now())                   # a demand took the robot away
+    clock.t = t("2026-06-01T11:05")
+    other = schedule.next({first.tank}, clock.now())                  # its tank paused meanwhile
+    assert other is not None and other.tank != first.tank and schedule.current is other
+    schedule.ended(other, "captured", clock.now())
+    store.add_survey(other.tank, clock.now(), "sparus_aurata", "test", [10.0] * 12, [25.0] * 12)
+    schedule.recorded(other, clock.now())
+    nxt = schedule.next({first.tank}, clock.now())
+    assert nxt is None or nxt.tank != first.tank                      # still paused: still aside
+    if nxt is not None:
+        schedule.ended(nxt, "captured", clock.now())
+        schedule.recorded(nxt, clock.now())
+    back = schedule.next(set(), clock.now())                          # resumed: the same session, its pairs
+    assert back is first and back.captured == 4
