@@ -130,7 +130,7 @@ class CaptureCamera(TowerCamera):
     async def _open(self) -> None:
         self._loop = asyncio.get_running_loop()
         self._news = asyncio.Event()
-        cap = await asyncio.to_thread(self._connect)
+        cap = await in_daemon_thread(self._connect, f"{self.name}-open")
         if cap is None:
             raise LinkDown(self.name, f"cannot open {self.config.source!r}")
         self._thread = threading.Thread(target=self._run, args=(cap,), name=f"{self.name}-reader", daemon=True)
@@ -139,9 +139,14 @@ class CaptureCamera(TowerCamera):
     async def _close(self) -> None:
         self._stop.set()
         if self._thread is not None:
-            # the thread may be inside an open or a read, each bounded by its timeout
+            # the thread may be inside an open or a read, each bounded by its timeout. Polled, not
+            # joined from asyncio's executor: the interpreter waits for that executor's threads at
+            # exit, and a stalled stream (read_timeout_s up to 60) made a clean stop overrun its
+            # watchdog (exit 70). The reader is a daemon: a process ending leaves it behind.
             cfg = self.config
-            await asyncio.to_thread(self._thread.join, max(cfg.read_timeout_s, cfg.open_timeout_s) + 2.0)
+            until = time.monotonic() + max(cfg.read_timeout_s, cfg.open_timeout_s) + 2.0
+            while self._thread.is_alive() and time.monotonic() < until:
+                await asyncio.sleep(0.02)
             self._thread = None
 
     # --- the reader thread ----------------------------------------------------------------------
@@ -250,3 +255,29 @@ class CaptureCamera(TowerCamera):
                 await asyncio.wait({waiter}, timeout=left)
             finally:
                 waiter.cancel()
+
+
+async def in_daemon_thread(fn, name: str):
+    """``fn()`` on a daemon thread of its own, awaited: a blocking open (bounded by its timeout) that
+    the process may leave behind when it ends, as asyncio's executor threads, joined at exit, are not."""
+    loop = asyncio.get_running_loop()
+    done = loop.create_future()
+
+    def run() -> None:
+        try:
+            result, error = fn(), None
+        except BaseException as exc:  # noqa: BLE001 - handed to the awaiting task as it is
+            result, error = None, exc
+        with contextlib.suppress(RuntimeError):        # the loop closed meanwhile: nobody waits
+            loop.call_soon_threadsafe(_settle, done, result, error)
+    threading.Thread(target=run, name=name, daemon=True).start()
+    return await done
+
+
+def _settle(future, result, error) -> None:
+    if future.done():
+        return
+    if error is not None:
+        future.set_exception(error)
+    else:
+        future.set_result(result)

@@ -3,8 +3,11 @@ from __future__ import annotations
 
 import asyncio
 import os
+import subprocess
+import sys
 import time
 import urllib.request
+from pathlib import Path
 
 import cv2
 import numpy as np
@@ -307,3 +310,57 @@ def test_a_video_file_plays_at_its_own_frame_rate_and_ends_for_good(tmp_path, lo
         assert [n for _, _, n in seen] == list(range(1, len(seen) + 1)) and len(seen) >= 10
         assert "the video file ended" in ended
         assert dev.received_after == 12                       # never reopened: no frame came again
+
+
+STALLED = """
+import asyncio, socket, sys, threading, time
+import cv2, numpy as np
+from devices.camera.capture import CaptureCamera, Config
+from devices.clock import ManualClock
+
+READ_TIMEOUT_S = float(sys.argv[1])
+jpeg = cv2.imencode(".jpg", np.full((48, 64, 3), 120, np.uint8))[1].tobytes()
+srv = socket.socket()
+srv.bind(("127.0.0.1", 0))
+srv.listen()
+held = []
+
+def serve():
+    while True:
+        conn, _ = srv.accept()
+        held.append(conn)                      # kept open, never written to again: a stalled stream
+        conn.recv(4096)
+        conn.sendall(b"HTTP/1.0 200 OK\\r\\nContent-Type: multipart/x-mixed-replace; boundary=f\\r\\n\\r\\n")
+        for _ in range(3):
+            head = b"--f\\r\\nContent-Type: image/jpeg\\r\\nContent-Length: %d\\r\\n\\r\\n" % len(jpeg)
+            conn.sendall(head + jpeg + b"\\r\\n")
+threading.Thread(target=serve, daemon=True).start()
+
+async def main():
+    cfg = Config(kind="tower_camera", driver="capture", source=f"http://127.0.0.1:{srv.getsockname()[1]}/s.mjpg",
+                 api="ffmpeg", read_timeout_s=READ_TIMEOUT_S, open_timeout_s=5.0, reconnect_s=(0.05,))
+    cam = CaptureCamera("tower", cfg, ManualClock())
+    await cam.open()
+    await cam.read()
+    await asyncio.sleep(0.5)                     # the reader is now inside a read that waits
+    try:
+        await asyncio.wait_for(cam.close(), 1.0)  # a stop gives it a moment, no more
+    except TimeoutError:
+        pass
+
+asyncio.run(main())
+print("closed", flush=True)
+"""
+
+
+def test_a_camera_closed_on_a_stalled_stream_does_not_hold_the_process_at_exit():
+    """A stop while the survey camera's stream stalled: the stop said "stopped in 0.54 s", then
+    the interpreter waited for asyncio's executor thread joining the reader (read_timeout_s + 2, up
+    to 62 s) and the stop's watchdog ended it, exit 70. The process now ends when its work does."""
+    read_timeout_s = 20.0
+    t0 = time.monotonic()
+    r = subprocess.run([sys.executable, "-c", STALLED, str(read_timeout_s)], capture_output=True, text=True,
+                       timeout=120, cwd=str(Path(__file__).resolve().parents[2]))
+    took = time.monotonic() - t0
+    assert r.returncode == 0 and "closed" in r.stdout, (r.stdout, r.stderr)
+    assert took < 0.5 * read_timeout_s, took            # it waited the read's timeout and more
