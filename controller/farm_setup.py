@@ -67,6 +67,13 @@ def check_farm(cfg: Config, species: dict) -> None:
             raise BadInput(cfg.path, "devices", f"the feeding robot needs exactly one {kind} device, "
                                                 f"found {len(found)}")
     check_thermometer(cfg)
+    sim_cameras = [n for n, s in cfg.devices.items() if s["kind"] == "stereo_camera" and s["driver"] == "sim"]
+    if cfg.surveys.setup == "surface" and sim_cameras:
+        # its surveys would count a fish or two in scenes drawn for the other setup, and fall back
+        # to the configured weights for good, with a "few fish" warning that blames the water
+        raise BadInput(cfg.path, "surveys.setup", f"\"surface\", but devices.{sim_cameras[0]} is simulated and "
+                                                  "renders underwater scenes only: survey a surface setup on "
+                                                  "real cameras (driver = \"capture\")")
     for kind in CLEANER_KINDS:
         found = [name for name, s in cfg.devices.items() if s["kind"] == kind]
         if cfg.cleaning is None and found:

@@ -278,3 +278,19 @@ def test_the_start_s_slow_work_is_done_before_the_loop_and_its_signal_handlers()
     work is done before: the controller's own filter then finds every threshold worked out."""
     r = subprocess.run([sys.executable, "-c", WARMED], capture_output=True, text=True, timeout=120)
     assert r.returncode == 0 and r.stdout.split() == ["True", "True", "True", "True"], (r.stdout, r.stderr)
+
+
+def test_a_surface_survey_on_simulated_cameras_is_refused_naming_the_key(tmp_path):
+    """The simulated stereo camera renders underwater scenes only: its surface surveys counted a
+    fish or two, warned the water hid the rest, and fell back to the configured weights for good."""
+    import tomllib
+
+    import tomli_w
+    raw = tomllib.loads(open("config/farm.toml").read())
+    raw["surveys"]["setup"] = "surface"
+    raw["store"] = {"path": str(tmp_path / "ledger.db")}
+    cfg = tmp_path / "farm.toml"
+    cfg.write_text(tomli_w.dumps(raw))
+    r = fishfarm("run", "--config", str(cfg), "--no-console", "--duration", "1")
+    assert r.returncode == 2 and r.stderr.count("\n") == 1, r.stderr
+    assert f"{cfg}: surveys.setup: \"surface\", but devices.stereo is simulated" in r.stderr
