@@ -30,7 +30,7 @@ import numpy as np
 from controller.surveys.frames import PairJob
 from controller.surveys.outputs import fish_entry
 from controller.surveys.runner import PairResult, measure_all
-from devices.errors import DeviceError, DeviceTimeout
+from devices.errors import BadInput, DeviceError, DeviceFault, DeviceTimeout
 from vision.survey_stats import implausible, summarise
 
 log = logging.getLogger("fishfarm.survey")
@@ -66,6 +66,7 @@ class SurveySession:
     measuring: dict = field(default_factory=dict)            # task -> (frame, loop time it began)
     visits: int = 0
     failed: str | None = None
+    unfit: str | None = None                   # a pair's frames the calibration cannot take: the camera's fault
     rejected: list[float] = field(default_factory=list)      # lengths left out as measuring errors
 
     def precise(self, weight, ci_pct: float, min_fish: int) -> bool:
@@ -146,9 +147,13 @@ class SurveyStop:
                 if pair.t < session.last_pair_t + self.s.pair_interval_s:
                     continue
                 self._measure(session, pair)
+                if session.unfit is not None:
+                    raise DeviceFault(self.camera.name, f"its frames do not fit: {session.unfit}")
                 while session.measuring and len(session.measuring) >= self.in_flight() and not interrupted():
                     await _first(asyncio.wait(set(session.measuring), timeout=self._left(session)), wake)
                     self._abandon_late(session)
+                if session.unfit is not None:
+                    raise DeviceFault(self.camera.name, f"its frames do not fit: {session.unfit}")
             self.alarms.clear(f"device/{self.camera.name}", "survey camera back")
             outcome = "captured"
             return outcome
@@ -213,6 +218,10 @@ class SurveyStop:
             return
         if task.exception() is not None:
             log.warning("survey of %s: a pair not measured: %s", session.tank, task.exception())
+            if isinstance(task.exception(), BadInput) and session.unfit is None:
+                # frames of another size, grey where colour was calibrated...: every pair will be so.
+                # Measured on, 40 pairs came to a survey of 0 fish whose alarm blamed the water
+                session.unfit = str(task.exception())
             return
         for result in task.result():
             for fish in result.fish:

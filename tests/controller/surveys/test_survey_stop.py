@@ -414,3 +414,35 @@ def test_a_demand_of_a_tank_that_had_its_ration_does_not_end_a_survey_visit(tmp_
             return survey, camera
     survey, camera = run(main())
     assert json.loads(open(survey.source).read())["visits"] == 1 and camera.starts == 1
+
+
+class MeasureOfUnfitFrames(MeasureDouble):
+    """Every pair is refused as measuring refuses frames its calibration was not made for."""
+
+    def __call__(self, jobs, calib, setup):
+        from controller.errors import BadInput
+        self.calls = getattr(self, "calls", 0) + 1
+        for job in jobs:
+            raise BadInput(f"stereo pair {job.frame}", None, "does not fit the calibration: calibration made for "
+                                                             "1280x960 images, the frames are 640x480")
+            yield
+
+
+def test_frames_that_do_not_fit_the_calibration_stop_the_survey_as_the_camera_s_fault(tmp_path):
+    """A camera sending frames of another size: all 40 pairs were captured, each "not measured",
+    and a survey of 0 fish recorded whose alarm blamed the water (cameras fouled, turbid?). The
+    visit stops at the first such pair with the camera's alarm naming why; nothing is recorded."""
+    async def main():
+        async with rig(tmp_path) as r:
+            await r.until(lambda: r.robot.state == "idle", what="homed")
+            measure = MeasureOfUnfitFrames()
+            stops, camera, _, _ = await attach(r, tmp_path, measure=measure, ci_pct=0.1)
+            stops.request("T2", pairs=40)
+            await r.until(lambda: r.alarms.active.of("device/stereo"), 600.0, what="the camera alarmed")
+            await r.until(lambda: r.robot.state == "idle", 600.0, what="the robot free again")
+            return ([a.text for a in r.alarms.active.of("device/stereo")], measure.calls, r.store.surveys("T2"),
+                    [a.source for a in r.alarms.active.values()])
+    texts, calls, surveys, sources = run(main())
+    assert surveys == [] and calls <= 4, calls                     # stopped at once, not after 40 pairs
+    assert any("its frames do not fit: stereo pair" in t and "1280x960" in t for t in texts), texts
+    assert "survey/T2" not in sources                              # no "counted no fish" blaming the water
