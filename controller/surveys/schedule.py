@@ -147,7 +147,11 @@ class SurveySchedule:
         if outcome == "captured":
             self.recording[session.tank] = session
         else:
-            self._answered(session)
+            if session.why == "operator":
+                # asked for by an operator: tried again as a scheduled one is (it was dropped, though
+                # the log said "tried again"), its pairs kept
+                session.failed = session.unfit = None
+                self.asked[session.tank] = session
             self._missed(session.tank, now, "failed")
 
     def recorded(self, session: SurveySession, now: float) -> None:
@@ -176,5 +180,6 @@ class SurveySchedule:
             hh, mm = (int(x) for x in plan.at.split(":"))
             retry = _first_at(hh * 3600 + mm * 60, retry, self.cfg.utc_offset_h)
         self.not_before[tank] = retry
-        log.warning("survey of %s %s (%d in a row): tried again in %.1f h", tank, what, misses,
-                    (retry - now) / 3600.0)
+        wait = retry - now
+        log.warning("survey of %s %s (%d in a row): tried again in %s", tank, what, misses,
+                    f"{wait / 3600.0:.1f} h" if wait >= 3600.0 else f"{wait / 60.0:.0f} min")

@@ -245,7 +245,7 @@ def test_an_operator_survey_goes_first_once_per_tank(parts):
     assert schedule.request("T3").startswith("a survey of T3 is under way")
 
 
-def test_an_operator_s_survey_outlives_a_restart_until_it_is_recorded_or_given_up(parts):
+def test_an_operator_s_survey_outlives_a_restart_until_it_is_recorded(parts):
     """A controller killed mid-survey forgot the survey under way and those queued, though each
     operator had been told ok."""
     cfg, store, rations, clock = parts
@@ -262,7 +262,14 @@ def test_an_operator_s_survey_outlives_a_restart_until_it_is_recorded_or_given_u
     store.add_survey("T3", clock.now(), "sparus_aurata", "test", [10.0], [20.0])
     after.recorded(t3, clock.now())                             # recorded: not asked again
     t1 = after.next(set(), clock.now())
-    after.ended(t1, "failed", clock.now())                      # given up (alarmed, retried by the schedule)
+    after.ended(t1, "failed", clock.now())                      # the camera failed: tried again, still asked
+    assert [tank for tank, _, _ in store.surveys_asked()] == ["T1"]
+    assert list(Schedule(cfg, store, rations, clock).asked) == ["T1"]
+    clock.advance(cfg.surveys.retry_s)
+    t1 = after.next(set(), clock.now())
+    after.ended(t1, "captured", clock.now())
+    store.add_survey("T1", clock.now(), "sparus_aurata", "test", [10.0], [20.0])
+    after.recorded(t1, clock.now())                             # recorded: answered at last
     assert store.surveys_asked() == []
     assert Schedule(cfg, store, rations, clock).asked == {}
 
@@ -410,3 +417,20 @@ def test_a_survey_whose_tank_is_paused_midway_is_put_aside_not_holding_the_other
         schedule.recorded(nxt, clock.now())
     back = schedule.next(set(), clock.now())                          # resumed: the same session, its pairs
     assert back is first and back.captured == 4
+
+
+def test_an_operator_s_survey_whose_camera_failed_is_tried_again_not_dropped(parts):
+    """"survey of T1 failed (1 in a row): tried again in 0.0 h" -- and it never was: an operator's
+    survey was dropped at its camera's failure, the pairs it had captured with it. It is tried again
+    retry_s later, as a scheduled one is, and goes on with them."""
+    cfg, store, rations, clock = parts
+    schedule = Schedule(cfg, store, rations, clock)
+    schedule.request("T3", pairs=40)
+    session = schedule.next(set(), clock.now())
+    session.captured, session.failed = 8, "no frame (source gone or silent)"
+    schedule.ended(session, "failed", clock.now())
+    assert schedule.next(set(), clock.now()) is None                  # not before retry_s
+    assert [tank for tank, _, _ in store.surveys_asked()] == ["T3"]   # still asked, a restart too
+    clock.t += cfg.surveys.retry_s
+    again = schedule.next(set(), clock.now())
+    assert again is session and again.captured == 8 and again.failed is None
