@@ -116,6 +116,7 @@ class CaptureCamera(TowerCamera):
         super().__init__(name, config, clock)
         self.skipped = 0
         self.received = 0
+        self.start_frame = 0      # a video file: the frame to play from (``position`` of the last camera on it)
         self.reconnects = 0
         self._cond = threading.Condition()        # guards the fields below
         self._newest: Frame | None = None
@@ -135,6 +136,11 @@ class CaptureCamera(TowerCamera):
             raise LinkDown(self.name, f"cannot open {self.config.source!r}")
         self._thread = threading.Thread(target=self._run, args=(cap,), name=f"{self.name}-reader", daemon=True)
         self._thread.start()
+
+    @property
+    def position(self) -> int:
+        """A video file's next frame: where a camera opened on it later goes on from."""
+        return self.start_frame + self.received
 
     async def _close(self) -> None:
         self._stop.set()
@@ -189,6 +195,8 @@ class CaptureCamera(TowerCamera):
     def _stream(self, cap: cv2.VideoCapture) -> str | None:
         """Read until the source fails (its reason) or the camera closes (None)."""
         file = isinstance(self.config.source, str) and os.path.isfile(self.config.source)
+        if file and self.start_frame + self.received > 0:
+            cap.set(cv2.CAP_PROP_POS_FRAMES, self.start_frame + self.received)   # where the last visit left it
         fps = cap.get(cv2.CAP_PROP_FPS) if file else 0.0
         frame_farm_s = 1.0 / fps if 0.1 <= fps <= 1000 else 1.0 / FILE_FPS
         due = time.monotonic()

@@ -10,6 +10,7 @@ green (the paper's grabber).
 from __future__ import annotations
 
 import json
+import os
 from typing import Any, Literal
 
 import numpy as np
@@ -85,6 +86,9 @@ class CaptureStereo(StereoCamera):
         self.calibration = load_calibration(config.calib)
         self._cams: list[CaptureCamera] = []
         self._seq = 0
+        # a video file goes on at each visit where the last one left it: played from its start
+        # again, one survey measured its first fish twice
+        self._resume: dict[int, int] = {}
 
     def _source_config(self, source) -> SourceConfig:
         c = self.config
@@ -99,6 +103,8 @@ class CaptureStereo(StereoCamera):
         sides = ("left", "right") if len(self.config.sources) == 2 else ("both",)
         self._cams = [CaptureCamera(f"{self.name}/{side}", self._source_config(src), self.clock)
                       for side, src in zip(sides, self.config.sources, strict=True)]
+        for i, cam in enumerate(self._cams):
+            cam.start_frame = self._resume.get(i, 0)
         try:
             for cam in self._cams:
                 await cam.open()
@@ -108,8 +114,10 @@ class CaptureStereo(StereoCamera):
 
     async def _stop(self) -> None:
         cams, self._cams = self._cams, []
-        for cam in cams:
+        for i, cam in enumerate(cams):
             await cam.close()
+            if isinstance(cam.config.source, str) and os.path.isfile(cam.config.source):
+                self._resume[i] = cam.position
 
     async def _read(self) -> StereoPair:
         frames = [await cam.read() for cam in self._cams]

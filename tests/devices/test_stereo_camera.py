@@ -192,3 +192,35 @@ def test_starts_and_stops_asked_at_once_open_one_stream_and_leave_none(tmp_path)
             served.stop()
         return seen
     assert asyncio.run(main()) == [1, (False, 0), 0] * 2
+
+
+def test_a_video_file_goes_on_at_each_visit_where_the_last_left_it(tmp_path, calib_file):
+    """A survey from footage (a side-by-side file): each visit played the file from its start, so
+    one survey measured its first frames twice. Frames carry their index here (a grey level)."""
+    import cv2
+    path = str(tmp_path / "pair.avi")
+    out = cv2.VideoWriter(path, cv2.VideoWriter_fourcc(*"MJPG"), 25.0, (2 * W, H))
+    for k in range(60):
+        out.write(np.full((H, 2 * W, 3), 2 * k + 10, np.uint8))
+    out.release()
+
+    def index(pair) -> int:
+        return round((float(pair.left.mean()) - 10) / 2)
+
+    async def main():
+        clock = ManualClock(t=0.0)
+        cfg = validate({"kind": "stereo_camera", "driver": "capture", "sources": [path], "layout": "side_by_side",
+                        "calib": calib_file, "api": "ffmpeg"})
+        cam = CaptureStereo("stereo", cfg, clock)
+        await cam.open()
+        seen = []
+        for _visit in range(3):
+            await cam.start()
+            for _ in range(4):
+                seen.append(index(await cam.read()))
+            await cam.stop()
+        await cam.close()
+        return seen
+    seen = asyncio.run(main())
+    assert seen == sorted(seen) and len(set(seen)) == len(seen), seen         # no frame twice, in order
+    assert seen[4] > seen[3] and seen[8] > seen[7]
