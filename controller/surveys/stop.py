@@ -119,14 +119,19 @@ class SurveyStop:
         settled_at = self.clock.now() + self.s.settle_s
         try:
             opening = self._chain(self.camera.start)       # after the last stop; it may take seconds
-            try:
-                await _first(asyncio.wait_for(asyncio.shield(opening), self.start_wall_s), wake)
-            except TimeoutError:
-                raise DeviceTimeout(self.camera.name,
-                                    f"the cameras did not start within {self.start_wall_s:g} s") from None
-            if not opening.done():
-                outcome = "preempted"
-                return outcome
+            until = asyncio.get_running_loop().time() + self.start_wall_s
+            while not opening.done():
+                try:
+                    left = until - asyncio.get_running_loop().time()
+                    await _first(asyncio.wait_for(asyncio.shield(opening), max(left, 0.0)), wake)
+                except TimeoutError:
+                    raise DeviceTimeout(self.camera.name,
+                                        f"the cameras did not start within {self.start_wall_s:g} s") from None
+                # woken by what is no demand (an operator's start-survey on the way here): wait on;
+                # the visit had ended at once and the cameras opened twice in a second
+                if not opening.done() and interrupted():
+                    outcome = "preempted"
+                    return outcome
             opening.result()
             while self.clock.now() < settled_at:
                 if interrupted():

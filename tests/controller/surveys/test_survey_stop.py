@@ -446,3 +446,21 @@ def test_frames_that_do_not_fit_the_calibration_stop_the_survey_as_the_camera_s_
     assert surveys == [] and calls <= 4, calls                     # stopped at once, not after 40 pairs
     assert any("its frames do not fit: stereo pair" in t and "1280x960" in t for t in texts), texts
     assert "survey/T2" not in sources                              # no "counted no fish" blaming the water
+
+
+def test_a_wake_that_is_no_demand_does_not_end_a_visit_whose_cameras_are_opening(tmp_path):
+    """An operator's start-survey of another tank, sent while the robot travelled, woke it: the visit
+    ended the instant it began (surveying -> idle -> moving -> surveying in 2 ms), the cameras opened
+    twice. Woken by what is no demand, the visit waits on for its cameras."""
+    async def main():
+        async with rig(tmp_path, speed=50.0) as r:
+            await r.until(lambda: r.robot.state == "idle", what="homed")
+            stops, camera, _, _ = await attach(r, tmp_path, period_s=5.0, slow_s=120.0, settle_s=10.0, ci_pct=0.1)
+            stops.request("T2", pairs=4)
+            await r.until(lambda: r.robot.state == "surveying" and camera.starts, 300.0, what="the cameras opening")
+            stops.request("T3", pairs=4)                   # asked meanwhile: a wake, no demand
+            r.robot.poke()
+            await r.until(lambda: r.store.surveys("T2"), 900.0, what="T2 recorded")
+            return camera.starts, r.store.surveys("T2")[0]
+    starts, survey = run(main())
+    assert starts == 1, starts
