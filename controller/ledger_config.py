@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import json
 import logging
+import sqlite3
 
 from controller.errors import BadInput
 from controller.production import fish_out
@@ -45,9 +46,14 @@ def check_against_ledger(cfg, store, now: float) -> None:
     before = {row[0]: json.loads(row[1]) for row in store.db.execute("SELECT key, value FROM config_seen")}
     for line in changes(before, said):
         log.warning("config: %s", line)
-    with store.transaction() as db:
-        db.executemany("INSERT OR REPLACE INTO config_seen (key, value, t) VALUES (?, ?, ?)",
-                       [(k, json.dumps(v), now) for k, v in said.items()])
+    try:
+        with store.transaction() as db:
+            db.executemany("INSERT OR REPLACE INTO config_seen (key, value, t) VALUES (?, ?, ?)",
+                           [(k, json.dumps(v), now) for k, v in said.items()])
+    except sqlite3.OperationalError as exc:
+        # a full disk at start is the ledger alarm's to tell (the controller runs on, nothing fed
+        # until it can write): this start's config is compared again at the next one
+        log.warning("config: not remembered for the next start: the ledger cannot be written (%s)", exc)
 
 
 def _check_stock(cfg, i: int, tank, events: list[dict]) -> None:

@@ -94,3 +94,15 @@ def test_what_changed_since_the_last_start_is_logged_once(farm, caplog):
     assert said[2].startswith(f"config: tank {ids[2]}: stock {cfg.tanks[2].stock} -> {cfg.tanks[2].stock + 100}")
     assert said[3] == f"config: tank {ids[2]}: species sparus_aurata -> salmo_salar: its surveys so far were of " \
                       "sparus_aurata"
+
+
+def test_a_ledger_that_cannot_be_written_at_start_is_not_a_crash(farm, caplog):
+    """A full disk at start is the ledger alarm's to tell while the controller runs on: remembering
+    the config (a write) must not end the start."""
+    from tests.controller.test_ledger_unwritable import disk_full
+    cfg, store = farm
+    with caplog.at_level(logging.WARNING, logger="fishfarm.config"), disk_full(store):
+        check_against_ledger(cfg, store, T)
+    assert any("not remembered for the next start" in r.getMessage() for r in caplog.records)
+    check_against_ledger(cfg, store, T + 60)                    # written once it can be
+    assert store.db.execute("SELECT COUNT(*) FROM config_seen").fetchone()[0] > 0
