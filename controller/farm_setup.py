@@ -54,6 +54,13 @@ def check_tank_species(cfg: Config, species: dict) -> None:
                            f"unknown species {tank.species!r} (known: {', '.join(sorted(species))})")
 
 
+def check_species_file(cfg: Config) -> None:
+    """``check_tank_species`` against the species.toml the farm uses (``species_file``): what the
+    commands that only read the ledger check, as ``run`` does."""
+    from controller.feeding.rations import load_species, species_file
+    check_tank_species(cfg, load_species(species_file(cfg.path)))
+
+
 def check_farm(cfg: Config, species: dict) -> None:
     """What the sections cannot check alone: every tank's species is known, the feeding charts are
     for known species, a portion fits the hopper, the stocks' sections, one device of each kind."""

@@ -157,9 +157,7 @@ class Conversion:
 
     @property
     def fcr(self) -> float | None:
-        """None with no gain (a loss is not a conversion) and with no feed recorded (the fish grew on
-        feed the ledger does not know: hand-fed; it read "FCR 0.00 (0.00-0.00)")."""
-        return self.feed_g / self.gain_g if self.gain_g > 0 and self.feed_g > 0 else None
+        return feed_conversion(self.feed_g, self.gain_g)
 
     @property
     def fcr_ci(self) -> tuple[float | None, float | None]:
@@ -179,8 +177,13 @@ def net_conversion(feed_g: float, gain_g: float, died_g: float) -> dict:
     """The net (economic) FCR beside the biological one: the feed over the biomass gained less the
     weight of the fish that died meanwhile — the growth the farm keeps. ``fcr`` (the biological)
     counts the dead fish's growth too: what the feed made, the fish's own conversion."""
-    net = gain_g - died_g
-    return {"fcr_net": feed_g / net if net > 0 and feed_g > 0 else None, "died_g": died_g}
+    return {"fcr_net": feed_conversion(feed_g, gain_g - died_g), "died_g": died_g}
+
+
+def feed_conversion(feed_g: float, gain_g: float) -> float | None:
+    """Feed over gain; None with no gain (a loss is not a conversion) and with no feed recorded (the
+    fish grew on feed the ledger does not know, hand-fed: it read "FCR 0.00 (0.00-0.00)")."""
+    return feed_g / gain_g if gain_g > 0 and feed_g > 0 else None
 
 
 def conversion(fit: GrowthFit, feed_g: float, terms: list[tuple[float, float]]) -> Conversion:

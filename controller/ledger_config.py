@@ -83,7 +83,7 @@ def _check_day(cfg, store, now: float) -> None:
 
 def seen(cfg) -> dict:
     """What the ledger's past is read by, as the config says it now (JSON-able values)."""
-    out = {"tanks": [t.id for t in cfg.tanks], "devices": sorted(cfg.devices),
+    out = {"tanks": [t.id for t in cfg.tanks], "devices": list(cfg.devices),     # the alarm slots' order
            "utc_offset_h": cfg.utc_offset_h, "min_weighed_fish": cfg.surveys.min_weighed_fish}
     for t in cfg.tanks:
         out[f"tank.{t.id}"] = {"stock": t.stock, "species": t.species}

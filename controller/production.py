@@ -33,7 +33,17 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from controller.growth import Account, FeedFit, GrowthFit, Weighing, conversion, fit_feed, fit_growth, net_conversion
+from controller.growth import (
+    Account,
+    FeedFit,
+    GrowthFit,
+    Weighing,
+    conversion,
+    feed_conversion,
+    fit_feed,
+    fit_growth,
+    net_conversion,
+)
 from devices.clock import farm_date
 
 DAY_S = 86_400.0
@@ -117,8 +127,7 @@ def interval(p1: SurveyPoint, p2: SurveyPoint, feed_g: float, events, tank: str,
     gain = p2.stock * p2.mean_weight_g - p1.stock * p1.mean_weight_g + sum(g for _, g in moved)
     died = sum(g for kind, g in moved if kind == "mortality")
     net = net_conversion(feed_g, gain, died)
-    fcr = feed_g / gain if gain > 0 and feed_g > 0 else None       # no feed recorded: none to tell
-    return Interval(p1.t, p2.t, days, sgr, feed_g, gain, fcr, net["fcr_net"], died)
+    return Interval(p1.t, p2.t, days, sgr, feed_g, gain, feed_conversion(feed_g, gain), net["fcr_net"], died)
 
 
 def moved_in_weights(cfg, store, events, tank: str) -> dict[int, float]:

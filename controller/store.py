@@ -145,7 +145,7 @@ def ledger_time(path: str | Path) -> float | None:
     if str(path) == ":memory:" or not Path(path).is_file():
         return None
     try:
-        db = sqlite3.connect(f"file:{Path(path).resolve()}?mode=ro", uri=True)
+        db, _ = connect_read_only(Path(path))         # in a directory this user may not write too
     except sqlite3.Error:
         return None
     latest = None

@@ -36,10 +36,8 @@ def history(tank_id, what, since, until, csv_path, config_path) -> None:
     from controller.history import ledger_now, parse_time, stream
     from controller.store import Store
     cfg = load_config(config_path)
-    from controller.farm_setup import check_tank_species
-    from controller.feeding.rations import load_species, species_file
-    # as `run` refuses it: a misspelt species is another fish
-    check_tank_species(cfg, load_species(species_file(config_path)))
+    from controller.farm_setup import check_species_file
+    check_species_file(cfg)                    # as `run` refuses it: a misspelt species is another fish
     check_outputs({"--csv": csv_path}, [config_path, cfg.store.path])
     configured = tank_id in {t.id for t in cfg.tanks}
     now = ledger_now(cfg.store.path)

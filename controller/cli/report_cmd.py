@@ -106,10 +106,8 @@ def report(tank_id, since, target_g, png_path, as_json, config_path) -> None:
     from controller.production import tank_figures
     from controller.store import Store
     cfg = load_config(config_path)
-    from controller.farm_setup import check_tank_species
-    from controller.feeding.rations import load_species, species_file
-    # as `run` refuses it: a misspelt species is another fish
-    check_tank_species(cfg, load_species(species_file(config_path)))
+    from controller.farm_setup import check_species_file
+    check_species_file(cfg)                    # as `run` refuses it: a misspelt species is another fish
     check_outputs({"--png": png_path}, [config_path, cfg.store.path])
     if png_path:
         from controller.plotting import check_figure_name

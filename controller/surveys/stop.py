@@ -152,13 +152,11 @@ class SurveyStop:
                 if pair.t < session.last_pair_t + self.s.pair_interval_s:
                     continue
                 self._measure(session, pair)
-                if session.unfit is not None:
-                    raise DeviceFault(self.camera.name, f"its frames do not fit: {session.unfit}")
+                self._refuse_unfit(session)
                 while session.measuring and len(session.measuring) >= self.in_flight() and not interrupted():
                     await _first(asyncio.wait(set(session.measuring), timeout=self._left(session)), wake)
                     self._abandon_late(session)
-                if session.unfit is not None:
-                    raise DeviceFault(self.camera.name, f"its frames do not fit: {session.unfit}")
+                self._refuse_unfit(session)
             self.alarms.clear(f"device/{self.camera.name}", "survey camera back")
             outcome = "captured"
             return outcome
@@ -169,6 +167,11 @@ class SurveyStop:
             return outcome
         finally:
             self.release()                       # cancelled (an e-stop) too
+
+    def _refuse_unfit(self, session: SurveySession) -> None:
+        """A pair measured meanwhile whose frames the calibration cannot take: the camera's fault."""
+        if session.unfit is not None:
+            raise DeviceFault(self.camera.name, f"its frames do not fit: {session.unfit}")
 
     def release(self) -> None:
         """Stop the cameras' streams, in the background: nothing of the robot's waits for it."""

@@ -106,3 +106,16 @@ def test_a_ledger_that_cannot_be_written_at_start_is_not_a_crash(farm, caplog):
     assert any("not remembered for the next start" in r.getMessage() for r in caplog.records)
     check_against_ledger(cfg, store, T + 60)                    # written once it can be
     assert store.db.execute("SELECT COUNT(*) FROM config_seen").fetchone()[0] > 0
+
+
+def test_devices_reordered_move_the_alarm_slots_and_are_said(farm, caplog):
+    """The SCADA's alarm slots follow the devices in config order: a reorder moves them (sorted, the
+    comparison saw no change)."""
+    cfg, store = farm
+    check_against_ledger(cfg, store, T)
+    names = list(cfg.devices)
+    swapped = cfg.model_copy(update={"devices": {n: cfg.devices[n] for n in [names[1], names[0], *names[2:]]}})
+    with caplog.at_level(logging.WARNING, logger="fishfarm.config"):
+        check_against_ledger(swapped, store, T + 60)
+    assert [r.getMessage() for r in caplog.records] == [
+        f"config: devices {names} -> {[names[1], names[0], *names[2:]]}: the SCADA's alarm slots moved"]

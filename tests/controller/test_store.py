@@ -1,3 +1,4 @@
+import contextlib
 import os
 import signal
 import sqlite3
@@ -59,25 +60,32 @@ HOLDER = textwrap.dedent("""
 """)
 
 
-def test_one_controller_per_ledger_and_a_killed_ones_claim_goes_with_it(tmp_path):
-    """A second controller on a ledger settled the first's feed in flight as suspect, and the first,
-    resuming, served that feed again: two auger runs for one request."""
-    path = tmp_path / "ledger.db"
+@contextlib.contextmanager
+def held_by_another(path):
+    """The ledger at ``path`` claimed by another process (its pid), SIGKILLed at the end."""
     holder = subprocess.Popen([sys.executable, "-c", HOLDER, str(path)], stdin=subprocess.PIPE,
                               stdout=subprocess.PIPE, text=True)
     try:
         assert holder.stdout.readline().strip() == "held"
+        yield holder.pid
+    finally:
+        holder.send_signal(signal.SIGKILL)
+        holder.wait(10)
+
+
+def test_one_controller_per_ledger_and_a_killed_ones_claim_goes_with_it(tmp_path):
+    """A second controller on a ledger settled the first's feed in flight as suspect, and the first,
+    resuming, served that feed again: two auger runs for one request."""
+    path = tmp_path / "ledger.db"
+    with held_by_another(path) as pid:
         second = Store(path)
         with pytest.raises(BadInput) as exc:
             second.claim()
-        assert str(exc.value) == (f"store.path: {path}: another controller (pid {holder.pid}) runs on this "
+        assert str(exc.value) == (f"store.path: {path}: another controller (pid {pid}) runs on this "
                                   "ledger: one controller per ledger")
         assert second.db is None                      # refused: nothing of it left open
         reader = Store(path)                          # a survey or report beside it still opens the ledger
         reader.close()
-    finally:
-        holder.send_signal(signal.SIGKILL)
-        holder.wait(10)
     mine = Store(path)
     mine.claim()                                      # the kernel dropped the killed one's lock
     mine.claim()                                      # twice is one claim
@@ -100,17 +108,11 @@ def test_the_same_ledger_by_another_name_is_the_same_ledger(tmp_path, how):
         other.symlink_to(path)
     elif how == "symlinked directory":
         (tmp_path / "alias").symlink_to(tmp_path / "real")
-    holder = subprocess.Popen([sys.executable, "-c", HOLDER, str(path)], stdin=subprocess.PIPE,
-                              stdout=subprocess.PIPE, text=True)
-    try:
-        assert holder.stdout.readline().strip() == "held"
+    with held_by_another(path) as pid:
         second = Store(other)
         with pytest.raises(BadInput) as exc:
             second.claim()
-        assert f"another controller (pid {holder.pid}) runs on this ledger" in str(exc.value)
-    finally:
-        holder.send_signal(signal.SIGKILL)
-        holder.wait(10)
+        assert f"another controller (pid {pid}) runs on this ledger" in str(exc.value)
 
 
 CHILD = textwrap.dedent("""
@@ -423,13 +425,13 @@ def test_a_ledger_the_disk_cannot_hold_says_so_not_cannot_rollback(tmp_path):
 READER = textwrap.dedent("""
     import sys
     from controller.errors import BadInput
-    from controller.store import Store
+    from controller.store import Store, ledger_time
     try:
         s = Store.reader(sys.argv[1])
     except BadInput as exc:
         print("refused:", exc)
     else:
-        print("surveys", s.db.execute("SELECT COUNT(*) FROM survey").fetchone()[0])
+        print("surveys", s.db.execute("SELECT COUNT(*) FROM survey").fetchone()[0], "latest", ledger_time(sys.argv[1]))
         s.close()
 """)
 
@@ -476,7 +478,8 @@ def test_a_ledger_in_a_directory_the_reader_cannot_write_is_read(tmp_path, left)
         r = subprocess.run(_as_another_user([sys.executable, "-c", READER, str(path)]), capture_output=True,
                            text=True, timeout=60, cwd=str(Path(__file__).resolve().parents[2]))
         if left == "nothing":
-            assert r.stdout.strip() == "surveys 1", (r.stdout, r.stderr)
+            # ... and the latest time it records, which a --since duration is measured back from
+            assert r.stdout.strip() == "surveys 1 latest 1780000000.0", (r.stdout, r.stderr)
         else:
             assert "write-ahead log is beside it" in r.stdout and "not writable for this user" in r.stdout, r
         assert sorted(p.name for p in place.iterdir()) == sorted(
