@@ -233,6 +233,7 @@ def survey(calib_path, species, setup, pairs, rgs, directory, video, rg_video, s
     remote, session = _remote(workers, site, user, password) if isinstance(workers, str) else (None, None)
     progress = _Progress(source.total)
     _warn_sparse(source, progress)
+    _warn_copies(source, progress)
     if floor_mm is not None and setup != "surface":
         raise BadInput("--floor-mm", None, "the tank floor is the surface setup's (--setup surface)")
     opts = SurveyOptions(sp.setup(setup, up_world, floor_mm), sp, workers=None if remote else workers, seed=seed,
@@ -252,6 +253,15 @@ def survey(calib_path, species, setup, pairs, rgs, directory, video, rg_video, s
     left_out = f"; {len(rejected)} left out as measuring errors ({shown} cm)" if rejected else ""
     click.echo(f"{summary['count']} fish in {summary['frames']} pairs{_tracked(summary)}: mean weight {mean}{ci}"
                f"{left_out}", err=True)
+
+
+def _warn_copies(source, progress, shown: int = 3) -> None:
+    """Stills whose images are an earlier pair's (frames._distinct): left out, said first."""
+    copies = source.warnings or []
+    for text in copies[:shown]:
+        progress.say(f"fishfarm survey: warning: {text}")
+    if len(copies) > shown:
+        progress.say(f"fishfarm survey: warning: and {len(copies) - shown} more copies, each surveyed once")
 
 
 def _warn_sparse(source, progress) -> None:

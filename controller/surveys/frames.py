@@ -13,6 +13,7 @@ different sizes or one picture twice, a directory without pairs. Video: controll
 """
 from __future__ import annotations
 
+import hashlib
 import os
 import re
 from collections.abc import Iterator
@@ -206,9 +207,41 @@ def still_source(items: list[tuple[str, ...]], every: int = 1, max_frames: int |
             _exists(path)
         if len(item) == 2:
             check_two_files(*item)
-    chosen = _select(len(items), every, max_frames)
+    kept, warnings = _distinct(items)
+    chosen = [kept[k] for k in _select(len(kept), every, max_frames)]
     jobs = (PairJob(i, " + ".join(items[i]), paths=tuple(items[i])) for i in chosen)
-    return Source(jobs, len(chosen))
+    return Source(jobs, len(chosen), warnings=warnings)
+
+
+def _distinct(items: list[tuple[str, ...]]) -> tuple[list[int], list[str]]:
+    """(indices of the items whose images are not those of an earlier item, one warning per copy):
+    a still copied under another name (or given twice) would count its fish twice over. Only files
+    of equal sizes are read and hashed."""
+    def size(path: str) -> int:
+        try:
+            return os.path.getsize(path)
+        except OSError:
+            return -1             # unreadable: the decoding says so, with its own words
+    by_size: dict[tuple[int, ...], list[int]] = {}
+    for i, item in enumerate(items):
+        by_size.setdefault(tuple(size(p) for p in item), []).append(i)
+    copies: dict[int, int] = {}
+    for group in by_size.values():
+        if len(group) < 2 or -1 in (size(p) for p in items[group[0]]):
+            continue
+        first: dict[tuple[str, ...], int] = {}
+        for i in group:
+            try:
+                key = tuple(hashlib.sha256(file_bytes(p)).hexdigest() for p in items[i])
+            except (BadInput, OSError):
+                continue          # the decoding names the fault
+            if key in first:
+                copies[i] = first[key]
+            else:
+                first[key] = i
+    warnings = [f"{' + '.join(items[i])}: the same images as {' + '.join(items[j])}: surveyed once"
+                for i, j in sorted(copies.items())]
+    return [i for i in range(len(items)) if i not in copies], warnings
 
 
 _SIDE = re.compile(r"^(?P<stem>.*)_(?P<side>[LRlr])$")     # _l / _r too: a common naming

@@ -58,6 +58,9 @@ DISCOVER_S = 1.0
 TIMEOUT_S = 30.0           # a pair takes well under a second; this is for a hung worker
 PER_WORKER = 2
 HISTORY_QUIET_S = 0.01     # wall: the liveliness history is in once no token came for this long
+BENCH_S = 120.0            # wall: a worker dropped by one dispatch gets no job from the later dispatches
+                           # that share its ``benched`` for this long (the survey stop makes one a pair:
+                           # a SIGSTOPped worker held every other pair for ``timeout_s`` and was logged each time)
 # The survey stop sends each pair in a call of its own, so a dispatch's own load count starts at
 # zero every time: ties are broken by a turn that moves on with each dispatch of this process,
 # or every pair would go to the same worker (measured: one of two workers did 1 % of a grow-out's).
@@ -68,16 +71,20 @@ def measure_remote(jobs: Iterable[PairJob], calib: StereoCalibration, setup: Sur
                    session: zenoh.Session, site: str = "demo", measure: str = MEASURE,
                    discover_s: float = DISCOVER_S, timeout_s: float = TIMEOUT_S, per_worker: int = PER_WORKER,
                    local_workers: int | None = None, announce: bool = True,
-                   known: Callable[[], set[str]] | None = None) -> Iterator[PairResult]:
+                   known: Callable[[], set[str]] | None = None,
+                   benched: dict[str, float] | None = None) -> Iterator[PairResult]:
     """Every job measured, in order, by the workers on ``session``'s network (or here, if none;
     said at info level unless ``announce`` is False: the survey stop asks once a pair).
     ``known``: the workers a long-lived liveliness subscriber has heard alive (the survey stop's):
     with some, the dispatch starts at once, every one of them in its turns, instead of waiting for
     a quiet spell in its own subscriber's history (in which, on a loaded machine, the second
-    worker's token can come after the spell: every pair of the survey to the first)."""
+    worker's token can come after the spell: every pair of the survey to the first).
+    ``benched``: worker -> ``time.monotonic()`` until which it gets no job, shared by the calls of
+    one caller: a worker this dispatch drops is put there for ``BENCH_S`` (and said once for it)."""
     if not isinstance(measure, str):
         raise TypeError("measure travels by name to the workers: give 'module:function'")
-    dispatch = _Dispatch(session, site, calib, setup, measure, timeout_s, per_worker)
+    dispatch = _Dispatch(session, site, calib, setup, measure, timeout_s, per_worker,
+                         {} if benched is None else benched)
     try:
         if not dispatch.discover(discover_s, known() if known is not None else ()):
             (log.info if announce else log.debug)("no vision worker on farm/%s: measuring here", site)
@@ -124,7 +131,8 @@ class _Job:
 
 class _Dispatch:
     def __init__(self, session: zenoh.Session, site: str, calib: StereoCalibration, setup: SurveySetup,
-                 measure: str, timeout_s: float, per_worker: int):
+                 measure: str, timeout_s: float, per_worker: int, benched: dict[str, float]):
+        self.benched = benched
         self.session, self.site, self.calib, self.setup, self.measure = session, site, calib, setup, measure
         self.timeout_s, self.per_worker = timeout_s, max(1, per_worker)
         self.events: queue.Queue = queue.Queue()
@@ -155,7 +163,8 @@ class _Dispatch:
         self.events.put(("alive" if sample.kind == zenoh.SampleKind.PUT else "gone", worker))
 
     def usable(self) -> list[str]:
-        return [w for w in self.live if w not in self.excluded]
+        now = time.monotonic()
+        return [w for w in self.live if w not in self.excluded and self.benched.get(w, 0.0) <= now]
 
     def discover(self, within_s: float, known=()) -> bool:
         self.live.update(known)
@@ -183,9 +192,13 @@ class _Dispatch:
         return bool(self.usable())
 
     def _exclude(self, worker: str, why: str) -> None:
-        if worker not in self.excluded:
-            log.warning("vision worker %s: %s; its jobs go elsewhere", worker, why)
-            self.excluded[worker] = why
+        if worker in self.excluded:
+            return
+        self.excluded[worker] = why
+        now = time.monotonic()
+        if self.benched.get(worker, 0.0) <= now:       # not said already by an earlier dispatch
+            log.warning("vision worker %s: %s; its jobs go elsewhere for %g s", worker, why, BENCH_S)
+        self.benched[worker] = now + BENCH_S
 
     # ---- the run -------------------------------------------------------------------------
 

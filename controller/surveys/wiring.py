@@ -100,20 +100,24 @@ def workers_or_here(session, site: str, discover_s: float = WORKERS_DISCOVER_S):
     up; with none, this process does, as before. ``measure.in_flight()``: the pairs the stop may
     have measuring at once — what the workers up take (``PER_WORKER`` each), at least the stop's
     own ``IN_FLIGHT``: with two workers and two pairs in flight, frames the camera streamed while
-    the stop waited were rendered for nothing (~40 % of a grow-out's)."""
+    the stop waited were rendered for nothing (~40 % of a grow-out's). A worker one pair's dispatch
+    drops is benched for the pairs after it (``remote.BENCH_S``), unless its token comes again (a
+    restarted worker is used at once)."""
     from controller.surveys.remote import PER_WORKER, measure_remote
     from controller.surveys.stop import IN_FLIGHT
     from controller.surveys.worker import node_key
 
-    prefix, live = node_key(site, ""), set()
+    prefix, live, benched = node_key(site, ""), set(), {}
 
     def on_token(sample) -> None:
         worker = str(sample.key_expr)[len(prefix):]
         (live.add if sample.kind == zenoh.SampleKind.PUT else live.discard)(worker)
+        if sample.kind == zenoh.SampleKind.PUT:
+            benched.pop(worker, None)
 
     def measure(jobs, calib, setup):
         return measure_remote(jobs, calib, setup, session=session, site=site, discover_s=discover_s,
-                              local_workers=1, announce=False, known=live.copy)
+                              local_workers=1, announce=False, known=live.copy, benched=benched)
     measure.in_flight = lambda: max(IN_FLIGHT, PER_WORKER * len(live))
     measure.tokens = session.liveliness().declare_subscriber(f"{prefix}*", on_token, history=True)
     return measure

@@ -71,6 +71,20 @@ def test_a_directory_survey_end_to_end(farm):
     assert r.stderr.strip().startswith("6 fish in 4 pairs: mean weight")   # no progress bar in a pipe
 
 
+def test_a_pair_copied_into_the_directory_is_surveyed_once_and_said(farm, tmp_path):
+    import shutil
+    d, truth = farm
+    shutil.copytree(d / "pairs", tmp_path / "pairs")
+    for side in "LR":
+        shutil.copy(d / "pairs" / f"p1_{side}.png", tmp_path / "pairs" / f"p1 copy_{side}.png")
+    r = run(*common(d, "--dir", tmp_path / "pairs", "--json", tmp_path / "out.json", "--workers", "1"))
+    assert r.returncode == 0, r.stderr
+    doc = json.loads((tmp_path / "out.json").read_text())
+    assert (doc["frames"], doc["count"]) == (4, sum(map(len, truth)))
+    [said] = [line for line in r.stderr.splitlines() if "the same images" in line]
+    assert said.startswith("fishfarm survey: warning: ") and "p1 copy_L.png" in said and "p1_L.png" in said
+
+
 def test_rg_frames_give_the_same_fish_as_the_pairs(farm):
     d, truth = farm
     r = run(*common(d, *sum((["--rg", d / f"rg{i}.png"] for i in range(4)), []), "--json", d / "rg.json",

@@ -32,6 +32,35 @@ def test_stills_keep_argument_order_and_every_n_keeps_frame_numbers(tmp_path):
     assert [j.frame for j in still_source(items, every=2, max_frames=2).jobs] == [0, 2]
 
 
+def test_a_still_copied_under_another_name_or_given_twice_is_surveyed_once(tmp_path):
+    """Five copies of one pair would count its fish five times: copies (the same bytes in both
+    views) are left out and named with the pair they copy; same-sized pairs that differ, or share
+    one view only, are all kept."""
+    import shutil
+    pairs = [(write(tmp_path / f"{i}_L.png", grey(level=i)), write(tmp_path / f"{i}_R.png", grey(level=i + 1)))
+             for i in range(3)]
+    for k in range(2):                                            # pair 0 copied twice, pair 2 once
+        for side in "LR":
+            shutil.copy(tmp_path / f"0_{side}.png", tmp_path / f"copy{k}_{side}.png")
+    for side in "LR":
+        shutil.copy(tmp_path / f"2_{side}.png", tmp_path / f"z_{side}.png")
+    shutil.copy(tmp_path / "0_L.png", tmp_path / "half_L.png")   # the same left, another right: a pair of its own
+    write(tmp_path / "half_R.png", grey(level=9))
+    items = directory_items(str(tmp_path))
+    src = still_source(items + [items[0]])                        # and the first pair given again
+    names = [j.where for j in src.jobs]
+    assert names == [" + ".join(items[i]) for i in range(len(items)) if Path(items[i][0]).stem[:-2] in
+                     {"0", "1", "2", "half"}], names
+    assert src.total == 4 and len(src.warnings) == 4
+    copied = {w.split(":")[0]: w.split("the same images as ")[1] for w in src.warnings}
+    first = " + ".join(items[[Path(a).stem for a, _ in items].index("0_L")])
+    assert copied[" + ".join((str(tmp_path / "copy0_L.png"), str(tmp_path / "copy0_R.png")))].startswith(first)
+    assert copied[" + ".join((str(tmp_path / "z_L.png"), str(tmp_path / "z_R.png")))].startswith(
+        f"{tmp_path / '2_L.png'} + {tmp_path / '2_R.png'}")
+    assert [j.frame for j in still_source(items, every=3).jobs] == [0, 5]   # every N counts the distinct pairs
+    assert still_source(pairs).warnings == []
+
+
 def test_a_missing_file_fails_before_anything_is_read(tmp_path):
     a, b = write(tmp_path / "a.png", grey()), write(tmp_path / "b.png", grey(level=1))
     with pytest.raises(BadInput, match=r"nope.png: no such file"):

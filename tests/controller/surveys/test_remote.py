@@ -4,6 +4,7 @@ runner's on the same pairs."""
 from __future__ import annotations
 
 import json
+import logging
 import os
 import signal
 import subprocess
@@ -21,7 +22,7 @@ from controller.cli import main as fishfarm_main
 from controller.errors import BadInput
 from controller.surveys import wire
 from controller.surveys.frames import PairJob, decode_pair
-from controller.surveys.remote import connect, measure_remote
+from controller.surveys.remote import PER_WORKER, connect, measure_remote
 from controller.surveys.runner import measure_all
 from controller.surveys.stop import IN_FLIGHT
 from controller.surveys.wiring import workers_or_here
@@ -422,7 +423,6 @@ def test_pairs_sent_one_call_each_as_the_survey_stop_does_are_shared_by_the_work
             return wire.encode_reply({"ok": True, "job": header["job"], "frame": header["frame"],
                                       "fish": fish, "timings": {}})
         return answer
-    from controller.surveys.remote import PER_WORKER
     peer = zenoh.open(wire_client(endpoint))
     measure = workers_or_here(session, site, discover_s=WAIT_S)        # the survey stop's own
     try:
@@ -441,3 +441,52 @@ def test_pairs_sent_one_call_each_as_the_survey_stop_does_are_shared_by_the_work
         peer.close()
     assert sorted(served["w1"] + served["w2"]) == list(range(8))          # each pair measured once
     assert served["w1"] and served["w2"] and abs(len(served["w1"]) - len(served["w2"])) <= 1, served
+
+
+def test_a_worker_dropped_by_one_pair_is_not_asked_again_by_the_next_pairs(rendered, hub, caplog):
+    """The survey stop asks once a pair: a worker that refused (or hung) is benched for the
+    pairs after it, said once, and used again at once when its token comes again (restarted)."""
+    items, calib, local, _ = rendered
+    session, endpoint, site = hub
+    asked: dict[str, list[int]] = {"liar": [], "honest": []}
+
+    def answer_as(name):
+        def answer(header):
+            asked[name].append(header["frame"])
+            if name == "liar":
+                return json.dumps({"ok": False, "job": header["job"], "kind": "internal", "error": "boom"}).encode()
+            fish = [wire.fish_to_json(f) for f in local[header["frame"]].fish]
+            return wire.encode_reply({"ok": True, "job": header["job"], "frame": header["frame"],
+                                      "fish": fish, "timings": {}})
+        return answer
+    peer = zenoh.open(wire_client(endpoint))
+    measure = workers_or_here(session, site, discover_s=WAIT_S)
+    caplog.set_level(logging.WARNING, logger="fishfarm.survey")
+    try:
+        liar, _ = _fake_worker(peer, site, answer_as("liar"), "liar")
+        honest, _ = _fake_worker(peer, site, answer_as("honest"), "honest")
+        deadline = time.monotonic() + WAIT_S
+        while measure.in_flight() != 2 * PER_WORKER:                      # the stop has heard both
+            assert time.monotonic() < deadline, measure.in_flight()
+            time.sleep(0.01)
+        for frame in range(6):
+            [result] = measure(jobs(items, 6)[frame:frame + 1], calib, SETUP)
+            same([result], local[frame:frame + 1])
+        assert len(asked["liar"]) == 1, asked                              # once, then benched
+        assert sorted(asked["honest"]) == list(range(6))
+        said = [r for r in caplog.records if "vision worker liar" in r.getMessage()]
+        assert len(said) == 1, [r.getMessage() for r in said]
+        # restarted: its token goes and comes again, and it is asked again
+        for e in liar:
+            e.undeclare()
+        liar, _ = _fake_worker(peer, site, answer_as("liar"), "liar")
+        deadline = time.monotonic() + WAIT_S
+        while len(asked["liar"]) < 2:
+            assert time.monotonic() < deadline, asked
+            [result] = measure(jobs(items, 6)[:1], calib, SETUP)
+            same([result], local[:1])
+        for e in liar + honest:
+            e.undeclare()
+    finally:
+        measure.tokens.undeclare()
+        peer.close()
