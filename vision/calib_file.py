@@ -66,12 +66,20 @@ MAX_IMAGE_PX = 100_000          # a side longer is no camera's: a unit or a typo
 _SHAPES = {"P1": (3, 4), "P2": (3, 4), "K1": (3, 3), "K2": (3, 3), "R": (3, 3), "T": (3,)}
 
 
+def _has_bool(value, depth: int = 0) -> bool:
+    if isinstance(value, bool):
+        return True
+    return isinstance(value, list) and depth < 3 and any(_has_bool(v, depth + 1) for v in value)
+
+
 def _matrix(data: dict, name: str) -> np.ndarray | None:
     if name not in data or data[name] is None:
         return None
+    if _has_bool(data[name]):      # numpy reads true as 1: a 1 mm baseline
+        raise CalibrationError(name, "not a numeric matrix (true/false in it)")
     try:
         m = np.asarray(data[name], dtype=float)
-    except (TypeError, ValueError):
+    except (TypeError, ValueError, OverflowError):
         raise CalibrationError(name, "not a numeric matrix") from None
     if name in ("D1", "D2"):
         m = m.reshape(-1)
@@ -97,6 +105,10 @@ def _check_camera_matrix(K: np.ndarray, name: str) -> None:
     _check_invertible(K, name, "not an invertible camera matrix")
     if not np.allclose(K[2], [0.0, 0.0, 1.0], rtol=0.0, atol=1e-6):
         raise CalibrationError(name, f"last row {K[2].tolist()}, expected [0, 0, 1]")
+    if not (K[0, 0] > 0 and K[1, 1] > 0):
+        raise CalibrationError(name, f"focal lengths fx {K[0, 0]:g}, fy {K[1, 1]:g}: a camera matrix's are positive")
+    if abs(K[1, 0]) > 1e-6 * K[1, 1]:
+        raise CalibrationError(name, f"K[1][0] is {K[1, 0]:g}: a camera matrix is upper triangular")
 
 
 def _check_baseline(P1: np.ndarray, P2: np.ndarray) -> None:
@@ -182,7 +194,8 @@ def calibration_from_json(data: object) -> StereoCalibration:
                                    f"expected [width, height] in pixels (whole numbers 1..{MAX_IMAGE_PX})")
         size = (size[0], size[1])
     rms = data.get("rms_px")
-    if rms is not None and not (isinstance(rms, (int, float)) and math.isfinite(rms)):
+    if rms is not None and not (isinstance(rms, (int, float)) and not isinstance(rms, bool)
+                                and abs(rms) < 1e300 and math.isfinite(rms)):
         raise CalibrationError("rms_px", "not a number")
     known = set(_SHAPES) | {"D1", "D2", "image_size", "rms_px"}
     extra = {k: v for k, v in data.items() if k not in known}

@@ -78,7 +78,7 @@ def _check_centres(data: dict) -> None:
     for name in ("P1", "P2"):
         try:
             P = np.asarray(data.get(name), dtype=float)
-        except (TypeError, ValueError):
+        except (TypeError, ValueError, OverflowError):
             continue                          # calibration_from_json names it
         if P.shape != (3, 4) or not np.all(np.isfinite(P)):
             continue
@@ -144,9 +144,15 @@ def from_dlt11(coeffs: np.ndarray, *, mm_per_unit: float = 1.0, pixel: np.ndarra
                             mm_per_unit=mm_per_unit, pixel=pixel, image_size=image_size, extra=extra)
 
 
-def _check_rotation(R: np.ndarray) -> None:
-    if not np.allclose(R @ R.T, np.eye(3), atol=1e-4) or np.linalg.det(R) < 0:
+ROTATION_ATOL = 2e-3      # R R^T against I: a rotation printed to 4 decimals strays 1e-4 (0.006 deg)
+
+
+def _check_rotation(R: np.ndarray) -> np.ndarray:
+    """The rotation nearest R (SVD), for an R within rounding of one; CalibrationError otherwise."""
+    if not np.allclose(R @ R.T, np.eye(3), atol=ROTATION_ATOL) or np.linalg.det(R) < 0:
         raise CalibrationError("R", "not a rotation matrix (R R^T != I or det(R) < 0)")
+    U, _, Vt = np.linalg.svd(R)
+    return U @ Vt
 
 
 def from_opencv(K1: np.ndarray, D1: np.ndarray | None, K2: np.ndarray, D2: np.ndarray | None,
@@ -165,7 +171,7 @@ def from_opencv(K1: np.ndarray, D1: np.ndarray | None, K2: np.ndarray, D2: np.nd
         arrays[name] = a
     for name in ("K1", "K2"):                 # before P1/P2, which a bad K makes singular
         _check_camera_matrix(arrays[name], name)
-    _check_rotation(arrays["R"])
+    arrays["R"] = _check_rotation(arrays["R"])
     with np.errstate(all="ignore"):          # an overflow is refused by name below, not warned on stderr
         T_mm = arrays["T"] * mm_per_unit
         P1 = arrays["K1"] @ np.c_[np.eye(3), np.zeros(3)]

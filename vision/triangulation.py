@@ -19,6 +19,9 @@ nothing measurable on the simulated rig, so the default is the paper's plain lea
 """
 from __future__ import annotations
 
+import functools
+import math
+
 import cv2
 import numpy as np
 
@@ -133,12 +136,70 @@ UNDISTORT_ITERATIONS = 40
 
 
 def undistort_pixels(pts: np.ndarray, K: np.ndarray, D: np.ndarray | None) -> np.ndarray:
-    """Ideal pinhole pixels (N, 2) of distorted pixels, in the same camera matrix K."""
+    """Ideal pinhole pixels (N, 2) of distorted pixels, in the same camera matrix K; NaN where the
+    lens model has no ray for the pixel (beyond ``distortion_reach``: the model folds back there).
+
+    Pixels are taken to normalised coordinates with the whole inverse of K first:
+    cv2.undistortPoints reads fx, fy, cx, cy and ignores K's skew, which P = K [R|t] then puts back
+    (a skewed K with D all zeros moved a pixel 7 px). The skew applies after the distortion, as in
+    the Caltech / MATLAB model OpenCV's own leaves it out of."""
     pts = np.asarray(pts, dtype=float).reshape(-1, 2)
     if D is None or len(pts) == 0:
         return pts
-    return cv2.undistortPoints(pts.reshape(-1, 1, 2), K, np.asarray(D, float), R=None, P=K,
-                               criteria=(cv2.TERM_CRITERIA_COUNT, UNDISTORT_ITERATIONS, 0.0)).reshape(-1, 2)
+    K, D = np.asarray(K, float), np.asarray(D, float)
+    seen = _homogeneous(pts) @ np.linalg.inv(K).T
+    seen = seen[:, :2] / seen[:, 2:3]
+    ideal = cv2.undistortPoints(seen.reshape(-1, 1, 2), np.eye(3), D, R=None, P=None,
+                                criteria=(cv2.TERM_CRITERIA_COUNT, UNDISTORT_ITERATIONS, 0.0)).reshape(-1, 2)
+    out = _homogeneous(ideal) @ K.T
+    out = out[:, :2] / out[:, 2:3]
+    out[np.hypot(seen[:, 0], seen[:, 1]) >= distortion_reach(tuple(D.ravel()))] = np.nan
+    return out
+
+
+def _homogeneous(pts: np.ndarray) -> np.ndarray:
+    return np.column_stack([pts, np.ones(len(pts))])
+
+
+REACH_MAX_R = 10.0     # normalised ideal radius looked at (84 deg off axis): beyond is no camera here
+
+
+@functools.lru_cache(maxsize=64)
+def distortion_reach(D: tuple[float, ...]) -> float:
+    """The largest normalised distorted radius OpenCV's radial model (k1, k2, k3 over k4, k5, k6)
+    reaches before it folds back (inf when it does not, out to ``REACH_MAX_R``). A model fitted to a
+    board that never reached the image's corners can fold inside the image: pixels beyond have no
+    ray, and undistortPoints returns them as they were (a 0 px residual on nonsense). With the
+    tangential and prism terms left out (small where a model is usable) and a 0.1 % margin."""
+    k = np.zeros(8)
+    k[:min(len(D), 8)] = D[:8]
+    k1, k2, p1, p2, k3, k4, k5, k6 = k
+    r = np.linspace(0.0, REACH_MAX_R, 20001)
+    r2 = r * r
+    den = 1 + r2 * (k4 + r2 * (k5 + r2 * k6))
+    rd = r * (1 + r2 * (k1 + r2 * (k2 + r2 * k3))) / np.where(den > 0, den, np.nan)
+    bad = np.flatnonzero(~(np.diff(rd) > 0))
+    if len(bad) == 0:
+        return math.inf
+    return float(rd[bad[0]]) * 0.999
+
+
+def reach_in_image(K: np.ndarray, D: np.ndarray | None, image_size: tuple[int, int]) -> tuple[float, float] | None:
+    """(reach, farthest corner) in pixels from the principal point when the lens model folds back
+    inside a (width, height) image (pixels beyond the reach are not measured), else None. The
+    reach is along x, in fx's pixels."""
+    if D is None:
+        return None
+    reach = distortion_reach(tuple(np.asarray(D, float).ravel()))
+    K = np.asarray(K, float)
+    w, h = image_size
+    corners = _homogeneous(np.array([[-0.5, -0.5], [w - 0.5, -0.5], [-0.5, h - 0.5], [w - 0.5, h - 0.5]]))
+    seen = corners @ np.linalg.inv(K).T
+    radius = np.hypot(seen[:, 0] / seen[:, 2], seen[:, 1] / seen[:, 2])
+    if radius.max() < reach:
+        return None
+    corner_px = float(np.max(np.hypot(*(corners[:, :2] - K[:2, 2]).T)))
+    return reach * float(K[0, 0]), corner_px
 
 
 def triangulate_calibrated(calib, pts1: np.ndarray, pts2: np.ndarray,

@@ -11,14 +11,39 @@ from controller.errors import BadInput
 from vision.calib_file import CalibrationError, StereoCalibration, calibration_from_json
 
 
+class _Twice(ValueError):
+    def __init__(self, key: str):
+        super().__init__(key)
+        self.key = key
+
+
+def _once(pairs: list[tuple[str, object]]) -> dict:
+    keys = [k for k, _ in pairs]
+    for k in keys:
+        if keys.count(k) > 1:
+            raise _Twice(k)
+    return dict(pairs)
+
+
+def json_fields_once(path: str, text: str):
+    """``json.loads`` of a calibration, a key given twice in one object refused (json keeps the
+    last without a word: which matrix was meant is unknown)."""
+    try:
+        return json.loads(text, object_pairs_hook=_once)
+    except _Twice as twice:
+        raise BadInput(path, twice.key, "given twice: give it once") from None
+
+
 def load_calibration(path: str | Path) -> StereoCalibration:
     where = str(path)
     try:
-        data = json.loads(Path(path).read_text(encoding="utf-8"))
+        data = json_fields_once(where, Path(path).read_text(encoding="utf-8"))
     except FileNotFoundError:
         raise BadInput(where, None, "no such file") from None
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise BadInput(where, None, f"not valid JSON: {exc}") from None
+    except (OSError, ValueError) as exc:           # ValueError: JSONDecodeError, a number of 4300+ digits
+        raise BadInput(where, None, f"not valid JSON: {str(exc).split('; use sys.')[0]}") from None
+    except RecursionError:
+        raise BadInput(where, None, "not valid JSON: nested too deep") from None
     try:
         return calibration_from_json(data)
     except CalibrationError as exc:

@@ -68,12 +68,23 @@ def node_array(node) -> np.ndarray | None:
     if node.isReal() or node.isInt():
         return np.array(node.real(), dtype=float)
     if node.isMap():
+        if set(node.keys()) == {"rows", "cols", "data"}:      # ROS camera_info's matrices
+            return _rows_cols(node)
         try:
             mat = node.mat()
         except Exception:         # cv2.error on a map that is not a matrix
             return None
         return None if mat is None else np.asarray(mat, dtype=float)
     return None
+
+
+def _rows_cols(node) -> np.ndarray | None:
+    rows, cols, data = (node.getNode(k) for k in ("rows", "cols", "data"))
+    values = node_array(data) if data.isSeq() else None
+    if not (rows.isInt() and cols.isInt()) or values is None or values.ndim != 1:
+        return None
+    r, c = int(rows.real()), int(cols.real())
+    return values.reshape(r, c) if r > 0 and c > 0 and r * c == values.size else None
 
 
 def _open(path: str, text: str):
@@ -109,19 +120,43 @@ def _scalars(fs, keys) -> list:
 
 def _file_fields(path: str, fs) -> dict[str, tuple[str, np.ndarray]]:
     """CALIB field -> (key, array) in one file; two keys for one field refused."""
-    keys = {name_key(k): k for k in fs.root().keys()}
+    listed = list(fs.root().keys())
+    keys = {name_key(k): k for k in listed}
     from_zero = any(name_key(n) in keys for n in field_names(True)["K1"])
     out = {}
     for field, names in field_names(from_zero).items():
         hits = list(dict.fromkeys(keys[name_key(n)] for n in names if name_key(n) in keys))
         if len(hits) > 1:
             raise BadInput(path, f"{hits[0]}, {hits[1]}", f"two names for {field}: give it once")
+        if hits and listed.count(hits[0]) > 1:      # FileStorage reads the first without a word
+            raise BadInput(path, hits[0], "given twice: give it once")
         if hits:
             value = node_array(fs.getNode(hits[0]))
             if value is None:
                 raise BadInput(path, hits[0], "not a matrix or a list of numbers")
             out[field] = hits[0], value
     return out
+
+
+def _refuse_json_flags(path: str, text: str) -> None:
+    """FileStorage reads JSON's true as 1 (a T of [true, 0, 0] was a 1 mm baseline) and keeps the
+    first of a key given twice: both refused, by name."""
+    from controller.cli.calib_io import json_fields_once
+    try:
+        doc = json_fields_once(path, text)
+    except (ValueError, RecursionError):
+        return                                  # FileStorage's reading names it
+    for key, value in doc.items() if isinstance(doc, dict) else ():
+        if _has_flag(value):
+            raise BadInput(path, key, "true/false where numbers are expected")
+
+
+def _has_flag(value, depth: int = 0) -> bool:
+    if isinstance(value, bool):
+        return True
+    if isinstance(value, dict) and depth < 3:
+        return _has_flag(value.get("data"), depth + 1)          # an "opencv-matrix" object
+    return isinstance(value, list) and depth < 3 and any(_has_flag(v, depth + 1) for v in value)
 
 
 def _unknown_distortion(fs, taken: set[str]) -> list[str]:
@@ -134,6 +169,8 @@ def opencv_fields(files: list[tuple[str, str]]) -> tuple[dict, dict]:
     unpacked if gzip'd); and which file gave each. A field in two files must have one value."""
     found, source, unknown = {}, {}, []
     for path, text in files:
+        if text.lstrip().startswith("{"):
+            _refuse_json_flags(path, text)
         fs = _open(path, text)
         try:
             refuse_fisheye(path, _scalars(fs, fs.root().keys()))
@@ -158,7 +195,15 @@ def opencv_size(found: dict, source: dict):
         size = found["image_size"].reshape(-1)
         if size.size != 2:
             raise BadInput(source["image_size"], None, f"{size.size} values, expected [width, height]")
+        other = _width_height(found, source)
+        if other is not None and other != (float(size[0]), float(size[1])):
+            raise BadInput(source["image_size"], None, f"{size[0]:g}x{size[1]:g}, but image_width and image_height "
+                                                       f"say {other[0]:g}x{other[1]:g}: give the size once")
         return float(size[0]), float(size[1])          # whole pixels: vision.calib_import checks
+    return _width_height(found, source)
+
+
+def _width_height(found: dict, source: dict):
     if "image_width" in found or "image_height" in found:
         for given, missing in (("image_width", "image_height"), ("image_height", "image_width")):
             if missing not in found:
@@ -172,7 +217,7 @@ def opencv_json(text: str | None) -> bool:
     are stereoRectify's), or a plain object naming K1/K2/R/T and no P1/P2."""
     try:
         doc = json.loads(text or "")
-    except ValueError:
+    except (ValueError, RecursionError):
         return False
     if not isinstance(doc, dict):
         return False

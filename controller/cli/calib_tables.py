@@ -2,11 +2,11 @@
 plain 3x4 pairs as text, and the JSON form of a 3x4 pair. Faults are BadInput naming the file."""
 from __future__ import annotations
 
-import json
 import re
 
 import numpy as np
 
+from controller.cli.calib_io import json_fields_once
 from controller.cli.calib_opencv_file import OPENCV_NAMES, name_key, refuse_fisheye
 from controller.errors import BadInput
 
@@ -85,9 +85,11 @@ def p34_json(path: str, text: str) -> dict:
     """A JSON object of CALIB.json's form (P1, P2 and its optional fields), checked for what would
     be silently wrong: another tool's name of a field (not read: its matrix lost), a fisheye model."""
     try:
-        data = json.loads(text)
-    except json.JSONDecodeError as exc:
-        raise BadInput(path, None, f"not valid JSON: {exc}") from None
+        data = json_fields_once(path, text)
+    except ValueError as exc:                  # JSONDecodeError, a number of 4300+ digits
+        raise BadInput(path, None, f"not valid JSON: {str(exc).split('; use sys.')[0]}") from None
+    except RecursionError:
+        raise BadInput(path, None, "not valid JSON: nested too deep") from None
     if not isinstance(data, dict):
         raise BadInput(path, None, "expected a JSON object with P1 and P2")
     for name in ("P1", "P2"):

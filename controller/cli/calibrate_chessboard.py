@@ -86,6 +86,8 @@ def _report(result, lefts, rights, out: str) -> None:
                "(OpenCV stereo_calib definition: per corner, distance to its line in both images, summed)")
     baseline = float((result.calibration.T ** 2).sum() ** 0.5)
     click.echo(f"baseline: {result.baseline_squares:.3f} squares ({baseline:.1f} mm)")
+    from controller.cli.calibrate_import import warn_folds
+    warn_folds(result.calibration)
     click.echo(f"wrote {out}")
 
 

@@ -204,7 +204,24 @@ def _report(calib, fmt: str, paths, out: str) -> None:
         else f"{calib.image_size[0]}x{calib.image_size[1]}"
     click.echo(f"image size: {size}")
     click.echo(f"distortion: {'D1/D2 kept' if calib.has_distortion else 'none'}")
+    warn_folds(calib)
     click.echo(f"wrote {out}")
+
+
+def warn_folds(calib) -> None:
+    """A lens model that folds back inside the image (fitted to a board that never reached its
+    corners): said, as the pixels beyond are not measured (triangulate writes them nan, surveys
+    drop what lies there)."""
+    from vision.triangulation import reach_in_image
+    if calib.image_size is None or not calib.has_distortion:
+        return
+    for cam, K, D in ((1, calib.K1, calib.D1), (2, calib.K2, calib.D2)):
+        folds = reach_in_image(K, D, calib.image_size)
+        if folds is not None:
+            click.echo(f"warning: D{cam}: the lens model folds back {folds[0]:.0f} px from the principal point, inside "
+                       f"the {calib.image_size[0]}x{calib.image_size[1]} image (its farthest corner is "
+                       f"{folds[1]:.0f} px away): pixels beyond have no ray and are not measured; a calibration "
+                       f"with the board in the corners reaches them", err=True)
 
 
 @click.command("import")

@@ -29,3 +29,8 @@ def triangulate(calib_path: str, pairs_path: str, out_path: str | None) -> None:
     pairs = read_table(pairs_path, PAIRS_HEADER, limit=PIXELS_MAX)
     points, residual = triangulate_calibrated(calib, pairs[:, :2], pairs[:, 2:4])
     write_table(out_path, OUT_HEADER, np.c_[points, residual])
+    beyond = np.flatnonzero(~np.isfinite(residual))
+    if len(beyond):
+        rows = ", ".join(str(r + 2) for r in beyond[:5]) + (" ..." if len(beyond) > 5 else "")
+        click.echo(f"fishfarm triangulate: warning: {len(beyond)} pairs (lines {rows} of {pairs_path}) lie beyond "
+                   f"where {calib_path}'s lens model reaches (D1/D2 fold back there): written as nan", err=True)

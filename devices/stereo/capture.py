@@ -62,6 +62,8 @@ def load_calibration(path: str) -> StereoCalibration:
         raise ValueError(f"{path}: {exc.strerror or exc}") from None
     except ValueError as exc:
         raise ValueError(f"{path}: not JSON ({exc})") from None
+    except RecursionError:
+        raise ValueError(f"{path}: not JSON (nested too deep)") from None
     try:
         return calibration_from_json(data)
     except CalibrationError as exc:

@@ -14,6 +14,7 @@ from devices.sim.stereo_rig import (
     random_points_in_grid_volume,
     two_plane_object,
 )
+from vision.calib_file import StereoCalibration
 from vision.triangulation import normalise_projection, project, triangulate, triangulate_calibrated
 
 RIG = convergent_rig()
@@ -166,3 +167,54 @@ def test_batched_solution_is_far_faster_than_a_loop_over_points():
     ours = per_point(lambda: triangulate(RIG.P1, RIG.P2, p1, p2), len(world))
     looped = per_point(one_by_one, 500)
     assert looped / ours > 20
+
+
+def _project_skewed(K, D, rays):
+    """Pixels of camera-frame rays through OpenCV's distortion with the skew applied after it (the
+    Caltech / MATLAB model), written out here, not by the code under test."""
+    x, y = rays[:, 0] / rays[:, 2], rays[:, 1] / rays[:, 2]
+    k1, k2, p1, p2, k3 = (list(D) + [0.0] * 5)[:5]
+    r2 = x * x + y * y
+    radial = 1 + k1 * r2 + k2 * r2 ** 2 + k3 * r2 ** 3
+    xd = x * radial + 2 * p1 * x * y + p2 * (r2 + 2 * x * x)
+    yd = y * radial + p1 * (r2 + 2 * y * y) + 2 * p2 * x * y
+    return np.column_stack([K[0, 0] * xd + K[0, 1] * yd + K[0, 2], K[1, 1] * yd + K[1, 2]])
+
+
+@pytest.mark.parametrize("D", [[0.0] * 5, [-0.12, 0.03, 0.0, 0.0, 0.0], [-0.1, 0.02, 0.001, -0.002, 0.0]])
+def test_a_skewed_camera_matrix_is_undistorted_with_its_skew(D):
+    """OpenCV's undistortPoints ignores K[0][1]: a skew of 20 px with D all zeros moved a pixel 7 px."""
+    from vision.triangulation import undistort_pixels
+    K = np.array([[1200.0, 20.0, 640.0], [0.0, 1195.0, 480.0], [0.0, 0.0, 1.0]])
+    rng = np.random.default_rng(5)
+    rays = np.column_stack([rng.uniform(-0.5, 0.5, (200, 2)), np.ones(200)])
+    ideal = rays @ K.T
+    ideal = ideal[:, :2] / ideal[:, 2:]
+    np.testing.assert_allclose(undistort_pixels(_project_skewed(K, D, rays), K, np.array(D)), ideal, atol=1e-6)
+
+
+def test_pixels_beyond_where_a_folding_lens_model_reaches_have_no_ray():
+    """k1 -0.32, k2 0.12, k3 -0.02 at f 900: r_d = r (1 + k1 r^2 + k2 r^4 + k3 r^6) peaks at r ~1.61
+    (~909 px), inside a 1920x1080 frame's corners (1101 px): beyond, no ray; within, exact."""
+    from vision.triangulation import distortion_reach, reach_in_image, undistort_pixels
+    D = np.array([-0.32, 0.12, 0.0, 0.0, -0.02])
+    K = np.array([[900.0, 0, 960], [0, 900.0, 540], [0, 0, 1]])
+    r = np.linspace(0, 3, 300001)
+    peak = (r * (1 - 0.32 * r ** 2 + 0.12 * r ** 4 - 0.02 * r ** 6)).max()
+    assert distortion_reach(tuple(D)) == pytest.approx(peak, rel=2e-3)
+    reach_px, corner_px = reach_in_image(K, D, (1920, 1080))
+    assert reach_px == pytest.approx(900 * peak, rel=2e-3) and corner_px == pytest.approx(np.hypot(960.5, 540.5))
+    small = np.array([[900.0, 0, 640], [0, 900.0, 360], [0, 0, 1]])
+    assert reach_in_image(small, D, (1280, 720)) is None                    # a smaller frame: inside the reach
+    assert reach_in_image(K, np.array([0.25, -0.1, 0.0, 0.0, 0.05]), (1920, 1080)) is None  # pincushion: none
+    far = np.array([[40.0, 40.0], [1900.0, 1060.0]])
+    assert np.isnan(undistort_pixels(far, K, D)).all()
+    rays = np.column_stack([np.random.default_rng(1).uniform(-1.2, 1.2, (300, 2)), np.ones(300)])
+    seen = _project_skewed(K, D, rays)
+    within = np.hypot(*(seen - K[:2, 2]).T) < 0.98 * reach_px
+    within &= np.hypot(rays[:, 0], rays[:, 1]) < 1.5                          # before the fold
+    ideal = rays[:, :2] * 900 + K[:2, 2]
+    np.testing.assert_allclose(undistort_pixels(seen[within], K, D), ideal[within], atol=1e-6)
+    X, residual = triangulate_calibrated(StereoCalibration(P1=K @ np.eye(3, 4), P2=K @ np.c_[np.eye(3), [-200, 0, 0]],
+                                                           K1=K, D1=D, K2=K, D2=D), far, far + [-15, 0])
+    assert np.isnan(X).all() and np.isnan(residual).all()
