@@ -245,6 +245,9 @@ def survey(calib_path, species, setup, pairs, rgs, directory, video, rg_video, s
         progress.stop()
         if session is not None:
             session.close()
+    if summary["count"] == 0 and summary["frames"] > 0:
+        _why_no_fish(calib, lambda: _source(pairs, rgs, directory, video, rg_video, every, max_frames,
+                                            sync_offset)[0])
     w = summary["weight_g"]
     mean = "n/a" if w["mean"] is None else f"{w['mean']:.1f} g"
     ci = "" if not w["ci"] else f" (95 % CI {w['ci'][0]:.1f}-{w['ci'][1]:.1f})"
@@ -253,6 +256,26 @@ def survey(calib_path, species, setup, pairs, rgs, directory, video, rg_video, s
     left_out = f"; {len(rejected)} left out as measuring errors ({shown} cm)" if rejected else ""
     click.echo(f"{summary['count']} fish in {summary['frames']} pairs{_tracked(summary)}: mean weight {mean}{ci}"
                f"{left_out}", err=True)
+
+
+FIT_PAIRS = 5
+
+
+def _why_no_fish(calib, source) -> None:
+    """No fish in any pair: the first pairs' own texture against the calibration (vision.pair_fit),
+    a warning when the views look swapped or the calibration is another rig's. Best effort: a pair
+    that cannot be read again says nothing here (the survey has said what it had to)."""
+    import itertools
+
+    from controller.surveys.frames import read_pair
+    from vision.pair_fit import pair_fit, verdict
+    try:
+        views = [read_pair(job)[:2] for job in itertools.islice(source().jobs, FIT_PAIRS)]
+        said = verdict(pair_fit(views, calib))
+    except Exception:  # noqa: BLE001 - a hint, never a survey's failure
+        return
+    if said is not None:
+        click.echo(f"fishfarm survey: warning: no fish in any pair, and {said}", err=True)
 
 
 def _warn_copies(source, progress, shown: int = 3) -> None:

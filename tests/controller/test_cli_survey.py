@@ -85,6 +85,42 @@ def test_a_pair_copied_into_the_directory_is_surveyed_once_and_said(farm, tmp_pa
     assert said.startswith("fishfarm survey: warning: ") and "p1 copy_L.png" in said and "p1_L.png" in said
 
 
+@pytest.fixture(scope="module")
+def textured(tmp_path_factory):
+    """Three surface pairs (a textured tank floor) and their rig's calibration, and another rig's."""
+    from devices.sim.fish_scene import surface_rig, surface_scene
+    d = tmp_path_factory.mktemp("textured")
+    rig = surface_rig()
+    rng = np.random.default_rng(4)
+    for i in range(3):
+        scene = surface_scene(rng, rig=rig, n_fish=6)
+        cv2.imwrite(str(d / f"s{i}_L.png"), scene.left)
+        cv2.imwrite(str(d / f"s{i}_R.png"), scene.right)
+    (d / "calib.json").write_text(json.dumps(rig.calibration().to_json()))
+    (d / "other.json").write_text(json.dumps(convergent_rig(baseline_mm=300, crossing_mm=900).calibration().to_json()))
+    return d
+
+
+@pytest.mark.parametrize("views,calib,said", [("given", "calib.json", None),
+                                              ("swapped", "calib.json", "look swapped"),
+                                              ("given", "other.json", "do not fit the calibration")])
+def test_a_survey_without_fish_says_when_its_views_are_swapped_or_its_calibration_another_rig_s(
+        textured, tmp_path, views, calib, said):
+    d = textured
+    order = (lambda i: [d / f"s{i}_L.png", d / f"s{i}_R.png"]) if views == "given" else \
+        (lambda i: [d / f"s{i}_R.png", d / f"s{i}_L.png"])
+    args = ["--calib", d / calib, "--species", "sparus_aurata", "--setup", "surface", "--json", tmp_path / "o.json",
+            *sum((["--pair", *order(i)] for i in range(3)), [])]
+    r = run(*args, measure="tests.controller.surveys.standin:no_fish")
+    assert r.returncode == 0, r.stderr
+    warned = [line for line in r.stderr.splitlines() if "no fish in any pair" in line]
+    if said is None:
+        assert warned == [], r.stderr
+    else:
+        assert len(warned) == 1 and said in warned[0] and warned[0].startswith("fishfarm survey: warning:"), r.stderr
+    assert r.stderr.strip().splitlines()[-1].startswith("0 fish in 3 pairs")
+
+
 def test_rg_frames_give_the_same_fish_as_the_pairs(farm):
     d, truth = farm
     r = run(*common(d, *sum((["--rg", d / f"rg{i}.png"] for i in range(4)), []), "--json", d / "rg.json",

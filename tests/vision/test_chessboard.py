@@ -153,3 +153,14 @@ def test_rendered_boards_give_back_the_true_rig_in_mm():
     assert np.degrees(np.linalg.norm(cv2.Rodrigues(c.R @ session.R.T)[0])) < 0.1
     assert np.allclose(c.K1, session.K, atol=3.0) and np.allclose(c.K2, session.K, atol=3.0)
     assert result.rms_px < 0.1 and result.epipolar_px < 0.1
+
+
+@real_data
+def test_real_pairs_fit_their_own_calibration_and_swapped_are_said_swapped(real_images, ours):
+    """vision.pair_fit on real cameras: the board pairs against the calibration made from them."""
+    from vision.pair_fit import pair_fit, verdict
+    pairs = list(zip(*real_images, strict=True))[:5]
+    fit = pair_fit(pairs, ours.calibration)
+    assert fit.judged and fit.epipolar_px < 1.0 and fit.in_front > 0.9 and verdict(fit) is None
+    swapped = pair_fit([(r, left) for left, r in pairs], ours.calibration)
+    assert swapped.in_front < 0.1 and "look swapped" in verdict(swapped)
