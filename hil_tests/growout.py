@@ -26,6 +26,7 @@ from __future__ import annotations
 import bisect
 import contextlib
 import io
+import json
 import math
 import os
 import re
@@ -136,7 +137,19 @@ def run(workdir: Path, days: float, *, slow: float = SLOW, fast: float = FAST, w
            "wall_s": round(time.monotonic() - started, 1), "wall_per_day_s": day_walls,
            "deaths_entered": entered, **judge(farm, up, end)}
     out["wall_by_reason"] = farm.watch.summary()
+    out["pairs"] = pairs_spent(farm, Path(workdir) / "surveys")
     return farm, out
+
+
+def pairs_spent(farm: HilFarm, out_dir: Path) -> dict:
+    """Pairs the simulated cameras rendered against those the recorded surveys measured: frames a
+    survey's stop did not take cost the simulator as much as the ones it did."""
+    rendered = sum(r.get("rendered", 0) for r in farm.truth() if r["kind"] == "stereo_camera")
+    measured = 0
+    for path in sorted(out_dir.glob("*.json")):
+        with contextlib.suppress(OSError, ValueError):
+            measured += int(json.loads(path.read_text()).get("frames", 0))
+    return {"rendered": rendered, "measured": measured}
 
 
 def cpu_seconds(farm: HilFarm) -> dict:

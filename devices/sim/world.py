@@ -319,6 +319,8 @@ class SimFarm:
         cameras = [c for c in (self.stereo, self.camera) if c is not None]
         if cameras:
             await asyncio.gather(*(asyncio.to_thread(c.stop, CAMERA_STOP_S) for c in cameras))
+        if self.stereo is not None:          # beside the pairs a survey measured: what rendering cost
+            self.truth.write("stereo_camera", self.clock.now(), rendered=self.stereo.rendered)
         if self.pond is not None:
             await self.pond.stop()
         if self.thrusters is not None:
