@@ -105,6 +105,9 @@ def test_a_detector_cannot_spoil_the_shared_frames_later_pairs_reuse(tmp_path):
 def test_an_empty_survey_is_count_zero(tmp_path):
     rig = convergent_rig()
     items, _ = stills(tmp_path, rig, np.random.default_rng(1), [0, 0])
+    second = cv2.imread(items[1][0], cv2.IMREAD_UNCHANGED)
+    second[0, 0] ^= 1                  # two moments of empty water, not one still given twice
+    cv2.imwrite(items[1][0], second)
     run_survey(still_source(items), rig.calibration(), options(f"{STANDIN}:no_fish"), str(tmp_path / "o.json"))
     doc = json.loads((tmp_path / "o.json").read_text())
     assert doc["count"] == 0 and doc["fish"] == [] and doc["frames"] == 2
