@@ -67,10 +67,11 @@ def write_reference(path: Path, rows) -> None:
             w.writerow([f"{u:.{PIXEL_DECIMALS}f}", f"{v:.{PIXEL_DECIMALS}f}", f"{x:.4f}", f"{y:.4f}"])
 
 
-def calibrate(ref: Path, out: Path) -> str:
-    """``fishfarm calibrate tower``, as an operator runs it; its report."""
+def calibrate(ref: Path, out: Path, size: tuple[int, int] | None = None) -> str:
+    """``fishfarm calibrate tower``, as an operator runs it (with the camera's frame size); its report."""
+    sized = [] if size is None else ["--image-size", f"{size[0]}x{size[1]}"]
     done = subprocess.run([sys.executable, "-m", "controller.cli", "calibrate", "tower", "--points", str(ref),
-                           "--out", str(out)], cwd=ROOT, capture_output=True, text=True, check=False)
+                           "--out", str(out), *sized], cwd=ROOT, capture_output=True, text=True, check=False)
     if done.returncode != 0:
         raise RuntimeError(f"fishfarm calibrate tower failed: {done.stderr.strip()}")
     return done.stdout
@@ -78,7 +79,8 @@ def calibrate(ref: Path, out: Path) -> str:
 
 def tower_file(view, out: Path) -> Path:
     """A TOWER.json of the camera ``view`` exactly (a HIL run's own pond)."""
-    out.write_text(json.dumps({"H": view.H.tolist()}) + "\n", encoding="utf-8")
+    out.write_text(json.dumps({"H": view.H.tolist(), "image_size": [view.width, view.height]}) + "\n",
+                   encoding="utf-8")
     return out
 
 
@@ -94,9 +96,10 @@ def main(argv=None) -> int:
     out = Path(cfg.cleaning.tower)
     out = out if out.is_absolute() else ROOT / out
     ref = out.with_name("tower_ref.csv")
-    rows = reference_rows(sim_view(cfg), survey_points(cfg.cleaning.outline, cfg.cleaning.keepouts))
+    view = sim_view(cfg)
+    rows = reference_rows(view, survey_points(cfg.cleaning.outline, cfg.cleaning.keepouts))
     write_reference(ref, rows)
-    print(calibrate(ref, out), end="")
+    print(calibrate(ref, out, (view.width, view.height)), end="")
     return 0
 
 

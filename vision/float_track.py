@@ -11,7 +11,10 @@ the track; a fix in place whose heading jumped (a spin the model did not foresee
 heading there. Gating cannot lock the tracker out: ``reinit_after`` held-out fixes in a row that
 agree with each other (a speed the float can do between them) restart the track there, and so does
 a fix once the position is this uncertain (``reinit_std_m``); the gate also widens by itself as the
-position's uncertainty grows while coasting.
+position's uncertainty grows while coasting. Either restart takes only a fix the float could have
+reached since its last fix taken (``max_speed_m_s``): a spare float lying still 11 m off, seen
+while ours was hidden for 0.3 s, agreed with itself and took the track for good. Beyond that reach
+the track coasts to "lost", after which the first good fix anywhere starts it again.
 
 A fix that gives the position alone (``heading_known`` False: the orange disc seen, its blue not
 made out — a blue tarp under it) updates position and speed only; the heading coasts on its rate
@@ -81,6 +84,7 @@ class FloatTracker:
         self.kf: KalmanFilter | None = None
         self._t: float | None = None          # time the filter stands at
         self._fix_t = -math.inf               # time of the last fix taken
+        self._fix_xy = (math.nan, math.nan)   # ... and where
         self._dt = 0.0                        # the last step between frames (the next one, likely)
         self._held: list[tuple[float, FloatFix]] = []   # held-out fixes in a row
         self.state: State = "lost"
@@ -94,6 +98,7 @@ class FloatTracker:
         kf.P = np.diag([self.pos_std_m ** 2, (0.5 * self.max_speed_m_s) ** 2, self.pos_std_m ** 2,
                         (0.5 * self.max_speed_m_s) ** 2, self.heading_std_rad ** 2, 1.0])
         self.kf, self._t, self._fix_t, self._held = kf, t, t, []
+        self._fix_xy = (fix.x_m, fix.y_m)
         self.state = "tracking"
 
     def _predict(self, dt: float) -> None:
@@ -150,6 +155,12 @@ class FloatTracker:
                 return False
         return True
 
+    def _reachable(self, t: float, fix: FloatFix) -> bool:
+        """Whether the float could be at ``fix`` by ``t`` from where its last fix was taken."""
+        reach = (self.max_speed_m_s * max(t - self._fix_t, 0.0) + self.reach_m
+                 + 3 * self.pos_std_m / max(fix.confidence, 1e-3))
+        return math.hypot(fix.x_m - self._fix_xy[0], fix.y_m - self._fix_xy[1]) <= reach
+
     # -- public --------------------------------------------------------------------------------
     def step(self, t_s: float, fix: FloatFix | None) -> FloatTrack:
         """Advance to ``t_s`` and take ``fix`` (None: the float was not seen in this frame)."""
@@ -183,9 +194,10 @@ class FloatTracker:
                 self._held = []
                 if taken:
                     self._fix_t = t_s
+                    self._fix_xy = (float(self.kf.x[0]), float(self.kf.x[2]))
             elif fix.heading_known:
                 self._held.append((t_s, fix))
-                if self._consistent() or self.std_m() > self.reinit_std_m:
+                if (self._consistent() or self.std_m() > self.reinit_std_m) and self._reachable(t_s, fix):
                     self._start(t_s, fix)
                     return self._report(t_s)
         if taken:

@@ -46,6 +46,17 @@ def to_pond(H: np.ndarray, px: np.ndarray) -> np.ndarray:
         return h[:, :2] / h[:, 2:3]
 
 
+def seen_from_above(H: np.ndarray, px: np.ndarray) -> bool:
+    """Whether H maps the pixels ``px`` (N, 2) onto the pond as a camera above it sees it: the
+    image's (u right, v down) turns the other way round from the pond's (x, y) with z up, so the
+    map's Jacobian is negative there (det H / w^3, w = H[2] . (u, v, 1)). Positive: the pond seen
+    mirrored — an axis of the survey measured the other way, or a camera that mirrors its image."""
+    H = np.asarray(H, dtype=float)
+    centre = np.asarray(px, dtype=float).reshape(-1, 2).mean(axis=0)
+    w = float(H[2] @ np.r_[centre, 1.0])
+    return float(np.sign(np.linalg.det(H)) * np.sign(w)) < 0
+
+
 def _normalise(p: np.ndarray) -> np.ndarray:
     """Hartley: centroid at 0, mean distance sqrt(2) (the scale findHomography uses)."""
     c = p - p.mean(axis=0)

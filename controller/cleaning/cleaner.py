@@ -57,8 +57,10 @@ class Course:
 class Cleaner:
     def __init__(self, camera, thrusters, detector, tracker, plan, follower, coverage_map, store, clock, publish,
                  *, alarms, lane, course: Course, run: int = 1, state: str = "docked", mission: str | None = None,
-                 reopen: Callable | None = None, fence=None, recovery=None):
+                 reopen: Callable | None = None, fence=None, recovery=None,
+                 frame_size: tuple[int, int] | None = None):
         self.camera, self.thrusters, self.detector, self.tracker = camera, thrusters, detector, tracker
+        self.frame_size = frame_size           # (w, h) TOWER.json was fitted to; None: not said
         self.reopen = reopen                   # async (device) -> a fresh one: a lost link is lost for good
         self._reopen_at = -math.inf            # monotonic: the next attempt, backing off
         self._reopen_tries = 0
@@ -112,16 +114,28 @@ class Cleaner:
         try:
             frame = await self.camera.read()
         except DeviceError as exc:
-            self._device_down(self.camera.name, exc.text)
-            await self._halt()
-            await asyncio.sleep(RETRY_WALL_S)
-            return None
+            return await self._no_frame(exc.text)
+        if self.frame_size is not None and tuple(frame.image.shape[1::-1]) != tuple(self.frame_size):
+            w, h = frame.image.shape[1::-1]
+            return await self._no_frame(f"frames {w}x{h}, TOWER.json was fitted to {self.frame_size[0]}x"
+                                        f"{self.frame_size[1]}: its positions would be metres off")
         self._device_up(self.camera.name)
         if frame.seq == self._last_seq:        # nothing new yet: no second look at the same frame
             await asyncio.sleep(0.005)
             return None
         self._last_seq = frame.seq
         return frame
+
+    async def _no_frame(self, why: str) -> None:
+        """The camera down or its frames unusable: stopped, and the track coasts (predicted, then
+        lost without a position) so the state published is no stale "tracking" pose."""
+        self._device_down(self.camera.name, why)
+        if self.track is not None:
+            self.track = self.tracker.step(max(self.clock.now(), self.track.t_s), None)
+            self._publish()
+        await self._halt()
+        await asyncio.sleep(RETRY_WALL_S)
+        return None
 
     async def on_track(self, track) -> None:
         """One tracker output: events to the machine, then steer, drive, sweep, save, publish."""

@@ -27,6 +27,7 @@ class Prepared:
     H: np.ndarray
     float_params: object      # FloatParams
     fingerprint: str
+    frame_size: tuple[int, int] | None = None   # the frames TOWER.json was fitted to (its image_size)
 
 
 def float_params(values: dict, where: str):
@@ -83,12 +84,12 @@ def prepare(cfg) -> Prepared:
     if not geom.free(s.body_radius_m).buffer(1e-6).covers(Point(s.dock)):
         raise BadInput(where, "cleaning.dock", f"({s.dock[0]:g}, {s.dock[1]:g}) is not on the floor a robot of "
                                                f"radius {s.body_radius_m:g} m can reach")
-    from controller.cli.track_cmd import load_tower  # the one reader of TOWER.json, `fishfarm track`'s
-    H = load_tower(_tower_file(s.tower, where))
+    from controller.cli.track_cmd import load_tower_file  # the one reader of TOWER.json, `fishfarm track`'s
+    H, frame_size = load_tower_file(_tower_file(s.tower, where))
     params = float_params(s.detection, where)
     plan = plan_coverage(geom, brush_m=s.brush_m, body_radius_m=s.body_radius_m, overlap=s.overlap,
                          keepout_margin_m=s.keepout_margin_m, start_xy=s.dock, where=where, key="cleaning")
-    return Prepared(s, geom, plan, H, params, fingerprint(s))
+    return Prepared(s, geom, plan, H, params, fingerprint(s), frame_size)
 
 
 def build(prep: Prepared, camera, thrusters, store, clock, publish, *, alarms, lane, reopen=None):
@@ -130,4 +131,5 @@ def build(prep: Prepared, camera, thrusters, store, clock, publish, *, alarms, l
     return Cleaner(camera, thrusters, detector, FloatTracker(lost_after_s=s.lost_after_s), prep.plan,
                    back.follower, back.map, store, clock, publish, alarms=alarms, lane=lane, course=course,
                    run=back.run, state=back.state, mission=back.mission, reopen=reopen,
-                   fence=fence, recovery=Recovery(after_s=s.recover_after_s, gaps=fence.gaps))
+                   fence=fence, recovery=Recovery(after_s=s.recover_after_s, gaps=fence.gaps),
+                   frame_size=prep.frame_size)

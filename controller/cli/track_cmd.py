@@ -36,6 +36,20 @@ DET_TOL = 1e-12        # |det H| / |H|^3 under which H counts as singular (as vi
 
 def load_tower(path: str) -> np.ndarray:
     """H (3x3, finite, invertible) from TOWER.json; BadInput naming the fault."""
+    return load_tower_file(path)[0]
+
+
+def load_tower_file(path: str) -> tuple[np.ndarray, tuple[int, int] | None]:
+    """(H, the (width, height) of the frames it was fitted to, or None where TOWER.json does not say)."""
+    doc = _tower_doc(path)
+    size = doc.get("image_size")
+    if size is not None and not (isinstance(size, list) and len(size) == 2 and all(
+            isinstance(v, int) and not isinstance(v, bool) and 0 < v <= 100_000 for v in size)):
+        raise BadInput(path, "image_size", "expected [width, height] in whole pixels")
+    return _tower_h(path, doc), None if size is None else (size[0], size[1])
+
+
+def _tower_doc(path: str) -> dict:
     try:
         doc = json.loads(Path(path).read_text(encoding="utf-8"))
     except FileNotFoundError:
@@ -48,6 +62,10 @@ def load_tower(path: str) -> np.ndarray:
         raise BadInput(path, None, f"cannot read: {exc.strerror or exc}") from None
     if not isinstance(doc, dict) or "H" not in doc:
         raise BadInput(path, "H", 'missing (expected {"H": 3x3})')
+    return doc
+
+
+def _tower_h(path: str, doc: dict) -> np.ndarray:
     rows = doc["H"]
     # numbers only: numpy would read "1.0" and true as 1.0
     if not (isinstance(rows, list) and all(isinstance(r, list) for r in rows)
@@ -120,7 +138,7 @@ def read_image(path: Path, where: str) -> np.ndarray:
     except OSError as exc:
         raise BadInput(str(path), None, f"cannot be read: {exc.strerror or exc} ({where})") from None
     try:
-        image = opencv_decode(data, str(path), cv2.IMREAD_COLOR, "PNG")
+        image = opencv_decode(data, str(path), cv2.IMREAD_UNCHANGED, "PNG")
     except BadInput as exc:                   # what the codec said, and where the frame is listed
         said = str(exc).removeprefix(f"{path}: ")
         if said.startswith("too large"):
@@ -128,17 +146,35 @@ def read_image(path: Path, where: str) -> np.ndarray:
         raise BadInput(str(path), None, f"cannot read it as an image ({where}): {said}") from None
     if image is None or image.size == 0:
         raise BadInput(str(path), None, f"cannot read it as an image ({where})")
-    return image
+    if image.ndim == 3 and image.shape[2] == 4:
+        image = image[..., :3]
+    if image.dtype != np.uint8:
+        image = cv2.convertScaleAbs(image, alpha=255.0 / max(float(image.max()), 1.0))
+    if image.ndim == 2 or image.shape[2] == 1 or (np.array_equal(image[..., 0], image[..., 1])
+                                                   and np.array_equal(image[..., 1], image[..., 2])):
+        raise BadInput(str(path), None, f"a grey picture ({where}): the float is known by its orange and "
+                                        "blue, give the camera's colour frames")
+    return np.ascontiguousarray(image)
 
 
 def replay(frames: list[tuple[int, float, Path, int]], H: np.ndarray, csv_path: str, *,
-           lost_after_s: float = 4.0) -> list[dict]:
+           lost_after_s: float = 4.0, size: tuple[int, int] | None = None) -> list[dict]:
+    """One entry a frame. A frame the same as the one before (a frozen camera's) is no new sight:
+    a dropout, as the controller's camera driver takes it; ``size``: TOWER.json's image_size."""
     from vision.float_track import FloatTracker, track_frame
     tracker = FloatTracker(lost_after_s=lost_after_s)
-    out = []
+    out, before = [], None
     for frame, t, path, lineno in frames:
-        image = read_image(path, f"{csv_path} line {lineno}")
-        track, fix = track_frame(tracker, t, image, H)
+        where = f"{csv_path} line {lineno}"
+        image = read_image(path, where)
+        if size is not None and tuple(image.shape[1::-1]) != tuple(size):
+            raise BadInput(str(path), None, f"{image.shape[1]}x{image.shape[0]}, but TOWER.json was fitted to "
+                                            f"{size[0]}x{size[1]} frames ({where}): its positions would be metres off")
+        if before is not None and before.shape == image.shape and np.array_equal(before, image):
+            track, fix = tracker.step(t, None), None
+        else:
+            track, fix = track_frame(tracker, t, image, H)
+        before = image
         out.append({"t_s": t, "x_m": track.x_m, "y_m": track.y_m, "heading_rad": track.heading_rad,
                     "state": track.state, "frame": frame, "std_m": track.std_m, "speed_m_s": track.speed_m_s,
                     "confidence": None if fix is None else fix.confidence})
@@ -158,10 +194,10 @@ def track(frames_dir: str, tower_path: str, json_path: str, lost_after_s: float)
     import cv2
     cv2.setNumThreads(1)
     from controller.cli.output_paths import check_outputs
-    H = load_tower(tower_path)
+    H, size = load_tower_file(tower_path)
     frames = read_frames(frames_dir)
     check_outputs({"--json": json_path}, [tower_path, Path(frames_dir) / "frames.csv", *(f[2] for f in frames)])
-    entries = replay(frames, H, str(Path(frames_dir) / "frames.csv"), lost_after_s=lost_after_s)
+    entries = replay(frames, H, str(Path(frames_dir) / "frames.csv"), lost_after_s=lost_after_s, size=size)
     from controller.atomic_files import write_text_atomically
     write_text_atomically(json_path, json.dumps({"track": entries}, indent=1) + "\n")
     states = [e["state"] for e in entries]

@@ -83,3 +83,46 @@ def test_missing_file_and_unwritable_out_exit_2(tmp_path):
     assert result.returncode == 2 and result.stderr.strip().startswith(f"fishfarm: {bad_out}: --out: cannot write")
     made = tmp_path / "new" / "dir" / "TOWER.json"            # a directory missing is made
     assert run("calibrate", "tower", "--points", ref, "--out", made).returncode == 0 and made.exists()
+
+
+@pytest.mark.parametrize("flip", ["x from the other end", "y downwards"])
+def test_a_survey_that_sees_the_pond_mirrored_is_refused_unless_the_camera_mirrors(tmp_path, flip):
+    """No camera above the pond sees it mirrored: an axis measured the other way fits exactly and the
+    robot thrashed on it. A camera set to mirror its picture says so with --mirrored-image."""
+    measured = POND.copy()
+    if flip == "x from the other end":
+        measured[:, 0] = 20.0 - measured[:, 0]
+    else:
+        measured[:, 1] = -measured[:, 1]
+    ref = write(tmp_path / "REF.csv", ref_text(measured, px=pixels(POND)))
+    out = tmp_path / "TOWER.json"
+    result = run("calibrate", "tower", "--points", ref, "--out", out)
+    assert result.returncode == 2 and "mirrored" in result.stderr and result.stderr.count("\n") == 1, result.stderr
+    assert not out.exists()
+    assert run("calibrate", "tower", "--points", ref, "--out", out, "--mirrored-image").returncode == 0
+    assert json.loads(out.read_text())["mirrored_image"] is True
+    right = write(tmp_path / "RIGHT.csv", ref_text(POND))
+    result = run("calibrate", "tower", "--points", right, "--out", tmp_path / "T2.json", "--mirrored-image")
+    assert result.returncode == 2 and "leave it out" in result.stderr
+
+
+def test_a_point_far_off_the_others_fit_is_refused_by_its_line(tmp_path):
+    measured = np.vstack([POND, [[12.0, 3.0], [3.0, 2.0]]])
+    px = pixels(measured)
+    measured[6] = [12.0, 8.0]                              # y mistyped: 8 for 3
+    ref = write(tmp_path / "REF.csv", ref_text(measured, px=px))
+    result = run("calibrate", "tower", "--points", ref, "--out", tmp_path / "T.json")
+    assert result.returncode == 2 and result.stderr.startswith(f"fishfarm: {ref}: line 8: "), result.stderr
+    assert "off the fit" in result.stderr and not (tmp_path / "T.json").exists()
+    assert run("calibrate", "tower", "--points", ref, "--out", tmp_path / "T.json", "--max-error", "50").returncode == 0
+
+
+def test_the_frame_size_is_kept_and_pixels_outside_it_refused(tmp_path):
+    ref = write(tmp_path / "REF.csv", ref_text(POND))
+    out = tmp_path / "TOWER.json"
+    assert run("calibrate", "tower", "--points", ref, "--out", out, "--image-size", "2400x800").returncode == 0
+    assert json.loads(out.read_text())["image_size"] == [2400, 800]
+    result = run("calibrate", "tower", "--points", ref, "--out", tmp_path / "T2.json", "--image-size", "1280x720")
+    assert result.returncode == 2 and "outside a 1280x720 frame" in result.stderr
+    result = run("calibrate", "tower", "--points", ref, "--out", tmp_path / "T3.json", "--image-size", "12x")
+    assert result.returncode == 2 and "--image-size" in result.stderr

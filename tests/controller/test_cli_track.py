@@ -200,3 +200,41 @@ def test_frames_of_another_size_in_one_clip_and_an_empty_clip(capsys, clip, tmp_
     assert main(["track", "--frames", str(d), "--tower", str(clip / "tower.json"), "--json", str(out)]) == 0
     assert json.loads(out.read_text()) == {"track": []}
     np.testing.assert_equal(capsys.readouterr().err, "")
+
+
+def test_a_frozen_camera_s_repeated_frame_is_a_dropout_not_a_fresh_fix(tmp_path):
+    """One picture named at later and later times (a camera that froze): no fix is taken from it
+    again, so the track coasts and is lost, as the controller's camera driver takes it."""
+    d = write_clip(tmp_path / "c", n=6, hidden=())
+    rows = (d / "frames.csv").read_text().splitlines()
+    rows += [f"{6 + k},{5000.0 + (6 + k) / FPS!r},f005.png" for k in range(20)]   # frame 5, again and again
+    (d / "frames.csv").write_text("\n".join(rows) + "\n")
+    out = tmp_path / "OUT.json"
+    assert main(["track", "--frames", str(d), "--tower", str(d / "tower.json"), "--json", str(out),
+                 "--lost-after", "1"]) == 0
+    track = json.loads(out.read_text())["track"]
+    assert [e["state"] for e in track[:6]] == ["tracking"] * 6
+    assert all(e["state"] != "tracking" and e["confidence"] is None for e in track[6:])
+    assert track[-1]["state"] == "lost"
+
+
+def test_frames_of_another_size_than_tower_json_was_fitted_to_are_refused(tmp_path, capsys):
+    d = write_clip(tmp_path / "c", n=3, hidden=())
+    (d / "tower.json").write_text(json.dumps({"H": VIEW.H.tolist(), "image_size": [1280, 720]}))
+    refused(capsys, ["--frames", d, "--tower", d / "tower.json", "--json", tmp_path / "o.json"],
+            d / "f000.png", "640x360, but TOWER.json was fitted to 1280x720", tmp_path / "o.json")
+    (d / "tower.json").write_text(json.dumps({"H": VIEW.H.tolist(), "image_size": [640, 360]}))
+    ok = ["track", "--frames", str(d), "--tower", str(d / "tower.json"), "--json", str(tmp_path / "o.json")]
+    assert main(ok) == 0
+    (d / "tower.json").write_text(json.dumps({"H": VIEW.H.tolist(), "image_size": [640.5, True]}))
+    refused(capsys, ["--frames", d, "--tower", d / "tower.json", "--json", tmp_path / "o2.json"],
+            d / "tower.json", "image_size", tmp_path / "o2.json")
+
+
+@pytest.mark.parametrize("kind", ["grey", "grey as colour"])
+def test_a_grey_frame_is_refused_not_read_as_no_float(tmp_path, capsys, kind):
+    d = write_clip(tmp_path / "c", n=3, hidden=())
+    grey = cv2.cvtColor(cv2.imread(str(d / "f001.png")), cv2.COLOR_BGR2GRAY)
+    cv2.imwrite(str(d / "f001.png"), grey if kind == "grey" else cv2.cvtColor(grey, cv2.COLOR_GRAY2BGR))
+    refused(capsys, ["--frames", d, "--tower", d / "tower.json", "--json", tmp_path / "o.json"],
+            d / "f001.png", "a grey picture", tmp_path / "o.json")

@@ -113,17 +113,50 @@ def test_a_stray_fix_far_away_is_held_out():
 
 @pytest.mark.parametrize("reinit_after", [1, 3, 5])
 def test_gating_cannot_lock_out_a_float_that_really_moved(reinit_after):
-    """The float is put back elsewhere by hand: after reinit_after agreeing fixes it is tracked there."""
+    """The float swerves beyond the gate (faster than the model foresaw, within what it can do):
+    after reinit_after agreeing fixes it is tracked there."""
     rng = np.random.default_rng(5)
     tr = FloatTracker(reinit_after=reinit_after)
     for t, fix in fixes(np.arange(0, 5, 0.04), rng):
         tr.step(t, fix)
+    x0, y0, _ = motion(4.96)
     for k in range(reinit_after + 3):
-        tk = tr.step(5.0 + 0.04 * k, FloatFix(3.0 + 0.01 * k, 8.0, 1.0, 1.0))
+        x = x0 + 0.3 + 0.01 * k                            # 0.3 m aside, in 0.04 s steps
+        tk = tr.step(5.0 + 0.04 * k, FloatFix(x, y0 + 0.3, 1.0, 1.0))
         if k + 1 < reinit_after:
             assert tk.state == "predicted", k
         else:
-            assert tk.state == "tracking" and abs(tk.x_m - (3.0 + 0.01 * k)) < 0.02, (k, tk)
+            assert tk.state == "tracking" and abs(tk.x_m - x) < 0.02, (k, tk)
+
+
+@pytest.mark.parametrize("hidden_s", [0.3, 1.5, 3.5])
+def test_a_spare_float_far_off_never_takes_the_track_while_ours_is_hidden(hidden_s):
+    """A second float lies still 11 m off; ours is hidden (a bird) for hidden_s: the spare agrees
+    with itself but is out of ours' reach, so the track coasts on and takes ours back."""
+    tr = FloatTracker(lost_after_s=4.0)
+    for k in range(100):
+        tr.step(k * 0.04, FloatFix(4.0 + 0.004 * k, 0.0, 0.0, 1.0))
+    t = 4.0
+    while t < 4.0 + hidden_s:
+        tk = tr.step(t, FloatFix(15.0, 7.0, 2.0, 1.0))    # only the spare is seen
+        assert tk.state == "predicted" and abs(tk.x_m - 15.0) > 5.0, (t, tk)
+        t += 0.04
+    tk = tr.step(t, FloatFix(4.4 + 0.1 * (t - 4.0), 0.0, 0.0, 1.0))
+    assert tk.state == "tracking" and abs(tk.x_m - 4.4 - 0.1 * (t - 4.0)) < 0.05
+
+
+def test_a_float_put_back_elsewhere_by_hand_is_taken_there_once_the_track_is_lost():
+    rng = np.random.default_rng(5)
+    tr = FloatTracker(lost_after_s=4.0)
+    for t, fix in fixes(np.arange(0, 5, 0.04), rng):
+        tr.step(t, fix)
+    t, states = 5.0, []
+    while t < 9.2:
+        states.append(tr.step(t, FloatFix(30.0, 8.0, 1.0, 1.0)).state)   # beyond 2 m/s from 4.96 s
+        t += 0.04
+    assert "tracking" in states and set(states[:states.index("tracking")]) <= {"predicted", "lost"}
+    assert states.index("tracking") * 0.04 >= 4.0 - 0.05
+    assert tr.step(t, FloatFix(30.0, 8.0, 1.0, 1.0)).x_m == pytest.approx(30.0, abs=0.05)
 
 
 def test_scattered_strays_do_not_restart_the_track():

@@ -460,3 +460,41 @@ def test_a_camera_that_has_not_opened_yet_holds_the_cleaner_in_fault_until_its_f
     before, after, alarm, states = run(main())
     assert before == "fault" and after == "cleaning"
     assert alarm == [1, 0] and states[-2:] == ["localising", "cleaning"]
+
+
+def test_a_camera_gone_leaves_no_stale_tracking_pose_published(tmp_path):
+    """The camera stalled: the thrusters stop, and what is published coasts with the farm clock
+    (predicted, then lost without a position), not "tracking" at the last pose for as long as it lasts."""
+    async def main():
+        async with Rig(tmp_path, state="localising", mission="clean") as r:
+            await r.frames(poses(PATH[:4]))
+            assert r.cleaner.state == "cleaning" and r.published[-1][1]["tracking"] == "tracking"
+            r.camera.go_down("no frame in 2 s")
+            await until(lambda: r.cleaner.state == "fault")
+            await until(lambda: r.cleaner.snapshot()["tracking"] == "predicted")
+            r.clock.advance(3.0)                                   # past the tracker's lost_after_s
+            await until(lambda: r.cleaner.snapshot()["tracking"] == "lost")
+            snap = [p for k, p in r.published if k == "cleaner/state"][-1]
+            assert snap["tracking"] == "lost" and snap["x_m"] is None and snap["y_m"] is None
+            r.camera.down = None
+            await r.frames(poses(PATH[4:8]))
+            assert r.cleaner.snapshot()["tracking"] == "tracking" and r.cleaner.state == "cleaning"
+    run(main())
+
+
+class SizedPose(tuple):
+    """A ScriptedCamera picture (the true pose) that says its size, as a frame's image does."""
+    shape = (360, 640, 3)
+
+
+def test_frames_of_another_size_than_tower_json_s_are_a_fault_not_steered_on(tmp_path):
+    async def main():
+        r = Rig(tmp_path, state="localising", mission="clean")
+        r.cleaner.frame_size = (1280, 720)
+        async with r:
+            r.camera.feed([SizedPose(p) for p in poses(PATH[:4])])
+            await until(lambda: r.cleaner.state == "fault")
+            assert r.thrusters.drives() == [] or all(d == (0.0, 0.0) for d in r.thrusters.drives())
+            [alarm] = [a for a in r.store.alarms() if a["source"] == "device/tower"]
+            assert "640x360" in alarm["text"] and "1280x720" in alarm["text"]
+    run(main())
