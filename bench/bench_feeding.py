@@ -61,7 +61,7 @@ def latency() -> dict:
     starts = {r["tag"]: r["t_start"] for r in farm.truth() if r["kind"] == "auger_run"}
     with farm.ledger() as db:
         rows = db.execute("SELECT d.t AS raised, f.tag, f.seq FROM feed f JOIN demand d ON d.id = f.demand_id "
-                          "WHERE f.phase = 'done' ORDER BY f.seq").fetchall()
+                          "WHERE f.phase = 'done' AND d.source = 'demand' ORDER BY f.seq").fetchall()
     # the first feed includes the carriage's trip from the food box to the tank: leave it out
     lat_ms = [1000.0 * (starts[r["tag"]] - r["raised"]) for r in rows[1:] if r["tag"] in starts]
     if not lat_ms:

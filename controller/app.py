@@ -321,7 +321,7 @@ class Controller(Stopping):
 
     def _requeue_open_demands(self) -> None:
         for row in self.store.open_demands():
-            self.robot.on_demand(Job(row["tank"], row["t"], row["id"]))
+            self.robot.on_demand(Job(row["tank"], row["t"], row["id"], row["source"], row["grams"]))
 
     # -- loops ------------------------------------------------------------------
     async def _contacts_loop(self) -> None:

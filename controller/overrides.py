@@ -299,8 +299,12 @@ class Overrides:
         grams = robot.dispensing.portion(cmd.tank, cmd.grams)
         if grams <= 0:
             raise Refused(f"tank {cmd.tank} has had its ration today")
+        now = self.c.clock.now()
+        # in the ledger before it is accepted: a stop before it is served loses nothing (the restart
+        # serves it, as the fish's demands), and the same request id sent again is truly done once
+        demand_id = self.c.store.add_demand(cmd.tank, now, 0.0, source="operator", grams=grams)
         log.warning("feed %s %.0f g by %s: %s", cmd.tank, grams, by or cmd.operator, cmd.reason)
-        robot.on_demand(Job(cmd.tank, self.c.clock.now(), None, "operator", grams))
+        robot.on_demand(Job(cmd.tank, now, demand_id, "operator", grams))
         return {"ok": True, "grams": round(grams, 1)}
 
     async def ration(self, payload, by: str | None = None) -> dict:

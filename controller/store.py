@@ -127,6 +127,12 @@ MIGRATIONS = [
     # 9 -> 10: what the last start's config said of what the ledger's past is read by (stock,
     # species, the zone, the SCADA's layout): a change is logged at start (controller.ledger_config)
     MIGRATION_10,
+    # 10 -> 11: an operator's feed is a demand of its own (source 'operator', its grams): accepted,
+    # it outlives a stop and is served after the restart, as the fish's demands are
+    """
+    ALTER TABLE demand ADD COLUMN source TEXT NOT NULL DEFAULT 'demand';
+    ALTER TABLE demand ADD COLUMN grams REAL;
+    """,
 ]
 
 # every farm time the ledger keeps (tests/controller/test_store.py checks no table's is missed)
@@ -322,9 +328,12 @@ class Store(LedgerWrites, Records, CleanerRecords, SurveyRecords, RequestRecords
         self._write("INSERT OR REPLACE INTO farm_clock (id, t) VALUES (1, ?)", (t,))
 
     # -- demands --------------------------------------------------------------
-    def add_demand(self, tank: str, t: float, rate_hz: float) -> int:
-        return self._write("INSERT INTO demand (tank, t, rate_hz) VALUES (?, ?, ?)",
-                           (tank, t, rate_hz)).lastrowid
+    def add_demand(self, tank: str, t: float, rate_hz: float, source: str = "demand",
+                   grams: float | None = None) -> int:
+        """A demand to serve: the fish's (``rate_hz`` their contacts) or an operator's feed
+        (``source`` 'operator', ``grams`` the portion asked, rate 0)."""
+        return self._write("INSERT INTO demand (tank, t, rate_hz, source, grams) VALUES (?, ?, ?, ?, ?)",
+                           (tank, t, rate_hz, source, grams)).lastrowid
 
     def close_demand(self, demand_id: int, outcome: str, feed_id: str | None = None) -> None:
         self._write("UPDATE demand SET outcome = ?, feed_id = ? WHERE id = ?", (outcome, feed_id, demand_id))

@@ -100,7 +100,8 @@ def service_against_demands(v: Verdict, feeds, demand_t: dict, since: float | No
     ``stalls``: farm spans in which the machine stood still (hil_tests/stalls.py) — a wait that is
     within 60 s once they are taken out is counted in ``stalled``, not failed."""
     for f in feeds:
-        if f["demand_id"] is not None and f["phase"] != "aborted":
+        # (an operator's feed has a demand row of its own, not the fish's: not held to their 60 s)
+        if f["demand_id"] in demand_t and f["phase"] != "aborted":
             if since is not None and demand_t[f["demand_id"]] < since:
                 continue
             raised = demand_t[f["demand_id"]]
@@ -133,7 +134,7 @@ def judge(db, truth: list[dict], end_t: float, since: float | None = None,
     v = Verdict()
     episodes = episodes_by_tank(truth, end_t)
     v.episodes = sum(map(len, episodes.values()))
-    demands = db.execute("SELECT id, tank, t, outcome FROM demand ORDER BY t").fetchall()
+    demands = db.execute("SELECT id, tank, t, outcome FROM demand WHERE source = 'demand' ORDER BY t").fetchall()
     feeds = db.execute("SELECT * FROM feed ORDER BY seq").fetchall()
     v.demands, v.feeds = len(demands), len(feeds)
     demand_t = {d["id"]: d["t"] for d in demands}

@@ -228,10 +228,12 @@ def judge(farm: HilFarm, up: float, end: float) -> dict:
     spans = visits((farm.dir / "controller.log").read_text())
     waits, during, surveyed = [], [], []
     db = store.db
-    raised = {r["id"]: r["t"] for r in db.execute("SELECT id, t FROM demand")}
+    raised = {r["id"]: r["t"] for r in db.execute("SELECT id, t FROM demand WHERE source = 'demand'")}
     heard = heard_late(farm)
     served = "SELECT demand_id, t_intent, tank FROM feed WHERE demand_id IS NOT NULL AND phase != 'aborted'"
     for f in db.execute(served):
+        if f["demand_id"] not in raised:             # an operator's feed: no fish waited for it
+            continue
         t0, t1 = raised[f["demand_id"]], f["t_intent"]
         waits.append(t1 - t0)
         if any(a < t1 and t0 < b for a, b in spans):   # less the time it took to be heard (raised)

@@ -60,6 +60,10 @@ def test_a_feed_sent_again_is_asked_of_the_robot_once(farm):
     again = send(farm, "feed", payload)
     assert again == {**first, "repeat": True}
     assert [c for c in farm.robot.calls if c[0] == "on_demand"] == [("on_demand", "T1", 30.0, "operator")]
+    # in the ledger as a demand of its own before it was accepted: a restart serves it
+    # (hil_tests/test_operator_feed_restart.py)
+    assert [(r["tank"], r["source"], r["grams"], r["outcome"]) for r in farm.store.open_demands()] == [
+        ("T1", "operator", 30.0, "open")]
 
 
 def test_two_copies_in_flight_at_once_are_carried_out_once(farm):

@@ -199,7 +199,7 @@ def test_a_version_1_ledger_is_migrated_in_place(tmp_path):
     db.close()
     s = Store(path)
     try:
-        assert s.schema_version == len(MIGRATIONS) == 10
+        assert s.schema_version == len(MIGRATIONS) == 11
         [f] = s.open_intents()
         assert (f.id, f.tag, f.hopper_before, f.settled_by) == ("a", 7, None, None)
         assert intent(s).tag == 8 and intent(s).seq == 9          # the sequence goes on
