@@ -103,6 +103,9 @@ class Controller(Stopping):
         self.bus = Bus(cfg.bus, cfg.site)
         self.alarms = Alarms(self.store, self.bus.publish, self.clock)
         if self.sim is not None:
+            # a new simulator runs: the last one's death (alarms reload across restarts) is over,
+            # and this one's, should it come, is raised and logged anew, not counted under the old
+            self.alarms.clear("sim", "simulated devices running again", kind="exited")
             self.tasks.append(asyncio.create_task(self._watch_sim()))
         self.rations = Rations(cfg, self.species, self.store)
         self.surveys = SurveyWatch(cfg, self.store, self.rations, self.alarms, self.bus.publish)

@@ -106,9 +106,11 @@ class RunningController:
         self.sim_dir: Path | None = None
         self.sim_start: str | None = None
         self.exit_s: float | None = None
+        self.starts = 0                        # on this ledger and log
 
     # -- the process ----------------------------------------------------------
     def start(self) -> None:
+        self.starts += 1
         env = {**os.environ, "PYTHONUNBUFFERED": "1", "FISHFARM_SIM_TRUTH": str(self.truth)}
         with open(self.log_path, "ab") as log:
             # a session of its own: a signal to its process group is what a terminal's Ctrl-C sends
@@ -130,8 +132,8 @@ class RunningController:
             time.sleep(0.01)
 
     def note_sim(self) -> None:
-        self.wait_log(SIM_PID.pattern)
-        self.sim_pid = int(SIM_PID.search(self.log())[1])
+        self.wait_log(SIM_PID.pattern, count=self.starts)          # this start's (a restart's log holds the last's)
+        self.sim_pid = int(SIM_PID.findall(self.log())[-1])
         self.sim_start = proc_start(self.sim_pid)
         with open(f"/proc/{self.sim_pid}/cmdline", "rb") as fh:     # its files' directory
             args = fh.read().decode().split("\0")
@@ -181,9 +183,9 @@ class RunningController:
             self.wait_auger_running()
         elif self.phase == "sim_died":
             self.note_sim()
-            self.wait_log(r"controller for site")
+            self.wait_log(r"controller for site", count=self.starts)
             os.kill(self.sim_pid, signal.SIGKILL)          # what a Ctrl-C did to it when it shared our group
-            self.wait_log(r"sim: simulated devices exited")
+            self.wait_log(r"sim: simulated devices exited", count=self.starts)
         else:
             raise ValueError(self.phase)
 

@@ -4,6 +4,7 @@ the auger it was running; a second signal ends it at once."""
 import asyncio
 import json
 import logging
+import re
 import signal
 import sqlite3
 import subprocess
@@ -115,6 +116,24 @@ def test_a_dead_simulator_is_reaped_and_alarmed_at_once(controller):
     assert controller.proc.poll() is None
     rc = controller.wait_exit(controller.send(signal.SIGTERM))
     assert rc == 0 and controller.exit_s < LIMIT_S
+
+
+@pytest.mark.parametrize("controller", ["sim_died"], indirect=True)
+def test_a_restart_clears_the_dead_simulator_s_alarm_and_a_second_death_is_raised_anew(controller):
+    """Alarms reload across restarts: the last simulator's death stood on a new, working one, and
+    that one's death was only counted under it (no log line, no publish)."""
+    controller.reach()
+    assert controller.wait_exit(controller.send(signal.SIGTERM)) == 0
+    controller.reach()                          # the same ledger: a new simulator, killed again
+    assert len(re.findall(r"sim: simulated devices exited", controller.log())) == 2
+    assert "sim: simulated devices running again" in controller.log()
+    db = sqlite3.connect(f"file:{controller.db}?mode=ro", uri=True)
+    try:
+        rows = db.execute("SELECT active FROM alarm WHERE source = 'sim' ORDER BY id").fetchall()
+    finally:
+        db.close()
+    assert [r[0] for r in rows] == [1, 0, 1]   # raised, cleared by the restart, raised anew
+    assert controller.wait_exit(controller.send(signal.SIGTERM)) == 0
 
 
 # -- retry loops, in-process: they end when the controller stops and alarm once -------------------
