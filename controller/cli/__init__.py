@@ -115,12 +115,17 @@ def _terminated(signum, _frame) -> None:
 NATIVE_LOGS = {"OPENCV_LOG_LEVEL": "ERROR", "OPENCV_FFMPEG_LOGLEVEL": "-8"}     # -8: AV_LOG_QUIET
 
 
+def _early_handler():
+    from controller.launch import _early  # the launcher's, while the command was imported
+    return _early
+
+
 def entry() -> None:
     for name, value in NATIVE_LOGS.items():     # before any command imports cv2 (the controller,
         os.environ.setdefault(name, value)      # its simulator and survey workers all start here)
     signal.signal(signal.SIGTERM, _terminated)
-    if signal.getsignal(signal.SIGINT) is signal.default_int_handler:    # not a background job's ignored one
-        signal.signal(signal.SIGINT, _interrupted)
+    if signal.getsignal(signal.SIGINT) in (signal.default_int_handler, _early_handler()):
+        signal.signal(signal.SIGINT, _interrupted)      # (not a background job's ignored one)
     sys.exit(main())
 
 

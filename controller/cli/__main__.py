@@ -1,3 +1,3 @@
-from controller.cli import entry
+from controller.launch import entry
 
 entry()

@@ -9,7 +9,9 @@ import signal
 import sqlite3
 import subprocess
 import sys
+import time
 import tomllib
+from pathlib import Path
 
 import pytest
 import tomli_w
@@ -255,3 +257,60 @@ def test_the_hil_harness_fails_a_run_whose_controller_needs_sigkill(tmp_path, mo
         h.stop()
     assert h.ctl_proc.returncode == -signal.SIGKILL
     h.ctl_proc.stdout.close()
+
+
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM], ids=["SIGINT", "SIGTERM"])
+@pytest.mark.parametrize("after_s", [0.0, 0.01, 0.03, 0.06, 0.1, 0.2])
+def test_a_signal_while_the_command_is_still_importing_is_aborted_in_one_line(tmp_path, sig, after_s):
+    """``fishfarm`` as installed: a Ctrl-C in its first tenth of a second (click and the command's
+    modules still importing) printed a 17-line KeyboardInterrupt traceback and exited -2."""
+    fishfarm = str(Path(sys.executable).with_name("fishfarm"))
+    p = subprocess.Popen([fishfarm, "report", "--config", str(tmp_path / "none.toml"), "--tank", "T1"],
+                         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    # from the launcher's first line on (before it, the interpreter is still starting: its own
+    # default actions, out of any program's reach): SIGTERM caught is the mark, the interpreter
+    # catches SIGINT from the start
+    deadline = time.monotonic() + 10
+    while not _catches(p.pid, signal.SIGTERM) and p.poll() is None:
+        assert time.monotonic() < deadline
+        time.sleep(0.0005)
+    time.sleep(after_s)
+    p.send_signal(sig)
+    _, err = p.communicate(timeout=30)
+    assert "Traceback" not in err, err
+    assert p.returncode in (128 + sig, 2), (p.returncode, err)    # 2: it ran to its own refusal first
+    assert len(err.strip().splitlines()) <= 1, err       # "aborted", its own refusal, or quiet
+
+
+def _catches(pid: int, sig: int) -> bool:
+    try:
+        with open(f"/proc/{pid}/status") as fh:
+            caught = next(int(line.split()[1], 16) for line in fh if line.startswith("SigCgt:"))
+    except (OSError, StopIteration):
+        return False
+    return bool(caught >> (sig - 1) & 1)
+
+
+def test_the_installed_command_takes_its_signals_before_it_imports_click():
+    """Deterministically, what the timed test above samples: when ``fishfarm`` (its installed entry
+    point, whatever module that names) first imports click, SIGINT and SIGTERM are already its own."""
+    probe = (
+        "import builtins, signal, sys\n"
+        "from importlib.metadata import entry_points\n"
+        "[ep] = [e for e in entry_points(group='console_scripts') if e.name == 'fishfarm']\n"
+        "real, seen = builtins.__import__, []\n"
+        "def spy(name, *a, **k):\n"
+        "    if name == 'click' and not seen:\n"
+        "        seen.append([getattr(signal.getsignal(s), '__name__', str(signal.getsignal(s)))\n"
+        "                     for s in (signal.SIGINT, signal.SIGTERM)])\n"
+        "    return real(name, *a, **k)\n"
+        "builtins.__import__ = spy\n"
+        "sys.argv = ['fishfarm', '--help']\n"
+        "try:\n"
+        "    ep.load()()\n"
+        "except SystemExit:\n"
+        "    pass\n"
+        "print(seen, file=sys.stderr)\n")
+    r = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, timeout=60)
+    seen = r.stderr.strip().splitlines()[-1]
+    assert seen == "[['_early', '_early']]", r.stderr
