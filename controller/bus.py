@@ -220,14 +220,19 @@ class Bus(Serving):
     # ------------------------------------------------------------ queries (tools)
 
     def query(self, suffix: str, payload: dict | None = None, *, timeout_s: float = 2.0) -> list[dict]:
-        """Blocking get on ``farm/{site}/{suffix}``: every reply as a dict (an error reply or an
-        unreadable one becomes ``{"ok": false, "error": ...}``). For tools and threads, not the loop."""
+        """Blocking get on ``farm/{site}/{suffix}``: every reply as a dict (an unreadable one becomes
+        ``{"ok": false, "error": ...}``). For tools and threads, not the loop. Zenoh's own error
+        replies are no answer and are left out: our servers refuse with a JSON reply, never an error
+        one, and Zenoh says "Timeout" so when the answer did not come back in time — read as the
+        controller's refusal, an override it had carried out was reported refused (and sent again
+        without its id, done twice), the e-stop it had latched "not done"."""
         data = encode(payload) if payload is not None else None
         replies = []
         for reply in self.session.get(self.key(suffix), payload=data, timeout=timeout_s,
                                       encoding=zenoh.Encoding.APPLICATION_JSON):
             if reply.ok is None:
-                replies.append({"ok": False, "error": reply.err.payload.to_bytes().decode("utf-8", "ignore")})
+                log.debug("farm/%s/%s: Zenoh's error reply %r taken as no answer", self.site, suffix,
+                          reply.err.payload.to_bytes().decode("utf-8", "ignore"))
                 continue
             try:
                 replies.append(decode(reply.ok.payload))

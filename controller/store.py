@@ -426,6 +426,17 @@ class Store(LedgerWrites, Records, CleanerRecords, SurveyRecords, RequestRecords
         row = self.db.execute("SELECT * FROM feed WHERE id = ?", (feed_id,)).fetchone()
         return Feed(**dict(row))
 
+    def rebook_late(self, tag: int, grams: float, t: float, note: str) -> Feed | None:
+        """The newest feed of ``tag``, closed ``aborted`` (its START given up as never landed), booked
+        done with the grams the device counted for that tag's run after all; None when it was not."""
+        with self.transaction() as db:
+            row = db.execute("SELECT id, phase FROM feed WHERE tag = ? ORDER BY seq DESC LIMIT 1", (tag,)).fetchone()
+            if row is None or row["phase"] != "aborted":
+                return None
+            db.execute("UPDATE feed SET phase = 'done', grams = ?, t_closed = ?, note = ? WHERE id = ?",
+                       (grams, t, note, row["id"]))
+        return self.feed(row["id"])
+
     def open_intents(self) -> list[Feed]:
         return [Feed(**dict(r)) for r in
                 self.db.execute("SELECT * FROM feed WHERE phase = 'intent' ORDER BY seq")]

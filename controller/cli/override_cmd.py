@@ -109,14 +109,17 @@ def _ask(connect, user, password, site, timeout_s, suffix, payload, ca=None, aga
         raise BadInput("--connect", None, str(exc)) from None
     try:
         replies = bus.query(suffix, payload, timeout_s=timeout_s)
-        # access control drops a refused query silently: tell it from an absent controller by
-        # asking for status, which every role may
-        refused = not replies and suffix != "status" and bool(bus.query("status", timeout_s=timeout_s))
+        # access control (a deployment's logins) drops a refused query silently: tell it from an
+        # absent controller by asking for status, which every role may. A controller that answered
+        # status but not in time is as likely (busy, a slow link): both are said, and the id
+        refused = (not replies and user is not None and suffix != "status"
+                   and bool(bus.query("status", timeout_s=timeout_s)))
     finally:
         bus.close()
     if refused:
-        who = f"user {user!r}" if user else "this session"
-        raise BadInput(f"farm/{site}/{suffix}", None, f"refused: {who} may not send this (access control)")
+        raise BadInput(f"farm/{site}/{suffix}", None,
+                       f"no reply within {timeout_s:g} s while status answers: user {user!r} may not send this "
+                       f"(access control), or the controller answered too late{again}")
     if not replies:
         raise BadInput(f"farm/{site}/{suffix}", None,
                        f"no reply within {timeout_s:g} s (no controller serving this site, or not permitted)"

@@ -110,8 +110,22 @@ class Dispensing:
                                    f"(cycles {cycles} -> {state.cycles}, total {total:.1f} g -> "
                                    f"{state.total_grams:.1f} g): power cut or new PLC; open intents are "
                                    "held as suspect", "critical")
+            elif state.cycles != cycles:
+                self._landed_late(state)
         self._seen = seen
         self.store.see_counters(self.dispenser.name, state.cycles, state.total_grams, self.clock.now())
+
+    def _landed_late(self, state) -> None:
+        """A run finished under the tag of a feed closed as never started: its START was held on a
+        stalled link (a TCP relay, a Modbus gateway's queue) past the wait a restart gives it, and
+        landed. Booked done with the device's grams: the food went in (where the chute was then)."""
+        note = (f"its START landed late, after it was given up as never started: {state.last_grams:.1f} g "
+                "by the dispenser's counters, into wherever the chute was then")
+        late = self.store.rebook_late(state.last_tag, state.last_grams, self.clock.now(), note)
+        if late is not None:
+            log.warning("feed %s for %s (tag %d): %s", late.id, late.tank, late.tag, note)
+            self._publish_feed(late)
+            self.publish_ration(late.tank)
 
     async def run(self, tank: str, grams: float, source: str, demand_id: int | None, raised_t: float,
                   on_intent=None):

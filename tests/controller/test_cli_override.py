@@ -57,9 +57,14 @@ def controller():
         received.append(("feed", payload))
         return {"ok": False, "error": "feeder is in manual"}
 
+    async def mortality(payload):              # carried out, its answer later than the tool waits
+        received.append(("mortality", payload))
+        await asyncio.sleep(1.5)
+        return {"ok": True, "stock": {"T3": 995}}
+
     async def status(payload):
         return SNAPSHOT
-    bus.overrides({"estop": estop, "feed": feed})
+    bus.overrides({"estop": estop, "feed": feed, "mortality": mortality})
     bus.queryable("status", status, lenient=True)
     yield endpoint, received
     bus.close()
@@ -143,6 +148,19 @@ def test_bad_input_exits_2_with_one_line(controller, args, names):
     assert proc.returncode == 2
     assert names in one_line_error(proc)
     assert received == []
+
+
+def test_an_answer_later_than_the_timeout_is_no_reply_not_a_refusal(controller):
+    """Zenoh ends a get past its timeout with an error reply ("Timeout"): it was printed as the
+    controller's refusal (exit 1), so the operator sent a mortality it had booked again without its
+    id (twice booked), and an e-stop it had latched was read as not done."""
+    endpoint, received = controller
+    received.clear()
+    proc = fishfarm("override", "mortality", "tank=T3", "count=5", "--connect", endpoint, "--timeout", "0.5")
+    assert proc.returncode == 2, (proc.returncode, proc.stdout, proc.stderr)
+    said = one_line_error(proc)
+    assert "no reply within 0.5 s" in said and "add request=" in said and "Timeout" not in said
+    assert [c for c, _ in received] == ["mortality"]
 
 
 def test_nobody_listening_exits_2_saying_so():

@@ -241,6 +241,37 @@ def test_restart_aborts_an_intent_whose_run_never_started(tmp_path, runs_before)
     run(main())
 
 
+def test_a_start_that_lands_after_its_intent_was_given_up_is_booked_when_the_counters_show_it(tmp_path):
+    """A START held on a stalled link (a TCP relay, a Modbus gateway's queue) past the wait a restart
+    gives it was closed "aborted, never started"; it then landed and the auger ran. The run the
+    counters show under that tag is booked done with its grams, not lost from the ledger."""
+    async def main():
+        async with rig(tmp_path, run=False) as r:
+            await r.dispenser.run_auger(0.5, 60_000)            # a count above 0: "never started" is believable
+            await r.until(lambda: r.sim.physics.cycles == 1, what="run counted")
+            state = await r.dispenser.read()
+            intent = r.store.add_intent(tank="T1", date=r.rations.date(r.clock.now()), t=r.clock.now(),
+                                        target_g=50, run_s=4, cycles_before=state.cycles, source="demand")
+            robot = r.new_robot()
+            r.robot = robot
+            r.task = asyncio.create_task(robot.run())
+            await r.until(lambda: robot.state == "idle")
+            [feed] = r.store.feeds()
+            assert feed.phase == "aborted"
+            await r.dispenser.run_auger(2.0, intent.tag)        # ... and now its START lands
+            await r.until(lambda: r.sim.physics.cycles == 2, what="the late run counted")
+            counted = await r.dispenser.read()
+            assert counted.last_tag == intent.tag
+            r.demand("T2")                                     # the next dispense reads the counters
+            await r.until(lambda: len(r.store.feeds()) == 2 and r.store.feeds()[1].phase == "done",
+                          what="the next feed")
+            late = r.store.feed(feed.id)
+            assert late.phase == "done" and "landed late" in late.note
+            assert late.grams == pytest.approx(counted.last_grams) and late.grams > 0
+            assert r.sim.physics.cycles == 3 and [f.phase for f in r.store.feeds()] == ["done", "done"]
+    run(main())
+
+
 def test_a_faster_auger_than_guessed_still_keeps_the_ration(tmp_path):
     async def main():
         # the config guesses 12 g/s; this auger delivers 15 g/s: the first portions must leave room
