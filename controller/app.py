@@ -377,7 +377,9 @@ class Controller(Stopping):
             for count in self.contacts_carried:
                 self.contacts_carried[count] += getattr(device, count, 0)
             self.contacts = fresh
-            log.info("%s reconnected after %d attempt(s)", name, attempt + 1)
+            # debug: a port that opens but stays silent is reopened every few seconds for as long as
+            # it lasts; the recovery is said once, by the first good read clearing the alarm
+            log.debug("%s reopened after %d attempt(s)", name, attempt + 1)
             return
 
     def _on_filter_event(self, event) -> None:

@@ -314,3 +314,30 @@ def test_the_installed_command_takes_its_signals_before_it_imports_click():
     r = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, timeout=60)
     seen = r.stderr.strip().splitlines()[-1]
     assert seen == "[['_early', '_early']]", r.stderr
+
+
+def test_a_hub_that_opens_but_stays_silent_is_reopened_quietly(tmp_path, monkeypatch, caplog):
+    """A pty whose far end stalled: each reopen succeeds, its reads go silent, and it is reopened
+    again every few seconds for as long as that lasts. "reconnected" at INFO each time read as a
+    recovery that never was (~1,000 lines an hour): the loss and the recovery are the alarm's."""
+    controller, _ = in_process(tmp_path, monkeypatch)
+    caplog.set_level(logging.DEBUG, "fishfarm")
+
+    class Opens:
+        name = "contacts"
+
+        async def open(self):
+            pass
+
+        async def close(self):
+            pass
+    monkeypatch.setattr(controller, "_new_driver", lambda device: Opens())
+
+    async def main():
+        for _ in range(5):
+            await controller._reopen(controller.devices["contacts"])
+    asyncio.run(asyncio.wait_for(main(), 30))
+    controller.store.close()
+    loud = [r.getMessage() for r in caplog.records if r.levelno >= logging.INFO and "contacts" in r.getMessage()]
+    assert loud == [], loud
+    assert sum("reopened" in r.getMessage() for r in caplog.records) == 5
