@@ -30,4 +30,4 @@ def test_a_version_4_ledger_gains_the_cleaner_tables(tmp_path):
     db.executescript(";".join(MIGRATIONS[:4]) + "; PRAGMA user_version = 4;")
     db.close()
     store = Store(tmp_path / "old.db")
-    assert store.schema_version == len(MIGRATIONS) == 10 and store.cleaner_progress() is None
+    assert store.schema_version == len(MIGRATIONS) == 11 and store.cleaner_progress() is None

@@ -411,6 +411,20 @@ def test_a_late_answer_from_a_worker_given_up_on_is_not_counted_twice(rendered, 
     assert gone.is_set() and len(threads) >= 1
 
 
+def heard(measure, workers: int) -> None:
+    """Wait until the survey stop's measure has heard ``workers`` workers' tokens."""
+    deadline = time.monotonic() + WAIT_S
+    while measure.in_flight() != workers * PER_WORKER:
+        assert time.monotonic() < deadline, measure.in_flight()
+        time.sleep(0.01)
+
+
+def honest_reply(local, header) -> bytes:
+    """A worker's reply with the fish the local runner measured in that frame."""
+    fish = [wire.fish_to_json(f) for f in local[header["frame"]].fish]
+    return wire.encode_reply({"ok": True, "job": header["job"], "frame": header["frame"], "fish": fish, "timings": {}})
+
+
 def test_pairs_sent_one_call_each_as_the_survey_stop_does_are_shared_by_the_workers(rendered, hub):
     items, calib, local, _ = rendered
     session, endpoint, site = hub
@@ -419,18 +433,13 @@ def test_pairs_sent_one_call_each_as_the_survey_stop_does_are_shared_by_the_work
     def honest(name):
         def answer(header):
             served[name].append(header["frame"])
-            fish = [wire.fish_to_json(f) for f in local[header["frame"]].fish]
-            return wire.encode_reply({"ok": True, "job": header["job"], "frame": header["frame"],
-                                      "fish": fish, "timings": {}})
+            return honest_reply(local, header)
         return answer
     peer = zenoh.open(wire_client(endpoint))
     measure = workers_or_here(session, site, discover_s=WAIT_S)        # the survey stop's own
     try:
         entities = [e for name in served for e in _fake_worker(peer, site, honest(name), name)[0]]
-        deadline = time.monotonic() + WAIT_S
-        while measure.in_flight() != 2 * PER_WORKER:                      # the stop has heard both
-            assert time.monotonic() < deadline, measure.in_flight()
-            time.sleep(0.01)
+        heard(measure, 2)
         for frame in range(8):
             [result] = measure(jobs(items, 8)[frame:frame + 1], calib, SETUP)
             same([result], local[frame:frame + 1])
@@ -455,9 +464,7 @@ def test_a_worker_dropped_by_one_pair_is_not_asked_again_by_the_next_pairs(rende
             asked[name].append(header["frame"])
             if name == "liar":
                 return json.dumps({"ok": False, "job": header["job"], "kind": "internal", "error": "boom"}).encode()
-            fish = [wire.fish_to_json(f) for f in local[header["frame"]].fish]
-            return wire.encode_reply({"ok": True, "job": header["job"], "frame": header["frame"],
-                                      "fish": fish, "timings": {}})
+            return honest_reply(local, header)
         return answer
     peer = zenoh.open(wire_client(endpoint))
     measure = workers_or_here(session, site, discover_s=WAIT_S)
@@ -465,10 +472,7 @@ def test_a_worker_dropped_by_one_pair_is_not_asked_again_by_the_next_pairs(rende
     try:
         liar, _ = _fake_worker(peer, site, answer_as("liar"), "liar")
         honest, _ = _fake_worker(peer, site, answer_as("honest"), "honest")
-        deadline = time.monotonic() + WAIT_S
-        while measure.in_flight() != 2 * PER_WORKER:                      # the stop has heard both
-            assert time.monotonic() < deadline, measure.in_flight()
-            time.sleep(0.01)
+        heard(measure, 2)
         for frame in range(6):
             [result] = measure(jobs(items, 6)[frame:frame + 1], calib, SETUP)
             same([result], local[frame:frame + 1])

@@ -56,6 +56,6 @@ def test_a_version_5_ledger_gains_the_survey_tables_and_keeps_its_rows(tmp_path)
     db.commit()
     db.close()
     store = Store(path)
-    assert store.schema_version == len(MIGRATIONS) == 10
+    assert store.schema_version == len(MIGRATIONS) == 11
     assert store.surveys_asked() == []
     assert store.ration("T1", "d")["grams"] == 5 and store.surveys("T1") == []
