@@ -29,9 +29,12 @@ import numpy as np
 
 from controller.cleaning.ledger import Progress
 from controller.cleaning.machine import STATES, CleanerMachine
+from controller.cleaning.picture import FrozenPicture
 from controller.feeding.estop import Halted
 from controller.ledger_writes import LedgerUnwritable
 from devices.errors import DeviceError, LinkDown
+
+DRIVE_LASTS_S = 0.5     # farm s a drive target lasts on the thrusters (their watchdog's default)
 
 log = logging.getLogger("fishfarm.cleaner")
 
@@ -61,6 +64,8 @@ class Cleaner:
                  frame_size: tuple[int, int] | None = None):
         self.camera, self.thrusters, self.detector, self.tracker = camera, thrusters, detector, tracker
         self.frame_size = frame_size           # (w, h) TOWER.json was fitted to; None: not said
+        self.picture = FrozenPicture()
+        self._drove_t = -math.inf              # farm time of the last drive with thrust
         self.reopen = reopen                   # async (device) -> a fresh one: a lost link is lost for good
         self._reopen_at = -math.inf            # monotonic: the next attempt, backing off
         self._reopen_tries = 0
@@ -99,7 +104,9 @@ class Cleaner:
                 if frame is None:
                     continue
                 near = self.tracker.search_region(frame.t)   # looked for where it will be now
-                fix = await loop.run_in_executor(pool, self.detector, frame.image, near)
+                fix = None
+                if self._picture_usable(frame):
+                    fix = await loop.run_in_executor(pool, self.detector, frame.image, near)
                 await self.on_track(self.tracker.step(frame.t, fix))
         finally:
             pool.shutdown(wait=False, cancel_futures=True)
@@ -125,6 +132,19 @@ class Cleaner:
             return None
         self._last_seq = frame.seq
         return frame
+
+    def _picture_usable(self, frame) -> bool:
+        """No fix from a picture frozen while the robot drives (controller/cleaning/picture.py):
+        the track coasts, the robot stops, and the alarm stands until the picture changes."""
+        was = self.picture.frozen
+        driving = frame.t - self._drove_t <= DRIVE_LASTS_S
+        usable = self.picture.usable(frame.t, frame.image, driving)
+        if self.picture.frozen and not was:
+            self.alarms.raise_(f"device/{self.camera.name}", "the picture is frozen (the same frame while the robot "
+                               "drives): no fix taken from it", kind="frozen")
+        elif was and not self.picture.frozen:
+            self.alarms.clear(f"device/{self.camera.name}", "the picture moves again", kind="frozen")
+        return usable
 
     async def _no_frame(self, why: str) -> None:
         """The camera down or its frames unusable: stopped, and the track coasts (predicted, then
@@ -163,7 +183,11 @@ class Cleaner:
             self._publish()
 
     def _steer(self, track) -> tuple[float, float] | None:
-        """(left, right) while cleaning or returning with a pose, or backing up when lost; None: stop."""
+        """(left, right) while cleaning or returning with a pose, or backing up when lost; None: stop
+        (and at once while the picture is frozen: no pose, predicted or recalled, is to be trusted)."""
+        if self.picture.frozen:
+            self._steered_t = None
+            return None
         if not self.machine.moving or track.x_m is None:
             self._steered_t = None
             backing = self.state == "lost" and self.recovery is not None
@@ -229,6 +253,8 @@ class Cleaner:
         except DeviceError as exc:
             self._thrusters_failed(exc)
             return
+        if left != 0 or right != 0:
+            self._drove_t = self.clock.now()
         self._must_stop = self._must_stop or backing   # the recovery's end stops them
         status = self._thruster_status()
         if status is not None and (status.estop or status.fault is not None):
@@ -241,6 +267,7 @@ class Cleaner:
         try:
             await self.thrusters.stop()
             self._must_stop = False
+            self._drove_t = -math.inf
         except DeviceError as exc:
             self._thrusters_failed(exc)
 

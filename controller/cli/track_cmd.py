@@ -159,22 +159,17 @@ def read_image(path: Path, where: str) -> np.ndarray:
 
 def replay(frames: list[tuple[int, float, Path, int]], H: np.ndarray, csv_path: str, *,
            lost_after_s: float = 4.0, size: tuple[int, int] | None = None) -> list[dict]:
-    """One entry a frame. A frame the same as the one before (a frozen camera's) is no new sight:
-    a dropout, as the controller's camera driver takes it; ``size``: TOWER.json's image_size."""
+    """One entry a frame; ``size``: TOWER.json's image_size, which every frame must have."""
     from vision.float_track import FloatTracker, track_frame
     tracker = FloatTracker(lost_after_s=lost_after_s)
-    out, before = [], None
+    out = []
     for frame, t, path, lineno in frames:
         where = f"{csv_path} line {lineno}"
         image = read_image(path, where)
         if size is not None and tuple(image.shape[1::-1]) != tuple(size):
             raise BadInput(str(path), None, f"{image.shape[1]}x{image.shape[0]}, but TOWER.json was fitted to "
                                             f"{size[0]}x{size[1]} frames ({where}): its positions would be metres off")
-        if before is not None and before.shape == image.shape and np.array_equal(before, image):
-            track, fix = tracker.step(t, None), None
-        else:
-            track, fix = track_frame(tracker, t, image, H)
-        before = image
+        track, fix = track_frame(tracker, t, image, H)
         out.append({"t_s": t, "x_m": track.x_m, "y_m": track.y_m, "heading_rad": track.heading_rad,
                     "state": track.state, "frame": frame, "std_m": track.std_m, "speed_m_s": track.speed_m_s,
                     "confidence": None if fix is None else fix.confidence})

@@ -24,7 +24,6 @@ import time
 from typing import Any
 
 import cv2
-import numpy as np
 from pydantic import Field, field_validator
 
 from devices.base import Section
@@ -117,8 +116,6 @@ class CaptureCamera(TowerCamera):
         super().__init__(name, config, clock)
         self.skipped = 0
         self.received = 0
-        self.repeated = 0         # frames identical to the one before: not new (a frozen picture)
-        self._frozen = False
         self.start_frame = 0      # a video file: the frame to play from (``position`` of the last camera on it)
         self.reconnects = 0
         self._cond = threading.Condition()        # guards the fields below
@@ -227,23 +224,9 @@ class CaptureCamera(TowerCamera):
             if self._down is not None:
                 log.warning("%s: frames again from %r", self.name, self.config.source)
                 self._down = None
-            self.received += 1
-            newest = self._newest
-            if newest is not None and _same_picture(newest.image, image):
-                # a frozen encoder or relay sends its last picture again and again: no new frame
-                # (a cleaner steered on one for 10 m, "tracking" at a pose it had left; a sensor's
-                # noise makes two real frames differ). read() times out as on a stalled stream.
-                self.repeated += 1
-                if not self._frozen:
-                    self._frozen = True
-                    log.warning("%s: the picture is frozen (the same frame again from %r)", self.name,
-                                self.config.source)
-                return
-            if self._frozen:
-                self._frozen = False
-                log.warning("%s: the picture moves again", self.name)
-            if newest is not None and newest.seq > self._returned:
+            if self._newest is not None and self._newest.seq > self._returned:
                 self.skipped += 1
+            self.received += 1
             self._newest = Frame(t, image, self.received)
         self._tell()
 
@@ -273,18 +256,13 @@ class CaptureCamera(TowerCamera):
                 raise LinkDown(self.name, down)
             left = deadline - time.monotonic()
             if left <= 0:
-                frozen = " (the picture is frozen: the same frame again and again)" if self._frozen else ""
                 raise DeviceTimeout(self.name, f"no frame from {self.config.source!r} in "
-                                               f"{self.config.read_timeout_s:g} s{frozen}")
+                                               f"{self.config.read_timeout_s:g} s")
             waiter = asyncio.ensure_future(self._news.wait())
             try:
                 await asyncio.wait({waiter}, timeout=left)
             finally:
                 waiter.cancel()
-
-
-def _same_picture(a, b) -> bool:
-    return a.shape == b.shape and a.dtype == b.dtype and bool(np.array_equal(a, b))
 
 
 async def in_daemon_thread(fn, name: str):

@@ -202,22 +202,6 @@ def test_frames_of_another_size_in_one_clip_and_an_empty_clip(capsys, clip, tmp_
     np.testing.assert_equal(capsys.readouterr().err, "")
 
 
-def test_a_frozen_camera_s_repeated_frame_is_a_dropout_not_a_fresh_fix(tmp_path):
-    """One picture named at later and later times (a camera that froze): no fix is taken from it
-    again, so the track coasts and is lost, as the controller's camera driver takes it."""
-    d = write_clip(tmp_path / "c", n=6, hidden=())
-    rows = (d / "frames.csv").read_text().splitlines()
-    rows += [f"{6 + k},{5000.0 + (6 + k) / FPS!r},f005.png" for k in range(20)]   # frame 5, again and again
-    (d / "frames.csv").write_text("\n".join(rows) + "\n")
-    out = tmp_path / "OUT.json"
-    assert main(["track", "--frames", str(d), "--tower", str(d / "tower.json"), "--json", str(out),
-                 "--lost-after", "1"]) == 0
-    track = json.loads(out.read_text())["track"]
-    assert [e["state"] for e in track[:6]] == ["tracking"] * 6
-    assert all(e["state"] != "tracking" and e["confidence"] is None for e in track[6:])
-    assert track[-1]["state"] == "lost"
-
-
 def test_frames_of_another_size_than_tower_json_was_fitted_to_are_refused(tmp_path, capsys):
     d = write_clip(tmp_path / "c", n=3, hidden=())
     (d / "tower.json").write_text(json.dumps({"H": VIEW.H.tolist(), "image_size": [1280, 720]}))

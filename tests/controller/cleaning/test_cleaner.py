@@ -498,3 +498,40 @@ def test_frames_of_another_size_than_tower_json_s_are_a_fault_not_steered_on(tmp
             [alarm] = [a for a in r.store.alarms() if a["source"] == "device/tower"]
             assert "640x360" in alarm["text"] and "1280x720" in alarm["text"]
     run(main())
+
+
+def test_a_picture_frozen_while_the_robot_drives_gives_no_fix_until_it_moves_again(tmp_path):
+    """An encoder that froze sends its last picture again and again: under thrust the robot must
+    change what the camera sees, so the same picture for a second while it drives is frozen — no
+    fix from it (the track coasts, the robot stops), an alarm until the picture changes."""
+    async def main():
+        async with Rig(tmp_path, state="localising", mission="clean") as r:
+            await r.frames(poses(PATH[:4]))
+            assert r.cleaner.state == "cleaning"
+            drives = len(r.thrusters.drives())
+            stuck = poses(PATH[3:4]) * 10                          # 2 s of one picture at 0.2 s a frame
+            await r.frames(stuck)
+            frozen = [a for a in r.store.alarms() if a["source"] == "device/tower" and "frozen" in a["text"]]
+            assert [a["active"] for a in frozen] == [1]
+            assert r.cleaner.snapshot()["tracking"] != "tracking"
+            assert len(r.thrusters.drives()) - drives <= 6          # a second of drives at most, then none
+            await r.frames(poses(PATH[4:8]))                      # it moves again
+            told = [(a["active"], a["text"]) for a in r.store.alarms() if a["source"] == "device/tower"]
+            assert [active for active, _ in told] == [1, 0] and "moves again" in told[1][1]
+            assert r.cleaner.state == "cleaning" and r.cleaner.snapshot()["tracking"] == "tracking"
+    run(main())
+
+
+def test_a_still_pond_with_the_robot_standing_is_no_frozen_camera(tmp_path):
+    """A calm pond, a camera with noise reduction, the simulator with noise 0: the same picture frame
+    after frame while nothing drives. Taken as it is (the camera driver dropped such frames for a day,
+    and a docked cleaner faulted within 2 s and could not be started)."""
+    async def main():
+        async with Rig(tmp_path, state="docked") as r:
+            await r.frames(poses(PATH[:1]) * 30)                    # 6 s of one picture, docked
+            assert r.cleaner.state == "docked" and r.cleaner.snapshot()["tracking"] == "tracking"
+            assert not [a for a in r.store.alarms() if a["source"] == "device/tower"]
+            assert await r.cleaner.start() is None
+            await r.frames(poses(PATH[:6]))
+            assert r.cleaner.state == "cleaning"
+    run(main())
