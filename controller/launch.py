@@ -1,13 +1,16 @@
-"""``fishfarm``'s entry point (pyproject's ``[project.scripts]``): SIGINT and SIGTERM are taken
-before anything is imported, then ``controller.cli.entry`` runs the command with its own handlers.
+"""``fishfarm``'s entry point (pyproject's ``[project.scripts]``, and ``python -m controller.launch``,
+which the controller starts its simulator with): SIGINT and SIGTERM are taken before anything is
+imported, then ``controller.cli.entry`` runs the command with its own handlers. (``python -m
+controller.cli`` imports the package, click and all, before any line of ours runs.)
 
 The command's imports (click, the command's modules) take a tenth of a second and more: a Ctrl-C
 in that time printed a 17-line KeyboardInterrupt traceback from inside ``import click`` and exited
 -2. Nothing has started then, so nothing needs cleaning up: the early handler says "aborted" and
-exits as a command interrupted later does (130 for SIGINT, 143 for SIGTERM).
+exits as a command interrupted later does (130 for SIGINT, 143 for SIGTERM). Only the
+interpreter's own start, before any program runs, is out of reach.
 """
-import os
-import signal
+import _signal  # the C module: ``signal`` builds its enums first, and a Ctrl-C there was a traceback
+import os  # (imported already, by site)
 
 
 def _early(signum, _frame) -> None:
@@ -18,9 +21,9 @@ def _early(signum, _frame) -> None:
 
 
 def entry() -> None:
-    if signal.getsignal(signal.SIGINT) is signal.default_int_handler:   # not a background job's ignored one
-        signal.signal(signal.SIGINT, _early)
-    signal.signal(signal.SIGTERM, _early)
+    if _signal.getsignal(_signal.SIGINT) is _signal.default_int_handler:   # not a background job's ignored one
+        _signal.signal(_signal.SIGINT, _early)
+    _signal.signal(_signal.SIGTERM, _early)
     from controller.cli import entry as command
     command()
 

@@ -110,7 +110,7 @@ class SimProcess:
     async def start(self) -> dict[str, dict]:
         """Start the simulator; return the real-driver section of every simulated device."""
         endpoints = self.dir / "endpoints.json"
-        args = [sys.executable, "-m", "controller.cli", "sim", "--config", self.cfg.path,
+        args = [sys.executable, "-m", "controller.launch", "sim", "--config", self.cfg.path,
                 "--endpoints", str(endpoints), *self.clock.as_args()]
         truth = os.environ.get("FISHFARM_SIM_TRUTH")
         if truth:

@@ -88,7 +88,11 @@ class Dispensing:
         return min(max(OVERSHOOT, spread), UNMEASURED)
 
     def portion(self, tank: str, ask_g: float | None = None) -> float:
-        """Grams to aim for now: never more than the ask, and room left for the auger's spread."""
+        """Grams to aim for now: never more than the ask, and room left for the auger's spread; none
+        for a tank whose stock events took all its fish (an operator's feed asked before a harvest
+        was served into the empty tank: an operator's ration of the day outlives the harvest)."""
+        if self.rations.stock(tank) <= 0:
+            return 0.0
         grams = self.rations.portion(tank, self.clock.now(), self.overshoot)
         return min(grams, ask_g) if ask_g is not None else grams
 

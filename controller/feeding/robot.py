@@ -259,7 +259,7 @@ class FeedingRobot(Recovering):
         if job is not None:
             portion = self.dispensing.portion(job.tank, job.grams)
             if portion <= 0:
-                self._finish(job, "ration_reached")
+                self._finish(job, self._unfed(job.tank))
             elif hopper < portion * (1 + self.dispensing.overshoot):
                 await self._refill()
             else:
@@ -306,7 +306,7 @@ class FeedingRobot(Recovering):
                 log.info("portion for %s not started: the tank was paused", job.tank)
                 self._finish(job, "paused")
         else:
-            self._finish(job, "ration_reached")
+            self._finish(job, self._unfed(job.tank))
         self.dispensed()
         self._in_service()
 
@@ -375,6 +375,10 @@ class FeedingRobot(Recovering):
         # a suspect run served its ask too: what it gave is unknown, and fish still hungry ask again
         if feed.phase in ("done", "suspect") and self.pending.get(job.tank) is job:
             del self.pending[job.tank]
+
+    def _unfed(self, tank: str) -> str:
+        """Why a demand gets no portion: its tank holds no fish any more, or its ration is given."""
+        return "emptied" if self.rations.stock(tank) <= 0 else "ration_reached"
 
     def _finish(self, job: Job, outcome: str) -> None:
         if self.pending.get(job.tank) is job:

@@ -208,6 +208,31 @@ def test_a_version_1_ledger_is_migrated_in_place(tmp_path):
         s.close()
 
 
+@pytest.mark.parametrize("version", range(1, len(MIGRATIONS) + 2))
+def test_a_reader_takes_a_ledger_as_it_is_from_reads_from_on_and_names_the_others(tmp_path, version):
+    """``report``/``history`` read without writing: a ledger at schema 10 (11 only added columns no
+    reader reads) is read as it is; older ones need the controller's migration first, said so."""
+    from controller.errors import BadInput
+    from controller.store import READS_FROM
+    path = tmp_path / "old.db"
+    db = sqlite3.connect(path)
+    for step in MIGRATIONS[:min(version, len(MIGRATIONS))]:
+        db.executescript(step)
+    db.execute(f"PRAGMA user_version = {version}")
+    db.commit()
+    db.close()
+    if READS_FROM <= version <= len(MIGRATIONS):
+        s = Store.reader(path)
+        try:
+            assert s.surveys("T1") == [] and s.fed_g("T1", "2026-06-01") == 0
+        finally:
+            s.close()
+    else:
+        with pytest.raises(BadInput, match="start the controller once" if version < READS_FROM else "newer"):
+            Store.reader(path)
+    assert READS_FROM == 10 == len(MIGRATIONS) - 1     # raise it with a migration that changes what readers read
+
+
 def test_tags_are_distinct_and_16_bit(store):
     tags = {intent(store).tag for _ in range(5)}
     assert len(tags) == 5 and all(0 < t < 65536 for t in tags)

@@ -85,6 +85,26 @@ def test_operator_portion_is_capped_by_the_ask(tmp_path):
     run(main())
 
 
+def test_a_feed_asked_before_the_tank_was_harvested_is_not_served_into_it(tmp_path):
+    """An operator's ration of the day outlives a harvest: an operator's feed asked before it (kept
+    in the ledger, served after restarts) went into the empty tank and was booked as fed."""
+    from controller.feeding.robot import Job
+
+    async def main():
+        async with rig(tmp_path, run=False) as r:
+            r.rations.set("T1", r.clock.now(), 900.0, "operator")
+            demand_id = r.store.add_demand("T1", r.clock.now(), 0.0, source="operator", grams=50.0)
+            r.robot.on_demand(Job("T1", r.clock.now(), demand_id, "operator", 50.0))
+            r.store.add_stock_event(t=r.clock.now(), tank="T1", kind="harvest", count=2000, to_tank=None, who="ana")
+            r.rations.restocked("T1", r.clock.now())
+            r.task = asyncio.create_task(r.robot.run())
+            await r.until(lambda: not r.store.open_demands(), what="the feed closed")
+            assert r.store.feeds() == [] and "T1" not in r.delivered
+            [row] = [d for d in r.store.db.execute("SELECT outcome FROM demand WHERE id = ?", (demand_id,))]
+            assert row["outcome"] == "emptied"
+    run(main())
+
+
 # -- faults ------------------------------------------------------------------------------------
 def test_jammed_auger_faults_alarms_and_recovers(tmp_path):
     async def main():
