@@ -41,7 +41,7 @@ $(CREDENTIALS): | $(STAMP)
 # the grow-out on a second worker served feeds 340 farm s late; alone, 4 of 4 within 46 s).
 test: $(STAMP) mbpoll
 	$(BIN)/lint-imports --no-logo --no-cache
-	$(BIN)/python -m pytest -q -n 3 tests
+	$(BIN)/python -m pytest -q -n 3 --dist worksteal tests
 	$(BIN)/python -m pytest -q hil_tests
 
 # mbpoll (Debian's Modbus master) reads the SCADA register map in tests/controller/scada; its test

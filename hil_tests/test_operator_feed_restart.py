@@ -1,7 +1,7 @@
-"""An operator's feed accepted, then the controller stopped (killed, or a clean SIGTERM) before the
-robot served it: the restart serves it, once, and the same request id sent again is a repeat with
-nothing more fed. Before, the accepted feed lived in memory only: it was lost on any stop, and the
-resend under its id was answered "ok, repeat" of a feed never given."""
+"""An operator's feed accepted, then the controller stopped (a clean SIGTERM, then, for a second
+feed, SIGKILL) before the robot served it: each restart serves it, once, and the same request id
+sent again is a repeat with nothing more fed. Before, the accepted feed lived in memory only: it
+was lost on any stop, and the resend under its id was answered "ok, repeat" of a feed never given."""
 import json
 import signal
 import subprocess
@@ -16,47 +16,48 @@ from hil_tests.farm import HilFarm
 FISHFARM = str(Path(sys.executable).with_name("fishfarm"))
 
 
-def feed(farm: HilFarm, request: str) -> dict:
-    r = subprocess.run([FISHFARM, "override", "feed", "tank=T8", "grams=20", f"request={request}",
+def feed(farm: HilFarm, tank: str, request: str) -> dict:
+    r = subprocess.run([FISHFARM, "override", "feed", f"tank={tank}", "grams=20", f"request={request}",
                         "--operator", "ana", "--connect", f"tcp/127.0.0.1:{farm.zenoh_port}", "--timeout", "10"],
                        capture_output=True, text=True, timeout=60)
     return json.loads(r.stdout)
 
 
-def operator_feeds(farm: HilFarm) -> list:
+def operator_feeds(farm: HilFarm, tank: str) -> list:
     with farm.ledger() as db:
         return [dict(r) for r in db.execute("SELECT id, tag, phase, grams, demand_id FROM feed "
-                                            "WHERE tank = 'T8' AND source = 'operator' ORDER BY seq")]
+                                            "WHERE tank = ? AND source = 'operator' ORDER BY seq", (tank,))]
 
 
 @pytest.mark.hil
-@pytest.mark.parametrize("sig", [signal.SIGKILL, signal.SIGTERM])
-def test_an_accepted_operator_feed_outlives_a_stop_and_is_served_once(tmp_path, sig):
+def test_an_accepted_operator_feed_outlives_a_stop_and_is_served_once(tmp_path):
     farm = HilFarm(tmp_path, speed=20.0)
     try:
         farm.start_sim()
         farm.start_controller()
         farm.wait_controller_up()
-        first = feed(farm, "feed-restart-1")
-        assert first["ok"] is True, first
-        farm.kill_controller(sig)                  # at once: the robot has not reached T8
-        farm.start_controller()
-        farm.wait_controller_up()
-        deadline = time.time() + 120
-        while not [f for f in operator_feeds(farm) if f["phase"] == "done"]:
-            assert time.time() < deadline, farm.log("controller.log")
-            time.sleep(0.2)
-        again = feed(farm, "feed-restart-1")
-        assert again == {**first, "repeat": True}, again
-        time.sleep(2.0)                            # what a second portion would need to start
-        farm.check_alive()
-        done = [f for f in operator_feeds(farm) if f["phase"] == "done"]
-        assert len(done) == 1 and 10.0 < done[0]["grams"] < 30.0, operator_feeds(farm)   # an auger of 20 g asked
-        runs = [r for r in farm.truth() if r["kind"] == "auger_run" and r.get("tag") == done[0]["tag"]]
-        assert len(runs) == 1, runs                # one physical run, under the row's tag
-        with farm.ledger() as db:
-            [row] = db.execute("SELECT outcome, source, grams, feed_id FROM demand WHERE id = ?",
-                               (done[0]["demand_id"],)).fetchall()
-        assert (row["outcome"], row["source"], row["feed_id"]) == ("served", "operator", done[0]["id"])
+        for tank, sig in (("T8", signal.SIGTERM), ("T7", signal.SIGKILL)):
+            request = f"feed-restart-{tank}"
+            first = feed(farm, tank, request)
+            assert first["ok"] is True, first
+            farm.kill_controller(sig)                  # at once: the robot has not reached the tank
+            farm.start_controller()
+            farm.wait_controller_up()
+            deadline = time.time() + 120
+            while not [f for f in operator_feeds(farm, tank) if f["phase"] == "done"]:
+                assert time.time() < deadline, farm.log("controller.log")
+                time.sleep(0.2)
+            again = feed(farm, tank, request)
+            assert again == {**first, "repeat": True}, again
+            time.sleep(2.0)                            # what a second portion would need to start
+            farm.check_alive()
+            done = [f for f in operator_feeds(farm, tank) if f["phase"] == "done"]
+            assert len(done) == 1 and 10.0 < done[0]["grams"] < 30.0, operator_feeds(farm, tank)   # 20 g asked
+            runs = [r for r in farm.truth() if r["kind"] == "auger_run" and r.get("tag") == done[0]["tag"]]
+            assert len(runs) == 1, runs                # one physical run, under the row's tag
+            with farm.ledger() as db:
+                [row] = db.execute("SELECT outcome, source, feed_id FROM demand WHERE id = ?",
+                                   (done[0]["demand_id"],)).fetchall()
+            assert (row["outcome"], row["source"], row["feed_id"]) == ("served", "operator", done[0]["id"])
     finally:
         farm.stop()
