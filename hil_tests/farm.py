@@ -194,6 +194,23 @@ class HilFarm:
                 raise RuntimeError(f"controller did not come up:\n{self.log('controller.log')}")
             time.sleep(0.02)
 
+    def start_farm(self) -> float:
+        """The simulator, then the controller; the farm time the controller was seen up."""
+        self.start_sim()
+        self.start_controller()
+        return self.wait_controller_up()
+
+    def tool(self, *args: str, timeout_s: float | None = None) -> tuple[int, dict]:
+        """An operator's command line against this farm's controller (its own default timeout, 2 s,
+        unless ``timeout_s``): (exit status, its JSON, or its output where it printed none)."""
+        wait = [] if timeout_s is None else ["--timeout", str(timeout_s)]
+        r = subprocess.run([str(Path(sys.executable).with_name("fishfarm")), *args, "--connect",
+                            f"tcp/127.0.0.1:{self.zenoh_port}", *wait], capture_output=True, text=True, timeout=60)
+        try:
+            return r.returncode, json.loads(r.stdout)
+        except ValueError:
+            return r.returncode, {"stdout": r.stdout, "stderr": r.stderr}
+
     def kill_controller(self, sig: int = signal.SIGKILL) -> None:
         self.ctl_proc.send_signal(sig)
         self.ctl_proc.wait(timeout=30)

@@ -6,53 +6,35 @@ past a short wait is the ledger unwritable â€” the alarm, nothing fed, retried â
 `status` and the refusals of what cannot be recorded are answered within the operator tools'
 own 2 s timeout. A reset, which needs no ledger, is done and answered "ok" (it was done and
 answered "cannot be written; try again")."""
-import json
 import sqlite3
-import subprocess
-import sys
 import time
-from pathlib import Path
 
 import pytest
 
 from hil_tests.farm import HilFarm
-
-FISHFARM = str(Path(sys.executable).with_name("fishfarm"))
-
-
-def tool(farm: HilFarm, *args: str) -> tuple[int, dict]:
-    """An operator's command line with its default timeout (2 s): (exit status, its JSON)."""
-    r = subprocess.run([FISHFARM, *args, "--connect", f"tcp/127.0.0.1:{farm.zenoh_port}"],
-                       capture_output=True, text=True, timeout=60)
-    try:
-        return r.returncode, json.loads(r.stdout)
-    except ValueError:
-        return r.returncode, {"stdout": r.stdout, "stderr": r.stderr}
 
 
 @pytest.mark.hil
 def test_a_ledger_locked_by_another_process_leaves_e_stop_and_status_answered(tmp_path):
     farm = HilFarm(tmp_path, speed=20.0)
     try:
-        farm.start_sim()
-        farm.start_controller()
-        farm.wait_controller_up()
+        farm.start_farm()
         hold = sqlite3.connect(str(farm.db_path), isolation_level=None, timeout=30)
         hold.execute("BEGIN IMMEDIATE")                 # the write lock, held by another process's connection
         try:
             for _ in range(3):
-                code, reply = tool(farm, "status", "--json")
+                code, reply = farm.tool("status", "--json")
                 assert code == 0 and "tanks" in reply, reply
-                code, reply = tool(farm, "override", "estop", "--operator", "ana", "--reason", "drill")
+                code, reply = farm.tool("override", "estop", "--operator", "ana", "--reason", "drill")
                 assert code == 0 and reply == {"ok": True, "confirmed": True}, reply
                 # a reset needs no ledger: done, and said so, its request id not remembered (it
                 # was answered "cannot be written; try again" of a reset carried out)
-                code, reply = tool(farm, "override", "reset", "--operator", "ana")
+                code, reply = farm.tool("override", "reset", "--operator", "ana")
                 assert code == 0 and reply["ok"] is True and "not remembered" in reply["note"], reply
-                code, reply = tool(farm, "status", "--json")
+                code, reply = farm.tool("status", "--json")
                 assert reply["feeder"]["state"] != "estop", reply["feeder"]
                 # a stock event is the ledger's: refused, and said so, not left to time out
-                code, reply = tool(farm, "override", "mortality", "--operator", "ana", "tank=T1", "count=1")
+                code, reply = farm.tool("override", "mortality", "--operator", "ana", "tank=T1", "count=1")
                 assert code == 1 and reply["error"].startswith("ledger: cannot be written"), reply
             farm.check_alive()
         finally:
@@ -60,7 +42,7 @@ def test_a_ledger_locked_by_another_process_leaves_e_stop_and_status_answered(tm
             hold.close()
         deadline = time.time() + 60
         while True:                                      # written again: the stock event is taken
-            code, reply = tool(farm, "override", "mortality", "--operator", "ana", "tank=T1", "count=1")
+            code, reply = farm.tool("override", "mortality", "--operator", "ana", "tank=T1", "count=1")
             if code == 0:
                 break
             assert time.time() < deadline and reply["error"].startswith("ledger: cannot be written"), reply

@@ -2,25 +2,17 @@
 feed, SIGKILL) before the robot served it: each restart serves it, once, and the same request id
 sent again is a repeat with nothing more fed. Before, the accepted feed lived in memory only: it
 was lost on any stop, and the resend under its id was answered "ok, repeat" of a feed never given."""
-import json
 import signal
-import subprocess
-import sys
 import time
-from pathlib import Path
 
 import pytest
 
 from hil_tests.farm import HilFarm
 
-FISHFARM = str(Path(sys.executable).with_name("fishfarm"))
-
 
 def feed(farm: HilFarm, tank: str, request: str) -> dict:
-    r = subprocess.run([FISHFARM, "override", "feed", f"tank={tank}", "grams=20", f"request={request}",
-                        "--operator", "ana", "--connect", f"tcp/127.0.0.1:{farm.zenoh_port}", "--timeout", "10"],
-                       capture_output=True, text=True, timeout=60)
-    return json.loads(r.stdout)
+    return farm.tool("override", "feed", f"tank={tank}", "grams=20", f"request={request}", "--operator", "ana",
+                     timeout_s=10)[1]
 
 
 def operator_feeds(farm: HilFarm, tank: str) -> list:
@@ -33,9 +25,7 @@ def operator_feeds(farm: HilFarm, tank: str) -> list:
 def test_an_accepted_operator_feed_outlives_a_stop_and_is_served_once(tmp_path):
     farm = HilFarm(tmp_path, speed=20.0)
     try:
-        farm.start_sim()
-        farm.start_controller()
-        farm.wait_controller_up()
+        farm.start_farm()
         for tank, sig in (("T8", signal.SIGTERM), ("T7", signal.SIGKILL)):
             request = f"feed-restart-{tank}"
             first = feed(farm, tank, request)

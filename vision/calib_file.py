@@ -66,16 +66,17 @@ MAX_IMAGE_PX = 100_000          # a side longer is no camera's: a unit or a typo
 _SHAPES = {"P1": (3, 4), "P2": (3, 4), "K1": (3, 3), "K2": (3, 3), "R": (3, 3), "T": (3,)}
 
 
-def _has_bool(value, depth: int = 0) -> bool:
+def has_bool(value, depth: int = 0) -> bool:
+    """True/false anywhere in a (nested, up to 3 deep) list: numpy reads them as 1 and 0."""
     if isinstance(value, bool):
         return True
-    return isinstance(value, list) and depth < 3 and any(_has_bool(v, depth + 1) for v in value)
+    return isinstance(value, list) and depth < 3 and any(has_bool(v, depth + 1) for v in value)
 
 
 def _matrix(data: dict, name: str) -> np.ndarray | None:
     if name not in data or data[name] is None:
         return None
-    if _has_bool(data[name]):      # numpy reads true as 1: a 1 mm baseline
+    if has_bool(data[name]):      # numpy reads true as 1: a 1 mm baseline
         raise CalibrationError(name, "not a numeric matrix (true/false in it)")
     try:
         m = np.asarray(data[name], dtype=float)

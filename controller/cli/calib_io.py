@@ -18,11 +18,12 @@ class _Twice(ValueError):
 
 
 def _once(pairs: list[tuple[str, object]]) -> dict:
-    keys = [k for k, _ in pairs]
-    for k in keys:
-        if keys.count(k) > 1:
-            raise _Twice(k)
-    return dict(pairs)
+    out: dict = {}
+    for key, value in pairs:
+        if key in out:
+            raise _Twice(key)
+        out[key] = value
+    return out
 
 
 def json_fields_once(path: str, text: str):
@@ -34,16 +35,27 @@ def json_fields_once(path: str, text: str):
         raise BadInput(path, twice.key, "given twice: give it once") from None
 
 
+def calibration_json(path: str, text: str):
+    """``json_fields_once``, and JSON that Python cannot take as one line naming the file: a syntax
+    error, a number of 4300+ digits (its message's advice to raise a limit left out), nesting past
+    the parser's depth."""
+    try:
+        return json_fields_once(path, text)
+    except ValueError as exc:                  # JSONDecodeError, the digits limit
+        raise BadInput(path, None, f"not valid JSON: {str(exc).split('; use sys.')[0]}") from None
+    except RecursionError:
+        raise BadInput(path, None, "not valid JSON: nested too deep") from None
+
+
 def load_calibration(path: str | Path) -> StereoCalibration:
     where = str(path)
     try:
-        data = json_fields_once(where, Path(path).read_text(encoding="utf-8"))
+        text = Path(path).read_text(encoding="utf-8")
     except FileNotFoundError:
         raise BadInput(where, None, "no such file") from None
-    except (OSError, ValueError) as exc:           # ValueError: JSONDecodeError, a number of 4300+ digits
-        raise BadInput(where, None, f"not valid JSON: {str(exc).split('; use sys.')[0]}") from None
-    except RecursionError:
-        raise BadInput(where, None, "not valid JSON: nested too deep") from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise BadInput(where, None, f"not valid JSON: {exc}") from None
+    data = calibration_json(where, text)
     try:
         return calibration_from_json(data)
     except CalibrationError as exc:

@@ -9,6 +9,7 @@ import re
 import numpy as np
 
 from controller.errors import BadInput
+from vision.calib_file import has_bool
 
 RECTIFIED = {"q", "r1", "r2"}              # stereoRectify's outputs (keys as name_key() gives them)
 # The words tools use for a camera matrix and its distortion (OpenCV's stereoCalibrate and samples,
@@ -147,16 +148,8 @@ def _refuse_json_flags(path: str, text: str) -> None:
     except (ValueError, RecursionError):
         return                                  # FileStorage's reading names it
     for key, value in doc.items() if isinstance(doc, dict) else ():
-        if _has_flag(value):
+        if has_bool(value.get("data") if isinstance(value, dict) else value):   # an "opencv-matrix" object's
             raise BadInput(path, key, "true/false where numbers are expected")
-
-
-def _has_flag(value, depth: int = 0) -> bool:
-    if isinstance(value, bool):
-        return True
-    if isinstance(value, dict) and depth < 3:
-        return _has_flag(value.get("data"), depth + 1)          # an "opencv-matrix" object
-    return isinstance(value, list) and depth < 3 and any(_has_flag(v, depth + 1) for v in value)
 
 
 def _unknown_distortion(fs, taken: set[str]) -> list[str]:

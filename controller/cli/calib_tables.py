@@ -6,7 +6,7 @@ import re
 
 import numpy as np
 
-from controller.cli.calib_io import json_fields_once
+from controller.cli.calib_io import calibration_json
 from controller.cli.calib_opencv_file import OPENCV_NAMES, name_key, refuse_fisheye
 from controller.errors import BadInput
 
@@ -84,12 +84,7 @@ def p34_text(path: str, rows: list[list[float]]) -> tuple[np.ndarray, np.ndarray
 def p34_json(path: str, text: str) -> dict:
     """A JSON object of CALIB.json's form (P1, P2 and its optional fields), checked for what would
     be silently wrong: another tool's name of a field (not read: its matrix lost), a fisheye model."""
-    try:
-        data = json_fields_once(path, text)
-    except ValueError as exc:                  # JSONDecodeError, a number of 4300+ digits
-        raise BadInput(path, None, f"not valid JSON: {str(exc).split('; use sys.')[0]}") from None
-    except RecursionError:
-        raise BadInput(path, None, "not valid JSON: nested too deep") from None
+    data = calibration_json(path, text)
     if not isinstance(data, dict):
         raise BadInput(path, None, "expected a JSON object with P1 and P2")
     for name in ("P1", "P2"):

@@ -45,6 +45,7 @@ import numpy as np
 
 from controller.cli.calib_opencv_file import OPENCV_NAMES, opencv_fields, opencv_json, opencv_size
 from controller.cli.calib_tables import dlt_table, numbers_table, p34_json, p34_text, strip_row_index
+from controller.cli.params import image_size_option
 from controller.cli.stereomorph_file import StereoMorphCalibration, is_stereomorph_file, read_stereomorph
 from controller.errors import BadInput
 from vision import calib_import
@@ -53,15 +54,6 @@ from vision.calib_import import UNITS_MM
 FORMATS = ("auto", "opencv", "stereomorph", "p34")
 GZIP_MAGIC = b"\x1f\x8b"
 PLAUSIBLE_BASELINE_MM = (20.0, 3000.0)     # outside: most likely a wrong --units (warned, not refused)
-
-
-def _size_option(ctx, param, value):
-    if value is None:
-        return None
-    m = re.fullmatch(r"\s*(\d+)\s*[xX]\s*(\d+)\s*", value)
-    if not m or min(int(m[1]), int(m[2])) < 1:
-        raise click.BadParameter(f"{value!r}: expected WIDTHxHEIGHT in pixels (e.g. 1280x960)")
-    return int(m[1]), int(m[2])
 
 
 def _square_mm_option(ctx, param, value):
@@ -236,7 +228,7 @@ def warn_folds(calib) -> None:
               callback=_square_mm_option,
               help="The file's world unit is a calibration board's square this many mm wide (OpenCV's "
                    "stereo_calib sample, squareSize 1, gives T in squares); instead of --units.")
-@click.option("--image-size", callback=_size_option, metavar="WxH",
+@click.option("--image-size", callback=image_size_option, metavar="WxH",
               help="Frame size the calibration was made for (overrides the file's).")
 @click.option("--pixel-origin", type=click.Choice(["zero", "corner", "one"]), default="zero", show_default=True,
               help="stereomorph/p34: top-left pixel centre at (0,0) as OpenCV, (0.5,0.5), or (1,1).")
@@ -248,7 +240,7 @@ def import_(inputs, out, fmt, units, square_mm, image_size, pixel_origin, y_up):
     from vision.calib_file import CalibrationError
 
     paths = list(inputs)
-    image_size_option = image_size is not None
+    size_given = image_size is not None
     check_outputs({"--out": out}, paths)
     first = paths[0]
     if square_mm is not None and units is not None:
@@ -284,7 +276,7 @@ def import_(inputs, out, fmt, units, square_mm, image_size, pixel_origin, y_up):
     except CalibrationError as exc:
         if exc.field == "image_size" and y_up and exc.fault.startswith("needed"):   # pixel_transform: no height
             raise BadInput(where, "--y-up", "needs the image height: give --image-size WxH") from None
-        field = "--image-size" if exc.field == "image_size" and image_size_option else exc.field
+        field = "--image-size" if exc.field == "image_size" and size_given else exc.field
         raise BadInput(where, field, exc.fault) from None
     save_calibration(calib, out)
     _report(calib, extra["format"], paths, out)

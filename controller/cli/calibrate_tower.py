@@ -8,13 +8,12 @@ point when there are few). Bad input exits 2 with one line naming the file, the 
 from __future__ import annotations
 
 import json
-import re
 
 import click
 import numpy as np
 
 from controller.cli.csvio import PIXELS_MAX, WORLD_MAX, read_table
-from controller.cli.params import Finite
+from controller.cli.params import Finite, image_size_option
 from controller.errors import BadInput
 
 REF_HEADER = ("u", "v", "x_m", "y_m")
@@ -26,18 +25,18 @@ LIST_AT_MOST = 12      # points listed one by one up to this many
 @click.option("--points", "points_path", required=True, metavar="REF.csv",
               help="surveyed reference points: pixel and pond position (m): u,v,x_m,y_m")
 @click.option("--out", "out_path", required=True, metavar="TOWER.json", help="where to write H")
-@click.option("--image-size", "image_size", default=None, metavar="WxH",
+@click.option("--image-size", "size", default=None, metavar="WxH", callback=image_size_option,
               help="the camera's frame size the pixels were read on (kept: other frames are refused)")
 @click.option("--max-error", "max_error_m", type=Finite(min=0, min_open=True), default=MAX_ERROR_M,
               show_default=True, metavar="M", help="refuse a fit whose worst point is further off than this (m)")
 @click.option("--mirrored-image", is_flag=True, help="the camera mirrors its picture (a setting some have): "
               "the pond is then seen mirrored, and that is right")
-def tower(points_path: str, out_path: str, image_size: str | None, max_error_m: float, mirrored_image: bool) -> None:
+def tower(points_path: str, out_path: str, size: tuple[int, int] | None, max_error_m: float,
+          mirrored_image: bool) -> None:
     """Map the tower camera's pixels to the pond plane from >= 4 surveyed points (homography)."""
     from controller.cli.output_paths import check_outputs
     from vision.tower import TowerInputError, fit_tower, seen_from_above
     check_outputs({"--out": out_path}, [points_path])
-    size = _size(image_size)
     ref = read_table(points_path, REF_HEADER, limit=[PIXELS_MAX] * 2 + [WORLD_MAX] * 2)
     try:
         fit = fit_tower(ref[:, :2], ref[:, 2:])
@@ -77,11 +76,3 @@ def tower(points_path: str, out_path: str, image_size: str | None, max_error_m: 
                f"(point {int(fit.residuals_m.argmax()) + 1})")
     click.echo(f"written: {out_path}")
 
-
-def _size(text: str | None) -> tuple[int, int] | None:
-    if text is None:
-        return None
-    m = re.fullmatch(r"\s*(\d{1,6})\s*[xX]\s*(\d{1,6})\s*", text)
-    if m is None or not all(0 < int(g) <= 100_000 for g in m.groups()):
-        raise BadInput("--image-size", None, f"{text!r}: expected WIDTHxHEIGHT in pixels, e.g. 1280x720")
-    return int(m[1]), int(m[2])

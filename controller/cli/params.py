@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import math
+import re
 
 import click
 
@@ -9,7 +10,8 @@ import click
 # (past ~1e7 a day's run overflows what the clock can print); farm instants in the years 2000-2199
 from devices.clock_file import MAX_SPEED, farm_range_fault
 
-__all__ = ["FARM_INSTANT", "MAX_RUN_SPEED", "MAX_SPEED", "SPEED", "Finite", "check_clock_options"]
+__all__ = ["FARM_INSTANT", "MAX_RUN_SPEED", "MAX_SPEED", "SPEED", "Finite", "check_clock_options",
+           "image_size_option"]
 
 
 class Finite(click.FloatRange):
@@ -74,3 +76,13 @@ def check_clock_options(speed, epoch_wall, epoch_farm, clock_path, hear=None) ->
     elif hear is not None:
         raise BadInput("--hear", None, "only with --clock: the simulator hears demands to let an elastic "
                                        "clock speed on")
+
+
+def image_size_option(ctx, param, value):
+    """``--image-size WxH`` (a click callback): (width, height) in pixels, or None."""
+    if value is None:
+        return None
+    m = re.fullmatch(r"\s*(\d+)\s*[xX]\s*(\d+)\s*", value)
+    if not m or min(int(m[1]), int(m[2])) < 1:
+        raise click.BadParameter(f"{value!r}: expected WIDTHxHEIGHT in pixels (e.g. 1280x960)")
+    return int(m[1]), int(m[2])

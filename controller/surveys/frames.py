@@ -226,8 +226,8 @@ def _distinct(items: list[tuple[str, ...]]) -> tuple[list[int], list[str]]:
     for i, item in enumerate(items):
         by_size.setdefault(tuple(size(p) for p in item), []).append(i)
     copies: dict[int, int] = {}
-    for group in by_size.values():
-        if len(group) < 2 or -1 in (size(p) for p in items[group[0]]):
+    for sizes, group in by_size.items():
+        if len(group) < 2 or -1 in sizes:
             continue
         first: dict[tuple[str, ...], int] = {}
         for i in group:

@@ -214,14 +214,21 @@ def test_a_demand_preempts_the_survey_within_60_s_and_the_survey_resumes(tmp_pat
     assert all(abs(pos - 8.0) <= 0.05 for _, pos in camera.pairs)
 
 
+async def opening_cameras_at_t2(r, tmp_path, slow_s: float):
+    """Homed, a survey of T2 asked of cameras ``slow_s`` farm s to open or close: (stops, camera)
+    once the robot is at T2 and the streams are opening."""
+    await r.until(lambda: r.robot.state == "idle", what="homed")
+    stops, camera, _, _ = await attach(r, tmp_path, period_s=5.0, slow_s=slow_s, settle_s=10.0, ci_pct=0.1)
+    stops.request("T2", pairs=4)
+    await r.until(lambda: r.robot.state == "surveying" and camera.starts, 300.0, what="the cameras opening")
+    return stops, camera
+
+
 def test_cameras_slow_to_open_or_close_hold_no_demand_back(tmp_path):
     """An IP camera's stream can take seconds to open or close: a demand waits for neither."""
     async def main():
         async with rig(tmp_path, speed=50.0) as r:
-            await r.until(lambda: r.robot.state == "idle", what="homed")
-            stops, camera, _, _ = await attach(r, tmp_path, period_s=5.0, slow_s=300.0, settle_s=10.0, ci_pct=0.1)
-            stops.request("T2", pairs=4)
-            await r.until(lambda: r.robot.state == "surveying" and camera.starts, 300.0, what="the cameras opening")
+            stops, camera = await opening_cameras_at_t2(r, tmp_path, slow_s=300.0)
             raised = r.clock.now()
             r.demand("T1")                                 # while the streams open
             await r.until(lambda: r.store.feeds(), 120.0, what="T1 fed")
@@ -454,10 +461,7 @@ def test_a_wake_that_is_no_demand_does_not_end_a_visit_whose_cameras_are_opening
     twice. Woken by what is no demand, the visit waits on for its cameras."""
     async def main():
         async with rig(tmp_path, speed=50.0) as r:
-            await r.until(lambda: r.robot.state == "idle", what="homed")
-            stops, camera, _, _ = await attach(r, tmp_path, period_s=5.0, slow_s=120.0, settle_s=10.0, ci_pct=0.1)
-            stops.request("T2", pairs=4)
-            await r.until(lambda: r.robot.state == "surveying" and camera.starts, 300.0, what="the cameras opening")
+            stops, camera = await opening_cameras_at_t2(r, tmp_path, slow_s=120.0)
             stops.request("T3", pairs=4)                   # asked meanwhile: a wake, no demand
             r.robot.poke()
             await r.until(lambda: r.store.surveys("T2"), 900.0, what="T2 recorded")
