@@ -305,7 +305,10 @@ def test_the_installed_command_takes_its_signals_before_it_imports_click():
         "except SystemExit:\n"
         "    pass\n"
         "print(seen, file=sys.stderr)\n")
-    r = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, timeout=60)
+    # a shell's background job (`make test &`, nohup) starts with SIGINT ignored, which the launcher
+    # rightly leaves ignored: the child starts as a foreground command would, both at their defaults
+    r = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, timeout=60,
+                       preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     seen = r.stderr.strip().splitlines()[-1]
     assert seen == "[['_early', '_early']]", r.stderr
 
