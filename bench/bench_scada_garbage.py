@@ -14,7 +14,6 @@ from __future__ import annotations
 import json
 import logging
 import os
-import signal
 import subprocess
 import sys
 from pathlib import Path
@@ -34,21 +33,15 @@ def main() -> dict:
     srv = ServerThread(StandIn())
     sender = subprocess.Popen([sys.executable, "-c", GARBAGE, str(srv.port), "1"], stdout=subprocess.PIPE, text=True)
     readers = Readers(srv.port)
-    clean, dirty = [0, 0.0], [0, 0.0]
     try:
         sender.stdout.readline()
-        for _ in range(WINDOWS):
-            for total, running in ((clean, False), (dirty, True)):
-                sender.send_signal(signal.SIGCONT if running else signal.SIGSTOP)
-                n, t = readers.window(WINDOW_S)
-                total[0], total[1] = total[0] + n, total[1] + t
+        clean_rate, dirty_rate, _ = readers.alternate(sender, WINDOWS, WINDOW_S)
     finally:
         sender.kill()
         sender.wait()
         readers.close()
         dropped = srv.scada.server.broken
         srv.stop()
-    clean_rate, dirty_rate = clean[0] / clean[1], dirty[0] / dirty[1]
     return {"windows": WINDOWS, "clean_reads_s": round(clean_rate), "garbage_reads_s": round(dirty_rate),
             "ratio": round(dirty_rate / clean_rate, 3), "dropped_connections": dropped,
             "reader_errors": len(readers.errors)}

@@ -235,6 +235,22 @@ class Readers:
         time.sleep(seconds)
         return sum(self.counts) - n0, time.perf_counter() - t0
 
+    def alternate(self, sender: subprocess.Popen, windows: int, window_s: float = 0.12):
+        """``windows`` pairs of windows, the sender stopped in the first and continued in the second
+        (the machine's other load falls on both alike): (clean reads/s, garbage reads/s, each
+        poller's reads in the garbage windows)."""
+        clean, dirty, answered = [0, 0.0], [0, 0.0], [0] * len(self.counts)
+        for _ in range(windows):
+            sender.send_signal(signal.SIGSTOP)
+            n, t = self.window(window_s)
+            clean[0], clean[1] = clean[0] + n, clean[1] + t
+            sender.send_signal(signal.SIGCONT)
+            before = list(self.counts)
+            n, t = self.window(window_s)
+            dirty[0], dirty[1] = dirty[0] + n, dirty[1] + t
+            answered = [a + now - then for a, now, then in zip(answered, self.counts, before, strict=True)]
+        return clean[0] / clean[1], dirty[0] / dirty[1], answered
+
     def close(self) -> None:
         self.stop.set()
         for t in self.threads:
@@ -252,27 +268,16 @@ def test_garbage_on_one_connection_leaves_the_others_served(serve):
     srv = serve()
     sender = subprocess.Popen([sys.executable, "-c", GARBAGE, str(srv.port), "1"], stdout=subprocess.PIPE, text=True)
     readers = Readers(srv.port)
-    clean, dirty = [0, 0.0], [0, 0.0]
-    answered = [0] * len(readers.counts)          # each poller's reads in the garbage windows
     try:
         assert sender.stdout.readline().strip() == "sending"
-        for _ in range(16):
-            sender.send_signal(signal.SIGSTOP)
-            n, t = readers.window(0.12)
-            clean[0], clean[1] = clean[0] + n, clean[1] + t
-            sender.send_signal(signal.SIGCONT)
-            before = list(readers.counts)
-            n, t = readers.window(0.12)
-            dirty[0], dirty[1] = dirty[0] + n, dirty[1] + t
-            answered = [a + now - then for a, now, then in zip(answered, readers.counts, before, strict=True)]
+        clean, dirty, answered = readers.alternate(sender, 16)
         assert sender.poll() is None and not readers.errors, readers.errors
     finally:
         sender.kill()
         sender.wait()
         readers.close()
-    ratio = (dirty[0] / dirty[1]) / (clean[0] / clean[1])
-    print(f"reads/s with a garbage connection / clean: {ratio:.2f} "
-          f"({dirty[0] / dirty[1]:.0f} vs {clean[0] / clean[1]:.0f})")
+    ratio = dirty / clean
+    print(f"reads/s with a garbage connection / clean: {ratio:.2f} ({dirty:.0f} vs {clean:.0f})")
     assert 0 not in answered, f"a poller had no answer while garbage flowed: {answered}"
     assert ratio >= 0.5, f"garbage cost the other connections {100 * (1 - ratio):.0f} % of their reads"
     assert srv.scada.server.broken > 0                 # it was garbage, and it was dropped
