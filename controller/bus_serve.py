@@ -31,6 +31,12 @@ Handler = Callable[..., Awaitable[dict]]
 override handler that takes a ``user`` keyword gets the authenticated user name (controller.identity)
 or None: ``await handler(payload, user=...)``; one that does not is called ``handler(payload)``."""
 _CHUNK = re.compile(r"^[^/*$#?]+$")  # one concrete key chunk: no wildcard, no selector syntax
+MAX_REQUEST_BYTES = 64 * 1024
+"""The largest request payload read: ours are a few hundred bytes. A bigger one is refused unread,
+as not readable: parsing 50 MB of JSON held the GIL for a second on a Zenoh thread, and the e-stop
+thread beside it waited (2.45 s to the latches, 10 such overrides in flight), and a client chose
+how much memory the controller kept (2.6 GB with 40 in flight). A lenient command's (the e-stop's)
+is read whatever its size: it has acted before, and its audit names who sent it."""
 
 
 def encode(payload: dict) -> bytes:
@@ -68,6 +74,25 @@ def _finite(value, path: str, where: list[str]):
     return value
 
 
+class Prepared(dict):
+    """A reply encoded once (``data``): one shared by many queries goes out as is, not encoded again
+    for each (a flood of ``status`` queries, each encoding the whole farm on the loop, had the
+    Modbus e-stop wait seconds behind them)."""
+
+    def __init__(self, answer: dict):
+        super().__init__(answer)
+        self.data = encode(answer)
+
+
+def _request(query: zenoh.Query, lenient: bool = False) -> dict:
+    """A query's payload, as ``decode`` reads it, refused unread when over MAX_REQUEST_BYTES
+    (unless ``lenient``)."""
+    data = query.payload
+    if not lenient and data is not None and len(data) > MAX_REQUEST_BYTES:
+        raise ValueError(f"payload of {len(data):,} bytes: a request is at most {MAX_REQUEST_BYTES:,}")
+    return decode(data)
+
+
 def decode(data: zenoh.ZBytes | bytes | None) -> dict:
     """A payload as a dict; no payload at all is ``{}``. Raises ValueError saying what is wrong:
     not UTF-8, not JSON, not an object, nested too deep, a key given twice (controller.payload)."""
@@ -88,16 +113,19 @@ class Serving:
     """Mixin of ``Bus``: needs ``session``, ``key()``, ``_suffix()``, ``identified``,
     ``_handler_loop()`` and ``_keep()``."""
 
-    def queryable(self, suffix: str, handler: Handler, *, lenient: bool = False, selector: bool = False) -> None:
+    def queryable(self, suffix: str, handler: Handler, *, lenient: bool = False, selector: bool = False,
+                  ready: Callable[[], dict | None] | None = None) -> None:
         """Answer gets on ``farm/{site}/{suffix}`` with ``await handler(payload)``.
         A payload that is not a JSON object is refused (``{"ok": false, "error": ...}``) unless
         ``lenient``, when the handler gets ``{}``. A handler exception is such a refusal too.
         ``selector``: ``suffix`` may hold wildcards, and the handler is called
         ``handler(payload, key=..., params=...)`` with the concrete key's suffix and the selector's
-        parameters (``...?since=2026-06-01;until=...``, strings)."""
+        parameters (``...?since=2026-06-01;until=...``, strings). ``ready()``, called on the Zenoh
+        thread, may give an answer at hand (a cached snapshot): it goes out at once, the loop not
+        involved; None: the handler answers as ever."""
         if not selector:
             wrapped = _with_user(handler)
-            self._serve(suffix, lambda _key: (wrapped, lenient, None, None, None))
+            self._serve(suffix, lambda _key: (wrapped, lenient, None, None, None), ready)
             return
 
         def resolve(key: str):
@@ -149,12 +177,12 @@ class Serving:
                     lambda error, payload=None: tell(command, error, user, payload))
         self._serve("override/**", resolve)
 
-    def _serve(self, suffix: str, resolve) -> None:
+    def _serve(self, suffix: str, resolve, ready=None) -> None:
         loop = self._handler_loop()
         self._keep(self.session.declare_queryable(
-            self.key(suffix), lambda query: self._on_query(query, resolve, loop)))
+            self.key(suffix), lambda query: self._on_query(query, resolve, loop, ready)))
 
-    def _on_query(self, query: zenoh.Query, resolve, loop: asyncio.AbstractEventLoop) -> None:
+    def _on_query(self, query: zenoh.Query, resolve, loop: asyncio.AbstractEventLoop, ready=None) -> None:
         """On a Zenoh thread: act (urgent), parse, then hand the work to the loop. Never blocks,
         never raises, and every concrete query gets a reply."""
         key = str(query.key_expr)
@@ -163,6 +191,9 @@ class Serving:
             query.drop()
             return
         try:
+            answer = ready() if ready is not None else None
+            if answer is not None:
+                return self._reply(query, answer)
             self._dispatch(query, key, resolve, loop)
         except BaseException as exc:  # noqa: BLE001 - a Zenoh thread must not die, the querier must hear
             self._reply(query, {"ok": False, "error": f"internal error: {type(exc).__name__}"})
@@ -175,7 +206,7 @@ class Serving:
         except LookupError as exc:
             if isinstance(exc, RefusedOnWire):       # audited with what the payload claims, if readable
                 try:
-                    payload = decode(query.payload)
+                    payload = _request(query)
                 except Exception as bad:  # noqa: BLE001 - whatever a hostile payload raises: kept as none
                     payload = _received(bad)
                 exc.notify(payload)
@@ -196,7 +227,7 @@ class Serving:
             except Exception:
                 log.exception("urgent action for %s failed", key)
         try:
-            payload = decode(query.payload)
+            payload = _request(query, lenient)
         except Exception as exc:  # noqa: BLE001 - ValueError, or whatever a hostile payload raises
             if not lenient:
                 error = str(exc) if isinstance(exc, ValueError) else f"unreadable payload ({type(exc).__name__})"
@@ -214,7 +245,7 @@ class Serving:
     def _reply(self, query: zenoh.Query, answer: dict) -> None:
         try:
             try:
-                data = encode(answer)
+                data = answer.data if isinstance(answer, Prepared) else encode(answer)
             except (TypeError, ValueError) as exc:
                 data = encode({"ok": False, "error": f"reply is not JSON-serialisable: {exc}"})
             query.reply(query.key_expr, data, encoding=zenoh.Encoding.APPLICATION_JSON)

@@ -14,6 +14,7 @@ import zenoh
 
 from controller import bus_serve
 from controller.bus import Bus, BusUnreachable, decode, encode
+from controller.bus_serve import MAX_REQUEST_BYTES
 from controller.config import BusConfig
 from controller.errors import BadInput
 from hil_tests.ports import free_port
@@ -387,6 +388,7 @@ HOSTILE = {
     "empty": b"",
     "array": b"[1, 2]",
     "nan": b'{"reason": NaN}',
+    "huge": b'{"reason": "' + b"x" * (1 << 20) + b'"}',                # valid JSON, read by nobody
 }
 
 
@@ -416,10 +418,33 @@ def test_estop_acts_first_and_replies_on_any_payload(pair, loop, name):
     getter.join(WAIT_S)
     blocker.result(WAIT_S)
     try:
-        expected = decode(HOSTILE[name])
+        expected = decode(HOSTILE[name])                    # an e-stop's is read whatever its size
     except ValueError:
         expected = {}                                       # an unreadable payload is an empty one
     assert replies == [{"ok": True}] and handled == [expected]
+
+
+@pytest.mark.parametrize("size, read", [(MAX_REQUEST_BYTES, True), (MAX_REQUEST_BYTES + 1, False), (50 << 20, False)])
+def test_a_request_payload_over_the_limit_is_refused_unread(pair, size, read):
+    """A 50 MB override parsed on a Zenoh thread held the GIL for a second, the e-stop's thread
+    beside it waiting; forty in flight held 2.6 GB. Over 64 KiB a request is refused unread, by its
+    size; up to it, read as ever. (An e-stop's is read whatever its size: it has acted already.)"""
+    server, client = pair
+    seen = []
+
+    async def feed(payload):
+        seen.append(len(payload["reason"]))
+        return {"ok": True}
+    server.overrides({"estop": feed, "feed": feed})
+    body = b'{"reason": "' + b"x" * (size - 14) + b'"}'
+    assert len(body) == size
+    replies = [decode(r.ok.payload) for r in
+               client.session.get(client.key("override/feed"), payload=body, timeout=WAIT_S)]
+    if read:
+        assert replies == [{"ok": True}] and seen == [size - 14]
+    else:
+        assert seen == [] and replies == [{"ok": False, "error": f"payload of {size:,} bytes: a request is at "
+                                                                  f"most {MAX_REQUEST_BYTES:,}"}]
 
 
 def test_a_command_refused_for_its_payload_does_not_trip_and_still_gets_a_reply(pair):
@@ -430,7 +455,7 @@ def test_a_command_refused_for_its_payload_does_not_trip_and_still_gets_a_reply(
         return {"ok": True}
     server.overrides({"estop": feed, "feed": feed}, urgent={"estop": tripped.set})
     raw = [decode(r.ok.payload) for r in
-           client.session.get(client.key("override/feed"), payload=HOSTILE["nested_deep"], timeout=WAIT_S)]
+           client.session.get(client.key("override/feed"), payload=HOSTILE["nested_object"], timeout=WAIT_S)]
     assert len(raw) == 1 and raw[0]["ok"] is False and "nested deeper" in raw[0]["error"]
     assert not tripped.is_set()
 

@@ -231,7 +231,9 @@ def test_valid_payloads_are_taken_exactly_as_sent(served, data):
     ("ration", {"tank": "T1", "grams": True}, "grams: must be a number, not a boolean"),
     ("ration", {"tank": "T1", "grams": -1}, "grams: must be at least 0"),
     ("manual", {"on": "yes"}, "on: must be true or false, not a string"),
-    ("feed", {"tank": "T1", "grams": 40, "reason": "x" * 5_000_000}, "reason: longer than 200 characters"),
+    ("feed", {"tank": "T1", "grams": 40, "reason": "x" * 50_000}, "reason: longer than 200 characters"),
+    ("feed", {"tank": "T1", "grams": 40, "reason": "x" * 5_000_000},
+     "payload of 5,000,041 bytes: a request is at most 65,536"),
     ("reset", {"reason": "ok\n2026-05-28T06:00:00Z WARNING fishfarm: all clear"},
      "reason: control characters (newline, carriage return, escape...) are not allowed"),
     ("feed", {"tank": "T9", "grams": 40}, "tank: no tank 'T9'"),
@@ -382,3 +384,27 @@ def test_the_history_queryable_serves_the_ledger_over_zenoh(served):
         [reply] = client.session.get(client.key("history/fish/T1"), payload=garbage, timeout=2.0)
         answer = decode(reply.ok.payload)
         assert answer["ok"] is False and answer["error"], (garbage, answer)
+
+
+def test_status_is_built_once_for_a_burst_of_queries_and_anew_after_an_override(served, monkeypatch):
+    """400 status queries a second had each built and encoded the whole farm on the loop (a Modbus
+    e-stop waited seconds behind them): a snapshot now answers every query for 0.1 s of wall, and an
+    override renews it, so what it did shows in the very next status."""
+    farm, client = served
+    wall = [1e9]
+    monkeypatch.setattr("controller.overrides.time.monotonic", lambda: wall[0])
+    built, real = [], farm.status
+    monkeypatch.setattr(farm, "status", lambda: built.append(1) or real())
+
+    def status() -> dict:
+        replies = [json.loads(r.ok.payload.to_bytes()) for r in client.session.get("farm/demo/status", timeout=WAIT_S)]
+        assert len(replies) == 1
+        return replies[0]
+    first = [status() for _ in range(20)]
+    assert len(built) == 1 and all(s == first[0] for s in first)
+    wall[0] += 0.1
+    status()
+    assert len(built) == 2
+    assert ask(client, "ack", json.dumps({"source": "pump", "kind": "power", "operator": "ana"}).encode())["ok"]
+    after = status()
+    assert len(built) == 3 and after != first[0]
