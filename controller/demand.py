@@ -119,6 +119,9 @@ held such an episode back). Residual
 risk: a turbulence contact right after an episode's end can still be the raising one: the
 independent streams count those within 10 s of an end apart (``afterglow``).
 
+*Persistence.* Slow fish the minute's count misses are raised once they have kept at it: the
+same busy seconds over ``persist_window_s`` (controller/demand_window.py, ``Persistence``).
+
 *Faults.* Stuck: a sensor's own count is ≥ 0.9 × stuck_rate_hz × 5 in ≥ ``stuck_share`` of its
 5 s bins over ``stuck_window_s`` (fish at 2 /s exceed that in 21 % of bins, a 3 /s stuck sensor in
 ~all; chatter lasts < 10 s). It is left out until it has had no fast bin for ``recover_s``.
@@ -152,7 +155,7 @@ from controller.demand_stats import (
     threshold,
 )
 from controller.demand_types import Demand, DemandParams, SensorFault, SensorRecovered, SlowFishUndetectable
-from controller.demand_window import BurstRules, TankWindow
+from controller.demand_window import BurstRules, Persistence, TankWindow
 
 __all__ = ["Demand", "DemandFilter", "DemandParams", "SensorFault", "SensorRecovered", "SlowFishUndetectable",
            "threshold"]
@@ -162,9 +165,14 @@ RUN_GAP_S = 1.0         # contacts closer than this continue a run (a burst's ta
 BURST_S = 10.0          # the contract's longest chatter burst: a run lasting longer is not one
 RAISE_GAP_PACES = 3.0   # the raising contact follows the one before within this many paces
 PRIOR_S = 900.0         # the background prior: this long at the contract's bound (turbulence_max_hz)
+PRIOR_BEAT_WINDOW_S = 180.0   # the beat looks back this far on a tank still at its prior: a steady 10 s pace
+                              # from a fresh filter's first contact was never raised over 60 s (the count at
+                              # 0.05 /s cannot see it); 180 s for every tank made the bench's farm stream
+                              # replay 1.65x slower (a search on nearly every contact at 0.05 /s)
+SUSPECT_BINS = 0b111    # a sensor stuck-fast this many bins in a row (15 s, past any burst) counts nothing
 
 
-class DemandFilter(BurstRules):
+class DemandFilter(BurstRules, Persistence):
     """See the module docstring. ``tanks``: tank -> its sensors; None: learn them from contacts."""
 
     def __init__(self, params: DemandParams | None = None, tanks: dict[str, list[str]] | None = None):
@@ -180,8 +188,16 @@ class DemandFilter(BurstRules):
         self._window = self._n * p.bin_s
         self._span = (self._n - 1) * p.bin_s            # the complete bins of a window
         self._k_grid = [threshold(b, self._window, p.false_alarms_per_day, p.min_contacts) for b in self._b_grid]
-        self._beat_grid = [beat_tests(b, p.beat_jitter, p.beat_false_alarms_per_day, p.beat_period_s,
-                                      self._window) for b in self._b_grid]
+        # (window, grid) of the beat test: over beat_window_s once the tank's turbulence is measured,
+        # and over PRIOR_BEAT_WINDOW_S while it is the prior (its count at the contract's bound)
+        self._beats = [(w, [beat_tests(b, p.beat_jitter, p.beat_false_alarms_per_day, p.beat_period_s, w)
+                            for b in self._b_grid])
+                       for w in (p.beat_window_s, max(p.beat_window_s, PRIOR_BEAT_WINDOW_S))]
+        self._persist = p.persist_window_s
+        self._persist_bins = round(self._persist / p.bin_s) if self._persist else 0
+        self._kp_grid = [threshold(b, self._persist, p.persist_false_alarms_per_day,
+                                   max(p.min_contacts, math.ceil(b * self._persist) + 1)) if self._persist else 1 << 30
+                         for b in self._b_grid]
         self._beat_bin = math.ceil(p.bin_s / p.beat_period_s[0]) + 1   # more in a bin: a burst
         self._run_cap = p.run_cap or 1 << 30
         self._fixed = tanks is not None
@@ -210,6 +226,8 @@ class DemandFilter(BurstRules):
             if s.state == STUCK:
                 return events or _NONE
             events = self._revive(ts, s, t, events)
+        elif s.fast & SUSPECT_BINS == SUSPECT_BINS:
+            return events or _NONE                  # fast for longer than a burst: stuck, not yet judged
         s.mark = ts.active
         if t - ts.prev_c >= RUN_GAP_S:              # a pause: a new run of contacts
             if ts.run_n == 2 and ts.run_cnt == 1 and self._run_cap < 1 << 30:
@@ -235,7 +253,9 @@ class DemandFilter(BurstRules):
             if counted and (ts.demanding or ts.vsum + ts.cur >= ts.k):
                 events = self._decide(ts, t, events)
             elif ts.demanding and ts.osum + ts.occ < self.params.end_fraction * ts.k:
-                ts.demanding = False
+                self._drained(ts)
+            if counted and not ts.demanding and ts.lsum + ts.cur >= ts.kp:
+                events = self._persisting(ts, t, events)
             ts.last_t = t
         if (ts.beats.contact(t, ts.raw, ts.excl or ts.tail) and not ts.demanding
                 and t - ts.last_raise >= self.params.repeat_s and ts.beats.found(t)):
@@ -299,7 +319,7 @@ class DemandFilter(BurstRules):
                 return events
             return self._start(ts, t, events)
         if ts.osum + ts.occ < p.end_fraction * ts.k:
-            ts.demanding = False
+            self._drained(ts)
             return events
         if t - ts.last_raise < p.repeat_s:
             return events
@@ -360,6 +380,8 @@ class DemandFilter(BurstRules):
             ts.beats.forget(ts.bin_end - self._bin, ts.bin_end)
         for _ in range(min(steps, n + 1)):
             self._close_bin(ts)
+        for _ in range(min(steps, len(ts.lvals) + 1) - min(steps, n + 1)):
+            self._push_persist(ts, 0)               # a silence longer than the window
         ts.m_old = self._max3(ts) if ts.vsum else 0
         if steps > n + 1:                           # a long silence: every span was empty
             a = self._alpha ** (steps - (n + 1))
@@ -372,11 +394,11 @@ class DemandFilter(BurstRules):
             if note is not None:
                 ts.told = True
                 events = [*(events or ()), SlowFishUndetectable(ts.name, ts.bin_end, note)]
-        beats, old = ts.beats, ts.bin_end - self._bin - self._window
+        beats, old = ts.beats, ts.bin_end - self._bin - ts.beats.window
         if (beats.times and beats.times[0] < old) or beats.gaps:
             beats.trim(old)
         if ts.demanding and ts.osum + ts.occ < self.params.end_fraction * ts.k:
-            ts.demanding = False
+            self._drained(ts)
         return events
 
     def _close_bin(self, ts: TankWindow) -> None:
@@ -389,6 +411,7 @@ class DemandFilter(BurstRules):
         ts.osum += ts.occ - ts.occs[h]
         ts.occs[h] = ts.occ
         ts.head = (h + 1) % len(ts.vals)
+        self._push_persist(ts, v)
         ts.p2, ts.p1 = ts.p1, v
         if v:
             self._clump(ts, h)
@@ -434,15 +457,19 @@ class DemandFilter(BurstRules):
         p = self.params
         t0 = PRIOR_S / p.bin_s                      # the prior: 15 min at the contract's bound
         ts = TankWindow(tank, self._n, 0, t0 * math.exp(-p.turbulence_max_hz * self._span), t0,
-                   Beats(self._window, p.beat_single_s, p.beat_period_s[0], p.beat_search_nodes, self._beat_bin))
+                        Beats(p.beat_window_s, p.beat_single_s, p.beat_period_s[0], p.beat_search_nodes,
+                              self._beat_bin), self._persist_bins)
         self._thresholds(ts)
         self._tanks[tank] = ts
         return ts
 
     def _thresholds(self, ts: TankWindow) -> None:
-        """Both tests' thresholds from the tank's turbulence, rounded up on the grid."""
+        """The tests' thresholds from the tank's turbulence, rounded up on the grid."""
         i = min(63, bisect.bisect_left(self._b_grid, self._background(ts)))
-        if i != ts.grid_i:
-            ts.grid_i, ts.k = i, self._k_grid[i]
+        prior = ts.bg_seen * self._bin < PRIOR_S
+        if i + 64 * prior != ts.grid_i:
+            ts.grid_i, ts.k, ts.kp = i + 64 * prior, self._k_grid[i], self._kp_grid[i]
             ts.cap = max(self._run_cap, ts.k // 4) if self.params.run_cap else 1 << 30
-            ts.beats.tests, ts.beats.least = self._beat_grid[i]
+            window, grid = self._beats[prior]
+            ts.beats.window = window
+            ts.beats.tests, ts.beats.least = grid[i]

@@ -39,6 +39,8 @@ from bisect import bisect_left, bisect_right
 from functools import lru_cache
 
 DAY_S = 86400.0
+MAX_SKIPS = 2           # a burst (< 10 s) hides at most two cycles of a beat at 5 s; more is a chain
+                        # strung across bursts (with a window of minutes, bursts gave free cycles)
 HEALTHY, STUCK, DEAD = 0, 1, 2
 
 
@@ -193,12 +195,13 @@ def beat_chain(times: list[float], lo: int, hi: int, x0: float, jitter: float, l
 
 
 class _Search:
-    __slots__ = ("times", "lo", "x0", "two_d", "log_2db", "lam", "left", "gaps", "ys", "cycles")
+    __slots__ = ("times", "lo", "x0", "two_d", "log_2db", "lam", "left", "gaps", "ys", "cycles", "skips")
 
     def __init__(self, times, lo, x0, two_d, log_2db, lam, cap, gaps):
         self.times, self.lo, self.x0, self.two_d = times, lo, x0, two_d
         self.log_2db, self.lam, self.left, self.gaps = log_2db, lam, cap, gaps
         self.ys, self.cycles = [x0], [0]             # the chain: times and their cycles
+        self.skips = MAX_SKIPS                       # empty cycles a chain may pass across bursts
 
     def extend(self, m: int, p_lo: float, p_hi: float, hi: int) -> bool:
         """Find the chain's point m cycles before x0 in ``times[lo:hi]``; True once S >= λ."""
@@ -245,9 +248,13 @@ class _Search:
                 return True
             ys.pop()
             cycles.pop()
-        if self.gaps and first < last and self.left > 0 and any(a < last and b > first for a, b in self.gaps):
+        if (self.gaps and first < last and self.left > 0 and self.skips > 0
+                and any(a < last and b > first for a, b in self.gaps)):
             self.left -= 1                          # this cycle's contact may have been a burst's
-            return self.extend(m + 1, p_lo, p_hi, hi)
+            self.skips -= 1
+            if self.extend(m + 1, p_lo, p_hi, hi):
+                return True
+            self.skips += 1
         return False
 
 

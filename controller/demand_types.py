@@ -70,6 +70,11 @@ class DemandParams(BaseModel):
                                            description="beat tolerances, ± share of the period")
     beat_period_s: tuple[float, float] = (2.0, 12.0)
     beat_search_nodes: int = Field(30, ge=1)
+    beat_window_s: float = Field(60.0, ge=20, le=1200, description="how far back a beat is looked for "
+                                 "(180 s while a tank's turbulence is still the prior)")
+    persist_window_s: float = Field(300.0, ge=0, le=1800,
+                                    description="the persistence count's window (0: off)")
+    persist_false_alarms_per_day: float = Field(0.1, gt=0, lt=10, description="its Poisson-tail budget")
     beat_single_s: float = Field(0.5, ge=0, description="closer contacts are a burst's, not a beat's")
     slow_fish_hz: float = Field(0.1, gt=0, description="the slowest fish the tank must serve")
     slow_fish_recall: float = Field(0.5, gt=0, lt=1, description="below this, say they are undetectable")
@@ -87,4 +92,8 @@ class DemandParams(BaseModel):
             raise ValueError("beat_jitter values must lie in (0, 0.45]")
         if not 0 < self.beat_period_s[0] < self.beat_period_s[1]:
             raise ValueError("beat_period_s must be (shortest, longest) > 0")
+        if self.beat_window_s < self.window_s:
+            raise ValueError("beat_window_s must not be shorter than window_s")
+        if self.persist_window_s and self.persist_window_s < 2 * self.window_s:
+            raise ValueError("persist_window_s must be 0 (off) or at least twice window_s")
         return self

@@ -277,6 +277,7 @@ class Score:
     def as_dict(self) -> dict:
         lat = sorted(x for x in self.latencies if math.isfinite(x))
         return {"episodes": self.episodes, "recall_60s": round(self.recall, 4),
+                "raised": round(len(lat) / max(1, self.episodes), 4),     # at all, before the episode's end
                 "latency_p50_s": round(lat[len(lat) // 2], 1) if lat else None,
                 "latency_p95_s": round(lat[int(0.95 * (len(lat) - 1))], 1) if lat else None,
                 "false_demands": self.false_demands, "afterglow": self.afterglow,

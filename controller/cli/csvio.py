@@ -57,8 +57,11 @@ def _check_header(where: str, line: str, header: Sequence[str]) -> None:
 
 
 def number(cell: str, where: str, lineno: int, column: str) -> float:
-    """A finite float from a CSV cell, or BadInput naming file, line and column."""
+    """A finite float from a CSV cell, or BadInput naming file, line and column. Python's own
+    spellings no CSV writer uses (``1_000``, digits of other scripts) are not numbers here."""
     try:
+        if "_" in cell or not cell.isascii():
+            raise ValueError(cell)
         value = float(cell)
     except ValueError:
         raise BadInput(where, f"line {lineno}, column {column}", f"not a number: {cell.strip()!r}") from None

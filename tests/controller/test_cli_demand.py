@@ -65,6 +65,7 @@ def test_config_takes_tanks_from_farm_toml_and_skips_strangers(log, tmp_path):
 @pytest.mark.parametrize(("body", "needle"), [
     ("t,tank,sensor\n1,T1,a\n", "header: expected 't_s,tank,sensor'"),
     ("t_s,tank,sensor\n1,T1,a\nabc,T1,a\n", "line 3, column t_s: not a number: 'abc'"),
+    ("t_s,tank,sensor\n1_000,T1,a\n", "line 2, column t_s: not a number: '1_000'"),    # Python's, not CSV's
     ("t_s,tank,sensor\n5,T1,a\n4.5,T1,a\n", "line 3, column t_s: 4.5 is earlier"),
     ("t_s,tank,sensor\n5,T1,a,x\n", "line 2: 4 fields, expected 3"),
     ("t_s,tank,sensor\n5,,a\n", "line 2, column tank: empty"),

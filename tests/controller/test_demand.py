@@ -327,9 +327,10 @@ def test_beat_false_alarm_bound_holds_on_poisson_contacts(jitter):
 
 def test_beat_false_demands_stay_under_their_budget_in_the_filter():
     # the beat's bound in situ (bursts, clumps, the estimated turbulence): with its budget
-    # raised to 3 a day and the count silenced, 20 days of 0.05 /s turbulence and 6 bursts an
+    # raised to 3 a day and both counts silenced, 20 days of 0.05 /s turbulence and 6 bursts an
     # hour give fewer false demands than budgeted, and some (the bound is not vacuous)
-    p = DemandParams(false_alarms_per_day=1e-9, beat_false_alarms_per_day=3.0, repeat_s=1.0)
+    p = DemandParams(false_alarms_per_day=1e-9, persist_false_alarms_per_day=1e-9,
+                     beat_false_alarms_per_day=3.0, repeat_s=1.0)
     rng = np.random.default_rng(37)
     days = 20
     stream = cs.merge(*[cs.tank_day(rng, "T1", ("a", "b"), T0 + d * 86400, episodes_per_day=1e-9,
@@ -518,3 +519,66 @@ def test_times_before_zero_are_times_like_any_other():
         moved = cs.Stream(base.t + shift, base.tank, base.sensor, base.source)
         got = [round(d.t - T0 - shift, 6) for d in demands(replay(moved, until=T0 + shift + 2 * HOUR)[0])]
         assert got == pytest.approx(want, abs=1e-6), shift
+
+
+# -- slow fish that persist, and sensors stuck fast (an outside tester's streams, 2026-12-05) -------
+
+def _poisson_rows(rng, t0, t1, rate_hz, sensors):
+    """Contacts of a Poisson process on the given sensors, straight from the contract's words."""
+    t = np.sort(rng.uniform(t0, t1, rng.poisson(rate_hz * (t1 - t0))))
+    return [(float(x), sensors[int(rng.integers(len(sensors)))]) for x in t]
+
+
+def _replay_rows(rows, tank="T1"):
+    f = DemandFilter()
+    events, nxt = [], -math.inf
+    for t, sensor in sorted(rows):
+        if t >= nxt:
+            events += f.on_time(t)
+            nxt = t + 5.0
+        events += f.on_contact(t, tank, sensor)
+    return events
+
+
+@pytest.mark.parametrize("period_s", [10.0, 8.0, 6.0])
+def test_a_steady_slow_pace_from_a_tank_s_first_contact_is_raised_while_it_lasts(period_s):
+    """Fish at 0.1-0.17 /s bumping at a steady pace for 10 minutes, from the first contact a filter
+    sees (a controller just started): the count's prior (the contract's 0.05 /s) is far above them,
+    and a beat was looked for over the last minute only, where a 10 s pace cannot clear it: such
+    episodes were never raised. While the prior holds, the beat is looked for over 180 s."""
+    for seed in range(3):
+        rng = np.random.default_rng(seed)
+        start = 43_200.0 + rng.uniform(0, 1000)
+        rows = [(start + i * period_s + rng.uniform(-0.05, 0.05) * period_s, "ab"[i % 2])
+                for i in range(int(600 / period_s))]
+        ds = [d.t - start for d in demands(_replay_rows(rows))]
+        assert ds and 0 <= ds[0] <= 120.0 and max(ds) <= 600.0, (seed, ds)
+
+
+def test_slow_poisson_fish_that_persist_are_raised_before_they_stop():
+    """Poisson fish at 0.1 /s for 10 minutes on a tank at 0.04 /s of turbulence: the minute's count
+    catches some; the persistence count (5 minutes, its own small budget) the rest while they ask."""
+    raised, outside = 0, []
+    for seed in range(20):
+        rng = np.random.default_rng(500 + seed)
+        start = T0 + HOUR
+        rows = (_poisson_rows(rng, T0, start + 900, 0.04, ("a", "b"))
+                + _poisson_rows(rng, start, start + 600, 0.1, ("a", "b")))
+        ds = [d.t - start for d in demands(_replay_rows(rows))]
+        raised += any(0 <= d <= 600 for d in ds)
+        outside += [d for d in ds if not 0 <= d <= 600 + contract.AFTERGLOW_S]
+    assert raised >= 18 and outside == [], (raised, outside)
+
+
+def test_a_sensor_stuck_fast_counts_nothing_once_it_has_been_fast_longer_than_any_burst():
+    """A sensor stuck at 3 /s with 5 % jitter (some of its bins just under chatter's 15) raised two or
+    three demands in the 90 s before it was judged stuck. Fast for 15 s (longer than any burst),
+    its contacts count nothing until it slows."""
+    for seed in range(10):
+        rng = np.random.default_rng(100 + seed)
+        onset = T0 + HOUR
+        rows = _poisson_rows(rng, T0, onset + 300, 0.002, ("a", "b"))
+        rows += [(onset + (i + rng.uniform(-0.05, 0.05)) / 3.0, "a") for i in range(900)]
+        events = _replay_rows(rows)
+        assert [d.t for d in demands(events) if d.t > onset + 20] == [], seed
+        assert [(e.sensor, e.kind) for e in events if isinstance(e, SensorFault)] == [("a", "stuck")]
