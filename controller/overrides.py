@@ -52,6 +52,11 @@ LOG_LINE_MAX = 1000
 AUDIT_HELD_MAX = 10_000      # audit rows held while the ledger cannot be written
 HISTORY_AT_ONCE = 2          # history queries answered at once (threads); more wait their turn
 STATUS_FRESH_WALL_S = 0.1    # a status snapshot answers every query this long (an override renews it)
+
+
+def _wall() -> float:
+    """The status snapshot's clock (a test freezes this, not the process's time.monotonic)."""
+    return time.monotonic()
 NOT_YET: dict[str, str] = {}
 NO_CAMERA = "no survey camera in this controller (farm.toml has no stereo_camera device)"
 NO_CLEANER = "no pond cleaner in this controller (farm.toml has no [cleaning] section)"
@@ -84,7 +89,7 @@ class Overrides:
         self._act = {name: getattr(self, name.replace("-", "_")) for name in COMMANDS if name not in NOT_YET}
         self._once = Once(lambda: self.c.store, Refused, LedgerUnwritable)
         self._historians = asyncio.Semaphore(HISTORY_AT_ONCE)
-        self._status: tuple[Prepared, float] | None = None    # (snapshot, wall monotonic when built)
+        self._status: tuple[Prepared, float, bool] | None = None   # (snapshot, wall monotonic, e-stop tripped)
 
     def declare(self, bus) -> None:
         # one queryable on override/*: an unknown command is refused with a reason, not left unanswered
@@ -107,16 +112,22 @@ class Overrides:
         a SIGTERM's stop overrunning."""
         snapshot = self.fresh_status()      # queries that came while it was stale, one built for all
         if snapshot is None:
+            tripped = self._tripped()
             snapshot = Prepared(self.c.status())
-            self._status = (snapshot, time.monotonic())
+            self._status = (snapshot, _wall(), tripped)
         return snapshot
 
     def fresh_status(self) -> Prepared | None:
-        """On a Zenoh thread: the last snapshot while it is fresh, else None (the loop builds one)."""
-        held = self._status                 # one read: the loop replaces the pair whole
-        if held is None or time.monotonic() - held[1] >= STATUS_FRESH_WALL_S:
+        """On a Zenoh thread: the last snapshot while it is fresh, else None (the loop builds one).
+        An e-stop tripped since (from the Modbus coil's or Zenoh's own thread) makes it stale."""
+        held = self._status                 # one read: the loop replaces the triple whole
+        if held is None or _wall() - held[1] >= STATUS_FRESH_WALL_S or held[2] != self._tripped():
             return None
         return held[0]
+
+    def _tripped(self) -> bool:
+        lane = getattr(self.c, "lane", None)
+        return bool(lane is not None and lane.tripped)
 
     async def history(self, payload, *, key: str, params: dict) -> dict:
         """``history/{what}/{tank}?since=...;until=...`` (controller/history.py); the range may
@@ -175,6 +186,7 @@ class Overrides:
         except Exception as exc:  # a bug: the operator hears of it, the audit keeps it
             log.exception("override %s failed", name)
             reply = {"ok": False, "error": f"internal error: {type(exc).__name__}"}
+        self._status = None                  # and one built while it waited (a reset's cleaner) is not kept
         self._audit(t=t, user=user, command=name, payload=payload, origin=origin, reply=reply)
         return reply
 

@@ -392,7 +392,7 @@ def test_status_is_built_once_for_a_burst_of_queries_and_anew_after_an_override(
     override renews it, so what it did shows in the very next status."""
     farm, client = served
     wall = [1e9]
-    monkeypatch.setattr("controller.overrides.time.monotonic", lambda: wall[0])
+    monkeypatch.setattr("controller.overrides._wall", lambda: wall[0])
     built, real = [], farm.status
     monkeypatch.setattr(farm, "status", lambda: built.append(1) or real())
 
@@ -408,3 +408,46 @@ def test_status_is_built_once_for_a_burst_of_queries_and_anew_after_an_override(
     assert ask(client, "ack", json.dumps({"source": "pump", "kind": "power", "operator": "ana"}).encode())["ok"]
     after = status()
     assert len(built) == 3 and after != first[0]
+
+
+def test_a_status_asked_while_an_override_waits_is_not_the_one_after_its_reply(served, monkeypatch):
+    """A reset waits for the cleaner's thrusters to confirm their latch released; a status another
+    client asked meanwhile was kept as the fresh snapshot, and the reset's own client, told ok, read
+    the cleaner in ``estop`` for up to 0.1 s more. An e-stop tripped from another thread (the Modbus
+    coil, Zenoh's own thread) makes the snapshot stale at once too."""
+    farm, client = served
+    monkeypatch.setattr("controller.overrides._wall", lambda: 2e9)    # fresh for ever, unless renewed
+    entered, release = threading.Event(), threading.Event()
+
+    class Cleaner:
+        state = "estop"
+
+        async def operator_reset(self):
+            entered.set()
+            while not release.is_set():
+                await asyncio.sleep(0.01)
+            self.state = "docked"
+
+    class Lane:
+        tripped = False
+
+        def confirming(self, _s):
+            return False
+    monkeypatch.setattr(farm, "cleaner", Cleaner(), raising=False)
+    monkeypatch.setattr(farm, "lane", Lane(), raising=False)
+    real = farm.status
+    monkeypatch.setattr(farm, "status", lambda: {**real(), "cleaner": farm.cleaner.state,
+                                                 "tripped": farm.lane.tripped})
+
+    def status() -> dict:
+        return json.loads(next(iter(client.session.get("farm/demo/status", timeout=WAIT_S))).ok.payload.to_bytes())
+    replies = []
+    asker = threading.Thread(target=lambda: replies.append(ask(client, "reset", b'{"operator": "ana"}')))
+    asker.start()
+    assert entered.wait(WAIT_S)
+    assert status()["cleaner"] == "estop"                  # another client, while the reset waits
+    release.set()
+    asker.join(WAIT_S)
+    assert replies == [{"ok": True}] and status()["cleaner"] == "docked"
+    farm.lane.tripped = True                              # a trip on another thread: no override here
+    assert status()["tripped"] is True
