@@ -26,6 +26,7 @@ from controller.hub_clock import HubClock
 from controller.ledger_config import check_against_ledger
 from controller.ledger_writes import LedgerUnwritable
 from controller.overrides import Overrides
+from controller.pace import mind_contacts
 from controller.scada.service import Scada
 from controller.shutdown import install_signal_handlers
 from controller.simproc import SimProcess
@@ -57,6 +58,7 @@ class Controller(Stopping):
         self.stopping = asyncio.Event()
         self.unknown_sensors: set[str] = set()
         self.contacts_carried = {"malformed": 0, "lost": 0}   # counted by hub links since replaced
+        self.contacts_waiting = 0.0      # contacts estimated unread after the last read (controller/pace.py)
         self.robot: FeedingRobot | None = None
         self.cleaner = None                   # the pond cleaner (controller/cleaning), with [cleaning]
         self.lane: EstopLane | None = None
@@ -335,9 +337,11 @@ class Controller(Stopping):
                 # only what the loss raised: the hub clock's alarms stand until its stamps agree
                 self.alarms.clear(f"device/{self.contacts.name}", "contacts back", kind="unreachable")
             except DeviceError as exc:
+                self.contacts_waiting = 0.0         # (a lost hub is no backlog to wait for)
                 self.alarms.raise_(f"device/{self.contacts.name}", exc.text, kind="unreachable")
                 await self._reopen(self.contacts)
                 continue
+            mind_contacts(self, batch)
             for contact in batch:
                 tank = self.sensor_tank.get(contact.sensor)
                 if tank is None:

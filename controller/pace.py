@@ -9,6 +9,15 @@ farm s, has found it before the clock may speed on. Other periodic work
 (housekeeping, thermometer reads) keeps no fine time when nothing happens and needs no word.
 A survey stop runs at a tenth of the slow speed: its wall time is rendering and measuring, so a
 slower clock costs no wall and keeps the survey to a real one's farm minutes.
+
+Busy too while contacts wait to be read (``mind_contacts``, at each read, at once: a batch's
+processing holds the loop, and the pacer with it): at the fast speed a stuck sensor's 5 contacts
+a farm second are 36,000 a wall second, more than the controller reads (~15,000), and it fell
+hundreds of farm seconds behind. When the clock slowed for the next episode, that episode's first
+contacts queued behind the backlog and its demand was raised 20-230 farm s after them (feeds
+62-77 s late, a farm-day test in ten failing). The fast clock now waits for the controller. What
+waits is counted in contacts, not farm seconds: at 60,000x the normal lag is hundreds of farm
+seconds with a handful of contacts in them, and a backlog costs its contacts' reading time.
 """
 from __future__ import annotations
 
@@ -20,6 +29,8 @@ from controller.surveys.schedule import _first_at, due_from
 
 GRACE_S = 60.0           # farm s a survey hour stays slow
 SURVEY_SHARE = 0.1       # a survey stop at this share of the slow speed (below)
+BEHIND_N = 100.0         # contacts estimated waiting past a read (~5 ms of the controller's reading:
+                         # 2 farm s at the slow speed, within an episode's lead)
 PERIOD_S = 0.005         # wall s between looks: bounds how soon the clock speeds up, not when it slows
 NEWEST_S = 1.0           # wall s a tank's newest survey time is kept before the ledger is asked again
 
@@ -73,10 +84,26 @@ def busy_with(robot) -> str | None:
     return None                       # land hours late and the schedule start the survey again
 
 
+def mind_contacts(controller, batch) -> None:
+    """After a read: the contacts estimated still waiting (``contacts_waiting``: the batch's rate
+    over its span times how far its newest stamp is behind the clock); past ``BEHIND_N``, busy at
+    once, before the batch is counted. A hub clock found off waits for nothing (its stamps are
+    replaced by arrival times); nor does a read of fewer than two contacts (no rate to go by)."""
+    waiting = 0.0
+    if len(batch) >= 2 and not controller.hub_clock.off:
+        clock, first, last = controller.clock, batch[0].t, batch[-1].t
+        waiting = max(0.0, (len(batch) - 1) / max(last - first, 1e-3) * (clock.now() - last))
+        if waiting > BEHIND_N and hasattr(clock, "busy"):
+            clock.busy(why="contacts behind")
+    controller.contacts_waiting = waiting
+
+
 def declare(controller, newest=None) -> None:
     clock = controller.clock
     robot = getattr(controller, "robot", None)
     why = busy_with(robot)
+    if why is None and getattr(controller, "contacts_waiting", 0.0) > BEHIND_N:
+        why = "contacts behind"
     if why in ("surveying", "survey measuring"):
         # a survey's wall time is its rendering and measuring, whatever the clock: at the slow
         # speed 40 pairs spanned 4-5 farm hours (into the fish's morning under load); at a tenth

@@ -128,12 +128,15 @@ def service_against_demands(v: Verdict, feeds, demand_t: dict, since: float | No
 
 def judge(db, truth: list[dict], end_t: float, since: float | None = None,
           stalls: list[tuple[float, float]] = ()) -> Verdict:
-    """``since``: the end of the warm-up (the caller's truth starts there too). A demand raised
-    before it, on contacts heard while the controller was still coming up, waits for the rail's
-    homing and is not held to the 60 s service; every demand after it is."""
+    """``since``: the end of the warm-up. A demand raised before it, on contacts heard while the
+    controller was still coming up, waits for the rail's homing and is not held to the 60 s
+    service; every demand after it is. Episodes that started before it are not judged (how soon
+    their demand came), but a demand raised in one is no false demand: ``truth`` is the whole run's
+    (a tank asking since before the controller was up was fed on its backlog, and called false)."""
     v = Verdict()
     episodes = episodes_by_tank(truth, end_t)
-    v.episodes = sum(map(len, episodes.values()))
+    judged = {tank: [e for e in spans if since is None or e[0] >= since] for tank, spans in episodes.items()}
+    v.episodes = sum(map(len, judged.values()))
     demands = db.execute("SELECT id, tank, t, outcome FROM demand WHERE source = 'demand' ORDER BY t").fetchall()
     feeds = db.execute("SELECT * FROM feed ORDER BY seq").fetchall()
     v.demands, v.feeds = len(demands), len(feeds)
@@ -153,7 +156,7 @@ def judge(db, truth: list[dict], end_t: float, since: float | None = None,
     for rec in truth:
         if rec["kind"] == "fed":
             fed_at[rec["tank"]].append(rec["t"])
-    for tank, spans in episodes.items():
+    for tank, spans in judged.items():
         raised = sorted(d["t"] for d in demands if d["tank"] == tank)
         for start, end in spans:
             first = next((t for t in raised if start <= t <= end), None)

@@ -243,8 +243,7 @@ def judge(farm: HilFarm, up: float, end: float) -> dict:
     store.close()
     waits.sort()
     with farm.ledger() as ledger:
-        verdict = judge_feeding(ledger, [r for r in truth if r["t"] >= up + WARMUP_S or r["kind"] == "auger_run"],
-                                end, since=up + WARMUP_S, stalls=farm.stalls())
+        verdict = judge_feeding(ledger, truth, end, since=up + WARMUP_S, stalls=farm.stalls())
     with farm.ledger() as ledger:
         feeding = sort_problems(ledger, verdict.problems, heard, PER_FEED_S + PORTION_G / AUGER_G_S)
         # the surveys' warnings the controller raised (each raise that is news is a history row): honest cameras

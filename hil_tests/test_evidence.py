@@ -169,3 +169,28 @@ def test_an_open_demand_heard_just_before_the_end_is_sorted_out_one_left_unserve
     out = sort_problems(db, ["demand 590 for T7 at 95600.0 never served (open)",
                              "demand 12 for T2 at 90000.0 never served (open)"], heard, 70.0)
     assert out["heard_late"] == 1 and out["problems"] == ["demand 12 for T2 at 90000.0 never served (open)"]
+
+
+def test_a_demand_for_fish_asking_since_before_the_warm_up_is_no_false_demand():
+    """A tank whose fish began asking while the controller came up is fed on its backlog: that
+    demand lies in a real episode (it was called false, and failed the farm day one run in ten);
+    the episode itself is not judged for how soon its demand came. A demand outside every episode
+    still is false, before the warm-up's end or after it."""
+    import sqlite3
+
+    from hil_tests.evidence import judge
+    db = sqlite3.connect(":memory:")
+    db.row_factory = sqlite3.Row
+    db.execute("CREATE TABLE demand (id INTEGER PRIMARY KEY, tank TEXT, t REAL, outcome TEXT, source TEXT)")
+    db.execute("CREATE TABLE feed (seq INTEGER, id TEXT, tag INTEGER, tank TEXT, t_intent REAL, phase TEXT,"
+               " grams REAL, settled_by TEXT, demand_id INTEGER, date TEXT)")
+    db.execute("CREATE TABLE ration (tank TEXT, date TEXT, grams REAL)")
+    db.executemany("INSERT INTO demand VALUES (?, ?, ?, 'fed', 'demand')",
+                   [(1, "T1", 150.0), (2, "T1", 400.0), (3, "T2", 160.0), (4, "T2", 1300.0)])
+    truth = [{"kind": "episode_start", "t": 100.0, "tank": "T1"},      # before the warm-up's end (300)
+             {"kind": "episode_end", "t": 500.0, "tank": "T1"},
+             {"kind": "episode_start", "t": 1000.0, "tank": "T2"},     # after it: judged
+             {"kind": "episode_end", "t": 1400.0, "tank": "T2"}]
+    v = judge(db, truth, 2000.0, since=300.0)
+    assert v.false_demands == ["demand 3 for T2 at 160.0 lies outside every episode"]
+    assert v.episodes == 1 and v.detection_s == [300.0]

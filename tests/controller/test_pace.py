@@ -80,3 +80,44 @@ def test_with_the_ledger_s_newest_surveys_only_the_hours_a_survey_falls_due_slow
     assert next_survey_hour(c, at_noon, newest.get, since=at_noon - 3600) == LOCAL_MIDNIGHT + (5 * 24 + 20.5) * 3600
     newest["T1"] = LOCAL_MIDNIGHT - 9 * 86400                        # overdue: every hour of it, as before
     assert next_survey_hour(c, at_noon, newest.get, since=at_noon - 3600) == LOCAL_MIDNIGHT + 20.5 * 3600
+
+
+def test_contacts_waiting_to_be_read_hold_the_fast_clock_until_they_are_read():
+    """At the fast speed a stuck sensor's contacts outran the controller: hundreds of farm seconds
+    behind when an episode slowed the clock, its demand was raised a minute late. A read that
+    leaves more than BEHIND_N contacts waiting (its rate over its span, times how far its newest
+    is behind) says busy at once (the batch then holds the loop, and the pacer); the pacer holds
+    it busy until a read leaves fewer. Hundreds of farm seconds of turbulence are no backlog."""
+    from controller.pace import BEHIND_N, declare, mind_contacts
+    c = Clock()
+    now = c.now()
+    ctl = NS(clock=c, cfg=cfg("20:30"), robot=robot(), hub_clock=NS(off=False))
+
+    def read(n, first, last):          # n contacts evenly from ``first`` to ``last`` s before now
+        return [NS(t=now - first + (first - last) * i / (n - 1)) for i in range(n)]
+
+    stuck = read(401, 180.0, 100.0)                  # 5 a second, the newest 100 s behind: ~500 wait
+    mind_contacts(ctl, stuck)
+    assert abs(ctl.contacts_waiting - 500.0) < 1e-6 and c.said == [("busy", None, "contacts behind")]
+    declare(ctl)
+    assert c.said[-1] == ("busy", None, "contacts behind")
+    declare(NS(clock=c, cfg=ctl.cfg, robot=robot(state="moving"), contacts_waiting=ctl.contacts_waiting))
+    assert c.said[-1] == ("busy", None, "moving")                 # the robot's word first
+
+    mind_contacts(ctl, read(51, 10.0 + 0.9 * BEHIND_N / 5, 0.9 * BEHIND_N / 5))   # then fewer than BEHIND_N
+    assert 0.89 * BEHIND_N < ctl.contacts_waiting < 0.91 * BEHIND_N and len(c.said) == 3
+    declare(ctl)
+    assert c.said[-1] == ("idle", LOCAL_MIDNIGHT + 20.5 * 3600, "next survey")
+
+    mind_contacts(ctl, read(10, 600.0, 290.0))       # turbulence at 60,000x: 10 contacts in 310 s, 290 s behind
+    assert ctl.contacts_waiting < 10 and len(c.said) == 4
+    for quiet in ([], [NS(t=now - 1e5)]):            # no rate to go by
+        mind_contacts(ctl, quiet)
+        assert ctl.contacts_waiting == 0.0
+    ctl.hub_clock.off = True                         # a hub clock off: stamps replaced by arrival times
+    mind_contacts(ctl, stuck)
+    assert ctl.contacts_waiting == 0.0 and len(c.said) == 4
+
+    plain = NS(clock=NS(now=c.now), hub_clock=NS(off=False))     # a fixed-speed clock has no word to say
+    mind_contacts(plain, stuck)
+    assert plain.contacts_waiting > BEHIND_N and len(c.said) == 4
