@@ -31,8 +31,10 @@ TICK_S = 5.0                       # how often the controller calls on_time
 
 
 def _open_events(path: str):
+    # bytes that are not UTF-8 come through as lone surrogates, so the row holding them is named
+    # (decoded a buffer at a time, a fault was reported at whichever line the buffer began near)
     try:
-        return open(path, encoding="utf-8-sig", newline="")
+        return open(path, encoding="utf-8-sig", errors="surrogateescape", newline="")
     except FileNotFoundError:
         raise BadInput(path, None, "no such file") from None
     except IsADirectoryError:
@@ -47,12 +49,14 @@ def _rows(path: str):
         reader = csv.reader(fh)
         try:
             header = next(reader, None)
+            _text(path, reader.line_num, header or [])
             if header is None:
                 raise BadInput(path, None, f"empty file (expected header '{','.join(HEADER)}')")
             if tuple(c.strip() for c in header) != HEADER:
                 raise BadInput(path, "header", f"expected '{','.join(HEADER)}', found '{','.join(header)}'")
             prev = -math.inf
             for cells in reader:
+                _text(path, reader.line_num, cells)
                 if len(cells) != 3:
                     if not cells or not "".join(cells).strip():
                         continue
@@ -63,17 +67,34 @@ def _rows(path: str):
                     raise BadInput(path, f"line {reader.line_num}, column t_s",
                                    f"{t_s.strip()} is earlier than the row before ({prev:g}): "
                                    "rows must be sorted by time")
-                tank, sensor = tank.strip(), sensor.strip()
-                if not tank or not sensor:
-                    raise BadInput(path, f"line {reader.line_num}, column {'tank' if not tank else 'sensor'}",
-                                   "empty")
+                tank = _name(path, reader.line_num, "tank", tank)
+                sensor = _name(path, reader.line_num, "sensor", sensor)
                 prev = t
                 yield t, tank, sensor
-        except UnicodeDecodeError:
-            raise BadInput(path, f"line {reader.line_num + 1}",
-                           "not UTF-8 text (expected a CSV file)") from None
         except csv.Error as exc:
             raise BadInput(path, f"line {reader.line_num}", f"not CSV: {exc}") from None
+
+
+def _text(path: str, line: int, cells: list[str]) -> None:
+    """BadInput naming the line if a cell is not UTF-8 (its bytes came through as surrogates)."""
+    for cell in cells:
+        if not cell.isascii():
+            try:
+                cell.encode("utf-8")
+            except UnicodeEncodeError:
+                raise BadInput(path, f"line {line}", "not UTF-8 text (expected a CSV file)") from None
+
+
+def _name(path: str, line: int, column: str, name: str) -> str:
+    """A tank's or sensor's name, stripped; BadInput if empty or unprintable (a NUL or an escape
+    went through to the JSON and to a terminal)."""
+    name = name.strip()
+    if not name:
+        raise BadInput(path, f"line {line}, column {column}", "empty")
+    if not name.isprintable():
+        bad = next(ch for ch in name if not ch.isprintable())
+        raise BadInput(path, f"line {line}, column {column}", f"unprintable character {bad!r} in {name!r}")
+    return name
 
 
 def replay(path: str, params=None, tanks: dict[str, list[str]] | None = None):

@@ -71,6 +71,8 @@ def test_config_takes_tanks_from_farm_toml_and_skips_strangers(log, tmp_path):
     ("t_s,tank,sensor\n5,,a\n", "line 2, column tank: empty"),
     ("t_s,tank,sensor\nnan,T1,a\n", "line 2, column t_s: nan is not a finite number"),
     ("", "empty file"),
+    ("t_s,tank,sensor\n1,T\x001,a\n", "line 2, column tank: unprintable character '\\x00' in 'T\\x001'"),
+    ("t_s,tank,sensor\n1,T1,a\n2,T1,\x1b[2Ja\n", "line 3, column sensor: unprintable character '\\x1b'"),
 ])
 def test_bad_csv_is_one_line_exit_2(tmp_path, body, needle):
     path = tmp_path / "bad.csv"
@@ -79,6 +81,21 @@ def test_bad_csv_is_one_line_exit_2(tmp_path, body, needle):
     assert r.returncode == 2
     assert r.stderr.count("\n") == 1 and needle in r.stderr and str(path) in r.stderr
     assert "Traceback" not in r.stderr and not (tmp_path / "o.json").exists()
+
+
+@pytest.mark.parametrize("bad_line", [1, 2, 3000])
+def test_bytes_that_are_not_utf8_are_named_by_their_own_line(tmp_path, bad_line):
+    """Decoded a buffer at a time, a fault deep in a long log was put at the buffer's line."""
+    rows = [b"t_s,tank,sensor"] + [b"%d,T1,T1-a" % i for i in range(1, 4000)]
+    rows[bad_line - 1] = rows[bad_line - 1].replace(b"T1", b"T\xe91", 1) if bad_line > 1 else b"t_s,t\xff,sensor"
+    path = tmp_path / "latin1.csv"
+    path.write_bytes(b"\n".join(rows) + b"\n")
+    r = run("--events", path, "--json", tmp_path / "o.json")
+    assert r.returncode == 2 and r.stderr.count("\n") == 1, r.stderr
+    assert f"{path}: line {bad_line}: not UTF-8 text" in r.stderr
+    ok = tmp_path / "utf8.csv"                   # the same name in UTF-8 is a name like any other
+    ok.write_bytes(b"\n".join([b"t_s,tank,sensor", "1,T\u00e91,a".encode()]) + b"\n")
+    assert run("--events", ok, "--json", tmp_path / "o.json").returncode == 0
 
 
 def test_missing_file_and_bad_config(tmp_path, log):
