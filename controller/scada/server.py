@@ -125,6 +125,7 @@ class ScadaStore:
 
     def __init__(self, lay: Layout, cfg, coordinator, guard: Guard):
         self.lay, self.cfg, self.coordinator, self.guard = lay, cfg, coordinator, guard
+        self.act_loop: asyncio.AbstractEventLoop | None = None   # the controller's: writes act there
 
     def device_ids(self) -> list[int]:
         return [self.cfg.unit]
@@ -166,8 +167,11 @@ class ScadaStore:
         if func_code in (5, 6):
             ECHO.set(values)
         conn = PEER.get()
-        return await self.guard.write(kind, address, values, conn.peer if conn is not None else "?",
-                                      tripped=conn is not None and conn.take_trip())
+        write = self.guard.write(kind, address, values, conn.peer if conn is not None else "?",
+                                 tripped=conn is not None and conn.take_trip())
+        if self.act_loop is None or self.act_loop is asyncio.get_running_loop():
+            return await write
+        return await asyncio.wrap_future(asyncio.run_coroutine_threadsafe(write, self.act_loop))
 
 
 class _Connection(ServerRequestHandler):

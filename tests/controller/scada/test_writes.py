@@ -277,3 +277,40 @@ def test_an_acknowledge_on_a_quiet_slot_is_answered_and_audited(serve):
             ("ack", slot, [], "scada") for _, slot in slots]
     finally:
         c.close()
+
+
+def test_the_estop_frame_trips_while_the_controller_s_loop_is_held(serve):
+    """On the controller's loop, an e-stop waited for whatever held it (a ledger fsync, a batch of
+    contacts, a flood of status queries: 2-3 s). The server reads on a thread of its own: the
+    latches trip while the loop is held, reads are answered meanwhile, and the write's reply (the
+    override acts on the controller's loop) comes once it is free."""
+    import threading
+    import time
+
+    stand_in = StandIn()
+    srv = serve(stand_in)
+    held, hold_s = threading.Event(), 2.0
+
+    def hold():                       # blocking work on the controller's loop
+        held.set()
+        time.sleep(hold_s)
+
+    reader, writer = Mbap(srv.port), Mbap(srv.port)
+    replies = []
+    try:
+        srv.loop.call_soon_threadsafe(hold)
+        assert held.wait(5)
+        start = time.monotonic()
+        thread = threading.Thread(target=lambda: replies.append(writer.write("coil", 0, [1])))
+        thread.start()
+        while not stand_in.trips:
+            assert time.monotonic() - start < hold_s / 2, "the e-stop waited for the controller's loop"
+            time.sleep(0.001)
+        assert reader.read("holding register", 0, 2) != ("exception", 4)     # reads go on meanwhile
+        assert time.monotonic() - start < hold_s / 2 and stand_in.calls == []
+        thread.join(10)
+        assert replies == [None] and [call[0] for call in stand_in.calls] == ["estop"]
+        assert time.monotonic() - start >= hold_s * 0.9                    # acted once the loop was free
+    finally:
+        reader.close()
+        writer.close()
