@@ -52,16 +52,16 @@ LOG_LINE_MAX = 1000
 AUDIT_HELD_MAX = 10_000      # audit rows held while the ledger cannot be written
 HISTORY_AT_ONCE = 2          # history queries answered at once (threads); more wait their turn
 STATUS_FRESH_WALL_S = 0.1    # a status snapshot answers every query this long (an override renews it)
-
-
-def _wall() -> float:
-    """The status snapshot's clock (a test freezes this, not the process's time.monotonic)."""
-    return time.monotonic()
 NOT_YET: dict[str, str] = {}
 NO_CAMERA = "no survey camera in this controller (farm.toml has no stereo_camera device)"
 NO_CLEANER = "no pond cleaner in this controller (farm.toml has no [cleaning] section)"
 COMMANDS = ("estop", "reset", "manual", "feed", "ration", "settle", "pause", "resume", "ack",
             "mortality", "harvest", "transfer", "start-survey", "cleaner-start", "cleaner-stop", "cleaner-return")
+
+
+def _wall() -> float:
+    """The status snapshot's clock (a test freezes this, not the process's time.monotonic)."""
+    return time.monotonic()
 
 
 class _OneLine(logging.Filter):

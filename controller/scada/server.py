@@ -125,7 +125,8 @@ class ScadaStore:
 
     def __init__(self, lay: Layout, cfg, coordinator, guard: Guard):
         self.lay, self.cfg, self.coordinator, self.guard = lay, cfg, coordinator, guard
-        self.act_loop: asyncio.AbstractEventLoop | None = None   # the controller's: writes act there
+        self.act_loop: asyncio.AbstractEventLoop | None = None   # the controller's (Scada.run sets it before
+                                                                 # listening): writes act there
 
     def device_ids(self) -> list[int]:
         return [self.cfg.unit]
@@ -169,8 +170,6 @@ class ScadaStore:
         conn = PEER.get()
         write = self.guard.write(kind, address, values, conn.peer if conn is not None else "?",
                                  tripped=conn is not None and conn.take_trip())
-        if self.act_loop is None or self.act_loop is asyncio.get_running_loop():
-            return await write
         return await asyncio.wrap_future(asyncio.run_coroutine_threadsafe(write, self.act_loop))
 
 

@@ -79,7 +79,7 @@ class Scada:
         if server is not None:
             with contextlib.suppress(Exception):
                 await asyncio.wait_for(serving.run(server.shutdown()), STOP_WAIT_S)
-        serving.close()       # (a join of at most STOP_WAIT_S, at the stop: nothing else waits then)
+        await serving.close()
 
 
 __all__ = ["Scada"]

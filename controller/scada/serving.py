@@ -32,16 +32,16 @@ class ServingThread:
         """``coro`` on this thread's loop, awaited from the caller's; cancelling the caller cancels it."""
         return await asyncio.wrap_future(asyncio.run_coroutine_threadsafe(coro, self.loop))
 
-    def close(self, wait_s: float = STOP_WAIT_S) -> bool:
-        """Cancel what runs on the thread, stop its loop, wait ``wait_s`` at most (a daemon thread: a
-        stop never hangs on it); safe to call twice. True if the thread ended."""
-        if self.loop.is_closed() or not self._thread.is_alive():
-            return not self._thread.is_alive()
-        with contextlib.suppress(RuntimeError):        # (its loop already closed meanwhile)
-            asyncio.run_coroutine_threadsafe(_cancel_all(), self.loop).result(wait_s)
-        with contextlib.suppress(RuntimeError, TimeoutError):
-            self.loop.call_soon_threadsafe(self.loop.stop)
-        self._thread.join(wait_s)
+    async def close(self, wait_s: float = STOP_WAIT_S) -> bool:
+        """Cancel what runs on the thread (awaited, not blocking the caller's loop), stop its loop,
+        join it for ``wait_s`` at most (a daemon thread: a stop never hangs on it); safe to call
+        twice. True if the thread ended."""
+        if self._thread.is_alive() and not self.loop.is_closed():
+            with contextlib.suppress(Exception):       # (a loop stopping meanwhile, a task slow to go)
+                await asyncio.wait_for(self.run(_cancel_all()), wait_s)
+            with contextlib.suppress(RuntimeError):    # (its loop closed meanwhile)
+                self.loop.call_soon_threadsafe(self.loop.stop)
+            self._thread.join(wait_s)
         return not self._thread.is_alive()
 
 
