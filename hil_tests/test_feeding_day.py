@@ -46,13 +46,14 @@ def test_a_farm_day_is_fed_on_demand_within_rations(tmp_path):
         farm.check_alive()
     finally:
         farm.stop()
-    truth = [r for r in farm.truth() if r["t"] >= up + WARMUP_S or r["kind"] == "auger_run"]
+    everything = farm.truth()          # (the simulator's truth log, read once)
+    truth = [r for r in everything if r["t"] >= up + WARMUP_S or r["kind"] == "auger_run"]
     stalls = farm.stalls()
     with farm.ledger() as db:
-        verdict = judge(db, farm.truth(), end, since=up + WARMUP_S, stalls=stalls)
+        verdict = judge(db, everything, end, since=up + WARMUP_S, stalls=stalls)
         alarms = [dict(r) for r in db.execute("SELECT * FROM alarm WHERE source LIKE 'sensor/%' AND active = 1")]
         raised = [(r["tank"], r["t"]) for r in db.execute("SELECT tank, t FROM demand WHERE source = 'demand'")]
-    faults = [r for r in farm.truth() if r["kind"] == "sensor_fault" and up < r["t"] < end - 600]
+    faults = [r for r in everything if r["kind"] == "sensor_fault" and up < r["t"] < end - 600]
     late, faulty = [], []
     for tank, a, b, rate in _spans(truth, end):
         # the time the machine stood still (hil_tests/stalls.py) is nobody's: it extends the 60 s
