@@ -51,6 +51,7 @@ from pymodbus.exceptions import ConnectionException, ModbusException, ModbusIOEx
 from devices.base import Section
 from devices.dispenser import Dispenser, DispenserState
 from devices.errors import DeviceFault, DeviceTimeout, LinkDown, ProtocolError
+from devices.modbus_link import connect_timeout_field, connect_within
 
 STATUS_ADDR, STATUS_FORMAT = 100, ">HHIIHIQH"   # STATE RUN_TAG HOPPER CYCLES LAST_TAG LAST TOTAL RES
 COMMAND_ADDR, COMMAND_FORMAT = 200, ">IHH"      # RUN_MS TAG COMMAND
@@ -105,6 +106,7 @@ class Config(Section):
     timeout_s: float = Field(1.0, gt=0, le=60, description="wall seconds to wait for one reply")
     retries: int = Field(1, ge=0, le=10, description="resends of an unanswered request")
     estop_timeout_s: float = Field(0.1, gt=0, le=10, description="wall seconds for one e-stop exchange")
+    connect_timeout_s: float = connect_timeout_field()
 
 
 class ModbusDispenser(Dispenser):
@@ -233,7 +235,7 @@ class ModbusDispenser(Dispenser):
             self._client = AsyncModbusTcpClient(
                 cfg.host, port=cfg.port, timeout=cfg.timeout_s, retries=cfg.retries,
                 reconnect_delay=0, name=self.name, trace_connect=self._link_changed)
-        if not self._client.connected and not await self._client.connect():
+        if not self._client.connected and not await connect_within(self._client, cfg.connect_timeout_s):
             raise LinkDown(self.name, f"cannot connect to {cfg.host}:{cfg.port}")
         return self._client
 

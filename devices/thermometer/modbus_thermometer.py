@@ -20,6 +20,7 @@ from pymodbus.exceptions import ConnectionException, ModbusException, ModbusIOEx
 
 from devices.base import Section
 from devices.errors import DeviceTimeout, LinkDown, ProtocolError
+from devices.modbus_link import connect_timeout_field, connect_within
 from devices.thermometer import ProbeReading, Thermometer
 
 OPEN, SHORT = 0x7FFF, 0x8000
@@ -51,6 +52,7 @@ class Config(Section):
     span_c: tuple[float, float] = Field((-10.0, 45.0), description="readings outside are a 'range' fault")
     timeout_s: float = Field(1.0, gt=0, le=60, description="wall seconds to wait for one reply")
     retries: int = Field(1, ge=0, le=10)
+    connect_timeout_s: float = connect_timeout_field()
 
     @field_validator("probes")
     @classmethod
@@ -111,7 +113,7 @@ class ModbusThermometer(Thermometer):
         if self._client is None:
             self._client = AsyncModbusTcpClient(cfg.host, port=cfg.port, timeout=cfg.timeout_s,
                                                 retries=cfg.retries, reconnect_delay=0, name=self.name)
-        if not self._client.connected and not await self._client.connect():
+        if not self._client.connected and not await connect_within(self._client, cfg.connect_timeout_s):
             raise LinkDown(self.name, f"cannot connect to {cfg.host}:{cfg.port}")
         return self._client
 

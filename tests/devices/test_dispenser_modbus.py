@@ -246,6 +246,35 @@ def test_server_gone_is_link_down_and_the_driver_reconnects_when_it_returns():
     serve(body)
 
 
+@pytest.mark.parametrize("connect_timeout_s, connects", [(None, True), (0.2, False)])
+def test_a_connect_has_its_own_bound_not_a_reply_s(connect_timeout_s, connects):
+    """The loop held as the handshake starts (a busy machine: the feeding rig's open failed so in a
+    clean-clone CI run, 2026-12-05): a reply's 0.5 s bound read a live PLC as down; the connect
+    waits ``connect_timeout_s`` (3 s unless set), and replies keep their own bound."""
+    async def main():
+        clock = ScaledClock.starting(SPEED)
+        sim = SimDispenser(NOISY, clock)
+        await sim.start()
+        extra = {} if connect_timeout_s is None else {"connect_timeout_s": connect_timeout_s}
+        dispenser = ModbusDispenser("dispenser", Config(kind="dispenser", driver="modbus", port=sim.port,
+                                                        timeout_s=0.2, retries=0, **extra), clock)
+        asyncio.get_running_loop().call_soon(time.sleep, 0.5)
+        try:
+            if not connects:
+                with pytest.raises(LinkDown):
+                    await dispenser.open()
+                return
+            await dispenser.open()
+            assert (await dispenser.read()).cycles == 0
+            sim.set_unresponsive(True)
+            with pytest.raises(DeviceTimeout):   # the reply's bound, not the connect's (one test's wall)
+                await asyncio.wait_for(dispenser.read(), 2.0)
+        finally:
+            await dispenser.close()
+            await sim.stop()
+    asyncio.run(main())
+
+
 def test_dropped_connection_is_reconnected_and_a_pending_call_fails_at_once_when_the_device_goes():
     async def body(sim, dispenser, clock):
         for _ in range(3):

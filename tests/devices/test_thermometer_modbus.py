@@ -3,6 +3,7 @@ pymodbus server whose input registers hold words written from the register map's
 (signed tenths of a degree, 0x7FFF open, 0x8000 short), and against the simulated twin."""
 import asyncio
 import contextlib
+import time
 
 import pytest
 from pymodbus.server import ModbusTcpServer
@@ -129,3 +130,25 @@ def test_unknown_keys_and_sections_name_themselves():
     with pytest.raises(BadInput, match="devices.water.probes"):
         validate_section(section_model("thermometer", "sim"), {"kind": "thermometer", "driver": "sim"},
                          "farm.toml", "devices.water")
+
+
+@pytest.mark.parametrize("connect_timeout_s, connects", [(None, True), (0.2, False)])
+def test_a_connect_has_its_own_bound_not_a_reply_s(connect_timeout_s, connects):
+    """The loop held as the handshake starts (a busy machine): a reply's 0.2 s bound once read a
+    live transmitter as down; the connect waits ``connect_timeout_s`` (3 s unless set)."""
+    async def main():
+        async with transmitter({1: 215}) as port:
+            extra = {} if connect_timeout_s is None else {"connect_timeout_s": connect_timeout_s}
+            th = ModbusThermometer("water", config(port, {"T1": 0}, timeout_s=0.2, retries=0, **extra),
+                                   ManualClock(T0))
+            asyncio.get_running_loop().call_soon(time.sleep, 0.5)
+            try:
+                if not connects:
+                    with pytest.raises(LinkDown):
+                        await th.open()
+                    return
+                await th.open()
+                assert (await th.read())["T1"].celsius == pytest.approx(21.5)
+            finally:
+                await th.close()
+    run(main())
