@@ -203,3 +203,8 @@ def claimed(payload) -> str | None:
     """The operator name a payload claims (any string, escaped and bounded), or None."""
     who = payload.get("operator") if isinstance(payload, dict) else None
     return printable(who, OPERATOR_MAX) if isinstance(who, str) else None
+
+
+def who(user: str | None, operator: str | None) -> str:
+    """The name records carry: the authenticated user, else the claimed name, marked so."""
+    return user if user else f"{operator or 'unknown'} (claimed)"

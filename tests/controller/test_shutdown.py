@@ -16,7 +16,7 @@ from pathlib import Path
 import pytest
 import tomli_w
 
-from controller import app, shutdown
+from controller import app, hearing, shutdown
 from controller.alarms import Alarms
 from controller.config import load_config
 from controller.store import Store
@@ -150,7 +150,7 @@ def absent_farm(tmp_path):
 
 def in_process(tmp_path, monkeypatch):
     monkeypatch.setattr(app, "OPEN_BACKOFF_S", (0.005,))
-    monkeypatch.setattr(app, "REOPEN_BACKOFF_S", (0.005,))
+    monkeypatch.setattr(hearing, "REOPEN_BACKOFF_S", (0.005,))
     cfg = absent_farm(tmp_path)
     controller = app.Controller(cfg, ScaledClock.real())
     published = []

@@ -14,6 +14,7 @@ import pytest
 
 from controller.alarms import Alarms
 from controller.cleaning import cleaner as cleaner_mod
+from controller.cleaning import thruster_link
 from controller.cleaning.cleaner import Cleaner, Course
 from controller.cleaning.ledger import resume
 from controller.feeding.estop import EstopLane, Latch
@@ -345,12 +346,12 @@ def test_thrusters_whose_link_is_lost_for_good_are_replaced_and_the_lane_latches
             r.thrusters.down = "port vanished"            # and it never comes back on this driver
             await r.frames(poses(PATH[4:8]))
             assert r.cleaner.state == "fault" and fresh == [None]
-            cleaner_mod.REOPEN_WALL_S, saved = (0.0,), cleaner_mod.REOPEN_WALL_S
+            thruster_link.REOPEN_WALL_S, saved = (0.0,), thruster_link.REOPEN_WALL_S
             try:
                 r.cleaner._reopen_at = 0.0                 # the back-off has passed
                 await r.frames(poses(PATH[8:14]))
             finally:
-                cleaner_mod.REOPEN_WALL_S = saved
+                thruster_link.REOPEN_WALL_S = saved
             new = fresh[-1]
             assert r.cleaner.thrusters is new and r.cleaner.state == "cleaning" and new.drives()
             assert await asyncio.wait_for(asyncio.wrap_future(r.lane.trip("test e-stop")), 5)
