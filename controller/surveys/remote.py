@@ -149,6 +149,8 @@ class _Dispatch:
         data = wire.calibration_bytes(calib)
         self.digest = wire.content_hash(data)
         self.header = {"calib": self.digest, "setup": wire.setup_to_json(setup), "measure": measure}
+        geo = setup.geometry
+        self.lengths_cm = (geo.min_length_cm, geo.max_length_cm)
         self.pool = ThreadPoolExecutor(max_workers=64, thread_name_prefix="survey-ask")
         self.prefix = node_key(site, "")
         self._declared = [
@@ -278,7 +280,7 @@ class _Dispatch:
             elif not good:
                 outcome = f"no reply within {self.timeout_s:g} s" if not replies else "error reply"
             else:
-                outcome = wire.decode_reply(bytes(good[0].payload.to_bytes()), rec.id)
+                outcome = wire.decode_reply(bytes(good[0].payload.to_bytes()), rec.id, self.lengths_cm)
         except wire.WireError as exc:
             outcome = f"garbage reply ({exc})"
         except Exception as exc:  # noqa: BLE001 - whatever it is, the job goes elsewhere

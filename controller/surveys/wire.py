@@ -27,11 +27,13 @@ from __future__ import annotations
 import dataclasses
 import hashlib
 import json
+import math
 import struct
 
 import cv2
 import numpy as np
 
+from controller.payload import parse_object
 from controller.surveys.frames import PairJob, file_bytes
 from vision.calib_file import StereoCalibration
 from vision.survey_types import FishGeometry, FishMeasurement, SurveySetup
@@ -40,6 +42,7 @@ MAGIC = b"FFJ1"
 _LEN = struct.Struct(">I")
 HEADER_MAX = 1 << 20          # a header is a few hundred bytes: more is garbage, not a job
 FRAME_FORMAT = ".bmp"         # a decoded frame on the wire (module docstring); any cv2.imdecode reads it
+LENGTH_SLACK = 1e-6          # a length the vision kept at its bound reads so again, rounding aside
 
 
 class WireError(ValueError):
@@ -99,10 +102,10 @@ def decode_job(data: bytes) -> tuple[dict, tuple[bytes, ...]]:
     (n,) = _LEN.unpack_from(data, 4)
     if n > HEADER_MAX or 8 + n > len(data):
         raise WireError("job header length out of range")
-    try:
-        header = json.loads(data[8:8 + n])
-    except (UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise WireError(f"job header is not JSON: {exc}") from None
+    try:       # as the override queryables read theirs: bounded nesting (a RecursionError is no reply)
+        header = parse_object(data[8:8 + n])
+    except ValueError as exc:
+        raise WireError(f"job header: {exc}") from None
     sizes = header.get("sizes") if isinstance(header, dict) else None
     if (not isinstance(sizes, list) or len(sizes) not in (1, 2)
             or not all(isinstance(s, int) and s >= 0 for s in sizes) or 8 + n + sum(sizes) != len(data)):
@@ -145,12 +148,17 @@ def encode_reply(reply: dict) -> bytes:
     return json.dumps(reply, separators=(",", ":")).encode()
 
 
-def decode_reply(data: bytes, job_id: str) -> dict:
-    """A reply to job ``job_id``, checked; WireError when it is not one."""
+def decode_reply(data: bytes, job_id: str, lengths_cm: tuple[float, float] | None = None) -> dict:
+    """A reply to job ``job_id``, checked; WireError when it is not one. With ``lengths_cm`` (the
+    species' plausible fork lengths, which the vision itself pairs snouts within), a fish outside
+    them, or with a point not finite, makes it garbage: a worker that says so is faulty or not ours
+    (a rogue reply of 100 m fish once planned a ration of 4.6e14 g)."""
     try:
         reply = json.loads(data)
     except (UnicodeDecodeError, json.JSONDecodeError) as exc:
         raise WireError(f"reply is not JSON: {exc}") from None
+    except (RecursionError, ValueError) as exc:       # nested past the parser's stack, a 5,000-digit number
+        raise WireError(f"reply is not JSON we read: {type(exc).__name__}") from None
     if not isinstance(reply, dict) or not isinstance(reply.get("ok"), bool):
         raise WireError("reply is not an object with a boolean ok")
     if reply.get("job") != job_id:
@@ -159,9 +167,22 @@ def decode_reply(data: bytes, job_id: str) -> dict:
         if not isinstance(reply.get("fish"), list) or not isinstance(reply.get("timings", {}), dict):
             raise WireError("reply without a fish list")
         reply["fish"] = [fish_from_json(f) if isinstance(f, dict) else _not_fish() for f in reply["fish"]]
+        if lengths_cm is not None:
+            for fish in reply["fish"]:
+                _plausible(fish, lengths_cm)
     elif not isinstance(reply.get("error"), str):
         raise WireError("refusal without an error")
     return reply
+
+
+def _plausible(fish: FishMeasurement, lengths_cm: tuple[float, float]) -> None:
+    length = fish.length_cm
+    points = np.concatenate([fish.snout_mm, fish.fork_mm, fish.snout_px.ravel(), fish.fork_px.ravel()])
+    if not (np.all(np.isfinite(points)) and math.isfinite(fish.score)):
+        raise WireError("fish: a point or the score is not finite")
+    lo, hi = lengths_cm
+    if not lo * (1 - LENGTH_SLACK) <= length <= hi * (1 + LENGTH_SLACK):
+        raise WireError(f"fish: {length:.6g} cm long, outside the species' {lo:g}-{hi:g} cm")
 
 
 def _not_fish():

@@ -233,8 +233,23 @@ GARBAGE = {
     "bad fish": lambda h: json.dumps({"ok": True, "job": h["job"], "fish": [{"snout_mm": [1, 2]}]}).encode(),
     "fish not objects": lambda h: json.dumps({"ok": True, "job": h["job"], "fish": [3]}).encode(),
     "refusal": lambda h: json.dumps({"ok": False, "job": h["job"], "kind": "internal", "error": "boom"}).encode(),
+    # well formed, not a fish of the species (SETUP's plausible fork lengths): a rogue reply of 100 m
+    # fish once set a ration of 4.6e14 g
+    "a fish 100 m long": lambda h: _one_fish(h, [0.0, 0.0, 1000.0], [1e5, 0.0, 1000.0]),
+    "a fish at the bound and one beyond": lambda h: _one_fish(
+        h, [0.0, 0.0, 1000.0], [10 * SETUP.geometry.max_length_cm, 0.0, 1000.0], beyond=True),
+    "a fish 1 mm long": lambda h: _one_fish(h, [0.0, 0.0, 1000.0], [1.0, 0.0, 1000.0]),
+    "a fish at no place": lambda h: _one_fish(h, [0.0, 0.0, 1000.0], [float("nan"), 0.0, 1000.0]),
     "silent": lambda h: None,
 }
+
+
+def _one_fish(h, snout, fork, beyond=False) -> bytes:
+    fish = [{"snout_mm": snout, "fork_mm": fork, "snout_px": [[1, 2], [3, 4]], "fork_px": [[5, 6], [7, 8]],
+             "score": 0.9}]
+    if beyond:            # the bound itself is a fish; the first past it is not
+        fish.append({**fish[0], "fork_mm": [fork[0] * (1 + 1e-3), *fork[1:]]})
+    return json.dumps({"ok": True, "job": h["job"], "fish": fish}).encode()
 
 
 @pytest.mark.parametrize("kind", list(GARBAGE))
@@ -281,6 +296,9 @@ def test_a_worker_refuses_unknown_calibrations_and_non_jobs_and_serves_on(render
     assert reply["job"] == "j1"
     reply = _ask(session, site, "wq", b"FFJ1\xff\xff\xff\xffgarbage")
     assert reply["ok"] is False and reply["kind"] == "refused" and "not a job" in reply["error"]
+    nested = b'{"a":' * 100_000                       # a header nested past the parser's stack
+    reply = _ask(session, site, "wq", b"FFJ1" + len(nested).to_bytes(4, "big") + nested)
+    assert reply["ok"] is False and reply["kind"] == "refused" and "nested deeper" in reply["error"]
     reply = _ask(session, site, "wq", wire.encode_job({**header, "measure": "os:system"}, blobs))
     assert reply["ok"] is False and reply["kind"] == "refused" and "measures with" in reply["error"]
     # a calibration served under a hash its content does not have is not taken
