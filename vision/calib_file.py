@@ -44,6 +44,9 @@ class StereoCalibration:
     rms_px: float | None = None
     extra: dict = field(default_factory=dict)   # report fields kept verbatim
 
+    def __post_init__(self):
+        self.P1, self.P2 = _facing(self.P1), _facing(self.P2)
+
     @property
     def has_distortion(self) -> bool:
         return self.D1 is not None or self.D2 is not None
@@ -60,6 +63,16 @@ class StereoCalibration:
             out["rms_px"] = float(self.rms_px)
         out.update(self.extra)
         return out
+
+
+def _facing(P):
+    """P scaled by the sign that makes det(P[:, :3]) positive (Hartley and Zisserman's convention):
+    then a point before the camera has w > 0. A projection matrix is defined up to scale, sign
+    included, and DLT or SVD tools give either; the survey read a negated one's cameras as looking
+    backwards (its image-up reversed) and found no fish, silently."""
+    if not isinstance(P, np.ndarray) or P.shape != (3, 4) or not np.all(np.isfinite(P)):
+        return P                  # (refused where it is read: calibration_from_json)
+    return -P if np.linalg.det(P[:, :3]) < 0 else P
 
 
 MAX_IMAGE_PX = 100_000          # a side longer is no camera's: a unit or a typo

@@ -50,3 +50,21 @@ def test_same_kind_turns_the_colour_view_grey_only_when_the_other_is_grey():
     assert l3.shape == r3.shape == (3, 4, 3)
     with pytest.raises(ValueError, match="grey .* or colour"):
         same_kind(np.zeros((3, 4, 2), np.uint8), grey)
+
+
+@pytest.mark.parametrize("s1, s2", [(-1.0, -1.0), (-1.0, 1.0), (1.0, -3.0), (-0.002, 250.0)])
+def test_projection_matrices_of_any_sign_and_scale_measure_the_same_fish(drawn, s1, s2):
+    """P is defined up to scale, sign included (DLT and SVD tools give either): a negated P had its
+    camera read as looking backwards, and the survey found no fish, silently. Through CALIB.json
+    too, with K, R and T beside the negated P."""
+    from vision.calib_file import StereoCalibration, calibration_from_json
+    calib, left, right, as_grey, _ = drawn
+    assert as_grey
+    scaled = StereoCalibration(P1=calib.P1 * s1, P2=calib.P2 * s2)
+    assert _lengths(measure_pair(left, right, scaled, SETUP)) == _lengths(as_grey)
+    data = {**calib.to_json(), "P1": (calib.P1 * s1).tolist(), "P2": (calib.P2 * s2).tolist()}
+    read = calibration_from_json(data)
+    for P, want in ((read.P1, calib.P1), (read.P2, calib.P2)):
+        assert np.linalg.det(P[:, :3]) > 0
+        np.testing.assert_allclose(P / np.abs(P).max(), want / np.abs(want).max(), atol=1e-12)
+    assert _lengths(measure_pair(left, right, read, SETUP)) == _lengths(as_grey)
