@@ -15,6 +15,7 @@ so always installed), which reads the header alone.
 from __future__ import annotations
 
 import io
+import math
 import warnings
 from pathlib import Path
 
@@ -66,3 +67,33 @@ def header_size(source: str | bytes) -> tuple[int, int] | None:
                 return tuple(int(v) for v in im.size)
     except Exception:  # noqa: BLE001 -- any file Pillow cannot open is left to OpenCV's decoder to name
         return None
+
+SAME_PICTURE = 0.8       # ``likeness`` above which two views are one picture twice (2026-12-05: two
+                         # cameras' views 0.13 at most, the real chessboard set and rendered pairs; one
+                         # picture twice 0.96 at least, JPEG'd again at quality 50)
+BAND_EDGE = 12           # px (3 sigma of the wider blur)
+
+
+def likeness(left: np.ndarray, right: np.ndarray) -> float | None:
+    """Band-pass correlation of two views at zero shift, grey, at half scale: near 0 for two cameras'
+    views (parallax moves their structure, their noise is their own), near 1 for one picture given
+    twice however it was recompressed (a JPEG copy, the same clip in two containers, red = green).
+    None when either view has next to no structure to compare (a uniform frame: lights off)."""
+    bands = []
+    for img in (left, right):
+        g = img if img.ndim == 2 else img[..., 0] if img.shape[2] == 1 else cv2.cvtColor(
+            img, cv2.COLOR_BGR2GRAY if img.shape[2] == 3 else cv2.COLOR_BGRA2GRAY)
+        if min(g.shape[:2]) >= 64:
+            g = cv2.resize(g, (g.shape[1] // 2, g.shape[0] // 2), interpolation=cv2.INTER_AREA)
+        g = g.astype(np.float32)
+        # the border's own band (the blurs fold the picture there) left out: any two pictures share it
+        band = (cv2.GaussianBlur(g, (0, 0), 1.0) - cv2.GaussianBlur(g, (0, 0), 4.0))[BAND_EDGE:-BAND_EDGE,
+                                                                                     BAND_EDGE:-BAND_EDGE]
+        if min(band.shape) < BAND_EDGE:
+            return None                       # too small a picture to say
+        bands.append(band)
+    a, b = bands
+    ea, eb = float(np.vdot(a, a)), float(np.vdot(b, b))
+    if min(ea, eb) < 0.25 * a.size:          # band-pass RMS under half a grey level
+        return None
+    return float(np.vdot(a, b)) / math.sqrt(ea * eb)

@@ -25,7 +25,7 @@ import numpy as np
 
 from controller.errors import BadInput
 from controller.image_io import opencv_decode
-from controller.surveys.frame_pixels import to_8bit
+from controller.surveys.frame_pixels import SAME_PICTURE, likeness, to_8bit
 from controller.surveys.png import DamagedPNG, decode_png
 
 IMAGE_SUFFIXES = {".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff"}
@@ -99,6 +99,9 @@ def split_rg(img: np.ndarray, where: str) -> tuple[np.ndarray, np.ndarray, str |
     blue, green, red = img[..., 0], img[..., 1], img[..., 2]
     if np.array_equal(red, green) and np.array_equal(green, blue):
         raise BadInput(where, None, "red, green and blue are the same picture: not an RG frame")
+    if (alike := likeness(red, green)) is not None and alike > SAME_PICTURE:
+        raise BadInput(where, None, f"red and green are one picture (correlation {alike:.2f}; two cameras' "
+                                    "views give under 0.2): not an RG frame of a stereo pair")
     level = float(cv2.mean(blue)[0])
     warn = (f"{where}: blue channel not empty (mean level {level:.0f}): is this an RG frame? "
             "using red = left, green = right") if level > BLUE_EMPTY_MAX else None
@@ -113,6 +116,11 @@ def check_two_views(left: np.ndarray, right: np.ndarray, left_name: str, right_n
     if np.array_equal(left, right) and left.size and not (left == left[0, 0]).all():
         raise BadInput(right_name, None, f"is the same picture as the left view {left_name}: "
                                          "a stereo pair is two cameras' views")
+    # one picture twice, recompressed (a JPEG copy, the same clip in two containers): not equal, as
+    # good as; its fish were invented from a zero disparity all the same
+    if (alike := likeness(left, right)) is not None and alike > SAME_PICTURE:
+        raise BadInput(right_name, None, f"is the left view {left_name} again (correlation {alike:.2f}; two "
+                                         "cameras' views give under 0.2): a stereo pair is two cameras' views")
 
 
 def check_two_files(left: str, right: str) -> None:

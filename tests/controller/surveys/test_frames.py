@@ -12,7 +12,9 @@ from controller.surveys.video_frames import video_source
 
 def grey(h=48, w=64, level=0):
     img = np.full((h, w), level, np.uint8)
-    img[::7, ::5] = 200           # some texture so codecs keep a picture
+    # some texture so codecs keep a picture; each level its own, so that two levels are two pictures
+    # and not one twice (frames.check_two_views)
+    img[np.random.default_rng(level).random((h, w)) < 0.1] = 200
     return img
 
 
@@ -417,3 +419,47 @@ def test_one_of_two_videos_cut_short_is_named_cut_not_unsynchronised(tmp_path, c
     m = re.search(r"\.cut\.avi: ends at frame (\d+), but its header declares 30 frames: cut short or damaged; "
                   r"--max-frames (\d+) surveys the pairs before its end", msg)
     assert m and int(m[2]) == int(m[1]) - 1 and "synchronised" not in msg, msg
+
+
+def _rendered_view(seed: int):
+    from devices.sim.fish_scene import underwater_rig, underwater_scene
+    scene = underwater_scene(np.random.default_rng(seed), underwater_rig(image_size=(640, 480), focal_px=700.0))
+    return scene.left, scene.right
+
+
+def _jpeg(img, quality: int):
+    return cv2.imdecode(cv2.imencode(".jpg", img, [cv2.IMWRITE_JPEG_QUALITY, quality])[1], cv2.IMREAD_UNCHANGED)
+
+
+@pytest.mark.parametrize("quality", [50, 75, 95, 100])
+def test_one_picture_recompressed_for_the_other_view_is_refused(tmp_path, quality):
+    """One picture as both views, not equal but as good as (a JPEG copy; red = green in an RG frame):
+    its 'fish' were invented from a zero disparity (an outside tester: two fish of 22 and 24 cm, exit 0)."""
+    left, right = _rendered_view(quality)
+    a = write(tmp_path / "a_L.png", left)
+    copy = write(tmp_path / "a_R.jpg", _jpeg(left, quality))
+    with pytest.raises(BadInput, match=r"a_R.jpg: is the left view .*a_L.png again \(correlation (0\.9\d|1\.00)"):
+        read_pair(next(still_source([(a, copy)]).jobs))
+    g = cv2.cvtColor(left, cv2.COLOR_BGR2GRAY)
+    rg = write(tmp_path / "rg.png", np.dstack([np.zeros_like(g), _jpeg(g, quality), g]))
+    with pytest.raises(BadInput, match=r"rg.png: red and green are one picture"):
+        read_pair(next(still_source([(rg,)]).jobs))
+    # the two cameras' own views of the same moment are a pair, as a pair and as an RG frame
+    b = write(tmp_path / "b_R.png", right)
+    assert read_pair(next(still_source([(a, b)]).jobs))[0].shape == left.shape
+    gr = cv2.cvtColor(right, cv2.COLOR_BGR2GRAY)
+    rg2 = write(tmp_path / "rg2.png", np.dstack([np.zeros_like(g), gr, g]))
+    assert read_pair(next(still_source([(rg2,)]).jobs))[0].shape == g.shape
+
+
+def test_two_cameras_views_are_far_from_one_picture_twice():
+    """The bound's margin, both sides: rendered pairs and (where the shared folder is) the real
+    chessboard set from two cameras, against copies of one view through JPEG and a 1 px shift."""
+    from controller.surveys.frame_pixels import SAME_PICTURE, likeness
+    from tests.vision.shared_data import SHARED_DATA
+    pairs = [_rendered_view(seed) for seed in range(6)]
+    real = sorted((SHARED_DATA / "stereo-chessboard").glob("left*.jpg"))
+    pairs += [(cv2.imread(str(p)), cv2.imread(str(p).replace("left", "right"))) for p in real]
+    assert max(likeness(a, b) for a, b in pairs) < SAME_PICTURE / 4
+    copies = [_jpeg(a, 50) for a, _ in pairs] + [np.roll(a, 1, axis=1) for a, _ in pairs]
+    assert min(likeness(a, c) for (a, _), c in zip(pairs + pairs, copies, strict=True)) > SAME_PICTURE
