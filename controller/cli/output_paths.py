@@ -16,8 +16,12 @@ from controller.errors import BadInput
 def check_outputs(outputs: dict[str, str | Path | None], inputs: Iterable[str | Path | None]) -> None:
     """``outputs``: option -> path (None: not given); ``inputs``: every file the command reads.
     BadInput naming the path, the option and the fault."""
-    given = {os.path.realpath(p) for p in inputs if p}
+    inputs = [p for p in inputs if p]
+    given = {os.path.realpath(p) for p in inputs}
+    # a hard link is the same file under another name: realpath does not see it, the inode does
+    given_files = {ident for p in inputs if (ident := _file_id(p)) is not None}
     seen: dict[str, str] = {}
+    seen_files: dict[tuple[int, int], str] = {}
     for option, path in outputs.items():
         if not path:
             continue
@@ -27,13 +31,24 @@ def check_outputs(outputs: dict[str, str | Path | None], inputs: Iterable[str | 
             if not os.access(path, os.W_OK):
                 raise BadInput(str(path), option, "cannot write: permission denied")
             continue
-        real = os.path.realpath(path)
-        if real in seen:
-            raise BadInput(str(path), option, f"the same file as {seen[real]}")
-        if real in given:
+        real, ident = os.path.realpath(path), _file_id(path)
+        if real in seen or ident in seen_files:
+            raise BadInput(str(path), option, f"the same file as {seen.get(real) or seen_files[ident]}")
+        if real in given or ident in given_files:
             raise BadInput(str(path), option, "an input of this command: it would be written over")
         _check_directory(Path(real), str(path), option)
         seen[real] = option
+        if ident is not None:
+            seen_files[ident] = option
+
+
+def _file_id(path) -> tuple[int, int] | None:
+    """(device, inode) of an existing file, None otherwise."""
+    try:
+        st = os.stat(path)
+    except (OSError, ValueError):
+        return None
+    return st.st_dev, st.st_ino
 
 
 def _check_directory(real: Path, path: str, option: str) -> None:

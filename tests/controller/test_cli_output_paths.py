@@ -2,6 +2,7 @@
 of its outputs or one of its inputs: exit 2, one line naming the path, the option and the fault,
 every input as it was and nothing written."""
 import json
+import os
 import tomllib
 from pathlib import Path
 
@@ -67,6 +68,11 @@ def test_an_output_naming_an_input_or_a_directory_is_refused_before_any_work(tmp
     for name in inputs:
         # spelt another way than the input, so the paths are compared as files, not as strings
         _refused(capsys, tmp_path, line, tmp_path / "." / name, f"{name}: {option}: an input of this command")
+        # and a hard link to it: another name, one file (an outside tester's calibration lost so)
+        link = tmp_path / f"hardlink_{Path(name).name}"
+        if not link.exists():
+            os.link(tmp_path / name, link)
+        _refused(capsys, tmp_path, line, link, f"{link.name}: {option}: an input of this command")
     # a directory that cannot be made: a file stands where it would be
     _refused(capsys, tmp_path, line, tmp_path / "ref.csv" / "out.x",
              f"out.x: {option}: cannot write: {tmp_path / 'ref.csv'} is a file, not a directory")
@@ -82,6 +88,10 @@ def test_an_output_naming_an_input_or_a_directory_is_refused_before_any_work(tmp
 def test_two_outputs_naming_one_file(tmp_path, capsys):
     _refused(capsys, tmp_path, "calibrate dlt --points {grid.csv} --out {d}/c.json --report {out}",
              tmp_path / "." / "c.json", "c.json: --report: the same file as --out")
+    (tmp_path / "c.json").write_text("{}")                      # an earlier run's, hard-linked
+    os.link(tmp_path / "c.json", tmp_path / "report.json")
+    _refused(capsys, tmp_path, "calibrate dlt --points {grid.csv} --out {d}/c.json --report {out}",
+             tmp_path / "report.json", "report.json: --report: the same file as --out")
 
 
 @pytest.mark.parametrize("line, option", [
