@@ -245,7 +245,7 @@ def survey(calib_path, species, setup, pairs, rgs, directory, video, rg_video, s
         progress.stop()
         if session is not None:
             session.close()
-    if summary["count"] == 0 and summary["frames"] > 0:
+    if measured_none(summary):
         _why_no_fish(calib, lambda: _source(pairs, rgs, directory, video, rg_video, every, max_frames,
                                             sync_offset)[0])
     w = summary["weight_g"]
@@ -259,6 +259,12 @@ def survey(calib_path, species, setup, pairs, rgs, directory, video, rg_video, s
 
 
 FIT_PAIRS = 5
+
+
+def measured_none(summary: dict) -> bool:
+    """Pairs surveyed and no fish measured in any (not: measured, and no track long enough to count:
+    "no fish in any pair" was said of a clip with 5 measurements)."""
+    return summary["frames"] > 0 and summary.get("fish_entries", summary["count"]) == 0
 
 
 def _why_no_fish(calib, source) -> None:

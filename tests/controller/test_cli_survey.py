@@ -605,3 +605,14 @@ def test_a_floor_for_the_underwater_setup_exits_2_naming_it(farm):
     d, _ = farm
     r = run(*common(d, "--dir", d / "pairs", "--json", d / "x.json", "--floor-mm", "1000"))
     one_line_exit_2(r, "--floor-mm", "surface setup")
+
+
+@pytest.mark.parametrize("summary, none", [
+    ({"frames": 3, "count": 0, "fish_entries": 0}, True),
+    ({"frames": 3, "count": 0}, True),                        # stills: no entries field to count
+    ({"frames": 3, "count": 0, "fish_entries": 5}, False),    # measured; no track long enough to count
+    ({"frames": 0, "count": 0, "fish_entries": 0}, False),
+    ({"frames": 3, "count": 2, "fish_entries": 7}, False)])
+def test_no_fish_in_any_pair_is_said_only_when_none_was_measured(summary, none):
+    from controller.cli.survey_cmd import measured_none
+    assert measured_none(summary) is none
