@@ -200,6 +200,11 @@ def _exists(path: str) -> None:
         raise BadInput(path, None, "no such file")
     if p.is_dir():
         raise BadInput(path, None, "is a directory, expected an image")
+    if not p.is_file():
+        # a FIFO held the survey until something wrote to it, then was empty the second time it was
+        # read; a <(...) was "no such file" to the worker processes that read stills
+        raise BadInput(path, None, "not a regular file (a pipe, a socket or a device): a still is read as "
+                                   "a file, more than once: save it to one first")
 
 
 def _select(n: int, every: int, max_frames: int | None) -> list[int]:

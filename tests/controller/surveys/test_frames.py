@@ -463,3 +463,21 @@ def test_two_cameras_views_are_far_from_one_picture_twice():
     assert max(likeness(a, b) for a, b in pairs) < SAME_PICTURE / 4
     copies = [_jpeg(a, 50) for a, _ in pairs] + [np.roll(a, 1, axis=1) for a, _ in pairs]
     assert min(likeness(a, c) for (a, _), c in zip(pairs + pairs, copies, strict=True)) > SAME_PICTURE
+
+
+def test_a_still_that_is_a_pipe_is_refused_before_any_is_read(tmp_path):
+    """A FIFO held the survey until something wrote to it (then read empty); ``<(...)`` was 'no such
+    file' to the worker processes that read stills. Both refused at once, by name."""
+    import os
+    right = write(tmp_path / "a_R.png", grey(level=3))
+    fifo = tmp_path / "a_L.png"
+    os.mkfifo(fifo)
+    with pytest.raises(BadInput, match=r"a_L.png: not a regular file \(a pipe"):
+        still_source([(str(fifo), right)])
+    r, w = os.pipe()
+    try:
+        with pytest.raises(BadInput, match=rf"/dev/fd/{r}: not a regular file"):
+            still_source([(f"/dev/fd/{r}", right)])
+    finally:
+        os.close(r)
+        os.close(w)
