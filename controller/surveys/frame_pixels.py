@@ -61,12 +61,27 @@ def header_size(source: str | bytes) -> tuple[int, int] | None:
     except ImportError:                  # (matplotlib brings it; without it the decoded size is checked)
         return None
     try:
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore")      # Pillow's decompression-bomb warning: the size is what we want
-            with Image.open(io.BytesIO(source) if isinstance(source, bytes) else Path(source)) as im:
-                return tuple(int(v) for v in im.size)
+        return _pillow_size(Image, source)
+    except Image.DecompressionBombError:
+        # past twice its own bound Pillow will not even say the size: asked again without the bound
+        # (a header read; what it declares is then refused, not decoded)
+        saved, Image.MAX_IMAGE_PIXELS = Image.MAX_IMAGE_PIXELS, None
+        try:
+            return _pillow_size(Image, source)
+        except Exception:  # noqa: BLE001 -- as below
+            return None
+        finally:
+            Image.MAX_IMAGE_PIXELS = saved
     except Exception:  # noqa: BLE001 -- any file Pillow cannot open is left to OpenCV's decoder to name
         return None
+
+
+def _pillow_size(Image, source) -> tuple[int, int]:
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")      # Pillow's decompression-bomb warning: the size is what we want
+        with Image.open(io.BytesIO(source) if isinstance(source, bytes) else Path(source)) as im:
+            return tuple(int(v) for v in im.size)
+
 
 SAME_PICTURE = 0.8       # ``likeness`` above which two views are one picture twice (2026-12-05: two
                          # cameras' views 0.13 at most, the real chessboard set and rendered pairs; one

@@ -73,12 +73,23 @@ def check_frame_size(calib: StereoCalibration, image, where: str) -> None:
         raise BadInput(where, None, f"does not fit the calibration: {exc}") from None
 
 
+# a still's pixels beyond which it is refused from its header, whatever the calibration says (one
+# without image_size let a 0.9 MB PNG of 30000x30000 be decoded: 5.1 GB; a worker took 1.37 GB for
+# a 20000x20000 job): an 8K camera has 33 megapixels
+MAX_STILL_PX = 50_000_000
+
+
 def check_header_size(calib: StereoCalibration, sources, names) -> None:
     """``check_frame_size`` from the files' headers (paths or bytes), before they are decoded: a
     frame of the wrong size is refused without decoding it. Only a size that fits neither way round
     is refused here (an EXIF orientation may turn the decoded frame); the decoded frame is checked
     again anyway. Two views of different sizes are told as such first, as ``read_pair`` tells them."""
     sizes = [header_size(source) for source in sources]
+    for size, name in zip(sizes, names, strict=True):
+        if size is not None and size[0] * size[1] > MAX_STILL_PX:
+            raise BadInput(name, None, f"{size[0]}x{size[1]} pixels: more than any survey camera's "
+                                       f"{MAX_STILL_PX // 1_000_000} megapixels (decoded, it would take "
+                                       f"{size[0] * size[1] * 3 / 2**30:.1f} GB)")
     if len(sizes) == 2 and None not in sizes and sizes[0] != sizes[1][::-1]:     # a turned one may be EXIF's
         check_same_dims(*sizes, *names)
     for size, name in zip(sizes, names, strict=True):

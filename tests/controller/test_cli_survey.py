@@ -250,8 +250,9 @@ def test_a_still_declaring_more_pixels_than_opencv_reads_is_one_line(farm, tmp_p
     (tmp_path / "huge.png").write_bytes(huge_png())
     (tmp_path / "huge.jpg").write_bytes(huge_jpeg())
     for name in ("huge.png", "huge.jpg"):
+        # (refused from its header, before OpenCV would refuse its 2^30 pixels)
         one_line_exit_2(run(*common(d, "--pair", tmp_path / name, d / "pairs/p0_R.png", "--json", tmp_path / "x.json")),
-                        f"{name}: too large: over 2^30 pixels")
+                        f"{name}: ", "pixels: more than any survey camera's 50 megapixels")
 
 
 def test_a_still_its_codec_reports_damaged_is_one_line_not_a_survey_of_the_smear(farm, tmp_path):
@@ -616,3 +617,16 @@ def test_a_floor_for_the_underwater_setup_exits_2_naming_it(farm):
 def test_no_fish_in_any_pair_is_said_only_when_none_was_measured(summary, none):
     from controller.cli.survey_cmd import measured_none
     assert measured_none(summary) is none
+
+
+def test_a_still_of_more_megapixels_than_any_camera_is_refused_from_its_header(farm, tmp_path):
+    """A 0.9 MB PNG declaring 30000x30000, under the 2^30 pixels OpenCV reads, with a calibration
+    that gives no image size: decoded, it took 5.1 GB (an outside tester)."""
+    d, _ = farm
+    calib = json.loads((d / "calib.json").read_text())
+    (tmp_path / "p_only.json").write_text(json.dumps({"P1": calib["P1"], "P2": calib["P2"]}))
+    for side in "LR":
+        (tmp_path / f"big_{side}.png").write_bytes(huge_png(30000, 30000))
+    r = run("--calib", tmp_path / "p_only.json", "--species", "sparus_aurata", "--setup", "underwater",
+            "--pair", tmp_path / "big_L.png", tmp_path / "big_R.png", "--json", tmp_path / "x.json")
+    one_line_exit_2(r, "big_L.png: 30000x30000 pixels: more than any survey camera's 50 megapixels")

@@ -481,3 +481,18 @@ def test_a_still_that_is_a_pipe_is_refused_before_any_is_read(tmp_path):
     finally:
         os.close(r)
         os.close(w)
+
+
+def test_a_worker_s_job_of_too_many_pixels_is_refused_from_its_header_not_decoded():
+    """A 20000x20000 job took a worker 1.37 GB to refuse (an outside tester): its header says so."""
+    from controller.surveys.runner import check_header_size
+    from devices.sim.stereo_rig import convergent_rig
+    from tests.controller.huge_images import huge_png
+    from vision.calib_file import StereoCalibration
+    rig = convergent_rig()
+    p_only = StereoCalibration(P1=rig.P1, P2=rig.P2)          # no image size to refuse it by
+    big = huge_png(20000, 20000)
+    with pytest.raises(BadInput, match=r"left.png: 20000x20000 pixels: more than any survey camera's 50 megapixels"):
+        check_header_size(p_only, (big, big), ("left.png", "right.png"))
+    fine = huge_png(7000, 7000)                              # 49 megapixels: left to the rest of the checks
+    check_header_size(p_only, (fine, fine), ("left.png", "right.png"))
