@@ -4,9 +4,10 @@ Stills are decoded at their own depth (``cv2.IMREAD_ANYDEPTH``) and brought to 8
 A 10- or 12-bit camera stores its values LSB-aligned in a 16-bit PNG or TIFF (0-1023, 0-4095);
 OpenCV's own 16 -> 8 conversion shifts by 8 bits, which left such a frame 0-15 grey: no fish, and
 no word of it. A 16-bit still is scaled by its actual bit depth instead: the smallest 2^k - 1 (k >= 8)
-at or above its largest value, taken over both views of a pair so that the two are scaled alike
-(patches are compared across them). A floating-point still (a 32-bit TIFF) is read when its values
-lie in 0..1 (scaled by 255), else refused naming the values it holds.
+at or above its largest value (but for its brightest 0.01 % of pixels: hot pixels), taken over both
+views of a pair so that the two are scaled alike (patches are compared across them). A
+floating-point still (a 32-bit TIFF) is read when its values lie in 0..1 (scaled by 255), else
+refused naming the values it holds.
 
 Size: a frame too big (or small) for the calibration is refused from its header, before an 8000x6000
 pair is decoded (551 MB and 1.8 s only to be refused) -- through Pillow (matplotlib's dependency,
@@ -30,11 +31,23 @@ def _bits(value: float) -> int:
     return max(8, int(value).bit_length())
 
 
+HOT_SHARE = 1e-4          # of a pair's pixels, the brightest, that do not set its bit depth (hot pixels)
+
+
+def _top(wide: list[np.ndarray]) -> int:
+    """The largest value of the 16-bit views but for their brightest ``HOT_SHARE`` of pixels: one hot
+    pixel at 65535 in a 10-bit frame scaled the pair to 0-4 grey, and the survey found no fish."""
+    counts = sum(np.bincount(img.ravel(), minlength=65536) for img in wide)
+    spare = int(HOT_SHARE * counts.sum())              # pixels that may lie above the top
+    above = np.cumsum(counts[::-1])                     # pixels at or above each value, from 65535 down
+    return 65535 - int(np.searchsorted(above, spare, side="right"))
+
+
 def to_8bit(images: list[np.ndarray], names: list[str]) -> list[np.ndarray]:
     """The images (one pair, or one RG frame) as uint8, 16-bit ones by their common bit depth and
     floating-point ones from 0..1 (module docstring). BadInput names a still that cannot be."""
     wide = [img for img in images if img.dtype == np.uint16]
-    scale16 = 255.0 / (2 ** _bits(max(int(img.max(initial=0)) for img in wide)) - 1) if wide else 1.0
+    scale16 = 255.0 / (2 ** _bits(_top(wide)) - 1) if wide else 1.0
     out = []
     for img, name in zip(images, names, strict=True):
         if img.dtype == np.uint8:

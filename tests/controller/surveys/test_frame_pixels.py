@@ -75,3 +75,23 @@ def test_the_header_check_reads_bytes_as_a_worker_gets_them_and_lets_a_turned_si
         check_header_size(calib, (wrong, wrong), ("big.png", "big_R.png"))
     with pytest.raises(BadInput, match=r"big.png: 2000x1500 pixels, but the left image ok.png is 1280x960"):
         check_header_size(calib, (ok, wrong), ("ok.png", "big.png"))          # as the decoded pair is told
+
+
+@pytest.mark.parametrize("hot", [1, 12, 150, 400])
+def test_hot_pixels_do_not_set_a_16_bit_pair_s_depth(tmp_path, hot):
+    """One hot pixel at 65535 in a 10-bit frame scaled the pair to 0-4 grey: no fish, no word (an
+    outside tester). The brightest 0.01 % of a pair's pixels do not set its depth; more than that is
+    the picture's own light and does."""
+    left, right = picture(480, 640, seed=1), picture(480, 640, seed=2)
+    wide_l, wide_r = (np.round(v.astype(np.float64) * 1023 / 255).astype(np.uint16) for v in (left, right))
+    spots = np.random.default_rng(hot).choice(wide_l.size, hot, replace=False)
+    wide_l.ravel()[spots] = 65535
+    got_l, got_r, _ = read_pair(pair_of(tmp_path, wide_l, wide_r)[0])
+    bright = int(0.0001 * 2 * wide_l.size)             # 184 values of the pair may lie above its depth
+    if hot <= bright:
+        keep = np.ones(wide_l.size, bool)
+        keep[spots] = False
+        assert np.abs(got_l.ravel()[keep].astype(int) - left.ravel()[keep]).max() <= 1
+        assert (got_l.ravel()[spots] == 255).all() and np.abs(got_r.astype(int) - right).max() <= 1
+    else:                                               # a light of its own: the 16-bit scale
+        assert got_l.ravel()[spots].min() == 255 and got_r.max() <= 5
