@@ -94,7 +94,9 @@ class Overrides(TankCommands):
         bus.overrides(handlers, lenient=("estop",), urgent={"estop": self.c.trip_estop},
                       refused=self.refused_on_wire)
         bus.queryable("status", self.status, lenient=True, ready=self.fresh_status)
-        bus.queryable("history/*/*", self.history, selector=True)     # a range it cannot read: refused, not ignored
+        # a range it cannot read is refused, not ignored; so is a key a level short or over (no reply
+        # came to history/surveys or history/surveys/T1/extra)
+        bus.queryable("history/**", self.history, selector=True)
 
     def _from_zenoh(self, command: str):
         async def handle(payload, user: str | None = None) -> dict:

@@ -384,6 +384,9 @@ def test_the_history_queryable_serves_the_ledger_over_zenoh(served):
         [reply] = client.session.get(client.key("history/fish/T1"), payload=garbage, timeout=2.0)
         answer = decode(reply.ok.payload)
         assert answer["ok"] is False and answer["error"], (garbage, answer)
+    for key in ("history", "history/fish", "history/fish/T1/extra"):     # a level short or over: told so
+        [refused] = client.query(key)
+        assert refused["ok"] is False and "ask history/{" in refused["error"] and repr(key) in refused["error"]
 
 
 def test_status_is_built_once_for_a_burst_of_queries_and_anew_after_an_override(served, monkeypatch):
