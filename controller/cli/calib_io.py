@@ -50,7 +50,7 @@ def calibration_json(path: str, text: str):
 def load_calibration(path: str | Path) -> StereoCalibration:
     where = str(path)
     try:
-        text = Path(path).read_text(encoding="utf-8")
+        text = Path(path).read_text(encoding="utf-8-sig")   # a BOM (Windows editors) is no fault
     except FileNotFoundError:
         raise BadInput(where, None, "no such file") from None
     except (OSError, UnicodeDecodeError) as exc:

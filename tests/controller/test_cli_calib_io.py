@@ -43,3 +43,14 @@ def test_saved_then_loaded_is_the_same_calibration(tmp_path):
     calib = calibration_from_json(FULL)
     save_calibration(calib, tmp_path / "sub" / "CALIB.json")
     assert load_calibration(tmp_path / "sub" / "CALIB.json").to_json() == calib.to_json()
+
+
+def test_a_calibration_saved_with_a_byte_order_mark_is_read(tmp_path):
+    """Windows editors write one: refused as 'Unexpected UTF-8 BOM' (an outside tester), while the
+    grid and DLT files with one were read."""
+    import json
+    plain = calibration_from_json(json.loads(FULL))
+    path = tmp_path / "CALIB.json"
+    path.write_bytes(b"\xef\xbb\xbf" + FULL.encode())
+    got = load_calibration(path)
+    assert (got.P1 == plain.P1).all() and (got.P2 == plain.P2).all()
