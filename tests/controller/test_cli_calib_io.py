@@ -49,8 +49,8 @@ def test_a_calibration_saved_with_a_byte_order_mark_is_read(tmp_path):
     """Windows editors write one: refused as 'Unexpected UTF-8 BOM' (an outside tester), while the
     grid and DLT files with one were read."""
     import json
-    plain = calibration_from_json(json.loads(FULL))
+    plain = calibration_from_json(FULL)
     path = tmp_path / "CALIB.json"
-    path.write_bytes(b"\xef\xbb\xbf" + FULL.encode())
+    path.write_bytes(b"\xef\xbb\xbf" + json.dumps(FULL).encode())
     got = load_calibration(path)
     assert (got.P1 == plain.P1).all() and (got.P2 == plain.P2).all()
