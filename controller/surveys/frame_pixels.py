@@ -109,7 +109,7 @@ def likeness(left: np.ndarray, right: np.ndarray) -> float | None:
     None when either view has next to no structure to compare (a uniform frame: lights off)."""
     bands = []
     for img in (left, right):
-        g = img if img.ndim == 2 else img[..., 0] if img.shape[2] == 1 else cv2.cvtColor(
+        g = img if img.ndim == 2 else img[..., 0] if img.shape[2] not in (3, 4) else cv2.cvtColor(
             img, cv2.COLOR_BGR2GRAY if img.shape[2] == 3 else cv2.COLOR_BGRA2GRAY)
         if min(g.shape[:2]) >= 64:
             g = cv2.resize(g, (g.shape[1] // 2, g.shape[0] // 2), interpolation=cv2.INTER_AREA)
