@@ -269,8 +269,9 @@ class SurveyStop:
                   if not out]
         sid = self.store.add_survey(session.tank, t, sp.key, path, lengths, weights, scores)
         self.recorded.append(sid)
-        log.info("survey of %s recorded: %d pairs in %d visit(s), %d fish, mean %.1f g", session.tank,
-                 session.captured, session.visits, len(lengths), float(weights.mean()) if len(lengths) else math.nan)
+        mean = f"mean {float(weights.mean()):.1f} g" if len(lengths) else "no mean weight"
+        log.info("survey of %s recorded: %d pairs in %d visit(s), %d fish, %s", session.tank,
+                 session.captured, session.visits, len(lengths), mean)
         return sid
 
     def _write_out_json(self, session: SurveySession, t: float, lengths, weights) -> str:

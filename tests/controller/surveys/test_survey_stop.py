@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import asyncio
 import json
+import logging
 import math
 import threading
 import time
@@ -468,3 +469,19 @@ def test_a_wake_that_is_no_demand_does_not_end_a_visit_whose_cameras_are_opening
             return camera.starts, r.store.surveys("T2")[0]
     starts, survey = run(main())
     assert starts == 1, starts
+
+
+def test_a_survey_that_counted_no_fish_is_recorded_and_logged_without_a_nan(tmp_path, caplog):
+    """Its log line read 'mean nan g' (an outside tester)."""
+    async def main():
+        async with rig(tmp_path) as r:
+            await r.until(lambda: r.robot.state == "idle", what="homed")
+            stops, _, _, _ = await attach(r, tmp_path, measure=MeasureDouble(per_pair=0))
+            stops.request("T2", pairs=3)
+            await r.until(lambda: r.store.surveys("T2", counted=None), 900.0, what="the empty survey recorded")
+            return r.store.surveys("T2", counted=None)[0]
+    with caplog.at_level(logging.INFO, logger="fishfarm.survey"):
+        survey = run(main())
+    assert survey.count == 0
+    [line] = [rec.getMessage() for rec in caplog.records if "recorded:" in rec.getMessage()]
+    assert line.endswith("0 fish, no mean weight") and "nan" not in line, line
