@@ -82,6 +82,8 @@ class TankCommands:
         self._tank(cmd.tank)
         rations, now = self.c.rations, self.c.clock.now()
         held = rations.stock(cmd.tank)
+        if held <= 0:
+            raise Refused(f"tank: {cmd.tank} holds no fish (its stock events took them all)")
         if cmd.count > held:
             raise Refused(f"count: more than the {held} fish in tank {cmd.tank}")
         self.c.store.add_stock_event(t=now, tank=cmd.tank, kind=kind, count=cmd.count, to_tank=to,

@@ -33,6 +33,7 @@ from __future__ import annotations
 import itertools
 import json
 import logging
+import math
 import queue
 import time
 import uuid
@@ -65,6 +66,17 @@ BENCH_S = 120.0            # wall: a worker dropped by one dispatch gets no job 
 # zero every time: ties are broken by a turn that moves on with each dispatch of this process,
 # or every pair would go to the same worker (measured: one of two workers did 1 % of a grow-out's).
 _TURNS = itertools.count()
+_said_here = [-math.inf]     # monotonic: when "measuring the rest here" was last said at warning
+
+
+def _say_measuring_here() -> None:
+    """Once a ``BENCH_S``, at warning: the survey stop dispatches each pair on its own, and said it
+    of every pair of a visit (3-4 lines in half a second); in between, at debug."""
+    now = time.monotonic()
+    loud = now - _said_here[0] >= BENCH_S
+    if loud:
+        _said_here[0] = now
+    log.log(logging.WARNING if loud else logging.DEBUG, "no usable vision worker left: measuring the rest here")
 
 
 def measure_remote(jobs: Iterable[PairJob], calib: StereoCalibration, setup: SurveySetup, *,
@@ -292,7 +304,7 @@ class _Dispatch:
         if rec.finished:
             return
         if self.local is None:
-            log.warning("no usable vision worker left: measuring the rest here")
+            _say_measuring_here()
             self.local = PairWork(self.calib, self.setup, self.measure)
         self.done[rec.seq] = self.local(rec.job)
         rec.finished = True

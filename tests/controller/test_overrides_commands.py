@@ -92,6 +92,11 @@ def test_stock_events_change_the_stock_the_rations_use(farm):
         "ok": False, "error": "count: more than the 1000 fish in tank T1"}
     assert apply(farm, "harvest", {"tank": "T1", "count": 1000}) == {"ok": True, "stock": {"T1": 0}}
     assert farm.rations.today("T1", now).grams == 0
+    # an empty tank is said so, not "more than the 0 fish" (an outside tester)
+    for command, payload in (("mortality", {"tank": "T1", "count": 1}),
+                             ("transfer", {"tank": "T1", "to": "T2", "count": 1})):
+        assert apply(farm, command, payload) == {
+            "ok": False, "error": "tank: T1 holds no fish (its stock events took them all)"}
     assert [(r["tank"], r["kind"], r["count"], r["to_tank"]) for r in farm.store.stock_events()] == [
         ("T1", "mortality", 100, None), ("T1", "harvest", 400, None), ("T1", "transfer", 500, "12"),
         ("T2", "mortality", 1, None), ("T1", "harvest", 1000, None)]

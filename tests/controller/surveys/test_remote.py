@@ -5,12 +5,14 @@ from __future__ import annotations
 
 import json
 import logging
+import math
 import os
 import signal
 import subprocess
 import sys
 import time
 import uuid
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import cv2
@@ -511,4 +513,29 @@ def test_a_worker_dropped_by_one_pair_is_not_asked_again_by_the_next_pairs(rende
             e.undeclare()
     finally:
         measure.tokens.undeclare()
+        peer.close()
+
+
+def test_measuring_here_for_want_of_workers_is_said_once_for_a_visit_s_pairs(rendered, hub, caplog, monkeypatch):
+    """The survey stop dispatches each pair on its own: with its only worker benched, every pair of
+    a visit said 'no usable vision worker left' (3-4 lines in half a second, an outside tester)."""
+    from controller.surveys import remote
+    monkeypatch.setattr(remote, "_said_here", [-math.inf], raising=False)
+    items, calib, local, _ = rendered
+    session, endpoint, site = hub
+    peer = zenoh.open(wire_client(endpoint))
+    measure = workers_or_here(session, site, discover_s=1.0)     # (each pair waits this for a usable one)
+    caplog.set_level(logging.WARNING, logger="fishfarm.survey")
+    try:
+        liar, _ = _fake_worker(peer, site, GARBAGE["refusal"], "liar")
+        heard(measure, 1)
+        # the stop keeps pairs in flight at once: each its own dispatch, each finding the worker gone
+        with ThreadPoolExecutor(3) as pool:
+            results = list(pool.map(lambda f: next(iter(measure(jobs(items, 3)[f:f + 1], calib, SETUP))), range(3)))
+        same(results, local[:3])
+        said = [r for r in caplog.records if "measuring the rest here" in r.getMessage()]
+        assert len(said) == 1, [r.getMessage() for r in said]
+        for e in liar:
+            e.undeclare()
+    finally:
         peer.close()
