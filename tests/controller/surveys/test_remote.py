@@ -362,9 +362,13 @@ def test_worker_command_refuses_bad_options(capsys):
     assert fishfarm_main(["worker", "--site", "a/b"]) == 2
     for seconds in ("nan", "inf", "-1"):                # (nan would serve for ever, inf overflow the timer)
         assert fishfarm_main(["worker", "--duration", seconds]) == 2
+    ids = ("a/b*", "x?y", "**", "", "w" * 65)             # cleaned silently before: two could come out one
+    for worker_id in ids:
+        assert fishfarm_main(["worker", "--id", worker_id]) == 2
     err = capsys.readouterr().err.strip().splitlines()
-    assert len(err) == 5 and "--cpu" in err[0] and "--site" in err[1]
-    assert all("--duration" in line and s in line for line, s in zip(err[2:], ("nan", "inf", "-1"), strict=True))
+    assert len(err) == 5 + len(ids) and "--cpu" in err[0] and "--site" in err[1]
+    assert all("--duration" in line and s in line for line, s in zip(err[2:5], ("nan", "inf", "-1"), strict=True))
+    assert all("--id" in line and repr(i) in line for line, i in zip(err[5:], ids, strict=True))
 
 
 def test_the_controller_measures_through_its_own_bus_session(rendered, workers):
