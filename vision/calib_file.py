@@ -143,8 +143,7 @@ AGREE_T = 0.02                  # of |T|
 
 def decompose(P: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(K with a positive diagonal and K[2, 2] = 1, R a rotation, t) with P ~ K [R | t] up to scale."""
-    P = np.asarray(P, float)
-    P = P if np.linalg.det(P[:, :3]) > 0 else -P
+    P = _facing(np.asarray(P, float))
     K, R = cv2.RQDecomp3x3(P[:, :3])[1:3]
     flip = np.diag(np.sign(np.diag(K)))          # RQ's sign freedom: K's diagonal positive
     K, R = K @ flip, flip @ R

@@ -74,11 +74,10 @@ def worker(connect, site, config_path, worker_id, cpu, user, password, duration,
     connect, site = connect or DEFAULT_CONNECT, site or "demo"
     if not _ID.match(site):
         raise BadInput("--site", None, f"{site!r}: letters, digits, _ and - only")
-    if worker_id is not None and not _ID.match(worker_id):
-        # cleaned silently before: 'a/b*' served as 'a-b-', and two ids could come out one
-        raise BadInput("--id", None, f"{worker_id!r}: 1 to 64 letters, digits, '.', '_' and '-'")
-    if worker_id is None:                     # (a host's name is cleaned: it is not the user's word)
+    if worker_id is None:                     # a host's name is cleaned: it is not the user's word
         worker_id = re.sub(r"[^A-Za-z0-9_.-]", "-", f"{socket.gethostname()}-{os.getpid()}")[:64]
+    elif not _ID.match(worker_id):            # cleaned silently before: 'a/b*' served as 'a-b-'
+        raise BadInput("--id", None, f"{worker_id!r}: 1 to 64 letters, digits, '.', '_' and '-'")
     cores = _cpus(cpu)
     if cores is not None:
         os.sched_setaffinity(0, cores)
