@@ -201,11 +201,13 @@ def calibration_from_json(data: object) -> StereoCalibration:
     _check_agree(mats)
     size = data.get("image_size")
     if size is not None:
+        # 1280.0 is a whole number too: a numpy array's tolist() writes sizes so
         if (not isinstance(size, list) or len(size) != 2
-                or not all(isinstance(s, int) and not isinstance(s, bool) and 0 < s <= MAX_IMAGE_PX for s in size)):
+                or not all(isinstance(s, (int, float)) and not isinstance(s, bool) and 0 < s <= MAX_IMAGE_PX
+                           and s == int(s) for s in size)):
             raise CalibrationError("image_size",
                                    f"expected [width, height] in pixels (whole numbers 1..{MAX_IMAGE_PX})")
-        size = (size[0], size[1])
+        size = (int(size[0]), int(size[1]))
     rms = data.get("rms_px")
     if rms is not None and not (isinstance(rms, (int, float)) and not isinstance(rms, bool)
                                 and abs(rms) < 1e300 and math.isfinite(rms)):

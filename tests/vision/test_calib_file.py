@@ -34,6 +34,13 @@ def test_a_full_calibration_goes_through_json_unchanged():
     assert again.to_json() == calib.to_json()
 
 
+def test_an_image_size_written_as_whole_floats_is_the_same_size():
+    # numpy's tolist() of a float array writes [640.0, 480.0]: the same pixels, not a fault
+    calib = calibration_from_json(GOOD | {"image_size": [640.0, 480.0]})
+    assert calib.image_size == (640, 480) and all(type(s) is int for s in calib.image_size)
+    assert calib.to_json()["image_size"] == [640, 480]
+
+
 def test_only_p1_and_p2_is_enough():
     calib = calibration_from_json(GOOD)
     assert isinstance(calib, StereoCalibration) and not calib.has_distortion
