@@ -8,6 +8,7 @@ replaced: renaming over it put a plain file where the system's /dev/null had bee
 from __future__ import annotations
 
 import contextlib
+import glob
 import io
 import os
 import stat
@@ -19,8 +20,32 @@ from controller.errors import BadInput
 
 
 def beside(target: Path) -> Path:
+    """The file written before it takes ``target``'s name: one per process (two commands writing one
+    name do not write into each other). The ones left by writers that are gone (killed outright,
+    SIGKILL: nothing ran after) are swept first, else each kill left one more for good."""
+    _sweep(target)
     # an ordinary open of this name, not mkstemp: the file gets the user's umask like any other
     return target.with_name(f".{target.name}.{os.getpid()}.part")
+
+
+def _sweep(target: Path) -> None:
+    prefix = f".{target.name}."
+    with contextlib.suppress(OSError):
+        for left in target.parent.glob(f"{glob.escape(prefix)}*.part"):
+            pid = left.name[len(prefix):-len(".part")]
+            if pid.isdigit() and int(pid) != os.getpid() and not _alive(int(pid)):
+                with contextlib.suppress(OSError):
+                    left.unlink()
+
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except (PermissionError, OverflowError, ValueError):
+        return True             # another user's process, or no pid at all: not ours to sweep
+    return True
 
 
 def special(target: Path) -> bool:

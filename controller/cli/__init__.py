@@ -32,7 +32,17 @@ COMMANDS = {
 }
 
 
-class LazyGroup(click.Group):
+class CheckedGroup(click.Group):
+    """A group whose subcommands' options are checked first (``refuse_repeated``)."""
+
+    def resolve_command(self, ctx, args):
+        name, cmd, rest = super().resolve_command(ctx, args)
+        if cmd is not None and not ctx.resilient_parsing:
+            refuse_repeated(ctx, name, cmd, rest)
+        return name, cmd, rest
+
+
+class LazyGroup(CheckedGroup):
     """A group whose subcommands are ``name -> "module:attr"`` in ``table``, imported on use."""
 
     table = COMMANDS
@@ -54,6 +64,33 @@ class LazyGroup(click.Group):
             if exc.name == module:  # not written yet
                 return None
             raise
+
+
+def refuse_repeated(ctx: click.Context, name: str, cmd: click.Command, args: list[str]) -> None:
+    """Refuse, naming the option, what click would take silently: an option of one value given twice
+    (the last kept: ``--video A B --video C D`` surveyed C D alone) and one of the command's own
+    options read as another's value (``--video LEFT --json OUT``: --json taken for RIGHT, then
+    "Missing option '--json'")."""
+    probe = click.Context(cmd, info_name=name, parent=ctx, resilient_parsing=True)
+    try:
+        opts, _, order = cmd.make_parser(probe).parse_args(args=list(args))
+    except click.UsageError:
+        return                                   # click's own pass says what is wrong
+    names = {o for p in cmd.get_params(probe) if isinstance(p, click.Option) for o in (*p.opts, *p.secondary_opts)}
+    seen: set[str] = set()
+    for param in order:
+        if not isinstance(param, click.Option) or param.is_flag or param.multiple or param.count:
+            continue
+        flag = max(param.opts, key=len)
+        if param.name in seen:
+            raise click.BadOptionUsage(flag, f"{flag} given more than once: give it once (only one would be used)",
+                                       ctx=probe)
+        seen.add(param.name)
+        value = opts.get(param.name)
+        for v in value if isinstance(value, (tuple, list)) else (value,):
+            if isinstance(v, str) and v in names:
+                what = " ".join(param.metavar.split()) if param.metavar else f"{param.nargs} value(s)"
+                raise click.BadOptionUsage(flag, f"{flag} takes {what}: {v} is an option, not its value", ctx=probe)
 
 
 @click.group(cls=LazyGroup, context_settings={"help_option_names": ["-h", "--help"]})

@@ -14,13 +14,14 @@ from pathlib import Path
 
 import click
 
+from controller.cli import CheckedGroup
 from controller.errors import BadInput
 
 CLEAN, DIRTY, OUT_OF_REACH = 255, 130, 60      # CoverageMap.image()'s values
 GIVEN_UP = 100                                  # drawn here: dirty cells the mop-up will not try again
 
 
-@click.group()
+@click.group(cls=CheckedGroup)
 def cleaner() -> None:
     """The pond-cleaning robot."""
 

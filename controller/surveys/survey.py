@@ -101,11 +101,13 @@ class _Tracks:
         self.scores.extend(f.score for f in fish)
         return list(range(first, first + len(fish)))
 
-    def lengths_cm(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    def lengths_cm(self, pairs: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(ids, lengths, scores) of the entries the statistics may use: every fish in stills, the
         confirmed tracks in video (a track's score: its sightings' mean); lengths that are not a
-        positive number left out."""
+        positive number left out. A clip of fewer pairs than CONFIRMED confirms a track seen in all
+        of them (else no fish of a 2-pair clip could count: every one was left out, the count 0)."""
         if self.tracker is not None:
+            self.min_sightings = min(self.min_sightings, max(pairs, 1))
             tracks = self.tracker.finish()
             self.tracks_seen = len(tracks)
             kept = [t for t in tracks if t.count >= self.min_sightings]
@@ -151,7 +153,7 @@ def run_survey(source: Source, calib: StereoCalibration, opts: SurveyOptions,
             if opts.on_pair:
                 opts.on_pair(result)
         wall = time.perf_counter() - started
-        ids, lengths, scores = tracks.lengths_cm()
+        ids, lengths, scores = tracks.lengths_cm(frames)
         far = implausible(lengths)
         rejected, lengths = lengths[far], lengths[~far]
         stats = summarise(lengths, weight.weight_g(lengths), rng=np.random.default_rng(opts.seed))

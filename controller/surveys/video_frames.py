@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import os
 import time
+import warnings
 from collections.abc import Iterator
 
 import cv2
@@ -71,6 +72,31 @@ def _skip(caps: list[cv2.VideoCapture], cap: cv2.VideoCapture, path: str, frames
             raise BadInput(path, "--sync-offset", f"skips {frames} frames, but the video has {k}")
 
 
+def _still_format(path: str) -> str | None:
+    """The format of a file Pillow reads as one still picture (PNG, JPEG...), else None. FFmpeg
+    opens a still as a video of one frame at 25 frames/s: surveyed so, its fish were each one
+    sighting, too few to count (0 fish, exit 0, where --pair counted them)."""
+    try:
+        from PIL import Image
+    except ImportError:
+        return None
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            with Image.open(path) as im:
+                return str(im.format) if getattr(im, "n_frames", 1) == 1 else None
+    except Exception:  # noqa: BLE001 -- whatever Pillow cannot read is no still of its formats
+        return None
+
+
+def _not_a_still(path: str, frames: int) -> None:
+    """A "video" that held one frame and is a still image is refused as one (the survey's --pair reads it)."""
+    fmt = _still_format(path) if frames == 1 else None
+    if fmt is not None:
+        raise BadInput(path, None, f"a still image ({fmt}), not a video: survey stills with --pair LEFT RIGHT "
+                                   "or --rg FRAME")
+
+
 def _check_whole(path: str, read: int, declared: int | None, done: int) -> None:
     """A video that ended after ``read`` frames, shorter than its header says, is refused: a file
     cut short (a copy interrupted, a recorder's disk full) whose last frame may be half decoded.
@@ -97,6 +123,9 @@ def _video_jobs(caps: list[cv2.VideoCapture], paths: tuple[str, ...], every: int
             ended = [g is None or g is False for g in got]
             if any(ended) and i == first:      # (whichever ended had none past --sync-offset's skip)
                 raise BadInput(paths[ended.index(True)], None, "no frames" + (" after --sync-offset" if offset else ""))
+            if any(ended):
+                for k in range(len(caps)):
+                    _not_a_still(paths[k], i - first + (0 if ended[k] else 1))
             if all(ended):
                 for k, count in enumerate(declared or ()):
                     _check_whole(paths[k], i + (offset if k == 1 else 0), count, done)

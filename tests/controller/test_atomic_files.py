@@ -147,3 +147,40 @@ def test_outputs_into_a_fifo_are_neither_refused_nor_one_file_twice(tmp_path):
     fifo = tmp_path / "sink"
     os.mkfifo(fifo)
     check_outputs({"--json": str(fifo), "--csv": str(fifo)}, [])
+
+
+def _dead_pid() -> int:
+    """A process id that was a process's and is no longer (reaped)."""
+    import subprocess
+    import sys
+    child = subprocess.Popen([sys.executable, "-c", "pass"])
+    child.wait()
+    return child.pid
+
+
+@pytest.mark.parametrize("writer", ["pending", "replace"])
+def test_parts_left_by_writers_killed_outright_are_swept_by_the_next_writer_of_the_name(tmp_path, writer):
+    """A survey SIGKILLed leaves its .part (nothing of it runs after the kill): the next one writing
+    that name sweeps it, and only the parts of writers that are gone, of that name."""
+    import subprocess
+    import sys
+    out = tmp_path / "o.json"
+    dead = [_dead_pid() for _ in range(2)]
+    live = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(60)"])
+    try:
+        gone = [tmp_path / f".o.json.{pid}.part" for pid in dead]
+        kept = [tmp_path / f".o.json.{live.pid}.part", tmp_path / ".o.json.x1.part",
+                tmp_path / f".other.json.{dead[0]}.part", tmp_path / f".o.json.{dead[0]}.part.bak"]
+        for p in gone + kept:
+            p.write_text("half")
+        if writer == "pending":
+            pending = PendingFile(out, "the survey")
+            pending.file.write("{}")
+            pending.commit()
+        else:
+            write_text_atomically(out, "{}")
+        assert out.read_text() == "{}"
+        assert not any(p.exists() for p in gone) and all(p.exists() for p in kept)
+    finally:
+        live.kill()
+        live.wait()

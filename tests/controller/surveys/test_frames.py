@@ -359,6 +359,29 @@ def test_missing_or_unopenable_video(tmp_path):
         list(video_source((str(junk),)).jobs)
 
 
+@pytest.mark.parametrize("ext", [".png", ".jpg", ".bmp", ".tif"])
+def test_a_still_image_given_as_a_video_is_refused_as_one(tmp_path, ext):
+    """FFmpeg reads a still as a one-frame video: surveyed so, its fish were single sightings, left
+    out, and the survey counted 0 where --pair counted them."""
+    rng = np.random.default_rng(0)
+    stills = []
+    for side in "lr":
+        path = tmp_path / f"{side}{ext}"
+        assert cv2.imwrite(str(path), rng.integers(0, 255, (48, 64, 3), dtype=np.uint8))
+        stills.append(str(path))
+    with pytest.raises(BadInput, match=rf"l{ext}: a still image \(\w+\), not a video: survey stills with --pair"):
+        list(video_source(tuple(stills)).jobs)
+    with pytest.raises(BadInput, match=rf"l{ext}: a still image"):       # beside a real video
+        list(video_source((stills[0], make_video(tmp_path / "r.avi", 5))).jobs)
+    with pytest.raises(BadInput, match=rf"l{ext}: a still image"):       # as an RG video
+        list(video_source((stills[0],)).jobs)
+
+
+def test_a_video_of_one_frame_is_surveyed_as_one_pair(tmp_path):
+    a, b = make_video(tmp_path / "l.avi", 1), make_video(tmp_path / "r.avi", 1)
+    assert [j.frame for j in video_source((a, b)).jobs] == [0]
+
+
 def test_one_file_or_one_picture_given_for_both_views_is_refused(tmp_path):
     """Its 'fish' were triangulated from no disparity into lengths that were never there."""
     a = write(tmp_path / "a.png", grey())

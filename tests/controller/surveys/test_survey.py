@@ -204,6 +204,21 @@ def test_entries_of_a_track_too_short_to_count_are_marked_outlier(tmp_path, monk
                                                              for f in doc["fish"])
 
 
+@pytest.mark.parametrize("frames", [1, 2, 3])
+def test_a_clip_shorter_than_a_confirmed_track_counts_the_fish_seen_in_every_pair(tmp_path, monkeypatch, frames):
+    """Of a clip of fewer pairs than CONFIRMED (3), a track seen in every pair is confirmed: no fish
+    of a 2-pair clip could count otherwise (it counted 0, every measured fish left out). The first
+    fish is one track in every pair, the second a new track in each."""
+    _stand_in_tracker(monkeypatch, lambda frame, n: [0, 1 + frame][:n])
+    rig, _, paths = _two_fish_videos(tmp_path, frames=frames)
+    run_survey(video_source(paths), rig.calibration(), options(f"{STANDIN}:dots"), str(tmp_path / "o.json"))
+    doc = json.loads((tmp_path / "o.json").read_text())
+    counted = {f["track"] for f in doc["fish"] if not f["outlier"]}
+    assert doc["tracks"]["min_sightings"] == min(frames, 3)
+    assert counted == ({0, 1} if frames == 1 else {0}) and doc["count"] == len(counted)
+    assert doc["tracks"]["seen"] == 1 + frames
+
+
 def test_implausible_lengths_are_left_out_of_the_statistics_and_marked(tmp_path):
     """The controller's rule (vision.survey_stats.implausible) holds for `fishfarm survey` too: the
     statistics, the recorded lengths and the count leave them out; OUT.json lists and marks them."""
