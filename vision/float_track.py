@@ -12,8 +12,10 @@ heading there. Gating cannot lock the tracker out: ``reinit_after`` held-out fix
 agree with each other (a speed the float can do between them) restart the track there, and so does
 a fix once the position is this uncertain (``reinit_std_m``); the gate also widens by itself as the
 position's uncertainty grows while coasting. Either restart takes only a fix the float could have
-reached since its last fix taken (``max_speed_m_s``): a spare float lying still 11 m off, seen
-while ours was hidden for 0.3 s, agreed with itself and took the track for good. Beyond that reach
+reached since its last fix taken (``max_speed_m_s``, ``MAX_SPEED_M_S``; a run of held-out fixes
+judged by its first, at its own time): a spare float lying still 11 m off, seen while ours was
+hidden for 0.3 s, agreed with itself and took the track for good, and so did one 1 m off at 2 m/s
+(ours hidden 0.3 s, the spare seen from then on). Beyond that reach
 the track coasts to "lost", after which the first good fix anywhere starts it again.
 
 A fix that gives the position alone (``heading_known`` False: the orange disc seen, its blue not
@@ -57,6 +59,12 @@ def _wrap(a: float) -> float:
     return math.pi - (math.pi - a) % (2 * math.pi)
 
 
+# The cleaner's top speed (0.4 m/s: two 12 N thrusters against 60 N per m/s of drag, the simulated
+# pond's too) with a current's 0.1 m/s and a margin. At 2 m/s (before 2026-12-05) a second float
+# 1 m off, seen while ours was hidden for 0.3 s, was in reach and took the track for good.
+MAX_SPEED_M_S = 0.6
+
+
 class FloatTracker:
     """One float's track from fixes (or None: a dropout) at increasing times.
 
@@ -64,13 +72,15 @@ class FloatTracker:
     ``accel_std`` (m/s^2), ``yaw_accel_std`` (rad/s^2): how briskly the float may change course;
     ``turn``: the share of the heading's rate the velocity turns at (1: goes where it faces, 0:
     straight on); ``gate``: squared Mahalanobis distance (2 dof) past which a fix is held out;
-    ``reach_m``: the marker's extent around the robot, for the search region."""
+    ``reach_m``: the marker's extent around the robot, for the search region; ``slack_m``: how far
+    beyond ``max_speed_m_s`` x the time since its last fix the float may be found (a fix's own
+    error, the orange disc's radius): no fix farther is taken, however wide the gate has grown."""
 
     def __init__(self, *, lost_after_s: float = 4.0, pos_std_m: float = 0.02, heading_std_rad: float = 0.03,
                  accel_std: float = 1.5, yaw_accel_std: float = 0.6, gate: float = 13.8,
-                 reinit_after: int = 3, max_speed_m_s: float = 2.0, reinit_std_m: float = 1.0,
+                 reinit_after: int = 3, max_speed_m_s: float = MAX_SPEED_M_S, reinit_std_m: float = 1.0,
                  min_confidence: float = 0.15, reach_m: float = 0.6, turn: float = 1.0,
-                 max_heading_std_rad: float = 0.12):
+                 max_heading_std_rad: float = 0.12, slack_m: float = 0.25):
         if not lost_after_s > 0:
             raise ValueError("lost_after_s must be > 0")
         if reinit_after < 1:
@@ -80,7 +90,7 @@ class FloatTracker:
         self.accel_std, self.yaw_accel_std = accel_std, yaw_accel_std
         self.gate, self.reinit_after, self.max_speed_m_s = gate, reinit_after, max_speed_m_s
         self.reinit_std_m, self.min_confidence, self.reach_m = reinit_std_m, min_confidence, reach_m
-        self.turn, self.max_heading_std_rad = turn, max_heading_std_rad
+        self.turn, self.max_heading_std_rad, self.slack_m = turn, max_heading_std_rad, slack_m
         self.kf: KalmanFilter | None = None
         self._t: float | None = None          # time the filter stands at
         self._fix_t = -math.inf               # time of the last fix taken
@@ -157,7 +167,7 @@ class FloatTracker:
 
     def _reachable(self, t: float, fix: FloatFix) -> bool:
         """Whether the float could be at ``fix`` by ``t`` from where its last fix was taken."""
-        reach = (self.max_speed_m_s * max(t - self._fix_t, 0.0) + self.reach_m
+        reach = (self.max_speed_m_s * max(t - self._fix_t, 0.0) + self.slack_m
                  + 3 * self.pos_std_m / max(fix.confidence, 1e-3))
         return math.hypot(fix.x_m - self._fix_xy[0], fix.y_m - self._fix_xy[1]) <= reach
 
@@ -181,7 +191,7 @@ class FloatTracker:
         if fix is not None:
             z, R = self._measure(fix)
             d_pos, d_heading = self._distance2(z, R)
-            if d_pos <= self.gate:
+            if d_pos <= self.gate and self._reachable(t_s, fix):
                 if not fix.heading_known:
                     self.kf.update(z[:2], R=R[:2, :2], H=_MEASURE[:2])
                     taken = self.heading_std() <= self.max_heading_std_rad
@@ -197,7 +207,10 @@ class FloatTracker:
                     self._fix_xy = (float(self.kf.x[0]), float(self.kf.x[2]))
             elif fix.heading_known:
                 self._held.append((t_s, fix))
-                if (self._consistent() or self.std_m() > self.reinit_std_m) and self._reachable(t_s, fix):
+                # the run's first fix judged at its own time: a float it follows could have been
+                # there by then (judged at the latest, the whole hold counted as travel time)
+                first_t, first = self._held[-self.reinit_after] if self._consistent() else (t_s, fix)
+                if (self._consistent() or self.std_m() > self.reinit_std_m) and self._reachable(first_t, first):
                     self._start(t_s, fix)
                     return self._report(t_s)
         if taken:

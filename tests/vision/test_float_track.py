@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from vision.float_detect import FloatFix
-from vision.float_track import FloatTracker
+from vision.float_track import MAX_SPEED_M_S, FloatTracker
 
 
 def motion(t):
@@ -113,7 +113,8 @@ def test_a_stray_fix_far_away_is_held_out():
 
 @pytest.mark.parametrize("reinit_after", [1, 3, 5])
 def test_gating_cannot_lock_out_a_float_that_really_moved(reinit_after):
-    """The float swerves beyond the gate (faster than the model foresaw, within what it can do):
+    """The float swerves beyond the gate (faster than the model foresaw, within what it can do:
+    0.14 m aside, within MAX_SPEED_M_S and the slack; 0.42 m in 0.04 s, before 2026-12-05, was 10 m/s):
     after reinit_after agreeing fixes it is tracked there."""
     rng = np.random.default_rng(5)
     tr = FloatTracker(reinit_after=reinit_after)
@@ -121,8 +122,8 @@ def test_gating_cannot_lock_out_a_float_that_really_moved(reinit_after):
         tr.step(t, fix)
     x0, y0, _ = motion(4.96)
     for k in range(reinit_after + 3):
-        x = x0 + 0.3 + 0.01 * k                            # 0.3 m aside, in 0.04 s steps
-        tk = tr.step(5.0 + 0.04 * k, FloatFix(x, y0 + 0.3, 1.0, 1.0))
+        x = x0 + 0.1 + 0.01 * k                            # 0.14 m aside, in 0.04 s steps
+        tk = tr.step(5.0 + 0.04 * k, FloatFix(x, y0 + 0.1, 1.0, 1.0))
         if k + 1 < reinit_after:
             assert tk.state == "predicted", k
         else:
@@ -253,3 +254,25 @@ def test_position_only_fixes_keep_the_position_while_the_heading_coasts_and_neve
         t += 0.04
         assert tr.step(t, FloatFix(5.0, 3.0, wrong, 0.9, heading_known=False)).state == "lost"
     assert tr.step(t + 0.04, FloatFix(5.0, 3.0, 0.1, 0.9)).state == "tracking"
+
+
+@pytest.mark.parametrize("spare_m, hidden_s", [(0.6, 0.3), (0.75, 0.5), (1.0, 0.3), (1.0, 1.0), (1.5, 1.5),
+                                               (2.0, 2.0), (3.0, 3.0)])
+def test_a_second_float_near_ours_seen_while_ours_is_hidden_never_takes_the_track(spare_m, hidden_s):
+    """Another cleaner's float spare_m to the north, at our pace (0.2 m/s east), comes into view as
+    ours is hidden (hidden_s): farther from where ours was last seen than the cleaner can go in that
+    time (MAX_SPEED_M_S, plus the slack), so the track coasts and takes ours back when it shows again
+    (both in view then: the detector's search region gives the one the track expects)."""
+    assert spare_m > MAX_SPEED_M_S * (hidden_s + 0.1) + 0.25 + 0.06
+    tr = FloatTracker()
+    step, t = 0.1, 0.0
+    while t < 2.0 - 1e-9:
+        tk = tr.step(t, FloatFix(6 + 0.2 * t, 5.0, 0.0, 1.0))
+        t += step
+    assert tk.state == "tracking"
+    while t < 2.0 + hidden_s - 1e-9:
+        tk = tr.step(t, FloatFix(6 + 0.2 * t, 5.0 + spare_m, 1.5, 1.0))      # the spare alone
+        assert tk.state in ("predicted", "lost") and (tk.y_m is None or abs(tk.y_m - 5.0) < 0.1), (t, tk)
+        t += step
+    tk = tr.step(t, FloatFix(6 + 0.2 * t, 5.0, 0.0, 1.0))
+    assert tk.state == "tracking" and abs(tk.y_m - 5.0) < 0.05 and abs(tk.heading_rad) < 0.05
