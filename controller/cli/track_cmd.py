@@ -106,12 +106,10 @@ def read_frames(folder: str) -> list[tuple[int, float, Path, int]]:
             continue
         if len(cells) != len(HEADER):
             raise BadInput(where, f"line {lineno}", f"{len(cells)} fields, expected {len(HEADER)}")
-        frame = number(cells[0], where, lineno, "frame")
-        if frame != int(frame) or frame < 0:
-            raise BadInput(where, f"line {lineno}, column frame", f"not a frame number: {cells[0].strip()!r}")
-        if int(frame) in seen:          # OUT.json names each entry by its frame: two would be one
-            raise BadInput(where, f"line {lineno}, column frame", f"frame {int(frame)} again (line {seen[int(frame)]})")
-        seen[int(frame)] = lineno
+        frame = _frame_number(cells[0], where, lineno)
+        if frame in seen:          # OUT.json names each entry by its frame: two would be one
+            raise BadInput(where, f"line {lineno}, column frame", f"frame {frame} again (line {seen[frame]})")
+        seen[frame] = lineno
         t = number(cells[1], where, lineno, "t_s")
         if abs(t) > T_MAX_S:             # the filter's step to the power of 4 overflowed from ~1e77
             raise BadInput(where, f"line {lineno}, column t_s", f"{cells[1].strip()}: beyond {T_MAX_S:g} s, "
@@ -122,9 +120,25 @@ def read_frames(folder: str) -> list[tuple[int, float, Path, int]]:
         name = cells[2].strip()
         if not name:
             raise BadInput(where, f"line {lineno}, column file", "empty")
-        rows.append((int(frame), t, d / name, lineno))
+        bad = next((c for c in name if not c.isprintable()), None)
+        if bad is not None:          # a NUL is no file name the system takes (it was a ValueError, exit 1)
+            raise BadInput(where, f"line {lineno}, column file", f"unprintable character {bad!r} in {name!r}")
+        rows.append((frame, t, d / name, lineno))
         prev = t
     return rows
+
+
+def _frame_number(cell: str, where: str, lineno: int) -> int:
+    """A frame number, exactly: digits are read as an integer (as a float, 99999999999999999999999
+    came back 99999999999999991611392); a number written otherwise must be a whole one within a
+    float's exact integers."""
+    text = cell.strip()
+    if text.isascii() and text.lstrip("+").isdigit():
+        return int(text)
+    frame = number(cell, where, lineno, "frame")
+    if frame != int(frame) or frame < 0 or frame > 2 ** 53:
+        raise BadInput(where, f"line {lineno}, column frame", f"not a frame number: {text!r}")
+    return int(frame)
 
 
 def read_image(path: Path, where: str) -> np.ndarray:

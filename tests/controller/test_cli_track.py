@@ -150,6 +150,13 @@ def test_missing_tower_file_and_folder(capsys, clip, tmp_path):
     ("frame,t_s,file\n0,0.0,f000.png\n1,0.1, \n", "line 3, column file: empty"),
     ("frame,t_s,file\n7,0.0,f000.png\n8,0.1,f001.png\n7,0.2,f001.png\n",
      "line 4, column frame: frame 7 again (line 2)"),
+    # a NUL in a name was a ValueError (exit 1, "internal error")
+    ("frame,t_s,file\n0,0.0,f\x000.png\n", "line 2, column file: unprintable character '\\x00' in 'f\\x000.png'"),
+    ("frame,t_s,file\n0,0.0,f000.png\n1,0.1,f\x1b[2Jx.png\n", "line 3, column file: unprintable character '\\x1b'"),
+    ("frame,t_s,file\n0,0.0,f000.png\n1e300,0.1,f001.png\n", "line 3, column frame: not a frame number: '1e300'"),
+    # digits read as an integer; only whole numbers a float holds exactly otherwise
+    ("frame,t_s,file\n0,0.0,f000.png\n99999999999999999999999,0.1,f001.png\n12,0.2,f001.png\n"
+     "99999999999999999999999,0.3,f000.png\n", "line 5, column frame: frame 99999999999999999999999 again (line 3)"),
 ])
 def test_a_malformed_frames_csv_is_named_by_line_and_column(capsys, clip, tmp_path, body, fault):
     d = tmp_path / "clip"
@@ -159,6 +166,20 @@ def test_a_malformed_frames_csv_is_named_by_line_and_column(capsys, clip, tmp_pa
     (d / "frames.csv").write_text(body)
     out = tmp_path / "OUT.json"
     refused(capsys, ["--frames", d, "--tower", clip / "tower.json", "--json", out], d / "frames.csv", fault, out)
+
+
+def test_frame_numbers_come_back_exactly_as_written(clip, tmp_path):
+    d = tmp_path / "clip"
+    d.mkdir()
+    for name in ("f000.png", "f001.png"):
+        (d / name).write_bytes((clip / name).read_bytes())
+    big = 10 ** 23 - 1                       # as a float: 99999999999999991611392
+    (d / "frames.csv").write_text(f"frame,t_s,file\n{big},0.0,f000.png\n+7,0.1,f001.png\n8.0,0.2,f001.png\n")
+    out = tmp_path / "OUT.json"
+    result = subprocess.run([FISHFARM, "track", "--frames", d, "--tower", clip / "tower.json", "--json", out],
+                            capture_output=True, text=True, timeout=120)
+    assert result.returncode == 0, result.stderr
+    assert [e["frame"] for e in json.loads(out.read_text())["track"]] == [big, 7, 8]
 
 
 def test_an_unreadable_or_missing_frame_exits_2_naming_it(capsys, clip, tmp_path):
