@@ -18,7 +18,9 @@ a footprint inside a blue thing larger than the disc matches the ring where that
 reports the position alone), never a wrong one. The ring lies 1.5 pixels outside the disc (a pixel
 in pond metres at that place, through H: a minimum size derived from H, not a constant), so the
 disc's own blur is not its background. A bearing counts only if its disc is bluer than the water
-(the window's median).
+(the window's median). Where the disc is big enough in the frame to be seen whole (``FILL_CHECK_PX``),
+its blue must fill at least ``MIN_FILL`` of the footprint: a small blue tag on an orange buoy of the
+float's size is not the marker.
 
 The peak bearing is refined by a parabola through its neighbours. It is taken when it stands
 clear of the water's noise (the window's own spread, robustly, over the root of the pixels the
@@ -38,6 +40,9 @@ SECTORS = 8          # the ring round a bearing's disc, cut in sectors
 _OPP = np.array([[0.0, -1.0, 1.0], [-2.0, 1.0, 1.0], [1.0, 1.0, 1.0]]) \
     / np.array([[2 ** 0.5], [6 ** 0.5], [2 * 3 ** 0.5]])
 _BLUE_AXIS = np.array([1.0, -0.5, -0.5])   # B - (G + R) / 2: how much bluer than its grey
+FILL_CHECK_PX = 30.0  # a disc covering this many pixels (~6 across) or more is seen whole: its fill is judged
+MIN_FILL = 0.5        # ... the least share of its footprint samples at half its blue or more (a full disc
+                      # ~1, blurred; 0.14 m 0.68; a 0.10 m one, a quarter of the area, 0.38)
 
 
 def _grid(radius: float, n: int) -> np.ndarray:
@@ -131,6 +136,13 @@ def blue_bearing(frame_bgr: np.ndarray, H: np.ndarray, orange_xy, *, blue_diamet
     floor = max(min_contrast, noise_k * float(np.hypot(spread[0], spread[1])) / math.sqrt(max(1.0, disc_px)))
     if peak < floor:
         return None
+    if disc_px >= FILL_CHECK_PX:
+        # big enough in the frame to be seen whole: the blue must fill the disc's footprint as a disc
+        # does, not be a tag on it (a 0.06 m one on an orange buoy was taken at 0.8)
+        excess = (bgr[k * nd:(k + 1) * nd] - water) @ _BLUE_AXIS
+        top = float(np.quantile(excess, 0.9))
+        if top <= 0 or float(np.mean(excess > 0.5 * top)) < MIN_FILL:
+            return None
     off = np.abs(np.angle(np.exp(1j * (a - a[k]))))
     if float(score[off > np.pi / 2].max(initial=0.0)) > clear * peak:
         return None

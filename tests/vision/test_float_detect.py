@@ -77,6 +77,20 @@ def test_distractor_with_a_blue_partner_at_the_spacing_is_refused(what):
     assert detect_float(img, VIEW.H) is None, what
 
 
+@pytest.mark.parametrize("y", [1.0, 3.0, 5.0, 7.0, 9.0])
+@pytest.mark.parametrize("tag_m", [0.04, 0.06])
+def test_an_orange_buoy_of_the_float_s_size_with_a_small_blue_tag_gives_no_heading(y, tag_m):
+    """A blue tag a third of the blue disc's width (a ninth of its area) at the spacing: not the
+    marker, wherever the disc would be seen whole (taken before with confidence 0.8 and a heading)."""
+    img = fd.water(VIEW, 3)
+    fd.disc(img, VIEW, (10.0, y), 0.40, fd.ORANGE)
+    fd.disc(img, VIEW, (10.4, y), tag_m, fd.BLUE)
+    fix = detect_float(img, VIEW.H)
+    assert fix is None or not fix.heading_known, fix
+    fd.disc(img, VIEW, (10.4, y), 0.20, fd.BLUE)             # the contract's disc there: the float
+    check(detect_float(img, VIEW.H), (10.0, y, 0.0))
+
+
 def test_the_float_is_chosen_beside_a_buoy_of_its_size_and_a_blue_ball():
     pose = (9.3, 8.2, 0.3)                           # near the 0.40 m buoy-alone and the blue ball
     check(detect_float(fd.frame(VIEW, pose), VIEW.H), pose)
