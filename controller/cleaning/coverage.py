@@ -10,7 +10,8 @@ round the keep-outs (``keepout_margin_m``: no wall stops the robot there). The p
 Cells and edge passes are ordered, with the way through each, for the least straight-line travel
 between them (Held-Karp up to EXACT_TASKS, nearest-first beyond); every move runs straight where
 the space allows, else along the shortest way round the keep-outs (a visibility graph; through
-the body-clear free space where the margin closes a gap).
+the body-clear free space where the margin closes a gap, keeping ``TRANSIT_MARGIN`` even there; what
+lies beyond a gap narrower than that is not planned: the geofence would refuse the way).
 The sweep angle, unless given, is the one of a few candidates (the axes and the pond's longest
 edges) giving the least length plus TURN_M per turn. The path is resampled every ``step_m`` so
 the follower's progress index (steering.py) is fine enough to resume from.
@@ -39,6 +40,9 @@ EXACT_TASKS = 9      # cells and edge passes ordered exactly up to this many (He
 RING_WAYS_IN = 8     # places considered for starting an edge pass
 SLIVER = 0.05        # m: lane pieces shorter than this are left to the edge pass
 KEEPOUT_MARGIN = 0.10  # m: beyond the body radius, round keep-outs (no wall stops the robot there)
+TRANSIT_MARGIN = 0.07  # m: the least kept on the moves between pieces the margin cuts apart: the geofence
+                       # refuses a body within 0.03 + 0.02 slack + 2 x a tracked pose's std (~0.01) of a
+                       # keep-out (a move through free space passed 0.016 m from one, into a refusal)
 
 
 @dataclass(frozen=True)
@@ -93,7 +97,7 @@ class _Graph:
 
 class Router:
     """Moves between two points: inside ``drive`` (the margin kept round the keep-outs) where it
-    can, else inside ``free`` (the body clear, margin or not)."""
+    can, else inside ``free`` (the body clear by at least ``TRANSIT_MARGIN`` round the keep-outs)."""
 
     def __init__(self, free: Polygon, drive=None):
         self.spaces = [(drive, NODE_IN)] if drive is not None and drive is not free else []
@@ -294,6 +298,18 @@ def drivable(geom: PondGeometry, free: Polygon, body_radius_m: float, margin: fl
     return free.difference(grown(geom.keepouts, body_radius_m + margin))
 
 
+def _reached(drive, transit, start: np.ndarray):
+    """(the pieces of ``drive``, the piece of ``transit``) the robot gets to from ``start`` without
+    passing closer to a keep-out than ``transit`` allows: a gap narrower than that is no way through
+    (the geofence would refuse the move), and what lies only beyond it is not planned."""
+    pieces = _pieces(transit)
+    if len(pieces) <= 1:
+        return drive, transit
+    home = min(pieces, key=lambda p: p.distance(shapely.Point(start)))
+    kept = [p for p in _pieces(drive) if home.intersection(p).area > 0.5 * p.area]
+    return (shapely.union_all(kept) if kept else drive), home
+
+
 def plan_coverage(geom: PondGeometry, *, brush_m: float, body_radius_m: float, overlap: float = 0.05,
                   angle_rad: float | None = None, start_xy=None, step_m: float = 0.25,
                   keepout_margin_m: float = KEEPOUT_MARGIN,
@@ -307,11 +323,13 @@ def plan_coverage(geom: PondGeometry, *, brush_m: float, body_radius_m: float, o
     drive = drivable(geom, free, body_radius_m, keepout_margin_m)
     if free.is_empty or drive.area < 1e-4:
         raise BadInput(where, f"{key}.outline", f"no room for a robot of radius {body_radius_m} m")
-    router = Router(free, drive)
     start = np.asarray(start_xy if start_xy is not None else geom.outline.exterior.coords[0], float)
     inside = free.buffer(-EDGE)
     if not inside.covers(shapely.Point(start)):
         start = np.asarray(shapely.ops.nearest_points(inside, shapely.Point(start))[0].coords[0])
+    transit = drivable(geom, free, body_radius_m, min(TRANSIT_MARGIN, keepout_margin_m))
+    drive, transit = _reached(drive, transit, start)
+    router = Router(transit, drive)
     spacing = brush_m * (1 - overlap)
     angles = [float(angle_rad)] if angle_rad is not None else _candidate_angles(geom.outline)
     plans = [_plan_at(drive, router, a, start, brush_m, spacing, step_m) for a in angles]

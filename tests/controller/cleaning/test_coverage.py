@@ -19,7 +19,7 @@ from hypothesis import HealthCheck, assume, given, settings
 from hypothesis import strategies as st
 from shapely.geometry import LineString, Point, Polygon
 
-from controller.cleaning.coverage import plan_coverage
+from controller.cleaning.coverage import TRANSIT_MARGIN, plan_coverage
 from controller.cleaning.geometry import disc, pond_geometry
 from controller.errors import BadInput
 
@@ -31,10 +31,11 @@ def swath(path: np.ndarray) -> shapely.Geometry:
     return LineString(path).buffer(B / 2, cap_style="flat", join_style="round")
 
 
-def reachable(outline: Polygon, keepouts: list[Polygon]) -> shapely.Geometry:
+def reachable(outline: Polygon, keepouts: list[Polygon], clear: float = 0.0) -> shapely.Geometry:
+    """The floor the brush reaches, the body ``clear`` of the keep-outs on the way (the geofence's)."""
     centre = outline.buffer(-R)
     for k in keepouts:
-        centre = centre.difference(k.buffer(R))
+        centre = centre.difference(k.buffer(R + clear))
     # a neck narrower than NECK leads nowhere a robot goes (hypothesis found a pocket behind a
     # keep-out joined to the pond by a neck 3 mm wide: no planner should count on threading it)
     centre = centre.buffer(-NECK / 2).buffer(NECK / 2)
@@ -82,12 +83,31 @@ def test_plan_stays_in_the_free_space_and_covers_the_reachable_floor(pond, angle
     margin = 0.1                     # the margin's band round each keep-out is lost, no more (no piece left out)
     margined = plan_coverage(geom, brush_m=B, body_radius_m=R, angle_rad=angle, keepout_margin_m=margin)
     body_stays_clear(margined.path, outline, keepouts)
+    reach = reachable(outline, keepouts, TRANSIT_MARGIN)   # nothing reached through a gap the fence refuses
+    covered = reach.intersection(swath(plan.path)).area / reach.area
     band = sum(margin * k.buffer(R - B / 2 + margin).length for k in keepouts)
     # up to twice the band: lanes cut short by the margin end square, leaving the band's ragged edge
     # too (hypothesis found a small pond with a keep-out near its wall losing 1.57 bands)
     assert reach.intersection(swath(margined.path)).area >= covered * reach.area - 2.0 * band - 1e-9
     steps = np.hypot(*np.diff(plan.path, axis=0).T)
     assert steps.max() <= 0.25 + 1e-9 and plan.length_m == pytest.approx(steps.sum())
+
+
+@pytest.mark.parametrize("gap_m", [0.85, 0.9, 0.95, 1.0, 1.2])
+def test_moves_keep_the_fence_s_clearance_and_a_gap_too_narrow_for_it_is_no_way(gap_m):
+    """A keep-out across the pond leaves a gap gap_m wide at each wall for a body 0.8 m across: the
+    plan never brings the body within TRANSIT_MARGIN of it (a move passed 0.016 m from it, where the
+    geofence refuses 0.03 m + 2 std); the far half is planned only when a gap lets the body through."""
+    outline = Polygon([(0, 0), (20, 0), (20, 10), (0, 10)])
+    keep = Polygon([(9, gap_m), (11, gap_m), (11, 10 - gap_m), (9, 10 - gap_m)])
+    geom = pond_geometry(list(outline.exterior.coords), [list(keep.exterior.coords)])
+    plan = plan_coverage(geom, brush_m=0.5, body_radius_m=0.4, overlap=0.1, start_xy=(1, 5))
+    clearance = min(LineString(plan.path[j:j + 2]).distance(keep) for j in range(len(plan.path) - 1)) - 0.4
+    assert clearance >= TRANSIT_MARGIN - 1e-3, clearance
+    through = gap_m - 0.8 >= TRANSIT_MARGIN
+    assert (plan.path[:, 0].max() > 11) == through
+    far = Polygon([(11, 0), (20, 0), (20, 10), (11, 10)])
+    assert (swath(plan.path).intersection(far).area > 0.9 * far.area - 3.0) == through
 
 
 def test_demo_pond_plan_goes_round_the_keepouts_and_covers_it():
