@@ -103,6 +103,14 @@ def split_rg(img: np.ndarray, where: str) -> tuple[np.ndarray, np.ndarray, str |
         raise BadInput(where, None, f"red and green are one picture (correlation {alike:.2f}; two cameras' "
                                     "views give under 0.2): not an RG frame of a stereo pair")
     level = float(cv2.mean(blue)[0])
+    if level > BLUE_EMPTY_MAX:
+        # a colour picture of one camera: its blue holds the scene as its red and green do (0.91-0.99
+        # on rendered underwater views, where red against green fell to 0.80 and one camera's colour
+        # video measured a fish at exit 0); an RG frame's blue is empty or bleed (0.21 at most, JPEG q75)
+        for name, other in (("green", green), ("red", red)):
+            if (alike := likeness(blue, other)) is not None and alike > SAME_PICTURE:
+                raise BadInput(where, None, f"a colour picture, not an RG frame: its blue channel (mean level "
+                                            f"{level:.0f}) is the picture its {name} is (correlation {alike:.2f})")
     warn = (f"{where}: blue channel not empty (mean level {level:.0f}): is this an RG frame? "
             "using red = left, green = right") if level > BLUE_EMPTY_MAX else None
     return np.ascontiguousarray(red), np.ascontiguousarray(green), warn

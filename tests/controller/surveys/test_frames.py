@@ -475,6 +475,32 @@ def test_one_picture_recompressed_for_the_other_view_is_refused(tmp_path, qualit
     assert read_pair(next(still_source([(rg2,)]).jobs))[0].shape == g.shape
 
 
+@pytest.mark.parametrize("seed", range(4))
+def test_one_camera_s_colour_picture_given_as_an_rg_frame_is_refused(tmp_path, seed):
+    """A colour view (one camera: blue green water) read as an RG frame: its red against its green
+    may stay under the same-picture bound (0.80 here), but its blue holds the picture too; measured
+    so, a colour video gave a fish of 401 g at exit 0 (an outside tester). An RG frame of the two
+    views, JPEG'd (its blue mere bleed), is still a pair, with no warning."""
+    left, right = _rendered_view(seed)
+    deep = left.copy()           # deep water: red nearly gone, its sensor noise left (red ~ green < 0.8)
+    noise = np.random.default_rng(seed).normal(0, 4, left.shape[:2])
+    deep[..., 2] = np.clip(0.1 * left[..., 2] + 20 + noise, 0, 255).astype(np.uint8)
+    for name, img in (("colour.png", left), ("colour.jpg", _jpeg(left, 90)), ("deep.png", deep),
+                      ("deep.jpg", _jpeg(deep, 90))):
+        path = write(tmp_path / name, img)
+        with pytest.raises(BadInput) as refused:
+            read_pair(next(still_source([(path,)]).jobs))
+        said = str(refused.value)
+        assert re.search(rf"{name}: a colour picture, not an RG frame: its blue channel \(mean level \d+\) is "
+                         r"the picture its (green|red) is" if name.startswith("deep") else
+                         rf"{name}: (a colour picture|red and green are one picture)", said), said
+    rg = np.dstack([np.zeros(left.shape[:2], np.uint8), cv2.cvtColor(right, cv2.COLOR_BGR2GRAY),
+                    cv2.cvtColor(left, cv2.COLOR_BGR2GRAY)])
+    for quality in (75, 95):
+        _, _, warn = read_pair(next(still_source([(write(tmp_path / f"rg{quality}.png", _jpeg(rg, quality)),)]).jobs))
+        assert warn is None
+
+
 def test_two_cameras_views_are_far_from_one_picture_twice():
     """The bound's margin, both sides: rendered pairs and (where the shared folder is) the real
     chessboard set from two cameras, against copies of one view through JPEG and a 1 px shift."""
