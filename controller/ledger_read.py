@@ -6,6 +6,8 @@ import os
 import sqlite3
 from pathlib import Path
 
+READ_WAIT_S = 5.0         # how long a read waits for another process's exclusive lock (SQLite's own default)
+
 
 def connect_read_only(path: Path) -> tuple[sqlite3.Connection, int]:
     """The ledger opened read-only, and its schema version; sqlite3.Error when it cannot be read.
@@ -15,7 +17,8 @@ def connect_read_only(path: Path) -> tuple[sqlite3.Connection, int]:
     stands (``immutable``); with a ``-wal`` beside it, it is refused (``why_unreadable`` says why)."""
     uri = Path(path).resolve().as_uri()
     for mode in ("mode=ro", "mode=ro&immutable=1"):
-        db = sqlite3.connect(f"{uri}?{mode}", uri=True, isolation_level=None, check_same_thread=False)
+        db = sqlite3.connect(f"{uri}?{mode}", uri=True, isolation_level=None, check_same_thread=False,
+                             timeout=READ_WAIT_S)
         try:
             return db, db.execute("PRAGMA user_version").fetchone()[0]
         except sqlite3.OperationalError as exc:

@@ -158,7 +158,11 @@ def ledger_time(path: str | Path) -> float | None:
         return None
     try:
         db, _ = connect_read_only(Path(path))         # in a directory this user may not write too
-    except sqlite3.Error:
+    except sqlite3.Error as exc:
+        if getattr(exc, "sqlite_errorcode", 0) & 0xFF in (sqlite3.SQLITE_BUSY, sqlite3.SQLITE_LOCKED):
+            # it waited its while already: the Store's open would wait as long again (report and
+            # history refused a locked ledger after 10-13 s, not 5), to say the same
+            raise BadInput(str(path), None, f"cannot read the ledger: {exc}") from None
         return None
     latest = None
     try:

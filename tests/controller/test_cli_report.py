@@ -415,3 +415,33 @@ def test_a_page_of_many_surveys_draws_the_newest_as_histograms_and_every_mean(tm
     assert len(lefts) == HISTOGRAMS
     [means] = [line for line in ax.lines if len(line.get_xdata()) == len(surveys)]
     assert list(means.get_ydata()) == pytest.approx([s["mean_weight_g"] for s in surveys])
+
+
+@pytest.mark.parametrize("command", [["report", "--tank", "T1"], ["history", "--tank", "T1", "--what", "surveys"]])
+def test_a_ledger_locked_by_another_process_is_refused_after_one_wait(farm, capsys, monkeypatch, command):
+    """One read waits for the lock, then one line: the command read the ledger twice, each waiting
+    SQLite's while (10-13 s at its 5 s, for the same refusal)."""
+    import sqlite3
+
+    from controller import ledger_read, store
+    monkeypatch.setattr(ledger_read, "READ_WAIT_S", 0.2)
+    busy = []
+
+    def counted(path):
+        try:
+            return ledger_read.connect_read_only(path)
+        except sqlite3.OperationalError as exc:
+            busy.append(str(exc))
+            raise
+    monkeypatch.setattr(store, "connect_read_only", counted)
+    path, _ = farm
+    lock = sqlite3.connect(str(path / "ledger.db"), isolation_level=None)
+    try:
+        lock.execute("PRAGMA locking_mode=EXCLUSIVE")
+        lock.execute("BEGIN EXCLUSIVE")
+        code, out, err = run(capsys, *command, "--config", str(path / "farm.toml"))
+    finally:
+        lock.close()
+    assert code == 2 and out == "" and err.strip().splitlines() == [
+        f"fishfarm: {path / 'ledger.db'}: cannot read the ledger: database is locked"]
+    assert busy == ["database is locked"]
