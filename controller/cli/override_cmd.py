@@ -127,7 +127,20 @@ def _ask(connect, user, password, site, timeout_s, suffix, payload, ca=None, aga
     return replies[0]
 
 
-@click.command(context_settings={"ignore_unknown_options": False})
+def estop_fields(args) -> dict:
+    """An e-stop's ARGS, read as far as they can be: what cannot be read is said on stderr and left
+    out, never a reason not to send it (DESIGN.md: an emergency action is never refused for a
+    missing detail; ``fishfarm override estop now`` exited 2 and stopped nothing)."""
+    fields: dict = {}
+    for word in args:
+        try:
+            fields.update({k: v for k, v in parse_args([word]).items() if k not in fields})
+        except BadInput as exc:
+            click.echo(f"fishfarm override: {exc}: left out, the e-stop is sent all the same", err=True)
+    return fields
+
+
+@click.command(context_settings={"ignore_unknown_options": True})
 @click.argument("command")
 @click.argument("args", nargs=-1)
 @click.option("--operator", default=_login_name, show_default="$USER",
@@ -142,7 +155,14 @@ def override(command, args, operator, reason, connect, user, password, ca, site,
     """
     if not _COMMAND.match(command):
         raise BadInput("COMMAND", command, "lower-case letters, digits, _ and - only")
-    payload = {"operator": operator, **({"reason": reason} if reason else {}), **parse_args(args)}
+    if command == "estop":
+        fields = estop_fields(args)
+    else:
+        # (unknown options reach ARGS, for the e-stop's sake: elsewhere they are what click said)
+        if (stray := next((w for w in args if w.startswith("-") and "=" not in w), None)) is not None:
+            raise BadInput(stray, None, "no such option")
+        fields = parse_args(args)
+    payload = {"operator": operator, **({"reason": reason} if reason else {}), **fields}
     if command != "estop":
         # a reply lost on the way must not cost a second mortality or feed: the id to send it
         # again with is said if none comes (controller.override_requests)

@@ -92,6 +92,35 @@ def test_estop_with_no_args_is_accepted(controller):
     assert received == [("estop", {"operator": "tester"})]
 
 
+@pytest.mark.parametrize("extra, kept", [
+    (["now"], {}),                                             # not key=value
+    (["tank"], {}),
+    (["operator=bob", "now", "tank=T1"], {"tank": "T1"}),      # reserved, unreadable, fine
+    (["tank=T1", "tank=T2"], {"tank": "T1"}),                  # given twice
+    (["--now", "-f"], {}),                                     # no such options
+    (["--reason", "a", "--reason", "b"], {"reason": "b"}),     # an option given twice
+])
+def test_an_estop_with_words_it_cannot_read_is_sent_all_the_same(controller, extra, kept):
+    """DESIGN.md: an emergency action is never refused for a missing detail. `fishfarm override
+    estop now` exited 2 and sent nothing: what cannot be read is said and left out."""
+    endpoint, received = controller
+    received.clear()
+    proc = fishfarm("override", "estop", *extra, "--connect", endpoint)
+    assert proc.returncode == 0, proc.stderr
+    assert json.loads(proc.stdout) == {"ok": True}
+    assert received == [("estop", {"operator": "tester", **kept})]
+    readable = {"tank=T1", "a", "b", "--reason"}
+    assert all(f"{w}: " in proc.stderr and "the e-stop is sent all the same" in proc.stderr
+               for w in extra if w not in readable and w != "tank=T2"), proc.stderr
+
+
+def test_an_option_no_command_has_is_refused_for_every_command_but_estop(controller):
+    endpoint, received = controller
+    received.clear()
+    proc = fishfarm("override", "feed", "tank=T1", "grams=10", "--now", "--connect", endpoint)
+    assert proc.returncode == 2 and "--now: no such option" in one_line_error(proc) and received == []
+
+
 def test_refusal_exits_1_and_args_become_typed_fields(controller):
     endpoint, received = controller
     received.clear()
