@@ -94,7 +94,7 @@ def main(argv=None) -> int:
         print(f"{args.config}: no [cleaning] section", file=sys.stderr)
         return 2
     out = Path(cfg.cleaning.tower)
-    out = out if out.is_absolute() else Path(args.config).parent / out     # beside farm.toml: looked for there first
+    out = out if out.is_absolute() else ROOT / out
     ref = out.with_name("tower_ref.csv")
     view = sim_view(cfg)
     rows = reference_rows(view, survey_points(cfg.cleaning.outline, cfg.cleaning.keepouts))

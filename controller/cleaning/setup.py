@@ -60,7 +60,7 @@ def fingerprint(settings) -> str:
     return hashlib.sha256(json.dumps(keys, sort_keys=True).encode()).hexdigest()[:16]
 
 
-def tower_file(name: str, where: str) -> str:
+def _tower_file(name: str, where: str) -> str:
     """TOWER.json as ``[feeding] tables`` are found: beside farm.toml first, then from the working
     directory (the demo's ``config/TOWER.json``); a copied farm run from elsewhere failed with a bare
     'config/TOWER.json: no such file'."""
@@ -85,7 +85,7 @@ def prepare(cfg) -> Prepared:
         raise BadInput(where, "cleaning.dock", f"({s.dock[0]:g}, {s.dock[1]:g}) is not on the floor a robot of "
                                                f"radius {s.body_radius_m:g} m can reach")
     from controller.cli.track_cmd import load_tower_file  # the one reader of TOWER.json, `fishfarm track`'s
-    H, frame_size = load_tower_file(tower_file(s.tower, where))
+    H, frame_size = load_tower_file(_tower_file(s.tower, where))
     params = float_params(s.detection, where)
     plan = plan_coverage(geom, brush_m=s.brush_m, body_radius_m=s.body_radius_m, overlap=s.overlap,
                          keepout_margin_m=s.keepout_margin_m, start_xy=s.dock, where=where, key="cleaning")

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 from shapely.geometry import Point, Polygon
 
-from controller.cleaning.setup import prepare, tower_file
+from controller.cleaning.setup import prepare
 from controller.config import Config, load_config
 from devices.sim.pond import pond_params
 from hil_tests.demo_pond import sim_view
@@ -28,7 +28,7 @@ def demo():
 
 
 def tower_h(path: Path) -> np.ndarray:
-    return np.array(json.loads(Path(path).read_text())["H"], float)
+    return np.array(json.loads(path.read_text())["H"], float)
 
 
 def to_pond(H, uv):
@@ -54,7 +54,7 @@ def test_the_demo_has_a_20_by_10_m_pond_with_a_drain_and_a_feeder_cleaned_at_sta
 
 def test_tower_json_maps_every_pixel_of_the_pond_where_the_simulated_camera_sees_it(demo):
     view = sim_view(demo)
-    H = tower_h(tower_file(demo.cleaning.tower, str(demo.path)))
+    H = tower_h(ROOT / demo.cleaning.tower)
     # every pixel of the pond's image, on a 5-pixel grid, and the pond's corners
     u, v = np.meshgrid(np.arange(0, view.width, 5.0), np.arange(0, view.height, 5.0))
     uv = np.c_[u.ravel(), v.ravel()]
@@ -81,7 +81,7 @@ def test_the_reference_points_are_where_the_camera_sees_them_and_calibrate_tower
     done = subprocess.run([FISHFARM, "calibrate", "tower", "--points", str(ref), "--out", str(out)],
                           capture_output=True, text=True, timeout=60)
     assert done.returncode == 0, done.stderr
-    mine, theirs = tower_h(out), tower_h(tower_file(demo.cleaning.tower, str(demo.path)))
+    mine, theirs = tower_h(out), tower_h(ROOT / demo.cleaning.tower)
     grid = np.array([(u, v) for u in range(0, view.width, 40) for v in range(0, view.height, 40)], float)
     assert np.abs(to_pond(mine, grid) - to_pond(theirs, grid)).max() < 1e-6
 
@@ -93,17 +93,3 @@ def test_the_feeders_hil_runs_leave_the_cleaner_out():
     assert cfg.cleaning is None
     assert {s["kind"] for s in cfg.devices.values()} == {"contacts", "rail", "dispenser", "thermometer"}
     assert not {"pond", "thrusters", "tower_camera"} & set(cfg.sim)
-
-
-def test_the_shipped_config_copied_elsewhere_runs_from_anywhere(tmp_path, monkeypatch):
-    """config/ copied to /etc/fishfarm, say, and run from another directory: its files are found
-    beside farm.toml (TOWER.json was named config/TOWER.json, found from the repository's root only)."""
-    import shutil
-    copy = tmp_path / "etc" / "fishfarm"
-    shutil.copytree(ROOT / "config", copy)
-    elsewhere = tmp_path / "elsewhere"
-    elsewhere.mkdir()
-    monkeypatch.chdir(elsewhere)
-    cfg = load_config(copy / "farm.toml")
-    H, shipped = prepare(cfg).H, tower_h(ROOT / "config" / "TOWER.json")
-    assert np.allclose(H / H[2, 2], shipped / shipped[2, 2], rtol=1e-12, atol=0)      # (H is kept up to scale)
