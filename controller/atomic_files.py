@@ -44,7 +44,7 @@ def _alive(pid: int) -> bool:
     except ProcessLookupError:
         return False
     except (PermissionError, OverflowError, ValueError):
-        return True             # another user's process, or no pid at all: not ours to sweep
+        pass                    # another user's process, or no pid at all: not ours to sweep
     return True
 
 

@@ -209,8 +209,9 @@ class FloatTracker:
                 self._held.append((t_s, fix))
                 # the run's first fix judged at its own time: a float it follows could have been
                 # there by then (judged at the latest, the whole hold counted as travel time)
-                first_t, first = self._held[-self.reinit_after] if self._consistent() else (t_s, fix)
-                if (self._consistent() or self.std_m() > self.reinit_std_m) and self._reachable(first_t, first):
+                consistent = self._consistent()
+                first_t, first = self._held[-self.reinit_after] if consistent else (t_s, fix)
+                if (consistent or self.std_m() > self.reinit_std_m) and self._reachable(first_t, first):
                     self._start(t_s, fix)
                     return self._report(t_s)
         if taken:

@@ -71,8 +71,8 @@ def refuse_repeated(ctx: click.Context, name: str, cmd: click.Command, args: lis
     (the last kept: ``--video A B --video C D`` surveyed C D alone) and one of the command's own
     options read as another's value (``--video LEFT --json OUT``: --json taken for RIGHT, then
     "Missing option '--json'")."""
-    if name == "override" and args[:1] == ["estop"]:
-        return          # an e-stop is never held back for a detail (controller/cli/override_cmd.py)
+    if getattr(cmd, "takes_anything", lambda _args: False)(args):
+        return          # a command that must act whatever it is given (``fishfarm override estop``)
     probe = click.Context(cmd, info_name=name, parent=ctx, resilient_parsing=True)
     try:
         opts, _, order = cmd.make_parser(probe).parse_args(args=list(args))

@@ -174,6 +174,10 @@ def override(command, args, operator, reason, connect, user, password, ca, site,
     return 0 if reply.get("ok") is True else 1
 
 
+# an e-stop is never held back for a detail: controller.cli.refuse_repeated leaves its options be
+override.takes_anything = lambda args: args[:1] == ["estop"]
+
+
 @click.command()
 @click.option("--json", "as_json", is_flag=True, help="print the snapshot as JSON.")
 @_connection_options

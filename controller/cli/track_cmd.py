@@ -133,7 +133,7 @@ def _frame_number(cell: str, where: str, lineno: int) -> int:
     came back 99999999999999991611392); a number written otherwise must be a whole one within a
     float's exact integers."""
     text = cell.strip()
-    if text.isascii() and text.lstrip("+").isdigit():
+    if text.isascii() and text.removeprefix("+").isdigit():
         return int(text)
     frame = number(cell, where, lineno, "frame")
     if frame != int(frame) or frame < 0 or frame > 2 ** 53:

@@ -154,6 +154,7 @@ def test_missing_tower_file_and_folder(capsys, clip, tmp_path):
     ("frame,t_s,file\n0,0.0,f\x000.png\n", "line 2, column file: unprintable character '\\x00' in 'f\\x000.png'"),
     ("frame,t_s,file\n0,0.0,f000.png\n1,0.1,f\x1b[2Jx.png\n", "line 3, column file: unprintable character '\\x1b'"),
     ("frame,t_s,file\n0,0.0,f000.png\n1e300,0.1,f001.png\n", "line 3, column frame: not a frame number: '1e300'"),
+    ("frame,t_s,file\n++5,0.0,f000.png\n", "line 2, column frame: not a number: '++5'"),
     # digits read as an integer; only whole numbers a float holds exactly otherwise
     ("frame,t_s,file\n0,0.0,f000.png\n99999999999999999999999,0.1,f001.png\n12,0.2,f001.png\n"
      "99999999999999999999999,0.3,f000.png\n", "line 5, column frame: frame 99999999999999999999999 again (line 3)"),
