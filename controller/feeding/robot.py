@@ -97,6 +97,9 @@ class FeedingRobot(Recovering):
 
     # -- what the rest of the controller calls ---------------------------------
     def on_demand(self, job: Job) -> None:
+        if self.state == "estop" and self._withdrawable(job):   # a restart under a standing e-stop
+            self._withdraw(job)
+            return
         if job.tank in self.paused:          # an operator paused the tank: its demands are not served
             if job.demand_id is not None:
                 self.store.close_demand(job.demand_id, "paused")
@@ -143,6 +146,20 @@ class FeedingRobot(Recovering):
             # the lane's reason: whoever tripped it first (a later e-stop does not rename it)
             self.alarms.raise_("estop", self.lane.alarm_text(self.lane.reason or reason), "critical",
                                kind="latched")
+        for job in [j for j in self.pending.values() if self._withdrawable(j)]:
+            self._withdraw(job)
+
+    def _withdrawable(self, job: Job) -> bool:
+        """An operator's feed not started: an e-stop withdraws it. Whoever stopped the farm may have
+        hands in a tank; an ask of before the stop is asked again after the reset, not served by it.
+        The fish's demands stay: a reset serves fish still waiting (their filter asks again anyway)."""
+        if job.source != "operator" or job.intent is not None:
+            return False
+        return job.demand_id is None or not any(f.demand_id == job.demand_id for f in self.store.open_intents())
+
+    def _withdraw(self, job: Job) -> None:
+        log.warning("operator feed for %s withdrawn by the e-stop: ask again after the reset", job.tank)
+        self._finish(job, "estop")
 
     def _lane_report(self, device: str, why: str | None) -> None:
         """From the lane's thread: a latch unconfirmed past the bound, or confirmed after all."""

@@ -14,6 +14,7 @@ import time
 import pytest
 
 from controller.feeding.estop import EstopLane
+from controller.feeding.robot import Job
 from tests.controller.feeding.rig import rig
 
 
@@ -331,3 +332,55 @@ def test_the_drive_watch_outlives_a_bug_in_a_look(tmp_path, caplog):
             assert r.robot.state == "estop"
     run(main())
     assert "looking at the drive's status failed" in caplog.text
+
+
+def _operator_feed(r, tank: str, grams: float = 40.0) -> int:
+    """As the feed override does: in the ledger first, then queued."""
+    demand_id = r.store.add_demand(tank, r.clock.now(), 0.0, source="operator", grams=grams)
+    r.robot.on_demand(Job(tank, r.clock.now(), demand_id, "operator", grams))
+    return demand_id
+
+
+def _outcome(r, demand_id: int) -> str:
+    return r.store.db.execute("SELECT outcome FROM demand WHERE id = ?", (demand_id,)).fetchone()[0]
+
+
+@pytest.mark.parametrize("when", ["waiting", "moving"])
+def test_an_estop_withdraws_an_operators_feed_not_started_and_keeps_the_fishs_demand(tmp_path, when):
+    """An operator's feed asked before an e-stop was served after the reset: whoever stopped the
+    farm may have hands in a tank, and nobody asked for food after it."""
+    async def main():
+        async with rig(tmp_path, run=(when == "moving")) as r:
+            if when == "moving":
+                await r.until(lambda: r.robot.state == "idle", what="homed")
+            asked = _operator_feed(r, "T2")
+            fish = r.demand("T1") if when == "waiting" else None
+            if when == "moving":
+                await r.until(lambda: r.robot.state == "moving", what="on its way to T2")
+            await r.robot.emergency_stop("operator H")
+            assert _outcome(r, asked) == "estop" and "T2" not in r.robot.pending
+            if fish is not None:
+                assert _outcome(r, fish) == "open" and "T1" in r.robot.pending
+                r.task = asyncio.create_task(r.robot.run())
+            assert r.robot.operator_reset() is None
+            await r.until(lambda: r.robot.state == "idle", farm_s=200, what="back to idle")
+            if fish is not None:
+                await r.until(lambda: _outcome(r, fish) == "served", what="the fish served after the reset")
+            await r.clock.asleep(30.0)
+            assert r.delivered.get("T2", 0.0) == 0.0 and {f.tank for f in r.store.feeds()} <= {"T1"}
+    run(main())
+
+
+def test_a_restart_under_a_standing_estop_withdraws_the_operators_feed_it_finds_open(tmp_path):
+    async def main():
+        async with rig(tmp_path, run=False) as r:
+            asked = _operator_feed(r, "T2")
+            fish = r.demand("T1")
+            r.alarms.raise_("estop", "emergency stop: operator H", "critical", kind="latched")
+            restarted = r.new_robot()                   # starts in estop: the alarm stands
+            assert restarted.state == "estop"
+            for row in r.store.open_demands():          # as the controller requeues them
+                restarted.on_demand(Job(row["tank"], row["t"], row["id"], row["source"], row["grams"]))
+            assert _outcome(r, asked) == "estop" and set(restarted.pending) == {"T1"}
+            assert _outcome(r, fish) == "open"
+    run(main())
