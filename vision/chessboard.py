@@ -7,8 +7,16 @@ Procedure (``calibrate_pairs``):
    (on OpenCV's sample pair 02 it doubles the reprojection error);
 2. each camera alone (calibrateCamera, k1 k2 p1 p2 distortion), then both together
    (stereoCalibrate refining everything from there);
-3. pairs whose reprojection RMS exceeds ``outlier_factor`` x the median (and ``outlier_floor_px``)
-   are rejected and the calibration is run again without them.
+3. pairs that are not two views of one moment are rejected before the stereo fit: each camera's own
+   fit places the board in its view, so each pair gives the rig (camera 2 from camera 1); a pair
+   whose rig is more than ``POSE_TOL_DEG`` or ``POSE_TOL_SHARE`` of the baseline off the rig most
+   pairs agree on is left out (real pairs agree within 0.44 deg and 3 % on the shared set; a pair
+   mixed up with another moment's view was 83 deg off there). A joint fit spreads two such pairs'
+   error over every pair (5-26 px each), so the RMS test below missed them and wrote a 300 mm
+   baseline for a 120 mm rig, at exit 0;
+4. pairs whose reprojection RMS exceeds ``outlier_factor`` x the median (and ``outlier_floor_px``)
+   are rejected and the calibration is run again without them. A fit still over ``MAX_RMS_PX`` is
+   no calibration (``BadFit``).
 
 World frame: camera 1, millimetres (board points are scaled by the square size), so
 P1 = K1 [I | 0] and P2 = K2 [R | T]. Corners are (n, 2) arrays in the board's row-major order
@@ -28,6 +36,13 @@ from vision.triangulation import undistort_pixels
 _SUBPIX = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 30, 0.01)
 _SOLVE = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 100, 1e-7)
 _DISTORTION = cv2.CALIB_FIX_K3          # k1 k2 p1 p2: k3 overfits with a dozen views of one board
+POSE_TOL_DEG = 2.0
+POSE_TOL_SHARE = 0.1
+MAX_RMS_PX = 3.0        # sub-pixel corners fit to ~0.2-1 px; 3 px is views that do not belong together
+
+
+class BadFit(ValueError):
+    """The pairs fit no rig: views of different moments, or of different boards."""
 
 
 class NotEnoughPairs(ValueError):
@@ -132,11 +147,16 @@ def square_sizes(calib: StereoCalibration, corners1: np.ndarray, corners2: np.nd
                            np.linalg.norm(np.diff(grid, axis=0), axis=2).ravel()])
 
 
-def _stereo(corners1, corners2, image_size, pattern, square_mm):
-    """Mono then stereo calibration; returns stereoCalibrateExtended's outputs and per-pair RMS."""
+def _mono(corners1, corners2, image_size, pattern, square_mm):
+    """Each camera alone: calibrateCamera's (rms, K, D, rvecs, tvecs) for camera 1, camera 2."""
     obj = [board_points(pattern, square_mm)] * len(corners1)
-    mono = [cv2.calibrateCamera(obj, c, image_size, None, None, flags=_DISTORTION, criteria=_SOLVE)
+    return [cv2.calibrateCamera(obj, c, image_size, None, None, flags=_DISTORTION, criteria=_SOLVE)
             for c in (corners1, corners2)]
+
+
+def _stereo(corners1, corners2, image_size, pattern, square_mm, mono):
+    """The stereo fit from the cameras' own; stereoCalibrateExtended's outputs and per-pair RMS."""
+    obj = [board_points(pattern, square_mm)] * len(corners1)
     out = cv2.stereoCalibrateExtended(obj, corners1, corners2, mono[0][1], mono[0][2], mono[1][1],
                                       mono[1][2], image_size, None, None,
                                       flags=cv2.CALIB_USE_INTRINSIC_GUESS | _DISTORTION, criteria=_SOLVE)
@@ -146,6 +166,22 @@ def _stereo(corners1, corners2, image_size, pattern, square_mm):
     return float(rms), K1, D1.ravel()[:5], K2, D2.ravel()[:5], R, T.ravel(), per_pair
 
 
+def rig_agreement(mono) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Per pair: whether its rig (camera 2 from camera 1, from each camera's own pose of the board)
+    agrees with the rig most pairs agree on, and how far off it is (deg, share of that baseline)."""
+    (_, _, _, rv1, tv1), (_, _, _, rv2, tv2) = mono
+    R1 = np.array([cv2.Rodrigues(r)[0] for r in rv1])
+    R2 = np.array([cv2.Rodrigues(r)[0] for r in rv2])
+    R = R2 @ R1.transpose(0, 2, 1)                                        # (n, 3, 3)
+    T = np.array(tv2).reshape(-1, 3) - np.einsum("nij,nj->ni", R, np.array(tv1).reshape(-1, 3))
+    cos = (np.einsum("iab,jab->ij", R, R) - 1.0) / 2.0                    # trace(Ri Rj^T) = 1 + 2 cos
+    deg = np.degrees(np.arccos(np.clip(cos, -1.0, 1.0)))
+    share = np.linalg.norm(T[:, None] - T[None], axis=2) / max(float(np.median(np.linalg.norm(T, axis=1))), 1e-12)
+    agree = (deg <= POSE_TOL_DEG) & (share <= POSE_TOL_SHARE)
+    best = int(np.argmax(agree.sum(axis=1)))
+    return agree[best], deg[best], share[best]
+
+
 def calibrate_pairs(corners1: list[np.ndarray | None], corners2: list[np.ndarray | None],
                     image_size: tuple[int, int], pattern: tuple[int, int], square_mm: float, *,
                     outlier_factor: float = 3.0, outlier_floor_px: float = 0.5,
@@ -153,7 +189,7 @@ def calibrate_pairs(corners1: list[np.ndarray | None], corners2: list[np.ndarray
     """Stereo calibration from per-pair corners (None where the board was not found).
 
     image_size = (width, height). Raises NotEnoughPairs when fewer than ``min_pairs`` pairs have
-    the board in both images.
+    the board in both images (or agree on one rig), BadFit when the fit is over ``MAX_RMS_PX``.
     """
     pairs = []
     for i, (c1, c2) in enumerate(zip(corners1, corners2, strict=True)):
@@ -167,7 +203,21 @@ def calibrate_pairs(corners1: list[np.ndarray | None], corners2: list[np.ndarray
                              f"a calibration needs {min_pairs}", pairs)
     c1 = [np.asarray(corners1[i], np.float32) for i in used]
     c2 = [consistent_order(c1[k], np.asarray(corners2[i], np.float32)) for k, i in enumerate(used)]
-    fit = _stereo(c1, c2, image_size, pattern, square_mm)
+    mono = _mono(c1, c2, image_size, pattern, square_mm)     # every view: a camera's own are all good
+    agree, deg, share = rig_agreement(mono)
+    for k, i in enumerate(used):
+        if not agree[k]:
+            pairs[i].used = False
+            pairs[i].reason = (f"not one moment: its rig {deg[k]:.1f} deg and {share[k]:.0%} of the baseline "
+                               "off the other pairs'")
+    if agree.sum() < min_pairs:
+        raise NotEnoughPairs(f"only {int(agree.sum())} of {len(pairs)} pairs agree on one rig, a calibration "
+                             f"needs {min_pairs} (are left and right views of the same moments, in the same "
+                             "order?)", pairs)
+    used = [i for k, i in enumerate(used) if agree[k]]
+    c1 = [c for c, k in zip(c1, agree, strict=True) if k]
+    c2 = [c for c, k in zip(c2, agree, strict=True) if k]
+    fit = _stereo(c1, c2, image_size, pattern, square_mm, mono)
     limit = max(outlier_factor * float(np.median(fit[-1])), outlier_floor_px)
     keep = fit[-1] <= limit
     for k, i in enumerate(used):
@@ -178,12 +228,16 @@ def calibrate_pairs(corners1: list[np.ndarray | None], corners2: list[np.ndarray
     if not keep.all() and keep.sum() >= min_pairs:
         c1 = [c for c, k in zip(c1, keep, strict=True) if k]
         c2 = [c for c, k in zip(c2, keep, strict=True) if k]
-        fit = _stereo(c1, c2, image_size, pattern, square_mm)
+        fit = _stereo(c1, c2, image_size, pattern, square_mm, mono)
         for k, i in enumerate(p.index for p in pairs if p.used):
             pairs[i].rms_px = float(fit[-1][k])
     elif not keep.all():      # rejecting would leave too few: keep them all, say so
         for k, i in enumerate(used):
             pairs[i].used, pairs[i].reason = True, "used" if keep[k] else "used (high error, too few pairs)"
+    if fit[0] > MAX_RMS_PX:
+        raise BadFit(f"the pairs fit no rig: RMS reprojection error {fit[0]:.1f} px (a calibration is "
+                     f"under ~1 px; over {MAX_RMS_PX:g} px the views do not belong together: pairs of "
+                     "different moments, or another board)")
     return _result(fit, image_size, square_mm, pairs, c1, c2)
 
 

@@ -69,7 +69,7 @@ def _reasons(pairs, lefts) -> str:
     by_reason: dict[str, list[str]] = {}
     for p in pairs:
         if not p.used:
-            by_reason.setdefault(p.reason, []).append(Path(lefts[p.index]).name)
+            by_reason.setdefault(p.reason.split(":")[0], []).append(Path(lefts[p.index]).name)
     return "; ".join(f"{reason}: {len(names)} pair(s), e.g. {names[0]}"
                      for reason, names in by_reason.items())
 
@@ -79,7 +79,7 @@ def _report(result, lefts, rights, out: str) -> None:
     used = [p for p in pairs if p.used]
     click.echo(f"pairs: {len(pairs)} given, {len(used)} used, {len(pairs) - len(used)} rejected")
     for p in pairs:
-        rms = "" if p.rms_px is None else f"  reprojection RMS {p.rms_px:.3f} px"
+        rms = "" if p.rms_px is None or "RMS" in p.reason else f"  reprojection RMS {p.rms_px:.3f} px"
         click.echo(f"  {Path(lefts[p.index]).name} + {Path(rights[p.index]).name}: {p.reason}{rms}")
     click.echo(f"RMS reprojection error: {result.rms_px:.3f} px")
     click.echo(f"mean epipolar error: {result.epipolar_px:.3f} px "
@@ -104,7 +104,7 @@ def chessboard(left_glob, right_glob, pattern, square_mm, out):
     from controller.cli.calib_io import save_calibration
     from controller.cli.output_paths import check_outputs
     from vision.calib_file import CalibrationError, calibration_from_json
-    from vision.chessboard import NotEnoughPairs, calibrate_pairs, find_corners
+    from vision.chessboard import BadFit, NotEnoughPairs, calibrate_pairs, find_corners
 
     lefts, rights = _files(left_glob, "--left"), _files(right_glob, "--right")
     check_outputs({"--out": out}, lefts + rights)
@@ -121,7 +121,10 @@ def chessboard(left_glob, right_glob, pattern, square_mm, out):
     try:
         result = calibrate_pairs(corners1, corners2, size, pattern, square_mm)
     except NotEnoughPairs as exc:
-        raise BadInput(where, None, f"{exc} ({_reasons(exc.pairs, lefts)})") from None
+        reasons = _reasons(exc.pairs, lefts)
+        raise BadInput(where, None, f"{exc} ({reasons})" if reasons else str(exc)) from None
+    except BadFit as exc:
+        raise BadInput(where, None, str(exc)) from None
     calib = result.calibration
     calib.extra = {"method": "chessboard", "pattern": list(pattern), "square_mm": square_mm,
                    "epipolar_px": result.epipolar_px,

@@ -159,3 +159,28 @@ def test_out_cannot_be_written(rendered, tmp_path):
     blocker.write_text("x")
     assert_bad_input(fishfarm(*args(rendered, blocker / "CALIB.json")), str(blocker / "CALIB.json"),
                      "cannot write")
+
+
+def test_mixed_up_pairs_are_reported_and_the_rest_calibrate_the_true_rig(rendered, tmp_path):
+    folder = tmp_path / "mixed"
+    folder.mkdir()
+    for f in rendered.glob("*.png"):
+        (folder / f.name).write_bytes(f.read_bytes())
+    (folder / "R02.png").write_bytes((rendered / "R05.png").read_bytes())
+    (folder / "R05.png").write_bytes((rendered / "R02.png").read_bytes())
+    run = fishfarm(*args(folder, tmp_path / "c.json"))
+    assert run.returncode == 0, run.stderr
+    assert "8 given, 6 used, 2 rejected" in run.stdout
+    assert run.stdout.count("not one moment") == 2 and "L02.png + R02.png: not one moment" in run.stdout
+    assert np.linalg.norm(load_calibration(str(tmp_path / "c.json")).T) == pytest.approx(80.0, rel=0.005)
+
+
+def test_views_that_fit_no_rig_are_refused_in_one_line(rendered, tmp_path):
+    folder = tmp_path / "mirrored"
+    folder.mkdir()
+    for f in rendered.glob("L*.png"):
+        (folder / f.name).write_bytes(f.read_bytes())
+        cv2.imwrite(str(folder / f.name.replace("L", "R")), cv2.imread(str(f))[:, ::-1])
+    run = fishfarm(*args(folder, tmp_path / "c.json"))
+    assert_bad_input(run, "rig")
+    assert "()" not in run.stderr and not (tmp_path / "c.json").exists()

@@ -9,6 +9,7 @@ import pytest
 from devices.sim.stereo_scene import board_session
 from tests.vision.shared_data import SHARED_DATA, data_status, needs_data, require
 from vision.chessboard import (
+    BadFit,
     NotEnoughPairs,
     calibrate_pairs,
     consistent_order,
@@ -164,3 +165,39 @@ def test_real_pairs_fit_their_own_calibration_and_swapped_are_said_swapped(real_
     assert fit.judged and fit.epipolar_px < 1.0 and fit.in_front > 0.9 and verdict(fit) is None
     swapped = pair_fit([(r, left) for left, r in pairs], ours.calibration)
     assert swapped.in_front < 0.1 and "look swapped" in verdict(swapped)
+
+
+@pytest.mark.parametrize("mixed", [(2, 5), (1, 4, 7)])
+def test_pairs_of_different_moments_are_left_out_and_the_rig_is_the_true_one(mixed):
+    """Two right views put with the wrong left ones: the joint fit spread their error over every
+    pair (5-26 px each), the RMS test saw no outlier, and a 300 mm baseline for a 120 mm rig was
+    written at exit 0 (outside tester)."""
+    session = board_session(10, np.random.default_rng(3))
+    left, right = (list(side) for side in zip(*session.pairs, strict=True))
+    for a, b in zip(mixed, mixed[1:] + mixed[:1], strict=True):     # each takes the next one's view
+        right[a] = session.pairs[b][1]
+    corners = [[find_corners(img, PATTERN) for img in side] for side in (left, right)]
+    result = calibrate_pairs(*corners, session.image_size, PATTERN, 25.0)
+    assert [i for i, p in enumerate(result.pairs) if not p.used] == sorted(mixed)
+    assert all(result.pairs[i].reason.startswith("not one moment") for i in mixed)
+    c = result.calibration
+    assert np.linalg.norm(c.T) == pytest.approx(80.0, rel=0.005)
+    assert np.allclose(c.K1, session.K, atol=3.0) and np.allclose(c.K2, session.K, atol=3.0)
+
+
+def test_views_that_fit_no_rig_are_no_calibration():
+    """Every right view a mirrored left one (another board, not the same moment seen twice)."""
+    session = board_session(8, np.random.default_rng(4))
+    left = [pair[0] for pair in session.pairs]
+    corners = [[find_corners(img, PATTERN) for img in side] for side in (left, [img[:, ::-1] for img in left])]
+    with pytest.raises((NotEnoughPairs, BadFit)):
+        calibrate_pairs(*corners, session.image_size, PATTERN, 25.0)
+
+
+@real_data
+def test_real_pairs_mixed_up_are_left_out(real_images, real_corners, ours):
+    left, right = (list(side) for side in real_corners)
+    right[2], right[5] = real_corners[1][3], real_corners[1][6]     # right03, right06 -> right04, right07
+    result = calibrate_pairs(left, right, (640, 480), PATTERN, SQUARE)
+    assert [i for i, p in enumerate(result.pairs) if not p.used] == [2, 5]
+    assert np.linalg.norm(result.calibration.T) == pytest.approx(np.linalg.norm(ours.calibration.T), rel=0.005)
