@@ -102,8 +102,11 @@ class SurveyStop:
         self.recorded: list[int] = []                      # survey ids, in order
 
     def enough(self, session: SurveySession) -> bool:
+        # never precise on fewer fish than weigh the tank: a min_weighed_fish over what the CI stop
+        # left (100 against ~63) made every survey a few-fish one, retried hourly, for good
+        least = max(self.s.min_fish, self.s.min_weighed_fish)
         return session.captured >= session.pairs or session.precise(self.species[session.tank].weight,
-                                                                      self.s.ci_pct, self.s.min_fish)
+                                                                      self.s.ci_pct, least)
 
     async def visit(self, session: SurveySession, interrupted: Callable[[], bool], wake: asyncio.Event) -> str:
         """At the tank: ``captured`` (all in: the robot may go), ``preempted`` (a demand waits; the

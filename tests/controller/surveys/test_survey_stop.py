@@ -260,6 +260,20 @@ def test_the_survey_stops_early_once_the_mean_weight_is_known_within_2_percent(t
     assert half <= 0.02 * w[:survey.count].mean()
 
 
+def test_the_precision_never_stops_a_survey_short_of_the_fish_that_weigh_the_tank(tmp_path):
+    """min_weighed_fish 100 over min_fish 20: the CI stop at ~20 fish left every survey 'few fish',
+    kept off the rations and retried each hour for good (outside tester)."""
+    async def main():
+        async with rig(tmp_path) as r:
+            await r.until(lambda: r.robot.state == "idle", what="homed")
+            stops, camera, measure, sp = await attach(r, tmp_path, period_s=2.0, min_fish=20, min_weighed_fish=100,
+                                                      measure=MeasureDouble(cv=0.02, per_pair=5))
+            stops.request("T1", pairs=200)
+            return await recorded(r, stops, "T1", 4000.0), camera
+    survey, camera = run(main())
+    assert 100 <= survey.count and len(camera.pairs) < 200
+
+
 def test_an_estop_while_surveying_latches_the_devices_and_the_survey_resumes_after_reset(tmp_path):
     async def main():
         async with rig(tmp_path) as r:
