@@ -108,6 +108,10 @@ def _matrix(data: dict, name: str) -> np.ndarray | None:
     return m
 
 
+MIN_FOCAL_PX = 1.0
+MAX_FOCAL_PX = 1e7
+
+
 def _check_invertible(m: np.ndarray, name: str, what: str) -> None:
     scale = np.abs(m).max()
     if scale == 0 or np.linalg.matrix_rank(m, tol=1e-9 * scale) < 3:
@@ -115,7 +119,16 @@ def _check_invertible(m: np.ndarray, name: str, what: str) -> None:
 
 
 def _check_camera_matrix(K: np.ndarray, name: str) -> None:
-    """An intrinsic matrix must be invertible and end in (0, 0, 1): undistortion divides by it."""
+    """An intrinsic matrix must be invertible and end in (0, 0, 1): undistortion divides by it.
+    Its focal lengths lie in [MIN_FOCAL_PX, MAX_FOCAL_PX] and its principal point within MAX_FOCAL_PX
+    of the origin: a 0.001 px focal length imported and triangulated NaN; 1e12 px was called singular."""
+    if np.allclose(K[2], [0.0, 0.0, 1.0], rtol=0.0, atol=1e-6) and K[0, 0] > 0 and K[1, 1] > 0:
+        if not (MIN_FOCAL_PX <= K[0, 0] <= MAX_FOCAL_PX and MIN_FOCAL_PX <= K[1, 1] <= MAX_FOCAL_PX):
+            raise CalibrationError(name, f"focal lengths fx {K[0, 0]:g}, fy {K[1, 1]:g} px: a camera's lie from "
+                                         f"{MIN_FOCAL_PX:g} to {MAX_FOCAL_PX:g} px (is K in pixels?)")
+        if np.abs(K[:2]).max() > MAX_FOCAL_PX:
+            raise CalibrationError(name, f"{np.abs(K[:2]).max():g} in its first rows: beyond {MAX_FOCAL_PX:g} px, "
+                                         "no camera's (is K in pixels?)")
     _check_invertible(K, name, "not an invertible camera matrix")
     if not np.allclose(K[2], [0.0, 0.0, 1.0], rtol=0.0, atol=1e-6):
         raise CalibrationError(name, f"last row {K[2].tolist()}, expected [0, 0, 1]")

@@ -55,6 +55,10 @@ def name_key(name: str) -> str:
     return re.sub(r"[_\-]", "", name).lower()
 
 
+class MatrixTypeError(ValueError):
+    """A typed matrix whose written values its type cannot hold (FileStorage clips them: 1100 as 'u' is 255)."""
+
+
 def node_array(node) -> np.ndarray | None:
     """A matrix node (!!opencv-matrix / type_id="opencv-matrix"), a list of numbers, a list of
     equally long lists of numbers (rows, as a JSON file written by hand has them) or a number."""
@@ -75,7 +79,15 @@ def node_array(node) -> np.ndarray | None:
             mat = node.mat()
         except Exception:         # cv2.error on a map that is not a matrix
             return None
-        return None if mat is None else np.asarray(mat, dtype=float)
+        if mat is None:
+            return None
+        mat = np.asarray(mat, dtype=float)
+        data = node.getNode("data")
+        written = node_array(data) if data.isSeq() else None
+        if written is not None and written.size == mat.size and not np.allclose(written.ravel(), mat.ravel(),
+                                                                                rtol=1e-5, atol=0.0):
+            raise MatrixTypeError(node.getNode("dt").string() or "?")
+        return mat
     return None
 
 
@@ -96,8 +108,31 @@ def _open(path: str, text: str):
     except Exception:         # cv2.error, or SystemError wrapping it, on a malformed file
         fs = None
     if fs is None or not fs.isOpened():
+        _refuse_non_finite_json(path, text)
         raise BadInput(path, None, "not an OpenCV FileStorage file (YAML or XML)")
+    root = fs.root()
+    if not root.isMap():              # keys() asserts on an empty file or a list (exit 1 before)
+        fs.release()
+        raise BadInput(path, None, "holds no map of named matrices (K1, D1, K2, D2, R, T): it is empty, or its "
+                                   "top level is a list or a value")
     return fs
+
+
+def _refuse_non_finite_json(path: str, text: str) -> None:
+    """JSON that FileStorage cannot read because Python wrote NaN or Infinity into it: name the key."""
+    found: list[str] = []
+
+    def constant(word: str) -> float:
+        found.append(word)
+        return float("nan")
+    try:
+        doc = json.loads(text, parse_constant=constant)
+    except (ValueError, RecursionError):
+        return
+    if found and isinstance(doc, dict):
+        key = next((k for k, v in doc.items() if "nan" in json.dumps(v, allow_nan=True).lower()
+                    or "infinity" in json.dumps(v, allow_nan=True).lower()), None)
+        raise BadInput(path, key, f"{found[0]}: not a finite number (JSON has no NaN or Infinity)")
 
 
 def refuse_fisheye(path: str, items) -> None:
@@ -122,17 +157,28 @@ def _scalars(fs, keys) -> list:
 def _file_fields(path: str, fs) -> dict[str, tuple[str, np.ndarray]]:
     """CALIB field -> (key, array) in one file; two keys for one field refused."""
     listed = list(fs.root().keys())
-    keys = {name_key(k): k for k in listed}
-    from_zero = any(name_key(n) in keys for n in field_names(True)["K1"])
+    keyed = {name_key(k) for k in listed}
+    from_zero = any(name_key(n) in keyed for n in field_names(True)["K1"])
+    if from_zero and any(name_key(n) in keyed for n in field_names(False)["K2"]):
+        zero = next(k for k in listed if name_key(k) in {name_key(n) for n in field_names(True)["K1"]})
+        raise BadInput(path, zero, "beside the names of cameras 1 and 2: three cameras? give the pair as "
+                                   "K1, K2 (or K0, K1), not all three")
     out = {}
     for field, names in field_names(from_zero).items():
-        hits = list(dict.fromkeys(keys[name_key(n)] for n in names if name_key(n) in keys))
-        if len(hits) > 1:
-            raise BadInput(path, f"{hits[0]}, {hits[1]}", f"two names for {field}: give it once")
-        if hits and listed.count(hits[0]) > 1:      # FileStorage reads the first without a word
+        wanted = {name_key(n) for n in names}
+        # every key of the field (image_size and imageSize are one name: the last one read won)
+        hits = [k for k in listed if name_key(k) in wanted]
+        distinct = list(dict.fromkeys(hits))
+        if len(distinct) > 1:
+            raise BadInput(path, f"{distinct[0]}, {distinct[1]}", f"two names for {field}: give it once")
+        if len(hits) > 1:                           # FileStorage reads the first without a word
             raise BadInput(path, hits[0], "given twice: give it once")
         if hits:
-            value = node_array(fs.getNode(hits[0]))
+            try:
+                value = node_array(fs.getNode(hits[0]))
+            except MatrixTypeError as exc:
+                raise BadInput(path, hits[0], f"values its type dt '{exc}' cannot hold (OpenCV would clip or "
+                                              "round them): write it as dt: d") from None
             if value is None:
                 raise BadInput(path, hits[0], "not a matrix or a list of numbers")
             out[field] = hits[0], value

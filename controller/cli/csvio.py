@@ -74,8 +74,8 @@ def _scan(where: str, lines: list[str], header: Sequence[str]) -> np.ndarray:
     """Slow path: parse line by line, raising at the first bad cell with its line and column."""
     rows = []
     for lineno, cells in enumerate(csv.reader(lines[1:]), start=2):
-        if not cells or all(not c.strip() for c in cells):
-            continue
+        if not cells or (len(cells) == 1 and not cells[0].strip()):
+            continue                    # a blank line; a row of empty cells (",,,") is a row, refused below
         if len(cells) != len(header):
             raise BadInput(where, f"line {lineno}", f"{len(cells)} fields, expected {len(header)}")
         rows.append([number(cell, where, lineno, name) for name, cell in zip(header, cells, strict=True)])

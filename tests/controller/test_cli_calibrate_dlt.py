@@ -241,6 +241,8 @@ def test_bad_calibration_file(case, tmp_path):
     # finite, but beyond any image: NaN rows and numpy's overflow warnings before
     ("u1,v1,u2,v2\n1,2,3,4\n\n1,2,1e300,4\n", ["line 4", "column u2", "1e+300 is out of range"]),
     ("u1,v1,u2,v2\n-2e6,2,3,4\n", ["line 2", "column u1", "-2e+06 is out of range"]),
+    # a row of empty cells is a row: dropped, every later output row stood beside the wrong input one
+    ("u1,v1,u2,v2\n650,470,540,470\n,,,\n700,500,590,500\n", ["line 3", "column u1", "not a number: ''"]),
 ])
 def test_bad_pairs_file(calibrated, tmp_path, text, words):
     pairs = tmp_path / "PAIRS.csv"

@@ -160,3 +160,47 @@ def test_the_installed_command_says_a_huge_t_in_one_line(tmp_path):
                           cwd=REPO, capture_output=True, text=True, timeout=120)
     assert done.returncode == 2 and len(done.stderr.strip().splitlines()) == 1, done.stderr
     assert done.stderr.startswith(f"fishfarm: {src}: T: "), done.stderr
+
+
+@pytest.mark.parametrize("text", ["%YAML:1.0\n", "%YAML:1.0\n---\n- 1\n- 2\n", "%YAML 1.2\n---\n"])
+def test_a_file_with_no_map_of_matrices_is_one_line_not_an_internal_error(tmp_path, text):
+    """FileStorage's keys() asserted on an empty or list root: exit 1, 'internal error' (outside tester)."""
+    src = tmp_path / "c.yml"
+    src.write_text(text)
+    assert_bad(["--in", str(src), "--out", str(tmp_path / "o.json")], "c.yml", "no map of named matrices")
+
+
+@pytest.mark.parametrize("ext", ["yml", "xml", "json"])
+def test_two_spellings_of_the_image_size_that_disagree_are_refused(tmp_path, ext):
+    """image_size and imageSize are one name to the import: the last one read won, without a word."""
+    src = tmp_path / f"c.{ext}"
+    items = {**rig_items(), "image_size": np.array([[1280.0, 960.0]]), "imageSize": np.array([[1300.0, 1000.0]])}
+    del items["image_width"], items["image_height"]
+    write_fs(src, items)
+    assert_bad(["--in", str(src), "--out", str(tmp_path / "o.json")], f"c.{ext}", "image_size", "imageSize",
+               "two names")
+
+
+def test_a_camera_0_beside_cameras_1_and_2_is_refused(tmp_path):
+    """K0 made the file 0-based: camera 2 took the file's K1, K2 and D2 were dropped, and camera 1
+    imported without the distortion the output said it kept."""
+    src = tmp_path / "c.yml"
+    write_fs(src, {**rig_items(), "K0": RIG.K1})
+    assert_bad(["--in", str(src), "--out", str(tmp_path / "o.json")], "c.yml", "K0", "three cameras")
+
+
+def test_a_matrix_whose_type_cannot_hold_its_values_is_refused(tmp_path):
+    src = tmp_path / "c.yml"
+    write_fs(src, rig_items())
+    text = src.read_text()
+    head = text.index("K1: !!opencv-matrix")
+    src.write_text(text[:head] + text[head:].replace("dt: d", "dt: u", 1))    # 1100 px read as 255
+    assert_bad(["--in", str(src), "--out", str(tmp_path / "o.json")], "c.yml", "K1", "dt 'u'")
+
+
+def test_nan_in_a_json_file_names_its_key(tmp_path):
+    import json
+    src = tmp_path / "c.json"
+    src.write_text(json.dumps({"K1": RIG.K1.tolist(), "D1": RIG.D1.tolist(), "K2": RIG.K2.tolist(),
+                               "D2": RIG.D2.tolist(), "R": R.tolist(), "T": [float("nan"), 0.0, 0.0]}))
+    assert_bad(["--in", str(src), "--out", str(tmp_path / "o.json")], "c.json", "T", "NaN", "finite")

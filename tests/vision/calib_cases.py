@@ -36,6 +36,13 @@ CASES = [
      "P2: same camera centre as P1 ([100.0, 0.0, 0.0]): no baseline, nothing can be triangulated"),
     ("zero_k1", _with(FULL, K1=np.zeros((3, 3)).tolist()), "K1: singular: not an invertible camera matrix"),
     ("k1_last_row", _with(FULL, K1=K_ROW.tolist()), "K1: last row [0.0, 0.0, 2.0], expected [0, 0, 1]"),
+    # an absurd K was taken (0.001 px: every triangulated point NaN) or called singular (1e12 px)
+    ("k1_tiny_focal", _with(FULL, K1=[[0.001, 0, 320], [0, 0.001, 240], [0, 0, 1]]),
+     "K1: focal lengths fx 0.001, fy 0.001 px: a camera's lie from 1 to 1e+07 px (is K in pixels?)"),
+    ("k2_huge_focal", _with(FULL, K2=[[1e12, 0, 320], [0, 1e12, 240], [0, 0, 1]]),
+     "K2: focal lengths fx 1e+12, fy 1e+12 px: a camera's lie from 1 to 1e+07 px (is K in pixels?)"),
+    ("k1_far_centre", _with(FULL, K1=[[800, 0, 6.5e8], [0, 800, 240], [0, 0, 1]]),
+     "K1: 6.5e+08 in its first rows: beyond 1e+07 px, no camera's (is K in pixels?)"),
     ("d2_without_k2", _with(GOOD, D2=[0.0] * 5), "D2: distortion given without K2"),
     ("image_size", _with(GOOD, image_size=[640]),
      "image_size: expected [width, height] in pixels (whole numbers 1..100000)"),
