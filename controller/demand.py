@@ -82,6 +82,19 @@ conservative (an hour of measuring brings it to the tank's own); for the first `
 measuring it is at most that (the prior's own lower bound was the grid's top: a fresh filter, after
 every restart, missed episodes below ~0.5 /s; 2026-12-04).
 
+*Clusters.* Sparse random contacts may come as a wave's few hits on one sensor, 1–5 s apart: the
+empty spans then count the hits, not the contacts, and the Poisson threshold at the hits' rate
+let 1–3 hits at 0.015 /s (0.03 contacts/s) raise 72 false demands a day (2 hits at 0.02 /s: 97).
+Under clusters at rate c, a share q of one busy second, a span holds none with probability e^-λ
+and exactly one with λq·e^-λ (λ = c × span), so q comes from the shares of empty and single spans
+(exponentially weighted as the empty share; its upper bound at two s.d., a calm tank's few
+non-empty spans read ~1 ± 0.3 otherwise); like the empty share it hardly moves when undetected
+slow fish pass, whose spans hold several. On ``SINGLE_LEVELS`` below 1, the count's thresholds are
+the compound-Poisson tail of clusters of 1 (q), else 2 or 3 busy seconds (``clustered_threshold``:
+Panjer's recursion; longer clumps are the burst and persistence rules'), and the beat's λ is scaled
+by the mean cluster size (a wave's evenly spaced hits are cycles of a beat for free). Measured:
+README, "Clustered turbulence". Poisson tanks (q read ~1) keep the thresholds below.
+
 *The beat.* Fish bumping at a steady pace are far from Poisson, which the count ignores. m
 cycles of a lattice of period P in ``beat_period_s`` (2–12 s), one contact each within ±δP of
 its point (δ = 0.15 and 0.35: tight and loose beats; turbulence in between ignored), ending at
@@ -140,7 +153,6 @@ search runs only on single contacts of a tank with enough of them, capped at
 """
 from __future__ import annotations
 
-import bisect
 import math
 
 from controller.demand_stats import (
@@ -154,6 +166,7 @@ from controller.demand_stats import (
     rate_for,
     threshold,
 )
+from controller.demand_thresholds import PRIOR_S, Thresholds
 from controller.demand_types import Demand, DemandParams, SensorFault, SensorRecovered, SlowFishUndetectable
 from controller.demand_window import BurstRules, Persistence, TankWindow
 
@@ -164,7 +177,6 @@ FISH_MAX_HZ = 2.0       # the contract's fastest fish
 RUN_GAP_S = 1.0         # contacts closer than this continue a run (a burst's tail goes with it)
 BURST_S = 10.0          # the contract's longest chatter burst: a run lasting longer is not one
 RAISE_GAP_PACES = 3.0   # the raising contact follows the one before within this many paces
-PRIOR_S = 900.0         # the background prior: this long at the contract's bound (turbulence_max_hz)
 PRIOR_BEAT_WINDOW_S = 180.0   # the beat looks back this far on a tank still at its prior: a steady 10 s pace
                               # from a fresh filter's first contact was never raised over 60 s (the count at
                               # 0.05 /s cannot see it); 180 s for every tank made the bench's farm stream
@@ -172,7 +184,7 @@ PRIOR_BEAT_WINDOW_S = 180.0   # the beat looks back this far on a tank still at 
 SUSPECT_BINS = 0b111    # a sensor stuck-fast this many bins in a row (15 s, past any burst) counts nothing
 
 
-class DemandFilter(BurstRules, Persistence):
+class DemandFilter(BurstRules, Persistence, Thresholds):
     """See the module docstring. ``tanks``: tank -> its sensors; None: learn them from contacts."""
 
     def __init__(self, params: DemandParams | None = None, tanks: dict[str, list[str]] | None = None):
@@ -188,6 +200,8 @@ class DemandFilter(BurstRules, Persistence):
         self._window = self._n * p.bin_s
         self._span = (self._n - 1) * p.bin_s            # the complete bins of a window
         self._k_grid = [threshold(b, self._window, p.false_alarms_per_day, p.min_contacts) for b in self._b_grid]
+        self._k_at: dict[tuple[int, int], tuple[int, int]] = {}   # (b, clustering) -> (k, kp), as needed
+        self._beat_at: dict[tuple[int, int], tuple] = {}         # (b, clustering) -> the beat's tests
         # (window, grid) of the beat test: over beat_window_s once the tank's turbulence is measured,
         # and over PRIOR_BEAT_WINDOW_S while it is the prior (its count at the contract's bound)
         self._beats = [(w, [beat_tests(b, p.beat_jitter, p.beat_false_alarms_per_day, p.beat_period_s, w)
@@ -387,6 +401,7 @@ class DemandFilter(BurstRules, Persistence):
             a = self._alpha ** (steps - (n + 1))
             ts.bg_n = ts.bg_n * a + (1 - a) / (1 - self._alpha)
             ts.bg_t = ts.bg_t * a + (1 - a) / (1 - self._alpha)
+            ts.bg_one *= a
         ts.bin_end += steps * self._bin
         self._thresholds(ts)
         if not ts.told and ts.bg_t * self._bin >= self.params.learn_s + 900.0:
@@ -415,8 +430,9 @@ class DemandFilter(BurstRules, Persistence):
         ts.p2, ts.p1 = ts.p1, v
         if v:
             self._clump(ts, h)
-        if not ts.demanding:                        # background: is the span of the window empty?
+        if not ts.demanding:                        # background: is the span of the window empty? one?
             ts.bg_n = ts.bg_n * self._alpha + (ts.vsum == 0)
+            ts.bg_one = ts.bg_one * self._alpha + (ts.vsum == 1)
             ts.bg_t = ts.bg_t * self._alpha + 1.0
             ts.bg_seen += 1
         if ts.vals[h]:                              # a non-chatter bin with healthy contacts
@@ -425,19 +441,6 @@ class DemandFilter(BurstRules, Persistence):
         ts.excl = False
         ts.tail, ts.excl_next = ts.excl_next, False     # the next bin, until the run pauses
         ts.run_prev, ts.run_cur = ts.run_cur, 0
-
-    def _background(self, ts: TankWindow) -> float:
-        """From the share of empty spans (the window's complete bins): e^(-b·span) under Poisson
-        turbulence, its lower confidence bound (one s.d., spans a window apart independent)."""
-        share, n_eff = ts.bg_n / ts.bg_t, max(1.0, ts.bg_t / len(ts.vals))
-        lo = share - math.sqrt(share * (1.0 - share) / n_eff) - 0.5 / n_eff
-        b = -math.log(max(lo, 1e-9)) / self._span
-        if ts.bg_seen * self._bin < PRIOR_S:
-            # the prior alone is the contract's bound, not its lower confidence bound: 15 min of pseudo
-            # spans at 0.05 /s bound b at the grid's top (4x), k ~26 busy seconds a minute, and every
-            # episode in a tank's first minutes after a (re)start went unraised below ~0.5 /s
-            b = min(b, self.params.turbulence_max_hz)
-        return min(max(self.params.turbulence_floor_hz, b), self._b_grid[-1])
 
     # -- sensors ------------------------------------------------------------------------------
     def _revive(self, ts: TankWindow, s: Sensor, t: float, events):
@@ -456,20 +459,11 @@ class DemandFilter(BurstRules, Persistence):
     def _new_tank(self, tank: str) -> TankWindow:
         p = self.params
         t0 = PRIOR_S / p.bin_s                      # the prior: 15 min at the contract's bound
-        ts = TankWindow(tank, self._n, 0, t0 * math.exp(-p.turbulence_max_hz * self._span), t0,
+        lam0 = p.turbulence_max_hz * self._span
+        ts = TankWindow(tank, self._n, 0, t0 * math.exp(-lam0), t0,
                         Beats(p.beat_window_s, p.beat_single_s, p.beat_period_s[0], p.beat_search_nodes,
                               self._beat_bin), self._persist_bins)
+        ts.bg_one = t0 * lam0 * math.exp(-lam0)    # the prior's clusters are single (Poisson)
         self._thresholds(ts)
         self._tanks[tank] = ts
         return ts
-
-    def _thresholds(self, ts: TankWindow) -> None:
-        """The tests' thresholds from the tank's turbulence, rounded up on the grid."""
-        i = min(63, bisect.bisect_left(self._b_grid, self._background(ts)))
-        prior = ts.bg_seen * self._bin < PRIOR_S
-        if i + 64 * prior != ts.grid_i:
-            ts.grid_i, ts.k, ts.kp = i + 64 * prior, self._k_grid[i], self._kp_grid[i]
-            ts.cap = max(self._run_cap, ts.k // 4) if self.params.run_cap else 1 << 30
-            window, grid = self._beats[prior]
-            ts.beats.window = window
-            ts.beats.tests, ts.beats.least = grid[i]

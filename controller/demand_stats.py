@@ -53,6 +53,46 @@ def threshold(b_hz: float, window_s: float, per_day: float, k_min: int) -> int:
     return k
 
 
+CLUSTER_SHARES = (0.6, 0.4)     # a cluster past one busy second: two, three (a wave's hits); longer
+                                # clumps are the burst and persistence rules' (one counts ~2 at most alone)
+
+
+def cluster_mean(single: float) -> float:
+    """The model's mean busy seconds a cluster."""
+    return sum(s * q for s, q in enumerate(cluster_sizes(single)))
+
+
+def cluster_sizes(single: float) -> list[float]:
+    """The model's pmf of a turbulence cluster's busy seconds (index 0 unused): one with
+    probability ``single``, else two or three (``CLUSTER_SHARES``)."""
+    return [0.0, single, *((1.0 - single) * q for q in CLUSTER_SHARES)]
+
+
+@lru_cache(maxsize=4096)
+def clustered_threshold(b_hz: float, window_s: float, per_day: float, k_min: int, single: float) -> int:
+    """``threshold`` for turbulence in clusters: clusters arrive at ``b_hz`` (what the share of empty
+    spans measures), each of ``cluster_sizes(single)`` busy seconds. A cluster of s lifts the window's
+    count X across k when k - s <= X < k; X (what an arriving cluster sees, Poisson arrivals) is
+    compound Poisson(b·window), its pmf by Panjer's recursion. ``single`` 1 is ``threshold``."""
+    if single >= 1.0:
+        return threshold(b_hz, window_s, per_day, k_min)
+    sizes, lam = cluster_sizes(single), b_hz * window_s
+    weighted = [s * q for s, q in enumerate(sizes)]
+    pmf, cdf = [math.exp(-lam)], [math.exp(-lam)]
+
+    def upto(j: int) -> float:                 # P[X <= j], the pmf grown as far as asked
+        while len(pmf) <= j:
+            n = len(pmf)
+            pmf.append(lam / n * sum(weighted[s] * pmf[n - s] for s in range(1, min(n, len(sizes) - 1) + 1)))
+            cdf.append(cdf[-1] + pmf[-1])
+        return cdf[j] if j >= 0 else 0.0
+
+    k = max(k_min, math.ceil(lam * sum(weighted)) + 1)     # below its mean the count seldom crosses up
+    while DAY_S * b_hz * sum(q * (upto(k - 1) - upto(k - 1 - s)) for s, q in enumerate(sizes) if q) > per_day:
+        k += 1
+    return k
+
+
 def caught_within(rate_hz: float, k: int, window_s: float) -> float:
     """P[a Poisson episode at ``rate_hz`` holds >= k contacts in the window from its first]:
     1 + Poisson(rate × window) >= k (turbulence's own contacts ignored: a lower bound)."""
@@ -104,21 +144,24 @@ def beat_threshold(b_hz: float, jitter: float, per_day: float, levels: int, p_mi
     return hi
 
 
-def beat_tests(b_hz: float, jitters, per_day: float, period_s: tuple[float, float], window_s: float):
+def beat_tests(b_hz: float, jitters, per_day: float, period_s: tuple[float, float], window_s: float,
+               scale: float = 1.0):
     """((δ, log 2δb, λ, longest period) per tolerance δ, fewest hits that could reach λ) at
     turbulence b. A beat of period P needs λ / -log(2δbP) hits, all within the window: slower
-    beats cannot be confirmed in time and are not searched for, nor counted in λ's bound."""
+    beats cannot be confirmed in time and are not searched for, nor counted in λ's bound.
+    ``scale``: λ times this, for turbulence in clusters of that many contacts on average (a wave's
+    hits a few seconds apart are cycles of a beat for free: the bound counts independent arrivals)."""
     tests, least = [], 1 << 30
     p_min, p_max = period_s
     grid = [p_min * (p_max / p_min) ** (i / 64) for i in range(65)]
     for d in jitters:
         log_2db = math.log(2.0 * d * b_hz)
-        lam = beat_threshold(b_hz, d, per_day, len(jitters), p_min, p_max)
+        lam = scale * beat_threshold(b_hz, d, per_day, len(jitters), p_min, p_max)
         fits = [q for q in grid if -(log_2db + math.log(q)) * (window_s / q + 2 * d) >= lam]
         if not fits:
             continue
         longest = grid[len(fits)] if len(fits) < len(grid) else p_max
-        lam = beat_threshold(b_hz, d, per_day, len(jitters), p_min, longest)
+        lam = scale * beat_threshold(b_hz, d, per_day, len(jitters), p_min, longest)
         tests.append((d, log_2db, lam, longest))
         least = min(least, math.ceil(lam / -(log_2db + math.log(p_min))))
     return tuple(tests), least

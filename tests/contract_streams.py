@@ -14,6 +14,9 @@ The contract's words, and how each is drawn here:
   Poisson at 3–20 /s for 0.3–9.9 s on one sensor (sometimes two). Bursts come on their own, just
   before an episode's first contact, or as a *wave*: one event hitting several tanks within
   seconds of each other.
+  Sparse random contacts need not come one at a time: ``clustered_background`` draws them as
+  wave hits, each touching one sensor 1–3 times a second or a few apart (the average still below
+  0.05 /s), an outside tester's reading of the same words.
 - *stuck sensor: contacts at a fixed high rate for minutes*: 3–10 /s, each contact jittered by a
   few % of the period; *dead sensor: none at all while the tank's other sensors fire*: its
   contacts are removed for the span.
@@ -93,6 +96,15 @@ class Builder:
         self.background_hz[tank] = hz
         n = self.rng.poisson(hz * (b - a))
         self.add(self.rng.uniform(a, b, n), tank, self.rng.choice(sensors, n), TURB)
+
+    def clustered_background(self, tank, sensors, a, b, hits_hz, hits=(1, 3), gap_s=(1.2, 3.0)) -> None:
+        """Wave hits at ``hits_hz``: each touches one sensor ``hits`` times (uniform), ``gap_s``
+        apart (one spacing per hit, jittered 5 %)."""
+        rng = self.rng
+        for start in rng.uniform(a, b, rng.poisson(hits_hz * (b - a))):
+            n, gap = rng.integers(hits[0], hits[1] + 1), rng.uniform(*gap_s)
+            t = start + gap * np.arange(n) * rng.uniform(0.95, 1.05, n)
+            self.add(t, tank, rng.choice(sensors), TURB)
 
     def burst(self, tank, sensor, start, hz=None, dur=None) -> None:
         rng = self.rng

@@ -16,7 +16,15 @@ from controller.demand import (
     SlowFishUndetectable,
     threshold,
 )
-from controller.demand_stats import beat_chain, beat_tail, beat_threshold, caught_within, rate_for
+from controller.demand_stats import (
+    beat_chain,
+    beat_tail,
+    beat_threshold,
+    caught_within,
+    cluster_sizes,
+    clustered_threshold,
+    rate_for,
+)
 from controller.errors import BadInput
 from devices.sim import contact_streams as cs
 from tests import contract_streams as contract
@@ -582,3 +590,83 @@ def test_a_sensor_stuck_fast_counts_nothing_once_it_has_been_fast_longer_than_an
         events = _replay_rows(rows)
         assert [d.t for d in demands(events) if d.t > onset + 20] == [], seed
         assert [(e.sensor, e.kind) for e in events if isinstance(e, SensorFault)] == [("a", "stuck")]
+
+
+# --- turbulence in clusters: sparse random contacts that come as a wave's few hits ---
+
+def test_the_clustered_threshold_is_the_poisson_one_for_single_contacts_and_rises_with_clusters():
+    for b in (0.003, 0.01, 0.02, 0.05, 0.2):
+        for window, budget in ((60.0, 1.5), (300.0, 0.1)):
+            k_min = max(4, math.ceil(b * window) + 1)
+            ks = [clustered_threshold(b, window, budget, k_min, single) for single in (1.0, 0.85, 0.55, 0.25, 0.0)]
+            assert ks[0] == threshold(b, window, budget, k_min) and ks == sorted(ks), (b, window, ks)
+            assert ks[-1] > ks[0]
+
+
+@pytest.mark.parametrize("b, single", [(0.01, 0.4), (0.02, 0.0), (0.03, 0.7)])
+def test_the_clustered_threshold_keeps_its_budget_on_clusters_of_the_model(b, single):
+    """Simulated: clusters at b, each of the model's sizes, a busy second 1.5 s apart; the sliding
+    60 s count crosses k (the threshold) at most at the budget's rate (and k - 1 well over it)."""
+    rng = np.random.default_rng(int(b * 1000) + int(single * 10))
+    days, budget = 200.0, 1.5
+    starts = np.sort(rng.uniform(0, days * 86400, rng.poisson(b * days * 86400)))
+    pmf = np.array(cluster_sizes(single)[1:])
+    sizes = rng.choice(np.arange(1, len(pmf) + 1), len(starts), p=pmf / pmf.sum())
+    t = np.repeat(starts, sizes) + 1.5 * (np.arange(sizes.sum()) - np.repeat(np.cumsum(sizes) - sizes, sizes))
+    t.sort()
+    after = np.arange(1, len(t) + 1) - np.searchsorted(t, t - 60.0, side="right")   # the count with each contact
+    k = clustered_threshold(b, 60.0, budget, 4, single)
+
+    def crossings(level: int) -> int:        # each contact raises the count by one: it reaches level from below
+        return int(np.sum(after == level))
+    assert crossings(k) / days <= budget
+    assert crossings(k - 1) / days > budget
+
+
+def _clustered(seed, days, hits_hz, hits, gap_s, episodes=0, peak=(0.7, 2.0)):
+    b = contract.Builder(seed)
+    b.clustered_background("T1", ("a", "b"), 0.0, days * 86400, hits_hz, hits, gap_s)
+    for start in np.arange(7200.0, days * 86400 - 900, 86400 / max(episodes, 1e-9))[:int(episodes * days)]:
+        b.episode("T1", ("a", "b"), start + b.rng.uniform(0, 1800), b.rng.uniform(*peak), b.rng.uniform(60, 540),
+                  b.rng.uniform(0, 30))
+    return b.build(days)
+
+
+@pytest.mark.parametrize("hits_hz, hits, gap_s", [
+    (0.015, (1, 3), (1.2, 2.0)), (0.02, (2, 2), (1.5, 2.5)), (0.015, (1, 3), (2.5, 3.5)), (0.02, (2, 2), (4.0, 5.0))])
+def test_turbulence_in_small_clusters_stays_within_the_false_demand_budget(hits_hz, hits, gap_s):
+    """Wave hits touching a sensor 1-3 times, 1-5 s apart, 0.03-0.04 contacts/s in all: the count's
+    threshold, set for Poisson contacts at the hits' rate, raised 72-97 false demands a day (outside
+    tester); the beat took the hits' even spacing for a fish's pace."""
+    farm = _clustered(3, 10.0, hits_hz, hits, gap_s)
+    assert 0.025 < len(farm) / (10 * 86400) < 0.05
+    events, f = replay(farm, params=None, until=10 * 86400)
+    assert len(demands(events)) <= 1.5 * 10, len(demands(events))
+    assert f.score("T1")[1] > threshold(hits_hz, 60.0, DemandParams().false_alarms_per_day, 4)
+
+
+def test_a_tank_of_clustered_turbulence_still_serves_its_fish_within_60s():
+    farm = _clustered(5, 10.0, 0.015, (1, 3), (1.2, 3.0), episodes=6)
+    events, _ = replay(farm, until=10 * 86400)
+    late, outside = check_episodes(farm, events)
+    assert len(farm.episodes) >= 50 and late == [] and len(outside) <= 1.5 * 10
+
+
+@pytest.mark.parametrize("turbulence_hz", [0.003, 0.02, 0.05])
+def test_poisson_turbulence_and_bursts_keep_the_poisson_thresholds(turbulence_hz):
+    """Clustering is read from the shares of empty and single spans: Poisson contacts with chatter
+    bursts must not be taken for clusters (on a calm tank the share is a few spans' worth)."""
+    rng = np.random.default_rng(17)
+    stream = cs.merge(cs.turbulence(rng, "T1", ("a", "b"), T0, T0 + 2 * 86400, turbulence_hz),
+                      cs.chatter_bursts(rng, "T1", ("a", "b"), T0, T0 + 2 * 86400, 3.0))
+    f = DemandFilter()
+    ks = []
+    nxt = -math.inf
+    for t, tank, sensor in stream.rows():
+        if t >= nxt:
+            f.on_time(t)
+            nxt = t + 60.0
+            if t > T0 + 3 * 3600:
+                ks.append(f._clustering(f._tanks["T1"]))
+        f.on_contact(t, tank, sensor)
+    assert np.mean(np.array(ks) == 0) >= 0.95, np.bincount(ks)
