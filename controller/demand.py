@@ -166,7 +166,7 @@ from controller.demand_stats import (
     rate_for,
     threshold,
 )
-from controller.demand_thresholds import PRIOR_S, Thresholds
+from controller.demand_thresholds import CLUSTER_TAU_FACTOR, PRIOR_S, Thresholds
 from controller.demand_types import Demand, DemandParams, SensorFault, SensorRecovered, SlowFishUndetectable
 from controller.demand_window import BurstRules, Persistence, TankWindow
 
@@ -195,6 +195,7 @@ class DemandFilter(BurstRules, Persistence, Thresholds):
         self._no_fish = max(self._chatter + 1, math.ceil(2 * FISH_MAX_HZ * p.bin_s))  # twice what fish do
         self._faults = SensorTests(p)
         self._alpha = math.exp(-p.bin_s / p.background_tau_s)
+        self._alpha_c = math.exp(-p.bin_s / (CLUSTER_TAU_FACTOR * p.background_tau_s))
         hi = 4.0 * p.turbulence_max_hz
         self._b_grid = [p.turbulence_floor_hz * (hi / p.turbulence_floor_hz) ** (i / 63) for i in range(64)]
         self._window = self._n * p.bin_s
@@ -361,6 +362,7 @@ class DemandFilter(BurstRules, Persistence, Thresholds):
         """The window that made a demand was the episode's start, not turbulence: take its
         (non-empty) spans back out of the background estimate."""
         ts.bg_t = max(ts.bg_n + 1.0, ts.bg_t - len(ts.vals))
+        ts.cl_t = max(ts.cl_n + ts.cl_one + 1.0, ts.cl_t - len(ts.vals))
 
     def _raise(self, ts: TankWindow, t: float, events):
         """The rate: the window's contacts over the span that holds them (from the start of its
@@ -401,7 +403,10 @@ class DemandFilter(BurstRules, Persistence, Thresholds):
             a = self._alpha ** (steps - (n + 1))
             ts.bg_n = ts.bg_n * a + (1 - a) / (1 - self._alpha)
             ts.bg_t = ts.bg_t * a + (1 - a) / (1 - self._alpha)
-            ts.bg_one *= a
+            a = self._alpha_c ** (steps - (n + 1))
+            ts.cl_n = ts.cl_n * a + (1 - a) / (1 - self._alpha_c)
+            ts.cl_t = ts.cl_t * a + (1 - a) / (1 - self._alpha_c)
+            ts.cl_one *= a
         ts.bin_end += steps * self._bin
         self._thresholds(ts)
         if not ts.told and ts.bg_t * self._bin >= self.params.learn_s + 900.0:
@@ -432,8 +437,10 @@ class DemandFilter(BurstRules, Persistence, Thresholds):
             self._clump(ts, h)
         if not ts.demanding:                        # background: is the span of the window empty? one?
             ts.bg_n = ts.bg_n * self._alpha + (ts.vsum == 0)
-            ts.bg_one = ts.bg_one * self._alpha + (ts.vsum == 1)
             ts.bg_t = ts.bg_t * self._alpha + 1.0
+            ts.cl_n = ts.cl_n * self._alpha_c + (ts.vsum == 0)
+            ts.cl_one = ts.cl_one * self._alpha_c + (ts.vsum == 1)
+            ts.cl_t = ts.cl_t * self._alpha_c + 1.0
             ts.bg_seen += 1
         if ts.vals[h]:                              # a non-chatter bin with healthy contacts
             ts.active += 1
@@ -463,7 +470,8 @@ class DemandFilter(BurstRules, Persistence, Thresholds):
         ts = TankWindow(tank, self._n, 0, t0 * math.exp(-lam0), t0,
                         Beats(p.beat_window_s, p.beat_single_s, p.beat_period_s[0], p.beat_search_nodes,
                               self._beat_bin), self._persist_bins)
-        ts.bg_one = t0 * lam0 * math.exp(-lam0)    # the prior's clusters are single (Poisson)
+        # the clustering's prior: the same spans, their hits single (Poisson)
+        ts.cl_n, ts.cl_one, ts.cl_t = ts.bg_n, t0 * lam0 * math.exp(-lam0), t0
         self._thresholds(ts)
         self._tanks[tank] = ts
         return ts

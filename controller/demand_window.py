@@ -23,7 +23,7 @@ class TankWindow:
     contacts going on, its background estimate and demand state."""
 
     __slots__ = ("name", "sensors", "bin_end", "slot", "cur", "raw", "excl", "excl_next", "vals",
-                 "raws", "head", "vsum", "rsum", "m_old", "p1", "p2", "k", "bg_n", "bg_t", "bg_one",
+                 "raws", "head", "vsum", "rsum", "m_old", "p1", "p2", "k", "bg_n", "bg_t", "cl_n", "cl_one", "cl_t",
                  "demanding", "last_raise", "fresh", "recent", "active", "last_t", "prev_c", "tail",
                  "run_cur", "run_prev", "run_len", "run_t0", "cap", "run_n", "run_cnt",
                  "occ", "occs", "osum", "beats", "grid_i", "told", "active_ew", "bg_seen",
@@ -42,7 +42,7 @@ class TankWindow:
         self.head = 0
         self.vsum = self.rsum = self.m_old = self.p1 = self.p2 = 0
         self.k, self.bg_n, self.bg_t = k, bg_n, bg_t
-        self.bg_one = 0.0                           # spans holding exactly one busy second (clustering)
+        self.cl_n = self.cl_one = self.cl_t = 0.0   # spans empty, of one busy second, all: over a longer time
         self.bg_seen = 0                            # background bins measured (the prior's not among them)
         self.cap = 1 << 30                          # busy seconds a run may count in its first BURST_S
         self.demanding, self.last_raise, self.fresh = False, -math.inf, 0

@@ -43,7 +43,7 @@ class FarmInstant(Finite):
     """Unix seconds of a farm (or wall) instant in the years 2000-2199: --epoch-farm 1e300 froze farm
     time, -1e10 ran the farm in 1653, and an instant past 9999 broke every log line."""
 
-    name = "farm instant"
+    name = "farm instant (Unix seconds)"
 
     def convert(self, value, param, ctx):
         rv = super().convert(value, param, ctx)
