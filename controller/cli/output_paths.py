@@ -74,5 +74,7 @@ def _check_directory(real: Path, path: str, option: str) -> None:
         try:
             trial.open("w").close()
             trial.unlink()
+        except FileNotFoundError:         # the folder is there: /proc and /sys make no new files
+            raise BadInput(path, option, f"cannot write: {parent} takes no new files") from None
         except OSError as exc:
             raise BadInput(path, option, f"cannot write: {exc.strerror or exc}") from None
