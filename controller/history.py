@@ -54,7 +54,9 @@ WHAT = tuple(COLUMNS)
 
 def parse_time(text, name: str, now: float, *, durations: bool) -> float:
     """Unix seconds from ISO, Unix seconds or (``durations``) a span back from ``now``."""
-    if isinstance(text, int | float) and not isinstance(text, bool):      # a JSON number: seconds, however written
+    if isinstance(text, bool):              # JSON's true, not Python's True
+        raise BadInput(name, None, f"{str(text).lower()}: not a time (ISO, Unix seconds{' or a span' if durations else ''})")
+    if isinstance(text, int | float):      # a JSON number: seconds, however written
         try:
             value, text, span = float(text), repr(text), False
         except OverflowError:           # a JSON integer of 400 digits (its repr may not be written either)

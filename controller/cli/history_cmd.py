@@ -41,8 +41,8 @@ def history(tank_id, what, since, until, csv_path, config_path) -> None:
     check_outputs({"--csv": csv_path}, [config_path, cfg.store.path])
     configured = tank_id in {t.id for t in cfg.tanks}
     now = ledger_now(cfg.store.path)
-    start = parse_time(since, "--since", now, durations=True) if since else None
-    end = parse_time(until, "--until", now, durations=False) if until else None
+    start = parse_time(since, "--since", now, durations=True) if since is not None else None
+    end = parse_time(until, "--until", now, durations=False) if until is not None else None
     if not Path(cfg.store.path).exists():
         if not configured:
             raise BadInput(config_path, "--tank", f"no tank {tank_id!r} (tanks: {', '.join(t.id for t in cfg.tanks)})")

@@ -117,7 +117,7 @@ def report(tank_id, since, target_g, png_path, as_json, config_path) -> None:
     if target_g is not None and not 0 < target_g < math.inf:
         raise BadInput("--target", None, f"must be a finite weight above 0 g, not {target_g:g}")
     now = ledger_now(cfg.store.path)
-    start = parse_time(since, "--since", now, durations=True) if since else None   # as history reads it
+    start = parse_time(since, "--since", now, durations=True) if since is not None else None   # as history reads it
     if not Path(cfg.store.path).exists():
         raise BadInput(cfg.store.path, None, "no ledger there (the controller has not run with this config)")
     store = Store.reader(cfg.store.path, cfg.surveys.min_weighed_fish)

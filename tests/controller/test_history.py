@@ -111,6 +111,8 @@ def test_the_queryable_s_answers_and_refusals(ledger):
                                ("history/feeds/T1", {"since": "1999-12-31"}, "is before 2000 (a date's typo?)"),
                                ("history/feeds/T1", {"since": "99999999d"}, "reaches back before 2000"),
                                ("history/feeds/T1", {"until": 915148800}, "is before 2000 (a date's typo?)"),
+                               ("history/feeds/T1", {"since": True}, "since: true: not a time"),  # was 'True'
+                               ("history/feeds/T1", {"until": False}, "until: false: not a time"),
                                ("history/surveys/T1", {"since": "2027-01-01", "until": "2020-01-01"},
                                 "since: 2027-01-01T00:00:00Z is after until (2020-01-01T00:00:00Z)")]:
         reply = query_reply(ledger, cfg, key, params, T)
@@ -180,6 +182,7 @@ EXTREMES = [
     ("--until", "99999999999999999999", {}), ("--until", "253402300800", {}), ("--until", "9" * 400, {}),
     ("--until", "9999-12-31T23:00-05:00", {}), ("--until", "9999-12-31T23:59:59", {"history": 0}),
     ("--until", "253402300799.999", {"history": 0}),
+    ("--since", "", {}), ("--until", "", {}), ("--since", "  ", {}),    # "" was no filter at all (exit 0)
 ]
 
 
