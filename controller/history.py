@@ -55,7 +55,8 @@ WHAT = tuple(COLUMNS)
 def parse_time(text, name: str, now: float, *, durations: bool) -> float:
     """Unix seconds from ISO, Unix seconds or (``durations``) a span back from ``now``."""
     if isinstance(text, bool):              # JSON's true, not Python's True
-        raise BadInput(name, None, f"{str(text).lower()}: not a time (ISO, Unix seconds{' or a span' if durations else ''})")
+        forms = "ISO, Unix seconds or a span" if durations else "ISO or Unix seconds"
+        raise BadInput(name, None, f"{str(text).lower()}: not a time ({forms})")
     if isinstance(text, int | float):      # a JSON number: seconds, however written
         try:
             value, text, span = float(text), repr(text), False

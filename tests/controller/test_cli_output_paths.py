@@ -77,7 +77,8 @@ def test_an_output_naming_an_input_or_a_directory_is_refused_before_any_work(tmp
     _refused(capsys, tmp_path, line, tmp_path / "ref.csv" / "out.x",
              f"out.x: {option}: cannot write: {tmp_path / 'ref.csv'} is a file, not a directory")
     # a directory that lets root past access() but takes no file (a --plot there failed after the survey)
-    _refused(capsys, tmp_path, line, Path("/proc/out.x"), f"/proc/out.x: {option}: cannot write: /proc takes no new files")
+    _refused(capsys, tmp_path, line, Path("/proc/out.x"),
+             f"/proc/out.x: {option}: cannot write: /proc takes no new files")
     (tmp_path / "a_dir").mkdir()
     if "chessboard" in line or "import" in line:    # click's own check of the option (dir_okay=False)
         _refused(capsys, tmp_path, line, tmp_path / "a_dir", option, "a_dir", "directory")

@@ -485,6 +485,27 @@ def test_a_wake_that_is_no_demand_does_not_end_a_visit_whose_cameras_are_opening
     assert starts == 1, starts
 
 
+def test_a_visit_ended_before_its_cameras_began_to_open_never_opens_them(tmp_path):
+    """Visits ended by demands each queued a start and a stop behind cameras slow to open: at 600x on
+    a loaded machine one a wall second, each waiting out the one before, and no survey was made in
+    two farm days (outside tester). A start that has not begun when its visit ends is dropped."""
+    async def main():
+        async with rig(tmp_path, speed=150.0) as r:
+            stops, camera = await opening_cameras_at_t2(r, tmp_path, slow_s=300.0)   # start 1 under way
+            session = stops.schedule.current
+            for _ in range(3):                             # each visit ended by a demand
+                r.demand("T1")
+                fed = len(r.store.feeds())
+                await r.until(lambda f=fed: len(r.store.feeds()) > f, 300.0, what="T1 fed")
+                visits = session.visits
+                await r.until(lambda v=visits: session.visits > v, 300.0, what="back at T2")
+            await r.until(lambda: r.store.surveys("T2"), 3000.0, what="T2 recorded")
+            return camera.starts, session.visits
+    starts, visits = run(main())
+    # the first start ran; the visits whose start still waited behind the last stop never opened them
+    assert visits >= 4 and starts < visits, (starts, visits)
+
+
 def test_a_survey_that_counted_no_fish_is_recorded_and_logged_without_a_nan(tmp_path, caplog):
     """Its log line read 'mean nan g' (an outside tester)."""
     async def main():
