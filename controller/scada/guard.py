@@ -94,9 +94,20 @@ class Guard:
             return plan.code
         self.accepted += 1
         origin = f"modbus {peer}"
+        stopped = False
         for i, (entry, value) in enumerate(plan):
+            if entry.row.write.command == "reset" and stopped:
+                # an HMI writing its coil block with a stale reset of 1 released the e-stop it sent: the
+                # latch never held. The e-stop stands; the reset is a write of its own (exception 04)
+                self.controller.overrides.refused_on_wire(
+                    "reset", "in the same write as an e-stop: a reset is a write of its own (exception 04)",
+                    self.scada.identity, {"table": kind, "address": address,
+                                          "values": [int(v) for v in values[:MAX_AUDITED]]}, origin=origin)
+                self.coordinator.refresh()
+                return ExcCodes.DEVICE_FAILURE
             if not await self._act(entry, value, origin, last=i == len(plan) - 1, tripped=tripped):
                 return ExcCodes.DEVICE_FAILURE
+            stopped = stopped or entry.row.write.command == "estop"
         self.coordinator.refresh()
         return None
 
@@ -107,7 +118,7 @@ class Guard:
         if command == "estop":
             if not tripped:
                 self.controller.trip_estop(f"modbus e-stop by {who}")     # the latches first, at once
-            if not last:            # what the same write asks next (a reset?) comes after the stop
+            if not last:            # what the same write asks next comes after the stop (a reset is refused)
                 await self._apply("estop", base, origin)
             else:                   # the reply does not wait for the bookkeeping
                 self._later(self._apply("estop", base, origin))

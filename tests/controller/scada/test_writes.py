@@ -25,6 +25,7 @@ def oracle(table: str, address: int, values: list[int], word_order: str = "big",
     if read_only:
         return 2, []
     calls, i = [], 0
+    stopped = False
     while i < len(values):
         row = WRITABLE.get((table, address + i))
         if row is None or i + WIDTH[row["data_type"]] > len(values):
@@ -51,6 +52,9 @@ def oracle(table: str, address: int, values: list[int], word_order: str = "big",
             if not v[0]:
                 return 3, []
             command = {"estop": "estop", "reset": "reset", "ack_all": "ack"}.get(name, "slot ack")
+            if command == "reset" and stopped:   # the e-stop stands; a reset is a write of its own
+                return 4, calls
+            stopped = stopped or command == "estop"
             if command == "ack":
                 calls.append(("ack", {"all": True}))
             elif command != "slot ack":          # a slot with nothing standing acknowledges nothing
@@ -229,6 +233,16 @@ def test_the_estop_frame_trips_once_and_only_for_this_unit(serve):
         # e-stop and a 0 to reset in one FC 15: refused whole (03), and nothing tripped on arrival
         assert c.write("coil", 0, [1, 0], single=False) == ("exception", 3)
         assert stand_in.trips == ["modbus e-stop by scada"]
+        # e-stop and reset in one FC 15 (an HMI's coil block, its reset stale): the e-stop stands,
+        # the reset is refused (04) and audited; alone, it is taken
+        assert c.write("coil", 0, [1, 1], single=False) == ("exception", 4)
+        srv.call(lambda: None)
+        assert stand_in.trips == ["modbus e-stop by scada"] * 2
+        assert [call[0] for call in stand_in.calls] == ["estop", "estop"]
+        assert stand_in.refusals[-1][0] == "reset" and "write of its own" in stand_in.refusals[-1][1]
+        assert c.write("coil", 1, [1]) is None
+        srv.call(lambda: None)
+        assert [call[0] for call in stand_in.calls] == ["estop", "estop", "reset"]
     finally:
         c.close()
 
