@@ -110,6 +110,8 @@ def _cells(entry: dict) -> list[str]:
 @click.option("--json", "as_json", is_flag=True, help="print a JSON array.")
 def audit(since, operator, config_path, db, as_json):
     """Print the audit of operator overrides, oldest first."""
+    if operator is not None and not operator.strip():     # it matched the rows with no operator at all
+        raise BadInput("--operator", None, f"{operator!r} is no operator's name (1-64 characters)")
     path = _ledger(config_path, db)
     since_t = parse_since(since, ledger_now(path)) if since is not None else None
     entries = read_audit(path, since_t, operator)

@@ -105,6 +105,8 @@ def test_the_config_names_the_ledger(ledger, capsys, tmp_path):
     (["--since", "yesterday"], "fishfarm: --since: 'yesterday' is neither an ISO time"),
     (["--since", "5 parsecs"], "fishfarm: --since: '5 parsecs' is neither an ISO time"),
     (["--since", "-5m"], "fishfarm: --since: '-5m' is neither an ISO time"),
+    (["--operator", ""], "fishfarm: --operator: '' is no operator's name"),
+    (["--operator", "  "], "fishfarm: --operator: '  ' is no operator's name"),
 ])
 def test_bad_since_is_one_line_and_exit_2(ledger, capsys, args, message):
     code, out, err = run(capsys, "--db", ledger, *args)
