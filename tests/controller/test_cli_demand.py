@@ -113,3 +113,17 @@ def test_header_only_gives_empty_lists(tmp_path):
     out = tmp_path / "o.json"
     assert run("--events", path, "--json", out).returncode == 0
     assert json.loads(out.read_text()) == {"demands": [], "faults": []}
+
+
+def test_a_log_given_twice_over_counts_each_contact_once_and_says_so(log, tmp_path):
+    """Every row written twice raised 0.67 -> 21.8 false demands a tank-day (an outside tester)."""
+    _, path = log
+    lines = path.read_text().splitlines()
+    doubled = tmp_path / "doubled.csv"
+    doubled.write_text("\n".join([lines[0], *(row for line in lines[1:] for row in (line, line))]) + "\n")
+    once, twice = tmp_path / "once.json", tmp_path / "twice.json"
+    assert run("--events", path, "--json", once).returncode == 0
+    r = run("--events", doubled, "--json", twice)
+    assert r.returncode == 0, r.stderr
+    assert json.loads(twice.read_text()) == json.loads(once.read_text())
+    assert "rows repeated a contact of the same sensor at the same instant: each counted once" in r.stderr
