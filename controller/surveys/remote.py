@@ -327,6 +327,12 @@ class _Dispatch:
     def _handle(self, event: tuple) -> None:
         kind, *rest = event
         if kind == "alive":
+            if rest[0] not in self.live:
+                # its token came (again) while this dispatch ran: a worker restarted under its --id
+                # is used at once (benched by its name, the one that died, it was left out 120 s);
+                # a token the liveliness history replays for a worker known live changes nothing
+                self.excluded.pop(rest[0], None)
+                self.benched.pop(rest[0], None)
             self.live.add(rest[0])
         elif kind == "gone":
             worker = rest[0]

@@ -543,3 +543,44 @@ def test_measuring_here_for_want_of_workers_is_said_once_for_a_visit_s_pairs(ren
             e.undeclare()
     finally:
         peer.close()
+
+
+def test_a_worker_restarted_under_its_name_mid_survey_is_used_at_once(rendered, hub, caplog):
+    """One survey, one dispatch: a worker that failed a job was benched by its name for 120 s, so
+    the same --id restarted (a service's usual setup) was never asked again and the survey measured
+    the rest in its own process (an outside tester). Its new token puts it back at once."""
+    items, calib, local, _ = rendered
+    session, endpoint, site = hub
+    asked: list[int] = []
+    state = {"broken": True}
+
+    def answer(header):
+        asked.append(header["frame"])
+        if state["broken"]:
+            return json.dumps({"ok": False, "job": header["job"], "kind": "internal", "error": "boom"}).encode()
+        return honest_reply(local, header)
+    peer = zenoh.open(wire_client(endpoint))
+    measure = workers_or_here(session, site, discover_s=WAIT_S)
+    caplog.set_level(logging.WARNING, logger="fishfarm.survey")
+    worker = {}
+    worker["w"], _ = _fake_worker(peer, site, answer, "w")
+    try:
+        heard(measure, 1)
+
+        def restarting_jobs():
+            for k, job in enumerate(jobs(items, 8)):
+                if k == 3:                             # the broken one gone, the same name back
+                    for e in worker["w"]:
+                        e.undeclare()
+                    state["broken"] = False
+                    worker["w"], _ = _fake_worker(peer, site, answer, "w")
+                    time.sleep(0.2)
+                yield job
+        results = list(measure(restarting_jobs(), calib, SETUP))
+        same(results, local[:8])
+        assert not state["broken"] and len([f for f in asked if f >= 3]) >= 3, asked     # the new one measured
+    finally:
+        for e in worker["w"]:
+            e.undeclare()
+        measure.tokens.undeclare()
+        peer.close()
