@@ -65,13 +65,14 @@ def _certificate_in_date(zc: zenoh.Config, where: str, now: float | None = None)
 
 
 def client_config(connect: str, user: str | None = None, password: str | None = None,
-                  *, mode: str = "client", timeout_s: float = 2.0, ca: str | None = None) -> zenoh.Config:
+                  *, mode: str = "client", timeout_s: float = 2.0, ca: str | None = None,
+                  option: str = "--connect") -> zenoh.Config:
     """A short-lived tool's session: connect to one endpoint, listen nowhere, scout nothing.
     ``ca``: the certificate (PEM) that signed a ``tls/...`` endpoint's. A malformed endpoint is
-    BadInput naming --connect."""
+    BadInput naming ``option`` (the command's own: a survey's is --workers)."""
     port = re.fullmatch(r"(?:tcp|tls|udp|quic)/.*:(\d+)(?:#.*)?", connect)
     if port is not None and not 1 <= int(port.group(1)) <= 65535:      # Zenoh took it, then retried for good
-        raise BadInput("--connect", None, f"{connect}: port {port.group(1)} is outside 1..65535")
+        raise BadInput(option, None, f"{connect}: port {port.group(1)} is outside 1..65535")
     zc = zenoh.Config()
     settings = {"mode": mode, "connect/endpoints": [connect], "listen/endpoints": [],
                 "scouting/multicast/enabled": False, "scouting/gossip/enabled": False,
@@ -82,7 +83,7 @@ def client_config(connect: str, user: str | None = None, password: str | None = 
     if ca is not None:
         settings["transport/link/tls/root_ca_certificate"] = ca
     for key, value in settings.items():
-        _set(zc, key, value, "--connect", None)
+        _set(zc, key, value, option, None)
     return zc
 
 

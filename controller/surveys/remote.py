@@ -113,14 +113,14 @@ def connect(endpoint: str, *, timeout_s: float = 2.0, user: str | None = None,
     ``endpoint`` (the controller, a router), or, when nothing does, a peer listening there itself,
     so workers started with ``--connect endpoint`` join it. (session, listening). With a ``user``
     the endpoint is a deployment's router (config/zenoh/deploy.json5): it is that or nothing."""
-    zc = client_config(endpoint, user, password, timeout_s=timeout_s)
+    zc = client_config(endpoint, user, password, timeout_s=timeout_s, option="--workers")
     try:
         return zenoh.open(zc), False
     except zenoh.ZError as exc:
         if user is not None or password is not None:
             raise BadInput("--workers", None, f"cannot log in at {endpoint} as {user!r}: "
                                               f"{_one_line(exc)}") from None
-    hub = client_config(endpoint, mode="peer", timeout_s=timeout_s)
+    hub = client_config(endpoint, mode="peer", timeout_s=timeout_s, option="--workers")
     hub.insert_json5("connect/endpoints", "[]")
     hub.insert_json5("listen/endpoints", json.dumps([endpoint]))
     try:

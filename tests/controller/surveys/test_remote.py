@@ -350,11 +350,17 @@ def test_survey_command_with_workers_writes_the_local_survey(rendered, workers, 
     assert "transport" in there["stage_ms"] and "transport" not in here["stage_ms"]
 
 
-def test_survey_command_refuses_a_bad_workers_value(capsys):
-    assert fishfarm_main(["survey", "--calib", "c.json", "--species", "sparus_aurata", "--setup", "underwater",
-                          "--dir", ".", "--json", "o.json", "--workers", "many"]) == 2
+@pytest.mark.parametrize("value", ["many", "tcp/127.0.0.1:99999"])
+def test_survey_command_refuses_a_bad_workers_value(capsys, rendered, tmp_path, value):
+    """A port out of range was blamed on --connect, an option the survey has not (outside tester)."""
+    from controller.cli.calib_io import save_calibration
+    items, calib = rendered[0], rendered[1]
+    save_calibration(calib, str(tmp_path / "c.json"))
+    args = ["survey", "--calib", str(tmp_path / "c.json"), "--species", "sparus_aurata", "--setup",
+            "underwater", "--pair", *items[0], "--json", str(tmp_path / "o.json"), "--workers", value]
+    assert fishfarm_main(args) == 2
     err = capsys.readouterr().err.strip().splitlines()
-    assert len(err) == 1 and "--workers" in err[0] and "many" in err[0]
+    assert len(err) == 1 and "--workers" in err[0] and value in err[0] and "--connect" not in err[0], err
 
 
 def test_worker_command_refuses_bad_options(capsys):
