@@ -137,7 +137,11 @@ same busy seconds over ``persist_window_s`` (controller/demand_window.py, ``Pers
 
 *Faults.* Stuck: a sensor's own count is ≥ 0.9 × stuck_rate_hz × 5 in ≥ ``stuck_share`` of its
 5 s bins over ``stuck_window_s`` (fish at 2 /s exceed that in 21 % of bins, a 3 /s stuck sensor in
-~all; chatter lasts < 10 s). It is left out until it has had no fast bin for ``recover_s``.
+~all; chatter lasts < 10 s). It is left out until it has had no fast bin for ``recover_s``. Also
+stuck, whatever its rate: firing in every 5 s bin for 15 min, past the contract's longest episode
+(``EPISODE_MAX_S``; one at a fixed 1-2.5 /s for an hour was fed every 2 min); back once silent for
+``recover_s``. A bin is evidence against a silent sensor only if a sensor that fired in it has not
+fired in every bin for 2 min (``LONG_BUSY_BINS``): fish crowding one sensor made the other "dead".
 Dead: silent for ``dead_after_s`` and ``dead_active_bins`` of the tank's active bins (bins with
 healthy, non-chatter contacts) since its last contact, and so many that a live sensor would
 almost never miss them all: (1 - q)^N < ``dead_p`` (1e-6 per bin: ~1e-3 false faults a
@@ -157,6 +161,7 @@ import math
 
 from controller.demand_stats import (
     HEALTHY,
+    LONG_BUSY_BINS,
     STUCK,
     Beats,
     Sensor,
@@ -388,6 +393,9 @@ class DemandFilter(BurstRules, Persistence, Thresholds):
             ts.active_ew = ts.active_ew * self._faults.decay ** steps + 1.0
         else:
             ts.active_ew *= self._faults.decay ** steps
+        # the bin is evidence against a silent sensor only if one that fired is not long busy: fish on
+        # one sensor for minutes (or one stuck) made its healthy neighbour "dead" (an outside tester)
+        ts.spread = any(s.n and s.busy < LONG_BUSY_BINS for s in ts.sensors.values())
         judged = self._faults.judge(ts.sensors, ts.active, ts.active_ew, bool(ts.cur and not ts.excl),
                                     t_judged, steps)
         events = [SensorRecovered(ts.name, s, t_judged) if kind is None else SensorFault(ts.name, s, t_judged, kind)
@@ -442,8 +450,9 @@ class DemandFilter(BurstRules, Persistence, Thresholds):
             ts.cl_one = ts.cl_one * self._alpha_c + (ts.vsum == 1)
             ts.cl_t = ts.cl_t * self._alpha_c + 1.0
             ts.bg_seen += 1
-        if ts.vals[h]:                              # a non-chatter bin with healthy contacts
+        if ts.vals[h] and ts.spread:                # a non-chatter bin with healthy contacts
             ts.active += 1
+        ts.spread = False
         ts.cur = ts.raw = ts.occ = 0
         ts.excl = False
         ts.tail, ts.excl_next = ts.excl_next, False     # the next bin, until the run pauses

@@ -302,11 +302,20 @@ class _Search:
 
 
 class Sensor:
-    __slots__ = ("name", "n", "last", "mark", "state", "fast", "seen")
+    __slots__ = ("name", "n", "last", "mark", "state", "fast", "seen", "busy", "quiet", "held")
 
     def __init__(self, name: str, t: float, mark: int):
         self.name, self.n, self.last, self.mark, self.state, self.fast = name, 0, t, mark, HEALTHY, 0
         self.seen = 0.0
+        self.busy = self.quiet = 0          # bins in a row it fired in, or was silent in
+        self.held = False                   # stuck by firing longer than any episode (not by its rate)
+
+
+LONG_BUSY_BINS = 24         # a sensor firing in every bin for 2 min: its bins are no evidence of the others' death
+EPISODE_MAX_S = 600.0       # the contract's longest fish episode: a sensor firing in every bin for
+                            # longer is stuck, whatever its rate (one at a fixed 1-2.5 /s for an hour,
+                            # under the fast test's 3 /s, was fed every 2 min, its healthy neighbour
+                            # reported dead; fish fill every bin of 5 s only from ~0.5 /s a sensor)
 
 
 SHARE_TAU_S = 6 * 3600.0    # a sensor's share of its tank's active bins: learned over hours
@@ -327,6 +336,10 @@ class SensorTests:
         self.dead_after_s, self.dead_active_bins = p.dead_after_s, p.dead_active_bins
         self.log_dead_p = math.log(p.dead_p)
         self.decay = math.exp(-p.bin_s / SHARE_TAU_S)
+        # 15 min of bins: an episode of 10 min held between ramps of 1.5 min each up and down (the
+        # bench's ramped fish) fired a sensor in every bin for 13 min, and was called stuck at 11
+        self.held_bins = math.ceil(1.5 * EPISODE_MAX_S / p.bin_s)
+        self.recover_bins = max(1, round(p.recover_s / p.bin_s))
 
     def judge(self, sensors: dict, active: int, active_ew: float, bin_active: bool, t: float,
               bins: int) -> list | None:
@@ -340,10 +353,14 @@ class SensorTests:
         for s in sensors.values():
             s.seen = s.seen * decay + (bin_active and s.n > 0)
             s.fast = ((((s.fast << 1) | (s.n >= self.stuck_n)) << shift) & full)
+            if s.n > 0:
+                s.busy, s.quiet = (s.busy + 1, 0) if bins == 1 else (1, 0)
+            else:
+                s.busy, s.quiet = 0, s.quiet + bins
             s.n = 0
             if s.state == HEALTHY:
-                if s.fast.bit_count() >= self.need:
-                    s.state = STUCK
+                if s.fast.bit_count() >= self.need or s.busy >= self.held_bins:
+                    s.state, s.held = STUCK, s.fast.bit_count() < self.need
                     out = [*(out or ()), (s.name, "stuck")]
                 elif (len(sensors) > 1 and t - s.last >= self.dead_after_s
                       and active - s.mark >= self.dead_active_bins
@@ -351,8 +368,9 @@ class SensorTests:
                       < self.log_dead_p):
                     s.state = DEAD
                     out = [*(out or ()), (s.name, "dead")]
-            elif s.state == STUCK and not (s.fast & self.recover_mask):
-                s.state, s.mark = HEALTHY, active
+            elif s.state == STUCK and not (s.fast & self.recover_mask) and (not s.held or
+                                                                             s.quiet >= self.recover_bins):
+                s.state, s.mark, s.held, s.busy = HEALTHY, active, False, 0
                 out = [*(out or ()), (s.name, None)]
         return out
 

@@ -670,3 +670,49 @@ def test_poisson_turbulence_and_bursts_keep_the_poisson_thresholds(turbulence_hz
                 ks.append(f._clustering(f._tanks["T1"]))
         f.on_contact(t, tank, sensor)
     assert np.mean(np.array(ks) == 0) >= 0.95, np.bincount(ks)
+
+
+@pytest.mark.parametrize("hz", [1.0, 1.5, 2.0, 2.5])
+def test_a_sensor_at_a_fixed_rate_longer_than_any_episode_is_stuck_whatever_its_rate(hz):
+    """Under the fast test's 3 /s, a sensor stuck at a fixed 1-2.5 /s for an hour was fed every two
+    minutes all hour, never flagged (an outside tester). Firing in every bin for longer than the
+    contract's longest episode (10 min, and its ramps), it is stuck; quiet for recover_s, it is back."""
+    b = contract.Builder(int(hz * 10))
+    b.background("T1", ("a", "b"), 0.0, 6 * 3600.0, 0.02)
+    b.stuck("T1", "a", 3600.0, 7200.0, hz)
+    farm = b.build(0.25)
+    events, f = replay(farm, until=6 * 3600.0)
+    stuck = [e for e in events if isinstance(e, SensorFault) and e.kind == "stuck"]
+    assert [(e.sensor, 3600.0 + 600.0 < e.t <= 3600.0 + 960.0) for e in stuck] == [("a", True)], stuck
+    assert len([d for d in demands(events) if 3600.0 <= d.t <= 7200.0]) <= 8          # not 31
+    assert [e.sensor for e in events if isinstance(e, SensorRecovered)] == ["a"]
+    assert f.sensor_state("T1", "a") == "healthy"
+
+
+def test_fish_asking_ten_minutes_on_one_sensor_are_no_stuck_sensor():
+    b = contract.Builder(8)
+    b.background("T1", ("a", "b"), 0.0, 86400.0, 0.01)
+    for start in (3600.0, 20000.0, 50000.0):
+        b.episode("T1", ("a",), start, 2.0, 600.0, 0.0)
+    farm = b.build(1.0)
+    events, _ = replay(farm, until=86400.0)
+    assert [e for e in events if isinstance(e, SensorFault) and e.kind == "stuck"] == []
+    late, _ = check_episodes(farm, events)
+    assert late == []
+
+
+def test_fish_asking_on_one_sensor_do_not_make_the_other_dead():
+    """Fish on one sensor of two for minutes: the quiet one was reported dead 114 times in 286
+    episodes (an outside tester); 76 in 710 episodes of five such streams, 7 now. The bins of a
+    sensor busy for minutes are no evidence against the others."""
+    b = contract.Builder(9)
+    b.background("T1", ("a", "b"), 0.0, 4 * 86400.0, 0.01)
+    for start in np.arange(3600.0, 4 * 86400.0 - 1200.0, 2400.0):
+        b.episode("T1", ("a",), start, b.rng.uniform(0.3, 2.0), b.rng.uniform(300.0, 600.0), 0.0)
+    farm = b.build(4.0)
+    events, _ = replay(farm, until=4 * 86400.0)
+    assert len(farm.episodes) > 100
+    faults = [e for e in events if isinstance(e, SensorFault)]
+    assert {e.kind for e in faults} <= {"dead"} and len(faults) <= 0.02 * len(farm.episodes), faults
+    late, _ = check_episodes(farm, events)
+    assert len(late) <= 0.02 * len(farm.episodes)
