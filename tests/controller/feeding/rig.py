@@ -49,7 +49,8 @@ class Recorder:
 
 
 class Rig:
-    def __init__(self, tmp_path, speed: float, dispenser: dict, rail: dict, feeding: dict):
+    def __init__(self, tmp_path, speed: float, dispenser: dict, rail: dict, feeding: dict, drive: dict | None = None):
+        self.drive = drive or {}                   # the rail driver's config (RailConfig) beyond the rig's
         self.clock = ScaledClock.starting(speed, START)
         self.cfg = farm_config(**feeding)
         self.store = Store(tmp_path / "ledger.db")
@@ -76,8 +77,12 @@ class Rig:
         await self.sim.start()
         if getattr(self, "rail", None) is None:   # a subclass may have put the drive elsewhere
             await self.motor.start(BusPort.virtual(self.channel))
-            self.rail = CanRailDrive("rail", RailConfig(kind="rail", driver="can", interface="virtual",
-                                                        channel=self.channel), self.clock)
+            # a reply waited for 2 s of wall, not the drive's 0.5: three xdist workers on two cores
+            # held the simulated motor's reply past 0.5 s once ("no reply to MOVE", a fault where a
+            # feed was asserted); the tests of a silent drive ask for the drive's own 0.5 (``drive``)
+            self.rail = CanRailDrive("rail", RailConfig(**{"kind": "rail", "driver": "can", "interface": "virtual",
+                                                           "channel": self.channel, "command_timeout_s": 2.0,
+                                                           **self.drive}), self.clock)
         self.dispenser = ModbusDispenser("dispenser", DispenserConfig(kind="dispenser", driver="modbus",
                                                                       port=self.sim.port, timeout_s=0.5),
                                          self.clock)
@@ -121,8 +126,8 @@ class Rig:
 
 
 @asynccontextmanager
-async def rig(tmp_path, *, speed=100.0, dispenser=None, rail=None, feeding=None, run=True, wrap=None):
-    r = Rig(tmp_path, speed, dispenser or {}, rail or {}, feeding or {})
+async def rig(tmp_path, *, speed=100.0, dispenser=None, rail=None, feeding=None, run=True, wrap=None, drive=None):
+    r = Rig(tmp_path, speed, dispenser or {}, rail or {}, feeding or {}, drive)
     await r.start(run, wrap)
     try:
         yield r

@@ -6,6 +6,8 @@ from transitions import Machine, MachineError
 from controller.feeding.robot import STATES, TRANSITIONS
 from tests.controller.feeding.rig import rig
 
+SILENCE_TIMED = {"command_timeout_s": 0.5}     # the drive's own reply wait: these tests time a silent drive
+
 
 def run(coro):
     return asyncio.run(asyncio.wait_for(coro, 60))
@@ -128,7 +130,7 @@ def test_jammed_auger_faults_alarms_and_recovers(tmp_path):
 
 def test_can_silence_faults_and_recovers(tmp_path):
     async def main():
-        async with rig(tmp_path) as r:
+        async with rig(tmp_path, drive=SILENCE_TIMED) as r:
             await r.until(lambda: r.robot.state == "idle")
             r.motor.silence()
             r.demand("T2")
@@ -185,7 +187,7 @@ def test_estop_from_every_state_stops_auger_and_drive(tmp_path, state):
     async def main():
         hopper = {"hopper_start_g": 100.0} if state == "refilling" else {}
         speed = 20.0 if state in ("moving", "dispensing", "homing", "refilling") else 100.0
-        async with rig(tmp_path, speed=speed, dispenser=hopper, rail={"start_m": 6.0}) as r:
+        async with rig(tmp_path, drive=SILENCE_TIMED, speed=speed, dispenser=hopper, rail={"start_m": 6.0}) as r:
             await _reach(r, state)
             await r.robot.emergency_stop("test")
             await r.robot.emergency_stop("twice is fine")
@@ -367,7 +369,7 @@ def test_a_refill_gate_left_open_is_closed_before_feeding(tmp_path):
 
 def test_demands_do_not_cut_a_back_off_short(tmp_path):
     async def main():
-        async with rig(tmp_path, feeding={"retry_backoff_s": [300.0]}) as r:
+        async with rig(tmp_path, drive=SILENCE_TIMED, feeding={"retry_backoff_s": [300.0]}) as r:
             await r.until(lambda: r.robot.state == "idle")
             r.motor.silence()
             r.demand("T2")
