@@ -395,15 +395,15 @@ class DemandFilter(BurstRules, Persistence, Thresholds):
             ts.active_ew *= self._faults.decay ** steps
         # the bin is evidence against a silent sensor only if one that fired is not long busy: fish on
         # one sensor for minutes (or one stuck) made its healthy neighbour "dead" (an outside tester)
-        ts.spread = any(s.n and s.busy < LONG_BUSY_BINS for s in ts.sensors.values())
+        spread = any(s.n and s.busy < LONG_BUSY_BINS for s in ts.sensors.values())
         judged = self._faults.judge(ts.sensors, ts.active, ts.active_ew, bool(ts.cur and not ts.excl),
                                     t_judged, steps)
         events = [SensorRecovered(ts.name, s, t_judged) if kind is None else SensorFault(ts.name, s, t_judged, kind)
                   for s, kind in judged] if judged else None
         if ts.raw > self._beat_bin or (ts.excl and ts.raw):   # a bin too busy for a beat
             ts.beats.forget(ts.bin_end - self._bin, ts.bin_end)
-        for _ in range(min(steps, n + 1)):
-            self._close_bin(ts)
+        for k in range(min(steps, n + 1)):
+            self._close_bin(ts, spread and k == 0)     # the bins after the first are empty
         for _ in range(min(steps, len(ts.lvals) + 1) - min(steps, n + 1)):
             self._push_persist(ts, 0)               # a silence longer than the window
         ts.m_old = self._max3(ts) if ts.vsum else 0
@@ -429,7 +429,8 @@ class DemandFilter(BurstRules, Persistence, Thresholds):
             self._drained(ts)
         return events
 
-    def _close_bin(self, ts: TankWindow) -> None:
+    def _close_bin(self, ts: TankWindow, spread: bool = False) -> None:
+        """``spread``: its contacts are not all of sensors busy in every bin for minutes (_roll)."""
         v = 0 if ts.excl else ts.cur
         r = 0 if ts.excl else ts.raw
         h = ts.head
@@ -450,9 +451,8 @@ class DemandFilter(BurstRules, Persistence, Thresholds):
             ts.cl_one = ts.cl_one * self._alpha_c + (ts.vsum == 1)
             ts.cl_t = ts.cl_t * self._alpha_c + 1.0
             ts.bg_seen += 1
-        if ts.vals[h] and ts.spread:                # a non-chatter bin with healthy contacts
+        if ts.vals[h] and spread:                   # a non-chatter bin with healthy contacts
             ts.active += 1
-        ts.spread = False
         ts.cur = ts.raw = ts.occ = 0
         ts.excl = False
         ts.tail, ts.excl_next = ts.excl_next, False     # the next bin, until the run pauses

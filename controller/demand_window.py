@@ -27,7 +27,7 @@ class TankWindow:
                  "demanding", "last_raise", "fresh", "recent", "active", "last_t", "prev_c", "tail",
                  "run_cur", "run_prev", "run_len", "run_t0", "cap", "run_n", "run_cnt",
                  "occ", "occs", "osum", "beats", "grid_i", "told", "active_ew", "bg_seen",
-                 "lvals", "lhead", "lsum", "hsum", "kp", "spread")
+                 "lvals", "lhead", "lsum", "hsum", "kp")
 
     def __init__(self, name: str, n_bins: int, k: int, bg_n: float, bg_t: float, beats: Beats,
                  persist_bins: int = 0):
@@ -64,7 +64,6 @@ class TankWindow:
         self.lhead = 0
         self.lsum = self.hsum = 0                   # its busy seconds, and its recent half's
         self.kp = 1 << 30                           # its threshold (off: never reached)
-        self.spread = False                         # the closing bin's contacts: not all of long-busy sensors
 
 
 class BurstRules:

@@ -108,7 +108,8 @@ def _name(path: str, line: int, column: str, name: str) -> str:
 
 
 def replay(path: str, params=None, tanks: dict[str, list[str]] | None = None):
-    """Run the log through a fresh DemandFilter; returns (events, filter)."""
+    """Run the log through a fresh DemandFilter; returns (events, filter, rows that repeated a
+    contact and were counted once)."""
     from controller.demand import DemandFilter
     filt = DemandFilter(params, tanks)
     on_contact, on_time = filt.on_contact, filt.on_time
@@ -125,8 +126,7 @@ def replay(path: str, params=None, tanks: dict[str, list[str]] | None = None):
         last = t
     if last is not None:
         events.extend(on_time(last))
-    filt.repeated = repeated[0]
-    return events, filt
+    return events, filt, repeated[0]
 
 
 def to_json(events) -> dict:
@@ -155,12 +155,12 @@ def demand(events_path: str, json_path: str, config: str | None) -> None:
     from controller.cli.output_paths import check_outputs
     check_outputs({"--json": json_path}, [events_path, config])
     params, tanks = _farm(config) if config else (None, None)
-    events, filt = replay(events_path, params, tanks)
+    events, filt, repeated = replay(events_path, params, tanks)
     out = to_json(events)
     from controller.atomic_files import write_text_atomically
     write_text_atomically(json_path, json.dumps(out, indent=1) + "\n")
-    if filt.repeated:
-        click.echo(f"fishfarm demand: {filt.repeated} rows repeated a contact of the same sensor at the same "
+    if repeated:
+        click.echo(f"fishfarm demand: {repeated} rows repeated a contact of the same sensor at the same "
                    "instant: each counted once", err=True)
     if filt.ignored:
         names = ", ".join(f"{t}/{s}" for t, s in sorted(filt.unknown)[:10])

@@ -84,13 +84,13 @@ class Guard:
                     tripped: bool = False) -> ExcCodes | None:
         """``tripped``: the connection already tripped the latches for this very frame."""
         plan = self.check(kind, address, values)
+        received = {"table": kind, "address": address, "values": [int(v) for v in values[:MAX_AUDITED]]}
         if isinstance(plan, Refusal):
             self.refused += 1
             # audited as every refusal is, with the write as received (its first words)
             self.controller.overrides.refused_on_wire(
                 plan.command, f"{plan.error} (exception {int(plan.code):02X})", self.scada.identity,
-                {"table": kind, "address": address, "values": [int(v) for v in values[:MAX_AUDITED]]},
-                origin=f"modbus {peer}")
+                received, origin=f"modbus {peer}")
             return plan.code
         self.accepted += 1
         origin = f"modbus {peer}"
@@ -101,8 +101,7 @@ class Guard:
                 # latch never held. The e-stop stands; the reset is a write of its own (exception 04)
                 self.controller.overrides.refused_on_wire(
                     "reset", "in the same write as an e-stop: a reset is a write of its own (exception 04)",
-                    self.scada.identity, {"table": kind, "address": address,
-                                          "values": [int(v) for v in values[:MAX_AUDITED]]}, origin=origin)
+                    self.scada.identity, received, origin=origin)
                 self.coordinator.refresh()
                 return ExcCodes.DEVICE_FAILURE
             if not await self._act(entry, value, origin, last=i == len(plan) - 1, tripped=tripped):
