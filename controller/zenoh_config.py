@@ -70,6 +70,9 @@ def client_config(connect: str, user: str | None = None, password: str | None = 
     """A short-lived tool's session: connect to one endpoint, listen nowhere, scout nothing.
     ``ca``: the certificate (PEM) that signed a ``tls/...`` endpoint's. A malformed endpoint is
     BadInput naming ``option`` (the command's own: a survey's is --workers)."""
+    if (user is None) != (password is None):    # Zenoh refused the half login, and a worker retried for good
+        given, missing = ("--user", "--password") if password is None else ("--password", "--user")
+        raise BadInput(missing, None, f"{given} was given without {missing}: a login needs both")
     port = re.fullmatch(r"(?:tcp|tls|udp|quic)/.*:(\d+)(?:#.*)?", connect)
     if port is not None and not 1 <= int(port.group(1)) <= 65535:      # Zenoh took it, then retried for good
         raise BadInput(option, None, f"{connect}: port {port.group(1)} is outside 1..65535")

@@ -35,6 +35,8 @@ log = logging.getLogger("fishfarm.worker")
 SITE = re.compile(r"^[A-Za-z0-9_-]{1,64}$")
 CALIBRATIONS_KEPT = 8
 FETCH_TIMEOUT_S = 5.0
+ID_CHECK_S = 1.0         # a liveliness get's wait for an answer
+ID_FREED_S = 3.0         # a killed predecessor's token goes when its link closes: well within this
 
 
 def node_key(site: str, worker_id: str) -> str:
@@ -66,11 +68,24 @@ class Worker:
         self._declared: list = []
 
     def start(self) -> None:
+        """Declares the queryable and the token; BadInput (``--id``) when another worker already
+        serves under this name: a get reaches both, so every job was measured twice (an outside
+        tester: 3x slower). A restarted worker's predecessor gets ID_FREED_S to vanish."""
         key = node_key(self.site, self.id)
+        deadline = time.monotonic() + ID_FREED_S
+        while self._name_taken(key):
+            if time.monotonic() >= deadline:
+                raise BadInput("--id", None, f"{self.id!r}: another worker serves as {key} (two of one name "
+                                             "would both measure every job): stop it or give another --id")
+            time.sleep(0.25)
         # the queryable first: a worker seen alive can always be asked
         self._declared.append(self.session.declare_queryable(
             f"{key}/pair", lambda q: self.inbox.put((q, time.perf_counter()))))
         self._declared.append(self.session.liveliness().declare_token(key))
+
+    def _name_taken(self, key: str) -> bool:
+        replies = self.session.liveliness().get(key, timeout=ID_CHECK_S)
+        return any(r.ok is not None for r in replies)
 
     def serve(self, stop: threading.Event) -> None:
         while not stop.is_set():

@@ -377,6 +377,36 @@ def test_worker_command_refuses_bad_options(capsys):
     assert all("--id" in line and repr(i) in line for line, i in zip(err[5:], ids, strict=True))
 
 
+def test_a_login_given_by_half_is_refused_naming_the_missing_option(capsys):
+    # --user alone logged in with an empty password, was refused, and the worker retried for ever
+    assert fishfarm_main(["worker", "--user", "worker", "--connect", "tcp/127.0.0.1:9"]) == 2
+    assert fishfarm_main(["worker", "--password", "pw", "--connect", "tcp/127.0.0.1:9"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 2, err
+    assert "--password" in err[0] and "--user was given" in err[0], err
+    assert "--user" in err[1] and "--password was given" in err[1], err
+
+
+def test_a_second_worker_under_a_taken_name_is_refused_and_a_restarted_one_is_not(hub, workers):
+    # two workers of one --id both answered every job (each measured twice, 3x slower)
+    session, endpoint, site = hub
+    first = workers.start(endpoint, site, "dup")
+    workers.wait_alive(session, site, "dup")
+    workers.procs["dup-2"] = second = subprocess.Popen(
+        [FISHFARM, "worker", "--connect", endpoint, "--site", site, "--id", "dup"],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+        env={**os.environ, "PYTHONPATH": str(Path(__file__).resolve().parents[3])})
+    _, err = second.communicate(timeout=WAIT_S + 10)
+    lines = [ln for ln in err.splitlines() if ln.strip()]
+    assert second.returncode == 2 and "--id" in lines[-1] and "'dup'" in lines[-1], err
+    assert first.poll() is None                      # the one serving is left alone
+    first.kill()                                     # a service restarted after a crash: same name
+    first.wait(timeout=WAIT_S)
+    workers.start(endpoint, site, "dup")
+    workers.wait_alive(session, site, "dup")
+    assert workers.procs["dup"].poll() is None
+
+
 def test_the_controller_measures_through_its_own_bus_session(rendered, workers):
     # the scheduled surveys run in the controller: its Bus (peer, listening) is the workers' hub
     from controller.bus import Bus
