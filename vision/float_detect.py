@@ -24,7 +24,7 @@ tracker's prediction) searches that window of the pond first.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from functools import lru_cache
 
 import cv2
@@ -73,6 +73,7 @@ class FloatFix:
     heading_rad: float
     confidence: float       # 0..1
     heading_known: bool = True   # False: the orange disc alone (its blue not made out); heading a guess
+    others: tuple[tuple[float, float], ...] = ()   # other whole markers in the same search (pond x, y)
 
 
 @lru_cache(maxsize=8)
@@ -105,10 +106,13 @@ def _mask(hsv: np.ndarray, band, share: float) -> np.ndarray:
 
 
 def _search(frame: np.ndarray, H: np.ndarray, params: FloatParams, box: tuple[int, int, int, int],
-            scale: int, guided: bool = False) -> FloatFix | None:
+            scale: int, guided: bool = False, centre: np.ndarray | None = None) -> FloatFix | None:
     """The float in pixel window ``box`` (searched ``scale`` times downscaled): the discs as blobs and
     paired; else the blue disc looked for round an orange one (float_blue.py), or the orange one round
-    a blue one; with ``guided`` (the tracker's window) an orange disc alone gives the position."""
+    a blue one; with ``guided`` (the tracker's window) an orange disc alone gives the position.
+    Of two whole markers, the one nearest ``centre`` (the track's prediction) is the fix and the
+    other is among its ``others``: a spare float beside ours, both in the window, was taken by its
+    score."""
     u0, v0, u1, v1 = box
     crop = frame[v0:v1, u0:u1]
     if scale > 1:
@@ -121,20 +125,16 @@ def _search(frame: np.ndarray, H: np.ndarray, params: FloatParams, box: tuple[in
     share = WATER_SHARE_FRAME if whole else WATER_SHARE_WINDOW
     blues = _discs(H, _mask(hsv, params.blue_hsv, share), origin, scale, params.blue_diameter_m, params)
     oranges = _discs(H, _mask(hsv, params.orange_hsv, share), origin, scale, params.orange_diameter_m, params)
-    best, best_score = None, 0.0
     pairs = []
     for o in oranges:
         for b in blues:
             d = b.centre - o.centre
             off = abs(math.hypot(*d) - params.spacing_m) / params.spacing_tol_m
-            if off >= 1:
-                continue
-            score = o.conf * b.conf * (1 - 0.5 * off * off)
-            pairs.append((score, o.centre))
-            if score > best_score:
-                best, best_score = (o.centre, d), score
-    if not guided and _two_floats(pairs, best_score, params):
+            if off < 1:
+                pairs.append((o.conf * b.conf * (1 - 0.5 * off * off), o.centre, d))
+    if not guided and _two_floats(pairs, params):
         return None                  # which is ours? Not a guess: a dropout until one is tracked
+    best, best_score, others = _chosen(pairs, params, centre)
     known = True
     if best is None:
         best, best_score = _round_orange(frame, H, params, oranges)
@@ -148,17 +148,30 @@ def _search(frame: np.ndarray, H: np.ndarray, params: FloatParams, box: tuple[in
         return None
     c, d = best
     return FloatFix(float(c[0]), float(c[1]), _wrap(math.atan2(d[1], d[0])), float(np.clip(best_score, 0, 1)),
-                    known)
+                    known, others)
 
 
-def _two_floats(pairs: list[tuple[float, np.ndarray]], best_score: float, params: FloatParams) -> bool:
+def _chosen(pairs: list, params: FloatParams, centre: np.ndarray | None):
+    """((centre, orange -> blue), score, others) of the marker taken from ``pairs`` (score, centre,
+    offset): the surest, or with ``centre`` the nearest it among those nearly as sure (then the
+    surest pairing of that marker's discs); ``others``: the rest of those, markers apart from it."""
+    if not pairs:
+        return None, 0.0, ()
+    top = max(p[0] for p in pairs)
+    sure = [p for p in pairs if p[0] >= 0.5 * top]
+    pick = max(sure, key=lambda p: p[0])
+    if centre is not None:
+        near = min(sure, key=lambda p: float(np.linalg.norm(p[1] - centre)))
+        pick = max((p for p in sure if np.linalg.norm(p[1] - near[1]) <= 2 * params.spacing_m), key=lambda p: p[0])
+    others = tuple((float(p[1][0]), float(p[1][1])) for p in sure
+                   if np.linalg.norm(p[1] - pick[1]) > 2 * params.spacing_m)
+    return (pick[1], pick[2]), pick[0], others
+
+
+def _two_floats(pairs: list, params: FloatParams) -> bool:
     """Two whole markers in view, apart and nearly as sure: the search of the whole frame cannot
     tell the cleaner's (a probe's static second float was tracked with full confidence, 10 m off)."""
-    if len(pairs) < 2:
-        return False
-    _, first = max(pairs, key=lambda p: p[0])
-    return any(score >= 0.5 * best_score and np.linalg.norm(centre - first) > 2 * params.spacing_m
-               for score, centre in pairs)
+    return bool(_chosen(pairs, params, None)[2])
 
 
 def _round_orange(frame, H, params: FloatParams, oranges: list[_Disc]):
@@ -252,7 +265,7 @@ def _window(frame, H, params, x, y, r, guided: bool = False) -> FloatFix | None:
         return None
     area = (box[2] - box[0]) * (box[3] - box[1])
     scale = 1 if area <= 0.15 * frame.shape[0] * frame.shape[1] else _scale(frame, H, params)
-    fix = _search(frame, H, params, box, scale, guided)
+    fix = _search(frame, H, params, box, scale, guided, np.array([x, y]) if guided else None)
     return _refined(frame, H, params, fix) if scale > 1 else fix
 
 
@@ -261,7 +274,21 @@ def _refined(frame, H, params, fix: FloatFix | None) -> FloatFix | None:
     if fix is None:
         return None
     again = _window(frame, H, params, fix.x_m, fix.y_m, params.spacing_m + params.orange_diameter_m)
-    return again if again is not None and (again.heading_known or not fix.heading_known) else fix
+    if again is None or not (again.heading_known or not fix.heading_known):
+        return fix
+    return replace(again, others=fix.others)
+
+
+def _scanned(frame, H, params, fix: FloatFix) -> FloatFix:
+    """``fix`` with every other whole marker of the frame among its ``others`` (the tracker keeps
+    them as spares: a spare 1 m off took the track while ours was hidden for 2.5 s)."""
+    h, w = frame.shape[:2]
+    seen = _search(frame, H, params, (0, 0, w, h), _scale(frame, H, params), True, np.array([fix.x_m, fix.y_m]))
+    if seen is None:
+        return fix
+    found = list(seen.others) + ([(seen.x_m, seen.y_m)] if seen.heading_known else [])
+    apart = [xy for xy in found if math.hypot(xy[0] - fix.x_m, xy[1] - fix.y_m) > 2 * params.spacing_m]
+    return replace(fix, others=fix.others + tuple(apart))
 
 
 def _scale(frame, H, params) -> int:
@@ -271,16 +298,17 @@ def _scale(frame, H, params) -> int:
 
 
 def detect_float(frame_bgr: np.ndarray, H: np.ndarray, params: FloatParams = FloatParams(), *,
-                 near: tuple[float, float, float] | None = None) -> FloatFix | None:
+                 near: tuple[float, float, float] | None = None, scan: bool = False) -> FloatFix | None:
     """The float in a BGR frame, or None (a dropout). ``near=(x_m, y_m, radius_m)``: look there first;
-    there (only) an orange disc whose blue is not made out gives a fix with ``heading_known`` False."""
+    there (only) an orange disc whose blue is not made out gives a fix with ``heading_known`` False.
+    ``scan``: a fix found there also lists the frame's other whole markers (a whole-frame pass)."""
     if frame_bgr.ndim != 3 or frame_bgr.shape[2] != 3:
         raise ValueError(f"expected a colour (h, w, 3) frame, got shape {frame_bgr.shape}")
     H = np.asarray(H, dtype=float)
     if near is not None:
         fix = _window(frame_bgr, H, params, *near, guided=True)
         if fix is not None:
-            return fix
+            return _scanned(frame_bgr, H, params, fix) if scan else fix
     h, w = frame_bgr.shape[:2]
     scale = _scale(frame_bgr, H, params)
     fix = _search(frame_bgr, H, params, (0, 0, w, h), scale)

@@ -80,7 +80,8 @@ class FloatTracker:
                  accel_std: float = 1.5, yaw_accel_std: float = 0.6, gate: float = 13.8,
                  reinit_after: int = 3, max_speed_m_s: float = MAX_SPEED_M_S, reinit_std_m: float = 1.0,
                  min_confidence: float = 0.15, reach_m: float = 0.6, turn: float = 1.0,
-                 max_heading_std_rad: float = 0.12, slack_m: float = 0.25):
+                 max_heading_std_rad: float = 0.12, slack_m: float = 0.25, scan_every_s: float = 2.0,
+                 spare_radius_m: float = 0.5, spare_memory_s: float = 120.0):
         if not lost_after_s > 0:
             raise ValueError("lost_after_s must be > 0")
         if reinit_after < 1:
@@ -91,6 +92,9 @@ class FloatTracker:
         self.gate, self.reinit_after, self.max_speed_m_s = gate, reinit_after, max_speed_m_s
         self.reinit_std_m, self.min_confidence, self.reach_m = reinit_std_m, min_confidence, reach_m
         self.turn, self.max_heading_std_rad, self.slack_m = turn, max_heading_std_rad, slack_m
+        self.scan_every_s, self.spare_radius_m, self.spare_memory_s = scan_every_s, spare_radius_m, spare_memory_s
+        self._spares: list[tuple[float, float, float]] = []   # (x, y, last seen): markers not ours
+        self._scan_t = -math.inf
         self.kf: KalmanFilter | None = None
         self._t: float | None = None          # time the filter stands at
         self._fix_t = -math.inf               # time of the last fix taken
@@ -110,6 +114,7 @@ class FloatTracker:
         self.kf, self._t, self._fix_t, self._held = kf, t, t, []
         self._fix_xy = (fix.x_m, fix.y_m)
         self.state = "tracking"
+        self._note_spares(t, fix)
 
     def _predict(self, dt: float) -> None:
         """Coordinated turn: the velocity turns at the heading's rate (a robot goes where it faces,
@@ -171,14 +176,47 @@ class FloatTracker:
                  + 3 * self.pos_std_m / max(fix.confidence, 1e-3))
         return math.hypot(fix.x_m - self._fix_xy[0], fix.y_m - self._fix_xy[1]) <= reach
 
+    def _note_spares(self, t: float, fix: FloatFix) -> None:
+        """Markers seen beside ours in a fix taken: spares (another cleaner's float, one lying by)."""
+        # none where ours is: two markers do not lie in one place (a spare taken away, ours there now)
+        keep = [sp for sp in self._spares if t - sp[2] <= self.spare_memory_s
+                and math.hypot(sp[0] - fix.x_m, sp[1] - fix.y_m) > self.spare_radius_m]
+        for x, y in fix.others:
+            keep = [sp for sp in keep if math.hypot(sp[0] - x, sp[1] - y) > self.spare_radius_m]
+            keep.append((x, y, t))
+        self._spares = keep
+
+    def _at_spare(self, t: float, fix: FloatFix) -> bool:
+        return any(t - st <= self.spare_memory_s and math.hypot(fix.x_m - x, fix.y_m - y) <= self.spare_radius_m
+                   for x, y, st in self._spares)
+
+    def _in_place(self, fix: FloatFix) -> bool:
+        """The fix is where the float is predicted, within a fix's error and the slack."""
+        return (math.hypot(fix.x_m - self.kf.x[0], fix.y_m - self.kf.x[2])
+                <= self.slack_m + 3 * self.pos_std_m / max(fix.confidence, 1e-3))
+
     # -- public --------------------------------------------------------------------------------
+    def wants_scan(self, t_s: float) -> bool:
+        """Whether this frame's detection should also list the frame's other markers
+        (``detect_float(scan=True)``): every ``scan_every_s`` while tracking. Answering yes counts
+        as the scan done."""
+        if self.kf is None or self.state != "tracking" or t_s - self._scan_t < self.scan_every_s:
+            return False
+        self._scan_t = t_s
+        return True
+
     def step(self, t_s: float, fix: FloatFix | None) -> FloatTrack:
-        """Advance to ``t_s`` and take ``fix`` (None: the float was not seen in this frame)."""
+        """Advance to ``t_s`` and take ``fix`` (None: the float was not seen in this frame).
+
+        A fix at a spare (a marker once seen beside ours, ``FloatFix.others``) is taken only where
+        ours is predicted: it never starts or restarts the track; nor is a fix whose heading jumped
+        away from where ours is predicted taken as a spin (a spare 1 m off at right angles was)."""
         t_s = float(t_s)
         if fix is not None and not fix.confidence >= self.min_confidence:
             fix = None
+        spare = fix is not None and self._at_spare(t_s, fix)
         if self.kf is None or self.state == "lost":
-            if fix is not None and fix.heading_known:
+            if fix is not None and fix.heading_known and not spare:
                 self._start(t_s, fix)
             else:
                 self._t = t_s
@@ -191,12 +229,13 @@ class FloatTracker:
         if fix is not None:
             z, R = self._measure(fix)
             d_pos, d_heading = self._distance2(z, R)
-            if d_pos <= self.gate and self._reachable(t_s, fix):
+            jumped = fix.heading_known and d_heading > self.gate
+            if d_pos <= self.gate and self._reachable(t_s, fix) and (self._in_place(fix) or not (jumped or spare)):
                 if not fix.heading_known:
                     self.kf.update(z[:2], R=R[:2, :2], H=_MEASURE[:2])
                     taken = self.heading_std() <= self.max_heading_std_rad
                 else:
-                    if d_heading > self.gate:
+                    if jumped:
                         self._turned(z, R)
                     self.kf.update(z, R=R)
                     taken = True
@@ -205,7 +244,8 @@ class FloatTracker:
                 if taken:
                     self._fix_t = t_s
                     self._fix_xy = (float(self.kf.x[0]), float(self.kf.x[2]))
-            elif fix.heading_known:
+                    self._note_spares(t_s, fix)
+            elif fix.heading_known and not spare:
                 self._held.append((t_s, fix))
                 # the run's first fix judged at its own time: a float it follows could have been
                 # there by then (judged at the latest, the whole hold counted as travel time)
@@ -250,6 +290,8 @@ class FloatTracker:
 def track_frame(tracker: FloatTracker, t_s: float, frame_bgr: np.ndarray, H: np.ndarray,
                 params: FloatParams | None = None) -> tuple[FloatTrack, FloatFix | None]:
     """One camera frame through detection and tracking, as the controller and ``fishfarm track`` run it:
-    the detector looks first where the tracker expects the float at this frame's time."""
-    fix = detect_float(frame_bgr, H, params or FloatParams(), near=tracker.search_region(t_s))
+    the detector looks first where the tracker expects the float at this frame's time (and now and
+    then over the whole frame for spares)."""
+    fix = detect_float(frame_bgr, H, params or FloatParams(), near=tracker.search_region(t_s),
+                       scan=tracker.wants_scan(t_s))
     return tracker.step(t_s, fix), fix

@@ -105,7 +105,8 @@ class Cleaner(ThrusterLink):
                 near = self.tracker.search_region(frame.t)   # looked for where it will be now
                 fix = None
                 if self._picture_usable(frame):
-                    fix = await loop.run_in_executor(pool, self.detector, frame.image, near)
+                    scan = self.tracker.wants_scan(frame.t)    # now and then the whole frame, for spares
+                    fix = await loop.run_in_executor(pool, self.detector, frame.image, near, scan)
                 await self.on_track(self.tracker.step(frame.t, fix))
         finally:
             pool.shutdown(wait=False, cancel_futures=True)

@@ -125,8 +125,8 @@ def build(prep: Prepared, camera, thrusters, store, clock, publish, *, alarms, l
     back = resume(store, course, prep.plan, lambda data: CoverageMap.from_bytes(geom, data, **map_args),
                   estop_standing="estop" in alarms.active, autostart=s.autostart)
 
-    def detector(image, near):
-        return detect_float(image, prep.H, prep.float_params, near=near)
+    def detector(image, near, scan=False):
+        return detect_float(image, prep.H, prep.float_params, near=near, scan=scan)
     fence = Geofence.for_pond(geom, s.body_radius_m)
     return Cleaner(camera, thrusters, detector, FloatTracker(lost_after_s=s.lost_after_s), prep.plan,
                    back.follower, back.map, store, clock, publish, alarms=alarms, lane=lane, course=course,

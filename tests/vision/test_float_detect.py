@@ -265,3 +265,36 @@ def test_two_whole_floats_in_view_are_no_fix_unless_one_is_tracked():
     lone = fd.water(VIEW, 5)
     fd.float_marker(lone, VIEW, *ours)
     check(detect_float(lone, VIEW.H), ours)
+
+
+@pytest.mark.parametrize("spare, guess", [((7.0, 4.2, 1.6), (6.2, 4.0)), ((5.1, 4.5, -1.6), (5.9, 4.0)),
+                                          ((6.0, 5.0, 3.0), (6.0, 4.2))])
+def test_of_two_floats_in_the_tracker_s_window_the_one_it_expects_is_the_fix_and_the_other_is_listed(spare, guess):
+    """A spare float 1 m from ours, both in the window round the prediction: the fix was the surer of
+    the two, which could be the spare (an outside tester's track followed it for good)."""
+    ours = (6.0, 4.0, 0.0)
+    img = fd.water(VIEW, 8)
+    fd.float_marker(img, VIEW, *ours)
+    fd.float_marker(img, VIEW, *spare)
+    fix = detect_float(img, VIEW.H, near=(*guess, 2.5))
+    check(fix, ours)
+    assert len(fix.others) == 1 and math.hypot(fix.others[0][0] - spare[0], fix.others[0][1] - spare[1]) < 0.1
+    near_spare = detect_float(img, VIEW.H, near=(spare[0], spare[1], 2.5))
+    check(near_spare, spare)
+    assert math.hypot(near_spare.others[0][0] - ours[0], near_spare.others[0][1] - ours[1]) < 0.1
+
+
+def test_a_scan_lists_the_frame_s_other_floats_beyond_the_window():
+    ours, spares = (6.0, 4.0, 0.5), [(15.0, 7.0, 2.0), (3.0, 8.0, -2.5)]
+    img = fd.water(VIEW, 9)
+    for pose in (ours, *spares):
+        fd.float_marker(img, VIEW, *pose)
+    quiet = detect_float(img, VIEW.H, near=(6.05, 3.95, 0.8))
+    check(quiet, ours)
+    assert quiet.others == ()                          # the window holds ours alone
+    scanned = detect_float(img, VIEW.H, near=(6.05, 3.95, 0.8), scan=True)
+    check(scanned, ours)
+    assert sorted((round(x), round(y)) for x, y in scanned.others) == sorted((x, y) for x, y, _ in spares), scanned
+    lone = fd.water(VIEW, 9)
+    fd.float_marker(lone, VIEW, *ours)
+    assert detect_float(lone, VIEW.H, near=(6.05, 3.95, 0.8), scan=True).others == ()

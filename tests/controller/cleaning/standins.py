@@ -138,7 +138,7 @@ class Detector:
     def __init__(self):
         self.threads = set()
 
-    def __call__(self, image, near):
+    def __call__(self, image, near, scan=False):
         self.threads.add(threading.current_thread())
         return None if image is None else Fix(*image, 0.9)
 
@@ -161,6 +161,9 @@ class CoastingTracker:
     def __init__(self, lost_after_s=2.0):
         self.lost_after_s = lost_after_s
         self.last: tuple | None = None
+
+    def wants_scan(self, t):
+        return False
 
     def step(self, t, fix):
         if fix is not None:

@@ -308,11 +308,11 @@ def test_a_run_that_crashed_can_be_run_again_as_the_supervisor_does(tmp_path):
         real = r.cleaner.detector
         calls = []
 
-        def flaky(image, near):
+        def flaky(image, near, scan=False):
             calls.append(1)
             if len(calls) == 1:
                 raise RuntimeError("a bug in detection")
-            return real(image, near)
+            return real(image, near, scan)
         r.cleaner.detector = flaky
         r.camera.feed(poses(PATH[:1]))
         with pytest.raises(RuntimeError):
