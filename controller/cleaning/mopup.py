@@ -109,17 +109,32 @@ def _tiles(cmap, cells: np.ndarray) -> list[np.ndarray]:
     return np.split(cells[order], np.flatnonzero(np.diff(tile[order])) + 1)
 
 
+def _room_axis(room, cells_axis: float) -> float:
+    """The direction passes run in: the long side of the room for the robot's centre when that room
+    is long and thin (by a wall, the room is a few centimetres wide, and lines along the cells' own
+    axis, a cell's tilt off the wall, only cut its corners: an outside tester's 1 m strip by a wall
+    stayed dirty, "out of reach"); else the cells' own long axis."""
+    rect = room.minimum_rotated_rectangle
+    if rect.geom_type != "Polygon":
+        return cells_axis
+    a, b, c = np.asarray(rect.exterior.coords)[:3]
+    sides = sorted((b - a, c - b), key=lambda v: float(np.hypot(*v)))
+    if np.hypot(*sides[1]) < 2 * np.hypot(*sides[0]):
+        return cells_axis
+    return math.atan2(sides[1][1], sides[1][0])
+
+
 def _patch_passes(cmap, cells: np.ndarray, drive, brush: float, spacing: float) -> list[Pass]:
     """The passes over one patch (module docstring)."""
     rows, cols = np.unravel_index(cells, cmap.first_m.shape)
     xy = _centres(cmap, rows, cols)
-    angle = _axis(xy)
-    c, s = math.cos(angle), math.sin(angle)
-    along, across = xy @ [c, s], xy @ [-s, c]
     half = brush / 2
     room = drive.intersection(shapely.union_all(shapely.buffer(shapely.points(xy), half - 1e-3)))
     if room.is_empty:
         return []
+    angle = _room_axis(room, _axis(xy))
+    c, s = math.cos(angle), math.sin(angle)
+    along, across = xy @ [c, s], xy @ [-s, c]
     rot = affinity.rotate(room, -angle, origin=(0, 0), use_radians=True)
     lo, hi = rot.bounds[1] + 1e-3, rot.bounds[3] - 1e-3
     n = max(1, math.ceil((across.max() - across.min() + cmap.cell_m) / spacing))
@@ -206,8 +221,9 @@ class MopUp:
             return
         if not plan.passes:
             cmap.mopup["done"] = True
-        log.info("cleaner: mop-up of %d passes, %.1f m, over %d dirty cells (%d out of reach)",
-                     len(plan.passes), plan.length_m, plan.aimed, plan.out_of_reach)
+        log.info("cleaner: mop-up of %d passes, %.1f m, over %d dirty cells (%d out of its reach: specks of "
+                 "under %d cells, floor by keep-outs within its margin or in corners)",
+                 len(plan.passes), plan.length_m, plan.aimed, plan.out_of_reach, MIN_CELLS)
 
     @property
     def done(self) -> bool:

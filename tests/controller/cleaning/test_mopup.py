@@ -89,6 +89,36 @@ def test_the_plan_driven_brushes_every_generated_patch_and_stays_in_the_plans_sp
         assert m.cleaned().flat[p].all()
 
 
+@pytest.mark.parametrize("tilt", [0, 1, -1])
+def test_a_strip_by_a_wall_brushed_only_from_the_edge_of_the_plans_space_is_mopped(tilt):
+    """An outside tester's L-shaped pond: a strip of cells 0.25 m from a wall, brushed only by a
+    centre at the edge of the space the plan keeps to (a few cm wide there), one cell of it a step
+    off the line: the passes ran along the cells' tilted axis, cut only that room's corners, and
+    the strip was left "out of reach". Along each wall, with a cell a step off either way."""
+    for wall in ("west", "south", "east", "north"):
+        m = clean_map()
+        k = np.arange(10, 21)
+        rows, cols = {"west": (k, np.full_like(k, 2)), "east": (k, np.full_like(k, 117)),
+                      "south": (np.full_like(k, 2), k + 40), "north": (np.full_like(k, 77), k + 40)}[wall]
+        rows, cols = rows.copy(), cols.copy()
+        inward = {"west": (0, 1), "east": (0, -1), "south": (1, 0), "north": (-1, 0)}[wall]
+        if tilt:
+            end = 0 if tilt > 0 else -1
+            rows[end], cols[end] = rows[end] + inward[0], cols[end] + inward[1]
+        xy = cell_xy(m, rows, cols)
+        edge = DRIVE.boundary.distance(shapely.points(xy))
+        assert np.all(edge < BRUSH / 2 - mopup.REACH_TOL) and not shapely.contains_xy(DRIVE, xy[:, 0], xy[:, 1]).any()
+        flat = np.ravel_multi_index((rows, cols), m.first_m.shape)
+        m.first_m.flat[flat] = np.inf
+        plan = mopup.plan_mopup(m, DRIVE, ROUTER, (6.0, 4.0), brush_m=BRUSH, spacing_m=SPACING, max_m=1000.0,
+                                min_yield=0)
+        assert plan.aimed == len(flat) and plan.out_of_reach == 0, (wall, plan.aimed, plan.out_of_reach)
+        for p in plan.passes:
+            assert DRIVE.buffer(1e-6).covers(LineString([p.a, p.b]))
+        drive_exactly(m, plan.path)
+        assert m.cleaned().flat[flat].all(), wall
+
+
 def test_dirt_out_of_the_plans_reach_and_specks_are_left_alone():
     m = clean_map()
     rows, cols = np.nonzero(m.reachable)
