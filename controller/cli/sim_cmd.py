@@ -76,7 +76,18 @@ def sim(config_path, endpoints, truth, speed, epoch_wall, epoch_farm, clock_path
         loop.add_signal_handler(signal.SIGUSR1, lambda: farm.dispenser and farm.dispenser.power_cycle())
         ears = None
         try:
-            found = await farm.start()
+            # a signal during start-up ends it there (it waited for every device up, then overran
+            # SIM_STOP_S: exit 70 "stopping took longer than 1 s")
+            starting = asyncio.create_task(farm.start())
+            stopping = asyncio.create_task(stop.wait())
+            await asyncio.wait((starting, stopping), return_when=asyncio.FIRST_COMPLETED)
+            if not starting.done():
+                starting.cancel()
+                with contextlib.suppress(asyncio.CancelledError):
+                    await starting
+                return
+            stopping.cancel()
+            found = starting.result()
             tmp = Path(endpoints).with_suffix(".tmp")
             tmp.write_text(json.dumps(found, indent=2))
             os.replace(tmp, endpoints)            # readers never see half a file

@@ -11,9 +11,11 @@ closed-form motion, at the instants the carriage passes a tank mouth's or the fo
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import logging
 import random
 import tempfile
+import threading
 from itertools import pairwise
 from pathlib import Path
 from typing import Any
@@ -94,6 +96,27 @@ def _check_on_rail(cfg: Any, rail: SimRailParams) -> None:
             raise BadInput(cfg.path, f"tanks.{k}.position_m",
                            f"tank {cfg.tanks[k].id!r} is {b - a:g} m from tank {cfg.tanks[min(i, j)].id!r}: the "
                            f"simulated tanks' mouths ({TANK_MOUTH_M:g} m each side) would overlap")
+
+
+async def _on_daemon_thread(fn, *args, **kwargs):
+    """``fn(*args, **kwargs)`` on a daemon thread, awaited. Not asyncio.to_thread: its executor is
+    joined as the loop closes, so a stop during the drawing waited for the drawing to end."""
+    loop = asyncio.get_running_loop()
+    done = loop.create_future()
+
+    def settle(ok: bool, value) -> None:
+        if not done.done():
+            (done.set_result if ok else done.set_exception)(value)
+
+    def work() -> None:
+        try:
+            result, ok = fn(*args, **kwargs), True
+        except BaseException as exc:  # noqa: BLE001 - handed to the awaiting task as it is
+            result, ok = exc, False
+        with contextlib.suppress(RuntimeError):       # the loop has closed: nobody waits
+            loop.call_soon_threadsafe(settle, ok, result)
+    threading.Thread(target=work, name=f"sim-{getattr(fn, '__name__', 'work')}", daemon=True).start()
+    return await done
 
 
 class SimFarm:
@@ -278,8 +301,10 @@ class SimFarm:
         size = {"width": params.width, "height": params.height} if cameras else None
         # the pose trace goes to a truth file only: kept in memory it would grow all night
         trace = self.truth if self.truth.records is None else None
-        self.pond = build_pond(self.cfg, self.section.pond, self.clock, thrust, camera=size,
-                               truth=trace, where=where)
+        # on a thread: drawing the pond's still layers takes a second and more, and the loop must
+        # stay free to hear a stop (a SIGTERM during start-up overran SIM_STOP_S: exit 70)
+        self.pond = await _on_daemon_thread(build_pond, self.cfg, self.section.pond, self.clock, thrust,
+                                            camera=size, truth=trace, where=where)
         await self.pond.start()
         for name, section in cameras:
             self.camera = SimTowerCamera(self.pond.render, self.clock, params, host=section.get("host", "127.0.0.1"),

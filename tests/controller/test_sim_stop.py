@@ -111,3 +111,43 @@ def test_signals_while_stopping_do_not_cut_the_truth_log_short(tmp_path):
     assert rc == 0 and took < SIM_STOP_S, f"exit {rc} {took:.2f} s after SIGTERM:\n{log[-3000:]}"
     kinds = [json.loads(line)["kind"] for line in truth.read_text().splitlines()]
     assert kinds[-1] == "dispenser_total", kinds[-5:]
+
+
+
+def test_sigterm_during_start_up_ends_the_simulator_at_once_and_cleanly(tmp_path):
+    """Drawing the pond's still layers (a second and more; seconds for this 4K tower camera) ran on
+    the loop, so a SIGTERM then waited for it, overran the stop and exited 70 "stopping took longer
+    than 1 s". Signalled once its dispenser listens (started before the pond), it is still drawing."""
+    raw = tomllib.loads((ROOT / "config" / "farm.toml").read_text())
+    raw["bus"] = {"mode": "peer", "listen": [f"tcp/127.0.0.1:{free_port()}"], "connect": []}
+    raw["scada"]["port"] = 0
+    raw["store"] = {"path": str(tmp_path / "ledger.db")}
+    raw["sim"].setdefault("tower_camera", {}).update(width=3840, height=2160)
+    raw["devices"]["dispenser"]["port"] = port = free_port()
+    config = tmp_path / "farm.toml"
+    config.write_text(tomli_w.dumps(raw))
+    endpoints = tmp_path / "endpoints.json"
+    proc = subprocess.Popen([sys.executable, "-m", "controller.cli", "sim", "--config", str(config),
+                             "--endpoints", str(endpoints), "--speed", "600"],
+                            cwd=ROOT, stderr=open(tmp_path / "sim.log", "wb"))
+    try:
+        deadline = time.monotonic() + 60
+        while True:
+            assert proc.poll() is None and time.monotonic() < deadline, (tmp_path / "sim.log").read_text()
+            try:
+                socket.create_connection(("127.0.0.1", port), timeout=1.0).close()
+                break
+            except OSError:
+                time.sleep(0.005)
+        assert not endpoints.exists()
+        sent = time.monotonic()
+        proc.send_signal(signal.SIGTERM)
+        rc = proc.wait(timeout=30)
+        took = time.monotonic() - sent
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    log = (tmp_path / "sim.log").read_text(errors="replace")
+    assert rc == 0 and took < SIM_STOP_S, f"exit {rc} {took:.2f} s after SIGTERM:\n{log[-3000:]}"
+    assert not endpoints.exists() and "Traceback" not in log, log[-3000:]
