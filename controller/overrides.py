@@ -177,6 +177,8 @@ class Overrides(TankCommands):
                 reply = await act(payload, user)
             else:
                 reply = await self._once.run(name, request_id(payload), t, lambda: act(payload, user), payload)
+                if reply.get("repeat") and name == "feed":
+                    reply = self._feed_as_it_stands(reply)
         except Refused as exc:
             reply = {"ok": False, "error": str(exc)}
         except LedgerUnwritable as exc:      # said once by the store and the ledger alarm
@@ -335,7 +337,17 @@ class Overrides(TankCommands):
         demand_id = self.c.store.add_demand(cmd.tank, now, 0.0, source="operator", grams=grams)
         log.warning("feed %s %.0f g by %s: %s", cmd.tank, grams, by or cmd.operator, cmd.reason)
         robot.on_demand(Job(cmd.tank, now, demand_id, "operator", grams))
-        return {"ok": True, "grams": round(grams, 1)}
+        return {"ok": True, "grams": round(grams, 1), "demand": demand_id}
+
+    def _feed_as_it_stands(self, reply: dict) -> dict:
+        """A feed's remembered reply sent again, unless an e-stop withdrew that feed since: "ok" of it
+        told a client retrying after a lost reply that 50 g would go in, when none would."""
+        demand = reply.get("demand")
+        if demand is None or self.c.store.demand_outcome(demand) != "estop":
+            return reply
+        return {"ok": False, "withdrawn": True, "demand": demand,
+                "error": "request: that feed was withdrawn by an e-stop before its portion started; "
+                         "ask again after the reset, under a new request id"}
 
     async def ration(self, payload, by: str | None = None) -> dict:
         cmd = parse(SetRation, payload)

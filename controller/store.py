@@ -348,6 +348,10 @@ class Store(LedgerWrites, FeedRecords, Records, CleanerRecords, SurveyRecords, R
     def close_demand(self, demand_id: int, outcome: str, feed_id: str | None = None) -> None:
         self._write("UPDATE demand SET outcome = ?, feed_id = ? WHERE id = ?", (outcome, feed_id, demand_id))
 
+    def demand_outcome(self, demand_id: int) -> str | None:
+        row = self.db.execute("SELECT outcome FROM demand WHERE id = ?", (demand_id,)).fetchone()
+        return None if row is None else row["outcome"]
+
     def open_demands(self) -> list[sqlite3.Row]:
         return self.db.execute("SELECT * FROM demand WHERE outcome = 'open' ORDER BY t").fetchall()
 

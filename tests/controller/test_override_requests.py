@@ -66,6 +66,25 @@ def test_a_feed_sent_again_is_asked_of_the_robot_once(farm):
         ("T1", "operator", 30.0, "open")]
 
 
+@pytest.mark.parametrize("outcome", ["estop", "served", "open"])
+def test_a_feed_withdrawn_by_an_estop_is_no_ok_when_sent_again(farm, outcome):
+    """An outside tester: a feed accepted, withdrawn by an e-stop before its portion (its demand
+    closed 'estop'), sent again under its id after the reset: answered "ok", "repeat" of 50 g
+    that would never go in. Served or still waiting, the repeat stands."""
+    payload = {"tank": "T1", "grams": 30.0, "request": "feed-0002"}
+    first = send(farm, "feed", payload)
+    assert first["ok"] is True and isinstance(first["demand"], int)
+    if outcome != "open":
+        farm.store.close_demand(first["demand"], outcome)
+    again = send(farm, "feed", payload)
+    if outcome == "estop":
+        assert again["ok"] is False and again["withdrawn"] is True and "e-stop" in again["error"], again
+        assert "new request id" in again["error"]
+    else:
+        assert again == {**first, "repeat": True}
+    assert [c for c in farm.robot.calls if c[0] == "on_demand"] == [("on_demand", "T1", 30.0, "operator")]
+
+
 def test_two_copies_in_flight_at_once_are_carried_out_once(farm):
     class Slow(Overrides):
         async def mortality(self, payload, by=None):
