@@ -1,6 +1,6 @@
 """``fishfarm``'s entry point (pyproject's ``[project.scripts]``, and ``python -m controller.launch``,
-which the controller starts its simulator with): SIGINT and SIGTERM are taken before anything is
-imported, then ``controller.cli.entry`` runs the command with its own handlers. (``python -m
+which the controller starts its simulator with): SIGINT, SIGTERM and SIGHUP are taken before anything
+is imported, then ``controller.cli.entry`` runs the command with its own handlers. (``python -m
 controller.cli`` imports the package, click and all, before any line of ours runs.)
 
 The command's imports (click, the command's modules) take a tenth of a second and more: a Ctrl-C
@@ -24,6 +24,8 @@ def entry() -> None:
     if _signal.getsignal(_signal.SIGINT) is _signal.default_int_handler:   # not a background job's ignored one
         _signal.signal(_signal.SIGINT, _early)
     _signal.signal(_signal.SIGTERM, _early)
+    if _signal.getsignal(_signal.SIGHUP) == _signal.SIG_DFL:    # not nohup's ignored one
+        _signal.signal(_signal.SIGHUP, _early)    # (its default killed a starting controller: no word)
     from controller.cli import entry as command
     command()
 

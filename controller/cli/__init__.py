@@ -138,10 +138,10 @@ def _interrupted(signum, _frame) -> None:
 def _terminated(signum, _frame) -> None:
     """SIGTERM ends a command as Ctrl-C does, through its clean-up (a survey's workers stopped, no
     half-written output left); a second one ends it at once. Commands that serve (run, sim,
-    worker) install their own handlers over this one once they start. (SIGHUP keeps its default
-    here: this SystemExit, raised at a random point of a server, could leave Zenoh's threads
-    holding the process. ``run`` and ``sim`` handle SIGHUP as SIGTERM once they start, with
-    handlers that raise nothing: they wake the loop for the orderly stop, controller/shutdown.py.)"""
+    worker) install their own handlers over this one once they start, SIGHUP's too: ``run`` and
+    ``sim`` wake the loop for the orderly stop (controller/shutdown.py), raising nothing. Until
+    then SIGHUP is this one as well (its default killed a starting controller without a word,
+    its ledger's -wal left behind, an outside tester); nohup's ignored SIGHUP stays ignored."""
     signal.signal(signum, signal.SIG_DFL)
     raise SystemExit(128 + signum)
 
@@ -163,6 +163,8 @@ def entry() -> None:
     for name, value in NATIVE_LOGS.items():     # before any command imports cv2 (the controller,
         os.environ.setdefault(name, value)      # its simulator and survey workers all start here)
     signal.signal(signal.SIGTERM, _terminated)
+    if signal.getsignal(signal.SIGHUP) in (signal.SIG_DFL, _early_handler()):
+        signal.signal(signal.SIGHUP, _terminated)
     if signal.getsignal(signal.SIGINT) in (signal.default_int_handler, _early_handler()):
         signal.signal(signal.SIGINT, _interrupted)      # (not a background job's ignored one)
     sys.exit(main())

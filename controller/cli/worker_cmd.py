@@ -5,7 +5,7 @@
 
 It connects as a Zenoh client (no listening, no scouting) to the controller, a router, or a
 ``fishfarm survey --workers ENDPOINT`` listening there, waiting and retrying while nobody does, and
-serves until SIGINT/SIGTERM (or ``--duration``). ``--config``: site and endpoint from farm.toml's
+serves until SIGINT/SIGTERM/SIGHUP (or ``--duration``). ``--config``: site and endpoint from farm.toml's
 ``[bus]`` (its first listen endpoint). ``--cpu`` pins the process to those cores
 (``os.sched_setaffinity``): one worker per core is how to hold each to one. Keys and job format:
 controller/surveys/worker.py and wire.py, README "Vision workers".
@@ -88,8 +88,9 @@ def worker(connect, site, config_path, worker_id, cpu, user, password, duration,
     from controller.surveys.worker import Worker
     cv2.setNumThreads(1)
     stop = threading.Event()
-    for sig in (signal.SIGINT, signal.SIGTERM):
-        signal.signal(sig, lambda *_: stop.set())
+    for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP):
+        if signal.getsignal(sig) != signal.SIG_IGN:     # a background job's SIGINT, nohup's SIGHUP
+            signal.signal(sig, lambda *_: stop.set())
     if duration is not None:
         timer = threading.Timer(duration, stop.set)
         timer.daemon = True

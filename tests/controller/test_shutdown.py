@@ -253,14 +253,20 @@ def test_the_hil_harness_fails_a_run_whose_controller_needs_sigkill(tmp_path, mo
     h.ctl_proc.stdout.close()
 
 
-@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM], ids=["SIGINT", "SIGTERM"])
+def _hangup_default() -> None:
+    signal.signal(signal.SIGHUP, signal.SIG_DFL)      # as from a terminal, however the suite was started
+
+
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM, signal.SIGHUP], ids=["SIGINT", "SIGTERM", "SIGHUP"])
 @pytest.mark.parametrize("after_s", [0.0, 0.03, 0.1])
 def test_a_signal_while_the_command_is_still_importing_is_aborted_in_one_line(tmp_path, sig, after_s):
     """``fishfarm`` as installed: a Ctrl-C in its first tenth of a second (click and the command's
-    modules still importing) printed a 17-line KeyboardInterrupt traceback and exited -2."""
+    modules still importing) printed a 17-line KeyboardInterrupt traceback and exited -2. A hangup
+    then (a terminal closed as it started) killed it by its default action: no word, and a
+    starting controller's ledger -wal left behind (an outside tester)."""
     fishfarm = str(Path(sys.executable).with_name("fishfarm"))
     p = subprocess.Popen([fishfarm, "report", "--config", str(tmp_path / "none.toml"), "--tank", "T1"],
-                         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+                         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, preexec_fn=_hangup_default)
     # from the launcher's first line on (before it, the interpreter is still starting: its own
     # default actions, out of any program's reach): SIGTERM caught is the mark, the interpreter
     # catches SIGINT from the start
