@@ -108,16 +108,27 @@ def install_signal_handlers(controller) -> None:
     loop = asyncio.get_running_loop()
     controller.watchdog = StopWatchdog(HARD_STOP_S, controller.kill_sim)
     controller._signal_wakeup = wake_loop_on_signals(loop)
+    kept = ignored_signals()
 
     def on_signal(signum, frame):
         for sig in (signal.SIGINT, signal.SIGTERM):
-            signal.signal(sig, signal.SIG_DFL)
+            if sig not in kept:
+                signal.signal(sig, signal.SIG_DFL)
         controller.watchdog.arm()
         with contextlib.suppress(RuntimeError):          # the loop has already closed
             loop.call_soon_threadsafe(controller.begin_stop, signal.Signals(signum).name)
 
     for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP):
-        signal.signal(sig, on_signal)
+        if sig not in kept:
+            signal.signal(sig, on_signal)
+
+
+def ignored_signals() -> set[int]:
+    """SIGINT and SIGHUP where they are ignored, as they stay: a shell's background job ignores
+    SIGINT (a Ctrl-C at the terminal is not for it), nohup SIGHUP. The running controller caught
+    them all the same, so a background job's Ctrl-C was ignored while it started and stopped it
+    once it was up (an outside tester)."""
+    return {sig for sig in (signal.SIGINT, signal.SIGHUP) if signal.getsignal(sig) == signal.SIG_IGN}
 
 
 def wake_loop_on_signals(loop) -> tuple[socket.socket, socket.socket]:

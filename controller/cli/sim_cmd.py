@@ -122,7 +122,7 @@ def _stop_on_signals(loop, farm, stop: asyncio.Event) -> None:
     cameras at once, wakes the loop for the orderly stop (the truth log's closing records), and
     arms a watchdog that closes the truth log and ends the process if that stop overruns. Later
     signals change nothing: a SIGKILLed controller's threads each send one as they die."""
-    from controller.shutdown import StopWatchdog, wake_loop_on_signals
+    from controller.shutdown import StopWatchdog, ignored_signals, wake_loop_on_signals
 
     def overrun() -> None:
         farm.halt()
@@ -137,8 +137,10 @@ def _stop_on_signals(loop, farm, stop: asyncio.Event) -> None:
         with contextlib.suppress(RuntimeError):          # the loop has already closed
             loop.call_soon_threadsafe(stop.set)
 
+    kept = ignored_signals()
     for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP):
-        signal.signal(sig, on_signal)
+        if sig not in kept:
+            signal.signal(sig, on_signal)
 
 
 def elastic(path: str, slot: str):

@@ -73,6 +73,14 @@ class SilentPlc:
             conn.close()
 
 
+def as_from_a_terminal() -> None:
+    """SIGINT and SIGHUP at their defaults in the child, however this run was started: a shell's
+    background job (`make test &`) ignores SIGINT, nohup SIGHUP, and an ignored signal stays
+    ignored through exec — the controller keeps it so."""
+    for sig in (signal.SIGHUP, signal.SIGINT):
+        signal.signal(sig, signal.SIG_DFL)
+
+
 class RunningController:
     def __init__(self, workdir: Path, phase: str, *, speed: float = 1.0):
         self.dir = Path(workdir)
@@ -117,7 +125,8 @@ class RunningController:
             self.proc = subprocess.Popen(
                 [sys.executable, "-m", "controller.cli", "run", "--config", str(self.config), "--no-console",
                  "--speed", repr(self.speed)],
-                cwd=ROOT, stdout=log, stderr=subprocess.STDOUT, env=env, start_new_session=True)
+                cwd=ROOT, stdout=log, stderr=subprocess.STDOUT, env=env, start_new_session=True,
+                preexec_fn=as_from_a_terminal)
 
     def log(self) -> str:
         return self.log_path.read_text(errors="replace") if self.log_path.exists() else ""

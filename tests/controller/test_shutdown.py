@@ -344,3 +344,32 @@ def test_a_hub_that_opens_but_stays_silent_is_reopened_quietly(tmp_path, monkeyp
     loud = [r.getMessage() for r in caplog.records if r.levelno >= logging.INFO and "contacts" in r.getMessage()]
     assert loud == [], loud
     assert sum("reopened" in r.getMessage() for r in caplog.records) == 5
+
+
+def _disposition(pid: int, field: str, sig: int) -> bool:
+    with open(f"/proc/{pid}/status") as fh:
+        mask = next(int(line.split()[1], 16) for line in fh if line.startswith(field + ":"))
+    return bool(mask >> (sig - 1) & 1)
+
+
+@pytest.mark.parametrize("controller", ["feeding"], indirect=True)
+def test_a_background_job_s_ignored_sigint_and_nohup_s_sighup_stay_ignored_once_it_is_up(controller, monkeypatch):
+    """Started as `fishfarm run &` from a script (SIGINT ignored) under nohup (SIGHUP ignored): the
+    early handlers kept both ignored, then the running controller caught them, so a Ctrl-C meant for
+    the terminal was ignored while it started and stopped it once up (an outside tester). Judged
+    on the kernel's own record of the process's dispositions; SIGTERM still stops it."""
+    import tests.controller.shutdown_rig as rig
+
+    def background_under_nohup() -> None:
+        signal.signal(signal.SIGINT, signal.SIG_IGN)
+        signal.signal(signal.SIGHUP, signal.SIG_IGN)
+    monkeypatch.setattr(rig, "as_from_a_terminal", background_under_nohup)
+    controller.reach()                                    # up, serving, its auger running
+    pid = controller.proc.pid
+    assert _disposition(pid, "SigIgn", signal.SIGINT) and _disposition(pid, "SigIgn", signal.SIGHUP)
+    assert _disposition(pid, "SigCgt", signal.SIGTERM)
+    sim = controller.sim_pid
+    assert sim is not None and _disposition(sim, "SigIgn", signal.SIGINT)
+    assert _disposition(sim, "SigCgt", signal.SIGTERM)
+    rc = controller.wait_exit(controller.send(signal.SIGTERM))
+    assert rc == 0 and "controller stopped in" in controller.log(), controller.log()[-3000:]
