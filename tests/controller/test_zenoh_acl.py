@@ -38,7 +38,8 @@ def test_both_configs_load_with_multicast_off():
     ignored = subprocess.run(["git", "check-ignore", "-q", "config/zenoh/credentials.txt"], cwd=ROOT)
     assert ignored.returncode == 0
     users = {s["id"]: s["usernames"] for s in acl["subjects"]}
-    assert users == {"viewers": ["viewer"], "operators": ["operator"], "engineers": ["engineer"], "workers": ["worker"]}
+    assert users == {"viewers": ["viewer"], "operators": ["operator"], "engineers": ["engineer"], "workers": ["worker"],
+                     "controllers": ["controller"]}
 
 
 @pytest.fixture(scope="module")

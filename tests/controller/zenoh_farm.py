@@ -25,7 +25,7 @@ FISHFARM = str(Path(sys.executable).with_name("fishfarm"))
 WAIT_S = 10.0
 # person -> role: added to the role's subject beside the role's own login
 PEOPLE = {"ana": "operators", "erin": "engineers", "vic": "viewers"}
-ROLE_OF = {"viewer": "viewer", "operator": "operator", "engineer": "engineer", "controller": None,
+ROLE_OF = {"viewer": "viewer", "operator": "operator", "engineer": "engineer", "controller": "controller",
            "ana": "operator", "erin": "engineer", "vic": "viewer", "worker": "worker"}
 
 
