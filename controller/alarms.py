@@ -135,6 +135,18 @@ class Alarms:
         (log.error if severity == "critical" else log.warning)("%s: %s", source, text)
         return True
 
+    def retext(self, source: str, text: str, *, kind: str = GENERAL) -> bool:
+        """The standing ``(source, kind)``'s text refined (an e-stop's provisional reason named, a
+        latch confirmed): no raise, so no count. Returns whether it stood. Refined by ``raise_``, one
+        e-stop counted two or three."""
+        current = self.active.get((source, kind))
+        if current is None:
+            return False
+        text = printable(text, TEXT_MAX)
+        if current.text != text:
+            self._keep(replace(current, text=text, t_text=self.clock.now()), news=False)
+        return True
+
     def clear(self, source: str, text: str = "cleared", *, kind: str | None = None) -> bool:
         """Clear ``(source, kind)``, or with ``kind=None`` every alarm of ``source``. Returns True
         when something stood. A cleared alarm stays acknowledged or not, as it was."""

@@ -180,8 +180,7 @@ class Controller(Hearing, Stopping):
                 return
             log_latch(device, why)
             if self.estop_before_start is not None:
-                self.alarms.raise_("estop", self.lane.alarm_text(self.estop_before_start), "critical",
-                                   kind="latched")
+                self.alarms.retext("estop", self.lane.alarm_text(self.estop_before_start), kind="latched")
         with contextlib.suppress(RuntimeError):     # the loop is closed: the process is ending
             self._loop.call_soon_threadsafe(on_loop)
 

@@ -131,9 +131,7 @@ class FeedingRobot(Recovering):
         # the loop may have heard of the trip first, under the provisional reason (an override's
         # e-stop trips on the Zenoh thread before its payload is read): the alarm names the operator
         text = self.lane.alarm_text(self.lane.reason or reason)
-        standing = self.alarms.active.get(("estop", "latched"))
-        if standing is not None and standing.text != text:      # the provisional reason refined
-            self.alarms.raise_("estop", text, "critical", kind="latched")
+        self.alarms.retext("estop", text, kind="latched")        # the provisional reason refined
         done, _ = await asyncio.wait({asyncio.wrap_future(confirmed)}, timeout=CONFIRM_WAIT_S)
         return bool(done)
 
@@ -165,9 +163,8 @@ class FeedingRobot(Recovering):
         """From the lane's thread: a latch unconfirmed past the bound, or confirmed after all."""
         def on_loop():
             log_latch(device, why)
-            if self.lane.tripped and "estop" in self.alarms.active:
-                self.alarms.raise_("estop", self.lane.alarm_text(self.lane.reason or "e-stop"), "critical",
-                                   kind="latched")
+            if self.lane.tripped:
+                self.alarms.retext("estop", self.lane.alarm_text(self.lane.reason or "e-stop"), kind="latched")
         with contextlib.suppress(RuntimeError):     # the loop is closed: the process is ending
             self._loop.call_soon_threadsafe(on_loop)
 

@@ -238,10 +238,14 @@ def test_the_estop_alarm_names_the_operator_whose_override_the_loop_heard_of_fir
             await r.until(lambda: r.robot.state == "estop", what="the loop heard of it")
             first = r.alarms.active[("estop", "latched")].text
             await r.robot.emergency_stop("operator H: the auger jammed")
-            return first, r.alarms.active[("estop", "latched")].text, r.robot.lane.reason
-    first, then, reason = run(main())
+            await r.clock.asleep(5.0)                             # the latches' confirmations reported
+            alarm = r.alarms.active[("estop", "latched")]
+            return first, alarm.text, r.robot.lane.reason, alarm.count, alarm.repeats
+    first, then, reason, count, repeats = run(main())
     assert first.startswith(f"emergency stop: {PROVISIONAL}")
     assert then.startswith("emergency stop: operator H: the auger jammed") and reason == "operator H: the auger jammed"
+    # one e-stop, raised once: its text refined is no raise (an outside tester: one e-stop, count 2)
+    assert count == 1 and repeats == 0, (count, repeats)
 
 
 def test_a_second_estop_does_not_rename_the_first():
