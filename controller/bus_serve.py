@@ -125,7 +125,10 @@ class Serving:
         involved; None: the handler answers as ever."""
         if not selector:
             wrapped = _with_user(handler)
-            self._serve(suffix, lambda _key: (wrapped, lenient, None, None, None), ready)
+            # a concrete key (status): a wildcard get (farm/*/status, a client finding the sites) is
+            # answered on it, as no command is fired by it (it went unanswered: an outside tester)
+            wild = self.key(suffix) if _concrete(self.key(suffix)) else None
+            self._serve(suffix, lambda _key: (wrapped, lenient, None, None, None), ready, wild)
             return
 
         def resolve(key: str):
@@ -169,7 +172,7 @@ class Serving:
                 error = f"user {user!r}: letters, digits, _ . - only"
                 raise RefusedOnWire(error, lambda payload: tell(command, error, None, payload))
             if command not in table:
-                error = f"unknown command {command!r}; known: {', '.join(sorted(table))}"
+                error = f"unknown command {printable(command, 64)!r}; known: {', '.join(sorted(table))}"
                 who = user if self.identified else None
                 raise RefusedOnWire(error, lambda payload: tell(command, error, who, payload))
             user = user if self.identified else None
@@ -177,19 +180,23 @@ class Serving:
                     lambda error, payload=None: tell(command, error, user, payload))
         self._serve("override/**", resolve)
 
-    def _serve(self, suffix: str, resolve, ready=None) -> None:
+    def _serve(self, suffix: str, resolve, ready=None, wild: str | None = None) -> None:
         loop = self._handler_loop()
         self._keep(self.session.declare_queryable(
-            self.key(suffix), lambda query: self._on_query(query, resolve, loop, ready)))
+            self.key(suffix), lambda query: self._on_query(query, resolve, loop, ready, wild)))
 
-    def _on_query(self, query: zenoh.Query, resolve, loop: asyncio.AbstractEventLoop, ready=None) -> None:
+    def _on_query(self, query: zenoh.Query, resolve, loop: asyncio.AbstractEventLoop, ready=None,
+                  wild: str | None = None) -> None:
         """On a Zenoh thread: act (urgent), parse, then hand the work to the loop. Never blocks,
-        never raises, and every concrete query gets a reply."""
+        never raises, and every concrete query gets a reply (a wildcard one too where ``wild``,
+        the queryable's own concrete key, answers it)."""
         key = str(query.key_expr)
-        if not all(_CHUNK.match(c) for c in key.split("/")):
-            # a wildcard get (override/**) must not fire every command: nobody answers it
-            query.drop()
-            return
+        if not _concrete(key):
+            if wild is None:
+                # a wildcard get (override/**) must not fire every command: nobody answers it
+                query.drop()
+                return
+            key, query = wild, _OnKey(query, wild)
         try:
             answer = ready() if ready is not None else None
             if answer is not None:
@@ -253,6 +260,20 @@ class Serving:
             log.debug("reply to %s lost: %s", query.key_expr, _one_line(exc))
         finally:
             query.drop()  # finalises the query: the querier stops waiting now, not at its timeout
+
+
+def _concrete(key: str) -> bool:
+    return all(_CHUNK.match(c) for c in key.split("/"))
+
+
+class _OnKey:
+    """A query answered on ``key`` (the queryable's own) rather than on its wildcard expression."""
+
+    def __init__(self, query: zenoh.Query, key: str):
+        self._query, self.key_expr = query, zenoh.KeyExpr(key)
+
+    def __getattr__(self, name: str):
+        return getattr(self._query, name)
 
 
 def _received(exc: BaseException):

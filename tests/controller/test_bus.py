@@ -256,6 +256,29 @@ def test_overrides_dispatch_refuse_unknown_and_ignore_wildcards(pair):
     assert raw == [{"ok": True, "command": "estop"}]
 
 
+def test_a_wildcard_get_of_status_is_answered_on_its_own_key_and_fires_no_command(pair):
+    """A client finding the farm's sites asks farm/*/status: it went unanswered, like a wildcard
+    over the overrides (which must not fire every command, and still does not)."""
+    server, client = pair
+    calls = []
+
+    async def status(payload):
+        return {"ok": True, "site": "t1"}
+
+    async def feed(payload):
+        calls.append(payload)
+        return {"ok": True}
+    server.queryable("status", status)
+    server.overrides({"estop": feed, "feed": feed})
+    for expr in ("farm/*/status", "farm/t1/*", "farm/**", "farm/t1/stat$*", "**"):
+        replies = list(client.session.get(expr, payload=b"{}", timeout=WAIT_S))
+        got = [(str(r.ok.key_expr), decode(r.ok.payload)) for r in replies if r.ok is not None]
+        assert got == [("farm/t1/status", {"ok": True, "site": "t1"})], (expr, got)
+    assert calls == []
+    [reply] = client.query("override/" + "x" * 5000, {})
+    assert reply["ok"] is False and len(reply["error"]) < 300 and "unknown command" in reply["error"]
+
+
 def test_handlers_run_on_the_loop_they_were_declared_from():
     """The controller declares from its running loop, without passing it in."""
     endpoint = f"tcp/127.0.0.1:{free_port()}"
