@@ -54,9 +54,10 @@ WHAT = tuple(COLUMNS)
 
 def parse_time(text, name: str, now: float, *, durations: bool) -> float:
     """Unix seconds from ISO, Unix seconds or (``durations``) a span back from ``now``."""
-    if isinstance(text, bool):              # JSON's true, not Python's True
+    if isinstance(text, bool) or text is None:      # JSON's true and null, not Python's True and None
         forms = "ISO, Unix seconds or a span" if durations else "ISO or Unix seconds"
-        raise BadInput(name, None, f"{str(text).lower()}: not a time ({forms})")
+        said = "null" if text is None else str(text).lower()
+        raise BadInput(name, None, f"{said}: not a time ({forms}); leave {name} out for no bound")
     if isinstance(text, int | float):      # a JSON number: seconds, however written
         try:
             value, text, span = float(text), repr(text), False

@@ -113,6 +113,7 @@ def test_the_queryable_s_answers_and_refusals(ledger):
                                ("history/feeds/T1", {"until": 915148800}, "is before 2000 (a date's typo?)"),
                                ("history/feeds/T1", {"since": True}, "since: true: not a time"),  # was 'True'
                                ("history/feeds/T1", {"until": False}, "until: false: not a time"),
+                               ("history/feeds/T1", {"since": None}, "since: null: not a time"),  # was 'None'
                                ("history/surveys/T1", {"since": "2027-01-01", "until": "2020-01-01"},
                                 "since: 2027-01-01T00:00:00Z is after until (2020-01-01T00:00:00Z)")]:
         reply = query_reply(ledger, cfg, key, params, T)
