@@ -561,13 +561,15 @@ def test_a_second_ctrl_c_ends_a_survey_at_once_without_a_traceback(hanging_surve
     assert out.read_text() == "a survey's OUT.json of last week"
 
 
-@pytest.mark.parametrize("sig", [signal.SIGKILL, signal.SIGHUP])     # SIGHUP: its default action
+@pytest.mark.parametrize("sig", [signal.SIGKILL, signal.SIGHUP])
 def test_a_survey_killed_outright_is_outlived_by_no_worker_nor_its_shared_frames(hanging_survey, sig):
+    """SIGKILL; and SIGHUP (a terminal closed), which killed it by its default action until the
+    command took it as SIGTERM (129)."""
     p, _, mark = hanging_survey
     frames = _shared_frames(_marked(mark))
     assert frames and all(f.endswith("(deleted)") for f in frames), frames     # nothing named to leave behind
     p.send_signal(sig)
-    assert p.wait(10) == -sig
+    assert p.wait(10) == (-sig if sig == signal.SIGKILL else 128 + sig)
     assert _until(lambda: not _marked(mark)), "a worker outlived its survey"
 
 

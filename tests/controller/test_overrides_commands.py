@@ -245,7 +245,7 @@ def test_every_command_accepted_or_refused_is_one_audit_row(farm):
          "command: no pond cleaner in this controller (farm.toml has no [cleaning] section)"),
     ]
     assert rows[0]["payload"] == '{"tank":"T1","grams":20,"operator":"ana","reason":"check"}'
-    assert rows[0]["reply"] == '{"grams":20.0}' and rows[2]["payload"] == '["not","an","object"]'
+    assert rows[0]["reply"] == '{"grams":20.0,"demand":1}' and rows[2]["payload"] == '["not","an","object"]'
     assert farm.estops == ["operator op2"]        # the e-stop names the authenticated user
 
 
