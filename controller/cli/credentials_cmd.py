@@ -74,6 +74,8 @@ def credentials(out, add, force):
 
     Then list each person's user name in their role's subject in config/zenoh/deploy.json5.
     """
+    from controller.cli.output_paths import check_outputs
+    check_outputs({"--out": out}, [])
     path = Path(out)
     if add:
         names = [_name(n) for n in add]

@@ -23,8 +23,10 @@ def check_outputs(outputs: dict[str, str | Path | None], inputs: Iterable[str | 
     seen: dict[str, str] = {}
     seen_files: dict[tuple[int, int], str] = {}
     for option, path in outputs.items():
-        if not path:
+        if path is None:
             continue
+        if not str(path).strip():      # it wrote nothing without a word (--png ''), or crashed (--json '')
+            raise BadInput(option, None, f"{str(path)!r}: an empty path; give a file name")
         if Path(path).is_dir():
             raise BadInput(str(path), option, "a directory, not a file")
         if _special(Path(path)):       # /dev/null, /dev/stdout, a FIFO: written into, never replaced

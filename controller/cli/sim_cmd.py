@@ -49,6 +49,8 @@ def sim(config_path, endpoints, truth, speed, epoch_wall, epoch_farm, clock_path
     from devices.sim.world import SimFarm
 
     check_clock_options(speed, epoch_wall, epoch_farm, clock_path, hear)
+    from controller.cli.output_paths import check_outputs
+    check_outputs({"--endpoints": endpoints, "--truth": truth}, [config_path])
     import cv2
     # one thread, as the renderers' budgets are set (bench_pond_view): beside the controller and
     # the vision workers on the farm's cores, OpenCV's pool only spun, 0.142 against 0.121 CPU s a

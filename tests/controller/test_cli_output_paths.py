@@ -111,3 +111,36 @@ def test_a_plot_where_no_file_can_be_made_is_refused_before_the_survey_and_its_j
     _refused(capsys, tmp_path, "survey --calib {calib.json} --species sparus_aurata --setup underwater "
              "--pair {L1.png} {R1.png} --json {d}/out.json --plot {out}", Path("/proc/hist.png"),
              "/proc/hist.png: --plot: cannot write")
+
+
+SERVERS = [("sim --config {farm.toml} --endpoints {out}", "--endpoints"),
+           ("sim --config {farm.toml} --endpoints {d}/e.json --truth {out}", "--truth"),
+           ("credentials --out {out}", "--out")]
+
+
+@pytest.mark.parametrize("line, option", [(c[0], c[1]) for c in COMMANDS] + SERVERS,
+                         ids=[c[0].split(" -")[0] + " " + c[1] for c in COMMANDS + SERVERS])
+def test_an_empty_output_path_is_refused_naming_the_option(tmp_path, capsys, line, option):
+    """An outside tester: ``--json ''`` crashed ("internal error: ... has an empty name", exit 1), and
+    ``--png ''`` / ``--csv ''`` quietly wrote nothing or wrote to stdout."""
+    files = _inputs(tmp_path)
+    before = {p: p.read_bytes() for p in files.values()}
+    listing = sorted(tmp_path.rglob("*"))
+    args = []
+    for word in line.split():
+        for name, path in {**files, "d": tmp_path}.items():
+            word = word.replace("{" + name + "}", str(path))
+        args.append("" if word == "{out}" else word)
+    assert main(args) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and f"{option}: '': an empty path" in err, err
+    assert {p: p.read_bytes() for p in files.values()} == before and sorted(tmp_path.rglob("*")) == listing
+
+
+@pytest.mark.parametrize("line, option", SERVERS, ids=[c[1] for c in SERVERS])
+def test_the_simulator_s_and_the_credentials_files_where_none_can_be_made_are_refused(tmp_path, capsys, line,
+                                                                                        option):
+    """``sim --endpoints /proc/e.json`` and ``credentials --out /proc/c.txt``: "internal error:
+    FileNotFoundError" (exit 1) once the work was done."""
+    _refused(capsys, tmp_path, line, Path("/proc/out.x"),
+             f"/proc/out.x: {option}: cannot write: /proc takes no new files")
