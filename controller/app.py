@@ -73,7 +73,7 @@ class Controller(Hearing, Stopping):
         # every section is checked before anything starts: a bad key is one line and exit 2, not a
         # simulator started and stopped around it
         self.demand_params = validate_section(DemandParams, cfg.demand, cfg.path, "demand")
-        session_config(cfg.bus)
+        session_config(cfg.bus, str(cfg.path))
         self.cleaning = None
         if cfg.cleaning is not None:
             from controller.cleaning.setup import prepare

@@ -40,6 +40,26 @@ class BusConfig(Strict):
     config: str | None = Field(None, min_length=1, description="Zenoh JSON5 config file; overrides listen/connect")
     publish_contacts: bool = True
 
+    @field_validator("listen", "connect")
+    @classmethod
+    def _ports(cls, endpoints: list[str], info) -> list[str]:
+        # Zenoh takes tcp/127.0.0.1:99999 or :abc into its config and fails only as the session
+        # opens: after the simulator had started and the ledger was made (an outside tester)
+        for endpoint in endpoints:
+            m = re.fullmatch(r"(?:tcp|udp|tls|quic|ws)/(.*):([^:/#\]]*)(?:#.*)?", endpoint)
+            if m is None:
+                continue                     # Zenoh's own parse says what is wrong with the rest
+            port, least = m.group(2), 0 if info.field_name == "listen" else 1
+            if not port.isdigit() or not least <= int(port) <= 65535:
+                raise ValueError(f"{endpoint!r}: the port must be a number {least}..65535")
+        return endpoints
+
+    @model_validator(mode="after")
+    def _a_client_connects(self) -> BusConfig:
+        if self.mode == "client" and not self.connect and self.config is None:
+            raise ValueError("mode = \"client\" listens nowhere and needs connect: the router's endpoint")
+        return self
+
 
 class StoreConfig(Strict):
     path: str = "var/fishfarm.db"

@@ -18,9 +18,10 @@ from controller.errors import BadInput
 from controller.identity import bind_identities
 
 
-def session_config(cfg: BusConfig) -> zenoh.Config:
+def session_config(cfg: BusConfig, where: str | None = None) -> zenoh.Config:
     """The Zenoh config of the controller's session: cfg.config (a JSON5 file) wins over
-    mode/listen/connect; multicast scouting is off in every case."""
+    mode/listen/connect; multicast scouting is off in every case. ``where``: the farm.toml a
+    refusal names (else ``[bus]``)."""
     if cfg.config:
         try:
             zc = zenoh.Config.from_file(cfg.config)
@@ -35,7 +36,7 @@ def session_config(cfg: BusConfig) -> zenoh.Config:
         zc = zenoh.Config()
         # an explicit empty listen list keeps a peer from listening on every interface (its default)
         for key, value in (("mode", cfg.mode), ("listen", cfg.listen), ("connect", cfg.connect)):
-            _set(zc, key if key == "mode" else f"{key}/endpoints", value, "[bus]", f"bus.{key}")
+            _set(zc, key if key == "mode" else f"{key}/endpoints", value, where or "[bus]", f"bus.{key}")
     zc.insert_json5("scouting/multicast/enabled", "false")
     return zc
 

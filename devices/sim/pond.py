@@ -17,7 +17,8 @@ import threading
 from collections.abc import Callable
 from typing import Any
 
-from pydantic import BaseModel, ConfigDict, Field
+import numpy as np
+from pydantic import BaseModel, ConfigDict, Field, field_validator
 
 from devices.errors import BadInput
 from devices.sections import validate_section
@@ -42,6 +43,18 @@ class SimPondParams(BaseModel):
     tower: dict[str, Any] = Field({}, description="pond_view.tower_view keywords (tower_xy, tower_height_m, hfov_deg)")
     conditions: dict[str, Any] | None = Field(None, description="pond_view.PondScene conditions")
     seed: int = 0
+
+    @field_validator("conditions")
+    @classmethod
+    def _conditions(cls, given: dict[str, Any] | None) -> dict[str, Any] | None:
+        # checked with the config: out of range, it was the simulator's "internal error" exit 1
+        # after the controller had started it and made its ledger (an outside tester)
+        from devices.sim.pond_scene import scene_conditions
+        try:
+            scene_conditions(np.zeros((3, 2)), 0, given)
+        except ValueError as exc:
+            raise ValueError(str(exc).removeprefix("conditions: ")) from None
+        return given
 
 
 def wrap(angle: float) -> float:

@@ -87,6 +87,14 @@ def test_unusable_store_path_exits_2_naming_store_path(tmp_path, store_path):
 @pytest.mark.parametrize("section, key", [("[demand]\nwindow = 60\n", "demand.window"),
                                           ("[sim]\nsed = 1\n", "sim.sed"),
                                           ('[bus]\nlisten = ["nonsense"]\n', "bus.listen"),
+                                          # Zenoh took these and failed as its session opened: after
+                                          # the simulator had started and the ledger was made
+                                          ('[bus]\nlisten = ["tcp/127.0.0.1:99999"]\n', "bus.listen"),
+                                          ('[bus]\nlisten = ["tcp/127.0.0.1:abc"]\n', "bus.listen"),
+                                          ('[bus]\nconnect = ["tcp/127.0.0.1:0"]\n', "bus.connect"),
+                                          ('[bus]\nmode = "client"\nconnect = []\n', "bus"),
+                                          ("[sim.pond]\nconditions = {glare = -3}\n", "sim.pond.conditions"),
+                                          ("[sim.pond]\nconditions = {sunshine = 1}\n", "sim.pond.conditions"),
                                           # each [sim.*] sub-section too: they were the simulator's
                                           # exit after the controller had started it
                                           ("[sim.fish]\nrate = 1\n", "sim.fish.rate"),
@@ -98,11 +106,12 @@ def test_unusable_store_path_exits_2_naming_store_path(tmp_path, store_path):
                                            "sim.tower_camera.jpeg_quality")])
 def test_a_bad_key_in_any_section_is_one_line_before_the_simulator_starts(tmp_path, section, key):
     cfg = tmp_path / "farm.toml"
-    cfg.write_text(TANK + DEVICES + section)
+    cfg.write_text(TANK + DEVICES + f'[store]\npath = "{tmp_path / "ledger.db"}"\n' + section)
     r = fishfarm("run", "--config", str(cfg), "--no-console", "--duration", "1", timeout=30)
     assert r.returncode == 2, r.stderr
     lines = r.stderr.strip().splitlines()
-    assert len(lines) == 1 and f"{key}:" in lines[0], lines
+    assert len(lines) == 1 and f"{key}:" in lines[0] and "farm.toml" in lines[0], lines
+    assert list(tmp_path.iterdir()) == [cfg]              # no ledger made, nothing started
 
 
 def test_duration_ends_a_run_whose_devices_never_open(tmp_path):
