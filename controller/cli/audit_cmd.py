@@ -112,6 +112,10 @@ def audit(since, operator, config_path, db, as_json):
     """Print the audit of operator overrides, oldest first."""
     if operator is not None and not operator.strip():     # it matched the rows with no operator at all
         raise BadInput("--operator", None, f"{operator!r} is no operator's name (1-64 characters)")
+    given = click.get_current_context().get_parameter_source("config_path")
+    if db is not None and given is not click.core.ParameterSource.DEFAULT:     # one was used, the other dropped
+        raise BadInput("--db", None, "given with --config: name the ledger one way (--db PATH, or --config's "
+                                     "[store] path)")
     path = _ledger(config_path, db)
     since_t = parse_since(since, ledger_now(path)) if since is not None else None
     entries = read_audit(path, since_t, operator)

@@ -99,6 +99,9 @@ def test_the_config_names_the_ledger(ledger, capsys, tmp_path):
     (tmp_path / "farm.toml").write_text(tomli_w.dumps(raw))
     code, out, _ = run(capsys, "--config", tmp_path / "farm.toml", "--json")
     assert code == 0 and len(json.loads(out)) == 3
+    # both: one was used and the other dropped without a word (an outside tester)
+    code, out, err = run(capsys, "--config", tmp_path / "farm.toml", "--db", ledger, "--json")
+    assert code == 2 and out == "" and err.count("\n") == 1 and "--db" in err and "--config" in err, err
 
 
 @pytest.mark.parametrize("args, message", [
