@@ -59,7 +59,7 @@ def write(path: Path, entries: dict[str, str]) -> None:
 
 def _name(value: str) -> str:
     if not USER.match(value):
-        raise BadInput("--add", value, "user names are letters, digits, _ . - (1 to 64)")
+        raise BadInput("--add", None, f"{value[:80]!r}: user names are letters, digits, _ . - (1 to 64)")
     return value
 
 

@@ -262,6 +262,9 @@ def test_credentials_are_random_private_and_never_overwritten(tmp_path):
     assert proc.returncode == 0 and proc.stdout == f"ana:{read(out)['ana']}\n"
     assert fishfarm_main(["credentials", "--out", str(out), "--add", "ana"]) == 2
     assert fishfarm_main(["credentials", "--out", str(out), "--add", "ana:x"]) == 2
+    proc = subprocess.run([FISHFARM, "credentials", "--out", str(out), "--add", "x\ny"], capture_output=True,
+                          text=True, timeout=60)         # the name echoed raw: a refusal of two lines
+    assert proc.returncode == 2 and proc.stderr.count("\n") == 1 and "'x\\ny'" in proc.stderr, proc.stderr
 
 
 def test_the_controller_without_a_credentials_file_says_how_to_make_one(tmp_path):
