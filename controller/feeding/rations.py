@@ -342,7 +342,9 @@ def load_tables(cfg: Config, species: dict | None = None) -> dict[str, FeedingTa
         if not path.is_absolute():
             path = base / name if (base / name).is_file() or not (SHIPPED / name).is_file() else SHIPPED / name
         if not path.is_file():
-            raise BadInput(cfg.path, f"feeding.tables.{i}", f"{path}: no such file")
+            why = ("a directory, not a chart" if path.is_dir() else "not a regular file" if path.exists()
+                   else "no such file")         # /tmp and /dev/null were "no such file"
+            raise BadInput(cfg.path, f"feeding.tables.{i}", f"{path}: {why}")
         table = load_feeding_table(path)
         if species is not None and table.species not in species:
             raise BadInput(cfg.path, f"feeding.tables.{i}", f"{path.name} is a chart for {table.species!r}, a "

@@ -98,3 +98,12 @@ def test_species_rows_out_of_order_are_refused_when_the_species_file_is_read(tmp
     with pytest.raises(BadInput) as err:
         load_species(path)
     assert str(err.value).startswith(f"{path}: sparus_aurata: feeding rows' up_to_g must increase strictly")
+
+
+@pytest.mark.parametrize("where, said", [("{tmp}", "a directory, not a chart"), ("/dev/null", "not a regular file")])
+def test_a_chart_that_is_no_file_says_what_it_is(tmp_path, where, said):
+    """An outside tester: /tmp and /dev/null as a chart were each "no such file"."""
+    chart = where.replace("{tmp}", str(tmp_path))
+    path = farm(tmp_path, lambda raw: raw["feeding"].update(tables=[chart]))
+    got = fault(path)
+    assert got is not None and got.startswith(f"{path}: feeding.tables.0: ") and got.endswith(f"{chart}: {said}"), got
