@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import importlib
 import math
+import re
 
 from controller.config import Config, validate_section
 from controller.errors import BadInput
@@ -61,6 +62,26 @@ def check_species_file(cfg: Config) -> None:
     check_tank_species(cfg, load_species(species_file(cfg.path)))
 
 
+def check_ports(cfg: Config) -> None:
+    """No two of the farm's own servers on one port: a simulated dispenser given [scada]'s port took
+    it, and the SCADA server only alarmed (an outside tester). Ports 0 (any free one) aside."""
+    taken: dict[int, str] = {}
+    wanted = []
+    if cfg.scada is not None and cfg.scada.enabled:
+        wanted.append((cfg.scada.port, "scada.port"))
+    for i, endpoint in enumerate(cfg.bus.listen if cfg.bus.config is None else []):
+        m = re.fullmatch(r"(?:tcp|udp|tls|quic|ws)/.*:(\d+)(?:#.*)?", endpoint)
+        if m is not None:
+            wanted.append((int(m.group(1)), f"bus.listen.{i}"))
+    for name, section in cfg.devices.items():
+        if section.get("driver") == "sim" and isinstance(section.get("port"), int):
+            wanted.append((section["port"], f"devices.{name}.port"))
+    for port, key in wanted:
+        if port and port in taken:
+            raise BadInput(cfg.path, key, f"port {port} is {taken[port]}'s too: two servers cannot listen on one port")
+        taken.setdefault(port, key)
+
+
 def check_farm(cfg: Config, species: dict) -> None:
     """What the sections cannot check alone: every tank's species is known, the feeding charts are
     for known species, a portion fits the hopper, the stocks' sections, one device of each kind."""
@@ -74,6 +95,7 @@ def check_farm(cfg: Config, species: dict) -> None:
             raise BadInput(cfg.path, "devices", f"the feeding robot needs exactly one {kind} device, "
                                                 f"found {len(found)}")
     check_thermometer(cfg)
+    check_ports(cfg)
     sim_cameras = [n for n, s in cfg.devices.items() if s["kind"] == "stereo_camera" and s["driver"] == "sim"]
     if cfg.surveys.setup == "surface" and sim_cameras:
         # its surveys would count a fish or two in scenes drawn for the other setup, and fall back

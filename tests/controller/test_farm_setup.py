@@ -107,3 +107,19 @@ def test_a_chart_that_is_no_file_says_what_it_is(tmp_path, where, said):
     path = farm(tmp_path, lambda raw: raw["feeding"].update(tables=[chart]))
     got = fault(path)
     assert got is not None and got.startswith(f"{path}: feeding.tables.0: ") and got.endswith(f"{chart}: {said}"), got
+
+
+@pytest.mark.parametrize("change, key", [
+    (lambda raw: raw["devices"]["dispenser"].update(port=raw["scada"]["port"]), "devices.dispenser.port"),
+    (lambda raw: raw.update(bus={"listen": [f"tcp/127.0.0.1:{raw['scada']['port']}"]}), "bus.listen.0"),
+])
+def test_two_of_the_farm_s_servers_on_one_port_are_refused(tmp_path, change, key):
+    """A simulated dispenser given [scada]'s port took it, and the SCADA server only alarmed."""
+    path = farm(tmp_path, change)
+    got = fault(path)
+    assert got is not None and got.startswith(f"{path}: {key}: port ") and "scada.port" in got, got
+
+
+def test_ports_left_to_the_system_never_clash(tmp_path):
+    path = farm(tmp_path, lambda raw: (raw["scada"].update(port=0), raw["devices"]["dispenser"].update(port=0)))
+    assert fault(path) is None
