@@ -93,20 +93,25 @@ def test_sigterm_ends_a_busy_simulator_within_a_second_with_its_truth_log_writte
     assert "Traceback" not in log, log[-3000:]
 
 
-def test_signals_while_stopping_do_not_cut_the_truth_log_short(tmp_path):
-    """A SIGKILLed controller's threads each hand the simulator a SIGTERM (PR_SET_PDEATHSIG follows
-    every reparenting): the later ones must not end it before its truth log is written."""
-    proc, _, truth = start_sim(tmp_path, pond_step_s=0.02)
+def _terminated(proc: subprocess.Popen, signals: int = 1) -> tuple[int, float]:
+    """SIGTERM ``signals`` times at once: (exit code, wall s from the first to the exit); killed if
+    it outlives the wait."""
     try:
         sent = time.monotonic()
-        for _ in range(4):
+        for _ in range(signals):
             proc.send_signal(signal.SIGTERM)
-        rc = proc.wait(timeout=30)
-        took = time.monotonic() - sent
+        return proc.wait(timeout=30), time.monotonic() - sent
     finally:
         if proc.poll() is None:
             proc.kill()
             proc.wait()
+
+
+def test_signals_while_stopping_do_not_cut_the_truth_log_short(tmp_path):
+    """A SIGKILLed controller's threads each hand the simulator a SIGTERM (PR_SET_PDEATHSIG follows
+    every reparenting): the later ones must not end it before its truth log is written."""
+    proc, _, truth = start_sim(tmp_path, pond_step_s=0.02)
+    rc, took = _terminated(proc, 4)
     log = (tmp_path / "sim.log").read_text(errors="replace")
     assert rc == 0 and took < SIM_STOP_S, f"exit {rc} {took:.2f} s after SIGTERM:\n{log[-3000:]}"
     kinds = [json.loads(line)["kind"] for line in truth.read_text().splitlines()]
@@ -140,14 +145,11 @@ def test_sigterm_during_start_up_ends_the_simulator_at_once_and_cleanly(tmp_path
             except OSError:
                 time.sleep(0.005)
         assert not endpoints.exists()
-        sent = time.monotonic()
-        proc.send_signal(signal.SIGTERM)
-        rc = proc.wait(timeout=30)
-        took = time.monotonic() - sent
-    finally:
-        if proc.poll() is None:
-            proc.kill()
-            proc.wait()
+    except BaseException:
+        proc.kill()
+        proc.wait()
+        raise
+    rc, took = _terminated(proc)
     log = (tmp_path / "sim.log").read_text(errors="replace")
     assert rc == 0 and took < SIM_STOP_S, f"exit {rc} {took:.2f} s after SIGTERM:\n{log[-3000:]}"
     assert not endpoints.exists() and "Traceback" not in log, log[-3000:]
