@@ -134,3 +134,13 @@ def check_thermometer(cfg) -> None:
             if probe not in tanks and probe != SUPPLY:
                 raise BadInput(cfg.path, f"devices.{name}.probes.{probe}",
                                f"not a tank id nor {SUPPLY!r} (tanks: {', '.join(sorted(tanks))})")
+    # the simulated water's per-probe settings name probes the transmitter reads: a name that is none
+    # (offsets_c = {T55 = 1.5}) was taken and never used
+    probes = {p for _, section in found for p in section.get("probes") or {}}
+    water = cfg.sim.get("thermometer") if isinstance(cfg.sim, dict) and found else None   # none: unused
+    for field in ("offsets_c", "faults"):
+        given = water.get(field) if isinstance(water, dict) else None
+        for probe in given if isinstance(given, dict) else {}:
+            if probe not in probes:
+                raise BadInput(cfg.path, f"sim.thermometer.{field}.{probe}",
+                               f"not a probe of the thermometer (probes: {', '.join(sorted(probes))})")

@@ -118,3 +118,15 @@ def test_farm_level_thermometer_faults_name_their_key(devices, key):
                                  | devices})
     with pytest.raises(BadInput, match=key.replace(".", r"\.")):
         check_thermometer(cfg)
+
+
+@pytest.mark.parametrize("field", ["offsets_c", "faults"])
+def test_the_simulated_water_names_only_the_thermometer_s_probes(field):
+    """An outside tester: ``offsets_c = {T55 = 1.5}`` (no tank, no probe) was taken and never used."""
+    cfg = load_config("config/farm.toml")
+    value = 1.5 if field == "offsets_c" else "open"
+    bad = cfg.model_copy(update={"sim": {**cfg.sim, "thermometer": {field: {"T55": value}}}})
+    with pytest.raises(BadInput, match=rf"sim\.thermometer\.{field}\.T55: not a probe"):
+        check_thermometer(bad)
+    probe = next(iter(next(s for s in cfg.devices.values() if s["kind"] == "thermometer")["probes"]))
+    check_thermometer(cfg.model_copy(update={"sim": {**cfg.sim, "thermometer": {field: {probe: value}}}}))
