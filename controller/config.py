@@ -7,6 +7,7 @@ Device sections are validated by the model their kind and driver name in ``devic
 """
 from __future__ import annotations
 
+import ipaddress
 import math
 import re
 import tomllib
@@ -85,6 +86,11 @@ class ScadaConfig(Strict):
         # "no such host!" was an alarm retried for good, not bad input
         if not (HOSTNAME.fullmatch(listen) or re.fullmatch(r"[0-9A-Fa-f:.]+", listen)):
             raise ValueError(f"{listen!r} is not an IP address or a host name")
+        if re.fullmatch(r"[0-9.]+", listen) or ":" in listen:     # an address, then a real one
+            try:                                                 # (999.1.1.1 was an alarm for good)
+                ipaddress.ip_address(listen)
+            except ValueError:
+                raise ValueError(f"{listen!r} is not an IP address") from None
         return listen
 
 

@@ -44,6 +44,8 @@ def test_minimal_config_defaults(tmp_path):
     (GOOD + '[devices.x]\nkind = "laser"\ndriver = "sim"\n', "devices.x.kind: must be one of"),     # not (top level)
     (GOOD + "[feeding]\nwater_poll_s = 4000\n", "feeding: water_poll_s (4000) must be below water_max_age_s"),
     (GOOD + '[scada]\nlisten = "no such host!"\n', "scada.listen: 'no such host!' is not an IP address"),
+    # an address out of range: an alarm retried for good, the SCADA never served (an outside tester)
+    (GOOD + '[scada]\nlisten = "999.1.1.1"\n', "scada.listen: '999.1.1.1' is not an IP address"),
     (GOOD.replace('sensors = ["A1"]', 'sensors = ["A1", "A1"]'), "sensor 'A1' is listed twice in tank 'A'"),
     (GOOD + '[bus]\nconfig = ""\n', "bus.config: String should have at least 1 character"),
     (GOOD + '[devices.r]\nkind = "rail"\ndriver = "telepathy"\n', "devices.r.driver: driver must be one of"),
