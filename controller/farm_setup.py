@@ -4,7 +4,10 @@ from __future__ import annotations
 
 import importlib
 import math
+import os
 import re
+import tempfile
+from pathlib import Path
 
 from controller.config import Config, validate_section
 from controller.errors import BadInput
@@ -82,6 +85,27 @@ def check_ports(cfg: Config) -> None:
         taken.setdefault(port, key)
 
 
+def check_survey_dir(cfg: Config) -> None:
+    """``surveys.out_dir`` is a directory, or one can be made there (nothing is made yet): a file
+    or /proc was taken, and each survey's OUT.json would have failed at its end."""
+    out = Path(cfg.surveys.out_dir)
+    if out.exists():
+        if not out.is_dir():
+            raise BadInput(cfg.path, "surveys.out_dir", f"{out}: a file, not a directory")
+        return
+    parent = out.parent
+    while not parent.exists():
+        parent = parent.parent
+    why = None if parent.is_dir() else f"{parent} is a file"
+    if why is None:
+        try:      # tried for real: root passes access() in /proc, where nothing can be made
+            os.rmdir(tempfile.mkdtemp(prefix=".fishfarm-trial-", dir=parent))
+        except OSError as exc:
+            why = f"nothing can be made in {parent}: {exc.strerror or exc}"
+    if why is not None:
+        raise BadInput(cfg.path, "surveys.out_dir", f"{out}: {why}")
+
+
 def check_farm(cfg: Config, species: dict) -> None:
     """What the sections cannot check alone: every tank's species is known, the feeding charts are
     for known species, a portion fits the hopper, the stocks' sections, one device of each kind."""
@@ -96,6 +120,7 @@ def check_farm(cfg: Config, species: dict) -> None:
                                                 f"found {len(found)}")
     check_thermometer(cfg)
     check_ports(cfg)
+    check_survey_dir(cfg)
     sim_cameras = [n for n, s in cfg.devices.items() if s["kind"] == "stereo_camera" and s["driver"] == "sim"]
     if cfg.surveys.setup == "surface" and sim_cameras:
         # its surveys would count a fish or two in scenes drawn for the other setup, and fall back

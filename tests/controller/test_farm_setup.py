@@ -123,3 +123,22 @@ def test_two_of_the_farm_s_servers_on_one_port_are_refused(tmp_path, change, key
 def test_ports_left_to_the_system_never_clash(tmp_path):
     path = farm(tmp_path, lambda raw: (raw["scada"].update(port=0), raw["devices"]["dispenser"].update(port=0)))
     assert fault(path) is None
+
+
+@pytest.mark.parametrize("where, said", [("{tmp}/farm.toml", "a file, not a directory"),
+                                         ("{tmp}/farm.toml/surveys", "is a file"),
+                                         ("/proc/surveys", "nothing can be made in /proc")])
+def test_a_survey_directory_that_cannot_be_is_refused_on_load(tmp_path, where, said):
+    """An outside tester: a file, or /proc, as surveys.out_dir was taken; each survey would have
+    failed at its end, its OUT.json unwritten."""
+    out = where.replace("{tmp}", str(tmp_path))
+    path = farm(tmp_path, lambda raw: raw.setdefault("surveys", {}).update(out_dir=out))
+    got = fault(path)
+    assert got is not None and got.startswith(f"{path}: surveys.out_dir: {out}: ") and said in got, got
+    assert not Path("/proc/surveys").exists()
+
+
+def test_a_survey_directory_still_to_make_is_not_made_by_the_check(tmp_path):
+    out = tmp_path / "a" / "b" / "surveys"
+    path = farm(tmp_path, lambda raw: raw.setdefault("surveys", {}).update(out_dir=str(out)))
+    assert fault(path) is None and not (tmp_path / "a").exists()
