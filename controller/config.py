@@ -33,6 +33,12 @@ HOSTNAME = re.compile(rf"(?:{_LABEL}\.)*{_LABEL}\.?")
 SensorId = Annotated[str, Field(pattern=r"^[A-Za-z0-9_.-]{1,32}$")]  # a Zenoh key chunk: sensor/{id}
 
 
+def endpoint_port(endpoint: str) -> str | None:
+    """The port of a ``tcp/HOST:PORT`` (udp, tls, quic, ws) endpoint, as written; None for others."""
+    m = re.fullmatch(r"(?:tcp|udp|tls|quic|ws)/.*:([^:/#\]]*)(?:#.*)?", endpoint)
+    return None if m is None else m.group(1)
+
+
 class BusConfig(Strict):
     mode: Literal["peer", "client", "router"] = "peer"
     listen: list[str] = ["tcp/127.0.0.1:7447"]
@@ -47,10 +53,9 @@ class BusConfig(Strict):
         # Zenoh takes tcp/127.0.0.1:99999 or :abc into its config and fails only as the session
         # opens: after the simulator had started and the ledger was made (an outside tester)
         for endpoint in endpoints:
-            m = re.fullmatch(r"(?:tcp|udp|tls|quic|ws)/(.*):([^:/#\]]*)(?:#.*)?", endpoint)
-            if m is None:
+            port, least = endpoint_port(endpoint), 0 if info.field_name == "listen" else 1
+            if port is None:
                 continue                     # Zenoh's own parse says what is wrong with the rest
-            port, least = m.group(2), 0 if info.field_name == "listen" else 1
             if not port.isdigit() or not least <= int(port) <= 65535:
                 raise ValueError(f"{endpoint!r}: the port must be a number {least}..65535")
         return endpoints

@@ -5,11 +5,10 @@ from __future__ import annotations
 import importlib
 import math
 import os
-import re
 import tempfile
 from pathlib import Path
 
-from controller.config import Config, validate_section
+from controller.config import Config, endpoint_port, validate_section
 from controller.errors import BadInput
 from controller.feeding.dispensing import FULL_SHARE, UNMEASURED
 from controller.feeding.rations import load_tables
@@ -73,9 +72,9 @@ def check_ports(cfg: Config) -> None:
     if cfg.scada is not None and cfg.scada.enabled:
         wanted.append((cfg.scada.port, "scada.port"))
     for i, endpoint in enumerate(cfg.bus.listen if cfg.bus.config is None else []):
-        m = re.fullmatch(r"(?:tcp|udp|tls|quic|ws)/.*:(\d+)(?:#.*)?", endpoint)
-        if m is not None:
-            wanted.append((int(m.group(1)), f"bus.listen.{i}"))
+        port = endpoint_port(endpoint)
+        if port is not None and port.isdigit():
+            wanted.append((int(port), f"bus.listen.{i}"))
     for name, section in cfg.devices.items():
         if section.get("driver") == "sim" and isinstance(section.get("port"), int):
             wanted.append((section["port"], f"devices.{name}.port"))

@@ -13,7 +13,7 @@ import time
 
 import zenoh
 
-from controller.config import BusConfig
+from controller.config import BusConfig, endpoint_port
 from controller.errors import BadInput
 from controller.identity import bind_identities
 
@@ -74,9 +74,9 @@ def client_config(connect: str, user: str | None = None, password: str | None = 
     if (user is None) != (password is None):    # Zenoh refused the half login, and a worker retried for good
         given, missing = ("--user", "--password") if password is None else ("--password", "--user")
         raise BadInput(missing, None, f"{given} was given without {missing}: a login needs both")
-    port = re.fullmatch(r"(?:tcp|tls|udp|quic)/.*:(\d+)(?:#.*)?", connect)
-    if port is not None and not 1 <= int(port.group(1)) <= 65535:      # Zenoh took it, then retried for good
-        raise BadInput(option, None, f"{connect}: port {port.group(1)} is outside 1..65535")
+    port = endpoint_port(connect)
+    if port is not None and port.isdigit() and not 1 <= int(port) <= 65535:   # Zenoh took it, then retried for good
+        raise BadInput(option, None, f"{connect}: port {port} is outside 1..65535")
     zc = zenoh.Config()
     settings = {"mode": mode, "connect/endpoints": [connect], "listen/endpoints": [],
                 "scouting/multicast/enabled": False, "scouting/gossip/enabled": False,

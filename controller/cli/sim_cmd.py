@@ -83,12 +83,12 @@ def sim(config_path, endpoints, truth, speed, epoch_wall, epoch_farm, clock_path
             starting = asyncio.create_task(farm.start())
             stopping = asyncio.create_task(stop.wait())
             await asyncio.wait((starting, stopping), return_when=asyncio.FIRST_COMPLETED)
+            stopping.cancel()                     # (a start that failed leaves none pending either)
             if not starting.done():
                 starting.cancel()
                 with contextlib.suppress(asyncio.CancelledError):
                     await starting
                 return
-            stopping.cancel()
             found = starting.result()
             tmp = Path(endpoints).with_suffix(".tmp")
             tmp.write_text(json.dumps(found, indent=2))
