@@ -79,10 +79,14 @@ def check_clock_options(speed, epoch_wall, epoch_farm, clock_path, hear=None) ->
 
 
 def image_size_option(ctx, param, value):
-    """``--image-size WxH`` (a click callback): (width, height) in pixels, or None."""
+    """``--image-size WxH`` (a click callback): (width, height) in pixels, or None. Each side
+    1..MAX_IMAGE_PX, the range every reader of a calibration's size holds it to: a size past it
+    reached numpy as an integer too big for it, or was written to a file its reader refused."""
+    from vision.calib_file import MAX_IMAGE_PX
     if value is None:
         return None
     m = re.fullmatch(r"\s*(\d+)\s*[xX]\s*(\d+)\s*", value)
-    if not m or min(int(m[1]), int(m[2])) < 1:
-        raise click.BadParameter(f"{value!r}: expected WIDTHxHEIGHT in pixels (e.g. 1280x960)")
+    if not m or not all(1 <= int(s) <= MAX_IMAGE_PX for s in (m[1], m[2])):
+        raise click.BadParameter(f"{value!r}: expected WIDTHxHEIGHT in pixels (e.g. 1280x960), "
+                                 f"each side 1..{MAX_IMAGE_PX}")
     return int(m[1]), int(m[2])

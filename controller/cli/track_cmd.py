@@ -28,6 +28,7 @@ from controller.cli.csvio import _read_text as read_text
 from controller.cli.csvio import number
 from controller.cli.params import Finite
 from controller.errors import BadInput
+from vision.calib_file import MAX_IMAGE_PX
 
 HEADER = ("frame", "t_s", "file")
 T_MAX_S = 1e11          # seconds either side of the origin (3,000 years): a time beyond is no time
@@ -44,8 +45,8 @@ def load_tower_file(path: str) -> tuple[np.ndarray, tuple[int, int] | None]:
     doc = _tower_doc(path)
     size = doc.get("image_size")
     if size is not None and not (isinstance(size, list) and len(size) == 2 and all(
-            isinstance(v, int) and not isinstance(v, bool) and 0 < v <= 100_000 for v in size)):
-        raise BadInput(path, "image_size", "expected [width, height] in whole pixels")
+            isinstance(v, int) and not isinstance(v, bool) and 0 < v <= MAX_IMAGE_PX for v in size)):
+        raise BadInput(path, "image_size", f"expected [width, height] in whole pixels (1..{MAX_IMAGE_PX})")
     return _tower_h(path, doc), None if size is None else (size[0], size[1])
 
 

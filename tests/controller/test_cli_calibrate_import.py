@@ -138,6 +138,16 @@ def test_opencv_intrinsics_and_extrinsics_in_two_files(tmp_path):
     assert_bad(["--in", str(intr), "--out", str(out)], "intrinsics.yml", "R", "missing")
 
 
+@pytest.mark.parametrize("size", ["100001x960", "99999999999999999999x960", "1280x0"])
+def test_an_image_size_no_camera_has_is_refused_by_its_option(tmp_path, size):
+    """Past int64 it reached numpy ("internal error"); past 100000 px the file could not be read back."""
+    src = tmp_path / "stereo.yml"
+    write_opencv(src, M_NAMES)
+    out = tmp_path / "CALIB.json"
+    assert_bad(["--in", str(src), "--out", str(out), "--image-size", size], "--image-size", "1..100000")
+    assert not out.exists()
+
+
 def test_a_json_dump_of_stereo_calibrate_and_stereo_rectify_is_read_for_its_cameras(tmp_path):
     """json.dump of stereoCalibrate + stereoRectify (K D R T R1 R2 P1 P2 Q): the P1/P2 are the
     rectified cameras', not these pixels'; without stereoRectify's products P1/P2 are CALIB.json's."""

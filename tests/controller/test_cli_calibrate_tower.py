@@ -126,3 +126,17 @@ def test_the_frame_size_is_kept_and_pixels_outside_it_refused(tmp_path):
     assert result.returncode == 2 and "outside a 1280x720 frame" in result.stderr
     result = run("calibrate", "tower", "--points", ref, "--out", tmp_path / "T3.json", "--image-size", "12x")
     assert result.returncode == 2 and "--image-size" in result.stderr
+
+
+def test_a_frame_size_is_held_to_what_track_reads_back(tmp_path):
+    """A size past 100000 px a side (or past int64) was written, and `track` refused the file."""
+    from controller.cli.track_cmd import load_tower_file
+    ref = write(tmp_path / "REF.csv", ref_text(POND))
+    for size in ("100001x720", "99999999999999999999x720", "0x720"):
+        out = tmp_path / f"T{size[:8]}.json"
+        result = run("calibrate", "tower", "--points", ref, "--out", out, "--image-size", size)
+        assert result.returncode == 2 and "--image-size" in result.stderr and "1..100000" in result.stderr
+        assert len(result.stderr.strip().splitlines()) == 1 and not out.exists(), result.stderr
+    out = tmp_path / "TOWER.json"
+    assert run("calibrate", "tower", "--points", ref, "--out", out, "--image-size", "100000x100000").returncode == 0
+    assert load_tower_file(str(out))[1] == (100000, 100000)
