@@ -81,18 +81,25 @@ def refuse_repeated(ctx: click.Context, name: str, cmd: click.Command, args: lis
     names = {o for p in cmd.get_params(probe) if isinstance(p, click.Option) for o in (*p.opts, *p.secondary_opts)}
     seen: set[str] = set()
     for param in order:
-        if not isinstance(param, click.Option) or param.is_flag or param.multiple or param.count:
+        if not isinstance(param, click.Option) or param.is_flag or param.count:
             continue
         flag = max(param.opts, key=len)
-        if param.name in seen:
+        if param.name in seen and not param.multiple:
             raise click.BadOptionUsage(flag, f"{flag} given more than once: give it once (only one would be used)",
                                        ctx=probe)
         seen.add(param.name)
-        value = opts.get(param.name)
-        for v in value if isinstance(value, (tuple, list)) else (value,):
+        # a repeatable option's values too (``--pair L --json OUT``: --json taken for R)
+        for v in _flat(opts.get(param.name)):
             if isinstance(v, str) and v in names:
                 what = " ".join(param.metavar.split()) if param.metavar else f"{param.nargs} value(s)"
                 raise click.BadOptionUsage(flag, f"{flag} takes {what}: {v} is an option, not its value", ctx=probe)
+
+
+def _flat(value) -> list:
+    """An option's parsed value as a flat list: one value, a tuple of nargs, a list of those."""
+    if isinstance(value, (tuple, list)):
+        return [v for item in value for v in _flat(item)]
+    return [value]
 
 
 @click.group(cls=LazyGroup, context_settings={"help_option_names": ["-h", "--help"]})

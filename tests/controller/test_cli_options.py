@@ -33,6 +33,8 @@ def _single_value_options() -> list[tuple[list[str], click.Option]]:
 
 
 CASES = _single_value_options()
+REPEATABLE = [(prefix, p) for prefix, cmd in _commands() for p in cmd.params
+              if isinstance(p, click.Option) and p.multiple and not (p.is_flag or p.count)]
 
 
 def test_every_command_is_looked_at():
@@ -58,6 +60,19 @@ def test_an_option_read_as_another_s_value_is_refused_naming_the_first(prefix, o
     other = next(o for p in cmd.params if isinstance(p, click.Option) and p is not option for o in p.opts)
     flag = max(option.opts, key=len)
     code = main([*prefix, flag, *["1"] * (option.nargs - 1), other, "x"])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 2 and len(err) == 1
+    assert err[0].startswith(f"fishfarm {' '.join(prefix)}: {flag} takes ") and f": {other} is an option, not " \
+        "its value" in err[0]
+
+
+@pytest.mark.parametrize("prefix, option", REPEATABLE, ids=[f"{' '.join(p)} {o.opts[-1]}" for p, o in REPEATABLE])
+def test_an_option_read_as_a_repeatable_one_s_value_is_refused_naming_it(prefix, option, capsys):
+    """``--pair L --json OUT``: --json was taken for R, then "Missing option '--json'"."""
+    cmd = dict((tuple(p), c) for p, c in _commands())[tuple(prefix)]
+    other = next(o for p in cmd.params if isinstance(p, click.Option) and p is not option for o in p.opts)
+    flag = max(option.opts, key=len)
+    code = main([*prefix, flag, *["1"] * option.nargs, flag, *["1"] * (option.nargs - 1), other, "x"])
     err = capsys.readouterr().err.strip().splitlines()
     assert code == 2 and len(err) == 1
     assert err[0].startswith(f"fishfarm {' '.join(prefix)}: {flag} takes ") and f": {other} is an option, not " \
