@@ -71,13 +71,17 @@ def refuse_repeated(ctx: click.Context, name: str, cmd: click.Command, args: lis
     (the last kept: ``--video A B --video C D`` surveyed C D alone) and one of the command's own
     options read as another's value (``--video LEFT --json OUT``: --json taken for RIGHT, then
     "Missing option '--json'")."""
-    if getattr(cmd, "takes_anything", lambda _args: False)(args):
-        return          # a command that must act whatever it is given (``fishfarm override estop``)
     probe = click.Context(cmd, info_name=name, parent=ctx, resilient_parsing=True)
     try:
         opts, _, order = cmd.make_parser(probe).parse_args(args=list(args))
     except click.UsageError:
         return                                   # click's own pass says what is wrong
+    if getattr(cmd, "takes_anything", lambda _args: False)(args):
+        # a command that must act whatever it is given (``fishfarm override estop``): said, not refused
+        for flag in _repeated(order):
+            click.echo(f"fishfarm {name}: {flag} given more than once: the last is sent, the others left out",
+                       err=True)
+        return
     names = {o for p in cmd.get_params(probe) if isinstance(p, click.Option) for o in (*p.opts, *p.secondary_opts)}
     seen: set[str] = set()
     for param in order:
@@ -93,6 +97,12 @@ def refuse_repeated(ctx: click.Context, name: str, cmd: click.Command, args: lis
             if isinstance(v, str) and v in names:
                 what = " ".join(param.metavar.split()) if param.metavar else f"{param.nargs} value(s)"
                 raise click.BadOptionUsage(flag, f"{flag} takes {what}: {v} is an option, not its value", ctx=probe)
+
+
+def _repeated(order) -> list[str]:
+    """The single-value options given more than once in a parse's ``order``, by their long names."""
+    once = [p for p in order if isinstance(p, click.Option) and not (p.is_flag or p.multiple or p.count)]
+    return sorted({max(p.opts, key=len) for p in once if once.count(p) > 1})
 
 
 def _flat(value) -> list:

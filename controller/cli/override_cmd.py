@@ -134,7 +134,10 @@ def estop_fields(args) -> dict:
     fields: dict = {}
     for word in args:
         try:
-            fields.update({k: v for k, v in parse_args([word]).items() if k not in fields})
+            for k, v in parse_args([word]).items():
+                if k in fields:
+                    raise BadInput(word, None, f"{k} given more than once (the first is sent)")
+                fields[k] = v
         except BadInput as exc:
             click.echo(f"fishfarm override: {exc}: left out, the e-stop is sent all the same", err=True)
     return fields

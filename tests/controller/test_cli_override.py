@@ -99,6 +99,7 @@ def test_estop_with_no_args_is_accepted(controller):
     (["tank=T1", "tank=T2"], {"tank": "T1"}),                  # given twice
     (["--now", "-f"], {}),                                     # no such options
     (["--reason", "a", "--reason", "b"], {"reason": "b"}),     # an option given twice
+    (["--reason", "a", "--reason", "b", "--site", "demo"], {"reason": "b"}),
 ])
 def test_an_estop_with_words_it_cannot_read_is_sent_all_the_same(controller, extra, kept):
     """DESIGN.md: an emergency action is never refused for a missing detail. `fishfarm override
@@ -109,9 +110,12 @@ def test_an_estop_with_words_it_cannot_read_is_sent_all_the_same(controller, ext
     assert proc.returncode == 0, proc.stderr
     assert json.loads(proc.stdout) == {"ok": True}
     assert received == [("estop", {"operator": "tester", **kept})]
-    readable = {"tank=T1", "a", "b", "--reason"}
+    readable = {"tank=T1", "a", "b", "--reason", "--site", "demo"}
     assert all(f"{w}: " in proc.stderr and "the e-stop is sent all the same" in proc.stderr
-               for w in extra if w not in readable and w != "tank=T2"), proc.stderr
+               for w in extra if w not in readable), proc.stderr
+    # README: an option given twice is said too (the last was sent without a word)
+    assert ("--reason given more than once: the last is sent" in proc.stderr) == (extra.count("--reason") > 1)
+    assert ("tank given more than once (the first is sent)" in proc.stderr) == (extra.count("tank=T2") > 0)
 
 
 def test_an_option_no_command_has_is_refused_for_every_command_but_estop(controller):
