@@ -31,13 +31,16 @@ def check_hopper(cfg: Config) -> None:
 
 
 def check_stocks(cfg: Config, species: dict) -> None:
-    """``[stocks.NAME]``: each one's keys and its species, though only ``survey --stock`` uses them."""
-    from controller.surveys.species import StockSection
+    """``[stocks.NAME]``: each one's keys, its species and its a, b as ``survey --stock`` checks
+    them, though only that command uses them (a stock run took, a survey refused)."""
+    from controller.feeding.rations import species_file
+    from controller.surveys.species import StockSection, stock_law, survey_species
     for name, section in cfg.stocks.items():
         stock = validate_section(StockSection, section, cfg.path, f"stocks.{name}")
         if stock.species not in species:
             raise BadInput(cfg.path, f"stocks.{name}.species",
                            f"unknown species {stock.species!r} (known: {', '.join(sorted(species))})")
+        stock_law(survey_species(stock.species, species_file(cfg.path)), stock, cfg.path, name)
 
 
 def build_device(name: str, section: dict, clock, where: str):

@@ -96,6 +96,14 @@ def with_stock(species: SurveySpecies, config_path: str | Path, stock: str) -> S
     if section.species != species.key:
         raise BadInput(where, f"stocks.{stock}.species",
                        f"{section.species!r}, but the survey is of {species.key!r} (--species)")
+    own = stock_law(species, section, where, stock)
+    return SurveySpecies(species.key, species.name, own, f"farm.toml stocks.{stock}: {section.source}",
+                         species.shape)
+
+
+def stock_law(species: SurveySpecies, section: StockSection, where: str, stock: str) -> LengthWeight:
+    """The length-weight law of farm.toml ``[stocks.<stock>]`` (its species ``species``), refused
+    naming ``stocks.<stock>.a`` where its fish would weigh what no fish of the species might."""
     own = LengthWeight(section.a, section.b)
     # a and b are each within their bounds in nonsense pairs (a = 1e-30 gave every fish 0.0 g; a in
     # kg is 1000 x light): the stock's fish must weigh what fish of their species might, within a
@@ -107,5 +115,4 @@ def with_stock(species: SurveySpecies, config_path: str | Path, stock: str) -> S
         raise BadInput(where, f"stocks.{stock}.a", f"a = {section.a:g}, b = {section.b:g} weigh a {mid:.0f} cm fish "
                                                    f"{w:.3g} g, {w / typical:.2g} x the {typical:.3g} g of "
                                                    f"{species.key}'s own law: a unit slip?")
-    return SurveySpecies(species.key, species.name, own, f"farm.toml stocks.{stock}: {section.source}",
-                         species.shape)
+    return own

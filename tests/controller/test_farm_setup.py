@@ -79,11 +79,20 @@ def test_a_missing_chart_names_the_farm_file_and_the_key(tmp_path):
                                         ({"species": "sparus_aurata", "a": -0.012, "b": 3.0}, "stocks.nursery.a"),
                                         ({"species": "sparus_auratta", "a": 0.012, "b": 3.0},
                                          "stocks.nursery.species"),
-                                        ({"a": 0.012, "b": 3.0}, "stocks.nursery.species")])
+                                        ({"a": 0.012, "b": 3.0}, "stocks.nursery.species"),
+                                        # each in its bounds, weighing nothing (a survey refused it)
+                                        ({"species": "sparus_aurata", "a": 1e-30, "b": 3.0}, "stocks.nursery.a"),
+                                        ({"species": "sparus_aurata", "a": 0.9, "b": 4.0}, "stocks.nursery.a")])
 def test_stock_sections_are_checked_though_only_a_survey_uses_them(tmp_path, stock, key):
     path = farm(tmp_path, lambda raw: raw.update(stocks={"nursery": stock}))
     got = fault(path)
     assert got is not None and got.startswith(f"{path}: {key}"), got
+
+
+def test_the_paper_s_nursery_stock_is_taken(tmp_path):
+    path = farm(tmp_path, lambda raw: raw.update(stocks={"nursery": {"species": "sparus_aurata", "a": 0.012,
+                                                                     "b": 3.032, "source": "Table I"}}))
+    assert fault(path) is None
 
 
 def test_species_rows_out_of_order_are_refused_when_the_species_file_is_read(tmp_path):
