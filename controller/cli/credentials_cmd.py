@@ -81,7 +81,9 @@ def credentials(out, add, force):
         names = [_name(n) for n in add]
         entries = read(path) if path.exists() else {}
         for name in names:
-            if name in entries or names.count(name) > 1:
+            if names.count(name) > 1:
+                raise BadInput("--add", None, f"{name!r} given more than once: one user, one password")
+            if name in entries:
                 raise BadInput(str(path), name, "user exists already (remove its line to replace it)")
         added = {name: new_password() for name in names}
         write(path, {**entries, **added})

@@ -265,6 +265,11 @@ def test_credentials_are_random_private_and_never_overwritten(tmp_path):
     proc = subprocess.run([FISHFARM, "credentials", "--out", str(out), "--add", "x\ny"], capture_output=True,
                           text=True, timeout=60)         # the name echoed raw: a refusal of two lines
     assert proc.returncode == 2 and proc.stderr.count("\n") == 1 and "'x\\ny'" in proc.stderr, proc.stderr
+    before = out.read_text()
+    proc = subprocess.run([FISHFARM, "credentials", "--out", str(out), "--add", "bob", "--add", "bob"],
+                          capture_output=True, text=True, timeout=60)     # "user exists already": none did
+    assert proc.returncode == 2 and proc.stderr == "fishfarm: --add: 'bob' given more than once: one user, " \
+        "one password\n" and out.read_text() == before, proc.stderr
 
 
 def test_the_controller_without_a_credentials_file_says_how_to_make_one(tmp_path):
