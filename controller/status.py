@@ -25,8 +25,11 @@ def farm_status(c) -> dict:
         note = demand.slow_fish(tank.id) if demand is not None and tank.id in demand.tanks else None
         if note is not None:
             tanks[tank.id]["slow_fish"] = note
+    # an e-stop while starting latched the devices, and the robot will start in it: the feeder is in
+    # e-stop (SCADA's coil 0 read 0 under a standing e-stop alarm), and still starting (optional field)
     feeder = c.robot.snapshot() if c.robot is not None else {
-        "t": c.clock.iso(now), "state": "starting", "position_m": None, "hopper_g": None}
+        "t": c.clock.iso(now), "state": "starting" if getattr(c, "estop_before_start", None) is None else "estop",
+        "position_m": None, "hopper_g": None, "starting": True}
     out = {"t": c.clock.iso(now), "site": c.cfg.site, "feeder": feeder,
            "uptime_s": round(time.monotonic() - c.started_monotonic, 3),
            "tanks": tanks,

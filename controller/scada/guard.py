@@ -110,6 +110,13 @@ class Guard:
         self.coordinator.refresh()
         return None
 
+    async def estop_unanswered(self, peer: str) -> bool:
+        """The bookkeeping of an e-stop frame whose latches were tripped as it arrived, on a connection
+        closed before its request was answered: the stop stands, and status and the audit say so."""
+        base = {"operator": self.scada.identity,
+                "reason": "SCADA e-stop frame (its connection closed before the reply)"}
+        return await self._apply("estop", base, f"modbus {peer}")
+
     async def _act(self, e: Entry, value, origin: str, last: bool = True, tripped: bool = False) -> bool:
         who = self.scada.identity
         base = {"operator": who, "reason": f"SCADA write to {e.name}"}

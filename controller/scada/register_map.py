@@ -98,7 +98,7 @@ TABLE: tuple[Row, ...] = (
     Row("farm", "estop_latched", DI, 0, "bool", 1, "", "R", "the feeder is in e-stop",
         lambda v: v.s["feeder"].get("state") == "estop"),
     Row("farm", "ready", DI, 1, "bool", 1, "", "R", "the controller is up (its devices opened)",
-        lambda v: v.s["feeder"].get("state") not in (None, "starting")),
+        lambda v: v.s["feeder"].get("state") not in (None, "starting") and not v.s["feeder"].get("starting")),
     Row("farm", "writes_enabled", DI, 2, "bool", 1, "", "R", "writes are accepted ([scada] read_only = false)",
         lambda v: not v.read_only),
     # -- the rail feeding robot ---------------------------------------------------------------

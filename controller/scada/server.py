@@ -170,7 +170,14 @@ class ScadaStore:
         conn = PEER.get()
         write = self.guard.write(kind, address, values, conn.peer if conn is not None else "?",
                                  tripped=conn is not None and conn.take_trip())
-        return await asyncio.wrap_future(asyncio.run_coroutine_threadsafe(write, self.act_loop))
+        # a write taken is carried out whole, though its client goes (the reply is then lost):
+        # cancelling the wait cancelled the write half done on the controller's loop
+        return await asyncio.shield(asyncio.wrap_future(asyncio.run_coroutine_threadsafe(write, self.act_loop)))
+
+    def estops_unanswered(self, count: int, peer: str) -> None:
+        """E-stops tripped on arrival on a connection closed before they were answered."""
+        for _ in range(count):
+            asyncio.run_coroutine_threadsafe(self.guard.estop_unanswered(peer), self.act_loop)
 
 
 class _Connection(ServerRequestHandler):
@@ -181,6 +188,8 @@ class _Connection(ServerRequestHandler):
     last_heard = 0.0
     frame_started: float | None = None       # when the frame now cut short began to arrive
     tripped = 0                              # e-stop frames tripped on arrival, not yet acted on
+    answering: asyncio.Task | None = None
+    waiting: collections.deque | tuple = ()     # each connection's own from callback_connected
 
     def take_trip(self) -> bool:
         """Whether this request's e-stop was tripped on arrival (then the guard does not again)."""
@@ -209,9 +218,26 @@ class _Connection(ServerRequestHandler):
 
     def callback_disconnected(self, exc: Exception | None) -> None:
         super().callback_disconnected(exc)
+        self._drop_waiting()
+
+    def close(self, reconnect: bool = False) -> None:
+        # (pymodbus calls no callback_disconnected for a close of our own)
+        self._drop_waiting()
+        super().close(reconnect)
+
+    def _drop_waiting(self) -> None:
+        """Requests a closed connection can no longer be answered are dropped (a write being carried
+        out is finished: ScadaStore.async_setValues). But e-stop frames tripped on arrival whose
+        requests are among them (closed with over PIPELINE_MAX waiting, a broken frame behind them,
+        the client gone) latched the devices: the controller records them all the same, or status,
+        coil 0 and reset would read no e-stop while the devices hold one."""
         if self.answering is not None:
             self.answering.cancel()
-        self.waiting.clear()
+        if self.waiting:
+            self.waiting.clear()
+        unanswered, self.tripped = self.tripped, 0
+        if unanswered:
+            self.server.context.estops_unanswered(unanswered, self.peer)
 
     def datagram_received(self, data: bytes, addr: tuple | None) -> None:
         # pymodbus's own emptied the buffer whole once it held more than one frame's 260 bytes
@@ -248,7 +274,6 @@ class _Connection(ServerRequestHandler):
         if len(self.waiting) > PIPELINE_MAX:
             log.warning("scada: %s has over %d requests waiting; closed", self.peer, PIPELINE_MAX)
             self.server.broken += 1
-            self.waiting.clear()
             self.close()
             return len(data)
         if self.waiting and self.answering is None:

@@ -114,6 +114,9 @@ def test_waits_for_absent_devices_yet_answers_and_estops(tmp_path):
                     break
                 await asyncio.sleep(0.01)
             assert "dispenser (" in estop["text"] and "drive (" in estop["text"], estop["text"]
+            # the feeder is in e-stop, though starting: the robot will start in it (SCADA's coil 0 and
+            # discrete input 0 read 0 under the standing e-stop alarm)
+            assert status["feeder"]["state"] == "estop" and status["feeder"]["starting"] is True
             assert not running.done()                       # still waiting, not dead
         finally:
             if client is not None:

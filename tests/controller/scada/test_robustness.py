@@ -415,3 +415,31 @@ def test_an_estop_behind_a_flood_of_pipelined_writes_trips_at_once_and_the_write
         assert tripped_after < 2000                         # tripped while writes still waited
     finally:
         s.close()
+
+
+@pytest.mark.parametrize("behind", ["flood", "broken header"])
+def test_an_estop_tripped_on_a_connection_then_closed_is_still_recorded(serve, behind):
+    """The e-stop frame trips the latches as it arrives; its request was then thrown away when the
+    connection was closed (over 10,000 requests waiting, or a broken header behind it): the devices
+    latched while status, coil 0 and the audit said nothing, and a reset was refused as needless."""
+    from controller.scada.server import PIPELINE_MAX
+
+    from .conftest import StandIn
+    stand_in = StandIn()
+    srv = serve(stand_in)
+    s = socket.create_connection(("127.0.0.1", srv.port), timeout=30)
+    try:
+        estop = _frame(60000, 5, struct.pack(">HH", 0, 0xFF00))
+        reads = [_frame(tid, 4, struct.pack(">HH", 0, 1)) for tid in range(PIPELINE_MAX + 400)]
+        tail = b"".join(reads[100:]) if behind == "flood" else b"\x00\x01\x00\x09\x00\x06\x01\x04\x00\x00\x00\x01"
+        s.sendall(b"".join(reads[:100]) + estop + tail)
+        assert closed_by_server(s)
+    finally:
+        s.close()
+    deadline = time.monotonic() + 10
+    while not [c for c in srv.call(lambda: list(stand_in.calls)) if c[0] == "estop"]:
+        assert time.monotonic() < deadline, "the e-stop tripped but never reached the controller"
+        time.sleep(0.01)
+    [(command, payload, _, origin)] = [c for c in srv.call(lambda: list(stand_in.calls)) if c[0] == "estop"]
+    assert len(srv.call(lambda: list(stand_in.trips))) == 1 and origin.startswith("modbus 127.0.0.1:")
+    assert "closed before the reply" in payload["reason"]

@@ -33,9 +33,11 @@ def random_status(rng: random.Random, tanks: list[str], slots: list[str]) -> dic
         # status also lists cleared alarms not yet acknowledged: the map's are the standing ones
         alarms.append({"source": source, "kind": "general", "severity": rng.choice(SEVERITIES),
                        "acked": rng.random() < 0.5, "active": rng.random() < 0.7})
+    feeder = {"state": rng.choice(feeder_states()), "position_m": maybe(f32(0, 100)), "hopper_g": maybe(f32(0, 8000))}
+    if feeder["state"] == "estop" and rng.random() < 0.5:
+        feeder["starting"] = True          # e-stopped while starting (status marks it so)
     return {"t": "2026-06-01T12:00:00.000Z", "uptime_s": rng.uniform(0, 1e6),
-            "feeder": {"state": rng.choice(feeder_states()), "position_m": maybe(f32(0, 100)),
-                       "hopper_g": maybe(f32(0, 8000))},
+            "feeder": feeder,
             "alarms": alarms,
             "tanks": {t: {"demand": rng.random() < 0.5, "paused": maybe(rng.random() < 0.5),
                           "ration_g": maybe(f32(0, 5000)), "fed_g": maybe(f32(0, 5000)),
@@ -112,7 +114,7 @@ def expected(row: dict, st: dict, tanks: list[str], word_order: str, read_only: 
         value = {"uptime_s": int(round(st["uptime_s"])), "map_version": 1, "tank_count": len(tanks),
                  "word_order": int(word_order == "little"), "farm_time": 1780315200,
                  "estop": f["state"] == "estop", "estop_latched": f["state"] == "estop",
-                 "ready": f["state"] != "starting", "writes_enabled": not read_only,
+                 "ready": f["state"] != "starting" and not f.get("starting"), "writes_enabled": not read_only,
                  "feeder.state": feeder_states().index(f["state"]), "feeder.position_m": f["position_m"],
                  "feeder.hopper_g": f["hopper_g"], "alarms.active": len(standing),
                  "alarms.unacked": sum(not x["acked"] for x in standing),
