@@ -45,7 +45,7 @@ class Guard:
     def check(self, kind: str, address: int, values: list) -> list[tuple[Entry, object]] | Refusal:
         """The (entry, value) pairs a write means, or the refusal of all of it."""
         if self.scada.read_only:
-            return Refusal(ExcCodes.ILLEGAL_ADDRESS, "write", "the SCADA server is read-only")
+            return Refusal(ExcCodes.ILLEGAL_ADDRESS, self.meant(kind, address), "the SCADA server is read-only")
         at, plan, i = self.writable.get(kind, {}), [], 0
         if not values:
             return Refusal(ExcCodes.ILLEGAL_VALUE, "write", "no value")
@@ -64,6 +64,11 @@ class Guard:
             i += e.words
         return plan
 
+    def meant(self, kind: str, address: int) -> str:
+        """The override a write at ``address`` means, "write" where it means none."""
+        e = self.writable.get(kind, {}).get(address)
+        return "write" if e is None else e.row.write.command
+
     def _value(self, e: Entry, words: list):
         """The value written, or None when the row does not take it."""
         row = e.row
@@ -80,6 +85,15 @@ class Guard:
         return value
 
     # -- acting -------------------------------------------------------------------------------
+    async def refused_read(self, kind: str, address: int, values: list, peer: str, code: ExcCodes,
+                           error: str) -> None:
+        """A read/write (FC 23) refused for its read range before its write was looked at: audited
+        as every refused write is, with the command its write meant."""
+        self.refused += 1
+        received = {"table": kind, "address": address, "values": [int(v) for v in values[:MAX_AUDITED]]}
+        self.controller.overrides.refused_on_wire(self.meant(kind, address), f"{error} (exception {int(code):02X})",
+                                                  self.scada.identity, received, origin=f"modbus {peer}")
+
     async def write(self, kind: str, address: int, values: list, peer: str, *,
                     tripped: bool = False) -> ExcCodes | None:
         """``tripped``: the connection already tripped the latches for this very frame."""

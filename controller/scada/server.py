@@ -174,6 +174,13 @@ class ScadaStore:
         # cancelling the wait cancelled the write half done on the controller's loop
         return await asyncio.shield(asyncio.wrap_future(asyncio.run_coroutine_threadsafe(write, self.act_loop)))
 
+    async def refuse_unreadable(self, request: ModbusPDU, code: ExcCodes, peer: str) -> None:
+        """Audit an FC 23 refused for its read range (its write was not acted on)."""
+        refused = self.guard.refused_read(
+            HR, request.write_address, list(request.write_registers), peer, code,
+            f"read of {request.read_count} from {request.read_address}: past the map")
+        await asyncio.shield(asyncio.wrap_future(asyncio.run_coroutine_threadsafe(refused, self.act_loop)))
+
     def estops_unanswered(self, count: int, peer: str) -> None:
         """E-stops tripped on arrival on a connection closed before they were answered."""
         for _ in range(count):
@@ -315,6 +322,7 @@ class _Connection(ServerRequestHandler):
         try:
             unread = self.server.context.unreadable(request)
             if unread is not None:          # FC 23 writes before it reads: both are checked first
+                await self.server.context.refuse_unreadable(request, unread, self.peer)
                 response = ExceptionResponse(request.function_code, unread)
             else:
                 response = await request.datastore_update(self.server.context, request.dev_id)

@@ -153,6 +153,13 @@ def test_a_coil_written_with_a_value_modbus_does_not_allow_is_refused_with_03(se
         c.close()
 
 
+def meant(name: str) -> str:
+    """The override a writable row of the map names."""
+    last = name.rsplit(".", 1)[-1]
+    return {"estop": "estop", "reset": "reset", "ack_all": "ack", "ack": "ack", "pause": "pause",
+            "start_survey": "start-survey", "feed_now_g": "feed", "set_ration_g": "ration"}[last]
+
+
 def test_read_only_refuses_every_write(serve):
     stand_in = StandIn()
     srv = serve(stand_in, read_only=True)
@@ -163,6 +170,10 @@ def test_read_only_refuses_every_write(serve):
             assert c.write(table, address, values, single=len(values) == 1) == ("exception", 2), row["name"]
         assert c.read("discrete input", 2) == [0]        # writes_enabled says so
         assert stand_in.calls == [] and stand_in.trips == []
+        # audited with the command each meant, from the map's names (every one read "write")
+        srv.call(lambda: None)
+        assert [(cmd, err) for cmd, err, *_ in stand_in.refusals] == [
+            (meant(row["name"]), "the SCADA server is read-only (exception 02)") for row in WRITABLE.values()]
     finally:
         c.close()
 
@@ -288,6 +299,11 @@ def test_a_read_write_whose_read_the_map_lacks_does_nothing(serve, read_address,
         assert fc23(c, read_address, read_count, 100, [int(PORTION[1])]) == ("exception", want)
         srv.call(lambda: None)
         assert stand_in.calls == []
+        if want == 2:               # audited as every refused write is (it was not)
+            [(cmd, err, user, payload, origin)] = stand_in.refusals
+            assert (cmd, user, payload) == ("feed", "scada", {"table": "holding register", "address": 100,
+                                                               "values": [int(PORTION[1])]})
+            assert err.endswith("(exception 02)") and f"from {read_address}" in err and origin.startswith("modbus ")
         assert fc23(c, 0, 2, 100, [int(PORTION[1])]) is None          # the same write, a read the map has
         srv.call(lambda: None)
         assert [call[0] for call in stand_in.calls] == ["feed"]
