@@ -443,3 +443,34 @@ def test_an_estop_tripped_on_a_connection_then_closed_is_still_recorded(serve, b
     [(command, payload, _, origin)] = [c for c in srv.call(lambda: list(stand_in.calls)) if c[0] == "estop"]
     assert len(srv.call(lambda: list(stand_in.trips))) == 1 and origin.startswith("modbus 127.0.0.1:")
     assert "closed before the reply" in payload["reason"]
+
+
+def test_a_write_under_way_when_its_client_goes_is_carried_out_whole(serve):
+    """The client's going cancelled the write's wait, and with it the override half done on the
+    controller's loop (a ration set, or not, by a closed socket's timing)."""
+    import asyncio
+
+    from .conftest import StandIn
+
+    class Slow(StandIn):
+        async def apply(self, command, payload, *, user=None, origin="zenoh"):
+            reply = await super().apply(command, payload, user=user, origin=origin)
+            await asyncio.sleep(0.3)                  # an override that takes a while (a ledger write)
+            self.done.append(command)
+            return reply
+
+    stand_in = Slow()
+    stand_in.done = []
+    srv = serve(stand_in)
+    s = socket.create_connection(("127.0.0.1", srv.port), timeout=30)
+    s.sendall(_frame(1, 16, struct.pack(">HHBHH", 101, 2, 4, 0x4120, 0)))      # T1's ration: 10 g
+    deadline = time.monotonic() + 10
+    while not srv.call(lambda: list(stand_in.calls)):
+        assert time.monotonic() < deadline
+        time.sleep(0.005)
+    s.setsockopt(socket.SOL_SOCKET, socket.SO_LINGER, struct.pack("ii", 1, 0))
+    s.close()                                         # reset, while the override is under way
+    while not srv.call(lambda: list(stand_in.done)):
+        assert time.monotonic() < deadline, "the write was dropped half done"
+        time.sleep(0.01)
+    assert stand_in.done == ["ration"]
