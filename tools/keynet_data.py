@@ -2,7 +2,8 @@
 underwater pairs.
 
 Run (the project's venv): ``.venv/bin/python tools/keynet_data.py --seed0 100000 --scenes 1200
---out /tmp/kn_a.npz [--species oreochromis_niloticus]`` (``--species``: every scene of that species).
+--out /tmp/kn_a.npz [--species oreochromis_niloticus] [--conditions '{"clutter": "reef"}']``
+(``--species``: every scene of that species; ``--conditions``: those scene conditions given).
 Seeds must be >= 100000: the benches use 0+ and 1000+, and nothing is trained
 or tuned on those. Deterministic for a seed range.
 
@@ -15,6 +16,7 @@ cut fish are masked out (whether their ends show is unknown).
 from __future__ import annotations
 
 import argparse
+import json
 import sys
 from pathlib import Path
 
@@ -35,12 +37,14 @@ def main() -> None:
     ap.add_argument("--width", type=int, default=384)
     ap.add_argument("--out", required=True)
     ap.add_argument("--species", help="every scene of this species (devices.sim.fish_species)")
+    ap.add_argument("--conditions", default="{}",
+                    help='scene conditions as JSON, e.g. \'{"clutter": "reef"}\' (the rest drawn)')
     args = ap.parse_args()
     if args.seed0 < FIRST_SEED:
         sys.exit(f"keynet_data: --seed0: {args.seed0} is below {FIRST_SEED} (the benches' seeds)")
     imgs, fish = [], []
     for seed in range(args.seed0, args.seed0 + args.scenes):
-        given = {"species": args.species} if args.species else {}
+        given = json.loads(args.conditions) | ({"species": args.species} if args.species else {})
         sc = underwater_scene(np.random.default_rng(seed), **given)
         for c, img in enumerate((sc.left, sc.right)):
             H, W = img.shape[:2]
