@@ -79,6 +79,22 @@ views; bench/diag_underwater.py seeds 200000-200059: 49 -> 54 found of 107), and
 the packaged net's figures, does not rank its extra reports. Kept as
 tools/models/fish_keypoints_candidate.onnx (the next training's ``--init``, or packaged with a score
 fitted to it at a precision that holds).
+
+Trained on again (2026-12-06, issue 7; not packaged): from that candidate (``--init``), 68 min on one
+core, 9,233 steps of 16 crops at a peak rate of 2e-3, on 1,300 scenes weighted where the survey loses
+fish (tools/keynet_data.py ``--conditions``): 101000-101199 (the same held-out images), 100000-100399,
+reef clutter 104000-104399, near fish (0.6-1.2 m) 104400-104549, reef and near 104550-104699. Held-out
+peaks over 0.3 within 4 %: forks 57.6 -> 60.3 %, snouts 45.4 -> 50.7 %, false forks 9.5 -> 10.2 %,
+fork-snout pairs right 76.5 -> 79.0 %. With the score refitted on its reports (tools/score_data.py
+seeds 300000-300599, judged on 300600-300899: right reports cover 0.685 of the fully visible fish
+there, filters off), bench/bench_survey_underwater.py, reported / right / precision, packaged ->
+retrained: seeds 0+ 129 / 124 / 0.961 -> 127 / 121 / 0.953 (recall 0.562 both; the survey mean
+-3.86 -> -11.49 %: other fish found), 1000+ 103 / 101 / 0.981 -> 107 / 105 / 0.981 (recall 0.47 ->
+0.505), 1920x1080 seeds 5000+ 104 / 101 / 0.971 -> 111 / 108 / 0.973 (0.455 -> 0.49), tuning seeds
+200000+ (--fish 300) 157 / 150 / 0.955 -> 170 / 161 / 0.947 (0.45 -> 0.49): 476 -> 495 right, 17 -> 20
+wrong over the four sets. ``min_chance`` 0.9 holds precision (0.969-1.0) but finds fewer than packaged
+(106, 93, 94, 146 right). Not adopted: the main bench gains nothing, its precision falls and one set
+falls under 0.95. Kept as tools/models/fish_keypoints_candidate.onnx (replacing the 2026-12-04 one).
 """
 from __future__ import annotations
 
