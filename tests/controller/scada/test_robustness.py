@@ -10,7 +10,7 @@ import time
 
 import pytest
 
-from controller.scada.server import broken_mbap
+from controller.scada.framing import broken_mbap
 
 from .mbap import Mbap
 
