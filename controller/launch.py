@@ -6,18 +6,28 @@ controller.cli`` imports the package, click and all, before any line of ours run
 The command's imports (click, the command's modules) take a tenth of a second and more: a Ctrl-C
 in that time printed a 17-line KeyboardInterrupt traceback from inside ``import click`` and exited
 -2. Nothing has started then, so nothing needs cleaning up: the early handler says "aborted" and
-exits as a command interrupted later does (130 for SIGINT, 143 for SIGTERM). Only the
-interpreter's own start, before any program runs, is out of reach.
+exits as a command interrupted later does (130 for SIGINT, 143 for SIGTERM; ``fishfarm sim`` 0, as
+a signal ends it whatever it is doing). Only the interpreter's own start, before any program runs,
+is out of reach.
 """
 import _signal  # the C module: ``signal`` builds its enums first, and a Ctrl-C there was a traceback
 import os  # (imported already, by site)
+import sys  # (built in)
+
+
+def stop_code(signum: int) -> int:
+    """The exit code of a command a signal ends before it takes the signal itself: 128 + signum,
+    but 0 for ``fishfarm sim``, which README says a signal ends with 0 whatever it is doing (in its
+    first second it exited 130, 143 or 129)."""
+    return 0 if sys.argv[1:2] == ["sim"] else 128 + signum
 
 
 def _early(signum, _frame) -> None:
+    code = stop_code(signum)
     try:
-        os.write(2, b"fishfarm: aborted\n")
+        os.write(2, b"fishfarm: aborted\n" if code else b"fishfarm sim: stopped while starting\n")
     finally:
-        os._exit(128 + signum)        # mid-import: no exception may unwind through the import machinery
+        os._exit(code)        # mid-import: no exception may unwind through the import machinery
 
 
 def entry() -> None:

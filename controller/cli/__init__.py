@@ -159,8 +159,9 @@ def _terminated(signum, _frame) -> None:
     ``sim`` wake the loop for the orderly stop (controller/shutdown.py), raising nothing. Until
     then SIGHUP is this one as well (its default killed a starting controller without a word,
     its ledger's -wal left behind, an outside tester); nohup's ignored SIGHUP stays ignored."""
+    from controller.launch import stop_code
     signal.signal(signum, signal.SIG_DFL)
-    raise SystemExit(128 + signum)
+    raise SystemExit(stop_code(signum))
 
 
 # OpenCV's and FFmpeg's own lines ("[ WARN:4@15.707] global cap_ffmpeg_impl.hpp:435 ... Stream
@@ -183,7 +184,8 @@ def entry() -> None:
     if signal.getsignal(signal.SIGHUP) in (signal.SIG_DFL, _early_handler()):
         signal.signal(signal.SIGHUP, _terminated)
     if signal.getsignal(signal.SIGINT) in (signal.default_int_handler, _early_handler()):
-        signal.signal(signal.SIGINT, _interrupted)      # (not a background job's ignored one)
+        # (not a background job's ignored one; the simulator's ends it with 0, as SIGTERM does)
+        signal.signal(signal.SIGINT, _terminated if sys.argv[1:2] == ["sim"] else _interrupted)
     sys.exit(main())
 
 

@@ -282,6 +282,26 @@ def test_a_signal_while_the_command_is_still_importing_is_aborted_in_one_line(tm
     assert len(err.strip().splitlines()) <= 1, err       # "aborted", its own refusal, or quiet
 
 
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM, signal.SIGHUP], ids=["SIGINT", "SIGTERM", "SIGHUP"])
+@pytest.mark.parametrize("after_s", [0.0, 0.1, 0.3])
+def test_a_signal_while_the_simulator_is_still_importing_ends_it_with_0(tmp_path, sig, after_s):
+    """README: a signal ends ``fishfarm sim`` whatever it is doing, exit 0. In its first second
+    (imports, the command line) it exited 130, 143 or 129 as other commands do (an outside tester)."""
+    fishfarm = str(Path(sys.executable).with_name("fishfarm"))
+    p = subprocess.Popen([fishfarm, "sim", "--config", str(tmp_path / "none.toml")],
+                         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, preexec_fn=_hangup_default)
+    deadline = time.monotonic() + 10
+    while not _catches(p.pid, signal.SIGTERM) and p.poll() is None:
+        assert time.monotonic() < deadline
+        time.sleep(0.0005)
+    time.sleep(after_s)
+    p.send_signal(sig)
+    _, err = p.communicate(timeout=30)
+    assert "Traceback" not in err, err
+    assert p.returncode in (0, 2), (p.returncode, err)      # 2: it ran to its own refusal first
+    assert len(err.strip().splitlines()) <= 1, err
+
+
 def _catches(pid: int, sig: int) -> bool:
     try:
         with open(f"/proc/{pid}/status") as fh:
