@@ -38,7 +38,15 @@ def session_config(cfg: BusConfig, where: str | None = None) -> zenoh.Config:
         for key, value in (("mode", cfg.mode), ("listen", cfg.listen), ("connect", cfg.connect)):
             _set(zc, key if key == "mode" else f"{key}/endpoints", value, where or "[bus]", f"bus.{key}")
     zc.insert_json5("scouting/multicast/enabled", "false")
+    for key, value in NO_SHM.items():
+        zc.insert_json5(key, json.dumps(value))
     return zc
+
+
+# Zenoh's shared memory (on by default) left a segment in /dev/shm behind every `fishfarm run`,
+# a file a restart never reuses, on a controller restarted for years; the farm's sessions talk over
+# TCP (loopback or the farm's network) and gain nothing from it
+NO_SHM = {"transport/shared_memory/enabled": False}
 
 
 def _certificate_in_date(zc: zenoh.Config, where: str, now: float | None = None) -> None:
@@ -80,7 +88,7 @@ def client_config(connect: str, user: str | None = None, password: str | None = 
     zc = zenoh.Config()
     settings = {"mode": mode, "connect/endpoints": [connect], "listen/endpoints": [],
                 "scouting/multicast/enabled": False, "scouting/gossip/enabled": False,
-                "transport/unicast/open_timeout": max(1, int(timeout_s * 1000))}
+                "transport/unicast/open_timeout": max(1, int(timeout_s * 1000)), **NO_SHM}
     if user is not None or password is not None:
         settings["transport/auth/usrpwd/user"] = user or ""
         settings["transport/auth/usrpwd/password"] = password or ""

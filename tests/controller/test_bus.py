@@ -6,8 +6,11 @@ import json
 import logging
 import os
 import queue
+import subprocess
+import sys
 import threading
 import time
+from pathlib import Path
 
 import pytest
 import zenoh
@@ -18,6 +21,8 @@ from controller.bus_serve import MAX_REQUEST_BYTES
 from controller.config import BusConfig
 from controller.errors import BadInput
 from hil_tests.ports import free_port
+
+ROOT = Path(__file__).resolve().parents[2]
 
 WAIT_S = 10.0  # upper bound on waiting for a condition; passing tests take milliseconds
 
@@ -565,3 +570,41 @@ def test_a_payload_refusal_speaks_json_and_points_at_the_fault(raw, error):
     with pytest.raises(ValueError) as err:
         parse_object(raw)
     assert str(err.value) == error
+
+
+SHM_PEER = r'''
+import sys, time, zenoh
+from controller.config import BusConfig
+from controller.zenoh_config import session_config
+s = zenoh.open(session_config(BusConfig(mode="peer", listen=[sys.argv[1]])))
+q = s.declare_queryable("farm/t1/status", lambda q: q.reply("farm/t1/status", b"z" * 100000))
+print("up", flush=True)
+sys.stdin.read()
+s.close()
+'''
+
+
+def _shm_maps(pid: int) -> list[str]:
+    with open(f"/proc/{pid}/maps") as fh:
+        return [line.split()[-1] for line in fh if ".zenoh" in line]
+
+
+def test_the_farm_s_sessions_use_no_shared_memory(tmp_path):
+    """Zenoh's shared memory, on by default, left a segment in /dev/shm behind every `fishfarm run`
+    (a large reply between two of the farm's processes on one host is enough): none is mapped."""
+    from controller.zenoh_config import client_config
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    peer = subprocess.Popen([sys.executable, "-c", SHM_PEER, endpoint], stdin=subprocess.PIPE,
+                            stdout=subprocess.PIPE, text=True, cwd=ROOT)
+    try:
+        assert peer.stdout.readline() == "up\n"
+        session = zenoh.open(client_config(endpoint))
+        try:
+            replies = [len(r.ok.payload.to_bytes()) for r in session.get("farm/t1/status", timeout=5)]
+            assert replies == [100000]
+            assert _shm_maps(os.getpid()) == [] and _shm_maps(peer.pid) == []
+        finally:
+            session.close()
+    finally:
+        peer.stdin.close()
+        peer.wait(timeout=30)
