@@ -257,6 +257,25 @@ def _hangup_default() -> None:
     signal.signal(signal.SIGHUP, signal.SIG_DFL)      # as from a terminal, however the suite was started
 
 
+def _signalled_while_importing(args: list[str], sig: int, after_s: float) -> tuple[int, str]:
+    """``fishfarm ARGS`` as installed, signalled ``after_s`` after its launcher took SIGTERM (before
+    that, the interpreter is still starting: its own default actions, out of any program's reach;
+    the interpreter catches SIGINT from the start): (exit code, stderr)."""
+    fishfarm = str(Path(sys.executable).with_name("fishfarm"))
+    p = subprocess.Popen([fishfarm, *args], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                         preexec_fn=_hangup_default)
+    deadline = time.monotonic() + 10
+    while not _catches(p.pid, signal.SIGTERM) and p.poll() is None:
+        assert time.monotonic() < deadline
+        time.sleep(0.0005)
+    time.sleep(after_s)
+    p.send_signal(sig)
+    _, err = p.communicate(timeout=30)
+    assert "Traceback" not in err, err
+    assert len(err.strip().splitlines()) <= 1, err       # "aborted", its own refusal, or quiet
+    return p.returncode, err
+
+
 @pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM, signal.SIGHUP], ids=["SIGINT", "SIGTERM", "SIGHUP"])
 @pytest.mark.parametrize("after_s", [0.0, 0.03, 0.1])
 def test_a_signal_while_the_command_is_still_importing_is_aborted_in_one_line(tmp_path, sig, after_s):
@@ -264,22 +283,9 @@ def test_a_signal_while_the_command_is_still_importing_is_aborted_in_one_line(tm
     modules still importing) printed a 17-line KeyboardInterrupt traceback and exited -2. A hangup
     then (a terminal closed as it started) killed it by its default action: no word, and a
     starting controller's ledger -wal left behind (an outside tester)."""
-    fishfarm = str(Path(sys.executable).with_name("fishfarm"))
-    p = subprocess.Popen([fishfarm, "report", "--config", str(tmp_path / "none.toml"), "--tank", "T1"],
-                         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, preexec_fn=_hangup_default)
-    # from the launcher's first line on (before it, the interpreter is still starting: its own
-    # default actions, out of any program's reach): SIGTERM caught is the mark, the interpreter
-    # catches SIGINT from the start
-    deadline = time.monotonic() + 10
-    while not _catches(p.pid, signal.SIGTERM) and p.poll() is None:
-        assert time.monotonic() < deadline
-        time.sleep(0.0005)
-    time.sleep(after_s)
-    p.send_signal(sig)
-    _, err = p.communicate(timeout=30)
-    assert "Traceback" not in err, err
-    assert p.returncode in (128 + sig, 2), (p.returncode, err)    # 2: it ran to its own refusal first
-    assert len(err.strip().splitlines()) <= 1, err       # "aborted", its own refusal, or quiet
+    code, err = _signalled_while_importing(["report", "--config", str(tmp_path / "none.toml"), "--tank", "T1"],
+                                           sig, after_s)
+    assert code in (128 + sig, 2), (code, err)    # 2: it ran to its own refusal first
 
 
 @pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM, signal.SIGHUP], ids=["SIGINT", "SIGTERM", "SIGHUP"])
@@ -287,19 +293,8 @@ def test_a_signal_while_the_command_is_still_importing_is_aborted_in_one_line(tm
 def test_a_signal_while_the_simulator_is_still_importing_ends_it_with_0(tmp_path, sig, after_s):
     """README: a signal ends ``fishfarm sim`` whatever it is doing, exit 0. In its first second
     (imports, the command line) it exited 130, 143 or 129 as other commands do (an outside tester)."""
-    fishfarm = str(Path(sys.executable).with_name("fishfarm"))
-    p = subprocess.Popen([fishfarm, "sim", "--config", str(tmp_path / "none.toml")],
-                         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, preexec_fn=_hangup_default)
-    deadline = time.monotonic() + 10
-    while not _catches(p.pid, signal.SIGTERM) and p.poll() is None:
-        assert time.monotonic() < deadline
-        time.sleep(0.0005)
-    time.sleep(after_s)
-    p.send_signal(sig)
-    _, err = p.communicate(timeout=30)
-    assert "Traceback" not in err, err
-    assert p.returncode in (0, 2), (p.returncode, err)      # 2: it ran to its own refusal first
-    assert len(err.strip().splitlines()) <= 1, err
+    code, err = _signalled_while_importing(["sim", "--config", str(tmp_path / "none.toml")], sig, after_s)
+    assert code in (0, 2), (code, err)      # 2: it ran to its own refusal first
 
 
 def _catches(pid: int, sig: int) -> bool:
