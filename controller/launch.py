@@ -15,11 +15,16 @@ import os  # (imported already, by site)
 import sys  # (built in)
 
 
+def simulating() -> bool:
+    """Whether the command is ``fishfarm sim``, which README says a signal ends with 0 whatever it is
+    doing (in its first second it exited 130, 143 or 129)."""
+    return sys.argv[1:2] == ["sim"]
+
+
 def stop_code(signum: int) -> int:
     """The exit code of a command a signal ends before it takes the signal itself: 128 + signum,
-    but 0 for ``fishfarm sim``, which README says a signal ends with 0 whatever it is doing (in its
-    first second it exited 130, 143 or 129)."""
-    return 0 if sys.argv[1:2] == ["sim"] else 128 + signum
+    but 0 for the simulator."""
+    return 0 if simulating() else 128 + signum
 
 
 def _early(signum, _frame) -> None:

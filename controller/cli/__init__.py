@@ -10,6 +10,7 @@ import sys
 import click
 
 from controller.errors import BadInput
+from controller.launch import simulating, stop_code
 
 # command name -> "module:attribute" of a click command
 COMMANDS = {
@@ -159,7 +160,6 @@ def _terminated(signum, _frame) -> None:
     ``sim`` wake the loop for the orderly stop (controller/shutdown.py), raising nothing. Until
     then SIGHUP is this one as well (its default killed a starting controller without a word,
     its ledger's -wal left behind, an outside tester); nohup's ignored SIGHUP stays ignored."""
-    from controller.launch import stop_code
     signal.signal(signum, signal.SIG_DFL)
     raise SystemExit(stop_code(signum))
 
@@ -185,7 +185,7 @@ def entry() -> None:
         signal.signal(signal.SIGHUP, _terminated)
     if signal.getsignal(signal.SIGINT) in (signal.default_int_handler, _early_handler()):
         # (not a background job's ignored one; the simulator's ends it with 0, as SIGTERM does)
-        signal.signal(signal.SIGINT, _terminated if sys.argv[1:2] == ["sim"] else _interrupted)
+        signal.signal(signal.SIGINT, _terminated if simulating() else _interrupted)
     sys.exit(main())
 
 

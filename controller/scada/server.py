@@ -101,14 +101,19 @@ class ScadaStore:
                                  tripped=conn is not None and conn.take_trip())
         # a write taken is carried out whole, though its client goes (the reply is then lost):
         # cancelling the wait cancelled the write half done on the controller's loop
-        return await asyncio.shield(asyncio.wrap_future(asyncio.run_coroutine_threadsafe(write, self.act_loop)))
+        return await self._on_act_loop(write)
 
     async def refuse_unreadable(self, request: ModbusPDU, code: ExcCodes, peer: str) -> None:
         """Audit an FC 23 refused for its read range (its write was not acted on)."""
         refused = self.guard.refused_read(
             HR, request.write_address, list(request.write_registers), peer, code,
             f"read of {request.read_count} from {request.read_address}: past the map")
-        await asyncio.shield(asyncio.wrap_future(asyncio.run_coroutine_threadsafe(refused, self.act_loop)))
+        await self._on_act_loop(refused)
+
+    async def _on_act_loop(self, coro):
+        """``coro`` run on the controller's loop, awaited here; carried out whole though the wait is
+        cancelled (its connection gone)."""
+        return await asyncio.shield(asyncio.wrap_future(asyncio.run_coroutine_threadsafe(coro, self.act_loop)))
 
     def estops_unanswered(self, count: int, peer: str) -> None:
         """E-stops tripped on arrival on a connection closed before they were answered."""
