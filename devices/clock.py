@@ -48,6 +48,10 @@ class ScaledClock:
         """Wall seconds that ``farm_seconds`` of farm time take."""
         return farm_seconds / self.speed
 
+    def wall_since(self, farm_t: float) -> float:
+        """Wall seconds since farm time ``farm_t`` was now (0 if it is yet to come)."""
+        return max(0.0, self.now() - farm_t) / self.speed
+
     def sleep(self, farm_seconds: float) -> None:
         if farm_seconds > 0:
             time.sleep(farm_seconds / self.speed)
@@ -92,6 +96,9 @@ class ManualClock:
         return self.t
 
     def wall(self, farm_seconds: float) -> float:
+        return 0.0
+
+    def wall_since(self, farm_t: float) -> float:
         return 0.0
 
     def advance(self, seconds: float) -> None:

@@ -22,12 +22,13 @@ from pathlib import Path
 from devices.errors import BadInput
 
 MAGIC = b"FFCK"
-VERSION = 1
-# magic, version, sequence counter, the segment (wall0, farm0, speed, limit, after), slow, fast, slots
-HEAD = struct.Struct("<4sIQdddddddI4x")
-SLOT = struct.Struct("<16siId16s")           # name, pid, kind, value, why (for the record)
+VERSION = 2                                  # 2: each slot's word carries the wall instant it was last given
+# magic, version, sequence counter, the segment (wall0, farm0, speed, limit, after), slow, fast, slots,
+# the lease of a word (wall s; 0: words hold until changed)
+HEAD = struct.Struct("<4sIQdddddddI4xd")
+SLOT = struct.Struct("<16siId16sd")          # name, pid, kind, value, why (for the record), seen (wall)
 NSLOTS = 16
-SIZE = HEAD.size + NSLOTS * SLOT.size        # 848 bytes
+SIZE = HEAD.size + NSLOTS * SLOT.size        # 984 bytes
 EMPTY, BUSY, IDLE, AWAITED = 0, 1, 2, 3
 KINDS = (EMPTY, BUSY, IDLE, AWAITED)
 GEN_AT = 8                                   # byte offset of the sequence counter
@@ -42,6 +43,9 @@ FARM_MAX = 7_258_118_400.0                   # 2200-01-01T00:00:00Z
 FARM_SANE = 9.5e10                           # ~year 5000: a segment past it is garbage; one past FARM_MAX
                                              # is a farm that ran on (1e6x from 2199: 86 wall s), not mended
                                              # at every read
+LEASE_S = 0.02                               # wall: how long a process's word holds without being given again
+MAX_LEASE_S = 60.0
+CRAWL = 0.1                                  # the share of its speed the farm runs at once a word has lapsed
 MAX_SPEED = 1e6                              # farm s per wall s (a farm year in ~30 s of wall)
 WALL_AHEAD_S = 5.0                           # a segment anchored further in the wall's future is not a writer's
 
@@ -80,6 +84,7 @@ class Slot:
     kind: int
     value: float
     why: str = ""
+    seen: float = 0.0     # wall instant the holder last gave its word (its lease: devices/elastic_clock.py)
 
 
 def in_farm_range(t: float) -> bool:
@@ -97,6 +102,12 @@ def speed_fault(s: float) -> str | None:
     if math.isfinite(s) and 0 < s <= MAX_SPEED:
         return None
     return f"{s!r}: a speed must be > 0 and at most {MAX_SPEED:g}"
+
+
+def lease_fault(lease: float) -> str | None:
+    if math.isfinite(lease) and 0 <= lease <= MAX_LEASE_S:
+        return None
+    return f"{lease!r} s: a lease is 0 (none) to {MAX_LEASE_S:g} s"
 
 
 def speeds_fault(slow: float, fast: float) -> tuple[str, str] | None:
@@ -126,7 +137,7 @@ def segment_fault(seg: Segment, wall: float, fast: float) -> str | None:
 
 def slot_fault(raw: tuple, fast: float) -> str | None:
     """What is wrong with a slot as unpacked from the file (None: nothing)."""
-    name, pid, kind, value, why = raw
+    name, pid, kind, value, why, seen = raw
     if kind not in KINDS:
         return f"kind {kind} (0 to 3)"
     if kind == EMPTY:
@@ -142,29 +153,66 @@ def slot_fault(raw: tuple, fast: float) -> str | None:
         return f"idle until {value!r}: not a farm time before 2200"
     if kind != AWAITED and pid <= 0:
         return f"pid {pid}"
+    if kind != AWAITED and not (math.isfinite(seen) and seen >= 0):
+        return f"word seen at {seen!r}: not a wall instant"
     return None
 
 
+def pace_of(raws: list[tuple], f: float, w: float, slow: float, fast: float,
+            alive: Callable[[int], bool], lease_s: float) -> tuple[float, float, float]:
+    """(speed, limit, after) of the segment the slots (as unpacked) ask for at farm time ``f``, wall
+    instant ``w``: the slowest busy speed if anyone is busy, else ``fast`` up to the earliest idle
+    word's farm time, then ``slow``. A spoilt slot, an awaited one and a dead holder's are busy at
+    ``slow``. Every live word is a lease of ``lease_s`` wall from when it was given (0: none): the segment's
+    speed holds until the first lapses (fast then gives way to slow; slow, or busy, to a ``CRAWL``
+    of itself), so farm time waits for a process that stopped running (descheduled on a loaded
+    machine, or stuck) instead of running on without it, hours of it at the fast speed."""
+    busy, until, lease = [], [], math.inf
+    for raw in raws:
+        if slot_fault(raw, fast) is not None:
+            busy.append(slow)                  # a slot spoilt since the file was opened: its word is none
+            continue
+        s = decode_slot(raw)
+        if s.kind == AWAITED or (s.kind in (BUSY, IDLE) and not alive(s.pid)):
+            busy.append(slow)
+            continue
+        if s.kind in (BUSY, IDLE) and lease_s > 0:
+            lease = min(lease, s.seen + lease_s)
+        if s.kind == BUSY:
+            busy.append(s.value)
+        elif s.kind == IDLE:
+            until.append(s.value)
+    speed = min(busy, default=slow) if busy or not until else fast if min(until) > f else slow
+    if lease <= w:                             # a word lapsed already: crawl now
+        return speed * CRAWL if speed < fast else slow * CRAWL, math.inf, slow
+    held = math.inf if math.isinf(lease) else f + (lease - w) * speed
+    if speed >= fast:
+        return speed, min(min(until, default=math.inf), held), slow
+    return speed, held, speed * CRAWL if math.isfinite(held) else slow
+
+
 def decode_slot(raw: tuple) -> Slot:
-    name, pid, kind, value, why = raw
+    name, pid, kind, value, why, seen = raw
     return Slot(name.rstrip(b"\0").decode(errors="replace"), pid, kind, value,
-                why.rstrip(b"\0").decode(errors="replace"))
+                why.rstrip(b"\0").decode(errors="replace"), seen)
 
 
-def check_file(path: str, buf) -> tuple[float, float]:
-    """(slow, fast) of the clock file whose first SIZE bytes are ``buf``; BadInput naming the field
-    at fault. The segment is checked by the reader (a dead writer's may be re-drawn)."""
-    magic, version, _gen, *_seg, slow, fast, nslots = HEAD.unpack_from(buf, 0)
+def check_file(path: str, buf) -> tuple[float, float, float]:
+    """(slow, fast, lease) of the clock file whose first SIZE bytes are ``buf``; BadInput naming the
+    field at fault. The segment is checked by the reader (a dead writer's may be re-drawn)."""
+    magic, version, _gen, *_seg, slow, fast, nslots, lease = HEAD.unpack_from(buf, 0)
     if magic != MAGIC or version != VERSION:
         raise BadInput(path, None, f"not a fishfarm clock file (magic {magic!r}, version {version})")
     if nslots != NSLOTS:
         raise BadInput(path, "slots", f"{nslots}: a clock file has {NSLOTS}")
     if (bad := speeds_fault(slow, fast)) is not None:
         raise BadInput(path, *bad)
+    if (fault := lease_fault(lease)) is not None:
+        raise BadInput(path, "lease", fault)
     for i in range(NSLOTS):
         if (fault := slot_fault(SLOT.unpack_from(buf, HEAD.size + i * SLOT.size), fast)) is not None:
             raise BadInput(path, f"slot {i}", fault)
-    return slow, fast
+    return slow, fast, lease
 
 
 def is_clock_file(path: str | Path) -> bool:
@@ -178,27 +226,29 @@ def is_clock_file(path: str | Path) -> bool:
 
 
 def layout(*, slow: float, fast: float, farm_start: float, awaited: tuple[str, ...] = (),
-           wall: float) -> bytes:
+           wall: float, lease_s: float = LEASE_S) -> bytes:
     """The bytes of a new clock file: farm time ``farm_start`` at wall instant ``wall``, running
     at ``slow`` until the ``awaited`` slots' processes declare themselves. ValueError naming the fault."""
     if (bad := speeds_fault(slow, fast)) is not None:
         raise ValueError(f"clock speeds: {bad[0]}: {bad[1]}")
     if (fault := farm_range_fault(farm_start)) is not None:
         raise ValueError(f"farm start: {fault}")
+    if (fault := lease_fault(lease_s)) is not None:
+        raise ValueError(f"lease: {fault}")
     if len(awaited) > NSLOTS or len(set(awaited)) != len(awaited) \
             or any(not n or len(n.encode()) > 16 for n in awaited):
         raise ValueError(f"awaited slots {awaited!r}: at most {NSLOTS} different names of 1 to 16 bytes")
     buf = bytearray(SIZE)
-    HEAD.pack_into(buf, 0, MAGIC, VERSION, 0, wall, farm_start, slow, math.inf, slow, slow, fast, NSLOTS)
+    HEAD.pack_into(buf, 0, MAGIC, VERSION, 0, wall, farm_start, slow, math.inf, slow, slow, fast, NSLOTS, lease_s)
     for i, name in enumerate(awaited):
-        SLOT.pack_into(buf, HEAD.size + i * SLOT.size, name.encode(), 0, AWAITED, 0.0, b"awaited")
+        SLOT.pack_into(buf, HEAD.size + i * SLOT.size, name.encode(), 0, AWAITED, 0.0, b"awaited", 0.0)
     return bytes(buf)
 
 
 def create(path: str | Path, *, slow: float, fast: float, farm_start: float,
-           awaited: tuple[str, ...] = (), wall_time: Callable[[], float] = time.time) -> None:
+           awaited: tuple[str, ...] = (), wall_time: Callable[[], float] = time.time, lease_s: float = LEASE_S) -> None:
     """A new clock file at ``path`` (see ``layout``), written whole beside it and renamed into place."""
-    data = layout(slow=slow, fast=fast, farm_start=farm_start, awaited=awaited, wall=wall_time())
+    data = layout(slow=slow, fast=fast, farm_start=farm_start, awaited=awaited, wall=wall_time(), lease_s=lease_s)
     tmp = Path(f"{path}.tmp")
     tmp.write_bytes(data)
     os.replace(tmp, path)

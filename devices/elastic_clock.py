@@ -14,6 +14,12 @@ that instant, so farm time is continuous. Slots that are awaited (reserved by th
 their process starts) or whose process has died count as busy at the slow speed: slow is always
 safe, fast needs everyone's word.
 
+A word is a lease of the file's ``lease_s`` of wall (``clock_file.pace_of``): given again every
+``RENEW_SHARE`` of it while unchanged, and the segment's speed holds only until the oldest live
+word lapses (fast gives way to slow; slow, or busy, to a crawl). A process that stopped running
+(descheduled on a loaded machine) stops the farm running on without it: it had read nothing for
+0.9 s of wall while the farm ran nine hours fast, and heard the next meal's fish minutes late.
+
 Readers never lock: the segment sits under a sequence counter (odd while being written; a reader
 retries until it reads the same even value before and after). A reader that read the old segment
 an instant after the writer's anchor could run ahead of the new one by microseconds of ``fast``,
@@ -29,6 +35,7 @@ slow slice's length: no later a wake than a slice already is): periodic farm-sec
 from __future__ import annotations
 
 import asyncio
+import bisect
 import fcntl
 import logging
 import math
@@ -37,6 +44,7 @@ import os
 import struct
 import threading
 import time
+from collections import deque
 from collections.abc import Callable
 from pathlib import Path
 
@@ -60,6 +68,7 @@ from devices.clock_file import (  # noqa: F401  (the names users of the clock im
     check_file,
     create,
     decode_slot,
+    pace_of,
     process_alive,
     segment_fault,
     slot_fault,
@@ -77,6 +86,10 @@ CLAIM_WAIT_S = 3.0                           # wall: a slot's live holder is wai
 WRITER_WAIT_S = 0.1                          # wall: how long a reader waits for a live writer mid-write
                                              # before it reads slow on (once per write: a stopped writer
                                              # is not waited for at every read)
+RENEW_SHARE = 0.2                            # a word unchanged is given again after this share of its lease
+                                             # (the pacers look every 5 ms): one late look does not end it
+SEEN_EVERY_S = 0.05                          # wall: readings kept for wall_since, at most this often...
+SEEN_N = 1200                                # ... for a minute
 SPINS = 200                                  # reads of an odd counter before looking for its writer (a
                                              # write takes microseconds; 200 reads are ~50 us)
 log = logging.getLogger("fishfarm.clock")
@@ -99,10 +112,12 @@ class ElasticClock:
             raise BadInput(self.path, None, f"not a fishfarm clock file ({size} bytes, a clock file has {SIZE})")
         self._map = mmap.mmap(self._fd, SIZE)
         self._last = -math.inf
+        self._seen: deque[tuple[float, float]] = deque(maxlen=SEEN_N)   # (wall, farm) read, SEEN_EVERY_S apart
         self._guard = threading.Lock()
         self._wlock = threading.Lock()          # this process's writer, held with the flock (below)
         self.slot: int | None = None
         self._said: tuple[int, float, str] | None = None
+        self._renewed = -math.inf               # wall instant this process last gave its word
         self._good: Segment | None = None       # the last sound segment read, and when
         self._good_w = 0.0
         self._sound: tuple = ()                 # the raw segment last found sound
@@ -110,7 +125,8 @@ class ElasticClock:
         self._lost: str | None = None           # why the file can no longer be read (cut short)
         self.on_lost: Callable[[], None] | None = None   # called once then (the process's stop)
         try:
-            self.slow, self.fast = check_file(self.path, self._map)
+            self.slow, self.fast, self.lease_s = check_file(self.path, self._map)
+            self._renew_s = self.lease_s * RENEW_SHARE if self.lease_s > 0 else math.inf
             self._good, self._good_w = self._first_segment()
         except BaseException:
             self.close()
@@ -224,8 +240,7 @@ class ElasticClock:
         struct.pack_into("<Q", self._map, GEN_AT, odd)
         try:
             f = max(base.farm_at(w), self._last)
-            speed, limit = self._pace(f)
-            new = Segment(w, f, speed, limit, self.slow)
+            new = Segment(w, f, *self._pace(f, w))
             SEG.pack_into(self._map, SEG_AT, new.wall0, new.farm0, new.speed, new.limit, new.after)
         finally:
             struct.pack_into("<Q", self._map, GEN_AT, odd + 1)
@@ -241,7 +256,29 @@ class ElasticClock:
         t = seg.farm_at(w)
         with self._guard:
             self._last = t = max(t, self._last)
+            if not self._seen or w - self._seen[-1][0] >= SEEN_EVERY_S:
+                self._seen.append((w, t))
         return t
+
+    def wall_since(self, farm_t: float) -> float:
+        """Wall seconds since farm time ``farm_t`` was now (0 if it is yet to come): exact on the
+        current segment; before its anchor, at least the wall since the first instant this process
+        read a farm time past ``farm_t`` (its readings are kept ``SEEN_EVERY_S`` apart for a minute);
+        before all of them, that much and the rest at the slow speed.
+        ``wall`` cannot say it: a lag run up at the fast speed, read at the slow one (or a crawl),
+        was ten thousand times too long -- contacts 20 ms late dropped as ones a stalled hub held."""
+        seg, w = self._read()                 # (one read: it runs for every contact the hub sends)
+        if farm_t >= max(seg.farm_at(w), self._last):
+            return 0.0
+        if farm_t >= seg.farm0:
+            return max(0.0, w - seg.wall_at(farm_t))
+        with self._guard:
+            i = bisect.bisect_right(self._seen, farm_t, key=lambda s: s[1])
+            if i == 0 and self._seen:         # before all this process read: at the slow speed, as the
+                w0, f0 = self._seen[0]         # clock starts (and as the harness holds it while processes start)
+                return max(0.0, w - w0) + (f0 - farm_t) / self.slow
+            past = self._seen[i][0] if i < len(self._seen) else seg.wall0
+        return max(0.0, w - min(past, seg.wall0))
 
     def at(self, wall: float) -> float:
         """Farm time at wall instant ``wall`` (a log record's, just made), on the current segment;
@@ -309,7 +346,7 @@ class ElasticClock:
                 raise BadInput(self.path, f"slot {name!r}", f"held by pid {holder}, which is running: one clock "
                                                             "file per farm (make another with fishfarm clock --out)")
             time.sleep(0.05)
-        self._said = (BUSY, self.slow, "starting")
+        self._said, self._renewed = (BUSY, self.slow, "starting"), self._time()
         return self.slot
 
     def _claim(self, name: str) -> int | None:
@@ -353,14 +390,14 @@ class ElasticClock:
     def _declare(self, kind: int, value: float, why: str) -> None:
         if self.slot is None:
             raise RuntimeError("claim() a clock slot before declaring")
-        if self._said == (kind, value, why):
-            return                              # unchanged: the segment already says so
+        if self._said == (kind, value, why) and self._time() - self._renewed < self._renew_s:
+            return                              # unchanged, and its lease fresh: the segment already says so
         with self._locked():
             if self._shrunk():
                 return                          # (the stop is under way: on_lost)
             self._write_slot(None, kind, value, why)
             self._govern()
-        self._said = (kind, value, why)
+        self._said, self._renewed = (kind, value, why), self._time()
 
     def govern(self) -> Segment:
         """Re-draw the segment from the slots now (the harness may call it; declaring does)."""
@@ -390,40 +427,27 @@ class ElasticClock:
         try:
             w = self._time()
             f = max(old.farm_at(w), self._last)
-            speed, limit = self._pace(f)
-            if (old.speed, old.limit) == (speed, limit):
+            speed, limit, after = self._pace(f, w)
+            if (old.speed, old.limit, old.after) == (speed, limit, after):
                 return old
-            new = Segment(w, f, speed, limit, self.slow)
+            new = Segment(w, f, speed, limit, after)
             SEG.pack_into(self._map, SEG_AT, new.wall0, new.farm0, new.speed, new.limit, new.after)
             return new
         finally:
             struct.pack_into("<Q", self._map, GEN_AT, gen + 2)
 
-    def _pace(self, f: float) -> tuple[float, float]:
-        """(speed, limit) the slots ask for at farm time ``f``."""
-        busy, until = [], []
-        for i in range(NSLOTS):
-            raw = SLOT.unpack_from(self._map, HEAD.size + i * SLOT.size)
-            if slot_fault(raw, self.fast) is not None:
-                busy.append(self.slow)         # a slot spoilt since the file was opened: its word is none
-                continue
-            s = decode_slot(raw)
-            if s.kind == AWAITED or (s.kind in (BUSY, IDLE) and not self._alive(s.pid)):
-                busy.append(self.slow)
-            elif s.kind == BUSY:
-                busy.append(s.value)
-            elif s.kind == IDLE:
-                until.append(s.value)
-        if busy or not until:
-            return min(busy, default=self.slow), math.inf
-        limit = min(until)
-        return (self.fast, limit) if limit > f else (self.slow, math.inf)
+    def _pace(self, f: float, w: float) -> tuple[float, float, float]:
+        """(speed, limit, after) the slots ask for at farm time ``f``, wall instant ``w``."""
+        raws = [SLOT.unpack_from(self._map, HEAD.size + i * SLOT.size) for i in range(NSLOTS)]
+        return pace_of(raws, f, w, self.slow, self.fast, self._alive, self.lease_s)
 
     def _write_slot(self, name: str | None, kind: int, value: float, why: str) -> None:
         at = HEAD.size + self.slot * SLOT.size
         if name is None:
             name = decode_slot(SLOT.unpack_from(self._map, at)).name
-        SLOT.pack_into(self._map, at, utf8_16(name), os.getpid() if kind != EMPTY else 0, kind, value, utf8_16(why))
+        live = kind != EMPTY
+        SLOT.pack_into(self._map, at, utf8_16(name), os.getpid() if live else 0, kind, value, utf8_16(why),
+                       self._time() if live else 0.0)
 
     def _locked(self):
         return Flock(self._fd, self._wlock)

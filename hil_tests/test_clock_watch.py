@@ -14,7 +14,7 @@ SLOW, FAST, START = 600.0, 60_000.0, 1_780_000_000.0
 
 def farm(tmp_path):
     wall = Wall()
-    create(tmp_path / "clock", slow=SLOW, fast=FAST, farm_start=START, wall_time=wall)
+    create(tmp_path / "clock", slow=SLOW, fast=FAST, farm_start=START, wall_time=wall, lease_s=0.0)  # no renewals
     sim, ctl = (ElasticClock(tmp_path / "clock", wall_time=wall, alive=lambda pid: True) for _ in range(2))
     sim.claim("sim")
     ctl.claim("controller")

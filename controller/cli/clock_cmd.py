@@ -105,8 +105,9 @@ def _state(show: str) -> dict:
         raise BadInput("--show", None, str(exc)) from None
     try:
         seg, now = c.segment(), c.now()
-        return {"farm_time": _iso(now), "speed": c.speed, "slow": c.slow, "fast": c.fast,
-                "fast_until": None if not math.isfinite(seg.limit) else _iso(seg.limit),
+        return {"farm_time": _iso(now), "speed": c.speed, "slow": c.slow, "fast": c.fast, "lease_s": c.lease_s,
+                # (a slow segment's limit is where its lease lapses: no fast part)
+                "fast_until": _iso(seg.limit) if math.isfinite(seg.limit) and seg.speed >= c.fast else None,
                 "segment": {"wall0": seg.wall0, "farm0": _iso(seg.farm0), "speed": seg.speed,
                             "limit": None if not math.isfinite(seg.limit) else _iso(seg.limit),
                             "after": seg.after},

@@ -589,22 +589,31 @@ def _shm_maps(pid: int) -> list[str]:
         return [line.split()[-1] for line in fh if ".zenoh" in line]
 
 
+SHM_CLIENT = r'''
+import json, sys, zenoh
+from controller.zenoh_config import client_config
+s = zenoh.open(client_config(sys.argv[1]))
+sizes = [len(r.ok.payload.to_bytes()) for r in s.get("farm/t1/status", timeout=5)]
+with open("/proc/self/maps") as fh:
+    print(json.dumps({"sizes": sizes, "maps": [l.split()[-1] for l in fh if ".zenoh" in l]}), flush=True)
+s.close()
+'''
+
+
 def test_the_farm_s_sessions_use_no_shared_memory(tmp_path):
     """Zenoh's shared memory, on by default, left a segment in /dev/shm behind every `fishfarm run`
-    (a large reply between two of the farm's processes on one host is enough): none is mapped."""
-    from controller.zenoh_config import client_config
+    (a large reply between two of the farm's processes on one host is enough): none is mapped. Both
+    ends are fresh processes: the test's own had others' sessions (outsiders' clients, SHM on) before."""
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     peer = subprocess.Popen([sys.executable, "-c", SHM_PEER, endpoint], stdin=subprocess.PIPE,
                             stdout=subprocess.PIPE, text=True, cwd=ROOT)
     try:
         assert peer.stdout.readline() == "up\n"
-        session = zenoh.open(client_config(endpoint))
-        try:
-            replies = [len(r.ok.payload.to_bytes()) for r in session.get("farm/t1/status", timeout=5)]
-            assert replies == [100000]
-            assert _shm_maps(os.getpid()) == [] and _shm_maps(peer.pid) == []
-        finally:
-            session.close()
+        client = subprocess.run([sys.executable, "-c", SHM_CLIENT, endpoint], capture_output=True, text=True,
+                                cwd=ROOT, timeout=60)
+        got = json.loads(client.stdout)
+        assert got["sizes"] == [100000]
+        assert got["maps"] == [] and _shm_maps(peer.pid) == []
     finally:
         peer.stdin.close()
         peer.wait(timeout=30)

@@ -13,6 +13,7 @@ from pathlib import Path
 import pytest
 
 from controller.cli import main as fishfarm_main
+from devices.clock_file import LEASE_S
 from devices.elastic_clock import ElasticClock
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -114,7 +115,10 @@ def test_show_prints_the_segment_and_marks_dead_slots(tmp_path, capsys):
     capsys.readouterr()
     assert fishfarm_main(["clock", "--show", str(path)]) == 0
     shown = json.loads(capsys.readouterr().out)
-    assert shown["segment"]["speed"] == 360.0 and shown["segment"]["limit"] is None
+    # the sim's word was a lease: drawn by it, the segment crawls once that lapsed (it gave no other)
+    assert shown["lease_s"] == LEASE_S
+    assert shown["segment"]["speed"] == 360.0 and shown["segment"]["after"] == pytest.approx(36.0)
+    assert shown["segment"]["limit"] is not None
     assert shown["segment"]["farm0"].startswith("2026-05-29")
     assert [(s["name"], s["state"], s.get("dead", False)) for s in shown["slots"]] == [
         ("sim", "busy", True), ("controller", "awaited", False)]
@@ -133,7 +137,7 @@ def test_show_refuses_what_is_no_clock(tmp_path, capsys):
         assert fishfarm_main(["clock", "--show", str(tmp_path / "short")]) == 2
         line = capsys.readouterr().err.strip()
         assert line == (f"fishfarm: --show: {tmp_path / 'short'}: not a fishfarm clock file ({size} bytes, "
-                        "a clock file has 848)")
+                        "a clock file has 984)")
 
 
 MAKE = ["--slow", "360", "--fast", "8640", "--farm-start", "2026-05-29T16:00:00Z"]
@@ -173,7 +177,7 @@ def test_out_writes_into_a_device_or_a_fifo_never_replaces_it(tmp_path):
     assert fishfarm_main(["clock", "--out", str(fifo), *MAKE]) == 0
     reader.join(timeout=30)
     assert stat.S_ISFIFO(os.stat(fifo).st_mode)
-    assert len(got[0]) == 848 and got[0][:4] == b"FFCK"
+    assert len(got[0]) == 984 and got[0][:4] == b"FFCK"
 
 
 def test_out_replaces_a_clock_file_only_while_no_farm_runs_on_it(tmp_path, capsys):

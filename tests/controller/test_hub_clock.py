@@ -138,3 +138,38 @@ def test_a_hub_clock_slower_than_ours_is_a_clock_off_not_contacts_late_for_ever(
     assert caught and caught[0] <= start + 60.0 + LAG_HOLDS_WALL_S, caught
     assert [a[1] for a in alarms.raised] == ["late", "clock"], alarms.raised
     assert hub.replaced > 100 and hub.late < LAG_HOLDS_WALL_S + SKEW_WALL_S + 5
+
+
+def test_on_an_elastic_clock_a_fast_spans_contacts_read_after_it_slowed_are_on_time(tmp_path):
+    """The grow-out's controller read each fast span's contacts some 20 ms of wall after the hub
+    stamped them, by then on a clock slowed to 60x: ``wall`` of the lag (1,200 farm s) gave 20 s, and
+    every such contact was dropped as a stalled hub's backlog, ~300 late alarms a run. Judged by the
+    wall since each stamp, they count; a hub that held its contacts 15 s of wall is still dropped."""
+    from devices.elastic_clock import ElasticClock, create
+
+    class Wall:
+        t = 5_000.0
+
+        def __call__(self):
+            return self.t
+    wall, slow, fast = Wall(), 60.0, 60_000.0
+    create(tmp_path / "clock", slow=slow, fast=fast, farm_start=T0, wall_time=wall, lease_s=0.0)
+    clock = ElasticClock(tmp_path / "clock", wall_time=wall, alive=lambda pid: True)
+    clock.claim("controller")
+    clock.idle_until(T0 + 1e7)
+    alarms = Alarms()
+    hub = HubClock(clock, alarms, "hub")
+    stamps = []
+    for _ in range(100):                       # half a wall second fast: the hub stamps, the controller reads
+        wall.t += 0.005
+        stamps.append(clock.now())
+    clock.busy()                               # then slow, and the last 20 ms of stamps read now
+    wall.t += 0.02
+    recent = stamps[-10:-2]                    # stamped 30-65 ms of wall ago, 600-2,400 farm s behind
+    assert all(clock.wall_since(t) <= 0.07 for t in recent)
+    assert all(clock.wall(clock.now() - t) > SKEW_WALL_S for t in recent)
+    assert [hub.stamp(t) for t in recent] == recent
+    assert alarms.raised == [] and hub.late == 0
+    wall.t += 15.0                             # a hub that held what it stamped then for 15 s
+    assert hub.stamp(stamps[-1]) is None and hub.late == 1
+    assert [a[1] for a in alarms.raised] == ["late"]

@@ -106,11 +106,11 @@ def test_a_clock_held_mid_write_by_a_stopped_writer_still_opens(stopped_writer):
 def _spoil(path, **fields) -> None:
     """Write the fields named (segment or head) into the clock file at ``path``."""
     buf = bytearray(Path(path).read_bytes())
-    magic, version, g, *seg, slow, fast, n = HEAD.unpack_from(buf, 0)
+    magic, version, g, *seg, slow, fast, n, lease = HEAD.unpack_from(buf, 0)
     names = ["wall0", "farm0", "speed", "limit", "after"]
     seg = [fields.get(k, v) for k, v in zip(names, seg, strict=True)]
     HEAD.pack_into(buf, 0, magic, version, fields.get("gen", g), *seg, fields.get("slow", slow),
-                   fields.get("fast", fast), fields.get("n", n))
+                   fields.get("fast", fast), fields.get("n", n), fields.get("lease", lease))
     for i, raw in fields.get("slots", {}).items():
         SLOT.pack_into(buf, HEAD.size + i * SLOT.size, *raw)
     Path(path).write_bytes(buf)
@@ -127,11 +127,16 @@ def _spoil(path, **fields) -> None:
     ({"slow": 9000.0, "fast": 10.0}, "slow"),
     ({"fast": 1e300}, "fast"),
     ({"n": 3}, "slots"),
-    ({"slots": {0: (b"sim", 1, 9, 0.0, b"x")}}, "slot 0"),
-    ({"slots": {2: (b"\xff\xfe", 1, BUSY, SLOW, b"x")}}, "slot 2"),
-    ({"slots": {0: (b"sim", os.getpid(), IDLE, math.nan, b"x")}}, "slot 0"),
-    ({"slots": {0: (b"sim", os.getpid(), IDLE, 1e300, b"x")}}, "slot 0"),
-    ({"slots": {1: (b"sim", 1, BUSY, math.nan, b"x")}}, "slot 1"),
+    ({"lease": math.nan}, "lease"),
+    ({"lease": -0.5}, "lease"),
+    ({"lease": 1e9}, "lease"),
+    ({"slots": {0: (b"sim", 1, 9, 0.0, b"x", 1.0)}}, "slot 0"),
+    ({"slots": {2: (b"\xff\xfe", 1, BUSY, SLOW, b"x", 1.0)}}, "slot 2"),
+    ({"slots": {0: (b"sim", os.getpid(), IDLE, math.nan, b"x", 1.0)}}, "slot 0"),
+    ({"slots": {0: (b"sim", os.getpid(), IDLE, 1e300, b"x", 1.0)}}, "slot 0"),
+    ({"slots": {1: (b"sim", 1, BUSY, math.nan, b"x", 1.0)}}, "slot 1"),
+    ({"slots": {1: (b"sim", 1, BUSY, SLOW, b"x", math.nan)}}, "slot 1"),
+    ({"slots": {3: (b"sim", 1, IDLE, START, b"x", -1.0)}}, "slot 3"),
 ])
 def test_a_spoilt_file_is_refused_naming_the_field(tmp_path, fields, named):
     path = tmp_path / "clock"

@@ -1,14 +1,17 @@
 """The elastic clock (devices/elastic_clock.py) on a fake wall: continuity, monotony, the segment's
-own slow-down at the lookahead limit, sleepers across speed changes, slots, readers in other processes."""
+own slow-down at the lookahead limit, sleepers across speed changes, slots, readers in other processes
+(on files without a lease: words hold until changed), and the leases of the words (``leased``)."""
 from __future__ import annotations
 
 import asyncio
+import math
 import multiprocessing as mp
 import time
 
 import pytest
 
-from devices.elastic_clock import FAST_NAP_S, SLICE_S, ElasticClock, create
+from devices.clock_file import CRAWL, LEASE_S
+from devices.elastic_clock import FAST_NAP_S, SEEN_EVERY_S, SLICE_S, ElasticClock, create
 
 SLOW, FAST, START = 100.0, 10_000.0, 1_780_000_000.0
 
@@ -31,7 +34,7 @@ def wall():
 @pytest.fixture
 def path(tmp_path, wall):
     p = tmp_path / "clock"
-    create(p, slow=SLOW, fast=FAST, farm_start=START, wall_time=wall)
+    create(p, slow=SLOW, fast=FAST, farm_start=START, wall_time=wall, lease_s=0.0)
     return p
 
 
@@ -106,6 +109,90 @@ def test_awaited_and_dead_slots_hold_the_clock_slow(tmp_path, wall):
     ctl.busy()
     ctl.release()
     assert sim.govern().speed == FAST          # a process that leaves on purpose holds nothing back
+
+
+@pytest.fixture
+def leased(tmp_path, wall):
+    """A clock file with the lease every farm's file has (LEASE_S of wall a word)."""
+    p = tmp_path / "leased"
+    create(p, slow=SLOW, fast=FAST, farm_start=START, wall_time=wall)
+    return p
+
+
+def _run(wall, seconds: float, words=(), step: float = 0.005) -> None:
+    """Move the wall ``seconds`` on in ``step``s, each word given again after each (as the pacers do)."""
+    for _ in range(round(seconds / step)):
+        wall.t += step
+        for word in words:
+            word()
+
+
+def test_words_given_again_hold_the_speed_they_ask_for(leased, wall):
+    sim, ctl = handle(leased, wall, "sim"), handle(leased, wall, "controller")
+    words = [lambda: sim.idle_until(START + 1e9), lambda: ctl.idle_until(START + 1e9)]
+    for word in words:
+        word()
+    start = ctl.now()
+    _run(wall, 1.0, words)
+    assert ctl.now() - start == pytest.approx(FAST * 1.0, abs=1e-3)
+    busy = [lambda: sim.busy(), lambda: ctl.idle_until(START + 1e9)]
+    for word in busy:
+        word()
+    before = ctl.now()
+    _run(wall, 1.0, busy)
+    assert ctl.now() - before == pytest.approx(SLOW * 1.0, abs=1e-3)
+
+
+def test_a_process_that_stops_giving_its_word_slows_the_farm_whoever_else_does(leased, wall):
+    """Descheduled on a loaded machine, the controller read no contact for 0.9 s while the farm ran
+    9 hours fast; the episode after it was heard minutes late. Now its idle word lapses: fast for
+    the lease, though the simulator goes on giving its own; then a crawl (slow at the lapse, for at
+    most the simulator's next word: it re-draws the segment, and finds the controller's lapsed)."""
+    sim, ctl = handle(leased, wall, "sim"), handle(leased, wall, "controller")
+    sim.idle_until(START + 1e9)
+    ctl.idle_until(START + 1e9)
+    start = ctl.now()
+    _run(wall, 1.0, [lambda: sim.idle_until(START + 1e9)])         # the controller says nothing
+    lease = ctl.lease_s
+    assert lease == pytest.approx(LEASE_S)
+    assert ctl.now() - start == pytest.approx(FAST * lease + SLOW * CRAWL * (1.0 - lease), abs=SLOW * 0.01)
+    assert ctl.speed == SLOW * CRAWL
+    ctl.idle_until(START + 1e9)                                    # it runs again: fast at once
+    assert ctl.speed == FAST
+
+
+def test_a_busy_word_not_given_again_crawls_and_one_given_again_does_not(leased, wall):
+    sim, ctl = handle(leased, wall, "sim"), handle(leased, wall, "controller")
+    sim.busy()
+    ctl.busy(max_speed=SLOW / 2)
+    start = ctl.now()
+    wall.t += 1.0                               # nobody gives a word: the lease, then a crawl
+    lease = ctl.lease_s
+    assert ctl.now() - start == pytest.approx(SLOW / 2 * (lease + CRAWL * (1.0 - lease)), abs=1e-3)
+    sim.busy()
+    ctl.busy(max_speed=SLOW / 2)                # both again: the slower word's speed
+    assert ctl.speed == SLOW / 2
+    assert ctl.segment().after == pytest.approx(SLOW / 2 * CRAWL)
+
+
+def test_busy_at_the_fast_speed_with_nobody_idle_holds_it_for_the_lease(leased, wall):
+    sim, ctl = handle(leased, wall, "sim"), handle(leased, wall, "controller")
+    sim.busy(max_speed=1e9)
+    ctl.busy(max_speed=1e9)
+    seg = ctl.segment()
+    assert seg.speed == FAST and seg.limit == pytest.approx(seg.farm0 + FAST * LEASE_S) and seg.after == SLOW
+
+
+def test_a_dead_process_holds_the_farm_slow_not_at_a_crawl(leased, wall):
+    dead: set[int] = set()
+    sim = handle(leased, wall, "sim", alive=lambda pid: pid not in dead)
+    ctl = handle(leased, wall, "controller", alive=lambda pid: pid not in dead)
+    sim.idle_until(START + 1e9)
+    ctl.idle_until(START + 1e9)
+    dead.add(ctl.slots()[1].pid)                # (one pid for both handles here: the sim's word too)
+    wall.t += 1.0
+    seg = sim.govern()
+    assert (seg.speed, seg.limit) == (SLOW, math.inf)
 
 
 def test_claiming_again_by_name_takes_the_same_slot(path, wall):
@@ -192,7 +279,7 @@ def test_wall_converts_on_the_current_segment(path, wall):
 
 def test_asleep_is_woken_by_a_speed_rise_on_the_real_wall(tmp_path):
     p = tmp_path / "clock"
-    create(p, slow=SLOW, fast=FAST, farm_start=START)
+    create(p, slow=SLOW, fast=FAST, farm_start=START, lease_s=0.0)
     sim, ctl = ElasticClock(p), ElasticClock(p)
     sim.claim("sim")
     ctl.claim("controller")
@@ -224,7 +311,7 @@ def _sample(path: str, n: int, out) -> None:
 
 def test_readers_in_other_processes_agree_with_the_segments_written(tmp_path):
     p = tmp_path / "clock"
-    create(p, slow=SLOW, fast=FAST, farm_start=START)
+    create(p, slow=SLOW, fast=FAST, farm_start=START, lease_s=0.0)
     gov = ElasticClock(p)
     gov.claim("sim")
     ctx = mp.get_context("spawn")
@@ -257,3 +344,23 @@ def test_readers_in_other_processes_agree_with_the_segments_written(tmp_path):
             assert farm(w0) - 1e-3 <= f <= farm(w1) + 1e-3
             checked += 1
     assert checked == 900
+
+
+def test_wall_since_is_the_wall_that_passed_not_the_lag_at_the_speed_now(path, wall):
+    sim, ctl = handle(path, wall, "sim"), handle(path, wall, "controller")
+    sim.idle_until(START + 1e9)
+    ctl.idle_until(START + 1e9)
+    readings = []
+    for _ in range(200):                       # one wall second fast, read every 5 ms
+        wall.t += 0.005
+        readings.append((wall.t, ctl.now()))
+    sim.busy()
+    wall.t += 0.5                              # then half a second slow
+    now = ctl.now()
+    assert ctl.wall_since(now - 10.0) == pytest.approx(10.0 / SLOW)         # on the segment: exact
+    for w, f in readings[::20]:                # before it: at least the wall since, within a reading's spacing
+        assert wall.t - w - SEEN_EVERY_S - 1e-9 <= ctl.wall_since(f) <= wall.t - w + 1e-9
+    assert ctl.wall(now - readings[0][1]) > 50.0    # what the lag at the slow speed says instead
+    assert ctl.wall_since(now + 5.0) == 0.0
+    fresh = handle(path, wall)                 # before anything it read: the rest at the slow speed
+    assert fresh.wall_since(fresh.now() - 30.0 * SLOW) == pytest.approx(30.0)
