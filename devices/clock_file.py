@@ -135,8 +135,9 @@ def segment_fault(seg: Segment, wall: float, fast: float) -> str | None:
     return None
 
 
-def slot_fault(raw: tuple, fast: float) -> str | None:
-    """What is wrong with a slot as unpacked from the file (None: nothing)."""
+def slot_fault(raw: tuple, fast: float, wall: float | None = None) -> str | None:
+    """What is wrong with a slot as unpacked from the file (None: nothing); with ``wall``, a word
+    given further in the wall's future than a segment may be anchored (its lease never lapsed)."""
     name, pid, kind, value, why, seen = raw
     if kind not in KINDS:
         return f"kind {kind} (0 to 3)"
@@ -155,6 +156,8 @@ def slot_fault(raw: tuple, fast: float) -> str | None:
         return f"pid {pid}"
     if kind != AWAITED and not (math.isfinite(seen) and seen >= 0):
         return f"word seen at {seen!r}: not a wall instant"
+    if kind != AWAITED and wall is not None and seen > wall + WALL_AHEAD_S:
+        return f"word seen {seen - wall:.0f} s in the wall clock's future"
     return None
 
 
@@ -163,13 +166,14 @@ def pace_of(raws: list[tuple], f: float, w: float, slow: float, fast: float,
     """(speed, limit, after) of the segment the slots (as unpacked) ask for at farm time ``f``, wall
     instant ``w``: the slowest busy speed if anyone is busy, else ``fast`` up to the earliest idle
     word's farm time, then ``slow``. A spoilt slot, an awaited one and a dead holder's are busy at
-    ``slow``. Every live word is a lease of ``lease_s`` wall from when it was given (0: none): the segment's
-    speed holds until the first lapses (fast then gives way to slow; slow, or busy, to a ``CRAWL``
-    of itself), so farm time waits for a process that stopped running (descheduled on a loaded
-    machine, or stuck) instead of running on without it, hours of it at the fast speed."""
+    ``slow`` (a zombie is dead: ``process_alive``, ~8 us a holder). Every live word is a lease of
+    ``lease_s`` wall from when it was given (0: none): the segment's speed holds until the first
+    lapses, then the farm crawls (a ``CRAWL`` of the slow speed, or of the busy one), so farm time
+    waits for a process that stopped running (descheduled on a loaded machine, or stuck) instead of
+    running on without it, hours of it at the fast speed."""
     busy, until, lease = [], [], math.inf
     for raw in raws:
-        if slot_fault(raw, fast) is not None:
+        if slot_fault(raw, fast, w) is not None:
             busy.append(slow)                  # a slot spoilt since the file was opened: its word is none
             continue
         s = decode_slot(raw)
@@ -186,9 +190,10 @@ def pace_of(raws: list[tuple], f: float, w: float, slow: float, fast: float,
     if lease <= w:                             # a word lapsed already: crawl now
         return speed * CRAWL if speed < fast else slow * CRAWL, math.inf, slow
     held = math.inf if math.isinf(lease) else f + (lease - w) * speed
-    if speed >= fast:
-        return speed, min(min(until, default=math.inf), held), slow
-    return speed, held, speed * CRAWL if math.isfinite(held) else slow
+    first = min(until, default=math.inf)
+    if speed >= fast and first <= held:
+        return speed, first, slow              # the lookahead's slow-down comes first
+    return speed, held, (slow if speed >= fast else speed) * CRAWL if math.isfinite(held) else slow
 
 
 def decode_slot(raw: tuple) -> Slot:
@@ -197,7 +202,7 @@ def decode_slot(raw: tuple) -> Slot:
                 why.rstrip(b"\0").decode(errors="replace"), seen)
 
 
-def check_file(path: str, buf) -> tuple[float, float, float]:
+def check_file(path: str, buf, wall: float | None = None) -> tuple[float, float, float]:
     """(slow, fast, lease) of the clock file whose first SIZE bytes are ``buf``; BadInput naming the
     field at fault. The segment is checked by the reader (a dead writer's may be re-drawn)."""
     magic, version, _gen, *_seg, slow, fast, nslots, lease = HEAD.unpack_from(buf, 0)
@@ -210,7 +215,7 @@ def check_file(path: str, buf) -> tuple[float, float, float]:
     if (fault := lease_fault(lease)) is not None:
         raise BadInput(path, "lease", fault)
     for i in range(NSLOTS):
-        if (fault := slot_fault(SLOT.unpack_from(buf, HEAD.size + i * SLOT.size), fast)) is not None:
+        if (fault := slot_fault(SLOT.unpack_from(buf, HEAD.size + i * SLOT.size), fast, wall)) is not None:
             raise BadInput(path, f"slot {i}", fault)
     return slow, fast, lease
 
@@ -255,14 +260,19 @@ def create(path: str | Path, *, slow: float, fast: float, farm_start: float,
 
 
 def process_alive(pid: int) -> bool:
-    """Whether process ``pid`` exists (one of another user's counts)."""
+    """Whether process ``pid`` runs (one of another user's counts; a zombie, killed and not yet
+    reaped by its parent, does not: its lapsed word read as a live one stopped, a crawl)."""
     try:
         os.kill(pid, 0)
     except ProcessLookupError:
         return False
     except PermissionError:
-        return True
-    return True
+        pass
+    try:
+        with open(f"/proc/{pid}/stat", "rb") as fh:
+            return fh.read().rsplit(b")", 1)[1].split()[0] != b"Z"
+    except (OSError, IndexError):
+        return True                            # (no /proc to ask: it exists)
 
 
 class Flock:

@@ -1,6 +1,7 @@
 """How an elastic clock (devices/elastic_clock.py) reads its file's segment: never locking, never
-looping without end, and mending what a writer that died mid-write left (a mixin of ``ElasticClock``:
-its map, descriptor, wall, speeds and ``_pace``/``_shrunk``)."""
+looping without end, mending what a writer that died mid-write left, and drawing again a segment
+every holder has left (a mixin of ``ElasticClock``: its map, descriptor, wall, speeds, lease and
+``_govern``/``_pace``/``_shrunk``)."""
 from __future__ import annotations
 
 import fcntl
@@ -16,6 +17,10 @@ from devices.errors import BadInput
 WRITER_WAIT_S = 0.1                          # wall: how long a reader waits for a live writer mid-write
                                              # before it reads slow on (once per write: a stopped writer
                                              # is not waited for at every read)
+STALE_S = 1.0                                # wall: a segment nobody drew again for this long while words are
+                                             # leases (given every few ms) is every holder's stopped or dead:
+                                             # a reader draws it again (a dead holder's word is slow, not the
+                                             # crawl the last lapsed word left; not a farm's for good)
 SPINS = 200                                  # reads of an odd counter before looking for its writer (a
                                              # write takes microseconds; 200 reads are ~50 us)
 log = logging.getLogger("fishfarm.clock")
@@ -34,6 +39,9 @@ class SegmentReading:
         if self._lost is None and os.lseek(self._fd, 0, os.SEEK_END) >= SIZE:   # (_shrunk's check, inline)
             read = self._try_read() or self._settle(0.0 if self._stale is not None else WRITER_WAIT_S)
             if read is not None:
+                if self.lease_s > 0 and read[1] - read[0].wall0 > STALE_S and read[1] - self._redrawn > STALE_S:
+                    self._redrawn = read[1]
+                    read = self._mend_if_free(redraw=True) or read
                 (self._good, self._good_w), self._stale = read, None
                 return read
         else:
@@ -92,9 +100,10 @@ class SegmentReading:
             self._stale = Segment(self._good_w, f, s, math.inf, s)
         return self._stale
 
-    def _mend_if_free(self) -> tuple[Segment, float] | None:
-        """Mend the segment if no writer holds the file (here or elsewhere): (it, a wall instant
-        read under the lock, where no later segment can be anchored); None if a writer holds it."""
+    def _mend_if_free(self, redraw: bool = False) -> tuple[Segment, float] | None:
+        """Mend the segment (``redraw``: draw it again from the slots) if no writer holds the file
+        (here or elsewhere): (it, a wall instant read under the lock, where no later segment can be
+        anchored); None if a writer holds it."""
         if not self._wlock.acquire(blocking=False):
             return None                        # this process is writing (another thread, a signal handler)
         try:
@@ -103,7 +112,9 @@ class SegmentReading:
             except BlockingIOError:
                 return None                    # a live writer in the middle of its write
             try:
-                return None if self._shrunk() else (self._mend(), self._time())
+                if self._shrunk():
+                    return None
+                return (self._govern() if redraw else self._mend()), self._time()
             finally:
                 fcntl.flock(self._fd, fcntl.LOCK_UN)
         finally:

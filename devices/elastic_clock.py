@@ -114,6 +114,7 @@ class ElasticClock(SegmentReading):
         self.slot: int | None = None
         self._said: tuple[int, float, str] | None = None
         self._renewed = -math.inf               # wall instant this process last gave its word
+        self._redrawn = -math.inf               # ... last drew a stale segment again (clock_reading.py)
         self._good: Segment | None = None       # the last sound segment read, and when
         self._good_w = 0.0
         self._sound: tuple = ()                 # the raw segment last found sound
@@ -121,7 +122,7 @@ class ElasticClock(SegmentReading):
         self._lost: str | None = None           # why the file can no longer be read (cut short)
         self.on_lost: Callable[[], None] | None = None   # called once then (the process's stop)
         try:
-            self.slow, self.fast, self.lease_s = check_file(self.path, self._map)
+            self.slow, self.fast, self.lease_s = check_file(self.path, self._map, self._time())
             self._renew_s = self.lease_s * RENEW_SHARE if self.lease_s > 0 else math.inf
             self._good, self._good_w = self._first_segment()
         except BaseException:

@@ -14,7 +14,7 @@ from pathlib import Path
 
 import pytest
 
-from devices.clock_file import BUSY, GEN_AT, HEAD, IDLE, NSLOTS, SEG, SEG_AT, SLOT
+from devices.clock_file import BUSY, GEN_AT, HEAD, IDLE, LEASE_S, NSLOTS, SEG, SEG_AT, SLOT, pace_of
 from devices.elastic_clock import ElasticClock, create
 from devices.errors import BadInput
 
@@ -137,6 +137,7 @@ def _spoil(path, **fields) -> None:
     ({"slots": {1: (b"sim", 1, BUSY, math.nan, b"x", 1.0)}}, "slot 1"),
     ({"slots": {1: (b"sim", 1, BUSY, SLOW, b"x", math.nan)}}, "slot 1"),
     ({"slots": {3: (b"sim", 1, IDLE, START, b"x", -1.0)}}, "slot 3"),
+    ({"slots": {0: (b"sim", 1, IDLE, START, b"x", time.time() + 1e6)}}, "slot 0"),    # its lease never lapsed
 ])
 def test_a_spoilt_file_is_refused_naming_the_field(tmp_path, fields, named):
     path = tmp_path / "clock"
@@ -252,3 +253,14 @@ def test_a_segment_overwritten_with_an_earlier_anchor_does_not_take_log_times_ba
         assert clock.now() >= before and clock.at(now) >= before
     finally:
         clock.close()
+
+
+
+def test_a_word_given_in_the_wall_s_future_holds_the_farm_slow():
+    """Opened, such a slot is refused (above); spoilt later, its word is none: slow, as a spoilt
+    slot's. Taken as given, its lease never lapsed and the farm ran fast without its holder."""
+    w = 5_000.0
+    given = (b"sim", 1, IDLE, START + 1e6, b"x", w)
+    future = (b"controller", 2, IDLE, START + 1e6, b"x", w + 1e6)
+    assert pace_of([given, given], START, w, SLOW, FAST, lambda pid: True, LEASE_S)[0] == FAST
+    assert pace_of([given, future], START, w, SLOW, FAST, lambda pid: True, LEASE_S)[0] == SLOW

@@ -6,11 +6,16 @@ from __future__ import annotations
 import asyncio
 import math
 import multiprocessing as mp
+import os
+import signal
+import subprocess
+import sys
 import time
 
 import pytest
 
-from devices.clock_file import CRAWL, LEASE_S
+from devices.clock_file import CRAWL, LEASE_S, process_alive
+from devices.clock_reading import STALE_S
 from devices.elastic_clock import FAST_NAP_S, SEEN_EVERY_S, SLICE_S, ElasticClock, create
 
 SLOW, FAST, START = 100.0, 10_000.0, 1_780_000_000.0
@@ -180,7 +185,8 @@ def test_busy_at_the_fast_speed_with_nobody_idle_holds_it_for_the_lease(leased, 
     sim.busy(max_speed=1e9)
     ctl.busy(max_speed=1e9)
     seg = ctl.segment()
-    assert seg.speed == FAST and seg.limit == pytest.approx(seg.farm0 + FAST * LEASE_S) and seg.after == SLOW
+    assert seg.speed == FAST and seg.limit == pytest.approx(seg.farm0 + FAST * LEASE_S)
+    assert seg.after == SLOW * CRAWL            # lapsed: a crawl, as every lapse is
 
 
 def test_a_dead_process_holds_the_farm_slow_not_at_a_crawl(leased, wall):
@@ -193,6 +199,57 @@ def test_a_dead_process_holds_the_farm_slow_not_at_a_crawl(leased, wall):
     wall.t += 1.0
     seg = sim.govern()
     assert (seg.speed, seg.limit) == (SLOW, math.inf)
+
+
+def test_every_process_stopped_crawls_as_one_stopped_does(leased, wall):
+    """With one of two stopped, the other's next word drew the crawl; with both stopped nobody was
+    left to draw it and the farm ran on slow, 10x faster (an outside tester)."""
+    sim, ctl = handle(leased, wall, "sim"), handle(leased, wall, "controller")
+    sim.idle_until(START + 1e9)
+    ctl.idle_until(START + 1e9)
+    start = ctl.now()
+    wall.t += 0.5                              # neither says a word
+    assert ctl.now() - start == pytest.approx(FAST * LEASE_S + SLOW * CRAWL * (0.5 - LEASE_S), abs=1e-3)
+
+
+def test_a_reader_draws_a_segment_every_holder_left_again(leased, wall):
+    """Every holder SIGKILLed, the last segment drawn (a crawl after a lease) stood for good though
+    README gives a dead holder's word the slow speed (an outside tester). A segment nobody drew
+    again for STALE_S is drawn again by whoever reads it: dead holders slow, stopped ones a crawl."""
+    dead: set[int] = set()
+    sim = handle(leased, wall, "sim", alive=lambda pid: pid not in dead)
+    ctl = handle(leased, wall, "controller", alive=lambda pid: pid not in dead)
+    sim.busy()
+    ctl.busy()
+    reader = handle(leased, wall, alive=lambda pid: pid not in dead)
+    wall.t += 0.5
+    assert reader.speed == SLOW * CRAWL        # stopped, or dead: the segment cannot tell yet
+    wall.t += STALE_S
+    assert reader.speed == SLOW * CRAWL        # drawn again: alive and silent, a crawl
+    dead.add(ctl.slots()[0].pid)               # (one pid for every handle here)
+    wall.t += STALE_S + 0.01
+    seg = reader.segment()
+    assert (seg.speed, seg.limit) == (SLOW, math.inf)
+    before = reader.now()
+    wall.t += 1.0
+    assert reader.now() - before == pytest.approx(SLOW * 1.0, abs=1e-6)
+
+
+def test_a_zombie_is_no_live_process(tmp_path):
+    """Killed and not yet reaped by its parent, a holder counted as alive: its lapsed word a crawl
+    and --show not marking it dead."""
+    child = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(60)"])
+    try:
+        assert process_alive(child.pid) and process_alive(os.getpid())
+        os.kill(child.pid, signal.SIGKILL)
+        deadline = time.monotonic() + 10
+        while process_alive(child.pid) and time.monotonic() < deadline:
+            time.sleep(0.01)
+        assert not process_alive(child.pid)
+        assert child.poll() == -signal.SIGKILL   # it was a zombie until now
+    finally:
+        child.kill()
+        child.wait()
 
 
 def test_claiming_again_by_name_takes_the_same_slot(path, wall):
