@@ -310,27 +310,49 @@ def _reached(drive, transit, start: np.ndarray):
     return (shapely.union_all(kept) if kept else drive), home
 
 
+def _start(start_xy, geom: PondGeometry, transit) -> np.ndarray:
+    """Where the path starts: the dock, or, where the dock lies within the keep-outs' transit margin
+    (on the floor, yet closer to one than a move may pass), the nearest point clear of it -- every
+    way out of the dock was no way, and the first move ran straight through the keep-out. Without a
+    dock, the point of the largest piece of the floor nearest the outline's first corner (a corner
+    in a pocket behind a keep-out planned the pocket alone: a 0.4 m path)."""
+    pieces = _pieces(transit.buffer(-EDGE))
+    if not pieces:                                 # (no room clear of the margin: the free space's edge)
+        pieces = _pieces(transit)
+    if start_xy is None:
+        pieces = [max(pieces, key=lambda g: g.area)]
+    at = shapely.Point(geom.outline.exterior.coords[0] if start_xy is None else start_xy)
+    inside = shapely.union_all(pieces)
+    if inside.covers(at):
+        return np.asarray(at.coords[0], float)
+    return np.asarray(shapely.ops.nearest_points(inside, at)[0].coords[0], float)
+
+
 def plan_coverage(geom: PondGeometry, *, brush_m: float, body_radius_m: float, overlap: float = 0.05,
                   angle_rad: float | None = None, start_xy=None, step_m: float = 0.25,
                   keepout_margin_m: float = KEEPOUT_MARGIN,
                   where: str = "config", key: str = "cleaning") -> CoveragePlan:
     """The path covering the reachable floor (module docstring). ``start_xy``: where the robot
-    starts (the dock); by default the outline's first point. ``keepout_margin_m``: room left for
-    steering error round the keep-outs, beyond the body radius (the walls need none: they stop
-    the robot; a keep-out does not)."""
+    starts (the dock); by default a point of the largest piece of floor (``_start``).
+    ``keepout_margin_m``: room left for steering error round the keep-outs, beyond the body radius
+    (the walls need none: they stop the robot; a keep-out does not). BadInput if no plan keeps the
+    body out of the keep-outs (a move with no way round them is never handed on)."""
     _check(brush_m, body_radius_m, overlap, where, key)
     free = geom.free(body_radius_m)
     drive = drivable(geom, free, body_radius_m, keepout_margin_m)
     if free.is_empty or drive.area < 1e-4:
         raise BadInput(where, f"{key}.outline", f"no room for a robot of radius {body_radius_m} m")
-    start = np.asarray(start_xy if start_xy is not None else geom.outline.exterior.coords[0], float)
-    inside = free.buffer(-EDGE)
-    if not inside.covers(shapely.Point(start)):
-        start = np.asarray(shapely.ops.nearest_points(inside, shapely.Point(start))[0].coords[0])
     transit = drivable(geom, free, body_radius_m, min(TRANSIT_MARGIN, keepout_margin_m))
+    start = _start(start_xy, geom, transit)
     drive, transit = _reached(drive, transit, start)
     router = Router(transit, drive)
     spacing = brush_m * (1 - overlap)
     angles = [float(angle_rad)] if angle_rad is not None else _candidate_angles(geom.outline)
     plans = [_plan_at(drive, router, a, start, brush_m, spacing, step_m) for a in angles]
-    return min(plans, key=lambda p: p.length_m + TURN_M * p.turns)
+    best = min(plans, key=lambda p: p.length_m + TURN_M * p.turns)
+    if geom.keepouts and len(best.path) > 1:
+        body = LineString(best.path).buffer(body_radius_m - 1e-6)
+        if shapely.union_all(geom.keepouts).intersection(body).area > 1e-9:
+            raise BadInput(where, f"{key}.dock", "no way from the dock to the floor that keeps the robot out of "
+                                                 "the keep-outs")
+    return best

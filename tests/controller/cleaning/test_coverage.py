@@ -73,6 +73,38 @@ def ponds(draw):
 @settings(max_examples=20, deadline=None, suppress_health_check=[HealthCheck.too_slow, HealthCheck.filter_too_much])
 @given(ponds(), st.one_of(st.none(), st.floats(0, math.pi)))
 def test_plan_stays_in_the_free_space_and_covers_the_reachable_floor(pond, angle):
+    plan_is_clear_and_covers(pond, angle)
+
+
+# hypothesis found these (a developer's run, 2026-12-06): the outline's first corner, the default
+# start, lies in the pocket between the wall and a keep-out. With the margin the pocket is cut off:
+# the plan was a point, or 0.4 m, or its first move ran straight through the keep-out
+POCKET = Polygon([(-1.5, 0.5), (-1.5, -0.5), (-2.5, -0.5), (-2.5, 0.5)])
+
+
+@pytest.mark.parametrize("corners", [
+    [(4.5, 0), (2.431, 3.787), (0.318, 4.489), (-3.341, 0.476), (-2.206, -2.554)],
+    [(4.5, 0), (2.431, 3.787), (-1.873, 4.092), (-3.341, 0.476), (-2.206, -2.554)],
+    [(4.5, 0), (2.431, 3.787), (-1.873, 4.092), (-3.341, 0.476), (-2.941, -3.406)],
+])
+def test_a_first_corner_in_a_pocket_behind_a_keep_out_plans_the_pond_not_the_pocket(corners):
+    plan_is_clear_and_covers((Polygon(corners), [POCKET]), None)
+
+
+@pytest.mark.parametrize("margin", [0.0, 0.1])
+def test_a_dock_within_a_keep_out_s_transit_margin_leaves_it_without_crossing_it(margin):
+    """The dock 0.358 m from a keep-out, a robot of radius 0.35: on the floor, yet nearer than a move
+    may pass. No way led out of it, and the first move ran straight through the keep-out."""
+    outline = Polygon([(4.5, 0), (2.431, 3.787), (0.318, 4.489), (-3.341, 0.476), (-2.206, -2.554)])
+    geom = pond_geometry(list(outline.exterior.coords), [list(POCKET.exterior.coords)])
+    dock = (-2.507, 0.858)
+    assert Point(dock).distance(POCKET) > R
+    plan = plan_coverage(geom, brush_m=B, body_radius_m=R, start_xy=dock, keepout_margin_m=margin)
+    body_stays_clear(plan.path, outline, [POCKET])
+    assert Point(plan.path[0]).distance(Point(dock)) < 0.15 and plan.lanes > 10     # a short step out
+
+
+def plan_is_clear_and_covers(pond, angle) -> None:
     outline, keepouts = pond
     geom = pond_geometry(list(outline.exterior.coords), [list(k.exterior.coords) for k in keepouts])
     plan = plan_coverage(geom, brush_m=B, body_radius_m=R, angle_rad=angle, keepout_margin_m=0.0)
