@@ -37,7 +37,7 @@ class HubClock:
         """The time a contact stamped ``t`` by the hub is counted at; None: too late to count."""
         now = self.clock.now()
         skew = t - now
-        if (self.clock.wall(skew) if skew >= 0 else self._ago(t)) <= SKEW_WALL_S:
+        if self._apart(t, now) <= SKEW_WALL_S:
             self._agrees()
             return t
         if skew < 0 and not self.off and not self._lag_holds(now, -skew):
@@ -60,8 +60,7 @@ class HubClock:
         bumped a sensor (at night, for hours). Raises nothing: a contact's stamp does that."""
         if t is None or not (self.off or self._late_said):
             return
-        ahead = t - self.clock.now()
-        if (self.clock.wall(ahead) if ahead >= 0 else self._ago(t)) <= SKEW_WALL_S:
+        if self._apart(t, self.clock.now()) <= SKEW_WALL_S:
             self._agrees()
 
     def _lag_holds(self, now: float, lag: float) -> bool:
@@ -72,14 +71,14 @@ class HubClock:
         shrunk = None if self._lag is None else self._lag[1] - lag
         if shrunk is None or (shrunk > 0 and self.clock.wall(shrunk) > SKEW_WALL_S):
             self._lag = (now, lag)
-        return self._ago(self._lag[0]) >= LAG_HOLDS_WALL_S
+        return self.clock.wall_since(self._lag[0]) >= LAG_HOLDS_WALL_S
 
-    def _ago(self, t: float) -> float:
-        """Wall seconds since farm time ``t`` (a stamp behind the clock): on an elastic farm clock
-        not ``wall`` of the lag, which converts at the speed now (a lag run up at 60,000x, read at
-        60x, was 17 s for 17 ms: every contact of a fast span dropped as stale, 300 alarms a run)."""
-        since = getattr(self.clock, "wall_since", None)
-        return since(t) if since is not None else self.clock.wall(self.clock.now() - t)
+    def _apart(self, t: float, now: float) -> float:
+        """Wall seconds between stamp ``t`` and ``now``: ahead, as the clock will take them; behind,
+        as they passed (``wall_since``) -- not ``wall`` of the lag, which converts at the speed now: on
+        an elastic clock a lag run up at 60,000x, read at 60x, was 17 s for 17 ms, and every contact
+        of a fast span was dropped as stale, 300 alarms a run."""
+        return self.clock.wall(t - now) if t >= now else self.clock.wall_since(t)
 
     def _agrees(self) -> None:
         self._lag = None

@@ -16,7 +16,8 @@ safe, fast needs everyone's word.
 
 A word is a lease of the file's ``lease_s`` of wall (``clock_file.pace_of``): given again every
 ``RENEW_SHARE`` of it while unchanged, and the segment's speed holds only until the oldest live
-word lapses (fast gives way to slow; slow, or busy, to a crawl). A process that stopped running
+word lapses (then the farm crawls: a tenth of the slow speed, or of a busy word's; a segment every
+holder left is drawn again by a reader, clock_reading.py). A process that stopped running
 (descheduled on a loaded machine) stops the farm running on without it: it had read nothing for
 0.9 s of wall while the farm ran nine hours fast, and heard the next meal's fish minutes late.
 

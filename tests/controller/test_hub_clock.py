@@ -21,6 +21,9 @@ class Clock:
     def wall(self, farm_s: float) -> float:
         return farm_s
 
+    def wall_since(self, farm_t: float) -> float:
+        return max(0.0, self.t - farm_t)
+
 
 class Alarms:
     def __init__(self):
@@ -79,6 +82,9 @@ def test_a_stalled_hubs_backlog_is_dropped_not_made_one_burst_of_demand():
     class Fast(Clock):
         def wall(self, farm_s: float) -> float:
             return farm_s / speed
+
+        def wall_since(self, farm_t: float) -> float:
+            return max(0.0, self.t - farm_t) / speed
     clock, alarms = Fast(T0), Alarms()
     hub = HubClock(clock, alarms, "hub")
     # an episode long ago and turbulence after it: 3 farm hours of stamps, all arriving at T0 + 3 h
