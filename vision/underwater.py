@@ -1,11 +1,9 @@
 """The underwater per-pair pipeline (paper section 4): pre-processing, caudal-fin detection, fork
 location, stereo pairing, snouts, 3-D association, post-filters and a quality score per fish.
 
-Stages (``timings`` keys): ``keypoints`` (pyramid, the keypoint net's forks and snouts over the
-whole image), ``illumination`` (noise reduction, row compensation, water distance: for the fish
-regions' and the template bank's proposals, off by default since 2026-12-06), ``fins`` (fish
-silhouettes against a local background and the notches in their outlines; with those proposers
-on, fish regions, fork hypotheses at their ends and the template bank's), ``fork`` (forks
+Stages (``timings`` keys): ``illumination`` (pyramid, noise reduction, row compensation, water
+distance), ``fins`` (fish regions, fork hypotheses at their ends, the template bank's, fish
+silhouettes against a local background and the notches in their outlines), ``fork`` (forks
 located at full resolution, eq. 13 scored there), ``stereo`` (fork pairing, forks seen in one
 image looked for along their epipolar line in the other, triangulation), ``snout`` (profiles,
 silhouettes' far ends and tips), ``associate`` (snout pairing in 3-D, each end checked along its
@@ -40,15 +38,6 @@ pass, or the second keeping the first's fork where it shows none: more located, 
 40-scene diagnosis (the second pass's arm fit is what ``t_fork_shape`` trusts). The score, not the
 locator, decides what the survey keeps, and it separates right from wrong poorly (Spearman 0.18
 with the length error).
-
-Since 2026-12-06 forks are proposed by the keypoint net and the silhouettes' caudal notches only.
-With the net retrained (2026-12-06 weights), the fish regions' ends, eq. 13's bank and the outlines'
-shifted ends beside it found more fish only below the precision goal (seeds 0+, with the score of
-the time: 132 right, 7 wrong, 0.950, against 121 and 3) at ~1.5x the CPU a pair. The notches keep
-what the net does not know: of 180 fish drawn with cv2 primitives (tests/vision/test_underwater.py)
-the net alone found 27, with the notches 60 (64 reports), the pipeline before 71 (93 reports).
-Figures in ``vision.fish_keypoints``. The paper's row compensation (eqs. 11-12) serves the fish
-regions, on with ``row_regions=True``.
 
 The keypoint net over the whole image (``vision.fish_keypoints``, ``Params.keypoints``, on)
 proposes forks beside the classical proposers and a snout per fork: proposals stop being the
@@ -126,17 +115,14 @@ class Params:
                                     # seeds, ~1-2 % less CPU than 0)
     near_mm: float = 300.0          # working range of the rig for that search (from the camera)
     far_mm: float = 4000.0
-    bank_per_mpix: float = 0.0      # eq. (13)'s best fork proposals per megapixel (0: off; 8 until 2026-12-06,
-                                    # 10 at 1280x960; the keypoint net proposes what it found, module notes)
+    bank_per_mpix: float = 8.0      # eq. (13)'s best fork proposals per megapixel (0: off; 10 at 1280x960)
     bank_levels: int = 2            # ... scored on the working image and its first halving
     bank_stride: int = 2            # ... at grid points this many px apart
     bank_keep: float = 0.1          # ... the share of them with the most emboss energy
-    row_regions: bool = False       # fork proposals at the ends of regions unlike the row-compensated water
-                                    # (eqs. 11-12; on until 2026-12-06, module notes)
+    row_regions: bool = True        # fork proposals at the ends of regions unlike the row-compensated water
     outlines: bool = True           # fork proposals from silhouettes against the local background
     outline_k: tuple[float, ...] = (2.0, 4.0)   # ... thresholds, in local background spreads
-    outline_ends: tuple[float, ...] = ()   # ... outline ends shifted by these shares of its length (the
-                                    # notches alone since 2026-12-06; (-0.12, -0.02) before, module notes)
+    outline_ends: tuple[float, ...] = (-0.12, -0.02)   # ... outline ends shifted by these shares of its length
     fork_net: bool = True           # forks located by the learned locator (vision.fork_net), not vision.fork
     net_min_conf: float = 0.9       # ... where its confidence is at least this (2026-12-03, 0.5 -> 0.9: the
                                     # same reports on three bench sets and at 1920x1080, one more fish on seeds
