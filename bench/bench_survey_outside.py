@@ -29,25 +29,25 @@ import json  # noqa: E402
 import sys  # noqa: E402
 import time  # noqa: E402
 from pathlib import Path  # noqa: E402
+from types import SimpleNamespace  # noqa: E402
 
 import cv2  # noqa: E402
 import numpy as np  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
-from bench.bench_survey_underwater import parse_params  # noqa: E402
+from bench.bench_survey_underwater import TOL, TOL_DEPTH, parse_params, placement  # noqa: E402
 from bench.outside_fish import make_rig, render_pair  # noqa: E402
 from vision.survey_types import SurveySetup  # noqa: E402
 from vision.underwater import Params, measure_underwater  # noqa: E402
 
-LATERAL, ALONG = 0.03, 0.10
 
-
-def end_ok(reported: np.ndarray, true: np.ndarray, length: float, centre: np.ndarray) -> bool:
-    d = np.asarray(reported, float) - np.asarray(true, float)
-    u = np.asarray(true, float) - centre
-    u /= np.linalg.norm(u)
-    along = abs(d @ u)
-    return bool(np.linalg.norm(d - (d @ u) * u) <= LATERAL * length and along <= ALONG * length)
+def right(report, fish: dict, centre: np.ndarray) -> bool:
+    """The report's ends within the bench's tolerances of this true fish's (``bench_survey_underwater``'s
+    rule: ``TOL`` of its length across camera 1's line of sight, ``TOL_DEPTH`` along it)."""
+    truth = SimpleNamespace(snout_mm=np.asarray(fish["snout"], float), fork_mm=np.asarray(fish["fork"], float),
+                            length_cm=fish["L"] / 10)
+    across, along = placement(report, truth, centre)
+    return across <= TOL and along <= TOL_DEPTH
 
 
 def judge(fish, truth: dict, centre: np.ndarray) -> tuple[dict, list[dict]]:
@@ -55,9 +55,7 @@ def judge(fish, truth: dict, centre: np.ndarray) -> tuple[dict, list[dict]]:
     counts = {"reports": len(fish), "correct": 0, "wrong": 0, "on_partial_fish": 0}
     used: dict[int, int] = {}
     for k, f in enumerate(fish):
-        hit = next((j for j, t in enumerate(truth["fish"])
-                    if end_ok(f.snout_mm, t["snout"], t["L"], centre) and end_ok(f.fork_mm, t["fork"], t["L"], centre)),
-                   None)
+        hit = next((j for j, t in enumerate(truth["fish"]) if right(f, t, centre)), None)
         if hit is None or hit in used:
             counts["wrong"] += 1
         elif not truth["fish"][hit]["visible"]:
