@@ -1,8 +1,11 @@
 """The underwater survey on fish it was not built on: ``bench/outside_fish.py``'s renderer (an
 outside tester's, 2026-12-06). Prints one JSON object.
 
-Run: ``.venv/bin/python bench/bench_survey_outside.py [--pairs 112] [--seed 60] [--params "..."]``
-(``--params``: ``vision.underwater.Params`` fields to change, as bench_survey_underwater takes them).
+Run: ``.venv/bin/python bench/bench_survey_outside.py [--pairs 112] [--seed 60] [--params "..."]
+[--renderer outside_fish2]`` (``--params``: ``vision.underwater.Params`` fields to change, as
+bench_survey_underwater takes them; ``--renderer outside_fish2``: a second tester's fish, written on
+2026-12-07 without either the project's renderers or the first tester's: bodies bent in 3-D, silvery
+shading, a cage net at an angle, reef faces, a sandy bottom, fish far behind, motion blur).
 
 Correct, as the tester judged it: a report whose 3-D snout and fork are each within 3 % of a true
 fish's fork length across camera 1's line of sight and within 10 % along it; each true fish counts
@@ -25,6 +28,7 @@ for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
 
 import argparse  # noqa: E402
 import dataclasses  # noqa: E402
+import importlib  # noqa: E402
 import json  # noqa: E402
 import sys  # noqa: E402
 import time  # noqa: E402
@@ -36,9 +40,10 @@ import numpy as np  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 from bench.bench_survey_underwater import TOL, TOL_DEPTH, parse_params, placement  # noqa: E402
-from bench.outside_fish import make_rig, render_pair  # noqa: E402
 from vision.survey_types import SurveySetup  # noqa: E402
 from vision.underwater import Params, measure_underwater  # noqa: E402
+
+RENDERERS = ("outside_fish", "outside_fish2")
 
 
 def right(report, fish: dict, centre: np.ndarray) -> bool:
@@ -84,10 +89,14 @@ def main() -> None:
     ap.add_argument("--pairs", type=int, default=112)
     ap.add_argument("--seed", type=int, default=60)
     ap.add_argument("--params", default="")
+    ap.add_argument("--renderer", default="outside_fish", choices=RENDERERS,
+                    help="whose fish: bench/outside_fish.py (default) or bench/outside_fish2.py")
     args = ap.parse_args()
     params = parse_params(args.params) or Params()
     cv2.setNumThreads(1)
-    rig = make_rig()
+    renderer = importlib.import_module(f"bench.{args.renderer}")
+    render_pair = renderer.render_pair
+    rig = renderer.make_rig()
     calib, centre = rig.calibration(), rig.centres[0]
     setup = SurveySetup(up_world=(0.0, 0.0, 1.0))
     rng = np.random.default_rng(args.seed)
@@ -104,7 +113,7 @@ def main() -> None:
         rows += fish_rows
     errs = np.array([r["err_pct"] for r in rows if r["found"]])
     print(json.dumps({
-        "pairs": args.pairs, "seed": args.seed, "params": {f.name: getattr(params, f.name)
+        "renderer": args.renderer, "pairs": args.pairs, "seed": args.seed, "params": {f.name: getattr(params, f.name)
                                                            for f in dataclasses.fields(params)
                                                            if getattr(params, f.name) != f.default},
         "visible": len(rows), **totals,

@@ -4,7 +4,8 @@ that was there before (a CALIB.json being replaced) as it was.
 
 A name that is a symbolic link keeps pointing where it did: the file it names is the one replaced.
 A device or a pipe (``--json /dev/null``, ``--csv /dev/stdout``, a FIFO) is written into, never
-replaced: renaming over it put a plain file where the system's /dev/null had been."""
+replaced: renaming over it put a plain file where the system's /dev/null had been. ``-`` is the
+standard output, as for most Unix tools (``--json -``)."""
 from __future__ import annotations
 
 import contextlib
@@ -48,6 +49,11 @@ def _alive(pid: int) -> bool:
     return True
 
 
+def named(path: str | Path) -> Path:
+    """The file an output option names: ``-`` is the standard output (before, it made a file '-')."""
+    return Path("/dev/stdout") if str(path) == "-" else Path(path)
+
+
 def special(target: Path) -> bool:
     """A device, a pipe or a socket (through any links): written into, not replaced."""
     try:
@@ -70,7 +76,7 @@ def _take_name(tmp: Path, target: Path) -> None:
 def replace_atomically(path: str | Path, write: Callable[[str], None]) -> None:
     """``write(tmp)`` fills a file beside ``path`` (same directory, so the rename is atomic), which
     then takes its name. OSError becomes BadInput naming ``path``."""
-    target = Path(path)
+    target = named(path)
     if special(target):
         try:
             write(str(target))
@@ -109,7 +115,7 @@ class PendingFile:
     to call twice."""
 
     def __init__(self, path: str | Path, what: str):
-        self.path, self.what = Path(path), what
+        self.path, self.what = named(path), what
         self.special = special(self.path)
         if self.special:             # kept until the commit, which writes it into the device or pipe
             if not os.access(self.path, os.W_OK):

@@ -1,7 +1,8 @@
 """Training crops for the learned fork locator (``vision.fork_net``), from rendered underwater pairs.
 
 Run (the project's venv): ``.venv/bin/python tools/fork_net_data.py --seed0 100000 --scenes 1500
---out /tmp/forks.npz``. Seeds must be >= 100000: the benches use 0+ and 1000+, and nothing is trained
+--out /tmp/forks.npz [--conditions '{"clutter": "rock"}']`` (``--conditions``: those scene conditions
+given, the rest drawn). Seeds must be >= 100000: the benches use 0+ and 1000+, and nothing is trained
 or tuned on those. Deterministic for a seed range (the jitter's generator is seeded from it).
 
 Per view of each scene, crops (``fork_net.raw_crops``) of:
@@ -20,6 +21,7 @@ fork of a partly hidden fish in them are left out (whether its fork shows is unk
 from __future__ import annotations
 
 import argparse
+import json
 import sys
 from pathlib import Path
 
@@ -151,6 +153,8 @@ def main() -> None:
                                                        "scaled with the width: smaller fish in smaller images)")
     ap.add_argument("--jpeg", type=int, default=None, help="each view through a JPEG round trip at this quality "
                                                            "(a streaming camera's)")
+    ap.add_argument("--conditions", default="{}",
+                    help='scene conditions as JSON, e.g. \'{"clutter": "cage"}\' (the rest drawn)')
     ap.add_argument("--out", required=True)
     args = ap.parse_args()
     if args.seed0 < FIRST_SEED:
@@ -161,7 +165,7 @@ def main() -> None:
     rig = underwater_rig(image_size=(w, h), focal_px=1400.0 * w / 1280)
     out = Crops()
     for seed in range(args.seed0, args.seed0 + args.scenes):
-        sc = underwater_scene(np.random.default_rng(seed), rig=rig)
+        sc = underwater_scene(np.random.default_rng(seed), rig=rig, **json.loads(args.conditions))
         for c, img in enumerate((sc.left, sc.right)):
             if args.jpeg is not None:
                 jpeg = cv2.imencode(".jpg", img, [cv2.IMWRITE_JPEG_QUALITY, args.jpeg])[1]

@@ -8,7 +8,7 @@ import tempfile
 from collections.abc import Iterable
 from pathlib import Path
 
-from controller.atomic_files import beside
+from controller.atomic_files import beside, named
 from controller.atomic_files import special as _special
 from controller.errors import BadInput
 
@@ -29,8 +29,8 @@ def check_outputs(outputs: dict[str, str | Path | None], inputs: Iterable[str | 
             raise BadInput(option, None, f"{str(path)!r}: an empty path; give a file name")
         if Path(path).is_dir():
             raise BadInput(str(path), option, "a directory, not a file")
-        if _special(Path(path)):       # /dev/null, /dev/stdout, a FIFO: written into, never replaced
-            if not os.access(path, os.W_OK):
+        if _special(named(path)):      # -, /dev/null, /dev/stdout, a FIFO: written into, never replaced
+            if not os.access(named(path), os.W_OK):
                 raise BadInput(str(path), option, "cannot write: permission denied")
             continue
         real, ident = os.path.realpath(path), _file_id(path)

@@ -212,4 +212,4 @@ def track(frames_dir: str, tower_path: str, json_path: str, lost_after_s: float)
     write_text_atomically(json_path, json.dumps({"track": entries}, indent=1) + "\n")
     states = [e["state"] for e in entries]
     click.echo(f"{len(entries)} frames: tracking {states.count('tracking')}, predicted {states.count('predicted')}, "
-               f"lost {states.count('lost')}; written: {json_path}")
+               f"lost {states.count('lost')}; written: {json_path}", err=json_path == "-")

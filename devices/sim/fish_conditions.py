@@ -2,7 +2,9 @@
 
 Every name below can be given as a keyword to ``underwater_scene`` / ``surface_scene`` / ``swim``
 to fix it; the rest are drawn, so a benchmark sweeping seeds sees varied water, light, stock and
-clutter. Unknown names raise ValueError naming them. A scene reports what it drew
+clutter. Unknown names raise ValueError naming them. Two backdrops are never drawn, only given
+(``clutter="rock"``, ``"cage"``: more contrast than the drawn net and reef can have, for training
+data and diagnosis), so the benches' seeds render what they always did. A scene reports what it drew
 (``SurveyScene.conditions``).
 """
 from __future__ import annotations
@@ -10,7 +12,7 @@ from __future__ import annotations
 import numpy as np
 
 from devices.sim.fish_species import SPECIES
-from devices.sim.fish_water import net_texture, ripple_texture
+from devices.sim.fish_water import cage_net_texture, net_texture, ripple_texture, rock_texture
 from devices.sim.stereo_scene import random_texture
 
 _SPECIES_ODDS = {"sparus_aurata": 0.4, "dicentrarchus_labrax": 0.15, "salmo_salar": 0.15,
@@ -62,6 +64,7 @@ UNDERWATER = {
     "_rays_seed": lambda r, c: int(r.integers(1 << 30)),
     "light_attenuation_mm": lambda r, c: float(r.uniform(1500, 6000)),
     "ambient": lambda r, c: float(r.uniform(0.45, 0.8)),    # underwater light is diffuse
+    # "rock" and "cage" only when given: drawn scenes keep every seed's draws (the benches' sets)
     "clutter": lambda r, c: str(r.choice(["none", "net", "reef"], p=[0.4, 0.3, 0.3])),
     "clutter_range_mm": lambda r, c: float(r.uniform(2300, 3500)),
     "net_bgr": lambda r, c: [float(v) for v in r.uniform(0.2, 0.6) * r.uniform(0.8, 1.2, 3) * 255],
@@ -80,6 +83,8 @@ UNDERWATER = {
     "jpeg_quality": _jpeg,
     "speed_bl_s": lambda r, c: [0.5, 1.5],
 }
+
+CLUTTER = ("none", "net", "reef", "rock", "cage")
 
 SURFACE = {
     "species": _species,
@@ -140,8 +145,8 @@ def _draw(rng, table: dict, n_fish, given: dict, setup: str) -> dict:
                          f"known: {', '.join(table)}")
     if n_fish is not None:
         given = {**given, "n_fish": int(n_fish)}
-    if given.get("clutter", "none") not in ("none", "net", "reef"):
-        raise ValueError(f"{setup} scene: clutter {given['clutter']!r} is not one of none, net, reef")
+    if given.get("clutter", "none") not in CLUTTER:
+        raise ValueError(f"{setup} scene: clutter {given['clutter']!r} is not one of {', '.join(CLUTTER)}")
     bad = [k for k in ("n_fish", "bubbles", "particles") if k in given and int(given[k]) < 0]
     if bad:
         raise ValueError(f"{setup} scene: {bad[0]} must be >= 0, got {given[bad[0]]}")
@@ -167,7 +172,24 @@ def underwater_conditions(rng, rig, n_fish, given: dict) -> tuple[dict, dict]:
         textures["net"] = net_texture(rng, mesh_mm=float(rng.uniform(20, 45)), texel_mm=4.0, size=n)
     elif cond["clutter"] == "reef":
         textures["reef"] = random_texture((n, n), rng, (1.5, 5.0, 16.0, 40.0))
+    elif cond["clutter"] in ("rock", "cage"):
+        if cond["clutter"] == "rock":
+            textures["rock"] = rock_texture(rng, n)
+        else:
+            mesh_mm, twine_mm = float(rng.uniform(12, 45)), float(rng.uniform(2, 6))
+            angle_deg = float(rng.choice([0.0, 45.0]) + rng.normal(0, 8))     # square or diamond meshes
+            textures["cage"] = cage_net_texture(rng, mesh_mm, twine_mm, angle_deg, texel_mm=2.0, size=n)
+        cond["clutter_tone"] = _clutter_tone(rng)
+        # just behind the farthest fish (range_mm's 2 m): a cage wall, a reef the fish swim along
+        cond["clutter_range_mm"] = given.get("clutter_range_mm", float(rng.uniform(2050, 2800)))
     return cond, textures
+
+
+def _clutter_tone(rng) -> list[float]:
+    """The backdrop's brightness against the water's (dark twine or shaded rock .. sunlit rock, a
+    bright fouled net), per channel: more contrast than the drawn net and reef can have."""
+    level = float(rng.choice([rng.uniform(0.1, 0.55), rng.uniform(1.3, 2.4)]))
+    return [float(v) for v in level * rng.uniform(0.8, 1.2, 3)]
 
 
 def surface_conditions(rng, rig, n_fish, given: dict) -> tuple[dict, dict]:

@@ -77,6 +77,32 @@ def net_texture(rng: np.random.Generator, mesh_mm: float, texel_mm: float, size:
     return (net * (0.7 + 0.3 * random_texture((size, size), rng, (6.0, 20.0)))).astype(np.float32)
 
 
+def cage_net_texture(rng: np.random.Generator, mesh_mm: float, twine_mm: float, angle_deg: float,
+                     texel_mm: float, size: int = 1024) -> np.ndarray:
+    """(size, size) float32 0..1: a sea-cage net of square meshes turned by ``angle_deg`` (45: a
+    diamond net), 1 on the twine, fouled unevenly."""
+    r, c = np.indices((size, size), dtype=np.float32) * texel_mm
+    a = np.radians(angle_deg)
+    u, v = c * np.cos(a) + r * np.sin(a), -c * np.sin(a) + r * np.cos(a)
+    half = twine_mm / 2
+    du = np.abs((u / mesh_mm) % 1.0 - 0.5) * mesh_mm      # mm from the mesh centre, across each twine
+    dv = np.abs((v / mesh_mm) % 1.0 - 0.5) * mesh_mm
+    edge = np.maximum(du, dv) - (mesh_mm / 2 - half)
+    net = np.clip(edge / max(texel_mm, 0.5) + 0.5, 0, 1)
+    fouling = random_texture((size, size), rng, (4.0, 15.0, 40.0))
+    return (net * (0.55 + 0.45 * fouling)).astype(np.float32)
+
+
+def rock_texture(rng: np.random.Generator, size: int) -> np.ndarray:
+    """(size, size) float32 0..1: rock and weed patches with sharp edges (a reef, a cage's
+    fouled frame), fine grain inside them."""
+    blobs = random_texture((size, size), rng, tuple(float(s) for s in rng.uniform([3, 8, 20], [6, 16, 45])))
+    cut, soft = rng.uniform(0.35, 0.65), rng.uniform(0.01, 0.06)
+    patches = np.clip((blobs - cut) / soft + 0.5, 0, 1)
+    grain = random_texture((size, size), rng, (1.0, 2.5))
+    return (patches * (0.75 + 0.25 * grain) + (1 - patches) * 0.15 * grain).astype(np.float32)
+
+
 def underwater_background(rig, cam: int, cond: dict, rng_tex: dict) -> tuple[np.ndarray, np.ndarray]:
     """(frame, veil) float32 (H, W, 3) BGR 0..255 for camera ``cam`` (0 left, 1 right)."""
     K, R = (rig.K1, rig.R1) if cam == 0 else (rig.K2, rig.R2)
@@ -87,7 +113,7 @@ def underwater_background(rig, cam: int, cond: dict, rng_tex: dict) -> tuple[np.
     bright = np.ascontiguousarray(bright, dtype=np.float32)
     veil = cv2.multiply(_bgr(bright), _scalar(cond["water_bgr"]))
     clutter = cond["clutter"]
-    if clutter not in ("net", "reef"):
+    if clutter not in ("net", "reef", "rock", "cage"):
         return veil.copy(), veil
     centre = np.asarray(rig.target, float)
     forward = centre - (rig.centres[0] + rig.centres[1]) / 2
@@ -95,7 +121,7 @@ def underwater_background(rig, cam: int, cond: dict, rng_tex: dict) -> tuple[np.
     forward /= np.linalg.norm(forward)
     side = np.array([forward[1], -forward[0], 0.0])
     dist = cond["clutter_range_mm"]
-    texel = 4.0 if clutter == "net" else 9.0
+    texel = {"net": 4.0, "cage": 2.0}.get(clutter, 9.0)
     tex = rng_tex[clutter]
     half = tex.shape[0] * texel / 2
     base = (rig.centres[0] + rig.centres[1]) / 2 + forward * dist
@@ -105,6 +131,9 @@ def underwater_background(rig, cam: int, cond: dict, rng_tex: dict) -> tuple[np.
     trans = np.float32(np.exp(-dist / cond["visibility_mm"]))
     if clutter == "net":
         col = cv2.multiply(veil, _scalar(np.asarray(cond["net_bgr"]) / 128.0))
+        a = img * cover * trans
+    elif clutter in ("rock", "cage"):      # patches or twine of their own tone, the water between
+        col = cv2.multiply(veil, _scalar(cond["clutter_tone"]))
         a = img * cover * trans
     else:       # rock lit by the water's light: boulders and dark crevices
         rock = np.clip((img - 0.5) * 2.5 + 0.5, 0.0, 1.0)

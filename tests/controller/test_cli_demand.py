@@ -46,6 +46,15 @@ def test_replay_writes_the_contract_json(log, tmp_path):
     assert doc == json.loads(json.dumps(to_json(replay(str(path))[0])))   # the same code in-process
 
 
+def test_json_dash_is_the_standard_output(log, tmp_path):
+    stream, path = log
+    r = subprocess.run([FISHFARM, "demand", "--events", path, "--json", "-"], capture_output=True, text=True,
+                       timeout=120, cwd=tmp_path)
+    assert r.returncode == 0, r.stderr
+    assert json.loads(r.stdout) == json.loads(json.dumps(to_json(replay(str(path))[0])))
+    assert list(tmp_path.iterdir()) == []                       # no file named '-'
+
+
 def test_config_takes_tanks_from_farm_toml_and_skips_strangers(log, tmp_path):
     stream, path = log
     extra = tmp_path / "with_stranger.csv"

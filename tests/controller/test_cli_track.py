@@ -63,6 +63,15 @@ def test_replays_the_clip_one_entry_a_frame(clip, tmp_path):
     assert "16 frames: tracking 13, predicted 3, lost 0" in result.stdout
 
 
+def test_json_dash_is_the_standard_output_and_the_summary_moves_to_stderr(clip, tmp_path):
+    result = subprocess.run([FISHFARM, "track", "--frames", clip, "--tower", clip / "tower.json", "--json", "-"],
+                            capture_output=True, text=True, timeout=120, cwd=tmp_path)
+    assert result.returncode == 0, result.stderr
+    assert len(json.loads(result.stdout)["track"]) == 16       # stdout is the JSON alone, whole
+    assert "16 frames: tracking 13" in result.stderr
+    assert list(tmp_path.iterdir()) == []                       # no file named '-'
+
+
 def test_a_long_gap_is_lost_with_null_position(tmp_path):
     d = write_clip(tmp_path / "c", n=14, hidden=set(range(4, 10)))
     out = tmp_path / "OUT.json"

@@ -165,6 +165,31 @@ def test_conditions_drawn_per_scene_reported_and_checked():
         surface_scene(np.random.default_rng(0), rig=surface_rig(**TINY), species="carp")
 
 
+def test_rock_and_cage_backdrops_only_when_given_and_behind_every_fish():
+    rig = underwater_rig(**SMALL)
+    drawn = {underwater_conditions(np.random.default_rng(s), rig, 0, {})[0]["clutter"] for s in range(200)}
+    assert drawn == {"none", "net", "reef"}        # the benches' seeds draw what they always drew
+
+    def detail(img):        # local contrast: what a backdrop adds to the smooth water
+        g = cv2.cvtColor(img, cv2.COLOR_BGR2GRAY).astype(np.float32)
+        return float(np.std(g - cv2.GaussianBlur(g, (0, 0), 8)))
+
+    quiet = dict(n_fish=0, bubbles=0, particles=0, noise_sd=0.0, jpeg_quality=None, visibility_mm=12000.0,
+                 blur_gain=0.0, sun_rays=0.0)
+    for seed in range(4):
+        plain = underwater_scene(np.random.default_rng(seed), rig=rig, clutter="none", **quiet)
+        for kind in ("rock", "cage"):
+            sc = underwater_scene(np.random.default_rng(seed), rig=rig, clutter=kind, **quiet)
+            assert sc.conditions["clutter"] == kind
+            assert sc.conditions["clutter_range_mm"] > max(sc.conditions["range_mm"])
+            tone = np.asarray(sc.conditions["clutter_tone"])
+            assert np.all(tone < 0.7) or np.all(tone > 1.0)     # darker or brighter than the water, never alike
+            assert detail(sc.left) > 3 * detail(plain.left) + 1.0, (kind, seed)
+            assert detail(sc.right) > 3 * detail(plain.right) + 1.0, (kind, seed)
+    with pytest.raises(ValueError, match="none, net, reef, rock, cage"):
+        underwater_scene(np.random.default_rng(0), rig=rig, clutter="kelp")
+
+
 @pytest.mark.parametrize("setup", ["underwater", "surface"])
 def test_swim_keeps_ids_and_moves_fish_smoothly(setup):
     rig = underwater_rig(**TINY) if setup == "underwater" else surface_rig(**TINY)
