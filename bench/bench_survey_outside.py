@@ -4,7 +4,7 @@ outside tester's, 2026-12-06). Prints one JSON object.
 Run: ``.venv/bin/python bench/bench_survey_outside.py [--pairs 112] [--seed 60] [--params "..."]
 [--renderer outside_fish2]`` (``--params``: ``vision.underwater.Params`` fields to change, as
 bench_survey_underwater takes them; ``--renderer outside_fish2``: a second tester's fish, written on
-2026-12-07 without either the project's renderers or the first tester's: bodies bent in 3-D, silvery
+2026-12-06 without either the project's renderers or the first tester's: bodies bent in 3-D, silvery
 shading, a cage net at an angle, reef faces, a sandy bottom, fish far behind, motion blur).
 
 Correct, as the tester judged it: a report whose 3-D snout and fork are each within 3 % of a true
