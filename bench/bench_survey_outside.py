@@ -17,7 +17,10 @@ visible fish) the pipeline of then found 45 right, 12 wrong, the proposers and s
 day 31 right, 6 wrong (``vision.fish_keypoints``); this bench's pairs (seed 60, 171 visible fish),
 the pipeline of then: 39 right, 10 wrong, 17 on partial fish, recall 0.228 (plain water 0.55, rock
 0.065, net 0.046), median length error 1.32 %, 96.5 ms a pair; ~8 min of wall, most of it rendering
-at 2x.
+at 2x. The second tester's pairs (``--renderer outside_fish2``, seed 70, 100 pairs, 143 visible fish),
+that pipeline: 15 right, 23 wrong (nearly all 3-8 % short of a visible fish); both testers' fish read
+short (``length_bias_pct_median`` -1.8 and -1.3 %). With the snouts taken to the image's edge
+(``vision.underwater.Params.snout_edge``, the same day): 29 / 9 and 40 / 8.
 """
 from __future__ import annotations
 
@@ -71,6 +74,7 @@ def judge(fish, truth: dict, centre: np.ndarray) -> tuple[dict, list[dict]]:
             used[hit] = k
     rows = [{"found": j in used,
              "err_pct": 100 * abs(10 * fish[used[j]].length_cm - t["L"]) / t["L"] if j in used else None,
+             "signed_pct": 100 * (10 * fish[used[j]].length_cm - t["L"]) / t["L"] if j in used else None,
              "bg": truth["cond"]["bg"], "pattern": t["pattern"], "direction": t["direction"]}
             for j, t in enumerate(truth["fish"]) if t["visible"]]
     return counts, rows
@@ -112,6 +116,7 @@ def main() -> None:
         totals = {k: totals[k] + counts[k] for k in totals}
         rows += fish_rows
     errs = np.array([r["err_pct"] for r in rows if r["found"]])
+    signed = np.array([r["signed_pct"] for r in rows if r["found"]])
     print(json.dumps({
         "renderer": args.renderer, "pairs": args.pairs, "seed": args.seed, "params": {f.name: getattr(params, f.name)
                                                            for f in dataclasses.fields(params)
@@ -121,6 +126,9 @@ def main() -> None:
         "precision": round(totals["correct"] / max(totals["reports"], 1), 3),
         "length_err_pct_median": round(float(np.median(errs)), 2) if len(errs) else None,
         "length_err_pct_p90": round(float(np.percentile(errs, 90)), 2) if len(errs) else None,
+        # signed (negative: short): both testers' fish read short, the project's renderer's hardly
+        "length_bias_pct_median": round(float(np.median(signed)), 2) if len(signed) else None,
+        "share_short": round(float(np.mean(signed < 0)), 2) if len(signed) else None,
         "cpu_ms_per_pair_median": round(1000 * float(np.median(cpu)), 1),
         "recall_by_backdrop": by(rows, "bg"), "recall_by_pattern": by(rows, "pattern"),
         "recall_by_direction": by(rows, "direction"),

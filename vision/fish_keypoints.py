@@ -113,6 +113,19 @@ the old net with the cut proposers 34 right, these weights with every proposer a
 score 35, with the score of before 44. The refit learns what this renderer's right reports look
 like, and the net's proposals alone miss what it did not render: taken back for the pipeline before,
 which finds most on pairs nobody here made.
+
+Trained on again (2026-12-06, twenty-ninth session; not packaged): from that candidate, 50 min on one
+core (beside other work), 7,774 steps at a peak rate of 1.5e-3 on 1,400 scenes: 101000-101199 (the same
+held-out images), 100000-100399, and the two backdrops the renderer draws only when given
+(``devices.sim.fish_conditions``: sharp-edged rock 104000-104399, a cage net 104400-104799). Held-out
+peaks over 0.3 within 4 %: forks 60.3 -> 66.4 %, snouts 50.7 -> 51.1 %, false forks 10.2 -> 7.5 %. With
+the pipeline of then: both outside testers' renderers (bench/bench_survey_outside.py, right / wrong;
+``outside_fish`` seed 60, 112 pairs; ``outside_fish2`` seed 70, 100 pairs) 39 / 10 -> 43 / 7 and
+15 / 23 -> 18 / 20 (rock backdrops 3 -> 6 of 46 fish); with the snouts at the image's edge
+(``vision.underwater.Params.snout_edge``) 45 / 7 and 30 / 6, but on the project's own sets precision
+under 0.95 on all four measured (seeds 0+ 114 / 8, 1000+ 97 / 9, 1920x1080 5000+ 106 / 8, 200000+
+156 / 10). Kept as tools/models/fish_keypoints_candidate.onnx (replacing the one above): the next
+training's ``--init``, wanting a score that ranks its extra reports.
 """
 from __future__ import annotations
 

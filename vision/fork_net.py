@@ -100,6 +100,13 @@ its mirror get the same answers: 0.90 / 0.90 and 0.66 / 0.66 there (the snout ne
 handedness of the fish's heading, not of their own axis, which points into the body). On the
 project's renderer the nets answer both alike either way (0.85 / 0.87), and upright crops add wrong
 reports there (README, "Both swimming directions alike"), so they stay off.
+
+Trained again with the renderer's two given-only backdrops (2026-12-06, twenty-ninth session; not
+kept): tools/fork_net_data.py seeds 100000-100749, rock 104800-105099 and a cage net 105100-105399
+(``--conditions``), tools/train_fork_net.py ``--epochs 10 --per-epoch 60000 --threads 1`` (16 min). Held
+out (the last 50 cage scenes): proposals' forks within 3 % 88.5 %. Against the packaged net, right /
+wrong: outside testers' renderers (bench/bench_survey_outside.py) 39 / 10 -> 36 / 6 and 15 / 23 -> 19 / 14,
+the bench's seeds 0+ 124 / 5 -> 119 / 5 and 1000+ 101 / 2 -> 97 / 5: no gain anywhere that counts.
 """
 from __future__ import annotations
 

@@ -16,6 +16,11 @@ the fish's length for 92.6 % of jittered candidates (within 1.5 % 77 %, median 0
 crops classified right, 6 % of the negatives over 0.5. In the survey (bench/diag_underwater.py,
 seeds 0-39, 75 fully visible fish): fish with no snout candidate within 3 % in both views 12 -> 1;
 with the post-filters off, found 42 -> 52.
+
+Its tips are the project's renderer's (2026-12-06): on two outside testers' fish it is as sure
+(>= 0.97) of tips ~1 % of the length inside a tapered snout, and those fish read short (right /
+wrong 15 / 23 on the second tester's pairs). The survey therefore takes each of its tips on to the
+image's own edge (``vision.underwater.Params.snout_edge``; README, "Snouts at the image's edge").
 """
 from __future__ import annotations
 
