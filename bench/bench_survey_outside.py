@@ -20,7 +20,7 @@ the pipeline of then: 39 right, 10 wrong, 17 on partial fish, recall 0.228 (plai
 at 2x. The second tester's pairs (``--renderer outside_fish2``, seed 70, 100 pairs, 143 visible fish),
 that pipeline: 15 right, 23 wrong (nearly all 3-8 % short of a visible fish); both testers' fish read
 short (``length_bias_pct_median`` -1.8 and -1.3 %). With the snouts taken to the image's edge
-(``vision.underwater.Params.snout_edge``, the same day): 29 / 9 and 40 / 8.
+(``--params "snout_to_edge=True"``): 29 / 9 and 40 / 8.
 """
 from __future__ import annotations
 

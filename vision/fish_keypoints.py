@@ -122,7 +122,7 @@ peaks over 0.3 within 4 %: forks 60.3 -> 66.4 %, snouts 50.7 -> 51.1 %, false fo
 the pipeline of then: both outside testers' renderers (bench/bench_survey_outside.py, right / wrong;
 ``outside_fish`` seed 60, 112 pairs; ``outside_fish2`` seed 70, 100 pairs) 39 / 10 -> 43 / 7 and
 15 / 23 -> 18 / 20 (rock backdrops 3 -> 6 of 46 fish); with the snouts at the image's edge
-(``vision.underwater.Params.snout_edge``) 45 / 7 and 30 / 6, but on the project's own sets precision
+(``vision.underwater.Params.snout_to_edge``) 45 / 7 and 30 / 6, but on the project's own sets precision
 under 0.95 on all four measured (seeds 0+ 114 / 8, 1000+ 97 / 9, 1920x1080 5000+ 106 / 8, 200000+
 156 / 10). Kept as tools/models/fish_keypoints_candidate.onnx (replacing the one above): the next
 training's ``--init``, wanting a score that ranks its extra reports.

@@ -19,8 +19,9 @@ with the post-filters off, found 42 -> 52.
 
 Its tips are the project's renderer's (2026-12-06): on two outside testers' fish it is as sure
 (>= 0.97) of tips ~1 % of the length inside a tapered snout, and those fish read short (right /
-wrong 15 / 23 on the second tester's pairs). The survey therefore takes each of its tips on to the
-image's own edge (``vision.underwater.Params.snout_edge``; README, "Snouts at the image's edge").
+wrong 15 / 23 on the second tester's pairs). ``vision.underwater.Params.snout_to_edge`` takes each of
+its tips on to the image's own edge: more fish there, fewer on the project's renderer, and the 60-day
+grow-out over its 10 minutes, so it is off (README, "Snouts at the image's edge").
 """
 from __future__ import annotations
 

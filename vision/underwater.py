@@ -150,10 +150,11 @@ class Params:
     snout_net_min: float = 0.5      # ... where it is at least this sure, dropped elsewhere (2026-12-03: before,
                                     # kept where they were; as many fish on the bench sets and the tuning seeds
                                     # and one more on seeds 1000+, one wrong report fewer at 1920x1080)
-    snout_edge: bool = True         # ... and its tip then taken to the image's own edge by the classical tip
+    snout_to_edge: bool = False     # ... and its tip then taken to the image's own edge by the classical tip
                                     # search (vision.snout.refine_tips), as every other candidate is (2026-12-06:
-                                    # the net alone placed two outside testers' snouts ~1 % of the length inside
-                                    # the fish; README, "Snouts at the image's edge")
+                                    # the net alone places two outside testers' snouts ~1 % of the length inside
+                                    # the fish; on, more fish there, fewer on the project's renderer and the
+                                    # 60-day grow-out over its 10 min: README, "Snouts at the image's edge")
     learned_score: bool = True      # the score is the fitted chance the report is right (vision.learned_score),
                                     # not the product of terms (kept as quality "hand_score")
     min_chance: float = 0.85        # ... post-filter then: a fish less likely right than this is dropped
@@ -365,11 +366,12 @@ def measure_underwater(left: np.ndarray, right: np.ndarray, calib: StereoCalibra
             tips, conf = snout_net.refine((v1, v2)[c].pyr, f.xy, sn[c].xy, upright=params.upright)
             if c == 0:
                 left_sure = conf
-            if params.snout_edge:
+            moved = np.where((conf >= params.snout_net_min)[..., None], tips, np.nan)
+            if params.snout_to_edge:
                 # the net's tips are the project's renderer's: on fish drawn elsewhere it is as sure of
                 # tips ~1 % of the length inside the snout, and only the image's own edge is general
-                tips = _tips((v1, v2)[c], f, tips, (pairs.i, pairs.j)[c])[0]
-            moved = np.where((conf >= params.snout_net_min)[..., None], tips, np.nan)
+                # (only the tips kept: the others are dropped anyway)
+                moved = _tips((v1, v2)[c], f, moved, (pairs.i, pairs.j)[c])[0]
             sn[c] = Snouts(np.linalg.norm(moved - f.xy[:, None], axis=2), moved, sn[c].strength)
     clock.lap("snout")
     up = np.asarray(setup.up_world if setup.up_world is not None else camera_frame(calib.P1)[1], float)

@@ -59,16 +59,23 @@ def test_most_drawn_fish_are_measured_and_the_good_ones_to_1_5_percent(results):
     assert max(abs(le) for _, le in good) < 0.015
 
 
-def test_drawn_fish_of_sixty_pairs_measure_to_1_25_percent_for_nine_in_ten():
+def test_snouts_at_the_edge_measure_drawn_fish_to_1_25_percent_for_nine_in_ten():
     """Every well-placed report of 60 drawn pairs: the learned snout locator alone, its tips learned
-    on the project's renderer, left one in ten of these fish over 1.41 % off (2026-12-06; on two
+    on the project's renderer, leaves one in ten of these fish over 1.41 % off (2026-12-06; on two
     outside testers' fish its snouts sat ~1 % of the length inside the fish); with each tip taken
-    to the image's edge (``Params.snout_edge``) nine in ten are within 1.1 %."""
-    placed = [placement(f, t) for fish, t, _ in run(rig_of(), range(60)) for f in fish]
-    good = np.array([le for e, le in placed if e < 0.03])
-    assert len(good) >= 65
-    assert np.percentile(np.abs(good), 90) < 0.0125
-    assert abs(float(np.median(good))) < 0.005
+    to the image's edge (``Params.snout_to_edge``) nine in ten are within 1.1 %."""
+    rig = rig_of()
+    calib = rig.calibration()
+    pairs = [underwater_pair(np.random.default_rng(seed), rig, n_fish=3) for seed in range(60)]
+    spread = {}
+    for edge in (False, True):
+        placed = [placement(f, t) for left, right, t in pairs
+                  for f in measure_underwater(left, right, calib, SETUP, params=Params(snout_to_edge=edge))]
+        good = np.array([le for e, le in placed if e < 0.03])
+        assert len(good) >= 65
+        assert abs(float(np.median(good))) < 0.005
+        spread[edge] = np.percentile(np.abs(good), 90)
+    assert spread[True] < 0.0125 < spread[False]
 
 
 def test_wild_lengths_score_below_good_ones(results):
@@ -149,7 +156,7 @@ def test_the_epipolar_check_from_either_view_keeps_what_both_views_keep_and_more
     rig = underwater_rig()
     calib, setup = rig.calibration(), SurveySetup(up_world=(0.0, 0.0, 1.0))
     more = 0
-    for seed in range(200010, 200018):         # 200013, 200016, 200017: a fish only the stricter rule drops
+    for seed in range(200003, 200009):         # 200006: a fish only the stricter rule drops
         scene = underwater_scene(np.random.default_rng(seed), rig)
         either = measure_underwater(scene.left, scene.right, calib, setup)
         both = measure_underwater(scene.left, scene.right, calib, setup, params=Params(epipolar_either=False))

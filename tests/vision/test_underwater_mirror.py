@@ -98,7 +98,7 @@ def test_a_scene_and_its_mirror_give_the_same_fish():
     """Rendered pairs and their mirror images: as many fish within one, each fish of one found in
     the other (its ends mirrored within 3 % of its length) with its length within 1 %."""
     matched = 0
-    for seed in range(400000, 400006):
+    for seed in (400000, 400001, 400002):
         sc = scene(seed)
         fish = measure_underwater(sc.left, sc.right, sc.rig.calibration(), SETUP, params=ALIKE)
         fish_m = measure_underwater(*mirrored(sc), SETUP, params=ALIKE)
