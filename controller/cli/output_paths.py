@@ -29,8 +29,9 @@ def check_outputs(outputs: dict[str, str | Path | None], inputs: Iterable[str | 
             raise BadInput(option, None, f"{str(path)!r}: an empty path; give a file name")
         if Path(path).is_dir():
             raise BadInput(str(path), option, "a directory, not a file")
-        if _special(named(path)):      # -, /dev/null, /dev/stdout, a FIFO: written into, never replaced
-            if not os.access(named(path), os.W_OK):
+        target = named(path)
+        if _special(target):           # -, /dev/null, /dev/stdout, a FIFO: written into, never replaced
+            if not os.access(target, os.W_OK):
                 raise BadInput(str(path), option, "cannot write: permission denied")
             continue
         real, ident = os.path.realpath(path), _file_id(path)

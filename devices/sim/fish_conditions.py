@@ -172,13 +172,13 @@ def underwater_conditions(rng, rig, n_fish, given: dict) -> tuple[dict, dict]:
         textures["net"] = net_texture(rng, mesh_mm=float(rng.uniform(20, 45)), texel_mm=4.0, size=n)
     elif cond["clutter"] == "reef":
         textures["reef"] = random_texture((n, n), rng, (1.5, 5.0, 16.0, 40.0))
-    elif cond["clutter"] in ("rock", "cage"):
-        if cond["clutter"] == "rock":
-            textures["rock"] = rock_texture(rng, n)
-        else:
-            mesh_mm, twine_mm = float(rng.uniform(12, 45)), float(rng.uniform(2, 6))
-            angle_deg = float(rng.choice([0.0, 45.0]) + rng.normal(0, 8))     # square or diamond meshes
-            textures["cage"] = cage_net_texture(rng, mesh_mm, twine_mm, angle_deg, texel_mm=2.0, size=n)
+    elif cond["clutter"] == "rock":
+        textures["rock"] = rock_texture(rng, n)
+    elif cond["clutter"] == "cage":
+        mesh_mm, twine_mm = float(rng.uniform(12, 45)), float(rng.uniform(2, 6))
+        angle_deg = float(rng.choice([0.0, 45.0]) + rng.normal(0, 8))     # square or diamond meshes
+        textures["cage"] = cage_net_texture(rng, mesh_mm, twine_mm, angle_deg, texel_mm=2.0, size=n)
+    if cond["clutter"] in ("rock", "cage"):
         cond["clutter_tone"] = _clutter_tone(rng)
         # just behind the farthest fish (range_mm's 2 m): a cage wall, a reef the fish swim along
         cond["clutter_range_mm"] = given.get("clutter_range_mm", float(rng.uniform(2050, 2800)))

@@ -113,7 +113,7 @@ def underwater_background(rig, cam: int, cond: dict, rng_tex: dict) -> tuple[np.
     bright = np.ascontiguousarray(bright, dtype=np.float32)
     veil = cv2.multiply(_bgr(bright), _scalar(cond["water_bgr"]))
     clutter = cond["clutter"]
-    if clutter not in ("net", "reef", "rock", "cage"):
+    if clutter == "none":
         return veil.copy(), veil
     centre = np.asarray(rig.target, float)
     forward = centre - (rig.centres[0] + rig.centres[1]) / 2

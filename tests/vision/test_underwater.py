@@ -75,7 +75,7 @@ def test_snouts_at_the_edge_measure_drawn_fish_to_1_25_percent_for_nine_in_ten()
         assert len(good) >= 65
         assert abs(float(np.median(good))) < 0.005
         spread[edge] = np.percentile(np.abs(good), 90)
-    assert spread[True] < 0.0125 < spread[False]
+    assert spread[True] < 0.0125 and spread[True] < spread[False]
 
 
 def test_wild_lengths_score_below_good_ones(results):
