@@ -44,8 +44,10 @@ def _wrap(a):
     return (a + np.pi) % (2 * np.pi) - np.pi
 
 
-def labels(h: Fins, forks: np.ndarray, axis: np.ndarray, length: np.ndarray, clear: np.ndarray):
-    """Per hypothesis: (keep, positive, u, v, turn, length / span)."""
+def labels(h: Fins, forks: np.ndarray, axis: np.ndarray, length: np.ndarray, clear: np.ndarray,
+           max_scale: float = 1.7):
+    """Per hypothesis: (keep, positive, u, v, turn, length / span); a positive's span is within
+    0.6 .. ``max_scale`` of SPAN_OF_FL x its fish's length."""
     N = len(h)
     keep, pos = np.ones(N, bool), np.zeros(N, bool)
     u, v, turn, rel = np.zeros(N), np.zeros(N), np.zeros(N), np.zeros(N)
@@ -58,7 +60,7 @@ def labels(h: Fins, forks: np.ndarray, axis: np.ndarray, length: np.ndarray, cle
     inside = (du > fork_net.U0 + MARGIN) & (du < fork_net.U1 - MARGIN) & (np.abs(dv) < fork_net.V1 - MARGIN)
     dt = _wrap(axis[None] - h.angle[:, None])
     scale = SPAN_OF_FL * length[None] / h.span_px[:, None]
-    fits = inside & (np.abs(dt) < np.radians(40)) & (scale > 0.6) & (scale < 1.7)
+    fits = inside & (np.abs(dt) < np.radians(40)) & (scale > 0.6) & (scale < max_scale)
     keep = ~(inside & ~clear[None]).any(axis=1)
     dist = np.where(fits & clear[None], np.hypot(du + 0.3, dv), np.inf)
     best = dist.argmin(axis=1)
@@ -67,16 +69,24 @@ def labels(h: Fins, forks: np.ndarray, axis: np.ndarray, length: np.ndarray, cle
     return keep, pos, du[r, best], dv[r, best], dt[r, best], (length[best] / h.span_px)
 
 
-def jittered(rng, forks, axis, length, n):
-    """n hypotheses round each fork, as the proposals are off."""
+def jittered(rng, forks, axis, length, n, fine: bool = False):
+    """n hypotheses round each fork, as the proposals are off; ``fine``: as the locator's last pass
+    starts (``vision.fork_net.FINE``: the span x 0.4..0.85, ``RECENTRE`` of it ahead of the fork,
+    +-0.02 of the length along and across, the axis within +-8 degrees)."""
     F = len(forks)
     if F == 0:
         return Fins.empty()
     k = np.repeat(np.arange(F), n)
     L = length[k]
-    ang = axis[k] + np.radians(rng.uniform(-25, 25, len(k)))
     a = np.c_[np.cos(axis[k]), np.sin(axis[k])]
     nrm = np.c_[-a[:, 1], a[:, 0]]
+    if fine:
+        span = SPAN_OF_FL * L * rng.uniform(0.4, 0.85, len(k))
+        ahead = fork_net.RECENTRE * span + rng.uniform(-0.02, 0.02, len(k)) * L
+        xy = forks[k] + ahead[:, None] * a + (rng.uniform(-0.02, 0.02, len(k)) * L)[:, None] * nrm
+        z = np.zeros(len(k))
+        return Fins(xy, axis[k] + np.radians(rng.uniform(-8, 8, len(k))), span, z, z.copy())
+    ang = axis[k] + np.radians(rng.uniform(-25, 25, len(k)))
     xy = (forks[k] + (rng.uniform(-0.05, 0.35, len(k)) * L)[:, None] * a
           + (rng.uniform(-0.1, 0.1, len(k)) * L)[:, None] * nrm)
     span = SPAN_OF_FL * L * np.exp(rng.uniform(-0.29, 0.22, len(k)))
@@ -155,6 +165,8 @@ def main() -> None:
                                                            "(a streaming camera's)")
     ap.add_argument("--conditions", default="{}",
                     help='scene conditions as JSON, e.g. \'{"clutter": "cage"}\' (the rest drawn)')
+    ap.add_argument("--fine", action="store_true",
+                    help="crops at the locator's last pass' finer span too (vision.fork_net.FINE)")
     ap.add_argument("--out", required=True)
     args = ap.parse_args()
     if args.seed0 < FIRST_SEED:
@@ -173,9 +185,15 @@ def main() -> None:
             pyr, hyps = proposals(img, setup)[:2]
             forks, snouts, axis, length, clear = ends(sc.fish, c, img.shape, "fork")
             good = np.flatnonzero(clear)
-            for src, h in ((0, hyps), (1, jittered(rng, forks[good], axis[good], length[good], args.jitter)),
-                           (2, hard_negatives(rng, forks[good], snouts[good], axis[good], length[good], img.shape))):
-                keep, pos, u, v, t, rel = labels(h, forks, axis, length, clear)
+            negatives = hard_negatives(rng, forks[good], snouts[good], axis[good], length[good], img.shape)
+            parts = [(0, hyps), (1, jittered(rng, forks[good], axis[good], length[good], args.jitter)), (2, negatives)]
+            if args.fine:
+                finer = negatives.take(np.arange(len(negatives)))
+                finer.span_px = finer.span_px * rng.uniform(0.4, 0.85, len(finer))
+                parts += [(1, jittered(rng, forks[good], axis[good], length[good], args.jitter, fine=True)),
+                          (2, finer)]
+            for src, h in parts:
+                keep, pos, u, v, t, rel = labels(h, forks, axis, length, clear, max_scale=2.6 if args.fine else 1.7)
                 if src == 0:
                     keep &= pos | (rng.random(len(h)) < args.neg_share)
                 out.add(pyr, h, keep, (pos, u, v, t, rel), (seed, c, src))

@@ -8,16 +8,24 @@ Not part of the project's dependencies or its suite: torch lives in a separate v
     .venv/bin/python tools/fork_net_data.py --seed0 100750 --scenes 750 --out /tmp/b.npz    on a free core)
     .venv-train/bin/python tools/train_fork_net.py --data /tmp/a.npz /tmp/b.npz --out vision/models/fork_net.onnx \
         --epochs 10 --per-epoch 60000 --minutes 32 --threads 1
-(the packaged model: those commands, 2026-12-02, 20 min of training on a loaded machine). Small fish:
+(the packaged model: those commands, 2026-12-02, 20 min of training on a loaded machine). Forks of
+every notch shape, with crops at a finer last pass (tools/models/fork_net_fine_candidate.onnx,
+2026-12-06, 656 s; ``vision.fork_net`` has its figures): ``--seed0 107000`` and ``107750``, each
+``--fine --conditions '{"notch_power": [0.6, 1.6]}'``, then ``--minutes 40 --val-scenes 100``.
+Small fish:
 ``tools/fork_net_data.py --size 640x480 --jpeg 95`` renders smaller images through a camera's JPEG
 (tools/models/fork_net_candidate.onnx, 2026-12-04: that data besides the above, ``--epochs 20
 --per-epoch 100000``; vision/fork_net.py has its figures).
-The snout locator (``vision.snout_net``) is the same net trained on tools/snout_net_data.py's crops:
-    .venv/bin/python tools/snout_net_data.py --seed0 102000 --scenes 450 --out /tmp/sn_a.npz
-    .venv/bin/python tools/snout_net_data.py --seed0 102450 --scenes 300 --out /tmp/sn_b.npz
+The snout locator (``vision.snout_net``) is the same net trained on tools/snout_net_data.py's crops,
+of snouts of every shape (``snout_taper``) and at the last pass's finer span:
+    .venv/bin/python tools/snout_net_data.py --seed0 106000 --scenes 450 --out /tmp/sn_a.npz \
+        --conditions '{"snout_taper": [-0.35, 0.8]}'
+    .venv/bin/python tools/snout_net_data.py --seed0 106450 --scenes 300 --out /tmp/sn_b.npz \
+        --conditions '{"snout_taper": [-0.35, 0.8]}'
     .venv-train/bin/python tools/train_fork_net.py --data /tmp/sn_a.npz /tmp/sn_b.npz \
-        --out vision/models/snout_net.onnx --epochs 8 --per-epoch 60000 --minutes 17 --threads 2 --val-scenes 60
-(2026-12-03: 219 s).
+        --out vision/models/snout_net.onnx --epochs 8 --per-epoch 80000 --minutes 30 --threads 2 --val-scenes 60
+(2026-12-06: 373 s on the machine to itself; run alone: beside another busy process two torch
+threads ran ~8x slower).
 Seed-fixed (torch, numpy); the last ``--val-scenes`` scenes of the data are held out and their
 figures printed (JSON lines) after every epoch. Two threads (the machine is shared).
 

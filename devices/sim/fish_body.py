@@ -16,6 +16,7 @@ import numpy as np
 from devices.sim.fish_species import Species
 
 N_ALONG, N_AROUND = 36, 18
+NOTCH_POWER = 1.3    # the species' forks: a narrowing slit at the notch (``_caudal_outline``)
 
 
 def _profile(u: np.ndarray, at: float, end: float, p: float = 0.66) -> np.ndarray:
@@ -42,17 +43,23 @@ class FishMesh:
 
 
 def build_mesh(sp: Species, length_mm: float, shape_jitter: np.ndarray | None = None,
-               fork_scale: float = 1.0, wear: float = 0.0, rng: np.random.Generator | None = None) -> FishMesh:
+               fork_scale: float = 1.0, wear: float = 0.0, rng: np.random.Generator | None = None,
+               snout_taper: float = 0.0, notch_power: float = NOTCH_POWER) -> FishMesh:
     """Mesh of one fish of fork length ``length_mm``. ``shape_jitter`` (3,) scales depth, width and
     fin size of this individual (1 = the species' outline); ``fork_scale`` the depth of its fork;
     ``wear`` (0..1, needs ``rng``) frays the caudal fin's trailing edge as fin erosion does in
-    farmed fish, at most half way to the notch, which stays the innermost point."""
+    farmed fish, at most half way to the notch, which stays the innermost point. ``snout_taper``
+    reshapes the head alone (``head_taper``): > 0 a more pointed snout, < 0 a blunter one;
+    ``notch_power`` the caudal fork's shape (``_caudal_outline``)."""
     jd, jw, jf = (1.0, 1.0, 1.0) if shape_jitter is None else shape_jitter
     L = length_mm
     x_end = sp.body_end * L
     u = np.linspace(0, 1, N_ALONG + 1)[1:] ** 1.4                   # denser at the head
     depth = sp.depth * jd * L * _profile(u, sp.depth_at, sp.peduncle)
     width = 0.5 * sp.width * jw * L * _profile(u, sp.depth_at * 0.9, 0.25, 0.65)
+    if snout_taper:
+        taper = head_taper(u, snout_taper)
+        depth, width = depth * taper, width * taper
     up = depth * sp.dorsal_share
     down = depth * (1 - sp.dorsal_share)
     th = np.linspace(0, 2 * np.pi, N_AROUND, endpoint=False)       # 0 = dorsal, pi = ventral
@@ -67,7 +74,7 @@ def build_mesh(sp: Species, length_mm: float, shape_jitter: np.ndarray | None = 
     body = _BODY_FACES
     base = 1 + N_ALONG * N_AROUND
     # fins: closed outlines in the x-z mid-plane, fanned from an inner point
-    outlines = [_caudal_outline(sp, L, up[-1], down[-1], jf, fork_scale, wear, rng)]
+    outlines = [_caudal_outline(sp, L, up[-1], down[-1], jf, fork_scale, wear, rng, notch_power)]
     for (start, stop, height), sign, prof in ((sp.dorsal_fin, 1, up), (sp.anal_fin, -1, down)):
         outlines.append(_median_fin_outline(u, prof, start, stop, height * jf * L, sign, x_end))
     fin_faces, fin_verts = [], []
@@ -85,6 +92,16 @@ def build_mesh(sp: Species, length_mm: float, shape_jitter: np.ndarray | None = 
     along = np.concatenate(along + [np.clip(fv[:, 0] / x_end, 0, 1)])
     fork = int(np.argmin(np.linalg.norm(verts - [L, 0.0, 0.0], axis=1)))
     return FishMesh(verts, body, np.vstack(fin_faces), belly, along, L, fork)
+
+
+HEAD = 0.2     # the share of the body (snout = 0) a snout's taper reshapes
+
+
+def head_taper(u: np.ndarray, taper: float) -> np.ndarray:
+    """Factor on the body's depth and width along it (u: 0 snout .. 1 peduncle): (u / HEAD)^taper over
+    the head, 1 behind it, so the snout's outline goes as u^(0.66 + taper) (a cone at ~0.34, a
+    rounded head below 0.66) while the body keeps its species' outline."""
+    return np.minimum(np.asarray(u, float) / HEAD, 1.0) ** taper
 
 
 def _body_faces() -> np.ndarray:
@@ -123,9 +140,10 @@ _BODY_FACES = _body_faces()
 
 
 def _caudal_outline(sp: Species, L: float, top: float, bottom: float, jf: float, fork_scale: float = 1.0,
-                    wear: float = 0.0, rng: np.random.Generator | None = None):
+                    wear: float = 0.0, rng: np.random.Generator | None = None, notch_power: float = NOTCH_POWER):
     """(x, z) outline of the forked caudal fin, from the peduncle's top round to its bottom, and
-    the fan centre. The trailing edge runs lobe tip -> notch (L, 0) -> lobe tip, concave."""
+    the fan centre. The trailing edge runs lobe tip -> notch (L, 0) -> lobe tip, concave; near the
+    notch it is x - L ~ |z|^(1 / notch_power): a slit over 1, a V at 1, a rounded U under it."""
     x0 = sp.body_end * L
     tip_x = L + (sp.lobe_tip - 1.0) * L * jf * fork_scale
     span = sp.lobe_span * L * jf
@@ -135,7 +153,7 @@ def _caudal_outline(sp: Species, L: float, top: float, bottom: float, jf: float,
     lead_z = top + (span - top) * t ** 0.7
     # trailing edge: tip to notch, a concave curve (the fork)
     trail_x = tip_x + (L - tip_x) * t[1:]
-    trail_z = span * (1 - t[1:]) ** 1.3
+    trail_z = span * (1 - t[1:]) ** notch_power
     upper = np.c_[np.r_[lead_x, trail_x], np.r_[lead_z, trail_z]]
     lower = upper[::-1][1:] * [1, -1]
     if wear > 0 and rng is not None:

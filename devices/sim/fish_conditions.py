@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from devices.sim.fish_body import NOTCH_POWER
 from devices.sim.fish_species import SPECIES
 from devices.sim.fish_water import cage_net_texture, net_texture, ripple_texture, rock_texture
 from devices.sim.stereo_scene import random_texture
@@ -82,6 +83,10 @@ UNDERWATER = {
     "camera_gain": lambda r, c: [1.0, float(np.exp(r.normal(0, 0.04)))],   # left, right
     "jpeg_quality": _jpeg,
     "speed_bl_s": lambda r, c: [0.5, 1.5],
+    # each fish's snout (fish_body.head_taper) and fork (its notch_power) drawn from [lo, hi]; one
+    # value draws nothing
+    "snout_taper": lambda r, c: [0.0, 0.0],
+    "notch_power": lambda r, c: [NOTCH_POWER, NOTCH_POWER],
 }
 
 CLUTTER = ("none", "net", "reef", "rock", "cage")
@@ -118,6 +123,10 @@ SURFACE = {
     "camera_gain": lambda r, c: [1.0, float(np.exp(r.normal(0, 0.04)))],
     "jpeg_quality": _jpeg,
     "speed_bl_s": lambda r, c: [0.5, 1.5],
+    # each fish's snout (fish_body.head_taper) and fork (its notch_power) drawn from [lo, hi]; one
+    # value draws nothing
+    "snout_taper": lambda r, c: [0.0, 0.0],
+    "notch_power": lambda r, c: [NOTCH_POWER, NOTCH_POWER],
 }
 
 
@@ -150,6 +159,9 @@ def _draw(rng, table: dict, n_fish, given: dict, setup: str) -> dict:
     bad = [k for k in ("n_fish", "bubbles", "particles") if k in given and int(given[k]) < 0]
     if bad:
         raise ValueError(f"{setup} scene: {bad[0]} must be >= 0, got {given[bad[0]]}")
+    for name, bounds in SHAPE_RANGES.items():
+        if name in given:
+            _check_range(name, given[name], bounds, setup)
     if "species" in given and given["species"] not in SPECIES:
         raise ValueError(f"{setup} scene: unknown species {given['species']!r}; known: {', '.join(SPECIES)}")
     cond = {"setup": setup}
@@ -183,6 +195,19 @@ def underwater_conditions(rng, rig, n_fish, given: dict) -> tuple[dict, dict]:
         # just behind the farthest fish (range_mm's 2 m): a cage wall, a reef the fish swim along
         cond["clutter_range_mm"] = given.get("clutter_range_mm", float(rng.uniform(2050, 2800)))
     return cond, textures
+
+
+# beyond these a head is a needle or a ball, a fork a hairline or a half moon
+SHAPE_RANGES = {"snout_taper": (-0.5, 1.5), "notch_power": (0.5, 2.5)}
+
+
+def _check_range(name: str, value, bounds: tuple[float, float], setup: str) -> None:
+    try:
+        lo, hi = (float(v) for v in value)
+    except (TypeError, ValueError):
+        raise ValueError(f"{setup} scene: {name} must be [lo, hi], got {value!r}") from None
+    if not (bounds[0] <= lo <= hi <= bounds[1]):
+        raise ValueError(f"{setup} scene: {name} {value!r} must be lo <= hi within {bounds[0]}..{bounds[1]}")
 
 
 def _clutter_tone(rng) -> list[float]:

@@ -80,9 +80,18 @@ def _length_mm(rng, cond) -> float:
     return 10.0 * max(0.5 * mean, rng.normal(mean, cond["length_cv"] * mean))
 
 
+SHAPES = ("snout_taper", "notch_power")     # conditions drawn per fish from [lo, hi]
+
+
+def _per_fish(rng, bounds) -> float:
+    lo, hi = bounds
+    return float(rng.uniform(lo, hi)) if hi > lo else float(lo)     # one value draws nothing: seeds keep their fish
+
+
 def _new_fish(rng, rig, cond, fid: int, others: list[Fish], edge: int = 0) -> Fish | None:
     sp = SPECIES[cond["species"]]
-    fish = make_fish(rng, fid, sp, _length_mm(rng, cond), cond["weight_scatter"])
+    shape = {name: _per_fish(rng, cond[name]) for name in SHAPES}
+    fish = make_fish(rng, fid, sp, _length_mm(rng, cond), cond["weight_scatter"], **shape)
     for _ in range(TRIES):
         if _pose(rng, rig, cond, fish, edge) and clear_of(fish, others):
             return fish

@@ -72,11 +72,13 @@ class Fish:
 
 
 def make_fish(rng: np.random.Generator, fid: int, sp: Species, length_mm: float,
-              weight_scatter: float) -> Fish:
-    """One fish of species ``sp`` (pose to be set by the caller)."""
+              weight_scatter: float, **shape) -> Fish:
+    """One fish of species ``sp`` (pose to be set by the caller; ``shape``: ``build_mesh``'s
+    ``snout_taper``, ``notch_power``)."""
     jitter = 1.0 + rng.normal(0, [0.04, 0.05, 0.08])
     wear = float(rng.uniform(0.2, 1.0)) if rng.random() < 0.4 else 0.0      # eroded caudal fins
-    mesh = build_mesh(sp, length_mm, jitter, fork_scale=float(np.exp(rng.normal(0, 0.12))), wear=wear, rng=rng)
+    mesh = build_mesh(sp, length_mm, jitter, fork_scale=float(np.exp(rng.normal(0, 0.12))), wear=wear, rng=rng,
+                      **shape)
     L_cm = length_mm / 10.0
     k = np.exp(rng.normal(-0.5 * weight_scatter ** 2, weight_scatter)) if weight_scatter > 0 else 1.0
     weight = sp.a * L_cm ** sp.b * k

@@ -10,12 +10,15 @@ import cv2
 import numpy as np
 
 
-def fish_outline(n: int = 73, notch_deg: float = 60.0, depth: float = 0.38, span: float = 0.3) -> np.ndarray:
+def fish_outline(n: int = 73, notch_deg: float = 60.0, depth: float = 0.38, span: float = 0.3,
+                 snout_power: float = 0.5) -> np.ndarray:
     """Outline (M, 2) of a fish of fork length 1 in its own frame: x from the fork's innermost point
-    (0, 0) to the snout (1, 0), y across (dorsal +)."""
+    (0, 0) to the snout (1, 0), y across (dorsal +). Near the snout the outline's half depth goes as
+    (1 - x)^snout_power: 0.5 the ellipse's rounded head, 1 a cone, more a pointed snout."""
     t0 = np.arccos(-0.36 / 0.44)                      # where the ellipse meets x = 0.2
     t = np.linspace(-t0, t0, n)                          # bottom-rear, over the snout (t = 0), top-rear
-    body = np.c_[0.56 + 0.44 * np.cos(t), depth / 2 * np.sin(t)]
+    sin = np.sin(t)
+    body = np.c_[0.56 + 0.44 * np.cos(t), depth / 2 * np.sign(sin) * np.abs(sin) ** (2 * snout_power)]
     h = span / 2
     a = np.radians(notch_deg)
     tip = (-h / np.tan(a), h)
