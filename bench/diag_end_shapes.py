@@ -31,7 +31,7 @@ from pathlib import Path  # noqa: E402
 import numpy as np  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
-from tests.vision.fish_drawing import draw_fish_2d, water  # noqa: E402
+from tests.vision.fish_drawing import fish_scene_2d  # noqa: E402
 from tools.fork_net_data import ends  # noqa: E402
 from vision import fork_net, snout_net  # noqa: E402
 from vision.fins import SPAN_OF_FL, Fins  # noqa: E402
@@ -81,17 +81,8 @@ def views(name: str, scenes: int, rng):
                 yield img, s[clear], f[clear]
     elif kind == "drawn":
         for _ in range(scenes):
-            img = water(720, 960, rng, top=rng.uniform(60, 190), bottom=rng.uniform(60, 190))
-            forks, snouts = [], []
-            for k in range(6):
-                L, a = rng.uniform(120, 280), rng.uniform(-np.pi, np.pi)
-                centre = np.array([160 + (k % 3) * 320, 180 + (k // 3) * 360], float)
-                fork = centre - 0.5 * L * np.array([np.cos(a), np.sin(a)])
-                value = 30.0 if img[int(centre[1]), int(centre[0])] > 120 else 220.0
-                snouts.append(draw_fish_2d(img, fork, a, L, value, snout_power=float(args[0])))
-                forks.append(fork)
-            img = np.clip(np.rint(img + rng.normal(0, 2.0, img.shape)), 0, 255).astype(np.uint8)
-            yield img, np.array(snouts), np.array(forks)
+            img, forks, snouts = fish_scene_2d(rng, snout_power=float(args[0]))
+            yield img, snouts, forks
     else:
         renderer = importlib.import_module(f"bench.{kind}")
         rig, own = renderer.make_rig(), np.random.default_rng({"outside_fish": 60}.get(kind, 70))

@@ -69,6 +69,16 @@ def labels(h: Fins, forks: np.ndarray, axis: np.ndarray, length: np.ndarray, cle
     return keep, pos, du[r, best], dv[r, best], dt[r, best], (length[best] / h.span_px)
 
 
+FINE_SPANS = (0.4, 0.85)     # the fine crops' spans, x the usual (about ``FINE`` of the locators)
+
+
+def finer(rng, hyps: Fins) -> Fins:
+    """A copy of ``hyps`` at a span drawn from ``FINE_SPANS`` x theirs: the fine pass's negatives."""
+    out = hyps.take(np.arange(len(hyps)))
+    out.span_px = out.span_px * rng.uniform(*FINE_SPANS, len(out))
+    return out
+
+
 def jittered(rng, forks, axis, length, n, fine: bool = False):
     """n hypotheses round each fork, as the proposals are off; ``fine``: as the locator's last pass
     starts (``vision.fork_net.FINE``: the span x 0.4..0.85, ``RECENTRE`` of it ahead of the fork,
@@ -81,7 +91,7 @@ def jittered(rng, forks, axis, length, n, fine: bool = False):
     a = np.c_[np.cos(axis[k]), np.sin(axis[k])]
     nrm = np.c_[-a[:, 1], a[:, 0]]
     if fine:
-        span = SPAN_OF_FL * L * rng.uniform(0.4, 0.85, len(k))
+        span = SPAN_OF_FL * L * rng.uniform(*FINE_SPANS, len(k))
         ahead = fork_net.RECENTRE * span + rng.uniform(-0.02, 0.02, len(k)) * L
         xy = forks[k] + ahead[:, None] * a + (rng.uniform(-0.02, 0.02, len(k)) * L)[:, None] * nrm
         z = np.zeros(len(k))
@@ -188,10 +198,9 @@ def main() -> None:
             negatives = hard_negatives(rng, forks[good], snouts[good], axis[good], length[good], img.shape)
             parts = [(0, hyps), (1, jittered(rng, forks[good], axis[good], length[good], args.jitter)), (2, negatives)]
             if args.fine:
-                finer = negatives.take(np.arange(len(negatives)))
-                finer.span_px = finer.span_px * rng.uniform(0.4, 0.85, len(finer))
+                fine_negatives = finer(rng, negatives)
                 parts += [(1, jittered(rng, forks[good], axis[good], length[good], args.jitter, fine=True)),
-                          (2, finer)]
+                          (2, fine_negatives)]
             for src, h in parts:
                 keep, pos, u, v, t, rel = labels(h, forks, axis, length, clear, max_scale=2.6 if args.fine else 1.7)
                 if src == 0:

@@ -30,7 +30,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 from devices.sim.fish_scene import underwater_scene  # noqa: E402
-from tools.fork_net_data import FIRST_SEED, Crops, ends, hard_negatives, labels  # noqa: E402
+from tools.fork_net_data import FINE_SPANS, FIRST_SEED, Crops, ends, finer, hard_negatives, labels  # noqa: E402
 from vision.fins import SPAN_OF_FL, Fins  # noqa: E402
 from vision.fork import pyramid  # noqa: E402
 
@@ -45,7 +45,7 @@ def jittered(rng, snouts, axis, length, n, fine: bool = False):
     L = length[k]
     a = np.c_[np.cos(axis[k]), np.sin(axis[k])]
     nrm = np.c_[-a[:, 1], a[:, 0]]
-    along, across, turn, scale = ((-0.03, 0.05), 0.02, 8, (np.log(0.4), np.log(0.85))) if fine else \
+    along, across, turn, scale = ((-0.03, 0.05), 0.02, 8, tuple(np.log(FINE_SPANS))) if fine else \
         ((-0.06, 0.12), 0.06, 15, (-0.25, 0.25))
     xy = (snouts[k] + (rng.uniform(*along, len(k)) * L)[:, None] * a
           + (rng.uniform(-across, across, len(k)) * L)[:, None] * nrm)
@@ -75,11 +75,10 @@ def main() -> None:
             snouts, forks, axis, length, clear = ends(sc.fish, c, img.shape, "snout")
             good = np.flatnonzero(clear)
             negatives = hard_negatives(rng, snouts[good], forks[good], axis[good], length[good], img.shape)
-            finer = negatives.take(np.arange(len(negatives)))
-            finer.span_px = finer.span_px * rng.uniform(0.4, 0.85, len(finer))
+            fine_negatives = finer(rng, negatives)
             for src, h in ((1, jittered(rng, snouts[good], axis[good], length[good], args.jitter)),
                            (1, jittered(rng, snouts[good], axis[good], length[good], args.jitter, fine=True)),
-                           (2, negatives), (2, finer)):
+                           (2, negatives), (2, fine_negatives)):
                 keep, pos, u, v, t, rel = labels(h, snouts, axis, length, clear, max_scale=2.6)
                 out.add(pyr, h, keep, (pos, u, v, t, rel), (seed, c, src))
         out.progress(seed - args.seed0 + 1)

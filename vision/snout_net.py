@@ -20,7 +20,7 @@ with the post-filters off, found 42 -> 52.
 Its tips were the project's renderer's (2026-12-06): on two outside testers' fish it was as sure
 (>= 0.97) of tips ~1 % of the length inside a tapered snout, and those fish read short (right /
 wrong 15 / 23 on the second tester's pairs). Started round the true tips (README,
-"Snout shapes"), its error followed the snout's shape on the project's own renderer: with
+"Snout and fork shapes"), its error followed the snout's shape on the project's own renderer: with
 the head's outline going as u^(0.66 + taper) (``devices.sim.fish_body.head_taper``), taper -0.3 /
 0 / +0.5 put the tip +0.8 / -0.05 / -1.5 % of the length off (+ ahead of it). It had learned one
 head's outline as a prior, and it could not see past it: a crop's cell is 1.2 % of the length.

@@ -152,9 +152,10 @@ class Params:
                                     # and one more on seeds 1000+, one wrong report fewer at 1920x1080)
     snout_to_edge: bool = False     # ... and its tip then taken to the image's own edge by the classical tip
                                     # search (vision.snout.refine_tips), as every other candidate is (2026-12-06:
-                                    # the net alone places two outside testers' snouts ~1 % of the length inside
+                                    # the net of then placed two outside testers' snouts ~1 % of the length inside
                                     # the fish; on, more fish there, fewer on the project's renderer and the
-                                    # 60-day grow-out over its 10 min: README, "Snouts at the image's edge")
+                                    # 60-day grow-out over its 10 min: README, "Snouts at the image's edge"; the
+                                    # net trained since on every snout shape: "Snout and fork shapes")
     learned_score: bool = True      # the score is the fitted chance the report is right (vision.learned_score),
                                     # not the product of terms (kept as quality "hand_score")
     min_chance: float = 0.85        # ... post-filter then: a fish less likely right than this is dropped
@@ -368,9 +369,8 @@ def measure_underwater(left: np.ndarray, right: np.ndarray, calib: StereoCalibra
                 left_sure = conf
             moved = np.where((conf >= params.snout_net_min)[..., None], tips, np.nan)
             if params.snout_to_edge:
-                # the net's tips are the project's renderer's: on fish drawn elsewhere it is as sure of
-                # tips ~1 % of the length inside the snout, and only the image's own edge is general
-                # (only the tips kept: the others are dropped anyway)
+                # the image's own edge owes nothing to the snouts the net was trained on (only the
+                # tips kept: the others are dropped anyway)
                 moved = _tips((v1, v2)[c], f, moved, (pairs.i, pairs.j)[c])[0]
             sn[c] = Snouts(np.linalg.norm(moved - f.xy[:, None], axis=2), moved, sn[c].strength)
     clock.lap("snout")

@@ -67,6 +67,23 @@ def draw_fish_2d(img: np.ndarray, fork_xy, angle: float, length_px: float, value
     return np.asarray(fork_xy, float) + length_px * np.array([c, s])
 
 
+def fish_scene_2d(rng, n=6, size=(720, 960), snout_power=0.5):
+    """Fish of 120-280 px at any heading, dark on light water or light on dark, apart from each other,
+    their snouts of ``snout_power`` (``fish_drawing.fish_outline``): (image uint8, forks (n, 2), snouts (n, 2))."""
+    img = water(*size, rng, top=rng.uniform(60, 190), bottom=rng.uniform(60, 190))
+    forks, snouts = [], []
+    for k in range(n):
+        L = rng.uniform(120, 280)
+        a = rng.uniform(-np.pi, np.pi)
+        centre = np.array([160 + (k % 3) * 320, 180 + (k // 3) * 360], float)
+        fork = centre - 0.5 * L * np.array([np.cos(a), np.sin(a)])
+        value = 30.0 if img[int(centre[1]), int(centre[0])] > 120 else 220.0
+        snouts.append(draw_fish_2d(img, fork, a, L, value, snout_power=snout_power))
+        forks.append(fork)
+    noisy = img + rng.normal(0, 2.0, img.shape)
+    return np.clip(np.rint(noisy), 0, 255).astype(np.uint8), np.array(forks), np.array(snouts)
+
+
 def water(h: int, w: int, rng: np.random.Generator, top: float = 190.0, bottom: float = 60.0,
           noise: float = 3.0) -> np.ndarray:
     """Grey water with a vertical illumination gradient and sensor noise (float32)."""

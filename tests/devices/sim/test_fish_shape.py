@@ -19,18 +19,19 @@ def _rings(mesh):
     return ring[:, 0, 0] / x_end, ring[:, :, 2].max(axis=1), ring[:, :, 1].max(axis=1)
 
 
-def _head_loglog(mesh):
-    """log u and log depth over the first rings (their slope: the snout outline's power)."""
+def _tip_power(mesh):
+    """The snout outline's power: the log-log slope of depth over the first rings."""
     u, depth, _ = _rings(mesh)
     head = np.flatnonzero(u < 0.05)[:4]
-    return np.log(u[head]), np.log(depth[head])
+    return np.polyfit(np.log(u[head]), np.log(depth[head]), 1)[0]
 
 
 @pytest.mark.parametrize("name", sorted(SPECIES))
 @pytest.mark.parametrize("taper", [-0.5, -0.3, 0.25, 0.8, 1.5])
 def test_taper_sets_the_snouts_power_and_leaves_the_body_behind_the_head(name, taper):
     sp = SPECIES[name]
-    u, depth0, width0 = _rings(build_mesh(sp, 300.0))
+    plain = build_mesh(sp, 300.0)
+    u, depth0, width0 = _rings(plain)
     mesh = build_mesh(sp, 300.0, snout_taper=taper)
     u1, depth, width = _rings(mesh)
     np.testing.assert_allclose(u1, u)
@@ -39,11 +40,8 @@ def test_taper_sets_the_snouts_power_and_leaves_the_body_behind_the_head(name, t
     np.testing.assert_allclose(width[behind], width0[behind], rtol=1e-12)
     np.testing.assert_allclose(mesh.verts[0], 0.0)                      # the snout tip stays at the origin
     np.testing.assert_allclose(mesh.verts[mesh.fork_vertex], [300.0, 0, 0])
-    head = np.flatnonzero(u < 0.05)[:4]
-    # log-log slope of depth over the first rings: the outline's power there, before and after
-    slope0 = np.polyfit(np.log(u[head]), np.log(depth0[head]), 1)[0]
-    slope = np.polyfit(np.log(u[head]), np.log(depth[head]), 1)[0]
-    assert slope - slope0 == pytest.approx(taper, abs=0.01)
+    slope0 = _tip_power(plain)
+    assert _tip_power(mesh) - slope0 == pytest.approx(taper, abs=0.01)
     assert 0.55 < slope0 < 0.75                                          # the species' own rounded head
     inside = (u > 0) & (u < HEAD)
     assert np.all(np.sign(depth0[inside] - depth[inside]) == np.sign(taper))   # pointed: thinner head
@@ -83,10 +81,6 @@ def test_notch_power_shapes_the_fork_and_keeps_the_notch_innermost(name, power):
 
 def test_snout_and_notch_are_drawn_per_fish_only_when_given_and_checked():
     rig = underwater_rig(**TINY)
-
-    def tip_power(mesh):
-        return np.polyfit(*_head_loglog(mesh), 1)[0]
-
     for seed in range(3):
         plain = underwater_scene(np.random.default_rng(seed), rig=rig)
         one = underwater_scene(np.random.default_rng(seed), rig=rig, snout_taper=[0.4, 0.4], notch_power=[1.0, 1.0])
@@ -99,7 +93,7 @@ def test_snout_and_notch_are_drawn_per_fish_only_when_given_and_checked():
     fishes, _ = populate(np.random.default_rng(6), rig, cond)
     assert len(fishes) >= 6
     # each fish's snout power over its species' own (the individual's depth and width scales keep it)
-    own = np.array([tip_power(f.mesh) - tip_power(build_mesh(f.species, f.length_mm)) for f in fishes])
+    own = np.array([_tip_power(f.mesh) - _tip_power(build_mesh(f.species, f.length_mm)) for f in fishes])
     assert np.all((own > -0.31) & (own < 0.81)) and np.ptp(own) > 0.4      # each fish its own snout
     notch = np.array([_notch_power(f.mesh) for f in fishes])
     assert np.all((notch > 0.7 - 1e-9) & (notch < 1.6 + 1e-9)) and np.ptp(notch) > 0.3      # and its own fork
