@@ -5,7 +5,11 @@ that was there before (a CALIB.json being replaced) as it was.
 A name that is a symbolic link keeps pointing where it did: the file it names is the one replaced.
 A device or a pipe (``--json /dev/null``, ``--csv /dev/stdout``, a FIFO) is written into, never
 replaced: renaming over it put a plain file where the system's /dev/null had been. ``-`` is the
-standard output, as for most Unix tools (``--json -``)."""
+standard output, as for most Unix tools (``--json -``); so are /dev/stdout and its aliases. The
+standard output is written through the process's own stream at its position, never opened by name:
+opened by name it was truncated (``--out - >> calibrations.log`` lost the log), or, when the shell
+had sent it to a file, renamed over (and what the command printed after went to the replaced file,
+lost). A command whose data goes to the standard output prints its report on the standard error."""
 from __future__ import annotations
 
 import contextlib
@@ -13,6 +17,8 @@ import glob
 import io
 import os
 import stat
+import sys
+import tempfile
 from collections.abc import Callable
 from pathlib import Path
 from typing import TextIO
@@ -49,6 +55,25 @@ def _alive(pid: int) -> bool:
     return True
 
 
+STDOUT_NAMES = frozenset({"-", "/dev/stdout", "/dev/fd/1", "/proc/self/fd/1"})
+
+
+def is_stdout(path: str | Path | None) -> bool:
+    """The output option names the standard output (module docstring)."""
+    return path is not None and str(path) in STDOUT_NAMES
+
+
+def to_stdout(data: bytes) -> None:
+    """``data`` onto the standard output, after whatever the process printed there before."""
+    sys.stdout.flush()
+    out = getattr(sys.stdout, "buffer", None)
+    if out is None:                     # a text-only stream (some test harnesses)
+        sys.stdout.write(data.decode("utf-8"))
+    else:
+        out.write(data)
+        out.flush()
+
+
 def named(path: str | Path) -> Path:
     """The file an output option names: ``-`` is the standard output (before, it made a file '-')."""
     return Path("/dev/stdout") if str(path) == "-" else Path(path)
@@ -76,6 +101,9 @@ def _take_name(tmp: Path, target: Path) -> None:
 def replace_atomically(path: str | Path, write: Callable[[str], None]) -> None:
     """``write(tmp)`` fills a file beside ``path`` (same directory, so the rename is atomic), which
     then takes its name. OSError becomes BadInput naming ``path``."""
+    if is_stdout(path):
+        _write_stdout(path, write)
+        return
     target = named(path)
     if special(target):
         try:
@@ -94,6 +122,20 @@ def replace_atomically(path: str | Path, write: Callable[[str], None]) -> None:
     finally:
         with contextlib.suppress(OSError):      # (no directory to hold it: nothing was written)
             tmp.unlink(missing_ok=True)
+
+
+def _write_stdout(path: str | Path, write: Callable[[str], None]) -> None:
+    """``write(tmp)`` into a private file, then its bytes onto the standard output: whole or not at all."""
+    fd, tmp = tempfile.mkstemp(prefix=".fishfarm-stdout.")
+    os.close(fd)
+    try:
+        write(tmp)
+        to_stdout(Path(tmp).read_bytes())
+    except OSError as exc:
+        raise BadInput(str(path), None, f"cannot write: {exc.strerror or exc}") from None
+    finally:
+        with contextlib.suppress(OSError):
+            os.unlink(tmp)
 
 
 def write_file_atomically(path: str | Path, fill: Callable[[TextIO], None]) -> None:
@@ -116,9 +158,10 @@ class PendingFile:
 
     def __init__(self, path: str | Path, what: str):
         self.path, self.what = named(path), what
-        self.special = special(self.path)
+        self.stdout = is_stdout(path)
+        self.special = self.stdout or special(self.path)
         if self.special:             # kept until the commit, which writes it into the device or pipe
-            if not os.access(self.path, os.W_OK):
+            if not self.stdout and not os.access(self.path, os.W_OK):
                 raise BadInput(str(path), None, f"cannot write {what}: permission denied")
             self.file: TextIO = io.StringIO()
             return
@@ -136,6 +179,12 @@ class PendingFile:
         if self.special:
             text = self.file.getvalue()
             self.file.close()
+            if self.stdout:
+                try:
+                    to_stdout(text.encode("utf-8"))
+                except OSError as exc:
+                    raise BadInput("-", None, f"cannot write {self.what}: {exc.strerror or exc}") from None
+                return
             try:
                 with open(self.path, "w", encoding="utf-8", newline="") as fh:
                     fh.write(text)

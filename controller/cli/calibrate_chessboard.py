@@ -102,7 +102,7 @@ def _report(result, lefts, rights, out: str) -> None:
 def chessboard(left_glob, right_glob, pattern, square_mm, out):
     """Stereo calibration from pairs of chessboard views (pairs by sorted file name)."""
     from controller.cli.calib_io import save_calibration
-    from controller.cli.output_paths import check_outputs
+    from controller.cli.output_paths import check_outputs, report_beside
     from vision.calib_file import CalibrationError, calibration_from_json
     from vision.chessboard import BadFit, NotEnoughPairs, calibrate_pairs, find_corners
 
@@ -135,4 +135,5 @@ def chessboard(left_glob, right_glob, pattern, square_mm, out):
         same = " (are --left and --right the same camera's views?)" if exc.field in ("P2", "T") else ""
         raise BadInput(where, exc.field, f"{exc.fault}{same}") from None
     save_calibration(calib, out)
-    _report(result, lefts, rights, out)
+    with report_beside(out):
+        _report(result, lefts, rights, out)

@@ -37,7 +37,7 @@ MAX_ERROR_PX = 25.0
 def dlt(points_path: str, out_path: str, report_path: str | None, linear_only: bool, max_error_px: float) -> None:
     """Calibrate both cameras from >= 6 non-coplanar grid points (Ayache's DLT)."""
     from controller.cli.calib_io import save_calibration
-    from controller.cli.output_paths import check_outputs
+    from controller.cli.output_paths import check_outputs, report_beside
     from vision.calib_file import StereoCalibration
     from vision.dlt import CalibrationInputError, calibrate_stereo
 
@@ -56,8 +56,9 @@ def dlt(points_path: str, out_path: str, report_path: str | None, linear_only: b
     if report_path is not None:
         from controller.atomic_files import write_text_atomically
         write_text_atomically(report_path, json.dumps(report.to_json(), indent=2) + "\n")
-    click.echo(report.text())
-    click.echo(f"written: {out_path}")
+    with report_beside(out_path, report_path):
+        click.echo(report.text())
+        click.echo(f"written: {out_path}")
 
 
 def _refuse_a_wild_point(points_path: str, grid: np.ndarray, P1, P2, report, max_error_px: float) -> None:

@@ -236,7 +236,7 @@ def warn_folds(calib) -> None:
 def import_(inputs, out, fmt, units, square_mm, image_size, pixel_origin, y_up):
     """Import a stereo calibration from OpenCV, StereoMorph (DLT-11) or a plain 3x4 pair."""
     from controller.cli.calib_io import save_calibration
-    from controller.cli.output_paths import check_outputs
+    from controller.cli.output_paths import check_outputs, report_beside
     from vision.calib_file import CalibrationError
 
     paths = list(inputs)
@@ -279,4 +279,5 @@ def import_(inputs, out, fmt, units, square_mm, image_size, pixel_origin, y_up):
         field = "--image-size" if exc.field == "image_size" and size_given else exc.field
         raise BadInput(where, field, exc.fault) from None
     save_calibration(calib, out)
-    _report(calib, extra["format"], paths, out)
+    with report_beside(out):
+        _report(calib, extra["format"], paths, out)

@@ -34,7 +34,7 @@ LIST_AT_MOST = 12      # points listed one by one up to this many
 def tower(points_path: str, out_path: str, size: tuple[int, int] | None, max_error_m: float,
           mirrored_image: bool) -> None:
     """Map the tower camera's pixels to the pond plane from >= 4 surveyed points (homography)."""
-    from controller.cli.output_paths import check_outputs
+    from controller.cli.output_paths import check_outputs, report_beside
     from vision.tower import TowerInputError, fit_tower, seen_from_above
     check_outputs({"--out": out_path}, [points_path])
     ref = read_table(points_path, REF_HEADER, limit=[PIXELS_MAX] * 2 + [WORLD_MAX] * 2)
@@ -69,6 +69,11 @@ def tower(points_path: str, out_path: str, size: tuple[int, int] | None, max_err
         doc["mirrored_image"] = True
     from controller.atomic_files import write_text_atomically
     write_text_atomically(out_path, json.dumps(doc, indent=2) + "\n")
+    with report_beside(out_path):
+        _report(ref, fit, out_path)
+
+
+def _report(ref, fit, out_path) -> None:
     if len(ref) <= LIST_AT_MOST:
         for k, ((u, v, x, y), r) in enumerate(zip(ref, fit.residuals_m, strict=True), 1):
             click.echo(f"point {k}: ({u:.1f}, {v:.1f}) px -> ({x:.3f}, {y:.3f}) m: error {r:.3f} m")

@@ -3,12 +3,14 @@ another of the command's outputs, not one of its inputs (``--out GRID.csv`` woul
 with its calibration; ``--json CALIB.json`` would lose the calibration)."""
 from __future__ import annotations
 
+import contextlib
 import os
+import sys
 import tempfile
-from collections.abc import Iterable
+from collections.abc import Iterable, Iterator
 from pathlib import Path
 
-from controller.atomic_files import beside, named
+from controller.atomic_files import beside, is_stdout, named
 from controller.atomic_files import special as _special
 from controller.errors import BadInput
 
@@ -29,6 +31,11 @@ def check_outputs(outputs: dict[str, str | Path | None], inputs: Iterable[str | 
             raise BadInput(option, None, f"{str(path)!r}: an empty path; give a file name")
         if Path(path).is_dir():
             raise BadInput(str(path), option, "a directory, not a file")
+        if is_stdout(path):            # the shell's to check: one output there, else they mix
+            if "-" in seen:
+                raise BadInput(str(path), option, f"the standard output, as {seen['-']} is: they would mix")
+            seen["-"] = option
+            continue
         target = named(path)
         if _special(target):           # -, /dev/null, /dev/stdout, a FIFO: written into, never replaced
             if not os.access(target, os.W_OK):
@@ -43,6 +50,17 @@ def check_outputs(outputs: dict[str, str | Path | None], inputs: Iterable[str | 
         seen[real] = option
         if ident is not None:
             seen_files[ident] = option
+
+
+@contextlib.contextmanager
+def report_beside(*outputs: str | Path | None) -> Iterator[None]:
+    """What the command prints goes to the standard error while one of ``outputs`` is the standard
+    output: ``--out - | jq`` reads the data alone (the report had been mixed into it)."""
+    if any(is_stdout(p) for p in outputs):
+        with contextlib.redirect_stdout(sys.stderr):
+            yield
+    else:
+        yield
 
 
 def _file_id(path) -> tuple[int, int] | None:

@@ -184,3 +184,47 @@ def test_parts_left_by_writers_killed_outright_are_swept_by_the_next_writer_of_t
     finally:
         live.kill()
         live.wait()
+
+
+_WRITER = """
+import sys
+from controller.atomic_files import PendingFile, replace_atomically, write_text_atomically
+kind, name = sys.argv[1], sys.argv[2]
+print("printed first", flush=True)
+if kind == "text":
+    write_text_atomically(name, '{"count": 0}\\n')
+elif kind == "bytes":
+    replace_atomically(name, lambda tmp: open(tmp, "wb").write(b"\\x89PNG\\r\\n"))
+else:
+    pending = PendingFile(name, "the fish")
+    pending.file.write("fish,length_cm\\n")
+    pending.commit()
+    pending.commit()
+"""
+
+
+@pytest.mark.parametrize("name", ["-", "/dev/stdout", "/dev/fd/1", "/proc/self/fd/1"])
+@pytest.mark.parametrize("kind, data", [("text", b'{"count": 0}\n'), ("bytes", b"\x89PNG\r\n"),
+                                        ("pending", b"fish,length_cm\n")])
+def test_the_standard_output_sent_to_a_log_is_appended_to_not_replaced(tmp_path, name, kind, data):
+    """``--out - >> calibrations.log`` truncated the log (the name was opened for writing) or renamed
+    a new file over it; what the command printed before and after went to the old file, lost."""
+    import subprocess
+    import sys
+    log = tmp_path / "calibrations.log"
+    log.write_bytes(b"yesterday's calibration\n")
+    with open(log, "ab") as out:
+        done = subprocess.run([sys.executable, "-c", _WRITER, kind, name], stdout=out, stderr=subprocess.PIPE,
+                              cwd=Path(__file__).resolve().parents[2], timeout=60)
+    assert done.returncode == 0, done.stderr
+    assert log.read_bytes() == b"yesterday's calibration\nprinted first\n" + data
+    assert [p.name for p in tmp_path.iterdir()] == ["calibrations.log"]
+
+
+def test_the_standard_output_in_a_pipe_gets_the_data_after_what_was_printed(capsys):
+    print("printed first")
+    write_text_atomically("-", "data\n")
+    pending = PendingFile("-", "the fish")
+    pending.file.write("more\n")
+    pending.discard()                              # discarded: nothing written
+    assert capsys.readouterr().out == "printed first\ndata\n"

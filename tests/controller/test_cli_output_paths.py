@@ -10,6 +10,8 @@ import pytest
 import tomli_w
 
 from controller.cli import main
+from controller.cli.output_paths import check_outputs
+from controller.errors import BadInput
 from devices.sim.stereo_rig import convergent_rig
 
 TOWER = '{"H": [[0.01, 0, 0], [0, 0.01, 0], [0, 0, 1]]}'
@@ -144,3 +146,10 @@ def test_the_simulator_s_and_the_credentials_files_where_none_can_be_made_are_re
     FileNotFoundError" (exit 1) once the work was done."""
     _refused(capsys, tmp_path, line, Path("/proc/out.x"),
              f"/proc/out.x: {option}: cannot write: /proc takes no new files")
+
+
+@pytest.mark.parametrize("second", ["-", "/dev/stdout"])
+def test_two_outputs_on_the_standard_output_are_refused(second):
+    with pytest.raises(BadInput) as got:
+        check_outputs({"--json": "-", "--csv": second}, [])
+    assert str(got.value) == f"{second}: --csv: the standard output, as --json is: they would mix"
