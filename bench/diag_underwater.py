@@ -17,6 +17,11 @@ fractions of the fish's fork length in that image):
              was dropped by the post-filters (score, epipolar consistency, one fish per snout) or
              its 3-D placement is outside the bench's tolerance.
 ``by_length_px``: the same funnel for each third of the fish by their length in the left image.
+``located_why``: for the fish lost at ``located``, per image that has no located fork within 3 %,
+what the learned locator answered from the hypotheses within 10 % of the true fork: ``misplaced``
+(sure, at least ``Params.net_min_conf``, but more than 3 % off), ``unsure`` (within 3 % but less
+sure), ``both`` (neither), ``dropped`` (within 3 % and sure, but not kept: a duplicate's, or beaten by
+a nearby fork; the fork may still come from the transfer along the epipolar line).
 """
 from __future__ import annotations
 
@@ -39,6 +44,7 @@ import numpy as np  # noqa: E402
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 from bench.bench_survey_underwater import assign  # noqa: E402
 from devices.sim.fish_scene import underwater_scene  # noqa: E402
+from vision import fork_net  # noqa: E402
 from vision.survey_types import SurveySetup  # noqa: E402
 from vision.underwater import Params, measure_underwater  # noqa: E402
 
@@ -89,6 +95,23 @@ def fish_stage(t, tr: dict, reported_ok: bool) -> str:
     return "filtered"
 
 
+def located_why(t, tr: dict, min_conf: float, upright: bool = False) -> list[str]:
+    """Why fish ``t`` (lost at ``located``) has no located fork within 3 %, per image lacking one
+    (module docstring); the learned locator is asked again from the hypotheses near its fork."""
+    out = []
+    for c, (pyr, hyps) in enumerate(tr["hypotheses"]):
+        fl = float(np.linalg.norm(t.snout_px[c] - t.fork_px[c]))
+        if _near(tr["located"][c], t.fork_px[c], TOL * fl).any():
+            continue
+        near = np.flatnonzero(_near(hyps.xy, t.fork_px[c], PROPOSE_TOL * fl))
+        nf = fork_net.locate(pyr, hyps.take(near), upright=upright)
+        close = _near(nf.xy, t.fork_px[c], TOL * fl)
+        sure = nf.confidence >= min_conf
+        out.append("dropped" if (close & sure).any() else "unsure" if close.any() else
+                   "misplaced" if sure.any() else "both")
+    return out
+
+
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--scenes", type=int, default=20)
@@ -107,6 +130,7 @@ def main() -> None:
     lost = {s: 0 for s in STAGES} | {"found": 0}
     visible = 0
     sized: list[tuple[float, str]] = []
+    why: dict[str, int] = {}
     for seed in range(args.seed0, args.seed0 + args.scenes):
         sc = underwater_scene(np.random.default_rng(seed), **json.loads(args.conditions))
         tr: dict = {}
@@ -117,6 +141,9 @@ def main() -> None:
                 visible += 1
                 stage = fish_stage(t, tr, i in hits)
                 lost[stage] += 1
+                if stage == "located" and params.fork_net:
+                    for w in located_why(t, tr, params.net_min_conf, params.upright):
+                        why[w] = why.get(w, 0) + 1
                 sized.append((float(np.linalg.norm(t.snout_px[0] - t.fork_px[0])), stage))
     passed, out = visible, {}
     for s in STAGES:
@@ -125,7 +152,7 @@ def main() -> None:
     print(json.dumps({"scenes": args.scenes, "seed0": args.seed0, "params": changes,
                       "conditions": json.loads(args.conditions), "fully_visible": visible,
                       "stages": out,
-                      "found": lost["found"], "by_length_px": _by_length(sized)}))
+                      "found": lost["found"], "by_length_px": _by_length(sized), "located_why": why}))
 
 
 def _by_length(sized: list[tuple[float, str]]) -> list[dict]:

@@ -231,6 +231,7 @@ def proposals(img: np.ndarray, setup: SurveySetup, p: Params = Params(), clock: 
     clock.lap("fins")
     if trace is not None:
         trace.setdefault("proposed", []).append(hyps.xy.copy())
+        trace.setdefault("hypotheses", []).append((pyr, hyps))     # what the locator was given
     return pyr, hyps, comps, (sx, sy), kp
 
 
