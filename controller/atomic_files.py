@@ -157,7 +157,7 @@ class PendingFile:
     to call twice."""
 
     def __init__(self, path: str | Path, what: str):
-        self.path, self.what = named(path), what
+        self.path, self.what, self.name = named(path), what, str(path)
         self.stdout = is_stdout(path)
         self.special = self.stdout or special(self.path)
         if self.special:             # kept until the commit, which writes it into the device or pipe
@@ -183,7 +183,7 @@ class PendingFile:
                 try:
                     to_stdout(text.encode("utf-8"))
                 except OSError as exc:
-                    raise BadInput("-", None, f"cannot write {self.what}: {exc.strerror or exc}") from None
+                    raise BadInput(self.name, None, f"cannot write {self.what}: {exc.strerror or exc}") from None
                 return
             try:
                 with open(self.path, "w", encoding="utf-8", newline="") as fh:
