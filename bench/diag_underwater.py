@@ -20,8 +20,9 @@ fractions of the fish's fork length in that image):
 ``located_why``: for the fish lost at ``located``, per image that has no located fork within 3 %,
 what the learned locator answered from the hypotheses within 10 % of the true fork: ``misplaced``
 (sure, at least ``Params.net_min_conf``, but more than 3 % off), ``unsure`` (within 3 % but less
-sure), ``both`` (neither), ``dropped`` (within 3 % and sure, but not kept: a duplicate's, or beaten by
-a nearby fork; the fork may still come from the transfer along the epipolar line).
+sure), ``both`` (neither, or no hypothesis there), ``dropped`` (within 3 % and sure, but not kept:
+a duplicate's, or beaten by a nearby fork; the fork may still come from the transfer along the
+epipolar line).
 """
 from __future__ import annotations
 

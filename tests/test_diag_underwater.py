@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from bench.diag_underwater import TOL, located_why
+from bench.diag_underwater import PROPOSE_TOL, TOL, located_why
 from devices.sim.fish_scene import underwater_scene
 from vision.survey_types import SurveySetup
 from vision.underwater import measure_underwater
@@ -40,3 +40,24 @@ def test_one_verdict_per_image_missing_a_fork_and_none_elsewhere():
     visible = [t for t in sc.fish if t.fully_visible]
     assert visible and all(len(located_why(t, empty, 0.9)) == 2 for t in visible)
     assert sum(len(located_why(t, empty, 0.9)) for t in visible) > counted
+
+
+def test_the_verdicts_split_by_place_and_by_sureness_apart():
+    """Whether the locator's answer lies within 3 % does not depend on the confidence asked for:
+    asked for none, every verdict is sure (``dropped`` or ``misplaced``); asked for more than any
+    confidence, none is (``unsure`` or ``both``), and each image's verdict pairs with its own. (Fish
+    with a hypothesis near their fork in both images: the diagnosis asks only about those.)"""
+    sc, tr = _scene_and_trace()
+    empty = {**tr, "located": [np.zeros((0, 2)), np.zeros((0, 2))]}
+    pairs = {"dropped": "unsure", "misplaced": "both"}
+    seen = set()
+
+    def proposed(t) -> bool:
+        return all((np.linalg.norm(tr["hypotheses"][c][1].xy - t.fork_px[c], axis=1)
+                    <= PROPOSE_TOL * np.linalg.norm(t.snout_px[c] - t.fork_px[c])).any() for c in (0, 1))
+    for t in (t for t in sc.fish if t.fully_visible and proposed(t)):
+        sure, doubtful = located_why(t, empty, 0.0), located_why(t, empty, 1.01)
+        assert len(sure) == len(doubtful) == 2
+        assert set(sure) <= set(pairs) and [pairs[v] for v in sure] == doubtful
+        seen |= set(sure)
+    assert seen == set(pairs)        # the scene has forks the locator finds and forks it misses

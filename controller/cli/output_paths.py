@@ -24,6 +24,7 @@ def check_outputs(outputs: dict[str, str | Path | None], inputs: Iterable[str | 
     given_files = {ident for p in inputs if (ident := _file_id(p)) is not None}
     seen: dict[str, str] = {}
     seen_files: dict[tuple[int, int], str] = {}
+    on_stdout: str | None = None        # the option already writing to the standard output
     for option, path in outputs.items():
         if path is None:
             continue
@@ -32,12 +33,12 @@ def check_outputs(outputs: dict[str, str | Path | None], inputs: Iterable[str | 
         if Path(path).is_dir():
             raise BadInput(str(path), option, "a directory, not a file")
         if is_stdout(path):            # the shell's to check: one output there, else they mix
-            if "-" in seen:
-                raise BadInput(str(path), option, f"the standard output, as {seen['-']} is: they would mix")
-            seen["-"] = option
+            if on_stdout is not None:
+                raise BadInput(str(path), option, f"the standard output, as {on_stdout} is: they would mix")
+            on_stdout = option
             continue
         target = named(path)
-        if _special(target):           # -, /dev/null, /dev/stdout, a FIFO: written into, never replaced
+        if _special(target):           # /dev/null, a FIFO, a terminal: written into, never replaced
             if not os.access(target, os.W_OK):
                 raise BadInput(str(path), option, "cannot write: permission denied")
             continue
