@@ -2,6 +2,7 @@
 so ``fishfarm demand`` does not pay for OpenCV and ``fishfarm survey`` does not load Zenoh."""
 from __future__ import annotations
 
+import _thread
 import importlib
 import os
 import signal
@@ -145,23 +146,62 @@ def main(argv=None) -> int:
         return 1
 
 
-def _interrupted(signum, _frame) -> None:
+def _interrupted(signum, frame) -> None:
     """Ctrl-C as Python's own, except that a second one ends the command at once (its default
     action), rather than a KeyboardInterrupt in the middle of the first one's clean-up printing a
     traceback as the interpreter ends."""
+    if _in_hook(frame):
+        _take_again(signum)
+        return
     signal.signal(signum, signal.SIG_DFL)
-    raise KeyboardInterrupt
+    raise _taken(KeyboardInterrupt(), signum, _interrupted)
 
 
-def _terminated(signum, _frame) -> None:
+def _terminated(signum, frame) -> None:
     """SIGTERM ends a command as Ctrl-C does, through its clean-up (a survey's workers stopped, no
     half-written output left); a second one ends it at once. Commands that serve (run, sim,
     worker) install their own handlers over this one once they start, SIGHUP's too: ``run`` and
     ``sim`` wake the loop for the orderly stop (controller/shutdown.py), raising nothing. Until
     then SIGHUP is this one as well (its default killed a starting controller without a word,
     its ledger's -wal left behind, an outside tester); nohup's ignored SIGHUP stays ignored."""
+    if _in_hook(frame):
+        _take_again(signum)
+        return
     signal.signal(signum, signal.SIG_DFL)
-    raise SystemExit(stop_code(signum))
+    raise _taken(SystemExit(stop_code(signum)), signum, _terminated)
+
+
+def _taken(exc: BaseException, signum: int, handler) -> BaseException:
+    exc.fishfarm_signal = (signum, handler)
+    return exc
+
+
+def _swallowed(unraisable) -> None:
+    """``sys.unraisablehook``: a signal's exception raised where Python can raise none (a weakref
+    callback, a ``__del__``; the import machinery's module locks have such callbacks) was printed
+    as "Exception ignored in" with its traceback, and lost: a SIGHUP as ``report`` imported its
+    modules let it run on to its end (CI). The signal is taken again, its handler back in place,
+    at a line that can raise: however often it falls where none can, it comes back."""
+    signum, handler = getattr(unraisable.exc_value, "fishfarm_signal", (None, None))
+    if signum is None:
+        sys.__unraisablehook__(unraisable)
+        return
+    signal.signal(signum, handler)
+    _take_again(signum)
+
+
+def _take_again(signum: int) -> None:
+    # From another thread: from this one the handler runs at once, still inside the hook, where
+    # its exception would be lost as well. Should it run there even so, it sends itself again.
+    _thread.start_new_thread(_thread.interrupt_main, (signum,))
+
+
+def _in_hook(frame) -> bool:
+    while frame is not None:
+        if frame.f_code is _swallowed.__code__:
+            return True
+        frame = frame.f_back
+    return False
 
 
 # OpenCV's and FFmpeg's own lines ("[ WARN:4@15.707] global cap_ffmpeg_impl.hpp:435 ... Stream
@@ -180,13 +220,19 @@ def _early_handler():
 def entry() -> None:
     for name, value in NATIVE_LOGS.items():     # before any command imports cv2 (the controller,
         os.environ.setdefault(name, value)      # its simulator and survey workers all start here)
+    take_signals()
+    sys.exit(main())
+
+
+def take_signals() -> None:
+    """The command's handlers of SIGTERM, SIGHUP and SIGINT, over the launcher's early ones."""
+    sys.unraisablehook = _swallowed
     signal.signal(signal.SIGTERM, _terminated)
     if signal.getsignal(signal.SIGHUP) in (signal.SIG_DFL, _early_handler()):
         signal.signal(signal.SIGHUP, _terminated)
     if signal.getsignal(signal.SIGINT) in (signal.default_int_handler, _early_handler()):
         # (not a background job's ignored one; the simulator's ends it with 0, as SIGTERM does)
         signal.signal(signal.SIGINT, _terminated if simulating() else _interrupted)
-    sys.exit(main())
 
 
 if __name__ == "__main__":

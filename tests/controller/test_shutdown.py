@@ -390,3 +390,43 @@ def test_a_background_job_s_ignored_sigint_and_nohup_s_sighup_stay_ignored_once_
     assert _disposition(sim, "SigCgt", signal.SIGTERM)
     rc = controller.wait_exit(controller.send(signal.SIGTERM))
     assert rc == 0 and "controller stopped in" in controller.log(), controller.log()[-3000:]
+
+
+_DROPPED_IN = {
+    "__del__": "class Dropped:\n    def __del__(self):\n        signal.raise_signal(SIG)\nDropped()\n",
+    "weakref callback": ("class Held:\n    pass\nheld = Held()\n"
+                         "ref = weakref.ref(held, lambda _ref: signal.raise_signal(SIG))\ndel held\n"),
+}
+
+
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM, signal.SIGHUP], ids=["SIGINT", "SIGTERM", "SIGHUP"])
+@pytest.mark.parametrize("where", sorted(_DROPPED_IN))
+def test_a_signal_taken_where_python_cannot_raise_still_ends_the_command(sig, where):
+    """A SIGHUP as ``report`` imported its modules met the import machinery's module-lock weakref
+    callback: its SystemExit was printed as "Exception ignored" with a traceback, and lost; the
+    command ran on to its end (CI). The signal is taken again at the next line that can raise."""
+    code = ("import signal, sys, time, weakref\n"
+            "from controller.cli import take_signals\n"
+            f"SIG = {int(sig)}\n"
+            "take_signals()\n"
+            "try:\n"
+            + "".join(f"    {line}\n" for line in _DROPPED_IN[where].splitlines())
+            + "    deadline = time.monotonic() + 30\n"     # (it comes back within a switch interval)
+            "    while time.monotonic() < deadline:\n"
+            "        pass\n"
+            "    print('ran on', flush=True)\n"
+            "except KeyboardInterrupt:\n"
+            "    sys.exit(130)\n")
+    r = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True, timeout=60)
+    assert (r.returncode, r.stdout, r.stderr) == (128 + sig, "", "")
+
+
+def test_other_exceptions_where_python_cannot_raise_are_still_reported():
+    code = ("from controller.cli import take_signals\n"
+            "take_signals()\n"
+            "class Broken:\n    def __del__(self):\n        raise ValueError('in __del__')\n"
+            "Broken()\n"
+            "print('ran on', flush=True)\n")
+    r = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True, timeout=60)
+    assert (r.returncode, r.stdout) == (0, "ran on\n")
+    assert "Exception ignored in" in r.stderr and "ValueError: in __del__" in r.stderr
