@@ -408,6 +408,9 @@ def test_a_signal_taken_where_python_cannot_raise_still_ends_the_command(sig, wh
     code = ("import signal, sys, time, weakref\n"
             "from controller.cli import take_signals\n"
             f"SIG = {int(sig)}\n"
+            # as from a terminal, however the suite was started (nohup, a background job)
+            "signal.signal(signal.SIGHUP, signal.SIG_DFL)\n"
+            "signal.signal(signal.SIGINT, signal.default_int_handler)\n"
             "take_signals()\n"
             "try:\n"
             + "".join(f"    {line}\n" for line in _DROPPED_IN[where].splitlines())
