@@ -24,6 +24,7 @@ import math
 import multiprocessing
 import os
 import select
+import signal
 import tempfile
 import threading
 import time
@@ -31,6 +32,7 @@ from collections import deque
 from collections.abc import Callable, Iterable, Iterator
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass, field
+from multiprocessing import resource_tracker
 
 import cv2
 import numpy as np
@@ -199,6 +201,21 @@ def _outlive_no_survey(pid: int) -> None:
     os._exit(0)
 
 
+def _start_resource_tracker() -> None:
+    """multiprocessing's resource tracker (the pool's semaphores are registered with it), started
+    with SIGHUP blocked, which it keeps through exec: it ignores SIGINT and SIGTERM but not SIGHUP,
+    so a hangup of the survey's process group (its terminal closed) killed it, and the survey's
+    clean-up printed a warning and a traceback a semaphore (KeyError in resource_tracker.py) as it
+    relaunched one that knew none of them. Blocked, not ignored: a hangup meanwhile waits for this
+    thread to unblock it, or is taken by another. The tracker ends with the last process holding
+    its pipe, as before."""
+    before = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGHUP})
+    try:
+        resource_tracker.ensure_running()
+    finally:
+        signal.pthread_sigmask(signal.SIG_SETMASK, before)
+
+
 MANAGER_JOIN_S = 3.0        # wall: the most an abandoned pool's manager thread is waited for
 
 
@@ -264,6 +281,7 @@ def measure_all(jobs: Iterable[PairJob], calib: StereoCalibration, setup: Survey
     # (measured ~10x slower under load); the forkserver starts with this environment
     for var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
         os.environ.setdefault(var, "1")
+    _start_resource_tracker()
     pool = ProcessPoolExecutor(workers, mp_context=ctx, initializer=_init_worker,
                                initargs=(calib, setup, measure, os.getpid()))
     pending: deque = deque()

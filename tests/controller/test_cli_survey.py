@@ -510,6 +510,16 @@ def _exit_or_stacks(p: subprocess.Popen, timeout_s: float):
 def hanging_survey(farm, tmp_path):
     """`fishfarm survey` of an RG video (frames decoded here, handed over in shared memory) whose 2
     workers hang in every pair; yields (process, out.json path, mark) once the workers hold frames."""
+    yield from _hanging_survey(farm, tmp_path)
+
+
+@pytest.fixture
+def hanging_survey_group(farm, tmp_path):
+    """``hanging_survey`` in a session of its own, as a command started at a terminal is."""
+    yield from _hanging_survey(farm, tmp_path, start_new_session=True)
+
+
+def _hanging_survey(farm, tmp_path, start_new_session: bool = False):
     d, _ = farm
     make_mp4(tmp_path / "rg.mp4", cv2.imread(str(d / "rg0.png")), 20)
     mark = f"{os.getpid()}-{time.monotonic_ns()}"
@@ -524,7 +534,7 @@ def hanging_survey(farm, tmp_path):
                          # as from a terminal, whatever this run's: nohup ignores SIGHUP for its children,
                          # and a shell's background job (`make test &`) SIGINT, and an ignored signal
                          # stays ignored through exec (Python then installs no KeyboardInterrupt for it)
-                         preexec_fn=_as_from_a_terminal)
+                         preexec_fn=_as_from_a_terminal, start_new_session=start_new_session)
     try:
         assert _until(lambda: _shared_frames([q for q in _marked(mark) if q != p.pid])), "no worker took a frame"
         yield p, out, mark
@@ -571,6 +581,18 @@ def test_a_survey_killed_outright_is_outlived_by_no_worker_nor_its_shared_frames
     p.send_signal(sig)
     assert p.wait(10) == (-sig if sig == signal.SIGKILL else 128 + sig)
     assert _until(lambda: not _marked(mark)), "a worker outlived its survey"
+
+
+def test_a_hangup_of_the_whole_process_group_ends_a_survey_without_a_traceback(hanging_survey_group):
+    """A closed terminal signals its whole process group: multiprocessing's resource tracker, which
+    ignores SIGINT and SIGTERM only, died of it, and the survey's clean-up printed "resource_tracker:
+    process died unexpectedly, relaunching" and a KeyError traceback a semaphore."""
+    p, out, mark = hanging_survey_group
+    os.killpg(p.pid, signal.SIGHUP)
+    assert _exit_or_stacks(p, 10) == 128 + signal.SIGHUP
+    _no_traceback(p)
+    assert _until(lambda: not _marked(mark)), "a worker outlived its survey"
+    assert out.read_text() == "a survey's OUT.json of last week"
 
 
 @pytest.mark.parametrize("per, entries, seen, most, said", [

@@ -4,6 +4,7 @@ the auger it was running; a second signal ends it at once."""
 import asyncio
 import json
 import logging
+import os
 import re
 import signal
 import sqlite3
@@ -433,3 +434,25 @@ def test_other_exceptions_where_python_cannot_raise_are_still_reported():
     r = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True, timeout=60)
     assert (r.returncode, r.stdout) == (0, "ran on\n")
     assert "Exception ignored in" in r.stderr and "ValueError: in __del__" in r.stderr
+
+
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM, signal.SIGHUP], ids=["SIGINT", "SIGTERM", "SIGHUP"])
+def test_a_signal_whose_exception_another_replaced_still_ends_the_command_as_that_signal(tmp_path, sig):
+    """A SIGHUP as a survey imported its modules: its SystemExit raised inside an extension's
+    initialisation, which replaced it with 'ImportError: initialization failed' (pybind11's, and
+    OpenCV's, do): 'fishfarm: internal error', exit 1."""
+    (tmp_path / "replacing_cmd.py").write_text(
+        "import os, signal\nimport click\n"
+        "try:\n    signal.raise_signal(int(os.environ['SIGNAL']))\n"
+        "except BaseException:\n    raise ImportError('initialization failed') from None\n"
+        "@click.command()\ndef replacing():\n    print('ran on')\n")
+    code = ("import signal, sys\n"
+            "from controller import cli\n"
+            "signal.signal(signal.SIGHUP, signal.SIG_DFL)\n"       # as from a terminal (above)
+            "signal.signal(signal.SIGINT, signal.default_int_handler)\n"
+            "cli.COMMANDS['replacing'] = 'replacing_cmd:replacing'\n"
+            "cli.take_signals()\n"
+            "sys.exit(cli.main(['replacing']))\n")
+    env = {**os.environ, "PYTHONPATH": f"{tmp_path}{os.pathsep}{ROOT}", "SIGNAL": str(int(sig))}
+    r = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True, timeout=60, env=env)
+    assert (r.returncode, r.stdout, r.stderr) == (128 + sig, "", "")
