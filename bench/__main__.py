@@ -15,8 +15,16 @@ HERE = Path(__file__).resolve().parent
 
 def main(argv: list[str]) -> int:
     scripts = sorted(HERE.glob("bench_*.py"))
+    if argv[:1] in (["-h"], ["--help"]):
+        print(__doc__.strip())
+        return 0
     if argv:
-        wanted = {f"bench_{name.removeprefix('bench_')}.py" for name in argv}
+        wanted = {f"bench_{name.removeprefix('bench_').removesuffix('.py')}.py": name for name in argv}
+        unknown = [name for file, name in wanted.items() if not (HERE / file).is_file()]
+        if unknown:       # (it ran nothing and exited 0)
+            print(f"python -m bench: no benchmark {unknown[0]!r}; there are "
+                  f"{', '.join(s.stem.removeprefix('bench_') for s in scripts)}", file=sys.stderr)
+            return 2
         scripts = [s for s in scripts if s.name in wanted]
     failed = 0
     for script in scripts:

@@ -52,4 +52,7 @@ def main() -> int:
 
 
 if __name__ == "__main__":
+    from bench import no_arguments
+
+    no_arguments(__doc__)
     sys.exit(main())

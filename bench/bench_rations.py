@@ -197,4 +197,7 @@ def main() -> None:
 
 
 if __name__ == "__main__":
+    from bench import no_arguments
+
+    no_arguments(__doc__)
     main()

@@ -48,4 +48,7 @@ def main() -> dict:
 
 
 if __name__ == "__main__":
+    from bench import no_arguments
+
+    no_arguments(__doc__)
     print(json.dumps(main(), indent=2))

@@ -77,4 +77,7 @@ async def main() -> dict:
 
 
 if __name__ == "__main__":
+    from bench import no_arguments
+
+    no_arguments(__doc__)
     print(json.dumps(asyncio.run(main())))

@@ -67,3 +67,34 @@ def test_a_script_that_does_not_import_is_named():
 
 def test_the_scripts_are_found():
     assert {"bench_workers.py", "bench_growout.py", "__main__.py"} <= {s.name for s in SCRIPTS}
+
+
+BENCHES = sorted((ROOT / "bench").glob("bench_*.py"))
+
+
+def _run_each(args: list[str]) -> dict[str, subprocess.CompletedProcess]:
+    from concurrent.futures import ThreadPoolExecutor
+    with ThreadPoolExecutor(2) as pool:
+        runs = pool.map(lambda s: subprocess.run([sys.executable, str(s), *args], cwd=ROOT, capture_output=True,
+                                                 text=True, timeout=120), BENCHES)
+        return {s.name: r for s, r in zip(BENCHES, runs, strict=True)}
+
+
+def test_every_bench_script_refuses_an_argument_it_does_not_take_before_any_work():
+    """Arguments were ignored by the scripts whose settings are environment variables:
+    ``bench_growout.py --help`` ran the twelve-minute grow-out."""
+    runs = _run_each(["--no-such-setting"])
+    refused = {name: (r.returncode, "--no-such-setting" in r.stderr) for name, r in runs.items()}
+    assert refused == {name: (2, True) for name in runs}, {n: runs[n].stderr[-300:] for n in runs}
+
+
+def test_every_bench_script_says_what_it_measures_when_asked():
+    runs = _run_each(["--help"])
+    said = {name: (r.returncode, len(r.stdout.strip()) > 40) for name, r in runs.items()}
+    assert said == {name: (0, True) for name in runs}
+
+
+def test_make_bench_refuses_a_benchmark_there_is_not():
+    r = subprocess.run([sys.executable, "-m", "bench", "grow_out"], cwd=ROOT, capture_output=True, text=True,
+                       timeout=60)
+    assert r.returncode == 2 and "no benchmark 'grow_out'" in r.stderr and "growout" in r.stderr, r.stderr
