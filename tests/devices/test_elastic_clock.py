@@ -421,3 +421,33 @@ def test_wall_since_is_the_wall_that_passed_not_the_lag_at_the_speed_now(path, w
     assert ctl.wall_since(now + 5.0) == 0.0
     fresh = handle(path, wall)                 # before anything it read: the rest at the slow speed
     assert fresh.wall_since(fresh.now() - 30.0 * SLOW) == pytest.approx(30.0)
+
+
+def test_a_running_holder_is_asked_about_once_a_ttl_and_a_death_is_seen_within_it():
+    """A renewal asked the kernel and /proc about every live holder, every 4 ms a process."""
+    from devices.elastic_clock import RecentlyAlive
+    running, asked, now = {11, 12}, [], [100.0]
+
+    def ask(pid):
+        asked.append(pid)
+        return pid in running
+
+    alive = RecentlyAlive(ask, ttl_s=0.1, now=lambda: now[0])
+    assert alive(11) and alive(12) and not alive(13)
+    for _ in range(50):                      # renewals within the ttl: nobody asked again
+        now[0] += 0.001
+        assert alive(11) and alive(12)
+    assert asked == [11, 12, 13]
+    running.discard(11)                      # 11 dies: seen once its ttl, counted from its last ask, is out
+    now[0] = 100.0 + 0.1001
+    assert not alive(11) and alive(12)
+    assert not alive(11) and asked[-1] == 11 and asked.count(11) == 3   # the dead are asked every time
+
+
+def test_the_clock_asks_through_the_cache_by_default(path, wall):
+    from devices.elastic_clock import RecentlyAlive
+    c = ElasticClock(path, wall_time=wall)
+    try:
+        assert isinstance(c._alive, RecentlyAlive) and c._alive.ask is process_alive
+    finally:
+        c.close()
