@@ -115,7 +115,65 @@ def _open(path: str, text: str):
         fs.release()
         raise BadInput(path, None, "holds no map of named matrices (K1, D1, K2, D2, R, T): it is empty, or its "
                                    "top level is a list or a value")
+    twice = _nested_twice(text)
+    if twice is not None:
+        fs.release()
+        raise BadInput(path, twice, "given twice: give it once")
     return fs
+
+
+_YAML_KEY = re.compile(r"^( *)([A-Za-z_][\w.-]*)[ \t]*:")
+
+
+def _nested_twice(text: str) -> str | None:
+    """A key given twice inside one of the file's maps (``M1.data``), which FileStorage reads as the
+    first without a word (a matrix's ``data`` written twice, with other values: the first taken) and
+    does not list either (its top level's are listed, and refused by ``_file_fields``). YAML by
+    indentation, XML by element; JSON's are refused where it is parsed (``json_fields_once``)."""
+    body = text.lstrip()
+    if body.startswith("{"):
+        return None
+    if body.startswith("<"):
+        return _xml_twice(body)
+    stack: list[tuple[int, str, set[str]]] = [(-1, "", set())]      # (indent, key, its keys seen)
+    for line in text.splitlines():
+        m = _YAML_KEY.match(line)
+        if m is None:
+            continue
+        indent, key = len(m.group(1)), m.group(2)
+        while stack[-1][0] >= indent:
+            stack.pop()
+        parent = stack[-1]
+        if key in parent[2] and indent > 0:
+            return f"{parent[1]}.{key}"
+        parent[2].add(key)
+        stack.append((indent, f"{parent[1]}.{key}".lstrip("."), set()))
+    return None
+
+
+def _xml_twice(body: str) -> str | None:
+    import xml.etree.ElementTree as ET
+
+    try:
+        root = ET.fromstring(body)
+    except ET.ParseError:
+        return None                   # (FileStorage read it: its own reading stands)
+
+    def walk(node, name: str) -> str | None:
+        tags = [c.tag for c in node if c.tag != "_"]       # "_": a sequence's items
+        for tag in tags:
+            if tags.count(tag) > 1:
+                return f"{name}.{tag}"
+        for child in node:
+            hit = walk(child, f"{name}.{child.tag}".lstrip("."))
+            if hit is not None:
+                return hit
+        return None
+    for top in root:                  # (the top level's keys given twice: _file_fields names them)
+        hit = walk(top, top.tag)
+        if hit is not None:
+            return hit
+    return None
 
 
 def _refuse_non_finite_json(path: str, text: str) -> None:

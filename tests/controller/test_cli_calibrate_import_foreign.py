@@ -161,3 +161,26 @@ def test_a_lens_model_folding_inside_its_image_is_said_and_its_far_pixels_writte
     assert "1 pairs (lines 2 of" in capsys.readouterr().err
     code, _, err = run("--in", str(_yaml(tmp_path / "mild.yml", CAMERAS)), "--out", str(tmp_path / "m.json"))
     assert code == 0 and "folds" not in err
+
+
+@pytest.mark.parametrize("suffix", [".yml", ".xml"])
+def test_a_matrix_s_field_given_twice_is_refused_not_the_first_taken(tmp_path, suffix):
+    """FileStorage read the first of a matrix's ``data`` written twice, other values in the second
+    (an outside tester), and lists neither: the file's top-level keys alone were checked."""
+    out = str(tmp_path / "CALIB.json")
+    written = _yaml(tmp_path / f"once{suffix}", CAMERAS).read_text()
+    scaled = " ".join(f"{v:.6g}" for v in (RIG.K2 * [[0.75], [0.75], [1]]).ravel())
+    if suffix == ".yml":
+        head, tail = written.split("M2:", 1)
+        at = tail.index("data:")
+        doubled = f"{head}M2:{tail[:at]}data: [ {scaled.replace(' ', ', ')} ]\n   {tail[at:]}"
+    else:
+        head, tail = written.split("<M2", 1)
+        at = tail.index("<data>")
+        doubled = f"{head}<M2{tail[:at]}<data>{scaled}</data>\n  {tail[at:]}"
+    twice = tmp_path / f"twice{suffix}"
+    twice.write_text(doubled)
+    assert_bad(["--in", str(twice), "--out", out], twice.name, "M2.data", "given twice")
+    assert not Path(out).exists()
+    code, _, err = run("--in", str(tmp_path / f"once{suffix}"), "--out", out)     # the same keys in every matrix
+    assert code == 0, err
