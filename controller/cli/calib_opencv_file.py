@@ -123,6 +123,7 @@ def _open(path: str, text: str):
 
 
 _YAML_KEY = re.compile(r"^( *)([A-Za-z_][\w.-]*)[ \t]*:")
+_YAML_ITEM = re.compile(r"^( *)- +")
 
 
 def _nested_twice(text: str) -> str | None:
@@ -137,6 +138,12 @@ def _nested_twice(text: str) -> str | None:
         return _xml_twice(body)
     stack: list[tuple[int, str, set[str]]] = [(-1, "", set())]      # (indent, key, its keys seen)
     for line in text.splitlines():
+        item = _YAML_ITEM.match(line)
+        if item is not None:          # a sequence's item: a map of its own (two cameras' K in a list)
+            while stack[-1][0] >= len(item.group(1)):
+                stack.pop()
+            stack.append((len(item.group(1)), f"{stack[-1][1]}[]", set()))
+            line = " " * len(item.group(0)) + line[len(item.group(0)):]
         m = _YAML_KEY.match(line)
         if m is None:
             continue

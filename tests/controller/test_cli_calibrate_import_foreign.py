@@ -184,3 +184,14 @@ def test_a_matrix_s_field_given_twice_is_refused_not_the_first_taken(tmp_path, s
     assert not Path(out).exists()
     code, _, err = run("--in", str(tmp_path / f"once{suffix}"), "--out", out)     # the same keys in every matrix
     assert code == 0, err
+
+
+def test_the_same_keys_in_the_maps_of_a_list_are_not_given_twice(tmp_path):
+    """A list of maps (a tool's notes on each camera) has the same keys in every item: no key is
+    given twice there, and the file's matrices are imported."""
+    out = str(tmp_path / "CALIB.json")
+    listed = tmp_path / "listed.yml"
+    listed.write_text(_yaml(tmp_path / "once.yml", CAMERAS).read_text()
+                      + "cameras_used:\n  - model: a\n    serial: 1\n  - model: b\n    serial: 2\n")
+    code, _, err = run("--in", str(listed), "--out", out)
+    assert code == 0, err
