@@ -118,18 +118,15 @@ def day() -> dict:
             "service_max_s": round(max(verdict.service_s), 1) if verdict.service_s else None}
 
 
+PARTS = {"latency": latency, "tanks500": tanks500, "day": day}
+
+
 def main(argv: list[str]) -> None:
-    parts = {"latency": latency, "tanks500": tanks500, "day": day}
-    if argv[:1] in (["-h"], ["--help"]):
-        print(__doc__.strip())
-        raise SystemExit(0)
-    unknown = [a for a in argv if a not in parts]
-    if unknown:
-        print(f"bench_feeding.py: no part {unknown[0]!r}: its parts are {', '.join(parts)} (--help)", file=sys.stderr)
-        raise SystemExit(2)
-    chosen = argv or list(parts)
-    print(json.dumps({name: parts[name]() for name in chosen}, indent=2))
+    chosen = argv or list(PARTS)
+    print(json.dumps({name: PARTS[name]() for name in chosen}, indent=2))
 
 
 if __name__ == "__main__":
-    main(sys.argv[1:])
+    from bench import no_arguments
+
+    main(no_arguments(__doc__, takes=PARTS))

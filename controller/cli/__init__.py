@@ -140,8 +140,8 @@ def main(argv=None) -> int:
     except KeyboardInterrupt:
         return 130
     except Exception as exc:  # a bug, not the user's fault: still one line unless asked
-        if _signalled:        # a signal's exception turned into another on its way (below)
-            return _signalled[0]
+        if _signalled is not None:    # a signal's exception turned into another on its way (below)
+            return _signalled
         if os.environ.get("FISHFARM_DEBUG"):
             raise
         click.echo(f"fishfarm: internal error: {type(exc).__name__}: {exc}", err=True)
@@ -173,16 +173,18 @@ def _terminated(signum, frame) -> None:
     raise _taken(SystemExit(stop_code(signum)), signum, _terminated)
 
 
-# The exit codes of the signals whose exceptions were raised, first first. A SIGHUP as a command
+# The exit code of the first signal whose exception was raised. A SIGHUP as a command
 # imported its modules raised its SystemExit inside an extension's initialisation (OpenCV's, ONNX
 # Runtime's, matplotlib's: pybind11's), which replaced it with "ImportError: initialization
 # failed": the command ended as an internal error, exit 1.
-_signalled: list[int] = []
+_signalled: int | None = None
 
 
 def _taken(exc: BaseException, signum: int, handler) -> BaseException:
+    global _signalled
     exc.fishfarm_signal = (signum, handler)
-    _signalled.append(130 if isinstance(exc, KeyboardInterrupt) else exc.code)
+    if _signalled is None:
+        _signalled = 130 if isinstance(exc, KeyboardInterrupt) else exc.code
     return exc
 
 
