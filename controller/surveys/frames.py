@@ -13,6 +13,7 @@ different sizes or one picture twice, a directory without pairs. Video: controll
 """
 from __future__ import annotations
 
+import errno
 import hashlib
 import os
 import re
@@ -305,6 +306,7 @@ def directory_items(directory: str) -> list[tuple[str, ...]]:
             got = sides[stem]
             for have, lack in (("L", "R"), ("R", "L")):
                 if lack not in got:
+                    _not_a_file(d, stem, lack)
                     raise BadInput(str(got[have]), None, f"no {'right' if lack == 'R' else 'left'} image "
                                                          f"({stem}_{lack}.*) beside it")
             items.append((str(got["L"]), str(got["R"])))
@@ -313,6 +315,28 @@ def directory_items(directory: str) -> list[tuple[str, ...]]:
     if not rg:
         raise BadInput(directory, None, "no pairs (*_L.* with *_R.*, or folders *_L and *_R) and no *.png RG frames")
     return rg
+
+
+def _not_a_file(d: Path, stem: str, side: str) -> None:
+    """Name the view's image that is there but is no file to read (a folder, a dangling or looping
+    link, a device): "no right image beside it" sent the user looking for a file they could see."""
+    for p in sorted(d.iterdir()):
+        m = _SIDE.match(p.stem)
+        if (m and m["stem"] == stem and m["side"].upper() == side and p.suffix.lower() in IMAGE_SUFFIXES
+                and not p.name.startswith(".")):
+            what = ("a link that loops" if p.is_symlink() and _loops(p) else "a link to nothing" if not p.exists()
+                    else "a directory" if p.is_dir() else "not a regular file")
+            raise BadInput(str(p), None, f"{what}, not an image file")
+
+
+def _loops(p: Path) -> bool:
+    try:
+        p.resolve(strict=True)
+    except RuntimeError:                 # (Python < 3.13: a symlink loop)
+        return True
+    except OSError as exc:               # ELOOP
+        return exc.errno == errno.ELOOP
+    return False
 
 
 def _images(d: Path) -> list[Path]:

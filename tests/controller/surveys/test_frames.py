@@ -1,3 +1,4 @@
+import os
 import re
 from pathlib import Path
 
@@ -545,3 +546,23 @@ def test_a_worker_s_job_of_too_many_pixels_is_refused_from_its_header_not_decode
         check_header_size(p_only, (big, big), ("left.png", "right.png"))
     fine = huge_png(7000, 7000)                              # 49 megapixels: left to the rest of the checks
     check_header_size(p_only, (fine, fine), ("left.png", "right.png"))
+
+
+@pytest.mark.parametrize("kind", ["directory", "dangling", "loop", "fifo"])
+def test_a_view_named_as_an_image_but_no_file_is_named_for_what_it_is(tmp_path, kind):
+    write(tmp_path / "a_L.png", grey())
+    other = tmp_path / "a_R.png"
+    if kind == "directory":
+        other.mkdir()
+    elif kind == "dangling":
+        other.symlink_to(tmp_path / "gone.png")
+    elif kind == "loop":
+        other.symlink_to(tmp_path / "b_R.png")
+        (tmp_path / "b_R.png").symlink_to(other)
+    else:
+        os.mkfifo(other)
+    said = {"directory": "a directory", "dangling": "a link to nothing", "loop": "a link that loops",
+            "fifo": "not a regular file"}[kind]
+    with pytest.raises(BadInput) as err:
+        directory_items(str(tmp_path))
+    assert f"a_R.png: {said}, not an image file" in str(err.value)
