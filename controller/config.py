@@ -213,6 +213,10 @@ class SurveysConfig(Strict):
     min_weighed_fish: int = Field(10, ge=1, le=100_000,
                                   description="fewest fish a survey counts to weigh its tank (rations, growth, "
                                   "figures); one with fewer is kept, published, warned of and tried again")
+    probe_pairs: int = Field(8, ge=0, le=10_000,
+                             description="pairs measured after which a visit counting fish at under half the "
+                             "rate that weighs the tank (min_weighed_fish in its pairs) is cut short: recorded, "
+                             "warned of and tried again as one that counted too few (0: never)")
     retry_s: float = Field(3600.0, gt=0, le=86_400 * 7,
                            description="farm seconds before a failed survey is tried again")
     floor_mm: float | None = Field(None, gt=0, le=100_000,

@@ -42,6 +42,14 @@ Z95 = 1.96
 # tank for good (a probe saw a survey hold it two farm days, every other tank's survey behind it)
 START_WALL_S = 60.0
 MEASURE_WALL_S = 120.0
+# A visit is cut short once ``probe_pairs`` are measured if its fish come at under this share of the
+# rate that weighs the tank (``min_weighed_fish`` in the session's pairs): it would end with too few
+# fish anyway, be recorded as such and tried again. Measured on 1,105 grow-out visits (14 runs,
+# 960x720, up to 32 pairs): of the 99 that ended under 10 fish (the water hid them: a reef behind),
+# 90 are caught after 8 pairs, most with 0-1 fish; 5 of the 1,006 that weighed their tank would
+# have been cut (and tried again); 8 % of all pairs are saved. At 0.3: 78 caught, 1 cut; at 0.7:
+# 95 caught, 8 cut
+HOPELESS_SHARE = 0.5
 
 
 def measure_pairs(jobs: Iterable[PairJob], calib, setup) -> Iterator[PairResult]:
@@ -68,6 +76,8 @@ class SurveySession:
     failed: str | None = None
     unfit: str | None = None                   # a pair's frames the calibration cannot take: the camera's fault
     rejected: list[float] = field(default_factory=list)      # lengths left out as measuring errors
+    measured: int = 0                          # pairs whose measuring ended (with or without fish)
+    cut_short: str | None = None               # why its capture ended before ``pairs`` (SurveyStop.hopeless)
 
     def precise(self, weight, ci_pct: float, min_fish: int) -> bool:
         """The mean weight's 95 % CI (normal approximation) within ±ci_pct of it, over the lengths
@@ -106,8 +116,27 @@ class SurveyStop:
         # never precise on fewer fish than weigh the tank: a min_weighed_fish over what the CI stop
         # left (100 against ~63) made every survey a few-fish one, retried hourly, for good
         least = max(self.s.min_fish, self.s.min_weighed_fish)
-        return session.captured >= session.pairs or session.precise(self.species[session.tank].weight,
-                                                                      self.s.ci_pct, least)
+        return (session.captured >= session.pairs or self.hopeless(session)
+                or session.precise(self.species[session.tank].weight, self.s.ci_pct, least))
+
+    def hopeless(self, session: SurveySession) -> bool:
+        """The visit's fish so far come too slowly to weigh the tank in its pairs (``HOPELESS_SHARE``):
+        the water hides them (turbid, a reef behind, the lights, a fouled lens). Its capture ends
+        there, and the survey is recorded with what it counted: one of too few fish, warned of and
+        tried again (SurveyWatch, the schedule), 24 pairs sooner than at the end of its 32."""
+        if session.cut_short is not None:
+            return True
+        measured, probe = session.measured, self.s.probe_pairs
+        if probe <= 0 or measured < probe or session.captured >= session.pairs:
+            return False
+        need = HOPELESS_SHARE * self.s.min_weighed_fish * measured / session.pairs
+        if len(session.lengths) >= need:
+            return False
+        session.cut_short = (f"{len(session.lengths)} fish in its first {measured} pairs measured, under half "
+                             f"the rate that weighs the tank ({self.s.min_weighed_fish} fish in {session.pairs} "
+                             "pairs)")
+        log.info("survey of %s cut short: %s", session.tank, session.cut_short)
+        return True
 
     async def visit(self, session: SurveySession, interrupted: Callable[[], bool], wake: asyncio.Event) -> str:
         """At the tank: ``captured`` (all in: the robot may go), ``preempted`` (a demand waits; the
@@ -246,6 +275,7 @@ class SurveyStop:
                 # Measured on, 40 pairs came to a survey of 0 fish whose alarm blamed the water
                 session.unfit = str(task.exception())
             return
+        session.measured += 1
         for result in task.result():
             for fish in result.fish:
                 if math.isfinite(fish.length_cm) and fish.length_cm > 0:
@@ -297,6 +327,8 @@ class SurveyStop:
                "weight_g": stats["weight_g"], "precision": stats["precision"], "tank": session.tank,
                "requested_by": session.why, "visits": session.visits, "statistics_per": "fish",
                "rejected_lengths_cm": [round(x, 2) for x in session.rejected]}
+        if session.cut_short is not None:
+            doc["cut_short"] = session.cut_short
         out = Path(self.s.out_dir) / f"{session.tank}-{self.clock.iso(t).replace(':', '')}.json"
         try:
             out.parent.mkdir(parents=True, exist_ok=True)

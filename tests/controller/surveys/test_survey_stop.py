@@ -520,3 +520,68 @@ def test_a_survey_that_counted_no_fish_is_recorded_and_logged_without_a_nan(tmp_
     assert survey.count == 0
     [line] = [rec.getMessage() for rec in caplog.records if "recorded:" in rec.getMessage()]
     assert line.endswith("0 fish, no mean weight") and "nan" not in line, line
+
+
+class SparseMeasure(MeasureDouble):
+    """``fish_at``: frame -> fish that pair holds (none elsewhere)."""
+
+    def __init__(self, fish_at: dict[int, int]):
+        super().__init__(per_pair=0)
+        self.fish_at = fish_at
+
+    def __call__(self, jobs, calib, setup):
+        for job in jobs:
+            self.per_pair = self.fish_at.get(job.frame, 0)
+            yield from super().__call__(iter([job]), calib, setup)
+
+
+def _cut_short_survey(tmp_path, fish_at, pairs, **kw):
+    async def main():
+        async with rig(tmp_path) as r:
+            await r.until(lambda: r.robot.state == "idle", what="homed")
+            stops, camera, measure, _ = await attach(r, tmp_path, period_s=2.0, measure=SparseMeasure(fish_at),
+                                                     ci_pct=0.1, **kw)
+            stops.request("T2", pairs=pairs)
+            await r.until(lambda: r.store.surveys("T2", counted=None), 2000.0, what="the survey recorded")
+            return r.store.surveys("T2", counted=None)[0], camera
+    survey, camera = run(main())
+    out = json.loads(Path(survey.source).read_text())
+    return survey, out["frames"], out
+
+
+def _need(m: int, pairs: int) -> float:
+    """Fewer fish than this in ``m`` pairs measured cut the visit: half the rate of 10 fish in ``pairs``."""
+    return 0.5 * 10 * m / pairs
+
+
+@pytest.mark.parametrize("fish_at, pairs, cut_after", [
+    ({}, 32, 8),                                  # no fish: cut once 8 pairs are measured
+    ({3: 1}, 32, 8),                              # 1 fish in 8 pairs: fewer than 1.25
+    ({0: 1, 5: 1}, 32, 13),                       # 2 fish: enough at 8 (1.25) .. 12 (1.88), not at 13 (2.03)
+    ({3: 1}, 40, 9),                              # an operator's 40 pairs: 1 fish is 1.0 at 8, not 1.125 at 9
+    ({k: 1 for k in range(0, 32, 3)}, 32, None),  # a fish every 3rd pair: never under 0.156 a pair
+    ({k: 2 for k in (0, 10, 20, 30)}, 32, None),  # bunched: 2 at 8 (1.25) .. 2 at 10 (1.56), 4 at 11
+])
+def test_a_visit_whose_fish_come_too_slowly_to_weigh_the_tank_is_cut_short(tmp_path, fish_at, pairs, cut_after):
+    """Cut once ``probe_pairs`` (8) are measured and on with every pair after, while the fish counted are
+    fewer than half of ``min_weighed_fish`` (10) in the session's pairs: recorded with what it counted
+    (a survey of too few fish, tried again), ``cut_short`` in its OUT.json saying why."""
+    survey, captured, out = _cut_short_survey(tmp_path, fish_at, pairs)
+    counted = sum(n for frame, n in fish_at.items() if frame < captured)
+    assert survey.count == counted
+    if cut_after is None:
+        assert captured == pairs and "cut_short" not in out
+        assert all(sum(n for f, n in fish_at.items() if f < m) >= _need(m, pairs) - 2 for m in range(8, pairs))
+        return
+    # the rule held at cut_after and not before (the fish of the pairs measured by then)
+    assert sum(n for f, n in fish_at.items() if f < cut_after) < _need(cut_after, pairs)
+    assert all(sum(n for f, n in fish_at.items() if f < m) >= _need(m, pairs) for m in range(8, cut_after))
+    # the pairs in flight when it was cut (at most 2 here) were captured and are counted
+    assert cut_after <= captured <= cut_after + 2, captured
+    assert counted < 10
+    assert out["cut_short"].startswith(f"{sum(n for f, n in fish_at.items() if f < cut_after)} fish in its first")
+
+
+def test_probe_pairs_0_never_cuts_a_visit_short(tmp_path):
+    survey, captured, out = _cut_short_survey(tmp_path, {}, 12, probe_pairs=0)
+    assert captured == 12 and survey.count == 0 and "cut_short" not in out
