@@ -76,7 +76,7 @@ class SurveySession:
     failed: str | None = None
     unfit: str | None = None                   # a pair's frames the calibration cannot take: the camera's fault
     rejected: list[float] = field(default_factory=list)      # lengths left out as measuring errors
-    measured: int = 0                          # pairs whose measuring ended (with or without fish)
+    measured: int = 0                          # pairs measured, with fish or none (a pair that failed: not)
     cut_short: str | None = None               # why its capture ended before ``pairs`` (SurveyStop.hopeless)
 
     def precise(self, weight, ci_pct: float, min_fish: int) -> bool:
@@ -123,11 +123,12 @@ class SurveyStop:
         """The visit's fish so far come too slowly to weigh the tank in its pairs (``HOPELESS_SHARE``):
         the water hides them (turbid, a reef behind, the lights, a fouled lens). Its capture ends
         there, and the survey is recorded with what it counted: one of too few fish, warned of and
-        tried again (SurveyWatch, the schedule), 24 pairs sooner than at the end of its 32."""
+        tried again (SurveyWatch, the schedule): in the grow-out, 22-23 of its 32 pairs sooner. Once
+        cut, it stays cut (pairs still measuring may add a fish or two)."""
         if session.cut_short is not None:
             return True
         measured, probe = session.measured, self.s.probe_pairs
-        if probe <= 0 or measured < probe or session.captured >= session.pairs:
+        if probe <= 0 or measured < probe:
             return False
         need = HOPELESS_SHARE * self.s.min_weighed_fish * measured / session.pairs
         if len(session.lengths) >= need:

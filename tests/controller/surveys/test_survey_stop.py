@@ -571,7 +571,7 @@ def test_a_visit_whose_fish_come_too_slowly_to_weigh_the_tank_is_cut_short(tmp_p
     assert survey.count == counted
     if cut_after is None:
         assert captured == pairs and "cut_short" not in out
-        assert all(sum(n for f, n in fish_at.items() if f < m) >= _need(m, pairs) - 2 for m in range(8, pairs))
+        assert all(sum(n for f, n in fish_at.items() if f < m) >= _need(m, pairs) for m in range(8, pairs))
         return
     # the rule held at cut_after and not before (the fish of the pairs measured by then)
     assert sum(n for f, n in fish_at.items() if f < cut_after) < _need(cut_after, pairs)
