@@ -10,9 +10,10 @@ Prints one JSON object.
 
 Run: ``.venv/bin/python bench/diag_length_bias.py [--scenes 30] [--seed0 200000]
 [--sizes 1280x960,640x480] [--lengths 9,25,drawn] [--params "..."] [--conditions "blur_gain=0.0"]
-[--coverage 4] [--locator] [--pipeline 0]``
+[--coverage 4] [--no-exact-edges] [--locator] [--pipeline 0]``
 ``--coverage``: fish drawn with their area coverage (``devices.sim.fish_render.COVERAGE``; OpenCV's
-fill draws them ~0.5 px too big all round). ``--locator``: also the fork locator alone, started on
+fill draws them ~0.5 px too big all round); ``--no-exact-edges``: with the coverage fill's own
+half-sub-pixel overshoot (``fish_render.EXACT_EDGES``). ``--locator``: also the fork locator alone, started on
 each fully visible fish's true fork (``locator_from_truth``: errors of the forks it places within 3 %).
 (``drawn``: the scene's own species and sizes; a number: sparus_aurata of that mean fork length,
 as the carriage's survey of a nursery tank renders it; the camera's focal length scales with its
@@ -182,14 +183,17 @@ def main() -> None:
     ap.add_argument("--pipeline", type=int, default=1, help="0: the locator alone (with --locator)")
     ap.add_argument("--coverage", type=int, default=fish_render.COVERAGE,
                     help="fish drawn with their area coverage at this supersampling (devices.sim.fish_render.COVERAGE)")
+    ap.add_argument("--no-exact-edges", action="store_true",
+                    help="the coverage fill's half-sub-pixel overshoot left in (devices.sim.fish_render.EXACT_EDGES)")
     ap.add_argument("--conditions", default="", help="scene conditions fixed, e.g. 'blur_gain=0.0,noise_sd=1.0'")
     args = ap.parse_args()
     params = parse_params(args.params) or Params()
     fixed = _conditions(args.conditions)
     fish_render.COVERAGE = args.coverage
+    fish_render.EXACT_EDGES = not args.no_exact_edges
     cv2.setNumThreads(1)
     out = {"scenes": args.scenes, "seed0": args.seed0, "params": args.params, "conditions": fixed,
-           "coverage": args.coverage,
+           "coverage": args.coverage, "exact_edges": fish_render.EXACT_EDGES,
            "configs": {}}
     pooled = []
     for s in args.sizes.split(","):

@@ -25,6 +25,16 @@ _ONE = 1 << SHIFT
 # coverage), as optics do. 1: OpenCV's fill (the renderer before 2026-12-02; bench/diag_length_bias.py
 # --coverage compares).
 COVERAGE = 4
+# The fill at COVERAGE x still overshoots by half a sub-pixel along the edge's major axis (0.5 x
+# max(|cos|, |sin|) sub-pixels: 0.09-0.125 px an edge at 4, a rendered 40-80 px fish +0.13 px long).
+# The mean of the fill and the fill eroded by a 3x3 cross (which takes back max(|cos|, |sin|)
+# sub-pixels) has each edge where it is at every angle (within ~0.005 px at 4;
+# tests/devices/sim/test_fish_coverage.py), for ~1 ms a 1280x960 frame of fish. Left as it is: the
+# fill rounds vertices to whole sub-pixels, so every fish sits 1/16 px down and right of its truth,
+# alike in both views and at both ends (no length, no disparity). False: the renderer before
+# 2026-12-07 (bench/diag_length_bias.py --no-exact-edges compares).
+EXACT_EDGES = True
+_CROSS = cv2.getStructuringElement(cv2.MORPH_CROSS, (3, 3))
 
 
 def project(rig, world: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -253,10 +263,15 @@ def draw_fish(frame: np.ndarray, ranks: np.ndarray, rank: int, p: Posed, px: np.
 
 def _coverage(shape: tuple[int, int], tri: np.ndarray, s: int) -> np.ndarray:
     """Share (0..1 float32) of each pixel the triangles (fixed point) cover, from a fill at ``s`` x
-    resolution (sub-pixel centres: x_s = s x + (s - 1) / 2) averaged back."""
+    resolution (sub-pixel centres: x_s = s x + (s - 1) / 2) averaged back. With ``EXACT_EDGES`` the
+    fill's overshoot is taken back (module comment above ``EXACT_EDGES``)."""
     big = np.zeros((shape[0] * s, shape[1] * s), np.uint8)
-    cv2.fillPoly(big, tri * s + _ONE * (s - 1) // 2, 255, lineType=cv2.LINE_8, shift=SHIFT)
-    return cv2.resize(big, (shape[1], shape[0]), interpolation=cv2.INTER_AREA).astype(np.float32) / 255
+    full = 127 if EXACT_EDGES else 255          # the fill and its erosion summed: 254 inside
+    cv2.fillPoly(big, tri * s + _ONE * (s - 1) // 2, full, lineType=cv2.LINE_8, shift=SHIFT)
+    if EXACT_EDGES:
+        big = cv2.add(big, cv2.erode(big, _CROSS))
+        full = 254
+    return cv2.resize(big, (shape[1], shape[0]), interpolation=cv2.INTER_AREA).astype(np.float32) / np.float32(full)
 
 
 SHADE_Q = 4                        # shades are soft: drawn at a quarter of the resolution

@@ -1,6 +1,7 @@
 """The renderer's fill against a polygon's exact area: OpenCV's fill covers ~0.5 px beyond every
 edge (what makes rendered fish read long: issues 7 and 10); ``fish_render.COVERAGE`` (diagnostics)
-draws a fish's area coverage instead."""
+draws a fish's area coverage instead, its own fill's half sub-pixel taken back
+(``fish_render.EXACT_EDGES``)."""
 from __future__ import annotations
 
 import cv2
@@ -31,17 +32,51 @@ def test_opencv_fill_overshoots_by_half_a_pixel_all_round():
     assert 0.8 < np.mean(grown) < 1.2          # the side reads ~1 px long: 0.5 px each edge
 
 
+def _rotated_squares(rng: np.random.Generator, n: int = 60):
+    """(exact area, perimeter, vertices in fixed point) of squares turned to any angle."""
+    for _ in range(n):
+        centre, side, turn = rng.uniform(12, 20, 2), rng.uniform(4, 12), rng.uniform(0, np.pi / 2)
+        rot = np.array([[np.cos(turn), -np.sin(turn)], [np.sin(turn), np.cos(turn)]])
+        pts = centre + (np.array([[-1, -1], [1, -1], [1, 1], [-1, 1]]) * side / 2) @ rot.T
+        fixed = np.rint(pts * (1 << SHIFT)).astype(np.int32)
+        x, y = (fixed / (1 << SHIFT)).T
+        area = 0.5 * abs(x @ np.roll(y, 1) - y @ np.roll(x, 1))
+        yield area, float(np.hypot(x - np.roll(x, 1), y - np.roll(y, 1)).sum()), fixed[None]
+
+
+def _edge_offsets(s: int, exact: bool) -> np.ndarray:
+    """Per square, how far out of its true outline the coverage's edges lie on average (px)."""
+    default = fish_render.EXACT_EDGES
+    try:
+        fish_render.EXACT_EDGES = exact
+        return np.array([(_coverage((32, 32), tri, s).sum() - area) / perimeter
+                         for area, perimeter, tri in _rotated_squares(np.random.default_rng(5))])
+    finally:
+        fish_render.EXACT_EDGES = default
+
+
 def test_coverage_is_the_area_and_the_edges_where_they_are():
     rng = np.random.default_rng(4)
-    s = 8
-    for x0, y0, side, tri in _squares(rng):
-        cov = _coverage((32, 32), tri, s)
-        assert abs(cov.sum() - side * side) < 4 * side * 1.0 / s      # perimeter x the ~0.1 px left over at 8
-        # the left edge: the row through the middle, pixel centres at integers
-        row = cov[int(round(y0 + side / 2))]
-        left = np.flatnonzero(row > 0)[0]
-        edge = left + 0.5 - row[left]                                  # where coverage starts
-        assert abs(edge - x0) < 1.0 / s
+    for s in (4, 8):
+        for x0, y0, side, tri in _squares(rng):
+            cov = _coverage((32, 32), tri, s)
+            # the area: each side within the half sub-pixel the fill rounds vertices to
+            assert abs(cov.sum() - side * side) < 2 * side * 0.55 / s
+            # the left edge: the row through the middle, pixel centres at integers
+            row = cov[int(round(y0 + side / 2))]
+            left = np.flatnonzero(row > 0)[0]
+            edge = left + 0.5 - row[left]                                  # where coverage starts
+            assert abs(edge - x0) < 1.0 / s
+
+
+def test_coverage_edges_are_where_they_are_at_every_angle():
+    # the fill alone lies half a sub-pixel along the edge's major axis outside it (0.09-0.125 px at
+    # 4x4, what read small fish long); with the overshoot taken back, within ~0.005 px at any angle
+    for s in (4, 8):
+        raw, exact = _edge_offsets(s, False), _edge_offsets(s, True)
+        assert 0.35 / s < raw.mean() < 0.5 / s + 0.01
+        assert abs(exact.mean()) < 0.01
+        assert np.abs(exact).max() < 0.3 / s
 
 
 def test_coverage_switch_draws_fish_no_bigger_than_their_outline():
