@@ -26,10 +26,10 @@ _ONE = 1 << SHIFT
 # --coverage compares).
 COVERAGE = 4
 # The fill at COVERAGE x still overshoots by half a sub-pixel along the edge's major axis (0.5 x
-# max(|cos|, |sin|) sub-pixels: 0.09-0.125 px an edge at 4, a rendered 40-80 px fish +0.13 px long).
-# The mean of the fill and the fill eroded by a 3x3 cross (which takes back max(|cos|, |sin|)
-# sub-pixels) has each edge where it is at every angle (within ~0.005 px at 4;
-# tests/devices/sim/test_fish_coverage.py), for ~1 ms a 1280x960 frame of fish. Left as it is: the
+# max(|cos|, |sin|) sub-pixels: 0.09-0.125 px an edge at 4; a rendered 40-80 px fish read +0.24 px
+# long of it). The mean of the fill and the fill eroded by a 3x3 cross (which takes back
+# max(|cos|, |sin|) sub-pixels) has each edge where it is at every angle (within ~0.005 px at 4;
+# tests/devices/sim/test_fish_coverage.py), for +2-3 % of a 1280x960 scene's CPU. Left as it is: the
 # fill rounds vertices to whole sub-pixels, so every fish sits 1/16 px down and right of its truth,
 # alike in both views and at both ends (no length, no disparity). False: the renderer before
 # 2026-12-07 (bench/diag_length_bias.py --no-exact-edges compares).

@@ -1,8 +1,8 @@
 """With ``Params(upright=True, kp_mirrored=True)`` a fish swimming one way in the image is found
 like one swimming the other way (issue 7): a scene and its mirror image (both images flipped
-left-right, the views swapped, the calibration mirrored with them) give the same fish, and so does
-each stage that looks at the image (the keypoint net, the fork and snout locators, eq. 13's score;
-the pyramid: tests/vision/test_pyramid.py)."""
+left-right, the views swapped, the calibration mirrored with them) give nearly the same fish (the
+test says why not all), and each stage that looks at the image answers alike (the keypoint net,
+the fork and snout locators, eq. 13's score; the pyramid: tests/vision/test_pyramid.py)."""
 from __future__ import annotations
 
 from functools import lru_cache
