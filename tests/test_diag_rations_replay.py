@@ -59,7 +59,11 @@ def test_the_replay_counts_the_tank_days_within_5_percent_of_the_truth_it_is_giv
     assert abs(out["worst_pct"] - (-6.0)) < 1e-3
     assert out["logged_max_dev_pct"] < 0.05                    # the logged weights, rounded to 0.01 g
     # the kept ledger itself is left as it was: the replay plans on a copy
-    assert Store(run / "ledger.db").db.execute("SELECT COUNT(*) FROM ration").fetchone()[0] == 5
+    kept = Store(run / "ledger.db")
+    try:
+        assert kept.db.execute("SELECT COUNT(*) FROM ration").fetchone()[0] == 5
+    finally:
+        kept.close()
 
 
 def test_a_run_given_without_its_judge_is_refused():

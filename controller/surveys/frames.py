@@ -322,8 +322,7 @@ def _not_a_file(d: Path, stem: str, side: str) -> None:
     link, a device): "no right image beside it" sent the user looking for a file they could see."""
     for p in sorted(d.iterdir()):
         m = _SIDE.match(p.stem)
-        if (m and m["stem"] == stem and m["side"].upper() == side and p.suffix.lower() in IMAGE_SUFFIXES
-                and not p.name.startswith(".")):
+        if m and m["stem"] == stem and m["side"].upper() == side and _named_as_image(p):
             what = ("a link that loops" if p.is_symlink() and _loops(p) else "a link to nothing" if not p.exists()
                     else "a directory" if p.is_dir() else "not a regular file")
             raise BadInput(str(p), None, f"{what}, not an image file")
@@ -342,8 +341,12 @@ def _loops(p: Path) -> bool:
 def _images(d: Path) -> list[Path]:
     """The images in ``d``, sorted; hidden files are not (a Mac's ``._a_L.png`` AppleDouble beside
     every image copied from it aborted the survey as unreadable)."""
-    return sorted(p for p in d.iterdir()
-                  if not p.name.startswith(".") and p.is_file() and p.suffix.lower() in IMAGE_SUFFIXES)
+    return sorted(p for p in d.iterdir() if _named_as_image(p) and p.is_file())
+
+
+def _named_as_image(p: Path) -> bool:
+    """Named as an image a survey reads: an image suffix, not hidden."""
+    return not p.name.startswith(".") and p.suffix.lower() in IMAGE_SUFFIXES
 
 
 def _view_folders(d: Path) -> tuple[Path, Path] | None:
