@@ -30,11 +30,6 @@ import numpy as np
 MODEL = "vision.models.fish_score"      # written by tools/fit_score.py
 
 
-def _logit(p: np.ndarray) -> np.ndarray:
-    p = np.clip(p, 1e-3, 1 - 1e-3)
-    return np.log(p / (1 - p))
-
-
 def _share(px: np.ndarray, length_px: np.ndarray) -> np.ndarray:
     return np.log1p(50.0 * px / np.maximum(length_px, 1.0))
 
@@ -59,8 +54,6 @@ FEATURES = {
     "kp_snout_agree": lambda q: q["kp_snout_agree"],
     "snout_net_conf": lambda q: q["snout_net_conf"],
     "snout_view": lambda q: q["t_snout_view"],
-    # the whole fish between the ends (vision.fish_check), as its logit
-    "fish_check": lambda q: _logit(q["fish_check"]),
 }
 
 

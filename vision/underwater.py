@@ -61,7 +61,7 @@ import time
 import cv2
 import numpy as np
 
-from vision import fish_check, fish_keypoints, fork_net, snout_net
+from vision import fish_keypoints, fork_net, snout_net
 from vision.association import (
     View,
     camera_frame,
@@ -342,15 +342,9 @@ def measure_underwater(left: np.ndarray, right: np.ndarray, calib: StereoCalibra
         # how sure the learned locator is of each chosen snout, in the worse view
         snout_sure[rows] = np.minimum(*(snout_net.refine(v.pyr, f.xy[rows], px[rows, None], 1, params.upright)[1][:, 0]
                                         for v, f, px in ((v1, f1, ch.px1), (v2, f2, ch.px2))))
-    check = None
-    if params.fish_check and len(rows):
-        # the whole fish between the chosen ends, in the worse view (vision.fish_check)
-        check = np.zeros(len(f1))
-        check[rows] = np.minimum(fish_check.chance(v1.pyr, f1.xy[rows], ch.px1[rows]),
-                                 fish_check.chance(v2.pyr, f2.xy[rows], ch.px2[rows]))
     out = measurements(rows, pairs, f1, f2, v1, v2, fork_mm, fork_res, ch, calib, geo, params,
                        left.shape[1], expected, view, (fork_epi, snout_epi, fork_best, snout_best), sure, agree,
-                       snout_sure, check)
+                       snout_sure)
     clock.lap("associate")
     return out
 

@@ -77,8 +77,6 @@ class Params:
                                     # the fish; on, more fish there, fewer on the project's renderer and the
                                     # 60-day grow-out over its 10 min: README, "Snouts at the image's edge"; the
                                     # net trained since on every snout shape: "Snout and fork shapes")
-    fish_check: bool = False        # the learned check of the whole fish between the chosen ends (vision.fish_check)
-                                    # in the quality figures (``fish_check``), for the learned score
     learned_score: bool = True      # the score is the fitted chance the report is right (vision.learned_score),
                                     # not the product of terms (kept as quality "hand_score")
     min_chance: float = 0.85        # ... post-filter then: a fish less likely right than this is dropped

@@ -14,8 +14,7 @@ from vision.survey_types import FishMeasurement
 def measurements(rows, pairs, f1, f2, v1, v2, fork_mm, fork_res, ch, calib, geo, p,
                   width: int, expected: np.ndarray, view: np.ndarray, epipolar: tuple[np.ndarray, ...],
                   keypoint_conf: np.ndarray,
-                  keypoint_snout: np.ndarray, snout_net_conf: np.ndarray,
-                  fish_check: np.ndarray | None = None) -> list[FishMeasurement]:
+                  keypoint_snout: np.ndarray, snout_net_conf: np.ndarray) -> list[FishMeasurement]:
     if len(rows) == 0:
         return []
     fork_epi, snout_epi, fork_best, snout_best = epipolar
@@ -55,8 +54,6 @@ def measurements(rows, pairs, f1, f2, v1, v2, fork_mm, fork_res, ch, calib, geo,
            "fork_epi_best_px": fork_best, "snout_epi_best_px": snout_best,
            "fork_net_conf": net_sure, "kp_fork_conf": keypoint_conf,
            "kp_snout_agree": keypoint_snout, "snout_net_conf": snout_net_conf}
-    if fish_check is not None:
-        raw["fish_check"] = fish_check
     raw["hand_score"] = score
     min_score = p.min_score
     if p.learned_score:
