@@ -67,7 +67,8 @@ def test_snouts_at_the_edge_measure_drawn_fish_to_1_25_percent_for_nine_in_ten()
     off (2026-12-06; on two outside testers' fish its snouts sat ~1 % of the length inside the fish);
     trained on every snout shape and looking again at a finer scale, 1.29 % (README, "Snout and fork
     shapes"). With each tip taken to the image's edge (``Params.snout_to_edge``) nine in ten are
-    within 1.1 %."""
+    within 1.1 %. Since the keypoint net of 2026-12-07 (README, "The keypoint net retrained on reef")
+    the default is as good: 1.09 % against the edge's 1.12 %."""
     rig = rig_of()
     calib = rig.calibration()
     pairs = [underwater_pair(np.random.default_rng(seed), rig, n_fish=3) for seed in range(60)]
@@ -79,8 +80,7 @@ def test_snouts_at_the_edge_measure_drawn_fish_to_1_25_percent_for_nine_in_ten()
         assert len(good) >= 65
         assert abs(float(np.median(good))) < 0.005
         spread[edge] = np.percentile(np.abs(good), 90)
-    assert spread[False] < 0.0135, spread
-    assert spread[True] < 0.0125 and spread[True] < spread[False], spread
+    assert spread[False] < 0.0125 and spread[True] < 0.0125, spread
 
 
 def test_wild_lengths_score_below_good_ones(results):
