@@ -266,12 +266,12 @@ def _coverage(shape: tuple[int, int], tri: np.ndarray, s: int) -> np.ndarray:
     resolution (sub-pixel centres: x_s = s x + (s - 1) / 2) averaged back. With ``EXACT_EDGES`` the
     fill's overshoot is taken back (module comment above ``EXACT_EDGES``)."""
     big = np.zeros((shape[0] * s, shape[1] * s), np.uint8)
-    full = 127 if EXACT_EDGES else 255          # the fill and its erosion summed: 254 inside
-    cv2.fillPoly(big, tri * s + _ONE * (s - 1) // 2, full, lineType=cv2.LINE_8, shift=SHIFT)
+    value = 127 if EXACT_EDGES else 255         # the fill and its erosion summed: 254 inside
+    cv2.fillPoly(big, tri * s + _ONE * (s - 1) // 2, value, lineType=cv2.LINE_8, shift=SHIFT)
     if EXACT_EDGES:
         big = cv2.add(big, cv2.erode(big, _CROSS))
-        full = 254
-    return cv2.resize(big, (shape[1], shape[0]), interpolation=cv2.INTER_AREA).astype(np.float32) / np.float32(full)
+    inside = np.float32(2 * value if EXACT_EDGES else value)
+    return cv2.resize(big, (shape[1], shape[0]), interpolation=cv2.INTER_AREA).astype(np.float32) / inside
 
 
 SHADE_Q = 4                        # shades are soft: drawn at a quarter of the resolution

@@ -44,15 +44,11 @@ def _rotated_squares(rng: np.random.Generator, n: int = 60):
         yield area, float(np.hypot(x - np.roll(x, 1), y - np.roll(y, 1)).sum()), fixed[None]
 
 
-def _edge_offsets(s: int, exact: bool) -> np.ndarray:
+def _edge_offsets(monkeypatch, s: int, exact: bool) -> np.ndarray:
     """Per square, how far out of its true outline the coverage's edges lie on average (px)."""
-    default = fish_render.EXACT_EDGES
-    try:
-        fish_render.EXACT_EDGES = exact
-        return np.array([(_coverage((32, 32), tri, s).sum() - area) / perimeter
-                         for area, perimeter, tri in _rotated_squares(np.random.default_rng(5))])
-    finally:
-        fish_render.EXACT_EDGES = default
+    monkeypatch.setattr(fish_render, "EXACT_EDGES", exact)
+    return np.array([(_coverage((32, 32), tri, s).sum() - area) / perimeter
+                     for area, perimeter, tri in _rotated_squares(np.random.default_rng(5))])
 
 
 def test_coverage_is_the_area_and_the_edges_where_they_are():
@@ -69,11 +65,11 @@ def test_coverage_is_the_area_and_the_edges_where_they_are():
             assert abs(edge - x0) < 1.0 / s
 
 
-def test_coverage_edges_are_where_they_are_at_every_angle():
+def test_coverage_edges_are_where_they_are_at_every_angle(monkeypatch):
     # the fill alone lies half a sub-pixel along the edge's major axis outside it (0.09-0.125 px at
     # 4x4, what read small fish long); with the overshoot taken back, within ~0.005 px at any angle
     for s in (4, 8):
-        raw, exact = _edge_offsets(s, False), _edge_offsets(s, True)
+        raw, exact = _edge_offsets(monkeypatch, s, False), _edge_offsets(monkeypatch, s, True)
         assert 0.35 / s < raw.mean() < 0.5 / s + 0.01
         assert abs(exact.mean()) < 0.01
         assert np.abs(exact).max() < 0.3 / s
