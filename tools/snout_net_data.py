@@ -35,9 +35,9 @@ from vision.fins import SPAN_OF_FL, Fins  # noqa: E402
 from vision.fork import pyramid  # noqa: E402
 
 
-def jittered(rng, snouts, axis, length, n, fine: bool = False):
-    """n hypotheses round each snout (``axis``: from the snout into the body); ``fine``: the last
-    pass's, nearer and at a finer span."""
+def jittered(rng, snouts, axis, length, n, fine: bool = False, along=(-0.06, 0.12), across=0.06):
+    """n hypotheses round each snout (``axis``: from the snout into the body), ``along`` (into the
+    body) and ``across`` it in lengths; ``fine``: the last pass's, nearer and at a finer span."""
     S = len(snouts)
     if S == 0:
         return Fins.empty()
@@ -46,7 +46,7 @@ def jittered(rng, snouts, axis, length, n, fine: bool = False):
     a = np.c_[np.cos(axis[k]), np.sin(axis[k])]
     nrm = np.c_[-a[:, 1], a[:, 0]]
     along, across, turn, scale = ((-0.03, 0.05), 0.02, 8, tuple(np.log(FINE_SPANS))) if fine else \
-        ((-0.06, 0.12), 0.06, 15, (-0.25, 0.25))
+        (along, across, 15, (-0.25, 0.25))
     xy = (snouts[k] + (rng.uniform(*along, len(k)) * L)[:, None] * a
           + (rng.uniform(-across, across, len(k)) * L)[:, None] * nrm)
     ang = axis[k] + np.radians(rng.uniform(-turn, turn, len(k)))

@@ -3,7 +3,7 @@ export it to ONNX (run by ONNX Runtime).
 
 Not part of the project's dependencies or its suite: torch lives in a separate venv,
     /root/.pyenv/versions/3.11.7/bin/python -m venv .venv-train
-    .venv-train/bin/pip install torch==2.13.0 numpy opencv-python-headless onnx
+    .venv-train/bin/pip install torch==2.13.0 numpy opencv-python-headless onnx onnxruntime
     .venv/bin/python tools/fork_net_data.py --seed0 100000 --scenes 750 --out /tmp/a.npz   (~4 min each
     .venv/bin/python tools/fork_net_data.py --seed0 100750 --scenes 750 --out /tmp/b.npz    on a free core)
     .venv-train/bin/python tools/train_fork_net.py --data /tmp/a.npz /tmp/b.npz --out vision/models/fork_net.onnx \
@@ -26,6 +26,17 @@ of snouts of every shape (``snout_taper``) and at the last pass's finer span:
         --out vision/models/snout_net.onnx --epochs 8 --per-epoch 80000 --minutes 30 --threads 2 --val-scenes 60
 (2026-12-06: 373 s on the machine to itself; run alone: beside another busy process two torch
 threads ran ~8x slower).
+The surface setup's end locators (``vision.surface_nets``) are the same net trained on
+tools/surface_net_data.py's crops of rendered nursery tanks (2026-12-07):
+    .venv/bin/python tools/surface_net_data.py --seed0 120000 --scenes 400 --fins 0 --out /tmp/sn0
+    .venv/bin/python tools/surface_net_data.py --seed0 120400 --scenes 400 --fins 0 --out /tmp/sn1
+    .venv/bin/python tools/surface_net_data.py --seed0 130000 --scenes 400 --fins 0.6 --out /tmp/fn0
+    .venv/bin/python tools/surface_net_data.py --seed0 130400 --scenes 400 --fins 0.6 --out /tmp/fn1
+    .venv-train/bin/python tools/train_fork_net.py --data /tmp/sn0_snout.npz /tmp/sn1_snout.npz \
+        --out vision/models/surface_snout_net.onnx --epochs 8 --per-epoch 80000 --minutes 14 --threads 1 --val-scenes 40
+    .venv-train/bin/python tools/train_fork_net.py --data /tmp/sn0_base.npz /tmp/sn1_base.npz /tmp/fn0_base.npz \
+        /tmp/fn1_base.npz --out vision/models/surface_base_net.onnx --epochs 8 --per-epoch 80000 --minutes 14 \
+        --threads 2 --val-scenes 40
 Seed-fixed (torch, numpy); the last ``--val-scenes`` scenes of the data are held out and their
 figures printed (JSON lines) after every epoch. Two threads (the machine is shared).
 

@@ -2,10 +2,15 @@
 
 Per image (vision.surface_prep, .surface_regions, .surface_shape): noise reduction and a flat field
 (the lamps' illumination divided out), region growing from seeds, each region's body axis, snout
-tip, caudal-fork notch and midline points; which end is the head is decided by shape.
+tip, caudal-fork notch and midline points; which end is the head is decided by shape. Each region's
+snout and body end are then moved to where two learned locators (vision.surface_nets) are sure
+they are, when that is over 1.5 % of the length away (a pale head, a thin peduncle the region lost),
+and its points placed again (``LEARNED_ENDS``).
 
 Across the pair: a left fish and a right fish are the same fish when the right snout and fork lie on
-the epipolar lines of the left ones (within a band that grows with the fish's size). Each candidate
+the epipolar lines of the left ones (within a band that grows with the fish's size). Each view's
+ends are carried into the other (vision.surface_stereo.ends_from_both_views): the snout further
+out is taken, forks within 3.5 % of the length averaged. Each candidate
 pairing is triangulated and checked in 3-D: fork length within the species' range
 (``SurveySetup.geometry``), body axis within ``max_tilt_deg`` of the water surface. Pairs are taken
 greedily, best first, one fish per region. The fish is then triangulated as a whole: a 3-D line is
@@ -40,22 +45,32 @@ import time
 
 import numpy as np
 
-from vision import surface_score
+from vision import surface_nets, surface_score
 from vision.calib_file import StereoCalibration
 from vision.epipolar import fundamental_from_projections
 from vision.surface_prep import contrast_map
 from vision.surface_regions import RegionParams, find_regions
 from vision.surface_shape import Fish2D, analyse
-from vision.surface_stereo import body_crossings, candidate_pairs, ends_on_axis, fit_axis, fit_axis_robust, refine
+from vision.surface_stereo import (
+    body_crossings,
+    candidate_pairs,
+    ends_from_both_views,
+    ends_on_axis,
+    fit_axis,
+    fit_axis_robust,
+    refine,
+)
 from vision.survey_types import FishMeasurement, SurveySetup
 from vision.triangulation import camera_centre, triangulate_calibrated
 
 MIN_SCORE = 0.05        # below this hand-made score a "fish" is noise: not reported (its terms veto:
                         # a fork the views disagree on, a bent or tilted body)
-MIN_CHANCE = 0.02       # nor is a report the fitted score gives under this chance of being right:
+MIN_CHANCE = 0.10       # nor is a report the fitted score gives under this chance of being right:
                         # figures unlike any rendered fish's (a real chessboard's square read as a
-                        # 3.7 cm fish: hand-made 0.07, chance ~0); on 120 held-out tanks (8300+) it
-                        # drops 3 wrong reports of 337 and no right one
+                        # 3.7 cm fish: hand-made 0.07, chance ~0). 0.02 until 2026-12-07; with the
+                        # learned ends an office's dark shape read as a 7.9 cm fish at 0.03 (its
+                        # snout moved); on 420 rendered tanks (8000-8419) chances of 0.02-0.1 were
+                        # 3 right reports and 17 wrong
 # the right view's own fork against the left fork's epipolar line, per unit of length: the scale of
 # q_fork_views. 0.06 -> 0.02 on the bench's 30 tanks: reports 86 -> 65, recall 0.139 -> 0.130,
 # precision 0.349 -> 0.431 (image 0.663 -> 0.800): a fork 3.5 % of the length off is not reported
@@ -68,6 +83,9 @@ MIN_SIDE_PX = 32        # an image smaller than this either way holds no measura
 # ~15 % of its length above it.
 FLOOR_CLEARANCE_MM = 10.0
 FLOOR_CLEARANCE = 0.05
+# each region's snout and body end moved to the learned locators' (vision.surface_nets) where they
+# are sure; off, the regions' own (tools/surface_net_data.py makes the nets' hypotheses so)
+LEARNED_ENDS = True
 
 
 def _tick(timings, stage, t0):
@@ -79,9 +97,12 @@ def _tick(timings, stage, t0):
 DEFAULT_PARAMS = RegionParams()
 
 
-def _fish_in(c, params: RegionParams, base_ratio: float | None) -> list[Fish2D]:
-    found = (analyse(r, base_ratio) for r in find_regions(c, params))
-    found = [f for f in found if f is not None and f.elongation >= params.min_slender]
+def _fish_in(c, params: RegionParams, base_ratio: float | None, img: np.ndarray | None = None) -> list[Fish2D]:
+    found = [(r, analyse(r, base_ratio)) for r in find_regions(c, params)]
+    found = [(r, f) for r, f in found if f is not None and f.elongation >= params.min_slender]
+    if img is not None and LEARNED_ENDS and found:
+        found = _nets_ends(img, found, base_ratio)
+    found = [f for _, f in found]
     # one fish seen as two regions (a dark body and a light one, under a glint): keep the longer
     found.sort(key=lambda f: -f.length_px)
     kept: list[Fish2D] = []
@@ -93,12 +114,34 @@ def _fish_in(c, params: RegionParams, base_ratio: float | None) -> list[Fish2D]:
     return kept
 
 
+def _nets_ends(img: np.ndarray, found: list, base_ratio: float | None) -> list:
+    """Each region's snout and body end moved to the learned locators' (``vision.surface_nets``)
+    where they are sure and move it by more than ``MIN_MOVE`` of the length, the fish's other points
+    placed again from them (``analyse``: a body end is not taken out along a dark caudal fin)."""
+    fish = [f for _, f in found]
+    s, cs, b, cb = surface_nets.refine_ends(img, np.array([f.snout for f in fish]), np.array([f.base for f in fish]),
+                                            np.array([f.fork for f in fish]), np.array([f.length_px for f in fish]))
+    out = []
+    for k, (r, f) in enumerate(found):
+        move = surface_nets.MIN_MOVE * f.length_px
+        sure_s = cs[k] >= surface_nets.MIN_CONF and np.linalg.norm(s[k] - f.snout) > move
+        # a notch seen is the fork: the body's end only spaces the midline then, and is left be
+        sure_b = not f.fork_seen and cb[k] >= surface_nets.MIN_CONF and np.linalg.norm(b[k] - f.base) > move
+        if sure_s or sure_b:
+            g = analyse(r, base_ratio, s[k] if sure_s else None, b[k] if sure_b else None)
+            if g is not None:
+                f = g
+                f.snout_conf, f.base_conf = float(cs[k]) * sure_s, float(cb[k]) * sure_b
+        out.append((r, f))
+    return out
+
+
 def detect_fish(img: np.ndarray, params: RegionParams = DEFAULT_PARAMS,
                 base_ratio: float | None = None) -> list[Fish2D]:
     """Fish found in one image seen from above: front, rear and intermediate points of each."""
     if min(np.shape(img)[:2]) < MIN_SIDE_PX:
         return []
-    return _fish_in(contrast_map(img), params, base_ratio)
+    return _fish_in(contrast_map(img), params, base_ratio, img)
 
 
 def up_direction(calib: StereoCalibration, setup: SurveySetup) -> np.ndarray:
@@ -191,7 +234,8 @@ def _measure(setup: SurveySetup, a: Fish2D, b: Fish2D, pts1, pts2, head, solid, 
               "body_mm": body_mm, "straightness": straight, "head_conf": float(head),
               "ncc_snout": float(np.nan_to_num(ncc[0])), "ncc_fork": float(np.nan_to_num(ncc[1])),
               "fork_depth": float(min(a.fork_depth, b.fork_depth)), "length_px": a.length_px,
-              "fork_gap": fork_gap, "hand_score": hand})
+              "fork_gap": fork_gap, "net_snout_conf": min(a.snout_conf, b.snout_conf),
+              "net_base_conf": min(a.base_conf, b.base_conf), "hand_score": hand})
     return FishMeasurement(S, K, np.array([pts1[0], pts2[0]]), np.array([pts1[1], pts2[1]]), hand, q)
 
 
@@ -239,7 +283,7 @@ def surface_stages(left: np.ndarray, right: np.ndarray, calib: StereoCalibration
     cl, cr = contrast_map(left), contrast_map(right)
     t0 = _tick(timings, "prep", t0)
     ratio = setup.geometry.fin_base_to_fork
-    fl, fr = _fish_in(cl, DEFAULT_PARAMS, ratio), _fish_in(cr, DEFAULT_PARAMS, ratio)
+    fl, fr = _fish_in(cl, DEFAULT_PARAMS, ratio, left), _fish_in(cr, DEFAULT_PARAMS, ratio, right)
     out["left"], out["right"] = fl, fr
     t0 = _tick(timings, "detect", t0)
     F = fundamental_from_projections(np.asarray(calib.P1, float), np.asarray(calib.P2, float))
@@ -252,7 +296,8 @@ def surface_stages(left: np.ndarray, right: np.ndarray, calib: StereoCalibration
             continue
         used_l.add(i)
         used_r.add(j)
-        pairs.append((fl[i], fr[j], pts1, pts2, head))
+        pts1, pts2, gap = ends_from_both_views(F, pts1, pts2)
+        pairs.append((fl[i], fr[j], pts1, pts2, head, gap))
         out["pairs"].append((i, j))
     if not pairs:
         _tick(timings, "stereo", t0)
@@ -260,9 +305,8 @@ def surface_stages(left: np.ndarray, right: np.ndarray, calib: StereoCalibration
     # snout and fork only: a window on the midline slides along a body lying along the epipolar line
     ends2, ncc = refine(cl.full, cr.full, calib, F, np.vstack([p[2][:2] for p in pairs]),
                         np.vstack([p[3][:2] for p in pairs]), _patch(fl))
-    sets, gaps, solid_pts = [], [], []
-    for k, (a, b, pts1, pts2, _) in enumerate(pairs):
-        own = pts2[1].copy()                          # the right view's own fork
+    sets, solid_pts = [], []
+    for k, (a, b, pts1, pts2, _, _) in enumerate(pairs):
         pts2 = np.vstack([ends2[2 * k:2 * k + 2], pts2[2:]])
         poly = np.vstack([pts2[0], pts2[2:], pts2[1]])
         if not (a.fork_seen and b.fork_seen):        # midline and fork: where the body crosses the line
@@ -272,13 +316,12 @@ def surface_stages(left: np.ndarray, right: np.ndarray, calib: StereoCalibration
             pts2[2:], crossed = body_crossings(F, pts1[2:], poly, pts2[2:])
         solid_pts.append(np.r_[True, True, crossed])
         sets.append((pts1, pts2))
-        gaps.append(float(np.linalg.norm(own - pts2[1]) / max(b.length_px, 1.0)))
-    for k, ((a, b, _, _, head), (pts1, pts2), solid) in enumerate(zip(pairs, sets, _solids(calib, setup, up, sets),
+    for k, ((a, b, _, _, head, gap), (pts1, pts2), solid) in enumerate(zip(pairs, sets, _solids(calib, setup, up, sets),
                                                                       strict=True)):
         if solid is None:
             continue
         solid = _on_axis(calib, up, solid, pts1, pts2, solid_pts[k])
-        m = _measure(setup, a, b, pts1, pts2, head, solid, ncc[2 * k:2 * k + 2], gaps[k])
+        m = _measure(setup, a, b, pts1, pts2, head, solid, ncc[2 * k:2 * k + 2], gap)
         out["measured"].append(m)
         out["measured_pair"].append(k)
     if out["measured"]:

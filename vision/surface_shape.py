@@ -45,6 +45,8 @@ class Fish2D:
     notch: np.ndarray | None = None   # (2,) px, the fork notch when one is seen
     fork_seen: bool = False           # ``fork`` is the notch seen (not placed from the fin base)
     centre: np.ndarray | None = None  # (2,) px, centroid of the body's pixels
+    snout_conf: float = 0.0           # the learned snout locator's confidence in ``snout`` (0: not used)
+    base_conf: float = 0.0            # the learned body-end locator's in ``base`` (vision.surface_nets)
 
 
 N_SLICES = 24
@@ -54,6 +56,10 @@ PEDUNCLE_DROP = 0.6    # ... or below this share of the most it had over the 5 %
 FIN_PAST_FORK = 0.09   # a dark run followed past the fork by more than this share of the body is a fin
                        # (_runs_past_fork): on the bench's tanks (1000-1039) peduncles reached at most
                        # 0.065 past it; a fin as dark as the peduncle, its lobes 0.13 L past the fork, 0.13-0.15
+DARK_FIN_REACH = 0.01   # where a caudal fin as dark as the body runs on from the body's end, a body end
+                        # found otherwise (vision.surface_nets) is not taken further out than this
+                        # share of the length: the learned locator, trained on the renderer's thin
+                        # peduncles, took such a fin (drawn fish, an outside tester's) for body
 N_MID = 15         # midline points: the fish's 3-D line is fitted to them (5 -> 15: 3-D recall x1.3 on the bench)
 
 
@@ -220,9 +226,31 @@ def _on_fin(r: Region, point: np.ndarray, tail: np.ndarray, reach: float) -> np.
     return point + (across[j] + float(np.clip(off, -0.5, 0.5))) * side
 
 
-def analyse(r: Region, base_ratio: float | None = None) -> Fish2D | None:
+def _body_end(r: Region, snout: np.ndarray, tail_dir: np.ndarray, L: float, base_ratio: float | None
+              ) -> tuple[np.ndarray, bool]:
+    """The body's rear end (the caudal fin's base) from the region: the outline's end, unless it
+    ran on along a dark fin (by mass), followed on along a thin peduncle; and whether a caudal fin
+    as dark as the body was seen running on from it (by mass, or followed past the fork)."""
+    base = _extreme(r.contour, tail_dir)
+    by_mass = _fin_base(r, snout, tail_dir)
+    dark_fin = bool((base - by_mass) @ tail_dir > 0.05 * np.linalg.norm(base - snout))
+    if dark_fin:
+        base = by_mass                # the outline ran on along a dark caudal fin
+    if PEDUNCLE_LEVEL > 0:
+        followed = _peduncle_end(r, base, tail_dir, L, PEDUNCLE_LEVEL)
+        if not _runs_past_fork(snout, base, followed, base_ratio, tail_dir):
+            base = followed           # (else what it followed was a caudal fin as dark as the peduncle)
+        else:
+            dark_fin = True
+    return base, dark_fin
+
+
+def analyse(r: Region, base_ratio: float | None = None, snout_at: np.ndarray | None = None,
+            base_at: np.ndarray | None = None) -> Fish2D | None:
     """Front/rear/intermediate points of one region; None if it is not fish-shaped. ``base_ratio``:
-    the species' caudal fin base / fork length (``FishGeometry.fin_base_to_fork``)."""
+    the species' caudal fin base / fork length (``FishGeometry.fin_base_to_fork``). ``snout_at``,
+    ``base_at`` (2,) px: the snout tip and the body's rear end found otherwise (``vision.surface_nets``),
+    taken instead of the outline's; the fork and midline follow from them."""
     ys, xs = np.nonzero(r.mask)
     if len(xs) < 20:
         return None
@@ -269,14 +297,11 @@ def analyse(r: Region, base_ratio: float | None = None) -> Fish2D | None:
     else:
         snout = _extreme(r.contour, dir_lo)
         fork_i, fork_d, tail_dir = i_hi, d_hi, dir_hi
-    base = _extreme(r.contour, tail_dir)
-    by_mass = _fin_base(r, snout, tail_dir)
-    if (base - by_mass) @ tail_dir > 0.05 * np.linalg.norm(base - snout):
-        base = by_mass                # the outline ran on along a dark caudal fin
-    if PEDUNCLE_LEVEL > 0:
-        followed = _peduncle_end(r, base, tail_dir, L, PEDUNCLE_LEVEL)
-        if not _runs_past_fork(snout, base, followed, base_ratio, tail_dir):
-            base = followed           # (else what it followed was a caudal fin as dark as the peduncle)
+    if snout_at is not None:
+        snout = np.asarray(snout_at, float)
+    base, dark_fin = _body_end(r, snout, tail_dir, L, base_ratio)
+    if base_at is not None and not (dark_fin and (np.asarray(base_at) - base) @ tail_dir > DARK_FIN_REACH * L):
+        base = np.asarray(base_at, float)
     tip = _extreme(r.outline, tail_dir)
     notch = fork_i if fork_d > 0 else None
     fork = _fork(snout, base, tip, notch, base_ratio, tail_dir)

@@ -21,6 +21,9 @@ from vision.matching import match_points
 from vision.surface_shape import Fish2D
 from vision.triangulation import undistort_pixels
 
+# views' forks this far apart (per unit of length) or closer are averaged (see ends_from_both_views)
+FORK_MEAN_GAP = 0.035
+
 
 def line_dist(F: np.ndarray, p1: np.ndarray, p2: np.ndarray) -> np.ndarray:
     """Distance (N, M) of right points p2 (M, 2) to the epipolar lines of left points p1 (N, 2)."""
@@ -87,14 +90,15 @@ def on_right_body(F: np.ndarray, pts1: np.ndarray, poly2: np.ndarray, guess2: np
 
 
 def body_crossings(F: np.ndarray, pts1: np.ndarray, poly2: np.ndarray, guess2: np.ndarray,
-                   min_sin: float = 0.35) -> tuple[np.ndarray, np.ndarray]:
+                   min_sin: float = 0.35, past_end: float | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Right points (N, 2) for left points on a fish's body (midline points, the fork): where each
     left point's epipolar line crosses the right view's midline ``poly2`` (K, 2), the last segment
     extended past its end (the fork lies on the midline's continuation). A point seen only as a
     place along the body (not as a feature both views find) is fixed this way by the body's
     position across the line, which both views agree on. Where the line crosses the body at less
     than asin(``min_sin``) (~20 deg: a fish lying along the epipolar lines) the crossing is
-    ill-conditioned and ``guess2`` is kept. Also returns which points (N,) were crossings."""
+    ill-conditioned and ``guess2`` is kept. ``past_end`` (px): how far the last segment runs on
+    past the midline's end (by default its own length). Also returns which points (N,) were crossings."""
     pts1 = np.asarray(pts1, float).reshape(-1, 2)
     out = np.asarray(guess2, float).reshape(-1, 2).copy()
     a, b = poly2[:-1], poly2[1:]                                  # segments (S, 2)
@@ -108,7 +112,7 @@ def body_crossings(F: np.ndarray, pts1: np.ndarray, poly2: np.ndarray, guess2: n
     seg_len = np.maximum(np.linalg.norm(seg, axis=1), 1e-12)
     sin = np.abs(lines[:, :2] @ (seg / seg_len[:, None]).T)       # |cos(normal, seg)| = sin(line, seg)
     hi = np.ones(len(a))
-    hi[-1] = 2.0                                                  # the last segment runs on to the fork
+    hi[-1] = 2.0 if past_end is None else 1.0 + past_end / seg_len[-1]     # it runs on to the fork
     ok = np.isfinite(t) & (t >= 0) & (t <= hi) & (sin >= min_sin)
     found = np.zeros(len(pts1), bool)
     if not ok.any():
@@ -120,6 +124,41 @@ def body_crossings(F: np.ndarray, pts1: np.ndarray, poly2: np.ndarray, guess2: n
     out[rows] = a[j[rows]] + tj[:, None] * seg[j[rows]]
     found[rows] = True
     return out, found
+
+
+def ends_from_both_views(F: np.ndarray, pts1: np.ndarray, pts2: np.ndarray,
+                         max_fork_gap: float = FORK_MEAN_GAP) -> tuple[np.ndarray, np.ndarray, float]:
+    """Snout and fork of one fish from both views' own ends: (pts1, pts2) [snout, fork, midline...]
+    each (2 + K, 2), oriented alike; returns them with the ends replaced, and the views' fork gap
+    (the right's own fork from where the left fork's epipolar line crosses the right midline, per
+    unit of the right's length).
+
+    Each end is carried into the other view where its epipolar line crosses that view's midline (run
+    on past the end). The snout: the one further out. A view loses a snout to a pale or sheen-lit
+    head, never draws one past the tip (rendered tanks, seeds 7000+, 299 fish found in both views:
+    where the views' snouts are over 2 % of the length apart the further one is within 3 % for 74 %,
+    the left's for 43 %, their mean for 16 %). The fork: the two views' mean where they are within
+    ``max_fork_gap`` of the length (2-3.5 % apart: within 3 % for 76 %, the left's 68 %); further
+    apart neither view is to be trusted (the further one 53 %), and the left's is kept for the
+    gap to rule on."""
+    pts1, pts2 = np.array(pts1, float), np.array(pts2, float)
+    poly1 = np.vstack([pts1[0], pts1[2:], pts1[1]])          # snout .. fork
+    poly2 = np.vstack([pts2[0], pts2[2:], pts2[1]])
+    length2 = max(float(np.linalg.norm(pts2[0] - pts2[1])), 1.0)
+    reach = 0.3 * length2                                 # an end as far past the other view's
+    s2_of_1 = body_crossings(F, pts1[:1], poly2[::-1], pts2[:1], past_end=reach)[0][0]
+    k2_of_1 = body_crossings(F, pts1[1:2], poly2, pts2[1:2], past_end=reach)[0][0]
+    s1_of_2 = body_crossings(F.T, pts2[:1], poly1[::-1], pts1[:1], past_end=reach)[0][0]
+    k1_of_2 = body_crossings(F.T, pts2[1:2], poly1, pts1[1:2], past_end=reach)[0][0]
+    gap = float(np.linalg.norm(pts2[1] - k2_of_1) / length2)
+    head = pts1[0] - pts1[1]
+    if (s1_of_2 - pts1[0]) @ head > 0:                   # the right view's snout is further out
+        pts1[0] = s1_of_2
+    else:
+        pts2[0] = s2_of_1
+    if gap <= max_fork_gap:
+        pts1[1], pts2[1] = (pts1[1] + k1_of_2) / 2, (k2_of_1 + pts2[1]) / 2
+    return pts1, pts2, gap
 
 
 def _rays(calib, pts: np.ndarray, which: int) -> tuple[np.ndarray, np.ndarray]:

@@ -49,3 +49,41 @@ def test_a_midline_point_matched_off_the_body_does_not_tilt_the_line():
     assert abs(d[2]) < 0.01 and abs(c[2] + 200) < 1.0
     _, d0 = fit_axis(line)
     assert abs(d0[2]) < abs(d[2]) or abs(c[2] + 200) < 1.0      # (the plain fit is pulled up: 40/17 mm)
+
+
+def _views_of(snout, fork, calib, k=15):
+    """Both views' [snout, fork, midline...] pixels (2 + k, 2) of a straight fish, and F."""
+    from vision.epipolar import fundamental_from_projections
+    P1, P2 = np.asarray(calib.P1, float), np.asarray(calib.P2, float)
+    pts = np.vstack([snout, fork, snout + np.linspace(0.15, 0.85, k)[:, None] * (fork - snout)])
+    return project(P1, pts), project(P2, pts), fundamental_from_projections(P1, P2)
+
+
+def _slid(px, end, share):
+    """``px`` with one end (0 snout, 1 fork) moved ``share`` of the pixel length towards the other."""
+    out = px.copy()
+    out[end] += share * (px[1 - end] - px[end])
+    return out
+
+
+def test_each_view_gives_the_snout_the_other_lost_and_close_forks_are_averaged():
+    from vision.surface_stereo import ends_from_both_views
+    rig = top_rig()
+    calib = rig.calibration()
+    # heading across the baseline, so epipolar lines cross the body well
+    snout, fork = np.array([-20.0, -60.0, -150.0]), np.array([10.0, 70.0, -155.0])
+    t1, t2, F = _views_of(snout, fork, calib)
+    L1, L2 = np.linalg.norm(t1[0] - t1[1]), np.linalg.norm(t2[0] - t2[1])
+    for short_view in (0, 1):                         # one view's snout 8 % short, the other's right
+        v = [t1.copy(), t2.copy()]
+        v[short_view] = _slid(v[short_view], 0, 0.08)
+        p1, p2, gap = ends_from_both_views(F, v[0], v[1])
+        assert np.linalg.norm(p1[0] - t1[0]) < 0.005 * L1 and np.linalg.norm(p2[0] - t2[0]) < 0.005 * L2
+        assert gap < 1e-6
+    # forks 1 % short in the left, 1 % long in the right: within the gap averaged, both right
+    p1, p2, gap = ends_from_both_views(F, _slid(t1, 1, 0.01), _slid(t2, 1, -0.01))
+    assert 0.015 < gap < 0.025
+    assert np.linalg.norm(p1[1] - t1[1]) < 0.003 * L1 and np.linalg.norm(p2[1] - t2[1]) < 0.003 * L2
+    # 6 % apart: neither is trusted, the left's is kept and the gap says so
+    p1, p2, gap = ends_from_both_views(F, _slid(t1, 1, 0.06), t2)
+    assert 0.05 < gap < 0.07 and np.allclose(p1[1], _slid(t1, 1, 0.06)[1])
