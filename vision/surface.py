@@ -49,7 +49,7 @@ from vision import surface_nets, surface_score
 from vision.calib_file import StereoCalibration
 from vision.epipolar import fundamental_from_projections
 from vision.surface_prep import contrast_map
-from vision.surface_regions import RegionParams, find_regions
+from vision.surface_regions import Region, RegionParams, find_regions
 from vision.surface_shape import Fish2D, analyse
 from vision.surface_stereo import (
     body_crossings,
@@ -97,11 +97,11 @@ def _tick(timings, stage, t0):
 DEFAULT_PARAMS = RegionParams()
 
 
-def _fish_in(c, params: RegionParams, base_ratio: float | None, img: np.ndarray | None = None) -> list[Fish2D]:
+def _fish_in(img: np.ndarray, c, params: RegionParams, base_ratio: float | None) -> list[Fish2D]:
     found = [(r, analyse(r, base_ratio)) for r in find_regions(c, params)]
     found = [(r, f) for r, f in found if f is not None and f.elongation >= params.min_slender]
-    if img is not None and LEARNED_ENDS and found:
-        found = _nets_ends(img, found, base_ratio)
+    if LEARNED_ENDS and found:
+        found = _learned_ends(img, found, base_ratio)
     found = [f for _, f in found]
     # one fish seen as two regions (a dark body and a light one, under a glint): keep the longer
     found.sort(key=lambda f: -f.length_px)
@@ -114,7 +114,8 @@ def _fish_in(c, params: RegionParams, base_ratio: float | None, img: np.ndarray 
     return kept
 
 
-def _nets_ends(img: np.ndarray, found: list, base_ratio: float | None) -> list:
+def _learned_ends(img: np.ndarray, found: list[tuple[Region, Fish2D]], base_ratio: float | None
+                  ) -> list[tuple[Region, Fish2D]]:
     """Each region's snout and body end moved to the learned locators' (``vision.surface_nets``)
     where they are sure and move it by more than ``MIN_MOVE`` of the length, the fish's other points
     placed again from them (``analyse``: a body end is not taken out along a dark caudal fin)."""
@@ -131,7 +132,8 @@ def _nets_ends(img: np.ndarray, found: list, base_ratio: float | None) -> list:
             g = analyse(r, base_ratio, s[k] if sure_s else None, b[k] if sure_b else None)
             if g is not None:
                 f = g
-                f.snout_conf, f.base_conf = float(cs[k]) * sure_s, float(cb[k]) * sure_b
+                f.snout_conf = float(cs[k]) if sure_s else 0.0
+                f.base_conf = float(cb[k]) if sure_b else 0.0
         out.append((r, f))
     return out
 
@@ -141,7 +143,7 @@ def detect_fish(img: np.ndarray, params: RegionParams = DEFAULT_PARAMS,
     """Fish found in one image seen from above: front, rear and intermediate points of each."""
     if min(np.shape(img)[:2]) < MIN_SIDE_PX:
         return []
-    return _fish_in(contrast_map(img), params, base_ratio, img)
+    return _fish_in(img, contrast_map(img), params, base_ratio)
 
 
 def up_direction(calib: StereoCalibration, setup: SurveySetup) -> np.ndarray:
@@ -283,7 +285,7 @@ def surface_stages(left: np.ndarray, right: np.ndarray, calib: StereoCalibration
     cl, cr = contrast_map(left), contrast_map(right)
     t0 = _tick(timings, "prep", t0)
     ratio = setup.geometry.fin_base_to_fork
-    fl, fr = _fish_in(cl, DEFAULT_PARAMS, ratio, left), _fish_in(cr, DEFAULT_PARAMS, ratio, right)
+    fl, fr = _fish_in(left, cl, DEFAULT_PARAMS, ratio), _fish_in(right, cr, DEFAULT_PARAMS, ratio)
     out["left"], out["right"] = fl, fr
     t0 = _tick(timings, "detect", t0)
     F = fundamental_from_projections(np.asarray(calib.P1, float), np.asarray(calib.P2, float))

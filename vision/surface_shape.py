@@ -59,7 +59,7 @@ FIN_PAST_FORK = 0.09   # a dark run followed past the fork by more than this sha
 DARK_FIN_REACH = 0.01   # where a caudal fin as dark as the body runs on from the body's end, a body end
                         # found otherwise (vision.surface_nets) is not taken further out than this
                         # share of the length: the learned locator, trained on the renderer's thin
-                        # peduncles, took such a fin (drawn fish, an outside tester's) for body
+                        # peduncles, took such a fin (the tests' drawn fish, after an outside tester's) for body
 N_MID = 15         # midline points: the fish's 3-D line is fitted to them (5 -> 15: 3-D recall x1.3 on the bench)
 
 
