@@ -42,8 +42,8 @@ from devices.sim.fish_scene import surface_scene  # noqa: E402
 from devices.sim.fish_species import SPECIES  # noqa: E402
 from tools.fork_net_data import CLEAR, FIRST_SEED, Crops, finer, hard_negatives, labels  # noqa: E402
 from tools.snout_net_data import jittered  # noqa: E402
-from vision import surface  # noqa: E402
-from vision.fins import SPAN_OF_FL, Fins  # noqa: E402
+from vision import surface, surface_nets  # noqa: E402
+from vision.fins import Fins  # noqa: E402
 from vision.fork import pyramid  # noqa: E402
 
 ENDS = ("snout", "base")
@@ -97,15 +97,12 @@ def paint_fins(rng, img: np.ndarray, sc, c: int) -> np.ndarray:
 
 
 def own_ends(fish, end: str) -> Fins:
-    """The survey's own hypotheses for one end: every region's end, its axis into the body."""
+    """The survey's own hypotheses for one end, as ``vision.surface_nets`` makes them."""
     if not fish:
         return Fins.empty()
-    here = np.array([f.snout if end == "snout" else f.base for f in fish], float)
-    other = np.array([f.fork if end == "snout" else f.snout for f in fish], float)
-    d = other - here
-    length = np.array([f.length_px for f in fish])
-    z = np.zeros(len(fish))
-    return Fins(here, np.arctan2(d[:, 1], d[:, 0]), SPAN_OF_FL * np.maximum(length, 8.0), z, z.copy())
+    at = surface_nets.hypotheses(*(np.array([getattr(f, k) for f in fish], float)
+                                   for k in ("snout", "base", "fork", "length_px")))
+    return at[ENDS.index(end)]
 
 
 def main() -> None:

@@ -250,6 +250,21 @@ def answer(pyr: list[np.ndarray], fins: Fins, model: str = MODEL, side: np.ndarr
     return xy, fins.angle + side * np.arctan2(head[:, 1], head[:, 2]), 1.0 / (1.0 + np.exp(-head[:, 0]))
 
 
+def follow(pyr: list[np.ndarray], fins: Fins, model: str, passes: int, fine: float, side_of=None
+           ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """A net's answer for every hypothesis after ``passes`` passes, each from the previous answer,
+    the last of two or more at ``fine`` x the span: the point (N, 2), axis (N,) and confidence (N,).
+    ``side_of``: the crops' handedness (``raw_crops``) from the axis, each pass; None: +1."""
+    xy, angle, span = fins.xy, fins.angle, fins.span_px
+    z = np.zeros(len(fins))
+    conf = z
+    for k in range(passes):
+        if k and k == passes - 1:
+            span = span * fine
+        xy, angle, conf = answer(pyr, Fins(xy, angle, span, z, z), model, None if side_of is None else side_of(angle))
+    return xy, angle, conf
+
+
 def locate(pyr: list[np.ndarray], fins: Fins, passes: int = 2, again_above: float = 0.3,
            upright: bool = False) -> NetForks:
     """The net's fork for every hypothesis; each pass after the first starts from the previous

@@ -64,14 +64,12 @@ def refine(pyr: list[np.ndarray], fork_xy: np.ndarray, pts: np.ndarray, passes: 
     span = SPAN_OF_FL * np.maximum(np.hypot(d[:, 0], d[:, 1]), 1.0)
     angle = np.arctan2(d[:, 1], d[:, 0])
     z = np.zeros(len(has))
-    for k in range(passes):
-        if k and k == passes - 1:
-            span = span * FINE
-        # upright: the crop's axis points into the body, away from the head: its handedness is the head's
-        # (``fins.down_side`` of the fish's own heading), so every fish is seen swimming towards +u,
-        # as the fork locator sees it (of the two, the one the net answers best on an outside
-        # renderer's fish: tips within 3 % and sure 0.66 of them, 0.33 the other way)
-        xy, angle, c = fork_net.answer(pyr, Fins(xy, angle, span, z, z), MODEL, -down_side(angle) if upright else None)
+    # upright: the crop's axis points into the body, away from the head: its handedness is the head's
+    # (``fins.down_side`` of the fish's own heading), so every fish is seen swimming towards +u,
+    # as the fork locator sees it (of the two, the one the net answers best on an outside
+    # renderer's fish: tips within 3 % and sure 0.66 of them, 0.33 the other way)
+    xy, _, c = fork_net.follow(pyr, Fins(xy, angle, span, z, z), MODEL, passes, FINE,
+                               (lambda a: -down_side(a)) if upright else None)
     tips[has] = xy
     conf[has] = c
     return tips.reshape(N, K, 2), conf.reshape(N, K)

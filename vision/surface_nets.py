@@ -16,7 +16,7 @@ last 40 tanks of each net's data), the regions' own ends near a true one, one pa
 painted in, tools/surface_net_data.py ``paint_fins``). In the survey, per view on tuning tanks
 (seeds 7000+): both ends within 3 % 66 -> 81 %.
 
-Shapes: ``xy`` (N, 2) px, ``axis`` (N,) rad, ``span`` (N,) px; answers (N, 2) and (N,).
+Shapes: ends (N, 2) px, lengths (N,) px; answers (N, 2) and confidences (N,).
 """
 from __future__ import annotations
 
@@ -29,7 +29,8 @@ from vision.surface_prep import grey
 
 SNOUT_MODEL = "surface_snout_net.onnx"
 BASE_MODEL = "surface_base_net.onnx"
-FINE = 0.6          # the last pass's span, x the first's
+PASSES = 2          # each from the previous answer ...
+FINE = 0.6          # ... the last at this span, x the first's
 MIN_CONF = 0.8      # an end is moved to the net's answer when the net is at least this sure (0.5 and 0.8
                     # gave the bench's tanks the same reports; on fish unlike the renderer's a net can be
                     # less sure, and the region's own end is kept) ...
@@ -47,22 +48,18 @@ def net_image(img: np.ndarray) -> np.ndarray:
     return grey(img)
 
 
-def locate(pyr: list[np.ndarray], xy: np.ndarray, axis: np.ndarray, span: np.ndarray, model: str,
-           passes: int = 2) -> tuple[np.ndarray, np.ndarray]:
-    """The net's end (N, 2) and confidence (N,) from each hypothesis; each pass after the first
-    starts from the previous answer, the last at ``FINE`` x the span."""
-    xy = np.asarray(xy, float).reshape(-1, 2)
-    conf = np.zeros(len(xy))
-    if len(xy) == 0:
-        return xy, conf
-    axis = np.asarray(axis, float).copy()
-    span = np.asarray(span, float).copy()
-    z = np.zeros(len(xy))
-    for k in range(passes):
-        if k and k == passes - 1:
-            span = span * FINE
-        xy, axis, conf = fork_net.answer(pyr, Fins(xy, axis, span, z, z), model)
-    return xy, conf
+def hypotheses(snouts: np.ndarray, bases: np.ndarray, forks: np.ndarray, lengths: np.ndarray
+               ) -> tuple[Fins, Fins]:
+    """The nets' hypotheses from regions' ends (N, 2 each; ``lengths`` (N,) px): the snouts with
+    their axis into the body, the body ends with theirs towards the head, a span of ``SPAN_OF_FL`` x
+    the length (tools/surface_net_data.py trains on the same)."""
+    snouts = np.asarray(snouts, float).reshape(-1, 2)
+    d = np.asarray(forks, float).reshape(-1, 2) - snouts
+    into = np.arctan2(d[:, 1], d[:, 0])              # from the snout into the body
+    span = SPAN_OF_FL * np.maximum(np.asarray(lengths, float), 8.0)
+    z = np.zeros(len(snouts))
+    return (Fins(snouts, into, span, z, z.copy()),
+            Fins(np.asarray(bases, float).reshape(-1, 2), into + np.pi, span.copy(), z.copy(), z.copy()))
 
 
 def refine_ends(img: np.ndarray, snouts: np.ndarray, bases: np.ndarray, forks: np.ndarray,
@@ -70,16 +67,12 @@ def refine_ends(img: np.ndarray, snouts: np.ndarray, bases: np.ndarray, forks: n
     """Snout tips and body ends (N, 2 each) located by the nets from a region's own (``snouts``,
     ``bases``; ``forks`` and ``lengths`` give each fish's axis and size) and the nets' confidence
     (N,) each."""
-    snouts = np.asarray(snouts, float).reshape(-1, 2)
-    bases = np.asarray(bases, float).reshape(-1, 2)
-    if len(snouts) == 0:
-        return snouts, np.zeros(0), bases, np.zeros(0)
-    span = SPAN_OF_FL * np.maximum(np.asarray(lengths, float), 8.0)
+    at_snout, at_base = hypotheses(snouts, bases, forks, lengths)
+    if len(at_snout) == 0:
+        return at_snout.xy, np.zeros(0), at_base.xy, np.zeros(0)
     # only the levels the crops sample (``fork_net.raw_crops``): a colour level costs ~1 ms at 1280x960
-    step = span.max() * (fork_net.U1 - fork_net.U0) / fork_net.GRID_W
+    step = at_snout.span_px.max() * (fork_net.U1 - fork_net.U0) / fork_net.GRID_W
     pyr = pyramid(net_image(img), levels=1 + max(int(np.floor(np.log2(max(step, 1.0)))), 0))
-    d = np.asarray(forks, float) - snouts
-    into = np.arctan2(d[:, 1], d[:, 0])              # from the snout into the body
-    s, cs = locate(pyr, snouts, into, span, SNOUT_MODEL)
-    b, cb = locate(pyr, bases, into + np.pi, span, BASE_MODEL)
+    s, _, cs = fork_net.follow(pyr, at_snout, SNOUT_MODEL, PASSES, FINE)
+    b, _, cb = fork_net.follow(pyr, at_base, BASE_MODEL, PASSES, FINE)
     return s, cs, b, cb

@@ -39,8 +39,6 @@ FEATURES = {
     "fork_depth": lambda q: q["fork_depth"],
     "length_px": lambda q: np.log(np.maximum(q["length_px"], 1.0) / 100.0),
     "fork_gap": lambda q: np.log1p(50.0 * q["fork_gap"]),
-    "net_snout_conf": lambda q: q["net_snout_conf"],
-    "net_base_conf": lambda q: q["net_base_conf"],
 }
 
 
