@@ -165,6 +165,30 @@ def test_a_fish_next_to_a_reflection_keeps_its_points():
     assert len(found) == 1 and np.linalg.norm(found[0].snout - snout) < 0.03 * L
 
 
+def _dark_patch(img, mask_drawer, darkness):
+    m = np.zeros(img.shape[:2], np.float32)
+    mask_drawer(m)
+    img *= 1 - darkness * cv2.GaussianBlur(m, (0, 0), 2)
+
+
+@pytest.mark.parametrize("seed", range(8))
+def test_a_fish_grown_into_a_floor_stain_is_still_found(seed):
+    """A dark stain on the floor ahead of the fish, joined to its snout by a faint smear: grown as
+    one region with the fish, the stain the larger piece once the region is cut at its edge level.
+    Every piece is tried, so the fish is found and the stain (a disc) is not a fish."""
+    rng = np.random.default_rng(seed)
+    img = floor(rng=rng)
+    L, h = 120.0, rng.uniform(0, 2 * np.pi)
+    snout = np.array([640.0, 480.0])
+    d = np.array([np.cos(h), np.sin(h)])
+    stain = snout - 90 * d
+    _dark_patch(img, lambda m: cv2.circle(m, tuple(int(x) for x in stain), 55, 1.0, -1), 0.45)
+    _dark_patch(img, lambda m: cv2.line(m, tuple(int(x) for x in stain), tuple(int(x) for x in snout), 1.0, 14), 0.11)
+    draw(img, place(outline(L), snout, h))
+    f, = detect_fish(finish(img))
+    assert np.linalg.norm(f.snout - snout) < 0.03 * L and np.linalg.norm(f.fork - (snout + L * d)) < 0.03 * L
+
+
 def test_touching_fish_are_split():
     rng = np.random.default_rng(9)
     L = 150.0
