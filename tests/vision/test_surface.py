@@ -189,6 +189,20 @@ def test_a_fish_grown_into_a_floor_stain_is_still_found(seed):
     assert np.linalg.norm(f.snout - snout) < 0.03 * L and np.linalg.norm(f.fork - (snout + L * d)) < 0.03 * L
 
 
+@pytest.mark.parametrize("length", [90.0, 130.0])
+@pytest.mark.parametrize("heading_deg", range(0, 360, 30))
+def test_a_slim_fish_is_not_cut_from_its_own_broad_tail(heading_deg, length):
+    """A slim body (14 % as wide as long) behind whose thin peduncle the tail's lobes spread wider
+    than the body: the tail has a thick core of its own, but is no second fish."""
+    rng = np.random.default_rng(heading_deg)
+    snout, h = np.array([640.0, 480.0]), np.radians(heading_deg)
+    img = floor(rng=rng)
+    draw(img, place(outline(length, width_frac=0.14, lobe=0.19), snout, h))
+    f, = detect_fish(finish(img))
+    fork = snout + length * np.array([np.cos(h), np.sin(h)])
+    assert np.linalg.norm(f.snout - snout) < 0.02 * length and np.linalg.norm(f.fork - fork) < 0.02 * length
+
+
 def test_touching_fish_are_split():
     rng = np.random.default_rng(9)
     L = 150.0
