@@ -50,8 +50,12 @@ class Fish2D:
 
 
 N_SLICES = 24
-PEDUNCLE_LEVEL = 0.4   # the body's end followed along a thin peduncle to where its ridge falls below
-                       # this share of the fish's peak contrast (0: the outline's end) ...
+PEDUNCLE_LEVEL = 0.3   # the body's end followed along a thin peduncle to where its ridge falls below
+                       # this share of the fish's peak contrast (0: the outline's end) ... 0.4 until
+                       # 2026-12-07: a body paler towards its tail than at its head was cut short
+                       # there (tuning tanks 7000-7039, both ends right in both views 146 -> 154;
+                       # bench 90 tanks recall 0.377 / 0.441 -> 0.382 / 0.452, precision 0.880 /
+                       # 0.896 -> 0.894 / 0.890; drawn fish 399 and 347 -> 399 and 346 right)
 PEDUNCLE_DROP = 0.6    # ... or below this share of the most it had over the 5 % of the length behind
 FIN_PAST_FORK = 0.09   # a dark run followed past the fork by more than this share of the body is a fin
                        # (_runs_past_fork): on the bench's tanks (1000-1039) peduncles reached at most
