@@ -176,7 +176,7 @@ def _fin_line_start(r: Region, snout: np.ndarray, tail: np.ndarray, length: floa
     if len(b) < 10:
         return None
     mass = np.bincount(b, weights=w)
-    ridge = np.zeros(len(mass))
+    ridge = np.zeros(len(mass), w.dtype)       # of the contrast's own type: ufunc.at's fast path
     np.maximum.at(ridge, b, w)
     width = np.convolve(mass / np.maximum(ridge, 1e-6), np.ones(3) / 3, mode="same")
     dark = np.flatnonzero(ridge >= PEDUNCLE_LEVEL * r.peak)     # a pale fin beyond is no body
