@@ -120,21 +120,35 @@ def _extreme(contour: np.ndarray, direction: np.ndarray) -> np.ndarray:
     return tip + (top - tip @ direction) * direction
 
 
-def _fin_base(r: Region, snout: np.ndarray, tail: np.ndarray, level: float = 0.16) -> np.ndarray:
+@dataclass
+class _AlongTail:
+    """The silhouette's (``Region.whole``) contrast by px along the tail from the snout, shared by
+    the body-end checks: each pixel's bin (behind the snout: bin 0), contrast (>= 0) and offset
+    across (px, to the tail's left), and the contrast summed per bin."""
+
+    bin: np.ndarray      # (P,) int
+    w: np.ndarray        # (P,) float32
+    across: np.ndarray   # (P,) float
+    mass: np.ndarray     # (B,) float
+
+
+def _along_tail(r: Region, snout: np.ndarray, tail: np.ndarray) -> _AlongTail:
+    ys, xs = np.nonzero(r.whole)
+    w = np.clip(r.con[ys, xs], 0, None)
+    rel = np.c_[xs, ys] + r.origin - snout
+    b = np.clip(np.round(rel @ tail).astype(int), 0, None)
+    return _AlongTail(b, w, rel @ np.array([-tail[1], tail[0]]), np.bincount(b, weights=w))
+
+
+def _fin_base(r: Region, prof: _AlongTail, snout: np.ndarray, tail: np.ndarray, level: float = 0.16
+              ) -> np.ndarray:
     """The caudal fin's base by mass: going from the snout towards the tail, the last place where the
     fish's contrast summed across the body (its "mass" per pixel of length) is still ``level`` of
     the body's most (a peduncle keeps ~15-25 % of the widest slice's mass, a fin seen edge-on less).
     Used as a check on the outline's own end, which runs on along a caudal fin dark enough to pass
     the outline's level (the outline's end alone, measured on renders, was the better estimate
     otherwise)."""
-    ys, xs = np.nonzero(r.whole)
-    w = np.clip(r.con[ys, xs], 0, None)
-    rel = np.c_[xs, ys] + r.origin - snout
-    s = rel @ tail
-    t = rel @ np.array([-tail[1], tail[0]])
-    b = np.clip(np.round(s).astype(int), 0, None)
-    mass = np.bincount(b, weights=w)
-    mass = np.convolve(mass, np.ones(3) / 3, mode="same")
+    mass = np.convolve(prof.mass, np.ones(3) / 3, mode="same")
     top = mass.max(initial=0)
     above = np.flatnonzero(mass >= level * top)
     if top <= 0 or len(above) == 0:
@@ -143,8 +157,8 @@ def _fin_base(r: Region, snout: np.ndarray, tail: np.ndarray, level: float = 0.1
     nxt = mass[j + 1] if j + 1 < len(mass) else 0.0
     frac = (mass[j] - level * top) / max(mass[j] - nxt, 1e-9)      # where the fall crosses the level
     along = j + float(np.clip(frac, 0, 1))
-    at = b == j
-    lateral = float((w[at] * t[at]).sum() / max(w[at].sum(), 1e-9))
+    at = prof.bin == j
+    lateral = float((prof.w[at] * prof.across[at]).sum() / max(prof.w[at].sum(), 1e-9))
     return snout + along * tail + lateral * np.array([-tail[1], tail[0]])
 
 
@@ -163,22 +177,16 @@ FIN_LINE_LENGTH = 0.16
 FIN_LINE_STEP = 1.8
 
 
-def _fin_line_start(r: Region, snout: np.ndarray, tail: np.ndarray, length: float) -> float | None:
-    """Where a caudal fin standing edge-on as a dark line begins, in px along ``tail`` from the
+def _fin_line_start(r: Region, prof: _AlongTail, length: float) -> float | None:
+    """Where a caudal fin standing edge-on as a dark line begins, in px along the tail from the
     snout, or None (see FIN_LINE_WIDTH). ``length``: the fish's, snout to body end, px. Widths are
     the contrast summed across the body over its most (px of full contrast) per px along it. A fin
     as dark as the body passes the mass and level tests a peduncle passes; its width does not taper."""
-    ys, xs = np.nonzero(r.whole)
-    w = np.clip(r.con[ys, xs], 0, None)
-    b = np.round((np.c_[xs, ys] + r.origin - snout) @ tail).astype(int)
-    keep = b >= 0
-    b, w = b[keep], w[keep]
-    if len(b) < 10:
+    if len(prof.bin) < 10:
         return None
-    mass = np.bincount(b, weights=w)
-    ridge = np.zeros(len(mass), w.dtype)       # of the contrast's own type: ufunc.at's fast path
-    np.maximum.at(ridge, b, w)
-    width = np.convolve(mass / np.maximum(ridge, 1e-6), np.ones(3) / 3, mode="same")
+    ridge = np.zeros(len(prof.mass), prof.w.dtype)  # of the contrast's own type: ufunc.at's fast path
+    np.maximum.at(ridge, prof.bin, prof.w)
+    width = np.convolve(prof.mass / np.maximum(ridge, 1e-6), np.ones(3) / 3, mode="same")
     dark = np.flatnonzero(ridge >= PEDUNCLE_LEVEL * r.peak)     # a pale fin beyond is no body
     if len(dark) == 0:
         return None
@@ -279,13 +287,13 @@ def _on_fin(r: Region, point: np.ndarray, tail: np.ndarray, reach: float) -> np.
     return point + (across[j] + float(np.clip(off, -0.5, 0.5))) * side
 
 
-def _body_end(r: Region, snout: np.ndarray, tail_dir: np.ndarray, L: float, base_ratio: float | None
-              ) -> tuple[np.ndarray, bool]:
+def _body_end(r: Region, prof: _AlongTail, snout: np.ndarray, tail_dir: np.ndarray, L: float,
+              base_ratio: float | None) -> tuple[np.ndarray, bool]:
     """The body's rear end (the caudal fin's base) from the region: the outline's end, unless it
     ran on along a dark fin (by mass), followed on along a thin peduncle; and whether a caudal fin
     as dark as the body was seen running on from it (by mass, or followed past the fork)."""
     base = _extreme(r.contour, tail_dir)
-    by_mass = _fin_base(r, snout, tail_dir)
+    by_mass = _fin_base(r, prof, snout, tail_dir)
     dark_fin = bool((base - by_mass) @ tail_dir > 0.05 * np.linalg.norm(base - snout))
     if dark_fin:
         base = by_mass                # the outline ran on along a dark caudal fin
@@ -352,11 +360,12 @@ def analyse(r: Region, base_ratio: float | None = None, snout_at: np.ndarray | N
         fork_i, fork_d, tail_dir = i_hi, d_hi, dir_hi
     if snout_at is not None:
         snout = np.asarray(snout_at, float)
-    base, dark_fin = _body_end(r, snout, tail_dir, L, base_ratio)
+    prof = _along_tail(r, snout, tail_dir)
+    base, dark_fin = _body_end(r, prof, snout, tail_dir, L, base_ratio)
     if base_at is not None and not (dark_fin and (np.asarray(base_at) - base) @ tail_dir > DARK_FIN_REACH * L):
         base = np.asarray(base_at, float)
     # a body's end on a dark edge-on fin (by mass, followed, or the learned locator's) goes back to its base
-    line = _fin_line_start(r, snout, tail_dir, float(np.linalg.norm(base - snout)))
+    line = _fin_line_start(r, prof, float(np.linalg.norm(base - snout)))
     if line is not None and (base - snout) @ tail_dir > line + 0.01 * L:
         base = base - ((base - snout) @ tail_dir - line) * tail_dir
     tip = _extreme(r.outline, tail_dir)
