@@ -40,7 +40,11 @@ class Params:
     bank_levels: int = 2            # ... scored on the working image and its first halving
     bank_stride: int = 2            # ... at grid points this many px apart
     bank_keep: float = 0.1          # ... the share of them with the most emboss energy
-    row_regions: bool = True        # fork proposals at the ends of regions unlike the row-compensated water
+    row_regions: bool = False       # fork proposals at the ends of regions unlike the row-compensated water
+                                    # (on until 2026-12-07, thirty-eighth session: off, the six bench sets found
+                                    # 677 fish right against 669, 25 wrong against 23, the outside testers' 39 / 4
+                                    # and 28 / 7 against 40 / 4 and 26 / 7, with ~12-15 % less CPU a pair;
+                                    # README "Underwater fish measurement")
     outlines: bool = True           # fork proposals from silhouettes against the local background
     outline_k: tuple[float, ...] = (2.0, 4.0)   # ... thresholds, in local background spreads
     outline_ends: tuple[float, ...] = (-0.12, -0.02)   # ... outline ends shifted by these shares of its length

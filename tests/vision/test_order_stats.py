@@ -18,12 +18,28 @@ def _arrays():
     yield withnan                                                        # NaN: numpy's NaN
 
 
+@pytest.fixture(params=[False, True], ids=["select", "sort_first"])
+def either_way(request, monkeypatch):
+    """Both ways the module may take, whichever its probe picks on this machine."""
+    monkeypatch.setattr(order_stats, "_sort_first", request.param)
+
+
 @pytest.mark.parametrize("a", list(_arrays()), ids=lambda a: f"{a.dtype}-{a.size}")
-def test_median_is_numpys(a):
+def test_median_is_numpys(a, either_way):
     assert np.array_equal(order_stats.median(a), float(np.median(a)), equal_nan=True)
 
 
 @pytest.mark.parametrize("a", list(_arrays()), ids=lambda a: f"{a.dtype}-{a.size}")
 @pytest.mark.parametrize("q", [0.0, 0.001, 0.25, 0.5, 0.9, 0.999, 1.0])
-def test_quantile_is_numpys(a, q):
+def test_quantile_is_numpys(a, q, either_way):
     assert np.array_equal(order_stats.quantile(a, q), float(np.quantile(a, q)), equal_nan=True)
+
+
+def test_the_probe_picks_a_way_and_keeps_it(monkeypatch):
+    monkeypatch.setattr(order_stats, "_sort_first", None)
+    order_stats.median(np.arange(5.0))
+    chosen = order_stats._sort_first
+    assert isinstance(chosen, bool)
+    monkeypatch.setattr(order_stats, "_probe", lambda: pytest.fail("probed twice"))
+    assert order_stats.quantile(np.arange(5.0), 0.5) == 2.0
+    assert order_stats._sort_first is chosen
