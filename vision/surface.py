@@ -86,6 +86,9 @@ FLOOR_CLEARANCE = 0.05
 # each region's snout and body end moved to the learned locators' (vision.surface_nets) where they
 # are sure; off, the regions' own (tools/surface_net_data.py makes the nets' hypotheses so)
 LEARNED_ENDS = True
+AXIS_TILT_EXCESS = 3.0   # deg: a fitted line tilted this much more than the ends' own triangulation
+                         # went astray (midline points matched on the wrong part of the body, a fish
+                         # along the epipolar lines) and the ends' own 3-D points are kept instead
 
 
 def _tick(timings, stage, t0):
@@ -199,12 +202,19 @@ def _on_axis(calib, up, solid, pts1, pts2, matched):
     # others (a body along the lines) are only the other view's own midline at the same fraction
     c, d = fit_axis_robust(X[matched]) if matched.sum() >= 5 else fit_axis(X)
     S, K = ends_on_axis(calib, c, d, np.array([pts1[0], pts1[1]]), np.array([pts2[0], pts2[1]]))
-    axis = S - K
-    length_mm = float(np.linalg.norm(axis))
-    tilt = float(np.degrees(np.arcsin(min(abs(axis @ up) / max(length_mm, 1e-9), 1.0))))
+    tilt = _tilt(S - K, up)
+    if tilt - _tilt(X[0] - X[1], up) > AXIS_TILT_EXCESS:
+        S, K = X[0], X[1]            # the line went astray: the ends as their own pixels place them
+        tilt = _tilt(S - K, up)
+    length_mm = float(np.linalg.norm(S - K))
     X = X.copy()
     X[0], X[1] = S, K
     return X, res, length_mm, tilt
+
+
+def _tilt(axis: np.ndarray, up: np.ndarray) -> float:
+    """Degrees between a 3-D axis and the water surface."""
+    return float(np.degrees(np.arcsin(min(abs(axis @ up) / max(float(np.linalg.norm(axis)), 1e-9), 1.0))))
 
 
 def _measure(setup: SurveySetup, a: Fish2D, b: Fish2D, pts1, pts2, head, solid, ncc,
