@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from tests.vision.test_surface_drawing import top_rig
 from vision.surface_stereo import ends_on_axis, fit_axis
@@ -87,3 +88,54 @@ def test_each_view_gives_the_snout_the_other_lost_and_close_forks_are_averaged()
     # 6 % apart: neither is trusted, the left's is kept and the gap says so
     p1, p2, gap = ends_from_both_views(F, _slid(t1, 1, 0.06), t2)
     assert 0.05 < gap < 0.07 and np.allclose(p1[1], _slid(t1, 1, 0.06)[1])
+
+
+def _solid_of(calib, pts1, pts2):
+    from vision.surface import _solids
+    from vision.survey_types import FishGeometry, SurveySetup
+    setup = SurveySetup(setup="surface", up_world=(0.0, 0.0, 1.0), geometry=FishGeometry(max_tilt_deg=90.0))
+    return _solids(calib, setup, np.array([0.0, 0.0, 1.0]), [(pts1, pts2)])[0]
+
+
+def _tilt_deg(S, K):
+    a = S - K
+    return np.degrees(np.arcsin(abs(a[2]) / np.linalg.norm(a)))
+
+
+@pytest.mark.parametrize("heading_deg", [0, 30, 60, 90, 120, 150])
+def test_a_line_gone_astray_gives_way_to_the_ends_own_points(heading_deg):
+    """Midline points matched with a disparity that grows along the body (matched on the wrong part
+    of it) tilt the fitted line; the ends, seen right in both views, are then kept where they are."""
+    from vision.surface import AXIS_TILT_EXCESS, _on_axis
+    calib = top_rig().calibration()
+    h = np.radians(heading_deg)
+    centre, half = np.array([30.0, -20.0, -180.0]), 60.0 * np.array([np.cos(h), np.sin(h), 0.0])
+    snout, fork = centre + half, centre - half                         # a level fish, 120 mm
+    p1, p2, _ = _views_of(snout, fork, calib)
+    astray = p2.copy()
+    astray[2:, 0] += np.linspace(-4.0, 4.0, len(p2) - 2)               # +-4 px of disparity along it
+    solid = _solid_of(calib, p1, astray)
+    X, _, length_mm, tilt = _on_axis(calib, np.array([0.0, 0.0, 1.0]), solid, p1, astray, np.ones(len(p1), bool))
+    c, d = fit_axis(solid[0])
+    assert np.degrees(np.arcsin(abs(d[2]))) > AXIS_TILT_EXCESS + 5        # the line did go astray
+    assert np.allclose(X[0], snout, atol=0.5) and np.allclose(X[1], fork, atol=0.5)
+    assert tilt < 0.5 and abs(length_mm - 120.0) < 1.0
+
+
+@pytest.mark.parametrize("heading_deg", [0, 45, 90, 135])
+def test_a_sound_line_keeps_an_end_whose_own_disparity_is_off(heading_deg):
+    """The other way round: the midline right, one end's right pixel 1 px off along x (~5 mm of
+    depth at 1.2 m): the line is kept and places that end within a millimetre."""
+    from vision.surface import _on_axis
+    calib = top_rig().calibration()
+    h = np.radians(heading_deg)
+    centre, half = np.array([-40.0, 10.0, -150.0]), 60.0 * np.array([np.cos(h), np.sin(h), 0.0])
+    snout, fork = centre + half, centre - half
+    p1, p2, _ = _views_of(snout, fork, calib)
+    off = p2.copy()
+    off[0, 0] += 1.0
+    solid = _solid_of(calib, p1, off)
+    assert np.linalg.norm(solid[0][0] - snout) > 3.0                  # the end's own point is off
+    X, _, length_mm, tilt = _on_axis(calib, np.array([0.0, 0.0, 1.0]), solid, p1, off, np.ones(len(p1), bool))
+    assert np.linalg.norm(X[0] - snout) < 1.0 and np.allclose(X[1], fork, atol=0.5)
+    assert tilt < 0.5
