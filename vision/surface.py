@@ -332,6 +332,12 @@ def surface_stages(left: np.ndarray, right: np.ndarray, calib: StereoCalibration
                                                                       strict=True)):
         if solid is None:
             continue
+        if not (a.fork_seen and b.fork_seen):
+            # a fork placed from the fin base is no feature both views see: its window matched along
+            # the line (and the crossing after it) follows the left fork's error. The line's depth
+            # keeps that match; where along the line the fork lies, the right view's own place says too
+            pts2 = pts2.copy()
+            pts2[1] = pairs[k][3][1]
         solid = _on_axis(calib, up, solid, pts1, pts2, solid_pts[k])
         m = _measure(setup, a, b, pts1, pts2, head, solid, ncc[2 * k:2 * k + 2], gap)
         out["measured"].append(m)

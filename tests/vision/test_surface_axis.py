@@ -139,3 +139,36 @@ def test_a_sound_line_keeps_an_end_whose_own_disparity_is_off(heading_deg):
     X, _, length_mm, tilt = _on_axis(calib, np.array([0.0, 0.0, 1.0]), solid, p1, off, np.ones(len(p1), bool))
     assert np.linalg.norm(X[0] - snout) < 1.0 and np.allclose(X[1], fork, atol=0.5)
     assert tilt < 0.5
+
+
+@pytest.mark.parametrize("heading_deg", [60, 90, 120])
+def test_a_placed_fork_one_view_misplaces_is_not_taken_whole(monkeypatch, heading_deg):
+    """A fork placed from the fin base (no notch seen) is no feature both views see. The left view's
+    is put 5 % of the length short of the truth (over FORK_MEAN_GAP: the views are not averaged) and
+    the right's left true: the 3-D fork lies between them along the fish, not at the left's."""
+    import dataclasses
+
+    import vision.surface as surface
+    from tests.vision.test_surface_drawing import stereo_tank
+    from vision.survey_types import SurveySetup
+    left, right, rig, truths = stereo_tank(np.random.default_rng(4), [dict(
+        length_mm=130.0, snout_xy=(-40.0, 30.0), heading=np.radians(heading_deg), depth_mm=150.0)])
+    snout_mm, fork_mm, snout_px, fork_px = truths[0]
+    found = surface._fish_in
+    views = []
+
+    def placed(img, c, params, ratio):
+        fish = [dataclasses.replace(f, fork_seen=False) for f in found(img, c, params, ratio)]
+        side = len(views)
+        views.append(fish)
+        for f in fish:
+            f.fork = fork_px[side] + (0.05 * (snout_px[side] - fork_px[side]) if side == 0 else 0.0)
+        return fish
+
+    monkeypatch.setattr(surface, "_fish_in", placed)
+    measured = surface.surface_stages(left, right, rig.calibration(), SurveySetup(setup="surface",
+                                      up_world=(0.0, 0.0, 1.0)))["measured"]
+    assert len(measured) == 1
+    L = np.linalg.norm(snout_mm - fork_mm)
+    along = (measured[0].fork_mm - fork_mm) @ (snout_mm - fork_mm) / L / L
+    assert 0.01 < along < 0.035, along           # the left's alone: 0.05
