@@ -19,7 +19,16 @@ from tests.vision.test_surface_drawing import (
     world_fish,
 )
 from vision import surface_score
-from vision.surface import MIN_CHANCE, MIN_SCORE, detect_fish, measure_surface, surface_stages, up_direction
+from vision.surface import (
+    MAX_FORK_GAP,
+    MIN_CHANCE,
+    MIN_SCORE,
+    detect_fish,
+    measure_surface,
+    reported,
+    surface_stages,
+    up_direction,
+)
 from vision.survey import measure_pair
 from vision.survey_types import FishGeometry, SurveySetup
 
@@ -312,7 +321,25 @@ def test_the_score_is_the_fitted_chance_of_the_reports_own_figures():
     assert np.allclose(surface_score.chance(q), [m.score for m in measured], atol=1e-12)
     assert all(0 <= m.score <= 1 for m in measured)
     assert [m.snout_mm.tolist() for m in reported] == \
-        [m.snout_mm.tolist() for m in measured if m.quality["hand_score"] >= MIN_SCORE and m.score >= MIN_CHANCE]
+        [m.snout_mm.tolist() for m in measured if m.quality["hand_score"] >= MIN_SCORE and m.score >= MIN_CHANCE
+         and m.quality["fork_gap"] < MAX_FORK_GAP]
+
+
+@pytest.mark.parametrize("hand", [0.0, 0.001, 0.04, 1.0])
+def test_a_report_rests_on_its_chance_and_the_views_forks_not_on_the_hand_made_product(hand):
+    """The hand-made product no longer vetoes (its terms fell on right reports the fitted chance was
+    sure of); the fitted chance's floor and the views' fork gap do, each on its own."""
+    from vision.survey_types import FishMeasurement
+
+    def fish(chance, gap):
+        z = np.zeros(2)
+        return FishMeasurement(np.zeros(3), np.ones(3), np.array([z, z]), np.array([z, z]), chance,
+                               {"hand_score": hand, "fork_gap": gap})
+    eps = 1e-9
+    assert MIN_SCORE <= hand
+    assert reported(fish(MIN_CHANCE, 0.0)) and reported(fish(1.0, MAX_FORK_GAP - eps))
+    assert not reported(fish(MIN_CHANCE - eps, 0.0)) and not reported(fish(1.0, MAX_FORK_GAP))
+    assert not reported(fish(0.0, 0.0)) and not reported(fish(1.0, 0.5))
 
 
 def test_two_fish_on_one_epipolar_band_are_not_crossed():
