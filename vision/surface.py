@@ -26,9 +26,9 @@ over a tank look down, so the image-up of the underwater default would lie in th
 
 Score (0..1): the fitted chance the report is right (``vision.surface_score``), from the figures
 kept in ``quality``. A fish is reported when the fitted chance is at least MIN_CHANCE and the views'
-forks are less than MAX_FORK_GAP of the length apart (and the hand-made score, the product of the
-terms kept in ``quality`` (``hand_score``), at least MIN_SCORE: 0, no veto since 2026-12-07). The
-hand-made terms: epipolar residual of snout and fork
+forks are less than MAX_FORK_GAP of the length apart (the hand-made score, the product of the terms
+kept in ``quality`` as ``hand_score``, vetoed too until 2026-12-07). The hand-made terms: epipolar
+residual of snout and fork
 (``q_epipolar``), axis tilt against the surface (``q_tilt``), straightness of the body through the
 intermediate points in the left view (``q_straight``; a fish bent sideways has a fork length
 shorter than its body),
@@ -64,10 +64,9 @@ from vision.surface_stereo import (
 from vision.survey_types import FishMeasurement, SurveySetup
 from vision.triangulation import camera_centre, triangulate_calibrated
 
-MIN_SCORE = 0.0         # a hand-made score under this vetoes a report. 0.05 until 2026-12-07 (thirty-
-                        # eighth session): the product's veto fell on right reports the fitted chance
-                        # was sure of (tuning tanks 7000-7039: 15, chances 0.11-0.83, most for a fork
-                        # gap of 2-9 % or a weak match); only its fork term vetoes now (MAX_FORK_GAP)
+# The hand-made product (``hand_score``) vetoed reports under 0.05 until 2026-12-07 (thirty-eighth
+# session): it fell on right reports the fitted chance was sure of (tuning tanks 7000-7039: 15,
+# chances 0.11-0.83, most for a fork gap of 2-9 % or a weak match); only its fork term vetoes now
 MAX_FORK_GAP = 0.04     # the views' forks this far apart (per unit of length) or more: one of them lost
                         # its tail and nothing tells which; not reported
 MIN_CHANCE = 0.2        # nor is a report the fitted score gives under this chance of being right
@@ -193,10 +192,9 @@ def _solids(calib, setup: SurveySetup, up, sets: list[tuple[np.ndarray, np.ndarr
     for a, _ in sets:
         Xi, ri = X[k:k + len(a)], res[k:k + len(a)]
         k += len(a)
-        axis = Xi[0] - Xi[1]
-        length_mm = float(np.linalg.norm(axis))
+        length_mm = float(np.linalg.norm(Xi[0] - Xi[1]))
         ok = np.all(np.isfinite(Xi)) and 10 * g.min_length_cm <= length_mm <= 10 * g.max_length_cm
-        tilt = float(np.degrees(np.arcsin(min(abs(axis @ up) / length_mm, 1.0)))) if ok else 90.0
+        tilt = _tilt(Xi[0] - Xi[1], up) if ok else 90.0
         out.append((Xi, ri, length_mm, tilt) if ok and tilt <= g.max_tilt_deg else None)
     return out
 
@@ -204,15 +202,14 @@ def _solids(calib, setup: SurveySetup, up, sets: list[tuple[np.ndarray, np.ndarr
 def _on_axis(calib, up, solid, pts1, pts2, matched):
     """The fish triangulated as a whole: a 3-D line fitted to its snout, fork and midline points,
     the ends placed on it where their rays pass (see vision.surface_stereo.ends_on_axis)."""
-    X, res, _, _ = solid
+    X, res, own_length, own_tilt = solid
     # the midline points matched where the other view's midline crosses their epipolar lines; the
     # others (a body along the lines) are only the other view's own midline at the same fraction
     c, d = fit_axis_robust(X[matched]) if matched.sum() >= 5 else fit_axis(X)
     S, K = ends_on_axis(calib, c, d, np.array([pts1[0], pts1[1]]), np.array([pts2[0], pts2[1]]))
     tilt = _tilt(S - K, up)
-    if tilt - _tilt(X[0] - X[1], up) > AXIS_TILT_EXCESS:
-        S, K = X[0], X[1]            # the line went astray: the ends as their own pixels place them
-        tilt = _tilt(S - K, up)
+    if tilt - own_tilt > AXIS_TILT_EXCESS:
+        return solid                 # the line went astray: the ends as their own pixels place them
     length_mm = float(np.linalg.norm(S - K))
     X = X.copy()
     X[0], X[1] = S, K
@@ -286,16 +283,16 @@ def on_floor(m: FishMeasurement, calib: StereoCalibration, setup: SurveySetup) -
 
 
 def reported(m: FishMeasurement) -> bool:
-    """Whether a measured fish is reported: both scores clear their floors."""
-    return (m.quality["hand_score"] >= MIN_SCORE and m.quality["fork_gap"] < MAX_FORK_GAP
-            and m.score >= MIN_CHANCE)
+    """Whether a measured fish is reported: the fitted chance clears its floor and the views' forks
+    agree."""
+    return m.quality["fork_gap"] < MAX_FORK_GAP and m.score >= MIN_CHANCE
 
 
 def surface_stages(left: np.ndarray, right: np.ndarray, calib: StereoCalibration, setup: SurveySetup,
                    timings: dict[str, float] | None = None) -> dict:
     """The pipeline's intermediate results, for diagnosis (bench/diag_surface.py): ``left`` and
     ``right`` (Fish2D per view), ``pairs`` ((left index, right index) taken), ``measured`` (every
-    paired fish's FishMeasurement, before the MIN_SCORE cut) and ``measured_pair`` (its index in ``pairs``)."""
+    paired fish's FishMeasurement, before the reporting cut) and ``measured_pair`` (its index in ``pairs``)."""
     t0 = time.perf_counter()
     out: dict = {"left": [], "right": [], "pairs": [], "measured": [], "measured_pair": []}
     if min(np.shape(left)[:2] + np.shape(right)[:2]) < MIN_SIDE_PX:
@@ -336,8 +333,9 @@ def surface_stages(left: np.ndarray, right: np.ndarray, calib: StereoCalibration
             pts2[2:], crossed = body_crossings(F, pts1[2:], poly, pts2[2:])
         solid_pts.append(np.r_[True, True, crossed])
         sets.append((pts1, pts2))
-    for k, ((a, b, _, _, head, gap), (pts1, pts2), solid) in enumerate(zip(pairs, sets, _solids(calib, setup, up, sets),
-                                                                      strict=True)):
+    for k, ((a, b, _, fused2, head, gap), (pts1, pts2), solid) in enumerate(zip(pairs, sets,
+                                                                             _solids(calib, setup, up, sets),
+                                                                             strict=True)):
         if solid is None:
             continue
         if not (a.fork_seen and b.fork_seen):
@@ -345,7 +343,7 @@ def surface_stages(left: np.ndarray, right: np.ndarray, calib: StereoCalibration
             # the line (and the crossing after it) follows the left fork's error. The line's depth
             # keeps that match; where along the line the fork lies, the right view's own place says too
             pts2 = pts2.copy()
-            pts2[1] = pairs[k][3][1]
+            pts2[1] = fused2[1]
         solid = _on_axis(calib, up, solid, pts1, pts2, solid_pts[k])
         m = _measure(setup, a, b, pts1, pts2, head, solid, ncc[2 * k:2 * k + 2], gap)
         out["measured"].append(m)

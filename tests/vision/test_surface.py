@@ -22,7 +22,6 @@ from vision import surface_score
 from vision.surface import (
     MAX_FORK_GAP,
     MIN_CHANCE,
-    MIN_SCORE,
     detect_fish,
     measure_surface,
     reported,
@@ -308,8 +307,8 @@ def test_tilted_and_implausible_fish_dropped_and_tilt_lowers_the_score():
 
 def test_the_score_is_the_fitted_chance_of_the_reports_own_figures():
     """Each fish's score is ``vision.surface_score.chance`` of the figures it reports (a user can
-    recompute it); what is reported clears the hand-made product of terms (``hand_score``), whose
-    terms veto (a fork the views disagree on, a tilted or bent body), and the chance's own floor."""
+    recompute it); what is reported clears the chance's own floor and has the views' forks within
+    MAX_FORK_GAP of each other."""
     fish = [dict(length_mm=120, snout_xy=(-150, 0), heading=0.0, depth_mm=150, tilt_deg=0),
             dict(length_mm=100, snout_xy=(100, -150), heading=1.0, depth_mm=200, tilt_deg=12),
             dict(length_mm=90, snout_xy=(0, 150), heading=2.5, depth_mm=100)]
@@ -321,8 +320,7 @@ def test_the_score_is_the_fitted_chance_of_the_reports_own_figures():
     assert np.allclose(surface_score.chance(q), [m.score for m in measured], atol=1e-12)
     assert all(0 <= m.score <= 1 for m in measured)
     assert [m.snout_mm.tolist() for m in reported] == \
-        [m.snout_mm.tolist() for m in measured if m.quality["hand_score"] >= MIN_SCORE and m.score >= MIN_CHANCE
-         and m.quality["fork_gap"] < MAX_FORK_GAP]
+        [m.snout_mm.tolist() for m in measured if m.score >= MIN_CHANCE and m.quality["fork_gap"] < MAX_FORK_GAP]
 
 
 @pytest.mark.parametrize("hand", [0.0, 0.001, 0.04, 1.0])
@@ -336,7 +334,6 @@ def test_a_report_rests_on_its_chance_and_the_views_forks_not_on_the_hand_made_p
         return FishMeasurement(np.zeros(3), np.ones(3), np.array([z, z]), np.array([z, z]), chance,
                                {"hand_score": hand, "fork_gap": gap})
     eps = 1e-9
-    assert MIN_SCORE <= hand
     assert reported(fish(MIN_CHANCE, 0.0)) and reported(fish(1.0, MAX_FORK_GAP - eps))
     assert not reported(fish(MIN_CHANCE - eps, 0.0)) and not reported(fish(1.0, MAX_FORK_GAP))
     assert not reported(fish(0.0, 0.0)) and not reported(fish(1.0, 0.5))

@@ -97,11 +97,6 @@ def _solid_of(calib, pts1, pts2):
     return _solids(calib, setup, np.array([0.0, 0.0, 1.0]), [(pts1, pts2)])[0]
 
 
-def _tilt_deg(S, K):
-    a = S - K
-    return np.degrees(np.arcsin(abs(a[2]) / np.linalg.norm(a)))
-
-
 @pytest.mark.parametrize("heading_deg", [0, 30, 60, 90, 120, 150])
 def test_a_line_gone_astray_gives_way_to_the_ends_own_points(heading_deg):
     """Midline points matched with a disparity that grows along the body (matched on the wrong part
