@@ -117,9 +117,9 @@ def small_sample_factor(n: int, level: float = 0.95) -> float:
     sqrt(n / (n - 1)) t / z (2 fish: 9.2, 3: 2.7, 5: 1.58, 10: 1.22, 30: 1.06, 100: 1.02). Left out,
     a "95 %" interval from 2 fish was their two weights and held the stock's mean ~half the time,
     from 5 fish 83 % (an outside tester's coverage runs, lognormal weights)."""
-    from scipy import stats
-    z = stats.norm.ppf((1 + level) / 2)
-    return float(math.sqrt(n / (n - 1)) * stats.t.ppf((1 + level) / 2, n - 1) / z)
+    from scipy import special  # stats.t.ppf and stats.norm.ppf's own functions: scipy.stats takes ~0.45 s
+    z = special.ndtri((1 + level) / 2)
+    return float(math.sqrt(n / (n - 1)) * special.stdtrit(n - 1, (1 + level) / 2) / z)
 
 
 def _num(x) -> float | None:

@@ -103,7 +103,7 @@ def _warm(cfg) -> None:
     load of 8): import the float tracker's filterpy and scipy, work out the demand filter's beat
     thresholds. Done first, before the signal handlers: a SIGINT or SIGTERM in a start's first
     seconds had waited for the loop, and twice in twelve the stop's watchdog ended it (exit 70)."""
-    import scipy.stats  # noqa: F401  (the growth fits' too)
+    import scipy.special  # noqa: F401  (the growth fits')
 
     from controller.config import validate_section
     from controller.demand import DemandFilter, DemandParams

@@ -61,26 +61,29 @@ def test_most_drawn_fish_are_measured_and_the_good_ones_to_1_5_percent(results):
     assert np.mean(good < 0.015) >= 0.9 and good.max() < 0.02, np.sort(good)
 
 
-def test_snouts_at_the_edge_measure_drawn_fish_to_1_25_percent_for_nine_in_ten():
+@pytest.fixture(scope="module")
+def sixty_drawn_pairs():
+    rig = rig_of()
+    return rig.calibration(), [underwater_pair(np.random.default_rng(seed), rig, n_fish=3) for seed in range(60)]
+
+
+@pytest.mark.parametrize("edge", [False, True], ids=["default", "snout_to_edge"])
+def test_snouts_at_the_edge_measure_drawn_fish_to_1_25_percent_for_nine_in_ten(sixty_drawn_pairs, edge):
     """Every well-placed report of 60 drawn pairs. The learned snout locator, trained on one
     renderer's snouts and looking at them at one scale, left one in ten of these fish over 1.41 %
     off (2026-12-06; on two outside testers' fish its snouts sat ~1 % of the length inside the fish);
     trained on every snout shape and looking again at a finer scale, 1.29 % (README, "Snout and fork
     shapes"). With each tip taken to the image's edge (``Params.snout_to_edge``) nine in ten are
     within 1.1 %. Since the keypoint net of 2026-12-07 (README, "The keypoint net retrained on reef")
-    the default is as good: 1.09 % against the edge's 1.12 %."""
-    rig = rig_of()
-    calib = rig.calibration()
-    pairs = [underwater_pair(np.random.default_rng(seed), rig, n_fish=3) for seed in range(60)]
-    spread = {}
-    for edge in (False, True):
-        placed = [placement(f, t) for left, right, t in pairs
-                  for f in measure_underwater(left, right, calib, SETUP, params=Params(snout_to_edge=edge))]
-        good = np.array([le for e, le in placed if e < 0.03])
-        assert len(good) >= 65
-        assert abs(float(np.median(good))) < 0.005
-        spread[edge] = np.percentile(np.abs(good), 90)
-    assert spread[False] < 0.0125 and spread[True] < 0.0125, spread
+    the default is as good: 1.09 % against the edge's 1.12 %. (Two tests: the suite's workers take
+    one each.)"""
+    calib, pairs = sixty_drawn_pairs
+    placed = [placement(f, t) for left, right, t in pairs
+              for f in measure_underwater(left, right, calib, SETUP, params=Params(snout_to_edge=edge))]
+    good = np.array([le for e, le in placed if e < 0.03])
+    assert len(good) >= 65
+    assert abs(float(np.median(good))) < 0.005
+    assert np.percentile(np.abs(good), 90) < 0.0125
 
 
 def test_wild_lengths_score_below_good_ones(results):
