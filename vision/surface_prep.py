@@ -59,17 +59,16 @@ def working_scale(width: int, target_width: int = 640) -> int:
     return s
 
 
-def contrast_map(img: np.ndarray, *, bg_fraction: float = 1 / 10, target_width: int = 640) -> Contrast:
-    """Contrast map of a grey/BGR image. ``bg_fraction``: the floor kernel as a fraction of the
-    image width; it must exceed the widest fish seen from above (fish are ~1/5 as wide as long)."""
-    g = grey(img)
-    H, W = g.shape
-    full = cv2.GaussianBlur(g, (3, 3), 0)
-    s = working_scale(W, target_width)
-    work_img = full
-    for _ in range(int(np.log2(s))):
-        work_img = cv2.pyrDown(work_img)
-    # the floor: opening (reflections out) then closing (fish out) on a coarse copy, then smoothed
+# A colour picture's contrast is its most unlike channel's (``_most_unlike_floor``), not the grey
+# level's. Measured (bench_survey_surface, 90 tanks, seeds 1000 / 5000): recall 0.427 / 0.491 ->
+# 0.483 / 0.524, precision 0.898 / 0.911 -> 0.919 / 0.883; ~10 ms more an image (README, *Colour*)
+COLOUR_CONTRAST = True
+
+
+def _floor(full: np.ndarray, bg_fraction: float) -> np.ndarray:
+    """The floor under each pixel of a (H, W) or (H, W, C) uint8 image, float32 of its shape:
+    opening (reflections out) then closing (fish out) on a coarse copy, smoothed, scaled back."""
+    H, W = full.shape[:2]
     cw = max(W // 8, 16)
     ch = max(int(round(H * cw / W)), 8)
     coarse = cv2.resize(full, (cw, ch), interpolation=cv2.INTER_AREA)
@@ -77,7 +76,46 @@ def contrast_map(img: np.ndarray, *, bg_fraction: float = 1 / 10, target_width: 
     kern = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (k, k))
     floor = cv2.morphologyEx(cv2.morphologyEx(coarse, cv2.MORPH_OPEN, kern), cv2.MORPH_CLOSE, kern)
     floor = cv2.GaussianBlur(floor.astype(np.float32), (0, 0), k / 3)
-    floor = np.maximum(floor, 4.0)
+    return np.maximum(floor, 4.0)
+
+
+def _most_unlike_floor(img: np.ndarray, g: np.ndarray, bg_fraction: float) -> np.ndarray:
+    """A colour image as the grey one whose contrast with its floor is, at each pixel, that of the
+    colour channel most unlike the floor there (darker or lighter), under the grey floor. A fish
+    the grey level hardly tells from the floor (a brown back over blue water, a green one over
+    sand) differs in one of the channels."""
+    H, W = g.shape
+    size = (W, H)
+    grey_floor = cv2.resize(_floor(g, bg_fraction), size, interpolation=cv2.INTER_LINEAR)
+    planes = cv2.split(np.ascontiguousarray(img[..., :3]))
+    per_floor = cv2.split(cv2.resize(1.0 / _floor(cv2.merge(planes), bg_fraction), size,
+                                     interpolation=cv2.INTER_LINEAR))
+    best = most = None                  # the ratio to the floor farthest from 1, and its distance
+    for plane, inv in zip(planes, per_floor, strict=True):
+        ratio = cv2.multiply(plane, inv, dtype=cv2.CV_32F)
+        off = cv2.absdiff(ratio, 1.0)
+        if best is None:
+            best, most = ratio, off
+            continue
+        cv2.copyTo(ratio, cv2.compare(off, most, cv2.CMP_GT), best)
+        cv2.max(most, off, most)
+    return cv2.multiply(grey_floor, best, dtype=cv2.CV_8U)
+
+
+def contrast_map(img: np.ndarray, *, bg_fraction: float = 1 / 10, target_width: int = 640) -> Contrast:
+    """Contrast map of a grey/BGR image. ``bg_fraction``: the floor kernel as a fraction of the
+    image width; it must exceed the widest fish seen from above (fish are ~1/5 as wide as long).
+    A colour image's contrast is its most unlike channel's at each pixel (``_most_unlike_floor``)."""
+    g = grey(img)
+    if COLOUR_CONTRAST and np.ndim(img) == 3 and np.shape(img)[2] >= 3 and np.asarray(img).dtype == np.uint8:
+        g = _most_unlike_floor(np.asarray(img), g, bg_fraction)
+    H, W = g.shape
+    full = cv2.GaussianBlur(g, (3, 3), 0)
+    s = working_scale(W, target_width)
+    work_img = full
+    for _ in range(int(np.log2(s))):
+        work_img = cv2.pyrDown(work_img)
+    floor = _floor(full, bg_fraction)
     h, w = work_img.shape
     floor_work = cv2.resize(floor, (w, h), interpolation=cv2.INTER_LINEAR)
     floor_full = cv2.resize(floor, (W, H), interpolation=cv2.INTER_LINEAR)
