@@ -61,7 +61,7 @@ def working_scale(width: int, target_width: int = 640) -> int:
 
 # A colour picture's contrast is its most unlike channel's (``_most_unlike_floor``), not the grey
 # level's. Measured (bench_survey_surface, 90 tanks, seeds 1000 / 5000): recall 0.427 / 0.491 ->
-# 0.483 / 0.524, precision 0.898 / 0.911 -> 0.919 / 0.883; ~10 ms more an image (README, *Colour*)
+# 0.483 / 0.524, precision 0.898 / 0.911 -> 0.919 / 0.883; ~11 ms more an image (README, *Colour*)
 COLOUR_CONTRAST = True
 
 
