@@ -159,16 +159,14 @@ from __future__ import annotations
 
 import math
 
+from controller.demand_bins import Bins
 from controller.demand_stats import (
     HEALTHY,
-    LONG_BUSY_BINS,
     STUCK,
     Beats,
     Sensor,
     SensorTests,
     beat_tests,
-    caught_within,
-    rate_for,
     threshold,
 )
 from controller.demand_thresholds import CLUSTER_TAU_FACTOR, PRIOR_S, Thresholds
@@ -189,7 +187,7 @@ PRIOR_BEAT_WINDOW_S = 180.0   # the beat looks back this far on a tank still at 
 SUSPECT_BINS = 0b111    # a sensor stuck-fast this many bins in a row (15 s, past any burst) counts nothing
 
 
-class DemandFilter(BurstRules, Persistence, Thresholds):
+class DemandFilter(Bins, BurstRules, Persistence, Thresholds):
     """See the module docstring. ``tanks``: tank -> its sensors; None: learn them from contacts."""
 
     def __init__(self, params: DemandParams | None = None, tanks: dict[str, list[str]] | None = None):
@@ -295,20 +293,6 @@ class DemandFilter(BurstRules, Persistence, Thresholds):
         ts = self._tanks[tank]
         return self._score(ts), ts.k
 
-    def slow_fish(self, tank: str) -> str | None:
-        """A note when the tank's measured turbulence makes its slowest fish (``slow_fish_hz``,
-        Poisson) more likely missed than served within the window, else None (see *Slow fish*)."""
-        ts = self._tanks[tank]
-        if ts.bg_t * self._bin < self.params.learn_s + 900.0:
-            return None                             # still measuring (the prior is the worst case)
-        p = self.params
-        recall = caught_within(p.slow_fish_hz, ts.k, self._window)
-        if recall >= p.slow_fish_recall:
-            return None
-        return (f"turbulence {self._background(ts):.3f}/s: fish at {p.slow_fish_hz:g}/s served within "
-                f"{self._window:.0f} s only {recall:.0%} of the time; at 99 % from "
-                f"{rate_for(0.99, ts.k, self._window):.2f}/s")
-
     @property
     def tanks(self):
         return self._tanks.keys()
@@ -379,84 +363,6 @@ class DemandFilter(BurstRules, Persistence, Thresholds):
                 break
         rate = (ts.rsum + (0 if ts.excl else ts.raw)) / max(t - start, self._bin)
         return [*(events or ()), Demand(ts.name, t, rate)]
-
-    # -- time ---------------------------------------------------------------------------------
-    def _roll(self, ts: TankWindow, t: float):
-        """Close the current bin and any empty ones up to the bin holding ``t``."""
-        if ts.bin_end == -math.inf:
-            ts.bin_end = (math.floor(t / self._bin) + 1) * self._bin
-            return None
-        steps = int((t - ts.bin_end) // self._bin) + 1
-        n = len(ts.vals)
-        t_judged = ts.bin_end + (steps - 1) * self._bin          # stuck and dead sensor tests
-        if ts.cur and not ts.excl:                  # a bin with healthy contacts: shares of the sensors
-            ts.active_ew = ts.active_ew * self._faults.decay ** steps + 1.0
-        else:
-            ts.active_ew *= self._faults.decay ** steps
-        # the bin is evidence against a silent sensor only if one that fired is not long busy: fish on
-        # one sensor for minutes (or one stuck) made its healthy neighbour "dead" (an outside tester)
-        spread = any(s.n and s.busy < LONG_BUSY_BINS for s in ts.sensors.values())
-        judged = self._faults.judge(ts.sensors, ts.active, ts.active_ew, bool(ts.cur and not ts.excl),
-                                    t_judged, steps)
-        events = [SensorRecovered(ts.name, s, t_judged) if kind is None else SensorFault(ts.name, s, t_judged, kind)
-                  for s, kind in judged] if judged else None
-        if ts.raw > self._beat_bin or (ts.excl and ts.raw):   # a bin too busy for a beat
-            ts.beats.forget(ts.bin_end - self._bin, ts.bin_end)
-        for k in range(min(steps, n + 1)):
-            self._close_bin(ts, spread and k == 0)     # the bins after the first are empty
-        for _ in range(min(steps, len(ts.lvals) + 1) - min(steps, n + 1)):
-            self._push_persist(ts, 0)               # a silence longer than the window
-        ts.m_old = self._max3(ts) if ts.vsum else 0
-        if steps > n + 1:                           # a long silence: every span was empty
-            a = self._alpha ** (steps - (n + 1))
-            ts.bg_n = ts.bg_n * a + (1 - a) / (1 - self._alpha)
-            ts.bg_t = ts.bg_t * a + (1 - a) / (1 - self._alpha)
-            a = self._alpha_c ** (steps - (n + 1))
-            ts.cl_n = ts.cl_n * a + (1 - a) / (1 - self._alpha_c)
-            ts.cl_t = ts.cl_t * a + (1 - a) / (1 - self._alpha_c)
-            ts.cl_one *= a
-        ts.bin_end += steps * self._bin
-        self._thresholds(ts)
-        if not ts.told and ts.bg_t * self._bin >= self.params.learn_s + 900.0:
-            note = self.slow_fish(ts.name)
-            if note is not None:
-                ts.told = True
-                events = [*(events or ()), SlowFishUndetectable(ts.name, ts.bin_end, note)]
-        beats, old = ts.beats, ts.bin_end - self._bin - ts.beats.window
-        if (beats.times and beats.times[0] < old) or beats.gaps:
-            beats.trim(old)
-        if ts.demanding and ts.osum + ts.occ < self.params.end_fraction * ts.k:
-            self._drained(ts)
-        return events
-
-    def _close_bin(self, ts: TankWindow, spread: bool = False) -> None:
-        """``spread``: its contacts are not all of sensors busy in every bin for minutes (_roll)."""
-        v = 0 if ts.excl else ts.cur
-        r = 0 if ts.excl else ts.raw
-        h = ts.head
-        ts.vsum += v - ts.vals[h]
-        ts.rsum += r - ts.raws[h]
-        ts.vals[h], ts.raws[h] = v, r
-        ts.osum += ts.occ - ts.occs[h]
-        ts.occs[h] = ts.occ
-        ts.head = (h + 1) % len(ts.vals)
-        self._push_persist(ts, v)
-        ts.p2, ts.p1 = ts.p1, v
-        if v:
-            self._clump(ts, h)
-        if not ts.demanding:                        # background: is the span of the window empty? one?
-            ts.bg_n = ts.bg_n * self._alpha + (ts.vsum == 0)
-            ts.bg_t = ts.bg_t * self._alpha + 1.0
-            ts.cl_n = ts.cl_n * self._alpha_c + (ts.vsum == 0)
-            ts.cl_one = ts.cl_one * self._alpha_c + (ts.vsum == 1)
-            ts.cl_t = ts.cl_t * self._alpha_c + 1.0
-            ts.bg_seen += 1
-        if ts.vals[h] and spread:                   # a non-chatter bin with healthy contacts
-            ts.active += 1
-        ts.cur = ts.raw = ts.occ = 0
-        ts.excl = False
-        ts.tail, ts.excl_next = ts.excl_next, False     # the next bin, until the run pauses
-        ts.run_prev, ts.run_cur = ts.run_cur, 0
 
     # -- sensors ------------------------------------------------------------------------------
     def _revive(self, ts: TankWindow, s: Sensor, t: float, events):

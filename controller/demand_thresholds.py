@@ -6,7 +6,7 @@ from __future__ import annotations
 import bisect
 import math
 
-from controller.demand_stats import beat_tests, cluster_mean, clustered_threshold
+from controller.demand_stats import beat_tests, caught_within, cluster_mean, clustered_threshold, rate_for
 from controller.demand_window import TankWindow
 
 PRIOR_S = 900.0         # the background prior: this long at the contract's bound (turbulence_max_hz)
@@ -18,7 +18,7 @@ SINGLE_Z = 2.0          # the clustering's estimate is taken at its upper bound:
 
 class Thresholds:
     """Mixin of DemandFilter: ``params``, ``_b_grid``, ``_k_grid``, ``_kp_grid``, ``_beats``,
-    ``_k_at``, ``_beat_at``, ``_bin``, ``_span``, ``_window``, ``_persist``, ``_run_cap`` are its."""
+    ``_k_at``, ``_beat_at``, ``_bin``, ``_span``, ``_window``, ``_persist``, ``_run_cap``, ``_tanks`` are its."""
 
     def _background(self, ts: TankWindow) -> float:
         """From the share of empty spans (the window's complete bins): e^(-b·span) under Poisson
@@ -89,3 +89,17 @@ class Thresholds:
                   if self._persist else 1 << 30)
             got = self._k_at[(i, j)] = (k, kp)
         return got
+
+    def slow_fish(self, tank: str) -> str | None:
+        """A note when the tank's measured turbulence makes its slowest fish (``slow_fish_hz``,
+        Poisson) more likely missed than served within the window, else None (see *Slow fish*)."""
+        ts = self._tanks[tank]
+        if ts.bg_t * self._bin < self.params.learn_s + 900.0:
+            return None                             # still measuring (the prior is the worst case)
+        p = self.params
+        recall = caught_within(p.slow_fish_hz, ts.k, self._window)
+        if recall >= p.slow_fish_recall:
+            return None
+        return (f"turbulence {self._background(ts):.3f}/s: fish at {p.slow_fish_hz:g}/s served within "
+                f"{self._window:.0f} s only {recall:.0%} of the time; at 99 % from "
+                f"{rate_for(0.99, ts.k, self._window):.2f}/s")
