@@ -26,67 +26,13 @@ for _pkg in ("vision", "devices", "controller"):
 """
 
 # One interpreter loads the libraries every script uses (PRELOAD), then forks a child per script:
-# each child puts the script's folder first on sys.path as ``make bench`` does and imports it. A
-# clean interpreter per script took 0.7 s each, 23 of them.
-IMPORT_EACH_AS_RUN = PRELOAD + """
-import importlib.util, json, os, sys, traceback
-verdicts = {}
-for path in sys.argv[1:]:
-    r, w = os.pipe()
-    pid = os.fork()
-    if pid == 0:
-        os.close(r)
-        try:
-            sys.path[0] = os.path.dirname(path)
-            spec = importlib.util.spec_from_file_location("bench_script_under_test", path)
-            spec.loader.exec_module(importlib.util.module_from_spec(spec))
-            said = b""
-        except BaseException:
-            said = traceback.format_exc().strip().splitlines()[-1].encode() or b"failed"
-        os.write(w, said)
-        os._exit(0)
-    os.close(w)
-    with os.fdopen(r, "rb") as f:
-        said = f.read().decode()
-    _, status = os.waitpid(pid, 0)
-    verdicts[os.path.basename(path)] = said or (None if status == 0 else f"exit status {status}")
-print(json.dumps(verdicts))
-"""
-
-
-def test_every_bench_script_imports_as_make_bench_runs_it():
-    got = subprocess.run([sys.executable, "-c", IMPORT_EACH_AS_RUN, *map(str, SCRIPTS)],
-                         cwd=ROOT, capture_output=True, text=True, timeout=300)
-    assert got.returncode == 0, got.stderr.strip().splitlines()[-3:]
-    verdicts = json.loads(got.stdout.strip().splitlines()[-1])
-    assert sorted(verdicts) == sorted(s.name for s in SCRIPTS)
-    assert {name: said for name, said in verdicts.items() if said is not None} == {}
-
-
-def test_a_script_that_does_not_import_is_named():
-    """The check itself: a script reaching for a module nobody has is reported by name."""
-    with tempfile.TemporaryDirectory() as d:
-        (Path(d) / "bench_broken.py").write_text("import hil_tests_nowhere\n")
-        (Path(d) / "bench_fine.py").write_text("import json\n")
-        got = subprocess.run([sys.executable, "-c", IMPORT_EACH_AS_RUN, f"{d}/bench_broken.py", f"{d}/bench_fine.py"],
-                             cwd=ROOT, capture_output=True, text=True, timeout=120)
-    verdicts = json.loads(got.stdout.strip().splitlines()[-1])
-    assert verdicts["bench_fine.py"] is None
-    assert "hil_tests_nowhere" in verdicts["bench_broken.py"]
-
-
-def test_the_scripts_are_found():
-    assert {"bench_workers.py", "bench_growout.py", "__main__.py"} <= {s.name for s in SCRIPTS}
-
-
-BENCHES = sorted((ROOT / "bench").glob("bench_*.py"))
-
-# The same preloaded interpreter runs each script as ``__main__`` with the given arguments in a forked
-# child (its stdout and stderr to files, an alarm as its timeout) and reports exit status and output.
-# A process per script took 52 s for the two checks below, 28 scripts each.
-RUN_EACH_AS_MAIN = PRELOAD + """
-import argparse, json, os, runpy, signal, sys, tempfile
-args, paths = json.loads(sys.argv[1]), sys.argv[2:]
+# each puts the script's folder first on sys.path as ``make bench`` does and runs the file under the
+# given module name with the given arguments (stdout and stderr to files, an alarm as its timeout);
+# the parent reports each one's exit status and output. Under another name than ``__main__`` a
+# script is only imported. A clean interpreter per script took 0.7 s each (52 s for the checks).
+RUN_EACH = PRELOAD + """
+import json, os, runpy, signal, sys, tempfile, traceback
+how, paths = json.loads(sys.argv[1]), sys.argv[2:]
 runs = {}
 for path in paths:
     with tempfile.TemporaryFile() as out, tempfile.TemporaryFile() as err:
@@ -97,15 +43,14 @@ for path in paths:
             signal.alarm(120)
             code = 0
             try:
-                sys.argv = [path, *args]
+                sys.argv = [path, *how["args"]]
                 sys.path[0] = os.path.dirname(path)
-                runpy.run_path(path, run_name="__main__")
+                runpy.run_path(path, run_name=how["run_name"])
             except SystemExit as e:
                 code = e.code if isinstance(e.code, int) else (0 if e.code is None else 1)
                 if not isinstance(e.code, int) and e.code is not None:
                     print(e.code, file=sys.stderr)
             except BaseException:
-                import traceback
                 traceback.print_exc()
                 code = 1
             sys.stdout.flush()
@@ -118,14 +63,43 @@ for path in paths:
                                         err.read().decode(errors="replace"))
 print(json.dumps(runs))
 """
+IMPORTED = "bench_script_under_test"
 
 
-def _run_each(args: list[str]) -> dict[str, tuple[int, str, str]]:
-    """Each bench script's (exit status, stdout, stderr) when run as ``python bench/SCRIPT *args``."""
-    got = subprocess.run([sys.executable, "-c", RUN_EACH_AS_MAIN, json.dumps(args), *map(str, BENCHES)],
-                         cwd=ROOT, capture_output=True, text=True, timeout=600)
+def _run_each(paths, args: list[str] = (), run_name: str = "__main__") -> dict[str, tuple[int, str, str]]:
+    """Each script's (exit status, stdout, stderr) when run as ``python SCRIPT *args`` (or imported,
+    ``run_name`` not ``__main__``)."""
+    got = subprocess.run([sys.executable, "-c", RUN_EACH, json.dumps({"args": list(args), "run_name": run_name}),
+                          *map(str, paths)], cwd=ROOT, capture_output=True, text=True, timeout=600)
     assert got.returncode == 0, got.stderr.strip().splitlines()[-3:]
     return {name: tuple(run) for name, run in json.loads(got.stdout.strip().splitlines()[-1]).items()}
+
+
+def _failures(runs: dict[str, tuple[int, str, str]]) -> dict[str, str]:
+    return {name: (err.strip().splitlines() or [f"exit status {code}"])[-1]
+            for name, (code, _, err) in runs.items() if code != 0}
+
+
+def test_every_bench_script_imports_as_make_bench_runs_it():
+    runs = _run_each(SCRIPTS, run_name=IMPORTED)
+    assert sorted(runs) == sorted(s.name for s in SCRIPTS)
+    assert _failures(runs) == {}
+
+
+def test_a_script_that_does_not_import_is_named():
+    """The check itself: a script reaching for a module nobody has is reported by name."""
+    with tempfile.TemporaryDirectory() as d:
+        (Path(d) / "bench_broken.py").write_text("import hil_tests_nowhere\n")
+        (Path(d) / "bench_fine.py").write_text("import json\n")
+        failed = _failures(_run_each([f"{d}/bench_broken.py", f"{d}/bench_fine.py"], run_name=IMPORTED))
+    assert list(failed) == ["bench_broken.py"] and "hil_tests_nowhere" in failed["bench_broken.py"]
+
+
+def test_the_scripts_are_found():
+    assert {"bench_workers.py", "bench_growout.py", "__main__.py"} <= {s.name for s in SCRIPTS}
+
+
+BENCHES = sorted((ROOT / "bench").glob("bench_*.py"))
 
 
 def test_the_runner_reports_exit_status_and_output_as_a_process_would():
@@ -137,26 +111,25 @@ def test_the_runner_reports_exit_status_and_output_as_a_process_would():
                    "bench_guarded.py": "if __name__ == '__main__':\n    raise SystemExit(3)\n"}
         for name, text in scripts.items():
             (Path(d) / name).write_text(text)
-        got = subprocess.run([sys.executable, "-c", RUN_EACH_AS_MAIN, json.dumps(["--x"]),
-                              *(f"{d}/{name}" for name in scripts)], cwd=ROOT, capture_output=True, text=True,
-                             timeout=120)
-    runs = json.loads(got.stdout.strip().splitlines()[-1])
-    assert runs["bench_ok.py"][:2] == [0, "said ['--x']\n"]
+        runs = _run_each([f"{d}/{name}" for name in scripts], ["--x"])
+        imported = _run_each([f"{d}/bench_guarded.py"], ["--x"], run_name=IMPORTED)
+    assert runs["bench_ok.py"][:2] == (0, "said ['--x']\n")
     assert runs["bench_refuses.py"][0] == 2 and "--x" in runs["bench_refuses.py"][2]
     assert runs["bench_raises.py"][0] == 1 and "RuntimeError: boom" in runs["bench_raises.py"][2]
     assert runs["bench_guarded.py"][0] == 3
+    assert imported["bench_guarded.py"][0] == 0              # imported, its __main__ block does not run
 
 
 def test_every_bench_script_refuses_an_argument_it_does_not_take_before_any_work():
     """Arguments were ignored by the scripts whose settings are environment variables:
     ``bench_growout.py --help`` ran the twelve-minute grow-out."""
-    runs = _run_each(["--no-such-setting"])
+    runs = _run_each(BENCHES, ["--no-such-setting"])
     refused = {name: (code, "--no-such-setting" in err) for name, (code, _, err) in runs.items()}
     assert refused == {s.name: (2, True) for s in BENCHES}, {n: err[-300:] for n, (_, _, err) in runs.items()}
 
 
 def test_every_bench_script_says_what_it_measures_when_asked():
-    runs = _run_each(["--help"])
+    runs = _run_each(BENCHES, ["--help"])
     said = {name: (code, len(out.strip()) > 40) for name, (code, out, _) in runs.items()}
     assert said == {s.name: (0, True) for s in BENCHES}
 

@@ -87,11 +87,10 @@ def _most_unlike_floor(img: np.ndarray, g: np.ndarray, bg_fraction: float) -> np
     H, W = g.shape
     size = (W, H)
     grey_floor = cv2.resize(_floor(g, bg_fraction), size, interpolation=cv2.INTER_LINEAR)
-    planes = cv2.split(np.ascontiguousarray(img[..., :3]))
-    per_floor = cv2.split(cv2.resize(1.0 / _floor(cv2.merge(planes), bg_fraction), size,
-                                     interpolation=cv2.INTER_LINEAR))
+    bgr = np.ascontiguousarray(img[..., :3])
+    per_floor = cv2.split(cv2.resize(1.0 / _floor(bgr, bg_fraction), size, interpolation=cv2.INTER_LINEAR))
     best = most = None                  # the ratio to the floor farthest from 1, and its distance
-    for plane, inv in zip(planes, per_floor, strict=True):
+    for plane, inv in zip(cv2.split(bgr), per_floor, strict=True):
         ratio = cv2.multiply(plane, inv, dtype=cv2.CV_32F)
         off = cv2.absdiff(ratio, 1.0)
         if best is None:
@@ -106,9 +105,10 @@ def contrast_map(img: np.ndarray, *, bg_fraction: float = 1 / 10, target_width: 
     """Contrast map of a grey/BGR image. ``bg_fraction``: the floor kernel as a fraction of the
     image width; it must exceed the widest fish seen from above (fish are ~1/5 as wide as long).
     A colour image's contrast is its most unlike channel's at each pixel (``_most_unlike_floor``)."""
+    img = np.asarray(img)
     g = grey(img)
-    if COLOUR_CONTRAST and np.ndim(img) == 3 and np.shape(img)[2] >= 3 and np.asarray(img).dtype == np.uint8:
-        g = _most_unlike_floor(np.asarray(img), g, bg_fraction)
+    if COLOUR_CONTRAST and img.ndim == 3 and img.shape[2] >= 3 and img.dtype == np.uint8:
+        g = _most_unlike_floor(img, g, bg_fraction)
     H, W = g.shape
     full = cv2.GaussianBlur(g, (3, 3), 0)
     s = working_scale(W, target_width)
