@@ -16,8 +16,9 @@ from dataclasses import dataclass
 
 from pymodbus.constants import ExcCodes
 
-from controller.scada.register_map import COIL, Entry, Layout, decode
+from controller.scada.register_map import COIL, Entry, Layout
 from controller.scada.snapshot import in_slot
+from controller.scada.words import decode
 
 log = logging.getLogger("fishfarm.scada")
 

@@ -15,17 +15,16 @@ import csv
 import io
 import json
 import math
-import struct
 import sys
 import zlib
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
+from controller.scada.words import WORDS
+
 COIL, DI, IR, HR = "coil", "discrete input", "input register", "holding register"
 KINDS = (COIL, DI, IR, HR)
-WORDS = {"bool": 1, "u16": 1, "i16": 1, "u32": 2, "i32": 2, "f32": 2}
 # "no value": what a register reads while the controller does not know the value (SunSpec's markers)
-NO_VALUE = {"u16": 0xFFFF, "i16": -0x8000, "u32": 0xFFFF_FFFF, "i32": -0x8000_0000, "f32": math.nan}
 MAP_VERSION = 1
 FEEDER_STATES = ("starting", "idle", "homing", "moving", "dispensing", "refilling", "fault", "estop", "manual",
                  "surveying")         # appended: a code once given keeps its meaning
@@ -297,56 +296,6 @@ def _check(entries: list[Entry]) -> None:
             seen[key] = e.name
         if e.address + e.words > 0x10000:
             raise ValueError(f"register map: {e.name} beyond address 65535 (too many tanks?)")
-
-
-# -- values <-> words -------------------------------------------------------------------------------
-FLT_MAX = 3.4028234663852886e38
-
-
-def encode(dtype: str, value, scale: float = 1.0, word_order: str = "big") -> list[int]:
-    """A value as the words on the wire; None or NaN as "no value". A number beyond what the type
-    holds reads as the type's end (saturated, as a PLC's analogue input does): "no value" is for
-    what the controller does not know, and an FCR of 700 is known (it read 0xFFFF)."""
-    if dtype == "bool":
-        return [int(bool(value))]
-    if dtype == "f32":
-        x = math.nan if value is None else float(value) / scale
-        if abs(x) > FLT_MAX:                            # struct cannot pack it; inf stays inf
-            x = math.copysign(math.inf if math.isinf(x) else FLT_MAX, x)
-        hi, lo = struct.unpack(">HH", struct.pack(">f", x))
-        return [hi, lo] if word_order == "big" else [lo, hi]
-    lo_lim, hi_lim = {"u16": (0, 0xFFFE), "i16": (-0x7FFF, 0x7FFF), "u32": (0, 0xFFFF_FFFE),
-                      "i32": (-0x7FFF_FFFF, 0x7FFF_FFFF)}[dtype]
-    if value is None or isinstance(value, float) and math.isnan(value):
-        raw = NO_VALUE[dtype]
-    elif isinstance(value, float) and math.isinf(value):
-        raw = hi_lim if value > 0 else lo_lim
-    else:
-        raw = min(max(round(value / scale), lo_lim), hi_lim)
-    if dtype in ("u16", "i16"):
-        return [raw & 0xFFFF]
-    raw &= 0xFFFF_FFFF
-    hi, lo = raw >> 16, raw & 0xFFFF
-    return [hi, lo] if word_order == "big" else [lo, hi]
-
-
-def decode(dtype: str, words: list[int], scale: float = 1.0, word_order: str = "big"):
-    """Words from the wire as a value (None for the "no value" marker)."""
-    if dtype in ("bool", "u16", "i16"):
-        raw = words[0] & 0xFFFF
-        if dtype == "bool":
-            return bool(raw)
-        if dtype == "i16" and raw >= 0x8000:
-            raw -= 0x10000
-        return None if raw == NO_VALUE[dtype] else raw * scale
-    hi, lo = (words[0], words[1]) if word_order == "big" else (words[1], words[0])
-    if dtype == "f32":
-        x = struct.unpack(">f", struct.pack(">HH", hi, lo))[0]
-        return None if math.isnan(x) else x * scale
-    raw = (hi << 16) | lo
-    if dtype == "i32" and raw >= 0x8000_0000:
-        raw -= 0x1_0000_0000
-    return None if raw == NO_VALUE[dtype] else raw * scale
 
 
 # -- the written forms ------------------------------------------------------------------------------

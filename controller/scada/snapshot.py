@@ -12,7 +12,8 @@ import logging
 import time
 from dataclasses import dataclass, field
 
-from controller.scada.register_map import COIL, DI, HR, IR, KINDS, PER_TANK, SEVERITY, Layout, encode
+from controller.scada.register_map import COIL, DI, HR, IR, KINDS, PER_TANK, SEVERITY, Layout
+from controller.scada.words import encode
 
 log = logging.getLogger("fishfarm.scada")
 

@@ -13,6 +13,7 @@ from hypothesis import strategies as st
 from controller.config import load_config
 from controller.errors import BadInput
 from controller.scada import register_map as rm
+from controller.scada import words as wire
 
 from .conftest import MAP_CSV, ROOT, map_rows
 
@@ -79,36 +80,36 @@ def words(dtype, raw, order):
        i32=st.integers(-0x7FFF_FFFF, 0x7FFF_FFFF), u16=st.integers(0, 0xFFFE), i16=st.integers(-0x7FFF, 0x7FFF))
 def test_words_both_orders(order, x, u32, i32, u16, i16):
     f = struct.unpack(">I", struct.pack(">f", x))[0]
-    assert rm.encode("f32", x, 1, order) == words("f32", f, order)
-    assert rm.decode("f32", words("f32", f, order), 1, order) == x
+    assert wire.encode("f32", x, 1, order) == words("f32", f, order)
+    assert wire.decode("f32", words("f32", f, order), 1, order) == x
     for dtype, v in (("u32", u32), ("i32", i32), ("u16", u16), ("i16", i16)):
-        assert rm.encode(dtype, v, 1, order) == words(dtype, v & 0xFFFF_FFFF, order)
-        assert rm.decode(dtype, words(dtype, v & 0xFFFF_FFFF, order), 1, order) == v
+        assert wire.encode(dtype, v, 1, order) == words(dtype, v & 0xFFFF_FFFF, order)
+        assert wire.decode(dtype, words(dtype, v & 0xFFFF_FFFF, order), 1, order) == v
 
 
 @pytest.mark.parametrize("order", ["big", "little"])
 def test_no_value_markers(order):
-    assert rm.encode("u16", None) == [0xFFFF] and rm.encode("i16", None) == [0x8000]
-    assert rm.encode("u32", None, 1, order) == [0xFFFF, 0xFFFF]
-    assert rm.encode("i32", None, 1, order) == words("i32", 0x8000_0000, order)
+    assert wire.encode("u16", None) == [0xFFFF] and wire.encode("i16", None) == [0x8000]
+    assert wire.encode("u32", None, 1, order) == [0xFFFF, 0xFFFF]
+    assert wire.encode("i32", None, 1, order) == words("i32", 0x8000_0000, order)
     assert math.isnan(struct.unpack(">f", struct.pack(">HH", *words("f32", 0, "big")[:0],
-                                                       *(rm.encode("f32", None, 1, "big"))))[0])
-    assert rm.decode("f32", rm.encode("f32", None, 1, order), 1, order) is None
-    assert rm.encode("u16", math.nan) == [0xFFFF]
+                                                       *(wire.encode("f32", None, 1, "big"))))[0])
+    assert wire.decode("f32", wire.encode("f32", None, 1, order), 1, order) is None
+    assert wire.encode("u16", math.nan) == [0xFFFF]
 
 
 @pytest.mark.parametrize("order", ["big", "little"])
 def test_a_known_number_beyond_its_register_reads_as_the_register_s_end(order):
     """An FCR of 700 (a tiny gain between surveys a day apart) read "no value", which the map keeps
     for what the controller does not know: it saturates, as a PLC's analogue input does."""
-    assert rm.encode("u16", 700, 0.01) == [0xFFFE] and rm.encode("u16", -0.5, 0.01) == [0]
-    assert rm.encode("i16", -400, 0.01) == [(-0x7FFF) & 0xFFFF] and rm.encode("i16", 400, 0.01) == [0x7FFF]
-    assert rm.encode("u32", 5e9, 1, order) == words("u32", 0xFFFF_FFFE, order)
-    assert rm.encode("i32", -1e12, 1, order) == words("i32", -0x7FFF_FFFF & 0xFFFF_FFFF, order)
-    assert rm.encode("u16", math.inf) == [0xFFFE] and rm.encode("i16", -math.inf) == [(-0x7FFF) & 0xFFFF]
-    assert rm.decode("u16", rm.encode("u16", 70000)) == 0xFFFE       # never wrapped, never the marker
-    big = rm.decode("f32", rm.encode("f32", 1e39, 1, order), 1, order)
-    assert big == pytest.approx(rm.FLT_MAX) and rm.decode("f32", rm.encode("f32", -math.inf, 1, order), 1,
+    assert wire.encode("u16", 700, 0.01) == [0xFFFE] and wire.encode("u16", -0.5, 0.01) == [0]
+    assert wire.encode("i16", -400, 0.01) == [(-0x7FFF) & 0xFFFF] and wire.encode("i16", 400, 0.01) == [0x7FFF]
+    assert wire.encode("u32", 5e9, 1, order) == words("u32", 0xFFFF_FFFE, order)
+    assert wire.encode("i32", -1e12, 1, order) == words("i32", -0x7FFF_FFFF & 0xFFFF_FFFF, order)
+    assert wire.encode("u16", math.inf) == [0xFFFE] and wire.encode("i16", -math.inf) == [(-0x7FFF) & 0xFFFF]
+    assert wire.decode("u16", wire.encode("u16", 70000)) == 0xFFFE       # never wrapped, never the marker
+    big = wire.decode("f32", wire.encode("f32", 1e39, 1, order), 1, order)
+    assert big == pytest.approx(wire.FLT_MAX) and wire.decode("f32", wire.encode("f32", -math.inf, 1, order), 1,
                                                            order) == -math.inf
 
 

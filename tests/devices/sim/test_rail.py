@@ -9,7 +9,8 @@ from pydantic import ValidationError
 
 from devices.clock import ManualClock
 from devices.rail.can_frames import Command, Fault, Op, Reason
-from devices.sim.rail import SimRailMotor, SimRailParams, plan_move, plan_stop
+from devices.sim.rail import SimRailMotor, SimRailParams
+from devices.sim.rail_motion import plan_move, plan_stop
 
 VMAX, ACCEL = 1.0, 0.5
 
