@@ -8,7 +8,10 @@ Not part of the project's dependencies or its suite: torch lives in a separate v
     .venv/bin/python tools/fork_net_data.py --seed0 100750 --scenes 750 --out /tmp/b.npz    on a free core)
     .venv-train/bin/python tools/train_fork_net.py --data /tmp/a.npz /tmp/b.npz --out vision/models/fork_net.onnx \
         --epochs 10 --per-epoch 60000 --minutes 32 --threads 1
-(the packaged model: those commands, 2026-12-02, 20 min of training on a loaded machine). Forks of
+(the model of 2026-12-02: those commands, 20 min of training on a loaded machine). The packaged model
+(2026-12-07): ``tools/fork_net_data.py --seed0 S --scenes 750`` for S = 110000, 110750, 111500,
+112250 (four at once, ~12 min), then ``--data`` those four ``--epochs 36 --per-epoch 100000
+--minutes 40 --threads 2 --val-scenes 100`` (27 min, the machine to itself). Forks of
 every notch shape, with crops at a finer last pass (tools/models/fork_net_fine_candidate.onnx,
 2026-12-06, 656 s; ``vision.fork_net`` has its figures): ``--seed0 107000`` and ``107750``, each
 ``--fine --conditions '{"notch_power": [0.6, 1.6]}'``, then ``--minutes 40 --val-scenes 100``.

@@ -56,9 +56,11 @@ def test_most_drawn_fish_are_measured_and_the_good_ones_to_1_5_percent(results):
     good = np.array([abs(le) for e, le in placed if e < 0.03])
     assert len(good) >= 0.3 * drawn, (len(good), drawn)          # overlapping fish hide forks
     assert len(good) >= 0.7 * found
-    # nine in ten, none past 2 %: over 60 pairs the worst of ~75 good reports is 2.0 % (2.7 % with the
-    # snout locator before 2026-12-06), so the worst of these 6 pairs' ~11 is a matter of which seeds
-    assert np.mean(good < 0.015) >= 0.9 and good.max() < 0.02, np.sort(good)
+    # nine in ten (one in ten left over 1.5 %, rounded up), none past 2 %: over 60 pairs 95.5 % of 66
+    # good reports are within 1.5 % and the worst is 1.94 % (the fork locator of 2026-12-07; 97.3 %
+    # of 75 and 2.03 % with the one before), so which of these 6 pairs' ~10 is the worst is a
+    # matter of which seeds
+    assert np.sum(good >= 0.015) <= np.ceil(0.1 * len(good)) and good.max() < 0.02, np.sort(good)
 
 
 @pytest.fixture(scope="module")
@@ -233,9 +235,9 @@ def test_no_fish_rests_on_a_fork_the_locator_is_less_sure_of_than_net_min_conf()
     views; a lower bar reports fish below the higher one (so the bar is what drops them)."""
     from devices.sim.fish_scene import underwater_scene
     low = 0
-    for seed in range(6):                   # (seed 5 has forks 0.5-0.9 sure)
-        sc = underwater_scene(np.random.default_rng(seed))
-        for bar in (0.5, 0.9):
+    for seed in range(6):                   # (seed 1 has a fork 0.05-0.9 sure: the fork locator of
+        sc = underwater_scene(np.random.default_rng(seed))          # 2026-12-07 is seldom unsure)
+        for bar in (0.05, 0.9):
             fish = measure_underwater(sc.left, sc.right, sc.rig.calibration(), SETUP,
                                       params=replace(Params(), min_chance=0.0, net_min_conf=bar))
             assert all(f.quality["fork_net_conf"] >= bar for f in fish)
@@ -264,7 +266,7 @@ def test_left_snouts_the_snout_locator_doubts_are_not_looked_for_on_the_right(mo
 
     monkeypatch.setattr(snout_net, "refine", refine)
     monkeypatch.setattr(underwater, "transfer_snouts", transfer)
-    sc = underwater_scene(np.random.default_rng(3))
+    sc = underwater_scene(np.random.default_rng(2))      # 4 left candidates 0.5-0.9 sure
     measure_underwater(sc.left, sc.right, sc.rig.calibration(), SETUP, params=replace(Params(), transfer_snout_min=bar))
     pts, conf = answers[0]                       # the left image's candidates, before any is moved
     has = np.all(np.isfinite(pts), axis=2)
