@@ -46,7 +46,7 @@ def placement(f, truths):
 
 @pytest.fixture(scope="module")
 def results():
-    return run(rig_of(), range(6))
+    return run(rig_of(), range(12))
 
 
 def test_most_drawn_fish_are_measured_and_the_good_ones_to_1_5_percent(results):
@@ -56,11 +56,10 @@ def test_most_drawn_fish_are_measured_and_the_good_ones_to_1_5_percent(results):
     good = np.array([abs(le) for e, le in placed if e < 0.03])
     assert len(good) >= 0.3 * drawn, (len(good), drawn)          # overlapping fish hide forks
     assert len(good) >= 0.7 * found
-    # nine in ten (one in ten left over 1.5 %, rounded up), none past 2 %: over 60 pairs 95.5 % of 66
-    # good reports are within 1.5 % and the worst is 1.94 % (the fork locator of 2026-12-07; 97.3 %
-    # of 75 and 2.03 % with the one before), so which of these 6 pairs' ~10 is the worst is a
-    # matter of which seeds
-    assert np.sum(good >= 0.015) <= np.ceil(0.1 * len(good)) and good.max() < 0.02, np.sort(good)
+    # nine in ten, none past 2 %: over 60 pairs 95.5 % of 66 good reports are within 1.5 % and the
+    # worst is 1.94 % (the fork locator of 2026-12-07; 97.3 % of 75 and 2.03 % with the one before);
+    # 12 pairs (~14 good reports), so that one report over 1.5 % is not already a tenth
+    assert np.mean(good < 0.015) >= 0.9 and good.max() < 0.02, np.sort(good)
 
 
 @pytest.fixture(scope="module")
