@@ -40,6 +40,11 @@ tools/surface_net_data.py's crops of rendered nursery tanks (2026-12-07):
     .venv-train/bin/python tools/train_fork_net.py --data /tmp/sn0_base.npz /tmp/sn1_base.npz /tmp/fn0_base.npz \
         /tmp/fn1_base.npz --out vision/models/surface_base_net.onnx --epochs 8 --per-epoch 80000 --minutes 14 \
         --threads 2 --val-scenes 40
+The packaged body-end net (2026-12-07, forty-first session) is trained longer on more tanks:
+``tools/surface_net_data.py --scenes 400`` at seeds 150000 and 150400 (``--fins 0``), 150800, 151200
+and 151600 (``--fins 0.6``) and 152000 (``--fins 1.0``), two at a time (~11 min), then ``--data``
+their six ``_base.npz`` ``--epochs 30 --per-epoch 100000 --minutes 30 --threads 2 --val-scenes 40``
+(23 min, the machine to itself).
 Seed-fixed (torch, numpy); the last ``--val-scenes`` scenes of the data are held out and their
 figures printed (JSON lines) after every epoch. Two threads (the machine is shared).
 
