@@ -234,8 +234,9 @@ def test_no_fish_rests_on_a_fork_the_locator_is_less_sure_of_than_net_min_conf()
     views; a lower bar reports fish below the higher one (so the bar is what drops them)."""
     from devices.sim.fish_scene import underwater_scene
     low = 0
-    for seed in range(6):                   # (seed 1 has a fork 0.05-0.9 sure: the fork locator of
-        sc = underwater_scene(np.random.default_rng(seed))          # 2026-12-07 is seldom unsure)
+    # seed 1 has a fork 0.05-0.9 sure (the fork locator of 2026-12-07 is seldom unsure)
+    for seed in range(6):
+        sc = underwater_scene(np.random.default_rng(seed))
         for bar in (0.05, 0.9):
             fish = measure_underwater(sc.left, sc.right, sc.rig.calibration(), SETUP,
                                       params=replace(Params(), min_chance=0.0, net_min_conf=bar))
