@@ -125,7 +125,12 @@ same fish mirrored; the snout net 0.66 / 0.27. Upright crops run v down the imag
 its mirror get the same answers: 0.90 / 0.90 and 0.66 / 0.66 there (the snout net's crops take the
 handedness of the fish's heading, not of their own axis, which points into the body). On the
 project's renderer the nets answer both alike either way (0.85 / 0.87), and upright crops add wrong
-reports there (README, "Both swimming directions alike"), so they stay off.
+reports there (README, "Both swimming directions alike"), so they stay off. Since 2026-12-07
+(forty-second session; ``Params.upright_snouts``, ``upright_fins``) the snout locator's crops and eq.
+13's window are upright by default, this locator's are not: with its retrained net (2026-12-07) its
+upright crops placed one in ten of the drawn test fish 1.36 % of the length off (0.82 % as seen),
+where the other two stages gained on both outside testers' fish and cost nothing on the drawn ones
+(README, "Upright snouts").
 
 Trained again with the renderer's two given-only backdrops (2026-12-06, twenty-ninth session; not
 kept): tools/fork_net_data.py seeds 100000-100749, rock 104800-105099 and a cage net 105100-105399
@@ -325,8 +330,8 @@ def levels(pyr: list[np.ndarray], fins: Fins) -> tuple[np.ndarray, np.ndarray]:
     return out[0], out[1]
 
 
-def located(pyr: list[np.ndarray], hyps: Fins, min_conf: float, upright: bool = False
-            ) -> tuple[Fins, np.ndarray, np.ndarray, np.ndarray]:
+def located(pyr: list[np.ndarray], hyps: Fins, min_conf: float, upright: bool = False,
+            upright_fins: bool | None = None) -> tuple[Fins, np.ndarray, np.ndarray, np.ndarray]:
     """The forks the net is at least ``min_conf`` sure of: (fins scored on eq. 13, fish level,
     water level, confidence); polarity from the levels."""
     nf = locate(pyr, hyps, upright=upright)
@@ -335,5 +340,5 @@ def located(pyr: list[np.ndarray], hyps: Fins, min_conf: float, upright: bool = 
     out = Fins(nf.xy[ok], nf.angle[ok], h.span_px, h.score, h.polarity, h.body)
     fish, water = levels(pyr, out)
     out.polarity = np.sign((fish - water).sum(axis=1))
-    out.score = fin_scores(pyr, out, upright=upright)
+    out.score = fin_scores(pyr, out, upright=upright if upright_fins is None else upright_fins)
     return out, fish, water, nf.confidence[ok]

@@ -56,7 +56,13 @@ class Params:
     net_weight: float = 1.0         # ... which enters the score raised to this power
     upright: bool = False           # the learned locators' crops and eq. 13's window with v down the image
                                     # (vision.fins.down_side): both swimming directions alike (README, "Both
-                                    # swimming directions alike": off, it costs precision on the bench sets)
+                                    # swimming directions alike"); off for the fork locator's crops, which
+                                    # placed the drawn fish worse (README, "Upright snouts")
+    upright_snouts: bool = True     # ... the snout locator's crops alone, and (below) eq. 13's window alone:
+    upright_fins: bool = True       # on since 2026-12-07 (forty-second session): the outside testers' fish
+                                    # 43 / 5 and 32 / 6 -> 49 / 2 and 39 / 4 right / wrong, the six bench sets
+                                    # 708 / 24 -> 707 / 21, the drawn fish as before (the fork locator's upright
+                                    # crops placed one in ten of those 1.36 % off: README, "Upright snouts")
     min_fill: float = 0.0           # the least share of the fork-snout segment inside a silhouette (term 0 there)
     max_fork_residual_px: float = np.inf    # post-filter: the forks' triangulation residual
     keypoints: bool = True          # fork hypotheses and snout candidates from the learned keypoint net
@@ -89,3 +95,11 @@ class Params:
                                     # sets and 1920x1080, where 0.75 lost 1-2 points of precision; 0.88 with
                                     # the keypoint net of 2026-12-07: the least at which the tuning seeds and
                                     # seeds 0+ hold 0.95, README "The keypoint net retrained on reef")
+
+    @property
+    def snouts_upright(self) -> bool:
+        return self.upright or self.upright_snouts
+
+    @property
+    def fins_upright(self) -> bool:
+        return self.upright or self.upright_fins

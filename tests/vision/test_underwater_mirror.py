@@ -126,3 +126,37 @@ def test_a_scene_and_its_mirror_give_the_same_fish():
         assert len(found) >= 8 and len(matched) >= 0.8 * len(found)
         for f, g in matched:
             assert abs(g.length_cm / f.length_cm - 1) <= 0.01
+
+
+@pytest.mark.parametrize("params, snouts, fins", [
+    (Params(), True, True),                                           # the defaults: both upright
+    (Params(upright_snouts=False, upright_fins=False), False, False),
+    (Params(upright=True, upright_snouts=False, upright_fins=False), True, True),
+])
+def test_the_survey_crops_snouts_and_scores_fins_upright_by_default(monkeypatch, params, snouts, fins):
+    """The snout locator's crops and eq. 13's window are upright by default (``Params.upright_snouts``,
+    ``upright_fins``), so those two stages answer a fish and its mirror alike (the test above); the
+    fork locator's are not unless ``upright``. Every call the survey makes is checked."""
+    from vision import underwater
+    seen = {"snout": set(), "fin": set(), "fork": set()}
+    real_refine, real_fins, real_locate = snout_net.refine, fork_net.fin_scores, fork_net.locate
+
+    def refine(pyr, fork_xy, pts, passes=2, upright=False):
+        seen["snout"].add(upright)
+        return real_refine(pyr, fork_xy, pts, passes, upright)
+
+    def scores(pyr, fins, bank=None, upright=False):
+        seen["fin"].add(upright)
+        return real_fins(pyr, fins, bank, upright)
+
+    def locate(pyr, fins, passes=2, again_above=0.3, upright=False):
+        seen["fork"].add(upright)
+        return real_locate(pyr, fins, passes, again_above, upright)
+
+    monkeypatch.setattr(snout_net, "refine", refine)
+    monkeypatch.setattr(fork_net, "fin_scores", scores)
+    monkeypatch.setattr(underwater, "fin_scores", scores)
+    monkeypatch.setattr(fork_net, "locate", locate)
+    sc = scene(400000)
+    assert measure_underwater(sc.left, sc.right, sc.rig.calibration(), SETUP, params=params)
+    assert seen == {"snout": {snouts}, "fin": {fins}, "fork": {params.upright}}
