@@ -146,12 +146,17 @@ class Crops:
     def __init__(self):
         self.x, self.y, self.meta = [], [], []
 
-    def add(self, pyr, h: Fins, keep: np.ndarray, label: tuple, where: tuple) -> None:
+    def add(self, pyr, h: Fins, keep: np.ndarray, label: tuple, where: tuple, side=None) -> None:
+        """``side`` (N,): each crop's handedness (``fork_net.raw_crops``); v and the turn labels
+        (``label``'s third and fourth) are in the axis' own frame and turn with it."""
         idx = np.flatnonzero(keep)
         if len(idx) == 0:
             return
-        self.x.append(fork_net.raw_crops(pyr, h.take(idx)))
-        self.y.append(np.stack([np.asarray(a)[idx] for a in label], axis=1).astype(np.float32))
+        hand = np.ones(len(idx)) if side is None else np.asarray(side, float)[idx]
+        self.x.append(fork_net.raw_crops(pyr, h.take(idx), hand))
+        y = np.stack([np.asarray(a)[idx] for a in label], axis=1).astype(np.float32)
+        y[:, 2:4] *= hand[:, None].astype(np.float32)
+        self.y.append(y)
         self.meta.append(np.array([list(where)] * len(idx), np.int32))
 
     def progress(self, scenes: int) -> None:

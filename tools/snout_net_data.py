@@ -31,7 +31,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 from devices.sim.fish_scene import underwater_scene  # noqa: E402
 from tools.fork_net_data import FINE_SPANS, FIRST_SEED, Crops, ends, finer, hard_negatives, labels  # noqa: E402
-from vision.fins import SPAN_OF_FL, Fins  # noqa: E402
+from vision.fins import SPAN_OF_FL, Fins, down_side  # noqa: E402
 from vision.fork import pyramid  # noqa: E402
 
 
@@ -63,6 +63,9 @@ def main() -> None:
     ap.add_argument("--out", required=True)
     ap.add_argument("--conditions", default="{}",
                     help='scene conditions as JSON, e.g. \'{"snout_taper": [-0.3, 0.7]}\' (the rest drawn)')
+    ap.add_argument("--upright", action="store_true",
+                    help="crops upright (vision.fins.down_side of the fish's heading), as the survey's "
+                         "Params.upright_snouts samples them; train them with train_fork_net.py --no-flip")
     args = ap.parse_args()
     if args.seed0 < FIRST_SEED:
         sys.exit(f"snout_net_data: --seed0: {args.seed0} is below {FIRST_SEED} (the benches' seeds)")
@@ -80,7 +83,9 @@ def main() -> None:
                            (1, jittered(rng, snouts[good], axis[good], length[good], args.jitter, fine=True)),
                            (2, negatives), (2, fine_negatives)):
                 keep, pos, u, v, t, rel = labels(h, snouts, axis, length, clear, max_scale=2.6)
-                out.add(pyr, h, keep, (pos, u, v, t, rel), (seed, c, src))
+                # upright: the handedness vision.snout_net.refine gives the crop in the survey
+                out.add(pyr, h, keep, (pos, u, v, t, rel), (seed, c, src),
+                        -down_side(h.angle) if args.upright else None)
         out.progress(seed - args.seed0 + 1)
     out.save(args.out)
 

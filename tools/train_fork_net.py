@@ -107,12 +107,13 @@ BLURS = [torch.tensor(np.outer(k, k), dtype=torch.float32) for k in
           for s in (0.6, 0.9, 1.3)]]
 
 
-def augment(x, y, g):
-    """x uint8 (N, H, W, 3) -> float (N, 3, H, W) normalised; y (N, 5) with v and the turn flipped."""
+def augment(x, y, g, flips: bool = True):
+    """x uint8 (N, H, W, 3) -> float (N, 3, H, W) normalised; y (N, 5) with v and the turn flipped
+    where the crop is (half of them; none without ``flips``: crops of one handedness)."""
     x = torch.from_numpy(x).float().permute(0, 3, 1, 2)
     y = torch.from_numpy(y).clone()
     N = len(x)
-    flip = torch.rand(N, generator=g) < 0.5
+    flip = (torch.rand(N, generator=g) < 0.5) & flips
     x[flip] = x[flip].flip(2)
     y[flip, 2] = -y[flip, 2]
     y[flip, 3] = -y[flip, 3]
@@ -198,6 +199,8 @@ def main() -> None:
     ap.add_argument("--val-scenes", type=int, default=100)
     ap.add_argument("--threads", type=int, default=2)
     ap.add_argument("--minutes", type=float, default=25.0, help="stop training after this long")
+    ap.add_argument("--no-flip", action="store_true",
+                    help="no flips across the axis: crops of one handedness (snout_net_data.py --upright)")
     args = ap.parse_args()
     torch.manual_seed(0)
     torch.set_num_threads(args.threads)
@@ -225,7 +228,7 @@ def main() -> None:
         run = []
         for k in range(0, len(order) - args.batch + 1, args.batch):
             idx = np.sort(order[k:k + args.batch])
-            xb, yb = augment(xt[idx], yt[idx], g)
+            xb, yb = augment(xt[idx], yt[idx], g, not args.no_flip)
             loss, coord = losses(model, xb, yb)
             opt.zero_grad()
             loss.backward()
