@@ -128,7 +128,7 @@ project's renderer the nets answer both alike either way (0.85 / 0.87), and upri
 reports there (README, "Both swimming directions alike"), so they stay off. Since 2026-12-07
 (forty-second session; ``Params.upright_snouts``, ``upright_fins``) the snout locator's crops and eq.
 13's window are upright by default, this locator's are not: with its retrained net (2026-12-07) its
-upright crops placed one in ten of the drawn test fish 1.36 % of the length off (0.82 % as seen),
+upright crops placed one in ten of the drawn test fish 1.36 % of the length off (0.82 % without),
 where the other two stages gained on both outside testers' fish and cost nothing on the drawn ones
 (README, "Upright snouts").
 
