@@ -177,13 +177,13 @@ def _locate(pyr: list[np.ndarray], hyps: Fins, p: Params):
     confidence or None), the fins scored on eq. (13). Classical (``vision.fork``, twice: again from
     the fork) or learned (``vision.fork_net``, ``Params.fork_net``)."""
     if p.fork_net:
-        located, fish, water, conf = fork_net.located(pyr, hyps, p.net_min_conf, p.upright, p.fins_upright)
+        located, fish, water, conf = fork_net.located(pyr, hyps, p.net_min_conf, p.upright, p.fin_window_upright)
         return located, fish, water, np.zeros(len(conf)), conf
     forks = locate_forks(pyr, hyps)
     forks = locate_forks(pyr, forks.fins.take(np.flatnonzero(forks.ok)))        # again, from the fork
     ok = np.flatnonzero(forks.ok)
     located = forks.fins.take(ok)
-    located.score = fin_scores(pyr, located, upright=p.fins_upright)    # eq. (13), where the forks are
+    located.score = fin_scores(pyr, located, upright=p.fin_window_upright)    # eq. (13), where the forks are
     return located, forks.fish_level[ok], forks.water_level[ok], forks.arm_rms[ok], None
 
 
@@ -287,7 +287,7 @@ def measure_underwater(left: np.ndarray, right: np.ndarray, calib: StereoCalibra
         # each candidate moved to the tip the learned snout locator finds from it where it is sure,
         # dropped where it is not
         for c, f in enumerate((f1, f2)):
-            tips, conf = snout_net.refine((v1, v2)[c].pyr, f.xy, sn[c].xy, upright=params.snouts_upright)
+            tips, conf = snout_net.refine((v1, v2)[c].pyr, f.xy, sn[c].xy, upright=params.snout_crops_upright)
             if c == 0:
                 left_sure = conf
             moved = np.where((conf >= params.snout_net_min)[..., None], tips, np.nan)
@@ -341,7 +341,7 @@ def measure_underwater(left: np.ndarray, right: np.ndarray, calib: StereoCalibra
     if params.snout_net and len(rows):
         # how sure the learned locator is of each chosen snout, in the worse view
         snout_sure[rows] = np.minimum(*(snout_net.refine(v.pyr, f.xy[rows], px[rows, None], 1,
-                                                             params.snouts_upright)[1][:, 0]
+                                                             params.snout_crops_upright)[1][:, 0]
                                         for v, f, px in ((v1, f1, ch.px1), (v2, f2, ch.px2))))
     out = measurements(rows, pairs, f1, f2, v1, v2, fork_mm, fork_res, ch, calib, geo, params,
                        left.shape[1], expected, view, (fork_epi, snout_epi, fork_best, snout_best), sure, agree,

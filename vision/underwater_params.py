@@ -100,9 +100,11 @@ class Params:
                                     # at 0.8 769 / 32: README "Upright snouts")
 
     @property
-    def snouts_upright(self) -> bool:
+    def snout_crops_upright(self) -> bool:
+        """Whether the snout locator's crops are upright: all of them (``upright``) or these alone."""
         return self.upright or self.upright_snouts
 
     @property
-    def fins_upright(self) -> bool:
+    def fin_window_upright(self) -> bool:
+        """Whether eq. 13's window at located forks is upright: everything or it alone."""
         return self.upright or self.upright_fins
