@@ -99,10 +99,11 @@ class _Clock:
 
 
 def proposals(img: np.ndarray, setup: SurveySetup, p: Params = Params(), clock: _Clock | None = None,
-              trace: dict | None = None) -> tuple[list[np.ndarray], Fins, list, tuple[float, float], object]:
+              trace: dict | None = None, bank: bool = True
+              ) -> tuple[list[np.ndarray], Fins, list, tuple[float, float], object]:
     """The image pyramid, the fork hypotheses of every proposer (bodies' ends, eq. 13's bank,
     silhouettes, the keypoint net), the silhouettes' components, the working image's scale and the
-    keypoint net's answer (None where it is off), for one image."""
+    keypoint net's answer (None where it is off), for one image; ``bank`` False: without eq. 13's bank."""
     clock = _Clock(None) if clock is None else clock
     img = np.asarray(img)
     H, W = img.shape[:2]
@@ -131,7 +132,7 @@ def proposals(img: np.ndarray, setup: SurveySetup, p: Params = Params(), clock: 
         # then ~0.87 of the fork length), or the lobe tips when it is not
         hyps = concat([hyps] + [_shifted(ends, length, off) for off in p.end_offsets])
     n_bank = int(round(p.bank_per_mpix * H * W / 1e6))
-    if n_bank > 0 and classical:
+    if n_bank > 0 and classical and bank:
         if dist is None:
             dist = water_distance(small, setup.mi_ref, setup.c_ref)
             clock.lap("illumination")
@@ -157,8 +158,9 @@ def proposals(img: np.ndarray, setup: SurveySetup, p: Params = Params(), clock: 
     return pyr, hyps, comps, (sx, sy), kp
 
 
-def _view(img: np.ndarray, setup: SurveySetup, p: Params, clock: _Clock, trace: dict | None = None):
-    pyr, hyps, comps, scale, kp = proposals(img, setup, p, clock, trace)
+def _view(img: np.ndarray, setup: SurveySetup, p: Params, clock: _Clock, trace: dict | None = None,
+          bank: bool = True):
+    pyr, hyps, comps, scale, kp = proposals(img, setup, p, clock, trace, bank)
     located, fish, water, arm, conf = _locate(pyr, hyps, p)
     # the same fork from several hypotheses: the best (the net's confidence, else eq. 13's score)
     keep = suppress(located if conf is None else _scored(located, conf), p.max_fins, 0.1)
@@ -242,7 +244,9 @@ def measure_underwater(left: np.ndarray, right: np.ndarray, calib: StereoCalibra
     if left.size == 0 or min(left.shape[:2]) < 32:
         return []
     v1, kp1 = _view(left, setup, params, clock, trace)
-    v2, kp2 = _view(right, setup, params, clock, trace)
+    # eq. 13's bank in the left view only (``Params.bank_right``): its forks are found in the right
+    # one along their epipolar lines (``_transfer``)
+    v2, kp2 = _view(right, setup, params, clock, trace, params.bank_right or not params.transfer)
     pairs = match_forks(calib, v1, v2, params.band_px)
     if params.transfer:
         v1, v2 = _transfer(calib, v1, v2, pairs, params)

@@ -40,6 +40,10 @@ class Params:
     bank_levels: int = 2            # ... scored on the working image and its first halving
     bank_stride: int = 2            # ... at grid points this many px apart
     bank_keep: float = 0.1          # ... the share of them with the most emboss energy
+    bank_right: bool = False        # ... in the right view too (2026-12-08: off, its forks found there along
+                                    # their epipolar lines, as any fork seen in one view: the six bench sets
+                                    # 745 right, 25 wrong against 746, 25; the outside testers and the drawn
+                                    # fish the same; ~8 ms less a pair of ~95. Without ``transfer``: on)
     row_regions: bool = False       # fork proposals at the ends of regions unlike the row-compensated water
                                     # (on until 2026-12-07, thirty-eighth session: off, the six bench sets found
                                     # 677 fish right against 669, 25 wrong against 23, the outside testers' 39 / 4

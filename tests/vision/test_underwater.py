@@ -234,8 +234,9 @@ def test_no_fish_rests_on_a_fork_the_locator_is_less_sure_of_than_net_min_conf()
     views; a lower bar reports fish below the higher one (so the bar is what drops them)."""
     from devices.sim.fish_scene import underwater_scene
     low = 0
-    # seed 1 has a fork 0.05-0.9 sure (the fork locator of 2026-12-07 is seldom unsure)
-    for seed in range(6):
+    # seed 8 has a fork 0.05-0.9 sure (the fork locator of 2026-12-07 is seldom unsure; seed 1's was a
+    # right fork only eq. 13's bank proposed, before the bank proposed in the left view only)
+    for seed in (0, 1, 2, 8):
         sc = underwater_scene(np.random.default_rng(seed))
         for bar in (0.05, 0.9):
             fish = measure_underwater(sc.left, sc.right, sc.rig.calibration(), SETUP,
@@ -274,3 +275,24 @@ def test_left_snouts_the_snout_locator_doubts_are_not_looked_for_on_the_right(mo
     wanted = kept & (conf >= bar)
     assert np.array_equal(np.all(np.isfinite(searched[0]), axis=2), wanted)
     assert kept.sum() > wanted.sum() or bar == 0.0      # at 0.9 some kept candidate was left out
+
+
+@pytest.mark.parametrize("changes, right_has_bank", [({}, False), ({"bank_right": True}, True),
+                                                      ({"transfer": False}, True)],
+                         ids=["default", "bank_right", "no_transfer"])
+def test_eq13s_bank_proposes_in_the_right_view_only_when_asked_or_nothing_is_transferred(changes, right_has_bank):
+    """``bank_right``: by default the bank's hypotheses are the left view's only (its forks reach the
+    right view along their epipolar lines); asked, or with the transfer off, both views have them.
+    Judged against the same pair measured with the bank off everywhere."""
+    sc = underwater_scene(np.random.default_rng(0))
+    proposed = []
+    for p in (replace(Params(), **changes), replace(Params(), bank_per_mpix=0.0, **changes)):
+        trace: dict = {}
+        measure_underwater(sc.left, sc.right, sc.rig.calibration(), SETUP, params=p, trace=trace)
+        proposed.append(trace["proposed"])
+    (left, right), (left_off, right_off) = proposed
+    assert len(left) > len(left_off)
+    if right_has_bank:
+        assert len(right) > len(right_off)
+    else:
+        assert np.array_equal(right, right_off)
