@@ -14,7 +14,10 @@ prints one JSON object. Figures:
 - ``video_60s``: a 60 s clip at 25 fps (two synchronised mp4 files) surveyed: wall (goal <= 60 s);
 - ``long_clip``: an RG video of --long-frames frames: RSS of the whole process tree (parent,
   forkserver, workers) at 10, 25, 50, 75 and 100 % of it, and the parent's peak RSS.
-Pairs are measured by vision.survey.measure_pair on the simulated camera's scenes; the
+Pairs are measured by vision.survey.measure_pair on the simulated camera's scenes (20, cycled: each
+copy marked in one pixel, since a still copied under another name is surveyed once; before
+2026-12-08 the 40- and 200-pair runs measured the 20 scenes alone, their start weighing double and
+the "steady" run's tenfold); the
 harness-only run and the long clip use bench/survey_standin.py (fixed fish, no detection) so
 they time and size the survey itself.
 """
@@ -194,6 +197,11 @@ def stills_and_video(args, pairs, calib, calib_path: str, measure: str, tmp: str
     paths = []
     for i in range(max(args.pairs, args.steady_pairs)):
         left, right = pairs[i % len(pairs)]
+        if i >= len(pairs):
+            # the survey measures a still copied under another name once (cd956db): each later copy
+            # of a scene differs in its first pixel, so every path is measured, not the scenes alone
+            left = left.copy()
+            left[0, 0] = (int(left[0, 0].flat[0]) + 1 + i // len(pairs)) % 256
         paths.append((f"{tmp}/{i:04d}_L.png", f"{tmp}/{i:04d}_R.png"))
         cv2.imwrite(paths[-1][0], left)
         cv2.imwrite(paths[-1][1], right)
