@@ -192,19 +192,25 @@ def main() -> None:
     print(json.dumps(figures))
 
 
-def stills_and_video(args, pairs, calib, calib_path: str, measure: str, tmp: str) -> dict:
-    """The stills (40 pairs and the steady run) beside the baseline, and the 60 s clip."""
+def write_stills(pairs, n: int, tmp: str) -> list[tuple[str, str]]:
+    """``n`` PNG pairs in ``tmp``, the scenes ``pairs`` cycled. The survey measures a still copied under
+    another name once (cd956db), so each later copy of a scene differs in its first pixel: every path
+    is measured, not the scenes alone (until 2026-12-08 the 40 and 200 pairs were 20)."""
     paths = []
-    for i in range(max(args.pairs, args.steady_pairs)):
+    for i in range(n):
         left, right = pairs[i % len(pairs)]
         if i >= len(pairs):
-            # the survey measures a still copied under another name once (cd956db): each later copy
-            # of a scene differs in its first pixel, so every path is measured, not the scenes alone
             left = left.copy()
-            left[0, 0] = (int(left[0, 0].flat[0]) + 1 + i // len(pairs)) % 256
+            left[0, 0] = (int(left[0, 0].flat[0]) + i // len(pairs)) % 256
         paths.append((f"{tmp}/{i:04d}_L.png", f"{tmp}/{i:04d}_R.png"))
         cv2.imwrite(paths[-1][0], left)
         cv2.imwrite(paths[-1][1], right)
+    return paths
+
+
+def stills_and_video(args, pairs, calib, calib_path: str, measure: str, tmp: str) -> dict:
+    """The stills (40 pairs and the steady run) beside the baseline, and the 60 s clip."""
+    paths = write_stills(pairs, max(args.pairs, args.steady_pairs), tmp)
     base = baseline_ms(paths[:10])
     runs = [stills(paths[:args.pairs], calib, measure, w, r, f"{tmp}/s.json")
             for w, r in ((1, "worker"), (2, "worker"), (2, "parent"))]
