@@ -14,10 +14,8 @@ prints one JSON object. Figures:
 - ``video_60s``: a 60 s clip at 25 fps (two synchronised mp4 files) surveyed: wall (goal <= 60 s);
 - ``long_clip``: an RG video of --long-frames frames: RSS of the whole process tree (parent,
   forkserver, workers) at 10, 25, 50, 75 and 100 % of it, and the parent's peak RSS.
-Pairs are measured by vision.survey.measure_pair on the simulated camera's scenes (20, cycled: each
-copy marked in one pixel, since a still copied under another name is surveyed once; before
-2026-12-08 the 40- and 200-pair runs measured the 20 scenes alone, their start weighing double and
-the "steady" run's tenfold); the
+Pairs are measured by vision.survey.measure_pair on the simulated camera's scenes (20, cycled:
+``write_stills`` marks each copy so that every pair is measured); the
 harness-only run and the long clip use bench/survey_standin.py (fixed fish, no detection) so
 they time and size the survey itself.
 """

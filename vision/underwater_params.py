@@ -43,7 +43,7 @@ class Params:
     bank_right: bool = False        # ... in the right view too (2026-12-08: off, its forks found there along
                                     # their epipolar lines, as any fork seen in one view: the six bench sets
                                     # 745 right, 25 wrong against 746, 25; the outside testers and the drawn
-                                    # fish the same; ~8 ms less a pair of ~95. Without ``transfer``: on)
+                                    # fish the same; 5-9 ms less a pair of ~95. Without ``transfer``: on)
     row_regions: bool = False       # fork proposals at the ends of regions unlike the row-compensated water
                                     # (on until 2026-12-07, thirty-eighth session: off, the six bench sets found
                                     # 677 fish right against 669, 25 wrong against 23, the outside testers' 39 / 4
